@@ -1,0 +1,58 @@
+// Images as the rest of flamerig sees them: a width x height raster of interleaved channels.
+//
+// Pixel (x, y) is column x, row y; the centre of the top-left pixel is (0, 0), as in OpenCV and
+// mrcal. Channels are interleaved (RGBRGB...) in row-major order: element (x, y, c) is at
+// ((y * width) + x) * channels + c. Colour images are RGB, never BGR; conversion to OpenCV's BGR
+// happens only inside the file I/O functions below.
+//
+// Thread safety: an Image is a value; concurrent reads are safe, writes need external locking.
+#ifndef FLAMERIG_ACQUISITION_IMAGE_H_
+#define FLAMERIG_ACQUISITION_IMAGE_H_
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace flamerig {
+
+template <typename T>
+struct Image {
+  int width = 0;
+  int height = 0;
+  int channels = 0;
+  std::vector<T> pixels;  // width * height * channels values, interleaved, row-major
+
+  Image() = default;
+  Image(int width_px, int height_px, int num_channels, T fill = T{})
+      : width(width_px),
+        height(height_px),
+        channels(num_channels),
+        pixels(static_cast<std::size_t>(width_px) * height_px * num_channels, fill) {}
+
+  bool empty() const { return pixels.empty(); }
+  std::size_t num_pixels() const { return static_cast<std::size_t>(width) * height; }
+  T& at(int x, int y, int c = 0) {
+    return pixels[(static_cast<std::size_t>(y) * width + x) * channels + c];
+  }
+  const T& at(int x, int y, int c = 0) const {
+    return pixels[(static_cast<std::size_t>(y) * width + x) * channels + c];
+  }
+};
+
+using ImageU8 = Image<std::uint8_t>;
+using ImageU16 = Image<std::uint16_t>;
+using ImageF = Image<float>;
+
+// Writes an 8-bit image (1 or 3 channels, RGB order) as PNG. Throws std::runtime_error naming the
+// path when the file cannot be written.
+void WritePng(const std::string& path, const ImageU8& image);
+
+// Reads an 8-bit PNG (or any format OpenCV decodes) as 1 or 3 channels (RGB order); `channels` 0
+// keeps the file's channel count (alpha dropped). Throws std::runtime_error naming the path when
+// the file is missing, cannot be decoded, or is not 8-bit.
+ImageU8 ReadImageU8(const std::string& path, int channels = 0);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_ACQUISITION_IMAGE_H_

@@ -1,0 +1,74 @@
+#include "fitting/absorption.h"
+
+#include <cmath>
+#include <stdexcept>
+
+#include "fitting/physics.h"
+
+namespace flamerig {
+
+AbsorptionModel AbsorptionModel::Grey(double cross_section_m2) {
+  if (!(cross_section_m2 > 0) || !std::isfinite(cross_section_m2)) {
+    throw std::invalid_argument("grey absorption: cross_section_m2 = " +
+                                std::to_string(cross_section_m2) + " must be finite and > 0");
+  }
+  AbsorptionModel m;
+  m.kind_ = Kind::kGrey;
+  m.grey_cross_section_m2_ = cross_section_m2;
+  return m;
+}
+
+AbsorptionModel AbsorptionModel::Soot(const SootParameters& p) {
+  auto check = [](double v, double lo, double hi, const char* name) {
+    if (!(v > lo) || !(v <= hi) || !std::isfinite(v)) {
+      throw std::invalid_argument(std::string("soot absorption: ") + name + " = " +
+                                  std::to_string(v) + " must be in (" + std::to_string(lo) + ", " +
+                                  std::to_string(hi) + "]");
+    }
+  };
+  check(p.particle_radius_m, 0, 1e-6, "particle_radius_m");
+  check(p.refractive_index_n, 0, 10, "refractive_index_n");
+  check(p.absorption_index_k, 0, 10, "absorption_index_k");
+  check(p.alpha, 0, 5, "alpha");
+  check(p.reference_wavelength_nm, 100, 2000, "reference_wavelength_nm");
+  AbsorptionModel m;
+  m.kind_ = Kind::kSoot;
+  m.soot_ = p;
+  return m;
+}
+
+AbsorptionModel AbsorptionModel::DefaultGrey() { return Grey(DefaultSoot().CrossSectionM2(550.0)); }
+
+AbsorptionModel AbsorptionModel::FromName(const std::string& name) {
+  if (name == "grey" || name == "gray") return DefaultGrey();
+  if (name == "soot") return DefaultSoot();
+  throw std::invalid_argument("absorption model '" + name + "' is unknown; use 'grey' or 'soot'");
+}
+
+double AbsorptionModel::CrossSectionM2(double wavelength_nm) const {
+  if (is_grey()) return grey_cross_section_m2_;
+  const double n = soot_.refractive_index_n, k = soot_.absorption_index_k;
+  const double r = soot_.particle_radius_m;
+  const double a = n * n - k * k + 2;
+  const double denominator = a * a + 4 * n * n * k * k;
+  const double lambda_m = wavelength_nm * 1e-9;
+  const double lambda_alpha =
+      lambda_m * std::pow(wavelength_nm / soot_.reference_wavelength_nm, soot_.alpha - 1);
+  return 48.0 * physics::kPi * physics::kPi * r * r * r * n * k / (lambda_alpha * denominator);
+}
+
+double AbsorptionModel::ParticleVolumeM3() const {
+  double r = is_grey() ? SootParameters{}.particle_radius_m : soot_.particle_radius_m;
+  return 4.0 / 3.0 * physics::kPi * r * r * r;
+}
+
+DensityBounds DensityBounds::Plausible(const AbsorptionModel& model) {
+  return DensityBounds{model.DensityFromVolumeFraction(1e-9), model.DensityFromVolumeFraction(1e-4),
+                       "plausible soot volume fraction 1e-9..1e-4"};
+}
+
+DensityBounds DensityBounds::Paper() {
+  return DensityBounds{0.01e27, 500e27, "paper 0.01e27..500e27"};
+}
+
+}  // namespace flamerig

@@ -1,0 +1,369 @@
+#include "fitting/renderer.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+#include "fitting/colour.h"
+
+namespace flamerig {
+
+const char* ToString(SpectralPath path) {
+  switch (path) {
+    case SpectralPath::kAuto:
+      return "auto";
+    case SpectralPath::kFast:
+      return "fast";
+    case SpectralPath::kSpectral:
+      return "spectral";
+  }
+  return "?";
+}
+
+void RenderOptions::Validate() const {
+  auto fail = [](const std::string& field, double value, const std::string& rule) {
+    std::ostringstream s;
+    s << "RenderOptions." << field << " = " << value << ": " << rule;
+    throw std::invalid_argument(s.str());
+  };
+  if (!(step_voxels > 0) || !(step_voxels <= 4))
+    fail("step_voxels", step_voxels, "must be in (0, 4]");
+  if (!(min_transmittance >= 0) || !(min_transmittance < 1)) {
+    fail("min_transmittance", min_transmittance, "must be in [0, 1)");
+  }
+  if (brick_size_voxels < 2 || brick_size_voxels > 64) {
+    fail("brick_size_voxels", brick_size_voxels, "must be in [2, 64]");
+  }
+  SpectralBins(spectral_first_nm, spectral_last_nm, spectral_step_nm);  // throws on bad bins
+}
+
+std::string RenderSummary::BriefReport() const {
+  std::ostringstream s;
+  s.precision(3);
+  s << ToString(path_used) << " path (" << path_reason << "), " << rays << " rays, " << rays_hit_box
+    << " hit the box, " << steps_evaluated << " samples, " << steps_skipped_empty
+    << " steps skipped in empty bricks (" << occupied_brick_fraction * 100
+    << "% of bricks occupied), " << rays_terminated_early << " rays terminated early, " << time_ms
+    << " ms";
+  return s.str();
+}
+
+CameraRays::CameraRays(const CameraModel& camera)
+    : width_(camera.width()), height_(camera.height()), rays_(camera.UnprojectAllPixels()) {}
+
+FireRenderer::FireRenderer(const AbsorptionModel& absorption, const RenderOptions& options)
+    : absorption_(absorption), options_(options) {
+  options_.Validate();
+  if (options_.path == SpectralPath::kFast && !absorption_.is_grey()) {
+    throw std::invalid_argument("RenderOptions.path = fast needs grey absorption; the model is " +
+                                absorption_.name());
+  }
+  if (options_.path == SpectralPath::kSpectral) {
+    path_ = SpectralPath::kSpectral;
+    path_reason_ = "requested";
+  } else if (absorption_.is_grey()) {
+    path_ = SpectralPath::kFast;
+    path_reason_ = options_.path == SpectralPath::kFast ? "requested" : "grey absorption";
+  } else {
+    path_ = SpectralPath::kSpectral;
+    path_reason_ = "wavelength-dependent absorption (" + absorption_.name() + ")";
+  }
+  if (path_ == SpectralPath::kSpectral) {
+    bins_ = std::make_unique<SpectralBins>(options_.spectral_first_nm, options_.spectral_last_nm,
+                                           options_.spectral_step_nm);
+    for (double nm : bins_->centers_nm())
+      bin_cross_section_m2_.push_back(absorption_.CrossSectionM2(nm));
+  } else {
+    BlackbodyXyzTable::Get();  // build the table now rather than inside the first render
+  }
+}
+
+void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<float>& temperature_k,
+                             const std::vector<float>& density_per_m3) {
+  FireVolume check;
+  check.geometry = geometry;
+  check.temperature_k = temperature_k;
+  check.density_per_m3 = density_per_m3;
+  if (temperature_k.size() != geometry.num_voxels() ||
+      density_per_m3.size() != geometry.num_voxels()) {
+    throw std::invalid_argument("SetVolume: temperature and density need " +
+                                std::to_string(geometry.num_voxels()) + " values each, got " +
+                                std::to_string(temperature_k.size()) + " and " +
+                                std::to_string(density_per_m3.size()));
+  }
+  check.Validate();
+  geometry_ = geometry;
+  temperature_k_ = temperature_k;
+  density_per_m3_ = density_per_m3;
+
+  // Bricks: occupied when any voxel within one voxel of the brick has density > 0, so that a
+  // trilinear sample anywhere inside an unoccupied brick is exactly zero.
+  const int b = options_.brick_size_voxels;
+  const Eigen::Vector3i& d = geometry_.dims;
+  brick_dims_ = Eigen::Vector3i((d.x() + b - 1) / b, (d.y() + b - 1) / b, (d.z() + b - 1) / b);
+  brick_occupied_.assign(static_cast<std::size_t>(brick_dims_.prod()), 0);
+  for (int k = 0; k < d.z(); ++k)
+    for (int j = 0; j < d.y(); ++j)
+      for (int i = 0; i < d.x(); ++i) {
+        if (!(density_per_m3_[geometry_.Flat(i, j, k)] > 0)) continue;
+        for (int dk = -1; dk <= 1; ++dk)
+          for (int dj = -1; dj <= 1; ++dj)
+            for (int di = -1; di <= 1; ++di) {
+              int ii = std::clamp(i + di, 0, d.x() - 1), jj = std::clamp(j + dj, 0, d.y() - 1),
+                  kk = std::clamp(k + dk, 0, d.z() - 1);
+              brick_occupied_[(ii / b) +
+                              brick_dims_.x() * ((jj / b) + brick_dims_.y() * (kk / b))] = 1;
+            }
+      }
+  std::size_t occupied = std::count(brick_occupied_.begin(), brick_occupied_.end(), 1);
+  occupied_brick_fraction_ =
+      brick_occupied_.empty() ? 0.0 : double(occupied) / brick_occupied_.size();
+  has_volume_ = true;
+}
+
+namespace {
+
+// Entry and exit distances of a ray with the axis-aligned box [lo, hi]; false when it misses.
+bool IntersectBox(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                  const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double* t_enter,
+                  double* t_exit) {
+  double t0 = 0.0, t1 = std::numeric_limits<double>::infinity();
+  for (int a = 0; a < 3; ++a) {
+    if (std::abs(direction[a]) < 1e-300) {
+      if (origin[a] < lo[a] || origin[a] > hi[a]) return false;
+      continue;
+    }
+    double inv = 1.0 / direction[a];
+    double ta = (lo[a] - origin[a]) * inv, tb = (hi[a] - origin[a]) * inv;
+    if (ta > tb) std::swap(ta, tb);
+    t0 = std::max(t0, ta);
+    t1 = std::min(t1, tb);
+  }
+  if (!(t1 > t0)) return false;
+  *t_enter = t0;
+  *t_exit = t1;
+  return true;
+}
+
+// Trilinear sampling of a scalar field at index coordinates, clamped to the grid.
+template <typename Real>
+struct Trilinear {
+  int i0, j0, k0, i1, j1, k1;
+  Real fx, fy, fz;
+
+  Trilinear(const Eigen::Vector3i& dims, Real x, Real y, Real z) {
+    Setup(dims.x(), x, &i0, &i1, &fx);
+    Setup(dims.y(), y, &j0, &j1, &fy);
+    Setup(dims.z(), z, &k0, &k1, &fz);
+  }
+  static void Setup(int n, Real c, int* a, int* b, Real* f) {
+    c = std::clamp(c, Real(0), Real(n - 1));
+    int lo = std::min(static_cast<int>(c), std::max(n - 2, 0));
+    *a = lo;
+    *b = std::min(lo + 1, n - 1);
+    *f = c - Real(lo);
+  }
+  Real Sample(const float* field, std::size_t nx, std::size_t nxy) const {
+    auto at = [&](int i, int j, int k) { return Real(field[i + nx * j + nxy * k]); };
+    Real c00 = at(i0, j0, k0) + fx * (at(i1, j0, k0) - at(i0, j0, k0));
+    Real c10 = at(i0, j1, k0) + fx * (at(i1, j1, k0) - at(i0, j1, k0));
+    Real c01 = at(i0, j0, k1) + fx * (at(i1, j0, k1) - at(i0, j0, k1));
+    Real c11 = at(i0, j1, k1) + fx * (at(i1, j1, k1) - at(i0, j1, k1));
+    Real c0 = c00 + fy * (c10 - c00);
+    Real c1 = c01 + fy * (c11 - c01);
+    return c0 + fz * (c1 - c0);
+  }
+};
+
+struct RowCounters {
+  std::int64_t hit = 0, early = 0, evaluated = 0, skipped = 0, after = 0;
+};
+
+}  // namespace
+
+template <typename Real>
+RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* linear_rgb) const {
+  const auto start = std::chrono::steady_clock::now();
+  const int width = camera_rays.width(), height = camera_rays.height();
+  *linear_rgb = ImageF(width, height, 3, 0.0f);
+
+  const GridGeometry& g = geometry_;
+  const Box3 box = g.box();
+  const double step_m = options_.step_voxels * g.voxel_size_m.minCoeff();
+  const std::size_t nx = g.dims.x(), nxy = nx * g.dims.y();
+  const float* density = density_per_m3_.data();
+  const float* temperature = temperature_k_.data();
+  const int brick = options_.brick_size_voxels;
+  const bool skip = options_.skip_empty_space;
+  const Real min_tr = Real(options_.min_transmittance);
+  const bool spectral = path_ == SpectralPath::kSpectral;
+  const int nbins = spectral ? bins_->count() : 3;
+  const Real grey_sigma = spectral ? Real(0) : Real(absorption_.CrossSectionM2(550.0));
+  const BlackbodyXyzTable& xyz_table = BlackbodyXyzTable::Get();
+  const Eigen::Matrix3d& to_rgb = colour::LinearSrgbFromXyz();
+
+  std::atomic<std::int64_t> hit{0}, early{0}, evaluated{0}, skipped{0}, after{0};
+
+  tbb::parallel_for(tbb::blocked_range<int>(0, height), [&](const tbb::blocked_range<int>& rows) {
+    RowCounters c;
+    Real radiance[SpectralBins::kMaxBins];
+    Real transmittance[SpectralBins::kMaxBins];
+    Real sigma[SpectralBins::kMaxBins];
+    if (spectral) {
+      for (int b = 0; b < nbins; ++b) sigma[b] = Real(bin_cross_section_m2_[b]);
+    }
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      for (int x = 0; x < width; ++x) {
+        const Ray& ray = camera_rays.rays()[static_cast<std::size_t>(y) * width + x];
+        if (!ray.valid) continue;
+        double t_enter, t_exit;
+        if (!IntersectBox(ray.origin_in_rig, ray.direction_in_rig, box.min_in_rig, box.max_in_rig,
+                          &t_enter, &t_exit)) {
+          continue;
+        }
+        ++c.hit;
+        // Index-space ray: p(t) = o + t * d, t in metres along the world ray.
+        const Eigen::Vector3d o = g.IndexFromRig(ray.origin_in_rig);
+        const Eigen::Vector3d d = ray.direction_in_rig.cwiseQuotient(g.voxel_size_m);
+        const double length = t_exit - t_enter;
+        const std::int64_t n_steps =
+            std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(length / step_m - 1e-9)));
+
+        for (int b = 0; b < nbins; ++b) {
+          radiance[b] = Real(0);
+          transmittance[b] = Real(1);
+        }
+        std::int64_t k = 0;
+        while (k < n_steps) {
+          const double ta = t_enter + k * step_m;
+          const double tb = std::min(ta + step_m, t_exit);
+          const double tm = 0.5 * (ta + tb);
+          const Eigen::Vector3d p = o + tm * d;
+          if (skip) {
+            const int bi = std::clamp(static_cast<int>(std::floor((p.x() + 0.5) / brick)), 0,
+                                      brick_dims_.x() - 1);
+            const int bj = std::clamp(static_cast<int>(std::floor((p.y() + 0.5) / brick)), 0,
+                                      brick_dims_.y() - 1);
+            const int bk = std::clamp(static_cast<int>(std::floor((p.z() + 0.5) / brick)), 0,
+                                      brick_dims_.z() - 1);
+            if (!brick_occupied_[bi + brick_dims_.x() *
+                                          (bj + static_cast<std::size_t>(brick_dims_.y()) * bk)]) {
+              // Jump to the first step whose midpoint lies beyond this brick.
+              double t_leave = std::numeric_limits<double>::infinity();
+              const int bidx[3] = {bi, bj, bk};
+              for (int a = 0; a < 3; ++a) {
+                if (d[a] > 0)
+                  t_leave = std::min(t_leave, ((bidx[a] + 1) * brick - 0.5 - o[a]) / d[a]);
+                else if (d[a] < 0)
+                  t_leave = std::min(t_leave, (bidx[a] * brick - 0.5 - o[a]) / d[a]);
+              }
+              std::int64_t next = k + 1;
+              if (std::isfinite(t_leave)) {
+                double kk = std::ceil((t_leave - t_enter) / step_m - 0.5);
+                if (kk > double(next))
+                  next = kk >= double(n_steps) ? n_steps : static_cast<std::int64_t>(kk);
+              }
+              c.skipped += next - k;
+              k = next;
+              continue;
+            }
+          }
+          const Trilinear<Real> s(g.dims, Real(p.x()), Real(p.y()), Real(p.z()));
+          const Real n = s.Sample(density, nx, nxy);
+          ++c.evaluated;
+          if (n > Real(0)) {
+            const Real t = s.Sample(temperature, nx, nxy);
+            const Real ds = Real(tb - ta);
+            if (!spectral) {
+              const Real tau = grey_sigma * n * ds;
+              const Real absorbed = -std::expm1(-tau);  // 1 - exp(-tau), accurate for small tau
+              Real xyz[3];
+              xyz_table.Lookup(t, xyz);
+              const Real w = transmittance[0] * absorbed;
+              for (int ch = 0; ch < 3; ++ch) radiance[ch] += w * xyz[ch];
+              transmittance[0] *= std::exp(-tau);
+              if (transmittance[0] < min_tr) {
+                ++c.early;
+                c.after += n_steps - k - 1;
+                break;
+              }
+            } else {
+              Real max_tr = Real(0);
+              for (int b = 0; b < nbins; ++b) {
+                const Real tau = sigma[b] * n * ds;
+                const Real absorbed = -std::expm1(-tau);
+                radiance[b] += transmittance[b] * absorbed * bins_->Planck(b, t);
+                transmittance[b] *= std::exp(-tau);
+                max_tr = std::max(max_tr, transmittance[b]);
+              }
+              if (max_tr < min_tr) {
+                ++c.early;
+                c.after += n_steps - k - 1;
+                break;
+              }
+            }
+          }
+          ++k;
+        }
+        Eigen::Vector3d xyz;
+        if (!spectral) {
+          xyz = Eigen::Vector3d(radiance[0], radiance[1], radiance[2]);
+        } else {
+          xyz.setZero();
+          for (int b = 0; b < nbins; ++b) xyz += double(radiance[b]) * bins_->weight(b);
+        }
+        const Eigen::Vector3d rgb = to_rgb * xyz;
+        for (int ch = 0; ch < 3; ++ch) linear_rgb->at(x, y, ch) = static_cast<float>(rgb[ch]);
+      }
+    }
+    hit += c.hit;
+    early += c.early;
+    evaluated += c.evaluated;
+    skipped += c.skipped;
+    after += c.after;
+  });
+
+  RenderSummary summary;
+  summary.path_used = path_;
+  summary.path_reason = path_reason_;
+  summary.spectral_bins = nbins;
+  summary.rays = static_cast<std::int64_t>(width) * height;
+  summary.rays_hit_box = hit;
+  summary.rays_terminated_early = early;
+  summary.steps_evaluated = evaluated;
+  summary.steps_skipped_empty = skipped;
+  summary.steps_after_termination = after;
+  summary.occupied_brick_fraction = occupied_brick_fraction_;
+  summary.time_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  return summary;
+}
+
+RenderSummary FireRenderer::Render(const CameraRays& rays, ImageF* linear_rgb) const {
+  if (!has_volume_) throw std::logic_error("FireRenderer::Render called before SetVolume");
+  if (options_.double_precision) return RenderImpl<double>(rays, linear_rgb);
+  return RenderImpl<float>(rays, linear_rgb);
+}
+
+ImageU8 ApplyCameraResponse(const ImageF& linear_rgb, double exposure) {
+  if (!(exposure > 0) || !std::isfinite(exposure)) {
+    throw std::invalid_argument("exposure = " + std::to_string(exposure) +
+                                " must be finite and > 0");
+  }
+  if (linear_rgb.channels != 3)
+    throw std::invalid_argument("ApplyCameraResponse needs a 3-channel image");
+  ImageU8 out(linear_rgb.width, linear_rgb.height, 3);
+  for (std::size_t i = 0; i < linear_rgb.pixels.size(); ++i) {
+    out.pixels[i] = colour::QuantizeU8(colour::SrgbEncode(exposure * double(linear_rgb.pixels[i])));
+  }
+  return out;
+}
+
+}  // namespace flamerig

@@ -1,0 +1,150 @@
+// The forward model: an emission-absorption ray marcher that renders what a calibrated camera sees
+// of a temperature and soot-density volume.
+//
+// Physics (DESIGN section 5): along each camera ray,
+//     L(lambda) = integral kappa(x, lambda) B(lambda, T(x)) exp(-tau(x, lambda)) ds,
+// with kappa = density * cross_section(lambda) (absorption.h), B Planck's law, tau the optical
+// depth from the camera to x, and no scattering. Emission is absorption times Planck (Kirchhoff):
+// kappa appears once.
+//
+// Discretisation: temperature and density are sampled trilinearly (voxel centres at integer index
+// coordinates, values clamped at the grid's border) at the midpoint of each step of length
+// step_voxels * (smallest voxel edge) along the ray, the last step shortened to end exactly at the
+// box. Within a step the medium is taken as constant, and the step's contribution is integrated
+// exactly: L += Tr * (1 - exp(-kappa ds)) * B, Tr *= exp(-kappa ds). A homogeneous medium is
+// therefore rendered exactly at any step size; smooth media converge as the step shrinks.
+//
+// Paths, chosen automatically (RenderOptions::path = kAuto) and reported in the summary:
+//  - fast (grey absorption): the spectrum collapses into a per-kelvin XYZ table; each ray carries
+//    3 channels and one transmittance.
+//  - spectral (wavelength-dependent absorption, e.g. soot): each ray carries one radiance and one
+//    transmittance per wavelength bin; XYZ from the bins' colour matching weights.
+// Skipped work, also reported: empty space (bricks of brick_size^3 voxels whose density, dilated by
+// one voxel for the trilinear stencil, is zero; skipping is exact) and rays whose transmittance
+// fell below min_transmittance (early termination; the error is at most that fraction of what lies
+// behind).
+//
+// Output: a 3-channel float image of linear sRGB radiance (W m^-2 sr^-1 nm^-1,
+// luminance-normalised, see colour.h) before exposure. ApplyCameraResponse() turns it into what an
+// 8-bit camera records.
+//
+// Thread safety: Render() is const and may be called concurrently on one FireRenderer; it runs its
+// own TBB parallel loop over image rows. SetVolume() must not run concurrently with Render().
+#ifndef FLAMERIG_FITTING_RENDERER_H_
+#define FLAMERIG_FITTING_RENDERER_H_
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "acquisition/image.h"
+#include "calibration/camera_model.h"
+#include "fitting/absorption.h"
+#include "fitting/spectral_tables.h"
+#include "tomography/volume.h"
+
+namespace flamerig {
+
+enum class SpectralPath { kAuto, kFast, kSpectral };
+const char* ToString(SpectralPath path);
+
+struct RenderOptions {
+  // March step in units of the smallest voxel edge; (0, 4].
+  double step_voxels = 0.5;
+  // A ray stops once its transmittance (every bin's, on the spectral path) is below this; [0, 1).
+  double min_transmittance = 1e-4;
+  // Skip bricks with no density (exact).
+  bool skip_empty_space = true;
+  // Edge of the empty-space bricks, voxels; [2, 64].
+  int brick_size_voxels = 8;
+  // kAuto: fast for grey absorption, spectral otherwise. kFast with non-grey absorption is an
+  // error.
+  SpectralPath path = SpectralPath::kAuto;
+  // Wavelength bins of the spectral path: centres first..last nm in steps of step nm.
+  double spectral_first_nm = 380.0;
+  double spectral_last_nm = 780.0;
+  double spectral_step_nm = 10.0;
+  // March in double instead of float precision (slower; for reference renders and tests).
+  bool double_precision = false;
+
+  // Throws std::invalid_argument naming the field, its value and the rule.
+  void Validate() const;
+};
+
+struct RenderSummary {
+  SpectralPath path_used = SpectralPath::kFast;
+  std::string path_reason;  // why that path
+  int spectral_bins = 3;    // channels carried per ray
+  std::int64_t rays = 0;    // pixels rendered
+  std::int64_t rays_hit_box = 0;
+  std::int64_t rays_terminated_early = 0;    // stopped by min_transmittance
+  std::int64_t steps_evaluated = 0;          // samples of the medium taken
+  std::int64_t steps_skipped_empty = 0;      // steps jumped over in empty bricks
+  std::int64_t steps_after_termination = 0;  // steps not taken after early termination
+  double occupied_brick_fraction = 1.0;
+  double time_ms = 0.0;
+
+  std::string BriefReport() const;
+};
+
+// The rays of every pixel of a camera, unprojected once through its lens model and reused for every
+// render of that camera (unprojecting a distorted model costs about 1 us per pixel).
+class CameraRays {
+ public:
+  explicit CameraRays(const CameraModel& camera);
+  int width() const { return width_; }
+  int height() const { return height_; }
+  const std::vector<Ray>& rays() const { return rays_; }
+
+ private:
+  int width_, height_;
+  std::vector<Ray> rays_;
+};
+
+class FireRenderer {
+ public:
+  // Throws std::invalid_argument for invalid options, or kFast requested with non-grey absorption.
+  FireRenderer(const AbsorptionModel& absorption, const RenderOptions& options = RenderOptions());
+
+  // Copies the volume in (float). Validates: sizes match the geometry, every value finite and >= 0
+  // (std::invalid_argument naming the field and voxel). Builds the empty-space bricks.
+  void SetVolume(const GridGeometry& geometry, const std::vector<float>& temperature_k,
+                 const std::vector<float>& density_per_m3);
+
+  // Renders the linear sRGB radiance seen through `rays` into `linear_rgb` (resized to the camera,
+  // 3 channels). Requires SetVolume() first.
+  RenderSummary Render(const CameraRays& rays, ImageF* linear_rgb) const;
+
+  const AbsorptionModel& absorption() const { return absorption_; }
+  const RenderOptions& options() const { return options_; }
+  SpectralPath path() const { return path_; }
+
+ private:
+  template <typename Real>
+  RenderSummary RenderImpl(const CameraRays& rays, ImageF* linear_rgb) const;
+
+  AbsorptionModel absorption_;
+  RenderOptions options_;
+  SpectralPath path_;
+  std::string path_reason_;
+  std::unique_ptr<SpectralBins> bins_;
+  std::vector<double> bin_cross_section_m2_;
+
+  GridGeometry geometry_;
+  std::vector<float> temperature_k_;
+  std::vector<float> density_per_m3_;
+  Eigen::Vector3i brick_dims_ = Eigen::Vector3i::Zero();
+  std::vector<std::uint8_t> brick_occupied_;
+  double occupied_brick_fraction_ = 0;
+  bool has_volume_ = false;
+};
+
+// What an 8-bit camera records: clamp(exposure * linear_rgb, 0, 1), sRGB-encoded, rounded to 8
+// bits. Throws std::invalid_argument unless exposure is finite and > 0 and the image has 3
+// channels.
+ImageU8 ApplyCameraResponse(const ImageF& linear_rgb, double exposure);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_FITTING_RENDERER_H_

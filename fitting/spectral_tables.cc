@@ -1,0 +1,68 @@
+#include "fitting/spectral_tables.h"
+
+#include <stdexcept>
+#include <string>
+
+#include "fitting/colour.h"
+#include "fitting/physics.h"
+
+namespace flamerig {
+
+BlackbodyXyzTable::BlackbodyXyzTable() : xyz_(3 * (kMaxTableK + 2), 0.0) {
+  for (int t = 1; t <= kMaxTableK + 1; ++t) {
+    Eigen::Vector3d v = colour::BlackbodyXyz(t);
+    for (int c = 0; c < 3; ++c) xyz_[3 * t + c] = v[c];
+  }
+}
+
+const BlackbodyXyzTable& BlackbodyXyzTable::Get() {
+  static const BlackbodyXyzTable table;
+  return table;
+}
+
+template <typename Real>
+void BlackbodyXyzTable::LookupExact(double temperature_k, Real* xyz) const {
+  Eigen::Vector3d v = colour::BlackbodyXyz(temperature_k);
+  for (int c = 0; c < 3; ++c) xyz[c] = Real(v[c]);
+}
+template void BlackbodyXyzTable::LookupExact<float>(double, float*) const;
+template void BlackbodyXyzTable::LookupExact<double>(double, double*) const;
+
+SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm) : step_nm_(step_nm) {
+  if (!(first_nm >= 360) || !(last_nm <= 830) || !(first_nm < last_nm) || !(step_nm > 0)) {
+    throw std::invalid_argument(
+        "spectral bins: need 360 <= first_nm < last_nm <= 830 and step_nm > 0, got " +
+        std::to_string(first_nm) + ".." + std::to_string(last_nm) + " step " +
+        std::to_string(step_nm));
+  }
+  int n = static_cast<int>(std::floor((last_nm - first_nm) / step_nm + 1e-9)) + 1;
+  if (n > kMaxBins) {
+    throw std::invalid_argument("spectral bins: " + std::to_string(n) +
+                                " bins exceed the maximum of " + std::to_string(kMaxBins));
+  }
+  const auto& cie = colour::CieObserver::Cie1931TwoDegree();
+  for (int i = 0; i < n; ++i) {
+    double center = first_nm + i * step_nm;
+    centers_nm_.push_back(center);
+    // Average the CMF over [center - step/2, center + step/2] with 0.1 nm sub-samples.
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    const int sub = std::max(1, static_cast<int>(std::round(step_nm * 10)));
+    for (int s = 0; s < sub; ++s) {
+      sum += cie.Interpolate(center - 0.5 * step_nm + (s + 0.5) * step_nm / sub);
+    }
+    weights_.push_back(sum / sub * step_nm / cie.YIntegral());
+  }
+  planck_.assign(static_cast<std::size_t>(kMaxTableK + 2) * n, 0.0f);
+  for (int t = 1; t <= kMaxTableK + 1; ++t) {
+    for (int i = 0; i < n; ++i) {
+      planck_[static_cast<std::size_t>(t) * n + i] =
+          static_cast<float>(physics::PlanckRadiancePerNm(centers_nm_[i], t));
+    }
+  }
+}
+
+double SpectralBins::PlanckExact(int bin, double temperature_k) const {
+  return physics::PlanckRadiancePerNm(centers_nm_[bin], temperature_k);
+}
+
+}  // namespace flamerig

@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# Installs every Debian 12 package flamerig needs to build, test and run. Idempotent: packages already
+# present are skipped, so a machine that has everything touches no network.
+set -euo pipefail
+
+PACKAGES=(
+  build-essential cmake ninja-build pkg-config git python3
+  libgtest-dev libgmock-dev
+  libeigen3-dev libtbb-dev libyaml-cpp-dev
+  libopencv-dev libopencv-contrib-dev
+  libmrcal-dev mrcal python3-mrcal python3-numpy
+  libopenvdb-dev libopenvdb-tools libblosc-dev libboost-iostreams-dev libimath-dev libopenexr-dev
+  libceres-dev
+  libaravis-dev aravis-tools-cli libusb-1.0-0-dev
+  colord-data
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "install-deps: all ${#PACKAGES[@]} packages present"
+  exit 0
+fi
+
+echo "install-deps: installing ${#missing[@]} packages: ${missing[*]}"
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"

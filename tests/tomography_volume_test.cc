@@ -1,0 +1,193 @@
+// Voxel grids and their .vdb files, checked with OpenVDB itself and its vdb_print tool.
+#include <gtest/gtest.h>
+#include <openvdb/openvdb.h>
+
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <random>
+
+#include "tomography/vdb_io.h"
+#include "tomography/volume.h"
+
+namespace flamerig {
+namespace {
+
+namespace fs = std::filesystem;
+
+fs::path TempDir() {
+  fs::path dir =
+      fs::temp_directory_path() / ("flamerig_volume_test_" + std::to_string(::getpid()) + "_" +
+                                   ::testing::UnitTest::GetInstance()->current_test_info()->name());
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+FireVolume RandomVolume() {
+  FireVolume v;
+  v.geometry = GridGeometry::FromBox(
+      Box3{Eigen::Vector3d(-0.03, 0.01, -0.02), Eigen::Vector3d(0.03, 0.11, 0.02)}, 20);
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> u(0, 1);
+  const std::size_t n = v.geometry.num_voxels();
+  v.temperature_k.resize(n);
+  v.density_per_m3.resize(n);
+  v.emission_rgb.resize(3 * n);
+  for (std::size_t i = 0; i < n; ++i) {
+    bool fire = u(rng) < 0.3;
+    v.temperature_k[i] = fire ? 300 + 2000 * u(rng) : 0.0f;
+    v.density_per_m3[i] = fire ? 1e14f * u(rng) : 0.0f;
+    for (int c = 0; c < 3; ++c) v.emission_rgb[3 * i + c] = fire ? u(rng) - 0.1f : 0.0f;
+  }
+  v.metadata_numbers["exposure"] = 12.5;
+  v.metadata_numbers["density_scale"] = 3e17;
+  v.metadata_text["absorption_model"] = "soot";
+  return v;
+}
+
+TEST(GridGeometry, FromBoxMakesCubicVoxelsCentredOnTheBox) {
+  Box3 box{Eigen::Vector3d(-0.02, 0, -0.02), Eigen::Vector3d(0.02, 0.08, 0.02)};
+  GridGeometry g = GridGeometry::FromBox(box, 64);
+  EXPECT_EQ(g.dims, Eigen::Vector3i(32, 64, 32));
+  EXPECT_NEAR(g.voxel_size_m.x(), 0.08 / 64, 1e-15);
+  EXPECT_TRUE(g.box().min_in_rig.isApprox(box.min_in_rig, 1e-12));
+  EXPECT_TRUE(g.box().max_in_rig.isApprox(box.max_in_rig, 1e-12));
+  EXPECT_TRUE(g.IndexFromRig(g.VoxelCenter(3, 4, 5)).isApprox(Eigen::Vector3d(3, 4, 5), 1e-12));
+  EXPECT_EQ(g.Flat(1, 0, 0), 1u);
+  EXPECT_EQ(g.Flat(0, 1, 0), 32u);
+  EXPECT_EQ(g.Flat(0, 0, 1), 32u * 64u);
+  EXPECT_THROW(GridGeometry::FromBox(box, 0), std::invalid_argument);
+  EXPECT_THROW(GridGeometry::FromBox(Box3{box.max_in_rig, box.min_in_rig}, 8),
+               std::invalid_argument);
+  EXPECT_EQ(GridGeometry::FromBox(box, 1).num_voxels(), 1u);
+}
+
+TEST(Vdb, RoundTripIsExact) {
+  fs::path dir = TempDir();
+  FireVolume v = RandomVolume();
+  const std::string path = (dir / "fire.vdb").string();
+  WriteVdb(path, v);
+  EXPECT_FALSE(fs::exists(path + ".tmp"));
+  FireVolume back = ReadVdb(path);
+  EXPECT_EQ(back.geometry.dims, v.geometry.dims);
+  EXPECT_TRUE(back.geometry.origin_in_rig.isApprox(v.geometry.origin_in_rig, 1e-12));
+  EXPECT_TRUE(back.geometry.voxel_size_m.isApprox(v.geometry.voxel_size_m, 1e-12));
+  EXPECT_EQ(back.temperature_k, v.temperature_k);
+  EXPECT_EQ(back.density_per_m3, v.density_per_m3);
+  EXPECT_EQ(back.emission_rgb, v.emission_rgb);
+  EXPECT_EQ(back.metadata_numbers.at("exposure"), 12.5);
+  EXPECT_EQ(back.metadata_numbers.at("density_scale"), 3e17);
+  EXPECT_EQ(back.metadata_text.at("absorption_model"), "soot");
+  fs::remove_all(dir);
+}
+
+// OpenVDB's own reader sees the grids, units and the voxel-centre transform.
+TEST(Vdb, OpenVdbSeesTheRigFrame) {
+  fs::path dir = TempDir();
+  FireVolume v = RandomVolume();
+  const std::string path = (dir / "fire.vdb").string();
+  WriteVdb(path, v);
+  openvdb::initialize();
+  openvdb::io::File file(path);
+  file.open();
+  auto grid = openvdb::gridPtrCast<openvdb::FloatGrid>(file.readGrid("temperature"));
+  ASSERT_TRUE(grid);
+  EXPECT_EQ(grid->metaValue<std::string>("units"), "K");
+  openvdb::Vec3d world = grid->indexToWorld(openvdb::Coord(3, 7, 2));
+  Eigen::Vector3d expected = v.geometry.VoxelCenter(3, 7, 2);
+  EXPECT_NEAR(world.x(), expected.x(), 1e-12);
+  EXPECT_NEAR(world.y(), expected.y(), 1e-12);
+  EXPECT_NEAR(world.z(), expected.z(), 1e-12);
+  EXPECT_EQ(grid->tree().getValue(openvdb::Coord(3, 7, 2)),
+            v.temperature_k[v.geometry.Flat(3, 7, 2)]);
+  EXPECT_TRUE(file.readGrid("density"));
+  EXPECT_TRUE(file.readGrid("emission"));
+  file.close();
+  fs::remove_all(dir);
+}
+
+std::string RunCommand(const std::string& command, int* status) {
+  std::array<char, 4096> buffer;
+  std::string out;
+  FILE* pipe = popen(command.c_str(), "r");
+  if (!pipe) return "";
+  while (fgets(buffer.data(), buffer.size(), pipe)) out += buffer.data();
+  *status = pclose(pipe);
+  return out;
+}
+
+TEST(Vdb, ReadableByVdbPrint) {
+  fs::path dir = TempDir();
+  const std::string path = (dir / "fire.vdb").string();
+  WriteVdb(path, RandomVolume());
+  int status = -1;
+  std::string out = RunCommand("vdb_print -l " + path + " 2>&1", &status);
+  EXPECT_EQ(status, 0) << out;
+  EXPECT_NE(out.find("temperature"), std::string::npos) << out;
+  EXPECT_NE(out.find("density"), std::string::npos) << out;
+  EXPECT_NE(out.find("emission"), std::string::npos) << out;
+  fs::remove_all(dir);
+}
+
+// A file written by another program: no flamerig metadata, active voxels at an offset.
+TEST(Vdb, ReadsForeignFilesByTheirActiveBoundingBox) {
+  fs::path dir = TempDir();
+  openvdb::initialize();
+  auto grid = openvdb::FloatGrid::create(0.0f);
+  grid->setName("density");
+  grid->setTransform(openvdb::math::Transform::createLinearTransform(0.01));
+  grid->tree().setValue(openvdb::Coord(10, 20, 30), 5.0f);
+  grid->tree().setValue(openvdb::Coord(12, 21, 30), 7.0f);
+  const std::string path = (dir / "foreign.vdb").string();
+  openvdb::io::File(path).write({grid});
+  FireVolume v = ReadVdb(path);
+  EXPECT_EQ(v.geometry.dims, Eigen::Vector3i(3, 2, 1));
+  EXPECT_TRUE(v.geometry.VoxelCenter(0, 0, 0).isApprox(Eigen::Vector3d(0.10, 0.20, 0.30), 1e-12));
+  EXPECT_EQ(v.density_per_m3[v.geometry.Flat(0, 0, 0)], 5.0f);
+  EXPECT_EQ(v.density_per_m3[v.geometry.Flat(2, 1, 0)], 7.0f);
+  EXPECT_TRUE(v.temperature_k.empty());
+  fs::remove_all(dir);
+}
+
+TEST(Vdb, BadFilesAndVolumesGiveClearErrors) {
+  fs::path dir = TempDir();
+  auto expect_error = [](auto fn, const std::string& fragment) {
+    try {
+      fn();
+      FAIL() << "no error";
+    } catch (const std::exception& e) {
+      EXPECT_NE(std::string(e.what()).find(fragment), std::string::npos) << e.what();
+    }
+  };
+  expect_error([&] { ReadVdb((dir / "missing.vdb").string()); }, "missing.vdb");
+  std::ofstream((dir / "garbage.vdb").string()) << "this is not a vdb file";
+  expect_error([&] { ReadVdb((dir / "garbage.vdb").string()); }, "garbage.vdb");
+  // Truncated copy of a real file.
+  WriteVdb((dir / "good.vdb").string(), RandomVolume());
+  auto size = fs::file_size(dir / "good.vdb");
+  fs::copy_file(dir / "good.vdb", dir / "cut.vdb");
+  fs::resize_file(dir / "cut.vdb", size / 2);
+  expect_error([&] { ReadVdb((dir / "cut.vdb").string()); }, "cut.vdb");
+  // A file with no known grid.
+  openvdb::initialize();
+  auto other = openvdb::FloatGrid::create(0.0f);
+  other->setName("velocity_magnitude");
+  other->tree().setValue(openvdb::Coord(0, 0, 0), 1.0f);
+  openvdb::io::File((dir / "other.vdb").string()).write({other});
+  expect_error([&] { ReadVdb((dir / "other.vdb").string()); }, "no grid named");
+  // NaN in a volume is refused before anything is written.
+  FireVolume v = RandomVolume();
+  v.density_per_m3[v.geometry.Flat(2, 3, 4)] = std::nanf("");
+  expect_error([&] { WriteVdb((dir / "nan.vdb").string(), v); }, "(2, 3, 4)");
+  EXPECT_FALSE(fs::exists(dir / "nan.vdb"));
+  FireVolume empty;
+  empty.geometry = v.geometry;
+  expect_error([&] { WriteVdb((dir / "empty.vdb").string(), empty); }, "no field");
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace flamerig

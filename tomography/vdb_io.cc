@@ -1,0 +1,242 @@
+#include "tomography/vdb_io.h"
+
+#include <openvdb/openvdb.h>
+
+#include <cmath>
+#include <filesystem>
+#include <mutex>
+#include <stdexcept>
+
+namespace flamerig {
+namespace {
+
+void InitializeOpenVdb() {
+  static std::once_flag once;
+  std::call_once(once, [] { openvdb::initialize(); });
+}
+
+openvdb::math::Transform::Ptr MakeTransform(const GridGeometry& g) {
+  openvdb::math::Mat4d m = openvdb::math::Mat4d::identity();
+  for (int a = 0; a < 3; ++a) m(a, a) = g.voxel_size_m[a];
+  Eigen::Vector3d t = g.origin_in_rig + 0.5 * g.voxel_size_m;
+  m.setTranslation(openvdb::Vec3d(t.x(), t.y(), t.z()));
+  return openvdb::math::Transform::createLinearTransform(m);
+}
+
+template <typename GridT>
+void StampGeometry(GridT& grid, const GridGeometry& g, const std::string& units) {
+  grid.setTransform(MakeTransform(g));
+  grid.insertMeta("flamerig_dims",
+                  openvdb::Vec3IMetadata(openvdb::Vec3i(g.dims.x(), g.dims.y(), g.dims.z())));
+  grid.insertMeta("units", openvdb::StringMetadata(units));
+}
+
+openvdb::FloatGrid::Ptr MakeFloatGrid(const GridGeometry& g, const std::vector<float>& values,
+                                      const std::string& name, const std::string& units) {
+  auto grid = openvdb::FloatGrid::create(0.0f);
+  grid->setName(name);
+  StampGeometry(*grid, g, units);
+  auto acc = grid->getAccessor();
+  for (int k = 0; k < g.dims.z(); ++k)
+    for (int j = 0; j < g.dims.y(); ++j)
+      for (int i = 0; i < g.dims.x(); ++i) {
+        float v = values[g.Flat(i, j, k)];
+        if (v != 0.0f) acc.setValue(openvdb::Coord(i, j, k), v);
+      }
+  return grid;
+}
+
+// Recovers the geometry from a grid's transform and metadata; throws on an unsupported transform.
+GridGeometry GeometryOf(const openvdb::GridBase& grid, const std::string& path) {
+  const openvdb::math::Transform& xf = grid.transform();
+  if (!xf.isLinear())
+    throw std::runtime_error(path + ": grid '" + grid.getName() + "' has a non-linear transform");
+  openvdb::math::Mat4d m = xf.baseMap()->getAffineMap()->getMat4();
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c)
+      if (r != c && std::abs(m(r, c)) > 1e-12 * std::abs(m(r, r))) {
+        throw std::runtime_error(path + ": grid '" + grid.getName() +
+                                 "' is rotated or sheared; only axis-aligned grids are supported");
+      }
+  GridGeometry g;
+  for (int a = 0; a < 3; ++a) g.voxel_size_m[a] = m(a, a);
+  if ((g.voxel_size_m.array() <= 0).any()) {
+    throw std::runtime_error(path + ": grid '" + grid.getName() +
+                             "' has a non-positive voxel size");
+  }
+  openvdb::Vec3d t = m.getTranslation();
+  Eigen::Vector3d center0(t.x(), t.y(), t.z());
+  openvdb::Coord lo(0, 0, 0);
+  auto dims_meta = grid.getMetadata<openvdb::Vec3IMetadata>("flamerig_dims");
+  if (dims_meta) {
+    openvdb::Vec3i d = dims_meta->value();
+    g.dims = Eigen::Vector3i(d.x(), d.y(), d.z());
+  } else {
+    openvdb::CoordBBox bbox = grid.evalActiveVoxelBoundingBox();
+    if (bbox.empty())
+      throw std::runtime_error(path + ": grid '" + grid.getName() + "' has no active voxels");
+    lo = bbox.min();
+    openvdb::Coord ext = bbox.dim();
+    g.dims = Eigen::Vector3i(ext.x(), ext.y(), ext.z());
+  }
+  if ((g.dims.array() < 1).any() || g.num_voxels() > (std::size_t(1) << 31)) {
+    throw std::runtime_error(path + ": grid '" + grid.getName() + "' has unusable dimensions");
+  }
+  Eigen::Vector3d lo_d(lo.x(), lo.y(), lo.z());
+  g.origin_in_rig = center0 + lo_d.cwiseProduct(g.voxel_size_m) - 0.5 * g.voxel_size_m;
+  return g;
+}
+
+openvdb::Coord OffsetOf(const openvdb::GridBase& grid) {
+  if (grid.getMetadata<openvdb::Vec3IMetadata>("flamerig_dims")) return openvdb::Coord(0, 0, 0);
+  return grid.evalActiveVoxelBoundingBox().min();
+}
+
+}  // namespace
+
+void WriteVdb(const std::string& path, const FireVolume& volume) {
+  volume.Validate();
+  if (volume.temperature_k.empty() && volume.density_per_m3.empty() &&
+      volume.emission_rgb.empty()) {
+    throw std::invalid_argument(path + ": the volume has no field to write");
+  }
+  InitializeOpenVdb();
+  const GridGeometry& g = volume.geometry;
+  openvdb::GridPtrVec grids;
+  if (!volume.temperature_k.empty())
+    grids.push_back(MakeFloatGrid(g, volume.temperature_k, "temperature", "K"));
+  if (!volume.density_per_m3.empty())
+    grids.push_back(MakeFloatGrid(g, volume.density_per_m3, "density", "m^-3"));
+  if (!volume.emission_rgb.empty()) {
+    auto grid = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.0f));
+    grid->setName("emission");
+    StampGeometry(*grid, g, "linear RGB radiance (renderer units)");
+    auto acc = grid->getAccessor();
+    for (int k = 0; k < g.dims.z(); ++k)
+      for (int j = 0; j < g.dims.y(); ++j)
+        for (int i = 0; i < g.dims.x(); ++i) {
+          const float* e = &volume.emission_rgb[3 * g.Flat(i, j, k)];
+          if (e[0] != 0.0f || e[1] != 0.0f || e[2] != 0.0f) {
+            acc.setValue(openvdb::Coord(i, j, k), openvdb::Vec3s(e[0], e[1], e[2]));
+          }
+        }
+    grids.push_back(grid);
+  }
+  openvdb::MetaMap meta;
+  meta.insertMeta("creator", openvdb::StringMetadata("flamerig"));
+  for (const auto& [key, value] : volume.metadata_numbers)
+    meta.insertMeta(key, openvdb::DoubleMetadata(value));
+  for (const auto& [key, value] : volume.metadata_text)
+    meta.insertMeta(key, openvdb::StringMetadata(value));
+
+  std::string tmp = path + ".tmp";
+  try {
+    openvdb::io::File file(tmp);
+    file.write(grids, meta);
+    file.close();
+  } catch (const openvdb::Exception& e) {
+    std::filesystem::remove(tmp);
+    throw std::runtime_error(path + ": cannot write VDB: " + e.what());
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec)
+    throw std::runtime_error(path + ": cannot move the written file into place: " + ec.message());
+}
+
+FireVolume ReadVdb(const std::string& path) {
+  InitializeOpenVdb();
+  if (!std::filesystem::exists(path)) throw std::runtime_error(path + ": no such file");
+  FireVolume volume;
+  openvdb::GridPtrVecPtr grids;
+  openvdb::MetaMap::Ptr meta;
+  try {
+    openvdb::io::File file(path);
+    file.open();
+    grids = file.getGrids();
+    meta = file.getMetadata();
+    file.close();
+  } catch (const openvdb::Exception& e) {
+    throw std::runtime_error(path + ": not a readable VDB file: " + e.what());
+  }
+  bool have_geometry = false;
+  auto adopt_geometry = [&](const openvdb::GridBase& grid) {
+    GridGeometry g = GeometryOf(grid, path);
+    if (!have_geometry) {
+      volume.geometry = g;
+      have_geometry = true;
+    } else if (!(g.dims == volume.geometry.dims) ||
+               !g.origin_in_rig.isApprox(volume.geometry.origin_in_rig, 1e-9) ||
+               !g.voxel_size_m.isApprox(volume.geometry.voxel_size_m, 1e-12)) {
+      throw std::runtime_error(path + ": grid '" + grid.getName() +
+                               "' does not share the lattice of the other grids");
+    }
+  };
+  auto read_float = [&](const openvdb::FloatGrid& grid, std::vector<float>& out) {
+    adopt_geometry(grid);
+    const GridGeometry& g = volume.geometry;
+    openvdb::Coord off = OffsetOf(grid);
+    out.assign(g.num_voxels(), 0.0f);
+    for (auto it = grid.cbeginValueOn(); it; ++it) {
+      openvdb::CoordBBox box;
+      it.getBoundingBox(box);
+      for (auto c = box.begin(); c; ++c) {
+        openvdb::Coord ijk = *c - off;
+        if (ijk.x() < 0 || ijk.y() < 0 || ijk.z() < 0 || ijk.x() >= g.dims.x() ||
+            ijk.y() >= g.dims.y() || ijk.z() >= g.dims.z()) {
+          continue;  // outside the declared lattice: ignored
+        }
+        out[g.Flat(ijk.x(), ijk.y(), ijk.z())] = *it;
+      }
+    }
+  };
+  for (const auto& base : *grids) {
+    const std::string name = base->getName();
+    if (name == "temperature" || name == "density") {
+      auto grid = openvdb::gridConstPtrCast<openvdb::FloatGrid>(base);
+      if (!grid) throw std::runtime_error(path + ": grid '" + name + "' is not a float grid");
+      read_float(*grid, name == "temperature" ? volume.temperature_k : volume.density_per_m3);
+    } else if (name == "emission") {
+      auto grid = openvdb::gridConstPtrCast<openvdb::Vec3SGrid>(base);
+      if (!grid) throw std::runtime_error(path + ": grid 'emission' is not a Vec3s grid");
+      adopt_geometry(*grid);
+      const GridGeometry& g = volume.geometry;
+      openvdb::Coord off = OffsetOf(*grid);
+      volume.emission_rgb.assign(3 * g.num_voxels(), 0.0f);
+      for (auto it = grid->cbeginValueOn(); it; ++it) {
+        openvdb::CoordBBox box;
+        it.getBoundingBox(box);
+        for (auto c = box.begin(); c; ++c) {
+          openvdb::Coord ijk = *c - off;
+          if (ijk.x() < 0 || ijk.y() < 0 || ijk.z() < 0 || ijk.x() >= g.dims.x() ||
+              ijk.y() >= g.dims.y() || ijk.z() >= g.dims.z()) {
+            continue;
+          }
+          std::size_t f = g.Flat(ijk.x(), ijk.y(), ijk.z());
+          openvdb::Vec3s v = *it;
+          for (int ch = 0; ch < 3; ++ch) volume.emission_rgb[3 * f + ch] = v[ch];
+        }
+      }
+    }
+  }
+  if (!have_geometry) {
+    throw std::runtime_error(path + ": no grid named temperature, density or emission");
+  }
+  if (meta) {
+    for (auto it = meta->beginMeta(); it != meta->endMeta(); ++it) {
+      if (auto d = std::dynamic_pointer_cast<openvdb::DoubleMetadata>(it->second)) {
+        volume.metadata_numbers[it->first] = d->value();
+      } else if (auto s = std::dynamic_pointer_cast<openvdb::StringMetadata>(it->second)) {
+        if (it->first != "creator") volume.metadata_text[it->first] = s->value();
+      }
+    }
+  }
+  try {
+    volume.Validate();
+  } catch (const std::invalid_argument& e) {
+    throw std::runtime_error(path + ": " + e.what());
+  }
+  return volume;
+}
+
+}  // namespace flamerig

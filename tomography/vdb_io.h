@@ -1,0 +1,35 @@
+// Reading and writing fire volumes as OpenVDB files, so that Blender, Houdini and OpenVDB's own
+// tools (vdb_print, vdb_view) read flamerig's output.
+//
+// Grids written (only those present in the FireVolume):
+//   temperature  FloatGrid, kelvin                    (background 0)
+//   density      FloatGrid, particles per m^3         (background 0)
+//   emission     Vec3SGrid, linear RGB emission       (background 0)
+// Only voxels whose value differs from the background are stored (active). Each grid's transform
+// maps index (i, j, k) to the voxel centre in the rig frame, metres: world = (i, j, k) * voxel_size
+// + origin + voxel_size / 2, so the volume lands where the rig put it. The grid's dims are stored
+// as grid metadata "flamerig_dims" so that a round trip restores the full lattice, including empty
+// borders; files from other programs fall back to the active voxels' bounding box.
+// FireVolume metadata become file-level metadata (numbers as double, text as string).
+#ifndef FLAMERIG_TOMOGRAPHY_VDB_IO_H_
+#define FLAMERIG_TOMOGRAPHY_VDB_IO_H_
+
+#include <string>
+
+#include "tomography/volume.h"
+
+namespace flamerig {
+
+// Validates `volume` and writes it. Throws std::invalid_argument (bad volume) or std::runtime_error
+// naming the path (I/O failure). Writes to path + ".tmp" and renames, so a crash never leaves a
+// half-written file under the final name.
+void WriteVdb(const std::string& path, const FireVolume& volume);
+
+// Reads the grids named temperature, density and emission (any subset; at least one must exist).
+// Throws std::runtime_error naming the path and the problem: missing file, not a VDB file, no known
+// grid, a non-linear or rotated transform, grids whose transforms disagree.
+FireVolume ReadVdb(const std::string& path);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_TOMOGRAPHY_VDB_IO_H_

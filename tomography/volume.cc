@@ -1,0 +1,77 @@
+#include "tomography/volume.h"
+
+#include <cmath>
+#include <stdexcept>
+
+namespace flamerig {
+
+GridGeometry GridGeometry::FromBox(const Box3& box, int resolution) {
+  if (!box.IsValid()) throw std::invalid_argument("grid box: max must exceed min on every axis");
+  if (resolution < 1) {
+    throw std::invalid_argument("grid resolution " + std::to_string(resolution) + " must be >= 1");
+  }
+  Eigen::Vector3d size = box.size();
+  double voxel = size.maxCoeff() / resolution;
+  GridGeometry g;
+  for (int a = 0; a < 3; ++a)
+    g.dims[a] = std::max(1, static_cast<int>(std::lround(size[a] / voxel)));
+  g.voxel_size_m = Eigen::Vector3d::Constant(voxel);
+  Eigen::Vector3d extent = g.dims.cast<double>() * voxel;
+  g.origin_in_rig = box.center() - 0.5 * extent;
+  return g;
+}
+
+GridGeometry GridGeometry::FromBoxAndDims(const Box3& box, const Eigen::Vector3i& dims) {
+  if (!box.IsValid()) throw std::invalid_argument("grid box: max must exceed min on every axis");
+  if ((dims.array() < 1).any()) throw std::invalid_argument("grid dims must all be >= 1");
+  GridGeometry g;
+  g.dims = dims;
+  g.origin_in_rig = box.min_in_rig;
+  g.voxel_size_m = box.size().cwiseQuotient(dims.cast<double>());
+  return g;
+}
+
+void GridGeometry::Validate() const {
+  if ((dims.array() < 1).any()) throw std::invalid_argument("grid dims must all be >= 1");
+  if (!origin_in_rig.allFinite()) throw std::invalid_argument("grid origin_in_rig is not finite");
+  if (!voxel_size_m.allFinite() || (voxel_size_m.array() <= 0).any()) {
+    throw std::invalid_argument("grid voxel_size_m must be finite and positive");
+  }
+}
+
+namespace {
+
+void CheckField(const GridGeometry& g, const std::vector<float>& values, int channels,
+                const char* name, bool allow_negative) {
+  if (values.empty()) return;
+  if (values.size() != g.num_voxels() * channels) {
+    throw std::invalid_argument(std::string("field '") + name + "' has " +
+                                std::to_string(values.size()) + " values, expected " +
+                                std::to_string(g.num_voxels() * channels));
+  }
+  for (std::size_t n = 0; n < values.size(); ++n) {
+    float v = values[n];
+    if (!std::isfinite(v) || (v < 0 && !allow_negative)) {
+      std::size_t flat = n / channels;
+      int i = static_cast<int>(flat % g.dims.x());
+      int j = static_cast<int>((flat / g.dims.x()) % g.dims.y());
+      int k = static_cast<int>(flat / (static_cast<std::size_t>(g.dims.x()) * g.dims.y()));
+      throw std::invalid_argument(
+          std::string("field '") + name + "' at voxel (" + std::to_string(i) + ", " +
+          std::to_string(j) + ", " + std::to_string(k) + ") is " + std::to_string(v) +
+          (allow_negative ? "; values must be finite" : "; values must be finite and >= 0"));
+    }
+  }
+}
+
+}  // namespace
+
+void FireVolume::Validate() const {
+  geometry.Validate();
+  CheckField(geometry, temperature_k, 1, "temperature", false);
+  CheckField(geometry, density_per_m3, 1, "density", false);
+  // Linear sRGB emission of out-of-gamut (deep red) fire colours has negative components.
+  CheckField(geometry, emission_rgb, 3, "emission", true);
+}
+
+}  // namespace flamerig

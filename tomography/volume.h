@@ -1,0 +1,81 @@
+// Voxel grids: a regular lattice of voxels over a box of the rig frame, and the fire fields on it.
+//
+// Geometry. A grid has dims (nx, ny, nz) voxels of size voxel_size_m (per axis, metres) starting at
+// origin_in_rig, the min corner of its box. Voxel (i, j, k) covers
+// [origin + (i, j, k) * size, origin + (i+1, j+1, k+1) * size) and its centre is at
+// origin + (i + 0.5, j + 0.5, k + 0.5) * size. "Index coordinates" are continuous coordinates in
+// which voxel centres sit at integers: index = (point_in_rig - origin) / size - 0.5.
+//
+// Flattening (the one place this is defined): a field's values are stored x fastest, then y, then
+// z: flat = i + nx * (j + ny * k). Multi-channel fields interleave channels per voxel (flat * 3 +
+// c).
+//
+// Fields (FireVolume): temperature in kelvin, soot number density in particles per m^3, an RGB
+// emission (linear, in the renderer's units) and free metadata (exposure, density scale, units...).
+// Any field may be absent (empty vector).
+#ifndef FLAMERIG_TOMOGRAPHY_VOLUME_H_
+#define FLAMERIG_TOMOGRAPHY_VOLUME_H_
+
+#include <Eigen/Core>
+#include <cstddef>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "calibration/rig.h"
+
+namespace flamerig {
+
+struct GridGeometry {
+  Eigen::Vector3i dims = Eigen::Vector3i::Zero();           // nx, ny, nz
+  Eigen::Vector3d origin_in_rig = Eigen::Vector3d::Zero();  // min corner of the box, metres
+  Eigen::Vector3d voxel_size_m = Eigen::Vector3d::Ones();   // per axis, metres
+
+  // Cubic voxels covering `box`: `resolution` voxels along its longest axis, and as many as fit
+  // (rounded, at least 1) along the others; the grid is centred on the box. Throws
+  // std::invalid_argument for an invalid box or resolution < 1.
+  static GridGeometry FromBox(const Box3& box, int resolution);
+  // Exactly `dims` voxels spanning `box` (voxels may be non-cubic).
+  static GridGeometry FromBoxAndDims(const Box3& box, const Eigen::Vector3i& dims);
+
+  std::size_t num_voxels() const {
+    return static_cast<std::size_t>(dims.x()) * dims.y() * dims.z();
+  }
+  std::size_t Flat(int i, int j, int k) const {
+    return static_cast<std::size_t>(i) +
+           static_cast<std::size_t>(dims.x()) * (j + static_cast<std::size_t>(dims.y()) * k);
+  }
+  Eigen::Vector3d VoxelCenter(int i, int j, int k) const {
+    return origin_in_rig +
+           (Eigen::Vector3d(i, j, k).array() + 0.5).matrix().cwiseProduct(voxel_size_m);
+  }
+  Eigen::Vector3d IndexFromRig(const Eigen::Vector3d& point_in_rig) const {
+    return ((point_in_rig - origin_in_rig).cwiseQuotient(voxel_size_m).array() - 0.5).matrix();
+  }
+  Box3 box() const {
+    return Box3{origin_in_rig, origin_in_rig + dims.cast<double>().cwiseProduct(voxel_size_m)};
+  }
+  // Throws std::invalid_argument naming the bad member.
+  void Validate() const;
+  bool operator==(const GridGeometry& o) const {
+    return dims == o.dims && origin_in_rig == o.origin_in_rig && voxel_size_m == o.voxel_size_m;
+  }
+};
+
+struct FireVolume {
+  GridGeometry geometry;
+  std::vector<float> temperature_k;   // num_voxels values, or empty
+  std::vector<float> density_per_m3;  // num_voxels values, or empty
+  std::vector<float> emission_rgb;    // 3 * num_voxels values (interleaved RGB), or empty
+  std::map<std::string, double> metadata_numbers;    // e.g. "exposure", "density_scale"
+  std::map<std::string, std::string> metadata_text;  // e.g. "absorption_model"
+
+  // Checks sizes and that every value is finite, and temperature and density non-negative (emission
+  // may be negative: linear sRGB of deep-red fire colours is out of gamut); throws
+  // std::invalid_argument naming the field and the first bad voxel (its i, j, k).
+  void Validate() const;
+};
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_TOMOGRAPHY_VOLUME_H_

@@ -1,0 +1,227 @@
+#include "tools/benchmark.h"
+
+#include <tbb/global_control.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <ctime>
+#include <fstream>
+#include <sstream>
+#include <stdexcept>
+#include <thread>
+
+#include "fitting/colour.h"
+#include "fitting/renderer.h"
+#include "tools/synthetic.h"
+
+namespace flamerig {
+namespace {
+
+struct DeltaE {
+  double mean = 0, max = 0;
+};
+
+// CIE76 Delta E between two 8-bit sRGB images over the pixels where `mask` is set.
+DeltaE CompareImages(const ImageU8& a, const ImageU8& b, const std::vector<bool>& mask) {
+  DeltaE e;
+  std::size_t n = 0;
+  for (std::size_t p = 0; p < a.num_pixels(); ++p) {
+    if (!mask[p]) continue;
+    Eigen::Vector3d la =
+        colour::SrgbU8ToLab(a.pixels[3 * p], a.pixels[3 * p + 1], a.pixels[3 * p + 2]);
+    Eigen::Vector3d lb =
+        colour::SrgbU8ToLab(b.pixels[3 * p], b.pixels[3 * p + 1], b.pixels[3 * p + 2]);
+    double d = colour::DeltaE76(la, lb);
+    e.mean += d;
+    e.max = std::max(e.max, d);
+    ++n;
+  }
+  if (n) e.mean /= n;
+  return e;
+}
+
+double MedianMs(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+std::string Fixed(double v, int digits) {
+  std::ostringstream s;
+  s.setf(std::ios::fixed);
+  s.precision(digits);
+  s << v;
+  return s.str();
+}
+
+}  // namespace
+
+std::string MachineDescription() {
+  std::string cpu = "unknown CPU";
+  std::ifstream info("/proc/cpuinfo");
+  std::string line;
+  while (std::getline(info, line)) {
+    if (line.rfind("model name", 0) == 0) {
+      cpu = line.substr(line.find(':') + 2);
+      break;
+    }
+  }
+  std::time_t now = std::time(nullptr);
+  char date[64];
+  std::strftime(date, sizeof(date), "%Y-%m-%d %H:%M UTC", std::gmtime(&now));
+  return cpu + ", " + std::to_string(std::thread::hardware_concurrency()) + " hardware threads, " +
+         date;
+}
+
+std::string RunRenderBenchmark(const RenderBenchmarkOptions& options,
+                               const std::function<void(const std::string&)>& log) {
+  std::vector<int> resolutions = options.quick ? std::vector<int>{32, 64} : options.resolutions;
+  const int repeats = options.quick ? 2 : options.repeats;
+  const Box3 box{Eigen::Vector3d(-0.04, 0.0, -0.04), Eigen::Vector3d(0.04, 0.08, 0.04)};
+  synthetic::RingOptions ring;
+  ring.cameras = 1;
+  ring.width = options.width;
+  ring.height = options.height;
+  ring.distance_m = 0.35;
+  Rig rig = synthetic::MakeRingRig(box, ring);
+  CameraRays rays(rig.cameras[0].model);
+
+  struct Config {
+    std::string label;
+    std::string absorption;
+    SpectralPath path;
+    int threads;
+    bool skip;
+    double step;
+  };
+  const std::vector<Config> configs = {
+      {"grey, fast path, no skipping", "grey", SpectralPath::kFast, 1, false, 0.5},
+      {"grey, fast path", "grey", SpectralPath::kFast, 1, true, 0.5},
+      {"grey, fast path", "grey", SpectralPath::kFast, 2, true, 0.5},
+      {"grey, fast path, step 1 voxel", "grey", SpectralPath::kFast, 2, true, 1.0},
+      {"grey, spectral path (41 bins)", "grey", SpectralPath::kSpectral, 1, true, 0.5},
+      {"soot, spectral path (41 bins), no skipping", "soot", SpectralPath::kSpectral, 1, false,
+       0.5},
+      {"soot, spectral path (41 bins)", "soot", SpectralPath::kSpectral, 1, true, 0.5},
+      {"soot, spectral path (41 bins)", "soot", SpectralPath::kSpectral, 2, true, 0.5},
+  };
+
+  std::ostringstream md;
+  md << "## Forward render (issue 2)\n\n";
+  md << "Machine: " << MachineDescription() << ".\n\n";
+  md << "One " << options.width << "x" << options.height
+     << " view of the synthetic candle on an N^3 grid "
+     << "(8 cm cube, flame about 10% of the box). Time is the median of " << repeats
+     << " renders. Error is CIE76 Delta E of the 8-bit image against a reference render of the "
+        "same "
+     << "volume (double precision, step 0.1 voxel, 81 bins of 5 nm, no skipping), mean and max "
+        "over the "
+     << "pixels where the reference shows fire. Target: a 128^3 view in tens of milliseconds on "
+        "one core "
+     << "with the fast path.\n\n";
+  md << "| grid | configuration | threads | ms / view | mean dE | max dE | samples | steps skipped "
+        "(empty) | rays stopped early |\n";
+  md << "|---|---|---|---|---|---|---|---|---|\n";
+
+  for (int n : resolutions) {
+    GridGeometry grid = GridGeometry::FromBoxAndDims(box, Eigen::Vector3i(n, n, n));
+    for (const std::string absorption_name : {"grey", "soot"}) {
+      AbsorptionModel absorption = AbsorptionModel::FromName(absorption_name);
+      synthetic::FireOptions fire_options;
+      FireVolume fire = synthetic::MakeFire(grid, fire_options, absorption);
+      // Reference.
+      RenderOptions ref_options;
+      ref_options.double_precision = true;
+      ref_options.step_voxels = 0.1;
+      ref_options.spectral_step_nm = 5.0;
+      ref_options.skip_empty_space = false;
+      ref_options.min_transmittance = 0;
+      ref_options.path = SpectralPath::kSpectral;
+      FireRenderer reference(absorption, ref_options);
+      reference.SetVolume(grid, fire.temperature_k, fire.density_per_m3);
+      ImageF ref_linear;
+      reference.Render(rays, &ref_linear);
+      std::vector<float> maxima;
+      for (std::size_t p = 0; p < ref_linear.num_pixels(); ++p) {
+        maxima.push_back(std::max({ref_linear.pixels[3 * p], ref_linear.pixels[3 * p + 1],
+                                   ref_linear.pixels[3 * p + 2]}));
+      }
+      std::vector<float> sorted = maxima;
+      std::sort(sorted.begin(), sorted.end());
+      double exposure =
+          1.0 / std::max(1e-30f, sorted[static_cast<std::size_t>(0.999 * (sorted.size() - 1))]);
+      exposure = std::clamp(exposure, 0.01, 1000.0);
+      ImageU8 ref_image = ApplyCameraResponse(ref_linear, exposure);
+      std::vector<bool> mask(ref_image.num_pixels());
+      for (std::size_t p = 0; p < mask.size(); ++p) {
+        mask[p] = ref_image.pixels[3 * p] > 0 || ref_image.pixels[3 * p + 1] > 0 ||
+                  ref_image.pixels[3 * p + 2] > 0;
+      }
+      for (const Config& config : configs) {
+        if (config.absorption != absorption_name) continue;
+        tbb::global_control threads(tbb::global_control::max_allowed_parallelism, config.threads);
+        RenderOptions ro;
+        ro.path = config.path;
+        ro.skip_empty_space = config.skip;
+        ro.step_voxels = config.step;
+        FireRenderer renderer(absorption, ro);
+        renderer.SetVolume(grid, fire.temperature_k, fire.density_per_m3);
+        ImageF linear;
+        RenderSummary summary = renderer.Render(rays, &linear);  // warm-up
+        std::vector<double> times;
+        for (int r = 0; r < repeats; ++r) {
+          summary = renderer.Render(rays, &linear);
+          times.push_back(summary.time_ms);
+        }
+        DeltaE e = CompareImages(ApplyCameraResponse(linear, exposure), ref_image, mask);
+        double ms = MedianMs(times);
+        md << "| " << n << "^3 | " << config.label << " | " << config.threads << " | "
+           << Fixed(ms, 1) << " | " << Fixed(e.mean, 3) << " | " << Fixed(e.max, 2) << " | "
+           << summary.steps_evaluated << " | " << summary.steps_skipped_empty << " | "
+           << summary.rays_terminated_early << " |\n";
+        if (log)
+          log(std::to_string(n) + "^3 " + config.label + ", " + std::to_string(config.threads) +
+              " thread(s): " + Fixed(ms, 1) + " ms, mean dE " + Fixed(e.mean, 3));
+      }
+    }
+  }
+  md << "\nSkipping is exact (bricks of 8^3 voxels whose density, dilated by one voxel, is zero), "
+        "so "
+        "rows with and without it differ only in time. The fast path differs from the spectral "
+        "reference only by its 1 K temperature table and 1 nm colour integration.\n";
+  return md.str();
+}
+
+void WriteBenchmarkSection(const std::string& path, const std::string& name,
+                           const std::string& markdown) {
+  std::string content;
+  {
+    std::ifstream in(path);
+    if (in) {
+      std::stringstream s;
+      s << in.rdbuf();
+      content = s.str();
+    }
+  }
+  if (content.empty()) {
+    content =
+        "# flamerig benchmarks\n\nWritten by `flamerig benchmark ...` (see README). Each section "
+        "is replaced "
+        "when its benchmark runs again; every figure is run time against error, measured in the "
+        "same run.\n\n";
+  }
+  const std::string begin = "<!-- BEGIN " + name + " -->", end = "<!-- END " + name + " -->";
+  std::string block = begin + "\n" + markdown + end;
+  auto b = content.find(begin), e = content.find(end);
+  if (b != std::string::npos && e != std::string::npos && e > b) {
+    content.replace(b, e + end.size() - b, block);
+  } else {
+    if (!content.empty() && content.back() != '\n') content += "\n";
+    content += "\n" + block + "\n";
+  }
+  std::ofstream out(path, std::ios::trunc);
+  if (!out) throw std::runtime_error(path + ": cannot write");
+  out << content;
+}
+
+}  // namespace flamerig

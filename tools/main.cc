@@ -1,0 +1,192 @@
+// flamerig: one binary, subcommands. Run `flamerig help` for the list.
+#include <tbb/global_control.h>
+
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <iostream>
+#include <map>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "fitting/renderer.h"
+#include "tomography/vdb_io.h"
+#include "tools/benchmark.h"
+#include "tools/simulate.h"
+
+namespace fs = std::filesystem;
+using namespace flamerig;
+
+namespace {
+
+const char* kUsage = R"(flamerig: fire reconstruction from a calibrated multi-camera rig
+
+usage: flamerig <command> [options]
+
+commands:
+  simulate --config FILE --out DIR
+        Write a synthetic dataset (rig, camera models, fire images, calibration board images,
+        ground-truth .vdb) from a simulation config such as config/sim_rig.yaml.
+  render --rig RIG.yaml --volume V.vdb --out DIR [--exposure S|auto] [--absorption soot|grey]
+         [--step VOXELS]
+        Render every rig camera's view of a temperature/density volume to DIR/<camera>.png.
+  benchmark render [--out BENCHMARKS.md] [--quick]
+        Time the forward renderer against its error and write the figures to BENCHMARKS.md.
+  help  This text.
+
+Errors name the file, the field and the rule; the exit status is non-zero.
+)";
+
+// --key value pairs after the command; flags without a value get "1".
+struct Args {
+  std::vector<std::string> positional;
+  std::map<std::string, std::string> named;
+
+  Args(int argc, char** argv, int first, const std::vector<std::string>& flags) {
+    for (int i = first; i < argc; ++i) {
+      std::string a = argv[i];
+      if (a.rfind("--", 0) == 0) {
+        std::string key = a.substr(2);
+        bool is_flag = std::find(flags.begin(), flags.end(), key) != flags.end();
+        if (is_flag) {
+          named[key] = "1";
+        } else {
+          if (i + 1 >= argc) throw std::invalid_argument("option --" + key + " needs a value");
+          named[key] = argv[++i];
+        }
+      } else {
+        positional.push_back(a);
+      }
+    }
+  }
+  std::string Required(const std::string& key) const {
+    auto it = named.find(key);
+    if (it == named.end()) throw std::invalid_argument("missing required option --" + key);
+    return it->second;
+  }
+  std::string Get(const std::string& key, const std::string& fallback) const {
+    auto it = named.find(key);
+    return it == named.end() ? fallback : it->second;
+  }
+  void CheckKnown(const std::vector<std::string>& known) const {
+    for (const auto& [k, v] : named) {
+      if (std::find(known.begin(), known.end(), k) == known.end()) {
+        throw std::invalid_argument("unknown option --" + k);
+      }
+    }
+  }
+};
+
+double ParseNumber(const std::string& text, const std::string& what) {
+  try {
+    std::size_t used = 0;
+    double v = std::stod(text, &used);
+    if (used != text.size()) throw std::invalid_argument("");
+    return v;
+  } catch (const std::exception&) {
+    throw std::invalid_argument(what + " '" + text + "' is not a number");
+  }
+}
+
+void ProgressBar(const std::string& stage, int done, int total) {
+  const int width = 30;
+  int filled = total > 0 ? width * done / total : width;
+  std::fprintf(stderr, "\r%-20s [%s%s] %d/%d", stage.c_str(), std::string(filled, '#').c_str(),
+               std::string(width - filled, '.').c_str(), done, total);
+  if (done >= total) std::fprintf(stderr, "\n");
+  std::fflush(stderr);
+}
+
+int Simulate(const Args& args) {
+  args.CheckKnown({"config", "out"});
+  SimulateConfig config = SimulateConfig::Load(args.Required("config"));
+  std::string out = args.Required("out");
+  SimulateSummary s = Simulate(config, out, ProgressBar);
+  std::printf("simulate: wrote %s\n", out.c_str());
+  std::printf(
+      "  %d camera(s), %d frame(s) of a %s fire, grid %d along the longest axis, %s absorption\n",
+      s.cameras, s.frames, synthetic::ToString(config.fire.kind), config.grid_resolution,
+      config.absorption.c_str());
+  std::printf("  exposure %.6g (%s); %.2f%% of fire pixels saturated at frame 0\n", s.exposure,
+              s.exposure_source.c_str(), 100 * s.saturated_pixel_fraction);
+  std::printf("  calibration: %d board views, %d images\n", s.calibration_views,
+              s.calibration_images);
+  std::printf("  last render: %s\n", s.last_render.BriefReport().c_str());
+  std::printf("  preview: %s/preview.png; %.2f s in all\n", out.c_str(), s.time_s);
+  return 0;
+}
+
+int Render(const Args& args) {
+  args.CheckKnown({"rig", "volume", "out", "exposure", "absorption", "step"});
+  Rig rig = Rig::Load(args.Required("rig"));
+  FireVolume volume = ReadVdb(args.Required("volume"));
+  if (volume.temperature_k.empty() || volume.density_per_m3.empty()) {
+    throw std::invalid_argument(args.Required("volume") +
+                                ": needs both 'temperature' and 'density' grids to render");
+  }
+  std::string absorption_name = args.Get("absorption", "");
+  if (absorption_name.empty()) {
+    auto it = volume.metadata_text.find("absorption_model");
+    absorption_name = it != volume.metadata_text.end() ? it->second : "soot";
+  }
+  RenderOptions options;
+  if (args.named.count("step")) options.step_voxels = ParseNumber(args.Get("step", ""), "--step");
+  FireRenderer renderer(AbsorptionModel::FromName(absorption_name), options);
+  renderer.SetVolume(volume.geometry, volume.temperature_k, volume.density_per_m3);
+  std::string exposure_text = args.Get("exposure", "auto");
+  double exposure = 1.0;
+  if (exposure_text == "auto") {
+    auto it = volume.metadata_numbers.find("exposure");
+    exposure = it != volume.metadata_numbers.end() ? it->second : 1.0;
+  } else {
+    exposure = ParseNumber(exposure_text, "--exposure");
+  }
+  std::string out = args.Required("out");
+  fs::create_directories(out);
+  for (const auto& camera : rig.cameras) {
+    CameraRays rays(camera.model);
+    ImageF linear;
+    RenderSummary summary = renderer.Render(rays, &linear);
+    std::string path = (fs::path(out) / (camera.name + ".png")).string();
+    WritePng(path, ApplyCameraResponse(linear, exposure));
+    std::printf("%s: %s\n", path.c_str(), summary.BriefReport().c_str());
+  }
+  return 0;
+}
+
+int Benchmark(const Args& args) {
+  if (args.positional.empty() || args.positional[0] != "render") {
+    throw std::invalid_argument("benchmark needs a target: render");
+  }
+  args.CheckKnown({"out", "quick"});
+  RenderBenchmarkOptions options;
+  options.quick = args.named.count("quick") > 0;
+  std::string md = RunRenderBenchmark(
+      options, [](const std::string& line) { std::fprintf(stderr, "%s\n", line.c_str()); });
+  std::string out = args.Get("out", "BENCHMARKS.md");
+  WriteBenchmarkSection(out, "render", md);
+  std::printf("%s\nwritten to %s\n", md.c_str(), out.c_str());
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 2 || !std::strcmp(argv[1], "help") || !std::strcmp(argv[1], "--help") ||
+      !std::strcmp(argv[1], "-h")) {
+    std::fputs(kUsage, argc < 2 ? stderr : stdout);
+    return argc < 2 ? 2 : 0;
+  }
+  const std::string command = argv[1];
+  try {
+    if (command == "simulate") return Simulate(Args(argc, argv, 2, {}));
+    if (command == "render") return Render(Args(argc, argv, 2, {}));
+    if (command == "benchmark") return Benchmark(Args(argc, argv, 2, {"quick"}));
+    std::fprintf(stderr, "flamerig: unknown command '%s'\n\n%s", command.c_str(), kUsage);
+    return 2;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "flamerig %s: error: %s\n", command.c_str(), e.what());
+    return 1;
+  }
+}

@@ -1,0 +1,365 @@
+#include "tools/simulate.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <stdexcept>
+
+#include "tomography/vdb_io.h"
+
+namespace flamerig {
+namespace {
+
+namespace fs = std::filesystem;
+
+[[noreturn]] void Fail(const std::string& path, const std::string& field, const std::string& rule) {
+  throw std::runtime_error(path + ": field '" + field + "': " + rule);
+}
+
+template <typename T>
+void Read(const YAML::Node& map, const char* key, T* value, const std::string& path,
+          const std::string& prefix) {
+  YAML::Node node = map[key];
+  if (!node) return;
+  try {
+    *value = node.as<T>();
+  } catch (const YAML::Exception&) {
+    Fail(path, prefix + key, "has the wrong type");
+  }
+}
+
+Eigen::Vector3d ReadVec3(const YAML::Node& node, const std::string& path,
+                         const std::string& field) {
+  if (!node.IsSequence() || node.size() != 3) Fail(path, field, "must be a list of 3 numbers");
+  Eigen::Vector3d v;
+  for (int i = 0; i < 3; ++i) {
+    try {
+      v[i] = node[i].as<double>();
+    } catch (const YAML::Exception&) {
+      Fail(path, field, "element " + std::to_string(i) + " is not a number");
+    }
+  }
+  return v;
+}
+
+std::string FrameName(int f) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof(buffer), "frame_%06d", f);
+  return buffer;
+}
+
+// Side-by-side tiles, scaled to a common height, grey images promoted to RGB.
+ImageU8 ContactSheet(const std::vector<ImageU8>& tiles, int tile_height) {
+  int total_w = 0;
+  std::vector<int> widths;
+  for (const auto& t : tiles) {
+    int w = std::max(1, t.width * tile_height / std::max(1, t.height));
+    widths.push_back(w);
+    total_w += w + 4;
+  }
+  ImageU8 sheet(std::max(total_w, 1), tile_height, 3, 16);
+  int x0 = 0;
+  for (std::size_t n = 0; n < tiles.size(); ++n) {
+    const ImageU8& t = tiles[n];
+    for (int y = 0; y < tile_height; ++y)
+      for (int x = 0; x < widths[n]; ++x) {
+        int sx = std::min(t.width - 1, x * t.width / widths[n]);
+        int sy = std::min(t.height - 1, y * t.height / tile_height);
+        for (int c = 0; c < 3; ++c) sheet.at(x0 + x, y, c) = t.at(sx, sy, t.channels == 1 ? 0 : c);
+      }
+    x0 += widths[n] + 4;
+  }
+  return sheet;
+}
+
+}  // namespace
+
+void AddSensorNoise(ImageU8* image, double sigma_dn, std::uint64_t seed) {
+  if (!(sigma_dn > 0)) return;
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> noise(0.0, sigma_dn);
+  for (auto& p : image->pixels)
+    p = static_cast<std::uint8_t>(std::clamp(std::lround(p + noise(rng)), 0L, 255L));
+}
+
+SimulateConfig SimulateConfig::Load(const std::string& path) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    throw std::runtime_error(path + ": cannot open config file");
+  } catch (const YAML::Exception& e) {
+    throw std::runtime_error(path + ": not valid YAML: " + e.what());
+  }
+  YAML::Node s = root["simulate"];
+  if (!s || !s.IsMap())
+    Fail(path, "simulate", "missing; a simulation config has a top-level 'simulate' map");
+  SimulateConfig c;
+  Read(s, "seed", &c.seed, path, "simulate.");
+  Read(s, "frames", &c.frames, path, "simulate.");
+  Read(s, "frame_rate_hz", &c.frame_rate_hz, path, "simulate.");
+  Read(s, "absorption", &c.absorption, path, "simulate.");
+  Read(s, "grid_resolution", &c.grid_resolution, path, "simulate.");
+  Read(s, "noise_dn", &c.noise_dn, path, "simulate.");
+  if (YAML::Node e = s["exposure"]) {
+    std::string text = e.as<std::string>();
+    if (text == "auto") {
+      c.auto_exposure = true;
+    } else {
+      c.auto_exposure = false;
+      Read(s, "exposure", &c.exposure, path, "simulate.");
+    }
+  }
+  if (YAML::Node f = s["fire"]) {
+    std::string kind = "candle";
+    Read(f, "kind", &kind, path, "simulate.fire.");
+    try {
+      c.fire.kind = synthetic::FireKindFromName(kind);
+    } catch (const std::invalid_argument& e) {
+      Fail(path, "simulate.fire.kind", e.what());
+    }
+    Read(f, "peak_temperature_k", &c.fire.peak_temperature_k, path, "simulate.fire.");
+    Read(f, "ambient_temperature_k", &c.fire.ambient_temperature_k, path, "simulate.fire.");
+    Read(f, "peak_soot_volume_fraction", &c.fire.peak_soot_volume_fraction, path, "simulate.fire.");
+    Read(f, "licks", &c.fire.licks, path, "simulate.fire.");
+    Read(f, "supersample", &c.fire.supersample, path, "simulate.fire.");
+  }
+  if (YAML::Node b = s["box"]) {
+    if (!b["min"] || !b["max"]) Fail(path, "simulate.box", "needs min and max");
+    c.box.min_in_rig = ReadVec3(b["min"], path, "simulate.box.min");
+    c.box.max_in_rig = ReadVec3(b["max"], path, "simulate.box.max");
+  }
+  if (YAML::Node r = s["rig"]) {
+    Read(r, "cameras", &c.ring.cameras, path, "simulate.rig.");
+    Read(r, "azimuths_deg", &c.ring.azimuths_deg, path, "simulate.rig.");
+    Read(r, "distance_m", &c.ring.distance_m, path, "simulate.rig.");
+    Read(r, "elevation_deg", &c.ring.elevation_deg, path, "simulate.rig.");
+    Read(r, "width", &c.ring.width, path, "simulate.rig.");
+    Read(r, "height", &c.ring.height, path, "simulate.rig.");
+    Read(r, "fill", &c.ring.fill, path, "simulate.rig.");
+    Read(r, "lensmodel", &c.ring.lensmodel, path, "simulate.rig.");
+  }
+  if (YAML::Node cal = s["calibration"]) {
+    Read(cal, "enabled", &c.calibration, path, "simulate.calibration.");
+    std::string board = "charuco";
+    Read(cal, "board", &board, path, "simulate.calibration.");
+    if (board == "charuco")
+      c.board.type = synthetic::BoardType::kCharuco;
+    else if (board == "chessboard")
+      c.board.type = synthetic::BoardType::kChessboard;
+    else
+      Fail(path, "simulate.calibration.board", "must be 'charuco' or 'chessboard'");
+    if (YAML::Node sq = cal["squares"]) {
+      if (!sq.IsSequence() || sq.size() != 2)
+        Fail(path, "simulate.calibration.squares", "must be [x, y]");
+      c.board.squares_x = sq[0].as<int>();
+      c.board.squares_y = sq[1].as<int>();
+    }
+    Read(cal, "square_m", &c.board.square_m, path, "simulate.calibration.");
+    Read(cal, "marker_m", &c.board.marker_m, path, "simulate.calibration.");
+    Read(cal, "shared_per_pair", &c.shared_per_pair, path, "simulate.calibration.");
+    Read(cal, "closeups_per_camera", &c.closeups_per_camera, path, "simulate.calibration.");
+  }
+  if (YAML::Node r = s["render"]) {
+    Read(r, "step_voxels", &c.render.step_voxels, path, "simulate.render.");
+  }
+  try {
+    c.Validate();
+  } catch (const std::invalid_argument& e) {
+    throw std::runtime_error(path + ": " + e.what());
+  }
+  return c;
+}
+
+void SimulateConfig::Validate() const {
+  auto fail = [](const std::string& what) { throw std::invalid_argument("simulate." + what); };
+  if (frames < 1 || frames > 100000) fail("frames must be in [1, 100000]");
+  if (!(frame_rate_hz > 0) || !(frame_rate_hz <= 100000))
+    fail("frame_rate_hz must be in (0, 100000]");
+  if (absorption != "soot" && absorption != "grey") fail("absorption must be 'soot' or 'grey'");
+  if (grid_resolution < 1 || grid_resolution > 1024) fail("grid_resolution must be in [1, 1024]");
+  if (!auto_exposure && (!(exposure >= 0.01) || !(exposure <= 1000)))
+    fail("exposure must be 'auto' or in [0.01, 1000]");
+  if (!(noise_dn >= 0) || !(noise_dn <= 50)) fail("noise_dn must be in [0, 50]");
+  if (!box.IsValid()) fail("box: max must exceed min on every axis");
+  if (shared_per_pair < 0 || closeups_per_camera < 0) fail("calibration view counts must be >= 0");
+  fire.Validate();
+  ring.Validate();
+  board.Validate();
+  render.Validate();
+}
+
+SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_dir,
+                         const ProgressCallback& progress) {
+  config.Validate();
+  const auto start = std::chrono::steady_clock::now();
+  auto report = [&](const std::string& stage, int done, int total) {
+    if (progress) progress(stage, done, total);
+  };
+  fs::create_directories(out_dir);
+  SimulateSummary summary;
+  summary.out_dir = out_dir;
+
+  Rig rig = synthetic::MakeRingRig(config.box, config.ring, "sim");
+  rig.Save((fs::path(out_dir) / "rig.yaml").string());
+  summary.cameras = static_cast<int>(rig.cameras.size());
+
+  const AbsorptionModel absorption = AbsorptionModel::FromName(config.absorption);
+  const GridGeometry grid = GridGeometry::FromBox(config.box, config.grid_resolution);
+  FireRenderer renderer(absorption, config.render);
+  std::vector<CameraRays> rays;
+  for (const auto& c : rig.cameras) rays.emplace_back(c.model);
+
+  YAML::Emitter yaml;
+  yaml << YAML::BeginMap;
+  yaml << YAML::Key << "dataset" << YAML::Value << YAML::BeginMap;
+  yaml << YAML::Key << "generator" << YAML::Value << "flamerig simulate";
+  yaml << YAML::Key << "rig" << YAML::Value << "rig.yaml";
+  yaml << YAML::Key << "seed" << YAML::Value << config.seed;
+  yaml << YAML::Key << "fire" << YAML::Value << synthetic::ToString(config.fire.kind);
+  yaml << YAML::Key << "absorption" << YAML::Value << absorption.name();
+  yaml << YAML::Key << "grid_dims" << YAML::Value << YAML::Flow
+       << std::vector<int>{grid.dims.x(), grid.dims.y(), grid.dims.z()};
+  yaml << YAML::Key << "voxel_size_m" << YAML::Value << grid.voxel_size_m.x();
+  yaml << YAML::Key << "frame_rate_hz" << YAML::Value << config.frame_rate_hz;
+  yaml << YAML::Key << "noise_dn" << YAML::Value << config.noise_dn;
+  yaml << YAML::Key << "render_step_voxels" << YAML::Value << config.render.step_voxels;
+
+  double exposure = config.exposure;
+  yaml << YAML::Key << "frames" << YAML::Value << YAML::BeginSeq;
+  std::vector<ImageU8> preview;
+  for (int f = 0; f < config.frames; ++f) {
+    report("fire frames", f, config.frames);
+    synthetic::FireOptions fire_options = config.fire;
+    fire_options.seed = config.seed;
+    fire_options.time_s = f / config.frame_rate_hz;
+    FireVolume fire = synthetic::MakeFire(grid, fire_options, absorption);
+    fire.emission_rgb = synthetic::ThinEmissionRgb(fire, absorption);
+    renderer.SetVolume(grid, fire.temperature_k, fire.density_per_m3);
+    std::vector<ImageF> linear(rig.cameras.size());
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c)
+      summary.last_render = renderer.Render(rays[c], &linear[c]);
+
+    if (f == 0 && config.auto_exposure) {
+      // Exposure such that the 99.5th percentile of the brightest channel over fire pixels is full
+      // scale: the cores of the flame saturate slightly, as in real footage.
+      std::vector<float> values;
+      float max_value = 0;
+      for (const auto& img : linear)
+        for (std::size_t p = 0; p < img.num_pixels(); ++p) {
+          float m = std::max({img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]});
+          max_value = std::max(max_value, m);
+          values.push_back(m);
+        }
+      std::vector<float> fire_values;
+      for (float v : values)
+        if (v > 1e-3f * max_value && v > 0) fire_values.push_back(v);
+      if (fire_values.empty()) {
+        exposure = 1.0;
+        summary.exposure_source = "auto: no fire visible, exposure 1";
+      } else {
+        std::size_t idx = static_cast<std::size_t>(0.995 * (fire_values.size() - 1));
+        std::nth_element(fire_values.begin(), fire_values.begin() + idx, fire_values.end());
+        exposure = std::clamp(1.0 / fire_values[idx], 0.01, 1000.0);
+        summary.exposure_source = "auto: 99.5th percentile of fire pixels at full scale";
+      }
+    } else if (f == 0) {
+      summary.exposure_source = "config";
+    }
+    fire.metadata_numbers["exposure"] = exposure;
+    const std::string name = FrameName(f);
+    fs::create_directories(fs::path(out_dir) / "truth");
+    WriteVdb((fs::path(out_dir) / "truth" / (name + ".vdb")).string(), fire);
+    fs::path frame_dir = fs::path(out_dir) / "frames" / name;
+    fs::create_directories(frame_dir);
+    std::size_t saturated = 0, lit = 0;
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+      ImageU8 image = ApplyCameraResponse(linear[c], exposure);
+      if (f == 0) {
+        for (std::size_t p = 0; p < image.num_pixels(); ++p) {
+          int m = std::max({image.pixels[3 * p], image.pixels[3 * p + 1], image.pixels[3 * p + 2]});
+          if (m > 2) ++lit;
+          if (m == 255) ++saturated;
+        }
+      }
+      AddSensorNoise(&image, config.noise_dn, config.seed * 1000003ULL + f * 101ULL + c);
+      WritePng((frame_dir / (rig.cameras[c].name + ".png")).string(), image);
+      if (f == 0) preview.push_back(image);
+    }
+    if (f == 0) summary.saturated_pixel_fraction = lit ? double(saturated) / lit : 0.0;
+    yaml << YAML::BeginMap << YAML::Key << "name" << YAML::Value << name << YAML::Key << "time_s"
+         << YAML::Value << fire_options.time_s << YAML::Key << "truth" << YAML::Value
+         << "truth/" + name + ".vdb" << YAML::Key << "images" << YAML::Value << "frames/" + name
+         << YAML::EndMap;
+  }
+  report("fire frames", config.frames, config.frames);
+  yaml << YAML::EndSeq;
+  yaml << YAML::Key << "exposure" << YAML::Value << exposure;
+  yaml << YAML::Key << "exposure_source" << YAML::Value << summary.exposure_source;
+  summary.exposure = exposure;
+  summary.frames = config.frames;
+
+  if (config.calibration) {
+    auto views = synthetic::MakeCalibrationViews(
+        rig, config.board, config.seed + 1, config.shared_per_pair, config.closeups_per_camera);
+    fs::path cal_dir = fs::path(out_dir) / "calibration";
+    fs::create_directories(cal_dir);
+    YAML::Emitter board_yaml;
+    board_yaml << YAML::BeginMap << YAML::Key << "board" << YAML::Value << YAML::BeginMap;
+    board_yaml << YAML::Key << "type" << YAML::Value
+               << (config.board.type == synthetic::BoardType::kCharuco ? "charuco" : "chessboard");
+    board_yaml << YAML::Key << "squares" << YAML::Value << YAML::Flow
+               << std::vector<int>{config.board.squares_x, config.board.squares_y};
+    board_yaml << YAML::Key << "square_m" << YAML::Value << config.board.square_m;
+    board_yaml << YAML::Key << "marker_m" << YAML::Value << config.board.marker_m;
+    board_yaml << YAML::Key << "aruco_dictionary" << YAML::Value << config.board.aruco_dictionary;
+    board_yaml << YAML::Key << "frame" << YAML::Value
+               << "origin at the pattern's top-left corner, x along squares_x, y along squares_y, "
+                  "printed side faces -z";
+    board_yaml << YAML::EndMap;
+    board_yaml << YAML::Key << "views" << YAML::Value << YAML::BeginSeq;
+    for (std::size_t v = 0; v < views.size(); ++v) {
+      report("calibration views", static_cast<int>(v), static_cast<int>(views.size()));
+      char vname[32];
+      std::snprintf(vname, sizeof(vname), "view_%03zu", v);
+      fs::create_directories(cal_dir / vname);
+      std::vector<std::string> names;
+      for (int c : views[v].cameras) {
+        ImageU8 img =
+            synthetic::RenderBoard(rig.cameras[c].model, config.board, views[v].rig_from_board,
+                                   config.noise_dn > 0 ? std::max(config.noise_dn, 1.0) : 0.0,
+                                   config.seed * 7919ULL + v * 31ULL + c);
+        WritePng((cal_dir / vname / (rig.cameras[c].name + ".png")).string(), img);
+        names.push_back(rig.cameras[c].name);
+        ++summary.calibration_images;
+        if (v == 0) preview.push_back(img);
+      }
+      auto rt = views[v].rig_from_board.ToRt();
+      board_yaml << YAML::BeginMap << YAML::Key << "name" << YAML::Value << vname << YAML::Key
+                 << "kind" << YAML::Value << views[v].kind << YAML::Key << "rt_rig_from_board"
+                 << YAML::Value << YAML::Flow << std::vector<double>(rt.begin(), rt.end())
+                 << YAML::Key << "cameras" << YAML::Value << YAML::Flow << names << YAML::EndMap;
+    }
+    board_yaml << YAML::EndSeq << YAML::EndMap;
+    std::ofstream((cal_dir / "board.yaml").string()) << board_yaml.c_str() << "\n";
+    summary.calibration_views = static_cast<int>(views.size());
+    report("calibration views", summary.calibration_views, summary.calibration_views);
+    yaml << YAML::Key << "calibration" << YAML::Value << "calibration/board.yaml";
+  }
+  yaml << YAML::EndMap << YAML::EndMap;
+  std::ofstream dataset((fs::path(out_dir) / "dataset.yaml").string());
+  dataset << yaml.c_str() << "\n";
+  if (!dataset) throw std::runtime_error(out_dir + "/dataset.yaml: write failed");
+  if (!preview.empty())
+    WritePng((fs::path(out_dir) / "preview.png").string(), ContactSheet(preview, 240));
+  summary.time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return summary;
+}
+
+}  // namespace flamerig
