@@ -74,6 +74,25 @@ class SpectralBins {
     return Real(a) + f * (Real(b) - Real(a));
   }
 
+  // All bins at once into `out[count()]`: the renderer's vectorisable form of Planck().
+  template <typename Real>
+  void PlanckAll(Real temperature_k, Real* out) const {
+    const int n = count();
+    if (!(temperature_k > Real(0))) {
+      for (int b = 0; b < n; ++b) out[b] = Real(0);
+      return;
+    }
+    if (temperature_k >= Real(kMaxTableK)) {
+      for (int b = 0; b < n; ++b) out[b] = Real(PlanckExact(b, double(temperature_k)));
+      return;
+    }
+    const int i = static_cast<int>(temperature_k);
+    const Real f = temperature_k - Real(i);
+    const float* row0 = &planck_[static_cast<std::size_t>(i) * n];
+    const float* row1 = row0 + n;
+    for (int b = 0; b < n; ++b) out[b] = Real(row0[b]) + f * (Real(row1[b]) - Real(row0[b]));
+  }
+
  private:
   double PlanckExact(int bin, double temperature_k) const;
   double step_nm_;
