@@ -206,7 +206,8 @@ inline double VectorExp(double x) { return std::exp(x); }
 // 1 - exp(-tau) for tau >= 0 without cancellation at small tau (series below 1e-2).
 template <typename Real>
 inline Real OneMinusExpNeg(Real tau) {
-  const Real series = tau * (Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24))));
+  const Real series =
+      tau * (Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24))));
   const Real direct = Real(1) - VectorExp(-tau);  // both computed: a select, not a branch
   return tau < Real(1e-2) ? series : direct;
 }

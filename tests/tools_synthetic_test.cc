@@ -103,7 +103,7 @@ TEST(Ring, CamerasLookAtTheBoxCentre) {
     Eigen::Vector2d q = c.model.Project(kBox.center());
     EXPECT_NEAR(q.x(), 159.5, 1e-6);
     EXPECT_NEAR(q.y(), 119.5, 1e-6);
-    EXPECT_NEAR((c.model.center_in_rig() - kBox.center()).norm(), 0.4, 1e-12);
+    EXPECT_NEAR((c.model.center_in_rig() - kBox.center()).norm(), o.distance_m, 1e-12);
     // The whole box is in view.
     for (int corner = 0; corner < 8; ++corner) {
       Eigen::Vector3d p(corner & 1 ? kBox.max_in_rig.x() : kBox.min_in_rig.x(),

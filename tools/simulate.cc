@@ -331,10 +331,10 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
       fs::create_directories(cal_dir / vname);
       std::vector<std::string> names;
       for (int c : views[v].cameras) {
-        ImageU8 img =
-            synthetic::RenderBoard(rig.cameras[c].model, config.board, views[v].rig_from_board,
-                                   config.noise_dn > 0 ? std::max(config.noise_dn, 1.0) : 0.0,
-                                   config.seed * 7919ULL + v * 31ULL + c);
+        ImageU8 img = synthetic::RenderBoard(
+            rig.cameras[c].model, rays[c].rays(), config.board, views[v].rig_from_board,
+            config.noise_dn > 0 ? std::max(config.noise_dn, 1.0) : 0.0,
+            config.seed * 7919ULL + v * 31ULL + c);
         WritePng((cal_dir / vname / (rig.cameras[c].name + ".png")).string(), img);
         names.push_back(rig.cameras[c].name);
         ++summary.calibration_images;

@@ -14,7 +14,7 @@
 //   fire: {kind [candle|licks], peak_temperature_k [2000], peak_soot_volume_fraction [1e-6], licks
 //   [0]} absorption [soot|grey], grid_resolution [64], exposure [auto | number in [0.01, 1000]],
 //   noise_dn [0.5], box: {min, max}
-//   rig: {cameras [2], azimuths_deg, distance_m [0.4], elevation_deg [0], width [320], height
+//   rig: {cameras [2], azimuths_deg, distance_m [0.3], elevation_deg [0], width [320], height
 //   [240],
 //         fill [0.85], lensmodel [LENSMODEL_OPENCV8]}
 //   calibration: {enabled [true], board [charuco|chessboard], squares [7, 5], square_m [0.012],
@@ -38,7 +38,7 @@ struct SimulateConfig {
   double frame_rate_hz = 30.0;
   synthetic::FireOptions fire;
   std::string absorption = "soot";
-  Box3 box{Eigen::Vector3d(-0.02, 0.0, -0.02), Eigen::Vector3d(0.02, 0.08, 0.02)};
+  Box3 box{Eigen::Vector3d(-0.015, 0.0, -0.015), Eigen::Vector3d(0.015, 0.07, 0.015)};
   int grid_resolution = 64;
   bool auto_exposure = true;
   double exposure = 1.0;  // used when auto_exposure is false

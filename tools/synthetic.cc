@@ -92,15 +92,15 @@ class CandleFlame {
     double flicker = 1.0 + 0.04 * std::sin(2 * kPi * 7.1 * time_s_ + 2 * phase_);
     // Teardrop radius, peak near s = 0.38, normalised to 0.55 of the half-width.
     double profile = std::sqrt(s) * std::pow(1 - s, 0.8);
-    double radius = 0.55 * profile / 0.4795 * flicker;
+    double radius = 0.8 * profile / 0.4795 * flicker;
     double turbulence = 0.10 * Fbm(seed_, 3 * u, 4 * v - 2.5 * time_s_, 3 * w);
     double r = std::hypot(u - sway, w) / std::max(radius, 1e-6) * (1 + turbulence);
     if (r >= 1) return out;
-    double inside = Smoothstep(1.0, 0.55, r);
+    double inside = Smoothstep(1.0, 0.7, r);
     double sheath = std::exp(-std::pow((r - 0.7) / 0.35, 2));
     double axial = Smoothstep(0.0, 0.12, s) * (1 - 0.25 * s * s * s);
     out.heat = inside * axial * (0.72 + 0.28 * sheath);
-    double soot_zone = Smoothstep(0.18, 0.5, s) * (1 - Smoothstep(0.82, 1.0, s));
+    double soot_zone = Smoothstep(0.0, 0.4, s) * (1 - Smoothstep(0.8, 1.0, s));
     out.soot = inside * soot_zone * (0.55 + 0.45 * (1 - r)) *
                std::clamp(1 + 0.3 * Fbm(seed_ + 17, 5 * u, 6 * v - 3 * time_s_, 5 * w), 0.3, 1.6);
     out.soot = std::clamp(out.soot, 0.0, 1.0);
@@ -121,11 +121,11 @@ class LicksFire {
     if (count <= 0) count = 3 + static_cast<int>(uni(rng) * 4);  // 3..6
     for (int i = 0; i < count; ++i) {
       Lick l;
-      double a = 2 * kPi * uni(rng), rr = 0.45 * std::sqrt(uni(rng));
+      double a = 2 * kPi * uni(rng), rr = 0.35 * std::sqrt(uni(rng));
       l.base_u = rr * std::cos(a);
       l.base_w = rr * std::sin(a);
-      l.height = 0.5 + 0.45 * uni(rng);
-      l.radius = 0.16 + 0.14 * uni(rng);
+      l.height = 0.55 + 0.4 * uni(rng);
+      l.radius = 0.28 + 0.17 * uni(rng);
       l.lean_u = 0.5 * (uni(rng) - 0.5);
       l.lean_w = 0.5 * (uni(rng) - 0.5);
       l.phase = 2 * kPi * uni(rng);
@@ -137,8 +137,8 @@ class LicksFire {
     FlameSample out;
     if (v <= 0 || v >= 1) return out;
     // Turbulent displacement rising with the flow.
-    double du = 0.10 * Fbm(seed_ + 1, 2.5 * u, 3 * v - 2 * time_s_, 2.5 * w);
-    double dw = 0.10 * Fbm(seed_ + 2, 2.5 * u, 3 * v - 2 * time_s_, 2.5 * w);
+    double du = 0.15 * Fbm(seed_ + 1, 2.5 * u, 3 * v - 2 * time_s_, 2.5 * w);
+    double dw = 0.15 * Fbm(seed_ + 2, 2.5 * u, 3 * v - 2 * time_s_, 2.5 * w);
     double best = 0;
     for (const Lick& l : licks_) {
       double height =
@@ -148,10 +148,10 @@ class LicksFire {
       double sway = 0.08 * std::sin(2 * kPi * 0.8 * l.frequency_hz * time_s_ + l.phase) * s * s;
       double cu = l.base_u + l.lean_u * s * height + sway;
       double cw = l.base_w + l.lean_w * s * height;
-      double radius = l.radius * std::pow(1 - s, 0.7) * (0.7 + 0.3 * std::sqrt(s));
+      double radius = l.radius * std::pow(1 - s, 0.5) * (0.75 + 0.25 * std::sqrt(s));
       double r = std::hypot(u + du - cu, w + dw - cw) / std::max(radius, 1e-6);
       if (r >= 1) continue;
-      double value = Smoothstep(1.0, 0.4, r) * (1 - 0.35 * s) * Smoothstep(0.0, 0.05, v);
+      double value = Smoothstep(1.0, 0.6, r) * (1 - 0.2 * s) * Smoothstep(0.0, 0.05, v);
       best = std::max(best, value);
     }
     // A shallow pool of flame joining the bases.
@@ -419,7 +419,17 @@ cv::Mat BoardTexture(const BoardSpec& board, int px_per_square) {
 
 ImageU8 RenderBoard(const CameraModel& camera, const BoardSpec& board, const Rigid3& rig_from_board,
                     double noise_dn, std::uint64_t seed, int supersample) {
+  return RenderBoard(camera, camera.UnprojectAllPixels(), board, rig_from_board, noise_dn, seed,
+                     supersample);
+}
+
+ImageU8 RenderBoard(const CameraModel& camera, const std::vector<Ray>& rays, const BoardSpec& board,
+                    const Rigid3& rig_from_board, double noise_dn, std::uint64_t seed,
+                    int supersample) {
   board.Validate();
+  if (rays.size() != static_cast<std::size_t>(camera.width()) * camera.height()) {
+    throw std::invalid_argument("RenderBoard: need one ray per pixel of the camera");
+  }
   if (supersample < 1 || supersample > 8)
     throw std::invalid_argument("RenderBoard: supersample must be in [1, 8]");
   const int px_per_square = 64;
@@ -427,7 +437,6 @@ ImageU8 RenderBoard(const CameraModel& camera, const BoardSpec& board, const Rig
   const double texels_per_m = px_per_square / board.square_m;
   const Rigid3 board_from_rig = rig_from_board.Inverse();
   const int width = camera.width(), height = camera.height();
-  const std::vector<Ray> rays = camera.UnprojectAllPixels();
   ImageU8 image(width, height, 1);
 
   auto shade = [&](const Eigen::Vector3d& origin, const Eigen::Vector3d& direction) -> double {

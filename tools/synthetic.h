@@ -57,7 +57,7 @@ struct RingOptions {
   int cameras = 2;  // [1, 16]
   std::vector<double>
       azimuths_deg;            // one per camera; empty: 0 and 90 for two cameras, else 360/N apart
-  double distance_m = 0.4;     // from the box centre to each camera
+  double distance_m = 0.3;     // from the box centre to each camera
   double elevation_deg = 0.0;  // above the box centre's horizontal plane
   int width = 320;
   int height = 240;
@@ -92,6 +92,11 @@ struct BoardSpec {
 // pixel, on a dark background, plus Gaussian noise of `noise_dn` (8-bit units) drawn from `seed`.
 ImageU8 RenderBoard(const CameraModel& camera, const BoardSpec& board, const Rigid3& rig_from_board,
                     double noise_dn, std::uint64_t seed, int supersample = 3);
+// The same with the camera's pixel rays already unprojected (camera.UnprojectAllPixels()), which
+// saves the unprojection when rendering many views.
+ImageU8 RenderBoard(const CameraModel& camera, const std::vector<Ray>& pixel_rays,
+                    const BoardSpec& board, const Rigid3& rig_from_board, double noise_dn,
+                    std::uint64_t seed, int supersample = 3);
 
 struct BoardView {
   Rigid3 rig_from_board;
