@@ -13,6 +13,7 @@
 #include <stdexcept>
 
 #include "fitting/colour.h"
+#include "tomography/ray_march.h"
 
 namespace flamerig {
 
@@ -55,9 +56,6 @@ std::string RenderSummary::BriefReport() const {
     << " ms";
   return s.str();
 }
-
-CameraRays::CameraRays(const CameraModel& camera)
-    : width_(camera.width()), height_(camera.height()), rays_(camera.UnprojectAllPixels()) {}
 
 FireRenderer::FireRenderer(const AbsorptionModel& absorption, const RenderOptions& options)
     : absorption_(absorption), options_(options) {
@@ -131,58 +129,6 @@ void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<flo
 
 namespace {
 
-// Entry and exit distances of a ray with the axis-aligned box [lo, hi]; false when it misses.
-bool IntersectBox(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
-                  const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double* t_enter,
-                  double* t_exit) {
-  double t0 = 0.0, t1 = std::numeric_limits<double>::infinity();
-  for (int a = 0; a < 3; ++a) {
-    if (std::abs(direction[a]) < 1e-300) {
-      if (origin[a] < lo[a] || origin[a] > hi[a]) return false;
-      continue;
-    }
-    double inv = 1.0 / direction[a];
-    double ta = (lo[a] - origin[a]) * inv, tb = (hi[a] - origin[a]) * inv;
-    if (ta > tb) std::swap(ta, tb);
-    t0 = std::max(t0, ta);
-    t1 = std::min(t1, tb);
-  }
-  if (!(t1 > t0)) return false;
-  *t_enter = t0;
-  *t_exit = t1;
-  return true;
-}
-
-// Trilinear sampling of a scalar field at index coordinates, clamped to the grid.
-template <typename Real>
-struct Trilinear {
-  int i0, j0, k0, i1, j1, k1;
-  Real fx, fy, fz;
-
-  Trilinear(const Eigen::Vector3i& dims, Real x, Real y, Real z) {
-    Setup(dims.x(), x, &i0, &i1, &fx);
-    Setup(dims.y(), y, &j0, &j1, &fy);
-    Setup(dims.z(), z, &k0, &k1, &fz);
-  }
-  static void Setup(int n, Real c, int* a, int* b, Real* f) {
-    c = std::clamp(c, Real(0), Real(n - 1));
-    int lo = std::min(static_cast<int>(c), std::max(n - 2, 0));
-    *a = lo;
-    *b = std::min(lo + 1, n - 1);
-    *f = c - Real(lo);
-  }
-  Real Sample(const float* field, std::size_t nx, std::size_t nxy) const {
-    auto at = [&](int i, int j, int k) { return Real(field[i + nx * j + nxy * k]); };
-    Real c00 = at(i0, j0, k0) + fx * (at(i1, j0, k0) - at(i0, j0, k0));
-    Real c10 = at(i0, j1, k0) + fx * (at(i1, j1, k0) - at(i0, j1, k0));
-    Real c01 = at(i0, j0, k1) + fx * (at(i1, j0, k1) - at(i0, j0, k1));
-    Real c11 = at(i0, j1, k1) + fx * (at(i1, j1, k1) - at(i0, j1, k1));
-    Real c0 = c00 + fy * (c10 - c00);
-    Real c1 = c01 + fy * (c11 - c01);
-    return c0 + fz * (c1 - c0);
-  }
-};
-
 // exp(x) for float in plain arithmetic (Cephes-style range reduction and polynomial, relative error
 // about 2e-7), so that the spectral loop over wavelength bins vectorises; libm's expf does not.
 inline float VectorExp(float x) {
@@ -225,7 +171,6 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
   *linear_rgb = ImageF(width, height, 3, 0.0f);
 
   const GridGeometry& g = geometry_;
-  const Box3 box = g.box();
   const double step_m = options_.step_voxels * g.voxel_size_m.minCoeff();
   const std::size_t nx = g.dims.x(), nxy = nx * g.dims.y();
   const float* density = density_per_m3_.data();
@@ -252,31 +197,21 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
     }
     for (int y = rows.begin(); y < rows.end(); ++y) {
       for (int x = 0; x < width; ++x) {
-        const Ray& ray = camera_rays.rays()[static_cast<std::size_t>(y) * width + x];
-        if (!ray.valid) continue;
-        double t_enter, t_exit;
-        if (!IntersectBox(ray.origin_in_rig, ray.direction_in_rig, box.min_in_rig, box.max_in_rig,
-                          &t_enter, &t_exit)) {
-          continue;
-        }
+        RayMarch march;
+        if (!RayMarch::Make(g, camera_rays.at(x, y), step_m, &march)) continue;
         ++c.hit;
-        // Index-space ray: p(t) = o + t * d, t in metres along the world ray.
-        const Eigen::Vector3d o = g.IndexFromRig(ray.origin_in_rig);
-        const Eigen::Vector3d d = ray.direction_in_rig.cwiseQuotient(g.voxel_size_m);
-        const double length = t_exit - t_enter;
-        const std::int64_t n_steps =
-            std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(length / step_m - 1e-9)));
-
+        const Eigen::Vector3d& o = march.origin_index;
+        const Eigen::Vector3d& d = march.direction_index;
+        const std::int64_t n_steps = march.n_steps;
         for (int b = 0; b < nbins; ++b) {
           radiance[b] = Real(0);
           transmittance[b] = Real(1);
         }
         std::int64_t k = 0;
         while (k < n_steps) {
-          const double ta = t_enter + k * step_m;
-          const double tb = std::min(ta + step_m, t_exit);
-          const double tm = 0.5 * (ta + tb);
-          const Eigen::Vector3d p = o + tm * d;
+          double step_length;
+          Eigen::Vector3d p;
+          march.Step(k, &step_length, &p);
           if (skip) {
             const int bi = std::clamp(static_cast<int>(std::floor((p.x() + 0.5) / brick)), 0,
                                       brick_dims_.x() - 1);
@@ -295,23 +230,18 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
                 else if (d[a] < 0)
                   t_leave = std::min(t_leave, (bidx[a] * brick - 0.5 - o[a]) / d[a]);
               }
-              std::int64_t next = k + 1;
-              if (std::isfinite(t_leave)) {
-                double kk = std::ceil((t_leave - t_enter) / step_m - 0.5);
-                if (kk > double(next))
-                  next = kk >= double(n_steps) ? n_steps : static_cast<std::int64_t>(kk);
-              }
+              const std::int64_t next = std::max(k + 1, march.FirstStepAfter(t_leave));
               c.skipped += next - k;
               k = next;
               continue;
             }
           }
-          const Trilinear<Real> s(g.dims, Real(p.x()), Real(p.y()), Real(p.z()));
+          const TrilinearStencil<Real> s(g.dims, Real(p.x()), Real(p.y()), Real(p.z()));
           const Real n = s.Sample(density, nx, nxy);
           ++c.evaluated;
           if (n > Real(0)) {
             const Real t = s.Sample(temperature, nx, nxy);
-            const Real ds = Real(tb - ta);
+            const Real ds = Real(step_length);
             if (!spectral) {
               const Real tau = grey_sigma * n * ds;
               const Real absorbed = -std::expm1(-tau);  // 1 - exp(-tau), accurate for small tau

@@ -39,7 +39,7 @@
 #include <vector>
 
 #include "acquisition/image.h"
-#include "calibration/camera_model.h"
+#include "calibration/camera_rays.h"
 #include "fitting/absorption.h"
 #include "fitting/spectral_tables.h"
 #include "tomography/volume.h"
@@ -86,20 +86,6 @@ struct RenderSummary {
   double time_ms = 0.0;
 
   std::string BriefReport() const;
-};
-
-// The rays of every pixel of a camera, unprojected once through its lens model and reused for every
-// render of that camera (unprojecting a distorted model costs about 1 us per pixel).
-class CameraRays {
- public:
-  explicit CameraRays(const CameraModel& camera);
-  int width() const { return width_; }
-  int height() const { return height_; }
-  const std::vector<Ray>& rays() const { return rays_; }
-
- private:
-  int width_, height_;
-  std::vector<Ray> rays_;
 };
 
 class FireRenderer {

@@ -1,0 +1,41 @@
+// The rays of every pixel of a camera, in the rig frame: what the renderer marches and what the
+// tomography's system matrix is built from. Unprojecting a distorted lens model costs about 1 us
+// per pixel, so rays are computed once per camera and reused for every frame.
+//
+// Rays are stored row-major (index y * width + x), one per pixel centre. A CameraRays can also be
+// made from explicit rays, for cameras mrcal has no lens model for (an orthographic test camera,
+// say).
+#ifndef FLAMERIG_CALIBRATION_CAMERA_RAYS_H_
+#define FLAMERIG_CALIBRATION_CAMERA_RAYS_H_
+
+#include <stdexcept>
+#include <vector>
+
+#include "calibration/camera_model.h"
+
+namespace flamerig {
+
+class CameraRays {
+ public:
+  explicit CameraRays(const CameraModel& camera)
+      : width_(camera.width()), height_(camera.height()), rays_(camera.UnprojectAllPixels()) {}
+  // Throws std::invalid_argument unless rays.size() == width * height.
+  CameraRays(int width, int height, std::vector<Ray> rays)
+      : width_(width), height_(height), rays_(std::move(rays)) {
+    if (width <= 0 || height <= 0 || rays_.size() != static_cast<std::size_t>(width) * height) {
+      throw std::invalid_argument("CameraRays: need width * height rays");
+    }
+  }
+  int width() const { return width_; }
+  int height() const { return height_; }
+  const std::vector<Ray>& rays() const { return rays_; }
+  const Ray& at(int x, int y) const { return rays_[static_cast<std::size_t>(y) * width_ + x]; }
+
+ private:
+  int width_, height_;
+  std::vector<Ray> rays_;
+};
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_CALIBRATION_CAMERA_RAYS_H_
