@@ -19,6 +19,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "acquisition/srgb.h"
+
 namespace flamerig::colour {
 
 // The CIE 1931 2-degree standard observer tabulated at 1 nm from 360 to 830 nm (471 rows), compiled
@@ -65,11 +67,11 @@ const Eigen::Matrix3d& XyzFromLinearSrgb();
 // XYZ of linear sRGB white (1, 1, 1): the D65 reference white used for CIELab.
 Eigen::Vector3d D65White();
 
-// The sRGB transfer curve ("gamma"), input clamped to [0, 1]. NaN maps to 0.
-double SrgbEncode(double linear);
-double SrgbDecode(double encoded);
-// round(255 * encoded), saturating; NaN maps to 0.
-std::uint8_t QuantizeU8(double encoded);
+// The sRGB transfer curve and quantisation live with images (acquisition/srgb.h).
+using ::flamerig::QuantizeU8;
+using ::flamerig::SrgbDecode;
+using ::flamerig::SrgbEncode;
+using ::flamerig::SrgbU8ToLinearTable;
 
 // CIELab of an XYZ colour relative to `white_xyz` (D65 by default).
 Eigen::Vector3d XyzToLab(const Eigen::Vector3d& xyz, const Eigen::Vector3d& white_xyz);
@@ -80,10 +82,6 @@ Eigen::Vector3d SrgbU8ToLab(std::uint8_t r, std::uint8_t g, std::uint8_t b);
 inline double DeltaE76(const Eigen::Vector3d& lab1, const Eigen::Vector3d& lab2) {
   return (lab1 - lab2).norm();
 }
-
-// A lookup table from 8-bit sRGB to Lab for all 2^24 colours would be 200 MB; instead this converts
-// one channel value to linear once. Useful for images.
-const std::array<double, 256>& SrgbU8ToLinearTable();
 
 }  // namespace flamerig::colour
 

@@ -99,8 +99,33 @@ void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<flo
   }
   check.Validate();
   geometry_ = geometry;
-  temperature_k_ = temperature_k;
-  density_per_m3_ = density_per_m3;
+  const std::size_t nvox = geometry.num_voxels();
+  if (path_ == SpectralPath::kFast) {
+    // Per voxel: kappa and XYZ(T), interleaved so that a trilinear sample reads 8 x 16 bytes.
+    const double sigma = absorption_.CrossSectionM2(550.0);
+    const BlackbodyXyzTable& table = BlackbodyXyzTable::Get();
+    fast_.assign(4 * nvox, 0.0f);
+    for (std::size_t v = 0; v < nvox; ++v) {
+      if (!(density_per_m3[v] > 0)) continue;
+      double xyz[3];
+      table.Lookup(double(temperature_k[v]), xyz);
+      fast_[4 * v] = static_cast<float>(sigma * density_per_m3[v]);
+      for (int c = 0; c < 3; ++c) fast_[4 * v + 1 + c] = static_cast<float>(xyz[c]);
+    }
+  } else {
+    // Per voxel with soot: B_b(T) for every bin (kappa_b = sigma_b * n is formed per sample).
+    const int nbins = bins_->count();
+    density_ = density_per_m3;
+    slot_.assign(nvox, -1);
+    spectra_.clear();
+    std::vector<double> planck(nbins);
+    for (std::size_t v = 0; v < nvox; ++v) {
+      if (!(density_per_m3[v] > 0)) continue;
+      slot_[v] = static_cast<std::int32_t>(spectra_.size() / nbins);
+      bins_->PlanckAll(double(temperature_k[v]), planck.data());
+      for (int b = 0; b < nbins; ++b) spectra_.push_back(static_cast<float>(planck[b]));
+    }
+  }
 
   // Bricks: occupied when any voxel within one voxel of the brick has density > 0, so that a
   // trilinear sample anywhere inside an unoccupied brick is exactly zero.
@@ -111,7 +136,7 @@ void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<flo
   for (int k = 0; k < d.z(); ++k)
     for (int j = 0; j < d.y(); ++j)
       for (int i = 0; i < d.x(); ++i) {
-        if (!(density_per_m3_[geometry_.Flat(i, j, k)] > 0)) continue;
+        if (!(density_per_m3[geometry_.Flat(i, j, k)] > 0)) continue;
         for (int dk = -1; dk <= 1; ++dk)
           for (int dj = -1; dj <= 1; ++dj)
             for (int di = -1; di <= 1; ++di) {
@@ -173,15 +198,11 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
   const GridGeometry& g = geometry_;
   const double step_m = options_.step_voxels * g.voxel_size_m.minCoeff();
   const std::size_t nx = g.dims.x(), nxy = nx * g.dims.y();
-  const float* density = density_per_m3_.data();
-  const float* temperature = temperature_k_.data();
   const int brick = options_.brick_size_voxels;
   const bool skip = options_.skip_empty_space;
   const Real min_tr = Real(options_.min_transmittance);
   const bool spectral = path_ == SpectralPath::kSpectral;
   const int nbins = spectral ? bins_->count() : 3;
-  const Real grey_sigma = spectral ? Real(0) : Real(absorption_.CrossSectionM2(550.0));
-  const BlackbodyXyzTable& xyz_table = BlackbodyXyzTable::Get();
   const Eigen::Matrix3d& to_rgb = colour::LinearSrgbFromXyz();
 
   std::atomic<std::int64_t> hit{0}, early{0}, evaluated{0}, skipped{0}, after{0};
@@ -237,29 +258,53 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
             }
           }
           const TrilinearStencil<Real> s(g.dims, Real(p.x()), Real(p.y()), Real(p.z()));
-          const Real n = s.Sample(density, nx, nxy);
+          std::size_t corner[8];
+          Real weight[8];
+          s.Corners(nx, nxy, corner, weight);
           ++c.evaluated;
-          if (n > Real(0)) {
-            const Real t = s.Sample(temperature, nx, nxy);
-            const Real ds = Real(step_length);
-            if (!spectral) {
-              const Real tau = grey_sigma * n * ds;
-              const Real absorbed = -std::expm1(-tau);  // 1 - exp(-tau), accurate for small tau
-              Real xyz[3];
-              xyz_table.Lookup(t, xyz);
+          const Real ds = Real(step_length);
+          if (!spectral) {
+            // Interpolate the voxels' absorption kappa and emission kappa * XYZ(T). The source
+            // emission / kappa is formed as an average of XYZ(T) weighted by w * kappa, which never
+            // overflows whatever the density.
+            Real kappa = 0;
+            for (int n = 0; n < 8; ++n) kappa += weight[n] * Real(fast_[4 * corner[n]]);
+            if (kappa > Real(0)) {
+              Real source[3] = {0, 0, 0};
+              for (int n = 0; n < 8; ++n) {
+                const float* v = &fast_[4 * corner[n]];
+                const Real u = weight[n] * Real(v[0]) / kappa;
+                for (int ch = 0; ch < 3; ++ch) source[ch] += u * Real(v[ch + 1]);
+              }
+              // Constant source over the step: L += Tr * source * (1 - exp(-tau)).
+              const Real tau = kappa * ds;
+              const Real absorbed = OneMinusExpNeg(tau);
               const Real w = transmittance[0] * absorbed;
-              for (int ch = 0; ch < 3; ++ch) radiance[ch] += w * xyz[ch];
-              transmittance[0] -= w;  // Tr * exp(-tau) = Tr - Tr * (1 - exp(-tau))
+              for (int ch = 0; ch < 3; ++ch) radiance[ch] += w * source[ch];
+              transmittance[0] -= transmittance[0] * absorbed;
               if (transmittance[0] < min_tr) {
                 ++c.early;
                 c.after += n_steps - k - 1;
                 break;
               }
-            } else {
-              bins_->PlanckAll(t, planck);
-              const Real nds = n * ds;
+            }
+          } else {
+            Real n_sample = 0;
+            for (int n = 0; n < 8; ++n) n_sample += weight[n] * Real(density_[corner[n]]);
+            if (n_sample > Real(0)) {
+              // Source per bin: emission / kappa = sum w n B_b(T) / sum w n, an average of the
+              // corners' Planck spectra weighted by w * n (no overflow whatever the density).
+              for (int b = 0; b < nbins; ++b) planck[b] = Real(0);
+              for (int n = 0; n < 8; ++n) {
+                const std::int32_t slot = slot_[corner[n]];
+                if (slot < 0 || weight[n] == Real(0)) continue;
+                const float* row = &spectra_[static_cast<std::size_t>(slot) * nbins];
+                const Real u = weight[n] * Real(density_[corner[n]]) / n_sample;
+                for (int b = 0; b < nbins; ++b) planck[b] += u * Real(row[b]);  // vectorised
+              }
               for (int b = 0; b < nbins; ++b) {  // vectorised
-                const Real w = transmittance[b] * OneMinusExpNeg(sigma[b] * nds);
+                const Real absorbed = OneMinusExpNeg(sigma[b] * n_sample * ds);
+                const Real w = transmittance[b] * absorbed;
                 radiance[b] += w * planck[b];
                 transmittance[b] -= w;
               }

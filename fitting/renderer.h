@@ -7,12 +7,16 @@
 // depth from the camera to x, and no scattering. Emission is absorption times Planck (Kirchhoff):
 // kappa appears once.
 //
-// Discretisation: temperature and density are sampled trilinearly (voxel centres at integer index
-// coordinates, values clamped at the grid's border) at the midpoint of each step of length
-// step_voxels * (smallest voxel edge) along the ray, the last step shortened to end exactly at the
-// box. Within a step the medium is taken as constant, and the step's contribution is integrated
-// exactly: L += Tr * (1 - exp(-kappa ds)) * B, Tr *= exp(-kappa ds). A homogeneous medium is
-// therefore rendered exactly at any step size; smooth media converge as the step shrinks.
+// Discretisation: each voxel's absorption kappa_j = sigma * n_j and emission kappa_j * B(T_j) are
+// computed once (SetVolume) and sampled trilinearly (voxel centres at integer index coordinates,
+// values clamped at the grid's border; tomography/ray_march.h) at the midpoint of each step of
+// length step_voxels * (smallest voxel edge) along the ray, the last step shortened to end exactly
+// at the box. Within a step the medium is taken as constant, and the step's contribution is
+// integrated exactly: L += Tr * (1 - exp(-kappa ds)) * emission / kappa, Tr *= exp(-kappa ds). A
+// homogeneous medium is therefore rendered exactly at any step size; smooth media converge as the
+// step shrinks. Interpolating emission rather than temperature makes the optically thin limit
+// exactly linear in the per-voxel emission: it is the tomography's model
+// (tomography/system_matrix.h), term for term.
 //
 // Paths, chosen automatically (RenderOptions::path = kAuto) and reported in the summary:
 //  - fast (grey absorption): the spectrum collapses into a per-kelvin XYZ table; each ray carries
@@ -118,8 +122,12 @@ class FireRenderer {
   std::vector<double> bin_cross_section_m2_;
 
   GridGeometry geometry_;
-  std::vector<float> temperature_k_;
-  std::vector<float> density_per_m3_;
+  // Fast path: per voxel {kappa, X, Y, Z}: absorption (1/m) and the XYZ of B(T).
+  std::vector<float> fast_;
+  // Spectral path: per voxel density; per voxel with soot a slot into spectra_ (B_b(T) per bin).
+  std::vector<float> density_;
+  std::vector<std::int32_t> slot_;
+  std::vector<float> spectra_;
   Eigen::Vector3i brick_dims_ = Eigen::Vector3i::Zero();
   std::vector<std::uint8_t> brick_occupied_;
   double occupied_brick_fraction_ = 0;

@@ -1,6 +1,8 @@
 // flamerig: one binary, subcommands. Run `flamerig help` for the list.
 #include <tbb/global_control.h>
 
+#include <yaml-cpp/yaml.h>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -11,6 +13,7 @@
 #include <vector>
 
 #include "fitting/renderer.h"
+#include "tomography/reconstruct.h"
 #include "tomography/vdb_io.h"
 #include "tools/benchmark.h"
 #include "tools/simulate.h"
@@ -31,6 +34,12 @@ commands:
   render --rig RIG.yaml --volume V.vdb --out DIR [--exposure S|auto] [--absorption soot|grey]
          [--step VOXELS]
         Render every rig camera's view of a temperature/density volume to DIR/<camera>.png.
+  reconstruct --rig RIG.yaml --images DIR --out E.vdb [--exposure S] [--resolution N]
+              [--solver sart|cgls] [--iterations N] [--holdout CAMERA] [--cache DIR] [--no-coarse]
+              [--truth T.vdb]
+        Algebraic tomography of one frame set (DIR/<camera>.png for every rig camera) into an RGB
+        emission volume. The exposure defaults to the one in dataset.yaml beside the rig, else 1.
+        With --truth, report the error against a ground-truth volume's emission.
   benchmark render [--out BENCHMARKS.md] [--quick]
         Time the forward renderer against its error and write the figures to BENCHMARKS.md.
   help  This text.
@@ -155,6 +164,85 @@ int Render(const Args& args) {
   return 0;
 }
 
+// The exposure recorded in dataset.yaml beside a rig file, if any.
+bool DatasetExposure(const std::string& rig_path, double* exposure) {
+  fs::path dataset = fs::path(rig_path).parent_path() / "dataset.yaml";
+  if (!fs::exists(dataset)) return false;
+  try {
+    YAML::Node root = YAML::LoadFile(dataset.string());
+    if (root["dataset"] && root["dataset"]["exposure"]) {
+      *exposure = root["dataset"]["exposure"].as<double>();
+      return true;
+    }
+  } catch (const YAML::Exception& e) {
+    throw std::runtime_error(dataset.string() + ": " + e.what());
+  }
+  return false;
+}
+
+int Reconstruct(const Args& args) {
+  args.CheckKnown({"rig", "images", "out", "exposure", "resolution", "solver", "iterations",
+                   "holdout", "cache", "no-coarse", "truth"});
+  const std::string rig_path = args.Required("rig");
+  Rig rig = Rig::Load(rig_path);
+  ReconstructOptions options;
+  std::string exposure_source = "default 1";
+  if (args.named.count("exposure")) {
+    options.exposure = ParseNumber(args.Get("exposure", ""), "--exposure");
+    exposure_source = "--exposure";
+  } else if (DatasetExposure(rig_path, &options.exposure)) {
+    exposure_source = "dataset.yaml";
+  }
+  if (args.named.count("resolution"))
+    options.resolution = static_cast<int>(ParseNumber(args.Get("resolution", ""), "--resolution"));
+  if (args.named.count("solver"))
+    options.solve.solver = TomographySolverFromName(args.Get("solver", ""));
+  if (args.named.count("iterations")) {
+    options.solve.max_iterations =
+        static_cast<int>(ParseNumber(args.Get("iterations", ""), "--iterations"));
+  }
+  options.holdout_camera = args.Get("holdout", "");
+  options.cache_dir = args.Get("cache", "");
+  options.coarse_to_fine = args.named.count("no-coarse") == 0;
+  const std::string dir = args.Required("images");
+  std::vector<ImageU8> images(rig.cameras.size());
+  for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+    const fs::path path = fs::path(dir) / (rig.cameras[c].name + ".png");
+    if (!fs::exists(path)) {
+      std::fprintf(stderr, "reconstruct: no image for camera '%s' (%s): camera left out\n",
+                   rig.cameras[c].name.c_str(), path.c_str());
+      continue;
+    }
+    images[c] = ReadImageU8(path.string());
+  }
+  Reconstructor reconstructor(rig, options);
+  ReconstructSummary summary;
+  FireVolume volume = reconstructor.Reconstruct(images, &summary);
+  volume.metadata_text["exposure_source"] = exposure_source;
+  const std::string out = args.Required("out");
+  if (fs::path(out).has_parent_path()) fs::create_directories(fs::path(out).parent_path());
+  WriteVdb(out, volume);
+  std::printf("reconstruct: wrote %s (exposure %.6g from %s)\n  %s\n", out.c_str(),
+              options.exposure, exposure_source.c_str(), summary.BriefReport().c_str());
+  if (args.named.count("truth")) {
+    FireVolume truth = ReadVdb(args.Get("truth", ""));
+    if (truth.emission_rgb.empty())
+      throw std::invalid_argument(args.Get("truth", "") + ": has no 'emission' grid");
+    std::vector<float> t =
+        truth.geometry == volume.geometry
+            ? truth.emission_rgb
+            : ResampleEmission(truth.geometry, truth.emission_rgb, volume.geometry);
+    double num = 0, den = 0;
+    for (std::size_t i = 0; i < t.size(); ++i) {
+      num += (double(volume.emission_rgb[i]) - t[i]) * (double(volume.emission_rgb[i]) - t[i]);
+      den += double(t[i]) * t[i];
+    }
+    std::printf("  volume error against %s: relative L2 %.4f\n", args.Get("truth", "").c_str(),
+                den > 0 ? std::sqrt(num / den) : 0.0);
+  }
+  return 0;
+}
+
 int Benchmark(const Args& args) {
   if (args.positional.empty() || args.positional[0] != "render") {
     throw std::invalid_argument("benchmark needs a target: render");
@@ -182,6 +270,7 @@ int main(int argc, char** argv) {
   try {
     if (command == "simulate") return Simulate(Args(argc, argv, 2, {}));
     if (command == "render") return Render(Args(argc, argv, 2, {}));
+    if (command == "reconstruct") return Reconstruct(Args(argc, argv, 2, {"no-coarse"}));
     if (command == "benchmark") return Benchmark(Args(argc, argv, 2, {"quick"}));
     std::fprintf(stderr, "flamerig: unknown command '%s'\n\n%s", command.c_str(), kUsage);
     return 2;

@@ -208,7 +208,7 @@ FireVolume MakeFire(const GridGeometry& geometry, const FireOptions& options,
   fire.temperature_k.assign(geometry.num_voxels(),
                             static_cast<float>(options.ambient_temperature_k));
   fire.density_per_m3.assign(geometry.num_voxels(), 0.0f);
-  const Box3 box = geometry.box();
+  const Box3 box = options.region.IsValid() ? options.region : geometry.box();
   const Eigen::Vector3d c = box.center(), half = 0.5 * box.size();
   const double peak_density =
       absorption.DensityFromVolumeFraction(options.peak_soot_volume_fraction);
@@ -230,6 +230,8 @@ FireVolume MakeFire(const GridGeometry& geometry, const FireOptions& options,
                             .cwiseProduct(geometry.voxel_size_m);
                     double u = (p.x() - c.x()) / half.x(), w = (p.z() - c.z()) / half.z();
                     double v = (p.y() - box.min_in_rig.y()) / box.size().y();
+                    if (std::abs(u) >= 1 || std::abs(w) >= 1)
+                      continue;  // outside the fire's region
                     FlameSample s =
                         options.kind == FireKind::kCandle ? candle(u, v, w) : licks(u, v, w);
                     heat += s.heat;

@@ -41,6 +41,8 @@ struct FireOptions {
   double peak_soot_volume_fraction = 1e-6;  // converted to number density with the absorption model
   int licks = 0;        // licks: number of tongues; 0 = drawn from the seed (3..6)
   int supersample = 2;  // samples per voxel edge when filling the grid; [1, 8]
+  // The part of the rig the fire's normalised coordinates span; empty (default): the grid's box.
+  Box3 region;
   void Validate() const;
 };
 

@@ -1,0 +1,481 @@
+#include "tomography/reconstruct.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <sstream>
+#include <stdexcept>
+
+#include "acquisition/srgb.h"
+#include "tomography/ray_march.h"
+
+namespace flamerig {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double Ms(Clock::time_point since) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - since).count();
+}
+
+// Box dilation of a voxel mask by `r` voxels along each axis (separable).
+std::vector<std::uint8_t> DilateVoxels(const GridGeometry& g, const std::vector<std::uint8_t>& mask,
+                                       int r) {
+  if (r <= 0) return mask;
+  std::vector<std::uint8_t> a = mask, b(mask.size());
+  const int d[3] = {g.dims.x(), g.dims.y(), g.dims.z()};
+  for (int axis = 0; axis < 3; ++axis) {
+    std::fill(b.begin(), b.end(), 0);
+    for (int k = 0; k < d[2]; ++k)
+      for (int j = 0; j < d[1]; ++j)
+        for (int i = 0; i < d[0]; ++i) {
+          if (!a[g.Flat(i, j, k)]) continue;
+          int idx[3] = {i, j, k};
+          for (int o = -r; o <= r; ++o) {
+            int t[3] = {idx[0], idx[1], idx[2]};
+            t[axis] += o;
+            if (t[axis] < 0 || t[axis] >= d[axis]) continue;
+            b[g.Flat(t[0], t[1], t[2])] = 1;
+          }
+        }
+    std::swap(a, b);
+  }
+  return a;
+}
+
+bool Contains(const std::vector<std::uint8_t>& outer, const std::vector<std::uint8_t>& inner) {
+  if (outer.size() != inner.size()) return false;
+  for (std::size_t i = 0; i < inner.size(); ++i)
+    if (inner[i] && !outer[i]) return false;
+  return true;
+}
+
+std::vector<std::uint8_t> Union(const std::vector<std::uint8_t>& a,
+                                const std::vector<std::uint8_t>& b) {
+  if (a.size() != b.size()) return b;
+  std::vector<std::uint8_t> u(a.size());
+  for (std::size_t i = 0; i < a.size(); ++i) u[i] = a[i] | b[i];
+  return u;
+}
+
+std::string HexKey(std::uint64_t key) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof(buffer), "%016llx", static_cast<unsigned long long>(key));
+  return buffer;
+}
+
+}  // namespace
+
+void ReconstructOptions::Validate() const {
+  auto fail = [](const std::string& what) {
+    throw std::invalid_argument("ReconstructOptions." + what);
+  };
+  if (resolution < 1 || resolution > 1024) fail("resolution must be in [1, 1024]");
+  if (!(exposure > 0) || !std::isfinite(exposure)) fail("exposure must be finite and > 0");
+  if (coarse_iterations < 1) fail("coarse_iterations must be >= 1");
+  if (envelope_margin_voxels < 0 || envelope_margin_voxels > 16)
+    fail("envelope_margin_voxels must be in [0, 16]");
+  hull.Validate();
+  matrix.Validate();
+  solve.Validate();
+}
+
+std::string ReconstructSummary::BriefReport() const {
+  std::ostringstream s;
+  s.precision(3);
+  s << "grid " << grid.dims.x() << "x" << grid.dims.y() << "x" << grid.dims.z() << ", hull "
+    << voxel_fraction_in_hull * 100 << "% of voxels (fire pixels per camera:";
+  for (std::size_t c = 0; c < fire_pixel_fraction.size(); ++c) {
+    s << " " << fire_pixel_fraction[c] * 100 << "% (noise " << noise_sigma[c] << ")";
+  }
+  s << "), matrix " << matrix_rows << "x" << matrix_cols << " (" << matrix_nnz << " non-zeros, "
+    << matrix_bytes / 1048576.0 << " MB, " << matrix_source << ", " << matrix_build_ms << " ms)";
+  for (const auto& solve : solves) s << "; " << solve.BriefReport();
+  if (holdout_rms >= 0) s << "; held-out " << holdout_camera << " RMS " << holdout_rms;
+  for (const auto& skipped : skipped_cameras) s << "; skipped " << skipped;
+  s << "; total " << total_ms << " ms (decode " << decode_ms << ", hull " << hull_ms << ", matrix "
+    << matrix_ms << ", solve " << solve_ms << "), peak " << peak_bytes / 1048576.0 << " MB";
+  return s.str();
+}
+
+struct Reconstructor::Level {
+  GridGeometry grid;
+  bool has_matrix = false;
+  SystemMatrix a;
+  std::vector<std::uint8_t> envelope_voxels;
+  std::vector<std::vector<std::uint8_t>> envelope_pixels;  // per solve camera
+  std::vector<int> cameras;  // the rig indices the matrix was built for
+  SystemMatrix holdout;
+  bool has_holdout = false;
+};
+
+Reconstructor::Reconstructor(const Rig& rig, const ReconstructOptions& options)
+    : rig_(rig), options_(options) {
+  options_.Validate();
+  if (rig_.cameras.empty()) throw std::invalid_argument("Reconstructor: the rig has no cameras");
+  grid_ = GridGeometry::FromBox(rig_.box, options_.resolution);
+  for (const auto& c : rig_.cameras) rays_.push_back(std::make_unique<CameraRays>(c.model));
+  if (!options_.holdout_camera.empty()) {
+    holdout_index_ = rig_.FindCamera(options_.holdout_camera);
+    if (holdout_index_ < 0) {
+      throw std::invalid_argument("ReconstructOptions.holdout_camera: no camera named '" +
+                                  options_.holdout_camera + "' in rig '" + rig_.name + "'");
+    }
+  }
+  fine_ = std::make_unique<Level>();
+  fine_->grid = grid_;
+  if (options_.coarse_to_fine && options_.resolution >= 16) {
+    coarse_ = std::make_unique<Level>();
+    coarse_->grid = GridGeometry::FromBox(rig_.box, options_.resolution / 2);
+  }
+}
+
+Reconstructor::~Reconstructor() = default;
+Reconstructor::Reconstructor(Reconstructor&&) noexcept = default;
+Reconstructor& Reconstructor::operator=(Reconstructor&&) noexcept = default;
+
+FireVolume Reconstructor::Reconstruct(const std::vector<ImageU8>& images,
+                                      ReconstructSummary* summary, const FireVolume* warm_start) {
+  const auto start = Clock::now();
+  if (images.size() != rig_.cameras.size()) {
+    throw std::invalid_argument("reconstruct: " + std::to_string(images.size()) + " images for " +
+                                std::to_string(rig_.cameras.size()) + " cameras of rig '" +
+                                rig_.name + "'");
+  }
+  std::vector<LinearFrame> frames(images.size());
+  for (std::size_t c = 0; c < images.size(); ++c) {
+    if (images[c].empty()) continue;
+    try {
+      frames[c] = DecodeSrgb8(images[c], options_.exposure);
+    } catch (const std::invalid_argument& e) {
+      throw std::invalid_argument("camera '" + rig_.cameras[c].name + "': " + e.what());
+    }
+  }
+  const double decode_ms = Ms(start);
+  FireVolume v = Reconstruct(frames, summary, warm_start);
+  if (summary) {
+    summary->decode_ms = decode_ms;
+    summary->total_ms += decode_ms;
+  }
+  return v;
+}
+
+FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
+                                      ReconstructSummary* summary_out,
+                                      const FireVolume* warm_start) {
+  const auto start = Clock::now();
+  ReconstructSummary summary;
+  summary.grid = grid_;
+  if (frames.size() != rig_.cameras.size()) {
+    throw std::invalid_argument("reconstruct: " + std::to_string(frames.size()) + " frames for " +
+                                std::to_string(rig_.cameras.size()) + " cameras");
+  }
+  // Cameras taking part in the solve.
+  std::vector<int> solve_cameras;
+  for (std::size_t c = 0; c < frames.size(); ++c) {
+    const auto& cam = rig_.cameras[c];
+    if (frames[c].radiance.empty()) {
+      summary.skipped_cameras.push_back(cam.name + " (no frame)");
+      continue;
+    }
+    if (frames[c].radiance.width != cam.model.width() ||
+        frames[c].radiance.height != cam.model.height()) {
+      throw std::invalid_argument(
+          "camera '" + cam.name + "': frame is " + std::to_string(frames[c].radiance.width) + "x" +
+          std::to_string(frames[c].radiance.height) + ", its model's imager is " +
+          std::to_string(cam.model.width()) + "x" + std::to_string(cam.model.height()));
+    }
+    if (static_cast<int>(c) == holdout_index_) continue;
+    solve_cameras.push_back(static_cast<int>(c));
+  }
+  if (solve_cameras.empty()) {
+    throw std::invalid_argument("reconstruct: no camera with a usable frame to reconstruct from");
+  }
+  const bool use_holdout = holdout_index_ >= 0 && !frames[holdout_index_].radiance.empty();
+  if (use_holdout) summary.holdout_camera = rig_.cameras[holdout_index_].name;
+
+  std::vector<RigCamera> cams;
+  std::vector<LinearFrame> solve_frames;
+  std::vector<const CameraRays*> solve_rays;
+  for (int c : solve_cameras) {
+    cams.push_back(rig_.cameras[c]);
+    solve_frames.push_back(frames[c]);
+    solve_rays.push_back(rays_[c].get());
+  }
+
+  std::vector<float> x_fine_start;
+  bool have_start = false;
+  if (warm_start && !warm_start->emission_rgb.empty()) {
+    x_fine_start = warm_start->geometry == grid_
+                       ? warm_start->emission_rgb
+                       : ResampleEmission(warm_start->geometry, warm_start->emission_rgb, grid_);
+    have_start = true;
+  }
+
+  std::vector<float> previous_level_emission;  // full-grid emission of the coarse level
+  GridGeometry previous_grid;
+  std::vector<Level*> levels;
+  if (coarse_ && !have_start) levels.push_back(coarse_.get());
+  levels.push_back(fine_.get());
+  std::size_t peak = 0;
+  FireVolume out;
+  for (Level* level : levels) {
+    const bool is_fine = level == fine_.get();
+    const GridGeometry& g = level->grid;
+    auto t0 = Clock::now();
+    VisualHull hull = ComputeVisualHull(g, cams, solve_frames, options_.hull);
+    summary.hull_ms += Ms(t0);
+    if (is_fine) {
+      summary.voxel_fraction_in_hull = hull.voxel_fraction;
+      summary.fire_pixel_fraction = hull.fire_pixel_fraction;
+      summary.noise_sigma = hull.noise_sigma;
+    }
+    // Matrix: reuse while the hull fits the envelope it was built for.
+    t0 = Clock::now();
+    bool fits = level->has_matrix && level->cameras == solve_cameras &&
+                Contains(level->envelope_voxels, hull.voxel_inside);
+    for (std::size_t c = 0; fits && c < cams.size(); ++c)
+      fits = Contains(level->envelope_pixels[c], hull.fire_mask[c]);
+    std::string source = "reused (envelope)";
+    if (!fits) {
+      std::vector<std::uint8_t> envelope =
+          DilateVoxels(g, hull.voxel_inside, options_.envelope_margin_voxels);
+      std::vector<std::vector<std::uint8_t>> pixels = hull.fire_mask;
+      if (level->has_matrix && level->cameras == solve_cameras) {
+        envelope = Union(level->envelope_voxels, envelope);
+        for (std::size_t c = 0; c < cams.size(); ++c)
+          pixels[c] = Union(level->envelope_pixels[c], pixels[c]);
+      }
+      const std::uint64_t key = SystemMatrix::Key(g, solve_rays, pixels, envelope, options_.matrix);
+      std::string path;
+      bool loaded = false;
+      if (!options_.cache_dir.empty()) {
+        std::filesystem::create_directories(options_.cache_dir);
+        path =
+            (std::filesystem::path(options_.cache_dir) / ("system_matrix_" + HexKey(key) + ".bin"))
+                .string();
+        loaded = level->a.Load(path, key);
+      }
+      if (loaded) {
+        source = "disk cache";
+      } else {
+        level->a = SystemMatrix::Build(g, solve_rays, pixels, envelope, options_.matrix);
+        source = "built";
+        if (!path.empty()) level->a.Save(path);
+      }
+      level->envelope_voxels = std::move(envelope);
+      level->envelope_pixels = std::move(pixels);
+      level->cameras = solve_cameras;
+      level->has_matrix = true;
+      level->has_holdout = false;
+    }
+    const SystemMatrix& a = level->a;
+    if (use_holdout && !level->has_holdout) {
+      std::vector<std::vector<std::uint8_t>> all(
+          1, std::vector<std::uint8_t>(rays_[holdout_index_]->rays().size(), 1));
+      level->holdout = SystemMatrix::Build(g, {rays_[holdout_index_].get()}, all,
+                                           level->envelope_voxels, options_.matrix);
+      level->has_holdout = true;
+    }
+    summary.matrix_ms += Ms(t0);
+    if (is_fine) {
+      summary.matrix_rows = a.rows();
+      summary.matrix_cols = a.cols();
+      summary.matrix_nnz = a.nnz();
+      summary.matrix_bytes = a.bytes();
+      summary.matrix_source = source;
+      summary.matrix_build_ms = a.build_ms();
+    }
+
+    // The data.
+    SolveProblem problem;
+    problem.a = &a;
+    problem.b.resize(a.rows() * 3);
+    problem.lower_bound_rows.resize(a.rows());
+    std::vector<int> camera_slot(rig_.cameras.size(), -1);
+    for (std::size_t s = 0; s < solve_cameras.size(); ++s)
+      camera_slot[solve_cameras[s]] = static_cast<int>(s);
+    for (std::size_t r = 0; r < a.rows(); ++r) {
+      const LinearFrame& f = solve_frames[a.row_camera(r)];
+      const std::size_t p = static_cast<std::size_t>(a.row_pixel(r));
+      for (int ch = 0; ch < 3; ++ch) problem.b[r * 3 + ch] = f.radiance.pixels[3 * p + ch];
+      problem.lower_bound_rows[r] = f.saturated[p];
+    }
+    problem.active_cols.resize(a.cols());
+    for (std::size_t j = 0; j < a.cols(); ++j)
+      problem.active_cols[j] = hull.voxel_inside[a.col_voxel(j)];
+
+    // Initial guess.
+    std::vector<float> x(a.cols() * 3, 0.0f);
+    const std::vector<float>* full = nullptr;
+    std::vector<float> resampled;
+    if (is_fine && have_start) {
+      full = &x_fine_start;
+    } else if (!previous_level_emission.empty()) {
+      resampled = ResampleEmission(previous_grid, previous_level_emission, g);
+      full = &resampled;
+    }
+    if (full) {
+      for (std::size_t j = 0; j < a.cols(); ++j)
+        for (int ch = 0; ch < 3; ++ch) x[j * 3 + ch] = (*full)[a.col_voxel(j) * 3 + ch];
+    }
+
+    // Early stopping.
+    SolveOptions solve_options = options_.solve;
+    if (!is_fine)
+      solve_options.max_iterations =
+          std::min(solve_options.max_iterations, options_.coarse_iterations);
+    if (solve_options.noise_sigma == 0 && !use_holdout) {
+      // The discrepancy principle needs the noise of the data actually fitted: the sensor noise
+      // seen in the background plus 8-bit quantisation, whose step in radiance grows with the
+      // pixel's level (the sRGB curve): variance q^2 / 12 with q the radiance of one 8-bit step at
+      // that level.
+      double variance = 0;
+      std::size_t counted = 0;
+      for (std::size_t r = 0; r < a.rows(); ++r) {
+        if (problem.lower_bound_rows[r]) continue;
+        const double sigma = hull.noise_sigma[a.row_camera(r)];
+        for (int ch = 0; ch < 3; ++ch) {
+          const double v = problem.b[r * 3 + ch] * options_.exposure;  // linear camera signal
+          const double encoded = SrgbEncode(v);
+          const double q = (SrgbDecode(std::min(1.0, encoded + 0.5 / 255)) -
+                            SrgbDecode(std::max(0.0, encoded - 0.5 / 255))) /
+                           options_.exposure;
+          variance += sigma * sigma + q * q / 12.0;
+          ++counted;
+        }
+      }
+      solve_options.noise_sigma = counted ? std::sqrt(variance / counted) : 0.0;
+    }
+    HoldoutScorer scorer = nullptr;
+    std::vector<float> hb;
+    std::vector<std::uint8_t> hvalid;
+    if (use_holdout) {
+      const SystemMatrix& h = level->holdout;
+      const LinearFrame& f = frames[holdout_index_];
+      hb.resize(h.rows() * 3);
+      hvalid.resize(h.rows());
+      for (std::size_t r = 0; r < h.rows(); ++r) {
+        const std::size_t p = static_cast<std::size_t>(h.row_pixel(r));
+        for (int ch = 0; ch < 3; ++ch) hb[r * 3 + ch] = f.radiance.pixels[3 * p + ch];
+        hvalid[r] = !f.saturated[p];
+      }
+      scorer = [&h, &hb, &hvalid](const std::vector<float>& xs) {
+        std::vector<float> y(h.rows() * 3);
+        h.Multiply(xs.data(), y.data(), 3);
+        double sum = 0;
+        std::size_t n = 0;
+        for (std::size_t r = 0; r < h.rows(); ++r) {
+          if (!hvalid[r]) continue;
+          for (int ch = 0; ch < 3; ++ch) {
+            const double d = y[r * 3 + ch] - hb[r * 3 + ch];
+            sum += d * d;
+          }
+          n += 3;
+        }
+        return n ? std::sqrt(sum / n) : 0.0;
+      };
+    }
+    t0 = Clock::now();
+    SolveSummary solve = SolveTomography(problem, &x, solve_options, scorer);
+    summary.solve_ms += Ms(t0);
+    summary.solves.push_back(solve);
+    if (use_holdout && is_fine) summary.holdout_rms = scorer(x);
+    peak = std::max(peak, a.bytes() + (level->has_holdout ? level->holdout.bytes() : 0) +
+                              (problem.b.size() * 4 + x.size() * 4) * 4);
+
+    // Back to the full grid.
+    std::vector<float> emission(g.num_voxels() * 3, 0.0f);
+    for (std::size_t j = 0; j < a.cols(); ++j)
+      for (int ch = 0; ch < 3; ++ch) emission[a.col_voxel(j) * 3 + ch] = x[j * 3 + ch];
+    if (is_fine) {
+      out.geometry = g;
+      out.emission_rgb = std::move(emission);
+    } else {
+      previous_level_emission = std::move(emission);
+      previous_grid = g;
+    }
+  }
+  summary.peak_bytes = peak;
+  summary.total_ms = Ms(start);
+  out.metadata_numbers["exposure"] = options_.exposure;
+  out.metadata_numbers["hull_voxel_fraction"] = summary.voxel_fraction_in_hull;
+  out.metadata_numbers["iterations"] =
+      summary.solves.empty() ? 0 : summary.solves.back().iterations;
+  out.metadata_text["solver"] = ToString(options_.solve.solver);
+  out.metadata_text["emission_units"] =
+      "linear sRGB radiance per metre (W m^-2 sr^-1 nm^-1 m^-1, luminance-normalised)";
+  if (summary_out) *summary_out = summary;
+  return out;
+}
+
+ImageF RenderThinEmission(const GridGeometry& grid, const std::vector<float>& emission_rgb,
+                          const CameraRays& rays, double step_voxels) {
+  if (emission_rgb.size() != grid.num_voxels() * 3) {
+    throw std::invalid_argument("RenderThinEmission: emission needs 3 values per voxel");
+  }
+  ImageF image(rays.width(), rays.height(), 3, 0.0f);
+  const double step_m = step_voxels * grid.voxel_size_m.minCoeff();
+  const std::size_t nx = grid.dims.x(), nxy = nx * grid.dims.y();
+  tbb::parallel_for(tbb::blocked_range<int>(0, rays.height()),
+                    [&](const tbb::blocked_range<int>& r) {
+                      for (int y = r.begin(); y < r.end(); ++y)
+                        for (int x = 0; x < rays.width(); ++x) {
+                          RayMarch march;
+                          if (!RayMarch::Make(grid, rays.at(x, y), step_m, &march)) continue;
+                          double acc[3] = {0, 0, 0};
+                          for (std::int64_t k = 0; k < march.n_steps; ++k) {
+                            double length;
+                            Eigen::Vector3d p;
+                            march.Step(k, &length, &p);
+                            TrilinearStencil<double> s(grid.dims, p.x(), p.y(), p.z());
+                            std::size_t flat[8];
+                            double w[8];
+                            s.Corners(nx, nxy, flat, w);
+                            for (int n = 0; n < 8; ++n)
+                              for (int ch = 0; ch < 3; ++ch)
+                                acc[ch] += w[n] * length * emission_rgb[flat[n] * 3 + ch];
+                          }
+                          for (int ch = 0; ch < 3; ++ch)
+                            image.at(x, y, ch) = static_cast<float>(acc[ch]);
+                        }
+                    });
+  return image;
+}
+
+std::vector<float> ResampleEmission(const GridGeometry& from,
+                                    const std::vector<float>& emission_rgb,
+                                    const GridGeometry& to) {
+  if (emission_rgb.size() != from.num_voxels() * 3) {
+    throw std::invalid_argument(
+        "ResampleEmission: emission needs 3 values per voxel of the source grid");
+  }
+  std::vector<float> out(to.num_voxels() * 3, 0.0f);
+  const std::size_t nx = from.dims.x(), nxy = nx * from.dims.y();
+  const Box3 box = from.box();
+  tbb::parallel_for(0, to.dims.z(), [&](int k) {
+    for (int j = 0; j < to.dims.y(); ++j)
+      for (int i = 0; i < to.dims.x(); ++i) {
+        const Eigen::Vector3d p = to.VoxelCenter(i, j, k);
+        if ((p.array() < box.min_in_rig.array()).any() ||
+            (p.array() > box.max_in_rig.array()).any())
+          continue;
+        const Eigen::Vector3d q = from.IndexFromRig(p);
+        TrilinearStencil<double> s(from.dims, q.x(), q.y(), q.z());
+        std::size_t flat[8];
+        double w[8];
+        s.Corners(nx, nxy, flat, w);
+        for (int ch = 0; ch < 3; ++ch) {
+          double v = 0;
+          for (int n = 0; n < 8; ++n) v += w[n] * emission_rgb[flat[n] * 3 + ch];
+          out[to.Flat(i, j, k) * 3 + ch] = static_cast<float>(v);
+        }
+      }
+  });
+  return out;
+}
+
+}  // namespace flamerig

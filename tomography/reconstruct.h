@@ -1,0 +1,107 @@
+// Algebraic tomography of one frame set: from calibrated images to an RGB emission volume that,
+// rendered in the optically thin limit, reproduces them (DESIGN section 6).
+//
+// Per frame: decode (sRGB -> linear / exposure) -> visual hull (visual_hull.h) -> system matrix
+// inside the hull (system_matrix.h) -> SART or CGLS with non-negativity and early stopping
+// (solvers.h). Optional coarse-to-fine (a half-resolution solve, upsampled, starts the full one)
+// and warm start (the previous frame's volume starts the solve).
+//
+// Reuse across the frames of a recording: a Reconstructor keeps the last system matrix and the hull
+// "envelope" it was built for (the union of the hulls seen so far, dilated by
+// envelope_margin_voxels). A frame whose hull and fire masks fit inside the envelope reuses the
+// matrix, with the voxels outside its own hull pinned at zero; otherwise the envelope grows and the
+// matrix is rebuilt. Matrices are also cached on disk (cache_dir) under a hash of everything they
+// depend on, so a second run skips the build.
+//
+// Output: FireVolume with `emission_rgb` (linear RGB radiance per metre, the renderer's units: an
+// image is exposure times the line integral) and metadata (exposure, solver, iterations, hull
+// fraction).
+#ifndef FLAMERIG_TOMOGRAPHY_RECONSTRUCT_H_
+#define FLAMERIG_TOMOGRAPHY_RECONSTRUCT_H_
+
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "calibration/camera_rays.h"
+#include "calibration/rig.h"
+#include "tomography/solvers.h"
+#include "tomography/system_matrix.h"
+#include "tomography/visual_hull.h"
+
+namespace flamerig {
+
+struct ReconstructOptions {
+  int resolution = 64;    // voxels along the box's longest axis (cubic voxels); [1, 1024]
+  double exposure = 1.0;  // the exposure the images were recorded with; (0, inf)
+  VisualHullOptions hull;
+  SystemMatrixOptions matrix;
+  SolveOptions solve;
+  bool coarse_to_fine = true;      // half-resolution solve first (when resolution >= 16)
+  int coarse_iterations = 30;      // iterations of the coarse solve
+  std::string holdout_camera;      // camera left out of the solve and used to stop it; "" = none
+  int envelope_margin_voxels = 2;  // dilation of the hull envelope that matrices are built for
+  std::string cache_dir;           // on-disk matrix cache; "" = memory only
+  void Validate() const;           // throws std::invalid_argument naming the field
+};
+
+struct ReconstructSummary {
+  GridGeometry grid;
+  double voxel_fraction_in_hull = 0;
+  std::vector<double> fire_pixel_fraction;  // per camera
+  std::vector<double> noise_sigma;          // per camera (radiance)
+  std::size_t matrix_rows = 0, matrix_cols = 0, matrix_nnz = 0, matrix_bytes = 0;
+  std::string matrix_source;  // "built", "reused (envelope)", "disk cache"
+  double matrix_build_ms = 0;
+  std::vector<SolveSummary> solves;  // coarse (if any), then full resolution
+  std::string holdout_camera;
+  double holdout_rms = -1;  // RMS radiance error on the held-out camera, -1 if none
+  std::vector<std::string> skipped_cameras;  // cameras without a usable frame, with the reason
+  double decode_ms = 0, hull_ms = 0, matrix_ms = 0, solve_ms = 0, total_ms = 0;
+  std::size_t peak_bytes = 0;  // system matrix plus solver vectors
+  std::string BriefReport() const;
+};
+
+class Reconstructor {
+ public:
+  // Unprojects every camera's rays once. Throws std::invalid_argument for invalid options, a rig
+  // without cameras, or a held-out camera that is not in the rig.
+  Reconstructor(const Rig& rig, const ReconstructOptions& options);
+  ~Reconstructor();
+  Reconstructor(Reconstructor&&) noexcept;
+  Reconstructor& operator=(Reconstructor&&) noexcept;
+
+  // One frame set, one image per rig camera in rig order (an empty image skips that camera).
+  // `warm_start` (optional) is a previous result on the same grid.
+  FireVolume Reconstruct(const std::vector<ImageU8>& images, ReconstructSummary* summary,
+                         const FireVolume* warm_start = nullptr);
+  FireVolume Reconstruct(const std::vector<LinearFrame>& frames, ReconstructSummary* summary,
+                         const FireVolume* warm_start = nullptr);
+
+  const GridGeometry& grid() const { return grid_; }
+  const Rig& rig() const { return rig_; }
+
+ private:
+  struct Level;
+  Rig rig_;
+  ReconstructOptions options_;
+  GridGeometry grid_;
+  std::vector<std::unique_ptr<CameraRays>> rays_;
+  std::unique_ptr<Level> fine_, coarse_;
+  int holdout_index_ = -1;
+};
+
+// The thin-limit image of an emission volume through `rays` (what A e computes, for all pixels):
+// linear RGB radiance. `step_voxels` as in SystemMatrixOptions.
+ImageF RenderThinEmission(const GridGeometry& grid, const std::vector<float>& emission_rgb,
+                          const CameraRays& rays, double step_voxels = 0.5);
+
+// Emission resampled trilinearly onto another grid (coarse-to-fine, warm starts across
+// resolutions).
+std::vector<float> ResampleEmission(const GridGeometry& from,
+                                    const std::vector<float>& emission_rgb, const GridGeometry& to);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_TOMOGRAPHY_RECONSTRUCT_H_

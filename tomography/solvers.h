@@ -1,0 +1,85 @@
+// Solvers for the tomography's A e = b (system_matrix.h), three colour channels at once.
+//
+//  - SART (simultaneous algebraic reconstruction): e += lambda * C^-1 A^T R^-1 (b - A e), with R
+//  and C
+//    the row and column sums, then projected onto e >= 0. Robust, non-negative at every iterate.
+//  - CGLS (conjugate gradients on the normal equations): converges faster on well-posed problems;
+//  non-
+//    negativity is applied to the result only (the amount clipped is reported).
+//
+// Saturated pixels constrain only from below: their residual counts only where the model is darker
+// than the pixel (SART); CGLS, which needs a linear problem, leaves them out.
+//
+// Early stopping (choose by what is available, all optional):
+//  - a held-out camera: a callback scores each iterate on images the solve did not use; the best
+//    iterate is kept and the solve stops after `holdout_patience` iterations without improvement;
+//  - the discrepancy principle: stop once the RMS residual is below discrepancy_tau * noise_sigma;
+//  - stagnation: stop when an iteration improves the RMS residual by less than
+//  stagnation_tolerance.
+#ifndef FLAMERIG_TOMOGRAPHY_SOLVERS_H_
+#define FLAMERIG_TOMOGRAPHY_SOLVERS_H_
+
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "tomography/system_matrix.h"
+
+namespace flamerig {
+
+enum class TomographySolver { kSart, kCgls };
+const char* ToString(TomographySolver solver);
+TomographySolver TomographySolverFromName(const std::string& name);  // "sart" | "cgls"; throws
+
+enum class SolveStop { kMaxIterations, kDiscrepancy, kHoldout, kStagnation, kNoData };
+const char* ToString(SolveStop stop);
+
+struct SolveOptions {
+  TomographySolver solver = TomographySolver::kSart;
+  int max_iterations = 100;  // [1, 100000]
+  double relaxation = 1.0;   // SART lambda, (0, 2)
+  bool non_negative = true;
+  double noise_sigma = 0.0;  // per-pixel noise, radiance units; > 0 enables the discrepancy stop
+  double discrepancy_tau = 1.0;        // > 0
+  double stagnation_tolerance = 1e-5;  // relative; 0 disables
+  int holdout_patience = 3;            // >= 1
+  void Validate() const;               // throws std::invalid_argument naming the field
+};
+
+struct SolveSummary {
+  TomographySolver solver = TomographySolver::kSart;
+  int iterations = 0;
+  SolveStop stop = SolveStop::kMaxIterations;
+  std::vector<double> residual_rms;   // after each iteration (radiance units)
+  std::vector<double> holdout_error;  // after each iteration, when a held-out scorer was given
+  int best_iteration = 0;             // the iterate returned
+  double data_rms = 0;                // RMS of b, for relative residuals
+  double initial_residual_rms = 0;
+  double final_residual_rms = 0;
+  double clipped_fraction = 0;  // CGLS: share of the solution's mass removed by clipping to >= 0
+  double time_ms = 0;
+  std::string BriefReport() const;
+};
+
+// Scores an iterate (cols * 3 values) on data the solve does not use; lower is better.
+using HoldoutScorer = std::function<double(const std::vector<float>& x)>;
+using SolveProgress = std::function<void(int iteration, double residual_rms)>;
+
+// What a solve works on besides A: the data and which rows and columns take part.
+struct SolveProblem {
+  const SystemMatrix* a = nullptr;
+  std::vector<float> b;                        // rows * 3 values (radiance)
+  std::vector<std::uint8_t> lower_bound_rows;  // optional, per row: saturated pixel
+  std::vector<std::uint8_t> active_cols;       // optional, per column: 0 pins the column at zero
+};
+
+// Solves for x (cols * 3, interleaved RGB; its input is the initial guess, e.g. a warm start).
+// Throws std::invalid_argument for mis-sized inputs or non-finite data.
+SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
+                             const SolveOptions& options, const HoldoutScorer& holdout = nullptr,
+                             const SolveProgress& progress = nullptr);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_TOMOGRAPHY_SOLVERS_H_

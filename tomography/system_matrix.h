@@ -1,0 +1,96 @@
+// The tomography's linear model. With negligible self-absorption a pixel is a line integral of the
+// per-voxel emission e (linear RGB radiance per metre), so each colour channel satisfies A e = b:
+//
+//   b_i = sum_j A_ij e_j,   A_ij = sum over the steps of ray i of (step length) * (trilinear weight
+//   of
+//                                  voxel j at the step's midpoint),
+//
+// exactly the renderer's optically thin limit (the same ray march, ray_march.h). Rows are the
+// pixels used (camera, pixel); columns are the voxels used (inside the visual hull). Weights of
+// voxels outside the columns are dropped: those voxels are taken as empty.
+//
+// Storage: CSR for A and for its transpose (so A x and A^T y both run in parallel without atomics),
+// float values, 32-bit column indices. A matrix can be saved to and loaded from a binary cache
+// file; the file starts with a key (a hash of everything the matrix depends on) and is rejected if
+// it differs.
+#ifndef FLAMERIG_TOMOGRAPHY_SYSTEM_MATRIX_H_
+#define FLAMERIG_TOMOGRAPHY_SYSTEM_MATRIX_H_
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "calibration/camera_rays.h"
+#include "tomography/volume.h"
+
+namespace flamerig {
+
+struct SystemMatrixOptions {
+  double step_voxels = 0.5;  // march step in units of the smallest voxel edge; (0, 0.5] keeps
+                             // samples at most half a voxel apart
+  void Validate() const;
+};
+
+class SystemMatrix {
+ public:
+  SystemMatrix() = default;
+
+  // Builds A for the pixels with pixel_used[camera][pixel] != 0 and the voxels with voxel_used !=
+  // 0. `cameras` are the rays of each camera; pixel_used is parallel to it. Rows whose ray meets no
+  // used voxel are dropped. Multithreaded.
+  static SystemMatrix Build(const GridGeometry& grid, const std::vector<const CameraRays*>& cameras,
+                            const std::vector<std::vector<std::uint8_t>>& pixel_used,
+                            const std::vector<std::uint8_t>& voxel_used,
+                            const SystemMatrixOptions& options);
+
+  std::size_t rows() const { return row_camera_.size(); }
+  std::size_t cols() const { return col_voxel_.size(); }
+  std::size_t nnz() const { return values_.size(); }
+  std::size_t bytes() const;
+  double build_ms() const { return build_ms_; }
+
+  int row_camera(std::size_t r) const { return row_camera_[r]; }
+  int row_pixel(std::size_t r) const { return row_pixel_[r]; }
+  std::size_t col_voxel(std::size_t c) const { return col_voxel_[c]; }
+  const std::vector<std::uint32_t>& col_voxels() const { return col_voxel_; }
+
+  // y = A x and x = A^T y for `channels` interleaved channels (x: cols * channels, y: rows *
+  // channels).
+  void Multiply(const float* x, float* y, int channels) const;
+  void MultiplyTransposed(const float* y, float* x, int channels) const;
+  // Row sums (sum_j A_ij) and column sums (sum_i A_ij).
+  const std::vector<float>& row_sums() const { return row_sums_; }
+  const std::vector<float>& col_sums() const { return col_sums_; }
+
+  // A key for caching: a hash of the grid, the cameras' rays, the masks and the options.
+  static std::uint64_t Key(const GridGeometry& grid, const std::vector<const CameraRays*>& cameras,
+                           const std::vector<std::vector<std::uint8_t>>& pixel_used,
+                           const std::vector<std::uint8_t>& voxel_used,
+                           const SystemMatrixOptions& options);
+  std::uint64_t key() const { return key_; }
+
+  // Binary cache file. Save throws std::runtime_error naming the path on I/O failure (writes to
+  // path.tmp, then renames). Load returns false (and leaves *this untouched) when the file is
+  // missing, truncated, corrupt or made for another key; it never throws for a bad cache file.
+  void Save(const std::string& path) const;
+  bool Load(const std::string& path, std::uint64_t expected_key);
+
+ private:
+  void BuildTranspose();
+
+  std::uint64_t key_ = 0;
+  std::vector<std::int64_t> row_ptr_;  // rows + 1
+  std::vector<std::uint32_t> cols_;    // nnz
+  std::vector<float> values_;          // nnz
+  std::vector<std::int64_t> t_ptr_;    // transpose: cols + 1
+  std::vector<std::uint32_t> t_rows_;
+  std::vector<float> t_values_;
+  std::vector<std::int32_t> row_camera_, row_pixel_;
+  std::vector<std::uint32_t> col_voxel_;
+  std::vector<float> row_sums_, col_sums_;
+  double build_ms_ = 0;
+};
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_TOMOGRAPHY_SYSTEM_MATRIX_H_
