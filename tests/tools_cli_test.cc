@@ -92,4 +92,44 @@ TEST(Cli, RenderReproducesSimulatedImages) {
   fs::remove_all(dir);
 }
 
+TEST(Cli, ReconstructASimulatedFrameSet) {
+  fs::path dir = TempDir();
+  std::ofstream((dir / "sim.yaml").string())
+      << "simulate:\n  frames: 1\n  grid_resolution: 24\n  rig: {cameras: 4, azimuths_deg: [0, 45, "
+         "90, 135], width: 96, "
+         "height: 72}\n  calibration: {enabled: false}\n  absorption: grey\n";
+  Result sim = Flamerig("simulate --config " + (dir / "sim.yaml").string() + " --out " +
+                        (dir / "data").string());
+  ASSERT_EQ(sim.status, 0) << sim.output;
+  const std::string out = (dir / "emission.vdb").string();
+  Result rec = Flamerig("reconstruct --rig " + (dir / "data" / "rig.yaml").string() + " --images " +
+                        (dir / "data" / "frames" / "frame_000000").string() + " --out " + out +
+                        " --resolution 24 --truth " +
+                        (dir / "data" / "truth" / "frame_000000.vdb").string() + " --cache " +
+                        (dir / "cache").string());
+  ASSERT_EQ(rec.status, 0) << rec.output;
+  EXPECT_NE(rec.output.find("from dataset.yaml"), std::string::npos)
+      << rec.output;  // exposure found
+  EXPECT_NE(rec.output.find("relative L2"), std::string::npos) << rec.output;
+  EXPECT_TRUE(fs::exists(out));
+  // The second run finds the matrix on disk.
+  Result again = Flamerig("reconstruct --rig " + (dir / "data" / "rig.yaml").string() +
+                          " --images " + (dir / "data" / "frames" / "frame_000000").string() +
+                          " --out " + out + " --resolution 24 --cache " + (dir / "cache").string());
+  ASSERT_EQ(again.status, 0) << again.output;
+  EXPECT_NE(again.output.find("disk cache"), std::string::npos) << again.output;
+  // A missing image leaves the camera out with a note; a missing rig is an error naming it.
+  fs::remove(dir / "data" / "frames" / "frame_000000" / "cam3.png");
+  Result missing =
+      Flamerig("reconstruct --rig " + (dir / "data" / "rig.yaml").string() + " --images " +
+               (dir / "data" / "frames" / "frame_000000").string() + " --out " + out);
+  EXPECT_EQ(missing.status, 0) << missing.output;
+  EXPECT_NE(missing.output.find("cam3"), std::string::npos) << missing.output;
+  Result norig =
+      Flamerig("reconstruct --rig " + (dir / "nope.yaml").string() + " --images x --out y.vdb");
+  EXPECT_EQ(norig.status, 1);
+  EXPECT_NE(norig.output.find("nope.yaml"), std::string::npos) << norig.output;
+  fs::remove_all(dir);
+}
+
 }  // namespace

@@ -42,8 +42,8 @@ struct SolveOptions {
   bool non_negative = true;
   double noise_sigma = 0.0;  // per-pixel noise, radiance units; > 0 enables the discrepancy stop
   double discrepancy_tau = 1.0;        // > 0
-  double stagnation_tolerance = 1e-5;  // relative; 0 disables
-  int holdout_patience = 3;            // >= 1
+  double stagnation_tolerance = 1e-3;  // relative improvement per iteration; 0 disables
+  int holdout_patience = 10;           // >= 1
   void Validate() const;               // throws std::invalid_argument naming the field
 };
 

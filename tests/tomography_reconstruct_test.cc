@@ -1,0 +1,408 @@
+// Algebraic tomography against the textbook (Shepp-Logan, parallel beams), against ground truth
+// from the synthetic rig, and under the stress cases of issue 3.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <random>
+
+#include "fitting/renderer.h"
+#include "tomography/reconstruct.h"
+#include "tools/synthetic.h"
+
+namespace flamerig {
+namespace {
+
+namespace fs = std::filesystem;
+
+// ---- 2D: parallel-beam tomography of the modified Shepp-Logan phantom
+// -------------------------------
+
+struct Ellipse {
+  double value, a, b, x0, y0, phi_deg;
+};
+// Toft's modified Shepp-Logan phantom (non-negative everywhere), on [-1, 1]^2.
+const Ellipse kSheppLogan[] = {{1.0, .69, .92, 0, 0, 0},         {-.8, .6624, .8740, 0, -.0184, 0},
+                               {-.2, .1100, .3100, .22, 0, -18}, {-.2, .1600, .4100, -.22, 0, 18},
+                               {.1, .2100, .2500, 0, .35, 0},    {.1, .0460, .0460, 0, .1, 0},
+                               {.1, .0460, .0460, 0, -.1, 0},    {.1, .0460, .0230, -.08, -.605, 0},
+                               {.1, .0230, .0230, 0, -.606, 0},  {.1, .0230, .0460, .06, -.605, 0}};
+
+double Phantom(double x, double y) {
+  double v = 0;
+  for (const Ellipse& e : kSheppLogan) {
+    const double phi = e.phi_deg * M_PI / 180;
+    const double dx = x - e.x0, dy = y - e.y0;
+    const double u = dx * std::cos(phi) + dy * std::sin(phi),
+                 w = -dx * std::sin(phi) + dy * std::cos(phi);
+    if (u * u / (e.a * e.a) + w * w / (e.b * e.b) <= 1) v += e.value;
+  }
+  return v;
+}
+
+// The slice y = 0 of a slab [-1, 1] x [-0.01, 0.01] x [-1, 1]: the phantom lives in (x, z).
+GridGeometry Slice(int n) {
+  return GridGeometry::FromBoxAndDims(
+      Box3{Eigen::Vector3d(-1, -0.01, -1), Eigen::Vector3d(1, 0.01, 1)}, Eigen::Vector3i(n, 1, n));
+}
+
+// Orthographic views in the slice plane, angles over 180 degrees: a one-row "camera" per angle.
+std::vector<std::unique_ptr<CameraRays>> ParallelBeams(int views, int detectors) {
+  std::vector<std::unique_ptr<CameraRays>> cams;
+  const double spacing = 2.9 / detectors;  // covers the diagonal of the square
+  for (int v = 0; v < views; ++v) {
+    const double theta = M_PI * v / views;
+    const Eigen::Vector3d d(std::cos(theta), 0, std::sin(theta)),
+        u(-std::sin(theta), 0, std::cos(theta));
+    std::vector<Ray> rays(detectors);
+    for (int i = 0; i < detectors; ++i) {
+      rays[i].origin_in_rig = -3.0 * d + (i - 0.5 * (detectors - 1)) * spacing * u;
+      rays[i].direction_in_rig = d;
+      rays[i].valid = true;
+    }
+    cams.push_back(std::make_unique<CameraRays>(detectors, 1, std::move(rays)));
+  }
+  return cams;
+}
+
+TEST(SheppLogan, SartWithNonNegativityReconstructsThePhantom) {
+  const int n = 64, fine_n = 192, views = 90, detectors = 96;
+  auto beams = ParallelBeams(views, detectors);
+  std::vector<const CameraRays*> cams;
+  for (const auto& b : beams) cams.push_back(b.get());
+  std::vector<std::vector<std::uint8_t>> all(views, std::vector<std::uint8_t>(detectors, 1));
+
+  // Data from the phantom on a 3x finer grid (2x2 supersampled per fine voxel), so that the
+  // solver's discretisation is not the data's.
+  GridGeometry fine = Slice(fine_n);
+  std::vector<float> phantom_fine(fine.num_voxels() * 3);
+  for (int k = 0; k < fine_n; ++k)
+    for (int i = 0; i < fine_n; ++i) {
+      double v = 0;
+      for (int a = 0; a < 2; ++a)
+        for (int b = 0; b < 2; ++b) {
+          Eigen::Vector3d p =
+              fine.origin_in_rig + Eigen::Vector3d(i + (a + 0.5) / 2, 0.5, k + (b + 0.5) / 2)
+                                       .cwiseProduct(fine.voxel_size_m);
+          v += Phantom(p.x(), p.z()) / 4;
+        }
+      for (int c = 0; c < 3; ++c) phantom_fine[fine.Flat(i, 0, k) * 3 + c] = static_cast<float>(v);
+    }
+  SystemMatrix a_fine = SystemMatrix::Build(
+      fine, cams, all, std::vector<std::uint8_t>(fine.num_voxels(), 1), SystemMatrixOptions());
+  std::vector<float> b_fine(a_fine.rows() * 3);
+  a_fine.Multiply(phantom_fine.data(), b_fine.data(), 3);
+
+  GridGeometry grid = Slice(n);
+  SystemMatrix a = SystemMatrix::Build(
+      grid, cams, all, std::vector<std::uint8_t>(grid.num_voxels(), 1), SystemMatrixOptions());
+  // Both matrices keep the same rows (every ray crosses the square), in the same order.
+  ASSERT_EQ(a.rows(), a_fine.rows());
+  SolveProblem problem;
+  problem.a = &a;
+  problem.b = b_fine;
+  std::vector<float> x;
+  SolveOptions options;
+  options.max_iterations = 200;
+  options.stagnation_tolerance = 0;
+  SolveSummary summary = SolveTomography(problem, &x, options);
+
+  // Compare with the phantom averaged over each solver voxel.
+  double num = 0, den = 0;
+  for (int k = 0; k < n; ++k)
+    for (int i = 0; i < n; ++i) {
+      double truth = 0;
+      for (int a2 = 0; a2 < 3; ++a2)
+        for (int b2 = 0; b2 < 3; ++b2)
+          truth += phantom_fine[fine.Flat(3 * i + a2, 0, 3 * k + b2) * 3] / 9;
+      const double got = x[grid.Flat(i, 0, k) * 3];
+      ASSERT_GE(got, 0.0);
+      num += (got - truth) * (got - truth);
+      den += truth * truth;
+    }
+  const double error = std::sqrt(num / den);
+  std::printf(
+      "Shepp-Logan 64x64, 90 views, SART + non-negativity, %d iterations: relative L2 error %.4f\n",
+      summary.iterations, error);
+  EXPECT_LT(error, 0.20);
+  EXPECT_LT(summary.final_residual_rms,
+            0.06 * summary.data_rms);  // measured 0.040: edges finer than the grid
+}
+
+// ---- 3D: the synthetic rig
+// ---------------------------------------------------------------------------
+
+struct Dataset {
+  Rig rig;  // the solve cameras, then one held-out camera
+  FireVolume truth;
+  std::vector<ImageU8> images;
+  double exposure = 1;
+};
+
+const Box3 kBox{Eigen::Vector3d(-0.015, 0.0, -0.015), Eigen::Vector3d(0.015, 0.07, 0.015)};
+
+// `views` cameras spread over 180 degrees around the fire (opposite views of a thin fire carry the
+// same information) plus a held-out one between the first two, 96x72 pixels, a thin grey candle,
+// 8-bit images.
+Dataset MakeDataset(int views, int resolution, const Box3& box = kBox, double noise_fraction = 0,
+                    double time_s = 0) {
+  Dataset d;
+  synthetic::RingOptions ring;
+  ring.cameras = views + 1;
+  ring.width = 96;
+  ring.height = 72;
+  for (int v = 0; v < views; ++v) ring.azimuths_deg.push_back(180.0 * v / views);
+  ring.azimuths_deg.push_back(90.0 / views);
+  ring.distance_m = 0.3 * std::max(1.0, box.size().maxCoeff() / kBox.size().maxCoeff());
+  d.rig = synthetic::MakeRingRig(box, ring);
+  d.rig.cameras.back().name = "holdout";
+  GridGeometry grid = GridGeometry::FromBox(box, resolution);
+  AbsorptionModel grey = AbsorptionModel::DefaultGrey();
+  synthetic::FireOptions fire;
+  fire.peak_soot_volume_fraction = 1e-7;
+  fire.region = kBox;
+  fire.time_s = time_s;
+  d.truth = synthetic::MakeFire(grid, fire, grey);
+  d.truth.emission_rgb = synthetic::ThinEmissionRgb(d.truth, grey);
+  FireRenderer renderer(grey);
+  renderer.SetVolume(grid, d.truth.temperature_k, d.truth.density_per_m3);
+  std::vector<ImageF> linear;
+  float peak = 0;
+  for (const auto& c : d.rig.cameras) {
+    linear.emplace_back();
+    renderer.Render(CameraRays(c.model), &linear.back());
+    for (float v : linear.back().pixels) peak = std::max(peak, v);
+  }
+  d.exposure = 0.9 / peak;
+  std::mt19937 rng(4);
+  std::normal_distribution<float> gauss(0, 1);
+  for (auto& img : linear) {
+    if (noise_fraction > 0)
+      for (float& v : img.pixels) v *= 1 + static_cast<float>(noise_fraction) * gauss(rng);
+    d.images.push_back(ApplyCameraResponse(img, d.exposure));
+  }
+  return d;
+}
+
+double VolumeError(const FireVolume& got, const FireVolume& truth) {
+  std::vector<float> t = got.geometry == truth.geometry
+                             ? truth.emission_rgb
+                             : ResampleEmission(truth.geometry, truth.emission_rgb, got.geometry);
+  double num = 0, den = 0;
+  for (std::size_t i = 0; i < t.size(); ++i) {
+    num += (double(got.emission_rgb[i]) - t[i]) * (double(got.emission_rgb[i]) - t[i]);
+    den += double(t[i]) * t[i];
+  }
+  return std::sqrt(num / den);
+}
+
+void ExpectFinite(const FireVolume& v) {
+  for (float x : v.emission_rgb) ASSERT_TRUE(std::isfinite(x) && x >= 0);
+}
+
+TEST(Reconstruct, MoreViewsGiveLowerErrors) {
+  std::vector<double> volume_errors, holdout_errors;
+  for (int views : {2, 4, 8}) {
+    Dataset d = MakeDataset(views, 24);
+    ReconstructOptions options;
+    options.resolution = 24;
+    options.exposure = d.exposure;
+    options.holdout_camera = "holdout";
+    options.solve.max_iterations = 200;
+    Reconstructor rec(d.rig, options);
+    ReconstructSummary summary;
+    FireVolume v = rec.Reconstruct(d.images, &summary);
+    ExpectFinite(v);
+    const double error = VolumeError(v, d.truth);
+    // The held-out error relative to the held-out image's RMS over its fire pixels.
+    LinearFrame held = DecodeSrgb8(d.images.back(), d.exposure);
+    double sum = 0;
+    std::size_t n = 0;
+    for (float x : held.radiance.pixels) {
+      sum += double(x) * x;
+      ++n;
+    }
+    const double holdout = summary.holdout_rms / std::sqrt(sum / n);
+    std::printf("%d views: volume error %.3f, held-out image error %.3f (relative), %s\n", views,
+                error, holdout, summary.BriefReport().c_str());
+    volume_errors.push_back(error);
+    holdout_errors.push_back(holdout);
+  }
+  EXPECT_LT(volume_errors[1], volume_errors[0]);
+  EXPECT_LT(volume_errors[2], volume_errors[1]);
+  EXPECT_LT(holdout_errors[2], holdout_errors[0]);
+  EXPECT_LT(volume_errors[2], 0.35);
+  EXPECT_LT(holdout_errors[2], 0.15);
+}
+
+TEST(Reconstruct, ReproducesTheInputImages) {
+  Dataset d = MakeDataset(4, 24);
+  ReconstructOptions options;
+  options.resolution = 24;
+  options.exposure = d.exposure;
+  options.solve.max_iterations = 300;
+  Reconstructor rec(d.rig, options);
+  std::vector<ImageU8> images = d.images;
+  images.back() = ImageU8();  // the extra camera is simply absent here
+  ReconstructSummary summary;
+  FireVolume v = rec.Reconstruct(images, &summary);
+  ASSERT_EQ(summary.skipped_cameras.size(), 1u);
+  for (int c = 0; c < 4; ++c) {
+    ImageF rendered =
+        RenderThinEmission(v.geometry, v.emission_rgb, CameraRays(d.rig.cameras[c].model));
+    LinearFrame input = DecodeSrgb8(d.images[c], d.exposure);
+    double num = 0, den = 0;
+    for (std::size_t p = 0; p < input.saturated.size(); ++p) {
+      if (input.saturated[p]) continue;
+      for (int ch = 0; ch < 2; ++ch) {  // red and green; blue is clipped at 0 for red fire colours
+        const double e = rendered.pixels[3 * p + ch] - input.radiance.pixels[3 * p + ch];
+        num += e * e;
+        den += double(input.radiance.pixels[3 * p + ch]) * input.radiance.pixels[3 * p + ch];
+      }
+    }
+    EXPECT_LT(std::sqrt(num / den), 0.03) << "camera " << c;
+  }
+}
+
+TEST(Reconstruct, MatrixIsReusedAcrossFramesAndCachedOnDisk) {
+  Dataset d0 = MakeDataset(4, 20), d1 = MakeDataset(4, 20, kBox, 0, 1.0 / 30);
+  fs::path cache =
+      fs::temp_directory_path() / ("flamerig_cache_test_" + std::to_string(::getpid()));
+  fs::remove_all(cache);
+  ReconstructOptions options;
+  options.resolution = 20;
+  options.exposure = d0.exposure;
+  options.cache_dir = cache.string();
+  options.coarse_to_fine = false;
+  options.solve.max_iterations = 30;
+  options.solve.stagnation_tolerance = 0;
+  for (Dataset* d : {&d0, &d1}) {
+    d->images.pop_back();
+    d->rig.cameras.pop_back();
+  }
+  ReconstructSummary first, warm, cold, again_summary;
+  Reconstructor rec(d0.rig, options);
+  FireVolume v0 = rec.Reconstruct(d0.images, &first);
+  EXPECT_EQ(first.matrix_source, "built");
+  // The next frame: its hull fits the envelope (or grows it), and starting from the previous
+  // frame's volume it gets further in the same number of iterations than from nothing.
+  FireVolume v1 = rec.Reconstruct(d1.images, &warm, &v0);
+  Reconstructor fresh(d1.rig, options);
+  fresh.Reconstruct(d1.images, &cold);
+  std::printf("frame 1: matrix %s; residual after 30 iterations: warm %.3g, cold %.3g\n",
+              warm.matrix_source.c_str(), warm.solves.back().final_residual_rms,
+              cold.solves.back().final_residual_rms);
+  EXPECT_LT(warm.solves.back().final_residual_rms, cold.solves.back().final_residual_rms);
+  // The same frame again reuses the matrix.
+  ReconstructSummary repeat;
+  rec.Reconstruct(d1.images, &repeat, &v1);
+  EXPECT_EQ(repeat.matrix_source, "reused (envelope)");
+  // A new reconstructor (a second run) finds the first frame's matrix on disk.
+  Reconstructor again(d0.rig, options);
+  again.Reconstruct(d0.images, &again_summary);
+  EXPECT_EQ(again_summary.matrix_source, "disk cache");
+  EXPECT_EQ(again_summary.matrix_nnz, first.matrix_nnz);
+  fs::remove_all(cache);
+}
+
+TEST(Reconstruct, StressCasesGiveResultsOrClearErrors) {
+  // 5% noise.
+  {
+    Dataset d = MakeDataset(4, 16, kBox, 0.05);
+    ReconstructOptions o;
+    o.resolution = 16;
+    o.exposure = d.exposure;
+    FireVolume v = Reconstructor(d.rig, o).Reconstruct(d.images, nullptr);
+    ExpectFinite(v);
+    EXPECT_LT(VolumeError(v, d.truth), 0.8);
+  }
+  Dataset d = MakeDataset(2, 16);
+  ReconstructOptions o;
+  o.resolution = 16;
+  o.exposure = d.exposure;
+  // A single camera.
+  {
+    Rig one = d.rig;
+    one.cameras.erase(one.cameras.begin() + 1, one.cameras.end());
+    FireVolume v = Reconstructor(one, o).Reconstruct(std::vector<ImageU8>{d.images[0]}, nullptr);
+    ExpectFinite(v);
+  }
+  // All-black and all-saturated images.
+  for (std::uint8_t level : {std::uint8_t(0), std::uint8_t(255)}) {
+    std::vector<ImageU8> flat;
+    for (const auto& img : d.images) flat.push_back(ImageU8(img.width, img.height, 3, level));
+    ReconstructSummary s;
+    FireVolume v = Reconstructor(d.rig, o).Reconstruct(flat, &s);
+    ExpectFinite(v);
+    if (level == 0) {
+      for (float x : v.emission_rgb) EXPECT_EQ(x, 0.0f);
+    }
+  }
+  // A camera that does not see the box (looking away).
+  {
+    Rig rig = d.rig;
+    Eigen::Vector3d eye = rig.cameras[2].model.center_in_rig();
+    rig.cameras[2].model.set_cam_from_rig(LookAt(eye, eye + (eye - kBox.center())));
+    FireVolume v = Reconstructor(rig, o).Reconstruct(d.images, nullptr);
+    ExpectFinite(v);
+  }
+  // A box ten times larger than the fire.
+  {
+    Box3 big{kBox.center() - 5 * kBox.size(), kBox.center() + 5 * kBox.size()};
+    Dataset wide = MakeDataset(4, 48, big);
+    ReconstructOptions ow = o;
+    ow.resolution = 48;
+    ow.exposure = wide.exposure;
+    ReconstructSummary s;
+    FireVolume v = Reconstructor(wide.rig, ow).Reconstruct(wide.images, &s);
+    ExpectFinite(v);
+    EXPECT_LT(s.voxel_fraction_in_hull,
+              0.05);  // the fire is 0.1% of the box; dilation by a 1.5 cm voxel
+  }
+  // A grid of one voxel.
+  {
+    ReconstructOptions o1 = o;
+    o1.resolution = 1;
+    FireVolume v = Reconstructor(d.rig, o1).Reconstruct(d.images, nullptr);
+    ExpectFinite(v);
+    EXPECT_EQ(v.geometry.num_voxels(), 1u);
+  }
+  // Wrong image size, wrong count, no usable camera, bad options: clear errors.
+  {
+    std::vector<ImageU8> wrong = d.images;
+    wrong[1] = ImageU8(10, 10, 3);
+    try {
+      Reconstructor(d.rig, o).Reconstruct(wrong, nullptr);
+      FAIL();
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("cam1"), std::string::npos) << e.what();
+    }
+    EXPECT_THROW(Reconstructor(d.rig, o).Reconstruct(std::vector<ImageU8>(1), nullptr),
+                 std::invalid_argument);
+    EXPECT_THROW(
+        Reconstructor(d.rig, o).Reconstruct(std::vector<ImageU8>(d.images.size()), nullptr),
+        std::invalid_argument);
+    ReconstructOptions bad = o;
+    bad.holdout_camera = "nobody";
+    EXPECT_THROW(Reconstructor(d.rig, bad), std::invalid_argument);
+    bad = o;
+    bad.exposure = std::nan("");
+    EXPECT_THROW(Reconstructor(d.rig, bad), std::invalid_argument);
+  }
+  // NaN in linear data.
+  {
+    std::vector<LinearFrame> frames;
+    for (const auto& img : d.images) frames.push_back(DecodeSrgb8(img, d.exposure));
+    frames[0].radiance.pixels[3 * (36 * 96 + 48)] = std::nanf("");
+    ReconstructSummary s;
+    try {
+      FireVolume v = Reconstructor(d.rig, o).Reconstruct(frames, &s);
+      ExpectFinite(v);  // a NaN pixel outside the fire may simply not be used
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("NaN"), std::string::npos) << e.what();
+    }
+  }
+}
+
+}  // namespace
+}  // namespace flamerig

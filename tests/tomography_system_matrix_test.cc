@@ -1,0 +1,153 @@
+// The system matrix against the renderer's optically thin limit, its transpose, and its cache file.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include "fitting/renderer.h"
+#include "tomography/reconstruct.h"
+#include "tomography/system_matrix.h"
+#include "tools/synthetic.h"
+
+namespace flamerig {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Scene {
+  Rig rig;
+  GridGeometry grid;
+  FireVolume fire;
+  std::vector<std::unique_ptr<CameraRays>> rays;
+};
+
+Scene MakeScene(int cameras, int resolution, double soot_fraction) {
+  Scene s;
+  const Box3 box{Eigen::Vector3d(-0.015, 0.0, -0.015), Eigen::Vector3d(0.015, 0.07, 0.015)};
+  synthetic::RingOptions ring;
+  ring.cameras = cameras;
+  ring.width = 96;
+  ring.height = 72;
+  s.rig = synthetic::MakeRingRig(box, ring);
+  s.grid = GridGeometry::FromBox(box, resolution);
+  synthetic::FireOptions fire;
+  fire.peak_soot_volume_fraction = soot_fraction;
+  AbsorptionModel grey = AbsorptionModel::DefaultGrey();
+  s.fire = synthetic::MakeFire(s.grid, fire, grey);
+  s.fire.emission_rgb = synthetic::ThinEmissionRgb(s.fire, grey);
+  for (const auto& c : s.rig.cameras) s.rays.push_back(std::make_unique<CameraRays>(c.model));
+  return s;
+}
+
+std::vector<const CameraRays*> Pointers(const Scene& s) {
+  std::vector<const CameraRays*> p;
+  for (const auto& r : s.rays) p.push_back(r.get());
+  return p;
+}
+
+// A e equals the renderer's image of an optically thin fire, pixel for pixel: the tomography model
+// is the renderer's thin limit.
+TEST(SystemMatrix, IsTheRenderersThinLimit) {
+  Scene s = MakeScene(2, 24, 1e-9);  // optical depth ~1e-5: thin
+  std::vector<std::vector<std::uint8_t>> all_pixels;
+  for (const auto& r : s.rays) all_pixels.emplace_back(r->rays().size(), 1);
+  std::vector<std::uint8_t> all_voxels(s.grid.num_voxels(), 1);
+  SystemMatrix a =
+      SystemMatrix::Build(s.grid, Pointers(s), all_pixels, all_voxels, SystemMatrixOptions());
+  ASSERT_EQ(a.cols(), s.grid.num_voxels());
+  std::vector<float> y(a.rows() * 3);
+  a.Multiply(s.fire.emission_rgb.data(), y.data(), 3);
+
+  FireRenderer renderer(AbsorptionModel::DefaultGrey());
+  renderer.SetVolume(s.grid, s.fire.temperature_k, s.fire.density_per_m3);
+  double peak = 0;
+  std::vector<ImageF> images;
+  for (const auto& r : s.rays) {
+    images.emplace_back();
+    renderer.Render(*r, &images.back());
+    for (float v : images.back().pixels) peak = std::max(peak, double(std::abs(v)));
+  }
+  ASSERT_GT(peak, 0);
+  std::size_t checked = 0;
+  for (std::size_t r = 0; r < a.rows(); ++r) {
+    const ImageF& img = images[a.row_camera(r)];
+    for (int c = 0; c < 3; ++c) {
+      ASSERT_NEAR(y[r * 3 + c], img.pixels[3 * a.row_pixel(r) + c], 2e-4 * peak) << "row " << r;
+      ++checked;
+    }
+  }
+  EXPECT_GT(checked, 1000u);
+  // And RenderThinEmission computes the same for every pixel.
+  ImageF thin = RenderThinEmission(s.grid, s.fire.emission_rgb, *s.rays[1]);
+  for (std::size_t p = 0; p < thin.pixels.size(); ++p)
+    ASSERT_NEAR(thin.pixels[p], images[1].pixels[p], 2e-4 * peak);
+}
+
+TEST(SystemMatrix, TransposeIsTheAdjoint) {
+  Scene s = MakeScene(3, 16, 1e-6);
+  std::vector<std::vector<std::uint8_t>> pixels;
+  std::mt19937 rng(1);
+  for (const auto& r : s.rays) {
+    pixels.emplace_back(r->rays().size());
+    for (auto& p : pixels.back()) p = rng() % 3 != 0;
+  }
+  std::vector<std::uint8_t> voxels(s.grid.num_voxels());
+  for (auto& v : voxels) v = rng() % 2;
+  SystemMatrix a = SystemMatrix::Build(s.grid, Pointers(s), pixels, voxels, SystemMatrixOptions());
+  std::uniform_real_distribution<float> u(-1, 1);
+  std::vector<float> x(a.cols() * 3), y(a.rows() * 3), ax(a.rows() * 3), aty(a.cols() * 3);
+  for (auto& v : x) v = u(rng);
+  for (auto& v : y) v = u(rng);
+  a.Multiply(x.data(), ax.data(), 3);
+  a.MultiplyTransposed(y.data(), aty.data(), 3);
+  double lhs = 0, rhs = 0;
+  for (std::size_t i = 0; i < y.size(); ++i) lhs += double(ax[i]) * y[i];
+  for (std::size_t j = 0; j < x.size(); ++j) rhs += double(x[j]) * aty[j];
+  EXPECT_NEAR(lhs, rhs, 1e-4 * std::abs(lhs));
+  // Sums.
+  for (std::size_t r = 0; r < a.rows(); r += 97) {
+    double sum = 0;
+    std::vector<float> e(a.cols() * 3, 0.0f), out(a.rows() * 3);
+    for (auto& v : e) v = 1.0f;
+    a.Multiply(e.data(), out.data(), 3);
+    sum = out[r * 3];
+    EXPECT_NEAR(sum, a.row_sums()[r], 1e-5 * sum);
+  }
+}
+
+TEST(SystemMatrix, CacheRoundTripAndCorruptFiles) {
+  Scene s = MakeScene(2, 16, 1e-6);
+  std::vector<std::vector<std::uint8_t>> pixels;
+  for (const auto& r : s.rays) pixels.emplace_back(r->rays().size(), 1);
+  std::vector<std::uint8_t> voxels(s.grid.num_voxels(), 1);
+  SystemMatrix a = SystemMatrix::Build(s.grid, Pointers(s), pixels, voxels, SystemMatrixOptions());
+  EXPECT_EQ(a.key(), SystemMatrix::Key(s.grid, Pointers(s), pixels, voxels, SystemMatrixOptions()));
+  fs::path dir = fs::temp_directory_path() / ("flamerig_sm_test_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const std::string path = (dir / "a.bin").string();
+  a.Save(path);
+  SystemMatrix b;
+  ASSERT_TRUE(b.Load(path, a.key()));
+  EXPECT_EQ(b.nnz(), a.nnz());
+  std::vector<float> x(a.cols() * 3, 1.0f), ya(a.rows() * 3), yb(a.rows() * 3);
+  a.Multiply(x.data(), ya.data(), 3);
+  b.Multiply(x.data(), yb.data(), 3);
+  EXPECT_EQ(ya, yb);
+  SystemMatrix c;
+  EXPECT_FALSE(c.Load(path, a.key() + 1));  // another rig or grid
+  EXPECT_FALSE(c.Load((dir / "missing.bin").string(), a.key()));
+  fs::resize_file(path, fs::file_size(path) / 2);  // truncated
+  EXPECT_FALSE(c.Load(path, a.key()));
+  std::ofstream(path, std::ios::trunc) << "garbage";
+  EXPECT_FALSE(c.Load(path, a.key()));
+  EXPECT_EQ(c.rows(), 0u);
+  // A different mask gives a different key.
+  voxels[5] = 0;
+  EXPECT_NE(a.key(), SystemMatrix::Key(s.grid, Pointers(s), pixels, voxels, SystemMatrixOptions()));
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace flamerig
