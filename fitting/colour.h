@@ -6,11 +6,10 @@
 //      X = sum L(l) xbar(l) dl / sum ybar(l) dl     (1 nm steps, 360..830 nm)
 //    i.e. normalised by the integral of ybar (106.857), so Y is the luminance-weighted mean
 //    spectral radiance (W m^-2 sr^-1 nm^-1) and a flat spectrum of 1 has Y = 1.
-//  - Linear sRGB uses the IEC 61966-2-1 primaries and D65 white; the white point used for CIELab is
-//  the
-//    XYZ of linear sRGB (1, 1, 1), so sRGB white maps to Lab (100, 0, 0) exactly.
-//  - Encoded sRGB values are in [0, 1]; 8-bit values are round(255 * encoded), saturating at 0 and
-//  255.
+//  - Linear sRGB uses the IEC 61966-2-1 primaries and D65 white; the white point used for CIELab
+//    is the XYZ of linear sRGB (1, 1, 1), so sRGB white maps to Lab (100, 0, 0) exactly.
+//  - Encoded sRGB values are in [0, 1]; 8-bit values are round(255 * encoded), saturating at 0
+//    and 255.
 #ifndef FLAMERIG_FITTING_COLOUR_H_
 #define FLAMERIG_FITTING_COLOUR_H_
 

@@ -105,6 +105,8 @@ TEST(SheppLogan, SartWithNonNegativityReconstructsThePhantom) {
   SolveOptions options;
   options.max_iterations = 200;
   options.stagnation_tolerance = 0;
+  options.ordered_subsets =
+      false;  // the textbook's simultaneous update (90 one-row subsets would cycle)
   SolveSummary summary = SolveTomography(problem, &x, options);
 
   // Compare with the phantom averaged over each solver voxel.

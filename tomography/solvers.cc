@@ -129,7 +129,7 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
   }
   summary.data_rms = std::sqrt(data_sum / b.size());
 
-  std::vector<float> ax(m * kChannels), r(m * kChannels), g(n * kChannels);
+  std::vector<float> ax(m * kChannels), r(m * kChannels), g(n * kChannels), subset_col_sums(n);
   const bool cgls = options.solver == TomographySolver::kCgls;
   double residual = Residual(a, b, lower_bound_rows, *x, &ax, &r, cgls);
   summary.initial_residual_rms = residual;
@@ -153,7 +153,38 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
   }
 
   for (int it = 1; it <= options.max_iterations; ++it) {
-    if (!cgls) {
+    const auto& ranges = a.camera_row_ranges();
+    if (!cgls && options.ordered_subsets && ranges.size() > 1) {
+      // OS-SART: one camera's rows at a time; the residual is accumulated during the sweep.
+      const float lambda = static_cast<float>(options.relaxation);
+      double sum = 0;
+      for (const auto& [first, last] : ranges) {
+        a.MultiplyRows(first, last, x->data(), ax.data(), kChannels);
+        for (std::size_t i = first; i < last; ++i) {
+          const bool is_lower = !lower_bound_rows.empty() && lower_bound_rows[i];
+          const float w = row_sums[i] > 0 ? 1.0f / row_sums[i] : 0.0f;
+          for (int c = 0; c < kChannels; ++c) {
+            const std::size_t k = i * kChannels + c;
+            float v = b[k] - ax[k];
+            if (is_lower && v < 0) v = 0;
+            sum += double(v) * v;
+            r[k] = v * w;
+          }
+        }
+        a.MultiplyTransposedRows(first, last, r.data(), g.data(), subset_col_sums.data(),
+                                 kChannels);
+        for (std::size_t j = 0; j < n; ++j) {
+          const float w = subset_col_sums[j] > 0 ? lambda / subset_col_sums[j] : 0.0f;
+          for (int c = 0; c < kChannels; ++c) {
+            float& v = (*x)[j * kChannels + c];
+            v += w * g[j * kChannels + c];
+            if (options.non_negative && v < 0) v = 0;
+          }
+        }
+        pin(x);
+      }
+      residual = std::sqrt(sum / (m * kChannels));
+    } else if (!cgls) {
       for (std::size_t i = 0; i < m; ++i) {
         const float w = row_sums[i] > 0 ? 1.0f / row_sums[i] : 0.0f;
         for (int c = 0; c < kChannels; ++c) r[i * kChannels + c] *= w;

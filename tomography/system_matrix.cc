@@ -209,6 +209,59 @@ void SystemMatrix::BuildTranspose() {
     for (std::int64_t e = t_ptr_[c]; e < t_ptr_[c + 1]; ++e) s += t_values_[e];
     col_sums_[c] = static_cast<float>(s);
   }
+  // Camera row ranges (rows are built camera by camera; anything else gets no ranges).
+  camera_ranges_.clear();
+  for (std::size_t r = 0; r < nrows; ++r) {
+    if (r == 0 || row_camera_[r] != row_camera_[r - 1]) {
+      if (r > 0 && row_camera_[r] < row_camera_[r - 1]) {
+        camera_ranges_.clear();
+        return;
+      }
+      camera_ranges_.emplace_back(r, r);
+    }
+    camera_ranges_.back().second = r + 1;
+  }
+}
+
+void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float* x, float* y,
+                                int channels) const {
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(first, last, 256),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                        double acc[4] = {0, 0, 0, 0};
+                        for (std::int64_t e = row_ptr_[i]; e < row_ptr_[i + 1]; ++e) {
+                          const float v = values_[e];
+                          const float* xc = x + static_cast<std::size_t>(cols_[e]) * channels;
+                          for (int ch = 0; ch < channels; ++ch) acc[ch] += v * xc[ch];
+                        }
+                        for (int ch = 0; ch < channels; ++ch)
+                          y[i * channels + ch] = static_cast<float>(acc[ch]);
+                      }
+                    });
+}
+
+void SystemMatrix::MultiplyTransposedRows(std::size_t first, std::size_t last, const float* y,
+                                          float* x, float* col_sums, int channels) const {
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, cols(), 256),
+      [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t j = r.begin(); j < r.end(); ++j) {
+          // Rows within a column are sorted: the subset's entries are one contiguous run.
+          const std::uint32_t* begin = t_rows_.data() + t_ptr_[j];
+          const std::uint32_t* end = t_rows_.data() + t_ptr_[j + 1];
+          const std::uint32_t* lo = std::lower_bound(begin, end, static_cast<std::uint32_t>(first));
+          const std::uint32_t* hi = std::lower_bound(lo, end, static_cast<std::uint32_t>(last));
+          double acc[4] = {0, 0, 0, 0}, sum = 0;
+          for (const std::uint32_t* it = lo; it < hi; ++it) {
+            const float v = t_values_[it - t_rows_.data()];
+            const float* yr = y + static_cast<std::size_t>(*it) * channels;
+            for (int ch = 0; ch < channels; ++ch) acc[ch] += v * yr[ch];
+            sum += v;
+          }
+          for (int ch = 0; ch < channels; ++ch) x[j * channels + ch] = static_cast<float>(acc[ch]);
+          col_sums[j] = static_cast<float>(sum);
+        }
+      });
 }
 
 std::size_t SystemMatrix::bytes() const {

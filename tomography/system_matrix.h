@@ -1,9 +1,9 @@
 // The tomography's linear model. With negligible self-absorption a pixel is a line integral of the
 // per-voxel emission e (linear RGB radiance per metre), so each colour channel satisfies A e = b:
 //
-//   b_i = sum_j A_ij e_j,   A_ij = sum over the steps of ray i of (step length) * (trilinear weight
-//   of
-//                                  voxel j at the step's midpoint),
+//   b_i = sum_j A_ij e_j,
+//   A_ij = sum over the steps of ray i of (step length) * (trilinear weight of voxel j at the step's
+//          midpoint),
 //
 // exactly the renderer's optically thin limit (the same ray march, ray_march.h). Rows are the
 // pixels used (camera, pixel); columns are the voxels used (inside the visual hull). Weights of
@@ -18,6 +18,7 @@
 
 #include <cstdint>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "calibration/camera_rays.h"
@@ -58,6 +59,18 @@ class SystemMatrix {
   // channels).
   void Multiply(const float* x, float* y, int channels) const;
   void MultiplyTransposed(const float* y, float* x, int channels) const;
+  // Rows of one camera form a contiguous range [first, last); subsets of rows for ordered-subset
+  // solvers. Empty when the rows are not grouped by camera.
+  const std::vector<std::pair<std::size_t, std::size_t>>& camera_row_ranges() const {
+    return camera_ranges_;
+  }
+  // Backprojection restricted to the rows [first, last): x = A_sub^T y (y indexed by global row) and the
+  // restricted column sums, in one pass.
+  void MultiplyTransposedRows(std::size_t first, std::size_t last, const float* y, float* x,
+                              float* col_sums, int channels) const;
+  // Forward projection of the rows [first, last) only (y indexed by global row).
+  void MultiplyRows(std::size_t first, std::size_t last, const float* x, float* y,
+                    int channels) const;
   // Row sums (sum_j A_ij) and column sums (sum_i A_ij).
   const std::vector<float>& row_sums() const { return row_sums_; }
   const std::vector<float>& col_sums() const { return col_sums_; }
@@ -88,6 +101,7 @@ class SystemMatrix {
   std::vector<std::int32_t> row_camera_, row_pixel_;
   std::vector<std::uint32_t> col_voxel_;
   std::vector<float> row_sums_, col_sums_;
+  std::vector<std::pair<std::size_t, std::size_t>> camera_ranges_;
   double build_ms_ = 0;
 };
 

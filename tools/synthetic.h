@@ -6,9 +6,8 @@
 // normalised coordinates of the reconstruction box (x and z across, y up from the box floor), so
 // they fill any box. Two kinds:
 //  - candle: one teardrop flame, a cooler core and a hot sheath, soot in the upper half, a gentle
-//  sway
-//    over time; peak about 2000 K (candles measure 1350..2050 K) and soot volume fraction about
-//    1e-6.
+//    sway over time; peak about 2000 K (candles measure 1350..2050 K) and soot volume fraction
+//    about 1e-6.
 //  - licks: several turbulent tongues of flame from a shared base (count, heights, leans and
 //    turbulence drawn from the seed), peak about 2100 K.
 // Calibration boards (ChArUco or chessboard) are ray-traced through each camera's lens model with
