@@ -243,7 +243,17 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     if (!fits) {
       std::vector<std::uint8_t> envelope =
           DilateVoxels(g, hull.voxel_inside, options_.envelope_margin_voxels);
-      std::vector<std::vector<std::uint8_t>> pixels = hull.fire_mask;
+      // The envelope: this frame's hull and masks grown by a margin, so that the next frames of a
+      // moving fire still fit (a voxel margin and the pixels it projects to).
+      std::vector<std::vector<std::uint8_t>> pixels(cams.size());
+      for (std::size_t c = 0; c < cams.size(); ++c) {
+        const double f = cams[c].model.intrinsics()[0];
+        const double z = std::max(1e-6, (cams[c].model.cam_from_rig() * g.box().center()).z());
+        const int radius = static_cast<int>(std::ceil(
+            std::min(64.0, options_.envelope_margin_voxels * f * g.voxel_size_m.maxCoeff() / z)));
+        pixels[c] =
+            DilateMask(hull.fire_mask[c], cams[c].model.width(), cams[c].model.height(), radius);
+      }
       if (level->has_matrix && level->cameras == solve_cameras) {
         envelope = Union(level->envelope_voxels, envelope);
         for (std::size_t c = 0; c < cams.size(); ++c)

@@ -91,10 +91,8 @@ double EstimateNoiseSigma(const ImageF& radiance) {
   return std::sqrt(sum / half);
 }
 
-namespace {
-
-std::vector<std::uint8_t> Dilate(const std::vector<std::uint8_t>& mask, int width, int height,
-                                 int radius) {
+std::vector<std::uint8_t> DilateMask(const std::vector<std::uint8_t>& mask, int width, int height,
+                                     int radius) {
   if (radius <= 0) return mask;
   // Separable square dilation (Chebyshev radius): rows, then columns.
   std::vector<std::uint8_t> tmp(mask.size(), 0), out(mask.size(), 0);
@@ -124,8 +122,6 @@ std::vector<std::uint8_t> Dilate(const std::vector<std::uint8_t>& mask, int widt
   }
   return out;
 }
-
-}  // namespace
 
 VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCamera>& cameras,
                              const std::vector<LinearFrame>& frames,
@@ -173,7 +169,7 @@ VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCame
                                 ? focal * 0.87 * grid.voxel_size_m.maxCoeff() / center_in_cam.z()
                                 : 0.0;
     const int radius = options.dilation_px + static_cast<int>(std::ceil(std::min(voxel_px, 64.0)));
-    hull.fire_mask[c] = Dilate(fire, cam.width(), cam.height(), radius);
+    hull.fire_mask[c] = DilateMask(fire, cam.width(), cam.height(), radius);
     std::size_t lit = std::count(hull.fire_mask[c].begin(), hull.fire_mask[c].end(), 1);
     hull.fire_pixel_fraction[c] = double(lit) / std::max<std::size_t>(1, fire.size());
   }

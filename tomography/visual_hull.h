@@ -62,6 +62,10 @@ VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCame
                              const std::vector<LinearFrame>& frames,
                              const VisualHullOptions& options);
 
+// Square (Chebyshev) dilation of a per-pixel mask by `radius` pixels.
+std::vector<std::uint8_t> DilateMask(const std::vector<std::uint8_t>& mask, int width, int height,
+                                     int radius);
+
 // Noise level of an image: the RMS about zero of the darkest three quarters of the pixels'
 // brightest channel (robust to the fire, which covers less than a quarter of the frame, and to
 // noise clipped at black).

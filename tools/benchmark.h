@@ -26,6 +26,23 @@ struct RenderBenchmarkOptions {
 std::string RunRenderBenchmark(const RenderBenchmarkOptions& options,
                                const std::function<void(const std::string&)>& log);
 
+struct TomographyBenchmarkOptions {
+  std::vector<int> resolutions = {64, 128};  // cubic grids N^3
+  std::vector<int> views = {4, 8};
+  int width = 320;
+  int height = 240;
+  bool quick = false;  // CI smoke mode: 32^3, 4 views
+};
+
+// The tomography benchmark: a fire of several licks rendered (soot, spectral path, self-absorption
+// included) by `views` cameras spread over 180 degrees plus one held-out camera between the first two;
+// for each grid and view count: the system matrix build (time, size), then OS-SART and CGLS (time,
+// iterations, stop reason) with the relative L2 error of the emission against the ground truth's thin
+// emission and the held-out camera's relative RMS image error; and the per-frame time of the next frame
+// once the matrix is cached (warm start). Returns the Markdown section.
+std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
+                                   const std::function<void(const std::string&)>& log);
+
 // Replaces (or appends) section `name` of the Markdown file at `path`.
 void WriteBenchmarkSection(const std::string& path, const std::string& name,
                            const std::string& markdown);

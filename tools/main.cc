@@ -40,8 +40,9 @@ commands:
         Algebraic tomography of one frame set (DIR/<camera>.png for every rig camera) into an RGB
         emission volume. The exposure defaults to the one in dataset.yaml beside the rig, else 1.
         With --truth, report the error against a ground-truth volume's emission.
-  benchmark render [--out BENCHMARKS.md] [--quick]
-        Time the forward renderer against its error and write the figures to BENCHMARKS.md.
+  benchmark render|tomography [--out BENCHMARKS.md] [--quick]
+        Time the forward renderer or the tomography against its error and write the figures to
+        BENCHMARKS.md (--quick: a small smoke run).
   help  This text.
 
 Errors name the file, the field and the rule; the exit status is non-zero.
@@ -244,16 +245,24 @@ int Reconstruct(const Args& args) {
 }
 
 int Benchmark(const Args& args) {
-  if (args.positional.empty() || args.positional[0] != "render") {
-    throw std::invalid_argument("benchmark needs a target: render");
+  const std::string target = args.positional.empty() ? "" : args.positional[0];
+  if (target != "render" && target != "tomography") {
+    throw std::invalid_argument("benchmark needs a target: render or tomography");
   }
   args.CheckKnown({"out", "quick"});
-  RenderBenchmarkOptions options;
-  options.quick = args.named.count("quick") > 0;
-  std::string md = RunRenderBenchmark(
-      options, [](const std::string& line) { std::fprintf(stderr, "%s\n", line.c_str()); });
+  auto log = [](const std::string& line) { std::fprintf(stderr, "%s\n", line.c_str()); };
+  std::string md;
+  if (target == "render") {
+    RenderBenchmarkOptions options;
+    options.quick = args.named.count("quick") > 0;
+    md = RunRenderBenchmark(options, log);
+  } else {
+    TomographyBenchmarkOptions options;
+    options.quick = args.named.count("quick") > 0;
+    md = RunTomographyBenchmark(options, log);
+  }
   std::string out = args.Get("out", "BENCHMARKS.md");
-  WriteBenchmarkSection(out, "render", md);
+  WriteBenchmarkSection(out, target, md);
   std::printf("%s\nwritten to %s\n", md.c_str(), out.c_str());
   return 0;
 }
