@@ -241,6 +241,7 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
         "of a recording. Target: 128^3 from 8 views in under one second per frame once the matrix "
         "is "
         "cached.\n\n";
+  double target_ms = -1;
   md << "| grid | views | hull | matrix (nnz, MB) | build ms | solver | iterations (stop) | solve "
         "ms | volume error "
         "| held-out error | frame 2 total ms | frame 2 volume error |\n";
@@ -304,6 +305,7 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
         for (float x : held.radiance.pixels) sum += double(x) * x;
         const double held_rms = std::sqrt(sum / held.radiance.pixels.size());
         const SolveSummary& solve = s0.solves.back();
+        if (n == 128 && views == 8 && solver == TomographySolver::kSart) target_ms = s1.total_ms;
         int iterations = 0;
         for (const auto& sv : s0.solves) iterations += sv.iterations;
         md << "| " << n << "^3 | " << views << " | " << Fixed(100 * s0.voxel_fraction_in_hull, 1)
@@ -329,6 +331,10 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
         }
       }
     }
+  }
+  if (target_ms >= 0) {
+    md << "\nTarget check: the next frame of 128^3 from 8 views took " << Fixed(target_ms, 0)
+       << " ms with OS-SART: " << (target_ms < 1000 ? "target met" : "target NOT met") << ".\n";
   }
   md << "\nThe held-out camera stops the solve (the best iterate on it is kept); the volume error "
         "counts "
