@@ -11,6 +11,10 @@ RUN_DIR="${FLAMERIG_RUN_DIR:-runs/sim}"
 BIN="${FLAMERIG_BUILD_DIR:-build}/tools/flamerig"
 "$BIN" simulate --config config/sim_rig.yaml --out "$RUN_DIR"
 "$BIN" render --rig "$RUN_DIR/rig.yaml" --volume "$RUN_DIR/truth/frame_000000.vdb" --out "$RUN_DIR/rendered"
+"$BIN" reconstruct --rig "$RUN_DIR/rig.yaml" --images "$RUN_DIR/frames/frame_000000" \
+  --out "$RUN_DIR/reconstruction/frame_000000.vdb" --truth "$RUN_DIR/truth/frame_000000.vdb" \
+  --cache "$RUN_DIR/cache" --preview "$RUN_DIR/reconstruction/preview.png"
 echo
 echo "main job done: dataset in $RUN_DIR (preview.png, frames/, calibration/, truth/*.vdb, rig.yaml);"
-echo "the ground truth re-rendered through the rig is in $RUN_DIR/rendered."
+echo "the ground truth re-rendered through the rig is in $RUN_DIR/rendered; the tomography of frame 0"
+echo "(emission volume and a preview of input against reconstruction) is in $RUN_DIR/reconstruction."

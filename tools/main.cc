@@ -36,7 +36,7 @@ commands:
         Render every rig camera's view of a temperature/density volume to DIR/<camera>.png.
   reconstruct --rig RIG.yaml --images DIR --out E.vdb [--exposure S] [--resolution N]
               [--solver sart|cgls] [--iterations N] [--holdout CAMERA] [--cache DIR] [--no-coarse]
-              [--truth T.vdb]
+              [--truth T.vdb] [--preview P.png]
         Algebraic tomography of one frame set (DIR/<camera>.png for every rig camera) into an RGB
         emission volume. The exposure defaults to the one in dataset.yaml beside the rig, else 1.
         With --truth, report the error against a ground-truth volume's emission.
@@ -183,7 +183,7 @@ bool DatasetExposure(const std::string& rig_path, double* exposure) {
 
 int Reconstruct(const Args& args) {
   args.CheckKnown({"rig", "images", "out", "exposure", "resolution", "solver", "iterations",
-                   "holdout", "cache", "no-coarse", "truth"});
+                   "holdout", "cache", "no-coarse", "truth", "preview"});
   const std::string rig_path = args.Required("rig");
   Rig rig = Rig::Load(rig_path);
   ReconstructOptions options;
@@ -223,6 +223,30 @@ int Reconstruct(const Args& args) {
   const std::string out = args.Required("out");
   if (fs::path(out).has_parent_path()) fs::create_directories(fs::path(out).parent_path());
   WriteVdb(out, volume);
+  if (args.named.count("preview")) {
+    // Each camera: its input, the reconstruction rendered back through it, and 4x their difference.
+    std::vector<ImageU8> tiles;
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+      if (images[c].empty()) continue;
+      ImageU8 rendered =
+          ApplyCameraResponse(RenderThinEmission(volume.geometry, volume.emission_rgb,
+                                                 CameraRays(rig.cameras[c].model)),
+                              options.exposure);
+      ImageU8 difference(rendered.width, rendered.height, 3);
+      const ImageU8& input = images[c];
+      for (std::size_t p = 0; p < difference.pixels.size(); ++p) {
+        const int a = input.channels == 3 ? input.pixels[p] : input.pixels[p / 3];
+        difference.pixels[p] =
+            static_cast<std::uint8_t>(std::min(255, 4 * std::abs(a - rendered.pixels[p])));
+      }
+      tiles.push_back(input);
+      tiles.push_back(rendered);
+      tiles.push_back(difference);
+    }
+    WritePng(args.Get("preview", ""), ContactSheet(tiles, 240));
+    std::printf("  preview (input, reconstruction rendered back, 4x difference per camera): %s\n",
+                args.Get("preview", "").c_str());
+  }
   std::printf("reconstruct: wrote %s (exposure %.6g from %s)\n  %s\n", out.c_str(),
               options.exposure, exposure_source.c_str(), summary.BriefReport().c_str());
   if (args.named.count("truth")) {

@@ -54,7 +54,8 @@ std::string FrameName(int f) {
   return buffer;
 }
 
-// Side-by-side tiles, scaled to a common height, grey images promoted to RGB.
+}  // namespace
+
 ImageU8 ContactSheet(const std::vector<ImageU8>& tiles, int tile_height) {
   int total_w = 0;
   std::vector<int> widths;
@@ -77,8 +78,6 @@ ImageU8 ContactSheet(const std::vector<ImageU8>& tiles, int tile_height) {
   }
   return sheet;
 }
-
-}  // namespace
 
 void AddSensorNoise(ImageU8* image, double sigma_dn, std::uint64_t seed) {
   if (!(sigma_dn > 0)) return;

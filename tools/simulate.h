@@ -75,6 +75,9 @@ using ProgressCallback = std::function<void(const std::string& stage, int done, 
 SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_dir,
                          const ProgressCallback& progress = nullptr);
 
+// Tiles side by side, scaled to a common height (grey promoted to RGB), 4 px apart: a picture to look at.
+ImageU8 ContactSheet(const std::vector<ImageU8>& tiles, int tile_height);
+
 // Adds Gaussian noise of `sigma_dn` 8-bit units to every channel, deterministically from `seed`.
 void AddSensorNoise(ImageU8* image, double sigma_dn, std::uint64_t seed);
 
