@@ -110,6 +110,7 @@ struct Reconstructor::Level {
   std::vector<int> cameras;  // the rig indices the matrix was built for
   SystemMatrix holdout;
   bool has_holdout = false;
+  VoxelProjections projections;  // every rig camera, computed on first use
 };
 
 Reconstructor::Reconstructor(const Rig& rig, const ReconstructOptions& options)
@@ -226,7 +227,10 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     const bool is_fine = level == fine_.get();
     const GridGeometry& g = level->grid;
     auto t0 = Clock::now();
-    VisualHull hull = ComputeVisualHull(g, cams, solve_frames, options_.hull);
+    if (level->projections.pixel.empty())
+      level->projections = ComputeVoxelProjections(g, rig_.cameras);
+    VisualHull hull =
+        ComputeVisualHull(g, cams, solve_frames, options_.hull, level->projections, solve_cameras);
     summary.hull_ms += Ms(t0);
     if (is_fine) {
       summary.voxel_fraction_in_hull = hull.voxel_fraction;
@@ -284,9 +288,12 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     }
     const SystemMatrix& a = level->a;
     if (use_holdout && !level->has_holdout) {
-      std::vector<std::vector<std::uint8_t>> all(
-          1, std::vector<std::uint8_t>(rays_[holdout_index_]->rays().size(), 1));
-      level->holdout = SystemMatrix::Build(g, {rays_[holdout_index_].get()}, all,
+      // The held-out camera is scored where it sees fire (its own mask, dilated like the others): the
+      // rest of its image is background that the hull already keeps dark.
+      FireMask mask =
+          ComputeFireMask(g, rig_.cameras[holdout_index_], frames[holdout_index_], options_.hull);
+      std::vector<std::vector<std::uint8_t>> pixels(1, std::move(mask.mask));
+      level->holdout = SystemMatrix::Build(g, {rays_[holdout_index_].get()}, pixels,
                                            level->envelope_voxels, options_.matrix);
       level->has_holdout = true;
     }
@@ -394,8 +401,9 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     summary.solve_ms += Ms(t0);
     summary.solves.push_back(solve);
     if (use_holdout && is_fine) summary.holdout_rms = scorer(x);
-    peak = std::max(peak, a.bytes() + (level->has_holdout ? level->holdout.bytes() : 0) +
-                              (problem.b.size() * 4 + x.size() * 4) * 4);
+    peak =
+        std::max(peak, a.bytes() + (level->has_holdout ? level->holdout.bytes() : 0) +
+                           level->projections.bytes() + (problem.b.size() * 4 + x.size() * 4) * 4);
 
     // Back to the full grid.
     std::vector<float> emission(g.num_voxels() * 3, 0.0f);

@@ -129,7 +129,7 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
   }
   summary.data_rms = std::sqrt(data_sum / b.size());
 
-  std::vector<float> ax(m * kChannels), r(m * kChannels), g(n * kChannels), subset_col_sums(n);
+  std::vector<float> ax(m * kChannels), r(m * kChannels), g(n * kChannels);
   const bool cgls = options.solver == TomographySolver::kCgls;
   double residual = Residual(a, b, lower_bound_rows, *x, &ax, &r, cgls);
   summary.initial_residual_rms = residual;
@@ -171,17 +171,22 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
             r[k] = v * w;
           }
         }
-        a.MultiplyTransposedRows(first, last, r.data(), g.data(), subset_col_sums.data(),
-                                 kChannels);
-        for (std::size_t j = 0; j < n; ++j) {
-          const float w = subset_col_sums[j] > 0 ? lambda / subset_col_sums[j] : 0.0f;
-          for (int c = 0; c < kChannels; ++c) {
-            float& v = (*x)[j * kChannels + c];
-            v += w * g[j * kChannels + c];
-            if (options.non_negative && v < 0) v = 0;
-          }
-        }
-        pin(x);
+        // Backprojection, update, non-negativity and pinning in one pass over the columns.
+        float* xs = x->data();
+        const bool non_negative = options.non_negative;
+        a.BackprojectRows(first, last, r.data(), kChannels,
+                          [&](std::size_t j, const float* gj, float col_sum) {
+                            if (!(col_sum > 0)) return;
+                            if (!active.empty() && !active[j]) {
+                              for (int c = 0; c < kChannels; ++c) xs[j * kChannels + c] = 0.0f;
+                              return;
+                            }
+                            const float w = lambda / col_sum;
+                            for (int c = 0; c < kChannels; ++c) {
+                              const float v = xs[j * kChannels + c] + w * gj[c];
+                              xs[j * kChannels + c] = non_negative && v < 0 ? 0.0f : v;
+                            }
+                          });
       }
       residual = std::sqrt(sum / (m * kChannels));
     } else if (!cgls) {

@@ -221,6 +221,29 @@ void SystemMatrix::BuildTranspose() {
     }
     camera_ranges_.back().second = r + 1;
   }
+  // Per column, where each camera's entries start in its (row-sorted) transposed run.
+  const std::size_t ns = camera_ranges_.size();
+  t_camera_offsets_.assign(ncols * (ns + 1), 0);
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, ncols, 1024),
+      [&](const tbb::blocked_range<std::size_t>& range) {
+        for (std::size_t j = range.begin(); j < range.end(); ++j) {
+          const std::uint32_t* begin = t_rows_.data() + t_ptr_[j];
+          const std::uint32_t* end = t_rows_.data() + t_ptr_[j + 1];
+          std::uint32_t* offsets = &t_camera_offsets_[j * (ns + 1)];
+          for (std::size_t c = 0; c < ns; ++c) {
+            offsets[c] = static_cast<std::uint32_t>(
+                std::lower_bound(begin, end, static_cast<std::uint32_t>(camera_ranges_[c].first)) -
+                begin);
+          }
+          offsets[ns] = static_cast<std::uint32_t>(end - begin);
+        }
+      });
+}
+
+void SystemMatrix::ParallelColumns(const std::function<void(std::size_t, std::size_t)>& fn) const {
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cols(), 1024),
+                    [&](const tbb::blocked_range<std::size_t>& r) { fn(r.begin(), r.end()); });
 }
 
 void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float* x, float* y,
@@ -228,7 +251,7 @@ void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float
   tbb::parallel_for(tbb::blocked_range<std::size_t>(first, last, 256),
                     [&](const tbb::blocked_range<std::size_t>& r) {
                       for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                        double acc[4] = {0, 0, 0, 0};
+                        float acc[4] = {0, 0, 0, 0};
                         for (std::int64_t e = row_ptr_[i]; e < row_ptr_[i + 1]; ++e) {
                           const float v = values_[e];
                           const float* xc = x + static_cast<std::size_t>(cols_[e]) * channels;
@@ -251,7 +274,8 @@ void SystemMatrix::MultiplyTransposedRows(std::size_t first, std::size_t last, c
           const std::uint32_t* end = t_rows_.data() + t_ptr_[j + 1];
           const std::uint32_t* lo = std::lower_bound(begin, end, static_cast<std::uint32_t>(first));
           const std::uint32_t* hi = std::lower_bound(lo, end, static_cast<std::uint32_t>(last));
-          double acc[4] = {0, 0, 0, 0}, sum = 0;
+          float acc[4] = {0, 0, 0, 0};
+          double sum = 0;
           for (const std::uint32_t* it = lo; it < hi; ++it) {
             const float v = t_values_[it - t_rows_.data()];
             const float* yr = y + static_cast<std::size_t>(*it) * channels;
@@ -266,15 +290,16 @@ void SystemMatrix::MultiplyTransposedRows(std::size_t first, std::size_t last, c
 
 std::size_t SystemMatrix::bytes() const {
   return row_ptr_.size() * 8 + cols_.size() * 4 + values_.size() * 4 + t_ptr_.size() * 8 +
-         t_rows_.size() * 4 + t_values_.size() * 4 + row_camera_.size() * 8 +
-         col_voxel_.size() * 4 + row_sums_.size() * 4 + col_sums_.size() * 4;
+         t_rows_.size() * 4 + t_values_.size() * 4 + t_camera_offsets_.size() * 4 +
+         row_camera_.size() * 8 + col_voxel_.size() * 4 + row_sums_.size() * 4 +
+         col_sums_.size() * 4;
 }
 
 void SystemMatrix::Multiply(const float* x, float* y, int channels) const {
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, rows(), 256),
                     [&](const tbb::blocked_range<std::size_t>& r) {
                       for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                        double acc[4] = {0, 0, 0, 0};
+                        float acc[4] = {0, 0, 0, 0};
                         for (std::int64_t e = row_ptr_[i]; e < row_ptr_[i + 1]; ++e) {
                           const float v = values_[e];
                           const float* xc = x + static_cast<std::size_t>(cols_[e]) * channels;
@@ -290,7 +315,7 @@ void SystemMatrix::MultiplyTransposed(const float* y, float* x, int channels) co
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cols(), 256),
                     [&](const tbb::blocked_range<std::size_t>& r) {
                       for (std::size_t j = r.begin(); j < r.end(); ++j) {
-                        double acc[4] = {0, 0, 0, 0};
+                        float acc[4] = {0, 0, 0, 0};
                         for (std::int64_t e = t_ptr_[j]; e < t_ptr_[j + 1]; ++e) {
                           const float v = t_values_[e];
                           const float* yr = y + static_cast<std::size_t>(t_rows_[e]) * channels;

@@ -16,7 +16,9 @@
 #ifndef FLAMERIG_TOMOGRAPHY_SYSTEM_MATRIX_H_
 #define FLAMERIG_TOMOGRAPHY_SYSTEM_MATRIX_H_
 
+#include <algorithm>
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -68,6 +70,12 @@ class SystemMatrix {
   // restricted column sums, in one pass.
   void MultiplyTransposedRows(std::size_t first, std::size_t last, const float* y, float* x,
                               float* col_sums, int channels) const;
+  // The same backprojection handed column by column to `visit(j, g_j, col_sum_j)` (g_j: `channels`
+  // values), so that a solver can update x_j in the same pass over memory. Columns are visited in
+  // parallel, each exactly once; `visit` must only touch data of column j.
+  template <typename Visit>
+  void BackprojectRows(std::size_t first, std::size_t last, const float* y, int channels,
+                       Visit&& visit) const;
   // Forward projection of the rows [first, last) only (y indexed by global row).
   void MultiplyRows(std::size_t first, std::size_t last, const float* x, float* y,
                     int channels) const;
@@ -90,6 +98,8 @@ class SystemMatrix {
 
  private:
   void BuildTranspose();
+  // Runs fn(j0, j1) over blocks of columns in parallel (TBB, kept out of this header).
+  void ParallelColumns(const std::function<void(std::size_t, std::size_t)>& fn) const;
 
   std::uint64_t key_ = 0;
   std::vector<std::int64_t> row_ptr_;  // rows + 1
@@ -102,8 +112,48 @@ class SystemMatrix {
   std::vector<std::uint32_t> col_voxel_;
   std::vector<float> row_sums_, col_sums_;
   std::vector<std::pair<std::size_t, std::size_t>> camera_ranges_;
+  // For each column, where each camera's entries start in its transposed run (relative offsets,
+  // cameras + 1 per column), so that a subset backprojection needs no search.
+  std::vector<std::uint32_t> t_camera_offsets_;
   double build_ms_ = 0;
 };
+
+template <typename Visit>
+void SystemMatrix::BackprojectRows(std::size_t first, std::size_t last, const float* y,
+                                   int channels, Visit&& visit) const {
+  int subset = -1;
+  const std::size_t ns = camera_ranges_.size() + 1;
+  if (t_camera_offsets_.size() == cols() * ns) {
+    for (std::size_t c = 0; c < camera_ranges_.size(); ++c) {
+      if (camera_ranges_[c].first == first && camera_ranges_[c].second == last)
+        subset = static_cast<int>(c);
+    }
+  }
+  ParallelColumns([&](std::size_t j0, std::size_t j1) {
+    for (std::size_t j = j0; j < j1; ++j) {
+      const std::uint32_t* begin = t_rows_.data() + t_ptr_[j];
+      const std::uint32_t* end = t_rows_.data() + t_ptr_[j + 1];
+      const std::uint32_t* lo;
+      const std::uint32_t* hi;
+      if (subset >= 0) {
+        lo = begin + t_camera_offsets_[j * ns + subset];
+        hi = begin + t_camera_offsets_[j * ns + subset + 1];
+      } else {
+        lo = std::lower_bound(begin, end, static_cast<std::uint32_t>(first));
+        hi = std::lower_bound(lo, end, static_cast<std::uint32_t>(last));
+      }
+      float acc[4] = {0, 0, 0, 0};
+      float sum = 0;
+      for (const std::uint32_t* it = lo; it < hi; ++it) {
+        const float v = t_values_[it - t_rows_.data()];
+        const float* yr = y + static_cast<std::size_t>(*it) * channels;
+        for (int ch = 0; ch < channels; ++ch) acc[ch] += v * yr[ch];
+        sum += v;
+      }
+      visit(j, acc, sum);
+    }
+  });
+}
 
 }  // namespace flamerig
 

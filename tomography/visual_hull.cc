@@ -123,12 +123,95 @@ std::vector<std::uint8_t> DilateMask(const std::vector<std::uint8_t>& mask, int 
   return out;
 }
 
+FireMask ComputeFireMask(const GridGeometry& grid, const RigCamera& camera, const LinearFrame& f,
+                         const VisualHullOptions& options) {
+  const CameraModel& cam = camera.model;
+  if (f.radiance.width != cam.width() || f.radiance.height != cam.height()) {
+    throw std::invalid_argument(
+        "camera '" + camera.name + "': frame is " + std::to_string(f.radiance.width) + "x" +
+        std::to_string(f.radiance.height) + ", the camera model's imager is " +
+        std::to_string(cam.width()) + "x" + std::to_string(cam.height()));
+  }
+  FireMask out;
+  out.noise_sigma = options.noise_sigma > 0 ? options.noise_sigma : EstimateNoiseSigma(f.radiance);
+  // At least one 8-bit step above black, wherever the sensor is noise-free.
+  const double one_step = SrgbDecode(1.0 / 255.0) * f.full_scale;
+  out.threshold = std::max(options.threshold_sigmas * out.noise_sigma, 0.99 * one_step);
+  std::vector<std::uint8_t> fire(f.radiance.num_pixels(), 0);
+  for (std::size_t p = 0; p < fire.size(); ++p) {
+    const float m = std::max(
+        {f.radiance.pixels[3 * p], f.radiance.pixels[3 * p + 1], f.radiance.pixels[3 * p + 2]});
+    fire[p] = m > out.threshold ? 1 : 0;
+  }
+  // Dilate by the projected size of a voxel at the box centre, plus the margin asked for.
+  const Eigen::Vector3d center_in_cam = cam.cam_from_rig() * grid.box().center();
+  const double focal =
+      cam.intrinsics().size() >= 2 ? std::max(cam.intrinsics()[0], cam.intrinsics()[1]) : 1.0;
+  const double voxel_px =
+      center_in_cam.z() > 0 ? focal * 0.87 * grid.voxel_size_m.maxCoeff() / center_in_cam.z() : 0.0;
+  const int radius = options.dilation_px + static_cast<int>(std::ceil(std::min(voxel_px, 64.0)));
+  out.mask = DilateMask(fire, cam.width(), cam.height(), radius);
+  const std::size_t lit = std::count(out.mask.begin(), out.mask.end(), 1);
+  out.fraction = double(lit) / std::max<std::size_t>(1, fire.size());
+  return out;
+}
+
+std::size_t VoxelProjections::bytes() const {
+  std::size_t b = 0;
+  for (const auto& p : pixel) b += p.size() * sizeof(std::int32_t);
+  return b;
+}
+
+VoxelProjections ComputeVoxelProjections(const GridGeometry& grid,
+                                         const std::vector<RigCamera>& cameras) {
+  grid.Validate();
+  VoxelProjections out;
+  out.pixel.assign(cameras.size(), std::vector<std::int32_t>(grid.num_voxels(), -1));
+  const int nx = grid.dims.x(), ny = grid.dims.y();
+  tbb::parallel_for(
+      tbb::blocked_range<int>(0, grid.dims.z()), [&](const tbb::blocked_range<int>& r) {
+        std::vector<Eigen::Vector3d> points(static_cast<std::size_t>(nx) * ny);
+        for (int k = r.begin(); k < r.end(); ++k) {
+          for (int j = 0; j < ny; ++j)
+            for (int i = 0; i < nx; ++i)
+              points[static_cast<std::size_t>(j) * nx + i] = grid.VoxelCenter(i, j, k);
+          for (std::size_t c = 0; c < cameras.size(); ++c) {
+            const CameraModel& cam = cameras[c].model;
+            const std::vector<Eigen::Vector2d> q = cam.Project(points);
+            for (std::size_t n = 0; n < points.size(); ++n) {
+              if (!cam.InFront(points[n]) || !q[n].allFinite()) continue;
+              const long x = std::lround(q[n].x()), y = std::lround(q[n].y());
+              if (x < 0 || y < 0 || x >= cam.width() || y >= cam.height()) continue;
+              out.pixel[c][grid.Flat(static_cast<int>(n % nx), static_cast<int>(n / nx), k)] =
+                  static_cast<std::int32_t>(y * cam.width() + x);
+            }
+          }
+        }
+      });
+  return out;
+}
+
 VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCamera>& cameras,
                              const std::vector<LinearFrame>& frames,
                              const VisualHullOptions& options) {
+  return ComputeVisualHull(grid, cameras, frames, options, ComputeVoxelProjections(grid, cameras));
+}
+
+VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCamera>& cameras,
+                             const std::vector<LinearFrame>& frames,
+                             const VisualHullOptions& options, const VoxelProjections& projections,
+                             const std::vector<int>& projection_index) {
   const auto start = std::chrono::steady_clock::now();
   options.Validate();
   grid.Validate();
+  std::vector<const std::vector<std::int32_t>*> table(cameras.size(), nullptr);
+  for (std::size_t c = 0; c < cameras.size(); ++c) {
+    const std::size_t k =
+        projection_index.empty() ? c : static_cast<std::size_t>(projection_index[c]);
+    if (k >= projections.pixel.size())
+      throw std::invalid_argument("visual hull: no projections for camera " + cameras[c].name);
+    table[c] = &projections.pixel[k];
+  }
   if (cameras.size() != frames.size()) {
     throw std::invalid_argument("visual hull: " + std::to_string(frames.size()) + " frames for " +
                                 std::to_string(cameras.size()) + " cameras");
@@ -140,89 +223,52 @@ VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCame
   hull.threshold.resize(ncam);
   hull.fire_pixel_fraction.resize(ncam);
   hull.cameras_seeing_box.assign(ncam, 0);
-  const Box3 box = grid.box();
   for (std::size_t c = 0; c < ncam; ++c) {
-    const CameraModel& cam = cameras[c].model;
-    const LinearFrame& f = frames[c];
-    if (f.radiance.width != cam.width() || f.radiance.height != cam.height()) {
-      throw std::invalid_argument(
-          "camera '" + cameras[c].name + "': frame is " + std::to_string(f.radiance.width) + "x" +
-          std::to_string(f.radiance.height) + ", the camera model's imager is " +
-          std::to_string(cam.width()) + "x" + std::to_string(cam.height()));
-    }
-    double sigma = options.noise_sigma > 0 ? options.noise_sigma : EstimateNoiseSigma(f.radiance);
-    // At least one 8-bit step above black, wherever the sensor is noise-free.
-    const double one_step = SrgbDecode(1.0 / 255.0) * f.full_scale;
-    hull.noise_sigma[c] = sigma;
-    hull.threshold[c] = std::max(options.threshold_sigmas * sigma, 0.99 * one_step);
-    std::vector<std::uint8_t> fire(f.radiance.num_pixels(), 0);
-    for (std::size_t p = 0; p < fire.size(); ++p) {
-      float m = std::max(
-          {f.radiance.pixels[3 * p], f.radiance.pixels[3 * p + 1], f.radiance.pixels[3 * p + 2]});
-      fire[p] = m > hull.threshold[c] ? 1 : 0;
-    }
-    // Dilate by the projected size of a voxel at the box centre, plus the margin asked for.
-    const Eigen::Vector3d center_in_cam = cam.cam_from_rig() * box.center();
-    const double focal =
-        cam.intrinsics().size() >= 2 ? std::max(cam.intrinsics()[0], cam.intrinsics()[1]) : 1.0;
-    const double voxel_px = center_in_cam.z() > 0
-                                ? focal * 0.87 * grid.voxel_size_m.maxCoeff() / center_in_cam.z()
-                                : 0.0;
-    const int radius = options.dilation_px + static_cast<int>(std::ceil(std::min(voxel_px, 64.0)));
-    hull.fire_mask[c] = DilateMask(fire, cam.width(), cam.height(), radius);
-    std::size_t lit = std::count(hull.fire_mask[c].begin(), hull.fire_mask[c].end(), 1);
-    hull.fire_pixel_fraction[c] = double(lit) / std::max<std::size_t>(1, fire.size());
+    FireMask mask = ComputeFireMask(grid, cameras[c], frames[c], options);
+    hull.fire_mask[c] = std::move(mask.mask);
+    hull.noise_sigma[c] = mask.noise_sigma;
+    hull.threshold[c] = mask.threshold;
+    hull.fire_pixel_fraction[c] = mask.fraction;
   }
 
   hull.voxel_inside.assign(grid.num_voxels(), 0);
-  std::vector<std::atomic<int>> sees(ncam);
-  for (auto& s : sees) s = 0;
-  std::atomic<std::size_t> inside{0};
-  const int nx = grid.dims.x(), ny = grid.dims.y();
-  tbb::parallel_for(
-      tbb::blocked_range<int>(0, grid.dims.z()), [&](const tbb::blocked_range<int>& r) {
-        std::vector<Eigen::Vector3d> points(static_cast<std::size_t>(nx) * ny);
-        std::vector<int> fire_votes(points.size()), background_votes(points.size()),
-            visible(points.size());
-        std::vector<int> local_sees(ncam, 0);
-        std::size_t local_inside = 0;
-        for (int k = r.begin(); k < r.end(); ++k) {
-          for (int j = 0; j < ny; ++j)
-            for (int i = 0; i < nx; ++i)
-              points[static_cast<std::size_t>(j) * nx + i] = grid.VoxelCenter(i, j, k);
-          std::fill(fire_votes.begin(), fire_votes.end(), 0);
-          std::fill(background_votes.begin(), background_votes.end(), 0);
-          std::fill(visible.begin(), visible.end(), 0);
-          for (std::size_t c = 0; c < ncam; ++c) {
-            const CameraModel& cam = cameras[c].model;
-            std::vector<Eigen::Vector2d> q = cam.Project(points);
-            for (std::size_t n = 0; n < points.size(); ++n) {
-              if (!cam.InFront(points[n]) || !q[n].allFinite()) continue;
-              const long x = std::lround(q[n].x()), y = std::lround(q[n].y());
-              if (x < 0 || y < 0 || x >= cam.width() || y >= cam.height()) continue;
-              ++visible[n];
-              local_sees[c] = 1;
-              if (hull.fire_mask[c][static_cast<std::size_t>(y) * cam.width() + x]) {
-                ++fire_votes[n];
-              } else {
-                ++background_votes[n];
-              }
-            }
-          }
-          for (int j = 0; j < ny; ++j)
-            for (int i = 0; i < nx; ++i) {
-              const std::size_t n = static_cast<std::size_t>(j) * nx + i;
-              const int need = std::min(options.min_views, visible[n]);
-              if (visible[n] > 0 && background_votes[n] == 0 && fire_votes[n] >= need) {
-                hull.voxel_inside[grid.Flat(i, j, k)] = 1;
-                ++local_inside;
-              }
-            }
-        }
-        inside += local_inside;
-        for (std::size_t c = 0; c < ncam; ++c)
-          if (local_sees[c]) sees[c] = 1;
-      });
+  std::vector<int> sees(ncam, 0);
+  std::size_t inside = 0;
+  for (std::size_t c = 0; c < ncam; ++c) {
+    if (table[c]->size() != grid.num_voxels()) {
+      throw std::invalid_argument("visual hull: projections of camera '" + cameras[c].name +
+                                  "' do not match the grid");
+    }
+  }
+  // Each voxel is visited once; counts per voxel are independent, so the loop is parallel.
+  std::vector<std::uint8_t>& keep = hull.voxel_inside;
+  std::vector<std::uint8_t> seen_by(ncam, 0);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, grid.num_voxels(), 4096),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t v = r.begin(); v < r.end(); ++v) {
+                        int visible = 0, fire = 0, background = 0;
+                        for (std::size_t c = 0; c < ncam; ++c) {
+                          const std::int32_t p = (*table[c])[v];
+                          if (p < 0) continue;
+                          ++visible;
+                          if (hull.fire_mask[c][p])
+                            ++fire;
+                          else
+                            ++background;
+                        }
+                        const int need = std::min(options.min_views, visible);
+                        keep[v] = visible > 0 && background == 0 && fire >= need;
+                      }
+                    });
+  for (std::size_t v = 0; v < keep.size(); ++v) inside += keep[v];
+  for (std::size_t c = 0; c < ncam; ++c) {
+    for (std::int32_t p : *table[c]) {
+      if (p >= 0) {
+        sees[c] = 1;
+        break;
+      }
+    }
+  }
   hull.voxels_inside = inside;
   hull.voxel_fraction = double(hull.voxels_inside) / grid.num_voxels();
   for (std::size_t c = 0; c < ncam; ++c) hull.cameras_seeing_box[c] = sees[c];

@@ -62,6 +62,32 @@ VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCame
                              const std::vector<LinearFrame>& frames,
                              const VisualHullOptions& options);
 
+// Where every voxel centre lands in every camera: per camera, per voxel, the pixel index
+// (y * width + x, rounded) or -1 when the centre is behind the camera or outside its image. It
+// depends only on the rig and the grid, so a recording computes it once (projecting 2M voxels into
+// 8 cameras through mrcal takes about half a second) and every frame's hull is then table look-ups.
+struct VoxelProjections {
+  std::vector<std::vector<std::int32_t>> pixel;  // [camera][voxel]
+  std::size_t bytes() const;
+};
+VoxelProjections ComputeVoxelProjections(const GridGeometry& grid,
+                                         const std::vector<RigCamera>& cameras);
+// The same hull from precomputed projections: camera c of `cameras` uses
+// projections.pixel[projection_index[c]] (empty projection_index: the same c).
+VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCamera>& cameras,
+                             const std::vector<LinearFrame>& frames,
+                             const VisualHullOptions& options, const VoxelProjections& projections,
+                             const std::vector<int>& projection_index = {});
+
+// One camera's dilated fire mask, as the hull computes it. Throws std::invalid_argument naming the
+// camera when the frame's size is not the camera's.
+struct FireMask {
+  std::vector<std::uint8_t> mask;
+  double noise_sigma = 0, threshold = 0, fraction = 0;
+};
+FireMask ComputeFireMask(const GridGeometry& grid, const RigCamera& camera,
+                         const LinearFrame& frame, const VisualHullOptions& options);
+
 // Square (Chebyshev) dilation of a per-pixel mask by `radius` pixels.
 std::vector<std::uint8_t> DilateMask(const std::vector<std::uint8_t>& mask, int width, int height,
                                      int radius);
