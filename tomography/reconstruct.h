@@ -41,7 +41,7 @@ struct ReconstructOptions {
   bool coarse_to_fine = true;      // half-resolution solve first (when resolution >= 16)
   int coarse_iterations = 30;      // iterations of the coarse solve
   std::string holdout_camera;      // camera left out of the solve and used to stop it; "" = none
-  int envelope_margin_voxels = 2;  // dilation of the hull envelope that matrices are built for
+  int envelope_margin_voxels = 4;  // dilation of the hull envelope that matrices are built for
   std::string cache_dir;           // on-disk matrix cache; "" = memory only
   void Validate() const;           // throws std::invalid_argument naming the field
 };
