@@ -265,27 +265,10 @@ void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float
 
 void SystemMatrix::MultiplyTransposedRows(std::size_t first, std::size_t last, const float* y,
                                           float* x, float* col_sums, int channels) const {
-  tbb::parallel_for(
-      tbb::blocked_range<std::size_t>(0, cols(), 256),
-      [&](const tbb::blocked_range<std::size_t>& r) {
-        for (std::size_t j = r.begin(); j < r.end(); ++j) {
-          // Rows within a column are sorted: the subset's entries are one contiguous run.
-          const std::uint32_t* begin = t_rows_.data() + t_ptr_[j];
-          const std::uint32_t* end = t_rows_.data() + t_ptr_[j + 1];
-          const std::uint32_t* lo = std::lower_bound(begin, end, static_cast<std::uint32_t>(first));
-          const std::uint32_t* hi = std::lower_bound(lo, end, static_cast<std::uint32_t>(last));
-          float acc[4] = {0, 0, 0, 0};
-          double sum = 0;
-          for (const std::uint32_t* it = lo; it < hi; ++it) {
-            const float v = t_values_[it - t_rows_.data()];
-            const float* yr = y + static_cast<std::size_t>(*it) * channels;
-            for (int ch = 0; ch < channels; ++ch) acc[ch] += v * yr[ch];
-            sum += v;
-          }
-          for (int ch = 0; ch < channels; ++ch) x[j * channels + ch] = static_cast<float>(acc[ch]);
-          col_sums[j] = static_cast<float>(sum);
-        }
-      });
+  BackprojectRows(first, last, y, channels, [&](std::size_t j, const float* g, float sum) {
+    for (int ch = 0; ch < channels; ++ch) x[j * channels + ch] = g[ch];
+    col_sums[j] = sum;
+  });
 }
 
 std::size_t SystemMatrix::bytes() const {
