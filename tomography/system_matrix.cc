@@ -279,19 +279,7 @@ std::size_t SystemMatrix::bytes() const {
 }
 
 void SystemMatrix::Multiply(const float* x, float* y, int channels) const {
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, rows(), 256),
-                    [&](const tbb::blocked_range<std::size_t>& r) {
-                      for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                        float acc[4] = {0, 0, 0, 0};
-                        for (std::int64_t e = row_ptr_[i]; e < row_ptr_[i + 1]; ++e) {
-                          const float v = values_[e];
-                          const float* xc = x + static_cast<std::size_t>(cols_[e]) * channels;
-                          for (int ch = 0; ch < channels; ++ch) acc[ch] += v * xc[ch];
-                        }
-                        for (int ch = 0; ch < channels; ++ch)
-                          y[i * channels + ch] = static_cast<float>(acc[ch]);
-                      }
-                    });
+  MultiplyRows(0, rows(), x, y, channels);
 }
 
 void SystemMatrix::MultiplyTransposed(const float* y, float* x, int channels) const {
