@@ -1,6 +1,7 @@
 #include "fitting/renderer.h"
 
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -100,13 +101,23 @@ void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<flo
   check.Validate();
   geometry_ = geometry;
   const std::size_t nvox = geometry.num_voxels();
+  temperature_ = temperature_k;
+  density_ = density_per_m3;
+  // Voxels with density > 0 (the medium) get a slot: their index in the gradient buffers and, on
+  // the spectral path, in spectra_.
+  slot_.assign(nvox, -1);
+  active_voxels_.clear();
+  for (std::size_t v = 0; v < nvox; ++v) {
+    if (!(density_per_m3[v] > 0)) continue;
+    slot_[v] = static_cast<std::int32_t>(active_voxels_.size());
+    active_voxels_.push_back(static_cast<std::uint32_t>(v));
+  }
   if (path_ == SpectralPath::kFast) {
     // Per voxel: kappa and XYZ(T), interleaved so that a trilinear sample reads 8 x 16 bytes.
     const double sigma = absorption_.CrossSectionM2(550.0);
     const BlackbodyXyzTable& table = BlackbodyXyzTable::Get();
     fast_.assign(4 * nvox, 0.0f);
-    for (std::size_t v = 0; v < nvox; ++v) {
-      if (!(density_per_m3[v] > 0)) continue;
+    for (std::uint32_t v : active_voxels_) {
       double xyz[3];
       table.Lookup(double(temperature_k[v]), xyz);
       fast_[4 * v] = static_cast<float>(sigma * density_per_m3[v]);
@@ -115,15 +126,11 @@ void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<flo
   } else {
     // Per voxel with soot: B_b(T) for every bin (kappa_b = sigma_b * n is formed per sample).
     const int nbins = bins_->count();
-    density_ = density_per_m3;
-    slot_.assign(nvox, -1);
-    spectra_.clear();
+    spectra_.assign(active_voxels_.size() * nbins, 0.0f);
     std::vector<double> planck(nbins);
-    for (std::size_t v = 0; v < nvox; ++v) {
-      if (!(density_per_m3[v] > 0)) continue;
-      slot_[v] = static_cast<std::int32_t>(spectra_.size() / nbins);
-      bins_->PlanckAll(double(temperature_k[v]), planck.data());
-      for (int b = 0; b < nbins; ++b) spectra_.push_back(static_cast<float>(planck[b]));
+    for (std::size_t a = 0; a < active_voxels_.size(); ++a) {
+      bins_->PlanckAll(double(temperature_k[active_voxels_[a]]), planck.data());
+      for (int b = 0; b < nbins; ++b) spectra_[a * nbins + b] = static_cast<float>(planck[b]);
     }
   }
 
@@ -183,11 +190,76 @@ inline Real OneMinusExpNeg(Real tau) {
   return tau < Real(1e-2) ? series : direct;
 }
 
-struct RowCounters {
+// phi(tau) = (1 - exp(-tau)) / tau and tau * phi'(tau) = exp(-tau) - phi(tau), for tau >= 0,
+// without cancellation or 0/0 at small tau (series below 1e-2 and 0.1).
+template <typename Real>
+inline void PhiAndTauDPhi(Real tau, Real* phi, Real* tau_dphi) {
+  const Real phi_series = Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24)));
+  *phi = tau < Real(1e-2) ? phi_series : OneMinusExpNeg(tau) / tau;
+  const Real series =
+      tau * (Real(-0.5) + tau * (Real(1) / 3 + tau * (Real(-1) / 8 +
+                                                      tau * (Real(1) / 30 - tau * (Real(1) / 144)))));
+  const Real direct = VectorExp(-tau) - *phi;
+  *tau_dphi = tau < Real(0.1) ? series : direct;
+}
+
+}  // namespace
+
+struct FireRenderer::MarchCounters {
   std::int64_t hit = 0, early = 0, evaluated = 0, skipped = 0, after = 0;
 };
 
-}  // namespace
+template <typename Real, typename Visit>
+void FireRenderer::MarchRay(const RayMarch& march, MarchCounters* c, Visit&& visit) const {
+  const GridGeometry& g = geometry_;
+  const std::size_t nx = g.dims.x(), nxy = nx * g.dims.y();
+  const int brick = options_.brick_size_voxels;
+  const bool skip = options_.skip_empty_space;
+  const Eigen::Vector3d& o = march.origin_index;
+  const Eigen::Vector3d& d = march.direction_index;
+  const std::int64_t n_steps = march.n_steps;
+  std::int64_t k = 0;
+  while (k < n_steps) {
+    double step_length;
+    Eigen::Vector3d p;
+    march.Step(k, &step_length, &p);
+    if (skip) {
+      const int bi =
+          std::clamp(static_cast<int>(std::floor((p.x() + 0.5) / brick)), 0, brick_dims_.x() - 1);
+      const int bj =
+          std::clamp(static_cast<int>(std::floor((p.y() + 0.5) / brick)), 0, brick_dims_.y() - 1);
+      const int bk =
+          std::clamp(static_cast<int>(std::floor((p.z() + 0.5) / brick)), 0, brick_dims_.z() - 1);
+      if (!brick_occupied_[bi + brick_dims_.x() *
+                                    (bj + static_cast<std::size_t>(brick_dims_.y()) * bk)]) {
+        // Jump to the first step whose midpoint lies beyond this brick.
+        double t_leave = std::numeric_limits<double>::infinity();
+        const int bidx[3] = {bi, bj, bk};
+        for (int a = 0; a < 3; ++a) {
+          if (d[a] > 0)
+            t_leave = std::min(t_leave, ((bidx[a] + 1) * brick - 0.5 - o[a]) / d[a]);
+          else if (d[a] < 0)
+            t_leave = std::min(t_leave, (bidx[a] * brick - 0.5 - o[a]) / d[a]);
+        }
+        const std::int64_t next = std::max(k + 1, march.FirstStepAfter(t_leave));
+        c->skipped += next - k;
+        k = next;
+        continue;
+      }
+    }
+    const TrilinearStencil<Real> s(g.dims, Real(p.x()), Real(p.y()), Real(p.z()));
+    std::size_t corner[8];
+    Real weight[8];
+    s.Corners(nx, nxy, corner, weight);
+    ++c->evaluated;
+    if (!visit(Real(step_length), corner, weight)) {
+      ++c->early;
+      c->after += n_steps - k - 1;
+      return;
+    }
+    ++k;
+  }
+}
 
 template <typename Real>
 RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* linear_rgb) const {
@@ -197,9 +269,6 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
 
   const GridGeometry& g = geometry_;
   const double step_m = options_.step_voxels * g.voxel_size_m.minCoeff();
-  const std::size_t nx = g.dims.x(), nxy = nx * g.dims.y();
-  const int brick = options_.brick_size_voxels;
-  const bool skip = options_.skip_empty_space;
   const Real min_tr = Real(options_.min_transmittance);
   const bool spectral = path_ == SpectralPath::kSpectral;
   const int nbins = spectral ? bins_->count() : 3;
@@ -208,7 +277,7 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
   std::atomic<std::int64_t> hit{0}, early{0}, evaluated{0}, skipped{0}, after{0};
 
   tbb::parallel_for(tbb::blocked_range<int>(0, height), [&](const tbb::blocked_range<int>& rows) {
-    RowCounters c;
+    MarchCounters c;
     Real radiance[SpectralBins::kMaxBins];
     Real transmittance[SpectralBins::kMaxBins];
     Real sigma[SpectralBins::kMaxBins];
@@ -221,103 +290,56 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
         RayMarch march;
         if (!RayMarch::Make(g, camera_rays.at(x, y), step_m, &march)) continue;
         ++c.hit;
-        const Eigen::Vector3d& o = march.origin_index;
-        const Eigen::Vector3d& d = march.direction_index;
-        const std::int64_t n_steps = march.n_steps;
         for (int b = 0; b < nbins; ++b) {
           radiance[b] = Real(0);
           transmittance[b] = Real(1);
         }
-        std::int64_t k = 0;
-        while (k < n_steps) {
-          double step_length;
-          Eigen::Vector3d p;
-          march.Step(k, &step_length, &p);
-          if (skip) {
-            const int bi = std::clamp(static_cast<int>(std::floor((p.x() + 0.5) / brick)), 0,
-                                      brick_dims_.x() - 1);
-            const int bj = std::clamp(static_cast<int>(std::floor((p.y() + 0.5) / brick)), 0,
-                                      brick_dims_.y() - 1);
-            const int bk = std::clamp(static_cast<int>(std::floor((p.z() + 0.5) / brick)), 0,
-                                      brick_dims_.z() - 1);
-            if (!brick_occupied_[bi + brick_dims_.x() *
-                                          (bj + static_cast<std::size_t>(brick_dims_.y()) * bk)]) {
-              // Jump to the first step whose midpoint lies beyond this brick.
-              double t_leave = std::numeric_limits<double>::infinity();
-              const int bidx[3] = {bi, bj, bk};
-              for (int a = 0; a < 3; ++a) {
-                if (d[a] > 0)
-                  t_leave = std::min(t_leave, ((bidx[a] + 1) * brick - 0.5 - o[a]) / d[a]);
-                else if (d[a] < 0)
-                  t_leave = std::min(t_leave, (bidx[a] * brick - 0.5 - o[a]) / d[a]);
-              }
-              const std::int64_t next = std::max(k + 1, march.FirstStepAfter(t_leave));
-              c.skipped += next - k;
-              k = next;
-              continue;
-            }
-          }
-          const TrilinearStencil<Real> s(g.dims, Real(p.x()), Real(p.y()), Real(p.z()));
-          std::size_t corner[8];
-          Real weight[8];
-          s.Corners(nx, nxy, corner, weight);
-          ++c.evaluated;
-          const Real ds = Real(step_length);
-          if (!spectral) {
+        if (!spectral) {
+          MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* weight) {
             // Interpolate the voxels' absorption kappa and emission kappa * XYZ(T). The source
             // emission / kappa is formed as an average of XYZ(T) weighted by w * kappa, which never
             // overflows whatever the density.
             Real kappa = 0;
             for (int n = 0; n < 8; ++n) kappa += weight[n] * Real(fast_[4 * corner[n]]);
-            if (kappa > Real(0)) {
-              Real source[3] = {0, 0, 0};
-              for (int n = 0; n < 8; ++n) {
-                const float* v = &fast_[4 * corner[n]];
-                const Real u = weight[n] * Real(v[0]) / kappa;
-                for (int ch = 0; ch < 3; ++ch) source[ch] += u * Real(v[ch + 1]);
-              }
-              // Constant source over the step: L += Tr * source * (1 - exp(-tau)).
-              const Real tau = kappa * ds;
-              const Real absorbed = OneMinusExpNeg(tau);
-              const Real w = transmittance[0] * absorbed;
-              for (int ch = 0; ch < 3; ++ch) radiance[ch] += w * source[ch];
-              transmittance[0] -= transmittance[0] * absorbed;
-              if (transmittance[0] < min_tr) {
-                ++c.early;
-                c.after += n_steps - k - 1;
-                break;
-              }
+            if (!(kappa > Real(0))) return true;
+            Real source[3] = {0, 0, 0};
+            for (int n = 0; n < 8; ++n) {
+              const float* v = &fast_[4 * corner[n]];
+              const Real u = weight[n] * Real(v[0]) / kappa;
+              for (int ch = 0; ch < 3; ++ch) source[ch] += u * Real(v[ch + 1]);
             }
-          } else {
+            // Constant source over the step: L += Tr * source * (1 - exp(-tau)).
+            const Real absorbed = OneMinusExpNeg(kappa * ds);
+            const Real w = transmittance[0] * absorbed;
+            for (int ch = 0; ch < 3; ++ch) radiance[ch] += w * source[ch];
+            transmittance[0] -= w;
+            return !(transmittance[0] < min_tr);
+          });
+        } else {
+          MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* weight) {
             Real n_sample = 0;
             for (int n = 0; n < 8; ++n) n_sample += weight[n] * Real(density_[corner[n]]);
-            if (n_sample > Real(0)) {
-              // Source per bin: emission / kappa = sum w n B_b(T) / sum w n, an average of the
-              // corners' Planck spectra weighted by w * n (no overflow whatever the density).
-              for (int b = 0; b < nbins; ++b) planck[b] = Real(0);
-              for (int n = 0; n < 8; ++n) {
-                const std::int32_t slot = slot_[corner[n]];
-                if (slot < 0 || weight[n] == Real(0)) continue;
-                const float* row = &spectra_[static_cast<std::size_t>(slot) * nbins];
-                const Real u = weight[n] * Real(density_[corner[n]]) / n_sample;
-                for (int b = 0; b < nbins; ++b) planck[b] += u * Real(row[b]);  // vectorised
-              }
-              for (int b = 0; b < nbins; ++b) {  // vectorised
-                const Real absorbed = OneMinusExpNeg(sigma[b] * n_sample * ds);
-                const Real w = transmittance[b] * absorbed;
-                radiance[b] += w * planck[b];
-                transmittance[b] -= w;
-              }
-              Real max_tr = Real(0);
-              for (int b = 0; b < nbins; ++b) max_tr = std::max(max_tr, transmittance[b]);
-              if (max_tr < min_tr) {
-                ++c.early;
-                c.after += n_steps - k - 1;
-                break;
-              }
+            if (!(n_sample > Real(0))) return true;
+            // Source per bin: emission / kappa = sum w n B_b(T) / sum w n, an average of the
+            // corners' Planck spectra weighted by w * n (no overflow whatever the density).
+            for (int b = 0; b < nbins; ++b) planck[b] = Real(0);
+            for (int n = 0; n < 8; ++n) {
+              const std::int32_t slot = slot_[corner[n]];
+              if (slot < 0 || weight[n] == Real(0)) continue;
+              const float* row = &spectra_[static_cast<std::size_t>(slot) * nbins];
+              const Real u = weight[n] * Real(density_[corner[n]]) / n_sample;
+              for (int b = 0; b < nbins; ++b) planck[b] += u * Real(row[b]);  // vectorised
             }
-          }
-          ++k;
+            for (int b = 0; b < nbins; ++b) {  // vectorised
+              const Real absorbed = OneMinusExpNeg(sigma[b] * n_sample * ds);
+              const Real w = transmittance[b] * absorbed;
+              radiance[b] += w * planck[b];
+              transmittance[b] -= w;
+            }
+            Real max_tr = Real(0);
+            for (int b = 0; b < nbins; ++b) max_tr = std::max(max_tr, transmittance[b]);
+            return !(max_tr < min_tr);
+          });
         }
         Eigen::Vector3d xyz;
         if (!spectral) {
@@ -351,6 +373,239 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
   summary.time_ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   return summary;
+}
+
+template <typename Real>
+RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays,
+                                         const ImageF& d_loss_d_rgb,
+                                         std::vector<double>* d_temperature,
+                                         std::vector<double>* d_density) const {
+  const auto start = std::chrono::steady_clock::now();
+  const int width = camera_rays.width(), height = camera_rays.height();
+  const GridGeometry& g = geometry_;
+  const double step_m = options_.step_voxels * g.voxel_size_m.minCoeff();
+  const Real min_tr = Real(options_.min_transmittance);
+  const bool spectral = path_ == SpectralPath::kSpectral;
+  const int nbins = spectral ? bins_->count() : 3;
+  // rgb = M xyz, so dLoss/dxyz = M^T dLoss/drgb.
+  const Eigen::Matrix3d to_rgb_t = colour::LinearSrgbFromXyz().transpose();
+  const double grey_sigma = spectral ? 0.0 : absorption_.CrossSectionM2(550.0);
+  const BlackbodyXyzTable& table = BlackbodyXyzTable::Get();
+  const std::size_t nactive = active_voxels_.size();
+
+  struct Buffers {
+    std::vector<double> dt, dn;
+  };
+  tbb::enumerable_thread_specific<Buffers> buffers;
+  std::atomic<std::int64_t> hit{0}, early{0}, evaluated{0}, skipped{0}, after{0};
+
+  tbb::parallel_for(tbb::blocked_range<int>(0, height), [&](const tbb::blocked_range<int>& rows) {
+    Buffers& buf = buffers.local();
+    if (buf.dt.empty()) {
+      buf.dt.assign(nactive, 0.0);
+      buf.dn.assign(nactive, 0.0);
+    }
+    MarchCounters c;
+    Real total[SpectralBins::kMaxBins], transmittance[SpectralBins::kMaxBins];
+    Real cumulative[SpectralBins::kMaxBins], adjoint[SpectralBins::kMaxBins];
+    Real sigma[SpectralBins::kMaxBins], planck[SpectralBins::kMaxBins];
+    Real d_emission[SpectralBins::kMaxBins];
+    std::vector<Real> row_b(nbins), row_d(nbins);
+    if (spectral) {
+      for (int b = 0; b < nbins; ++b) sigma[b] = Real(bin_cross_section_m2_[b]);
+    }
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      for (int x = 0; x < width; ++x) {
+        const Eigen::Vector3d g_rgb(d_loss_d_rgb.at(x, y, 0), d_loss_d_rgb.at(x, y, 1),
+                                    d_loss_d_rgb.at(x, y, 2));
+        if (g_rgb.isZero()) continue;
+        RayMarch march;
+        if (!RayMarch::Make(g, camera_rays.at(x, y), step_m, &march)) continue;
+        ++c.hit;
+        const Eigen::Vector3d g_xyz = to_rgb_t * g_rgb;
+        for (int b = 0; b < nbins; ++b) {
+          adjoint[b] = spectral ? Real(g_xyz.dot(bins_->weight(b))) : Real(g_xyz[b]);
+          total[b] = cumulative[b] = Real(0);
+          transmittance[b] = Real(1);
+        }
+        MarchCounters ignored;
+        if (!spectral) {
+          // The per-step source S and absorption of the fast path (see RenderImpl).
+          auto sample = [&](const std::size_t* corner, const Real* weight, Real* kappa,
+                            Real* source) {
+            *kappa = 0;
+            for (int n = 0; n < 8; ++n) *kappa += weight[n] * Real(fast_[4 * corner[n]]);
+            if (!(*kappa > Real(0))) return false;
+            source[0] = source[1] = source[2] = Real(0);
+            for (int n = 0; n < 8; ++n) {
+              const float* v = &fast_[4 * corner[n]];
+              const Real u = weight[n] * Real(v[0]) / *kappa;
+              for (int ch = 0; ch < 3; ++ch) source[ch] += u * Real(v[ch + 1]);
+            }
+            return true;
+          };
+          // Pass 1: the ray's radiance.
+          MarchRay<Real>(march, &ignored, [&](Real ds, const std::size_t* corner, const Real* weight) {
+            Real kappa, source[3];
+            if (!sample(corner, weight, &kappa, source)) return true;
+            const Real w = transmittance[0] * OneMinusExpNeg(kappa * ds);
+            for (int ch = 0; ch < 3; ++ch) total[ch] += w * source[ch];
+            transmittance[0] -= w;
+            return !(transmittance[0] < min_tr);
+          });
+          transmittance[0] = Real(1);
+          // Pass 2: the adjoint.
+          MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* weight) {
+            Real kappa, source[3];
+            if (!sample(corner, weight, &kappa, source)) return true;
+            const Real tau = kappa * ds;
+            Real phi, tau_dphi;
+            PhiAndTauDPhi(tau, &phi, &tau_dphi);
+            const Real tr = transmittance[0];
+            const Real w = tr * OneMinusExpNeg(tau);
+            Real d_kappa = 0;
+            for (int ch = 0; ch < 3; ++ch) {
+              cumulative[ch] += w * source[ch];
+              const Real behind = total[ch] - cumulative[ch];
+              d_emission[ch] = adjoint[ch] * tr * ds * phi;
+              d_kappa += adjoint[ch] * ds * (tr * tau_dphi * source[ch] - behind);
+            }
+            for (int n = 0; n < 8; ++n) {
+              const std::int32_t slot = slot_[corner[n]];
+              if (slot < 0 || weight[n] == Real(0)) continue;
+              Real xyz[3], d_xyz[3];
+              table.LookupWithDerivative(Real(temperature_[corner[n]]), xyz, d_xyz);
+              Real dk = d_kappa, dt = 0;
+              for (int ch = 0; ch < 3; ++ch) {
+                dk += d_emission[ch] * xyz[ch];
+                dt += d_emission[ch] * d_xyz[ch];
+              }
+              buf.dn[slot] += double(weight[n] * dk) * grey_sigma;
+              buf.dt[slot] += double(weight[n] * dt * Real(fast_[4 * corner[n]]));
+            }
+            transmittance[0] -= w;
+            return !(transmittance[0] < min_tr);
+          });
+        } else {
+          auto sample = [&](const std::size_t* corner, const Real* weight, Real* n_sample) {
+            *n_sample = 0;
+            for (int n = 0; n < 8; ++n) *n_sample += weight[n] * Real(density_[corner[n]]);
+            if (!(*n_sample > Real(0))) return false;
+            for (int b = 0; b < nbins; ++b) planck[b] = Real(0);
+            for (int n = 0; n < 8; ++n) {
+              const std::int32_t slot = slot_[corner[n]];
+              if (slot < 0 || weight[n] == Real(0)) continue;
+              const float* row = &spectra_[static_cast<std::size_t>(slot) * nbins];
+              const Real u = weight[n] * Real(density_[corner[n]]) / *n_sample;
+              for (int b = 0; b < nbins; ++b) planck[b] += u * Real(row[b]);
+            }
+            return true;
+          };
+          auto keep_going = [&]() {
+            Real max_tr = Real(0);
+            for (int b = 0; b < nbins; ++b) max_tr = std::max(max_tr, transmittance[b]);
+            return !(max_tr < min_tr);
+          };
+          MarchRay<Real>(march, &ignored, [&](Real ds, const std::size_t* corner, const Real* weight) {
+            Real n_sample;
+            if (!sample(corner, weight, &n_sample)) return true;
+            for (int b = 0; b < nbins; ++b) {
+              const Real w = transmittance[b] * OneMinusExpNeg(sigma[b] * n_sample * ds);
+              total[b] += w * planck[b];
+              transmittance[b] -= w;
+            }
+            return keep_going();
+          });
+          for (int b = 0; b < nbins; ++b) transmittance[b] = Real(1);
+          MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* weight) {
+            Real n_sample;
+            if (!sample(corner, weight, &n_sample)) return true;
+            // d_emission[b] holds sigma_b dLoss/dE_b; d_n the kappa part, summed over bins.
+            Real d_n = 0;
+            for (int b = 0; b < nbins; ++b) {
+              const Real tau = sigma[b] * n_sample * ds;
+              Real phi, tau_dphi;
+              PhiAndTauDPhi(tau, &phi, &tau_dphi);
+              const Real tr = transmittance[b];
+              const Real w = tr * OneMinusExpNeg(tau);
+              cumulative[b] += w * planck[b];
+              const Real behind = total[b] - cumulative[b];
+              d_emission[b] = sigma[b] * adjoint[b] * tr * ds * phi;
+              d_n += sigma[b] * adjoint[b] * ds * (tr * tau_dphi * planck[b] - behind);
+              transmittance[b] -= w;
+            }
+            for (int n = 0; n < 8; ++n) {
+              const std::int32_t slot = slot_[corner[n]];
+              if (slot < 0 || weight[n] == Real(0)) continue;
+              bins_->PlanckAllWithDerivative(Real(temperature_[corner[n]]), row_b.data(),
+                                             row_d.data());
+              Real dot_b = 0, dot_d = 0;
+              for (int b = 0; b < nbins; ++b) {
+                dot_b += d_emission[b] * row_b[b];
+                dot_d += d_emission[b] * row_d[b];
+              }
+              buf.dn[slot] += double(weight[n] * (d_n + dot_b));
+              buf.dt[slot] += double(weight[n] * dot_d * Real(density_[corner[n]]));
+            }
+            return keep_going();
+          });
+        }
+      }
+    }
+    hit += c.hit;
+    early += c.early;
+    evaluated += c.evaluated;
+    skipped += c.skipped;
+    after += c.after;
+  });
+
+  for (const Buffers& buf : buffers) {
+    if (buf.dt.empty()) continue;
+    for (std::size_t a = 0; a < nactive; ++a) {
+      (*d_temperature)[active_voxels_[a]] += buf.dt[a];
+      (*d_density)[active_voxels_[a]] += buf.dn[a];
+    }
+  }
+
+  RenderSummary summary;
+  summary.path_used = path_;
+  summary.path_reason = path_reason_;
+  summary.spectral_bins = nbins;
+  summary.rays = static_cast<std::int64_t>(width) * height;
+  summary.rays_hit_box = hit;
+  summary.rays_terminated_early = early;
+  summary.steps_evaluated = evaluated;
+  summary.steps_skipped_empty = skipped;
+  summary.steps_after_termination = after;
+  summary.occupied_brick_fraction = occupied_brick_fraction_;
+  summary.time_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  return summary;
+}
+
+RenderSummary FireRenderer::RenderGradient(const CameraRays& rays, const ImageF& d_loss_d_rgb,
+                                           std::vector<double>* d_temperature,
+                                           std::vector<double>* d_density) const {
+  if (!has_volume_) throw std::logic_error("FireRenderer::RenderGradient called before SetVolume");
+  if (d_loss_d_rgb.width != rays.width() || d_loss_d_rgb.height != rays.height() ||
+      d_loss_d_rgb.channels != 3) {
+    throw std::invalid_argument(
+        "RenderGradient: d_loss_d_rgb is " + std::to_string(d_loss_d_rgb.width) + "x" +
+        std::to_string(d_loss_d_rgb.height) + "x" + std::to_string(d_loss_d_rgb.channels) +
+        ", the camera is " + std::to_string(rays.width()) + "x" + std::to_string(rays.height()) +
+        "x3");
+  }
+  const std::size_t nvox = geometry_.num_voxels();
+  for (std::vector<double>* v : {d_temperature, d_density}) {
+    if (v->empty()) v->assign(nvox, 0.0);
+    if (v->size() != nvox) {
+      throw std::invalid_argument("RenderGradient: gradient arrays need " + std::to_string(nvox) +
+                                  " values, got " + std::to_string(v->size()));
+    }
+  }
+  if (options_.double_precision)
+    return GradientImpl<double>(rays, d_loss_d_rgb, d_temperature, d_density);
+  return GradientImpl<float>(rays, d_loss_d_rgb, d_temperature, d_density);
 }
 
 RenderSummary FireRenderer::Render(const CameraRays& rays, ImageF* linear_rgb) const {

@@ -28,6 +28,21 @@ void BlackbodyXyzTable::LookupExact(double temperature_k, Real* xyz) const {
 template void BlackbodyXyzTable::LookupExact<float>(double, float*) const;
 template void BlackbodyXyzTable::LookupExact<double>(double, double*) const;
 
+template <typename Real>
+void BlackbodyXyzTable::LookupExactWithDerivative(double temperature_k, Real* xyz,
+                                                  Real* d_xyz) const {
+  // Above the table the curve is smooth and flat in T: a central difference over 1 K.
+  const Eigen::Vector3d v = colour::BlackbodyXyz(temperature_k);
+  const Eigen::Vector3d d =
+      0.5 * (colour::BlackbodyXyz(temperature_k + 1.0) - colour::BlackbodyXyz(temperature_k - 1.0));
+  for (int c = 0; c < 3; ++c) {
+    xyz[c] = Real(v[c]);
+    d_xyz[c] = Real(d[c]);
+  }
+}
+template void BlackbodyXyzTable::LookupExactWithDerivative<float>(double, float*, float*) const;
+template void BlackbodyXyzTable::LookupExactWithDerivative<double>(double, double*, double*) const;
+
 SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm) : step_nm_(step_nm) {
   if (!(first_nm >= 360) || !(last_nm <= 830) || !(first_nm < last_nm) || !(step_nm > 0)) {
     throw std::invalid_argument(
@@ -63,6 +78,10 @@ SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm) : st
 
 double SpectralBins::PlanckExact(int bin, double temperature_k) const {
   return physics::PlanckRadiancePerNm(centers_nm_[bin], temperature_k);
+}
+
+double SpectralBins::PlanckExactDerivative(int bin, double temperature_k) const {
+  return physics::PlanckRadiancePerNmDerivative(centers_nm_[bin], temperature_k);
 }
 
 }  // namespace flamerig

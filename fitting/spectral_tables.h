@@ -39,8 +39,28 @@ class BlackbodyXyzTable {
     for (int c = 0; c < 3; ++c) xyz[c] = Real(a[c] + f * (a[c + 3] - a[c]));
   }
 
+  // XYZ and its derivative in T: the slope of the table segment holding T (what Lookup's linear
+  // interpolation differentiates to); above kMaxTableK a central difference over 1 K; zero at T <= 0.
+  template <typename Real>
+  void LookupWithDerivative(Real temperature_k, Real* xyz, Real* d_xyz) const {
+    if (!(temperature_k > Real(0))) {
+      for (int c = 0; c < 3; ++c) xyz[c] = d_xyz[c] = Real(0);
+      return;
+    }
+    if (temperature_k >= Real(kMaxTableK)) return LookupExactWithDerivative(double(temperature_k), xyz, d_xyz);
+    const int i = static_cast<int>(temperature_k);
+    const Real f = temperature_k - Real(i);
+    const double* a = &xyz_[3 * i];
+    for (int c = 0; c < 3; ++c) {
+      d_xyz[c] = Real(a[c + 3] - a[c]);
+      xyz[c] = Real(a[c] + f * (a[c + 3] - a[c]));
+    }
+  }
+
  private:
   BlackbodyXyzTable();
+  template <typename Real>
+  void LookupExactWithDerivative(double temperature_k, Real* xyz, Real* d_xyz) const;
   template <typename Real>
   void LookupExact(double temperature_k, Real* xyz) const;
   std::vector<double> xyz_;  // 3 * (kMaxTableK + 2)
@@ -93,8 +113,34 @@ class SpectralBins {
     for (int b = 0; b < n; ++b) out[b] = Real(row0[b]) + f * (Real(row1[b]) - Real(row0[b]));
   }
 
+  // All bins and their derivatives in T (the table segment's slope; exact above kMaxTableK).
+  template <typename Real>
+  void PlanckAllWithDerivative(Real temperature_k, Real* out, Real* d_out) const {
+    const int n = count();
+    if (!(temperature_k > Real(0))) {
+      for (int b = 0; b < n; ++b) out[b] = d_out[b] = Real(0);
+      return;
+    }
+    if (temperature_k >= Real(kMaxTableK)) {
+      for (int b = 0; b < n; ++b) {
+        out[b] = Real(PlanckExact(b, double(temperature_k)));
+        d_out[b] = Real(PlanckExactDerivative(b, double(temperature_k)));
+      }
+      return;
+    }
+    const int i = static_cast<int>(temperature_k);
+    const Real f = temperature_k - Real(i);
+    const float* row0 = &planck_[static_cast<std::size_t>(i) * n];
+    const float* row1 = row0 + n;
+    for (int b = 0; b < n; ++b) {
+      d_out[b] = Real(row1[b]) - Real(row0[b]);
+      out[b] = Real(row0[b]) + f * d_out[b];
+    }
+  }
+
  private:
   double PlanckExact(int bin, double temperature_k) const;
+  double PlanckExactDerivative(int bin, double temperature_k) const;
   double step_nm_;
   std::vector<double> centers_nm_;
   std::vector<Eigen::Vector3d> weights_;

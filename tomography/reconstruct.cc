@@ -53,6 +53,17 @@ bool Contains(const std::vector<std::uint8_t>& outer, const std::vector<std::uin
   return true;
 }
 
+// (inner pixels not in outer, inner pixels).
+std::pair<std::size_t, std::size_t> CountOutside(const std::vector<std::uint8_t>& outer,
+                                                 const std::vector<std::uint8_t>& inner) {
+  std::size_t outside = 0, total = 0;
+  for (std::size_t i = 0; i < inner.size(); ++i) {
+    total += inner[i] != 0;
+    outside += inner[i] && (i >= outer.size() || !outer[i]);
+  }
+  return {outside, total};
+}
+
 std::vector<std::uint8_t> Union(const std::vector<std::uint8_t>& a,
                                 const std::vector<std::uint8_t>& b) {
   if (a.size() != b.size()) return b;
@@ -78,6 +89,8 @@ void ReconstructOptions::Validate() const {
   if (coarse_iterations < 1) fail("coarse_iterations must be >= 1");
   if (envelope_margin_voxels < 0 || envelope_margin_voxels > 16)
     fail("envelope_margin_voxels must be in [0, 16]");
+  if (!(envelope_pixel_tolerance >= 0) || !(envelope_pixel_tolerance <= 0.1))
+    fail("envelope_pixel_tolerance must be in [0, 0.1]");
   hull.Validate();
   matrix.Validate();
   solve.Validate();
@@ -93,6 +106,8 @@ std::string ReconstructSummary::BriefReport() const {
   }
   s << "), matrix " << matrix_rows << "x" << matrix_cols << " (" << matrix_nnz << " non-zeros, "
     << matrix_bytes / 1048576.0 << " MB, " << matrix_source << ", " << matrix_build_ms << " ms)";
+  if (fire_pixels_outside_envelope > 0)
+    s << ", " << fire_pixels_outside_envelope << " fire pixels outside its envelope left out";
   for (const auto& solve : solves) s << "; " << solve.BriefReport();
   if (holdout_rms >= 0) s << "; held-out " << holdout_camera << " RMS " << holdout_rms;
   for (const auto& skipped : skipped_cameras) s << "; skipped " << skipped;
@@ -239,10 +254,17 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     }
     // Matrix: reuse while the hull fits the envelope it was built for.
     t0 = Clock::now();
+    // A few fire pixels outside the envelope (a flicker at the edge, noise) do not force a rebuild:
+    // their data are left out of this frame and counted.
     bool fits = level->has_matrix && level->cameras == solve_cameras &&
                 Contains(level->envelope_voxels, hull.voxel_inside);
-    for (std::size_t c = 0; fits && c < cams.size(); ++c)
-      fits = Contains(level->envelope_pixels[c], hull.fire_mask[c]);
+    std::size_t pixels_outside = 0;
+    for (std::size_t c = 0; fits && c < cams.size(); ++c) {
+      const auto [outside, fire] = CountOutside(level->envelope_pixels[c], hull.fire_mask[c]);
+      fits = outside <= options_.envelope_pixel_tolerance * fire;
+      pixels_outside += outside;
+    }
+    if (is_fine) summary.fire_pixels_outside_envelope = fits ? pixels_outside : 0;
     std::string source = "reused (envelope)";
     if (!fits) {
       std::vector<std::uint8_t> envelope =

@@ -9,8 +9,9 @@
 // Reuse across the frames of a recording: a Reconstructor keeps the last system matrix and the hull
 // "envelope" it was built for (the union of the hulls seen so far, dilated by
 // envelope_margin_voxels). A frame whose hull and fire masks fit inside the envelope reuses the
-// matrix, with the voxels outside its own hull pinned at zero; otherwise the envelope grows and the
-// matrix is rebuilt. Matrices are also cached on disk (cache_dir) under a hash of everything they
+// matrix, with the voxels outside its own hull pinned at zero (up to envelope_pixel_tolerance of
+// a camera's fire pixels may fall outside; they are left out and counted); otherwise the envelope
+// grows and the matrix is rebuilt. Matrices are also cached on disk (cache_dir) under a hash of everything they
 // depend on, so a second run skips the build.
 //
 // Output: FireVolume with `emission_rgb` (linear RGB radiance per metre, the renderer's units: an
@@ -42,6 +43,9 @@ struct ReconstructOptions {
   int coarse_iterations = 30;      // iterations of the coarse solve
   std::string holdout_camera;      // camera left out of the solve and used to stop it; "" = none
   int envelope_margin_voxels = 4;  // dilation of the hull envelope that matrices are built for
+  // Share of a camera's fire pixels that may fall outside the envelope before the matrix is
+  // rebuilt (those pixels are left out of that frame); [0, 0.1].
+  double envelope_pixel_tolerance = 0.01;
   std::string cache_dir;           // on-disk matrix cache; "" = memory only
   void Validate() const;           // throws std::invalid_argument naming the field
 };
@@ -53,6 +57,7 @@ struct ReconstructSummary {
   std::vector<double> noise_sigma;          // per camera (radiance)
   std::size_t matrix_rows = 0, matrix_cols = 0, matrix_nnz = 0, matrix_bytes = 0;
   std::string matrix_source;  // "built", "reused (envelope)", "disk cache"
+  std::size_t fire_pixels_outside_envelope = 0;  // left out of a frame that reused the matrix
   double matrix_build_ms = 0;
   std::vector<SolveSummary> solves;  // coarse (if any), then full resolution
   std::string holdout_camera;

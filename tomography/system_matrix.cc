@@ -181,33 +181,12 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
 }
 
 void SystemMatrix::BuildTranspose() {
-  const std::size_t nrows = rows(), ncols = cols();
+  const std::size_t nrows = rows(), ncols = cols(), stride = ncols + 1;
   row_sums_.assign(nrows, 0.0f);
-  col_sums_.assign(ncols, 0.0f);
-  t_ptr_.assign(ncols + 1, 0);
   for (std::size_t r = 0; r < nrows; ++r) {
     double s = 0;
-    for (std::int64_t e = row_ptr_[r]; e < row_ptr_[r + 1]; ++e) {
-      s += values_[e];
-      ++t_ptr_[cols_[e] + 1];
-    }
+    for (std::int64_t e = row_ptr_[r]; e < row_ptr_[r + 1]; ++e) s += values_[e];
     row_sums_[r] = static_cast<float>(s);
-  }
-  for (std::size_t c = 0; c < ncols; ++c) t_ptr_[c + 1] += t_ptr_[c];
-  t_rows_.resize(values_.size());
-  t_values_.resize(values_.size());
-  std::vector<std::int64_t> fill(t_ptr_.begin(), t_ptr_.end() - 1);
-  for (std::size_t r = 0; r < nrows; ++r) {
-    for (std::int64_t e = row_ptr_[r]; e < row_ptr_[r + 1]; ++e) {
-      const std::int64_t dst = fill[cols_[e]]++;
-      t_rows_[dst] = static_cast<std::uint32_t>(r);
-      t_values_[dst] = values_[e];
-    }
-  }
-  for (std::size_t c = 0; c < ncols; ++c) {
-    double s = 0;
-    for (std::int64_t e = t_ptr_[c]; e < t_ptr_[c + 1]; ++e) s += t_values_[e];
-    col_sums_[c] = static_cast<float>(s);
   }
   // Camera row ranges (rows are built camera by camera; anything else gets no ranges).
   camera_ranges_.clear();
@@ -215,30 +194,49 @@ void SystemMatrix::BuildTranspose() {
     if (r == 0 || row_camera_[r] != row_camera_[r - 1]) {
       if (r > 0 && row_camera_[r] < row_camera_[r - 1]) {
         camera_ranges_.clear();
-        return;
+        break;
       }
       camera_ranges_.emplace_back(r, r);
     }
     camera_ranges_.back().second = r + 1;
   }
-  // Per column, where each camera's entries start in its (row-sorted) transposed run.
-  const std::size_t ns = camera_ranges_.size();
-  t_camera_offsets_.assign(ncols * (ns + 1), 0);
-  tbb::parallel_for(
-      tbb::blocked_range<std::size_t>(0, ncols, 1024),
-      [&](const tbb::blocked_range<std::size_t>& range) {
-        for (std::size_t j = range.begin(); j < range.end(); ++j) {
-          const std::uint32_t* begin = t_rows_.data() + t_ptr_[j];
-          const std::uint32_t* end = t_rows_.data() + t_ptr_[j + 1];
-          std::uint32_t* offsets = &t_camera_offsets_[j * (ns + 1)];
-          for (std::size_t c = 0; c < ns; ++c) {
-            offsets[c] = static_cast<std::uint32_t>(
-                std::lower_bound(begin, end, static_cast<std::uint32_t>(camera_ranges_[c].first)) -
-                begin);
-          }
-          offsets[ns] = static_cast<std::uint32_t>(end - begin);
-        }
-      });
+  subsets_ = camera_ranges_;
+  if (subsets_.empty()) subsets_.emplace_back(0, nrows);
+  // Counting sort by (subset, column); rows ascend within each run because they are visited in
+  // order.
+  const std::size_t ns = subsets_.size();
+  t_ptr_.assign(ns * stride, 0);
+  for (std::size_t s = 0; s < ns; ++s)
+    for (std::size_t r = subsets_[s].first; r < subsets_[s].second; ++r)
+      for (std::int64_t e = row_ptr_[r]; e < row_ptr_[r + 1]; ++e) ++t_ptr_[s * stride + cols_[e] + 1];
+  std::int64_t total = 0;
+  for (std::size_t s = 0; s < ns; ++s) {
+    t_ptr_[s * stride] = total;
+    for (std::size_t c = 0; c < ncols; ++c) {
+      total += t_ptr_[s * stride + c + 1];
+      t_ptr_[s * stride + c + 1] = total;
+    }
+  }
+  t_entries_.resize(values_.size());
+  std::vector<std::int64_t> fill(stride);
+  for (std::size_t s = 0; s < ns; ++s) {
+    std::copy(t_ptr_.begin() + s * stride, t_ptr_.begin() + (s + 1) * stride, fill.begin());
+    for (std::size_t r = subsets_[s].first; r < subsets_[s].second; ++r)
+      for (std::int64_t e = row_ptr_[r]; e < row_ptr_[r + 1]; ++e)
+        t_entries_[fill[cols_[e]]++] = Entry{static_cast<std::uint32_t>(r), values_[e]};
+  }
+  col_sums_.assign(ncols, 0.0f);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, ncols, 1024),
+                    [&](const tbb::blocked_range<std::size_t>& range) {
+                      for (std::size_t c = range.begin(); c < range.end(); ++c) {
+                        double sum = 0;
+                        for (std::size_t s = 0; s < ns; ++s)
+                          for (std::int64_t e = t_ptr_[s * stride + c];
+                               e < t_ptr_[s * stride + c + 1]; ++e)
+                            sum += t_entries_[e].value;
+                        col_sums_[c] = static_cast<float>(sum);
+                      }
+                    });
 }
 
 void SystemMatrix::ParallelColumns(const std::function<void(std::size_t, std::size_t)>& fn) const {
@@ -246,21 +244,43 @@ void SystemMatrix::ParallelColumns(const std::function<void(std::size_t, std::si
                     [&](const tbb::blocked_range<std::size_t>& r) { fn(r.begin(), r.end()); });
 }
 
-void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float* x, float* y,
-                                int channels) const {
+namespace {
+
+template <int kC>
+void MultiplyRowsKernel(const std::int64_t* row_ptr, const std::uint32_t* cols,
+                        const float* values, std::size_t first, std::size_t last, const float* x,
+                        float* y, int channels) {
+  const int nc = kC > 0 ? kC : channels;
   tbb::parallel_for(tbb::blocked_range<std::size_t>(first, last, 256),
                     [&](const tbb::blocked_range<std::size_t>& r) {
                       for (std::size_t i = r.begin(); i < r.end(); ++i) {
                         float acc[4] = {0, 0, 0, 0};
-                        for (std::int64_t e = row_ptr_[i]; e < row_ptr_[i + 1]; ++e) {
-                          const float v = values_[e];
-                          const float* xc = x + static_cast<std::size_t>(cols_[e]) * channels;
-                          for (int ch = 0; ch < channels; ++ch) acc[ch] += v * xc[ch];
+                        for (std::int64_t e = row_ptr[i]; e < row_ptr[i + 1]; ++e) {
+                          const float v = values[e];
+                          const float* xc = x + static_cast<std::size_t>(cols[e]) * nc;
+                          for (int ch = 0; ch < (kC > 0 ? kC : nc); ++ch) acc[ch] += v * xc[ch];
                         }
-                        for (int ch = 0; ch < channels; ++ch)
-                          y[i * channels + ch] = static_cast<float>(acc[ch]);
+                        for (int ch = 0; ch < (kC > 0 ? kC : nc); ++ch) y[i * nc + ch] = acc[ch];
                       }
                     });
+}
+
+}  // namespace
+
+void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float* x, float* y,
+                                int channels) const {
+  if (channels < 1 || channels > 4)
+    throw std::invalid_argument("SystemMatrix: 1 to 4 channels, not " + std::to_string(channels));
+  last = std::min(last, rows());
+  if (first >= last) return;
+  if (channels == 3) {
+    MultiplyRowsKernel<3>(row_ptr_.data(), cols_.data(), values_.data(), first, last, x, y, 3);
+  } else if (channels == 1) {
+    MultiplyRowsKernel<1>(row_ptr_.data(), cols_.data(), values_.data(), first, last, x, y, 1);
+  } else {
+    MultiplyRowsKernel<0>(row_ptr_.data(), cols_.data(), values_.data(), first, last, x, y,
+                          channels);
+  }
 }
 
 void SystemMatrix::MultiplyTransposedRows(std::size_t first, std::size_t last, const float* y,
@@ -273,9 +293,8 @@ void SystemMatrix::MultiplyTransposedRows(std::size_t first, std::size_t last, c
 
 std::size_t SystemMatrix::bytes() const {
   return row_ptr_.size() * 8 + cols_.size() * 4 + values_.size() * 4 + t_ptr_.size() * 8 +
-         t_rows_.size() * 4 + t_values_.size() * 4 + t_camera_offsets_.size() * 4 +
-         row_camera_.size() * 8 + col_voxel_.size() * 4 + row_sums_.size() * 4 +
-         col_sums_.size() * 4;
+         t_entries_.size() * sizeof(Entry) + row_camera_.size() * 8 + col_voxel_.size() * 4 +
+         row_sums_.size() * 4 + col_sums_.size() * 4;
 }
 
 void SystemMatrix::Multiply(const float* x, float* y, int channels) const {
@@ -283,19 +302,9 @@ void SystemMatrix::Multiply(const float* x, float* y, int channels) const {
 }
 
 void SystemMatrix::MultiplyTransposed(const float* y, float* x, int channels) const {
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cols(), 256),
-                    [&](const tbb::blocked_range<std::size_t>& r) {
-                      for (std::size_t j = r.begin(); j < r.end(); ++j) {
-                        float acc[4] = {0, 0, 0, 0};
-                        for (std::int64_t e = t_ptr_[j]; e < t_ptr_[j + 1]; ++e) {
-                          const float v = t_values_[e];
-                          const float* yr = y + static_cast<std::size_t>(t_rows_[e]) * channels;
-                          for (int ch = 0; ch < channels; ++ch) acc[ch] += v * yr[ch];
-                        }
-                        for (int ch = 0; ch < channels; ++ch)
-                          x[j * channels + ch] = static_cast<float>(acc[ch]);
-                      }
-                    });
+  BackprojectRows(0, rows(), y, channels, [&](std::size_t j, const float* g, float) {
+    for (int ch = 0; ch < channels; ++ch) x[j * channels + ch] = g[ch];
+  });
 }
 
 namespace {

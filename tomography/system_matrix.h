@@ -9,17 +9,22 @@
 // pixels used (camera, pixel); columns are the voxels used (inside the visual hull). Weights of
 // voxels outside the columns are dropped: those voxels are taken as empty.
 //
-// Storage: CSR for A and for its transpose (so A x and A^T y both run in parallel without atomics),
-// float values, 32-bit column indices. A matrix can be saved to and loaded from a binary cache
-// file; the file starts with a key (a hash of everything the matrix depends on) and is rejected if
-// it differs.
+// Storage: CSR for A (float values, 32-bit column indices), and its transpose stored camera by
+// camera: for each camera's rows (a "subset"), a CSR over the columns whose entries (row, value)
+// are interleaved. A x runs over rows, A^T y over columns, both in parallel without atomics; the
+// backprojection of one camera's rows (ordered-subset solvers) streams through one contiguous
+// block. Three colour channels have specialised kernels. A matrix can be saved to and loaded from
+// a binary cache file; the file starts with a key (a hash of everything the matrix depends on) and
+// is rejected if it differs.
 #ifndef FLAMERIG_TOMOGRAPHY_SYSTEM_MATRIX_H_
 #define FLAMERIG_TOMOGRAPHY_SYSTEM_MATRIX_H_
 
 #include <algorithm>
 #include <cstdint>
 #include <functional>
+#include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -105,54 +110,67 @@ class SystemMatrix {
   std::vector<std::int64_t> row_ptr_;  // rows + 1
   std::vector<std::uint32_t> cols_;    // nnz
   std::vector<float> values_;          // nnz
-  std::vector<std::int64_t> t_ptr_;    // transpose: cols + 1
-  std::vector<std::uint32_t> t_rows_;
-  std::vector<float> t_values_;
+  // Transpose, subset by subset (subset = one camera's row range; one subset spanning all rows
+  // when the rows are not grouped by camera): entries of subset s, column j are
+  // t_entries_[t_ptr_[s * (cols + 1) + j] .. t_ptr_[s * (cols + 1) + j + 1]), sorted by row.
+  struct Entry {
+    std::uint32_t row;
+    float value;
+  };
+  std::vector<std::int64_t> t_ptr_;
+  std::vector<Entry> t_entries_;
+  std::vector<std::pair<std::size_t, std::size_t>> subsets_;  // row range of each subset
   std::vector<std::int32_t> row_camera_, row_pixel_;
   std::vector<std::uint32_t> col_voxel_;
   std::vector<float> row_sums_, col_sums_;
   std::vector<std::pair<std::size_t, std::size_t>> camera_ranges_;
-  // For each column, where each camera's entries start in its transposed run (relative offsets,
-  // cameras + 1 per column), so that a subset backprojection needs no search.
-  std::vector<std::uint32_t> t_camera_offsets_;
   double build_ms_ = 0;
 };
 
 template <typename Visit>
 void SystemMatrix::BackprojectRows(std::size_t first, std::size_t last, const float* y,
                                    int channels, Visit&& visit) const {
-  int subset = -1;
-  const std::size_t ns = camera_ranges_.size() + 1;
-  if (t_camera_offsets_.size() == cols() * ns) {
-    for (std::size_t c = 0; c < camera_ranges_.size(); ++c) {
-      if (camera_ranges_[c].first == first && camera_ranges_[c].second == last)
-        subset = static_cast<int>(c);
-    }
+  if (channels < 1 || channels > 4)
+    throw std::invalid_argument("SystemMatrix: 1 to 4 channels, not " + std::to_string(channels));
+  const std::size_t n = cols(), stride = n + 1;
+  // Subsets overlapping [first, last); a subset wholly inside needs no row filtering.
+  std::vector<std::size_t> parts;
+  for (std::size_t s = 0; s < subsets_.size(); ++s)
+    if (subsets_[s].first < last && subsets_[s].second > first && subsets_[s].first < subsets_[s].second)
+      parts.push_back(s);
+  auto run = [&](auto kChannels) {
+    constexpr int kC = decltype(kChannels)::value;
+    const int nc = kC > 0 ? kC : channels;
+    ParallelColumns([&](std::size_t j0, std::size_t j1) {
+      for (std::size_t j = j0; j < j1; ++j) {
+        float acc[4] = {0, 0, 0, 0};
+        float sum = 0;
+        for (std::size_t s : parts) {
+          const Entry* lo = t_entries_.data() + t_ptr_[s * stride + j];
+          const Entry* hi = t_entries_.data() + t_ptr_[s * stride + j + 1];
+          if (subsets_[s].first < first || subsets_[s].second > last) {
+            lo = std::lower_bound(lo, hi, first,
+                                  [](const Entry& e, std::size_t r) { return e.row < r; });
+            hi = std::lower_bound(lo, hi, last,
+                                  [](const Entry& e, std::size_t r) { return e.row < r; });
+          }
+          for (const Entry* e = lo; e < hi; ++e) {
+            const float* yr = y + static_cast<std::size_t>(e->row) * nc;
+            for (int ch = 0; ch < (kC > 0 ? kC : nc); ++ch) acc[ch] += e->value * yr[ch];
+            sum += e->value;
+          }
+        }
+        visit(j, acc, sum);
+      }
+    });
+  };
+  if (channels == 3) {
+    run(std::integral_constant<int, 3>());
+  } else if (channels == 1) {
+    run(std::integral_constant<int, 1>());
+  } else {
+    run(std::integral_constant<int, 0>());
   }
-  ParallelColumns([&](std::size_t j0, std::size_t j1) {
-    for (std::size_t j = j0; j < j1; ++j) {
-      const std::uint32_t* begin = t_rows_.data() + t_ptr_[j];
-      const std::uint32_t* end = t_rows_.data() + t_ptr_[j + 1];
-      const std::uint32_t* lo;
-      const std::uint32_t* hi;
-      if (subset >= 0) {
-        lo = begin + t_camera_offsets_[j * ns + subset];
-        hi = begin + t_camera_offsets_[j * ns + subset + 1];
-      } else {
-        lo = std::lower_bound(begin, end, static_cast<std::uint32_t>(first));
-        hi = std::lower_bound(lo, end, static_cast<std::uint32_t>(last));
-      }
-      float acc[4] = {0, 0, 0, 0};
-      float sum = 0;
-      for (const std::uint32_t* it = lo; it < hi; ++it) {
-        const float v = t_values_[it - t_rows_.data()];
-        const float* yr = y + static_cast<std::size_t>(*it) * channels;
-        for (int ch = 0; ch < channels; ++ch) acc[ch] += v * yr[ch];
-        sum += v;
-      }
-      visit(j, acc, sum);
-    }
-  });
 }
 
 }  // namespace flamerig

@@ -1,0 +1,185 @@
+// The renderer's adjoint (RenderGradient) against central finite differences of Render(), on both
+// paths, in double precision, through absorption strong enough that transmittance matters.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "fitting/renderer.h"
+
+namespace flamerig {
+namespace {
+
+struct Scene {
+  GridGeometry grid;
+  std::vector<float> temperature, density;
+  CameraModel camera = CameraModel::Pinhole(40, 40, 7.5, 5.5, Rigid3(), 16, 12);
+};
+
+// A 6x7x5 grid with a random blob of medium (some voxels empty), seen by a small pinhole camera
+// at an angle so that rays cross voxels obliquely. Temperatures sit mid-way between whole kelvins
+// so that +-0.45 K stays on one segment of the renderer's 1 K tables.
+Scene MakeScene(const AbsorptionModel& absorption, double optical_depth_per_voxel,
+                unsigned seed) {
+  Scene s;
+  Box3 box{Eigen::Vector3d(-0.03, -0.035, -0.025), Eigen::Vector3d(0.03, 0.035, 0.025)};
+  s.grid = GridGeometry::FromBoxAndDims(box, Eigen::Vector3i(6, 7, 5));
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u01(0, 1);
+  const double n_unit =
+      optical_depth_per_voxel / (absorption.CrossSectionM2(550) * s.grid.voxel_size_m.x());
+  for (std::size_t v = 0; v < s.grid.num_voxels(); ++v) {
+    const bool empty = u01(rng) < 0.2;
+    s.temperature.push_back(static_cast<float>(std::floor(1200 + 1000 * u01(rng)) + 0.5));
+    s.density.push_back(empty ? 0.0f : static_cast<float>(n_unit * (0.2 + u01(rng))));
+  }
+  Rigid3 cam_from_rig = LookAt(Eigen::Vector3d(0.12, 0.05, 0.2), Eigen::Vector3d::Zero());
+  s.camera = CameraModel::Pinhole(40, 40, 7.5, 5.5, cam_from_rig, 16, 12);
+  return s;
+}
+
+// Loss = sum over pixels and channels of c * rgb with fixed random c, so dLoss/drgb = c.
+double Loss(const FireRenderer& r, const CameraRays& rays, const ImageF& c) {
+  ImageF image;
+  r.Render(rays, &image);
+  double sum = 0;
+  for (std::size_t i = 0; i < image.pixels.size(); ++i) sum += double(c.pixels[i]) * image.pixels[i];
+  return sum;
+}
+
+void CheckGradient(const AbsorptionModel& absorption, double optical_depth_per_voxel) {
+  Scene s = MakeScene(absorption, optical_depth_per_voxel, 7);
+  RenderOptions options;
+  options.spectral_step_nm = 40;  // 11 bins: the same code as 41, a quarter of the test's time
+  options.double_precision = true;
+  options.min_transmittance = 0;  // no early termination: FD would straddle the cut
+  options.brick_size_voxels = 2;  // some bricks are empty and skipped
+  FireRenderer renderer(absorption, options);
+  renderer.SetVolume(s.grid, s.temperature, s.density);
+  CameraRays rays(s.camera);
+  ImageF c(s.camera.width(), s.camera.height(), 3, 0.0f);
+  std::mt19937 rng(3);
+  std::normal_distribution<double> normal(0, 1);
+  for (float& v : c.pixels) v = static_cast<float>(normal(rng));
+  std::vector<double> dt, dn;
+  renderer.RenderGradient(rays, c, &dt, &dn);
+  ASSERT_EQ(dt.size(), s.grid.num_voxels());
+
+  double max_dt = 0, max_dn = 0;
+  for (std::size_t v = 0; v < dt.size(); ++v) {
+    max_dt = std::max(max_dt, std::abs(dt[v]));
+    max_dn = std::max(max_dn, std::abs(dn[v] * s.density[v]));
+  }
+  ASSERT_GT(max_dt, 0);
+  ASSERT_GT(max_dn, 0);
+  int checked = 0;
+  for (std::size_t v = 0; v < s.grid.num_voxels(); ++v) {
+    if (v % 2) continue;  // half the voxels keep the test quick
+    if (s.density[v] == 0) {
+      EXPECT_EQ(dt[v], 0.0);
+      EXPECT_EQ(dn[v], 0.0);
+      continue;
+    }
+    auto with = [&](std::vector<float> t, std::vector<float> n) {
+      FireRenderer r(absorption, options);
+      r.SetVolume(s.grid, t, n);
+      return Loss(r, rays, c);
+    };
+    // Temperature: +-0.45 K (the same table segment).
+    std::vector<float> tp = s.temperature, tm = s.temperature;
+    tp[v] += 0.45f;
+    tm[v] -= 0.45f;
+    const double fd_t = (with(tp, s.density) - with(tm, s.density)) / (double(tp[v]) - tm[v]);
+    EXPECT_NEAR(dt[v], fd_t, 1e-4 * max_dt + 1e-4 * std::abs(fd_t)) << "voxel " << v;
+    // Density: relative step 5e-3 (float storage), compared in units of n dLoss/dn.
+    std::vector<float> np = s.density, nm = s.density;
+    np[v] *= 1.005f;
+    nm[v] *= 0.995f;
+    const double fd_n = (with(s.temperature, np) - with(s.temperature, nm)) / (double(np[v]) - nm[v]);
+    EXPECT_NEAR(dn[v] * s.density[v], fd_n * s.density[v],
+                1e-4 * max_dn + 1e-3 * std::abs(fd_n * s.density[v]))
+        << "voxel " << v;
+    ++checked;
+  }
+  EXPECT_GT(checked, 50);
+}
+
+TEST(RenderGradient, FastPathMatchesFiniteDifferencesThin) {
+  CheckGradient(AbsorptionModel::DefaultGrey(), 0.05);
+}
+
+TEST(RenderGradient, FastPathMatchesFiniteDifferencesThick) {
+  CheckGradient(AbsorptionModel::DefaultGrey(), 1.5);
+}
+
+TEST(RenderGradient, SpectralPathMatchesFiniteDifferences) {
+  CheckGradient(AbsorptionModel::DefaultSoot(), 0.8);
+}
+
+TEST(RenderGradient, FloatAgreesWithDoubleAndCountsOnlyMarchedPixels) {
+  const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
+  Scene s = MakeScene(grey, 0.5, 11);
+  RenderOptions opt_d, opt_f;
+  opt_d.double_precision = true;
+  FireRenderer rd(grey, opt_d), rf(grey, opt_f);
+  rd.SetVolume(s.grid, s.temperature, s.density);
+  rf.SetVolume(s.grid, s.temperature, s.density);
+  CameraRays rays(s.camera);
+  ImageF c(s.camera.width(), s.camera.height(), 3, 0.0f);
+  c.at(8, 6, 1) = 1.0f;  // one pixel only
+  std::vector<double> dt_d, dn_d, dt_f, dn_f;
+  RenderSummary sd = rd.RenderGradient(rays, c, &dt_d, &dn_d);
+  rf.RenderGradient(rays, c, &dt_f, &dn_f);
+  EXPECT_EQ(sd.rays_hit_box, 1);
+  double scale = 0;
+  for (double v : dt_d) scale = std::max(scale, std::abs(v));
+  ASSERT_GT(scale, 0);
+  for (std::size_t v = 0; v < dt_d.size(); ++v) EXPECT_NEAR(dt_f[v], dt_d[v], 1e-4 * scale);
+  // Accumulates: a second call doubles the gradient.
+  rd.RenderGradient(rays, c, &dt_d, &dn_d);
+  std::vector<double> dt1, dn1;
+  rd.RenderGradient(rays, c, &dt1, &dn1);
+  for (std::size_t v = 0; v < dt_d.size(); ++v) EXPECT_NEAR(dt_d[v], 2 * dt1[v], 1e-12 * scale);
+}
+
+TEST(RenderGradient, ExtremeVolumesGiveFiniteGradients) {
+  const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
+  for (auto [t, n] : {std::pair{1.0f, 1e30f}, std::pair{1e5f, 1e30f}, std::pair{2000.0f, 1e-30f},
+                      std::pair{30000.0f, 1e10f}}) {
+    Scene s = MakeScene(grey, 1.0, 5);
+    for (std::size_t v = 0; v < s.grid.num_voxels(); ++v) {
+      s.temperature[v] = t;
+      if (s.density[v] > 0) s.density[v] = n;
+    }
+    for (bool soot : {false, true}) {
+      FireRenderer r(soot ? AbsorptionModel::DefaultSoot() : grey);
+      r.SetVolume(s.grid, s.temperature, s.density);
+      CameraRays rays(s.camera);
+      ImageF c(s.camera.width(), s.camera.height(), 3, 1.0f);
+      std::vector<double> dt, dn;
+      r.RenderGradient(rays, c, &dt, &dn);
+      for (std::size_t v = 0; v < dt.size(); ++v) {
+        ASSERT_TRUE(std::isfinite(dt[v]) && std::isfinite(dn[v]))
+            << "T " << t << " n " << n << " voxel " << v << (soot ? " soot" : " grey");
+      }
+    }
+  }
+}
+
+TEST(RenderGradient, RejectsMisSizedInputs) {
+  const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
+  Scene s = MakeScene(grey, 0.5, 1);
+  FireRenderer r(grey);
+  CameraRays rays(s.camera);
+  ImageF c(s.camera.width(), s.camera.height(), 3, 1.0f);
+  std::vector<double> dt, dn;
+  EXPECT_THROW(r.RenderGradient(rays, c, &dt, &dn), std::logic_error);  // no volume yet
+  r.SetVolume(s.grid, s.temperature, s.density);
+  ImageF wrong(3, 3, 3, 1.0f);
+  EXPECT_THROW(r.RenderGradient(rays, wrong, &dt, &dn), std::invalid_argument);
+  std::vector<double> short_dt(5), dn2;
+  EXPECT_THROW(r.RenderGradient(rays, c, &short_dt, &dn2), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace flamerig
