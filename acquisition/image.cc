@@ -7,13 +7,17 @@
 
 namespace flamerig {
 
-void WritePng(const std::string& path, const ImageU8& image) {
+namespace {
+
+template <typename T>
+void WritePngImpl(const std::string& path, const Image<T>& image) {
+  constexpr int depth = sizeof(T) == 1 ? CV_8U : CV_16U;
   if (image.channels != 1 && image.channels != 3) {
     throw std::runtime_error(path + ": cannot write an image with " +
                              std::to_string(image.channels) + " channels (need 1 or 3)");
   }
-  cv::Mat view(image.height, image.width, image.channels == 1 ? CV_8UC1 : CV_8UC3,
-               const_cast<std::uint8_t*>(image.pixels.data()));
+  cv::Mat view(image.height, image.width, CV_MAKETYPE(depth, image.channels),
+               const_cast<T*>(image.pixels.data()));
   cv::Mat out;
   if (image.channels == 3) {
     cv::cvtColor(view, out, cv::COLOR_RGB2BGR);
@@ -29,14 +33,10 @@ void WritePng(const std::string& path, const ImageU8& image) {
   if (!ok) throw std::runtime_error(path + ": cannot write image");
 }
 
-ImageU8 ReadImageU8(const std::string& path, int channels) {
-  cv::Mat in = cv::imread(path, cv::IMREAD_UNCHANGED);
-  if (in.empty()) throw std::runtime_error(path + ": missing or not a decodable image");
-  if (in.depth() != CV_8U) {
-    throw std::runtime_error(path + ": expected an 8-bit image, found another bit depth");
-  }
-  int file_channels = in.channels();
-  int want = channels == 0 ? (file_channels == 1 ? 1 : 3) : channels;
+template <typename T>
+Image<T> FromMat(const std::string& path, const cv::Mat& in, int channels) {
+  const int file_channels = in.channels();
+  const int want = channels == 0 ? (file_channels == 1 ? 1 : 3) : channels;
   if (want != 1 && want != 3) throw std::runtime_error(path + ": can only read as 1 or 3 channels");
   cv::Mat rgb;
   if (want == 1) {
@@ -54,13 +54,52 @@ ImageU8 ReadImageU8(const std::string& path, int channels) {
     else
       cv::cvtColor(in, rgb, cv::COLOR_BGRA2RGB);
   }
-  ImageU8 image(rgb.cols, rgb.rows, want);
+  Image<T> image(rgb.cols, rgb.rows, want);
   for (int y = 0; y < rgb.rows; ++y) {
-    const std::uint8_t* row = rgb.ptr<std::uint8_t>(y);
+    const T* row = rgb.ptr<T>(y);
     std::copy(row, row + static_cast<std::size_t>(rgb.cols) * want,
               image.pixels.begin() + static_cast<std::size_t>(y) * rgb.cols * want);
   }
   return image;
+}
+
+cv::Mat Decode(const std::string& path) {
+  cv::Mat in;
+  try {
+    in = cv::imread(path, cv::IMREAD_UNCHANGED);
+  } catch (const cv::Exception& e) {
+    throw std::runtime_error(path + ": cannot decode: " + e.what());
+  }
+  if (in.empty()) throw std::runtime_error(path + ": missing or not a decodable image");
+  return in;
+}
+
+}  // namespace
+
+void WritePng(const std::string& path, const ImageU8& image) { WritePngImpl(path, image); }
+void WritePng16(const std::string& path, const ImageU16& image) { WritePngImpl(path, image); }
+
+ImageU8 ReadImageU8(const std::string& path, int channels) {
+  cv::Mat in = Decode(path);
+  if (in.depth() != CV_8U) {
+    throw std::runtime_error(path + ": expected an 8-bit image, found another bit depth");
+  }
+  return FromMat<std::uint8_t>(path, in, channels);
+}
+
+int ReadImage(const std::string& path, ImageU8* image8, ImageU16* image16, int channels) {
+  cv::Mat in = Decode(path);
+  if (in.depth() == CV_8U) {
+    *image8 = FromMat<std::uint8_t>(path, in, channels);
+    *image16 = ImageU16();
+    return 8;
+  }
+  if (in.depth() == CV_16U) {
+    *image16 = FromMat<std::uint16_t>(path, in, channels);
+    *image8 = ImageU8();
+    return 16;
+  }
+  throw std::runtime_error(path + ": expected an 8-bit or 16-bit unsigned image");
 }
 
 }  // namespace flamerig

@@ -47,11 +47,16 @@ using ImageF = Image<float>;
 // Writes an 8-bit image (1 or 3 channels, RGB order) as PNG. Throws std::runtime_error naming the
 // path when the file cannot be written.
 void WritePng(const std::string& path, const ImageU8& image);
+// The same for 16-bit images (PNG stores 16 bits per channel).
+void WritePng16(const std::string& path, const ImageU16& image);
 
 // Reads an 8-bit PNG (or any format OpenCV decodes) as 1 or 3 channels (RGB order); `channels` 0
 // keeps the file's channel count (alpha dropped). Throws std::runtime_error naming the path when
 // the file is missing, cannot be decoded, or is not 8-bit.
 ImageU8 ReadImageU8(const std::string& path, int channels = 0);
+// Reads an 8-bit or 16-bit image into *image8 or *image16 (the other is left empty) and returns
+// the bit depth, 8 or 16. Same channel rules and errors as ReadImageU8.
+int ReadImage(const std::string& path, ImageU8* image8, ImageU16* image16, int channels = 0);
 
 }  // namespace flamerig
 

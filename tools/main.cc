@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "acquisition/srgb.h"
 #include "fitting/renderer.h"
 #include "tomography/reconstruct.h"
 #include "tomography/vdb_io.h"
@@ -206,7 +207,10 @@ int Reconstruct(const Args& args) {
   options.cache_dir = args.Get("cache", "");
   options.coarse_to_fine = args.named.count("no-coarse") == 0;
   const std::string dir = args.Required("images");
-  std::vector<ImageU8> images(rig.cameras.size());
+  // One image per camera, <camera>.png: 8-bit sRGB as the camera wrote it, or 16-bit linear
+  // (value / 65535 is the linear signal).
+  std::vector<ImageU8> images(rig.cameras.size());  // 8-bit views of the inputs, for the preview
+  std::vector<LinearFrame> frames(rig.cameras.size());
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const fs::path path = fs::path(dir) / (rig.cameras[c].name + ".png");
     if (!fs::exists(path)) {
@@ -214,11 +218,23 @@ int Reconstruct(const Args& args) {
                    rig.cameras[c].name.c_str(), path.c_str());
       continue;
     }
-    images[c] = ReadImageU8(path.string());
+    ImageU16 image16;
+    try {
+      if (ReadImage(path.string(), &images[c], &image16) == 16) {
+        frames[c] = DecodeLinear16(image16, options.exposure);
+        images[c] = ImageU8(image16.width, image16.height, image16.channels);
+        for (std::size_t p = 0; p < image16.pixels.size(); ++p)
+          images[c].pixels[p] = QuantizeU8(SrgbEncode(image16.pixels[p] / 65535.0));
+      } else {
+        frames[c] = DecodeSrgb8(images[c], options.exposure);
+      }
+    } catch (const std::invalid_argument& e) {
+      throw std::invalid_argument(path.string() + ": " + e.what());
+    }
   }
   Reconstructor reconstructor(rig, options);
   ReconstructSummary summary;
-  FireVolume volume = reconstructor.Reconstruct(images, &summary);
+  FireVolume volume = reconstructor.Reconstruct(frames, &summary);
   volume.metadata_text["exposure_source"] = exposure_source;
   const std::string out = args.Required("out");
   if (fs::path(out).has_parent_path()) fs::create_directories(fs::path(out).parent_path());
