@@ -1,0 +1,470 @@
+#include "fitting/fit.h"
+
+#include <ceres/gradient_problem.h>
+#include <ceres/gradient_problem_solver.h>
+#include <ceres/iteration_callback.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <map>
+#include <random>
+#include <sstream>
+#include <stdexcept>
+
+#include "fitting/colour.h"
+#include "fitting/physics.h"
+#include "tomography/reconstruct.h"
+
+namespace flamerig {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double Seconds(Clock::time_point since) {
+  return std::chrono::duration<double>(Clock::now() - since).count();
+}
+
+double Sigmoid(double u) {
+  if (u >= 0) return 1.0 / (1.0 + std::exp(-u));
+  const double e = std::exp(u);
+  return e / (1.0 + e);
+}
+// Inverse of Sigmoid for p in (0, 1), clamped away from the ends.
+double Logit(double p) {
+  p = std::clamp(p, 1e-9, 1.0 - 1e-9);
+  return std::log(p / (1.0 - p));
+}
+
+double Luminance(const float* rgb) {
+  return 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2];
+}
+
+}  // namespace
+
+void FitOptions::Validate() const {
+  objective.Validate();
+  render.Validate();
+  auto fail = [](const std::string& what) { throw std::invalid_argument("fit options: " + what); };
+  if (!(activity_threshold >= 0 && activity_threshold < 1))
+    fail("activity_threshold must be in [0, 1)");
+  if (!(exposure_min > 0) || !(exposure_max > exposure_min) || !std::isfinite(exposure_max))
+    fail("need 0 < exposure_min < exposure_max, finite");
+  if (coarsest_resolution < 4) fail("coarsest_resolution must be >= 4");
+  if (iterations_per_level < 0 || iterations_finest < 0) fail("iterations must be >= 0");
+  if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0)) fail("smoothing must be >= 0");
+  if (!(time_limit_s >= 0)) fail("time_limit_s must be >= 0");
+}
+
+std::string FitResult::BriefReport() const {
+  std::ostringstream s;
+  s.precision(4);
+  s << method << ": " << active_voxels << " active voxels, " << evaluations << " evaluations, "
+    << seconds << " s; energy " << final_terms.exact_energy() << " (data " << final_terms.data_exact
+    << ", pairwise " << final_terms.smooth_exact << "), mean Delta E " << final_terms.mean_delta_e
+    << " (per view:";
+  for (double d : final_terms.view_mean_delta_e) s << " " << d;
+  s << "), exposure " << exposure;
+  if (density_scale != 1) s << ", density scale " << density_scale;
+  return s.str();
+}
+
+ThinEmissionTable::ThinEmissionTable(const AbsorptionModel& absorption, double t_min_k,
+                                     double t_max_k)
+    : t_min_(t_min_k), t_max_(t_max_k) {
+  if (!(t_min_k > 0) || !(t_max_k > t_min_k))
+    throw std::invalid_argument("ThinEmissionTable: need 0 < t_min < t_max");
+  const auto& cie = colour::CieObserver::Cie1931TwoDegree();
+  std::vector<double> sigma(colour::CieObserver::kCount);
+  for (int i = 0; i < colour::CieObserver::kCount; ++i)
+    sigma[i] = absorption.CrossSectionM2(colour::CieObserver::kFirstNm + i);
+  const int n = static_cast<int>(std::ceil(t_max_k - t_min_k)) + 1;
+  for (int k = 0; k < n; ++k) {
+    const double t = std::min(t_max_k, t_min_k + k);
+    int i = 0;
+    const Eigen::Vector3d xyz =
+        cie.Integrate([&](double nm) { return sigma[i++] * physics::PlanckRadiancePerNm(nm, t); });
+    rgb_.push_back(colour::LinearSrgbFromXyz() * xyz);
+    xy_.push_back(colour::Chromaticity(xyz));
+  }
+}
+
+Eigen::Vector3d ThinEmissionTable::RgbPerDensity(double t_k) const {
+  const double u = std::clamp(t_k - t_min_, 0.0, double(rgb_.size() - 1));
+  const std::size_t i = std::min(static_cast<std::size_t>(u), rgb_.size() - 2);
+  const double f = u - i;
+  return (1 - f) * rgb_[i] + f * rgb_[i + 1];
+}
+
+double ThinEmissionTable::TemperatureOf(const Eigen::Vector3d& rgb) const {
+  const Eigen::Vector3d xyz = colour::XyzFromLinearSrgb() * rgb;
+  if (!(xyz.sum() > 0)) return t_min_;
+  const Eigen::Vector2d xy = colour::Chromaticity(xyz);
+  auto dist = [&](std::size_t k) { return (xy_[k] - xy).squaredNorm(); };
+  std::size_t best = 0;
+  for (std::size_t k = 0; k < xy_.size(); k += 10)
+    if (dist(k) < dist(best)) best = k;
+  const std::size_t lo = best >= 10 ? best - 10 : 0, hi = std::min(xy_.size() - 1, best + 10);
+  for (std::size_t k = lo; k <= hi; ++k)
+    if (dist(k) < dist(best)) best = k;
+  return std::min(t_max_, t_min_ + best);
+}
+
+std::vector<std::uint32_t> ActiveVoxels(const GridGeometry& grid, const FireVolume& tomography,
+                                        double threshold, std::vector<float>* emission_on_grid) {
+  if (tomography.emission_rgb.size() != tomography.geometry.num_voxels() * 3)
+    throw std::invalid_argument("fit: the tomography volume has no emission (3 values per voxel)");
+  std::vector<float> e = tomography.geometry == grid
+                             ? tomography.emission_rgb
+                             : ResampleEmission(tomography.geometry, tomography.emission_rgb, grid);
+  double peak = 0;
+  for (std::size_t v = 0; v < grid.num_voxels(); ++v) {
+    const double y = Luminance(&e[3 * v]);
+    if (!std::isfinite(y))
+      throw std::invalid_argument("fit: the tomography emission is not finite at voxel " +
+                                  std::to_string(v));
+    peak = std::max(peak, y);
+  }
+  std::vector<std::uint32_t> active;
+  if (peak > 0) {
+    for (std::size_t v = 0; v < grid.num_voxels(); ++v)
+      if (Luminance(&e[3 * v]) > threshold * peak) active.push_back(static_cast<std::uint32_t>(v));
+  }
+  if (emission_on_grid) *emission_on_grid = std::move(e);
+  return active;
+}
+
+namespace {
+
+// The fit's state on one grid.
+struct State {
+  GridGeometry grid;
+  std::vector<std::uint32_t> active;
+  std::vector<double> t, n;
+  double s = 1;
+};
+
+// Per-voxel start from the emission (step 1 of the fast fit).
+void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissionTable& table,
+                            double exposure_tomography, double n_min, double n_max,
+                            const FitOptions& options, State* st) {
+  const std::size_t m = st->active.size();
+  st->t.assign(m, table.t_min());
+  st->n.assign(m, n_min);
+  std::vector<double> brightness(m, 0.0);
+  for (std::size_t a = 0; a < m; ++a) {
+    const float* e = &emission[3 * st->active[a]];
+    const Eigen::Vector3d rgb(e[0], e[1], e[2]);
+    st->t[a] = table.TemperatureOf(rgb);
+    const double per_density = table.RgbPerDensity(st->t[a]).dot(Eigen::Vector3d(0.2126, 0.7152, 0.0722));
+    brightness[a] = per_density > 0 ? std::max(0.0, Luminance(e)) / per_density : 0.0;
+  }
+  // Image = s_tomo * integral(e) = s * integral(n * rgb(T)): n = brightness * s_tomo / s. Pick s
+  // so that the brighter voxels sit a decade inside the density bounds.
+  std::vector<double> sorted = brightness;
+  std::sort(sorted.begin(), sorted.end());
+  double s = exposure_tomography;
+  if (!sorted.empty() && sorted.back() > 0) {
+    const double reference = sorted[static_cast<std::size_t>(0.95 * (sorted.size() - 1))];
+    const double n_ref = reference * exposure_tomography / s;
+    if (n_ref > n_max / 10) s *= n_ref / (n_max / 10);
+    if (n_ref > 0 && n_ref < n_min * 1e3) s *= n_ref / (n_min * 1e3);
+    s = std::clamp(s, options.exposure_min, options.exposure_max);
+  }
+  st->s = s;
+  for (std::size_t a = 0; a < m; ++a)
+    st->n[a] = std::clamp(brightness[a] * exposure_tomography / s, n_min, n_max);
+}
+
+// Resamples a state onto a finer (or any) grid for the next level; voxels the source did not
+// cover start from the emission.
+void Resample(const State& from, const std::vector<float>& emission, const ThinEmissionTable& table,
+              double exposure_tomography, double n_min, double n_max, const FitOptions& options,
+              State* to) {
+  // Pack (T, ln n, 1) per voxel so that the emission resampler carries them, then normalise by
+  // the coverage channel.
+  std::vector<float> packed(from.grid.num_voxels() * 3, 0.0f);
+  for (std::size_t a = 0; a < from.active.size(); ++a) {
+    float* p = &packed[3 * from.active[a]];
+    p[0] = static_cast<float>(from.t[a]);
+    p[1] = static_cast<float>(std::log(from.n[a]));
+    p[2] = 1.0f;
+  }
+  std::vector<float> up = ResampleEmission(from.grid, packed, to->grid);
+  State fresh;
+  fresh.grid = to->grid;
+  fresh.active = to->active;
+  InitialiseFromEmission(emission, table, exposure_tomography, n_min, n_max, options, &fresh);
+  to->t = fresh.t;
+  to->n = fresh.n;
+  // The density of an emission-initialised voxel is in units of its own exposure: rescale to the
+  // coarse level's exposure.
+  const double rescale = fresh.s / from.s;
+  to->s = from.s;
+  for (std::size_t a = 0; a < to->active.size(); ++a) {
+    const float* p = &up[3 * to->active[a]];
+    if (p[2] > 0.5f) {
+      to->t[a] = p[0] / p[2];
+      to->n[a] = std::clamp(std::exp(double(p[1]) / p[2]), n_min, n_max);
+    } else {
+      to->n[a] = std::clamp(to->n[a] * rescale, n_min, n_max);
+    }
+  }
+}
+
+// The energy in the unbounded parameters u = (u_T per voxel, u_n per voxel, u_s).
+class SigmoidProblem : public ceres::FirstOrderFunction {
+ public:
+  SigmoidProblem(const FitObjective& objective, const FitOptions& options, int* evaluations,
+                 std::map<double, EnergyTerms>* seen)
+      : objective_(objective), options_(options), evaluations_(evaluations), seen_(seen) {
+    m_ = objective.num_active();
+    t_lo_ = options.objective.t_min_k;
+    t_span_ = options.objective.t_max_k - options.objective.t_min_k;
+    ln_n_lo_ = std::log(objective.n_min());
+    ln_n_span_ = std::log(objective.n_max()) - ln_n_lo_;
+    ln_s_lo_ = std::log(options.exposure_min);
+    ln_s_span_ = std::log(options.exposure_max) - ln_s_lo_;
+  }
+  int NumParameters() const override { return static_cast<int>(2 * m_ + 1); }
+
+  void Decode(const double* u, State* st) const {
+    st->t.resize(m_);
+    st->n.resize(m_);
+    for (std::size_t a = 0; a < m_; ++a) {
+      st->t[a] = t_lo_ + t_span_ * Sigmoid(u[a]);
+      st->n[a] = std::exp(ln_n_lo_ + ln_n_span_ * Sigmoid(u[m_ + a]));
+    }
+    st->s = std::exp(ln_s_lo_ + ln_s_span_ * Sigmoid(u[2 * m_]));
+  }
+  void Encode(const State& st, double* u) const {
+    for (std::size_t a = 0; a < m_; ++a) {
+      u[a] = Logit((st.t[a] - t_lo_) / t_span_);
+      u[m_ + a] = Logit((std::log(st.n[a]) - ln_n_lo_) / ln_n_span_);
+    }
+    u[2 * m_] = Logit((std::log(st.s) - ln_s_lo_) / ln_s_span_);
+  }
+
+  bool Evaluate(const double* u, double* cost, double* gradient) const override {
+    State st;
+    Decode(u, &st);
+    std::vector<double> d_t, d_n;
+    double d_s = 0;
+    EnergyTerms terms;
+    try {
+      terms = objective_.Evaluate(st.t, st.n, st.s, true, gradient ? &d_t : nullptr,
+                                  gradient ? &d_n : nullptr, gradient ? &d_s : nullptr);
+    } catch (const std::invalid_argument&) {
+      return false;  // a non-finite trial point: Ceres backs off
+    }
+    ++*evaluations_;
+    *cost = terms.energy;
+    (*seen_)[terms.energy] = terms;
+    if (seen_->size() > 64) seen_->erase(seen_->begin());
+    if (gradient) {
+      for (std::size_t a = 0; a < m_; ++a) {
+        const double pt = Sigmoid(u[a]);
+        gradient[a] = d_t[a] * t_span_ * pt * (1 - pt);
+        const double pn = Sigmoid(u[m_ + a]);
+        gradient[m_ + a] = d_n[a] * st.n[a] * ln_n_span_ * pn * (1 - pn);
+      }
+      const double ps = Sigmoid(u[2 * m_]);
+      gradient[2 * m_] = d_s * st.s * ln_s_span_ * ps * (1 - ps);
+    }
+    return std::isfinite(*cost);
+  }
+
+ private:
+  const FitObjective& objective_;
+  const FitOptions& options_;
+  int* evaluations_;
+  std::map<double, EnergyTerms>* seen_;
+  std::size_t m_ = 0;
+  double t_lo_, t_span_, ln_n_lo_, ln_n_span_, ln_s_lo_, ln_s_span_;
+};
+
+class TraceCallback : public ceres::IterationCallback {
+ public:
+  TraceCallback(Clock::time_point start, int level, const std::string& stage,
+                std::map<double, EnergyTerms>* seen, std::vector<FitTracePoint>* trace,
+                const FitProgressCallback& progress, double time_limit_s)
+      : start_(start), level_(level), stage_(stage), seen_(seen), trace_(trace),
+        progress_(progress), time_limit_s_(time_limit_s) {}
+  ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override {
+    auto it = seen_->find(summary.cost);
+    if (it != seen_->end()) {
+      FitTracePoint p;
+      p.seconds = Seconds(start_);
+      p.energy = it->second.exact_energy();
+      p.mean_delta_e = it->second.mean_delta_e;
+      p.level = level_;
+      p.stage = stage_;
+      trace_->push_back(p);
+      if (progress_) {
+        FitProgress f;
+        f.stage = stage_;
+        f.iteration = summary.iteration;
+        f.seconds = p.seconds;
+        f.energy = p.energy;
+        f.mean_delta_e = p.mean_delta_e;
+        progress_(f);
+      }
+    }
+    if (time_limit_s_ > 0 && Seconds(start_) > time_limit_s_)
+      return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
+    return ceres::SOLVER_CONTINUE;
+  }
+
+ private:
+  Clock::time_point start_;
+  int level_;
+  std::string stage_;
+  std::map<double, EnergyTerms>* seen_;
+  std::vector<FitTracePoint>* trace_;
+  const FitProgressCallback& progress_;
+  double time_limit_s_;
+};
+
+FireVolume ToVolume(const State& st, const FitResult& r) {
+  FireVolume v;
+  v.geometry = st.grid;
+  v.temperature_k.assign(st.grid.num_voxels(), 0.0f);
+  v.density_per_m3.assign(st.grid.num_voxels(), 0.0f);
+  for (std::size_t a = 0; a < st.active.size(); ++a) {
+    v.temperature_k[st.active[a]] = static_cast<float>(st.t[a]);
+    v.density_per_m3[st.active[a]] = static_cast<float>(st.n[a]);
+  }
+  v.metadata_numbers["exposure"] = r.exposure;
+  v.metadata_numbers["density_scale"] = r.density_scale;
+  v.metadata_numbers["mean_delta_e"] = r.final_terms.mean_delta_e;
+  v.metadata_numbers["energy"] = r.final_terms.exact_energy();
+  v.metadata_numbers["active_voxels"] = static_cast<double>(st.active.size());
+  v.metadata_text["method"] = r.method;
+  return v;
+}
+
+std::vector<GridGeometry> Levels(const GridGeometry& grid, const FitOptions& options) {
+  std::vector<GridGeometry> levels{grid};
+  if (!options.coarse_to_fine) return levels;
+  const Box3 box = grid.box();
+  int r = grid.dims.maxCoeff();
+  while (r / 2 >= options.coarsest_resolution) {
+    r /= 2;
+    levels.insert(levels.begin(), GridGeometry::FromBox(box, r));
+  }
+  return levels;
+}
+
+double TomographyExposure(const FireVolume& tomography) {
+  auto it = tomography.metadata_numbers.find("exposure");
+  return it != tomography.metadata_numbers.end() && it->second > 0 ? it->second : 1.0;
+}
+
+}  // namespace
+
+FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
+                  const std::vector<FitView>& views, const AbsorptionModel& absorption,
+                  const FitOptions& options_in, const FitResult* warm_start,
+                  const FitProgressCallback& progress) {
+  const auto start = Clock::now();
+  FitOptions options = options_in;
+  options.Validate();
+  options.objective.smooth_delta_e = options.smooth_delta_e;
+  options.objective.smooth_neighbour = options.smooth_neighbour;
+  const ThinEmissionTable table(absorption, options.objective.t_min_k, options.objective.t_max_k);
+  const double s_tomo = TomographyExposure(tomography);
+  FitResult result;
+  result.method = "fast fit (L-BFGS, adjoint gradient" +
+                  std::string(options.coarse_to_fine ? ", coarse to fine)" : ")");
+  const std::vector<GridGeometry> levels =
+      warm_start ? std::vector<GridGeometry>{grid} : Levels(grid, options);
+  State previous;
+  bool have_previous = false;
+  if (warm_start) {
+    previous.grid = warm_start->volume.geometry;
+    for (std::size_t v = 0; v < previous.grid.num_voxels(); ++v) {
+      if (warm_start->volume.density_per_m3[v] > 0) {
+        previous.active.push_back(static_cast<std::uint32_t>(v));
+        previous.t.push_back(warm_start->volume.temperature_k[v]);
+        previous.n.push_back(warm_start->volume.density_per_m3[v]);
+      }
+    }
+    previous.s = warm_start->exposure;
+    have_previous = !previous.active.empty();
+  }
+  std::map<double, EnergyTerms> seen;
+  State st;
+  for (std::size_t level = 0; level < levels.size(); ++level) {
+    st = State();
+    st.grid = levels[level];
+    std::vector<float> emission;
+    st.active = ActiveVoxels(st.grid, tomography, options.activity_threshold, &emission);
+    if (st.active.empty()) {
+      throw std::invalid_argument(
+          "fit: no active voxels (the tomography volume is black or below the activity "
+          "threshold)");
+    }
+    FitObjective objective(st.grid, st.active, views, absorption, options.render,
+                           options.objective);
+    if (have_previous) {
+      Resample(previous, emission, table, s_tomo, objective.n_min(), objective.n_max(), options,
+               &st);
+    } else {
+      InitialiseFromEmission(emission, table, s_tomo, objective.n_min(), objective.n_max(),
+                             options, &st);
+    }
+    const std::string stage = "level " + std::to_string(level + 1) + "/" +
+                              std::to_string(levels.size()) + " (" +
+                              std::to_string(st.grid.dims.x()) + "x" +
+                              std::to_string(st.grid.dims.y()) + "x" +
+                              std::to_string(st.grid.dims.z()) + ", " +
+                              std::to_string(st.active.size()) + " active voxels)";
+    auto* problem_function = new SigmoidProblem(objective, options, &result.evaluations, &seen);
+    std::vector<double> u(2 * st.active.size() + 1);
+    problem_function->Encode(st, u.data());
+    ceres::GradientProblem problem(problem_function);
+    ceres::GradientProblemSolver::Options solver;
+    solver.line_search_direction_type = ceres::LBFGS;
+    solver.max_num_iterations =
+        level + 1 == levels.size() ? options.iterations_finest : options.iterations_per_level;
+    solver.function_tolerance = 1e-7;
+    solver.gradient_tolerance = 1e-12;
+    solver.logging_type = ceres::SILENT;
+    TraceCallback callback(start, static_cast<int>(level), stage, &seen, &result.trace, progress,
+                           options.time_limit_s);
+    solver.callbacks.push_back(&callback);
+    ceres::GradientProblemSolver::Summary summary;
+    if (solver.max_num_iterations > 0) ceres::Solve(solver, problem, u.data(), &summary);
+    problem_function->Decode(u.data(), &st);
+    previous = st;
+    have_previous = true;
+    result.active_voxels = st.active.size();
+    if (level + 1 == levels.size()) {
+      // Its data_exact and smooth_exact are the exact (non-smoothed) terms.
+      result.final_terms = objective.Evaluate(st.t, st.n, st.s, true);
+    }
+    if (options.time_limit_s > 0 && Seconds(start) > options.time_limit_s) {
+      // Out of time: carry the current level's state to the finest grid without more iterations.
+      if (level + 1 < levels.size()) {
+        State fine;
+        fine.grid = grid;
+        std::vector<float> e;
+        fine.active = ActiveVoxels(grid, tomography, options.activity_threshold, &e);
+        FitObjective fine_objective(grid, fine.active, views, absorption, options.render,
+                                    options.objective);
+        Resample(st, e, table, s_tomo, fine_objective.n_min(), fine_objective.n_max(), options,
+                 &fine);
+        st = fine;
+        result.active_voxels = st.active.size();
+        result.final_terms = fine_objective.Evaluate(st.t, st.n, st.s, true);
+      }
+      break;
+    }
+  }
+  result.exposure = st.s;
+  result.seconds = Seconds(start);
+  result.volume = ToVolume(st, result);
+  return result;
+}
+
+}  // namespace flamerig

@@ -1,0 +1,309 @@
+#include "fitting/objective.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+#include "acquisition/srgb.h"
+#include "fitting/colour.h"
+
+namespace flamerig {
+
+void ObjectiveOptions::Validate() const {
+  auto fail = [](const std::string& what) {
+    throw std::invalid_argument("objective options: " + what);
+  };
+  if (!(w_am >= 0) || !std::isfinite(w_am)) fail("w_am must be finite and >= 0");
+  if (!(w_sm >= 0) || !std::isfinite(w_sm)) fail("w_sm must be finite and >= 0");
+  if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0))
+    fail("smoothing epsilons must be >= 0");
+  if (!(t_min_k > 0) || !(t_max_k > t_min_k) || !std::isfinite(t_max_k))
+    fail("need 0 < t_min_k < t_max_k, finite");
+  if (!(n_min_per_m3 >= 0) || !(n_max_per_m3 >= 0) ||
+      (n_max_per_m3 > 0 && !(n_max_per_m3 > n_min_per_m3 && n_min_per_m3 > 0)))
+    fail("density bounds: both 0 (plausible soot), or 0 < n_min_per_m3 < n_max_per_m3");
+}
+
+double EnergyTerms::exact_energy() const { return w_am * data_exact + w_sm * smooth_exact; }
+
+Eigen::Vector3d CameraLab(const Eigen::Vector3d& linear_rgb, double exposure,
+                          Eigen::Matrix3d* d_lab_d_linear) {
+  static const Eigen::Vector3d white = colour::D65White();
+  const Eigen::Matrix3d& to_xyz = colour::XyzFromLinearSrgb();
+  Eigen::Vector3d c;
+  Eigen::Vector3d dc;  // dc/dI per channel: s inside (0, 1), 0 where clamped
+  for (int ch = 0; ch < 3; ++ch) {
+    const double v = exposure * linear_rgb[ch];
+    c[ch] = v > 1 ? 1 : (v > 0 ? v : 0);
+    dc[ch] = (v > 0 && v < 1) ? exposure : 0;
+  }
+  const Eigen::Vector3d xyz = to_xyz * c;
+  constexpr double d = 6.0 / 29.0;
+  Eigen::Vector3d f, df;
+  for (int i = 0; i < 3; ++i) {
+    const double t = xyz[i] / white[i];
+    if (t > d * d * d) {
+      f[i] = std::cbrt(t);
+      df[i] = 1.0 / (3.0 * f[i] * f[i]) / white[i];
+    } else {
+      f[i] = t / (3 * d * d) + 4.0 / 29.0;
+      df[i] = 1.0 / (3 * d * d) / white[i];
+    }
+  }
+  if (d_lab_d_linear) {
+    Eigen::Matrix3d d_lab_d_f;
+    d_lab_d_f << 0, 116, 0, 500, -500, 0, 0, 200, -200;
+    *d_lab_d_linear = d_lab_d_f * df.asDiagonal() * to_xyz * dc.asDiagonal();
+  }
+  return Eigen::Vector3d(116 * f[1] - 16, 500 * (f[0] - f[1]), 200 * (f[1] - f[2]));
+}
+
+namespace {
+
+double Charbonnier(double x, double eps) {
+  return eps > 0 ? std::sqrt(x * x + eps * eps) - eps : std::abs(x);
+}
+// d/dx of Charbonnier (the sign for eps = 0, 0 at 0).
+double CharbonnierDerivative(double x, double eps) {
+  if (eps > 0) return x / std::sqrt(x * x + eps * eps);
+  return x > 0 ? 1.0 : (x < 0 ? -1.0 : 0.0);
+}
+
+}  // namespace
+
+FitObjective::FitObjective(const GridGeometry& grid, std::vector<std::uint32_t> active,
+                           std::vector<FitView> views, const AbsorptionModel& absorption,
+                           const RenderOptions& render, const ObjectiveOptions& options)
+    : grid_(grid), active_(std::move(active)), views_(std::move(views)), options_(options) {
+  options_.Validate();
+  grid_.Validate();
+  if (views_.empty()) throw std::invalid_argument("fit: no views to match");
+  const std::size_t nvox = grid_.num_voxels();
+  std::vector<std::int32_t> index(nvox, -1);
+  for (std::size_t a = 0; a < active_.size(); ++a) {
+    if (active_[a] >= nvox)
+      throw std::invalid_argument("fit: active voxel " + std::to_string(active_[a]) +
+                                  " outside the grid");
+    if (index[active_[a]] >= 0)
+      throw std::invalid_argument("fit: active voxel " + std::to_string(active_[a]) + " repeated");
+    index[active_[a]] = static_cast<std::int32_t>(a);
+  }
+  for (const FitView& v : views_) {
+    if (!v.rays) throw std::invalid_argument("fit: view '" + v.name + "' has no camera rays");
+    if (v.image.width != v.rays->width() || v.image.height != v.rays->height() ||
+        v.image.channels != 3) {
+      throw std::invalid_argument(
+          "fit: view '" + v.name + "': image is " + std::to_string(v.image.width) + "x" +
+          std::to_string(v.image.height) + "x" + std::to_string(v.image.channels) +
+          ", the camera is " + std::to_string(v.rays->width()) + "x" +
+          std::to_string(v.rays->height()) + "x3");
+    }
+  }
+  if (options_.n_max_per_m3 > 0) {
+    n_min_ = options_.n_min_per_m3;
+    n_max_ = options_.n_max_per_m3;
+  } else {
+    const DensityBounds b = DensityBounds::Plausible(absorption);
+    n_min_ = b.min_per_m3;
+    n_max_ = b.max_per_m3;
+  }
+  // 18-neighbourhood: offsets with one or two non-zero components.
+  neighbour_start_.assign(active_.size() + 1, 0);
+  std::vector<std::vector<std::uint32_t>> lists(active_.size());
+  const Eigen::Vector3i& dims = grid_.dims;
+  for (std::size_t a = 0; a < active_.size(); ++a) {
+    const std::size_t f = active_[a];
+    const int i = static_cast<int>(f % dims.x());
+    const int j = static_cast<int>((f / dims.x()) % dims.y());
+    const int k = static_cast<int>(f / (static_cast<std::size_t>(dims.x()) * dims.y()));
+    for (int dk = -1; dk <= 1; ++dk)
+      for (int dj = -1; dj <= 1; ++dj)
+        for (int di = -1; di <= 1; ++di) {
+          const int nonzero = (di != 0) + (dj != 0) + (dk != 0);
+          if (nonzero == 0 || nonzero == 3) continue;
+          const int ii = i + di, jj = j + dj, kk = k + dk;
+          if (ii < 0 || jj < 0 || kk < 0 || ii >= dims.x() || jj >= dims.y() || kk >= dims.z())
+            continue;
+          const std::int32_t b = index[grid_.Flat(ii, jj, kk)];
+          if (b < 0) continue;
+          lists[a].push_back(static_cast<std::uint32_t>(b));
+          if (static_cast<std::size_t>(b) > a)
+            pairs_.emplace_back(static_cast<std::uint32_t>(a), static_cast<std::uint32_t>(b));
+        }
+  }
+  for (std::size_t a = 0; a < active_.size(); ++a) {
+    neighbour_start_[a + 1] = neighbour_start_[a] + static_cast<std::uint32_t>(lists[a].size());
+    neighbour_list_.insert(neighbour_list_.end(), lists[a].begin(), lists[a].end());
+  }
+  // Targets in Lab.
+  for (const FitView& v : views_) {
+    std::vector<Eigen::Vector3f> lab(v.image.num_pixels());
+    for (std::size_t p = 0; p < lab.size(); ++p) {
+      lab[p] = colour::SrgbU8ToLab(v.image.pixels[3 * p], v.image.pixels[3 * p + 1],
+                                   v.image.pixels[3 * p + 2])
+                   .cast<float>();
+    }
+    target_lab_.push_back(std::move(lab));
+  }
+  renderer_ = std::make_unique<FireRenderer>(absorption, render);
+}
+
+FitObjective::~FitObjective() = default;
+
+double FitObjective::NormaliseT(double t) const {
+  return (t - options_.t_min_k) / (options_.t_max_k - options_.t_min_k);
+}
+
+double FitObjective::NormaliseN(double n) const {
+  return (std::log(std::max(n, 1e-300)) - std::log(n_min_)) / (std::log(n_max_) - std::log(n_min_));
+}
+
+double FitObjective::LocalPairwise(const std::vector<double>& values, std::uint32_t a,
+                                   double value) const {
+  double sum = 0;
+  for (std::uint32_t e = neighbour_start_[a]; e < neighbour_start_[a + 1]; ++e)
+    sum += std::abs(values[neighbour_list_[e]] - value);
+  return sum;
+}
+
+FitObjective::Renders FitObjective::Render(const std::vector<double>& t,
+                                           const std::vector<double>& n) const {
+  if (t.size() != active_.size() || n.size() != active_.size())
+    throw std::invalid_argument("fit: temperature and density need one value per active voxel");
+  std::vector<float> tt(grid_.num_voxels(), 0.0f), nn(grid_.num_voxels(), 0.0f);
+  for (std::size_t a = 0; a < active_.size(); ++a) {
+    if (!std::isfinite(t[a]) || !std::isfinite(n[a]))
+      throw std::invalid_argument("fit: non-finite temperature or density at active voxel " +
+                                  std::to_string(a));
+    tt[active_[a]] = static_cast<float>(std::max(0.0, t[a]));
+    nn[active_[a]] = static_cast<float>(std::max(0.0, n[a]));
+  }
+  renderer_->SetVolume(grid_, tt, nn);
+  Renders r;
+  r.linear.resize(views_.size());
+  for (std::size_t v = 0; v < views_.size(); ++v) renderer_->Render(*views_[v].rays, &r.linear[v]);
+  return r;
+}
+
+double FitObjective::DataTermAt(const Renders& renders, double s) const {
+  double sum = 0;
+  for (std::size_t v = 0; v < views_.size(); ++v) {
+    const ImageF& img = renders.linear[v];
+    const auto& target = target_lab_[v];
+    sum += tbb::parallel_reduce(
+        tbb::blocked_range<std::size_t>(0, target.size(), 4096), 0.0,
+        [&](const tbb::blocked_range<std::size_t>& r, double acc) {
+          for (std::size_t p = r.begin(); p < r.end(); ++p) {
+            const Eigen::Vector3d lab = CameraLab(
+                Eigen::Vector3d(img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]), s);
+            acc += (lab - target[p].cast<double>()).norm();
+          }
+          return acc;
+        },
+        std::plus<double>());
+  }
+  return sum;
+}
+
+EnergyTerms FitObjective::Evaluate(const std::vector<double>& t, const std::vector<double>& n,
+                                   double s, bool density_pairwise, std::vector<double>* d_t,
+                                   std::vector<double>* d_n, double* d_s) const {
+  if (!(s > 0) || !std::isfinite(s))
+    throw std::invalid_argument("fit: exposure " + std::to_string(s) + " must be finite and > 0");
+  const bool want_gradient = d_t || d_n || d_s;
+  Renders renders = Render(t, n);
+  EnergyTerms terms;
+  terms.w_am = options_.w_am;
+  terms.w_sm = options_.w_sm;
+  const double eps = options_.smooth_delta_e;
+  double data_smooth = 0, ds_total = 0;
+  std::vector<double> grad_t, grad_n;
+  for (std::size_t v = 0; v < views_.size(); ++v) {
+    const ImageF& img = renders.linear[v];
+    const auto& target = target_lab_[v];
+    ImageF d_img;
+    if (want_gradient) d_img = ImageF(img.width, img.height, 3, 0.0f);
+    struct Sums {
+      double exact = 0, smooth = 0, ds = 0;
+    };
+    const Sums sums = tbb::parallel_reduce(
+        tbb::blocked_range<std::size_t>(0, target.size(), 4096), Sums{},
+        [&](const tbb::blocked_range<std::size_t>& r, Sums acc) {
+          for (std::size_t p = r.begin(); p < r.end(); ++p) {
+            const Eigen::Vector3d linear(img.pixels[3 * p], img.pixels[3 * p + 1],
+                                         img.pixels[3 * p + 2]);
+            Eigen::Matrix3d jac;
+            const Eigen::Vector3d lab = CameraLab(linear, s, want_gradient ? &jac : nullptr);
+            const Eigen::Vector3d diff = lab - target[p].cast<double>();
+            const double de = diff.norm();
+            acc.exact += de;
+            acc.smooth += Charbonnier(de, eps);
+            if (want_gradient && de > 0) {
+              // d/dLab of the (smoothed) distance, then through the camera to the radiance.
+              const Eigen::Vector3d g_lab = diff * (CharbonnierDerivative(de, eps) / de);
+              const Eigen::Vector3d g_lin = jac.transpose() * g_lab * options_.w_am;
+              for (int ch = 0; ch < 3; ++ch) d_img.pixels[3 * p + ch] = static_cast<float>(g_lin[ch]);
+              // c = s I, so dE/ds = sum over channels of dE/dc * I = (dE/dI * I) / s.
+              acc.ds += g_lin.dot(linear) / s;
+            }
+          }
+          return acc;
+        },
+        [](Sums a, const Sums& b) {
+          a.exact += b.exact;
+          a.smooth += b.smooth;
+          a.ds += b.ds;
+          return a;
+        });
+    terms.data_exact += sums.exact;
+    terms.view_mean_delta_e.push_back(target.empty() ? 0.0 : sums.exact / target.size());
+    terms.pixels += static_cast<std::int64_t>(target.size());
+    data_smooth += sums.smooth;
+    ds_total += sums.ds;
+    if (d_t || d_n) renderer_->RenderGradient(*views_[v].rays, d_img, &grad_t, &grad_n);
+  }
+  terms.mean_delta_e = terms.pixels ? terms.data_exact / terms.pixels : 0.0;
+
+  // Pairwise term.
+  const double eps_n = options_.smooth_neighbour;
+  const double t_scale = 1.0 / (options_.t_max_k - options_.t_min_k);
+  const double ln_range = std::log(n_max_) - std::log(n_min_);
+  double pair_exact = 0, pair_smooth = 0;
+  if (d_t) d_t->assign(active_.size(), 0.0);
+  if (d_n) d_n->assign(active_.size(), 0.0);
+  for (const auto& [a, b] : pairs_) {
+    // Each unordered pair counts twice (the paper's sum over voxels of their neighbours).
+    const double dt = (t[b] - t[a]) * t_scale;
+    pair_exact += 2 * std::abs(dt);
+    pair_smooth += 2 * Charbonnier(dt, eps_n);
+    if (d_t) {
+      const double g = 2 * options_.w_sm * CharbonnierDerivative(dt, eps_n) * t_scale;
+      (*d_t)[b] += g;
+      (*d_t)[a] -= g;
+    }
+    if (density_pairwise) {
+      const double na = std::max(n[a], 1e-300), nb = std::max(n[b], 1e-300);
+      const double dn = (std::log(nb) - std::log(na)) / ln_range;
+      pair_exact += 2 * std::abs(dn);
+      pair_smooth += 2 * Charbonnier(dn, eps_n);
+      if (d_n) {
+        const double g = 2 * options_.w_sm * CharbonnierDerivative(dn, eps_n) / ln_range;
+        (*d_n)[b] += g / nb;
+        (*d_n)[a] -= g / na;
+      }
+    }
+  }
+  terms.smooth_exact = pair_exact;
+  terms.energy = options_.w_am * data_smooth + options_.w_sm * pair_smooth;
+  for (std::size_t a = 0; a < active_.size(); ++a) {
+    if (d_t && !grad_t.empty()) (*d_t)[a] += grad_t[active_[a]];
+    if (d_n && !grad_n.empty()) (*d_n)[a] += grad_n[active_[a]];
+  }
+  if (d_s) *d_s = ds_total;
+  return terms;
+}
+
+}  // namespace flamerig

@@ -1,0 +1,142 @@
+// The paper's energy (DESIGN section 7), E = w_am * E_am + w_sm * E_sm, and its exact gradient.
+//
+//  - Data term E_am: for every pixel of every view, the CIELab distance (CIE76 Delta E) between
+//    the rendered pixel and the recorded one. The rendered pixel is what the camera records of the
+//    renderer's linear sRGB radiance I: c = clamp(s * I, 0, 1) with s the exposure (no
+//    quantisation: the fit sees the continuous value), then c -> XYZ -> Lab (D65 white, colour.h).
+//    The recorded pixel is the 8-bit sRGB value decoded to Lab. Clamping at 1 is how saturated
+//    input pixels constrain only from below: a render brighter than a saturated channel clamps to
+//    it and costs nothing there.
+//  - Pairwise term E_sm: for every active voxel i, the sum over its 18 nearest neighbours j
+//    (6 faces, 12 edges) that are also active of |v_j - v_i|, as the paper writes it (each pair
+//    counted from both ends), for the temperature and, when density is a per-voxel unknown, the
+//    density. Departure from the paper, which does not give v's units: v is the parameter
+//    normalised by its search range, (T - T_min) / (T_max - T_min) and (ln n - ln n_min) /
+//    (ln n_max - ln n_min). In kelvin, w_sm = 10 would make the pairwise term about a thousand
+//    times the data term and flatten every fire.
+//
+// Smooth mode (for gradient-based fits): |x| becomes the Charbonnier function
+// sqrt(x^2 + eps^2) - eps, for the Delta E of each pixel and for each neighbour difference. The
+// exact (non-smooth) terms are always reported alongside, so methods are compared on the paper's
+// energy.
+//
+// Unknowns: temperature and density of the active voxels (every other voxel is empty: density
+// 0), and the exposure. The gradient comes from the renderer's adjoint (FireRenderer::
+// RenderGradient), one backward pass per view.
+#ifndef FLAMERIG_FITTING_OBJECTIVE_H_
+#define FLAMERIG_FITTING_OBJECTIVE_H_
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "acquisition/image.h"
+#include "calibration/camera_rays.h"
+#include "fitting/absorption.h"
+#include "fitting/renderer.h"
+#include "tomography/volume.h"
+
+namespace flamerig {
+
+struct ObjectiveOptions {
+  double w_am = 1.0;   // data term weight (paper: 1); >= 0
+  double w_sm = 10.0;  // pairwise term weight (paper: 10); >= 0
+  // Charbonnier epsilon: 0 gives the exact (non-smooth) energy. For Delta E in Lab units, and for
+  // neighbour differences in normalised units.
+  double smooth_delta_e = 0.0;
+  double smooth_neighbour = 0.0;
+  bool smooth_density = true;  // pairwise term on density too (when it is a per-voxel unknown)
+  // Search ranges, which also normalise the pairwise term.
+  double t_min_k = 300, t_max_k = 2300;
+  double n_min_per_m3 = 0, n_max_per_m3 = 0;  // 0, 0: DensityBounds::Plausible of the model
+  void Validate() const;                       // throws std::invalid_argument naming the field
+};
+
+// One view to match: the camera's rays and its recorded 8-bit sRGB image (3 channels, the
+// camera's size).
+struct FitView {
+  std::string name;
+  const CameraRays* rays = nullptr;
+  ImageU8 image;
+};
+
+struct EnergyTerms {
+  double energy = 0;        // what Evaluate returns (smooth if the options say so)
+  double data_exact = 0;    // sum of Delta E over all pixels of all views (unweighted)
+  double smooth_exact = 0;  // sum of |v_j - v_i| (unweighted, normalised units)
+  std::int64_t pixels = 0;
+  double mean_delta_e = 0;  // data_exact / pixels
+  std::vector<double> view_mean_delta_e;
+  double exact_energy() const;  // w_am data_exact + w_sm smooth_exact (set by Evaluate)
+  double w_am = 1, w_sm = 10;
+};
+
+// The objective over a fixed set of active voxels.
+class FitObjective {
+ public:
+  // `active`: flat voxel indices of the unknowns (no repeats, inside the grid). Views must have
+  // rays and 3-channel images of their camera's size. Throws std::invalid_argument naming the
+  // problem.
+  FitObjective(const GridGeometry& grid, std::vector<std::uint32_t> active,
+               std::vector<FitView> views, const AbsorptionModel& absorption,
+               const RenderOptions& render, const ObjectiveOptions& options);
+  ~FitObjective();
+
+  std::size_t num_active() const { return active_.size(); }
+  const std::vector<std::uint32_t>& active() const { return active_; }
+  const GridGeometry& grid() const { return grid_; }
+  const ObjectiveOptions& options() const { return options_; }
+  const std::vector<FitView>& views() const { return views_; }
+  double n_min() const { return n_min_; }
+  double n_max() const { return n_max_; }
+  // Pairs (i, j), i < j, of active indices that are 18-neighbours.
+  const std::vector<std::pair<std::uint32_t, std::uint32_t>>& neighbour_pairs() const {
+    return pairs_;
+  }
+
+  // Not safe to call concurrently on one objective (it owns one renderer).
+  // E at temperatures `t` and densities `n` (one per active voxel) and exposure `s`. With
+  // gradient pointers non-null, also dE/dt, dE/dn (per active voxel) and dE/ds. `density_pairwise`
+  // includes the density in the pairwise term (per-voxel density unknowns). Values outside the
+  // bounds are allowed (the energy is defined for any T >= 0, n >= 0, s > 0); NaN inputs throw.
+  EnergyTerms Evaluate(const std::vector<double>& t, const std::vector<double>& n, double s,
+                       bool density_pairwise, std::vector<double>* d_t = nullptr,
+                       std::vector<double>* d_n = nullptr, double* d_s = nullptr) const;
+
+  // Only the data term, per view, and the rendered linear images (for reports and exposure
+  // searches that hold the volume fixed): renders once, then scores any exposure cheaply.
+  struct Renders {
+    std::vector<ImageF> linear;  // per view
+  };
+  Renders Render(const std::vector<double>& t, const std::vector<double>& n) const;
+  // Sum of Delta E over all views at exposure s for renders made by Render().
+  double DataTermAt(const Renders& renders, double s) const;
+
+  // The pairwise term of one voxel (normalised |differences| to its active neighbours), for
+  // coordinate descent; `values` are normalised per active voxel.
+  double LocalPairwise(const std::vector<double>& values, std::uint32_t a, double value) const;
+  // Normalisations used by the pairwise term.
+  double NormaliseT(double t) const;
+  double NormaliseN(double n) const;
+
+ private:
+  GridGeometry grid_;
+  std::vector<std::uint32_t> active_;
+  std::vector<FitView> views_;
+  ObjectiveOptions options_;
+  double n_min_ = 0, n_max_ = 0;
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> pairs_;
+  std::vector<std::uint32_t> neighbour_start_, neighbour_list_;  // CSR of neighbours per active
+  std::vector<std::vector<Eigen::Vector3f>> target_lab_;         // per view, per pixel
+  std::unique_ptr<FireRenderer> renderer_;
+};
+
+// Lab of what the camera records from linear radiance I at exposure s, c = clamp(s I, 0, 1), and
+// its Jacobian d Lab / d I (3x3, row = L, a, b) for the gradient.
+Eigen::Vector3d CameraLab(const Eigen::Vector3d& linear_rgb, double exposure,
+                          Eigen::Matrix3d* d_lab_d_linear = nullptr);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_FITTING_OBJECTIVE_H_
