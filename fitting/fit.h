@@ -83,14 +83,21 @@ using FitProgressCallback = std::function<void(const FitProgress&)>;
 
 struct FitOptions {
   ObjectiveOptions objective;  // weights and bounds (the paper's by default)
-  RenderOptions render;        // the forward model's discretisation
+  // The forward model's discretisation. Spectral bins of 20 nm: against a 1 nm reference they
+  // differ by Delta E 0.06 on a candle's fire pixels (10 nm: 0.017), below the 8-bit floor
+  // (about 0.19), at 60% of the 10 nm cost.
+  RenderOptions render = [] {
+    RenderOptions r;
+    r.spectral_step_nm = 20;
+    return r;
+  }();
   double activity_threshold = 1e-3;  // of the brightest voxel's emission luminance; [0, 1)
   double exposure_min = 0.01, exposure_max = 1000;  // the paper's range
   // Fast fit.
   int coarsest_resolution = 32;       // coarse-to-fine stops halving here; >= 4
   bool coarse_to_fine = true;
-  int iterations_per_level = 60;      // L-BFGS iterations at each coarse level
-  int iterations_finest = 40;         // at the finest level
+  int iterations_per_level = 40;      // L-BFGS iterations at each coarse level
+  int iterations_finest = 30;         // at the finest level
   double smooth_delta_e = 0.5;        // Charbonnier epsilons (the fast fit's smooth energy)
   double smooth_neighbour = 0.01;
   double time_limit_s = 0;            // 0 = none

@@ -42,7 +42,8 @@
 //     dLoss/dE_step   = g Tr ds phi(tau),                 phi(tau) = (1 - exp(-tau)) / tau
 //     dLoss/dkappa_step = g Tr ds tau phi'(tau) S - g ds R_after,   S = E / kappa
 // spread to the voxels with the trilinear weights, then through E_j = sigma n_j B(T_j) and
-// kappa_j = sigma n_j. Each thread accumulates into private buffers (atomics were 7 to 14 times
+// kappa_j = sigma n_j (on the spectral path the per-bin emission adjoint is accumulated per voxel
+// and contracted with B(T) and B'(T) once at the end). Each thread accumulates into private buffers (atomics were 7 to 14 times
 // slower, DESIGN section 8). Only voxels with density > 0 receive gradients: the others are outside
 // the medium (and their bricks may be skipped).
 //
