@@ -7,7 +7,9 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <map>
+#include <tuple>
 #include <random>
 #include <sstream>
 #include <stdexcept>
@@ -114,7 +116,7 @@ std::vector<std::uint32_t> ActiveVoxels(const GridGeometry& grid, const FireVolu
                                         double threshold, std::vector<float>* emission_on_grid) {
   if (tomography.emission_rgb.size() != tomography.geometry.num_voxels() * 3)
     throw std::invalid_argument("fit: the tomography volume has no emission (3 values per voxel)");
-  std::vector<float> e = tomography.geometry == grid
+  std::vector<float> e = tomography.geometry.SameVoxels(grid)
                              ? tomography.emission_rgb
                              : ResampleEmission(tomography.geometry, tomography.emission_rgb, grid);
   double peak = 0;
@@ -462,6 +464,288 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     }
   }
   result.exposure = st.s;
+  result.seconds = Seconds(start);
+  result.volume = ToVolume(st, result);
+  return result;
+}
+
+}  // namespace flamerig
+
+namespace flamerig {
+
+namespace {
+
+// Voxel order of the paper: flattened along y (fastest), then z, then x.
+std::vector<std::uint32_t> YzxOrder(const GridGeometry& grid,
+                                    const std::vector<std::uint32_t>& active) {
+  std::vector<std::uint32_t> order(active.size());
+  for (std::uint32_t a = 0; a < active.size(); ++a) order[a] = a;
+  const std::size_t nx = grid.dims.x(), ny = grid.dims.y();
+  auto key = [&](std::uint32_t a) {
+    const std::size_t f = active[a];
+    const std::size_t i = f % nx, j = (f / nx) % ny, k = f / (nx * ny);
+    return std::tuple(i, k, j);  // x slowest, then z, then y fastest
+  };
+  std::sort(order.begin(), order.end(),
+            [&](std::uint32_t a, std::uint32_t b) { return key(a) < key(b); });
+  return order;
+}
+
+}  // namespace
+
+FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
+                   const std::vector<FitView>& views, const AbsorptionModel& absorption,
+                   const FitOptions& options_in, const PaperFitOptions& paper,
+                   const FitProgressCallback& progress) {
+  const auto start = Clock::now();
+  FitOptions options = options_in;
+  options.Validate();
+  options.objective.smooth_delta_e = options.objective.smooth_neighbour = 0;  // exact energy
+  if (paper.iterations < 1 || paper.samples_per_cluster < 1 || paper.exposure_sweep < 2 ||
+      paper.exposure_samples < 0 || !(paper.initial_sigma_t_k > 0) ||
+      !(paper.initial_sigma_log_n > 0) || !(paper.time_limit_s >= 0)) {
+    throw std::invalid_argument(
+        "paper fit options: iterations, samples_per_cluster >= 1, exposure_sweep >= 2, "
+        "exposure_samples >= 0, deviations > 0, time_limit_s >= 0");
+  }
+  const bool per_voxel_density = paper.algorithm == PaperAlgorithm::kPerVoxelDensity;
+  FitResult result;
+  result.method = per_voxel_density ? "paper Algorithm 1 (per-voxel temperature and density)"
+                                    : "paper Algorithm 2 (per-voxel temperature, density scale)";
+  std::vector<float> emission;
+  const std::vector<std::uint32_t> active =
+      ActiveVoxels(grid, tomography, options.activity_threshold, &emission);
+  if (active.empty()) {
+    throw std::invalid_argument(
+        "fit: no active voxels (the tomography volume is black or below the activity threshold)");
+  }
+  const FitObjective objective(grid, active, views, absorption, options.render, options.objective);
+  const std::size_t m = active.size();
+  const double t_lo = options.objective.t_min_k, t_hi = options.objective.t_max_k;
+  const double ln_n_lo = std::log(objective.n_min()), ln_n_hi = std::log(objective.n_max());
+  const double ln_s_lo = std::log(options.exposure_min), ln_s_hi = std::log(options.exposure_max);
+  std::mt19937_64 rng(paper.seed);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  std::normal_distribution<double> normal(0.0, 1.0);
+
+  // Algorithm 2's density: the tomography's red channel, normalised to a peak of 1.
+  std::vector<double> red(m, 0.0);
+  double red_peak = 0;
+  for (std::size_t a = 0; a < m; ++a) red_peak = std::max(red_peak, double(emission[3 * active[a]]));
+  for (std::size_t a = 0; a < m; ++a)
+    red[a] = red_peak > 0 ? std::max(0.0, double(emission[3 * active[a]])) / red_peak : 0.0;
+
+  // Uniform random start.
+  std::vector<double> t(m), ln_n(m);
+  for (std::size_t a = 0; a < m; ++a) {
+    t[a] = t_lo + (t_hi - t_lo) * uniform(rng);
+    ln_n[a] = ln_n_lo + (ln_n_hi - ln_n_lo) * uniform(rng);
+  }
+  double ln_scale = 0.5 * (ln_n_lo + ln_n_hi);
+  // Densities in force. Algorithm 2 keeps a floor of n_min where the red channel is zero, so that
+  // every active voxel stays in the medium.
+  auto densities = [&](double ln_scale_value) {
+    std::vector<double> n(m);
+    for (std::size_t a = 0; a < m; ++a) {
+      n[a] = per_voxel_density ? std::exp(ln_n[a])
+                               : std::max(objective.n_min(), red[a] * std::exp(ln_scale_value));
+    }
+    return n;
+  };
+  auto pairwise_total = [&]() {
+    double sum = 0;
+    for (const auto& [a, b] : objective.neighbour_pairs()) {
+      sum += 2 * std::abs(objective.NormaliseT(t[b]) - objective.NormaliseT(t[a]));
+      if (per_voxel_density)
+        sum += 2 * std::abs(ln_n[b] - ln_n[a]) / (ln_n_hi - ln_n_lo);
+    }
+    return sum;
+  };
+  auto out_of_time = [&]() {
+    return paper.time_limit_s > 0 && Seconds(start) > paper.time_limit_s;
+  };
+
+  // Initial exposure (and density scale) by a log-spaced sweep; one render per density scale,
+  // every exposure scored on it.
+  double ln_s = 0.5 * (ln_s_lo + ln_s_hi);
+  double data = std::numeric_limits<double>::infinity();
+  const int sweep = paper.exposure_sweep;
+  for (int k = 0; k < (per_voxel_density ? 1 : sweep); ++k) {
+    const double ln_scale_k = per_voxel_density ? ln_scale : ln_n_lo + (ln_n_hi - ln_n_lo) * k / (sweep - 1);
+    const FitObjective::Renders renders = objective.Render(t, densities(ln_scale_k));
+    ++result.evaluations;
+    for (int e = 0; e < sweep; ++e) {
+      const double ln_s_e = ln_s_lo + (ln_s_hi - ln_s_lo) * e / (sweep - 1);
+      const double d = objective.DataTermAt(renders, std::exp(ln_s_e));
+      if (d < data) {
+        data = d;
+        ln_s = ln_s_e;
+        ln_scale = ln_scale_k;
+      }
+    }
+  }
+
+  // Clusters: ranges of the yzx-ordered active voxels.
+  const std::vector<std::uint32_t> order = YzxOrder(grid, active);
+  std::vector<std::pair<std::size_t, std::size_t>> clusters{{0, m / 2}, {m / 2, m}};
+  // Each cluster starts from the mean of its voxels.
+  auto assign_means = [&]() {
+    for (const auto& [lo, hi] : clusters) {
+      if (hi <= lo) continue;
+      double mt = 0, mn = 0;
+      for (std::size_t i = lo; i < hi; ++i) {
+        mt += t[order[i]];
+        mn += ln_n[order[i]];
+      }
+      mt /= double(hi - lo);
+      mn /= double(hi - lo);
+      for (std::size_t i = lo; i < hi; ++i) {
+        t[order[i]] = mt;
+        ln_n[order[i]] = mn;
+      }
+    }
+  };
+  assign_means();
+  {
+    const FitObjective::Renders renders = objective.Render(t, densities(ln_scale));
+    ++result.evaluations;
+    data = objective.DataTermAt(renders, std::exp(ln_s));
+  }
+  double last_trace = -1;
+  auto trace = [&](int iteration, const std::string& stage, bool force) {
+    const double now = Seconds(start);
+    if (!force && now - last_trace < 0.25) return;
+    last_trace = now;
+    FitTracePoint p;
+    p.seconds = now;
+    p.energy = options.objective.w_am * data + options.objective.w_sm * pairwise_total();
+    p.mean_delta_e = data / double(std::max<std::int64_t>(1, [&] {
+                       std::int64_t px = 0;
+                       for (const FitView& v : views) px += v.image.num_pixels();
+                       return px;
+                     }()));
+    p.level = iteration;
+    p.stage = stage;
+    result.trace.push_back(p);
+    if (progress) {
+      FitProgress f;
+      f.stage = stage;
+      f.iteration = iteration;
+      f.seconds = now;
+      f.energy = p.energy;
+      f.mean_delta_e = p.mean_delta_e;
+      progress(f);
+    }
+  };
+  trace(0, "start", true);
+
+  std::vector<double> vt(m), vn(m);  // normalised values for the pairwise term
+  for (std::size_t a = 0; a < m; ++a) {
+    vt[a] = objective.NormaliseT(t[a]);
+    vn[a] = (ln_n[a] - ln_n_lo) / (ln_n_hi - ln_n_lo);
+  }
+  bool vary_density = false;  // Algorithm 1 alternates; Algorithm 2 only varies temperature
+  for (int it = 1; it <= paper.iterations && !out_of_time(); ++it) {
+    const std::string stage = "iteration " + std::to_string(it) + " (" +
+                              std::to_string(clusters.size()) + " clusters, " +
+                              (vary_density ? "density" : "temperature") + ")";
+    const double sigma_t = paper.initial_sigma_t_k / it;
+    const double sigma_n = paper.initial_sigma_log_n / it;
+    for (const auto& [lo, hi] : clusters) {
+      if (hi <= lo || out_of_time()) continue;
+      // The pairwise terms that a move of this cluster changes: those of its voxels with their
+      // neighbours, counted from both ends (pairs inside the cluster stay equal, so they add a
+      // constant).
+      auto local_pairwise = [&]() {
+        double sum = 0;
+        for (std::size_t i = lo; i < hi; ++i) {
+          const std::uint32_t a = order[i];
+          sum += 2 * objective.LocalPairwise(vt, a, vt[a]);
+          if (per_voxel_density) sum += 2 * objective.LocalPairwise(vn, a, vn[a]);
+        }
+        return sum;
+      };
+      auto set_cluster = [&](double v) {
+        for (std::size_t i = lo; i < hi; ++i) {
+          const std::uint32_t a = order[i];
+          if (vary_density) {
+            ln_n[a] = v;
+            vn[a] = (v - ln_n_lo) / (ln_n_hi - ln_n_lo);
+          } else {
+            t[a] = v;
+            vt[a] = objective.NormaliseT(v);
+          }
+        }
+      };
+      const double current_value = vary_density ? ln_n[order[lo]] : t[order[lo]];
+      double best_value = current_value;
+      double current_score = options.objective.w_am * data +
+                             options.objective.w_sm * local_pairwise();
+      for (int j = 0; j < paper.samples_per_cluster; ++j) {
+        double v = vary_density ? std::clamp(best_value + sigma_n * normal(rng), ln_n_lo, ln_n_hi)
+                                : std::clamp(best_value + sigma_t * normal(rng), t_lo, t_hi);
+        set_cluster(v);
+        const FitObjective::Renders renders = objective.Render(t, densities(ln_scale));
+        ++result.evaluations;
+        const double d = objective.DataTermAt(renders, std::exp(ln_s));
+        const double score = options.objective.w_am * d + options.objective.w_sm * local_pairwise();
+        if (score < current_score) {
+          current_score = score;
+          best_value = v;
+          data = d;
+        }
+        set_cluster(best_value);
+        trace(it, stage, false);
+        if (out_of_time()) break;
+      }
+    }
+    // Density factor (Algorithm 2) and exposure, on the data term alone.
+    if (!per_voxel_density && !out_of_time()) {
+      for (int j = 0; j < paper.exposure_samples; ++j) {
+        const double ln_scale_new = std::clamp(ln_scale + normal(rng) / it, ln_n_lo, ln_n_hi);
+        const FitObjective::Renders renders = objective.Render(t, densities(ln_scale_new));
+        ++result.evaluations;
+        const double d = objective.DataTermAt(renders, std::exp(ln_s));
+        if (d < data) {
+          data = d;
+          ln_scale = ln_scale_new;
+        }
+      }
+    }
+    if (!out_of_time()) {
+      const FitObjective::Renders renders = objective.Render(t, densities(ln_scale));
+      ++result.evaluations;
+      for (int j = 0; j < paper.exposure_samples; ++j) {
+        const double ln_s_new = std::clamp(ln_s + normal(rng) / it, ln_s_lo, ln_s_hi);
+        const double d = objective.DataTermAt(renders, std::exp(ln_s_new));
+        if (d < data) {
+          data = d;
+          ln_s = ln_s_new;
+        }
+      }
+    }
+    trace(it, stage, true);
+    // Double the clusters; each child starts from its parent's value (the mean of its voxels).
+    std::vector<std::pair<std::size_t, std::size_t>> finer;
+    for (const auto& [lo, hi] : clusters) {
+      const std::size_t mid = lo + (hi - lo) / 2;
+      if (mid > lo) finer.emplace_back(lo, mid);
+      if (hi > mid) finer.emplace_back(mid, hi);
+    }
+    clusters = std::move(finer);
+    if (per_voxel_density) vary_density = !vary_density;
+  }
+
+  State st;
+  st.grid = grid;
+  st.active = active;
+  st.t = t;
+  st.n = densities(ln_scale);
+  st.s = std::exp(ln_s);
+  result.exposure = st.s;
+  result.density_scale = per_voxel_density ? 1.0 : std::exp(ln_scale);
+  result.final_terms = objective.Evaluate(st.t, st.n, st.s, per_voxel_density);
+  result.active_voxels = m;
   result.seconds = Seconds(start);
   result.volume = ToVolume(st, result);
   return result;

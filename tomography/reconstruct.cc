@@ -225,7 +225,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
   std::vector<float> x_fine_start;
   bool have_start = false;
   if (warm_start && !warm_start->emission_rgb.empty()) {
-    x_fine_start = warm_start->geometry == grid_
+    x_fine_start = warm_start->geometry.SameVoxels(grid_)
                        ? warm_start->emission_rgb
                        : ResampleEmission(warm_start->geometry, warm_start->emission_rgb, grid_);
     have_start = true;

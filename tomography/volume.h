@@ -60,6 +60,13 @@ struct GridGeometry {
   bool operator==(const GridGeometry& o) const {
     return dims == o.dims && origin_in_rig == o.origin_in_rig && voxel_size_m == o.voxel_size_m;
   }
+  // The same voxels up to rounding (a grid read back from a file): equal dims, origin and voxel
+  // size within 1e-6 of a voxel.
+  bool SameVoxels(const GridGeometry& o) const {
+    const double tol = 1e-6 * voxel_size_m.minCoeff();
+    return dims == o.dims && (origin_in_rig - o.origin_in_rig).cwiseAbs().maxCoeff() <= tol &&
+           (voxel_size_m - o.voxel_size_m).cwiseAbs().maxCoeff() <= tol;
+  }
 };
 
 struct FireVolume {

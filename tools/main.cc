@@ -8,6 +8,8 @@
 #include <filesystem>
 #include <iostream>
 #include <map>
+#include <memory>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -16,7 +18,9 @@
 #include "fitting/renderer.h"
 #include "tomography/reconstruct.h"
 #include "tomography/vdb_io.h"
+#include "fitting/fit.h"
 #include "tools/benchmark.h"
+#include "tools/fit_report.h"
 #include "tools/simulate.h"
 
 namespace fs = std::filesystem;
@@ -41,6 +45,13 @@ commands:
         Algebraic tomography of one frame set (DIR/<camera>.png for every rig camera) into an RGB
         emission volume. The exposure defaults to the one in dataset.yaml beside the rig, else 1.
         With --truth, report the error against a ground-truth volume's emission.
+  fit --rig RIG.yaml --images DIR --out F.vdb [--views CAM,CAM] [--holdout CAMERA]
+      [--resolution N] [--tomography E.vdb] [--method fast|alg1|alg2] [--absorption soot|grey]
+      [--exposure S] [--w-sm W] [--iterations N] [--time-limit S] [--report DIR] [--truth T.vdb]
+        Fit temperature, density and exposure so that rendering reproduces the images: the fast
+        fit (default) or the paper's Algorithm 1 or 2. The tomography is reconstructed from the
+        fitted views unless given. Writes F.vdb (temperature, density; exposure in metadata) and a
+        report (input, rendered and Delta E images per view and held-out view, error against time).
   benchmark render|tomography [--out BENCHMARKS.md] [--quick]
         Time the forward renderer or the tomography against its error and write the figures to
         BENCHMARKS.md (--quick: a small smoke run).
@@ -166,6 +177,60 @@ int Render(const Args& args) {
   return 0;
 }
 
+// One frame set: DIR/<camera>.png for every rig camera, 8-bit sRGB as the camera wrote it or
+// 16-bit linear (value / 65535 is the linear signal). A missing file leaves that camera out with a
+// note (its entries stay empty). images8: 8-bit sRGB views of every input (16-bit ones encoded).
+void ReadFrameSet(const Rig& rig, const std::string& dir, double exposure, const char* command,
+                  std::vector<ImageU8>* images8, std::vector<LinearFrame>* frames) {
+  images8->assign(rig.cameras.size(), ImageU8());
+  frames->assign(rig.cameras.size(), LinearFrame());
+  for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+    const fs::path path = fs::path(dir) / (rig.cameras[c].name + ".png");
+    if (!fs::exists(path)) {
+      std::fprintf(stderr, "%s: no image for camera '%s' (%s): camera left out\n", command,
+                   rig.cameras[c].name.c_str(), path.c_str());
+      continue;
+    }
+    ImageU16 image16;
+    ImageU8& image8 = (*images8)[c];
+    try {
+      if (ReadImage(path.string(), &image8, &image16, 3) == 16) {
+        (*frames)[c] = DecodeLinear16(image16, exposure);
+        image8 = ImageU8(image16.width, image16.height, image16.channels);
+        for (std::size_t p = 0; p < image16.pixels.size(); ++p)
+          image8.pixels[p] = QuantizeU8(SrgbEncode(image16.pixels[p] / 65535.0));
+      } else {
+        (*frames)[c] = DecodeSrgb8(image8, exposure);
+      }
+    } catch (const std::invalid_argument& e) {
+      throw std::invalid_argument(path.string() + ": " + e.what());
+    }
+  }
+}
+
+// The absorption model recorded in dataset.yaml beside a rig file ("soot" when there is none).
+std::string DatasetAbsorption(const std::string& rig_path) {
+  fs::path dataset = fs::path(rig_path).parent_path() / "dataset.yaml";
+  if (!fs::exists(dataset)) return "soot";
+  try {
+    YAML::Node root = YAML::LoadFile(dataset.string());
+    if (root["dataset"] && root["dataset"]["absorption"])
+      return root["dataset"]["absorption"].as<std::string>();
+  } catch (const YAML::Exception& e) {
+    throw std::runtime_error(dataset.string() + ": " + e.what());
+  }
+  return "soot";
+}
+
+std::vector<std::string> SplitList(const std::string& text) {
+  std::vector<std::string> out;
+  std::stringstream ss(text);
+  std::string item;
+  while (std::getline(ss, item, ','))
+    if (!item.empty()) out.push_back(item);
+  return out;
+}
+
 // The exposure recorded in dataset.yaml beside a rig file, if any.
 bool DatasetExposure(const std::string& rig_path, double* exposure) {
   fs::path dataset = fs::path(rig_path).parent_path() / "dataset.yaml";
@@ -206,32 +271,9 @@ int Reconstruct(const Args& args) {
   options.holdout_camera = args.Get("holdout", "");
   options.cache_dir = args.Get("cache", "");
   options.coarse_to_fine = args.named.count("no-coarse") == 0;
-  const std::string dir = args.Required("images");
-  // One image per camera, <camera>.png: 8-bit sRGB as the camera wrote it, or 16-bit linear
-  // (value / 65535 is the linear signal).
-  std::vector<ImageU8> images(rig.cameras.size());  // 8-bit views of the inputs, for the preview
-  std::vector<LinearFrame> frames(rig.cameras.size());
-  for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
-    const fs::path path = fs::path(dir) / (rig.cameras[c].name + ".png");
-    if (!fs::exists(path)) {
-      std::fprintf(stderr, "reconstruct: no image for camera '%s' (%s): camera left out\n",
-                   rig.cameras[c].name.c_str(), path.c_str());
-      continue;
-    }
-    ImageU16 image16;
-    try {
-      if (ReadImage(path.string(), &images[c], &image16) == 16) {
-        frames[c] = DecodeLinear16(image16, options.exposure);
-        images[c] = ImageU8(image16.width, image16.height, image16.channels);
-        for (std::size_t p = 0; p < image16.pixels.size(); ++p)
-          images[c].pixels[p] = QuantizeU8(SrgbEncode(image16.pixels[p] / 65535.0));
-      } else {
-        frames[c] = DecodeSrgb8(images[c], options.exposure);
-      }
-    } catch (const std::invalid_argument& e) {
-      throw std::invalid_argument(path.string() + ": " + e.what());
-    }
-  }
+  std::vector<ImageU8> images;  // 8-bit views of the inputs, for the preview
+  std::vector<LinearFrame> frames;
+  ReadFrameSet(rig, args.Required("images"), options.exposure, "reconstruct", &images, &frames);
   Reconstructor reconstructor(rig, options);
   ReconstructSummary summary;
   FireVolume volume = reconstructor.Reconstruct(frames, &summary);
@@ -270,7 +312,7 @@ int Reconstruct(const Args& args) {
     if (truth.emission_rgb.empty())
       throw std::invalid_argument(args.Get("truth", "") + ": has no 'emission' grid");
     std::vector<float> t =
-        truth.geometry == volume.geometry
+        truth.geometry.SameVoxels(volume.geometry)
             ? truth.emission_rgb
             : ResampleEmission(truth.geometry, truth.emission_rgb, volume.geometry);
     double num = 0, den = 0;
@@ -307,6 +349,156 @@ int Benchmark(const Args& args) {
   return 0;
 }
 
+
+int Fit(const Args& args) {
+  args.CheckKnown({"rig", "images", "out", "views", "holdout", "resolution", "tomography",
+                   "method", "absorption", "exposure", "w-sm", "time-limit", "iterations",
+                   "report", "truth", "seed"});
+  const std::string rig_path = args.Required("rig");
+  Rig rig = Rig::Load(rig_path);
+  double exposure = 1.0;
+  if (args.named.count("exposure"))
+    exposure = ParseNumber(args.Get("exposure", ""), "--exposure");
+  else
+    DatasetExposure(rig_path, &exposure);
+  const std::string absorption_name = args.Get("absorption", DatasetAbsorption(rig_path));
+  const AbsorptionModel absorption = AbsorptionModel::FromName(absorption_name);
+  std::vector<ImageU8> images;
+  std::vector<LinearFrame> frames;
+  ReadFrameSet(rig, args.Required("images"), exposure, "fit", &images, &frames);
+
+  // Views: --views, else every camera with an image but the held-out one.
+  const std::string holdout = args.Get("holdout", "");
+  std::vector<std::string> view_names = SplitList(args.Get("views", ""));
+  auto camera_index = [&](const std::string& name) {
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c)
+      if (rig.cameras[c].name == name) return static_cast<int>(c);
+    throw std::invalid_argument(rig_path + ": no camera named '" + name + "'");
+  };
+  if (view_names.empty()) {
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c)
+      if (!images[c].empty() && rig.cameras[c].name != holdout)
+        view_names.push_back(rig.cameras[c].name);
+  }
+  std::vector<std::unique_ptr<CameraRays>> rays(rig.cameras.size());
+  auto make_view = [&](const std::string& name) {
+    const int c = camera_index(name);
+    if (images[c].empty())
+      throw std::invalid_argument("fit: camera '" + name + "' has no image in " +
+                                  args.Required("images"));
+    if (!rays[c]) rays[c] = std::make_unique<CameraRays>(rig.cameras[c].model);
+    FitView v;
+    v.name = name;
+    v.rays = rays[c].get();
+    v.image = images[c];
+    return v;
+  };
+  std::vector<FitView> views, held;
+  for (const auto& name : view_names) views.push_back(make_view(name));
+  if (!holdout.empty()) held.push_back(make_view(holdout));
+  if (views.empty()) throw std::invalid_argument("fit: no views to fit");
+
+  ReconstructOptions ro;
+  ro.exposure = exposure;
+  if (args.named.count("resolution"))
+    ro.resolution = static_cast<int>(ParseNumber(args.Get("resolution", ""), "--resolution"));
+  // The tomography: from a file, or reconstructed here from the fitted views only.
+  FireVolume tomography;
+  if (args.named.count("tomography")) {
+    tomography = ReadVdb(args.Get("tomography", ""));
+  } else {
+    std::vector<LinearFrame> used(rig.cameras.size());
+    for (const auto& v : views) used[camera_index(v.name)] = frames[camera_index(v.name)];
+    Reconstructor reconstructor(rig, ro);
+    ReconstructSummary rs;
+    tomography = reconstructor.Reconstruct(used, &rs);
+    std::fprintf(stderr, "fit: tomography from %zu view(s): %s\n", views.size(),
+                 rs.BriefReport().c_str());
+  }
+  const GridGeometry grid = GridGeometry::FromBox(rig.box, ro.resolution);
+
+  FitOptions options;
+  if (args.named.count("w-sm")) options.objective.w_sm = ParseNumber(args.Get("w-sm", ""), "--w-sm");
+  if (args.named.count("time-limit"))
+    options.time_limit_s = ParseNumber(args.Get("time-limit", ""), "--time-limit");
+  const std::string method = args.Get("method", "fast");
+  double last_progress = -1;
+  auto progress = [&last_progress](const FitProgress& p) {
+    if (p.seconds - last_progress < 0.5) return;  // twice a second is enough to watch
+    last_progress = p.seconds;
+    std::fprintf(stderr, "\r%-60s iteration %4d  %7.1f s  energy %10.4g  mean Delta E %.4f",
+                 p.stage.c_str(), p.iteration, p.seconds, p.energy, p.mean_delta_e);
+    std::fflush(stderr);
+  };
+  FitResult result;
+  if (method == "fast") {
+    if (args.named.count("iterations")) {
+      options.iterations_finest = options.iterations_per_level =
+          static_cast<int>(ParseNumber(args.Get("iterations", ""), "--iterations"));
+    }
+    result = FastFit(grid, tomography, views, absorption, options, nullptr, progress);
+  } else if (method == "alg1" || method == "alg2") {
+    PaperFitOptions paper;
+    paper.algorithm =
+        method == "alg1" ? PaperAlgorithm::kPerVoxelDensity : PaperAlgorithm::kDensityScale;
+    paper.time_limit_s = options.time_limit_s;
+    if (args.named.count("iterations"))
+      paper.iterations = static_cast<int>(ParseNumber(args.Get("iterations", ""), "--iterations"));
+    if (args.named.count("seed"))
+      paper.seed = static_cast<std::uint64_t>(ParseNumber(args.Get("seed", ""), "--seed"));
+    result = PaperFit(grid, tomography, views, absorption, options, paper, progress);
+  } else {
+    throw std::invalid_argument("--method '" + method + "': use fast, alg1 or alg2");
+  }
+  std::fprintf(stderr, "\n");
+  result.volume.metadata_text["absorption_model"] = absorption.name();
+  const std::string out = args.Required("out");
+  if (fs::path(out).has_parent_path()) fs::create_directories(fs::path(out).parent_path());
+  WriteVdb(out, result.volume);
+  const std::string report =
+      args.Get("report", (fs::path(out).parent_path() / (fs::path(out).stem().string() + "_report")).string());
+  const auto scores = WriteFitReport(report, result, views, held, absorption, options.render,
+                                     "flamerig fit (" + method + ")");
+  std::printf("fit: wrote %s\n  %s\n", out.c_str(), result.BriefReport().c_str());
+  for (const auto& sc : scores) {
+    std::printf("  %s (%s): mean Delta E %.3f over all pixels, %.3f over fire pixels (95th "
+                "percentile %.2f)\n",
+                sc.name.c_str(), sc.held_out ? "held out" : "fitted", sc.mean_delta_e,
+                sc.fire_delta_e, sc.p95_delta_e);
+  }
+  std::printf("  report: %s/report.md\n", report.c_str());
+  if (args.named.count("truth")) {
+    const FireVolume truth = ReadVdb(args.Get("truth", ""));
+    if (!truth.geometry.SameVoxels(result.volume.geometry) || truth.temperature_k.empty()) {
+      std::printf("  truth: %s is on another grid or has no temperature; not compared\n",
+                  args.Get("truth", "").c_str());
+    } else {
+      // Visible voxels: hot enough to be seen (>= 1300 K) and emitting at least 1% of the
+      // brightest voxel.
+      const std::vector<float> e = truth.emission_rgb;
+      double peak = 0;
+      for (std::size_t v = 0; !e.empty() && v < truth.geometry.num_voxels(); ++v)
+        peak = std::max(peak, double(e[3 * v + 1]));
+      double se = 0, bias = 0;
+      std::size_t count = 0;
+      for (std::size_t v = 0; v < truth.geometry.num_voxels(); ++v) {
+        if (truth.temperature_k[v] < 1300 || truth.density_per_m3[v] <= 0) continue;
+        if (!e.empty() && e[3 * v + 1] < 0.01 * peak) continue;
+        const double d = double(result.volume.temperature_k[v]) - truth.temperature_k[v];
+        se += d * d;
+        bias += d;
+        ++count;
+      }
+      if (count) {
+        std::printf("  temperature against %s on %zu visible voxels (>= 1300 K, >= 1%% of the "
+                    "peak emission): RMS %.1f K, mean %+.1f K\n",
+                    args.Get("truth", "").c_str(), count, std::sqrt(se / count), bias / count);
+      }
+    }
+  }
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -320,6 +512,7 @@ int main(int argc, char** argv) {
     if (command == "simulate") return Simulate(Args(argc, argv, 2, {}));
     if (command == "render") return Render(Args(argc, argv, 2, {}));
     if (command == "reconstruct") return Reconstruct(Args(argc, argv, 2, {"no-coarse"}));
+    if (command == "fit") return Fit(Args(argc, argv, 2, {}));
     if (command == "benchmark") return Benchmark(Args(argc, argv, 2, {"quick"}));
     std::fprintf(stderr, "flamerig: unknown command '%s'\n\n%s", command.c_str(), kUsage);
     return 2;
