@@ -9,6 +9,7 @@
 
 #include "acquisition/image.h"
 #include "acquisition/srgb.h"
+#include "tomography/vdb_io.h"
 
 namespace {
 
@@ -159,6 +160,51 @@ TEST(Cli, ReconstructASimulatedFrameSet) {
       Flamerig("reconstruct --rig " + (dir / "nope.yaml").string() + " --images x --out y.vdb");
   EXPECT_EQ(norig.status, 1);
   EXPECT_NE(norig.output.find("nope.yaml"), std::string::npos) << norig.output;
+  fs::remove_all(dir);
+}
+
+TEST(Cli, FitASimulatedFrameSet) {
+  fs::path dir = TempDir();
+  std::ofstream((dir / "sim.yaml").string())
+      << "simulate:\n  frames: 1\n  grid_resolution: 20\n  rig: {cameras: 3, azimuths_deg: [0, 90, "
+         "45], width: 96, height: 72}\n  calibration: {enabled: false}\n  absorption: grey\n";
+  Result sim = Flamerig("simulate --config " + (dir / "sim.yaml").string() + " --out " +
+                        (dir / "data").string());
+  ASSERT_EQ(sim.status, 0) << sim.output;
+  const std::string rig = (dir / "data" / "rig.yaml").string();
+  const std::string images = (dir / "data" / "frames" / "frame_000000").string();
+  const std::string out = (dir / "fit" / "fire.vdb").string();
+  Result fit = Flamerig("fit --rig " + rig + " --images " + images + " --out " + out +
+                        " --holdout cam2 --resolution 20 --truth " +
+                        (dir / "data" / "truth" / "frame_000000.vdb").string());
+  ASSERT_EQ(fit.status, 0) << fit.output;
+  EXPECT_NE(fit.output.find("cam2 (held out)"), std::string::npos) << fit.output;
+  EXPECT_NE(fit.output.find("temperature against"), std::string::npos) << fit.output;
+  flamerig::FireVolume v = flamerig::ReadVdb(out);
+  EXPECT_EQ(v.temperature_k.size(), v.geometry.num_voxels());
+  EXPECT_EQ(v.density_per_m3.size(), v.geometry.num_voxels());
+  EXPECT_GT(v.metadata_numbers.at("exposure"), 0);
+  EXPECT_EQ(v.metadata_text.at("absorption_model"), "grey");
+  for (const char* f : {"views.png", "error.png", "report.md", "trace.csv"})
+    EXPECT_TRUE(fs::exists(dir / "fit" / "fire_report" / f)) << f;
+  // `render` reads what `fit` wrote.
+  Result render = Flamerig("render --rig " + rig + " --volume " + out + " --out " +
+                           (dir / "rendered").string());
+  EXPECT_EQ(render.status, 0) << render.output;
+  EXPECT_TRUE(fs::exists(dir / "rendered" / "cam2.png"));
+  // The paper's Algorithm 2, briefly.
+  Result alg2 = Flamerig("fit --rig " + rig + " --images " + images + " --out " +
+                         (dir / "alg2.vdb").string() +
+                         " --method alg2 --iterations 2 --resolution 12 --views cam0,cam1");
+  EXPECT_EQ(alg2.status, 0) << alg2.output;
+  EXPECT_NE(alg2.output.find("Algorithm 2"), std::string::npos) << alg2.output;
+  // Errors name what is wrong.
+  Result bad = Flamerig("fit --rig " + rig + " --images " + images + " --out x.vdb --method magic");
+  EXPECT_EQ(bad.status, 1);
+  EXPECT_NE(bad.output.find("magic"), std::string::npos) << bad.output;
+  Result nocam = Flamerig("fit --rig " + rig + " --images " + images + " --out x.vdb --views cam9");
+  EXPECT_EQ(nocam.status, 1);
+  EXPECT_NE(nocam.output.find("cam9"), std::string::npos) << nocam.output;
   fs::remove_all(dir);
 }
 
