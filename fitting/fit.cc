@@ -154,9 +154,27 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
   st->t.assign(m, table.t_min());
   st->n.assign(m, n_min);
   std::vector<double> brightness(m, 0.0);
+  const Eigen::Vector3i& dims = st->grid.dims;
+  const int radius = options.init_colour_radius_voxels;
   for (std::size_t a = 0; a < m; ++a) {
-    const float* e = &emission[3 * st->active[a]];
-    const Eigen::Vector3d rgb(e[0], e[1], e[2]);
+    const std::size_t f = st->active[a];
+    const float* e = &emission[3 * f];
+    // The colour of the neighbourhood (emission summed over a cube of voxels, so a brightness-
+    // weighted chromaticity): a single voxel's colour from a few views is noisy, and the density
+    // that brightness implies depends steeply on the temperature (Y grows 3650x from 1300 to
+    // 2300 K), so noise in one would become speckle in the other.
+    Eigen::Vector3d rgb = Eigen::Vector3d::Zero();
+    const int i = static_cast<int>(f % dims.x()), j = static_cast<int>((f / dims.x()) % dims.y()),
+              k = static_cast<int>(f / (static_cast<std::size_t>(dims.x()) * dims.y()));
+    for (int dk = -radius; dk <= radius; ++dk)
+      for (int dj = -radius; dj <= radius; ++dj)
+        for (int di = -radius; di <= radius; ++di) {
+          const int ii = i + di, jj = j + dj, kk = k + dk;
+          if (ii < 0 || jj < 0 || kk < 0 || ii >= dims.x() || jj >= dims.y() || kk >= dims.z())
+            continue;
+          const float* q = &emission[3 * st->grid.Flat(ii, jj, kk)];
+          rgb += Eigen::Vector3d(q[0], q[1], q[2]);
+        }
     st->t[a] = table.TemperatureOf(rgb);
     const double per_density = table.RgbPerDensity(st->t[a]).dot(Eigen::Vector3d(0.2126, 0.7152, 0.0722));
     brightness[a] = per_density > 0 ? std::max(0.0, Luminance(e)) / per_density : 0.0;
@@ -327,10 +345,12 @@ class TraceCallback : public ceres::IterationCallback {
   double time_limit_s_;
 };
 
-FireVolume ToVolume(const State& st, const FitResult& r) {
+// Voxels outside the medium get the ambient (lowest) temperature: they hold no soot, so they
+// neither emit nor absorb, and a renderer that reads temperature alone sees them as cold.
+FireVolume ToVolume(const State& st, const FitResult& r, double ambient_k) {
   FireVolume v;
   v.geometry = st.grid;
-  v.temperature_k.assign(st.grid.num_voxels(), 0.0f);
+  v.temperature_k.assign(st.grid.num_voxels(), static_cast<float>(ambient_k));
   v.density_per_m3.assign(st.grid.num_voxels(), 0.0f);
   for (std::size_t a = 0; a < st.active.size(); ++a) {
     v.temperature_k[st.active[a]] = static_cast<float>(st.t[a]);
@@ -465,7 +485,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   }
   result.exposure = st.s;
   result.seconds = Seconds(start);
-  result.volume = ToVolume(st, result);
+  result.volume = ToVolume(st, result, options.objective.t_min_k);
   return result;
 }
 
@@ -747,7 +767,7 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
   result.final_terms = objective.Evaluate(st.t, st.n, st.s, per_voxel_density);
   result.active_voxels = m;
   result.seconds = Seconds(start);
-  result.volume = ToVolume(st, result);
+  result.volume = ToVolume(st, result, options.objective.t_min_k);
   return result;
 }
 

@@ -94,6 +94,7 @@ struct FitOptions {
   double activity_threshold = 1e-3;  // of the brightest voxel's emission luminance; [0, 1)
   double exposure_min = 0.01, exposure_max = 1000;  // the paper's range
   // Fast fit.
+  int init_colour_radius_voxels = 1;  // temperature from the colour of (2r+1)^3 voxels; [0, 8]
   int coarsest_resolution = 32;       // coarse-to-fine stops halving here; >= 4
   bool coarse_to_fine = true;
   int iterations_per_level = 40;      // L-BFGS iterations at each coarse level
@@ -105,7 +106,10 @@ struct FitOptions {
 };
 
 struct FitResult {
-  FireVolume volume;  // temperature (K), density (1/m^3) on the fitted grid; metadata below
+  // Temperature (K) and density (1/m^3) on the fitted grid; voxels outside the medium (density 0)
+  // hold the lowest temperature of the search range (ambient). Metadata: exposure, density_scale,
+  // mean_delta_e, energy, active_voxels, method.
+  FireVolume volume;
   double exposure = 1;
   double density_scale = 1;  // Algorithm 2's factor (1 for per-voxel densities)
   EnergyTerms final_terms;   // exact, at the returned parameters

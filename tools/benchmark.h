@@ -43,6 +43,26 @@ struct TomographyBenchmarkOptions {
 std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
                                    const std::function<void(const std::string&)>& log);
 
+struct FitBenchmarkOptions {
+  std::vector<int> resolutions = {32, 64, 128};  // grid along the box's longest axis
+  // Time given to the paper's Algorithm 2 at each resolution (it needs hours to finish its 12
+  // cluster doublings; it is stopped here and compared at the point it reached).
+  std::vector<double> paper_seconds = {300, 300, 600};
+  int width = 320;
+  int height = 240;
+  std::string figure_dir = "benchmarks";  // error-against-time plots (PNG), relative to cwd
+  bool quick = false;                     // CI smoke mode: 16^3, 96x72, 5 s
+};
+
+// The fit benchmark (issue 4): a candle (soot) filmed from the front and the side at 320x240 as in
+// the paper, plus a held-out view at 45 degrees; tomography of the two views; then the paper's
+// Algorithm 2 (time-limited) and the fast fit, each traced as mean Delta E of the fitted views
+// against time, with the held-out view's Delta E and the temperature error on visible voxels; the
+// time the fast fit needs to reach Algorithm 2's final Delta E; and the next frame warm-started.
+// Writes one plot per resolution to figure_dir. Returns the Markdown section.
+std::string RunFitBenchmark(const FitBenchmarkOptions& options,
+                            const std::function<void(const std::string&)>& log);
+
 // Replaces (or appends) section `name` of the Markdown file at `path`.
 void WriteBenchmarkSection(const std::string& path, const std::string& name,
                            const std::string& markdown);
