@@ -272,7 +272,8 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
     double d_s = 0;
     EnergyTerms terms;
     try {
-      terms = objective_.Evaluate(st.t, st.n, st.s, true, gradient ? &d_t : nullptr,
+      terms = objective_.Evaluate(st.t, st.n, st.s, options_.density_pairwise,
+                                  gradient ? &d_t : nullptr,
                                   gradient ? &d_n : nullptr, gradient ? &d_s : nullptr);
     } catch (const std::invalid_argument&) {
       return false;  // a non-finite trial point: Ceres backs off
@@ -463,7 +464,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     result.active_voxels = st.active.size();
     if (level + 1 == levels.size()) {
       // Its data_exact and smooth_exact are the exact (non-smoothed) terms.
-      result.final_terms = objective.Evaluate(st.t, st.n, st.s, true);
+      result.final_terms = objective.Evaluate(st.t, st.n, st.s, options.density_pairwise);
     }
     if (options.time_limit_s > 0 && Seconds(start) > options.time_limit_s) {
       // Out of time: carry the current level's state to the finest grid without more iterations.
@@ -478,7 +479,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
                  &fine);
         st = fine;
         result.active_voxels = st.active.size();
-        result.final_terms = fine_objective.Evaluate(st.t, st.n, st.s, true);
+        result.final_terms = fine_objective.Evaluate(st.t, st.n, st.s, options.density_pairwise);
       }
       break;
     }

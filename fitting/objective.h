@@ -46,7 +46,6 @@ struct ObjectiveOptions {
   // neighbour differences in normalised units.
   double smooth_delta_e = 0.0;
   double smooth_neighbour = 0.0;
-  bool smooth_density = true;  // pairwise term on density too (when it is a per-voxel unknown)
   // Search ranges, which also normalise the pairwise term.
   double t_min_k = 300, t_max_k = 2300;
   double n_min_per_m3 = 0, n_max_per_m3 = 0;  // 0, 0: DensityBounds::Plausible of the model

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The main job on the built-in simulated rig: installs what is missing, builds, simulates a candle
 # filmed by the two-camera rig of config/sim_rig.yaml (camera models, calibration board views, fire
-# images and ground truth), and renders the ground truth back through the rig's cameras.
+# images and ground truth), renders the ground truth back through the rig's cameras, reconstructs
+# frame 0 by tomography and fits its temperature, density and exposure (with a report).
 # Output in runs/sim (override with FLAMERIG_RUN_DIR); open runs/sim/preview.png first.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -14,7 +15,11 @@ BIN="${FLAMERIG_BUILD_DIR:-build}/tools/flamerig"
 "$BIN" reconstruct --rig "$RUN_DIR/rig.yaml" --images "$RUN_DIR/frames/frame_000000" \
   --out "$RUN_DIR/reconstruction/frame_000000.vdb" --truth "$RUN_DIR/truth/frame_000000.vdb" \
   --cache "$RUN_DIR/cache" --preview "$RUN_DIR/reconstruction/preview.png"
+"$BIN" fit --rig "$RUN_DIR/rig.yaml" --images "$RUN_DIR/frames/frame_000000" \
+  --tomography "$RUN_DIR/reconstruction/frame_000000.vdb" --out "$RUN_DIR/fit/frame_000000.vdb" \
+  --truth "$RUN_DIR/truth/frame_000000.vdb"
 echo
 echo "main job done: dataset in $RUN_DIR (preview.png, frames/, calibration/, truth/*.vdb, rig.yaml);"
 echo "the ground truth re-rendered through the rig is in $RUN_DIR/rendered; the tomography of frame 0"
-echo "(emission volume and a preview of input against reconstruction) is in $RUN_DIR/reconstruction."
+echo "(emission volume and a preview of input against reconstruction) is in $RUN_DIR/reconstruction;"
+echo "the fitted temperature and density of frame 0 are in $RUN_DIR/fit (report: fit/frame_000000_report/report.md)."

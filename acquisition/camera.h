@@ -1,0 +1,71 @@
+// The camera driver interface (DESIGN section 3), layered after Aravis: discovery -> camera (its
+// controls) -> stream (a preallocated buffer pool) -> frames (frame.h).
+//
+// A Camera is configured, started with a number of buffers, and then delivers frames through Pop()
+// in the order the device produced them. Drivers: `sim` (sim_camera.h, deterministic, for tests and
+// the simulated rig), `aravis` and `v4l2` (to come). A camera is used from one thread at a time
+// (the daemon gives each camera its own thread) except SoftwareTrigger(), which any thread may call.
+#ifndef FLAMERIG_ACQUISITION_CAMERA_H_
+#define FLAMERIG_ACQUISITION_CAMERA_H_
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "acquisition/frame.h"
+
+namespace flamerig {
+
+struct CameraDescription {
+  std::string driver;  // "sim", "aravis", "v4l2"
+  std::string id;      // serial number or device path: what a config names the camera by
+  std::string vendor, model, address;
+};
+
+enum class TriggerMode { kFreeRun, kSoftware, kHardware };
+const char* ToString(TriggerMode mode);
+TriggerMode TriggerModeFromName(const std::string& name);  // "free-run" | "software" | "hardware"
+
+struct CameraSettings {
+  int width = 640, height = 480;
+  PixelFormat pixel_format = PixelFormat::kMono8;
+  double frame_rate_hz = 30;  // free-run rate; the maximum rate when triggered
+  double exposure_us = 10000;
+  double gain_db = 0;
+  TriggerMode trigger = TriggerMode::kFreeRun;
+  std::string trigger_source = "Line0";  // hardware trigger input
+  int packet_size = 0;                   // GigE Vision packet size, 0 = the device's
+  void Validate() const;                 // throws std::invalid_argument naming the field
+};
+
+struct StreamCounters {
+  std::uint64_t delivered = 0;        // frames returned by Pop
+  std::uint64_t incomplete = 0;       // of those, with status other than ok
+  std::uint64_t missing_by_id = 0;    // frame-id gaps (wrap-aware)
+  std::uint64_t missing_by_time = 0;  // gaps of more than 1.5 periods between timestamps (free-run)
+  std::uint64_t underruns = 0;        // frames the device had no free buffer for
+  std::uint64_t timeouts = 0;         // Pop calls that returned nothing
+};
+
+class Camera {
+ public:
+  virtual ~Camera() = default;
+  virtual CameraDescription description() const = 0;
+  // Applies settings while stopped; throws std::invalid_argument naming the camera and the feature
+  // the device refuses.
+  virtual void Configure(const CameraSettings& settings) = 0;
+  virtual CameraSettings settings() const = 0;
+  virtual void Start(int buffers) = 0;
+  virtual void Stop() = 0;
+  // The next frame, waiting at most timeout_ns on the camera's clock; nullopt on timeout or when
+  // the camera is gone (then connected() is false).
+  virtual std::optional<Frame> Pop(std::int64_t timeout_ns) = 0;
+  virtual void SoftwareTrigger(std::int64_t trigger_id) = 0;
+  virtual bool connected() const = 0;
+  virtual StreamCounters counters() const = 0;
+};
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_ACQUISITION_CAMERA_H_

@@ -1,0 +1,85 @@
+#include "acquisition/frame.h"
+
+#include <limits>
+#include <stdexcept>
+
+namespace flamerig {
+
+const char* ToString(PixelFormat format) {
+  switch (format) {
+    case PixelFormat::kMono8: return "Mono8";
+    case PixelFormat::kMono16: return "Mono16";
+    case PixelFormat::kRgb8: return "RGB8";
+    case PixelFormat::kBayerRg8: return "BayerRG8";
+    case PixelFormat::kBayerGr8: return "BayerGR8";
+    case PixelFormat::kBayerGb8: return "BayerGB8";
+    case PixelFormat::kBayerBg8: return "BayerBG8";
+  }
+  return "?";
+}
+
+PixelFormat PixelFormatFromName(const std::string& name) {
+  for (PixelFormat f : {PixelFormat::kMono8, PixelFormat::kMono16, PixelFormat::kRgb8,
+                        PixelFormat::kBayerRg8, PixelFormat::kBayerGr8, PixelFormat::kBayerGb8,
+                        PixelFormat::kBayerBg8}) {
+    if (name == ToString(f)) return f;
+  }
+  throw std::invalid_argument("pixel format '" + name +
+                              "': use Mono8, Mono16, RGB8, BayerRG8, BayerGR8, BayerGB8 or BayerBG8");
+}
+
+int BytesPerPixel(PixelFormat format) {
+  switch (format) {
+    case PixelFormat::kMono16: return 2;
+    case PixelFormat::kRgb8: return 3;
+    default: return 1;
+  }
+}
+
+const char* ToString(FrameStatus status) {
+  switch (status) {
+    case FrameStatus::kOk: return "ok";
+    case FrameStatus::kIncomplete: return "incomplete";
+    case FrameStatus::kTimeout: return "timeout";
+    case FrameStatus::kError: return "error";
+  }
+  return "?";
+}
+
+FrameIdUnwrapper::FrameIdUnwrapper(int bits, std::uint64_t wrap_to) : bits_(bits), wrap_to_(wrap_to) {
+  if (bits < 1 || bits > 64) throw std::invalid_argument("FrameIdUnwrapper: bits must be in [1, 64]");
+  modulus_minus_one_ =
+      bits == 64 ? std::numeric_limits<std::uint64_t>::max() : (std::uint64_t(1) << bits) - 1;
+  if (wrap_to > modulus_minus_one_)
+    throw std::invalid_argument("FrameIdUnwrapper: wrap_to outside the counter's range");
+}
+
+std::uint64_t FrameIdUnwrapper::Next(std::uint64_t device_id) {
+  device_id &= modulus_minus_one_;
+  if (!started_) {
+    started_ = true;
+    last_device_ = device_id;
+    last_unwrapped_ = device_id;
+    return device_id;
+  }
+  // Values in one cycle after the first wrap: wrap_to .. max, `cycle` of them.
+  const std::uint64_t cycle = modulus_minus_one_ - wrap_to_ + 1;
+  auto forward = [&](std::uint64_t from, std::uint64_t to) -> std::uint64_t {
+    if (to >= from) return to - from;
+    // Through the wrap: from .. max, then wrap_to .. to.
+    return (modulus_minus_one_ - from) + (to >= wrap_to_ ? to - wrap_to_ : 0) + 1;
+  };
+  const std::uint64_t ahead = forward(last_device_, device_id);
+  if (ahead != 0 && ahead <= cycle / 2) {
+    missing_ += ahead - 1;
+    last_unwrapped_ += ahead;
+    last_device_ = device_id;
+    return last_unwrapped_;
+  }
+  // A repeat or a step back: the frame belongs before the newest one.
+  ++out_of_order_;
+  const std::uint64_t behind = forward(device_id, last_device_);
+  return behind <= last_unwrapped_ ? last_unwrapped_ - behind : 0;
+}
+
+}  // namespace flamerig

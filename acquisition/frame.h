@@ -1,0 +1,79 @@
+// What every camera driver delivers (DESIGN section 3): a frame and everything known about when and
+// how it was taken.
+//
+// Times are int64 nanoseconds: the device's own timestamp (its clock, which may drift), and the
+// host's monotonic and realtime clocks when the frame was received. Frame ids are 64-bit, unwrapped
+// from the device's counter (GigE Vision counters are 16-bit, and Aravis' fake starts near the top
+// and wraps to 1) by FrameIdUnwrapper, which also counts the frames a gap says were lost.
+#ifndef FLAMERIG_ACQUISITION_FRAME_H_
+#define FLAMERIG_ACQUISITION_FRAME_H_
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace flamerig {
+
+enum class PixelFormat { kMono8, kMono16, kRgb8, kBayerRg8, kBayerGr8, kBayerGb8, kBayerBg8 };
+const char* ToString(PixelFormat format);
+PixelFormat PixelFormatFromName(const std::string& name);  // "Mono8", ...; throws
+int BytesPerPixel(PixelFormat format);
+
+enum class FrameStatus {
+  kOk,
+  kIncomplete,  // packets or lines missing: the bytes are there but some are not the camera's
+  kTimeout,     // the device stopped delivering it
+  kError,       // the transport reported an error
+};
+const char* ToString(FrameStatus status);
+
+struct FrameInfo {
+  int camera = -1;                  // index of the camera in the rig
+  std::uint64_t frame_id = 0;       // unwrapped
+  std::uint64_t device_frame_id = 0;  // as the device counted it
+  std::int64_t device_timestamp_ns = 0;
+  std::int64_t host_monotonic_ns = 0;
+  std::int64_t host_realtime_ns = 0;
+  std::int64_t trigger_id = -1;  // the trigger that caused it, -1 when free-running or unknown
+  double exposure_us = 0;
+  double gain_db = 0;
+  PixelFormat pixel_format = PixelFormat::kMono8;
+  int width = 0, height = 0;
+  FrameStatus status = FrameStatus::kOk;
+};
+
+// A frame: its description and its bytes (row-major, width * height * BytesPerPixel, no padding).
+// The bytes are shared so that a frame can sit in the recorder's queue and the preview at once
+// without a copy.
+struct Frame {
+  FrameInfo info;
+  std::shared_ptr<const std::vector<std::uint8_t>> data;
+  std::size_t bytes() const { return data ? data->size() : 0; }
+};
+
+// Unwraps a device frame counter of `bits` bits (1..64) into 64 bits and counts gaps. The counter may
+// start anywhere, wraps from 2^bits - 1 to `wrap_to` (GigE Vision skips 0: wrap_to = 1).
+class FrameIdUnwrapper {
+ public:
+  explicit FrameIdUnwrapper(int bits = 16, std::uint64_t wrap_to = 1);
+  // The unwrapped id of the next device id. A step backwards by more than half the counter range is
+  // a wrap; a small step backwards (a reordered or repeated frame) returns the id it would have had
+  // and counts as out of order.
+  std::uint64_t Next(std::uint64_t device_id);
+  std::uint64_t missing() const { return missing_; }        // ids skipped by forward gaps
+  std::uint64_t out_of_order() const { return out_of_order_; }
+
+ private:
+  int bits_;
+  std::uint64_t wrap_to_;
+  std::uint64_t modulus_minus_one_;
+  bool started_ = false;
+  std::uint64_t last_device_ = 0;
+  std::uint64_t last_unwrapped_ = 0;
+  std::uint64_t missing_ = 0, out_of_order_ = 0;
+};
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_ACQUISITION_FRAME_H_

@@ -1,0 +1,273 @@
+#include "acquisition/sim_camera.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+#include <thread>
+
+namespace flamerig {
+
+const char* ToString(TriggerMode mode) {
+  switch (mode) {
+    case TriggerMode::kFreeRun: return "free-run";
+    case TriggerMode::kSoftware: return "software";
+    case TriggerMode::kHardware: return "hardware";
+  }
+  return "?";
+}
+
+TriggerMode TriggerModeFromName(const std::string& name) {
+  for (TriggerMode m : {TriggerMode::kFreeRun, TriggerMode::kSoftware, TriggerMode::kHardware})
+    if (name == ToString(m)) return m;
+  throw std::invalid_argument("trigger mode '" + name + "': use free-run, software or hardware");
+}
+
+void CameraSettings::Validate() const {
+  auto fail = [](const std::string& what) {
+    throw std::invalid_argument("camera settings: " + what);
+  };
+  if (width < 1 || height < 1 || width > 16384 || height > 16384)
+    fail("width and height must be in [1, 16384]");
+  if (!(frame_rate_hz > 0) || !(frame_rate_hz <= 100000)) fail("frame_rate_hz must be in (0, 1e5]");
+  if (!(exposure_us > 0) || !std::isfinite(exposure_us)) fail("exposure_us must be > 0");
+  if (!(exposure_us <= 1e6 / frame_rate_hz))
+    fail("exposure_us must not exceed the frame period (" + std::to_string(1e6 / frame_rate_hz) +
+         " us)");
+  if (!std::isfinite(gain_db)) fail("gain_db must be finite");
+  if (packet_size < 0) fail("packet_size must be >= 0");
+}
+
+std::int64_t SystemClock::MonotonicNs() const {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+std::int64_t SystemClock::RealtimeNs() const {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+void SystemClock::SleepUntil(std::int64_t t) {
+  const std::int64_t now = MonotonicNs();
+  if (t > now) std::this_thread::sleep_for(std::chrono::nanoseconds(t - now));
+}
+
+void ManualClock::SleepUntil(std::int64_t t) {
+  std::int64_t now = now_.load();
+  while (now < t && !now_.compare_exchange_weak(now, t)) {
+  }
+}
+
+void SimTriggerBus::Fire(std::int64_t trigger_id, std::int64_t monotonic_ns) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  pulses_.push_back({trigger_id, monotonic_ns});
+}
+
+std::vector<SimTriggerBus::Pulse> SimTriggerBus::Since(std::size_t from) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (from >= pulses_.size()) return {};
+  return std::vector<Pulse>(pulses_.begin() + static_cast<std::ptrdiff_t>(from), pulses_.end());
+}
+
+std::size_t SimTriggerBus::count() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return pulses_.size();
+}
+
+ImageSource TestPatternSource() {
+  return [](const FrameInfo& info, std::vector<std::uint8_t>* bytes) {
+    const int bpp = BytesPerPixel(info.pixel_format);
+    bytes->resize(static_cast<std::size_t>(info.width) * info.height * bpp);
+    for (int y = 0; y < info.height; ++y)
+      for (int x = 0; x < info.width; ++x)
+        for (int b = 0; b < bpp; ++b) {
+          (*bytes)[(static_cast<std::size_t>(y) * info.width + x) * bpp + b] =
+              static_cast<std::uint8_t>(x + 2 * y + 3 * info.frame_id + 50 * info.camera + 7 * b);
+        }
+    // Camera and frame id in the first bytes, little-endian.
+    const std::uint64_t stamp[2] = {static_cast<std::uint64_t>(info.camera), info.frame_id};
+    for (std::size_t i = 0; i < 16 && i < bytes->size(); ++i)
+      (*bytes)[i] = static_cast<std::uint8_t>(stamp[i / 8] >> (8 * (i % 8)));
+  };
+}
+
+SimCamera::SimCamera(const SimCameraOptions& options, Clock* clock, SimTriggerBus* bus)
+    : options_(options),
+      clock_(clock),
+      bus_(bus),
+      rng_(options.seed),
+      unwrapper_(options.frame_id_bits, 1),
+      source_(options.source ? options.source : TestPatternSource()) {
+  if (!clock_) throw std::invalid_argument("sim camera '" + options.id + "': no clock");
+  for (double p : {options.drop_probability, options.late_probability,
+                   options.incomplete_probability}) {
+    if (!(p >= 0 && p <= 1))
+      throw std::invalid_argument("sim camera '" + options.id + "': probabilities must be in [0, 1]");
+  }
+  if (options.jitter_ns < 0 || options.transfer_ns < 0 || options.trigger_latency_ns < 0 ||
+      options.late_ns < 0)
+    throw std::invalid_argument("sim camera '" + options.id + "': times must be >= 0");
+}
+
+CameraDescription SimCamera::description() const {
+  return CameraDescription{"sim", options_.id, "flamerig", "simulated camera", "sim://" + options_.id};
+}
+
+void SimCamera::Configure(const CameraSettings& settings) {
+  if (running_)
+    throw std::invalid_argument("sim camera '" + options_.id + "': configure it while stopped");
+  try {
+    settings.Validate();
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument("sim camera '" + options_.id + "': " + e.what());
+  }
+  if (settings.trigger == TriggerMode::kHardware && !bus_) {
+    throw std::invalid_argument("sim camera '" + options_.id +
+                                "': hardware trigger needs a trigger bus (TriggerSource " +
+                                settings.trigger_source + " is not wired)");
+  }
+  settings_ = settings;
+}
+
+void SimCamera::Start(int buffers) {
+  if (buffers < 1) throw std::invalid_argument("sim camera '" + options_.id + "': buffers >= 1");
+  running_ = true;
+  started_ns_ = clock_->MonotonicNs();
+  produced_ = 0;
+  pending_.clear();
+  bus_position_ = bus_ ? bus_->count() : 0;  // pulses before the start are not seen
+  device_counter_ = options_.first_frame_id;
+  last_exposure_ns_ = started_ns_;
+}
+
+void SimCamera::Stop() {
+  running_ = false;
+  pending_.clear();
+}
+
+bool SimCamera::connected() const {
+  const std::int64_t now = clock_->MonotonicNs();
+  if (options_.disconnect_at_ns < 0 || now < options_.disconnect_at_ns) return true;
+  return options_.reconnect_at_ns >= 0 && now >= options_.reconnect_at_ns;
+}
+
+void SimCamera::SoftwareTrigger(std::int64_t trigger_id) {
+  std::lock_guard<std::mutex> lock(trigger_mutex_);
+  software_triggers_.push_back(trigger_id);
+  // The pulse time is when the call was made.
+  software_triggers_.push_back(clock_->MonotonicNs());
+}
+
+void SimCamera::AddExposure(std::int64_t start_ns, std::int64_t trigger_id) {
+  ++produced_;  // exposures attempted (time passes while the camera is gone too)
+  const bool gone = options_.disconnect_at_ns >= 0 && start_ns >= options_.disconnect_at_ns &&
+                    !(options_.reconnect_at_ns >= 0 && start_ns >= options_.reconnect_at_ns);
+  if (gone) return;
+  std::uniform_real_distribution<double> u(0, 1);
+  Pending p;
+  p.info.camera = options_.camera_index;
+  p.info.device_frame_id = device_counter_;
+  const std::uint64_t top =
+      options_.frame_id_bits >= 64 ? ~std::uint64_t(0) : (std::uint64_t(1) << options_.frame_id_bits) - 1;
+  device_counter_ = device_counter_ >= top ? 1 : device_counter_ + 1;
+  // The device clock: offset and drift relative to the host.
+  p.info.device_timestamp_ns =
+      options_.device_offset_ns + start_ns +
+      static_cast<std::int64_t>(std::llround(double(start_ns) * options_.drift_ppm * 1e-6));
+  p.info.trigger_id = trigger_id;
+  p.info.exposure_us = settings_.exposure_us;
+  p.info.gain_db = settings_.gain_db;
+  p.info.pixel_format = settings_.pixel_format;
+  p.info.width = settings_.width;
+  p.info.height = settings_.height;
+  p.dropped = u(rng_) < options_.drop_probability;
+  const bool late = u(rng_) < options_.late_probability;
+  p.info.status = u(rng_) < options_.incomplete_probability ? FrameStatus::kIncomplete
+                                                            : FrameStatus::kOk;
+  p.deliver_ns = start_ns + static_cast<std::int64_t>(settings_.exposure_us * 1e3) +
+                 options_.transfer_ns + (late ? options_.late_ns : 0);
+  auto it = std::upper_bound(pending_.begin(), pending_.end(), p.deliver_ns,
+                             [](std::int64_t t, const Pending& q) { return t < q.deliver_ns; });
+  pending_.insert(it, p);
+}
+
+void SimCamera::Produce(std::int64_t until_ns) {
+  std::normal_distribution<double> jitter(0.0, double(options_.jitter_ns));
+  auto jittered = [&](std::int64_t t) {
+    return options_.jitter_ns > 0 ? t + static_cast<std::int64_t>(std::llround(jitter(rng_))) : t;
+  };
+  if (settings_.trigger == TriggerMode::kFreeRun) {
+    const double period_ns = 1e9 / settings_.frame_rate_hz * (1.0 + options_.drift_ppm * 1e-6);
+    while (true) {
+      const std::int64_t nominal =
+          started_ns_ + static_cast<std::int64_t>(std::llround(double(produced_) * period_ns));
+      if (nominal > until_ns) break;
+      AddExposure(jittered(nominal), -1);
+    }
+    return;
+  }
+  std::vector<SimTriggerBus::Pulse> pulses;
+  if (settings_.trigger == TriggerMode::kHardware) {
+    for (const auto& p : bus_->Since(bus_position_)) {
+      if (p.monotonic_ns + options_.trigger_latency_ns > until_ns) break;
+      pulses.push_back(p);
+    }
+    bus_position_ += pulses.size();
+  } else {
+    std::lock_guard<std::mutex> lock(trigger_mutex_);
+    while (software_triggers_.size() >= 2 &&
+           software_triggers_[1] + options_.trigger_latency_ns <= until_ns) {
+      pulses.push_back({software_triggers_[0], software_triggers_[1]});
+      software_triggers_.pop_front();
+      software_triggers_.pop_front();
+    }
+  }
+  const std::int64_t min_gap = static_cast<std::int64_t>(1e9 / settings_.frame_rate_hz);
+  for (const auto& p : pulses) {
+    const std::int64_t start = jittered(p.monotonic_ns + options_.trigger_latency_ns);
+    // A trigger that comes before the sensor is ready (faster than the maximum rate) is ignored,
+    // as real cameras do.
+    if (produced_ > 0 && start - last_exposure_ns_ < min_gap) continue;
+    last_exposure_ns_ = start;
+    AddExposure(start, p.trigger_id);
+  }
+}
+
+std::optional<Frame> SimCamera::Pop(std::int64_t timeout_ns) {
+  if (!running_) throw std::logic_error("sim camera '" + options_.id + "': Pop before Start");
+  const std::int64_t deadline = clock_->MonotonicNs() + std::max<std::int64_t>(0, timeout_ns);
+  Produce(deadline);
+  while (!pending_.empty() && pending_.front().deliver_ns <= deadline) {
+    Pending p = pending_.front();
+    pending_.pop_front();
+    clock_->SleepUntil(p.deliver_ns);
+    if (p.dropped) continue;  // the frame id advanced; the host never sees it
+    Frame f;
+    f.info = p.info;
+    f.info.frame_id = unwrapper_.Next(p.info.device_frame_id);
+    f.info.host_monotonic_ns = clock_->MonotonicNs();
+    f.info.host_realtime_ns = clock_->RealtimeNs();
+    auto bytes = std::make_shared<std::vector<std::uint8_t>>();
+    source_(f.info, bytes.get());
+    f.data = std::move(bytes);
+    counters_.missing_by_id = unwrapper_.missing();
+    if (settings_.trigger == TriggerMode::kFreeRun && last_timestamp_ns_ >= 0) {
+      const double period = 1e9 / settings_.frame_rate_hz;
+      const double gap = double(f.info.device_timestamp_ns - last_timestamp_ns_) / period;
+      if (gap > 1.5) counters_.missing_by_time += static_cast<std::uint64_t>(std::llround(gap)) - 1;
+    }
+    last_timestamp_ns_ = f.info.device_timestamp_ns;
+    ++counters_.delivered;
+    if (f.info.status != FrameStatus::kOk) ++counters_.incomplete;
+    return f;
+  }
+  clock_->SleepUntil(deadline);
+  ++counters_.timeouts;
+  return std::nullopt;
+}
+
+}  // namespace flamerig

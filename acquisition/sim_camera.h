@@ -1,0 +1,151 @@
+// The simulated camera driver: deterministic stand-ins for a rig's cameras, used by the tests and
+// by the built-in simulated rig (DESIGN section 3).
+//
+// Time comes from a Clock: the real one, or a ManualClock that a test (or a fast simulation)
+// advances by hand, so that every frame's timing is reproducible. Cameras that share a
+// SimTriggerBus receive the same trigger pulses (a hardware trigger line, or the daemon's software
+// trigger broadcast); each responds after its own latency and jitter.
+//
+// Each camera models, from its seed: a free-run period with clock drift (ppm) and Gaussian jitter
+// of its exposure start, a device clock offset, dropped frames (probability per frame: the frame id
+// advances, no frame arrives), late frames (host receive delayed), incomplete frames, a disconnect
+// at a given time (optionally reconnecting later), a device frame counter of a given width that
+// wraps, and images from a pluggable source (a test pattern by default, or a callback).
+#ifndef FLAMERIG_ACQUISITION_SIM_CAMERA_H_
+#define FLAMERIG_ACQUISITION_SIM_CAMERA_H_
+
+#include <atomic>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <random>
+#include <vector>
+
+#include "acquisition/camera.h"
+
+namespace flamerig {
+
+class Clock {
+ public:
+  virtual ~Clock() = default;
+  virtual std::int64_t MonotonicNs() const = 0;
+  virtual std::int64_t RealtimeNs() const = 0;
+  // Blocks (or, for a manual clock, advances) until MonotonicNs() >= t.
+  virtual void SleepUntil(std::int64_t monotonic_ns) = 0;
+};
+
+class SystemClock : public Clock {
+ public:
+  std::int64_t MonotonicNs() const override;
+  std::int64_t RealtimeNs() const override;
+  void SleepUntil(std::int64_t monotonic_ns) override;
+};
+
+// Time that moves only when told: SleepUntil jumps to the target. Realtime = monotonic + offset.
+class ManualClock : public Clock {
+ public:
+  explicit ManualClock(std::int64_t start_ns = 0, std::int64_t realtime_offset_ns = 0)
+      : now_(start_ns), offset_(realtime_offset_ns) {}
+  std::int64_t MonotonicNs() const override { return now_.load(); }
+  std::int64_t RealtimeNs() const override { return now_.load() + offset_; }
+  void SleepUntil(std::int64_t t) override;
+  void Advance(std::int64_t ns) { now_ += ns; }
+
+ private:
+  std::atomic<std::int64_t> now_;
+  std::int64_t offset_;
+};
+
+// Trigger pulses shared by the cameras subscribed to it: pulse k at a time, with an id.
+class SimTriggerBus {
+ public:
+  struct Pulse {
+    std::int64_t trigger_id;
+    std::int64_t monotonic_ns;
+  };
+  void Fire(std::int64_t trigger_id, std::int64_t monotonic_ns);
+  // Pulses with index >= from (a subscriber keeps its own read position).
+  std::vector<Pulse> Since(std::size_t from) const;
+  std::size_t count() const;
+
+ private:
+  mutable std::mutex mutex_;
+  std::vector<Pulse> pulses_;
+};
+
+// Fills a frame's bytes from its description.
+using ImageSource = std::function<void(const FrameInfo& info, std::vector<std::uint8_t>* bytes)>;
+// A moving gradient with the camera index and frame id encoded in the first bytes (so a test can
+// tell frames apart and check them bit-exact after recording).
+ImageSource TestPatternSource();
+
+struct SimCameraOptions {
+  std::string id = "sim0";
+  int camera_index = 0;  // written into FrameInfo::camera
+  std::uint64_t seed = 1;
+  double drift_ppm = 0;                  // device clock rate error
+  std::int64_t device_offset_ns = 0;     // device clock minus host clock at 0
+  std::int64_t jitter_ns = 0;            // standard deviation of each exposure start
+  std::int64_t trigger_latency_ns = 50'000;  // from a pulse to the exposure start
+  std::int64_t transfer_ns = 2'000'000;  // from exposure end to host receive
+  double drop_probability = 0;           // frame produced but never delivered
+  double late_probability = 0;           // delivered `late_ns` later than normal
+  std::int64_t late_ns = 100'000'000;
+  double incomplete_probability = 0;     // delivered with status incomplete
+  std::int64_t disconnect_at_ns = -1;    // monotonic time the camera disappears; -1 = never
+  std::int64_t reconnect_at_ns = -1;     // and comes back; -1 = never
+  int frame_id_bits = 16;                // device counter width (GigE Vision: 16)
+  std::uint64_t first_frame_id = 1;
+  ImageSource source;                    // empty = TestPatternSource()
+};
+
+class SimCamera : public Camera {
+ public:
+  // `bus` may be null (free-run only). The clock and bus must outlive the camera.
+  SimCamera(const SimCameraOptions& options, Clock* clock, SimTriggerBus* bus);
+
+  CameraDescription description() const override;
+  void Configure(const CameraSettings& settings) override;
+  CameraSettings settings() const override { return settings_; }
+  void Start(int buffers) override;
+  void Stop() override;
+  std::optional<Frame> Pop(std::int64_t timeout_ns) override;
+  void SoftwareTrigger(std::int64_t trigger_id) override;
+  bool connected() const override;
+  StreamCounters counters() const override { return counters_; }
+
+ private:
+  struct Pending {
+    FrameInfo info;
+    std::int64_t deliver_ns;  // host receive time
+    bool dropped;
+  };
+  // Produces the frames whose exposure started by `until_ns` into pending_ (ordered by delivery).
+  void Produce(std::int64_t until_ns);
+  void AddExposure(std::int64_t start_ns, std::int64_t trigger_id);
+
+  SimCameraOptions options_;
+  Clock* clock_;
+  SimTriggerBus* bus_;
+  CameraSettings settings_;
+  bool running_ = false;
+  std::mt19937_64 rng_;
+  std::int64_t started_ns_ = 0;
+  std::uint64_t produced_ = 0;  // exposures so far
+  std::size_t bus_position_ = 0;
+  std::uint64_t device_counter_ = 0;
+  std::int64_t last_exposure_ns_ = 0;
+  std::deque<Pending> pending_;
+  std::deque<std::int64_t> software_triggers_;  // ids queued by SoftwareTrigger
+  std::mutex trigger_mutex_;
+  FrameIdUnwrapper unwrapper_;
+  std::int64_t last_timestamp_ns_ = -1;
+  StreamCounters counters_;
+  ImageSource source_;
+};
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_ACQUISITION_SIM_CAMERA_H_

@@ -1,0 +1,270 @@
+// The acquisition core: frame-id unwrapping, the frame-set assembler, and the simulated camera
+// driver on a manual clock (deterministic), with the faults the daemon must survive.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <memory>
+
+#include "acquisition/frame_set.h"
+#include "acquisition/sim_camera.h"
+
+namespace flamerig {
+namespace {
+
+TEST(FrameIdUnwrapper, SixteenBitCounterWrapsToOneLikeGigEVision) {
+  // Aravis' fake camera: 16-bit ids starting at 65400, wrapping to 1 (0 is skipped).
+  FrameIdUnwrapper u(16, 1);
+  EXPECT_EQ(u.Next(65534), 65534u);
+  EXPECT_EQ(u.Next(65535), 65535u);
+  EXPECT_EQ(u.Next(1), 65536u);
+  EXPECT_EQ(u.Next(2), 65537u);
+  EXPECT_EQ(u.missing(), 0u);
+  // A gap of two frames across the wrap: 65535 -> (1, 2 lost) -> 3.
+  FrameIdUnwrapper g(16, 1);
+  g.Next(65535);
+  EXPECT_EQ(g.Next(3), 65538u);
+  EXPECT_EQ(g.missing(), 2u);
+  // A repeated or reordered id does not move the counter forward.
+  EXPECT_EQ(g.Next(2), 65537u);
+  EXPECT_EQ(g.out_of_order(), 1u);
+  EXPECT_EQ(g.Next(4), 65539u);
+  // Many wraps stay monotonic.
+  FrameIdUnwrapper w(8, 1);
+  std::uint64_t last = w.Next(250), device = 250;
+  for (int i = 0; i < 2000; ++i) {
+    device = device >= 255 ? 1 : device + 1;
+    const std::uint64_t id = w.Next(device);
+    ASSERT_EQ(id, last + 1);
+    last = id;
+  }
+  EXPECT_THROW(FrameIdUnwrapper(0), std::invalid_argument);
+}
+
+Frame MakeFrame(int camera, std::int64_t trigger, std::int64_t t_ns) {
+  Frame f;
+  f.info.camera = camera;
+  f.info.trigger_id = trigger;
+  f.info.device_timestamp_ns = t_ns;
+  f.info.host_monotonic_ns = t_ns;
+  return f;
+}
+
+TEST(FrameSetAssembler, GroupsByTriggerAndNeverWaitsForALostFrameItCanRuleOut) {
+  FrameSetOptions o;
+  o.cameras = 3;
+  o.match = MatchBy::kTriggerId;
+  o.timeout_ns = 1'000'000'000;
+  FrameSetAssembler a(o);
+  std::vector<FrameSet> out;
+  // Trigger 0: all three cameras, interleaved.
+  a.Add(MakeFrame(0, 0, 100), 100, &out);
+  a.Add(MakeFrame(2, 0, 130), 130, &out);
+  EXPECT_TRUE(out.empty());
+  a.Add(MakeFrame(1, 0, 110), 140, &out);
+  ASSERT_EQ(out.size(), 1u);
+  EXPECT_TRUE(out[0].complete());
+  EXPECT_EQ(out[0].trigger_id, 0);
+  EXPECT_EQ(out[0].spread_ns, 30);
+  // Trigger 1: camera 1 loses its frame; once camera 1 delivers trigger 2, set 1 cannot complete and
+  // goes out at once, incomplete, long before the timeout.
+  a.Add(MakeFrame(0, 1, 200), 200, &out);
+  a.Add(MakeFrame(2, 1, 201), 201, &out);
+  a.Add(MakeFrame(1, 2, 300), 300, &out);
+  ASSERT_EQ(out.size(), 2u);
+  EXPECT_FALSE(out[1].complete());
+  EXPECT_EQ(out[1].present(), 2);
+  EXPECT_EQ(a.counters().missing_per_camera[1], 1u);
+  // The lost frame turning up afterwards is late, counted, not merged.
+  EXPECT_FALSE(a.Add(MakeFrame(1, 1, 210), 310, &out));
+  EXPECT_EQ(a.counters().late_frames, 1u);
+  // A duplicate is refused.
+  EXPECT_FALSE(a.Add(MakeFrame(1, 2, 300), 320, &out));
+  EXPECT_EQ(a.counters().duplicate_frames, 1u);
+  a.Add(MakeFrame(0, 2, 300), 330, &out);
+  a.Add(MakeFrame(2, 2, 300), 340, &out);
+  ASSERT_EQ(out.size(), 3u);
+  EXPECT_TRUE(out[2].complete());
+  EXPECT_EQ(out[2].index, 2u);
+  EXPECT_EQ(a.counters().complete, 2u);
+  EXPECT_EQ(a.counters().incomplete, 1u);
+}
+
+TEST(FrameSetAssembler, ADeadCameraDelaysSetsByTheTimeoutOnly) {
+  FrameSetOptions o;
+  o.cameras = 2;
+  o.timeout_ns = 50;
+  FrameSetAssembler a(o);
+  std::vector<FrameSet> out;
+  for (int k = 0; k < 10; ++k) a.Add(MakeFrame(0, k, 100 * k), 100 * k, &out);
+  // Camera 1 never delivers: every set leaves incomplete once it has waited 50 ns.
+  a.Poll(100 * 9 + 50, &out);
+  ASSERT_EQ(out.size(), 10u);
+  for (int k = 0; k < 10; ++k) {
+    EXPECT_EQ(out[k].trigger_id, k);
+    EXPECT_FALSE(out[k].complete());
+  }
+  EXPECT_EQ(a.counters().missing_per_camera[1], 10u);
+  EXPECT_EQ(a.open_sets(), 0u);
+}
+
+TEST(FrameSetAssembler, MatchesTimestampsWithinTheToleranceAndBoundsMemory) {
+  FrameSetOptions o;
+  o.cameras = 2;
+  o.match = MatchBy::kTimestamp;
+  o.tolerance_ns = 1000;
+  o.max_open_sets = 4;
+  FrameSetAssembler a(o);
+  std::vector<FrameSet> out;
+  // Period 10000 ns, the second camera 700 ns behind.
+  for (int k = 0; k < 5; ++k) {
+    a.Add(MakeFrame(0, -1, 10000 * k), 10000 * k, &out);
+    a.Add(MakeFrame(1, -1, 10000 * k + 700), 10000 * k + 800, &out);
+  }
+  ASSERT_EQ(out.size(), 5u);
+  for (const auto& s : out) {
+    EXPECT_TRUE(s.complete());
+    EXPECT_EQ(s.spread_ns, 700);
+  }
+  // Camera 1 stops: no more than max_open_sets sets wait.
+  for (int k = 5; k < 20; ++k) a.Add(MakeFrame(0, -1, 10000 * k), 10000 * k, &out);
+  EXPECT_LE(a.open_sets(), 4u);
+  a.Flush(&out);
+  EXPECT_EQ(out.size(), 20u);
+  EXPECT_EQ(a.counters().incomplete, 15u);
+  EXPECT_THROW(a.Add(MakeFrame(7, -1, 0), 0, &out), std::invalid_argument);
+}
+
+CameraSettings Settings(double fps, TriggerMode mode = TriggerMode::kFreeRun) {
+  CameraSettings s;
+  s.width = 32;
+  s.height = 24;
+  s.frame_rate_hz = fps;
+  s.exposure_us = 1000;
+  s.trigger = mode;
+  return s;
+}
+
+TEST(SimCamera, FreeRunsAtItsRateWithDriftJitterAndAWrappingCounter) {
+  ManualClock clock(1'000'000'000);
+  SimCameraOptions o;
+  o.drift_ppm = 50;
+  o.jitter_ns = 20'000;
+  o.first_frame_id = 65530;
+  SimCamera cam(o, &clock, nullptr);
+  cam.Configure(Settings(100));
+  cam.Start(8);
+  std::vector<Frame> frames;
+  while (clock.MonotonicNs() < 2'000'000'000) {
+    auto f = cam.Pop(50'000'000);
+    if (f) frames.push_back(*f);
+  }
+  // One second at 100 fps.
+  EXPECT_NEAR(static_cast<double>(frames.size()), 100.0, 1.0);
+  for (std::size_t i = 1; i < frames.size(); ++i) {
+    EXPECT_EQ(frames[i].info.frame_id, frames[i - 1].info.frame_id + 1);  // across the wrap
+    const double dt = double(frames[i].info.device_timestamp_ns - frames[i - 1].info.device_timestamp_ns);
+    EXPECT_NEAR(dt, 1e7, 6 * 20'000 * 1.5);  // period +- jitter
+    EXPECT_GE(frames[i].info.host_monotonic_ns, frames[i - 1].info.host_monotonic_ns);
+  }
+  EXPECT_LT(frames.back().info.device_frame_id, 100u);  // it wrapped
+  // Drift: over the run the device clock gains 50 ppm on the host's.
+  const auto& a = frames.front().info;
+  const auto& b = frames.back().info;
+  const double host_span = double(b.device_timestamp_ns - a.device_timestamp_ns) / (1 + 50e-6);
+  EXPECT_NEAR(double(b.device_timestamp_ns - a.device_timestamp_ns) - host_span,
+              host_span * 50e-6, 1000);
+  // The bytes: the test pattern carries the camera and frame id.
+  ASSERT_EQ(frames[3].bytes(), 32u * 24u);
+  std::uint64_t id = 0;
+  for (int i = 0; i < 8; ++i) id |= std::uint64_t((*frames[3].data)[8 + i]) << (8 * i);
+  EXPECT_EQ(id, frames[3].info.frame_id);
+  EXPECT_EQ(cam.counters().missing_by_id, 0u);
+}
+
+TEST(SimCamera, DropsAreSeenInFrameIdsAndTimestampsAndDisconnectStopsFrames) {
+  ManualClock clock(0);
+  SimCameraOptions o;
+  o.drop_probability = 0.1;
+  o.disconnect_at_ns = 3'000'000'000;
+  o.seed = 5;
+  SimCamera cam(o, &clock, nullptr);
+  cam.Configure(Settings(200));
+  cam.Start(4);
+  int got = 0;
+  while (clock.MonotonicNs() < 4'000'000'000) {
+    if (cam.Pop(10'000'000)) ++got;
+  }
+  const StreamCounters c = cam.counters();
+  // About 600 exposures before the disconnect, 10% dropped; both detectors see every drop.
+  EXPECT_EQ(static_cast<std::uint64_t>(got) + c.missing_by_id, 600u);
+  EXPECT_NEAR(double(c.missing_by_id), 60.0, 25.0);
+  EXPECT_EQ(c.missing_by_time, c.missing_by_id);
+  EXPECT_FALSE(cam.connected());
+  EXPECT_FALSE(cam.Pop(100'000'000).has_value());
+}
+
+TEST(SimCamera, HardwareTriggerBusDrivesAllCamerasIntoCompleteSets) {
+  ManualClock clock(0);
+  SimTriggerBus bus;
+  std::vector<std::unique_ptr<SimCamera>> cams;
+  for (int c = 0; c < 3; ++c) {
+    SimCameraOptions o;
+    o.id = "sim" + std::to_string(c);
+    o.camera_index = c;
+    o.seed = 10 + c;
+    o.jitter_ns = 5000;
+    o.device_offset_ns = 1000 * c;
+    cams.push_back(std::make_unique<SimCamera>(o, &clock, &bus));
+    cams.back()->Configure(Settings(100, TriggerMode::kHardware));
+    cams.back()->Start(4);
+  }
+  for (int k = 0; k < 50; ++k) bus.Fire(k, 1'000'000 + 20'000'000LL * k);
+  FrameSetOptions fo;
+  fo.cameras = 3;
+  FrameSetAssembler assembler(fo);
+  std::vector<FrameSet> sets;
+  for (int round = 0; round < 600; ++round)  // 3 ms of clock per round at most
+    for (auto& cam : cams)
+      if (auto f = cam->Pop(1'000'000)) assembler.Add(*f, clock.MonotonicNs(), &sets);
+  assembler.Flush(&sets);
+  ASSERT_EQ(sets.size(), 50u);
+  for (int k = 0; k < 50; ++k) {
+    EXPECT_EQ(sets[k].trigger_id, k);
+    EXPECT_TRUE(sets[k].complete());
+    EXPECT_LT(sets[k].spread_ns, 2000 + 6 * 5000);  // offsets plus jitter
+  }
+  // A camera without a bus cannot be put on a hardware trigger.
+  SimCamera lone(SimCameraOptions{}, &clock, nullptr);
+  EXPECT_THROW(lone.Configure(Settings(100, TriggerMode::kHardware)), std::invalid_argument);
+}
+
+TEST(SimCamera, SoftwareTriggerAndBadSettings) {
+  ManualClock clock(0);
+  SimCamera cam(SimCameraOptions{}, &clock, nullptr);
+  cam.Configure(Settings(50, TriggerMode::kSoftware));
+  cam.Start(2);
+  EXPECT_FALSE(cam.Pop(100'000'000).has_value());  // no trigger, no frame
+  cam.SoftwareTrigger(7);
+  auto f = cam.Pop(100'000'000);
+  ASSERT_TRUE(f.has_value());
+  EXPECT_EQ(f->info.trigger_id, 7);
+  // Triggers faster than the maximum rate are ignored, as a real sensor would.
+  clock.Advance(50'000'000);
+  cam.SoftwareTrigger(8);
+  cam.SoftwareTrigger(9);
+  int frames = 0;
+  while (cam.Pop(50'000'000)) ++frames;
+  EXPECT_EQ(frames, 1);
+  cam.Stop();
+  CameraSettings bad = Settings(100);
+  bad.exposure_us = 20000;  // longer than the 10 ms period
+  EXPECT_THROW(cam.Configure(bad), std::invalid_argument);
+  bad = Settings(0);
+  EXPECT_THROW(cam.Configure(bad), std::invalid_argument);
+  SimCameraOptions wrong;
+  wrong.drop_probability = 2;
+  EXPECT_THROW(SimCamera(wrong, &clock, nullptr), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace flamerig
