@@ -209,6 +209,25 @@ struct FireRenderer::MarchCounters {
   std::int64_t hit = 0, early = 0, evaluated = 0, skipped = 0, after = 0;
 };
 
+RenderSummary FireRenderer::Summarise(std::chrono::steady_clock::time_point start,
+                                      std::int64_t rays, int bins,
+                                      const MarchCounters& totals) const {
+  RenderSummary summary;
+  summary.path_used = path_;
+  summary.path_reason = path_reason_;
+  summary.spectral_bins = bins;
+  summary.rays = rays;
+  summary.rays_hit_box = totals.hit;
+  summary.rays_terminated_early = totals.early;
+  summary.steps_evaluated = totals.evaluated;
+  summary.steps_skipped_empty = totals.skipped;
+  summary.steps_after_termination = totals.after;
+  summary.occupied_brick_fraction = occupied_brick_fraction_;
+  summary.time_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  return summary;
+}
+
 template <typename Real, typename Visit>
 void FireRenderer::MarchRay(const RayMarch& march, MarchCounters* c, Visit&& visit) const {
   const GridGeometry& g = geometry_;
@@ -359,20 +378,8 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
     after += c.after;
   });
 
-  RenderSummary summary;
-  summary.path_used = path_;
-  summary.path_reason = path_reason_;
-  summary.spectral_bins = nbins;
-  summary.rays = static_cast<std::int64_t>(width) * height;
-  summary.rays_hit_box = hit;
-  summary.rays_terminated_early = early;
-  summary.steps_evaluated = evaluated;
-  summary.steps_skipped_empty = skipped;
-  summary.steps_after_termination = after;
-  summary.occupied_brick_fraction = occupied_brick_fraction_;
-  summary.time_ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-  return summary;
+  return Summarise(start, static_cast<std::int64_t>(width) * height, nbins,
+                   MarchCounters{hit, early, evaluated, skipped, after});
 }
 
 template <typename Real>
@@ -585,20 +592,8 @@ RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays,
     }
   }
 
-  RenderSummary summary;
-  summary.path_used = path_;
-  summary.path_reason = path_reason_;
-  summary.spectral_bins = nbins;
-  summary.rays = static_cast<std::int64_t>(width) * height;
-  summary.rays_hit_box = hit;
-  summary.rays_terminated_early = early;
-  summary.steps_evaluated = evaluated;
-  summary.steps_skipped_empty = skipped;
-  summary.steps_after_termination = after;
-  summary.occupied_brick_fraction = occupied_brick_fraction_;
-  summary.time_ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-  return summary;
+  return Summarise(start, static_cast<std::int64_t>(width) * height, nbins,
+                   MarchCounters{hit, early, evaluated, skipped, after});
 }
 
 RenderSummary FireRenderer::RenderGradient(const CameraRays& rays, const ImageF& d_loss_d_rgb,

@@ -52,6 +52,7 @@
 #ifndef FLAMERIG_FITTING_RENDERER_H_
 #define FLAMERIG_FITTING_RENDERER_H_
 
+#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -144,6 +145,9 @@ class FireRenderer {
   // Marches one ray over the occupied bricks: visit(k, ds, corner[8], weight[8]) for every step
   // evaluated, until it returns false (early termination). Counts into the counters.
   struct MarchCounters;
+  // The summary of a render or gradient pass that started at `start`.
+  RenderSummary Summarise(std::chrono::steady_clock::time_point start, std::int64_t rays, int bins,
+                          const MarchCounters& totals) const;
   template <typename Real, typename Visit>
   void MarchRay(const RayMarch& march, MarchCounters* counters, Visit&& visit) const;
 
