@@ -8,7 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
-#include <map>
+#include <deque>
 #include <tuple>
 #include <random>
 #include <sstream>
@@ -236,7 +236,7 @@ void Resample(const State& from, const std::vector<float>& emission, const ThinE
 class SigmoidProblem : public ceres::FirstOrderFunction {
  public:
   SigmoidProblem(const FitObjective& objective, const FitOptions& options, int* evaluations,
-                 std::map<double, EnergyTerms>* seen)
+                 std::deque<std::pair<double, EnergyTerms>>* seen)
       : objective_(objective), options_(options), evaluations_(evaluations), seen_(seen) {
     m_ = objective.num_active();
     t_lo_ = options.objective.t_min_k;
@@ -280,8 +280,10 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
     }
     ++*evaluations_;
     *cost = terms.energy;
-    (*seen_)[terms.energy] = terms;
-    if (seen_->size() > 64) seen_->erase(seen_->begin());
+    // Ceres reports an iteration by its cost only; the callback finds the terms by it. Kept in
+    // evaluation order (the accepted iterate is one of the latest), bounded.
+    seen_->emplace_back(terms.energy, terms);
+    if (seen_->size() > 64) seen_->pop_front();
     if (gradient) {
       for (std::size_t a = 0; a < m_; ++a) {
         const double pt = Sigmoid(u[a]);
@@ -299,7 +301,7 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
   const FitObjective& objective_;
   const FitOptions& options_;
   int* evaluations_;
-  std::map<double, EnergyTerms>* seen_;
+  std::deque<std::pair<double, EnergyTerms>>* seen_;
   std::size_t m_ = 0;
   double t_lo_, t_span_, ln_n_lo_, ln_n_span_, ln_s_lo_, ln_s_span_;
 };
@@ -307,13 +309,15 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
 class TraceCallback : public ceres::IterationCallback {
  public:
   TraceCallback(Clock::time_point start, int level, const std::string& stage,
-                std::map<double, EnergyTerms>* seen, std::vector<FitTracePoint>* trace,
+                std::deque<std::pair<double, EnergyTerms>>* seen,
+                std::vector<FitTracePoint>* trace,
                 const FitProgressCallback& progress, double time_limit_s)
       : start_(start), level_(level), stage_(stage), seen_(seen), trace_(trace),
         progress_(progress), time_limit_s_(time_limit_s) {}
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override {
-    auto it = seen_->find(summary.cost);
-    if (it != seen_->end()) {
+    auto it = std::find_if(seen_->rbegin(), seen_->rend(),
+                           [&](const auto& e) { return e.first == summary.cost; });
+    if (it != seen_->rend()) {
       FitTracePoint p;
       p.seconds = Seconds(start_);
       p.energy = it->second.exact_energy();
@@ -340,7 +344,7 @@ class TraceCallback : public ceres::IterationCallback {
   Clock::time_point start_;
   int level_;
   std::string stage_;
-  std::map<double, EnergyTerms>* seen_;
+  std::deque<std::pair<double, EnergyTerms>>* seen_;
   std::vector<FitTracePoint>* trace_;
   const FitProgressCallback& progress_;
   double time_limit_s_;
@@ -415,7 +419,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     previous.s = warm_start->exposure;
     have_previous = !previous.active.empty();
   }
-  std::map<double, EnergyTerms> seen;
+  std::deque<std::pair<double, EnergyTerms>> seen;
   State st;
   for (std::size_t level = 0; level < levels.size(); ++level) {
     st = State();

@@ -48,6 +48,7 @@ commands:
   fit --rig RIG.yaml --images DIR --out F.vdb [--views CAM,CAM] [--holdout CAMERA]
       [--resolution N] [--tomography E.vdb] [--method fast|alg1|alg2] [--absorption soot|grey]
       [--exposure S] [--w-sm W] [--iterations N] [--time-limit S] [--report DIR] [--truth T.vdb]
+      [--coarse-to-fine]
         Fit temperature, density and exposure so that rendering reproduces the images: the fast
         fit (default) or the paper's Algorithm 1 or 2. The tomography is reconstructed from the
         fitted views unless given. Writes F.vdb (temperature, density; exposure in metadata) and a
@@ -361,7 +362,7 @@ int Benchmark(const Args& args) {
 int Fit(const Args& args) {
   args.CheckKnown({"rig", "images", "out", "views", "holdout", "resolution", "tomography",
                    "method", "absorption", "exposure", "w-sm", "time-limit", "iterations",
-                   "report", "truth", "seed"});
+                   "report", "truth", "seed", "coarse-to-fine"});
   const std::string rig_path = args.Required("rig");
   Rig rig = Rig::Load(rig_path);
   double exposure = 1.0;
@@ -444,6 +445,7 @@ int Fit(const Args& args) {
       options.iterations_finest = options.iterations_per_level =
           static_cast<int>(ParseNumber(args.Get("iterations", ""), "--iterations"));
     }
+    options.coarse_to_fine = args.named.count("coarse-to-fine") > 0;
     result = FastFit(grid, tomography, views, absorption, options, nullptr, progress);
   } else if (method == "alg1" || method == "alg2") {
     PaperFitOptions paper;
@@ -523,7 +525,7 @@ int main(int argc, char** argv) {
     if (command == "simulate") return Simulate(Args(argc, argv, 2, {}));
     if (command == "render") return Render(Args(argc, argv, 2, {}));
     if (command == "reconstruct") return Reconstruct(Args(argc, argv, 2, {"no-coarse"}));
-    if (command == "fit") return Fit(Args(argc, argv, 2, {}));
+    if (command == "fit") return Fit(Args(argc, argv, 2, {"coarse-to-fine"}));
     if (command == "benchmark") return Benchmark(Args(argc, argv, 2, {"quick"}));
     std::fprintf(stderr, "flamerig: unknown command '%s'\n\n%s", command.c_str(), kUsage);
     return 2;
