@@ -1,5 +1,9 @@
 #include "acquisition/frame.h"
 
+#include <opencv2/imgproc.hpp>
+
+#include <algorithm>
+#include <cstring>
 #include <limits>
 #include <stdexcept>
 
@@ -80,6 +84,49 @@ std::uint64_t FrameIdUnwrapper::Next(std::uint64_t device_id) {
   ++out_of_order_;
   const std::uint64_t behind = forward(device_id, last_device_);
   return behind <= last_unwrapped_ ? last_unwrapped_ - behind : 0;
+}
+
+int DecodeFrame(const Frame& frame, ImageU8* u8, ImageU16* u16) {
+  const FrameInfo& in = frame.info;
+  const std::size_t expect =
+      std::size_t(std::max(in.width, 0)) * std::max(in.height, 0) * BytesPerPixel(in.pixel_format);
+  if (in.width <= 0 || in.height <= 0 || frame.bytes() != expect) {
+    throw std::invalid_argument("camera " + std::to_string(in.camera) + " frame " +
+                                std::to_string(in.frame_id) + ": " +
+                                std::to_string(frame.bytes()) + " bytes for " +
+                                std::to_string(in.width) + "x" + std::to_string(in.height) + " " +
+                                ToString(in.pixel_format));
+  }
+  const std::uint8_t* p = frame.data->data();
+  *u8 = ImageU8();
+  *u16 = ImageU16();
+  switch (in.pixel_format) {
+    case PixelFormat::kMono8:
+      *u8 = ImageU8(in.width, in.height, 1);
+      std::copy(p, p + expect, u8->pixels.begin());
+      return 8;
+    case PixelFormat::kMono16:
+      *u16 = ImageU16(in.width, in.height, 1);
+      std::memcpy(u16->pixels.data(), p, expect);
+      return 16;
+    case PixelFormat::kRgb8:
+      *u8 = ImageU8(in.width, in.height, 3);
+      std::copy(p, p + expect, u8->pixels.begin());
+      return 8;
+    default: {
+      // OpenCV names a Bayer pattern by the second row's second and third pixels, GenICam by the
+      // first row's first two: GenICam RG is OpenCV BG, and so on.
+      int code = cv::COLOR_BayerBG2RGB;
+      if (in.pixel_format == PixelFormat::kBayerGr8) code = cv::COLOR_BayerGB2RGB;
+      if (in.pixel_format == PixelFormat::kBayerGb8) code = cv::COLOR_BayerGR2RGB;
+      if (in.pixel_format == PixelFormat::kBayerBg8) code = cv::COLOR_BayerRG2RGB;
+      const cv::Mat raw(in.height, in.width, CV_8UC1, const_cast<std::uint8_t*>(p));
+      *u8 = ImageU8(in.width, in.height, 3);
+      cv::Mat rgb(in.height, in.width, CV_8UC3, u8->pixels.data());
+      cv::cvtColor(raw, rgb, code);
+      return 8;
+    }
+  }
 }
 
 }  // namespace flamerig

@@ -13,6 +13,8 @@
 #include <string>
 #include <vector>
 
+#include "acquisition/image.h"
+
 namespace flamerig {
 
 enum class PixelFormat { kMono8, kMono16, kRgb8, kBayerRg8, kBayerGr8, kBayerGb8, kBayerBg8 };
@@ -51,6 +53,12 @@ struct Frame {
   std::shared_ptr<const std::vector<std::uint8_t>> data;
   std::size_t bytes() const { return data ? data->size() : 0; }
 };
+
+// A frame's pixels as an image: Mono8 -> 1 channel 8-bit, Mono16 -> 1 channel 16-bit, RGB8 -> RGB
+// 8-bit, Bayer 8-bit (GenICam names: BayerRG8 has R at (0,0)) -> RGB 8-bit by OpenCV's bilinear
+// demosaicing. Fills *u8 or *u16 and returns the bit depth (8 or 16). Throws std::invalid_argument
+// naming the camera and frame when the bytes do not match the size and format.
+int DecodeFrame(const Frame& frame, ImageU8* u8, ImageU16* u16);
 
 // Unwraps a device frame counter of `bits` bits (1..64) into 64 bits and counts gaps. The counter may
 // start anywhere, wraps from 2^bits - 1 to `wrap_to` (GigE Vision skips 0: wrap_to = 1).

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <unistd.h>
 
 #include "acquisition/image.h"
 #include "acquisition/srgb.h"
@@ -205,6 +206,58 @@ TEST(Cli, FitASimulatedFrameSet) {
   Result nocam = Flamerig("fit --rig " + rig + " --images " + images + " --out x.vdb --views cam9");
   EXPECT_EQ(nocam.status, 1);
   EXPECT_NE(nocam.output.find("cam9"), std::string::npos) << nocam.output;
+  fs::remove_all(dir);
+}
+
+}  // namespace
+
+namespace {
+
+// The capture daemon from the command line: record for a second from simulated cameras while `ctl`
+// asks for the status from another process, then export the recording as PNG frame sets.
+TEST(Cli, CaptureCtlAndExport) {
+  fs::path dir = TempDir();
+  std::ofstream(dir / "rig.yaml") << "data_dir: " << (dir / "rec").string()
+                                  << "\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
+                                     "  - {name: left, width: 64, height: 48}\n"
+                                     "  - {name: right, width: 64, height: 48, pixel_format: "
+                                     "BayerRG8}\n";
+  const std::string config = (dir / "rig.yaml").string();
+  FILE* daemon = popen((std::string(FLAMERIG_BINARY) + " capture --config " + config +
+                        " --record take --duration 1.5 2>&1")
+                           .c_str(),
+                       "r");
+  ASSERT_NE(daemon, nullptr);
+  Result status{1, ""};
+  for (int tries = 0; tries < 50 && status.status != 0; ++tries) {
+    usleep(50'000);
+    status = Flamerig("ctl --config " + config + " status");
+  }
+  std::string log;
+  std::array<char, 4096> buffer;
+  while (fgets(buffer.data(), buffer.size(), daemon)) log += buffer.data();
+  EXPECT_EQ(pclose(daemon), 0) << log;
+  EXPECT_EQ(status.status, 0) << status.output;
+  EXPECT_NE(status.output.find("recording: true"), std::string::npos) << status.output;
+  EXPECT_NE(log.find("frame sets recorded"), std::string::npos) << log;
+
+  const Result ex = Flamerig("export --recording " + (dir / "rec" / "take").string() + " --out " +
+                             (dir / "png").string());
+  ASSERT_EQ(ex.status, 0) << ex.output;
+  EXPECT_TRUE(fs::exists(dir / "png" / "sets.csv"));
+  const flamerig::ImageU8 left = flamerig::ReadImageU8((dir / "png" / "frame_000005" / "left.png").string());
+  const flamerig::ImageU8 right = flamerig::ReadImageU8((dir / "png" / "frame_000005" / "right.png").string());
+  EXPECT_EQ(left.width, 64);
+  EXPECT_EQ(left.channels, 1);
+  EXPECT_EQ(right.channels, 3);  // Bayer, demosaiced
+  std::size_t sets = 0;
+  for (const auto& e : fs::directory_iterator(dir / "png")) sets += e.is_directory();
+  EXPECT_GE(sets, 20u);  // 20 Hz for about 1.5 s
+  EXPECT_LE(sets, 31u);
+  // A missing daemon and a bad request are clear errors.
+  const Result gone = Flamerig("ctl --endpoint unix:" + (dir / "none.sock").string() + " status");
+  EXPECT_EQ(gone.status, 1);
+  EXPECT_NE(gone.output.find("is `flamerig capture` running?"), std::string::npos) << gone.output;
   fs::remove_all(dir);
 }
 

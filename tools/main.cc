@@ -1,8 +1,13 @@
 // flamerig: one binary, subcommands. Run `flamerig help` for the list.
+#include <signal.h>
 #include <tbb/global_control.h>
 
 #include <yaml-cpp/yaml.h>
+#include <atomic>
+#include <chrono>
 #include <cmath>
+#include <fstream>
+#include <thread>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -14,12 +19,16 @@
 #include <string>
 #include <vector>
 
+#include "acquisition/capture.h"
+#include "acquisition/control.h"
+#include "acquisition/recording.h"
 #include "acquisition/srgb.h"
 #include "fitting/renderer.h"
 #include "tomography/reconstruct.h"
 #include "tomography/vdb_io.h"
 #include "fitting/fit.h"
 #include "tools/benchmark.h"
+#include "tools/export.h"
 #include "tools/fit_report.h"
 #include "tools/simulate.h"
 
@@ -53,6 +62,17 @@ commands:
         fit (default) or the paper's Algorithm 1 or 2. The tomography is reconstructed from the
         fitted views unless given. Writes F.vdb (temperature, density; exposure in metadata) and a
         report (input, rendered and Delta E images per view and held-out view, error against time).
+  capture --config RIG.yaml [--record NAME | --event NAME] [--duration S]
+        Run the capture daemon: open the cameras of the config (see config/capture_sim.yaml),
+        stream, assemble frame sets and serve the control API (`flamerig ctl`). --record starts
+        recording into data_dir/NAME at once; --event saves the pre-trigger ring first;
+        --duration stops after S seconds (else: Ctrl-C or `flamerig ctl shutdown`).
+  ctl [--config RIG.yaml | --endpoint unix:PATH|tcp:HOST:PORT] REQUEST... [--out FILE]
+        Talk to a running daemon: status, cameras, start NAME, stop, event NAME,
+        preview CAMERA [K] (PNG to --out), shutdown.
+  export --recording DIR --out DIR [--first N] [--count N]
+        Write a recording's frame sets as DIR/frame_NNNNNN/<camera>.png (the layout reconstruct
+        and fit read) and DIR/sets.csv; reports what a recovered recording left out.
   benchmark render|tomography|fit [--out BENCHMARKS.md] [--quick] [--figures DIR]
         Time the forward renderer, the tomography or the fit (ours against the paper's
         Algorithm 2) against its error and write the figures to BENCHMARKS.md, plots to
@@ -512,6 +532,121 @@ int Fit(const Args& args) {
   return 0;
 }
 
+
+std::atomic<bool> g_interrupted{false};
+void OnSignal(int) { g_interrupted = true; }
+
+int Capture(const Args& args) {
+  args.CheckKnown({"config", "record", "event", "duration"});
+  const CaptureConfig config = CaptureConfig::Load(args.Required("config"));
+  fs::create_directories(config.data_dir);
+  SystemClock clock;
+  SimTriggerBus bus;
+  CaptureDaemon daemon(config, MakeCameras(config, &clock, &bus), &clock, &bus);
+  daemon.Start();
+  ControlServer server(&daemon, config.control, config.allow_remote);
+  std::fprintf(stderr, "capture: %zu camera(s), %s, control at %s\n", config.cameras.size(),
+               ToString(config.sync), config.control.c_str());
+  const double duration = args.named.count("duration")
+                              ? ParseNumber(args.Get("duration", ""), "--duration")
+                              : -1;
+  if (args.named.count("record") && args.named.count("event"))
+    throw std::invalid_argument("--record and --event: give one");
+  if (args.named.count("event") && config.pretrigger_seconds > 0) {
+    // Let the ring fill before the event.
+    std::this_thread::sleep_for(std::chrono::duration<double>(config.pretrigger_seconds));
+  }
+  if (args.named.count("record"))
+    std::fprintf(stderr, "capture: recording into %s\n",
+                 daemon.StartRecording(args.Get("record", "")).c_str());
+  if (args.named.count("event"))
+    std::fprintf(stderr, "capture: event, recording into %s\n",
+                 daemon.TriggerEvent(args.Get("event", "")).c_str());
+  ::signal(SIGINT, OnSignal);
+  ::signal(SIGTERM, OnSignal);
+  const auto start = std::chrono::steady_clock::now();
+  auto elapsed = [&] {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  };
+  double last_line = 0;
+  while (!g_interrupted && !server.shutdown_requested() && (duration < 0 || elapsed() < duration)) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    if (elapsed() - last_line >= 1.0) {
+      last_line = elapsed();
+      const CaptureStatus s = daemon.status();
+      std::string fps;
+      for (const auto& c : s.cameras) {
+        char b[64];
+        std::snprintf(b, sizeof b, " %s %.0f fps%s", c.name.c_str(), c.fps,
+                      c.connected ? "" : " (gone)");
+        fps += b;
+      }
+      std::fprintf(stderr, "\r%6.1f s:%s | sets %llu (%llu incomplete) | recorded %llu, dropped %llu, backlog %.0f MB   ",
+                   elapsed(), fps.c_str(), (unsigned long long)s.sets.sets,
+                   (unsigned long long)s.sets.incomplete,
+                   (unsigned long long)s.recorder.sets_recorded,
+                   (unsigned long long)s.recorder.sets_dropped, s.recorder.queued_bytes / 1048576.0);
+      std::fflush(stderr);
+      if (s.recorder.stopped && s.recording) {
+        std::fprintf(stderr, "\ncapture: %s\n", s.recorder.error.c_str());
+        daemon.StopRecording();
+      }
+    }
+  }
+  std::fprintf(stderr, "\n");
+  const CaptureStatus s = daemon.status();
+  if (s.recording) {
+    const RecorderStatus r = daemon.StopRecording();
+    std::fprintf(stderr, "capture: %s: %llu frame sets recorded, %llu dropped%s%s\n",
+                 s.recording_dir.c_str(), (unsigned long long)r.sets_recorded,
+                 (unsigned long long)r.sets_dropped, r.error.empty() ? "" : "; ", r.error.c_str());
+  }
+  daemon.Stop();
+  return 0;
+}
+
+int Ctl(const Args& args) {
+  args.CheckKnown({"config", "endpoint", "out"});
+  std::string endpoint = args.Get("endpoint", "");
+  if (endpoint.empty()) endpoint = CaptureConfig::Load(args.Required("config")).control;
+  if (args.positional.empty()) throw std::invalid_argument("ctl: give a request (status, ...)");
+  std::string line;
+  for (const auto& w : args.positional) line += (line.empty() ? "" : " ") + w;
+  const ControlReply r = ControlRequest(endpoint, line);
+  if (!r.ok) {
+    std::fprintf(stderr, "flamerig ctl: the daemon says: %s", r.body.c_str());
+    return 1;
+  }
+  if (args.named.count("out")) {
+    std::ofstream out(args.Get("out", ""), std::ios::binary);
+    out << r.body;
+    if (!out) throw std::runtime_error("cannot write " + args.Get("out", ""));
+  } else {
+    std::fwrite(r.body.data(), 1, r.body.size(), stdout);
+  }
+  return 0;
+}
+
+int Export(const Args& args) {
+  args.CheckKnown({"recording", "out", "first", "count"});
+  ExportOptions o;
+  if (args.named.count("first"))
+    o.first = static_cast<std::size_t>(ParseNumber(args.Get("first", ""), "--first"));
+  if (args.named.count("count"))
+    o.count = static_cast<std::size_t>(ParseNumber(args.Get("count", ""), "--count"));
+  const Recording rec = Recording::Open(args.Required("recording"));
+  for (const auto& note : rec.recovery().notes)
+    std::fprintf(stderr, "export: recovered recording: %s\n", note.c_str());
+  const ExportSummary s = ExportRecording(args.Required("recording"), args.Required("out"), o,
+                                          [](std::size_t done, std::size_t total) {
+                                            ProgressBar("export", static_cast<int>(done),
+                                                        static_cast<int>(total));
+                                          });
+  std::fprintf(stderr, "export: %zu frame sets, %zu images, %zu camera frames missing\n", s.sets,
+               s.images, s.missing_frames);
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -527,6 +662,9 @@ int main(int argc, char** argv) {
     if (command == "reconstruct") return Reconstruct(Args(argc, argv, 2, {"no-coarse"}));
     if (command == "fit") return Fit(Args(argc, argv, 2, {"coarse-to-fine"}));
     if (command == "benchmark") return Benchmark(Args(argc, argv, 2, {"quick"}));
+    if (command == "capture") return Capture(Args(argc, argv, 2, {}));
+    if (command == "ctl") return Ctl(Args(argc, argv, 2, {}));
+    if (command == "export") return Export(Args(argc, argv, 2, {}));
     std::fprintf(stderr, "flamerig: unknown command '%s'\n\n%s", command.c_str(), kUsage);
     return 2;
   } catch (const std::exception& e) {

@@ -1,0 +1,550 @@
+#include "acquisition/capture.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+namespace flamerig {
+
+namespace fs = std::filesystem;
+
+const char* ToString(SyncMode mode) {
+  switch (mode) {
+    case SyncMode::kHardwareTrigger: return "hardware-trigger";
+    case SyncMode::kSoftwareTrigger: return "software-trigger";
+    case SyncMode::kFreeRun: return "free-run";
+    case SyncMode::kPtp: return "ptp";
+  }
+  return "?";
+}
+
+SyncMode SyncModeFromName(const std::string& name) {
+  for (SyncMode m : {SyncMode::kHardwareTrigger, SyncMode::kSoftwareTrigger, SyncMode::kFreeRun,
+                     SyncMode::kPtp})
+    if (name == ToString(m)) return m;
+  throw std::invalid_argument("sync '" + name +
+                              "': use hardware-trigger, software-trigger, free-run or ptp");
+}
+
+namespace {
+
+// Typed access with errors that name the file, the key and the problem.
+class ConfigReader {
+ public:
+  ConfigReader(const YAML::Node& node, std::string where) : node_(node), where_(std::move(where)) {}
+  template <typename T>
+  T Get(const std::string& key, T fallback) {
+    seen_.insert(key);
+    const YAML::Node v = node_[key];
+    if (!v) return fallback;
+    try {
+      return v.as<T>();
+    } catch (const YAML::Exception&) {
+      throw std::invalid_argument(where_ + ": '" + key + "' has a value of the wrong type");
+    }
+  }
+  double Positive(const std::string& key, double fallback) {
+    const double v = Get<double>(key, fallback);
+    if (!(v > 0) || !std::isfinite(v))
+      throw std::invalid_argument(where_ + ": '" + key + "' must be a positive number");
+    return v;
+  }
+  double NonNegative(const std::string& key, double fallback) {
+    const double v = Get<double>(key, fallback);
+    if (!(v >= 0) || !std::isfinite(v))
+      throw std::invalid_argument(where_ + ": '" + key + "' must be >= 0");
+    return v;
+  }
+  void Seen(const std::string& key) { seen_.insert(key); }
+  // Unknown keys are errors: a typo must not silently fall back to a default.
+  void CheckKnown() const {
+    for (const auto& kv : node_) {
+      const std::string k = kv.first.as<std::string>();
+      if (!seen_.count(k)) throw std::invalid_argument(where_ + ": unknown key '" + k + "'");
+    }
+  }
+  const std::string& where() const { return where_; }
+
+ private:
+  YAML::Node node_;
+  std::string where_;
+  std::set<std::string> seen_;
+};
+
+}  // namespace
+
+CaptureConfig CaptureConfig::Load(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw std::invalid_argument("capture config " + path + ": cannot be read");
+  std::stringstream s;
+  s << in.rdbuf();
+  return Parse(s.str(), path);
+}
+
+CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& where) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    throw std::invalid_argument(where + ": not valid YAML: " + e.what());
+  }
+  if (!root.IsMap()) throw std::invalid_argument(where + ": expected a mapping of settings");
+  CaptureConfig c;
+  c.source_yaml = text;
+  ConfigReader r(root, where);
+  c.data_dir = r.Get<std::string>("data_dir", c.data_dir);
+  c.sync = SyncModeFromName(r.Get<std::string>("sync", ToString(c.sync)));
+  c.trigger_rate_hz = r.Positive("trigger_rate_hz", c.trigger_rate_hz);
+  c.match_tolerance_ns = static_cast<std::int64_t>(r.Positive("match_tolerance_ms", 2) * 1e6);
+  c.set_timeout_ns = static_cast<std::int64_t>(r.Positive("set_timeout_ms", 200) * 1e6);
+  c.buffers = static_cast<int>(r.Positive("buffers", c.buffers));
+  c.pretrigger_seconds = r.NonNegative("pretrigger_seconds", c.pretrigger_seconds);
+  c.pretrigger_max_bytes =
+      static_cast<std::uint64_t>(r.NonNegative("pretrigger_max_mb", 256) * (1 << 20));
+  c.recorder.max_queued_bytes = static_cast<std::uint64_t>(r.Positive("queue_mb", 512) * (1 << 20));
+  c.recorder.min_free_bytes = static_cast<std::uint64_t>(r.NonNegative("min_free_mb", 64) * (1 << 20));
+  c.recorder.sync_interval_s = r.NonNegative("sync_interval_s", c.recorder.sync_interval_s);
+  c.recorder.max_bytes = static_cast<std::uint64_t>(r.NonNegative("max_recording_mb", 0) * (1 << 20));
+  c.control = r.Get<std::string>("control", "");
+  c.allow_remote = r.Get<bool>("allow_remote", false);
+  r.Seen("cameras");
+  r.CheckKnown();
+  const YAML::Node cams = root["cameras"];
+  if (!cams || !cams.IsSequence() || cams.size() == 0)
+    throw std::invalid_argument(where + ": 'cameras' must list at least one camera");
+  std::set<std::string> names;
+  for (std::size_t i = 0; i < cams.size(); ++i) {
+    const std::string at = where + ": cameras[" + std::to_string(i) + "]";
+    if (!cams[i].IsMap()) throw std::invalid_argument(at + ": expected a mapping");
+    ConfigReader cr(cams[i], at);
+    CaptureCameraConfig cc;
+    cc.name = cr.Get<std::string>("name", "cam" + std::to_string(i));
+    if (!names.insert(cc.name).second)
+      throw std::invalid_argument(at + ": camera name '" + cc.name + "' is used twice");
+    cc.driver = cr.Get<std::string>("driver", "sim");
+    if (cc.driver != "sim" && cc.driver != "aravis" && cc.driver != "v4l2")
+      throw std::invalid_argument(at + ": driver '" + cc.driver + "': use sim, aravis or v4l2");
+    cc.id = cr.Get<std::string>("id", cc.driver == "sim" ? "SIM" + std::to_string(i) : "");
+    if (cc.id.empty()) throw std::invalid_argument(at + ": 'id' (serial, address or device) is required");
+    CameraSettings& s = cc.settings;
+    s.width = static_cast<int>(cr.Positive("width", s.width));
+    s.height = static_cast<int>(cr.Positive("height", s.height));
+    try {
+      s.pixel_format = PixelFormatFromName(cr.Get<std::string>("pixel_format", "Mono8"));
+    } catch (const std::invalid_argument& e) {
+      throw std::invalid_argument(at + ": " + e.what());
+    }
+    // Free-run: the rate. Triggered: the camera's maximum rate, which must leave room for the
+    // trigger's timing jitter (a camera ignores a trigger that comes before it is ready).
+    const bool triggered = c.sync == SyncMode::kHardwareTrigger || c.sync == SyncMode::kSoftwareTrigger;
+    s.frame_rate_hz = cr.Positive("frame_rate_hz", triggered ? 2 * c.trigger_rate_hz : c.trigger_rate_hz);
+    if (triggered && s.frame_rate_hz < 1.1 * c.trigger_rate_hz) {
+      throw std::invalid_argument(at + ": frame_rate_hz " + std::to_string(s.frame_rate_hz) +
+                                  " (the camera's maximum rate when triggered) must be at least "
+                                  "1.1 x trigger_rate_hz, or it will ignore triggers");
+    }
+    s.exposure_us = cr.Positive("exposure_us", s.exposure_us);
+    s.gain_db = cr.Get<double>("gain_db", s.gain_db);
+    s.trigger_source = cr.Get<std::string>("trigger_source", s.trigger_source);
+    s.packet_size = static_cast<int>(cr.NonNegative("packet_size", 0));
+    s.trigger = c.sync == SyncMode::kHardwareTrigger   ? TriggerMode::kHardware
+                : c.sync == SyncMode::kSoftwareTrigger ? TriggerMode::kSoftware
+                                                       : TriggerMode::kFreeRun;
+    try {
+      s.Validate();
+    } catch (const std::invalid_argument& e) {
+      throw std::invalid_argument(at + ": " + e.what());
+    }
+    cc.sim.id = cc.id;
+    cc.sim.camera_index = static_cast<int>(i);
+    cc.sim.seed = i + 1;
+    cr.Seen("sim");
+    cr.CheckKnown();
+    if (const YAML::Node sim = cams[i]["sim"]) {
+      if (cc.driver != "sim") throw std::invalid_argument(at + ": 'sim' is for driver sim only");
+      ConfigReader sr(sim, at + ".sim");
+      cc.sim.seed = static_cast<std::uint64_t>(sr.NonNegative("seed", double(cc.sim.seed)));
+      cc.sim.drop_probability = sr.NonNegative("drop_probability", 0);
+      cc.sim.late_probability = sr.NonNegative("late_probability", 0);
+      cc.sim.incomplete_probability = sr.NonNegative("incomplete_probability", 0);
+      cc.sim.jitter_ns = static_cast<std::int64_t>(sr.NonNegative("jitter_us", 0) * 1e3);
+      cc.sim.drift_ppm = sr.Get<double>("drift_ppm", 0);
+      const double d = sr.Get<double>("disconnect_at_s", -1), re = sr.Get<double>("reconnect_at_s", -1);
+      cc.sim.disconnect_at_ns = d < 0 ? -1 : static_cast<std::int64_t>(d * 1e9);
+      cc.sim.reconnect_at_ns = re < 0 ? -1 : static_cast<std::int64_t>(re * 1e9);
+      for (double p : {cc.sim.drop_probability, cc.sim.late_probability,
+                       cc.sim.incomplete_probability})
+        if (p > 1) throw std::invalid_argument(at + ".sim: probabilities must be in [0, 1]");
+      sr.CheckKnown();
+    }
+    c.cameras.push_back(cc);
+  }
+  if (c.control.empty()) c.control = "unix:" + (fs::path(c.data_dir) / "control.sock").string();
+  return c;
+}
+
+FrameSetOptions CaptureConfig::AssemblerOptions() const {
+  FrameSetOptions o;
+  o.cameras = static_cast<int>(cameras.size());
+  const bool by_trigger = sync == SyncMode::kHardwareTrigger || sync == SyncMode::kSoftwareTrigger;
+  o.match = by_trigger ? MatchBy::kTriggerId : MatchBy::kTimestamp;
+  // PTP cameras share a clock: match their own timestamps. Free-run cameras' clocks are unrelated:
+  // match the host's receive times.
+  o.timestamp = sync == SyncMode::kPtp ? TimestampSource::kDevice : TimestampSource::kHostMonotonic;
+  o.tolerance_ns = match_tolerance_ns;
+  o.timeout_ns = set_timeout_ns;
+  return o;
+}
+
+std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config, Clock* clock,
+                                                 SimTriggerBus* bus) {
+  std::vector<std::unique_ptr<Camera>> cameras;
+  for (const auto& c : config.cameras) {
+    if (c.driver == "sim") {
+      // The config's disconnect times count from now.
+      SimCameraOptions o = c.sim;
+      const std::int64_t now = clock->MonotonicNs();
+      if (o.disconnect_at_ns >= 0) o.disconnect_at_ns += now;
+      if (o.reconnect_at_ns >= 0) o.reconnect_at_ns += now;
+      cameras.push_back(std::make_unique<SimCamera>(o, clock, bus));
+    } else {
+      throw std::runtime_error("camera '" + c.name + "': the " + c.driver +
+                               " driver is not built into this flamerig yet");
+    }
+  }
+  return cameras;
+}
+
+std::string CaptureStatus::ToYaml() const {
+  YAML::Emitter out;
+  out << YAML::BeginMap;
+  out << YAML::Key << "running" << YAML::Value << running;
+  out << YAML::Key << "recording" << YAML::Value << recording;
+  out << YAML::Key << "recording_dir" << YAML::Value << recording_dir;
+  out << YAML::Key << "cameras" << YAML::Value << YAML::BeginSeq;
+  for (const auto& c : cameras) {
+    out << YAML::BeginMap;
+    out << YAML::Key << "name" << YAML::Value << c.name;
+    out << YAML::Key << "id" << YAML::Value << c.id;
+    out << YAML::Key << "connected" << YAML::Value << c.connected;
+    out << YAML::Key << "fps" << YAML::Value << c.fps;
+    out << YAML::Key << "megabytes_per_s" << YAML::Value << c.megabytes_per_s;
+    out << YAML::Key << "frames" << YAML::Value << c.frames;
+    out << YAML::Key << "incomplete" << YAML::Value << c.stream.incomplete;
+    out << YAML::Key << "missing_by_frame_id" << YAML::Value << c.stream.missing_by_id;
+    out << YAML::Key << "missing_by_timestamp" << YAML::Value << c.stream.missing_by_time;
+    out << YAML::Key << "underruns" << YAML::Value << c.stream.underruns;
+    out << YAML::EndMap;
+  }
+  out << YAML::EndSeq;
+  out << YAML::Key << "frame_sets" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "total" << YAML::Value << sets.sets;
+  out << YAML::Key << "complete" << YAML::Value << sets.complete;
+  out << YAML::Key << "incomplete" << YAML::Value << sets.incomplete;
+  out << YAML::Key << "late_frames" << YAML::Value << sets.late_frames;
+  out << YAML::Key << "max_spread_ms" << YAML::Value << sets.max_spread_ns / 1e6;
+  out << YAML::EndMap;
+  out << YAML::Key << "recorder" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "sets_recorded" << YAML::Value << recorder.sets_recorded;
+  out << YAML::Key << "sets_dropped" << YAML::Value << recorder.sets_dropped;
+  out << YAML::Key << "megabytes_written" << YAML::Value << recorder.bytes_written / 1048576.0;
+  out << YAML::Key << "disk_backlog_mb" << YAML::Value << recorder.queued_bytes / 1048576.0;
+  out << YAML::Key << "queue_fill" << YAML::Value
+      << (recorder.max_queued_bytes ? double(recorder.queued_bytes) / recorder.max_queued_bytes : 0.0);
+  out << YAML::Key << "error" << YAML::Value << recorder.error;
+  out << YAML::EndMap;
+  out << YAML::Key << "incoming_queue" << YAML::Value << YAML::Flow << YAML::BeginSeq
+      << incoming_queued << incoming_capacity << YAML::EndSeq;
+  out << YAML::Key << "incoming_dropped" << YAML::Value << incoming_dropped;
+  out << YAML::Key << "trigger_overruns" << YAML::Value << trigger_overruns;
+  out << YAML::Key << "pretrigger_ring" << YAML::Value << YAML::Flow << YAML::BeginMap
+      << YAML::Key << "sets" << YAML::Value << ring_sets << YAML::Key << "megabytes"
+      << YAML::Value << ring_bytes / 1048576.0 << YAML::EndMap;
+  out << YAML::EndMap;
+  return std::string(out.c_str()) + "\n";
+}
+
+// ---------------------------------------------------------------------------------------------
+
+struct CaptureDaemon::CameraState {
+  mutable std::mutex mutex;
+  CameraLiveStatus live;
+  std::deque<std::pair<std::int64_t, std::uint64_t>> recent;  // (receive time, bytes), last 1 s
+};
+
+CaptureDaemon::CaptureDaemon(const CaptureConfig& config,
+                             std::vector<std::unique_ptr<Camera>> cameras, Clock* clock,
+                             SimTriggerBus* bus)
+    : config_(config),
+      cameras_(std::move(cameras)),
+      clock_(clock),
+      bus_(bus),
+      assembler_(config.AssemblerOptions()) {
+  if (cameras_.size() != config_.cameras.size())
+    throw std::invalid_argument("capture: the config lists " + std::to_string(config_.cameras.size()) +
+                                " cameras, " + std::to_string(cameras_.size()) + " were given");
+  for (std::size_t c = 0; c < cameras_.size(); ++c) {
+    auto s = std::make_unique<CameraState>();
+    s->live.name = config_.cameras[c].name;
+    s->live.id = config_.cameras[c].id;
+    camera_state_.push_back(std::move(s));
+  }
+  incoming_capacity_ = std::max<std::size_t>(64, 4 * cameras_.size() * config_.buffers);
+  // The ring is flushed into a new recording at once: its queue must hold it.
+  config_.recorder.max_queued_bytes =
+      std::max<std::uint64_t>(config_.recorder.max_queued_bytes,
+                              config_.pretrigger_max_bytes + (std::uint64_t(64) << 20));
+}
+
+CaptureDaemon::~CaptureDaemon() {
+  try {
+    Stop();
+  } catch (...) {
+  }
+}
+
+void CaptureDaemon::Start() {
+  if (running_) return;
+  for (std::size_t c = 0; c < cameras_.size(); ++c) {
+    try {
+      cameras_[c]->Configure(config_.cameras[c].settings);
+      cameras_[c]->Start(config_.buffers);
+    } catch (const std::exception& e) {
+      for (std::size_t k = 0; k < c; ++k) cameras_[k]->Stop();
+      throw std::runtime_error("capture: camera '" + config_.cameras[c].name + "' (" +
+                               config_.cameras[c].id + "): " + e.what());
+    }
+  }
+  running_ = true;
+  for (std::size_t c = 0; c < cameras_.size(); ++c)
+    threads_.emplace_back([this, c] { CameraLoop(static_cast<int>(c)); });
+  threads_.emplace_back([this] { AssemblerLoop(); });
+  if (config_.sync == SyncMode::kSoftwareTrigger ||
+      (config_.sync == SyncMode::kHardwareTrigger && bus_ != nullptr))
+    threads_.emplace_back([this] { TriggerLoop(); });
+}
+
+void CaptureDaemon::Stop() {
+  if (!running_.exchange(false)) return;
+  incoming_cv_.notify_all();
+  for (auto& t : threads_) t.join();
+  threads_.clear();
+  for (auto& c : cameras_) c->Stop();
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  std::vector<FrameSet> ready;
+  assembler_.Flush(&ready);
+  Deliver(&ready);
+  if (recorder_) {
+    last_recorder_status_ = recorder_->Close();
+    recorder_.reset();
+  }
+}
+
+void CaptureDaemon::CameraLoop(int camera) {
+  Camera& cam = *cameras_[camera];
+  CameraState& st = *camera_state_[camera];
+  const std::int64_t timeout = 100'000'000;  // wake up at least 10 times a second to see Stop
+  while (running_) {
+    std::optional<Frame> f = cam.Pop(timeout);
+    const std::int64_t now = clock_->MonotonicNs();
+    {
+      std::lock_guard<std::mutex> lock(st.mutex);
+      st.live.connected = cam.connected();
+      st.live.stream = cam.counters();
+      if (f) {
+        ++st.live.frames;
+        st.recent.emplace_back(now, f->bytes());
+      }
+      while (!st.recent.empty() && st.recent.front().first < now - 1'000'000'000)
+        st.recent.pop_front();
+    }
+    if (!f) continue;
+    f->info.camera = camera;
+    std::lock_guard<std::mutex> lock(incoming_mutex_);
+    if (incoming_.size() >= incoming_capacity_) {
+      ++incoming_dropped_;  // the assembler is behind: drop, count, never wait
+      continue;
+    }
+    incoming_.push_back(std::move(*f));
+    incoming_cv_.notify_one();
+  }
+}
+
+void CaptureDaemon::TriggerLoop() {
+  const auto period = static_cast<std::int64_t>(1e9 / config_.trigger_rate_hz);
+  std::int64_t next = clock_->MonotonicNs() + period;
+  for (std::int64_t id = 1; running_; ++id) {
+    // Sleep in short steps so that Stop is seen quickly.
+    while (running_ && clock_->MonotonicNs() < next)
+      clock_->SleepUntil(std::min(next, clock_->MonotonicNs() + 50'000'000));
+    if (!running_) break;
+    const std::int64_t now = clock_->MonotonicNs();
+    if (config_.sync == SyncMode::kHardwareTrigger && bus_) {
+      bus_->Fire(id, now);  // the simulated trigger line
+    } else {
+      for (auto& c : cameras_) c->SoftwareTrigger(id);
+    }
+    // Never two triggers closer than 3/4 of a period: after a late one (this thread was not
+    // scheduled in time), the schedule restarts from it, and the lost slot is counted. A camera
+    // would ignore a trigger that comes before it is ready, and its set would be lost.
+    next += period;
+    if (next - now < 3 * period / 4) {
+      next = now + period;
+      ++trigger_overruns_;
+    }
+  }
+}
+
+void CaptureDaemon::AssemblerLoop() {
+  std::vector<Frame> batch;
+  while (running_) {
+    {
+      std::unique_lock<std::mutex> lock(incoming_mutex_);
+      incoming_cv_.wait_for(lock, std::chrono::milliseconds(20),
+                            [&] { return !incoming_.empty() || !running_; });
+      batch.assign(std::make_move_iterator(incoming_.begin()),
+                   std::make_move_iterator(incoming_.end()));
+      incoming_.clear();
+    }
+    std::vector<FrameSet> ready;
+    const std::int64_t now = clock_->MonotonicNs();
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    for (Frame& f : batch) assembler_.Add(std::move(f), now, &ready);
+    batch.clear();
+    assembler_.Poll(now, &ready);
+    Deliver(&ready);
+  }
+}
+
+void CaptureDaemon::Deliver(std::vector<FrameSet>* ready) {
+  set_counters_ = assembler_.counters();
+  for (FrameSet& set : *ready) {
+    if (recorder_) recorder_->Submit(set);
+    std::uint64_t bytes = 0;
+    for (const auto& f : set.frames)
+      if (f) bytes += f->bytes();
+    auto shared = std::make_shared<const FrameSet>(set);
+    latest_ = shared;
+    if (config_.pretrigger_seconds > 0) {
+      ring_.push_back(std::move(set));
+      ring_bytes_ += bytes;
+      const std::int64_t window = static_cast<std::int64_t>(config_.pretrigger_seconds * 1e9);
+      while (!ring_.empty() &&
+             (ring_bytes_ > config_.pretrigger_max_bytes ||
+              ring_.back().reference_ns - ring_.front().reference_ns > window)) {
+        for (const auto& f : ring_.front().frames)
+          if (f) ring_bytes_ -= f->bytes();
+        ring_.pop_front();
+      }
+    }
+  }
+  ready->clear();
+}
+
+RecordingMetadata CaptureDaemon::Metadata() const {
+  RecordingMetadata m;
+  m.sync_mode = ToString(config_.sync);
+  m.config_yaml = config_.source_yaml;
+  m.started_realtime_ns = clock_->RealtimeNs();
+  for (std::size_t c = 0; c < cameras_.size(); ++c) {
+    RecordingCamera rc;
+    rc.name = config_.cameras[c].name;
+    rc.description = cameras_[c]->description();
+    rc.settings = cameras_[c]->settings();
+    m.cameras.push_back(rc);
+  }
+  return m;
+}
+
+std::string CaptureDaemon::RecordingPath(const std::string& name) const {
+  const bool safe =
+      !name.empty() && name.size() <= 128 && name != "." && name != ".." &&
+      std::all_of(name.begin(), name.end(), [](char ch) {
+        return std::isalnum(static_cast<unsigned char>(ch)) || ch == '_' || ch == '-' || ch == '.';
+      });
+  if (!safe) {
+    throw std::invalid_argument("recording name '" + name.substr(0, 64) +
+                                "': use letters, digits, '_', '-' and '.' only (at most 128), not "
+                                "'.' or '..'");
+  }
+  return (fs::path(config_.data_dir) / name).string();
+}
+
+std::string CaptureDaemon::StartRecording(const std::string& name) {
+  const std::string dir = RecordingPath(name);
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  if (recorder_) throw std::logic_error("capture: already recording into " + recording_dir_);
+  recorder_ = std::make_unique<Recorder>(dir, Metadata(), config_.recorder);
+  recording_dir_ = dir;
+  return dir;
+}
+
+std::string CaptureDaemon::TriggerEvent(const std::string& name) {
+  const std::string dir = RecordingPath(name);
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  if (recorder_) throw std::logic_error("capture: already recording into " + recording_dir_);
+  recorder_ = std::make_unique<Recorder>(dir, Metadata(), config_.recorder);
+  recording_dir_ = dir;
+  // The ring is bounded by pretrigger_max_bytes and the queue was sized to hold it.
+  for (const FrameSet& s : ring_) recorder_->Submit(s);
+  return dir;
+}
+
+RecorderStatus CaptureDaemon::StopRecording() {
+  std::unique_ptr<Recorder> r;
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    if (!recorder_) throw std::logic_error("capture: not recording");
+    r = std::move(recorder_);
+  }
+  const RecorderStatus st = r->Close();  // outside the lock: capture goes on meanwhile
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  last_recorder_status_ = st;
+  return st;
+}
+
+CaptureStatus CaptureDaemon::status() const {
+  CaptureStatus s;
+  s.running = running_;
+  for (const auto& st : camera_state_) {
+    std::lock_guard<std::mutex> lock(st->mutex);
+    CameraLiveStatus live = st->live;
+    if (st->recent.size() >= 2) {
+      const double span = (st->recent.back().first - st->recent.front().first) / 1e9;
+      std::uint64_t bytes = 0;
+      for (const auto& r : st->recent) bytes += r.second;
+      if (span > 0) {
+        live.fps = (st->recent.size() - 1) / span;
+        live.megabytes_per_s = bytes / span / 1048576.0;
+      }
+    }
+    s.cameras.push_back(live);
+  }
+  {
+    std::lock_guard<std::mutex> lock(incoming_mutex_);
+    s.incoming_queued = incoming_.size();
+    s.incoming_capacity = incoming_capacity_;
+    s.incoming_dropped = incoming_dropped_;
+  }
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  s.sets = set_counters_;
+  s.recording = recorder_ != nullptr;
+  s.recording_dir = recording_dir_;
+  s.recorder = recorder_ ? recorder_->status() : last_recorder_status_;
+  s.ring_sets = ring_.size();
+  s.trigger_overruns = trigger_overruns_;
+  s.ring_bytes = ring_bytes_;
+  return s;
+}
+
+std::shared_ptr<const FrameSet> CaptureDaemon::LatestSet() const {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  return latest_;
+}
+
+}  // namespace flamerig

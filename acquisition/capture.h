@@ -1,0 +1,194 @@
+// The capture daemon (DESIGN section 3): cameras -> per-camera threads -> the frame-set assembler ->
+// the recorder, the pre-trigger ring and the live preview.
+//
+//   camera thread (one per camera)   Pop() with a timeout, so a dead camera never blocks anything;
+//                                    pushes frames into a bounded incoming queue (full: the frame is
+//                                    dropped and counted) and keeps that camera's live metrics.
+//   trigger thread                   software-trigger mode: broadcasts SoftwareTrigger(id) to every
+//                                    camera at `trigger_rate_hz`; simulated hardware-trigger mode:
+//                                    fires the simulated trigger line (the stand-in for a trigger
+//                                    generator wired to the cameras).
+//   assembler thread                 groups frames into sets (by trigger id, or by timestamp in
+//                                    free-run and PTP modes), and hands every set to the recorder
+//                                    when recording, to the pre-trigger ring, and to the preview
+//                                    slot (a pointer swap: the preview never copies or waits).
+//
+// Recording names are single path components ([A-Za-z0-9._-], not "." or ".."): a recording is
+// always created inside `data_dir`, whatever a control client asks. An event (ignition) starts a
+// recording that begins with the ring's last `pretrigger_seconds` and goes on live until stopped.
+//
+// Configuration (YAML, `flamerig capture --config rig.yaml`), every key optional except cameras:
+//   data_dir: recordings          # where recordings are created
+//   sync: software-trigger        # hardware-trigger | software-trigger | free-run | ptp
+//   trigger_rate_hz: 30
+//   match_tolerance_ms: 2         # free-run / ptp timestamp matching
+//   set_timeout_ms: 200           # how long a frame set waits for a missing camera
+//   buffers: 8                    # per camera stream
+//   pretrigger_seconds: 2
+//   pretrigger_max_mb: 256
+//   queue_mb: 512                 # recorder queue bound
+//   min_free_mb: 64
+//   sync_interval_s: 1
+//   control: unix:recordings/control.sock   # or tcp:127.0.0.1:PORT (loopback unless `allow_remote`)
+//   cameras:
+//     - name: cam0
+//       driver: sim                # sim | aravis | v4l2
+//       id: SIM0                   # serial, address or device path
+//       width: 640
+//       height: 480
+//       pixel_format: Mono8
+//       frame_rate_hz: 30
+//       exposure_us: 10000
+//       gain_db: 0
+//       trigger_source: Line0
+//       packet_size: 0
+//       sim: {drop_probability: 0, jitter_us: 0, drift_ppm: 0, late_probability: 0,
+//             incomplete_probability: 0, disconnect_at_s: -1, reconnect_at_s: -1, seed: 1}
+#ifndef FLAMERIG_ACQUISITION_CAPTURE_H_
+#define FLAMERIG_ACQUISITION_CAPTURE_H_
+
+#include <atomic>
+#include <condition_variable>
+#include <deque>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "acquisition/camera.h"
+#include "acquisition/frame_set.h"
+#include "acquisition/recording.h"
+#include "acquisition/sim_camera.h"
+
+namespace flamerig {
+
+enum class SyncMode { kHardwareTrigger, kSoftwareTrigger, kFreeRun, kPtp };
+const char* ToString(SyncMode mode);
+SyncMode SyncModeFromName(const std::string& name);  // throws std::invalid_argument
+
+struct CaptureCameraConfig {
+  std::string name;
+  std::string driver = "sim";
+  std::string id;
+  CameraSettings settings;
+  SimCameraOptions sim;  // driver sim only
+};
+
+struct CaptureConfig {
+  std::string data_dir = "recordings";
+  SyncMode sync = SyncMode::kSoftwareTrigger;
+  double trigger_rate_hz = 30;
+  std::int64_t match_tolerance_ns = 2'000'000;
+  std::int64_t set_timeout_ns = 200'000'000;
+  int buffers = 8;
+  double pretrigger_seconds = 2;
+  std::uint64_t pretrigger_max_bytes = 256ull << 20;
+  RecorderOptions recorder;
+  std::string control;  // empty: unix:<data_dir>/control.sock
+  bool allow_remote = false;
+  std::vector<CaptureCameraConfig> cameras;
+  std::string source_yaml;  // the text it was parsed from (kept in every recording)
+
+  // Throws std::invalid_argument naming the file, the key and what is wrong.
+  static CaptureConfig Load(const std::string& path);
+  static CaptureConfig Parse(const std::string& yaml_text, const std::string& where);
+  FrameSetOptions AssemblerOptions() const;
+};
+
+// The cameras of a config: sim cameras share `clock` and `bus`; aravis and v4l2 cameras are opened
+// by id. Throws std::runtime_error naming the camera that cannot be opened.
+std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config, Clock* clock,
+                                                 SimTriggerBus* bus);
+
+struct CameraLiveStatus {
+  std::string name, id;
+  bool connected = false;
+  double fps = 0;             // over the last second
+  double megabytes_per_s = 0;
+  std::uint64_t frames = 0;
+  StreamCounters stream;      // the driver's counters
+};
+
+struct CaptureStatus {
+  bool running = false;
+  bool recording = false;
+  std::string recording_dir;
+  std::vector<CameraLiveStatus> cameras;
+  FrameSetCounters sets;
+  RecorderStatus recorder;               // of the current (or last) recording
+  std::size_t incoming_queued = 0, incoming_capacity = 0;
+  std::uint64_t incoming_dropped = 0;    // frames the assembler could not take in time
+  std::uint64_t trigger_overruns = 0;    // trigger slots skipped because the trigger thread was late
+  std::size_t ring_sets = 0;
+  std::uint64_t ring_bytes = 0;
+  std::string ToYaml() const;
+};
+
+class CaptureDaemon {
+ public:
+  // `clock` and `bus` (may be null) must outlive the daemon; they are the ones the cameras use.
+  CaptureDaemon(const CaptureConfig& config, std::vector<std::unique_ptr<Camera>> cameras,
+                Clock* clock, SimTriggerBus* bus);
+  ~CaptureDaemon();  // Stop()
+
+  // Configures every camera (a refusal names the camera), starts the streams and the threads.
+  void Start();
+  // Stops a recording in progress (closing it cleanly), then the threads and the streams.
+  void Stop();
+
+  // Starts recording every frame set into data_dir/name. Throws std::invalid_argument for a name
+  // that is not a single safe path component, RecordingError when it exists, std::logic_error
+  // when already recording. Returns the recording's directory.
+  std::string StartRecording(const std::string& name);
+  // Closes the recording; its final status (the counters written into its metadata).
+  RecorderStatus StopRecording();
+  // An event (ignition): a recording that starts with the pre-trigger ring and continues live.
+  std::string TriggerEvent(const std::string& name);
+
+  CaptureStatus status() const;
+  // The latest frame set (shared pixels, no copy); empty before the first.
+  std::shared_ptr<const FrameSet> LatestSet() const;
+  const CaptureConfig& config() const { return config_; }
+
+ private:
+  struct CameraState;
+  void CameraLoop(int camera);
+  void TriggerLoop();
+  void AssemblerLoop();
+  void Deliver(std::vector<FrameSet>* ready);  // holds state_mutex_
+  RecordingMetadata Metadata() const;
+  std::string RecordingPath(const std::string& name) const;
+
+  CaptureConfig config_;
+  std::vector<std::unique_ptr<Camera>> cameras_;
+  Clock* clock_;
+  SimTriggerBus* bus_;
+  std::vector<std::unique_ptr<CameraState>> camera_state_;
+  std::atomic<bool> running_{false};
+  std::atomic<std::uint64_t> trigger_overruns_{0};
+
+  // camera threads -> assembler
+  mutable std::mutex incoming_mutex_;
+  std::condition_variable incoming_cv_;
+  std::deque<Frame> incoming_;
+  std::size_t incoming_capacity_ = 0;
+  std::uint64_t incoming_dropped_ = 0;
+
+  // assembler, recorder, ring, preview
+  mutable std::mutex state_mutex_;
+  FrameSetAssembler assembler_;
+  FrameSetCounters set_counters_;
+  std::unique_ptr<Recorder> recorder_;
+  std::string recording_dir_;
+  RecorderStatus last_recorder_status_;
+  std::deque<FrameSet> ring_;
+  std::uint64_t ring_bytes_ = 0;
+  std::shared_ptr<const FrameSet> latest_;
+
+  std::vector<std::thread> threads_;
+};
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_ACQUISITION_CAPTURE_H_

@@ -1,0 +1,218 @@
+// Lossless recording of frame sets (DESIGN section 3), and reading recordings back.
+//
+// A recording is a directory:
+//   metadata.yaml   the snapshot taken when recording started (capture config, sync mode, each
+//                   camera's name, driver, serial and settings in force); rewritten atomically when
+//                   the recording closes, with its counters and `closed: true`.
+//   camNN.data      per camera, append-only: a file header, then for every frame a record header
+//                   (FrameRecord, with a CRC-32 of itself and of the pixels) followed by the pixels.
+//   camNN.index     per camera, append-only: a file header, then the same FrameRecord per frame
+//                   (its `offset` says where the record starts in camNN.data).
+//   sets.index      append-only: a file header, then one SetRecord per frame set: its number, trigger
+//                   id, reference time, timestamp spread, and for every camera the entry of its frame
+//                   in camNN.index (or -1 when the camera missed the set), with a CRC-32.
+// All integers little-endian; the layouts are below and are the file format (version 1).
+//
+// Order of writes: a frame's data record, then its index entry; a set's record only after every one
+// of its frames has been written. So a recording killed at any instant (SIGKILL) holds, in
+// sets.index, only sets whose frames are all on disk; what follows the last complete set (a torn
+// record, frames of sets never committed) is ignored when the recording is opened, and the open
+// reports how much was ignored. The files are fdatasync'ed every `sync_interval_s` and at close,
+// which bounds what a power cut can take.
+//
+// Writing: Submit() queues a set and returns at once; one writer thread per camera appends its
+// frames. The queue is bounded in bytes: when the disk cannot keep up, whole sets are dropped and
+// counted (never half a set), and memory stays bounded. A set that would take the recording past
+// `max_bytes`, or its filesystem below `min_free_bytes`, stops it cleanly: no more sets are
+// accepted, those already accepted are written. A write that fails (disk full, I/O error) stops it
+// at once: everything up to the last committed set stays readable. status() names the file and
+// the reason either way.
+//
+// Reading: Recording::Open() checks the headers and checksums of the indices (a corrupt entry before
+// the tail is an error naming the file and the byte offset), recovers an interrupted recording as
+// above, and ReadSet() returns the frames with their pixels checked against their CRC.
+#ifndef FLAMERIG_ACQUISITION_RECORDING_H_
+#define FLAMERIG_ACQUISITION_RECORDING_H_
+
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "acquisition/camera.h"
+#include "acquisition/frame.h"
+#include "acquisition/frame_set.h"
+
+namespace flamerig {
+
+// A recording that cannot be read: names the file and, where it applies, the byte offset.
+class RecordingError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct RecordingCamera {
+  std::string name;  // the rig's name for it ("cam0")
+  CameraDescription description;
+  CameraSettings settings;  // in force when recording started
+};
+
+struct RecordingMetadata {
+  std::string sync_mode;    // "hardware-trigger", "software-trigger", "free-run", "ptp", ...
+  std::string config_yaml;  // the capture configuration as the daemon read it
+  std::vector<RecordingCamera> cameras;
+  std::map<std::string, std::string> features;  // other device feature values worth keeping
+  std::int64_t started_realtime_ns = 0;
+};
+
+// On-disk records (version 1). FrameRecord is 128 bytes, SetRecord 48 + 8 * cameras bytes.
+#pragma pack(push, 1)
+struct FrameRecord {
+  char magic[4];                // "FRM1"
+  std::uint32_t record_crc;     // CRC-32 of the 124 bytes that follow it
+  std::uint64_t offset;         // of this record in camNN.data
+  std::uint64_t set;            // the frame set it belongs to
+  std::uint64_t frame_id, device_frame_id;
+  std::int64_t device_timestamp_ns, host_monotonic_ns, host_realtime_ns, trigger_id;
+  double exposure_us, gain_db;
+  std::uint32_t pixel_format, width, height, status;
+  std::uint64_t payload_bytes;
+  std::uint32_t payload_crc;    // CRC-32 of the pixels
+  std::uint32_t camera;
+  std::uint8_t reserved[8];
+};
+#pragma pack(pop)
+static_assert(sizeof(FrameRecord) == 128, "FrameRecord is part of the file format");
+
+struct RecorderOptions {
+  std::uint64_t max_queued_bytes = 512ull << 20;  // pixels waiting for the disk, all cameras
+  double sync_interval_s = 1.0;                   // fdatasync cadence; 0 = only at close
+  std::uint64_t min_free_bytes = 64ull << 20;     // stop cleanly below this much free space
+  std::uint64_t max_bytes = 0;                    // stop cleanly past this size; 0 = no limit
+  void Validate() const;                          // throws std::invalid_argument naming the field
+};
+
+struct RecorderStatus {
+  std::uint64_t sets_submitted = 0;
+  std::uint64_t sets_recorded = 0;  // committed to sets.index
+  std::uint64_t sets_dropped = 0;   // refused: queue full, or the recording had stopped
+  std::uint64_t frames_recorded = 0;
+  std::uint64_t bytes_written = 0;  // data files, pixels and record headers
+  std::uint64_t queued_bytes = 0, peak_queued_bytes = 0, max_queued_bytes = 0;
+  bool stopped = false;  // no longer accepting sets: an error or a limit; `error` says which
+  std::string error;
+};
+
+class Recorder {
+ public:
+  // Creates the recording directory (it must not exist, or be empty) and its files, writes
+  // metadata.yaml and starts one writer thread per camera. Throws RecordingError naming the path.
+  Recorder(const std::string& directory, const RecordingMetadata& metadata,
+           const RecorderOptions& options = {});
+  ~Recorder();  // Close()
+  Recorder(const Recorder&) = delete;
+  Recorder& operator=(const Recorder&) = delete;
+
+  // Queues a frame set (its frames' bytes are shared, not copied); never waits for the disk. False
+  // when the set was dropped: the queue was full, or the recording has stopped (status()).
+  bool Submit(const FrameSet& set);
+  // Writes what is queued, syncs, rewrites metadata.yaml with the counters and `closed: true`, and
+  // stops the writers. Idempotent.
+  RecorderStatus Close();
+  RecorderStatus status() const;
+  const std::string& directory() const { return directory_; }
+
+ private:
+  struct Job {
+    std::uint64_t seq;  // submission order
+    Frame frame;
+  };
+  struct Pending {
+    FrameSet header;                   // the set without pixels
+    int remaining = 0;                 // frames not yet written
+    std::vector<std::int64_t> entries;  // index entry per camera, -1 = missing
+  };
+  struct CameraFiles;
+  void WriterLoop(int camera);
+  void CommitterLoop();  // appends set records to sets.index, outside the lock, in order
+  void Fail(const std::string& message);           // holds mutex_
+  void CommitReady();                              // holds mutex_: queues finished sets' records
+  void SyncAll();
+
+  std::string directory_;
+  RecordingMetadata metadata_;
+  RecorderOptions options_;
+  std::vector<std::unique_ptr<CameraFiles>> cameras_;
+  int sets_fd_ = -1;
+  mutable std::mutex mutex_;
+  std::condition_variable work_;  // writers wait for jobs
+  std::condition_variable idle_;  // Close waits for the queues to drain
+  std::vector<std::deque<Job>> queues_;
+  std::map<std::uint64_t, Pending> pending_;  // by seq, until committed in order
+  std::uint64_t next_seq_ = 0, next_commit_ = 0;
+  std::uint64_t accepted_bytes_ = 0;    // on disk once every accepted set is written
+  std::uint64_t next_space_check_ = 0;  // accepted_bytes_ at which to look at free space again
+  bool failed_ = false;                 // a write failed: the writers stop
+  RecorderStatus status_;
+  bool closing_ = false, closed_ = false;
+  std::int64_t last_sync_ns_ = 0;
+  std::vector<std::vector<char>> to_commit_;  // set records ready for sets.index, in order
+  std::condition_variable commit_;
+  bool writers_done_ = false;
+  std::vector<std::thread> writers_;
+  std::thread committer_;
+};
+
+struct RecoveryReport {
+  bool closed_cleanly = false;   // metadata.yaml says the recorder closed it
+  std::uint64_t sets = 0;        // readable frame sets
+  std::uint64_t ignored_bytes = 0;  // past the last complete set (torn records, uncommitted frames)
+  std::vector<std::string> notes;   // what was ignored, file by file
+};
+
+class Recording {
+ public:
+  // Opens and checks a recording; throws RecordingError naming the file (and offset) that is
+  // missing, malformed or corrupt.
+  static Recording Open(const std::string& directory);
+
+  const RecordingMetadata& metadata() const { return metadata_; }
+  const RecoveryReport& recovery() const { return recovery_; }
+  std::size_t num_sets() const { return sets_.size(); }
+  int num_cameras() const { return static_cast<int>(metadata_.cameras.size()); }
+  // The set's header (index, trigger, reference time, spread) and its frames with their pixels,
+  // checked against their CRC (RecordingError on a mismatch, naming the file, frame and offset).
+  FrameSet ReadSet(std::size_t i) const;
+  // The frame records of one camera (no pixels): what the per-frame index says.
+  const std::vector<FrameRecord>& frames(int camera) const { return frames_[camera]; }
+  // Drops counted in the recording: frame-id gaps per camera (wrap-aware unwrapped ids).
+  std::vector<std::uint64_t> MissingByFrameId() const;
+  // Counters the recorder wrote at close (sets_dropped, ...); empty when it did not close.
+  const std::map<std::string, std::string>& final_counters() const { return final_counters_; }
+
+ private:
+  struct SetEntry {
+    FrameSet header;
+    std::vector<std::int64_t> entries;
+  };
+  std::string directory_;
+  RecordingMetadata metadata_;
+  RecoveryReport recovery_;
+  std::vector<std::vector<FrameRecord>> frames_;
+  std::vector<SetEntry> sets_;
+  std::map<std::string, std::string> final_counters_;
+};
+
+// File names inside a recording.
+std::string CameraDataFile(int camera);   // "cam00.data"
+std::string CameraIndexFile(int camera);  // "cam00.index"
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_ACQUISITION_RECORDING_H_

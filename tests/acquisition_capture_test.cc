@@ -1,0 +1,327 @@
+// The capture daemon with simulated cameras in real time: configuration errors, recording every
+// frame set bit-exact, a camera that dies, the pre-trigger ring, recording names that cannot escape
+// the data directory, the control API over a Unix socket and loopback TCP, and Bayer decoding.
+#include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <opencv2/imgcodecs.hpp>
+#include <thread>
+
+#include "acquisition/capture.h"
+#include "acquisition/control.h"
+
+namespace flamerig {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct TempDir {
+  fs::path path = fs::temp_directory_path() /
+                  ("flamerig_cap_" + std::to_string(::getpid()) + "_" + std::to_string(next++));
+  TempDir() { fs::remove_all(path); }
+  ~TempDir() { fs::remove_all(path); }
+  static inline int next = 0;
+};
+
+void Sleep(double s) { std::this_thread::sleep_for(std::chrono::duration<double>(s)); }
+
+std::string Config(const fs::path& data_dir, const std::string& sync, double rate,
+                   const std::string& extra_camera = "", const std::string& extra = "") {
+  std::string y = "data_dir: " + data_dir.string() + "\nsync: " + sync +
+                  "\ntrigger_rate_hz: " + std::to_string(rate) + "\n" + extra + "cameras:\n";
+  for (int c = 0; c < 3; ++c) {
+    y += "  - name: cam" + std::to_string(c) + "\n    driver: sim\n    id: SIM" +
+         std::to_string(c) + "\n    width: 96\n    height: 64\n";
+    if (c == 2) y += extra_camera;
+  }
+  return y;
+}
+
+std::string ParseError(const std::string& yaml) {
+  try {
+    CaptureConfig::Parse(yaml, "rig.yaml");
+  } catch (const std::invalid_argument& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(CaptureConfig, ParsesAndNamesTheKeyOfEveryMistake) {
+  const CaptureConfig c = CaptureConfig::Parse(Config("/tmp/x", "free-run", 25), "rig.yaml");
+  ASSERT_EQ(c.cameras.size(), 3u);
+  EXPECT_EQ(c.sync, SyncMode::kFreeRun);
+  EXPECT_EQ(c.cameras[1].id, "SIM1");
+  EXPECT_EQ(c.cameras[1].settings.width, 96);
+  EXPECT_EQ(c.cameras[1].settings.trigger, TriggerMode::kFreeRun);
+  EXPECT_EQ(c.cameras[1].settings.frame_rate_hz, 25);
+  EXPECT_EQ(CaptureConfig::Parse(Config("/tmp/x", "software-trigger", 25), "t")
+                .cameras[0].settings.frame_rate_hz, 50);  // room for trigger jitter
+  EXPECT_NE(ParseError("sync: hardware-trigger\ntrigger_rate_hz: 30\ncameras: [{name: a, "
+                       "frame_rate_hz: 30}]").find("1.1 x trigger_rate_hz"),
+            std::string::npos);
+  EXPECT_EQ(c.control, "unix:/tmp/x/control.sock");
+  EXPECT_EQ(c.AssemblerOptions().match, MatchBy::kTimestamp);
+
+  EXPECT_NE(ParseError("sync: free-run\ncameras: [{name: a, wdth: 3}]").find(
+                "rig.yaml: cameras[0]: unknown key 'wdth'"),
+            std::string::npos);
+  EXPECT_NE(ParseError("synk: free-run\ncameras: [{name: a}]").find("unknown key 'synk'"),
+            std::string::npos);
+  EXPECT_NE(ParseError("sync: sometimes\ncameras: [{name: a}]").find("sync 'sometimes'"),
+            std::string::npos);
+  EXPECT_NE(ParseError("cameras: []").find("at least one camera"), std::string::npos);
+  EXPECT_NE(ParseError("cameras: [{name: a}, {name: a}]").find("'a' is used twice"),
+            std::string::npos);
+  EXPECT_NE(ParseError("cameras: [{name: a, width: wide}]").find("'width' has a value of the wrong type"),
+            std::string::npos);
+  EXPECT_NE(ParseError("cameras: [{name: a, width: -4}]").find("'width' must be a positive"),
+            std::string::npos);
+  EXPECT_NE(ParseError("cameras: [{name: a, pixel_format: YUV}]").find("cameras[0]"),
+            std::string::npos);
+  EXPECT_NE(ParseError("cameras: [{name: a, driver: aravis}]").find("'id'"), std::string::npos);
+  EXPECT_NE(ParseError("cameras: [{name: a, sim: {drop_probability: 2}}]").find("[0, 1]"),
+            std::string::npos);
+  EXPECT_NE(ParseError("cameras: [{name: a\n").find("not valid YAML"), std::string::npos);
+  EXPECT_NE(ParseError("- just\n- a list\n").find("expected a mapping"), std::string::npos);
+}
+
+// Runs a daemon from `yaml` for `seconds` while recording into `name`; returns the recording.
+Recording RecordFor(const std::string& yaml, double seconds, const std::string& name,
+                    CaptureStatus* final_status = nullptr) {
+  const CaptureConfig config = CaptureConfig::Parse(yaml, "test");
+  SystemClock clock;
+  SimTriggerBus bus;
+  CaptureDaemon daemon(config, MakeCameras(config, &clock, &bus), &clock, &bus);
+  daemon.Start();
+  const std::string dir = daemon.StartRecording(name);
+  Sleep(seconds);
+  const RecorderStatus rs = daemon.StopRecording();
+  EXPECT_FALSE(rs.stopped) << rs.error;
+  if (final_status) *final_status = daemon.status();
+  daemon.Stop();
+  return Recording::Open(dir);
+}
+
+void ExpectTestPattern(const Frame& f) {
+  std::vector<std::uint8_t> want;
+  TestPatternSource()(f.info, &want);
+  ASSERT_TRUE(*f.data == want) << "camera " << f.info.camera << " frame " << f.info.frame_id;
+}
+
+TEST(CaptureDaemon, RecordsEverySoftwareTriggeredSetBitExact) {
+  TempDir dir;
+  CaptureStatus status;
+  const Recording r = RecordFor(Config(dir.path, "software-trigger", 50), 1.0, "take1", &status);
+  // 50 Hz for 1 s, minus the sets in flight at start and stop.
+  EXPECT_GE(r.num_sets(), 40u);
+  EXPECT_LE(r.num_sets(), 52u);
+  std::int64_t last_trigger = -1;
+  for (std::size_t i = 0; i < r.num_sets(); ++i) {
+    const FrameSet s = r.ReadSet(i);
+    ASSERT_TRUE(s.complete()) << "set " << i;
+    if (last_trigger >= 0) {
+      EXPECT_EQ(s.trigger_id, last_trigger + 1);  // none lost
+    }
+    last_trigger = s.trigger_id;
+    for (const auto& f : s.frames) {
+      EXPECT_EQ(f->info.trigger_id, s.trigger_id);
+      ExpectTestPattern(*f);
+    }
+  }
+  EXPECT_EQ(r.metadata().sync_mode, "software-trigger");
+  EXPECT_EQ(r.metadata().cameras[2].description.id, "SIM2");
+  EXPECT_NE(r.metadata().config_yaml.find("trigger_rate_hz"), std::string::npos);
+  for (auto m : r.MissingByFrameId()) EXPECT_EQ(m, 0u);
+  ASSERT_EQ(status.cameras.size(), 3u);
+  EXPECT_NEAR(status.cameras[0].fps, 50, 8);
+  EXPECT_EQ(status.incoming_dropped, 0u);
+}
+
+TEST(CaptureDaemon, ADeadCameraNeverStallsTheOthers) {
+  TempDir dir;
+  // Camera 2 disappears after 0.3 s of a 1.2 s take; hardware trigger on the simulated line.
+  const Recording r =
+      RecordFor(Config(dir.path, "hardware-trigger", 40, "    sim: {disconnect_at_s: 0.3}\n",
+                       "set_timeout_ms: 100\n"),
+                1.2, "take2");
+  ASSERT_GE(r.num_sets(), 35u);
+  std::size_t complete = 0, without_2 = 0;
+  for (std::size_t i = 0; i < r.num_sets(); ++i) {
+    const FrameSet s = r.ReadSet(i);
+    ASSERT_TRUE(s.frames[0] && s.frames[1]) << "set " << i;
+    if (s.frames[2]) ++complete;
+    else ++without_2;
+  }
+  EXPECT_GE(complete, 8u);
+  EXPECT_GE(without_2, 25u);  // the others went on at full rate
+}
+
+TEST(CaptureDaemon, FreeRunMatchesByTimestamp) {
+  TempDir dir;
+  const Recording r = RecordFor(
+      Config(dir.path, "free-run", 30, "", "match_tolerance_ms: 5\n"), 1.0, "take3");
+  EXPECT_GE(r.num_sets(), 24u);
+  std::size_t complete = 0;
+  for (std::size_t i = 0; i < r.num_sets(); ++i) {
+    const FrameSet s = r.ReadSet(i);
+    if (s.complete()) ++complete;
+    EXPECT_LE(s.spread_ns, 5'000'000);
+  }
+  EXPECT_GE(complete, r.num_sets() - 2);
+}
+
+TEST(CaptureDaemon, AnEventSavesThePreTriggerRing) {
+  TempDir dir;
+  const CaptureConfig config = CaptureConfig::Parse(
+      Config(dir.path, "software-trigger", 50, "", "pretrigger_seconds: 0.5\n"), "test");
+  SystemClock clock;
+  CaptureDaemon daemon(config, MakeCameras(config, &clock, nullptr), &clock, nullptr);
+  daemon.Start();
+  Sleep(1.0);
+  const std::int64_t event_ns = clock.MonotonicNs();
+  const std::string d = daemon.TriggerEvent("ignition");
+  Sleep(0.3);
+  daemon.StopRecording();
+  daemon.Stop();
+  const Recording r = Recording::Open(d);
+  const FrameSet first = r.ReadSet(0);
+  const double before_s = (event_ns - first.frames[0]->info.host_monotonic_ns) / 1e9;
+  EXPECT_NEAR(before_s, 0.5, 0.1);         // the ring's half second before the event
+  EXPECT_NEAR(r.num_sets(), 0.8 * 50, 6);  // and 0.3 s after it
+  for (std::size_t i = 1; i < r.num_sets(); ++i)
+    EXPECT_EQ(r.ReadSet(i).trigger_id, r.ReadSet(i - 1).trigger_id + 1);
+}
+
+TEST(CaptureDaemon, RecordingNamesCannotLeaveTheDataDirectory) {
+  TempDir dir;
+  const CaptureConfig config = CaptureConfig::Parse(Config(dir.path / "data", "free-run", 30), "t");
+  SystemClock clock;
+  CaptureDaemon daemon(config, MakeCameras(config, &clock, nullptr), &clock, nullptr);
+  for (const std::string bad : {"../escape", "a/b", "", "..", ".", "/abs", "x\ny", "a b"})
+    EXPECT_THROW(daemon.StartRecording(bad), std::invalid_argument) << bad;
+  EXPECT_FALSE(fs::exists(dir.path / "escape"));
+  EXPECT_THROW(daemon.StopRecording(), std::logic_error);
+}
+
+TEST(ControlApi, StatusRecordingAndPreviewOverAUnixSocket) {
+  TempDir dir;
+  const CaptureConfig config =
+      CaptureConfig::Parse(Config(dir.path, "software-trigger", 50), "test");
+  fs::create_directories(dir.path);
+  SystemClock clock;
+  CaptureDaemon daemon(config, MakeCameras(config, &clock, nullptr), &clock, nullptr);
+  daemon.Start();
+  ControlServer server(&daemon, config.control, false);
+  const std::string socket_path = config.control.substr(5);
+  struct stat st;
+  ASSERT_EQ(::stat(socket_path.c_str(), &st), 0);
+  EXPECT_EQ(st.st_mode & 0777, 0600u);  // owner only
+  Sleep(0.3);
+  ControlReply r = ControlRequest(config.control, "status");
+  ASSERT_TRUE(r.ok) << r.body;
+  EXPECT_NE(r.body.find("running: true"), std::string::npos) << r.body;
+  EXPECT_NE(r.body.find("name: cam2"), std::string::npos) << r.body;
+  r = ControlRequest(config.control, "start run1");
+  ASSERT_TRUE(r.ok) << r.body;
+  EXPECT_EQ(r.body, (dir.path / "run1").string() + "\n");
+  r = ControlRequest(config.control, "start run2");
+  EXPECT_FALSE(r.ok);
+  EXPECT_NE(r.body.find("already recording"), std::string::npos);
+  Sleep(0.4);
+  r = ControlRequest(config.control, "preview cam1 2");
+  ASSERT_TRUE(r.ok) << r.body;
+  const cv::Mat png = cv::imdecode(std::vector<std::uint8_t>(r.body.begin(), r.body.end()),
+                                   cv::IMREAD_UNCHANGED);
+  EXPECT_EQ(png.cols, 48);
+  EXPECT_EQ(png.rows, 32);
+  r = ControlRequest(config.control, "stop");
+  ASSERT_TRUE(r.ok) << r.body;
+  EXPECT_NE(r.body.find("sets_recorded: "), std::string::npos);
+  EXPECT_GE(Recording::Open((dir.path / "run1").string()).num_sets(), 10u);
+  // Bad requests: an error that says why, and capture goes on.
+  r = ControlRequest(config.control, "start ../../etc");
+  EXPECT_FALSE(r.ok);
+  EXPECT_NE(r.body.find("recording name"), std::string::npos);
+  r = ControlRequest(config.control, "format c:");
+  EXPECT_FALSE(r.ok);
+  EXPECT_NE(r.body.find("unknown request"), std::string::npos);
+  r = ControlRequest(config.control, std::string(5000, 'a'));
+  EXPECT_FALSE(r.ok);
+  EXPECT_NE(r.body.find("refused"), std::string::npos);
+  r = ControlRequest(config.control, "preview cam9");
+  EXPECT_FALSE(r.ok);
+  const std::uint64_t before = daemon.status().sets.sets;
+  Sleep(0.2);
+  EXPECT_GT(daemon.status().sets.sets, before);
+  r = ControlRequest(config.control, "shutdown");
+  EXPECT_TRUE(r.ok);
+  EXPECT_TRUE(server.shutdown_requested());
+}
+
+TEST(ControlApi, TcpOnlyOnLoopbackUnlessAsked) {
+  TempDir dir;
+  const CaptureConfig config = CaptureConfig::Parse(Config(dir.path, "free-run", 30), "test");
+  SystemClock clock;
+  CaptureDaemon daemon(config, MakeCameras(config, &clock, nullptr), &clock, nullptr);
+  try {
+    ControlServer open(&daemon, "tcp:0.0.0.0:0", false);
+    FAIL() << "bound to every interface without allow_remote";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("allow_remote"), std::string::npos);
+  }
+  ControlServer server(&daemon, "tcp:127.0.0.1:0", false);
+  ASSERT_GT(server.port(), 0);
+  const ControlReply r =
+      ControlRequest("tcp:127.0.0.1:" + std::to_string(server.port()), "cameras");
+  ASSERT_TRUE(r.ok) << r.body;
+  EXPECT_NE(r.body.find("id: SIM1"), std::string::npos) << r.body;
+  EXPECT_THROW(ControlRequest("unix:" + (dir.path / "nobody.sock").string(), "status"),
+               std::runtime_error);
+}
+
+// GenICam Bayer names give the colour at (0,0) first. A red scene, mosaicked in each of the four
+// layouts, must decode to red.
+TEST(DecodeFrame, BayerLayoutsDecodeARedSceneAsRed) {
+  const struct {
+    PixelFormat f;
+    int red_x, red_y;  // where R sits in the 2x2 tile
+  } layouts[] = {{PixelFormat::kBayerRg8, 0, 0},
+                 {PixelFormat::kBayerGr8, 1, 0},
+                 {PixelFormat::kBayerGb8, 0, 1},
+                 {PixelFormat::kBayerBg8, 1, 1}};
+  for (const auto& l : layouts) {
+    Frame f;
+    f.info.width = 16;
+    f.info.height = 12;
+    f.info.pixel_format = l.f;
+    auto b = std::make_shared<std::vector<std::uint8_t>>(16 * 12, 0);
+    for (int y = 0; y < 12; ++y)
+      for (int x = 0; x < 16; ++x)
+        if (x % 2 == l.red_x && y % 2 == l.red_y) (*b)[y * 16 + x] = 200;
+    f.data = b;
+    ImageU8 u8;
+    ImageU16 u16;
+    ASSERT_EQ(DecodeFrame(f, &u8, &u16), 8);
+    ASSERT_EQ(u8.channels, 3);
+    EXPECT_NEAR(u8.at(7, 5, 0), 200, 1) << ToString(l.f);
+    EXPECT_EQ(u8.at(7, 5, 1), 0) << ToString(l.f);
+    EXPECT_EQ(u8.at(7, 5, 2), 0) << ToString(l.f);
+  }
+  Frame mono;
+  mono.info.width = 4;
+  mono.info.height = 2;
+  mono.info.pixel_format = PixelFormat::kMono16;
+  mono.data = std::make_shared<std::vector<std::uint8_t>>(16, 1);
+  ImageU8 u8;
+  ImageU16 u16;
+  ASSERT_EQ(DecodeFrame(mono, &u8, &u16), 16);
+  EXPECT_EQ(u16.at(3, 1), 257);
+  mono.data = std::make_shared<std::vector<std::uint8_t>>(15, 1);
+  EXPECT_THROW(DecodeFrame(mono, &u8, &u16), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace flamerig

@@ -1,0 +1,446 @@
+// The recording: frame sets written by the Recorder read back bit-exact; a recording killed with
+// SIGKILL mid-write, truncated, or stopped by a full disk opens with every complete set; corruption
+// gives an error naming the file; memory stays bounded when the disk falls behind.
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <thread>
+
+#include "acquisition/recording.h"
+
+namespace flamerig {
+namespace {
+
+namespace fs = std::filesystem;
+
+class TempDir {
+ public:
+  TempDir() {
+    path_ = fs::temp_directory_path() /
+            ("flamerig_rec_" + std::to_string(::getpid()) + "_" + std::to_string(counter_++));
+    fs::remove_all(path_);
+  }
+  ~TempDir() { fs::remove_all(path_); }
+  std::string str() const { return path_.string(); }
+  fs::path path() const { return path_; }
+
+ private:
+  fs::path path_;
+  static inline int counter_ = 0;
+};
+
+// Pixels that depend on every one of (camera, set, byte position): any misplaced byte shows.
+std::uint8_t Pixel(int camera, std::uint64_t set, std::size_t i) {
+  std::uint64_t x = (set * 0x9E3779B97F4A7C15ull) ^ (std::uint64_t(camera) << 56) ^ i;
+  x ^= x >> 29;
+  x *= 0xBF58476D1CE4E5B9ull;
+  x ^= x >> 32;
+  return static_cast<std::uint8_t>(x);
+}
+
+Frame MakeFrame(int camera, std::uint64_t set, int width, int height,
+                PixelFormat format = PixelFormat::kMono8) {
+  Frame f;
+  f.info.camera = camera;
+  f.info.frame_id = 1000 + set;
+  f.info.device_frame_id = (1000 + set) % 65536;
+  f.info.device_timestamp_ns = static_cast<std::int64_t>(set) * 33'333'333 + camera * 1000;
+  f.info.host_monotonic_ns = f.info.device_timestamp_ns + 5'000'000;
+  f.info.host_realtime_ns = 1'790'000'000'000'000'000 + f.info.host_monotonic_ns;
+  f.info.trigger_id = static_cast<std::int64_t>(set);
+  f.info.exposure_us = 1234.5;
+  f.info.gain_db = 3.25;
+  f.info.pixel_format = format;
+  f.info.width = width;
+  f.info.height = height;
+  f.info.status = set % 7 == 3 ? FrameStatus::kIncomplete : FrameStatus::kOk;
+  auto bytes = std::make_shared<std::vector<std::uint8_t>>(std::size_t(width) * height *
+                                                           BytesPerPixel(format));
+  for (std::size_t i = 0; i < bytes->size(); ++i) (*bytes)[i] = Pixel(camera, set, i);
+  f.data = bytes;
+  return f;
+}
+
+// Set `s` of a 3-camera rig; camera 2 misses every fifth set.
+FrameSet MakeSet(std::uint64_t s, int width = 64, int height = 48) {
+  FrameSet set;
+  set.index = s;
+  set.trigger_id = static_cast<std::int64_t>(s);
+  set.reference_ns = static_cast<std::int64_t>(s) * 33'333'333;
+  set.spread_ns = 2000;
+  set.frames.resize(3);
+  for (int c = 0; c < 3; ++c)
+    if (!(c == 2 && s % 5 == 4)) set.frames[c] = MakeFrame(c, s, width, height);
+  return set;
+}
+
+RecordingMetadata Metadata() {
+  RecordingMetadata m;
+  m.sync_mode = "software-trigger";
+  m.config_yaml = "cameras: [a, b, c]\n";
+  m.started_realtime_ns = 1'790'000'000'000'000'000;
+  for (int c = 0; c < 3; ++c) {
+    RecordingCamera rc;
+    rc.name = "cam" + std::to_string(c);
+    rc.description.driver = "sim";
+    rc.description.id = "SIM" + std::to_string(c);
+    rc.settings.width = 64;
+    rc.settings.height = 48;
+    rc.settings.exposure_us = 1234.5;
+    rc.settings.trigger = TriggerMode::kSoftware;
+    m.cameras.push_back(rc);
+  }
+  m.features["GevSCPSPacketSize"] = "1500";
+  return m;
+}
+
+// Every byte and every field of set i as MakeSet made it.
+void ExpectSetMatches(const FrameSet& got, std::uint64_t s) {
+  const FrameSet want = MakeSet(s);
+  ASSERT_EQ(got.frames.size(), 3u);
+  EXPECT_EQ(got.index, want.index);
+  EXPECT_EQ(got.trigger_id, want.trigger_id);
+  EXPECT_EQ(got.reference_ns, want.reference_ns);
+  EXPECT_EQ(got.spread_ns, want.spread_ns);
+  for (int c = 0; c < 3; ++c) {
+    ASSERT_EQ(got.frames[c].has_value(), want.frames[c].has_value()) << "set " << s << " cam " << c;
+    if (!want.frames[c]) continue;
+    const FrameInfo& g = got.frames[c]->info;
+    const FrameInfo& w = want.frames[c]->info;
+    EXPECT_EQ(g.camera, c);
+    EXPECT_EQ(g.frame_id, w.frame_id);
+    EXPECT_EQ(g.device_frame_id, w.device_frame_id);
+    EXPECT_EQ(g.device_timestamp_ns, w.device_timestamp_ns);
+    EXPECT_EQ(g.host_monotonic_ns, w.host_monotonic_ns);
+    EXPECT_EQ(g.host_realtime_ns, w.host_realtime_ns);
+    EXPECT_EQ(g.trigger_id, w.trigger_id);
+    EXPECT_EQ(g.exposure_us, w.exposure_us);
+    EXPECT_EQ(g.gain_db, w.gain_db);
+    EXPECT_EQ(g.pixel_format, w.pixel_format);
+    EXPECT_EQ(g.width, w.width);
+    EXPECT_EQ(g.height, w.height);
+    EXPECT_EQ(g.status, w.status);
+    ASSERT_TRUE(*got.frames[c]->data == *want.frames[c]->data) << "set " << s << " cam " << c;
+  }
+}
+
+TEST(Recording, FrameSetsReadBackBitExactWithTheirMetadata) {
+  TempDir dir;
+  {
+    Recorder rec(dir.str(), Metadata());
+    for (std::uint64_t s = 0; s < 40; ++s) ASSERT_TRUE(rec.Submit(MakeSet(s)));
+    const RecorderStatus st = rec.Close();
+    EXPECT_EQ(st.sets_recorded, 40u);
+    EXPECT_EQ(st.frames_recorded, 40u * 3 - 8);  // camera 2 missed 8 sets
+    EXPECT_FALSE(st.stopped) << st.error;
+  }
+  const Recording r = Recording::Open(dir.str());
+  EXPECT_TRUE(r.recovery().closed_cleanly);
+  EXPECT_EQ(r.recovery().ignored_bytes, 0u);
+  ASSERT_EQ(r.num_sets(), 40u);
+  for (std::size_t s = 0; s < r.num_sets(); ++s) ExpectSetMatches(r.ReadSet(s), s);
+  // Metadata snapshot.
+  ASSERT_EQ(r.num_cameras(), 3);
+  EXPECT_EQ(r.metadata().sync_mode, "software-trigger");
+  EXPECT_EQ(r.metadata().config_yaml, "cameras: [a, b, c]\n");
+  EXPECT_EQ(r.metadata().cameras[1].description.id, "SIM1");
+  EXPECT_EQ(r.metadata().cameras[1].settings.trigger, TriggerMode::kSoftware);
+  EXPECT_EQ(r.metadata().cameras[1].settings.exposure_us, 1234.5);
+  EXPECT_EQ(r.metadata().features.at("GevSCPSPacketSize"), "1500");
+  EXPECT_EQ(r.final_counters().at("sets_recorded"), "40");
+  // Camera 2's frame ids skip every fifth set: 7 gaps of one frame in 32 frames (set 39 is last).
+  const auto missing = r.MissingByFrameId();
+  EXPECT_EQ(missing[0], 0u);
+  EXPECT_EQ(missing[2], 7u);
+  EXPECT_THROW(r.ReadSet(40), std::out_of_range);
+}
+
+TEST(Recording, RefusesToOverwriteAndFramesOfTheWrongSize) {
+  TempDir dir;
+  fs::create_directories(dir.path());
+  std::ofstream(dir.path() / "keep.txt") << "user data";
+  try {
+    Recorder rec(dir.str(), Metadata());
+    FAIL() << "recorded into a non-empty directory";
+  } catch (const RecordingError& e) {
+    EXPECT_NE(std::string(e.what()).find("not empty"), std::string::npos);
+  }
+  EXPECT_TRUE(fs::exists(dir.path() / "keep.txt"));
+  TempDir dir2;
+  Recorder rec(dir2.str(), Metadata());
+  FrameSet bad = MakeSet(0);
+  auto shorter = std::make_shared<std::vector<std::uint8_t>>(*bad.frames[1]->data);
+  shorter->pop_back();
+  bad.frames[1]->data = shorter;
+  try {
+    rec.Submit(bad);
+    FAIL() << "a frame of the wrong size was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("camera 1"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("3071 bytes for 64x48 Mono8"), std::string::npos)
+        << e.what();
+  }
+  FrameSet two = MakeSet(0);
+  two.frames.pop_back();
+  EXPECT_THROW(rec.Submit(two), std::invalid_argument);
+}
+
+std::uint64_t FileSize(const fs::path& p) { return fs::file_size(p); }
+
+TEST(Recording, TruncatedFilesOpenWithEveryCompleteSet) {
+  TempDir dir;
+  {
+    Recorder rec(dir.str(), Metadata());
+    for (std::uint64_t s = 0; s < 10; ++s) rec.Submit(MakeSet(s));
+    rec.Close();
+  }
+  // As a kill mid-write leaves it: half a frame appended to a data file, a torn index entry and a
+  // torn set record.
+  {
+    std::ofstream(dir.path() / "cam00.data", std::ios::app | std::ios::binary)
+        << std::string(1000, 'x');
+    std::ofstream(dir.path() / "cam01.index", std::ios::app | std::ios::binary)
+        << std::string(50, 'y');
+    const auto sets = dir.path() / "sets.index";
+    fs::resize_file(sets, FileSize(sets) - 10);
+  }
+  const Recording r = Recording::Open(dir.str());
+  EXPECT_EQ(r.num_sets(), 9u);  // the tenth set's record was torn
+  EXPECT_EQ(r.recovery().ignored_bytes, 1000u + 50u + (48u + 24u - 10u));
+  EXPECT_GE(r.recovery().notes.size(), 3u);
+  for (std::size_t s = 0; s < r.num_sets(); ++s) ExpectSetMatches(r.ReadSet(s), s);
+}
+
+void FlipByte(const fs::path& p, std::uint64_t at) {
+  std::fstream f(p, std::ios::in | std::ios::out | std::ios::binary);
+  f.seekg(static_cast<std::streamoff>(at));
+  char c;
+  f.read(&c, 1);
+  c = static_cast<char>(c ^ 0x5a);
+  f.seekp(static_cast<std::streamoff>(at));
+  f.write(&c, 1);
+}
+
+std::string OpenError(const std::string& dir) {
+  try {
+    Recording::Open(dir);
+  } catch (const RecordingError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(Recording, CorruptionIsAClearErrorNamingTheFile) {
+  TempDir dir;
+  {
+    Recorder rec(dir.str(), Metadata());
+    for (std::uint64_t s = 0; s < 10; ++s) rec.Submit(MakeSet(s));
+    rec.Close();
+  }
+  const fs::path index = dir.path() / "cam01.index";
+  // A flipped byte in the pixels of set 4, camera 0: the set's read names file and frame.
+  {
+    const Recording r = Recording::Open(dir.str());
+    const FrameRecord& f = r.frames(0)[4];
+    FlipByte(dir.path() / "cam00.data", f.offset + sizeof(FrameRecord) + 100);
+    try {
+      r.ReadSet(4);
+      FAIL() << "corrupt pixels were read";
+    } catch (const RecordingError& e) {
+      const std::string m = e.what();
+      EXPECT_NE(m.find("cam00.data"), std::string::npos) << m;
+      EXPECT_NE(m.find("pixel checksum"), std::string::npos) << m;
+    }
+    ExpectSetMatches(r.ReadSet(5), 5);  // the others still read
+  }
+  // A flipped byte in an index entry before the tail: the open fails and names it.
+  FlipByte(index, 16 + 3 * sizeof(FrameRecord) + 40);
+  std::string m = OpenError(dir.str());
+  EXPECT_NE(m.find("cam01.index"), std::string::npos) << m;
+  EXPECT_NE(m.find("entry 3"), std::string::npos) << m;
+  FlipByte(index, 16 + 3 * sizeof(FrameRecord) + 40);  // repaired
+  EXPECT_EQ(OpenError(dir.str()), "");
+  // A set record in the middle.
+  FlipByte(dir.path() / "sets.index", 16 + 2 * 72 + 20);
+  m = OpenError(dir.str());
+  EXPECT_NE(m.find("sets.index"), std::string::npos) << m;
+  EXPECT_NE(m.find("set record 2"), std::string::npos) << m;
+  FlipByte(dir.path() / "sets.index", 16 + 2 * 72 + 20);
+  // Not a recording file; a missing file; malformed metadata.
+  fs::copy_file(dir.path() / "metadata.yaml", dir.path() / "metadata.good");
+  std::ofstream(dir.path() / "metadata.yaml") << "flamerig_recording: [not, a, number";
+  m = OpenError(dir.str());
+  EXPECT_NE(m.find("metadata.yaml"), std::string::npos) << m;
+  fs::copy_file(dir.path() / "metadata.good", dir.path() / "metadata.yaml",
+                fs::copy_options::overwrite_existing);
+  fs::rename(dir.path() / "cam02.data", dir.path() / "moved");
+  m = OpenError(dir.str());
+  EXPECT_NE(m.find("cam02.data"), std::string::npos) << m;
+  fs::rename(dir.path() / "moved", dir.path() / "cam02.data");
+  FlipByte(dir.path() / "cam02.index", 2);
+  m = OpenError(dir.str());
+  EXPECT_NE(m.find("cam02.index is not a flamerig recording file"), std::string::npos) << m;
+  EXPECT_NE(OpenError((dir.path() / "nothing").string()).find("not a directory"),
+            std::string::npos);
+}
+
+// A child process records until it is killed with SIGKILL; the recording then opens with at least
+// every set the child had committed when it was killed, all bit-exact.
+TEST(Recording, SurvivesSigkillMidWrite) {
+  TempDir dir;
+  const fs::path sets = dir.path() / "sets.index";
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    RecorderOptions o;
+    o.sync_interval_s = 0.05;
+    Recorder rec(dir.str(), Metadata(), o);
+    for (std::uint64_t s = 0;; ++s) {
+      while (!rec.Submit(MakeSet(s, 320, 240))) {
+        // queue full: wait for the disk, keep every set (so set i is MakeSet(i))
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+      }
+    }
+  }
+  // Wait for 30 committed sets (72 bytes each after the 16-byte header), then kill.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  std::uint64_t committed = 0;
+  while (std::chrono::steady_clock::now() < deadline) {
+    std::error_code ec;
+    const auto size = fs::file_size(sets, ec);
+    if (!ec && size >= 16) committed = (size - 16) / 72;
+    if (committed >= 30) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  ::kill(child, SIGKILL);
+  int wstatus = 0;
+  ::waitpid(child, &wstatus, 0);
+  ASSERT_TRUE(WIFSIGNALED(wstatus));
+  ASSERT_GE(committed, 30u);
+  const Recording r = Recording::Open(dir.str());
+  EXPECT_FALSE(r.recovery().closed_cleanly);
+  EXPECT_GE(r.num_sets(), committed);
+  for (std::size_t s = 0; s < r.num_sets(); ++s) {
+    const FrameSet got = r.ReadSet(s);
+    const FrameSet want = MakeSet(s, 320, 240);
+    for (int c = 0; c < 3; ++c) {
+      ASSERT_EQ(got.frames[c].has_value(), want.frames[c].has_value());
+      if (want.frames[c]) {
+        ASSERT_TRUE(*got.frames[c]->data == *want.frames[c]->data) << s;
+      }
+    }
+  }
+}
+
+// A full disk, made real with RLIMIT_FSIZE in a child (writes fail with EFBIG): the recording stops
+// cleanly with an error naming the file and the cause, and every committed set reads back.
+TEST(Recording, AFullDiskStopsTheRecordingCleanly) {
+  TempDir dir;
+  int pipe_fd[2];
+  ASSERT_EQ(::pipe(pipe_fd), 0);
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    ::close(pipe_fd[0]);
+    ::signal(SIGXFSZ, SIG_IGN);
+    rlimit lim{1 << 20, 1 << 20};  // no file may grow past 1 MiB
+    ::setrlimit(RLIMIT_FSIZE, &lim);
+    std::string report;
+    try {
+      Recorder rec(dir.str(), Metadata());
+      std::uint64_t s = 0;
+      for (; s < 10000 && !rec.status().stopped; ++s) {
+        while (!rec.Submit(MakeSet(s, 160, 120)) && !rec.status().stopped)
+          std::this_thread::sleep_for(std::chrono::milliseconds(1));
+      }
+      const RecorderStatus st = rec.Close();
+      report = std::to_string(st.sets_recorded) + "\n" + st.error;
+    } catch (const std::exception& e) {
+      report = std::string("exception\n") + e.what();
+    }
+    (void)!::write(pipe_fd[1], report.data(), report.size());
+    ::_exit(0);
+  }
+  ::close(pipe_fd[1]);
+  std::string report;
+  char buf[512];
+  for (ssize_t n; (n = ::read(pipe_fd[0], buf, sizeof buf)) > 0;) report.append(buf, n);
+  ::close(pipe_fd[0]);
+  ::waitpid(child, nullptr, 0);
+  const std::size_t nl = report.find('\n');
+  ASSERT_NE(nl, std::string::npos) << report;
+  const std::string error = report.substr(nl + 1);
+  EXPECT_NE(error.find("disk full"), std::string::npos) << error;
+  EXPECT_NE(error.find(".data"), std::string::npos) << error;
+  const std::uint64_t recorded = std::stoull(report.substr(0, nl));
+  // 1 MiB holds about 54 frames of 19200 bytes per camera.
+  EXPECT_GT(recorded, 30u);
+  EXPECT_LT(recorded, 60u);
+  const Recording r = Recording::Open(dir.str());
+  EXPECT_EQ(r.num_sets(), recorded);
+  for (std::size_t s = 0; s < r.num_sets(); ++s) {
+    const FrameSet got = r.ReadSet(s);
+    const FrameSet want = MakeSet(s, 160, 120);
+    for (int c = 0; c < 3; ++c)
+      if (want.frames[c]) {
+        ASSERT_TRUE(*got.frames[c]->data == *want.frames[c]->data) << s;
+      }
+  }
+}
+
+TEST(Recording, SizeLimitStopsCleanly) {
+  TempDir dir;
+  RecorderOptions o;
+  o.max_bytes = 100 * 3200;  // about 100 frames of 64x48 with their headers
+  Recorder rec(dir.str(), Metadata(), o);
+  std::uint64_t s = 0;
+  while (!rec.status().stopped && s < 1000) {
+    if (rec.Submit(MakeSet(s))) ++s;
+    else std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  const RecorderStatus st = rec.Close();
+  EXPECT_TRUE(st.stopped);
+  EXPECT_NE(st.error.find("size limit"), std::string::npos) << st.error;
+  EXPECT_LE(st.bytes_written, o.max_bytes);
+  const Recording r = Recording::Open(dir.str());
+  EXPECT_EQ(r.num_sets(), st.sets_recorded);
+  EXPECT_GT(r.num_sets(), 25u);
+  EXPECT_EQ(r.final_counters().at("error"), st.error);
+  for (std::size_t i = 0; i < r.num_sets(); ++i) ExpectSetMatches(r.ReadSet(i), i);
+}
+
+// A producer much faster than the disk: whole sets are dropped and counted, the queue never holds
+// more than its bound, and what was recorded is exactly the sets that were accepted.
+TEST(Recording, MemoryStaysBoundedWhenTheDiskFallsBehind) {
+  TempDir dir;
+  RecorderOptions o;
+  o.max_queued_bytes = 3 * 640 * 480;  // about one set of 640x480
+  Recorder rec(dir.str(), Metadata(), o);
+  // One set's pixels shared by every submission, so the producer costs nothing.
+  const FrameSet big = MakeSet(0, 640, 480);
+  std::vector<std::uint64_t> accepted;
+  for (std::uint64_t s = 0; s < 2000; ++s) {
+    FrameSet set = big;
+    set.index = s;
+    if (rec.Submit(set)) accepted.push_back(s);
+  }
+  const RecorderStatus st = rec.Close();
+  EXPECT_EQ(st.sets_submitted, 2000u);
+  EXPECT_EQ(st.sets_recorded + st.sets_dropped, 2000u);
+  EXPECT_EQ(st.sets_recorded, accepted.size());
+  // Writing 0.9 MB per set takes far longer than submitting one (shared pixels, no copy).
+  EXPECT_GT(st.sets_dropped, 0u);
+  EXPECT_LE(st.peak_queued_bytes, o.max_queued_bytes);
+  const Recording r = Recording::Open(dir.str());
+  ASSERT_EQ(r.num_sets(), accepted.size());
+  for (std::size_t i = 0; i < r.num_sets(); i += 97) EXPECT_EQ(r.ReadSet(i).index, accepted[i]);
+}
+
+}  // namespace
+}  // namespace flamerig

@@ -1,0 +1,56 @@
+#include "tools/export.h"
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include "acquisition/image.h"
+#include "acquisition/recording.h"
+
+namespace flamerig {
+
+namespace fs = std::filesystem;
+
+ExportSummary ExportRecording(const std::string& recording_dir, const std::string& out_dir,
+                              const ExportOptions& options,
+                              const std::function<void(std::size_t, std::size_t)>& progress) {
+  const Recording rec = Recording::Open(recording_dir);
+  ExportSummary summary;
+  fs::create_directories(out_dir);
+  std::ofstream csv(fs::path(out_dir) / "sets.csv");
+  if (!csv) throw std::runtime_error("export: cannot write " + (fs::path(out_dir) / "sets.csv").string());
+  csv << "set,trigger_id,reference_ns,spread_ns";
+  for (const auto& c : rec.metadata().cameras) csv << "," << c.name << "_frame_id," << c.name << "_status";
+  csv << "\n";
+  const std::size_t first = std::min(options.first, rec.num_sets());
+  const std::size_t end = first + std::min(options.count, rec.num_sets() - first);
+  for (std::size_t i = first; i < end; ++i) {
+    const FrameSet set = rec.ReadSet(i);
+    char name[32];
+    std::snprintf(name, sizeof name, "frame_%06zu", i);
+    const fs::path dir = fs::path(out_dir) / name;
+    fs::create_directories(dir);
+    csv << i << "," << set.trigger_id << "," << set.reference_ns << "," << set.spread_ns;
+    for (int c = 0; c < rec.num_cameras(); ++c) {
+      if (!set.frames[c]) {
+        ++summary.missing_frames;
+        csv << ",,";
+        continue;
+      }
+      const Frame& f = *set.frames[c];
+      csv << "," << f.info.frame_id << "," << ToString(f.info.status);
+      ImageU8 u8;
+      ImageU16 u16;
+      const std::string path = (dir / (rec.metadata().cameras[c].name + ".png")).string();
+      if (DecodeFrame(f, &u8, &u16) == 16) WritePng16(path, u16);
+      else WritePng(path, u8);
+      ++summary.images;
+    }
+    csv << "\n";
+    ++summary.sets;
+    if (progress) progress(i - first + 1, end - first);
+  }
+  return summary;
+}
+
+}  // namespace flamerig

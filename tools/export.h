@@ -1,0 +1,33 @@
+// `flamerig export`: a recording's frame sets as standard image files, in the dataset layout that
+// `flamerig reconstruct` and `flamerig fit` read (OUT/frame_NNNNNN/<camera>.png), with a CSV of
+// what each set holds.
+#ifndef FLAMERIG_TOOLS_EXPORT_H_
+#define FLAMERIG_TOOLS_EXPORT_H_
+
+#include <cstddef>
+#include <functional>
+#include <string>
+
+namespace flamerig {
+
+struct ExportOptions {
+  std::size_t first = 0;                // first frame set
+  std::size_t count = ~std::size_t(0);  // how many (clipped to the recording)
+};
+
+struct ExportSummary {
+  std::size_t sets = 0, images = 0;
+  std::size_t missing_frames = 0;  // cameras absent from a set (no file written for them)
+};
+
+// Writes OUT/frame_NNNNNN/<camera name>.png (8-bit, or 16-bit for Mono16; Bayer demosaiced to RGB)
+// and OUT/sets.csv (set, trigger id, reference time, spread, then per camera frame id and status,
+// empty when missing). Throws RecordingError for an unreadable recording, naming the file.
+ExportSummary ExportRecording(const std::string& recording_dir, const std::string& out_dir,
+                              const ExportOptions& options,
+                              const std::function<void(std::size_t done, std::size_t total)>&
+                                  progress = nullptr);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_TOOLS_EXPORT_H_
