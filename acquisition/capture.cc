@@ -1,5 +1,7 @@
 #include "acquisition/capture.h"
 
+#include "acquisition/aravis_camera.h"
+
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
@@ -191,12 +193,19 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
 FrameSetOptions CaptureConfig::AssemblerOptions() const {
   FrameSetOptions o;
   o.cameras = static_cast<int>(cameras.size());
-  const bool by_trigger = sync == SyncMode::kHardwareTrigger || sync == SyncMode::kSoftwareTrigger;
-  o.match = by_trigger ? MatchBy::kTriggerId : MatchBy::kTimestamp;
-  // PTP cameras share a clock: match their own timestamps. Free-run cameras' clocks are unrelated:
-  // match the host's receive times.
+  const bool triggered = sync == SyncMode::kHardwareTrigger || sync == SyncMode::kSoftwareTrigger;
+  // Only the sim driver knows which trigger made a frame; real cameras' frames carry no trigger
+  // id, so triggered sets are matched by receive time, within 40% of the trigger period (every
+  // camera exposes on the same pulse; their receive times differ by transfer jitter).
+  const bool ids = std::all_of(cameras.begin(), cameras.end(),
+                               [](const CaptureCameraConfig& c) { return c.driver == "sim"; });
+  o.match = triggered && ids ? MatchBy::kTriggerId : MatchBy::kTimestamp;
+  // PTP cameras share a clock: match their own timestamps. Otherwise the cameras' clocks are
+  // unrelated: match the host's receive times.
   o.timestamp = sync == SyncMode::kPtp ? TimestampSource::kDevice : TimestampSource::kHostMonotonic;
   o.tolerance_ns = match_tolerance_ns;
+  if (triggered && !ids)
+    o.tolerance_ns = std::max<std::int64_t>(o.tolerance_ns, std::llround(0.4e9 / trigger_rate_hz));
   o.timeout_ns = set_timeout_ns;
   return o;
 }
@@ -212,6 +221,12 @@ std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config, Cl
       if (o.disconnect_at_ns >= 0) o.disconnect_at_ns += now;
       if (o.reconnect_at_ns >= 0) o.reconnect_at_ns += now;
       cameras.push_back(std::make_unique<SimCamera>(o, clock, bus));
+    } else if (c.driver == "aravis") {
+      try {
+        cameras.push_back(std::make_unique<AravisCamera>(c.id, static_cast<int>(cameras.size())));
+      } catch (const std::exception& e) {
+        throw std::runtime_error("camera '" + c.name + "': " + e.what());
+      }
     } else {
       throw std::runtime_error("camera '" + c.name + "': the " + c.driver +
                                " driver is not built into this flamerig yet");

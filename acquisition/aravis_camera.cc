@@ -1,0 +1,350 @@
+#include "acquisition/aravis_camera.h"
+
+#include <arpa/inet.h>
+#include <arv.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <stdexcept>
+
+namespace flamerig {
+
+namespace {
+
+// Takes ownership of a GError and turns it into our error, naming the camera and the step.
+void Check(GError* error, const std::string& camera, const std::string& what) {
+  if (!error) return;
+  const std::string message = error->message ? error->message : "unknown error";
+  g_clear_error(&error);
+  throw std::runtime_error("aravis camera '" + camera + "': " + what + ": " + message);
+}
+
+bool IsIpv4(const std::string& s) {
+  in_addr a;
+  return ::inet_pton(AF_INET, s.c_str(), &a) == 1;
+}
+
+ArvPixelFormat ToArv(PixelFormat f) {
+  switch (f) {
+    case PixelFormat::kMono8: return ARV_PIXEL_FORMAT_MONO_8;
+    case PixelFormat::kMono16: return ARV_PIXEL_FORMAT_MONO_16;
+    case PixelFormat::kRgb8: return ARV_PIXEL_FORMAT_RGB_8_PACKED;
+    case PixelFormat::kBayerRg8: return ARV_PIXEL_FORMAT_BAYER_RG_8;
+    case PixelFormat::kBayerGr8: return ARV_PIXEL_FORMAT_BAYER_GR_8;
+    case PixelFormat::kBayerGb8: return ARV_PIXEL_FORMAT_BAYER_GB_8;
+    case PixelFormat::kBayerBg8: return ARV_PIXEL_FORMAT_BAYER_BG_8;
+  }
+  return ARV_PIXEL_FORMAT_MONO_8;
+}
+
+bool FromArv(ArvPixelFormat f, PixelFormat* out) {
+  for (PixelFormat p : {PixelFormat::kMono8, PixelFormat::kMono16, PixelFormat::kRgb8,
+                        PixelFormat::kBayerRg8, PixelFormat::kBayerGr8, PixelFormat::kBayerGb8,
+                        PixelFormat::kBayerBg8}) {
+    if (ToArv(p) == f) {
+      *out = p;
+      return true;
+    }
+  }
+  return false;
+}
+
+FrameStatus StatusOf(ArvBufferStatus s) {
+  switch (s) {
+    case ARV_BUFFER_STATUS_SUCCESS: return FrameStatus::kOk;
+    case ARV_BUFFER_STATUS_MISSING_PACKETS:
+    case ARV_BUFFER_STATUS_WRONG_PACKET_ID:
+    case ARV_BUFFER_STATUS_SIZE_MISMATCH:
+    case ARV_BUFFER_STATUS_FILLING: return FrameStatus::kIncomplete;
+    case ARV_BUFFER_STATUS_TIMEOUT: return FrameStatus::kTimeout;
+    default: return FrameStatus::kError;
+  }
+}
+
+std::int64_t NowNs(clockid_t clock) {
+  timespec t;
+  ::clock_gettime(clock, &t);
+  return std::int64_t(t.tv_sec) * 1'000'000'000 + t.tv_nsec;
+}
+
+}  // namespace
+
+void EnableAravisFakeInterface() { arv_enable_interface("Fake"); }
+
+std::vector<CameraDescription> DiscoverAravisCameras() {
+  arv_update_device_list();
+  std::vector<CameraDescription> out;
+  for (unsigned i = 0; i < arv_get_n_devices(); ++i) {
+    CameraDescription d;
+    d.driver = "aravis";
+    auto s = [](const char* p) { return std::string(p ? p : ""); };
+    d.id = s(arv_get_device_serial_nbr(i));
+    if (d.id.empty()) d.id = s(arv_get_device_id(i));
+    d.vendor = s(arv_get_device_vendor(i));
+    d.model = s(arv_get_device_model(i));
+    d.address = s(arv_get_device_address(i));
+    out.push_back(d);
+  }
+  return out;
+}
+
+struct AravisCamera::Impl {
+  std::string id;
+  ArvCamera* camera = nullptr;
+  ArvStream* stream = nullptr;
+  gulong control_lost_handler = 0;
+  CameraDescription description;
+  FrameIdUnwrapper unwrapper{16, 1};
+  std::int64_t last_timestamp_ns = -1;
+  std::int64_t last_frame_host_ns = 0;
+  StreamCounters counters;
+  std::uint64_t payload = 0;
+
+  ArvDevice* device() const { return arv_camera_get_device(camera); }
+  bool Has(const char* feature) const {
+    GError* e = nullptr;
+    const bool yes = arv_camera_is_feature_available(camera, feature, &e);
+    g_clear_error(&e);
+    return yes;
+  }
+};
+
+namespace {
+void OnControlLost(ArvDevice*, gpointer flag) {
+  static_cast<std::atomic<bool>*>(flag)->store(false);  // Aravis' heartbeat thread: only a store
+}
+}  // namespace
+
+AravisCamera::AravisCamera(const std::string& id, int camera_index)
+    : impl_(std::make_unique<Impl>()), camera_index_(camera_index) {
+  impl_->id = id;
+  GError* error = nullptr;
+  if (IsIpv4(id)) {
+    // Straight to the address: discovery could answer on another interface (notes/aravis.md).
+    GInetAddress* address = g_inet_address_new_from_string(id.c_str());
+    ArvDevice* device = arv_gv_device_new(address, address, &error);
+    g_object_unref(address);
+    Check(error, id, "cannot open the GigE Vision device at this address");
+    impl_->camera = arv_camera_new_with_device(device, &error);
+    g_object_unref(device);  // the camera holds its own reference
+  } else {
+    impl_->camera = arv_camera_new(id.c_str(), &error);
+  }
+  Check(error, id, "cannot open");
+  if (!impl_->camera) throw std::runtime_error("aravis camera '" + id + "': cannot open");
+  auto s = [&](const char* p) { return std::string(p ? p : ""); };
+  impl_->description.driver = "aravis";
+  impl_->description.id = id;
+  impl_->description.vendor = s(arv_camera_get_vendor_name(impl_->camera, &error));
+  g_clear_error(&error);
+  impl_->description.model = s(arv_camera_get_model_name(impl_->camera, &error));
+  g_clear_error(&error);
+  const std::string serial = s(arv_camera_get_device_serial_number(impl_->camera, &error));
+  g_clear_error(&error);
+  impl_->description.address = IsIpv4(id) ? id : serial;
+  // Out-of-range feature values are errors, not silently written (Aravis' default is no check).
+  arv_camera_set_range_check_policy(impl_->camera, ARV_RANGE_CHECK_POLICY_ENABLE);
+  impl_->control_lost_handler = g_signal_connect(impl_->device(), "control-lost",
+                                                 G_CALLBACK(OnControlLost), &connected_);
+}
+
+AravisCamera::~AravisCamera() {
+  Stop();
+  if (impl_->camera) {
+    if (impl_->control_lost_handler)
+      g_signal_handler_disconnect(impl_->device(), impl_->control_lost_handler);
+    g_object_unref(impl_->camera);
+  }
+}
+
+CameraDescription AravisCamera::description() const { return impl_->description; }
+
+void AravisCamera::Configure(const CameraSettings& s) {
+  s.Validate();
+  if (impl_->stream) throw std::logic_error("aravis camera '" + impl_->id + "': Configure while streaming");
+  ArvCamera* cam = impl_->camera;
+  GError* e = nullptr;
+  arv_camera_set_pixel_format(cam, ToArv(s.pixel_format), &e);
+  Check(e, impl_->id, std::string("PixelFormat ") + ToString(s.pixel_format));
+  const std::string size = std::to_string(s.width) + "x" + std::to_string(s.height);
+  arv_camera_set_region(cam, 0, 0, s.width, s.height, &e);
+  Check(e, impl_->id, "Width/Height " + size);
+  // Aravis clamps out-of-range values to the nearest the camera allows: read back what it took.
+  gint x = 0, y = 0, w = 0, h = 0;
+  arv_camera_get_region(cam, &x, &y, &w, &h, &e);
+  Check(e, impl_->id, "reading Width/Height");
+  if (w != s.width || h != s.height) {
+    throw std::runtime_error("aravis camera '" + impl_->id + "': Width/Height " + size +
+                             " refused (the camera set " + std::to_string(w) + "x" +
+                             std::to_string(h) + ")");
+  }
+  const ArvPixelFormat applied = arv_camera_get_pixel_format(cam, &e);
+  Check(e, impl_->id, "reading PixelFormat");
+  if (applied != ToArv(s.pixel_format)) {
+    throw std::runtime_error("aravis camera '" + impl_->id + "': PixelFormat " +
+                             ToString(s.pixel_format) + " refused");
+  }
+  // Exposure: SFNC ExposureTime, or ExposureTimeAbs on older GigE Vision cameras (and the fake).
+  const char* exposure = impl_->Has("ExposureTime") ? "ExposureTime" : "ExposureTimeAbs";
+  arv_device_set_float_feature_value(impl_->device(), exposure, s.exposure_us, &e);
+  Check(e, impl_->id, std::string(exposure) + " " + std::to_string(s.exposure_us) + " us");
+  if (impl_->Has("Gain")) {
+    arv_device_set_float_feature_value(impl_->device(), "Gain", s.gain_db, &e);
+    Check(e, impl_->id, "Gain " + std::to_string(s.gain_db) + " dB");
+  } else if (impl_->Has("GainRaw")) {
+    arv_device_set_integer_feature_value(impl_->device(), "GainRaw", std::llround(s.gain_db), &e);
+    Check(e, impl_->id, "GainRaw " + std::to_string(std::llround(s.gain_db)));
+  }
+  switch (s.trigger) {
+    case TriggerMode::kFreeRun:
+      arv_camera_clear_triggers(cam, &e);
+      Check(e, impl_->id, "TriggerMode Off");
+      break;
+    case TriggerMode::kSoftware:
+      arv_camera_set_trigger(cam, "Software", &e);
+      Check(e, impl_->id, "TriggerSource Software");
+      break;
+    case TriggerMode::kHardware:
+      arv_camera_set_trigger(cam, s.trigger_source.c_str(), &e);
+      Check(e, impl_->id, "TriggerSource " + s.trigger_source);
+      break;
+  }
+  // Free-run: the rate. Triggered: set too, as the camera's ceiling; a camera without the feature
+  // runs at its own rate.
+  if (impl_->Has("AcquisitionFrameRate")) {
+    if (impl_->Has("AcquisitionFrameRateEnable"))
+      arv_device_set_boolean_feature_value(impl_->device(), "AcquisitionFrameRateEnable", TRUE, &e);
+    g_clear_error(&e);
+    arv_camera_set_frame_rate(cam, s.frame_rate_hz, &e);
+    Check(e, impl_->id, "AcquisitionFrameRate " + std::to_string(s.frame_rate_hz));
+    // arv_camera_set_frame_rate may switch triggers off: put the trigger back.
+    if (s.trigger != TriggerMode::kFreeRun) {
+      arv_camera_set_trigger(cam, s.trigger == TriggerMode::kSoftware ? "Software"
+                                                                      : s.trigger_source.c_str(),
+                             &e);
+      Check(e, impl_->id, "TriggerSource");
+    }
+  }
+  if (s.packet_size > 0 && arv_camera_is_gv_device(cam)) {
+    arv_camera_gv_set_packet_size(cam, s.packet_size, &e);
+    Check(e, impl_->id, "GevSCPSPacketSize " + std::to_string(s.packet_size));
+  }
+  settings_ = s;
+}
+
+void AravisCamera::Start(int buffers) {
+  if (impl_->stream) return;
+  if (buffers < 2) throw std::invalid_argument("aravis camera '" + impl_->id + "': at least 2 buffers");
+  ArvCamera* cam = impl_->camera;
+  GError* e = nullptr;
+  impl_->payload = arv_camera_get_payload(cam, &e);
+  Check(e, impl_->id, "PayloadSize");
+  impl_->stream = arv_camera_create_stream(cam, nullptr, nullptr, &e);
+  Check(e, impl_->id, "cannot create a stream");
+  if (ARV_IS_GV_STREAM(impl_->stream)) {
+    // A fixed, large socket buffer; no resend (measured: without it, loopback streams lose
+    // packets; the fake cannot resend).
+    g_object_set(impl_->stream, "socket-buffer", ARV_GV_STREAM_SOCKET_BUFFER_FIXED,
+                 "socket-buffer-size", 4 << 20, "packet-resend", ARV_GV_STREAM_PACKET_RESEND_NEVER,
+                 nullptr);
+  }
+  for (int i = 0; i < buffers; ++i)
+    arv_stream_push_buffer(impl_->stream, arv_buffer_new(impl_->payload, nullptr));
+  arv_camera_set_acquisition_mode(cam, ARV_ACQUISITION_MODE_CONTINUOUS, &e);
+  g_clear_error(&e);
+  arv_camera_start_acquisition(cam, &e);
+  Check(e, impl_->id, "AcquisitionStart");
+  impl_->last_frame_host_ns = NowNs(CLOCK_MONOTONIC);
+}
+
+void AravisCamera::Stop() {
+  if (!impl_->stream) return;
+  GError* e = nullptr;
+  arv_camera_stop_acquisition(impl_->camera, &e);
+  g_clear_error(&e);  // a camera that is gone cannot be stopped; the stream goes anyway
+  g_object_unref(impl_->stream);
+  impl_->stream = nullptr;
+}
+
+std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
+  if (!impl_->stream) throw std::logic_error("aravis camera '" + impl_->id + "': Pop before Start");
+  ArvBuffer* buffer = arv_stream_timeout_pop_buffer(
+      impl_->stream, static_cast<guint64>(std::max<std::int64_t>(timeout_ns, 0) / 1000));
+  guint64 completed = 0, failures = 0, underruns = 0;
+  arv_stream_get_statistics(impl_->stream, &completed, &failures, &underruns);
+  impl_->counters.underruns = underruns;
+  if (!buffer) {
+    ++impl_->counters.timeouts;
+    return std::nullopt;
+  }
+  Frame f;
+  f.info.camera = camera_index_;
+  f.info.host_monotonic_ns = NowNs(CLOCK_MONOTONIC);
+  f.info.host_realtime_ns = NowNs(CLOCK_REALTIME);
+  f.info.status = StatusOf(arv_buffer_get_status(buffer));
+  f.info.device_frame_id = arv_buffer_get_frame_id(buffer);
+  f.info.frame_id = impl_->unwrapper.Next(f.info.device_frame_id);
+  f.info.device_timestamp_ns = static_cast<std::int64_t>(arv_buffer_get_timestamp(buffer));
+  f.info.exposure_us = settings_.exposure_us;
+  f.info.gain_db = settings_.gain_db;
+  f.info.width = settings_.width;
+  f.info.height = settings_.height;
+  f.info.pixel_format = settings_.pixel_format;
+  if (arv_buffer_get_payload_type(buffer) == ARV_BUFFER_PAYLOAD_TYPE_IMAGE) {
+    f.info.width = arv_buffer_get_image_width(buffer);
+    f.info.height = arv_buffer_get_image_height(buffer);
+    PixelFormat p;
+    if (FromArv(arv_buffer_get_image_pixel_format(buffer), &p)) f.info.pixel_format = p;
+    else f.info.status = FrameStatus::kError;
+  }
+  // The bytes of the image (the in-process fakes report a size of 0 though the bytes are there).
+  size_t size = 0;
+  const auto* data = static_cast<const std::uint8_t*>(arv_buffer_get_data(buffer, &size));
+  const std::size_t image_bytes =
+      std::size_t(f.info.width) * f.info.height * BytesPerPixel(f.info.pixel_format);
+  if (data && image_bytes <= impl_->payload && (size == 0 || size >= image_bytes)) {
+    f.data = std::make_shared<const std::vector<std::uint8_t>>(data, data + image_bytes);
+  } else {
+    f.data = std::make_shared<const std::vector<std::uint8_t>>(image_bytes, 0);
+    if (f.info.status == FrameStatus::kOk) f.info.status = FrameStatus::kIncomplete;
+  }
+  arv_stream_push_buffer(impl_->stream, buffer);  // back to the pool at once
+
+  // Drops: frame-id gaps (wrap-aware) and, in free-run, timestamp gaps (the fake skips a slot it
+  // overran without a frame-id gap).
+  impl_->counters.missing_by_id = impl_->unwrapper.missing();
+  if (settings_.trigger == TriggerMode::kFreeRun && impl_->last_timestamp_ns >= 0 &&
+      f.info.device_timestamp_ns > impl_->last_timestamp_ns) {
+    const double gap =
+        double(f.info.device_timestamp_ns - impl_->last_timestamp_ns) * settings_.frame_rate_hz / 1e9;
+    if (gap > 1.5) impl_->counters.missing_by_time += static_cast<std::uint64_t>(std::llround(gap)) - 1;
+  }
+  impl_->last_timestamp_ns = f.info.device_timestamp_ns;
+  ++impl_->counters.delivered;
+  if (f.info.status != FrameStatus::kOk) ++impl_->counters.incomplete;
+  return f;
+}
+
+void AravisCamera::SoftwareTrigger(std::int64_t) {
+  GError* e = nullptr;
+  arv_camera_software_trigger(impl_->camera, &e);
+  if (e) {
+    g_clear_error(&e);
+    connected_ = false;  // a trigger that cannot be written: the device is not answering
+  }
+}
+
+StreamCounters AravisCamera::counters() const { return impl_->counters; }
+
+std::string AravisCamera::FeatureAsString(const std::string& name) const {
+  ArvGcNode* node = arv_device_get_feature(impl_->device(), name.c_str());
+  if (!node || !ARV_IS_GC_FEATURE_NODE(node)) return "";
+  GError* e = nullptr;
+  const char* v = arv_gc_feature_node_get_value_as_string(ARV_GC_FEATURE_NODE(node), &e);
+  const std::string out = (!e && v) ? v : "";
+  g_clear_error(&e);
+  return out;
+}
+
+}  // namespace flamerig

@@ -1,0 +1,68 @@
+// The `aravis` driver: GigE Vision and USB3 Vision cameras through libaravis 0.8 (DESIGN section 3,
+// ../shared/notes/aravis.md).
+//
+// Discovery lists what Aravis sees. A camera is opened by its Aravis device id, its serial number,
+// or, for GigE Vision, by its IPv4 address (opened directly with arv_gv_device_new, so that a host
+// with several interfaces never picks the wrong one). Configure() writes the standard features:
+// Width/Height, PixelFormat, AcquisitionFrameRate (free-run), exposure (ExposureTime, or
+// ExposureTimeAbs on older GigE cameras), gain (Gain, or GainRaw), trigger (FrameStart trigger
+// on the given line for hardware trigger, Software for software trigger, off for free-run) and the
+// GigE packet size; a refusal names the camera and the feature. Start() creates the stream with a
+// fixed 4 MiB socket buffer and packet resend off (GigE), pushes the buffers and starts
+// acquisition. Pop() returns a frame whose bytes are copied out of the Aravis buffer, which goes
+// straight back to the stream; buffer statuses map to FrameStatus; the 16-bit GigE frame counter
+// is unwrapped; the device timestamp and Aravis' system timestamp are kept. When the device stops
+// answering (the `control-lost` signal, or frames stop arriving), connected() turns false.
+//
+// Thread safety: one thread calls Pop (the daemon's camera thread); SoftwareTrigger may be called
+// from another (Aravis serialises device access).
+#ifndef FLAMERIG_ACQUISITION_ARAVIS_CAMERA_H_
+#define FLAMERIG_ACQUISITION_ARAVIS_CAMERA_H_
+
+#include <atomic>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "acquisition/camera.h"
+
+namespace flamerig {
+
+// The cameras Aravis finds on every interface it is allowed to use.
+std::vector<CameraDescription> DiscoverAravisCameras();
+
+// Enables Aravis' in-process "Fake" interface (for tests and demos); off by default.
+void EnableAravisFakeInterface();
+
+class AravisCamera : public Camera {
+ public:
+  // Opens the camera; throws std::runtime_error naming `id` and Aravis' reason.
+  AravisCamera(const std::string& id, int camera_index);
+  ~AravisCamera() override;
+  AravisCamera(const AravisCamera&) = delete;
+  AravisCamera& operator=(const AravisCamera&) = delete;
+
+  CameraDescription description() const override;
+  void Configure(const CameraSettings& settings) override;
+  CameraSettings settings() const override { return settings_; }
+  void Start(int buffers) override;
+  void Stop() override;
+  std::optional<Frame> Pop(std::int64_t timeout_ns) override;
+  void SoftwareTrigger(std::int64_t trigger_id) override;
+  bool connected() const override { return connected_; }
+  StreamCounters counters() const override;
+
+  // Reads a feature as text (for the recording's metadata); empty when the camera lacks it.
+  std::string FeatureAsString(const std::string& name) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  CameraSettings settings_;
+  int camera_index_;
+  std::atomic<bool> connected_{true};
+};
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_ACQUISITION_ARAVIS_CAMERA_H_
