@@ -102,7 +102,10 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
   c.data_dir = r.Get<std::string>("data_dir", c.data_dir);
   c.sync = SyncModeFromName(r.Get<std::string>("sync", ToString(c.sync)));
   c.trigger_rate_hz = r.Positive("trigger_rate_hz", c.trigger_rate_hz);
-  c.match_tolerance_ns = static_cast<std::int64_t>(r.Positive("match_tolerance_ms", 2) * 1e6);
+  // Timestamp matching: about half a frame period by default (notes/aravis.md: the spread of host
+  // receive times inside a set reaches a few ms, more on a loaded host).
+  c.match_tolerance_ns = static_cast<std::int64_t>(
+      r.Positive("match_tolerance_ms", 400.0 / c.trigger_rate_hz) * 1e6);
   c.set_timeout_ns = static_cast<std::int64_t>(r.Positive("set_timeout_ms", 200) * 1e6);
   c.buffers = static_cast<int>(r.Positive("buffers", c.buffers));
   c.pretrigger_seconds = r.NonNegative("pretrigger_seconds", c.pretrigger_seconds);

@@ -21,7 +21,7 @@
 //   data_dir: recordings          # where recordings are created
 //   sync: software-trigger        # hardware-trigger | software-trigger | free-run | ptp
 //   trigger_rate_hz: 30
-//   match_tolerance_ms: 2         # free-run / ptp timestamp matching
+//   match_tolerance_ms: 13        # timestamp matching; default 0.4 / trigger_rate_hz
 //   set_timeout_ms: 200           # how long a frame set waits for a missing camera
 //   buffers: 8                    # per camera stream
 //   pretrigger_seconds: 2
@@ -79,7 +79,7 @@ struct CaptureConfig {
   std::string data_dir = "recordings";
   SyncMode sync = SyncMode::kSoftwareTrigger;
   double trigger_rate_hz = 30;
-  std::int64_t match_tolerance_ns = 2'000'000;
+  std::int64_t match_tolerance_ns = 13'333'333;  // 0.4 of a period at 30 Hz
   std::int64_t set_timeout_ns = 200'000'000;
   int buffers = 8;
   double pretrigger_seconds = 2;

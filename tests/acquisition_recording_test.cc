@@ -379,9 +379,10 @@ TEST(Recording, AFullDiskStopsTheRecordingCleanly) {
   EXPECT_NE(error.find("disk full"), std::string::npos) << error;
   EXPECT_NE(error.find(".data"), std::string::npos) << error;
   const std::uint64_t recorded = std::stoull(report.substr(0, nl));
-  // 1 MiB holds about 54 frames of 19200 bytes per camera.
-  EXPECT_GT(recorded, 30u);
-  EXPECT_LT(recorded, 60u);
+  // 1 MiB holds 54 frames of 19200 bytes per camera. The writers run independently, so when the
+  // first file fails, a set is complete only if every camera had written its frame: under load a
+  // slow writer may have written few (so no lower bound), but never a set beyond the limit.
+  EXPECT_LE(recorded, 54u);
   const Recording r = Recording::Open(dir.str());
   EXPECT_EQ(r.num_sets(), recorded);
   for (std::size_t s = 0; s < r.num_sets(); ++s) {
