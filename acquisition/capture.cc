@@ -1,6 +1,7 @@
 #include "acquisition/capture.h"
 
 #include "acquisition/aravis_camera.h"
+#include "acquisition/v4l2_camera.h"
 
 #include <yaml-cpp/yaml.h>
 
@@ -230,9 +231,12 @@ std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config, Cl
       } catch (const std::exception& e) {
         throw std::runtime_error("camera '" + c.name + "': " + e.what());
       }
-    } else {
-      throw std::runtime_error("camera '" + c.name + "': the " + c.driver +
-                               " driver is not built into this flamerig yet");
+    } else {  // v4l2 (the config allows nothing else)
+      try {
+        cameras.push_back(std::make_unique<V4l2Camera>(c.id, static_cast<int>(cameras.size())));
+      } catch (const std::exception& e) {
+        throw std::runtime_error("camera '" + c.name + "': " + e.what());
+      }
     }
   }
   return cameras;

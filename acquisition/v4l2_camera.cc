@@ -1,0 +1,259 @@
+#include "acquisition/v4l2_camera.h"
+
+#include <fcntl.h>
+#include <linux/videodev2.h>
+#include <poll.h>
+#include <sys/ioctl.h>
+#include <sys/mman.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <stdexcept>
+
+namespace flamerig {
+
+namespace {
+
+std::uint32_t FourccOf(PixelFormat f) {
+  switch (f) {
+    case PixelFormat::kMono8: return V4L2_PIX_FMT_GREY;
+    case PixelFormat::kMono16: return V4L2_PIX_FMT_Y16;
+    case PixelFormat::kRgb8: return V4L2_PIX_FMT_RGB24;
+    case PixelFormat::kBayerRg8: return V4L2_PIX_FMT_SRGGB8;
+    case PixelFormat::kBayerGr8: return V4L2_PIX_FMT_SGRBG8;
+    case PixelFormat::kBayerGb8: return V4L2_PIX_FMT_SGBRG8;
+    case PixelFormat::kBayerBg8: return V4L2_PIX_FMT_SBGGR8;
+  }
+  return V4L2_PIX_FMT_GREY;
+}
+
+std::string FourccName(std::uint32_t f) {
+  std::string s(4, ' ');
+  for (int i = 0; i < 4; ++i) s[i] = static_cast<char>((f >> (8 * i)) & 0xff);
+  return s;
+}
+
+// ioctl, retried on EINTR.
+int Xioctl(V4l2Device& d, unsigned long request, void* arg) {
+  int r;
+  do {
+    r = d.Ioctl(request, arg);
+  } while (r == -1 && errno == EINTR);
+  return r;
+}
+
+}  // namespace
+
+int SystemV4l2Device::Open(const std::string& path) {
+  fd_ = ::open(path.c_str(), O_RDWR | O_NONBLOCK | O_CLOEXEC);
+  return fd_;
+}
+int SystemV4l2Device::Ioctl(unsigned long request, void* arg) { return ::ioctl(fd_, request, arg); }
+void* SystemV4l2Device::Mmap(std::size_t length, off_t offset) {
+  return ::mmap(nullptr, length, PROT_READ | PROT_WRITE, MAP_SHARED, fd_, offset);
+}
+int SystemV4l2Device::Munmap(void* address, std::size_t length) { return ::munmap(address, length); }
+int SystemV4l2Device::Poll(int timeout_ms) {
+  pollfd p{fd_, POLLIN, 0};
+  return ::poll(&p, 1, timeout_ms);
+}
+void SystemV4l2Device::Close() {
+  if (fd_ >= 0) ::close(fd_);
+  fd_ = -1;
+}
+
+std::vector<std::string> ListV4l2Devices() {
+  std::vector<std::string> out;
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator("/dev", ec)) {
+    const std::string name = e.path().filename().string();
+    if (name.rfind("video", 0) != 0) continue;
+    SystemV4l2Device d;
+    if (d.Open(e.path().string()) < 0) continue;
+    v4l2_capability cap{};
+    if (d.Ioctl(VIDIOC_QUERYCAP, &cap) == 0 &&
+        (cap.device_caps & V4L2_CAP_VIDEO_CAPTURE) && (cap.device_caps & V4L2_CAP_STREAMING))
+      out.push_back(e.path().string());
+  }
+  return out;
+}
+
+V4l2Camera::V4l2Camera(const std::string& path, int camera_index, std::unique_ptr<V4l2Device> device)
+    : path_(path), camera_index_(camera_index), device_(std::move(device)) {
+  if (!device_) device_ = std::make_unique<SystemV4l2Device>();
+  if (device_->Open(path) < 0) Fail("cannot open", errno);
+  v4l2_capability cap{};
+  if (Xioctl(*device_, VIDIOC_QUERYCAP, &cap) != 0) Fail("VIDIOC_QUERYCAP (not a V4L2 device?)", errno);
+  const std::uint32_t caps = (cap.capabilities & V4L2_CAP_DEVICE_CAPS) ? cap.device_caps : cap.capabilities;
+  if (!(caps & V4L2_CAP_VIDEO_CAPTURE))
+    throw std::runtime_error("v4l2 camera " + path + ": not a video capture device");
+  if (!(caps & V4L2_CAP_STREAMING))
+    throw std::runtime_error("v4l2 camera " + path + ": does not support streaming I/O");
+  description_.driver = "v4l2";
+  description_.id = path;
+  description_.vendor = reinterpret_cast<const char*>(cap.driver);
+  description_.model = reinterpret_cast<const char*>(cap.card);
+  description_.address = reinterpret_cast<const char*>(cap.bus_info);
+}
+
+V4l2Camera::~V4l2Camera() {
+  try {
+    Stop();
+  } catch (...) {
+  }
+  device_->Close();
+}
+
+void V4l2Camera::Fail(const std::string& what, int error) const {
+  throw std::runtime_error("v4l2 camera " + path_ + ": " + what + ": " + std::strerror(error));
+}
+
+void V4l2Camera::Configure(const CameraSettings& s) {
+  s.Validate();
+  if (streaming_) throw std::logic_error("v4l2 camera " + path_ + ": Configure while streaming");
+  if (s.trigger != TriggerMode::kFreeRun) {
+    throw std::runtime_error("v4l2 camera " + path_ +
+                             ": V4L2 has no trigger input; use sync: free-run (timestamp matching)");
+  }
+  v4l2_format fmt{};
+  fmt.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+  fmt.fmt.pix.width = static_cast<std::uint32_t>(s.width);
+  fmt.fmt.pix.height = static_cast<std::uint32_t>(s.height);
+  fmt.fmt.pix.pixelformat = FourccOf(s.pixel_format);
+  fmt.fmt.pix.field = V4L2_FIELD_NONE;
+  if (Xioctl(*device_, VIDIOC_S_FMT, &fmt) != 0) Fail("VIDIOC_S_FMT", errno);
+  // The driver may adjust what it cannot do: that is a refusal here, not a silent change.
+  if (fmt.fmt.pix.width != std::uint32_t(s.width) || fmt.fmt.pix.height != std::uint32_t(s.height) ||
+      fmt.fmt.pix.pixelformat != FourccOf(s.pixel_format)) {
+    throw std::runtime_error(
+        "v4l2 camera " + path_ + ": asked for " + std::to_string(s.width) + "x" +
+        std::to_string(s.height) + " " + FourccName(FourccOf(s.pixel_format)) + ", the driver offers " +
+        std::to_string(fmt.fmt.pix.width) + "x" + std::to_string(fmt.fmt.pix.height) + " " +
+        FourccName(fmt.fmt.pix.pixelformat));
+  }
+  bytes_per_line_ = fmt.fmt.pix.bytesperline;
+  v4l2_streamparm parm{};
+  parm.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+  parm.parm.capture.timeperframe.numerator = 1000;
+  parm.parm.capture.timeperframe.denominator =
+      static_cast<std::uint32_t>(std::llround(s.frame_rate_hz * 1000));
+  if (Xioctl(*device_, VIDIOC_S_PARM, &parm) != 0) Fail("VIDIOC_S_PARM (frame rate)", errno);
+  if (s.exposure_us > 0) {
+    v4l2_control manual{V4L2_CID_EXPOSURE_AUTO, V4L2_EXPOSURE_MANUAL};
+    if (Xioctl(*device_, VIDIOC_S_CTRL, &manual) != 0) Fail("V4L2_CID_EXPOSURE_AUTO manual", errno);
+    v4l2_control exposure{V4L2_CID_EXPOSURE_ABSOLUTE,
+                          static_cast<std::int32_t>(std::llround(s.exposure_us / 100.0))};
+    if (Xioctl(*device_, VIDIOC_S_CTRL, &exposure) != 0)
+      Fail("V4L2_CID_EXPOSURE_ABSOLUTE " + std::to_string(exposure.value) + " (100 us units)", errno);
+  }
+  if (s.gain_db > 0) {
+    v4l2_control gain{V4L2_CID_GAIN, static_cast<std::int32_t>(std::llround(s.gain_db))};
+    if (Xioctl(*device_, VIDIOC_S_CTRL, &gain) != 0) Fail("V4L2_CID_GAIN", errno);
+  }
+  settings_ = s;
+}
+
+void V4l2Camera::Start(int buffers) {
+  if (streaming_) return;
+  if (buffers < 2) throw std::invalid_argument("v4l2 camera " + path_ + ": at least 2 buffers");
+  v4l2_requestbuffers req{};
+  req.count = static_cast<std::uint32_t>(buffers);
+  req.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+  req.memory = V4L2_MEMORY_MMAP;
+  if (Xioctl(*device_, VIDIOC_REQBUFS, &req) != 0) Fail("VIDIOC_REQBUFS", errno);
+  if (req.count < 2) {
+    throw std::runtime_error("v4l2 camera " + path_ + ": the driver granted " +
+                             std::to_string(req.count) + " buffers, at least 2 are needed");
+  }
+  for (std::uint32_t i = 0; i < req.count; ++i) {
+    v4l2_buffer b{};
+    b.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+    b.memory = V4L2_MEMORY_MMAP;
+    b.index = i;
+    if (Xioctl(*device_, VIDIOC_QUERYBUF, &b) != 0) Fail("VIDIOC_QUERYBUF", errno);
+    void* p = device_->Mmap(b.length, static_cast<off_t>(b.m.offset));
+    if (p == MAP_FAILED) Fail("mmap", errno);
+    buffers_.push_back({p, b.length});
+    if (Xioctl(*device_, VIDIOC_QBUF, &b) != 0) Fail("VIDIOC_QBUF", errno);
+  }
+  v4l2_buf_type type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+  if (Xioctl(*device_, VIDIOC_STREAMON, &type) != 0) Fail("VIDIOC_STREAMON", errno);
+  streaming_ = true;
+}
+
+void V4l2Camera::Stop() {
+  if (buffers_.empty() && !streaming_) return;
+  v4l2_buf_type type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+  if (streaming_) Xioctl(*device_, VIDIOC_STREAMOFF, &type);  // returns every buffer to us
+  streaming_ = false;
+  for (const Mapped& m : buffers_) device_->Munmap(m.address, m.length);
+  buffers_.clear();
+  v4l2_requestbuffers req{};
+  req.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+  req.memory = V4L2_MEMORY_MMAP;
+  Xioctl(*device_, VIDIOC_REQBUFS, &req);  // count 0: free them
+}
+
+std::optional<Frame> V4l2Camera::Pop(std::int64_t timeout_ns) {
+  if (!streaming_) throw std::logic_error("v4l2 camera " + path_ + ": Pop before Start");
+  const int ready = device_->Poll(static_cast<int>(std::max<std::int64_t>(0, timeout_ns) / 1'000'000));
+  if (ready <= 0) {
+    ++counters_.timeouts;
+    return std::nullopt;
+  }
+  v4l2_buffer b{};
+  b.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+  b.memory = V4L2_MEMORY_MMAP;
+  if (Xioctl(*device_, VIDIOC_DQBUF, &b) != 0) {
+    if (errno == EAGAIN) {
+      ++counters_.timeouts;
+      return std::nullopt;
+    }
+    if (errno == ENODEV) connected_ = false;  // unplugged
+    ++counters_.timeouts;
+    return std::nullopt;
+  }
+  if (b.index >= buffers_.size()) Fail("VIDIOC_DQBUF returned an unknown buffer", EINVAL);
+  timespec now{};
+  Frame f;
+  f.info.camera = camera_index_;
+  ::clock_gettime(CLOCK_MONOTONIC, &now);
+  f.info.host_monotonic_ns = std::int64_t(now.tv_sec) * 1'000'000'000 + now.tv_nsec;
+  ::clock_gettime(CLOCK_REALTIME, &now);
+  f.info.host_realtime_ns = std::int64_t(now.tv_sec) * 1'000'000'000 + now.tv_nsec;
+  f.info.device_frame_id = b.sequence;
+  f.info.frame_id = unwrapper_.Next(b.sequence);
+  f.info.device_timestamp_ns = std::int64_t(b.timestamp.tv_sec) * 1'000'000'000 +
+                               std::int64_t(b.timestamp.tv_usec) * 1000;
+  f.info.exposure_us = settings_.exposure_us;
+  f.info.gain_db = settings_.gain_db;
+  f.info.pixel_format = settings_.pixel_format;
+  f.info.width = settings_.width;
+  f.info.height = settings_.height;
+  const std::size_t row = std::size_t(settings_.width) * BytesPerPixel(settings_.pixel_format);
+  const std::size_t image = row * settings_.height;
+  const std::size_t stride = std::max<std::size_t>(bytes_per_line_, row);
+  auto bytes = std::make_shared<std::vector<std::uint8_t>>(image, 0);
+  const auto* src = static_cast<const std::uint8_t*>(buffers_[b.index].address);
+  const bool whole = b.bytesused >= stride * (settings_.height - 1) + row &&
+                     stride * (settings_.height - 1) + row <= buffers_[b.index].length;
+  if (whole) {
+    for (int y = 0; y < settings_.height; ++y)  // drop any row padding
+      std::memcpy(bytes->data() + y * row, src + y * stride, row);
+  }
+  f.info.status = (b.flags & V4L2_BUF_FLAG_ERROR) || !whole ? FrameStatus::kIncomplete
+                                                           : FrameStatus::kOk;
+  f.data = std::move(bytes);
+  if (Xioctl(*device_, VIDIOC_QBUF, &b) != 0) {
+    if (errno == ENODEV) connected_ = false;
+  }
+  counters_.missing_by_id = unwrapper_.missing();
+  ++counters_.delivered;
+  if (f.info.status != FrameStatus::kOk) ++counters_.incomplete;
+  return f;
+}
+
+}  // namespace flamerig

@@ -1,0 +1,303 @@
+// The v4l2 driver against a fake device that follows the kernel's buffer rules (a buffer is
+// either queued, done or dequeued; QBUF of a queued buffer is EINVAL; with no queued buffer a
+// frame is dropped but the sequence counter still advances; STREAMOFF returns every buffer;
+// ENODEV once unplugged). Tests that need a real /dev/video* skip themselves when none exists.
+#include <gtest/gtest.h>
+#include <linux/videodev2.h>
+#include <sys/mman.h>
+
+#include <cerrno>
+#include <cstring>
+#include <deque>
+
+#include "acquisition/v4l2_camera.h"
+
+namespace flamerig {
+namespace {
+
+class FakeV4l2 : public V4l2Device {
+ public:
+  struct Shared {  // what the test inspects and steers after the camera owns the device
+    int max_buffers = 4;
+    int width_multiple = 16;
+    std::uint32_t padding = 32;  // bytes at the end of every row
+    std::uint32_t sequence = 0;
+    bool unplugged = false;
+    bool next_frame_error = false;
+    int double_queue_errors = 0;
+    std::uint32_t exposure = 0, gain = 0;
+  };
+  explicit FakeV4l2(Shared* shared) : s_(shared) {}
+
+  int Open(const std::string& path) override {
+    if (path != "/dev/fake0") return Err(ENOENT);
+    return 3;
+  }
+  void Close() override {}
+  int Poll(int) override {
+    if (s_->unplugged) return 1;  // the kernel reports POLLERR
+    if (done_.empty()) Produce();
+    return done_.empty() ? 0 : 1;
+  }
+  void* Mmap(std::size_t length, off_t offset) override {
+    const std::size_t i = static_cast<std::size_t>(offset) / kOffsetUnit;
+    if (i >= buffers_.size() || length != buffers_[i].size()) {
+      errno = EINVAL;
+      return MAP_FAILED;
+    }
+    return buffers_[i].data();
+  }
+  int Munmap(void*, std::size_t) override { return 0; }
+
+  int Ioctl(unsigned long request, void* arg) override {
+    if (s_->unplugged) return Err(ENODEV);
+    switch (request) {
+      case VIDIOC_QUERYCAP: {
+        auto* c = static_cast<v4l2_capability*>(arg);
+        std::memset(c, 0, sizeof *c);
+        std::strcpy(reinterpret_cast<char*>(c->driver), "fake");
+        std::strcpy(reinterpret_cast<char*>(c->card), "Fake camera");
+        std::strcpy(reinterpret_cast<char*>(c->bus_info), "platform:fake");
+        c->device_caps = V4L2_CAP_VIDEO_CAPTURE | V4L2_CAP_STREAMING;
+        c->capabilities = c->device_caps | V4L2_CAP_DEVICE_CAPS;
+        return 0;
+      }
+      case VIDIOC_S_FMT: {
+        if (streaming_ || !buffers_.empty()) return Err(EBUSY);
+        auto* f = static_cast<v4l2_format*>(arg);
+        auto& p = f->fmt.pix;
+        int bpp = 1;
+        if (p.pixelformat == V4L2_PIX_FMT_Y16) bpp = 2;
+        else if (p.pixelformat == V4L2_PIX_FMT_RGB24) bpp = 3;
+        else if (p.pixelformat != V4L2_PIX_FMT_GREY && p.pixelformat != V4L2_PIX_FMT_SRGGB8)
+          p.pixelformat = V4L2_PIX_FMT_GREY;  // drivers substitute what they have
+        p.width = std::min<std::uint32_t>(1920, p.width / s_->width_multiple * s_->width_multiple);
+        p.height = std::min<std::uint32_t>(1080, p.height);
+        p.bytesperline = p.width * bpp + s_->padding;
+        p.sizeimage = p.bytesperline * p.height;
+        format_ = p;
+        return 0;
+      }
+      case VIDIOC_S_PARM: return 0;
+      case VIDIOC_S_CTRL: {
+        auto* c = static_cast<v4l2_control*>(arg);
+        if (c->id == V4L2_CID_EXPOSURE_AUTO) return 0;
+        if (c->id == V4L2_CID_EXPOSURE_ABSOLUTE) {
+          if (c->value < 1 || c->value > 10000) return Err(ERANGE);
+          s_->exposure = static_cast<std::uint32_t>(c->value);
+          return 0;
+        }
+        if (c->id == V4L2_CID_GAIN) {
+          s_->gain = static_cast<std::uint32_t>(c->value);
+          return 0;
+        }
+        return Err(EINVAL);
+      }
+      case VIDIOC_REQBUFS: {
+        auto* r = static_cast<v4l2_requestbuffers*>(arg);
+        if (streaming_) return Err(EBUSY);
+        buffers_.clear();
+        state_.clear();
+        done_.clear();
+        const int n = std::min<int>(static_cast<int>(r->count), s_->max_buffers);
+        for (int i = 0; i < n; ++i) {
+          buffers_.emplace_back(format_.sizeimage);
+          state_.push_back(kDequeued);
+        }
+        r->count = static_cast<std::uint32_t>(n);
+        return 0;
+      }
+      case VIDIOC_QUERYBUF: {
+        auto* b = static_cast<v4l2_buffer*>(arg);
+        if (b->index >= buffers_.size()) return Err(EINVAL);
+        b->length = static_cast<std::uint32_t>(buffers_[b->index].size());
+        b->m.offset = b->index * kOffsetUnit;
+        return 0;
+      }
+      case VIDIOC_QBUF: {
+        auto* b = static_cast<v4l2_buffer*>(arg);
+        if (b->index >= buffers_.size()) return Err(EINVAL);
+        if (state_[b->index] != kDequeued) {
+          ++s_->double_queue_errors;
+          return Err(EINVAL);
+        }
+        state_[b->index] = kQueued;
+        queued_.push_back(b->index);
+        return 0;
+      }
+      case VIDIOC_DQBUF: {
+        auto* b = static_cast<v4l2_buffer*>(arg);
+        if (!streaming_ || done_.empty()) return Err(EAGAIN);
+        *b = done_.front();
+        done_.pop_front();
+        state_[b->index] = kDequeued;
+        return 0;
+      }
+      case VIDIOC_STREAMON: streaming_ = true; return 0;
+      case VIDIOC_STREAMOFF:
+        streaming_ = false;
+        for (auto& st : state_) st = kDequeued;
+        queued_.clear();
+        done_.clear();
+        return 0;
+    }
+    return Err(ENOTTY);
+  }
+
+ private:
+  static constexpr std::uint32_t kOffsetUnit = 1 << 24;
+  enum State { kDequeued, kQueued, kDone };
+  int Err(int e) {
+    errno = e;
+    return -1;
+  }
+  // One frame: into the oldest queued buffer, or dropped when none is queued.
+  void Produce() {
+    if (!streaming_) return;
+    const std::uint32_t seq = s_->sequence++;
+    if (queued_.empty()) return;
+    const std::uint32_t i = queued_.front();
+    queued_.pop_front();
+    auto& buf = buffers_[i];
+    const std::uint32_t row = format_.bytesperline - s_->padding;
+    for (std::uint32_t y = 0; y < format_.height; ++y) {
+      for (std::uint32_t x = 0; x < row; ++x)
+        buf[y * format_.bytesperline + x] = static_cast<std::uint8_t>(x + 3 * y + 5 * seq);
+      for (std::uint32_t x = row; x < format_.bytesperline; ++x)
+        buf[y * format_.bytesperline + x] = 0xEE;  // padding the driver must not pass on
+    }
+    v4l2_buffer b{};
+    b.index = i;
+    b.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+    b.memory = V4L2_MEMORY_MMAP;
+    b.sequence = seq;
+    b.bytesused = format_.sizeimage;
+    b.timestamp.tv_sec = seq / 30;
+    b.timestamp.tv_usec = (seq % 30) * 33333;
+    b.flags = V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC | (s_->next_frame_error ? V4L2_BUF_FLAG_ERROR : 0);
+    s_->next_frame_error = false;
+    state_[i] = kDone;
+    done_.push_back(b);
+  }
+
+  Shared* s_;
+  v4l2_pix_format format_{};
+  bool streaming_ = false;
+  std::vector<std::vector<std::uint8_t>> buffers_;
+  std::vector<State> state_;
+  std::deque<std::uint32_t> queued_;
+  std::deque<v4l2_buffer> done_;
+};
+
+CameraSettings Mono(int w, int h) {
+  CameraSettings s;
+  s.width = w;
+  s.height = h;
+  s.pixel_format = PixelFormat::kMono8;
+  s.frame_rate_hz = 30;
+  s.exposure_us = 5000;
+  return s;
+}
+
+TEST(V4l2Camera, StreamsFramesWithoutRowPaddingAndRequeuesEveryBuffer) {
+  FakeV4l2::Shared shared;
+  V4l2Camera cam("/dev/fake0", 2, std::make_unique<FakeV4l2>(&shared));
+  EXPECT_EQ(cam.description().model, "Fake camera");
+  cam.Configure(Mono(64, 48));
+  EXPECT_EQ(shared.exposure, 50u);  // 5000 us in 100 us units
+  cam.Start(8);                     // the fake grants 4
+  for (std::uint32_t k = 0; k < 25; ++k) {
+    const auto f = cam.Pop(100'000'000);
+    ASSERT_TRUE(f.has_value()) << k;
+    EXPECT_EQ(f->info.camera, 2);
+    EXPECT_EQ(f->info.frame_id, k);
+    EXPECT_EQ(f->info.status, FrameStatus::kOk);
+    EXPECT_EQ(f->info.device_timestamp_ns, std::int64_t(k / 30) * 1'000'000'000 +
+                                               std::int64_t(k % 30) * 33'333'000);
+    ASSERT_EQ(f->bytes(), 64u * 48u);
+    for (int y = 0; y < 48; y += 7)
+      for (int x = 0; x < 64; x += 5)
+        ASSERT_EQ((*f->data)[y * 64 + x], static_cast<std::uint8_t>(x + 3 * y + 5 * k));
+  }
+  EXPECT_EQ(shared.double_queue_errors, 0);
+  EXPECT_EQ(cam.counters().missing_by_id, 0u);
+  cam.Stop();
+  // Restart after stop: the buffers come back.
+  cam.Start(4);
+  EXPECT_TRUE(cam.Pop(100'000'000).has_value());
+}
+
+TEST(V4l2Camera, DropsFromSequenceGapsAndErrorFlags) {
+  FakeV4l2::Shared shared;
+  V4l2Camera cam("/dev/fake0", 0, std::make_unique<FakeV4l2>(&shared));
+  cam.Configure(Mono(32, 16));
+  cam.Start(4);
+  ASSERT_TRUE(cam.Pop(0).has_value());
+  shared.sequence += 3;  // three frames the driver produced while no buffer was free
+  shared.next_frame_error = true;
+  const auto f = cam.Pop(0);
+  ASSERT_TRUE(f.has_value());
+  EXPECT_EQ(f->info.frame_id, 4u);
+  EXPECT_EQ(f->info.status, FrameStatus::kIncomplete);
+  EXPECT_EQ(cam.counters().missing_by_id, 3u);
+  EXPECT_EQ(cam.counters().incomplete, 1u);
+}
+
+TEST(V4l2Camera, RefusalsNameWhatAndWhere) {
+  FakeV4l2::Shared shared;
+  EXPECT_THROW(V4l2Camera("/dev/none", 0, std::make_unique<FakeV4l2>(&shared)), std::runtime_error);
+  V4l2Camera cam("/dev/fake0", 0, std::make_unique<FakeV4l2>(&shared));
+  try {
+    cam.Configure(Mono(100, 48));  // the fake wants multiples of 16
+    FAIL() << "an adjusted size was accepted";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("asked for 100x48 GREY, the driver offers 96x48 GREY"),
+              std::string::npos)
+        << e.what();
+  }
+  CameraSettings bayer = Mono(64, 48);
+  bayer.pixel_format = PixelFormat::kBayerGb8;  // the fake offers RGGB only
+  EXPECT_THROW(cam.Configure(bayer), std::runtime_error);
+  CameraSettings trig = Mono(64, 48);
+  trig.trigger = TriggerMode::kHardware;
+  try {
+    cam.Configure(trig);
+    FAIL();
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("no trigger"), std::string::npos);
+  }
+  CameraSettings longer = Mono(64, 48);
+  longer.frame_rate_hz = 0.1;
+  longer.exposure_us = 5e6;  // 50000 units, beyond the control's range
+  try {
+    cam.Configure(longer);
+    FAIL();
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("V4L2_CID_EXPOSURE_ABSOLUTE"), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find("/dev/fake0"), std::string::npos);
+  }
+  shared.max_buffers = 1;
+  cam.Configure(Mono(64, 48));
+  EXPECT_THROW(cam.Start(4), std::runtime_error);  // granted 1 buffer
+}
+
+TEST(V4l2Camera, UnpluggedMeansDisconnected) {
+  FakeV4l2::Shared shared;
+  V4l2Camera cam("/dev/fake0", 0, std::make_unique<FakeV4l2>(&shared));
+  cam.Configure(Mono(32, 16));
+  cam.Start(4);
+  ASSERT_TRUE(cam.Pop(0).has_value());
+  shared.unplugged = true;
+  EXPECT_FALSE(cam.Pop(10'000'000).has_value());
+  EXPECT_FALSE(cam.connected());
+}
+
+TEST(V4l2Camera, RealDevicesWhenPresent) {
+  const auto devices = ListV4l2Devices();
+  if (devices.empty()) GTEST_SKIP() << "no /dev/video* capture device on this machine";
+  V4l2Camera cam(devices.front(), 0);
+  EXPECT_EQ(cam.description().driver, "v4l2");
+}
+
+}  // namespace
+}  // namespace flamerig
