@@ -240,8 +240,18 @@ void SimCamera::Produce(std::int64_t until_ns) {
 std::optional<Frame> SimCamera::Pop(std::int64_t timeout_ns) {
   if (!running_) throw std::logic_error("sim camera '" + options_.id + "': Pop before Start");
   const std::int64_t deadline = clock_->MonotonicNs() + std::max<std::int64_t>(0, timeout_ns);
-  Produce(deadline);
-  while (!pending_.empty() && pending_.front().deliver_ns <= deadline) {
+  for (;;) {
+    Produce(deadline);
+    if (pending_.empty() || pending_.front().deliver_ns > deadline) {
+      // Nothing due yet: look again for trigger pulses every millisecond until the deadline, as a
+      // camera that exposes on a trigger would.
+      const std::int64_t now = clock_->MonotonicNs();
+      if (now >= deadline) break;
+      std::int64_t wake = std::min(deadline, now + 1'000'000);
+      if (!pending_.empty()) wake = std::min(wake, pending_.front().deliver_ns);
+      clock_->SleepUntil(wake);
+      continue;
+    }
     Pending p = pending_.front();
     pending_.pop_front();
     clock_->SleepUntil(p.deliver_ns);
@@ -265,7 +275,6 @@ std::optional<Frame> SimCamera::Pop(std::int64_t timeout_ns) {
     if (f.info.status != FrameStatus::kOk) ++counters_.incomplete;
     return f;
   }
-  clock_->SleepUntil(deadline);
   ++counters_.timeouts;
   return std::nullopt;
 }

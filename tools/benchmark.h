@@ -63,6 +63,21 @@ struct FitBenchmarkOptions {
 std::string RunFitBenchmark(const FitBenchmarkOptions& options,
                             const std::function<void(const std::string&)>& log);
 
+struct CaptureBenchmarkOptions {
+  double seconds = 10;                  // per scenario
+  std::string directory = ".flamerig_capture_benchmark";  // on the disk being measured; removed after
+  bool aravis = true;                   // the Aravis fake scenario (needs 127.0.0.2..5: a private
+                                        // network namespace, see acquisition_aravis_test.cc)
+  bool quick = false;                   // CI smoke mode: 1 s, smaller rigs
+};
+
+// The capture benchmark (issue 5): the disk's sequential write bandwidth (measured first, in the
+// same run), then the daemon recording simulated cameras (8 x 640x480 Mono8 at 100 fps; 4 x
+// 1920x1080 Mono8 at 30 fps) and Aravis' fake GigE Vision cameras over loopback (4 x 640x480 at
+// 100 fps): frame sets recorded and dropped, CPU use, write bandwidth, timestamp spread in sets.
+std::string RunCaptureBenchmark(const CaptureBenchmarkOptions& options,
+                                const std::function<void(const std::string&)>& log);
+
 // Replaces (or appends) section `name` of the Markdown file at `path`.
 void WriteBenchmarkSection(const std::string& path, const std::string& name,
                            const std::string& markdown);

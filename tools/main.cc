@@ -9,6 +9,7 @@
 #include <fstream>
 #include <thread>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <iostream>
@@ -73,9 +74,11 @@ commands:
   export --recording DIR --out DIR [--first N] [--count N]
         Write a recording's frame sets as DIR/frame_NNNNNN/<camera>.png (the layout reconstruct
         and fit read) and DIR/sets.csv; reports what a recovered recording left out.
-  benchmark render|tomography|fit [--out BENCHMARKS.md] [--quick] [--figures DIR]
+  benchmark render|tomography|fit|capture [--out BENCHMARKS.md] [--quick] [--figures DIR]
+            [--seconds S]
         Time the forward renderer, the tomography or the fit (ours against the paper's
-        Algorithm 2) against its error and write the figures to BENCHMARKS.md, plots to
+        Algorithm 2) against its error, or sustained recording from simulated and Aravis fake
+        cameras against the disk's bandwidth, and write the figures to BENCHMARKS.md, plots to
         DIR (default benchmarks/) (--quick: a small smoke run).
   help  This text.
 
@@ -86,8 +89,10 @@ Errors name the file, the field and the rule; the exit status is non-zero.
 struct Args {
   std::vector<std::string> positional;
   std::map<std::string, std::string> named;
+  std::vector<std::string> original;  // argv[1..]: the command line, to run it again
 
   Args(int argc, char** argv, int first, const std::vector<std::string>& flags) {
+    for (int i = 1; i < argc; ++i) original.push_back(argv[i]);
     for (int i = first; i < argc; ++i) {
       std::string a = argv[i];
       if (a.rfind("--", 0) == 0) {
@@ -351,9 +356,9 @@ int Reconstruct(const Args& args) {
 int Benchmark(const Args& args) {
   const std::string target = args.positional.empty() ? "" : args.positional[0];
   if (target.empty()) {
-    throw std::invalid_argument("benchmark needs a target: render, tomography or fit");
+    throw std::invalid_argument("benchmark needs a target: render, tomography, fit or capture");
   }
-  args.CheckKnown({"out", "quick", "figures"});
+  args.CheckKnown({"out", "quick", "figures", "seconds"});
   auto log = [](const std::string& line) { std::fprintf(stderr, "%s\n", line.c_str()); };
   std::string md;
   if (target == "render") {
@@ -369,8 +374,32 @@ int Benchmark(const Args& args) {
     options.quick = args.named.count("quick") > 0;
     if (args.named.count("figures")) options.figure_dir = args.Get("figures", "");
     md = RunFitBenchmark(options, log);
+  } else if (target == "capture") {
+    CaptureBenchmarkOptions options;
+    options.quick = args.named.count("quick") > 0;
+    if (args.named.count("seconds"))
+      options.seconds = ParseNumber(args.Get("seconds", ""), "--seconds");
+    // The Aravis scenario needs 127.0.0.2..5: rerun this command in a private network namespace.
+    if (!std::getenv("FLAMERIG_ARAVIS_NETNS")) {
+      ::setenv("FLAMERIG_ARAVIS_NETNS", "1", 1);
+      if (std::system("unshare -rn true >/dev/null 2>&1") == 0) {
+        std::vector<const char*> argv = {
+            "unshare", "-rn", "sh", "-c",
+            "ip link set lo up && for a in 2 3 4 5 6 7 8 9; do ip addr add 127.0.0.$a/32 dev lo; "
+            "done && exec \"$@\"",
+            "flamerig-netns"};
+        const std::string self = fs::read_symlink("/proc/self/exe").string();
+        argv.push_back(self.c_str());
+        for (const auto& a : args.original) argv.push_back(a.c_str());
+        argv.push_back(nullptr);
+        ::execvp("unshare", const_cast<char* const*>(argv.data()));
+      }
+      ::setenv("FLAMERIG_ARAVIS_NETNS", "unavailable", 1);
+    }
+    md = RunCaptureBenchmark(options, log);
   } else {
-    throw std::invalid_argument("benchmark target '" + target + "': use render, tomography or fit");
+    throw std::invalid_argument("benchmark target '" + target +
+                                "': use render, tomography, fit or capture");
   }
   std::string out = args.Get("out", "BENCHMARKS.md");
   WriteBenchmarkSection(out, target, md);
