@@ -6,6 +6,7 @@
 
 #include "acquisition/image.h"
 #include "acquisition/recording.h"
+#include "acquisition/streampix.h"
 
 namespace flamerig {
 
@@ -42,6 +43,54 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
       ImageU8 u8;
       ImageU16 u16;
       const std::string path = (dir / (rec.metadata().cameras[c].name + ".png")).string();
+      if (DecodeFrame(f, &u8, &u16) == 16) WritePng16(path, u16);
+      else WritePng(path, u8);
+      ++summary.images;
+    }
+    csv << "\n";
+    ++summary.sets;
+    if (progress) progress(i - first + 1, end - first);
+  }
+  return summary;
+}
+
+ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
+                              const std::vector<std::string>& names_in, const std::string& out_dir,
+                              const ExportOptions& options,
+                              const std::function<void(std::size_t, std::size_t)>& progress) {
+  if (seq_files.empty()) throw std::invalid_argument("export: no .seq files");
+  std::vector<std::string> names = names_in;
+  if (names.empty())
+    for (const auto& f : seq_files) names.push_back(fs::path(f).stem().string());
+  if (names.size() != seq_files.size())
+    throw std::invalid_argument("export: " + std::to_string(names.size()) + " names for " +
+                                std::to_string(seq_files.size()) + " .seq files");
+  std::vector<StreamPixSequence> seqs;
+  std::size_t n = ~std::size_t(0);
+  for (const auto& f : seq_files) {
+    seqs.emplace_back(f);
+    n = std::min(n, seqs.back().num_frames());
+  }
+  fs::create_directories(out_dir);
+  std::ofstream csv(fs::path(out_dir) / "sets.csv");
+  csv << "set";
+  for (const auto& name : names) csv << "," << name << "_timestamp_ns";
+  csv << "\n";
+  ExportSummary summary;
+  const std::size_t first = std::min(options.first, n);
+  const std::size_t end = first + std::min(options.count, n - first);
+  for (std::size_t i = first; i < end; ++i) {
+    char name[32];
+    std::snprintf(name, sizeof name, "frame_%06zu", i);
+    const fs::path dir = fs::path(out_dir) / name;
+    fs::create_directories(dir);
+    csv << i;
+    for (std::size_t c = 0; c < seqs.size(); ++c) {
+      const Frame f = seqs[c].ReadFrame(i, static_cast<int>(c));
+      csv << "," << f.info.device_timestamp_ns;
+      ImageU8 u8;
+      ImageU16 u16;
+      const std::string path = (dir / (names[c] + ".png")).string();
       if (DecodeFrame(f, &u8, &u16) == 16) WritePng16(path, u16);
       else WritePng(path, u8);
       ++summary.images;

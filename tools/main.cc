@@ -71,9 +71,10 @@ commands:
   ctl [--config RIG.yaml | --endpoint unix:PATH|tcp:HOST:PORT] REQUEST... [--out FILE]
         Talk to a running daemon: status, cameras, start NAME, stop, event NAME,
         preview CAMERA [K] (PNG to --out), shutdown.
-  export --recording DIR --out DIR [--first N] [--count N]
-        Write a recording's frame sets as DIR/frame_NNNNNN/<camera>.png (the layout reconstruct
-        and fit read) and DIR/sets.csv; reports what a recovered recording left out.
+  export (--recording DIR | --seq A.seq,B.seq [--names CAM,CAM]) --out DIR [--first N] [--count N]
+        Write a recording's (or StreamPix sequences') frame sets as DIR/frame_NNNNNN/<camera>.png
+        (the layout reconstruct and fit read) and DIR/sets.csv; reports what a recovered recording
+        left out.
   benchmark render|tomography|fit|capture [--out BENCHMARKS.md] [--quick] [--figures DIR]
             [--seconds S]
         Time the forward renderer, the tomography or the fit (ours against the paper's
@@ -657,20 +658,27 @@ int Ctl(const Args& args) {
 }
 
 int Export(const Args& args) {
-  args.CheckKnown({"recording", "out", "first", "count"});
+  args.CheckKnown({"recording", "seq", "names", "out", "first", "count"});
   ExportOptions o;
   if (args.named.count("first"))
     o.first = static_cast<std::size_t>(ParseNumber(args.Get("first", ""), "--first"));
   if (args.named.count("count"))
     o.count = static_cast<std::size_t>(ParseNumber(args.Get("count", ""), "--count"));
+  auto progress = [](std::size_t done, std::size_t total) {
+    ProgressBar("export", static_cast<int>(done), static_cast<int>(total));
+  };
+  if (args.named.count("seq")) {
+    const ExportSummary s = ExportStreamPix(SplitList(args.Get("seq", "")),
+                                            SplitList(args.Get("names", "")),
+                                            args.Required("out"), o, progress);
+    std::fprintf(stderr, "export: %zu frame sets, %zu images\n", s.sets, s.images);
+    return 0;
+  }
   const Recording rec = Recording::Open(args.Required("recording"));
   for (const auto& note : rec.recovery().notes)
     std::fprintf(stderr, "export: recovered recording: %s\n", note.c_str());
-  const ExportSummary s = ExportRecording(args.Required("recording"), args.Required("out"), o,
-                                          [](std::size_t done, std::size_t total) {
-                                            ProgressBar("export", static_cast<int>(done),
-                                                        static_cast<int>(total));
-                                          });
+  const ExportSummary s =
+      ExportRecording(args.Required("recording"), args.Required("out"), o, progress);
   std::fprintf(stderr, "export: %zu frame sets, %zu images, %zu camera frames missing\n", s.sets,
                s.images, s.missing_frames);
   return 0;

@@ -1,0 +1,57 @@
+// Reading Norpix StreamPix `.seq` sequences, the format the paper's capture used (one file per
+// camera, hardware-triggered, so frame i of every file is one frame set).
+//
+// Layout (little-endian): a header of `header_size` bytes (1024), then fixed-size frames of
+// `true_image_size` bytes: the image (`image_size_bytes`), an 8-byte timestamp (int32 seconds
+// since 1970, uint16 milliseconds, uint16 microseconds; version 5 and later, earlier versions
+// leave the microseconds 0), padding. Header fields, by byte offset: 0 magic 0xFEED, 28 version,
+// 32 header size, 36 description (UTF-16, 512 bytes), 548 width, 552 height, 556 bit depth, 560
+// real bit depth, 564 image size in bytes, 568 image format, 572 allocated frames, 580 true image
+// size, 584 frame rate (double), 620 compression format.
+//
+// Variants read: versions 3 to 6, uncompressed (compression format 0), image formats 100 (mono,
+// 8 or 16 bit), 101 (raw Bayer, 8 bit; pattern as given to the reader), 200 (BGR, 24 bit) and 400
+// (RGB, 24 bit). Compressed sequences (JPEG, H.264; they need a separate index file) and the
+// packed/YUV formats are refused with an error that names the file and the variant.
+#ifndef FLAMERIG_ACQUISITION_STREAMPIX_H_
+#define FLAMERIG_ACQUISITION_STREAMPIX_H_
+
+#include <cstdint>
+#include <string>
+
+#include "acquisition/frame.h"
+
+namespace flamerig {
+
+struct SeqHeader {
+  std::uint32_t version = 0, header_size = 0;
+  std::uint32_t width = 0, height = 0, bit_depth = 0, bit_depth_real = 0;
+  std::uint32_t image_size_bytes = 0, image_format = 0, allocated_frames = 0, true_image_size = 0;
+  double frame_rate_hz = 0;
+  std::uint32_t compression_format = 0;
+  std::string description;  // ASCII part of the UTF-16 description
+};
+
+class StreamPixSequence {
+ public:
+  // Reads and checks the header; throws std::runtime_error naming the file and the field.
+  // `bayer` is the pattern of image format 101 files (the header does not always say).
+  explicit StreamPixSequence(const std::string& path, PixelFormat bayer = PixelFormat::kBayerRg8);
+  const SeqHeader& header() const { return header_; }
+  // Frames wholly present in the file (a sequence cut short by a crash has fewer than allocated).
+  std::size_t num_frames() const { return frames_; }
+  // Frame i: pixels (BGR converted to RGB), its index as frame id, its timestamp as the device
+  // timestamp (ns since 1970); `camera` goes into the frame's info.
+  Frame ReadFrame(std::size_t i, int camera = 0) const;
+
+ private:
+  std::string path_;
+  SeqHeader header_;
+  PixelFormat format_ = PixelFormat::kMono8;
+  bool bgr_ = false;
+  std::size_t frames_ = 0;
+};
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_ACQUISITION_STREAMPIX_H_
