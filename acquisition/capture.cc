@@ -332,6 +332,16 @@ CaptureDaemon::~CaptureDaemon() {
 
 void CaptureDaemon::Start() {
   if (running_) return;
+  {
+    // A fresh assembler at every arm.
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    assembler_ = FrameSetAssembler(config_.AssemblerOptions());
+    set_counters_ = assembler_.counters();
+  }
+  {
+    std::lock_guard<std::mutex> lock(incoming_mutex_);
+    incoming_.clear();  // frames from before a disarm
+  }
   for (std::size_t c = 0; c < cameras_.size(); ++c) {
     try {
       cameras_[c]->Configure(config_.cameras[c].settings);
@@ -400,7 +410,8 @@ void CaptureDaemon::CameraLoop(int camera) {
 void CaptureDaemon::TriggerLoop() {
   const auto period = static_cast<std::int64_t>(1e9 / config_.trigger_rate_hz);
   std::int64_t next = clock_->MonotonicNs() + period;
-  for (std::int64_t id = 1; running_; ++id) {
+  // Ids go on increasing across arms, so a frame left over from before can never match a new set.
+  for (std::int64_t id = ++last_trigger_id_; running_; id = ++last_trigger_id_) {
     // Sleep in short steps so that Stop is seen quickly.
     while (running_ && clock_->MonotonicNs() < next)
       clock_->SleepUntil(std::min(next, clock_->MonotonicNs() + 50'000'000));
@@ -499,6 +510,7 @@ std::string CaptureDaemon::RecordingPath(const std::string& name) const {
 
 std::string CaptureDaemon::StartRecording(const std::string& name) {
   const std::string dir = RecordingPath(name);
+  if (!running_) throw std::logic_error("capture: arm the cameras before recording");
   std::lock_guard<std::mutex> lock(state_mutex_);
   if (recorder_) throw std::logic_error("capture: already recording into " + recording_dir_);
   recorder_ = std::make_unique<Recorder>(dir, Metadata(), config_.recorder);
@@ -508,6 +520,7 @@ std::string CaptureDaemon::StartRecording(const std::string& name) {
 
 std::string CaptureDaemon::TriggerEvent(const std::string& name) {
   const std::string dir = RecordingPath(name);
+  if (!running_) throw std::logic_error("capture: arm the cameras before recording");
   std::lock_guard<std::mutex> lock(state_mutex_);
   if (recorder_) throw std::logic_error("capture: already recording into " + recording_dir_);
   recorder_ = std::make_unique<Recorder>(dir, Metadata(), config_.recorder);
@@ -562,6 +575,40 @@ CaptureStatus CaptureDaemon::status() const {
   s.trigger_overruns = trigger_overruns_;
   s.ring_bytes = ring_bytes_;
   return s;
+}
+
+void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::string& key,
+                                     const std::string& value) {
+  if (running_) throw std::logic_error("capture: disarm before configuring cameras");
+  int index = -1;
+  for (std::size_t c = 0; c < config_.cameras.size(); ++c)
+    if (config_.cameras[c].name == camera || std::to_string(c) == camera) index = static_cast<int>(c);
+  if (index < 0) throw std::invalid_argument("capture: no camera '" + camera + "'");
+  CameraSettings s = config_.cameras[index].settings;
+  const std::string where = "camera '" + config_.cameras[index].name + "': " + key + " '" + value + "'";
+  auto number = [&] {
+    char* end = nullptr;
+    const double v = std::strtod(value.c_str(), &end);
+    if (value.empty() || *end != '\0' || !std::isfinite(v))
+      throw std::invalid_argument(where + ": not a number");
+    return v;
+  };
+  try {
+    if (key == "width") s.width = static_cast<int>(number());
+    else if (key == "height") s.height = static_cast<int>(number());
+    else if (key == "pixel_format") s.pixel_format = PixelFormatFromName(value);
+    else if (key == "frame_rate_hz") s.frame_rate_hz = number();
+    else if (key == "exposure_us") s.exposure_us = number();
+    else if (key == "gain_db") s.gain_db = number();
+    else
+      throw std::invalid_argument("unknown key (width, height, pixel_format, frame_rate_hz, "
+                                  "exposure_us, gain_db)");
+    s.Validate();
+  } catch (const std::invalid_argument& e) {
+    const std::string m = e.what();
+    throw std::invalid_argument(m.rfind(where, 0) == 0 ? m : where + ": " + m);
+  }
+  config_.cameras[index].settings = s;
 }
 
 std::shared_ptr<const FrameSet> CaptureDaemon::LatestSet() const {

@@ -146,6 +146,13 @@ class CaptureDaemon {
   // An event (ignition): a recording that starts with the pre-trigger ring and continues live.
   std::string TriggerEvent(const std::string& name);
 
+  bool running() const { return running_; }
+  // Changes one setting of one camera (by name or index) while the daemon is stopped (disarmed);
+  // applied at the next Start. Keys: width, height, pixel_format, frame_rate_hz, exposure_us,
+  // gain_db. Throws std::invalid_argument naming the camera, key and value, std::logic_error
+  // while running.
+  void SetCameraSetting(const std::string& camera, const std::string& key, const std::string& value);
+
   CaptureStatus status() const;
   // The latest frame set (shared pixels, no copy); empty before the first.
   std::shared_ptr<const FrameSet> LatestSet() const;
@@ -167,6 +174,7 @@ class CaptureDaemon {
   std::vector<std::unique_ptr<CameraState>> camera_state_;
   std::atomic<bool> running_{false};
   std::atomic<std::uint64_t> trigger_overruns_{0};
+  std::int64_t last_trigger_id_ = 0;  // used by the trigger thread only
 
   // camera threads -> assembler
   mutable std::mutex incoming_mutex_;

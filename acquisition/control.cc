@@ -202,14 +202,26 @@ ControlReply HandleControlRequest(CaptureDaemon& daemon, const std::string& line
       r.body = RecorderYaml(daemon.StopRecording());
     } else if (cmd == "preview") {
       r.body = PreviewPng(daemon, w);
+    } else if (cmd == "arm") {
+      arity(1);
+      daemon.Start();
+      r.body = "armed: cameras streaming\n";
+    } else if (cmd == "disarm") {
+      arity(1);
+      daemon.Stop();
+      r.body = "disarmed: cameras stopped (any recording closed)\n";
+    } else if (cmd == "configure") {
+      arity(4);
+      daemon.SetCameraSetting(w[1], w[2], w[3]);
+      r.body = "camera " + w[1] + ": " + w[2] + " = " + w[3] + " (applied when armed)\n";
     } else if (cmd == "shutdown") {
       arity(1);
       if (shutdown_requested) *shutdown_requested = true;
       r.body = "shutting down\n";
     } else {
       throw std::invalid_argument("unknown request '" + cmd.substr(0, 32) +
-                                  "': status, cameras, start NAME, stop, event NAME, preview "
-                                  "CAMERA [K], shutdown");
+                                  "': status, cameras, arm, disarm, configure CAMERA KEY VALUE, "
+                                  "start NAME, stop, event NAME, preview CAMERA [K], shutdown");
     }
     r.ok = true;
   } catch (const std::exception& e) {

@@ -142,6 +142,8 @@ void SimCamera::Start(int buffers) {
   bus_position_ = bus_ ? bus_->count() : 0;  // pulses before the start are not seen
   device_counter_ = options_.first_frame_id;
   last_exposure_ns_ = started_ns_;
+  std::lock_guard<std::mutex> lock(trigger_mutex_);
+  software_triggers_.clear();  // triggers sent while stopped are not seen
 }
 
 void SimCamera::Stop() {

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <signal.h>
 #include <unistd.h>
 
 #include "acquisition/image.h"
@@ -258,6 +259,39 @@ TEST(Cli, CaptureCtlAndExport) {
   const Result gone = Flamerig("ctl --endpoint unix:" + (dir / "none.sock").string() + " status");
   EXPECT_EQ(gone.status, 1);
   EXPECT_NE(gone.output.find("is `flamerig capture` running?"), std::string::npos) << gone.output;
+  fs::remove_all(dir);
+}
+
+}  // namespace
+
+namespace {
+
+// SIGTERM (as a service manager sends it) stops the daemon cleanly: the recording closes with
+// every frame set flushed and metadata.yaml saying so.
+TEST(Cli, CaptureStopsCleanlyOnSigterm) {
+  fs::path dir = TempDir();
+  std::ofstream(dir / "rig.yaml") << "data_dir: " << (dir / "rec").string()
+                                  << "\nsync: hardware-trigger\ntrigger_rate_hz: 50\ncameras:\n"
+                                     "  - {name: a, width: 32, height: 24}\n"
+                                     "  - {name: b, width: 32, height: 24}\n";
+  const std::string cmd = std::string(FLAMERIG_BINARY) + " capture --config " +
+                          (dir / "rig.yaml").string() + " --record take > " +
+                          (dir / "log.txt").string() + " 2>&1 & echo $!";
+  FILE* p = popen(cmd.c_str(), "r");
+  ASSERT_NE(p, nullptr);
+  int pid = 0;
+  ASSERT_EQ(fscanf(p, "%d", &pid), 1);
+  pclose(p);
+  usleep(1'000'000);
+  ASSERT_EQ(::kill(pid, SIGTERM), 0);
+  for (int i = 0; i < 100 && ::kill(pid, 0) == 0; ++i) usleep(50'000);
+  EXPECT_NE(::kill(pid, 0), 0) << "still running after SIGTERM";
+  std::ifstream meta(dir / "rec" / "take" / "metadata.yaml");
+  std::string text((std::istreambuf_iterator<char>(meta)), {});
+  EXPECT_NE(text.find("closed: true"), std::string::npos) << text;
+  std::ifstream log(dir / "log.txt");
+  std::string out((std::istreambuf_iterator<char>(log)), {});
+  EXPECT_NE(out.find("frame sets recorded"), std::string::npos) << out;
   fs::remove_all(dir);
 }
 

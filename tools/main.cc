@@ -69,8 +69,8 @@ commands:
         recording into data_dir/NAME at once; --event saves the pre-trigger ring first;
         --duration stops after S seconds (else: Ctrl-C or `flamerig ctl shutdown`).
   ctl [--config RIG.yaml | --endpoint unix:PATH|tcp:HOST:PORT] REQUEST... [--out FILE]
-        Talk to a running daemon: status, cameras, start NAME, stop, event NAME,
-        preview CAMERA [K] (PNG to --out), shutdown.
+        Talk to a running daemon: status, cameras, arm, disarm, configure CAMERA KEY VALUE,
+        start NAME, stop, event NAME, preview CAMERA [K] (PNG to --out), shutdown.
   export (--recording DIR | --seq A.seq,B.seq [--names CAM,CAM]) --out DIR [--first N] [--count N]
         Write a recording's (or StreamPix sequences') frame sets as DIR/frame_NNNNNN/<camera>.png
         (the layout reconstruct and fit read) and DIR/sets.csv; reports what a recovered recording
