@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstring>
 #include <stdexcept>
+#include <thread>
 
 namespace flamerig {
 
@@ -100,6 +101,9 @@ struct AravisCamera::Impl {
   std::int64_t last_frame_host_ns = 0;
   StreamCounters counters;
   std::uint64_t payload = 0;
+  bool configured = false;
+  bool streaming = false;  // between Start and Stop, whatever the connection does
+  int buffers = 8;
 
   ArvDevice* device() const { return arv_camera_get_device(camera); }
   bool Has(const char* feature) const {
@@ -119,6 +123,11 @@ void OnControlLost(ArvDevice*, gpointer flag) {
 AravisCamera::AravisCamera(const std::string& id, int camera_index)
     : impl_(std::make_unique<Impl>()), camera_index_(camera_index) {
   impl_->id = id;
+  Open();
+}
+
+void AravisCamera::Open() {
+  const std::string& id = impl_->id;
   GError* error = nullptr;
   if (IsIpv4(id)) {
     // Straight to the address: discovery could answer on another interface (notes/aravis.md).
@@ -145,23 +154,51 @@ AravisCamera::AravisCamera(const std::string& id, int camera_index)
   impl_->description.address = IsIpv4(id) ? id : serial;
   // Out-of-range feature values are errors, not silently written (Aravis' default is no check).
   arv_camera_set_range_check_policy(impl_->camera, ARV_RANGE_CHECK_POLICY_ENABLE);
+  connected_ = true;
   impl_->control_lost_handler = g_signal_connect(impl_->device(), "control-lost",
                                                  G_CALLBACK(OnControlLost), &connected_);
 }
 
-AravisCamera::~AravisCamera() {
-  Stop();
+void AravisCamera::Close() {
+  if (impl_->stream) {
+    g_object_unref(impl_->stream);
+    impl_->stream = nullptr;
+  }
   if (impl_->camera) {
     if (impl_->control_lost_handler)
       g_signal_handler_disconnect(impl_->device(), impl_->control_lost_handler);
+    impl_->control_lost_handler = 0;
     g_object_unref(impl_->camera);
+    impl_->camera = nullptr;
   }
+}
+
+bool AravisCamera::Reconnect() {
+  if (connected_) return true;
+  Close();  // no AcquisitionStop: every register access to a dead device blocks for seconds
+  try {
+    Open();
+    if (impl_->configured) Configure(settings_);
+    if (impl_->streaming) Start(impl_->buffers);
+    impl_->last_timestamp_ns = -1;
+    return true;
+  } catch (const std::exception&) {
+    Close();
+    connected_ = false;
+    return false;
+  }
+}
+
+AravisCamera::~AravisCamera() {
+  Stop();
+  Close();
 }
 
 CameraDescription AravisCamera::description() const { return impl_->description; }
 
 void AravisCamera::Configure(const CameraSettings& s) {
   s.Validate();
+  if (!impl_->camera) throw std::runtime_error("aravis camera '" + impl_->id + "': not connected");
   if (impl_->stream) throw std::logic_error("aravis camera '" + impl_->id + "': Configure while streaming");
   ArvCamera* cam = impl_->camera;
   GError* e = nullptr;
@@ -231,11 +268,14 @@ void AravisCamera::Configure(const CameraSettings& s) {
     Check(e, impl_->id, "GevSCPSPacketSize " + std::to_string(s.packet_size));
   }
   settings_ = s;
+  impl_->configured = true;
 }
 
 void AravisCamera::Start(int buffers) {
   if (impl_->stream) return;
   if (buffers < 2) throw std::invalid_argument("aravis camera '" + impl_->id + "': at least 2 buffers");
+  impl_->buffers = buffers;
+  impl_->streaming = true;
   ArvCamera* cam = impl_->camera;
   GError* e = nullptr;
   impl_->payload = arv_camera_get_payload(cam, &e);
@@ -259,7 +299,13 @@ void AravisCamera::Start(int buffers) {
 }
 
 void AravisCamera::Stop() {
+  impl_->streaming = false;
   if (!impl_->stream) return;
+  if (!connected_) {  // a dead device: drop the stream without talking to it
+    g_object_unref(impl_->stream);
+    impl_->stream = nullptr;
+    return;
+  }
   GError* e = nullptr;
   arv_camera_stop_acquisition(impl_->camera, &e);
   g_clear_error(&e);  // a camera that is gone cannot be stopped; the stream goes anyway
@@ -268,6 +314,10 @@ void AravisCamera::Stop() {
 }
 
 std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
+  if (!impl_->stream && impl_->streaming) {  // lost and not reconnected yet
+    std::this_thread::sleep_for(std::chrono::nanoseconds(std::max<std::int64_t>(timeout_ns, 0)));
+    return std::nullopt;
+  }
   if (!impl_->stream) throw std::logic_error("aravis camera '" + impl_->id + "': Pop before Start");
   ArvBuffer* buffer = arv_stream_timeout_pop_buffer(
       impl_->stream, static_cast<guint64>(std::max<std::int64_t>(timeout_ns, 0) / 1000));
@@ -327,6 +377,7 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
 }
 
 void AravisCamera::SoftwareTrigger(std::int64_t) {
+  if (!impl_->camera || !connected_) return;
   GError* e = nullptr;
   arv_camera_software_trigger(impl_->camera, &e);
   if (e) {
@@ -338,6 +389,7 @@ void AravisCamera::SoftwareTrigger(std::int64_t) {
 StreamCounters AravisCamera::counters() const { return impl_->counters; }
 
 std::string AravisCamera::FeatureAsString(const std::string& name) const {
+  if (!impl_->camera) return "";
   ArvGcNode* node = arv_device_get_feature(impl_->device(), name.c_str());
   if (!node || !ARV_IS_GC_FEATURE_NODE(node)) return "";
   GError* e = nullptr;

@@ -50,12 +50,16 @@ class AravisCamera : public Camera {
   std::optional<Frame> Pop(std::int64_t timeout_ns) override;
   void SoftwareTrigger(std::int64_t trigger_id) override;
   bool connected() const override { return connected_; }
+  // Reopens the camera by its id, reapplies the settings and restarts the stream.
+  bool Reconnect() override;
   StreamCounters counters() const override;
 
   // Reads a feature as text (for the recording's metadata); empty when the camera lacks it.
   std::string FeatureAsString(const std::string& name) const;
 
  private:
+  void Open();   // opens impl_->id; throws std::runtime_error
+  void Close();  // drops the stream and the device without talking to it
   struct Impl;
   std::unique_ptr<Impl> impl_;
   CameraSettings settings_;

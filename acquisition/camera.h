@@ -63,6 +63,9 @@ class Camera {
   virtual std::optional<Frame> Pop(std::int64_t timeout_ns) = 0;
   virtual void SoftwareTrigger(std::int64_t trigger_id) = 0;
   virtual bool connected() const = 0;
+  // After connected() turned false: tries once to open the device again and restore its settings
+  // and stream; true when it is back. The daemon calls it about once a second.
+  virtual bool Reconnect() { return connected(); }
   virtual StreamCounters counters() const = 0;
 };
 

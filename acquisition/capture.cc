@@ -261,6 +261,8 @@ std::string CaptureStatus::ToYaml() const {
     out << YAML::Key << "missing_by_frame_id" << YAML::Value << c.stream.missing_by_id;
     out << YAML::Key << "missing_by_timestamp" << YAML::Value << c.stream.missing_by_time;
     out << YAML::Key << "underruns" << YAML::Value << c.stream.underruns;
+    out << YAML::Key << "reconnect_attempts" << YAML::Value << c.reconnect_attempts;
+    out << YAML::Key << "reconnects" << YAML::Value << c.reconnects;
     out << YAML::EndMap;
   }
   out << YAML::EndSeq;
@@ -381,7 +383,19 @@ void CaptureDaemon::CameraLoop(int camera) {
   Camera& cam = *cameras_[camera];
   CameraState& st = *camera_state_[camera];
   const std::int64_t timeout = 100'000'000;  // wake up at least 10 times a second to see Stop
+  std::int64_t last_attempt = 0;
   while (running_) {
+    if (!cam.connected()) {
+      // A lost camera: try to bring it back about once a second; the others go on meanwhile.
+      const std::int64_t t = clock_->MonotonicNs();
+      if (t - last_attempt >= 1'000'000'000) {
+        last_attempt = t;
+        const bool back = cam.Reconnect();
+        std::lock_guard<std::mutex> lock(st.mutex);
+        ++st.live.reconnect_attempts;
+        if (back) ++st.live.reconnects;
+      }
+    }
     std::optional<Frame> f = cam.Pop(timeout);
     const std::int64_t now = clock_->MonotonicNs();
     {

@@ -3,7 +3,9 @@
 //
 //   camera thread (one per camera)   Pop() with a timeout, so a dead camera never blocks anything;
 //                                    pushes frames into a bounded incoming queue (full: the frame is
-//                                    dropped and counted) and keeps that camera's live metrics.
+//                                    dropped and counted) and keeps that camera's live metrics; a
+//                                    camera that lost its connection is reopened about once a second
+//                                    (Camera::Reconnect) and the attempts are reported.
 //   trigger thread                   software-trigger mode: broadcasts SoftwareTrigger(id) to every
 //                                    camera at `trigger_rate_hz`; simulated hardware-trigger mode:
 //                                    fires the simulated trigger line (the stand-in for a trigger
@@ -107,6 +109,7 @@ struct CameraLiveStatus {
   double fps = 0;             // over the last second
   double megabytes_per_s = 0;
   std::uint64_t frames = 0;
+  std::uint64_t reconnect_attempts = 0, reconnects = 0;
   StreamCounters stream;      // the driver's counters
 };
 

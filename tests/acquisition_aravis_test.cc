@@ -2,6 +2,7 @@
 // loopback addresses (with image content we supply), and `arv-fake-gv-camera-0.8` processes (from
 // Debian's aravis-tools; skipped when absent), including one that dies mid-stream.
 #include <arv.h>
+#include <fcntl.h>
 #include <gtest/gtest.h>
 #include <signal.h>
 #include <sys/wait.h>
@@ -195,17 +196,42 @@ TEST(AravisCamera, TheDaemonRecordsTwoFakeCameras) {
   fs::remove_all(dir);
 }
 
+// A child process running the external fake on `address`; killed when the guard goes, whatever
+// the test's outcome (a fake left running would hold the test's output pipe open).
+class FakeProcess {
+ public:
+  FakeProcess(const char* exe, const char* address) {
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      const int null = ::open("/dev/null", O_RDWR);
+      ::dup2(null, 0);
+      ::dup2(null, 1);
+      ::dup2(null, 2);
+      ::execl(exe, exe, "-i", address, "-s", "FLAMERIG-X", static_cast<char*>(nullptr));
+      ::_exit(127);
+    }
+  }
+  ~FakeProcess() { Kill(); }
+  void Kill() {
+    if (pid_ > 0) {
+      ::kill(pid_, SIGKILL);
+      ::waitpid(pid_, nullptr, 0);
+    }
+    pid_ = -1;
+  }
+  bool started() const { return pid_ > 0; }
+
+ private:
+  pid_t pid_ = -1;
+};
+
 // `arv-fake-gv-camera-0.8`, a separate process, as a camera on the network would be; then killed.
 TEST(AravisCamera, ExternalFakeProcessAndItsDeath) {
   REQUIRE_LOOPBACK_ADDRESSES();
   const char* exe = "/usr/bin/arv-fake-gv-camera-0.8";
   if (!fs::exists(exe)) GTEST_SKIP() << exe << " not installed (Debian package aravis-tools)";
-  const pid_t pid = ::fork();
-  ASSERT_GE(pid, 0);
-  if (pid == 0) {
-    ::execl(exe, exe, "-i", "127.0.0.7", "-s", "FLAMERIG-X", static_cast<char*>(nullptr));
-    ::_exit(127);
-  }
+  FakeProcess fake(exe, "127.0.0.7");
+  ASSERT_TRUE(fake.started());
   std::unique_ptr<AravisCamera> cam;
   for (int tries = 0; tries < 4 && !cam; ++tries) {  // until the fake answers
     std::this_thread::sleep_for(std::chrono::milliseconds(300));
@@ -221,8 +247,7 @@ TEST(AravisCamera, ExternalFakeProcessAndItsDeath) {
   for (int k = 0; k < 40 && frames < 10; ++k)
     if (auto f = cam->Pop(200'000'000)) frames += f->info.status == FrameStatus::kOk;
   EXPECT_EQ(frames, 10);
-  ::kill(pid, SIGKILL);
-  ::waitpid(pid, nullptr, 0);
+  fake.Kill();
   // Frames stop at once; Aravis declares the control lost after its heartbeat timeout.
   const auto t0 = std::chrono::steady_clock::now();
   int after = 0;
@@ -231,6 +256,19 @@ TEST(AravisCamera, ExternalFakeProcessAndItsDeath) {
   }
   EXPECT_FALSE(cam->connected());
   EXPECT_LE(after, 8);  // at most the buffers in flight
+  EXPECT_FALSE(cam->Reconnect());  // nobody there yet
+  // The camera comes back (a new process on the same address): reconnect restores the stream.
+  FakeProcess again(exe, "127.0.0.7");
+  bool back = false;
+  for (int tries = 0; tries < 10 && !back; ++tries) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    back = cam->Reconnect();
+  }
+  EXPECT_TRUE(back);
+  int restored = 0;
+  for (int k = 0; k < 40 && restored < 5; ++k)
+    if (auto f = cam->Pop(200'000'000)) restored += f->info.status == FrameStatus::kOk;
+  EXPECT_EQ(restored, 5);
   cam.reset();
 }
 
