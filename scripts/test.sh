@@ -7,4 +7,5 @@ cd "$(dirname "$0")/.."
 bash scripts/install-deps.sh
 bash scripts/build.sh
 cd "${FLAMERIG_BUILD_DIR:-build}"
-ctest --output-on-failure -j "$(nproc)" "$@"
+# A per-test limit, so that a hung test fails instead of holding CI to its own limit.
+ctest --output-on-failure --timeout 300 -j "$(nproc)" "$@"
