@@ -201,6 +201,13 @@ std::string RunCaptureBenchmark(const CaptureBenchmarkOptions& options,
     }
   }
   for (auto* f : fakes) g_object_unref(f);
+  if (options.aravis && have_addresses) {
+    md << "\nThe Aravis fakes run inside the benchmark's process and share its two cores with the "
+          "daemon. Sets that are not complete hold frames that missed the matching window "
+          "(0.4 of a period) or that an overrunning fake skipped (counted from timestamp gaps); "
+          "Aravis also reports buffer underruns on some streams in this setting. This row is not "
+          "yet at zero drops (the sim rows are).\n";
+  }
   if (options.aravis && !have_addresses) {
     md << "\nThe Aravis fake scenario needs loopback addresses 127.0.0.2..5 (a private network "
           "namespace: `unshare -rn`), which this run did not have.\n";
