@@ -523,16 +523,14 @@ std::string CaptureDaemon::RecordingPath(const std::string& name) const {
 }
 
 std::string CaptureDaemon::StartRecording(const std::string& name) {
-  const std::string dir = RecordingPath(name);
-  if (!running_) throw std::logic_error("capture: arm the cameras before recording");
-  std::lock_guard<std::mutex> lock(state_mutex_);
-  if (recorder_) throw std::logic_error("capture: already recording into " + recording_dir_);
-  recorder_ = std::make_unique<Recorder>(dir, Metadata(), config_.recorder);
-  recording_dir_ = dir;
-  return dir;
+  return BeginRecording(name, false);
 }
 
 std::string CaptureDaemon::TriggerEvent(const std::string& name) {
+  return BeginRecording(name, true);
+}
+
+std::string CaptureDaemon::BeginRecording(const std::string& name, bool with_ring) {
   const std::string dir = RecordingPath(name);
   if (!running_) throw std::logic_error("capture: arm the cameras before recording");
   std::lock_guard<std::mutex> lock(state_mutex_);
@@ -540,7 +538,8 @@ std::string CaptureDaemon::TriggerEvent(const std::string& name) {
   recorder_ = std::make_unique<Recorder>(dir, Metadata(), config_.recorder);
   recording_dir_ = dir;
   // The ring is bounded by pretrigger_max_bytes and the queue was sized to hold it.
-  for (const FrameSet& s : ring_) recorder_->Submit(s);
+  if (with_ring)
+    for (const FrameSet& s : ring_) recorder_->Submit(s);
   return dir;
 }
 

@@ -168,6 +168,7 @@ class CaptureDaemon {
   void AssemblerLoop();
   void Deliver(std::vector<FrameSet>* ready);  // holds state_mutex_
   RecordingMetadata Metadata() const;
+  std::string BeginRecording(const std::string& name, bool with_ring);
   std::string RecordingPath(const std::string& name) const;
 
   CaptureConfig config_;

@@ -19,6 +19,7 @@
 
 #include "acquisition/aravis_camera.h"
 #include "acquisition/capture.h"
+#include "acquisition/netns.h"
 
 namespace flamerig {
 namespace {
@@ -38,9 +39,8 @@ void Fill(ArvBuffer* buffer, void*, guint32, guint32, ArvPixelFormat) {
   std::memcpy(data, &k, std::min<std::size_t>(8, n));
 }
 
-#define REQUIRE_LOOPBACK_ADDRESSES()                                                          \
-  if (std::string(std::getenv("FLAMERIG_ARAVIS_NETNS") ? std::getenv("FLAMERIG_ARAVIS_NETNS")   \
-                                                        : "") != "1")                           \
+#define REQUIRE_LOOPBACK_ADDRESSES() \
+  if (!InLoopbackNamespace())        \
   GTEST_SKIP() << "needs a private network namespace (unshare -rn) for 127.0.0.2..9"
 
 class InProcessFake {
@@ -280,20 +280,7 @@ TEST(AravisCamera, ExternalFakeProcessAndItsDeath) {
 // (`unshare -rn`, no root needed) where it adds 127.0.0.2..9 to lo. Where user namespaces are not
 // allowed, the tests that need those addresses skip themselves and say why.
 int main(int argc, char** argv) {
-  if (!std::getenv("FLAMERIG_ARAVIS_NETNS")) {
-    ::setenv("FLAMERIG_ARAVIS_NETNS", "1", 1);
-    if (std::system("unshare -rn true >/dev/null 2>&1") == 0) {
-      std::vector<const char*> args = {
-          "unshare", "-rn", "sh", "-c",
-          "ip link set lo up && for a in 2 3 4 5 6 7 8 9; do ip addr add 127.0.0.$a/32 dev lo; "
-          "done && exec \"$@\"",
-          "flamerig-netns"};
-      for (int i = 0; i < argc; ++i) args.push_back(argv[i]);
-      args.push_back(nullptr);
-      ::execvp("unshare", const_cast<char* const*>(args.data()));
-    }
-    ::setenv("FLAMERIG_ARAVIS_NETNS", "unavailable", 1);
-  }
+  flamerig::RerunInLoopbackNamespace(std::vector<std::string>(argv, argv + argc));
   ::testing::InitGoogleTest(&argc, argv);
   const int r = RUN_ALL_TESTS();
   arv_shutdown();

@@ -10,6 +10,7 @@
 #include <thread>
 
 #include "acquisition/capture.h"
+#include "acquisition/netns.h"
 #include "tools/benchmark.h"
 
 namespace flamerig {
@@ -170,8 +171,7 @@ std::string RunCaptureBenchmark(const CaptureBenchmarkOptions& options,
   scenarios.push_back({std::to_string(n4) + " sim x 1920x1080 Mono8 at 30 fps, hardware trigger",
                        Rig("hardware-trigger", 30, n4, 1920, 1080, "sim"), true, 1920 * 1080,
                        n4 * 1920 * 1080 * 30 / 1048576.0});
-  const char* netns = std::getenv("FLAMERIG_ARAVIS_NETNS");
-  const bool have_addresses = netns && std::string(netns) == "1";
+  const bool have_addresses = InLoopbackNamespace();
   if (options.aravis && have_addresses) {
     // The fakes stamp frames with the host's wall clock, a clock they share as PTP cameras do:
     // matched by device timestamp (sync: ptp).

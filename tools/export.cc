@@ -12,6 +12,18 @@ namespace flamerig {
 
 namespace fs = std::filesystem;
 
+namespace {
+
+// 8-bit PNG, or 16-bit for Mono16; Bayer demosaiced to RGB.
+void WriteFramePng(const Frame& f, const fs::path& path) {
+  ImageU8 u8;
+  ImageU16 u16;
+  if (DecodeFrame(f, &u8, &u16) == 16) WritePng16(path.string(), u16);
+  else WritePng(path.string(), u8);
+}
+
+}  // namespace
+
 ExportSummary ExportRecording(const std::string& recording_dir, const std::string& out_dir,
                               const ExportOptions& options,
                               const std::function<void(std::size_t, std::size_t)>& progress) {
@@ -40,11 +52,7 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
       }
       const Frame& f = *set.frames[c];
       csv << "," << f.info.frame_id << "," << ToString(f.info.status);
-      ImageU8 u8;
-      ImageU16 u16;
-      const std::string path = (dir / (rec.metadata().cameras[c].name + ".png")).string();
-      if (DecodeFrame(f, &u8, &u16) == 16) WritePng16(path, u16);
-      else WritePng(path, u8);
+      WriteFramePng(f, dir / (rec.metadata().cameras[c].name + ".png"));
       ++summary.images;
     }
     csv << "\n";
@@ -88,11 +96,7 @@ ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
     for (std::size_t c = 0; c < seqs.size(); ++c) {
       const Frame f = seqs[c].ReadFrame(i, static_cast<int>(c));
       csv << "," << f.info.device_timestamp_ns;
-      ImageU8 u8;
-      ImageU16 u16;
-      const std::string path = (dir / (names[c] + ".png")).string();
-      if (DecodeFrame(f, &u8, &u16) == 16) WritePng16(path, u16);
-      else WritePng(path, u8);
+      WriteFramePng(f, dir / (names[c] + ".png"));
       ++summary.images;
     }
     csv << "\n";

@@ -22,6 +22,7 @@
 
 #include "acquisition/capture.h"
 #include "acquisition/control.h"
+#include "acquisition/netns.h"
 #include "acquisition/recording.h"
 #include "acquisition/srgb.h"
 #include "fitting/renderer.h"
@@ -381,22 +382,9 @@ int Benchmark(const Args& args) {
     if (args.named.count("seconds"))
       options.seconds = ParseNumber(args.Get("seconds", ""), "--seconds");
     // The Aravis scenario needs 127.0.0.2..5: rerun this command in a private network namespace.
-    if (!std::getenv("FLAMERIG_ARAVIS_NETNS")) {
-      ::setenv("FLAMERIG_ARAVIS_NETNS", "1", 1);
-      if (std::system("unshare -rn true >/dev/null 2>&1") == 0) {
-        std::vector<const char*> argv = {
-            "unshare", "-rn", "sh", "-c",
-            "ip link set lo up && for a in 2 3 4 5 6 7 8 9; do ip addr add 127.0.0.$a/32 dev lo; "
-            "done && exec \"$@\"",
-            "flamerig-netns"};
-        const std::string self = fs::read_symlink("/proc/self/exe").string();
-        argv.push_back(self.c_str());
-        for (const auto& a : args.original) argv.push_back(a.c_str());
-        argv.push_back(nullptr);
-        ::execvp("unshare", const_cast<char* const*>(argv.data()));
-      }
-      ::setenv("FLAMERIG_ARAVIS_NETNS", "unavailable", 1);
-    }
+    std::vector<std::string> command = {fs::read_symlink("/proc/self/exe").string()};
+    command.insert(command.end(), args.original.begin(), args.original.end());
+    RerunInLoopbackNamespace(command);
     md = RunCaptureBenchmark(options, log);
   } else {
     throw std::invalid_argument("benchmark target '" + target +
