@@ -180,6 +180,18 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
       cc.sim.incomplete_probability = sr.NonNegative("incomplete_probability", 0);
       cc.sim.jitter_ns = static_cast<std::int64_t>(sr.NonNegative("jitter_us", 0) * 1e3);
       cc.sim.drift_ppm = sr.Get<double>("drift_ppm", 0);
+      const std::string replay = sr.Get<std::string>("replay", "");
+      if (!replay.empty()) {
+        // Relative to the config file's folder, like every path in a config.
+        const fs::path dataset = fs::path(replay).is_absolute()
+                                     ? fs::path(replay)
+                                     : fs::path(where).parent_path() / replay;
+        try {
+          cc.sim.source = DatasetReplaySource(dataset.string(), cr.Get<std::string>("name", cc.name));
+        } catch (const std::exception& e) {
+          throw std::invalid_argument(at + ".sim.replay: " + e.what());
+        }
+      }
       const double d = sr.Get<double>("disconnect_at_s", -1), re = sr.Get<double>("reconnect_at_s", -1);
       cc.sim.disconnect_at_ns = d < 0 ? -1 : static_cast<std::int64_t>(d * 1e9);
       cc.sim.reconnect_at_ns = re < 0 ? -1 : static_cast<std::int64_t>(re * 1e9);
@@ -263,6 +275,7 @@ std::string CaptureStatus::ToYaml() const {
     out << YAML::Key << "underruns" << YAML::Value << c.stream.underruns;
     out << YAML::Key << "reconnect_attempts" << YAML::Value << c.reconnect_attempts;
     out << YAML::Key << "reconnects" << YAML::Value << c.reconnects;
+    if (!c.error.empty()) out << YAML::Key << "error" << YAML::Value << c.error;
     out << YAML::EndMap;
   }
   out << YAML::EndSeq;
@@ -396,7 +409,19 @@ void CaptureDaemon::CameraLoop(int camera) {
         if (back) ++st.live.reconnects;
       }
     }
-    std::optional<Frame> f = cam.Pop(timeout);
+    std::optional<Frame> f;
+    try {
+      f = cam.Pop(timeout);
+    } catch (const std::exception& e) {
+      // A driver or image-source failure: reported, and this camera keeps trying; the others
+      // are not affected.
+      {
+        std::lock_guard<std::mutex> lock(st.mutex);
+        st.live.error = e.what();
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      continue;
+    }
     const std::int64_t now = clock_->MonotonicNs();
     {
       std::lock_guard<std::mutex> lock(st.mutex);

@@ -45,7 +45,9 @@
 //       trigger_source: Line0
 //       packet_size: 0
 //       sim: {drop_probability: 0, jitter_us: 0, drift_ppm: 0, late_probability: 0,
-//             incomplete_probability: 0, disconnect_at_s: -1, reconnect_at_s: -1, seed: 1}
+//             incomplete_probability: 0, disconnect_at_s: -1, reconnect_at_s: -1, seed: 1,
+//             replay: DATASET}      # show a `flamerig simulate` dataset's images of this camera
+//                                   # (name), path relative to this file; else a test pattern
 #ifndef FLAMERIG_ACQUISITION_CAPTURE_H_
 #define FLAMERIG_ACQUISITION_CAPTURE_H_
 
@@ -110,6 +112,7 @@ struct CameraLiveStatus {
   double megabytes_per_s = 0;
   std::uint64_t frames = 0;
   std::uint64_t reconnect_attempts = 0, reconnects = 0;
+  std::string error;          // the last error of its driver or image source, if any
   StreamCounters stream;      // the driver's counters
 };
 

@@ -1,5 +1,11 @@
 #include "acquisition/sim_camera.h"
 
+#include <cstring>
+#include <filesystem>
+#include <stdexcept>
+
+#include "acquisition/image.h"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -92,6 +98,65 @@ ImageSource TestPatternSource() {
     const std::uint64_t stamp[2] = {static_cast<std::uint64_t>(info.camera), info.frame_id};
     for (std::size_t i = 0; i < 16 && i < bytes->size(); ++i)
       (*bytes)[i] = static_cast<std::uint8_t>(stamp[i / 8] >> (8 * (i % 8)));
+  };
+}
+
+ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera) {
+  auto images = std::make_shared<std::vector<ImageU8>>();
+  for (int k = 0;; ++k) {
+    char name[32];
+    std::snprintf(name, sizeof name, "frame_%06d", k);
+    const std::filesystem::path path =
+        std::filesystem::path(dataset_dir) / "frames" / name / (camera + ".png");
+    if (!std::filesystem::exists(path)) break;
+    images->push_back(ReadImageU8(path.string(), 3));
+  }
+  if (images->empty()) {
+    throw std::runtime_error("replay of " + dataset_dir + ": no frames/frame_000000/" + camera +
+                             ".png");
+  }
+  return [images, dataset_dir, camera](const FrameInfo& info, std::vector<std::uint8_t>* bytes) {
+    const ImageU8& img = (*images)[info.frame_id % images->size()];
+    if (img.width != info.width || img.height != info.height) {
+      throw std::runtime_error("replay of " + dataset_dir + " camera " + camera + ": images are " +
+                               std::to_string(img.width) + "x" + std::to_string(img.height) +
+                               ", the camera is set to " + std::to_string(info.width) + "x" +
+                               std::to_string(info.height));
+    }
+    const std::size_t n = img.num_pixels();
+    bytes->resize(n * BytesPerPixel(info.pixel_format));
+    auto luma = [&](std::size_t i) {
+      return 0.2126 * img.pixels[3 * i] + 0.7152 * img.pixels[3 * i + 1] +
+             0.0722 * img.pixels[3 * i + 2];
+    };
+    // GenICam Bayer names: the colours of the first row's two sites, then the second row's.
+    auto bayer_channel = [&](int x, int y) {
+      const char* layout = info.pixel_format == PixelFormat::kBayerRg8   ? "RGGB"
+                           : info.pixel_format == PixelFormat::kBayerGr8 ? "GRBG"
+                           : info.pixel_format == PixelFormat::kBayerGb8 ? "GBRG"
+                                                                          : "BGGR";
+      const char c = layout[2 * (y % 2) + (x % 2)];
+      return c == 'R' ? 0 : c == 'G' ? 1 : 2;
+    };
+    for (std::size_t i = 0; i < n; ++i) {
+      switch (info.pixel_format) {
+        case PixelFormat::kMono8:
+          (*bytes)[i] = static_cast<std::uint8_t>(std::lround(luma(i)));
+          break;
+        case PixelFormat::kMono16: {
+          const auto v = static_cast<std::uint16_t>(std::lround(luma(i) * 257));
+          std::memcpy(bytes->data() + 2 * i, &v, 2);
+          break;
+        }
+        case PixelFormat::kRgb8:
+          std::memcpy(bytes->data() + 3 * i, img.pixels.data() + 3 * i, 3);
+          break;
+        default: {
+          const int x = static_cast<int>(i % img.width), y = static_cast<int>(i / img.width);
+          (*bytes)[i] = img.pixels[3 * i + bayer_channel(x, y)];
+        }
+      }
+    }
   };
 }
 

@@ -21,6 +21,7 @@
 #include <memory>
 #include <mutex>
 #include <random>
+#include <string>
 #include <vector>
 
 #include "acquisition/camera.h"
@@ -80,6 +81,13 @@ using ImageSource = std::function<void(const FrameInfo& info, std::vector<std::u
 // A moving gradient with the camera index and frame id encoded in the first bytes (so a test can
 // tell frames apart and check them bit-exact after recording).
 ImageSource TestPatternSource();
+// Replays a `flamerig simulate` dataset: frame k of the camera shows
+// dataset_dir/frames/frame_NNNNNN/<camera>.png with N = k mod the number of frames (loaded once,
+// here), converted to the frame's pixel format (Mono8/Mono16: Rec. 709 luma of the 8-bit sRGB
+// values; RGB8 as is; Bayer: the matching colour of each site). Throws std::runtime_error naming
+// the file when a frame is missing or unreadable; a frame asked for at another size than the
+// images gets an error naming both sizes.
+ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera);
 
 struct SimCameraOptions {
   std::string id = "sim0";

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The main job on the built-in simulated rig: installs what is missing, builds, simulates a candle
 # filmed by the two-camera rig of config/sim_rig.yaml (camera models, calibration board views, fire
-# images and ground truth), renders the ground truth back through the rig's cameras, reconstructs
+# images and ground truth), records 2 s of it with the capture daemon and exports the recording,
+# renders the ground truth back through the rig's cameras, reconstructs
 # frame 0 by tomography and fits its temperature, density and exposure (with a report).
 # Output in runs/sim (override with FLAMERIG_RUN_DIR); open runs/sim/preview.png first.
 set -euo pipefail
@@ -10,7 +11,22 @@ bash scripts/install-deps.sh
 bash scripts/build.sh
 RUN_DIR="${FLAMERIG_RUN_DIR:-runs/sim}"
 BIN="${FLAMERIG_BUILD_DIR:-build}/tools/flamerig"
+case "$BIN" in /*) ;; *) BIN="$PWD/$BIN" ;; esac
 "$BIN" simulate --config config/sim_rig.yaml --out "$RUN_DIR"
+# The capture daemon on the simulated rig: two sim cameras on a hardware trigger line replay the
+# dataset's images (frames/) for 2 s into a lossless recording, which is then exported as PNG sets.
+cat > "$RUN_DIR/capture.yaml" <<EOF
+data_dir: recordings
+sync: hardware-trigger
+trigger_rate_hz: 30
+pretrigger_seconds: 0
+cameras:
+  - {name: cam0, width: 320, height: 240, pixel_format: RGB8, sim: {replay: .}}
+  - {name: cam1, width: 320, height: 240, pixel_format: RGB8, sim: {replay: .}}
+EOF
+rm -rf "$RUN_DIR/recordings/take"
+(cd "$RUN_DIR" && "$BIN" capture --config capture.yaml --record take --duration 2)
+"$BIN" export --recording "$RUN_DIR/recordings/take" --out "$RUN_DIR/recorded"
 "$BIN" render --rig "$RUN_DIR/rig.yaml" --volume "$RUN_DIR/truth/frame_000000.vdb" --out "$RUN_DIR/rendered"
 "$BIN" reconstruct --rig "$RUN_DIR/rig.yaml" --images "$RUN_DIR/frames/frame_000000" \
   --out "$RUN_DIR/reconstruction/frame_000000.vdb" --truth "$RUN_DIR/truth/frame_000000.vdb" \
@@ -22,4 +38,5 @@ echo
 echo "main job done: dataset in $RUN_DIR (preview.png, frames/, calibration/, truth/*.vdb, rig.yaml);"
 echo "the ground truth re-rendered through the rig is in $RUN_DIR/rendered; the tomography of frame 0"
 echo "(emission volume and a preview of input against reconstruction) is in $RUN_DIR/reconstruction;"
-echo "the fitted temperature and density of frame 0 are in $RUN_DIR/fit (report: fit/frame_000000_report/report.md)."
+echo "the fitted temperature and density of frame 0 are in $RUN_DIR/fit (report: fit/frame_000000_report/report.md);"
+echo "the capture daemon's recording is in $RUN_DIR/recordings/take, exported to $RUN_DIR/recorded."

@@ -7,11 +7,13 @@
 
 #include <chrono>
 #include <filesystem>
+#include <fstream>
 #include <opencv2/imgcodecs.hpp>
 #include <thread>
 
 #include "acquisition/capture.h"
 #include "acquisition/control.h"
+#include "acquisition/image.h"
 
 namespace flamerig {
 namespace {
@@ -195,6 +197,58 @@ TEST(CaptureDaemon, AnEventSavesThePreTriggerRing) {
   EXPECT_NEAR(r.num_sets(), 0.8 * 50, 6);  // and 0.3 s after it
   for (std::size_t i = 1; i < r.num_sets(); ++i)
     EXPECT_EQ(r.ReadSet(i).trigger_id, r.ReadSet(i - 1).trigger_id + 1);
+}
+
+// Sim cameras replaying a `flamerig simulate` dataset: the recorded Mono8 frames are the luma of
+// the dataset's images; a camera set to another size reports the error and the others go on.
+TEST(CaptureDaemon, SimCamerasReplayADataset) {
+  TempDir dir;
+  for (int k = 0; k < 2; ++k) {
+    const fs::path f = dir.path / "data" / "frames" / ("frame_00000" + std::to_string(k));
+    fs::create_directories(f);
+    ImageU8 img(96, 64, 3);
+    for (int y = 0; y < 64; ++y)
+      for (int x = 0; x < 96; ++x) {
+        img.at(x, y, 0) = static_cast<std::uint8_t>(x + 100 * k);
+        img.at(x, y, 1) = static_cast<std::uint8_t>(y);
+        img.at(x, y, 2) = 40;
+      }
+    WritePng((f / "cam0.png").string(), img);
+    WritePng((f / "cam1.png").string(), img);
+    WritePng((f / "cam2.png").string(), img);
+  }
+  std::string yaml = Config(dir.path, "software-trigger", 50);
+  // Every camera replays; camera 2 is set to the wrong size.
+  for (const std::string cam : {"cam0", "cam1"}) {
+    const std::string key = "name: " + cam + "\n    driver: sim\n";
+    yaml.replace(yaml.find(key), key.size(), key + "    sim: {replay: data}\n");
+  }
+  const std::string key2 = "name: cam2\n    driver: sim\n";
+  yaml.replace(yaml.find(key2), key2.size(), key2 + "    sim: {replay: data}\n");
+  yaml.replace(yaml.rfind("width: 96"), 9, "width: 80");
+  std::ofstream(dir.path / "rig.yaml") << yaml;
+  const CaptureConfig config = CaptureConfig::Load((dir.path / "rig.yaml").string());
+  SystemClock clock;
+  CaptureDaemon daemon(config, MakeCameras(config, &clock, nullptr), &clock, nullptr);
+  daemon.Start();
+  const std::string rec = daemon.StartRecording("replay");
+  Sleep(0.6);
+  daemon.StopRecording();
+  const CaptureStatus st = daemon.status();
+  daemon.Stop();
+  EXPECT_NE(st.cameras[2].error.find("images are 96x64, the camera is set to 80x64"),
+            std::string::npos) << st.cameras[2].error;
+  const Recording r = Recording::Open(rec);
+  ASSERT_GE(r.num_sets(), 10u);
+  const FrameSet s = r.ReadSet(3);
+  ASSERT_TRUE(s.frames[0].has_value());
+  EXPECT_FALSE(s.frames[2].has_value());
+  const Frame& f = *s.frames[0];
+  const int k = static_cast<int>(f.info.frame_id % 2);
+  for (int x : {0, 17, 95}) {
+    const double luma = 0.2126 * (x + 100 * k) + 0.7152 * 10 + 0.0722 * 40;
+    EXPECT_NEAR((*f.data)[10 * 96 + x], luma, 0.51) << "x " << x;
+  }
 }
 
 TEST(CaptureDaemon, RecordingNamesCannotLeaveTheDataDirectory) {
