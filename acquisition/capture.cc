@@ -299,6 +299,8 @@ std::string CaptureStatus::ToYaml() const {
       << incoming_queued << incoming_capacity << YAML::EndSeq;
   out << YAML::Key << "incoming_dropped" << YAML::Value << incoming_dropped;
   out << YAML::Key << "trigger_overruns" << YAML::Value << trigger_overruns;
+  out << YAML::Key << "rejected_sets" << YAML::Value << rejected_sets;
+  if (!last_error.empty()) out << YAML::Key << "last_error" << YAML::Value << last_error;
   out << YAML::Key << "pretrigger_ring" << YAML::Value << YAML::Flow << YAML::BeginMap
       << YAML::Key << "sets" << YAML::Value << ring_sets << YAML::Key << "megabytes"
       << YAML::Value << ring_bytes / 1048576.0 << YAML::EndMap;
@@ -503,7 +505,14 @@ void CaptureDaemon::AssemblerLoop() {
 void CaptureDaemon::Deliver(std::vector<FrameSet>* ready) {
   set_counters_ = assembler_.counters();
   for (FrameSet& set : *ready) {
-    if (recorder_) recorder_->Submit(set);
+    if (recorder_) {
+      try {
+        recorder_->Submit(set);
+      } catch (const std::exception& e) {  // a malformed frame from a driver: never fatal
+        ++rejected_sets_;
+        last_error_ = e.what();
+      }
+    }
     std::uint64_t bytes = 0;
     for (const auto& f : set.frames)
       if (f) bytes += f->bytes();
@@ -618,6 +627,8 @@ CaptureStatus CaptureDaemon::status() const {
   s.recorder = recorder_ ? recorder_->status() : last_recorder_status_;
   s.ring_sets = ring_.size();
   s.trigger_overruns = trigger_overruns_;
+  s.rejected_sets = rejected_sets_;
+  s.last_error = last_error_;
   s.ring_bytes = ring_bytes_;
   return s;
 }

@@ -126,6 +126,8 @@ struct CaptureStatus {
   std::size_t incoming_queued = 0, incoming_capacity = 0;
   std::uint64_t incoming_dropped = 0;    // frames the assembler could not take in time
   std::uint64_t trigger_overruns = 0;    // trigger slots skipped because the trigger thread was late
+  std::uint64_t rejected_sets = 0;       // sets the recorder refused as malformed (see last_error)
+  std::string last_error;
   std::size_t ring_sets = 0;
   std::uint64_t ring_bytes = 0;
   std::string ToYaml() const;
@@ -200,6 +202,8 @@ class CaptureDaemon {
   std::deque<FrameSet> ring_;
   std::uint64_t ring_bytes_ = 0;
   std::shared_ptr<const FrameSet> latest_;
+  std::uint64_t rejected_sets_ = 0;
+  std::string last_error_;
 
   std::vector<std::thread> threads_;
 };
