@@ -28,21 +28,28 @@ bool IsIpv4(const std::string& s) {
 
 ArvPixelFormat ToArv(PixelFormat f) {
   switch (f) {
-    case PixelFormat::kMono8: return ARV_PIXEL_FORMAT_MONO_8;
-    case PixelFormat::kMono16: return ARV_PIXEL_FORMAT_MONO_16;
-    case PixelFormat::kRgb8: return ARV_PIXEL_FORMAT_RGB_8_PACKED;
-    case PixelFormat::kBayerRg8: return ARV_PIXEL_FORMAT_BAYER_RG_8;
-    case PixelFormat::kBayerGr8: return ARV_PIXEL_FORMAT_BAYER_GR_8;
-    case PixelFormat::kBayerGb8: return ARV_PIXEL_FORMAT_BAYER_GB_8;
-    case PixelFormat::kBayerBg8: return ARV_PIXEL_FORMAT_BAYER_BG_8;
+    case PixelFormat::kMono8:
+      return ARV_PIXEL_FORMAT_MONO_8;
+    case PixelFormat::kMono16:
+      return ARV_PIXEL_FORMAT_MONO_16;
+    case PixelFormat::kRgb8:
+      return ARV_PIXEL_FORMAT_RGB_8_PACKED;
+    case PixelFormat::kBayerRg8:
+      return ARV_PIXEL_FORMAT_BAYER_RG_8;
+    case PixelFormat::kBayerGr8:
+      return ARV_PIXEL_FORMAT_BAYER_GR_8;
+    case PixelFormat::kBayerGb8:
+      return ARV_PIXEL_FORMAT_BAYER_GB_8;
+    case PixelFormat::kBayerBg8:
+      return ARV_PIXEL_FORMAT_BAYER_BG_8;
   }
   return ARV_PIXEL_FORMAT_MONO_8;
 }
 
 bool FromArv(ArvPixelFormat f, PixelFormat* out) {
-  for (PixelFormat p : {PixelFormat::kMono8, PixelFormat::kMono16, PixelFormat::kRgb8,
-                        PixelFormat::kBayerRg8, PixelFormat::kBayerGr8, PixelFormat::kBayerGb8,
-                        PixelFormat::kBayerBg8}) {
+  for (PixelFormat p :
+       {PixelFormat::kMono8, PixelFormat::kMono16, PixelFormat::kRgb8, PixelFormat::kBayerRg8,
+        PixelFormat::kBayerGr8, PixelFormat::kBayerGb8, PixelFormat::kBayerBg8}) {
     if (ToArv(p) == f) {
       *out = p;
       return true;
@@ -53,13 +60,17 @@ bool FromArv(ArvPixelFormat f, PixelFormat* out) {
 
 FrameStatus StatusOf(ArvBufferStatus s) {
   switch (s) {
-    case ARV_BUFFER_STATUS_SUCCESS: return FrameStatus::kOk;
+    case ARV_BUFFER_STATUS_SUCCESS:
+      return FrameStatus::kOk;
     case ARV_BUFFER_STATUS_MISSING_PACKETS:
     case ARV_BUFFER_STATUS_WRONG_PACKET_ID:
     case ARV_BUFFER_STATUS_SIZE_MISMATCH:
-    case ARV_BUFFER_STATUS_FILLING: return FrameStatus::kIncomplete;
-    case ARV_BUFFER_STATUS_TIMEOUT: return FrameStatus::kTimeout;
-    default: return FrameStatus::kError;
+    case ARV_BUFFER_STATUS_FILLING:
+      return FrameStatus::kIncomplete;
+    case ARV_BUFFER_STATUS_TIMEOUT:
+      return FrameStatus::kTimeout;
+    default:
+      return FrameStatus::kError;
   }
 }
 
@@ -155,8 +166,8 @@ void AravisCamera::Open() {
   // Out-of-range feature values are errors, not silently written (Aravis' default is no check).
   arv_camera_set_range_check_policy(impl_->camera, ARV_RANGE_CHECK_POLICY_ENABLE);
   connected_ = true;
-  impl_->control_lost_handler = g_signal_connect(impl_->device(), "control-lost",
-                                                 G_CALLBACK(OnControlLost), &connected_);
+  impl_->control_lost_handler =
+      g_signal_connect(impl_->device(), "control-lost", G_CALLBACK(OnControlLost), &connected_);
 }
 
 void AravisCamera::Close() {
@@ -199,7 +210,8 @@ CameraDescription AravisCamera::description() const { return impl_->description;
 void AravisCamera::Configure(const CameraSettings& s) {
   s.Validate();
   if (!impl_->camera) throw std::runtime_error("aravis camera '" + impl_->id + "': not connected");
-  if (impl_->stream) throw std::logic_error("aravis camera '" + impl_->id + "': Configure while streaming");
+  if (impl_->stream)
+    throw std::logic_error("aravis camera '" + impl_->id + "': Configure while streaming");
   ArvCamera* cam = impl_->camera;
   GError* e = nullptr;
   arv_camera_set_pixel_format(cam, ToArv(s.pixel_format), &e);
@@ -257,9 +269,8 @@ void AravisCamera::Configure(const CameraSettings& s) {
     Check(e, impl_->id, "AcquisitionFrameRate " + std::to_string(s.frame_rate_hz));
     // arv_camera_set_frame_rate may switch triggers off: put the trigger back.
     if (s.trigger != TriggerMode::kFreeRun) {
-      arv_camera_set_trigger(cam, s.trigger == TriggerMode::kSoftware ? "Software"
-                                                                      : s.trigger_source.c_str(),
-                             &e);
+      arv_camera_set_trigger(
+          cam, s.trigger == TriggerMode::kSoftware ? "Software" : s.trigger_source.c_str(), &e);
       Check(e, impl_->id, "TriggerSource");
     }
   }
@@ -273,7 +284,8 @@ void AravisCamera::Configure(const CameraSettings& s) {
 
 void AravisCamera::Start(int buffers) {
   if (impl_->stream) return;
-  if (buffers < 2) throw std::invalid_argument("aravis camera '" + impl_->id + "': at least 2 buffers");
+  if (buffers < 2)
+    throw std::invalid_argument("aravis camera '" + impl_->id + "': at least 2 buffers");
   impl_->buffers = buffers;
   impl_->streaming = true;
   ArvCamera* cam = impl_->camera;
@@ -345,8 +357,10 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
     f.info.width = arv_buffer_get_image_width(buffer);
     f.info.height = arv_buffer_get_image_height(buffer);
     PixelFormat p;
-    if (FromArv(arv_buffer_get_image_pixel_format(buffer), &p)) f.info.pixel_format = p;
-    else f.info.status = FrameStatus::kError;
+    if (FromArv(arv_buffer_get_image_pixel_format(buffer), &p))
+      f.info.pixel_format = p;
+    else
+      f.info.status = FrameStatus::kError;
   }
   // The bytes of the image (the in-process fakes report a size of 0 though the bytes are there).
   size_t size = 0;
@@ -366,9 +380,10 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
   impl_->counters.missing_by_id = impl_->unwrapper.missing();
   if (settings_.trigger == TriggerMode::kFreeRun && impl_->last_timestamp_ns >= 0 &&
       f.info.device_timestamp_ns > impl_->last_timestamp_ns) {
-    const double gap =
-        double(f.info.device_timestamp_ns - impl_->last_timestamp_ns) * settings_.frame_rate_hz / 1e9;
-    if (gap > 1.5) impl_->counters.missing_by_time += static_cast<std::uint64_t>(std::llround(gap)) - 1;
+    const double gap = double(f.info.device_timestamp_ns - impl_->last_timestamp_ns) *
+                       settings_.frame_rate_hz / 1e9;
+    if (gap > 1.5)
+      impl_->counters.missing_by_time += static_cast<std::uint64_t>(std::llround(gap)) - 1;
   }
   impl_->last_timestamp_ns = f.info.device_timestamp_ns;
   ++impl_->counters.delivered;

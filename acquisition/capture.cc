@@ -18,17 +18,21 @@ namespace fs = std::filesystem;
 
 const char* ToString(SyncMode mode) {
   switch (mode) {
-    case SyncMode::kHardwareTrigger: return "hardware-trigger";
-    case SyncMode::kSoftwareTrigger: return "software-trigger";
-    case SyncMode::kFreeRun: return "free-run";
-    case SyncMode::kPtp: return "ptp";
+    case SyncMode::kHardwareTrigger:
+      return "hardware-trigger";
+    case SyncMode::kSoftwareTrigger:
+      return "software-trigger";
+    case SyncMode::kFreeRun:
+      return "free-run";
+    case SyncMode::kPtp:
+      return "ptp";
   }
   return "?";
 }
 
 SyncMode SyncModeFromName(const std::string& name) {
-  for (SyncMode m : {SyncMode::kHardwareTrigger, SyncMode::kSoftwareTrigger, SyncMode::kFreeRun,
-                     SyncMode::kPtp})
+  for (SyncMode m :
+       {SyncMode::kHardwareTrigger, SyncMode::kSoftwareTrigger, SyncMode::kFreeRun, SyncMode::kPtp})
     if (name == ToString(m)) return m;
   throw std::invalid_argument("sync '" + name +
                               "': use hardware-trigger, software-trigger, free-run or ptp");
@@ -105,17 +109,19 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
   c.trigger_rate_hz = r.Positive("trigger_rate_hz", c.trigger_rate_hz);
   // Timestamp matching: about half a frame period by default (notes/aravis.md: the spread of host
   // receive times inside a set reaches a few ms, more on a loaded host).
-  c.match_tolerance_ns = static_cast<std::int64_t>(
-      r.Positive("match_tolerance_ms", 400.0 / c.trigger_rate_hz) * 1e6);
+  c.match_tolerance_ns =
+      static_cast<std::int64_t>(r.Positive("match_tolerance_ms", 400.0 / c.trigger_rate_hz) * 1e6);
   c.set_timeout_ns = static_cast<std::int64_t>(r.Positive("set_timeout_ms", 200) * 1e6);
   c.buffers = static_cast<int>(r.Positive("buffers", c.buffers));
   c.pretrigger_seconds = r.NonNegative("pretrigger_seconds", c.pretrigger_seconds);
   c.pretrigger_max_bytes =
       static_cast<std::uint64_t>(r.NonNegative("pretrigger_max_mb", 256) * (1 << 20));
   c.recorder.max_queued_bytes = static_cast<std::uint64_t>(r.Positive("queue_mb", 512) * (1 << 20));
-  c.recorder.min_free_bytes = static_cast<std::uint64_t>(r.NonNegative("min_free_mb", 64) * (1 << 20));
+  c.recorder.min_free_bytes =
+      static_cast<std::uint64_t>(r.NonNegative("min_free_mb", 64) * (1 << 20));
   c.recorder.sync_interval_s = r.NonNegative("sync_interval_s", c.recorder.sync_interval_s);
-  c.recorder.max_bytes = static_cast<std::uint64_t>(r.NonNegative("max_recording_mb", 0) * (1 << 20));
+  c.recorder.max_bytes =
+      static_cast<std::uint64_t>(r.NonNegative("max_recording_mb", 0) * (1 << 20));
   c.control = r.Get<std::string>("control", "");
   c.allow_remote = r.Get<bool>("allow_remote", false);
   r.Seen("cameras");
@@ -136,7 +142,8 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     if (cc.driver != "sim" && cc.driver != "aravis" && cc.driver != "v4l2")
       throw std::invalid_argument(at + ": driver '" + cc.driver + "': use sim, aravis or v4l2");
     cc.id = cr.Get<std::string>("id", cc.driver == "sim" ? "SIM" + std::to_string(i) : "");
-    if (cc.id.empty()) throw std::invalid_argument(at + ": 'id' (serial, address or device) is required");
+    if (cc.id.empty())
+      throw std::invalid_argument(at + ": 'id' (serial, address or device) is required");
     CameraSettings& s = cc.settings;
     s.width = static_cast<int>(cr.Positive("width", s.width));
     s.height = static_cast<int>(cr.Positive("height", s.height));
@@ -147,8 +154,10 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     }
     // Free-run: the rate. Triggered: the camera's maximum rate, which must leave room for the
     // trigger's timing jitter (a camera ignores a trigger that comes before it is ready).
-    const bool triggered = c.sync == SyncMode::kHardwareTrigger || c.sync == SyncMode::kSoftwareTrigger;
-    s.frame_rate_hz = cr.Positive("frame_rate_hz", triggered ? 2 * c.trigger_rate_hz : c.trigger_rate_hz);
+    const bool triggered =
+        c.sync == SyncMode::kHardwareTrigger || c.sync == SyncMode::kSoftwareTrigger;
+    s.frame_rate_hz =
+        cr.Positive("frame_rate_hz", triggered ? 2 * c.trigger_rate_hz : c.trigger_rate_hz);
     if (triggered && s.frame_rate_hz < 1.1 * c.trigger_rate_hz) {
       throw std::invalid_argument(at + ": frame_rate_hz " + std::to_string(s.frame_rate_hz) +
                                   " (the camera's maximum rate when triggered) must be at least "
@@ -187,16 +196,18 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
                                      ? fs::path(replay)
                                      : fs::path(where).parent_path() / replay;
         try {
-          cc.sim.source = DatasetReplaySource(dataset.string(), cr.Get<std::string>("name", cc.name));
+          cc.sim.source =
+              DatasetReplaySource(dataset.string(), cr.Get<std::string>("name", cc.name));
         } catch (const std::exception& e) {
           throw std::invalid_argument(at + ".sim.replay: " + e.what());
         }
       }
-      const double d = sr.Get<double>("disconnect_at_s", -1), re = sr.Get<double>("reconnect_at_s", -1);
+      const double d = sr.Get<double>("disconnect_at_s", -1),
+                   re = sr.Get<double>("reconnect_at_s", -1);
       cc.sim.disconnect_at_ns = d < 0 ? -1 : static_cast<std::int64_t>(d * 1e9);
       cc.sim.reconnect_at_ns = re < 0 ? -1 : static_cast<std::int64_t>(re * 1e9);
-      for (double p : {cc.sim.drop_probability, cc.sim.late_probability,
-                       cc.sim.incomplete_probability})
+      for (double p :
+           {cc.sim.drop_probability, cc.sim.late_probability, cc.sim.incomplete_probability})
         if (p > 1) throw std::invalid_argument(at + ".sim: probabilities must be in [0, 1]");
       sr.CheckKnown();
     }
@@ -292,7 +303,8 @@ std::string CaptureStatus::ToYaml() const {
   out << YAML::Key << "megabytes_written" << YAML::Value << recorder.bytes_written / 1048576.0;
   out << YAML::Key << "disk_backlog_mb" << YAML::Value << recorder.queued_bytes / 1048576.0;
   out << YAML::Key << "queue_fill" << YAML::Value
-      << (recorder.max_queued_bytes ? double(recorder.queued_bytes) / recorder.max_queued_bytes : 0.0);
+      << (recorder.max_queued_bytes ? double(recorder.queued_bytes) / recorder.max_queued_bytes
+                                    : 0.0);
   out << YAML::Key << "error" << YAML::Value << recorder.error;
   out << YAML::EndMap;
   out << YAML::Key << "incoming_queue" << YAML::Value << YAML::Flow << YAML::BeginSeq
@@ -301,9 +313,9 @@ std::string CaptureStatus::ToYaml() const {
   out << YAML::Key << "trigger_overruns" << YAML::Value << trigger_overruns;
   out << YAML::Key << "rejected_sets" << YAML::Value << rejected_sets;
   if (!last_error.empty()) out << YAML::Key << "last_error" << YAML::Value << last_error;
-  out << YAML::Key << "pretrigger_ring" << YAML::Value << YAML::Flow << YAML::BeginMap
-      << YAML::Key << "sets" << YAML::Value << ring_sets << YAML::Key << "megabytes"
-      << YAML::Value << ring_bytes / 1048576.0 << YAML::EndMap;
+  out << YAML::Key << "pretrigger_ring" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key
+      << "sets" << YAML::Value << ring_sets << YAML::Key << "megabytes" << YAML::Value
+      << ring_bytes / 1048576.0 << YAML::EndMap;
   out << YAML::EndMap;
   return std::string(out.c_str()) + "\n";
 }
@@ -325,8 +337,9 @@ CaptureDaemon::CaptureDaemon(const CaptureConfig& config,
       bus_(bus),
       assembler_(config.AssemblerOptions()) {
   if (cameras_.size() != config_.cameras.size())
-    throw std::invalid_argument("capture: the config lists " + std::to_string(config_.cameras.size()) +
-                                " cameras, " + std::to_string(cameras_.size()) + " were given");
+    throw std::invalid_argument("capture: the config lists " +
+                                std::to_string(config_.cameras.size()) + " cameras, " +
+                                std::to_string(cameras_.size()) + " were given");
   for (std::size_t c = 0; c < cameras_.size(); ++c) {
     auto s = std::make_unique<CameraState>();
     s->live.name = config_.cameras[c].name;
@@ -335,9 +348,8 @@ CaptureDaemon::CaptureDaemon(const CaptureConfig& config,
   }
   incoming_capacity_ = std::max<std::size_t>(64, 4 * cameras_.size() * config_.buffers);
   // The ring is flushed into a new recording at once: its queue must hold it.
-  config_.recorder.max_queued_bytes =
-      std::max<std::uint64_t>(config_.recorder.max_queued_bytes,
-                              config_.pretrigger_max_bytes + (std::uint64_t(64) << 20));
+  config_.recorder.max_queued_bytes = std::max<std::uint64_t>(
+      config_.recorder.max_queued_bytes, config_.pretrigger_max_bytes + (std::uint64_t(64) << 20));
 }
 
 CaptureDaemon::~CaptureDaemon() {
@@ -522,9 +534,8 @@ void CaptureDaemon::Deliver(std::vector<FrameSet>* ready) {
       ring_.push_back(std::move(set));
       ring_bytes_ += bytes;
       const std::int64_t window = static_cast<std::int64_t>(config_.pretrigger_seconds * 1e9);
-      while (!ring_.empty() &&
-             (ring_bytes_ > config_.pretrigger_max_bytes ||
-              ring_.back().reference_ns - ring_.front().reference_ns > window)) {
+      while (!ring_.empty() && (ring_bytes_ > config_.pretrigger_max_bytes ||
+                                ring_.back().reference_ns - ring_.front().reference_ns > window)) {
         for (const auto& f : ring_.front().frames)
           if (f) ring_bytes_ -= f->bytes();
         ring_.pop_front();
@@ -638,10 +649,12 @@ void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::strin
   if (running_) throw std::logic_error("capture: disarm before configuring cameras");
   int index = -1;
   for (std::size_t c = 0; c < config_.cameras.size(); ++c)
-    if (config_.cameras[c].name == camera || std::to_string(c) == camera) index = static_cast<int>(c);
+    if (config_.cameras[c].name == camera || std::to_string(c) == camera)
+      index = static_cast<int>(c);
   if (index < 0) throw std::invalid_argument("capture: no camera '" + camera + "'");
   CameraSettings s = config_.cameras[index].settings;
-  const std::string where = "camera '" + config_.cameras[index].name + "': " + key + " '" + value + "'";
+  const std::string where =
+      "camera '" + config_.cameras[index].name + "': " + key + " '" + value + "'";
   auto number = [&] {
     char* end = nullptr;
     const double v = std::strtod(value.c_str(), &end);
@@ -650,15 +663,22 @@ void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::strin
     return v;
   };
   try {
-    if (key == "width") s.width = static_cast<int>(number());
-    else if (key == "height") s.height = static_cast<int>(number());
-    else if (key == "pixel_format") s.pixel_format = PixelFormatFromName(value);
-    else if (key == "frame_rate_hz") s.frame_rate_hz = number();
-    else if (key == "exposure_us") s.exposure_us = number();
-    else if (key == "gain_db") s.gain_db = number();
+    if (key == "width")
+      s.width = static_cast<int>(number());
+    else if (key == "height")
+      s.height = static_cast<int>(number());
+    else if (key == "pixel_format")
+      s.pixel_format = PixelFormatFromName(value);
+    else if (key == "frame_rate_hz")
+      s.frame_rate_hz = number();
+    else if (key == "exposure_us")
+      s.exposure_us = number();
+    else if (key == "gain_db")
+      s.gain_db = number();
     else
-      throw std::invalid_argument("unknown key (width, height, pixel_format, frame_rate_hz, "
-                                  "exposure_us, gain_db)");
+      throw std::invalid_argument(
+          "unknown key (width, height, pixel_format, frame_rate_hz, "
+          "exposure_us, gain_db)");
     s.Validate();
   } catch (const std::invalid_argument& e) {
     const std::string m = e.what();

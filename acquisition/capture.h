@@ -108,12 +108,12 @@ std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config, Cl
 struct CameraLiveStatus {
   std::string name, id;
   bool connected = false;
-  double fps = 0;             // over the last second
+  double fps = 0;  // over the last second
   double megabytes_per_s = 0;
   std::uint64_t frames = 0;
   std::uint64_t reconnect_attempts = 0, reconnects = 0;
-  std::string error;          // the last error of its driver or image source, if any
-  StreamCounters stream;      // the driver's counters
+  std::string error;      // the last error of its driver or image source, if any
+  StreamCounters stream;  // the driver's counters
 };
 
 struct CaptureStatus {
@@ -122,11 +122,11 @@ struct CaptureStatus {
   std::string recording_dir;
   std::vector<CameraLiveStatus> cameras;
   FrameSetCounters sets;
-  RecorderStatus recorder;               // of the current (or last) recording
+  RecorderStatus recorder;  // of the current (or last) recording
   std::size_t incoming_queued = 0, incoming_capacity = 0;
-  std::uint64_t incoming_dropped = 0;    // frames the assembler could not take in time
-  std::uint64_t trigger_overruns = 0;    // trigger slots skipped because the trigger thread was late
-  std::uint64_t rejected_sets = 0;       // sets the recorder refused as malformed (see last_error)
+  std::uint64_t incoming_dropped = 0;  // frames the assembler could not take in time
+  std::uint64_t trigger_overruns = 0;  // trigger slots skipped because the trigger thread was late
+  std::uint64_t rejected_sets = 0;     // sets the recorder refused as malformed (see last_error)
   std::string last_error;
   std::size_t ring_sets = 0;
   std::uint64_t ring_bytes = 0;
@@ -159,7 +159,8 @@ class CaptureDaemon {
   // applied at the next Start. Keys: width, height, pixel_format, frame_rate_hz, exposure_us,
   // gain_db. Throws std::invalid_argument naming the camera, key and value, std::logic_error
   // while running.
-  void SetCameraSetting(const std::string& camera, const std::string& key, const std::string& value);
+  void SetCameraSetting(const std::string& camera, const std::string& key,
+                        const std::string& value);
 
   CaptureStatus status() const;
   // The latest frame set (shared pixels, no copy); empty before the first.

@@ -90,8 +90,10 @@ std::string PreviewPng(const CaptureDaemon& daemon, const std::vector<std::strin
     cv::Mat(u16.height, u16.width, CV_16UC1, u16.pixels.data()).convertTo(m, CV_8U, 1.0 / 256);
   } else {
     cv::Mat view(u8.height, u8.width, u8.channels == 3 ? CV_8UC3 : CV_8UC1, u8.pixels.data());
-    if (u8.channels == 3) cv::cvtColor(view, m, cv::COLOR_RGB2BGR);
-    else m = view.clone();
+    if (u8.channels == 3)
+      cv::cvtColor(view, m, cv::COLOR_RGB2BGR);
+    else
+      m = view.clone();
   }
   cv::Mat small;
   cv::resize(m, small, cv::Size(std::max(1, m.cols / k), std::max(1, m.rows / k)), 0, 0,
@@ -151,7 +153,8 @@ Endpoint ParseEndpoint(const std::string& endpoint) {
   if (endpoint.rfind("unix:", 0) == 0) {
     e.path = endpoint.substr(5);
     if (e.path.empty() || e.path.size() >= sizeof(sockaddr_un{}.sun_path))
-      throw std::runtime_error("control endpoint '" + endpoint + "': socket path empty or too long");
+      throw std::runtime_error("control endpoint '" + endpoint +
+                               "': socket path empty or too long");
     return e;
   }
   if (endpoint.rfind("tcp:", 0) == 0) {
@@ -183,7 +186,9 @@ ControlReply HandleControlRequest(CaptureDaemon& daemon, const std::string& line
     if (w.empty()) throw std::invalid_argument("empty request");
     const std::string& cmd = w[0];
     auto arity = [&](std::size_t n) {
-      if (w.size() != n) throw std::invalid_argument("'" + cmd + "' takes " + std::to_string(n - 1) + " argument(s)");
+      if (w.size() != n)
+        throw std::invalid_argument("'" + cmd + "' takes " + std::to_string(n - 1) +
+                                    " argument(s)");
     };
     if (cmd == "status") {
       arity(1);
@@ -321,8 +326,8 @@ void ControlServer::Serve() {
     } else {
       reply = HandleControlRequest(*daemon_, line, &shutdown_requested_);
     }
-    SendAll(fd, (reply.ok ? "ok " : "error ") + std::to_string(reply.body.size()) + "\n" +
-                    reply.body);
+    SendAll(fd,
+            (reply.ok ? "ok " : "error ") + std::to_string(reply.body.size()) + "\n" + reply.body);
     ::close(fd);
   }
 }

@@ -11,47 +11,64 @@ namespace flamerig {
 
 const char* ToString(PixelFormat format) {
   switch (format) {
-    case PixelFormat::kMono8: return "Mono8";
-    case PixelFormat::kMono16: return "Mono16";
-    case PixelFormat::kRgb8: return "RGB8";
-    case PixelFormat::kBayerRg8: return "BayerRG8";
-    case PixelFormat::kBayerGr8: return "BayerGR8";
-    case PixelFormat::kBayerGb8: return "BayerGB8";
-    case PixelFormat::kBayerBg8: return "BayerBG8";
+    case PixelFormat::kMono8:
+      return "Mono8";
+    case PixelFormat::kMono16:
+      return "Mono16";
+    case PixelFormat::kRgb8:
+      return "RGB8";
+    case PixelFormat::kBayerRg8:
+      return "BayerRG8";
+    case PixelFormat::kBayerGr8:
+      return "BayerGR8";
+    case PixelFormat::kBayerGb8:
+      return "BayerGB8";
+    case PixelFormat::kBayerBg8:
+      return "BayerBG8";
   }
   return "?";
 }
 
 PixelFormat PixelFormatFromName(const std::string& name) {
-  for (PixelFormat f : {PixelFormat::kMono8, PixelFormat::kMono16, PixelFormat::kRgb8,
-                        PixelFormat::kBayerRg8, PixelFormat::kBayerGr8, PixelFormat::kBayerGb8,
-                        PixelFormat::kBayerBg8}) {
+  for (PixelFormat f :
+       {PixelFormat::kMono8, PixelFormat::kMono16, PixelFormat::kRgb8, PixelFormat::kBayerRg8,
+        PixelFormat::kBayerGr8, PixelFormat::kBayerGb8, PixelFormat::kBayerBg8}) {
     if (name == ToString(f)) return f;
   }
-  throw std::invalid_argument("pixel format '" + name +
-                              "': use Mono8, Mono16, RGB8, BayerRG8, BayerGR8, BayerGB8 or BayerBG8");
+  throw std::invalid_argument(
+      "pixel format '" + name +
+      "': use Mono8, Mono16, RGB8, BayerRG8, BayerGR8, BayerGB8 or BayerBG8");
 }
 
 int BytesPerPixel(PixelFormat format) {
   switch (format) {
-    case PixelFormat::kMono16: return 2;
-    case PixelFormat::kRgb8: return 3;
-    default: return 1;
+    case PixelFormat::kMono16:
+      return 2;
+    case PixelFormat::kRgb8:
+      return 3;
+    default:
+      return 1;
   }
 }
 
 const char* ToString(FrameStatus status) {
   switch (status) {
-    case FrameStatus::kOk: return "ok";
-    case FrameStatus::kIncomplete: return "incomplete";
-    case FrameStatus::kTimeout: return "timeout";
-    case FrameStatus::kError: return "error";
+    case FrameStatus::kOk:
+      return "ok";
+    case FrameStatus::kIncomplete:
+      return "incomplete";
+    case FrameStatus::kTimeout:
+      return "timeout";
+    case FrameStatus::kError:
+      return "error";
   }
   return "?";
 }
 
-FrameIdUnwrapper::FrameIdUnwrapper(int bits, std::uint64_t wrap_to) : bits_(bits), wrap_to_(wrap_to) {
-  if (bits < 1 || bits > 64) throw std::invalid_argument("FrameIdUnwrapper: bits must be in [1, 64]");
+FrameIdUnwrapper::FrameIdUnwrapper(int bits, std::uint64_t wrap_to)
+    : bits_(bits), wrap_to_(wrap_to) {
+  if (bits < 1 || bits > 64)
+    throw std::invalid_argument("FrameIdUnwrapper: bits must be in [1, 64]");
   modulus_minus_one_ =
       bits == 64 ? std::numeric_limits<std::uint64_t>::max() : (std::uint64_t(1) << bits) - 1;
   if (wrap_to > modulus_minus_one_)
@@ -92,10 +109,9 @@ int DecodeFrame(const Frame& frame, ImageU8* u8, ImageU16* u16) {
       std::size_t(std::max(in.width, 0)) * std::max(in.height, 0) * BytesPerPixel(in.pixel_format);
   if (in.width <= 0 || in.height <= 0 || frame.bytes() != expect) {
     throw std::invalid_argument("camera " + std::to_string(in.camera) + " frame " +
-                                std::to_string(in.frame_id) + ": " +
-                                std::to_string(frame.bytes()) + " bytes for " +
-                                std::to_string(in.width) + "x" + std::to_string(in.height) + " " +
-                                ToString(in.pixel_format));
+                                std::to_string(in.frame_id) + ": " + std::to_string(frame.bytes()) +
+                                " bytes for " + std::to_string(in.width) + "x" +
+                                std::to_string(in.height) + " " + ToString(in.pixel_format));
   }
   const std::uint8_t* p = frame.data->data();
   *u8 = ImageU8();

@@ -31,8 +31,8 @@ enum class FrameStatus {
 const char* ToString(FrameStatus status);
 
 struct FrameInfo {
-  int camera = -1;                  // index of the camera in the rig
-  std::uint64_t frame_id = 0;       // unwrapped
+  int camera = -1;                    // index of the camera in the rig
+  std::uint64_t frame_id = 0;         // unwrapped
   std::uint64_t device_frame_id = 0;  // as the device counted it
   std::int64_t device_timestamp_ns = 0;
   std::int64_t host_monotonic_ns = 0;
@@ -69,7 +69,7 @@ class FrameIdUnwrapper {
   // a wrap; a small step backwards (a reordered or repeated frame) returns the id it would have had
   // and counts as out of order.
   std::uint64_t Next(std::uint64_t device_id);
-  std::uint64_t missing() const { return missing_; }        // ids skipped by forward gaps
+  std::uint64_t missing() const { return missing_; }  // ids skipped by forward gaps
   std::uint64_t out_of_order() const { return out_of_order_; }
 
  private:

@@ -65,9 +65,9 @@ bool FrameSetAssembler::Add(Frame frame, std::int64_t now_ns, std::vector<FrameS
   }
   bool accepted = true;
   if (match == open_.size()) {
-    const bool closed = emitted_any_ && (by_trigger ? key <= last_emitted_trigger_
-                                                    : key <= last_emitted_reference_ +
-                                                                 options_.tolerance_ns);
+    const bool closed =
+        emitted_any_ && (by_trigger ? key <= last_emitted_trigger_
+                                    : key <= last_emitted_reference_ + options_.tolerance_ns);
     if (closed) {
       ++counters_.late_frames;
       accepted = false;
@@ -155,7 +155,8 @@ void FrameSetAssembler::Emit(std::size_t i, std::vector<FrameSet>* ready) {
     ++counters_.incomplete;
   last_emitted_reference_ =
       emitted_any_ ? std::max(last_emitted_reference_, s.reference_ns) : s.reference_ns;
-  last_emitted_trigger_ = emitted_any_ ? std::max(last_emitted_trigger_, s.trigger_id) : s.trigger_id;
+  last_emitted_trigger_ =
+      emitted_any_ ? std::max(last_emitted_trigger_, s.trigger_id) : s.trigger_id;
   emitted_any_ = true;
   ready->push_back(std::move(s));
 }

@@ -41,9 +41,9 @@ struct FrameSetOptions {
 };
 
 struct FrameSet {
-  std::uint64_t index = 0;            // 0, 1, 2, ... in emission order
-  std::int64_t trigger_id = -1;       // when matched by trigger
-  std::int64_t reference_ns = 0;      // the timestamp the set was opened with
+  std::uint64_t index = 0;                   // 0, 1, 2, ... in emission order
+  std::int64_t trigger_id = -1;              // when matched by trigger
+  std::int64_t reference_ns = 0;             // the timestamp the set was opened with
   std::vector<std::optional<Frame>> frames;  // one slot per camera
   bool complete() const;
   int present() const;

@@ -11,7 +11,10 @@ void RerunInLoopbackNamespace(const std::vector<std::string>& command) {
   ::setenv("FLAMERIG_ARAVIS_NETNS", "1", 1);
   if (!command.empty() && std::system("unshare -rn true >/dev/null 2>&1") == 0) {
     std::vector<const char*> args = {
-        "unshare", "-rn", "sh", "-c",
+        "unshare",
+        "-rn",
+        "sh",
+        "-c",
         "ip link set lo up && for a in 2 3 4 5 6 7 8 9; do ip addr add 127.0.0.$a/32 dev lo; "
         "done && exec \"$@\"",
         "flamerig-netns"};

@@ -105,7 +105,8 @@ std::vector<char> FileHeader(const char (&magic)[8], std::uint32_t value) {
 
 int CreateFile(const fs::path& path, const std::vector<char>& header) {
   const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_APPEND | O_CLOEXEC, 0644);
-  if (fd < 0) throw RecordingError("recording: cannot create " + path.string() + ": " + Errno(errno));
+  if (fd < 0)
+    throw RecordingError("recording: cannot create " + path.string() + ": " + Errno(errno));
   if (const int e = WriteAll(fd, header.data(), header.size())) {
     ::close(fd);
     throw RecordingError("recording: cannot write " + path.string() + ": " + Errno(e));
@@ -229,9 +230,8 @@ void CheckFileHeader(const std::vector<char>& bytes, const char (&magic)[8],
                          std::to_string(version) + "; this flamerig reads version 1");
   }
   if (value != expect_value) {
-    throw RecordingError("recording: " + path.string() + " header says " +
-                         std::to_string(value) + ", metadata.yaml says " +
-                         std::to_string(expect_value));
+    throw RecordingError("recording: " + path.string() + " header says " + std::to_string(value) +
+                         ", metadata.yaml says " + std::to_string(expect_value));
   }
 }
 
@@ -249,9 +249,9 @@ std::string CameraIndexFile(int camera) {
 }
 
 void RecorderOptions::Validate() const {
-  if (max_queued_bytes == 0)
-    throw std::invalid_argument("recorder: max_queued_bytes must be > 0");
-  if (!(sync_interval_s >= 0)) throw std::invalid_argument("recorder: sync_interval_s must be >= 0");
+  if (max_queued_bytes == 0) throw std::invalid_argument("recorder: max_queued_bytes must be > 0");
+  if (!(sync_interval_s >= 0))
+    throw std::invalid_argument("recorder: sync_interval_s must be >= 0");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -321,8 +321,8 @@ bool Recorder::Submit(const FrameSet& set) {
   for (std::size_t c = 0; c < set.frames.size(); ++c) {
     const auto& f = set.frames[c];
     if (!f) continue;
-    const std::uint64_t expect = std::uint64_t(f->info.width) * f->info.height *
-                                 BytesPerPixel(f->info.pixel_format);
+    const std::uint64_t expect =
+        std::uint64_t(f->info.width) * f->info.height * BytesPerPixel(f->info.pixel_format);
     if (f->bytes() != 0 && f->bytes() != expect) {
       throw std::invalid_argument(
           "recorder: camera " + std::to_string(c) + " frame " + std::to_string(f->info.frame_id) +
@@ -383,7 +383,8 @@ bool Recorder::Submit(const FrameSet& set) {
 }
 
 void Recorder::Fail(const std::string& message) {
-  const std::string stop = message + "; recording stopped (every frame set committed before is readable)";
+  const std::string stop =
+      message + "; recording stopped (every frame set committed before is readable)";
   status_.error = status_.error.empty() ? stop : status_.error + "; then " + stop;
   failed_ = true;
   status_.stopped = true;
@@ -582,7 +583,8 @@ Recording Recording::Open(const std::string& directory) {
   Recording rec;
   rec.directory_ = directory;
   const fs::path dir(directory);
-  if (!fs::is_directory(dir)) throw RecordingError("recording: " + directory + " is not a directory");
+  if (!fs::is_directory(dir))
+    throw RecordingError("recording: " + directory + " is not a directory");
   const fs::path meta_path = dir / "metadata.yaml";
   try {
     const YAML::Node root = YAML::LoadFile(meta_path.string());
@@ -637,13 +639,13 @@ Recording Recording::Open(const std::string& directory) {
       const bool last = e + 1 == entries;
       const bool fits = r.offset >= kFileHeader && r.payload_bytes <= data_size &&
                         r.offset + sizeof(FrameRecord) + r.payload_bytes <= data_size;
-      const bool sane =
-          r.camera == static_cast<std::uint32_t>(c) &&
-          r.pixel_format <= static_cast<std::uint32_t>(PixelFormat::kBayerBg8) &&
-          r.status <= static_cast<std::uint32_t>(FrameStatus::kError) &&
-          (r.payload_bytes == 0 || r.payload_bytes == std::uint64_t(r.width) * r.height *
-                                 BytesPerPixel(static_cast<PixelFormat>(
-                                     std::min<std::uint32_t>(r.pixel_format, 6))));
+      const bool sane = r.camera == static_cast<std::uint32_t>(c) &&
+                        r.pixel_format <= static_cast<std::uint32_t>(PixelFormat::kBayerBg8) &&
+                        r.status <= static_cast<std::uint32_t>(FrameStatus::kError) &&
+                        (r.payload_bytes == 0 ||
+                         r.payload_bytes == std::uint64_t(r.width) * r.height *
+                                                BytesPerPixel(static_cast<PixelFormat>(
+                                                    std::min<std::uint32_t>(r.pixel_format, 6))));
       if (!RecordCrcOk(r) || !fits || !sane) {
         if (last) {  // torn by an interrupted write: ignored
           report.notes.push_back(index_path.filename().string() + ": last entry incomplete (" +
@@ -651,11 +653,10 @@ Recording Recording::Open(const std::string& directory) {
           report.ignored_bytes += sizeof(FrameRecord);
           break;
         }
-        throw RecordingError("recording: " + index_path.string() + ": entry " +
-                             std::to_string(e) + " at byte " + std::to_string(at) + " is corrupt (" +
-                             (fits ? "checksum mismatch" : "points outside " +
-                                                               data_path.filename().string()) +
-                             ")");
+        throw RecordingError(
+            "recording: " + index_path.string() + ": entry " + std::to_string(e) + " at byte " +
+            std::to_string(at) + " is corrupt (" +
+            (fits ? "checksum mismatch" : "points outside " + data_path.filename().string()) + ")");
       }
       rec.frames_[c].push_back(r);
       data_end = r.offset + sizeof(FrameRecord) + r.payload_bytes;
@@ -743,9 +744,8 @@ FrameSet Recording::ReadSet(std::size_t i) const {
     in.seekg(static_cast<std::streamoff>(r.offset));
     in.read(reinterpret_cast<char*>(&on_disk), sizeof on_disk);
     in.read(reinterpret_cast<char*>(pixels->data()), static_cast<std::streamsize>(r.payload_bytes));
-    const std::string where = path.string() + ": frame " + std::to_string(r.frame_id) +
-                              " (set " + std::to_string(i) + ") at byte " +
-                              std::to_string(r.offset);
+    const std::string where = path.string() + ": frame " + std::to_string(r.frame_id) + " (set " +
+                              std::to_string(i) + ") at byte " + std::to_string(r.offset);
     if (!in) throw RecordingError("recording: " + where + ": cut short");
     if (std::memcmp(&on_disk, &r, sizeof r) != 0)
       throw RecordingError("recording: " + where + ": record header differs from the index");
@@ -776,7 +776,8 @@ std::vector<std::uint64_t> Recording::MissingByFrameId() const {
   for (int c = 0; c < num_cameras(); ++c) {
     const auto& f = frames_[c];
     for (std::size_t k = 1; k < f.size(); ++k)
-      if (f[k].frame_id > f[k - 1].frame_id + 1) missing[c] += f[k].frame_id - f[k - 1].frame_id - 1;
+      if (f[k].frame_id > f[k - 1].frame_id + 1)
+        missing[c] += f[k].frame_id - f[k - 1].frame_id - 1;
   }
   return missing;
 }

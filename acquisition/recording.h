@@ -74,16 +74,16 @@ struct RecordingMetadata {
 // On-disk records (version 1). FrameRecord is 128 bytes, SetRecord 48 + 8 * cameras bytes.
 #pragma pack(push, 1)
 struct FrameRecord {
-  char magic[4];                // "FRM1"
-  std::uint32_t record_crc;     // CRC-32 of the 124 bytes that follow it
-  std::uint64_t offset;         // of this record in camNN.data
-  std::uint64_t set;            // the frame set it belongs to
+  char magic[4];             // "FRM1"
+  std::uint32_t record_crc;  // CRC-32 of the 124 bytes that follow it
+  std::uint64_t offset;      // of this record in camNN.data
+  std::uint64_t set;         // the frame set it belongs to
   std::uint64_t frame_id, device_frame_id;
   std::int64_t device_timestamp_ns, host_monotonic_ns, host_realtime_ns, trigger_id;
   double exposure_us, gain_db;
   std::uint32_t pixel_format, width, height, status;
   std::uint64_t payload_bytes;
-  std::uint32_t payload_crc;    // CRC-32 of the pixels
+  std::uint32_t payload_crc;  // CRC-32 of the pixels
   std::uint32_t camera;
   std::uint8_t reserved[8];
 };
@@ -134,15 +134,15 @@ class Recorder {
     Frame frame;
   };
   struct Pending {
-    FrameSet header;                   // the set without pixels
-    int remaining = 0;                 // frames not yet written
+    FrameSet header;                    // the set without pixels
+    int remaining = 0;                  // frames not yet written
     std::vector<std::int64_t> entries;  // index entry per camera, -1 = missing
   };
   struct CameraFiles;
   void WriterLoop(int camera);
   void CommitterLoop();  // appends set records to sets.index, outside the lock, in order
-  void Fail(const std::string& message);           // holds mutex_
-  void CommitReady();                              // holds mutex_: queues finished sets' records
+  void Fail(const std::string& message);  // holds mutex_
+  void CommitReady();                     // holds mutex_: queues finished sets' records
   void SyncAll();
 
   std::string directory_;
@@ -170,8 +170,8 @@ class Recorder {
 };
 
 struct RecoveryReport {
-  bool closed_cleanly = false;   // metadata.yaml says the recorder closed it
-  std::uint64_t sets = 0;        // readable frame sets
+  bool closed_cleanly = false;      // metadata.yaml says the recorder closed it
+  std::uint64_t sets = 0;           // readable frame sets
   std::uint64_t ignored_bytes = 0;  // past the last complete set (torn records, uncommitted frames)
   std::vector<std::string> notes;   // what was ignored, file by file
 };

@@ -17,9 +17,12 @@ namespace flamerig {
 
 const char* ToString(TriggerMode mode) {
   switch (mode) {
-    case TriggerMode::kFreeRun: return "free-run";
-    case TriggerMode::kSoftware: return "software";
-    case TriggerMode::kHardware: return "hardware";
+    case TriggerMode::kFreeRun:
+      return "free-run";
+    case TriggerMode::kSoftware:
+      return "software";
+    case TriggerMode::kHardware:
+      return "hardware";
   }
   return "?";
 }
@@ -134,7 +137,7 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
       const char* layout = info.pixel_format == PixelFormat::kBayerRg8   ? "RGGB"
                            : info.pixel_format == PixelFormat::kBayerGr8 ? "GRBG"
                            : info.pixel_format == PixelFormat::kBayerGb8 ? "GBRG"
-                                                                          : "BGGR";
+                                                                         : "BGGR";
       const char c = layout[2 * (y % 2) + (x % 2)];
       return c == 'R' ? 0 : c == 'G' ? 1 : 2;
     };
@@ -168,10 +171,11 @@ SimCamera::SimCamera(const SimCameraOptions& options, Clock* clock, SimTriggerBu
       unwrapper_(options.frame_id_bits, 1),
       source_(options.source ? options.source : TestPatternSource()) {
   if (!clock_) throw std::invalid_argument("sim camera '" + options.id + "': no clock");
-  for (double p : {options.drop_probability, options.late_probability,
-                   options.incomplete_probability}) {
+  for (double p :
+       {options.drop_probability, options.late_probability, options.incomplete_probability}) {
     if (!(p >= 0 && p <= 1))
-      throw std::invalid_argument("sim camera '" + options.id + "': probabilities must be in [0, 1]");
+      throw std::invalid_argument("sim camera '" + options.id +
+                                  "': probabilities must be in [0, 1]");
   }
   if (options.jitter_ns < 0 || options.transfer_ns < 0 || options.trigger_latency_ns < 0 ||
       options.late_ns < 0)
@@ -179,7 +183,8 @@ SimCamera::SimCamera(const SimCameraOptions& options, Clock* clock, SimTriggerBu
 }
 
 CameraDescription SimCamera::description() const {
-  return CameraDescription{"sim", options_.id, "flamerig", "simulated camera", "sim://" + options_.id};
+  return CameraDescription{"sim", options_.id, "flamerig", "simulated camera",
+                           "sim://" + options_.id};
 }
 
 void SimCamera::Configure(const CameraSettings& settings) {
@@ -238,8 +243,9 @@ void SimCamera::AddExposure(std::int64_t start_ns, std::int64_t trigger_id) {
   Pending p;
   p.info.camera = options_.camera_index;
   p.info.device_frame_id = device_counter_;
-  const std::uint64_t top =
-      options_.frame_id_bits >= 64 ? ~std::uint64_t(0) : (std::uint64_t(1) << options_.frame_id_bits) - 1;
+  const std::uint64_t top = options_.frame_id_bits >= 64
+                                ? ~std::uint64_t(0)
+                                : (std::uint64_t(1) << options_.frame_id_bits) - 1;
   device_counter_ = device_counter_ >= top ? 1 : device_counter_ + 1;
   // The device clock: offset and drift relative to the host.
   p.info.device_timestamp_ns =
@@ -253,8 +259,8 @@ void SimCamera::AddExposure(std::int64_t start_ns, std::int64_t trigger_id) {
   p.info.height = settings_.height;
   p.dropped = u(rng_) < options_.drop_probability;
   const bool late = u(rng_) < options_.late_probability;
-  p.info.status = u(rng_) < options_.incomplete_probability ? FrameStatus::kIncomplete
-                                                            : FrameStatus::kOk;
+  p.info.status =
+      u(rng_) < options_.incomplete_probability ? FrameStatus::kIncomplete : FrameStatus::kOk;
   p.deliver_ns = start_ns + static_cast<std::int64_t>(settings_.exposure_us * 1e3) +
                  options_.transfer_ns + (late ? options_.late_ns : 0);
   auto it = std::upper_bound(pending_.begin(), pending_.end(), p.deliver_ns,

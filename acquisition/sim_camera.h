@@ -93,20 +93,20 @@ struct SimCameraOptions {
   std::string id = "sim0";
   int camera_index = 0;  // written into FrameInfo::camera
   std::uint64_t seed = 1;
-  double drift_ppm = 0;                  // device clock rate error
-  std::int64_t device_offset_ns = 0;     // device clock minus host clock at 0
-  std::int64_t jitter_ns = 0;            // standard deviation of each exposure start
+  double drift_ppm = 0;                      // device clock rate error
+  std::int64_t device_offset_ns = 0;         // device clock minus host clock at 0
+  std::int64_t jitter_ns = 0;                // standard deviation of each exposure start
   std::int64_t trigger_latency_ns = 50'000;  // from a pulse to the exposure start
-  std::int64_t transfer_ns = 2'000'000;  // from exposure end to host receive
-  double drop_probability = 0;           // frame produced but never delivered
-  double late_probability = 0;           // delivered `late_ns` later than normal
+  std::int64_t transfer_ns = 2'000'000;      // from exposure end to host receive
+  double drop_probability = 0;               // frame produced but never delivered
+  double late_probability = 0;               // delivered `late_ns` later than normal
   std::int64_t late_ns = 100'000'000;
-  double incomplete_probability = 0;     // delivered with status incomplete
-  std::int64_t disconnect_at_ns = -1;    // monotonic time the camera disappears; -1 = never
-  std::int64_t reconnect_at_ns = -1;     // and comes back; -1 = never
-  int frame_id_bits = 16;                // device counter width (GigE Vision: 16)
+  double incomplete_probability = 0;   // delivered with status incomplete
+  std::int64_t disconnect_at_ns = -1;  // monotonic time the camera disappears; -1 = never
+  std::int64_t reconnect_at_ns = -1;   // and comes back; -1 = never
+  int frame_id_bits = 16;              // device counter width (GigE Vision: 16)
   std::uint64_t first_frame_id = 1;
-  ImageSource source;                    // empty = TestPatternSource()
+  ImageSource source;  // empty = TestPatternSource()
 };
 
 class SimCamera : public Camera {

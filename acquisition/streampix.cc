@@ -47,7 +47,8 @@ StreamPixSequence::StreamPixSequence(const std::string& path, PixelFormat bayer)
   s.true_image_size = At<std::uint32_t>(h, 580);
   s.frame_rate_hz = At<double>(h, 584);
   s.compression_format = At<std::uint32_t>(h, 620);
-  if (s.version < 3 || s.version > 6) fail("version " + std::to_string(s.version) + " (reads 3 to 6)");
+  if (s.version < 3 || s.version > 6)
+    fail("version " + std::to_string(s.version) + " (reads 3 to 6)");
   if (s.header_size < 1024 || s.header_size > (1u << 20))
     fail("header size " + std::to_string(s.header_size));
   if (s.compression_format != 0)
@@ -55,9 +56,12 @@ StreamPixSequence::StreamPixSequence(const std::string& path, PixelFormat bayer)
          "); only uncompressed sequences are read");
   if (s.width == 0 || s.height == 0 || s.width > 65536 || s.height > 65536)
     fail("image size " + std::to_string(s.width) + "x" + std::to_string(s.height));
-  if (s.image_format == 100 && s.bit_depth == 8) format_ = PixelFormat::kMono8;
-  else if (s.image_format == 100 && s.bit_depth == 16) format_ = PixelFormat::kMono16;
-  else if (s.image_format == 101 && s.bit_depth == 8) format_ = bayer;
+  if (s.image_format == 100 && s.bit_depth == 8)
+    format_ = PixelFormat::kMono8;
+  else if (s.image_format == 100 && s.bit_depth == 16)
+    format_ = PixelFormat::kMono16;
+  else if (s.image_format == 101 && s.bit_depth == 8)
+    format_ = bayer;
   else if ((s.image_format == 200 || s.image_format == 400) && s.bit_depth == 24) {
     format_ = PixelFormat::kRgb8;
     bgr_ = s.image_format == 200;
@@ -107,8 +111,8 @@ Frame StreamPixSequence::ReadFrame(std::size_t i, int camera) const {
   f.info.camera = camera;
   f.info.frame_id = i;
   f.info.device_frame_id = i;
-  f.info.device_timestamp_ns =
-      std::int64_t(seconds) * 1'000'000'000 + std::int64_t(ms) * 1'000'000 + std::int64_t(us) * 1000;
+  f.info.device_timestamp_ns = std::int64_t(seconds) * 1'000'000'000 +
+                               std::int64_t(ms) * 1'000'000 + std::int64_t(us) * 1000;
   f.info.host_realtime_ns = f.info.device_timestamp_ns;
   f.info.pixel_format = format_;
   f.info.width = static_cast<int>(header_.width);

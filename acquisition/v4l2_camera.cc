@@ -19,13 +19,20 @@ namespace {
 
 std::uint32_t FourccOf(PixelFormat f) {
   switch (f) {
-    case PixelFormat::kMono8: return V4L2_PIX_FMT_GREY;
-    case PixelFormat::kMono16: return V4L2_PIX_FMT_Y16;
-    case PixelFormat::kRgb8: return V4L2_PIX_FMT_RGB24;
-    case PixelFormat::kBayerRg8: return V4L2_PIX_FMT_SRGGB8;
-    case PixelFormat::kBayerGr8: return V4L2_PIX_FMT_SGRBG8;
-    case PixelFormat::kBayerGb8: return V4L2_PIX_FMT_SGBRG8;
-    case PixelFormat::kBayerBg8: return V4L2_PIX_FMT_SBGGR8;
+    case PixelFormat::kMono8:
+      return V4L2_PIX_FMT_GREY;
+    case PixelFormat::kMono16:
+      return V4L2_PIX_FMT_Y16;
+    case PixelFormat::kRgb8:
+      return V4L2_PIX_FMT_RGB24;
+    case PixelFormat::kBayerRg8:
+      return V4L2_PIX_FMT_SRGGB8;
+    case PixelFormat::kBayerGr8:
+      return V4L2_PIX_FMT_SGRBG8;
+    case PixelFormat::kBayerGb8:
+      return V4L2_PIX_FMT_SGBRG8;
+    case PixelFormat::kBayerBg8:
+      return V4L2_PIX_FMT_SBGGR8;
   }
   return V4L2_PIX_FMT_GREY;
 }
@@ -55,7 +62,9 @@ int SystemV4l2Device::Ioctl(unsigned long request, void* arg) { return ::ioctl(f
 void* SystemV4l2Device::Mmap(std::size_t length, off_t offset) {
   return ::mmap(nullptr, length, PROT_READ | PROT_WRITE, MAP_SHARED, fd_, offset);
 }
-int SystemV4l2Device::Munmap(void* address, std::size_t length) { return ::munmap(address, length); }
+int SystemV4l2Device::Munmap(void* address, std::size_t length) {
+  return ::munmap(address, length);
+}
 int SystemV4l2Device::Poll(int timeout_ms) {
   pollfd p{fd_, POLLIN, 0};
   return ::poll(&p, 1, timeout_ms);
@@ -74,20 +83,23 @@ std::vector<std::string> ListV4l2Devices() {
     SystemV4l2Device d;
     if (d.Open(e.path().string()) < 0) continue;
     v4l2_capability cap{};
-    if (d.Ioctl(VIDIOC_QUERYCAP, &cap) == 0 &&
-        (cap.device_caps & V4L2_CAP_VIDEO_CAPTURE) && (cap.device_caps & V4L2_CAP_STREAMING))
+    if (d.Ioctl(VIDIOC_QUERYCAP, &cap) == 0 && (cap.device_caps & V4L2_CAP_VIDEO_CAPTURE) &&
+        (cap.device_caps & V4L2_CAP_STREAMING))
       out.push_back(e.path().string());
   }
   return out;
 }
 
-V4l2Camera::V4l2Camera(const std::string& path, int camera_index, std::unique_ptr<V4l2Device> device)
+V4l2Camera::V4l2Camera(const std::string& path, int camera_index,
+                       std::unique_ptr<V4l2Device> device)
     : path_(path), camera_index_(camera_index), device_(std::move(device)) {
   if (!device_) device_ = std::make_unique<SystemV4l2Device>();
   if (device_->Open(path) < 0) Fail("cannot open", errno);
   v4l2_capability cap{};
-  if (Xioctl(*device_, VIDIOC_QUERYCAP, &cap) != 0) Fail("VIDIOC_QUERYCAP (not a V4L2 device?)", errno);
-  const std::uint32_t caps = (cap.capabilities & V4L2_CAP_DEVICE_CAPS) ? cap.device_caps : cap.capabilities;
+  if (Xioctl(*device_, VIDIOC_QUERYCAP, &cap) != 0)
+    Fail("VIDIOC_QUERYCAP (not a V4L2 device?)", errno);
+  const std::uint32_t caps =
+      (cap.capabilities & V4L2_CAP_DEVICE_CAPS) ? cap.device_caps : cap.capabilities;
   if (!(caps & V4L2_CAP_VIDEO_CAPTURE))
     throw std::runtime_error("v4l2 camera " + path + ": not a video capture device");
   if (!(caps & V4L2_CAP_STREAMING))
@@ -115,8 +127,9 @@ void V4l2Camera::Configure(const CameraSettings& s) {
   s.Validate();
   if (streaming_) throw std::logic_error("v4l2 camera " + path_ + ": Configure while streaming");
   if (s.trigger != TriggerMode::kFreeRun) {
-    throw std::runtime_error("v4l2 camera " + path_ +
-                             ": V4L2 has no trigger input; use sync: free-run (timestamp matching)");
+    throw std::runtime_error(
+        "v4l2 camera " + path_ +
+        ": V4L2 has no trigger input; use sync: free-run (timestamp matching)");
   }
   v4l2_format fmt{};
   fmt.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
@@ -126,13 +139,14 @@ void V4l2Camera::Configure(const CameraSettings& s) {
   fmt.fmt.pix.field = V4L2_FIELD_NONE;
   if (Xioctl(*device_, VIDIOC_S_FMT, &fmt) != 0) Fail("VIDIOC_S_FMT", errno);
   // The driver may adjust what it cannot do: that is a refusal here, not a silent change.
-  if (fmt.fmt.pix.width != std::uint32_t(s.width) || fmt.fmt.pix.height != std::uint32_t(s.height) ||
+  if (fmt.fmt.pix.width != std::uint32_t(s.width) ||
+      fmt.fmt.pix.height != std::uint32_t(s.height) ||
       fmt.fmt.pix.pixelformat != FourccOf(s.pixel_format)) {
     throw std::runtime_error(
         "v4l2 camera " + path_ + ": asked for " + std::to_string(s.width) + "x" +
-        std::to_string(s.height) + " " + FourccName(FourccOf(s.pixel_format)) + ", the driver offers " +
-        std::to_string(fmt.fmt.pix.width) + "x" + std::to_string(fmt.fmt.pix.height) + " " +
-        FourccName(fmt.fmt.pix.pixelformat));
+        std::to_string(s.height) + " " + FourccName(FourccOf(s.pixel_format)) +
+        ", the driver offers " + std::to_string(fmt.fmt.pix.width) + "x" +
+        std::to_string(fmt.fmt.pix.height) + " " + FourccName(fmt.fmt.pix.pixelformat));
   }
   bytes_per_line_ = fmt.fmt.pix.bytesperline;
   v4l2_streamparm parm{};
@@ -147,7 +161,8 @@ void V4l2Camera::Configure(const CameraSettings& s) {
     v4l2_control exposure{V4L2_CID_EXPOSURE_ABSOLUTE,
                           static_cast<std::int32_t>(std::llround(s.exposure_us / 100.0))};
     if (Xioctl(*device_, VIDIOC_S_CTRL, &exposure) != 0)
-      Fail("V4L2_CID_EXPOSURE_ABSOLUTE " + std::to_string(exposure.value) + " (100 us units)", errno);
+      Fail("V4L2_CID_EXPOSURE_ABSOLUTE " + std::to_string(exposure.value) + " (100 us units)",
+           errno);
   }
   if (s.gain_db > 0) {
     v4l2_control gain{V4L2_CID_GAIN, static_cast<std::int32_t>(std::llround(s.gain_db))};
@@ -199,7 +214,8 @@ void V4l2Camera::Stop() {
 
 std::optional<Frame> V4l2Camera::Pop(std::int64_t timeout_ns) {
   if (!streaming_) throw std::logic_error("v4l2 camera " + path_ + ": Pop before Start");
-  const int ready = device_->Poll(static_cast<int>(std::max<std::int64_t>(0, timeout_ns) / 1'000'000));
+  const int ready =
+      device_->Poll(static_cast<int>(std::max<std::int64_t>(0, timeout_ns) / 1'000'000));
   if (ready <= 0) {
     ++counters_.timeouts;
     return std::nullopt;
@@ -226,8 +242,8 @@ std::optional<Frame> V4l2Camera::Pop(std::int64_t timeout_ns) {
   f.info.host_realtime_ns = std::int64_t(now.tv_sec) * 1'000'000'000 + now.tv_nsec;
   f.info.device_frame_id = b.sequence;
   f.info.frame_id = unwrapper_.Next(b.sequence);
-  f.info.device_timestamp_ns = std::int64_t(b.timestamp.tv_sec) * 1'000'000'000 +
-                               std::int64_t(b.timestamp.tv_usec) * 1000;
+  f.info.device_timestamp_ns =
+      std::int64_t(b.timestamp.tv_sec) * 1'000'000'000 + std::int64_t(b.timestamp.tv_usec) * 1000;
   f.info.exposure_us = settings_.exposure_us;
   f.info.gain_db = settings_.gain_db;
   f.info.pixel_format = settings_.pixel_format;
@@ -244,8 +260,8 @@ std::optional<Frame> V4l2Camera::Pop(std::int64_t timeout_ns) {
     for (int y = 0; y < settings_.height; ++y)  // drop any row padding
       std::memcpy(bytes->data() + y * row, src + y * stride, row);
   }
-  f.info.status = (b.flags & V4L2_BUF_FLAG_ERROR) || !whole ? FrameStatus::kIncomplete
-                                                           : FrameStatus::kOk;
+  f.info.status =
+      (b.flags & V4L2_BUF_FLAG_ERROR) || !whole ? FrameStatus::kIncomplete : FrameStatus::kOk;
   f.data = std::move(bytes);
   if (Xioctl(*device_, VIDIOC_QBUF, &b) != 0) {
     if (errno == ENODEV) connected_ = false;

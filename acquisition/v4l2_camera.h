@@ -60,7 +60,8 @@ class V4l2Camera : public Camera {
  public:
   // Opens `path` through `device` (a SystemV4l2Device when null). Throws std::runtime_error
   // naming the path and the reason.
-  V4l2Camera(const std::string& path, int camera_index, std::unique_ptr<V4l2Device> device = nullptr);
+  V4l2Camera(const std::string& path, int camera_index,
+             std::unique_ptr<V4l2Device> device = nullptr);
   ~V4l2Camera() override;
 
   CameraDescription description() const override { return description_; }

@@ -7,12 +7,12 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <limits>
 #include <deque>
-#include <tuple>
+#include <limits>
 #include <random>
 #include <sstream>
 #include <stdexcept>
+#include <tuple>
 
 #include "fitting/colour.h"
 #include "fitting/physics.h"
@@ -38,9 +38,7 @@ double Logit(double p) {
   return std::log(p / (1.0 - p));
 }
 
-double Luminance(const float* rgb) {
-  return 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2];
-}
+double Luminance(const float* rgb) { return 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2]; }
 
 }  // namespace
 
@@ -176,7 +174,8 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
           rgb += Eigen::Vector3d(q[0], q[1], q[2]);
         }
     st->t[a] = table.TemperatureOf(rgb);
-    const double per_density = table.RgbPerDensity(st->t[a]).dot(Eigen::Vector3d(0.2126, 0.7152, 0.0722));
+    const double per_density =
+        table.RgbPerDensity(st->t[a]).dot(Eigen::Vector3d(0.2126, 0.7152, 0.0722));
     brightness[a] = per_density > 0 ? std::max(0.0, Luminance(e)) / per_density : 0.0;
   }
   // Image = s_tomo * integral(e) = s * integral(n * rgb(T)): n = brightness * s_tomo / s. Pick s
@@ -273,8 +272,8 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
     EnergyTerms terms;
     try {
       terms = objective_.Evaluate(st.t, st.n, st.s, options_.density_pairwise,
-                                  gradient ? &d_t : nullptr,
-                                  gradient ? &d_n : nullptr, gradient ? &d_s : nullptr);
+                                  gradient ? &d_t : nullptr, gradient ? &d_n : nullptr,
+                                  gradient ? &d_s : nullptr);
     } catch (const std::invalid_argument&) {
       return false;  // a non-finite trial point: Ceres backs off
     }
@@ -309,11 +308,15 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
 class TraceCallback : public ceres::IterationCallback {
  public:
   TraceCallback(Clock::time_point start, int level, const std::string& stage,
-                std::deque<std::pair<double, EnergyTerms>>* seen,
-                std::vector<FitTracePoint>* trace,
+                std::deque<std::pair<double, EnergyTerms>>* seen, std::vector<FitTracePoint>* trace,
                 const FitProgressCallback& progress, double time_limit_s)
-      : start_(start), level_(level), stage_(stage), seen_(seen), trace_(trace),
-        progress_(progress), time_limit_s_(time_limit_s) {}
+      : start_(start),
+        level_(level),
+        stage_(stage),
+        seen_(seen),
+        trace_(trace),
+        progress_(progress),
+        time_limit_s_(time_limit_s) {}
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override {
     auto it = std::find_if(seen_->rbegin(), seen_->rend(),
                            [&](const auto& e) { return e.first == summary.cost; });
@@ -437,15 +440,14 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
       Resample(previous, emission, table, s_tomo, objective.n_min(), objective.n_max(), options,
                &st);
     } else {
-      InitialiseFromEmission(emission, table, s_tomo, objective.n_min(), objective.n_max(),
-                             options, &st);
+      InitialiseFromEmission(emission, table, s_tomo, objective.n_min(), objective.n_max(), options,
+                             &st);
     }
-    const std::string stage = "level " + std::to_string(level + 1) + "/" +
-                              std::to_string(levels.size()) + " (" +
-                              std::to_string(st.grid.dims.x()) + "x" +
-                              std::to_string(st.grid.dims.y()) + "x" +
-                              std::to_string(st.grid.dims.z()) + ", " +
-                              std::to_string(st.active.size()) + " active voxels)";
+    const std::string stage =
+        "level " + std::to_string(level + 1) + "/" + std::to_string(levels.size()) + " (" +
+        std::to_string(st.grid.dims.x()) + "x" + std::to_string(st.grid.dims.y()) + "x" +
+        std::to_string(st.grid.dims.z()) + ", " + std::to_string(st.active.size()) +
+        " active voxels)";
     auto* problem_function = new SigmoidProblem(objective, options, &result.evaluations, &seen);
     std::vector<double> u(2 * st.active.size() + 1);
     problem_function->Encode(st, u.data());
@@ -556,7 +558,8 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
   // Algorithm 2's density: the tomography's red channel, normalised to a peak of 1.
   std::vector<double> red(m, 0.0);
   double red_peak = 0;
-  for (std::size_t a = 0; a < m; ++a) red_peak = std::max(red_peak, double(emission[3 * active[a]]));
+  for (std::size_t a = 0; a < m; ++a)
+    red_peak = std::max(red_peak, double(emission[3 * active[a]]));
   for (std::size_t a = 0; a < m; ++a)
     red[a] = red_peak > 0 ? std::max(0.0, double(emission[3 * active[a]])) / red_peak : 0.0;
 
@@ -581,8 +584,7 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
     double sum = 0;
     for (const auto& [a, b] : objective.neighbour_pairs()) {
       sum += 2 * std::abs(objective.NormaliseT(t[b]) - objective.NormaliseT(t[a]));
-      if (per_voxel_density)
-        sum += 2 * std::abs(ln_n[b] - ln_n[a]) / (ln_n_hi - ln_n_lo);
+      if (per_voxel_density) sum += 2 * std::abs(ln_n[b] - ln_n[a]) / (ln_n_hi - ln_n_lo);
     }
     return sum;
   };
@@ -596,7 +598,8 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
   double data = std::numeric_limits<double>::infinity();
   const int sweep = paper.exposure_sweep;
   for (int k = 0; k < (per_voxel_density ? 1 : sweep); ++k) {
-    const double ln_scale_k = per_voxel_density ? ln_scale : ln_n_lo + (ln_n_hi - ln_n_lo) * k / (sweep - 1);
+    const double ln_scale_k =
+        per_voxel_density ? ln_scale : ln_n_lo + (ln_n_hi - ln_n_lo) * k / (sweep - 1);
     const FitObjective::Renders renders = objective.Render(t, densities(ln_scale_k));
     ++result.evaluations;
     for (int e = 0; e < sweep; ++e) {
@@ -704,8 +707,8 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
       };
       const double current_value = vary_density ? ln_n[order[lo]] : t[order[lo]];
       double best_value = current_value;
-      double current_score = options.objective.w_am * data +
-                             options.objective.w_sm * local_pairwise();
+      double current_score =
+          options.objective.w_am * data + options.objective.w_sm * local_pairwise();
       for (int j = 0; j < paper.samples_per_cluster; ++j) {
         double v = vary_density ? std::clamp(best_value + sigma_n * normal(rng), ln_n_lo, ln_n_hi)
                                 : std::clamp(best_value + sigma_t * normal(rng), t_lo, t_hi);

@@ -107,13 +107,13 @@ struct FitOptions {
   int iterations_finest = 30;         // at the finest level
   double smooth_delta_e = 0.5;        // Charbonnier epsilons (the fast fit's smooth energy)
   double smooth_neighbour = 0.01;
-  double time_limit_s = 0;            // 0 = none
+  double time_limit_s = 0;  // 0 = none
   // Pairwise term on the per-voxel densities too. Off by default: the energy is then the one of
   // the paper's Algorithm 2 (pairwise on temperature), which the paper used for all its results;
   // with it, at 128^3 the density term outweighs the data and the fitted views' Delta E rises
   // (0.30 -> 0.50 measured).
   bool density_pairwise = false;
-  void Validate() const;              // throws std::invalid_argument naming the field
+  void Validate() const;  // throws std::invalid_argument naming the field
 };
 
 struct FitResult {
@@ -126,7 +126,7 @@ struct FitResult {
   EnergyTerms final_terms;   // exact, at the returned parameters
   std::vector<FitTracePoint> trace;
   std::size_t active_voxels = 0;
-  int evaluations = 0;       // energy (and gradient) evaluations
+  int evaluations = 0;  // energy (and gradient) evaluations
   double seconds = 0;
   std::string method;
   std::string BriefReport() const;
@@ -144,13 +144,13 @@ enum class PaperAlgorithm { kPerVoxelDensity = 1, kDensityScale = 2 };
 
 struct PaperFitOptions {
   PaperAlgorithm algorithm = PaperAlgorithm::kDensityScale;
-  int iterations = 12;              // sweeps over the clusters (each doubles them)
-  int samples_per_cluster = 8;      // Gaussian samples per cluster per sweep
-  double initial_sigma_t_k = 400;   // deviation at iteration 1 (then / iteration)
-  double initial_sigma_log_n = 2;   // natural-log units, Algorithm 1
-  int exposure_sweep = 25;          // log-spaced exposures tried at the start
-  int exposure_samples = 8;         // per sweep, after the first
-  double time_limit_s = 0;          // 0 = none
+  int iterations = 12;             // sweeps over the clusters (each doubles them)
+  int samples_per_cluster = 8;     // Gaussian samples per cluster per sweep
+  double initial_sigma_t_k = 400;  // deviation at iteration 1 (then / iteration)
+  double initial_sigma_log_n = 2;  // natural-log units, Algorithm 1
+  int exposure_sweep = 25;         // log-spaced exposures tried at the start
+  int exposure_samples = 8;        // per sweep, after the first
+  double time_limit_s = 0;         // 0 = none
   std::uint64_t seed = 1;
 };
 

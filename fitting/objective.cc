@@ -18,8 +18,7 @@ void ObjectiveOptions::Validate() const {
   };
   if (!(w_am >= 0) || !std::isfinite(w_am)) fail("w_am must be finite and >= 0");
   if (!(w_sm >= 0) || !std::isfinite(w_sm)) fail("w_sm must be finite and >= 0");
-  if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0))
-    fail("smoothing epsilons must be >= 0");
+  if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0)) fail("smoothing epsilons must be >= 0");
   if (!(t_min_k > 0) || !(t_max_k > t_min_k) || !std::isfinite(t_max_k))
     fail("need 0 < t_min_k < t_max_k, finite");
   if (!(n_min_per_m3 >= 0) || !(n_max_per_m3 >= 0) ||
@@ -198,7 +197,8 @@ double FitObjective::DataTermAt(const Renders& renders, double s) const {
         [&](const tbb::blocked_range<std::size_t>& r, double acc) {
           for (std::size_t p = r.begin(); p < r.end(); ++p) {
             const Eigen::Vector3d lab = CameraLab(
-                Eigen::Vector3d(img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]), s);
+                Eigen::Vector3d(img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]),
+                s);
             acc += (lab - target[p].cast<double>()).norm();
           }
           return acc;
@@ -245,7 +245,8 @@ EnergyTerms FitObjective::Evaluate(const std::vector<double>& t, const std::vect
               // d/dLab of the (smoothed) distance, then through the camera to the radiance.
               const Eigen::Vector3d g_lab = diff * (CharbonnierDerivative(de, eps) / de);
               const Eigen::Vector3d g_lin = jac.transpose() * g_lab * options_.w_am;
-              for (int ch = 0; ch < 3; ++ch) d_img.pixels[3 * p + ch] = static_cast<float>(g_lin[ch]);
+              for (int ch = 0; ch < 3; ++ch)
+                d_img.pixels[3 * p + ch] = static_cast<float>(g_lin[ch]);
               // c = s I, so dE/ds = sum over channels of dE/dc * I = (dE/dI * I) / s.
               acc.ds += g_lin.dot(linear) / s;
             }

@@ -49,7 +49,7 @@ struct ObjectiveOptions {
   // Search ranges, which also normalise the pairwise term.
   double t_min_k = 300, t_max_k = 2300;
   double n_min_per_m3 = 0, n_max_per_m3 = 0;  // 0, 0: DensityBounds::Plausible of the model
-  void Validate() const;                       // throws std::invalid_argument naming the field
+  void Validate() const;                      // throws std::invalid_argument naming the field
 };
 
 // One view to match: the camera's rays and its recorded 8-bit sRGB image (3 channels, the

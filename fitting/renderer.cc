@@ -197,8 +197,9 @@ inline void PhiAndTauDPhi(Real tau, Real* phi, Real* tau_dphi) {
   const Real phi_series = Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24)));
   *phi = tau < Real(1e-2) ? phi_series : OneMinusExpNeg(tau) / tau;
   const Real series =
-      tau * (Real(-0.5) + tau * (Real(1) / 3 + tau * (Real(-1) / 8 +
-                                                      tau * (Real(1) / 30 - tau * (Real(1) / 144)))));
+      tau *
+      (Real(-0.5) +
+       tau * (Real(1) / 3 + tau * (Real(-1) / 8 + tau * (Real(1) / 30 - tau * (Real(1) / 144)))));
   const Real direct = VectorExp(-tau) - *phi;
   *tau_dphi = tau < Real(0.1) ? series : direct;
 }
@@ -383,8 +384,7 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
 }
 
 template <typename Real>
-RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays,
-                                         const ImageF& d_loss_d_rgb,
+RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays, const ImageF& d_loss_d_rgb,
                                          std::vector<double>* d_temperature,
                                          std::vector<double>* d_density) const {
   const auto start = std::chrono::steady_clock::now();
@@ -455,14 +455,15 @@ RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays,
             return true;
           };
           // Pass 1: the ray's radiance.
-          MarchRay<Real>(march, &ignored, [&](Real ds, const std::size_t* corner, const Real* weight) {
-            Real kappa, source[3];
-            if (!sample(corner, weight, &kappa, source)) return true;
-            const Real w = transmittance[0] * OneMinusExpNeg(kappa * ds);
-            for (int ch = 0; ch < 3; ++ch) total[ch] += w * source[ch];
-            transmittance[0] -= w;
-            return !(transmittance[0] < min_tr);
-          });
+          MarchRay<Real>(march, &ignored,
+                         [&](Real ds, const std::size_t* corner, const Real* weight) {
+                           Real kappa, source[3];
+                           if (!sample(corner, weight, &kappa, source)) return true;
+                           const Real w = transmittance[0] * OneMinusExpNeg(kappa * ds);
+                           for (int ch = 0; ch < 3; ++ch) total[ch] += w * source[ch];
+                           transmittance[0] -= w;
+                           return !(transmittance[0] < min_tr);
+                         });
           transmittance[0] = Real(1);
           // Pass 2: the adjoint.
           MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* weight) {
@@ -516,16 +517,17 @@ RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays,
             for (int b = 0; b < nbins; ++b) max_tr = std::max(max_tr, transmittance[b]);
             return !(max_tr < min_tr);
           };
-          MarchRay<Real>(march, &ignored, [&](Real ds, const std::size_t* corner, const Real* weight) {
-            Real n_sample;
-            if (!sample(corner, weight, &n_sample)) return true;
-            for (int b = 0; b < nbins; ++b) {
-              const Real w = transmittance[b] * OneMinusExpNeg(sigma[b] * n_sample * ds);
-              total[b] += w * planck[b];
-              transmittance[b] -= w;
-            }
-            return keep_going();
-          });
+          MarchRay<Real>(
+              march, &ignored, [&](Real ds, const std::size_t* corner, const Real* weight) {
+                Real n_sample;
+                if (!sample(corner, weight, &n_sample)) return true;
+                for (int b = 0; b < nbins; ++b) {
+                  const Real w = transmittance[b] * OneMinusExpNeg(sigma[b] * n_sample * ds);
+                  total[b] += w * planck[b];
+                  transmittance[b] -= w;
+                }
+                return keep_going();
+              });
           for (int b = 0; b < nbins; ++b) transmittance[b] = Real(1);
           MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* weight) {
             Real n_sample;

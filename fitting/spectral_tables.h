@@ -47,7 +47,8 @@ class BlackbodyXyzTable {
       for (int c = 0; c < 3; ++c) xyz[c] = d_xyz[c] = Real(0);
       return;
     }
-    if (temperature_k >= Real(kMaxTableK)) return LookupExactWithDerivative(double(temperature_k), xyz, d_xyz);
+    if (temperature_k >= Real(kMaxTableK))
+      return LookupExactWithDerivative(double(temperature_k), xyz, d_xyz);
     const int i = static_cast<int>(temperature_k);
     const Real f = temperature_k - Real(i);
     const double* a = &xyz_[3 * i];

@@ -9,13 +9,13 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <chrono>
 #include <cmath>
 #include <cstdlib>
-#include <vector>
-#include <chrono>
 #include <cstring>
 #include <filesystem>
 #include <thread>
+#include <vector>
 
 #include "acquisition/aravis_camera.h"
 #include "acquisition/capture.h"
@@ -108,8 +108,8 @@ TEST(AravisCamera, StreamsFreeRunFramesFromTheInProcessFake) {
     }
   }
   // Slots the fake skipped, from the whole span: the driver's count from each gap must agree.
-  const double span = double(frames.back().info.device_timestamp_ns -
-                             frames.front().info.device_timestamp_ns);
+  const double span =
+      double(frames.back().info.device_timestamp_ns - frames.front().info.device_timestamp_ns);
   const long long skipped = std::llround(span / 20e6) - 19;
   EXPECT_NEAR(double(cam.counters().missing_by_time), double(std::max(0LL, skipped)), 2.0);
   EXPECT_NEAR(span / (19 + double(cam.counters().missing_by_time)), 20e6, 4e6);
@@ -162,12 +162,14 @@ TEST(AravisCamera, TheDaemonRecordsTwoFakeCameras) {
   InProcessFake a("127.0.0.5", "FLAMERIG-D"), b("127.0.0.6", "FLAMERIG-E");
   const fs::path dir = fs::temp_directory_path() / ("flamerig_arv_" + std::to_string(::getpid()));
   fs::remove_all(dir);
-  const CaptureConfig config = CaptureConfig::Parse(
-      "data_dir: " + dir.string() +
-          "\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
-          "  - {name: a, driver: aravis, id: 127.0.0.5, width: 320, height: 240, exposure_us: 1000}\n"
-          "  - {name: b, driver: aravis, id: 127.0.0.6, width: 320, height: 240, exposure_us: 1000}\n",
-      "test");
+  const CaptureConfig config =
+      CaptureConfig::Parse("data_dir: " + dir.string() +
+                               "\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
+                               "  - {name: a, driver: aravis, id: 127.0.0.5, width: 320, height: "
+                               "240, exposure_us: 1000}\n"
+                               "  - {name: b, driver: aravis, id: 127.0.0.6, width: 320, height: "
+                               "240, exposure_us: 1000}\n",
+                           "test");
   EXPECT_EQ(config.AssemblerOptions().match, MatchBy::kTimestamp);
   SystemClock clock;
   CaptureDaemon daemon(config, MakeCameras(config, &clock, nullptr), &clock, nullptr);
@@ -255,7 +257,7 @@ TEST(AravisCamera, ExternalFakeProcessAndItsDeath) {
     if (auto f = cam->Pop(100'000'000)) ++after;
   }
   EXPECT_FALSE(cam->connected());
-  EXPECT_LE(after, 8);  // at most the buffers in flight
+  EXPECT_LE(after, 8);             // at most the buffers in flight
   EXPECT_FALSE(cam->Reconnect());  // nobody there yet
   // The camera comes back (a new process on the same address): reconnect restores the stream.
   FakeProcess again(exe, "127.0.0.7");

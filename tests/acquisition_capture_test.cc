@@ -60,15 +60,18 @@ TEST(CaptureConfig, ParsesAndNamesTheKeyOfEveryMistake) {
   EXPECT_EQ(c.cameras[1].settings.trigger, TriggerMode::kFreeRun);
   EXPECT_EQ(c.cameras[1].settings.frame_rate_hz, 25);
   EXPECT_EQ(CaptureConfig::Parse(Config("/tmp/x", "software-trigger", 25), "t")
-                .cameras[0].settings.frame_rate_hz, 50);  // room for trigger jitter
+                .cameras[0]
+                .settings.frame_rate_hz,
+            50);  // room for trigger jitter
   EXPECT_NE(ParseError("sync: hardware-trigger\ntrigger_rate_hz: 30\ncameras: [{name: a, "
-                       "frame_rate_hz: 30}]").find("1.1 x trigger_rate_hz"),
+                       "frame_rate_hz: 30}]")
+                .find("1.1 x trigger_rate_hz"),
             std::string::npos);
   EXPECT_EQ(c.control, "unix:/tmp/x/control.sock");
   EXPECT_EQ(c.AssemblerOptions().match, MatchBy::kTimestamp);
 
-  EXPECT_NE(ParseError("sync: free-run\ncameras: [{name: a, wdth: 3}]").find(
-                "rig.yaml: cameras[0]: unknown key 'wdth'"),
+  EXPECT_NE(ParseError("sync: free-run\ncameras: [{name: a, wdth: 3}]")
+                .find("rig.yaml: cameras[0]: unknown key 'wdth'"),
             std::string::npos);
   EXPECT_NE(ParseError("synk: free-run\ncameras: [{name: a}]").find("unknown key 'synk'"),
             std::string::npos);
@@ -77,8 +80,9 @@ TEST(CaptureConfig, ParsesAndNamesTheKeyOfEveryMistake) {
   EXPECT_NE(ParseError("cameras: []").find("at least one camera"), std::string::npos);
   EXPECT_NE(ParseError("cameras: [{name: a}, {name: a}]").find("'a' is used twice"),
             std::string::npos);
-  EXPECT_NE(ParseError("cameras: [{name: a, width: wide}]").find("'width' has a value of the wrong type"),
-            std::string::npos);
+  EXPECT_NE(
+      ParseError("cameras: [{name: a, width: wide}]").find("'width' has a value of the wrong type"),
+      std::string::npos);
   EXPECT_NE(ParseError("cameras: [{name: a, width: -4}]").find("'width' must be a positive"),
             std::string::npos);
   EXPECT_NE(ParseError("cameras: [{name: a, pixel_format: YUV}]").find("cameras[0]"),
@@ -154,8 +158,10 @@ TEST(CaptureDaemon, ADeadCameraNeverStallsTheOthers) {
   for (std::size_t i = 0; i < r.num_sets(); ++i) {
     const FrameSet s = r.ReadSet(i);
     ASSERT_TRUE(s.frames[0] && s.frames[1]) << "set " << i;
-    if (s.frames[2]) ++complete;
-    else ++without_2;
+    if (s.frames[2])
+      ++complete;
+    else
+      ++without_2;
   }
   EXPECT_GE(complete, 8u);
   EXPECT_GE(without_2, 25u);  // the others went on at full rate
@@ -237,7 +243,8 @@ TEST(CaptureDaemon, SimCamerasReplayADataset) {
   const CaptureStatus st = daemon.status();
   daemon.Stop();
   EXPECT_NE(st.cameras[2].error.find("images are 96x64, the camera is set to 80x64"),
-            std::string::npos) << st.cameras[2].error;
+            std::string::npos)
+      << st.cameras[2].error;
   const Recording r = Recording::Open(rec);
   ASSERT_GE(r.num_sets(), 10u);
   const FrameSet s = r.ReadSet(3);
@@ -289,8 +296,8 @@ TEST(ControlApi, StatusRecordingAndPreviewOverAUnixSocket) {
   Sleep(0.4);
   r = ControlRequest(config.control, "preview cam1 2");
   ASSERT_TRUE(r.ok) << r.body;
-  const cv::Mat png = cv::imdecode(std::vector<std::uint8_t>(r.body.begin(), r.body.end()),
-                                   cv::IMREAD_UNCHANGED);
+  const cv::Mat png =
+      cv::imdecode(std::vector<std::uint8_t>(r.body.begin(), r.body.end()), cv::IMREAD_UNCHANGED);
   EXPECT_EQ(png.cols, 48);
   EXPECT_EQ(png.rows, 32);
   r = ControlRequest(config.control, "stop");

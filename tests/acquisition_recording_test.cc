@@ -402,8 +402,10 @@ TEST(Recording, SizeLimitStopsCleanly) {
   Recorder rec(dir.str(), Metadata(), o);
   std::uint64_t s = 0;
   while (!rec.status().stopped && s < 1000) {
-    if (rec.Submit(MakeSet(s))) ++s;
-    else std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    if (rec.Submit(MakeSet(s)))
+      ++s;
+    else
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
   }
   const RecorderStatus st = rec.Close();
   EXPECT_TRUE(st.stopped);

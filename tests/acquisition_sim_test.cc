@@ -162,7 +162,8 @@ TEST(SimCamera, FreeRunsAtItsRateWithDriftJitterAndAWrappingCounter) {
   EXPECT_NEAR(static_cast<double>(frames.size()), 100.0, 1.0);
   for (std::size_t i = 1; i < frames.size(); ++i) {
     EXPECT_EQ(frames[i].info.frame_id, frames[i - 1].info.frame_id + 1);  // across the wrap
-    const double dt = double(frames[i].info.device_timestamp_ns - frames[i - 1].info.device_timestamp_ns);
+    const double dt =
+        double(frames[i].info.device_timestamp_ns - frames[i - 1].info.device_timestamp_ns);
     EXPECT_NEAR(dt, 1e7, 6 * 20'000 * 1.5);  // period +- jitter
     EXPECT_GE(frames[i].info.host_monotonic_ns, frames[i - 1].info.host_monotonic_ns);
   }
@@ -171,8 +172,8 @@ TEST(SimCamera, FreeRunsAtItsRateWithDriftJitterAndAWrappingCounter) {
   const auto& a = frames.front().info;
   const auto& b = frames.back().info;
   const double host_span = double(b.device_timestamp_ns - a.device_timestamp_ns) / (1 + 50e-6);
-  EXPECT_NEAR(double(b.device_timestamp_ns - a.device_timestamp_ns) - host_span,
-              host_span * 50e-6, 1000);
+  EXPECT_NEAR(double(b.device_timestamp_ns - a.device_timestamp_ns) - host_span, host_span * 50e-6,
+              1000);
   // The bytes: the test pattern carries the camera and frame id.
   ASSERT_EQ(frames[3].bytes(), 32u * 24u);
   std::uint64_t id = 0;

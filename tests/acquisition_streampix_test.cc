@@ -53,9 +53,9 @@ fs::path WriteSeq(const std::string& name, const SeqSpec& s) {
   for (int f = 0; f < s.frames; ++f) {
     std::vector<char> frame(true_size, 0);
     for (std::uint32_t i = 0; i < image; ++i) frame[i] = static_cast<char>(10 * f + i);
-    Put<std::int32_t>(&frame, image, 1'600'000'000 + f);       // seconds
+    Put<std::int32_t>(&frame, image, 1'600'000'000 + f);                       // seconds
     Put<std::uint16_t>(&frame, image + 4, static_cast<std::uint16_t>(2 * f));  // ms
-    Put<std::uint16_t>(&frame, image + 6, 7);                  // us
+    Put<std::uint16_t>(&frame, image + 6, 7);                                  // us
     out.write(frame.data(), frame.size());
   }
   return p;

@@ -67,8 +67,10 @@ class FakeV4l2 : public V4l2Device {
         auto* f = static_cast<v4l2_format*>(arg);
         auto& p = f->fmt.pix;
         int bpp = 1;
-        if (p.pixelformat == V4L2_PIX_FMT_Y16) bpp = 2;
-        else if (p.pixelformat == V4L2_PIX_FMT_RGB24) bpp = 3;
+        if (p.pixelformat == V4L2_PIX_FMT_Y16)
+          bpp = 2;
+        else if (p.pixelformat == V4L2_PIX_FMT_RGB24)
+          bpp = 3;
         else if (p.pixelformat != V4L2_PIX_FMT_GREY && p.pixelformat != V4L2_PIX_FMT_SRGGB8)
           p.pixelformat = V4L2_PIX_FMT_GREY;  // drivers substitute what they have
         p.width = std::min<std::uint32_t>(1920, p.width / s_->width_multiple * s_->width_multiple);
@@ -78,7 +80,8 @@ class FakeV4l2 : public V4l2Device {
         format_ = p;
         return 0;
       }
-      case VIDIOC_S_PARM: return 0;
+      case VIDIOC_S_PARM:
+        return 0;
       case VIDIOC_S_CTRL: {
         auto* c = static_cast<v4l2_control*>(arg);
         if (c->id == V4L2_CID_EXPOSURE_AUTO) return 0;
@@ -133,7 +136,9 @@ class FakeV4l2 : public V4l2Device {
         state_[b->index] = kDequeued;
         return 0;
       }
-      case VIDIOC_STREAMON: streaming_ = true; return 0;
+      case VIDIOC_STREAMON:
+        streaming_ = true;
+        return 0;
       case VIDIOC_STREAMOFF:
         streaming_ = false;
         for (auto& st : state_) st = kDequeued;
@@ -212,8 +217,8 @@ TEST(V4l2Camera, StreamsFramesWithoutRowPaddingAndRequeuesEveryBuffer) {
     EXPECT_EQ(f->info.camera, 2);
     EXPECT_EQ(f->info.frame_id, k);
     EXPECT_EQ(f->info.status, FrameStatus::kOk);
-    EXPECT_EQ(f->info.device_timestamp_ns, std::int64_t(k / 30) * 1'000'000'000 +
-                                               std::int64_t(k % 30) * 33'333'000);
+    EXPECT_EQ(f->info.device_timestamp_ns,
+              std::int64_t(k / 30) * 1'000'000'000 + std::int64_t(k % 30) * 33'333'000);
     ASSERT_EQ(f->bytes(), 64u * 48u);
     for (int y = 0; y < 48; y += 7)
       for (int x = 0; x < 64; x += 5)

@@ -74,7 +74,8 @@ SmallScene MakeSmallScene(const AbsorptionModel& absorption) {
     s.active.push_back(v);
     s.t.push_back(1500 + 600 * u(rng));
     // Optical depth about 0.3 per voxel at its densest.
-    s.n.push_back(0.3 / (absorption.CrossSectionM2(550) * s.grid.voxel_size_m.x()) * (0.3 + u(rng)));
+    s.n.push_back(0.3 / (absorption.CrossSectionM2(550) * s.grid.voxel_size_m.x()) *
+                  (0.3 + u(rng)));
     tt[v] = static_cast<float>(1800 + 200 * u(rng));
     nn[v] = static_cast<float>(s.n.back() * (0.5 + u(rng)));
   }
@@ -136,8 +137,8 @@ void CheckEnergyGradient(const AbsorptionModel& absorption) {
     EXPECT_NEAR(d_n[a] * s.n[a], fd_n * s.n[a], 2e-3 * max_n + 2e-3 * std::abs(fd_n * s.n[a]))
         << "voxel " << a;
   }
-  const double fd_s =
-      (energy(s.t, s.n, exposure * 1.001) - energy(s.t, s.n, exposure * 0.999)) / (0.002 * exposure);
+  const double fd_s = (energy(s.t, s.n, exposure * 1.001) - energy(s.t, s.n, exposure * 0.999)) /
+                      (0.002 * exposure);
   EXPECT_NEAR(d_s, fd_s, 2e-3 * std::abs(fd_s));
 }
 
@@ -172,7 +173,8 @@ TEST(FitObjective, RejectsBadInput) {
 }
 
 TEST(ThinEmissionTable, RecoversTheTemperatureOfABlackBodyColour) {
-  for (const AbsorptionModel& m : {AbsorptionModel::DefaultGrey(), AbsorptionModel::DefaultSoot()}) {
+  for (const AbsorptionModel& m :
+       {AbsorptionModel::DefaultGrey(), AbsorptionModel::DefaultSoot()}) {
     ThinEmissionTable table(m, 300, 2300);
     for (double t : {900.0, 1300.0, 1750.0, 2250.0}) {
       EXPECT_NEAR(table.TemperatureOf(table.RgbPerDensity(t) * 3.7), t, 1.0) << m.name();
@@ -317,16 +319,16 @@ TEST(FastFit, SyntheticRoundTripFromTwoViews) {
   std::vector<float> random_t(r.grid.num_voxels());
   for (float& t : random_t) t = u(rng);
   double filled = 0;
-  const double rms = VisibleTemperatureRms(r, fit.volume.temperature_k, fit.volume.density_per_m3,
-                                           &filled);
-  const double rms_random =
-      VisibleTemperatureRms(r, random_t, fit.volume.density_per_m3);
+  const double rms =
+      VisibleTemperatureRms(r, fit.volume.temperature_k, fit.volume.density_per_m3, &filled);
+  const double rms_random = VisibleTemperatureRms(r, random_t, fit.volume.density_per_m3);
   EXPECT_GT(filled, 0.9);  // the medium covers the visible fire
   EXPECT_LT(rms, 0.4 * rms_random) << "random start " << rms_random;
-  std::printf("round trip: fitted views mean Delta E %.3f (floor %.3f), held-out %.3f (black %.3f), "
-              "visible temperature RMS %.0f K on %.0f%% of the visible voxels (random start %.0f K), "
-              "%.2f s\n",
-              fitted, floor, held, black, rms, 100 * filled, rms_random, fit.seconds);
+  std::printf(
+      "round trip: fitted views mean Delta E %.3f (floor %.3f), held-out %.3f (black %.3f), "
+      "visible temperature RMS %.0f K on %.0f%% of the visible voxels (random start %.0f K), "
+      "%.2f s\n",
+      fitted, floor, held, black, rms, 100 * filled, rms_random, fit.seconds);
   // The result is a usable volume.
   for (std::size_t v = 0; v < r.grid.num_voxels(); ++v) {
     ASSERT_TRUE(std::isfinite(fit.volume.temperature_k[v]));

@@ -19,8 +19,7 @@ struct Scene {
 // A 6x7x5 grid with a random blob of medium (some voxels empty), seen by a small pinhole camera
 // at an angle so that rays cross voxels obliquely. Temperatures sit mid-way between whole kelvins
 // so that +-0.45 K stays on one segment of the renderer's 1 K tables.
-Scene MakeScene(const AbsorptionModel& absorption, double optical_depth_per_voxel,
-                unsigned seed) {
+Scene MakeScene(const AbsorptionModel& absorption, double optical_depth_per_voxel, unsigned seed) {
   Scene s;
   Box3 box{Eigen::Vector3d(-0.03, -0.035, -0.025), Eigen::Vector3d(0.03, 0.035, 0.025)};
   s.grid = GridGeometry::FromBoxAndDims(box, Eigen::Vector3i(6, 7, 5));
@@ -43,7 +42,8 @@ double Loss(const FireRenderer& r, const CameraRays& rays, const ImageF& c) {
   ImageF image;
   r.Render(rays, &image);
   double sum = 0;
-  for (std::size_t i = 0; i < image.pixels.size(); ++i) sum += double(c.pixels[i]) * image.pixels[i];
+  for (std::size_t i = 0; i < image.pixels.size(); ++i)
+    sum += double(c.pixels[i]) * image.pixels[i];
   return sum;
 }
 
@@ -95,7 +95,8 @@ void CheckGradient(const AbsorptionModel& absorption, double optical_depth_per_v
     std::vector<float> np = s.density, nm = s.density;
     np[v] *= 1.005f;
     nm[v] *= 0.995f;
-    const double fd_n = (with(s.temperature, np) - with(s.temperature, nm)) / (double(np[v]) - nm[v]);
+    const double fd_n =
+        (with(s.temperature, np) - with(s.temperature, nm)) / (double(np[v]) - nm[v]);
     EXPECT_NEAR(dn[v] * s.density[v], fd_n * s.density[v],
                 1e-4 * max_dn + 1e-3 * std::abs(fd_n * s.density[v]))
         << "voxel " << v;

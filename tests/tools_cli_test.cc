@@ -1,13 +1,13 @@
 // The flamerig binary end to end: help, errors, simulate, and render reproducing simulate's images.
 #include <gtest/gtest.h>
 
+#include <signal.h>
+#include <unistd.h>
 #include <array>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <signal.h>
-#include <unistd.h>
 
 #include "acquisition/image.h"
 #include "acquisition/srgb.h"
@@ -246,8 +246,10 @@ TEST(Cli, CaptureCtlAndExport) {
                              (dir / "png").string());
   ASSERT_EQ(ex.status, 0) << ex.output;
   EXPECT_TRUE(fs::exists(dir / "png" / "sets.csv"));
-  const flamerig::ImageU8 left = flamerig::ReadImageU8((dir / "png" / "frame_000005" / "left.png").string());
-  const flamerig::ImageU8 right = flamerig::ReadImageU8((dir / "png" / "frame_000005" / "right.png").string());
+  const flamerig::ImageU8 left =
+      flamerig::ReadImageU8((dir / "png" / "frame_000005" / "left.png").string());
+  const flamerig::ImageU8 right =
+      flamerig::ReadImageU8((dir / "png" / "frame_000005" / "right.png").string());
   EXPECT_EQ(left.width, 64);
   EXPECT_EQ(left.channels, 1);
   EXPECT_EQ(right.channels, 3);  // Bayer, demosaiced

@@ -46,8 +46,8 @@ struct ReconstructOptions {
   // Share of a camera's fire pixels that may fall outside the envelope before the matrix is
   // rebuilt (those pixels are left out of that frame); [0, 0.1].
   double envelope_pixel_tolerance = 0.01;
-  std::string cache_dir;           // on-disk matrix cache; "" = memory only
-  void Validate() const;           // throws std::invalid_argument naming the field
+  std::string cache_dir;  // on-disk matrix cache; "" = memory only
+  void Validate() const;  // throws std::invalid_argument naming the field
 };
 
 struct ReconstructSummary {
@@ -56,7 +56,7 @@ struct ReconstructSummary {
   std::vector<double> fire_pixel_fraction;  // per camera
   std::vector<double> noise_sigma;          // per camera (radiance)
   std::size_t matrix_rows = 0, matrix_cols = 0, matrix_nnz = 0, matrix_bytes = 0;
-  std::string matrix_source;  // "built", "reused (envelope)", "disk cache"
+  std::string matrix_source;                     // "built", "reused (envelope)", "disk cache"
   std::size_t fire_pixels_outside_envelope = 0;  // left out of a frame that reused the matrix
   double matrix_build_ms = 0;
   std::vector<SolveSummary> solves;  // coarse (if any), then full resolution

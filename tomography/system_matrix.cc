@@ -208,7 +208,8 @@ void SystemMatrix::BuildTranspose() {
   t_ptr_.assign(ns * stride, 0);
   for (std::size_t s = 0; s < ns; ++s)
     for (std::size_t r = subsets_[s].first; r < subsets_[s].second; ++r)
-      for (std::int64_t e = row_ptr_[r]; e < row_ptr_[r + 1]; ++e) ++t_ptr_[s * stride + cols_[e] + 1];
+      for (std::int64_t e = row_ptr_[r]; e < row_ptr_[r + 1]; ++e)
+        ++t_ptr_[s * stride + cols_[e] + 1];
   std::int64_t total = 0;
   for (std::size_t s = 0; s < ns; ++s) {
     t_ptr_[s * stride] = total;
@@ -247,9 +248,9 @@ void SystemMatrix::ParallelColumns(const std::function<void(std::size_t, std::si
 namespace {
 
 template <int kC>
-void MultiplyRowsKernel(const std::int64_t* row_ptr, const std::uint32_t* cols,
-                        const float* values, std::size_t first, std::size_t last, const float* x,
-                        float* y, int channels) {
+void MultiplyRowsKernel(const std::int64_t* row_ptr, const std::uint32_t* cols, const float* values,
+                        std::size_t first, std::size_t last, const float* x, float* y,
+                        int channels) {
   const int nc = kC > 0 ? kC : channels;
   tbb::parallel_for(tbb::blocked_range<std::size_t>(first, last, 256),
                     [&](const tbb::blocked_range<std::size_t>& r) {

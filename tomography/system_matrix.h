@@ -136,7 +136,8 @@ void SystemMatrix::BackprojectRows(std::size_t first, std::size_t last, const fl
   // Subsets overlapping [first, last); a subset wholly inside needs no row filtering.
   std::vector<std::size_t> parts;
   for (std::size_t s = 0; s < subsets_.size(); ++s)
-    if (subsets_[s].first < last && subsets_[s].second > first && subsets_[s].first < subsets_[s].second)
+    if (subsets_[s].first < last && subsets_[s].second > first &&
+        subsets_[s].first < subsets_[s].second)
       parts.push_back(s);
   auto run = [&](auto kChannels) {
     constexpr int kC = decltype(kChannels)::value;

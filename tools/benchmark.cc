@@ -7,19 +7,19 @@
 #include <cmath>
 #include <ctime>
 #include <filesystem>
-#include <memory>
 #include <fstream>
+#include <memory>
 #include <sstream>
 #include <stdexcept>
 #include <thread>
 
 #include "fitting/colour.h"
+#include "fitting/fit.h"
 #include "fitting/renderer.h"
 #include "tomography/reconstruct.h"
+#include "tools/fit_report.h"
 #include "tools/simulate.h"
 #include "tools/synthetic.h"
-#include "tools/fit_report.h"
-#include "fitting/fit.h"
 
 namespace flamerig {
 namespace {
@@ -241,7 +241,8 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
         "frame). Build: the system matrix inside the visual hull (built once per rig and grid, "
         "then cached). "
         "Next frames: frames 2 to 5 of the recording (1/30 s apart), each warm-started from the "
-        "one before; the mean time of those that reused the cached matrix (how many in brackets) and "
+        "one before; the mean time of those that reused the cached matrix (how many in brackets) "
+        "and "
         "of those that rebuilt it because the fire left the envelope it was built for (the "
         "envelope is the union of the hulls seen so far, so rebuilds stop once the fire's range is "
         "covered). Target: 128^3 from 8 views in under one second per frame once the matrix is "
@@ -349,8 +350,8 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
            << Fixed(RelativeL2(v0.emission_rgb, truth[0].emission_rgb), 3) << " | "
            << Fixed(s0.holdout_rms / held_rms, 3) << " | "
            << (cached ? Fixed(cached_ms, 0) + " (" + std::to_string(cached) + ")" : "-") << " | "
-           << (rebuilt ? Fixed(rebuilt_ms, 0) + " (" + std::to_string(rebuilt) + ")" : "-")
-           << " | " << (cached ? Fixed(cached_error, 3) : "-") << " |\n";
+           << (rebuilt ? Fixed(rebuilt_ms, 0) + " (" + std::to_string(rebuilt) + ")" : "-") << " | "
+           << (cached ? Fixed(cached_error, 3) : "-") << " |\n";
         if (log) {
           std::ostringstream h;
           h.precision(3);
@@ -368,7 +369,8 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
   }
   if (target_ms >= 0) {
     md << "\nTarget check: a frame of 128^3 from 8 views with the matrix cached took "
-       << Fixed(target_ms, 0) << " ms with OS-SART: " << (target_ms < 1000 ? "target met" : "target NOT met") << ".\n";
+       << Fixed(target_ms, 0)
+       << " ms with OS-SART: " << (target_ms < 1000 ? "target met" : "target NOT met") << ".\n";
   }
   md << "\nThe held-out camera stops the solve (the best iterate on it is kept); the volume error "
         "counts "
@@ -494,19 +496,21 @@ std::string RunFitBenchmark(const FitBenchmarkOptions& options,
         "Delta E, and the speed-up divides the time Algorithm 2 took to get there by it. "
         "Temperature error: RMS over the visible voxels (>= 1300 K and >= 1% of the brightest "
         "voxel's emission) that the fit fills with medium (their share in brackets; the others "
-        "got no emission from the tomography). Next frame: the fire 1/30 s later, warm-started from this "
+        "got no emission from the tomography). Next frame: the fire 1/30 s later, warm-started "
+        "from this "
         "frame's fast fit (its own tomography gives the active voxels).\n\n";
   md << "| grid | active voxels | method | evaluations | seconds | fitted Delta E | held-out "
-        "Delta E | temperature RMS, K (visible voxels filled) | fast fit reaches Algorithm 2's Delta E at (s) | "
+        "Delta E | temperature RMS, K (visible voxels filled) | fast fit reaches Algorithm 2's "
+        "Delta E at (s) | "
         "speed-up |\n";
   md << "|---|---|---|---|---|---|---|---|---|---|\n";
   std::string figures;
   for (std::size_t ri = 0; ri < resolutions.size(); ++ri) {
     const int n = resolutions[ri];
-    const double paper_s = options.quick ? 5.0
-                                         : (ri < options.paper_seconds.size()
-                                                ? options.paper_seconds[ri]
-                                                : options.paper_seconds.back());
+    const double paper_s = options.quick
+                               ? 5.0
+                               : (ri < options.paper_seconds.size() ? options.paper_seconds[ri]
+                                                                    : options.paper_seconds.back());
     const GridGeometry grid = GridGeometry::FromBox(box, n);
     // Two frames: truth, images, tomography.
     std::vector<FireVolume> truth(2), tomography(2);
@@ -588,8 +592,7 @@ std::string RunFitBenchmark(const FitBenchmarkOptions& options,
          << ") | " << r.active_voxels << " | " << name << " | " << r.evaluations << " | "
          << Fixed(r.seconds, 1) << " | " << Fixed(r.final_terms.mean_delta_e, 3) << " | "
          << Fixed(VolumeDeltaE(r.volume, r.exposure, h, soot), 3) << " | "
-         << VisibleRms(t, r.volume) << " | " << reach << " | " << speedup
-         << " |\n";
+         << VisibleRms(t, r.volume) << " | " << reach << " | " << speedup << " |\n";
     };
     row(paper, "Algorithm 2 (stopped at " + Fixed(paper_s, 0) + " s)", truth[0], held, "-", "-");
     row(fast, "fast fit", truth[0], held,

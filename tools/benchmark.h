@@ -64,11 +64,12 @@ std::string RunFitBenchmark(const FitBenchmarkOptions& options,
                             const std::function<void(const std::string&)>& log);
 
 struct CaptureBenchmarkOptions {
-  double seconds = 10;                  // per scenario
-  std::string directory = ".flamerig_capture_benchmark";  // on the disk being measured; removed after
-  bool aravis = true;                   // the Aravis fake scenario (needs 127.0.0.2..5: a private
-                                        // network namespace, see acquisition_aravis_test.cc)
-  bool quick = false;                   // CI smoke mode: 1 s, smaller rigs
+  double seconds = 10;  // per scenario
+  std::string directory =
+      ".flamerig_capture_benchmark";  // on the disk being measured; removed after
+  bool aravis = true;                 // the Aravis fake scenario (needs 127.0.0.2..5: a private
+                                      // network namespace, see acquisition_aravis_test.cc)
+  bool quick = false;                 // CI smoke mode: 1 s, smaller rigs
 };
 
 // The capture benchmark (issue 5): the disk's sequential write bandwidth (measured first, in the

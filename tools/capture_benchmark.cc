@@ -26,7 +26,8 @@ double Now() {
 double CpuSeconds() {
   rusage u{};
   ::getrusage(RUSAGE_SELF, &u);
-  return u.ru_utime.tv_sec + u.ru_utime.tv_usec * 1e-6 + u.ru_stime.tv_sec + u.ru_stime.tv_usec * 1e-6;
+  return u.ru_utime.tv_sec + u.ru_utime.tv_usec * 1e-6 + u.ru_stime.tv_sec +
+         u.ru_stime.tv_usec * 1e-6;
 }
 
 std::string Fixed(double v, int digits) {
@@ -130,7 +131,8 @@ std::string Rig(const std::string& sync, double rate, int cameras, int w, int h,
   y << "sync: " << sync << "\ntrigger_rate_hz: " << rate << "\nbuffers: 16\ncameras:\n";
   for (int c = 0; c < cameras; ++c) {
     y << "  - {name: cam" << c << ", driver: " << driver << ", id: "
-      << (driver == "sim" ? "SIM" + std::to_string(c) : "127.0.0." + std::to_string(first_address + c))
+      << (driver == "sim" ? "SIM" + std::to_string(c)
+                          : "127.0.0." + std::to_string(first_address + c))
       << ", width: " << w << ", height: " << h << ", exposure_us: 1000}\n";
   }
   return y.str();
@@ -150,7 +152,8 @@ std::string RunCaptureBenchmark(const CaptureBenchmarkOptions& options,
   md << "## Capture (issue 5)\n\n";
   md << "Machine: " << MachineDescription() << ". Disk under `" << dir.string()
      << "`: " << Fixed(disk, 0)
-     << " MB/s sequential write (4 MiB writes then fdatasync, measured at the start of this run).\n\n";
+     << " MB/s sequential write (4 MiB writes then fdatasync, measured at the start of this "
+        "run).\n\n";
   md << "The daemon records every frame set for " << Fixed(seconds, 0)
      << " s; afterwards every set is read back and its checksums verified. CPU is the whole "
         "process (cameras, assembler, writers) in cores; sim cameras copy one image per frame, as "
@@ -194,11 +197,11 @@ std::string RunCaptureBenchmark(const CaptureBenchmarkOptions& options,
     if (log) log("capture: " + sc.name + " ...");
     const Outcome o = Run(sc.yaml, seconds, dir, sc.sim, sc.bytes);
     const std::uint64_t dropped = o.dropped + o.incoming_dropped + o.frames_missing;
-    md << "| " << sc.name << " | " << Fixed(sc.data_rate, 0) << " | " << Fixed(o.seconds, 1) << " | "
-       << o.sets << " | " << o.complete << " | " << dropped << " | " << o.camera_skipped << " | "
-       << Fixed(o.megabytes_per_s, 0)
-       << " (" << Fixed(100 * o.megabytes_per_s / disk, 0) << "%) | " << Fixed(o.cpu, 2) << " | "
-       << Fixed(o.backlog_peak_mb, 1) << " | " << Fixed(o.max_spread_ms, 2) << " |\n";
+    md << "| " << sc.name << " | " << Fixed(sc.data_rate, 0) << " | " << Fixed(o.seconds, 1)
+       << " | " << o.sets << " | " << o.complete << " | " << dropped << " | " << o.camera_skipped
+       << " | " << Fixed(o.megabytes_per_s, 0) << " (" << Fixed(100 * o.megabytes_per_s / disk, 0)
+       << "%) | " << Fixed(o.cpu, 2) << " | " << Fixed(o.backlog_peak_mb, 1) << " | "
+       << Fixed(o.max_spread_ms, 2) << " |\n";
     if (log) {
       log("  " + std::to_string(o.sets) + " sets, " + std::to_string(dropped) + " dropped, " +
           Fixed(o.megabytes_per_s, 0) + " MB/s, " + Fixed(o.cpu, 2) + " cores");

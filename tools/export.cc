@@ -18,8 +18,10 @@ namespace {
 void WriteFramePng(const Frame& f, const fs::path& path) {
   ImageU8 u8;
   ImageU16 u16;
-  if (DecodeFrame(f, &u8, &u16) == 16) WritePng16(path.string(), u16);
-  else WritePng(path.string(), u8);
+  if (DecodeFrame(f, &u8, &u16) == 16)
+    WritePng16(path.string(), u16);
+  else
+    WritePng(path.string(), u8);
 }
 
 }  // namespace
@@ -31,9 +33,11 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   ExportSummary summary;
   fs::create_directories(out_dir);
   std::ofstream csv(fs::path(out_dir) / "sets.csv");
-  if (!csv) throw std::runtime_error("export: cannot write " + (fs::path(out_dir) / "sets.csv").string());
+  if (!csv)
+    throw std::runtime_error("export: cannot write " + (fs::path(out_dir) / "sets.csv").string());
   csv << "set,trigger_id,reference_ns,spread_ns";
-  for (const auto& c : rec.metadata().cameras) csv << "," << c.name << "_frame_id," << c.name << "_status";
+  for (const auto& c : rec.metadata().cameras)
+    csv << "," << c.name << "_frame_id," << c.name << "_status";
   csv << "\n";
   const std::size_t first = std::min(options.first, rec.num_sets());
   const std::size_t end = first + std::min(options.count, rec.num_sets() - first);

@@ -24,19 +24,17 @@ struct ExportSummary {
 // Writes OUT/frame_NNNNNN/<camera name>.png (8-bit, or 16-bit for Mono16; Bayer demosaiced to RGB)
 // and OUT/sets.csv (set, trigger id, reference time, spread, then per camera frame id and status,
 // empty when missing). Throws RecordingError for an unreadable recording, naming the file.
-ExportSummary ExportRecording(const std::string& recording_dir, const std::string& out_dir,
-                              const ExportOptions& options,
-                              const std::function<void(std::size_t done, std::size_t total)>&
-                                  progress = nullptr);
+ExportSummary ExportRecording(
+    const std::string& recording_dir, const std::string& out_dir, const ExportOptions& options,
+    const std::function<void(std::size_t done, std::size_t total)>& progress = nullptr);
 
 // The same for StreamPix .seq files, one per camera (frame i of every file is set i, as the
 // paper's hardware-triggered capture wrote them); `names` gives the camera names (default the
 // file stems). Stops at the shortest sequence.
-ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
-                              const std::vector<std::string>& names, const std::string& out_dir,
-                              const ExportOptions& options,
-                              const std::function<void(std::size_t done, std::size_t total)>&
-                                  progress = nullptr);
+ExportSummary ExportStreamPix(
+    const std::vector<std::string>& seq_files, const std::vector<std::string>& names,
+    const std::string& out_dir, const ExportOptions& options,
+    const std::function<void(std::size_t done, std::size_t total)>& progress = nullptr);
 
 }  // namespace flamerig
 

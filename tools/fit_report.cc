@@ -83,9 +83,8 @@ ImageU8 PlotLines(const std::vector<PlotSeries>& series, const std::string& titl
   }
   cv::putText(img, title, cv::Point(left, 25), cv::FONT_HERSHEY_SIMPLEX, 0.6, black, 1,
               cv::LINE_AA);
-  cv::putText(img, x_label + (log_x ? " (log scale)" : ""),
-              cv::Point(width / 2 - 60, height - 18), cv::FONT_HERSHEY_SIMPLEX, 0.5, black, 1,
-              cv::LINE_AA);
+  cv::putText(img, x_label + (log_x ? " (log scale)" : ""), cv::Point(width / 2 - 60, height - 18),
+              cv::FONT_HERSHEY_SIMPLEX, 0.5, black, 1, cv::LINE_AA);
   cv::putText(img, y_label, cv::Point(8, top - 8), cv::FONT_HERSHEY_SIMPLEX, 0.5, black, 1,
               cv::LINE_AA);
   ImageU8 out(width, height, 3);
@@ -158,8 +157,8 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
     series.y.push_back(p.mean_delta_e);
   }
   WritePng((fs::path(dir) / "error.png").string(),
-           PlotLines({series}, title + ": mean Delta E of the fitted views against time",
-                     "seconds", "mean Delta E", true));
+           PlotLines({series}, title + ": mean Delta E of the fitted views against time", "seconds",
+                     "mean Delta E", true));
   {
     std::ofstream csv(fs::path(dir) / "trace.csv");
     csv << "seconds,energy,mean_delta_e,level,stage\n";
@@ -172,8 +171,8 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
   md << "| view | role | mean Delta E (all pixels) | mean Delta E (fire pixels) | 95th percentile "
         "(fire pixels) |\n|---|---|---|---|---|\n";
   for (const auto& s : scores) {
-    md << "| " << s.name << " | " << (s.held_out ? "held out" : "fitted") << " | "
-       << s.mean_delta_e << " | " << s.fire_delta_e << " | " << s.p95_delta_e << " |\n";
+    md << "| " << s.name << " | " << (s.held_out ? "held out" : "fitted") << " | " << s.mean_delta_e
+       << " | " << s.fire_delta_e << " | " << s.p95_delta_e << " |\n";
   }
   md << "\n![views: input, rendered, Delta E x10 (red above 25)](views.png)\n\n"
         "![error against time](error.png)\n";

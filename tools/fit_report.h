@@ -25,9 +25,9 @@ ImageU8 PlotLines(const std::vector<PlotSeries>& series, const std::string& titl
 struct ViewScore {
   std::string name;
   bool held_out = false;
-  double mean_delta_e = 0;    // over all pixels
-  double fire_delta_e = 0;    // over pixels where the input or the render is not black
-  double p95_delta_e = 0;     // 95th percentile over those pixels
+  double mean_delta_e = 0;  // over all pixels
+  double fire_delta_e = 0;  // over pixels where the input or the render is not black
+  double p95_delta_e = 0;   // 95th percentile over those pixels
 };
 
 // Renders `result.volume` through each view at `result.exposure`, scores it and, when `dir` is

@@ -6,18 +6,18 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
-#include <fstream>
-#include <thread>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <map>
 #include <memory>
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "acquisition/capture.h"
@@ -25,10 +25,10 @@
 #include "acquisition/netns.h"
 #include "acquisition/recording.h"
 #include "acquisition/srgb.h"
+#include "fitting/fit.h"
 #include "fitting/renderer.h"
 #include "tomography/reconstruct.h"
 #include "tomography/vdb_io.h"
-#include "fitting/fit.h"
 #include "tools/benchmark.h"
 #include "tools/export.h"
 #include "tools/fit_report.h"
@@ -396,11 +396,10 @@ int Benchmark(const Args& args) {
   return 0;
 }
 
-
 int Fit(const Args& args) {
-  args.CheckKnown({"rig", "images", "out", "views", "holdout", "resolution", "tomography",
-                   "method", "absorption", "exposure", "w-sm", "time-limit", "iterations",
-                   "report", "truth", "seed", "coarse-to-fine"});
+  args.CheckKnown({"rig", "images", "out", "views", "holdout", "resolution", "tomography", "method",
+                   "absorption", "exposure", "w-sm", "time-limit", "iterations", "report", "truth",
+                   "seed", "coarse-to-fine"});
   const std::string rig_path = args.Required("rig");
   Rig rig = Rig::Load(rig_path);
   double exposure = 1.0;
@@ -465,7 +464,8 @@ int Fit(const Args& args) {
   const GridGeometry grid = GridGeometry::FromBox(rig.box, ro.resolution);
 
   FitOptions options;
-  if (args.named.count("w-sm")) options.objective.w_sm = ParseNumber(args.Get("w-sm", ""), "--w-sm");
+  if (args.named.count("w-sm"))
+    options.objective.w_sm = ParseNumber(args.Get("w-sm", ""), "--w-sm");
   if (args.named.count("time-limit"))
     options.time_limit_s = ParseNumber(args.Get("time-limit", ""), "--time-limit");
   const std::string method = args.Get("method", "fast");
@@ -503,16 +503,18 @@ int Fit(const Args& args) {
   const std::string out = args.Required("out");
   if (fs::path(out).has_parent_path()) fs::create_directories(fs::path(out).parent_path());
   WriteVdb(out, result.volume);
-  const std::string report =
-      args.Get("report", (fs::path(out).parent_path() / (fs::path(out).stem().string() + "_report")).string());
+  const std::string report = args.Get(
+      "report",
+      (fs::path(out).parent_path() / (fs::path(out).stem().string() + "_report")).string());
   const auto scores = WriteFitReport(report, result, views, held, absorption, options.render,
                                      "flamerig fit (" + method + ")");
   std::printf("fit: wrote %s\n  %s\n", out.c_str(), result.BriefReport().c_str());
   for (const auto& sc : scores) {
-    std::printf("  %s (%s): mean Delta E %.3f over all pixels, %.3f over fire pixels (95th "
-                "percentile %.2f)\n",
-                sc.name.c_str(), sc.held_out ? "held out" : "fitted", sc.mean_delta_e,
-                sc.fire_delta_e, sc.p95_delta_e);
+    std::printf(
+        "  %s (%s): mean Delta E %.3f over all pixels, %.3f over fire pixels (95th "
+        "percentile %.2f)\n",
+        sc.name.c_str(), sc.held_out ? "held out" : "fitted", sc.mean_delta_e, sc.fire_delta_e,
+        sc.p95_delta_e);
   }
   std::printf("  report: %s/report.md\n", report.c_str());
   if (args.named.count("truth")) {
@@ -540,16 +542,15 @@ int Fit(const Args& args) {
         ++count;
       }
       if (count) {
-        std::printf("  temperature against %s on the %zu of %zu visible voxels (>= 1300 K, >= 1%% "
-                    "of the peak emission) with medium: RMS %.1f K, mean %+.1f K\n",
-                    args.Get("truth", "").c_str(), count, visible, std::sqrt(se / count),
-                    bias / count);
+        std::printf(
+            "  temperature against %s on the %zu of %zu visible voxels (>= 1300 K, >= 1%% "
+            "of the peak emission) with medium: RMS %.1f K, mean %+.1f K\n",
+            args.Get("truth", "").c_str(), count, visible, std::sqrt(se / count), bias / count);
       }
     }
   }
   return 0;
 }
-
 
 std::atomic<bool> g_interrupted{false};
 void OnSignal(int) { g_interrupted = true; }
@@ -565,9 +566,8 @@ int Capture(const Args& args) {
   ControlServer server(&daemon, config.control, config.allow_remote);
   std::fprintf(stderr, "capture: %zu camera(s), %s, control at %s\n", config.cameras.size(),
                ToString(config.sync), config.control.c_str());
-  const double duration = args.named.count("duration")
-                              ? ParseNumber(args.Get("duration", ""), "--duration")
-                              : -1;
+  const double duration =
+      args.named.count("duration") ? ParseNumber(args.Get("duration", ""), "--duration") : -1;
   if (args.named.count("record") && args.named.count("event"))
     throw std::invalid_argument("--record and --event: give one");
   if (args.named.count("event") && config.pretrigger_seconds > 0) {
@@ -599,11 +599,13 @@ int Capture(const Args& args) {
                       c.connected ? "" : " (gone)");
         fps += b;
       }
-      std::fprintf(stderr, "\r%6.1f s:%s | sets %llu (%llu incomplete) | recorded %llu, dropped %llu, backlog %.0f MB   ",
-                   elapsed(), fps.c_str(), (unsigned long long)s.sets.sets,
-                   (unsigned long long)s.sets.incomplete,
-                   (unsigned long long)s.recorder.sets_recorded,
-                   (unsigned long long)s.recorder.sets_dropped, s.recorder.queued_bytes / 1048576.0);
+      std::fprintf(
+          stderr,
+          "\r%6.1f s:%s | sets %llu (%llu incomplete) | recorded %llu, dropped %llu, backlog %.0f "
+          "MB   ",
+          elapsed(), fps.c_str(), (unsigned long long)s.sets.sets,
+          (unsigned long long)s.sets.incomplete, (unsigned long long)s.recorder.sets_recorded,
+          (unsigned long long)s.recorder.sets_dropped, s.recorder.queued_bytes / 1048576.0);
       std::fflush(stderr);
       if (s.recorder.stopped && s.recording) {
         std::fprintf(stderr, "\ncapture: %s\n", s.recorder.error.c_str());
@@ -656,9 +658,9 @@ int Export(const Args& args) {
     ProgressBar("export", static_cast<int>(done), static_cast<int>(total));
   };
   if (args.named.count("seq")) {
-    const ExportSummary s = ExportStreamPix(SplitList(args.Get("seq", "")),
-                                            SplitList(args.Get("names", "")),
-                                            args.Required("out"), o, progress);
+    const ExportSummary s =
+        ExportStreamPix(SplitList(args.Get("seq", "")), SplitList(args.Get("names", "")),
+                        args.Required("out"), o, progress);
     std::fprintf(stderr, "export: %zu frame sets, %zu images\n", s.sets, s.images);
     return 0;
   }
