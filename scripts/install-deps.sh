@@ -11,7 +11,7 @@ PACKAGES=(
   libmrcal-dev mrcal python3-mrcal python3-numpy
   libopenvdb-dev libopenvdb-tools libblosc-dev libboost-iostreams-dev libimath-dev libopenexr-dev
   libceres-dev
-  libaravis-dev aravis-tools-cli aravis-tools libusb-1.0-0-dev
+  libaravis-dev aravis-tools-cli aravis-tools libusb-1.0-0-dev iproute2
   colord-data
 )
 
