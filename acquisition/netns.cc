@@ -9,7 +9,8 @@ namespace flamerig {
 void RerunInLoopbackNamespace(const std::vector<std::string>& command) {
   if (std::getenv("FLAMERIG_ARAVIS_NETNS")) return;
   ::setenv("FLAMERIG_ARAVIS_NETNS", "1", 1);
-  if (!command.empty() && std::system("unshare -rn sh -c 'ip link set lo up && ip addr add 127.0.0.2/32 dev lo' "
+  if (!command.empty() &&
+      std::system("unshare -rn sh -c 'ip link set lo up && ip addr add 127.0.0.2/32 dev lo' "
                   ">/dev/null 2>&1") == 0) {
     std::vector<const char*> args = {
         "unshare",
