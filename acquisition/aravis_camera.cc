@@ -74,12 +74,6 @@ FrameStatus StatusOf(ArvBufferStatus s) {
   }
 }
 
-std::int64_t NowNs(clockid_t clock) {
-  timespec t;
-  ::clock_gettime(clock, &t);
-  return std::int64_t(t.tv_sec) * 1'000'000'000 + t.tv_nsec;
-}
-
 }  // namespace
 
 void EnableAravisFakeInterface() { arv_enable_interface("Fake"); }
@@ -109,7 +103,6 @@ struct AravisCamera::Impl {
   CameraDescription description;
   FrameIdUnwrapper unwrapper{16, 1};
   std::int64_t last_timestamp_ns = -1;
-  std::int64_t last_frame_host_ns = 0;
   StreamCounters counters;
   std::uint64_t payload = 0;
   bool configured = false;
@@ -307,7 +300,6 @@ void AravisCamera::Start(int buffers) {
   g_clear_error(&e);
   arv_camera_start_acquisition(cam, &e);
   Check(e, impl_->id, "AcquisitionStart");
-  impl_->last_frame_host_ns = NowNs(CLOCK_MONOTONIC);
 }
 
 void AravisCamera::Stop() {
@@ -342,8 +334,9 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
   }
   Frame f;
   f.info.camera = camera_index_;
-  f.info.host_monotonic_ns = NowNs(CLOCK_MONOTONIC);
-  f.info.host_realtime_ns = NowNs(CLOCK_REALTIME);
+  const SystemClock clock;
+  f.info.host_monotonic_ns = clock.MonotonicNs();
+  f.info.host_realtime_ns = clock.RealtimeNs();
   f.info.status = StatusOf(arv_buffer_get_status(buffer));
   f.info.device_frame_id = arv_buffer_get_frame_id(buffer);
   f.info.frame_id = impl_->unwrapper.Next(f.info.device_frame_id);

@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "acquisition/camera.h"
+#include "acquisition/clock.h"
 
 namespace flamerig {
 

@@ -2,7 +2,6 @@
 
 #include <fcntl.h>
 #include <sys/statvfs.h>
-#include <sys/uio.h>
 #include <unistd.h>
 #include <yaml-cpp/yaml.h>
 #include <zlib.h>
@@ -29,21 +28,8 @@ constexpr char kSetsMagic[8] = {'F', 'L', 'M', 'R', 'S', 'E', 'T', '1'};
 constexpr std::size_t kFileHeader = 16;  // magic, u32 version, u32 camera (or camera count)
 constexpr std::size_t kSetFixed = 48;    // "SET1", crc, seq, index, trigger, reference, spread
 
-std::uint32_t Crc(const void* p, std::size_t n, std::uint32_t crc = 0) {
-  const auto* b = static_cast<const Bytef*>(p);
-  while (n > 0) {  // zlib takes uInt lengths
-    const uInt chunk = static_cast<uInt>(std::min<std::size_t>(n, 1u << 30));
-    crc = static_cast<std::uint32_t>(crc32(crc, b, chunk));
-    b += chunk;
-    n -= chunk;
-  }
-  return crc;
-}
-
-std::int64_t MonotonicNs() {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(
-             std::chrono::steady_clock::now().time_since_epoch())
-      .count();
+std::uint32_t Crc(const void* p, std::size_t n) {
+  return static_cast<std::uint32_t>(crc32_z(0, static_cast<const Bytef*>(p), n));
 }
 
 std::string Errno(int e) {
@@ -63,33 +49,6 @@ int WriteAll(int fd, const void* p, std::size_t n) {
     }
     b += w;
     n -= static_cast<std::size_t>(w);
-  }
-  return 0;
-}
-
-int WriteAll2(int fd, const void* a, std::size_t na, const void* b, std::size_t nb) {
-  iovec v[2] = {{const_cast<void*>(a), na}, {const_cast<void*>(b), nb}};
-  std::size_t total = na + nb, done = 0;
-  while (done < total) {
-    iovec cur[2];
-    int count = 0;
-    std::size_t skip = done;
-    for (const iovec& x : v) {
-      if (skip >= x.iov_len) {
-        skip -= x.iov_len;
-        continue;
-      }
-      cur[count].iov_base = static_cast<char*>(x.iov_base) + skip;
-      cur[count].iov_len = x.iov_len - skip;
-      skip = 0;
-      ++count;
-    }
-    const ssize_t w = ::writev(fd, cur, count);
-    if (w < 0) {
-      if (errno == EINTR) continue;
-      return errno;
-    }
-    done += static_cast<std::size_t>(w);
   }
   return 0;
 }
@@ -287,13 +246,13 @@ Recorder::Recorder(const std::string& directory, const RecordingMetadata& metada
     files->index_path = dir / CameraIndexFile(c);
     files->data_fd = CreateFile(files->data_path, FileHeader(kDataMagic, c));
     files->index_fd = CreateFile(files->index_path, FileHeader(kIndexMagic, c));
-    files->last_sync_ns = MonotonicNs();
+    files->last_sync_ns = SystemClock().MonotonicNs();
     cameras_.push_back(std::move(files));
   }
   sets_fd_ = CreateFile(dir / "sets.index", FileHeader(kSetsMagic, n));
   queues_.resize(n);
   status_.max_queued_bytes = options_.max_queued_bytes;
-  last_sync_ns_ = MonotonicNs();
+  last_sync_ns_ = SystemClock().MonotonicNs();
   for (std::uint32_t c = 0; c < n; ++c) writers_.emplace_back([this, c] { WriterLoop(c); });
   committer_ = std::thread([this] { CommitterLoop(); });
 }
@@ -427,7 +386,7 @@ void Recorder::CommitterLoop() {
       ++written;
     }
     if (failure.empty() && options_.sync_interval_s > 0) {
-      const std::int64_t now = MonotonicNs();
+      const std::int64_t now = SystemClock().MonotonicNs();
       if (now - last_sync_ns_ > static_cast<std::int64_t>(options_.sync_interval_s * 1e9)) {
         ::fdatasync(sets_fd_);
         last_sync_ns_ = now;
@@ -486,7 +445,9 @@ void Recorder::WriterLoop(int camera) {
       r.camera = static_cast<std::uint32_t>(camera);
       FillRecordCrc(&r);
       const void* pixels = payload ? job.frame.data->data() : nullptr;
-      if (const int e = WriteAll2(files.data_fd, &r, sizeof r, pixels, payload)) {
+      int e = WriteAll(files.data_fd, &r, sizeof r);
+      if (!e && payload) e = WriteAll(files.data_fd, pixels, payload);
+      if (e) {
         failure = "recording " + directory_ + ": writing " + files.data_path.filename().string() +
                   ": " + Errno(e);
       } else if (const int e2 = WriteAll(files.index_fd, &r, sizeof r)) {
@@ -499,7 +460,7 @@ void Recorder::WriterLoop(int camera) {
     }
     job.frame.data.reset();  // the pixels are on disk (or will never be): release them
     if (failure.empty() && options_.sync_interval_s > 0) {
-      const std::int64_t now = MonotonicNs();
+      const std::int64_t now = SystemClock().MonotonicNs();
       if (now - files.last_sync_ns > static_cast<std::int64_t>(options_.sync_interval_s * 1e9)) {
         ::fdatasync(files.data_fd);
         ::fdatasync(files.index_fd);

@@ -46,6 +46,7 @@
 #include <vector>
 
 #include "acquisition/camera.h"
+#include "acquisition/clock.h"
 #include "acquisition/frame.h"
 #include "acquisition/frame_set.h"
 

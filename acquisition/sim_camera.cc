@@ -48,29 +48,6 @@ void CameraSettings::Validate() const {
   if (packet_size < 0) fail("packet_size must be >= 0");
 }
 
-std::int64_t SystemClock::MonotonicNs() const {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(
-             std::chrono::steady_clock::now().time_since_epoch())
-      .count();
-}
-
-std::int64_t SystemClock::RealtimeNs() const {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
-}
-
-void SystemClock::SleepUntil(std::int64_t t) {
-  const std::int64_t now = MonotonicNs();
-  if (t > now) std::this_thread::sleep_for(std::chrono::nanoseconds(t - now));
-}
-
-void ManualClock::SleepUntil(std::int64_t t) {
-  std::int64_t now = now_.load();
-  while (now < t && !now_.compare_exchange_weak(now, t)) {
-  }
-}
-
 void SimTriggerBus::Fire(std::int64_t trigger_id, std::int64_t monotonic_ns) {
   std::lock_guard<std::mutex> lock(mutex_);
   pulses_.push_back({trigger_id, monotonic_ns});

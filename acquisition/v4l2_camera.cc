@@ -233,13 +233,11 @@ std::optional<Frame> V4l2Camera::Pop(std::int64_t timeout_ns) {
     return std::nullopt;
   }
   if (b.index >= buffers_.size()) Fail("VIDIOC_DQBUF returned an unknown buffer", EINVAL);
-  timespec now{};
+  const SystemClock clock;
   Frame f;
   f.info.camera = camera_index_;
-  ::clock_gettime(CLOCK_MONOTONIC, &now);
-  f.info.host_monotonic_ns = std::int64_t(now.tv_sec) * 1'000'000'000 + now.tv_nsec;
-  ::clock_gettime(CLOCK_REALTIME, &now);
-  f.info.host_realtime_ns = std::int64_t(now.tv_sec) * 1'000'000'000 + now.tv_nsec;
+  f.info.host_monotonic_ns = clock.MonotonicNs();
+  f.info.host_realtime_ns = clock.RealtimeNs();
   f.info.device_frame_id = b.sequence;
   f.info.frame_id = unwrapper_.Next(b.sequence);
   f.info.device_timestamp_ns =

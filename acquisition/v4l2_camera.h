@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "acquisition/camera.h"
+#include "acquisition/clock.h"
 
 namespace flamerig {
 

@@ -52,6 +52,8 @@ double MedianMs(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
+}  // namespace
+
 std::string Fixed(double v, int digits) {
   std::ostringstream s;
   s.setf(std::ios::fixed);
@@ -59,8 +61,6 @@ std::string Fixed(double v, int digits) {
   s << v;
   return s.str();
 }
-
-}  // namespace
 
 std::string MachineDescription() {
   std::string cpu = "unknown CPU";

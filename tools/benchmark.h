@@ -83,6 +83,9 @@ std::string RunCaptureBenchmark(const CaptureBenchmarkOptions& options,
 void WriteBenchmarkSection(const std::string& path, const std::string& name,
                            const std::string& markdown);
 
+// `v` with `digits` decimals, for the benchmark tables.
+std::string Fixed(double v, int digits);
+
 // "CPU model, N cores, date" for the report header.
 std::string MachineDescription();
 

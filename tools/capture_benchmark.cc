@@ -30,14 +30,6 @@ double CpuSeconds() {
          u.ru_stime.tv_usec * 1e-6;
 }
 
-std::string Fixed(double v, int digits) {
-  std::ostringstream s;
-  s.setf(std::ios::fixed);
-  s.precision(digits);
-  s << v;
-  return s.str();
-}
-
 // Sequential write bandwidth of the disk under `dir`: 4 MiB writes, fdatasync at the end.
 double DiskMegabytesPerSecond(const fs::path& dir, std::uint64_t bytes) {
   const fs::path file = dir / "disk_probe.bin";
