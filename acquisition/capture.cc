@@ -1,6 +1,7 @@
 #include "acquisition/capture.h"
 
 #include "acquisition/aravis_camera.h"
+#include "acquisition/config_reader.h"
 #include "acquisition/v4l2_camera.h"
 
 #include <yaml-cpp/yaml.h>
@@ -37,53 +38,6 @@ SyncMode SyncModeFromName(const std::string& name) {
   throw std::invalid_argument("sync '" + name +
                               "': use hardware-trigger, software-trigger, free-run or ptp");
 }
-
-namespace {
-
-// Typed access with errors that name the file, the key and the problem.
-class ConfigReader {
- public:
-  ConfigReader(const YAML::Node& node, std::string where) : node_(node), where_(std::move(where)) {}
-  template <typename T>
-  T Get(const std::string& key, T fallback) {
-    seen_.insert(key);
-    const YAML::Node v = node_[key];
-    if (!v) return fallback;
-    try {
-      return v.as<T>();
-    } catch (const YAML::Exception&) {
-      throw std::invalid_argument(where_ + ": '" + key + "' has a value of the wrong type");
-    }
-  }
-  double Positive(const std::string& key, double fallback) {
-    const double v = Get<double>(key, fallback);
-    if (!(v > 0) || !std::isfinite(v))
-      throw std::invalid_argument(where_ + ": '" + key + "' must be a positive number");
-    return v;
-  }
-  double NonNegative(const std::string& key, double fallback) {
-    const double v = Get<double>(key, fallback);
-    if (!(v >= 0) || !std::isfinite(v))
-      throw std::invalid_argument(where_ + ": '" + key + "' must be >= 0");
-    return v;
-  }
-  void Seen(const std::string& key) { seen_.insert(key); }
-  // Unknown keys are errors: a typo must not silently fall back to a default.
-  void CheckKnown() const {
-    for (const auto& kv : node_) {
-      const std::string k = kv.first.as<std::string>();
-      if (!seen_.count(k)) throw std::invalid_argument(where_ + ": unknown key '" + k + "'");
-    }
-  }
-  const std::string& where() const { return where_; }
-
- private:
-  YAML::Node node_;
-  std::string where_;
-  std::set<std::string> seen_;
-};
-
-}  // namespace
 
 CaptureConfig CaptureConfig::Load(const std::string& path) {
   std::ifstream in(path);
@@ -190,14 +144,18 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
       cc.sim.jitter_ns = static_cast<std::int64_t>(sr.NonNegative("jitter_us", 0) * 1e3);
       cc.sim.drift_ppm = sr.Get<double>("drift_ppm", 0);
       const std::string replay = sr.Get<std::string>("replay", "");
+      const std::string replay_content = sr.Get<std::string>("replay_content", "fire");
+      if (replay_content != "fire" && replay_content != "calibration")
+        throw std::invalid_argument(at + ".sim: 'replay_content' must be fire or calibration");
       if (!replay.empty()) {
         // Relative to the config file's folder, like every path in a config.
         const fs::path dataset = fs::path(replay).is_absolute()
                                      ? fs::path(replay)
                                      : fs::path(where).parent_path() / replay;
         try {
-          cc.sim.source =
-              DatasetReplaySource(dataset.string(), cr.Get<std::string>("name", cc.name));
+          cc.sim.source = DatasetReplaySource(
+              dataset.string(), cr.Get<std::string>("name", cc.name),
+              replay_content == "fire" ? ReplayContent::kFire : ReplayContent::kCalibration);
         } catch (const std::exception& e) {
           throw std::invalid_argument(at + ".sim.replay: " + e.what());
         }

@@ -46,8 +46,9 @@
 //       packet_size: 0
 //       sim: {drop_probability: 0, jitter_us: 0, drift_ppm: 0, late_probability: 0,
 //             incomplete_probability: 0, disconnect_at_s: -1, reconnect_at_s: -1, seed: 1,
-//             replay: DATASET}      # show a `flamerig simulate` dataset's images of this camera
+//             replay: DATASET,      # show a `flamerig simulate` dataset's images of this camera
 //                                   # (name), path relative to this file; else a test pattern
+//             replay_content: fire} # fire (its frames) or calibration (its board views)
 #ifndef FLAMERIG_ACQUISITION_CAPTURE_H_
 #define FLAMERIG_ACQUISITION_CAPTURE_H_
 

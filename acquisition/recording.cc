@@ -692,44 +692,54 @@ FrameSet Recording::ReadSet(std::size_t i) const {
     throw std::out_of_range("recording " + directory_ + ": frame set " + std::to_string(i) +
                             " of " + std::to_string(sets_.size()));
   }
-  const SetEntry& e = sets_[i];
-  FrameSet set = e.header;
+  FrameSet set = sets_[i].header;
   set.frames.resize(num_cameras());
-  for (int c = 0; c < num_cameras(); ++c) {
-    if (e.entries[c] < 0) continue;
-    const FrameRecord& r = frames_[c][static_cast<std::size_t>(e.entries[c])];
-    const fs::path path = fs::path(directory_) / CameraDataFile(c);
-    std::ifstream in(path, std::ios::binary);
-    FrameRecord on_disk;
-    auto pixels = std::make_shared<std::vector<std::uint8_t>>(r.payload_bytes);
-    in.seekg(static_cast<std::streamoff>(r.offset));
-    in.read(reinterpret_cast<char*>(&on_disk), sizeof on_disk);
-    in.read(reinterpret_cast<char*>(pixels->data()), static_cast<std::streamsize>(r.payload_bytes));
-    const std::string where = path.string() + ": frame " + std::to_string(r.frame_id) + " (set " +
-                              std::to_string(i) + ") at byte " + std::to_string(r.offset);
-    if (!in) throw RecordingError("recording: " + where + ": cut short");
-    if (std::memcmp(&on_disk, &r, sizeof r) != 0)
-      throw RecordingError("recording: " + where + ": record header differs from the index");
-    if (Crc(pixels->data(), pixels->size()) != r.payload_crc)
-      throw RecordingError("recording: " + where + ": pixel checksum mismatch");
-    Frame f;
-    f.info.camera = c;
-    f.info.frame_id = r.frame_id;
-    f.info.device_frame_id = r.device_frame_id;
-    f.info.device_timestamp_ns = r.device_timestamp_ns;
-    f.info.host_monotonic_ns = r.host_monotonic_ns;
-    f.info.host_realtime_ns = r.host_realtime_ns;
-    f.info.trigger_id = r.trigger_id;
-    f.info.exposure_us = r.exposure_us;
-    f.info.gain_db = r.gain_db;
-    f.info.pixel_format = static_cast<PixelFormat>(r.pixel_format);
-    f.info.width = static_cast<int>(r.width);
-    f.info.height = static_cast<int>(r.height);
-    f.info.status = static_cast<FrameStatus>(r.status);
-    f.data = std::move(pixels);
-    set.frames[c] = std::move(f);
-  }
+  for (int c = 0; c < num_cameras(); ++c) set.frames[c] = ReadFrame(i, c);
   return set;
+}
+
+std::optional<Frame> Recording::ReadFrame(std::size_t i, int c) const {
+  if (i >= sets_.size() || c < 0 || c >= num_cameras()) {
+    throw std::out_of_range("recording " + directory_ + ": frame set " + std::to_string(i) +
+                            " camera " + std::to_string(c) + " is not in the recording");
+  }
+  const SetEntry& e = sets_[i];
+  if (e.entries[c] < 0) return std::nullopt;
+  const FrameRecord& r = frames_[c][static_cast<std::size_t>(e.entries[c])];
+  const fs::path path = fs::path(directory_) / CameraDataFile(c);
+  std::ifstream in(path, std::ios::binary);
+  FrameRecord on_disk;
+  auto pixels = std::make_shared<std::vector<std::uint8_t>>(r.payload_bytes);
+  in.seekg(static_cast<std::streamoff>(r.offset));
+  in.read(reinterpret_cast<char*>(&on_disk), sizeof on_disk);
+  in.read(reinterpret_cast<char*>(pixels->data()), static_cast<std::streamsize>(r.payload_bytes));
+  const std::string where = path.string() + ": frame " + std::to_string(r.frame_id) + " (set " +
+                            std::to_string(i) + ") at byte " + std::to_string(r.offset);
+  if (!in) throw RecordingError("recording: " + where + ": cut short");
+  if (std::memcmp(&on_disk, &r, sizeof r) != 0)
+    throw RecordingError("recording: " + where + ": record header differs from the index");
+  if (Crc(pixels->data(), pixels->size()) != r.payload_crc)
+    throw RecordingError("recording: " + where + ": pixel checksum mismatch");
+  Frame f;
+  f.info.camera = c;
+  f.info.frame_id = r.frame_id;
+  f.info.device_frame_id = r.device_frame_id;
+  f.info.device_timestamp_ns = r.device_timestamp_ns;
+  f.info.host_monotonic_ns = r.host_monotonic_ns;
+  f.info.host_realtime_ns = r.host_realtime_ns;
+  f.info.trigger_id = r.trigger_id;
+  f.info.exposure_us = r.exposure_us;
+  f.info.gain_db = r.gain_db;
+  f.info.pixel_format = static_cast<PixelFormat>(r.pixel_format);
+  f.info.width = static_cast<int>(r.width);
+  f.info.height = static_cast<int>(r.height);
+  f.info.status = static_cast<FrameStatus>(r.status);
+  f.data = std::move(pixels);
+  return f;
+}
+
+bool Recording::HasFrame(std::size_t i, int c) const {
+  return i < sets_.size() && c >= 0 && c < num_cameras() && sets_[i].entries[c] >= 0;
 }
 
 std::vector<std::uint64_t> Recording::MissingByFrameId() const {

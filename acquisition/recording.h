@@ -40,6 +40,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -190,6 +191,9 @@ class Recording {
   // The set's header (index, trigger, reference time, spread) and its frames with their pixels,
   // checked against their CRC (RecordingError on a mismatch, naming the file, frame and offset).
   FrameSet ReadSet(std::size_t i) const;
+  // One camera's frame of set i (nullopt when the camera missed the set); same checks and errors.
+  std::optional<Frame> ReadFrame(std::size_t i, int camera) const;
+  bool HasFrame(std::size_t i, int camera) const;
   // The frame records of one camera (no pixels): what the per-frame index says.
   const std::vector<FrameRecord>& frames(int camera) const { return frames_[camera]; }
   // Drops counted in the recording: frame-id gaps per camera (wrap-aware unwrapped ids).

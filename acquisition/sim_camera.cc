@@ -81,19 +81,48 @@ ImageSource TestPatternSource() {
   };
 }
 
-ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera) {
+ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera,
+                                ReplayContent content) {
+  namespace fs = std::filesystem;
   auto images = std::make_shared<std::vector<ImageU8>>();
-  for (int k = 0;; ++k) {
-    char name[32];
-    std::snprintf(name, sizeof name, "frame_%06d", k);
-    const std::filesystem::path path =
-        std::filesystem::path(dataset_dir) / "frames" / name / (camera + ".png");
-    if (!std::filesystem::exists(path)) break;
-    images->push_back(ReadImageU8(path.string(), 3));
-  }
-  if (images->empty()) {
-    throw std::runtime_error("replay of " + dataset_dir + ": no frames/frame_000000/" + camera +
-                             ".png");
+  if (content == ReplayContent::kFire) {
+    for (int k = 0;; ++k) {
+      char name[32];
+      std::snprintf(name, sizeof name, "frame_%06d", k);
+      const fs::path path = fs::path(dataset_dir) / "frames" / name / (camera + ".png");
+      if (!fs::exists(path)) break;
+      images->push_back(ReadImageU8(path.string(), 3));
+    }
+    if (images->empty()) {
+      throw std::runtime_error("replay of " + dataset_dir + ": no frames/frame_000000/" + camera +
+                               ".png");
+    }
+  } else {
+    // One frame per board view; a view this camera did not see shows a dark frame (the board was
+    // elsewhere), sized like the camera's other views.
+    std::vector<fs::path> views;
+    const fs::path dir = fs::path(dataset_dir) / "calibration";
+    if (fs::is_directory(dir))
+      for (const auto& e : fs::directory_iterator(dir))
+        if (e.is_directory()) views.push_back(e.path());
+    std::sort(views.begin(), views.end());
+    int width = 0, height = 0;
+    std::vector<int> missing;
+    for (const auto& v : views) {
+      const fs::path path = v / (camera + ".png");
+      if (fs::exists(path)) {
+        images->push_back(ReadImageU8(path.string(), 3));
+        width = images->back().width;
+        height = images->back().height;
+      } else {
+        missing.push_back(static_cast<int>(images->size()));
+        images->emplace_back();
+      }
+    }
+    if (width == 0)
+      throw std::runtime_error("replay of " + dataset_dir + ": no calibration/*/" + camera +
+                               ".png");
+    for (int k : missing) (*images)[k] = ImageU8(width, height, 3, 8);
   }
   return [images, dataset_dir, camera](const FrameInfo& info, std::vector<std::uint8_t>* bytes) {
     const ImageU8& img = (*images)[info.frame_id % images->size()];

@@ -57,7 +57,12 @@ ImageSource TestPatternSource();
 // values; RGB8 as is; Bayer: the matching colour of each site). Throws std::runtime_error naming
 // the file when a frame is missing or unreadable; a frame asked for at another size than the
 // images gets an error naming both sizes.
-ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera);
+// With ReplayContent::kCalibration frame k shows the k-th board view instead
+// (dataset_dir/calibration/view_NNN/<camera>.png, k mod the number of views), and a dark frame
+// where the camera did not see that view: a board waved in front of the rig.
+enum class ReplayContent { kFire, kCalibration };
+ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera,
+                                ReplayContent content = ReplayContent::kFire);
 
 struct SimCameraOptions {
   std::string id = "sim0";

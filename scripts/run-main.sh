@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
 # The main job on the built-in simulated rig: installs what is missing, builds, simulates a candle
 # filmed by the two-camera rig of config/sim_rig.yaml (camera models, calibration board views, fire
-# images and ground truth), records 2 s of it with the capture daemon and exports the recording,
-# renders the ground truth back through the rig's cameras, reconstructs
-# frame 0 by tomography and fits its temperature, density and exposure (with a report).
+# images and ground truth), records the calibration board with the capture daemon and calibrates
+# the rig from that recording (mrcal), records 2 s of the fire and exports the recording, renders
+# the ground truth back through the rig's cameras, reconstructs frame 0 by tomography and fits its
+# temperature, density and exposure (with a report). Reconstruction and fit still use the true rig:
+# the calibrated two-camera 320x240 rig is not yet accurate enough (measured: Delta E 1.77 in cam0
+# against 0.33 in cam1 when fitted through it; issue 6 is open).
 # Output in runs/sim (override with FLAMERIG_RUN_DIR); open runs/sim/preview.png first.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -13,6 +16,25 @@ RUN_DIR="${FLAMERIG_RUN_DIR:-runs/sim}"
 BIN="${FLAMERIG_BUILD_DIR:-build}/tools/flamerig"
 case "$BIN" in /*) ;; *) BIN="$PWD/$BIN" ;; esac
 "$BIN" simulate --config config/sim_rig.yaml --out "$RUN_DIR"
+# Calibration: the sim cameras replay the board views (a board waved in front of the rig; a camera
+# that does not see it shows a dark frame) at 10 Hz into a recording, which `calibrate` turns into
+# a rig (the ring frame put at the candle's base, config/calibrate_sim.yaml).
+VIEWS=$(find "$RUN_DIR/calibration" -mindepth 1 -maxdepth 1 -type d | wc -l)
+cat > "$RUN_DIR/capture_calibration.yaml" <<EOF
+data_dir: recordings
+sync: hardware-trigger
+trigger_rate_hz: 10
+pretrigger_seconds: 0
+cameras:
+  - {name: cam0, width: 320, height: 240, pixel_format: Mono8, sim: {replay: ., replay_content: calibration}}
+  - {name: cam1, width: 320, height: 240, pixel_format: Mono8, sim: {replay: ., replay_content: calibration}}
+EOF
+rm -rf "$RUN_DIR/recordings/calibration"
+(cd "$RUN_DIR" && "$BIN" capture --config capture_calibration.yaml --record calibration \
+  --duration "$(( VIEWS / 10 + 2 ))")
+"$BIN" calibrate --recording "$RUN_DIR/recordings/calibration" \
+  --board "$RUN_DIR/calibration/board.yaml" --config config/calibrate_sim.yaml \
+  --out "$RUN_DIR/calibrated"
 # The capture daemon on the simulated rig: two sim cameras on a hardware trigger line replay the
 # dataset's images (frames/) for 2 s into a lossless recording, which is then exported as PNG sets.
 cat > "$RUN_DIR/capture.yaml" <<EOF
@@ -39,4 +61,5 @@ echo "main job done: dataset in $RUN_DIR (preview.png, frames/, calibration/, tr
 echo "the ground truth re-rendered through the rig is in $RUN_DIR/rendered; the tomography of frame 0"
 echo "(emission volume and a preview of input against reconstruction) is in $RUN_DIR/reconstruction;"
 echo "the fitted temperature and density of frame 0 are in $RUN_DIR/fit (report: fit/frame_000000_report/report.md);"
+echo "the rig calibrated from the recorded board views is in $RUN_DIR/calibrated (report.md, rig_top.png);"
 echo "the capture daemon's recording is in $RUN_DIR/recordings/take, exported to $RUN_DIR/recorded."

@@ -128,7 +128,7 @@ TEST(Board, RenderedChessboardIsDetectedAtTheTrueCorners) {
   BoardSpec board;
   board.type = BoardType::kChessboard;
   board.squares_x = 8;
-  board.squares_y = 6;
+  board.squares_y = 5;
   board.square_m = 0.02;
   Rigid3 cam_from_rig = LookAt(Eigen::Vector3d(0.05, 0.02, -0.4), Eigen::Vector3d(0.08, 0.06, 0));
   CameraModel camera("LENSMODEL_OPENCV8", {600, 600, 319.5, 239.5, -0.08, 0.02, 0, 0, 0, 0, 0, 0},
@@ -140,7 +140,7 @@ TEST(Board, RenderedChessboardIsDetectedAtTheTrueCorners) {
   ImageU8 image = RenderBoard(camera, board, rig_from_board, 1.0, 5);
   cv::Mat mat(image.height, image.width, CV_8UC1, image.pixels.data());
   std::vector<cv::Point2f> found;
-  ASSERT_TRUE(cv::findChessboardCornersSB(mat, cv::Size(7, 5), found, cv::CALIB_CB_ACCURACY));
+  ASSERT_TRUE(cv::findChessboardCornersSB(mat, cv::Size(7, 4), found, cv::CALIB_CB_ACCURACY));
   std::vector<Eigen::Vector3d> truth_in_rig;
   for (const auto& c : board.InnerCornersInBoard()) truth_in_rig.push_back(rig_from_board * c);
   std::vector<Eigen::Vector2d> truth = camera.Project(truth_in_rig);

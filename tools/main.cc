@@ -30,6 +30,7 @@
 #include "tomography/reconstruct.h"
 #include "tomography/vdb_io.h"
 #include "tools/benchmark.h"
+#include "tools/calibrate_job.h"
 #include "tools/export.h"
 #include "tools/fit_report.h"
 #include "tools/simulate.h"
@@ -72,6 +73,11 @@ commands:
   ctl [--config RIG.yaml | --endpoint unix:PATH|tcp:HOST:PORT] REQUEST... [--out FILE]
         Talk to a running daemon: status, cameras, arm, disarm, configure CAMERA KEY VALUE,
         start NAME, stop, event NAME, preview CAMERA [K] (PNG to --out), shutdown.
+  calibrate (--images DIR | --recording DIR) --out DIR [--config calibrate.yaml] [--board B.yaml]
+        Calibrate the rig from views of a board (DIR/<view>/<camera>.png, as `simulate` writes
+        calibration/ and `export` writes frame sets, or a recording): board detection (cached),
+        one joint mrcal solve, the rig (OUT/rig.yaml + cameras/*.cameramodel), and a report
+        (OUT/report.md with coverage and rig pictures). Config: config/calibrate_sim.yaml.
   export (--recording DIR | --seq A.seq,B.seq [--names CAM,CAM]) --out DIR [--first N] [--count N]
         Write a recording's (or StreamPix sequences') frame sets as DIR/frame_NNNNNN/<camera>.png
         (the layout reconstruct and fit read) and DIR/sets.csv; reports what a recovered recording
@@ -647,6 +653,22 @@ int Ctl(const Args& args) {
   return 0;
 }
 
+int Calibrate(const Args& args) {
+  args.CheckKnown({"images", "recording", "out", "config", "board"});
+  CalibrateConfig config;
+  if (args.named.count("config")) config = CalibrateConfig::Load(args.Get("config", ""));
+  if (args.named.count("board")) config.board = LoadBoardSpec(args.Get("board", ""));
+  CalibrateInput input{args.Get("images", ""), args.Get("recording", "")};
+  auto progress = [&](const std::string& stage, int done, int total) {
+    ProgressBar(stage, done, total);
+  };
+  const std::string out = args.Required("out");
+  const CalibrationSummary s = RunCalibration(config, input, out, progress);
+  std::fprintf(stderr, "%s", s.BriefReport().c_str());
+  std::fprintf(stderr, "calibrate: wrote %s/rig.yaml, %s/report.md\n", out.c_str(), out.c_str());
+  return 0;
+}
+
 int Export(const Args& args) {
   args.CheckKnown({"recording", "seq", "names", "out", "first", "count"});
   ExportOptions o;
@@ -691,6 +713,7 @@ int main(int argc, char** argv) {
     if (command == "benchmark") return Benchmark(Args(argc, argv, 2, {"quick"}));
     if (command == "capture") return Capture(Args(argc, argv, 2, {}));
     if (command == "ctl") return Ctl(Args(argc, argv, 2, {}));
+    if (command == "calibrate") return Calibrate(Args(argc, argv, 2, {}));
     if (command == "export") return Export(Args(argc, argv, 2, {}));
     std::fprintf(stderr, "flamerig: unknown command '%s'\n\n%s", command.c_str(), kUsage);
     return 2;

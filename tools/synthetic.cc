@@ -347,28 +347,6 @@ Rig MakeRingRig(const Box3& box, const RingOptions& options, const std::string& 
 // ---- Calibration boards
 // --------------------------------------------------------------------------
 
-void BoardSpec::Validate() const {
-  auto fail = [](const std::string& what) { throw std::invalid_argument("BoardSpec." + what); };
-  if (squares_x < 3 || squares_y < 3 || squares_x > 64 || squares_y > 64)
-    fail("squares must be in [3, 64]");
-  if (squares_x == squares_y && type == BoardType::kChessboard) {
-    fail(
-        "a chessboard must not be square (squares_x != squares_y), or its orientation is "
-        "ambiguous");
-  }
-  if (!(square_m > 0) || !std::isfinite(square_m)) fail("square_m must be > 0");
-  if (type == BoardType::kCharuco && (!(marker_m > 0) || !(marker_m < square_m))) {
-    fail("marker_m must be in (0, square_m)");
-  }
-}
-
-std::vector<Eigen::Vector3d> BoardSpec::InnerCornersInBoard() const {
-  std::vector<Eigen::Vector3d> corners;
-  for (int y = 1; y < squares_y; ++y)
-    for (int x = 1; x < squares_x; ++x) corners.emplace_back(x * square_m, y * square_m, 0.0);
-  return corners;
-}
-
 namespace {
 
 // The printed board at `px_per_square` texels per square, with a one-square white margin.
@@ -565,8 +543,19 @@ std::vector<BoardView> MakeCalibrationViews(const Rig& rig, const BoardSpec& boa
   std::uniform_real_distribution<double> uni(-1, 1);
   std::vector<BoardView> views;
   const Eigen::Vector3d center = rig.box.center();
-  const double spread = 0.25 * rig.box.size().minCoeff();
   const int n = static_cast<int>(rig.cameras.size());
+  // Boards are spread over the cameras' fields of view (a calibration needs corners all over the
+  // image, or the principal point and distortion are poorly determined): the half-width of the
+  // narrowest field at unit distance.
+  double half_field = 1e9;
+  for (const auto& cam : rig.cameras)
+    half_field = std::min(half_field, 0.5 * cam.model.width() / cam.model.intrinsics()[0]);
+  auto lateral = [&](double fraction, double distance, const Eigen::Vector3d& axis) {
+    const double rx = uni(rng), ry = uni(rng), rz = uni(rng);
+    const Eigen::Vector3d r(rx, ry, rz);
+    const Eigen::Vector3d across = r - r.dot(axis) * axis;  // across the line of sight
+    return Eigen::Vector3d(fraction * half_field * distance * across);
+  };
   auto add = [&](const Rigid3& pose, const std::string& kind) {
     BoardView v{pose, {}, kind};
     for (int c = 0; c < n; ++c) {
@@ -589,8 +578,11 @@ std::vector<BoardView> MakeCalibrationViews(const Rig& rig, const BoardSpec& boa
     if (da.dot(db) < -0.5) continue;  // more than 120 degrees apart: no common view possible
     Eigen::Vector3d facing = (da + db).normalized();
     for (int i = 0, tries = 0; i < shared_per_pair && tries < 50 * shared_per_pair; ++tries) {
-      Eigen::Vector3d c = center + spread * Eigen::Vector3d(uni(rng), uni(rng), uni(rng));
-      Rigid3 pose = BoardPose(board, c, facing, rig.up_in_rig, 0.3, rng);
+      const double d = std::min((rig.cameras[a].model.center_in_rig() - center).norm(),
+                                (rig.cameras[b].model.center_in_rig() - center).norm());
+      // Seen whole by two cameras: only near the middle of both fields.
+      Eigen::Vector3d c = center + lateral(0.25, d, facing);
+      Rigid3 pose = BoardPose(board, c, facing, rig.up_in_rig, 0.4, rng);
       if (SeesWholeBoard(rig.cameras[a].model, board, pose) &&
           SeesWholeBoard(rig.cameras[b].model, board, pose)) {
         add(pose, "shared");
@@ -604,9 +596,9 @@ std::vector<BoardView> MakeCalibrationViews(const Rig& rig, const BoardSpec& boa
     double distance = (eye - center).norm();
     for (int i = 0, tries = 0; i < closeups_per_camera && tries < 50 * closeups_per_camera;
          ++tries) {
-      Eigen::Vector3d pos = center + to_eye * distance * (0.2 + 0.25 * (uni(rng) + 1) / 2) +
-                            spread * Eigen::Vector3d(uni(rng), uni(rng), uni(rng));
-      Rigid3 pose = BoardPose(board, pos, to_eye, rig.up_in_rig, 0.5, rng);
+      const double along = distance * (0.2 + 0.25 * (uni(rng) + 1) / 2);
+      Eigen::Vector3d pos = center + to_eye * along + lateral(0.7, distance - along, to_eye);
+      Rigid3 pose = BoardPose(board, pos, to_eye, rig.up_in_rig, 0.6, rng);
       if (SeesWholeBoard(rig.cameras[c].model, board, pose)) {
         add(pose, "closeup");
         ++i;

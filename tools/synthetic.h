@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "acquisition/image.h"
+#include "calibration/board.h"
 #include "calibration/rig.h"
 #include "fitting/absorption.h"
 #include "tomography/volume.h"
@@ -72,22 +73,9 @@ struct RingOptions {
 // realistic distortion.
 Rig MakeRingRig(const Box3& box, const RingOptions& options, const std::string& name = "sim");
 
-enum class BoardType { kCharuco, kChessboard };
-
-struct BoardSpec {
-  BoardType type = BoardType::kCharuco;
-  int squares_x = 7;         // squares across
-  int squares_y = 5;         // squares down
-  double square_m = 0.012;   // edge of one square
-  double marker_m = 0.009;   // ChArUco marker edge
-  int aruco_dictionary = 0;  // cv::aruco::PREDEFINED_DICTIONARY_NAME, 0 = DICT_4X4_50
-  // Board frame: origin at the top-left corner of the pattern, x along the squares_x direction,
-  // y along squares_y, z = x cross y (into the board); the printed side faces -z. A white margin of
-  // one square surrounds the pattern.
-  std::vector<Eigen::Vector3d> InnerCornersInBoard()
-      const;  // (squares_x-1)*(squares_y-1), row-major
-  void Validate() const;
-};
+// Boards are described in calibration/board.h.
+using flamerig::BoardSpec;
+using flamerig::BoardType;
 
 // Renders the board seen by `camera` (8-bit grey), anti-aliased with `supersample`^2 rays per
 // pixel, on a dark background, plus Gaussian noise of `noise_dn` (8-bit units) drawn from `seed`.

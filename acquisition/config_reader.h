@@ -1,0 +1,63 @@
+// Strict, typed access to one YAML map of a config file, shared by every config reader in flamerig.
+//
+// Errors name where the map is (a file and a key path, given by the caller) and the key, and say
+// the rule broken; keys that no Get() asked for are errors (CheckKnown), so that a typo never
+// falls back silently to a default. Throws std::invalid_argument.
+#ifndef FLAMERIG_ACQUISITION_CONFIG_READER_H_
+#define FLAMERIG_ACQUISITION_CONFIG_READER_H_
+
+#include <yaml-cpp/yaml.h>
+
+#include <cmath>
+#include <set>
+#include <stdexcept>
+#include <string>
+#include <utility>
+
+namespace flamerig {
+
+class ConfigReader {
+ public:
+  ConfigReader(const YAML::Node& node, std::string where) : node_(node), where_(std::move(where)) {}
+  template <typename T>
+  T Get(const std::string& key, T fallback) {
+    seen_.insert(key);
+    const YAML::Node v = node_[key];
+    if (!v) return fallback;
+    try {
+      return v.as<T>();
+    } catch (const YAML::Exception&) {
+      throw std::invalid_argument(where_ + ": '" + key + "' has a value of the wrong type");
+    }
+  }
+  double Positive(const std::string& key, double fallback) {
+    const double v = Get<double>(key, fallback);
+    if (!(v > 0) || !std::isfinite(v))
+      throw std::invalid_argument(where_ + ": '" + key + "' must be a positive number");
+    return v;
+  }
+  double NonNegative(const std::string& key, double fallback) {
+    const double v = Get<double>(key, fallback);
+    if (!(v >= 0) || !std::isfinite(v))
+      throw std::invalid_argument(where_ + ": '" + key + "' must be >= 0");
+    return v;
+  }
+  void Seen(const std::string& key) { seen_.insert(key); }
+  // Unknown keys are errors: a typo must not silently fall back to a default.
+  void CheckKnown() const {
+    for (const auto& kv : node_) {
+      const std::string k = kv.first.as<std::string>();
+      if (!seen_.count(k)) throw std::invalid_argument(where_ + ": unknown key '" + k + "'");
+    }
+  }
+  const std::string& where() const { return where_; }
+
+ private:
+  YAML::Node node_;
+  std::string where_;
+  std::set<std::string> seen_;
+};
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_ACQUISITION_CONFIG_READER_H_

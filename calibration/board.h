@@ -1,0 +1,92 @@
+// Calibration boards: their description, and finding their corners in images.
+//
+// Two board types, both with an orientation that cannot be mistaken (a mis-ordered board must never
+// enter a solve, notes/mrcal.md):
+//  - ChArUco (default): a chessboard whose white squares carry ArUco markers. Every corner is
+//    identified by the markers around it, so partial views are fine.
+//  - chessboard: plain squares, squares_x != squares_y. The grid's mirror image is rejected by the
+//    handedness of the found grid (the printed side faces the camera), and its 180-degree turn by
+//    the colour of the pattern's first square (black at the board origin).
+//
+// Board frame: origin at the top-left corner of the pattern (the outer corner of its first
+// square), x along squares_x, y along squares_y, z = x cross y pointing into the board; the printed
+// side faces -z. Corners are the (squares_x-1) x (squares_y-1) inner corners, numbered row-major:
+// corner i = r * (squares_x-1) + c sits at ((c+1) * square_m, (r+1) * square_m, 0). This is also
+// mrcal's calibration-object layout (width_n = squares_x-1, height_n = squares_y-1, spacing
+// square_m), so a detection is directly one mrcal board observation.
+//
+// Pixel coordinates put the centre of the top-left pixel at (0, 0) (mrcal's convention).
+// OpenCV 4.6's ChArUco interpolation reports corners half a pixel off that convention (measured:
+// tests/tools_synthetic_test.cc); DetectBoard() corrects it.
+//
+// Thread safety: every function here is safe to call concurrently.
+#ifndef FLAMERIG_CALIBRATION_BOARD_H_
+#define FLAMERIG_CALIBRATION_BOARD_H_
+
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+#include "acquisition/image.h"
+
+namespace flamerig {
+
+enum class BoardType { kCharuco, kChessboard };
+
+struct BoardSpec {
+  BoardType type = BoardType::kCharuco;
+  int squares_x = 7;         // squares across
+  int squares_y = 5;         // squares down
+  double square_m = 0.012;   // edge of one square, metres
+  double marker_m = 0.009;   // ChArUco marker edge, metres
+  int aruco_dictionary = 0;  // cv::aruco::PREDEFINED_DICTIONARY_NAME, 0 = DICT_4X4_50
+
+  int corners_x() const { return squares_x - 1; }
+  int corners_y() const { return squares_y - 1; }
+  int num_corners() const { return corners_x() * corners_y(); }
+  // The inner corners in the board frame, row-major (see above).
+  std::vector<Eigen::Vector3d> InnerCornersInBoard() const;
+  // Throws std::invalid_argument naming the field and the rule broken.
+  void Validate() const;
+  // A one-line description ("charuco 7x5 squares of 0.012 m, markers 0.009 m, dictionary 0"),
+  // also the key that ties cached detections to the board they were made for.
+  std::string Describe() const;
+};
+
+// Reads a board description from YAML: either a file whose top level has a `board:` map (the
+// `calibration/board.yaml` that `flamerig simulate` writes) or a map given directly:
+//   board: {type: charuco, squares: [7, 5], square_m: 0.012, marker_m: 0.009, aruco_dictionary: 0}
+// Errors (std::runtime_error) name the file, the key and the rule.
+BoardSpec LoadBoardSpec(const std::string& yaml_path);
+
+// Corners of one board found in one image.
+struct BoardDetection {
+  std::vector<int> corner_ids;              // indices into InnerCornersInBoard(), ascending
+  std::vector<Eigen::Vector2d> corners_px;  // same order
+  std::string failure;                      // why nothing was found; empty when found
+  bool found() const { return !corner_ids.empty(); }
+};
+
+struct DetectOptions {
+  // A detection with fewer corners than this is discarded (a pose from a few corners is weak).
+  int min_corners = 6;
+  // The corners must span at least this fraction of the board's extent in both directions, so
+  // that they are not all on one line.
+  double min_span_fraction = 0.3;
+  // Corners further than this (in squares) from a homography fitted to all of them are dropped;
+  // when more than a fifth are, the view is refused (a wrong board description).
+  double max_misfit_squares = 0.2;
+  // Chessboards are searched with OpenCV's findChessboardCornersSB; this flag makes it slower but
+  // sub-pixel accurate (CALIB_CB_ACCURACY).
+  bool accurate_chessboard = true;
+};
+
+// Finds the board in an 8-bit grey image. Never throws for an image without a board: the reason
+// is in `failure` ("no markers", "too few corners (4 < 6)", "corners on a line", ...). Throws
+// std::invalid_argument for an image that is not 1-channel 8-bit or an invalid spec.
+BoardDetection DetectBoard(const ImageU8& grey, const BoardSpec& board,
+                           const DetectOptions& options = {});
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_CALIBRATION_BOARD_H_

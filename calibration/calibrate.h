@@ -1,0 +1,158 @@
+// Joint calibration of a rig of cameras from views of a calibration board, with mrcal.
+//
+// Flow (DESIGN.md section 4):
+//   images or a recording -> DetectViews() (OpenCV board detection, cached by image content)
+//   -> Calibrate(): intrinsics seeded from the board homographies (or a given focal length),
+//      per-view board poses from solvePnP, camera poses chained through views that neighbouring
+//      cameras share (cameras around a flame never all see one board), then one joint
+//      mrcal_optimize over all intrinsics, extrinsics and board poses: first with the lens
+//      distortion held at zero, then everything, with mrcal's outlier rejection when asked
+//   -> a Rig in a frame the user can rely on (see RigFrame), with the reconstruction box given in
+//      that frame, and a CalibrationSummary with the residuals.
+//
+// Gauge: mrcal's reference frame is the first camera's. The rig frame is then chosen by
+// RigFrame::kRing (default) or kFirstCamera; changing frame moves every camera by the same rigid
+// transform and changes no residual.
+//
+// Residuals: a corner's reprojection error is the distance in pixels between where it was detected
+// and where the solved model projects it. RMS "per point" is sqrt(mean(dx^2 + dy^2)); RMS "per
+// coordinate" (what mrcal-calibrate-cameras prints) is sqrt(mean over dx and dy separately), smaller
+// by sqrt(2). Both are reported, with their names.
+//
+// Errors: bad input (a camera that never sees the board, too few views, a disconnected camera
+// graph, images of different sizes for one camera) throws CalibrationError with a message naming
+// the camera and the reason. Library code prints nothing; progress goes to a callback.
+#ifndef FLAMERIG_CALIBRATION_CALIBRATE_H_
+#define FLAMERIG_CALIBRATION_CALIBRATE_H_
+
+#include <functional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "calibration/board.h"
+#include "calibration/rig.h"
+
+namespace flamerig {
+
+class CalibrationError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// One camera's view of the board at one instant.
+struct BoardObservation {
+  int camera = 0;            // index into CalibrationData::camera_names
+  int view = 0;              // index into CalibrationData::view_names
+  std::string source;        // the image file or "recording set N", for messages and the report
+  BoardDetection detection;  // found() is true for every observation kept
+};
+
+// Everything a solve needs, gathered from images or a recording.
+struct CalibrationData {
+  BoardSpec board;
+  std::vector<std::string> camera_names;
+  std::vector<int> widths, heights;            // imager size per camera, pixels
+  std::vector<std::string> view_names;         // one per instant (a folder, a frame set)
+  std::vector<BoardObservation> observations;  // found boards only, sorted by view then camera
+  // Per camera: images looked at, and why the board was not found in the others (a few examples).
+  std::vector<int> images_per_camera;
+  std::vector<std::vector<std::string>> failures_per_camera;
+  // Detection work: images detected now, and images whose detection came from the cache.
+  int detected = 0;
+  int from_cache = 0;
+  double detect_time_s = 0;
+};
+
+// Progress: (stage, done, total). Stages: "detect", "solve".
+using CalibrationProgress = std::function<void(const std::string&, int, int)>;
+
+// Reads board views from a folder laid out as `flamerig simulate` and `flamerig export` write
+// them: DIR/<view>/<camera>.png, one subfolder per instant (view_000, frame_000000, ...), or from a
+// recording (frame sets decoded to grey). Camera names are the image stems (or the recording's
+// camera names), sorted; `cameras`, when not empty, gives the order and must all be present.
+// Detections are cached in `cache_path` (empty: no cache) keyed by the board description and a
+// CRC of each image's pixels, so that a second run detects nothing again. Detection runs on all
+// cores. Unreadable or corrupt images throw CalibrationError naming the file.
+CalibrationData DetectViewsInFolder(const std::string& dir, const BoardSpec& board,
+                                    const std::vector<std::string>& cameras,
+                                    const std::string& cache_path, const DetectOptions& detect = {},
+                                    const CalibrationProgress& progress = nullptr);
+CalibrationData DetectViewsInRecording(const std::string& recording_dir, const BoardSpec& board,
+                                       const std::vector<std::string>& cameras,
+                                       const std::string& cache_path,
+                                       const DetectOptions& detect = {},
+                                       const CalibrationProgress& progress = nullptr);
+
+// The rig frame of the result.
+enum class RigFrame {
+  // Origin where the cameras' optical axes pass closest to each other (the flame, for a ring of
+  // cameras looking at it), y up (opposite to the mean of the cameras' image-down directions), z
+  // towards the first camera (horizontally). For `flamerig simulate`'s rigs this is the simulated
+  // rig frame moved to the box centre.
+  kRing,
+  // mrcal's reference: the first camera's frame (x right, y down, z forward); up is -y.
+  kFirstCamera,
+};
+
+struct CalibrationOptions {
+  std::string lensmodel = "LENSMODEL_OPENCV8";  // any mrcal lens model with a core (fx fy cx cy)
+  double focal_px = 0;            // seed focal length; 0: estimated from the board homographies
+  bool outlier_rejection = true;  // mrcal's; turn off only for exact synthetic corners
+  bool regularization = true;     // mrcal's light pull of the distortion towards zero
+  int min_views_per_camera = 3;   // fewer views give weak intrinsics: an error
+  RigFrame frame = RigFrame::kRing;
+  // kRing only: where the rig origin sits in the ring frame, metres. (0, -0.035, 0) puts it 35 mm
+  // below the point where the optical axes meet (the burner under a flame, say).
+  Eigen::Vector3d ring_origin_m = Eigen::Vector3d::Zero();
+  Box3 box;  // reconstruction box in the rig frame; invalid: a cube of side 0.3
+             // times the mean camera distance around the origin (kRing only)
+  std::string rig_name = "calibrated";
+  // Throws std::invalid_argument naming the field and the rule.
+  void Validate() const;
+};
+
+struct ObservationError {
+  int camera = 0, view = 0, corner = 0;
+  double error_px = 0;  // distance between detected and projected corner
+  bool outlier = false;
+};
+
+struct CameraResidualStats {
+  std::string name;
+  int views = 0, points = 0, outliers = 0;
+  double rms_px_per_point = 0, median_px = 0, p95_px = 0, max_px = 0;  // inliers
+};
+
+struct CalibrationSummary {
+  Rig rig;
+  std::vector<Rigid3> rig_from_board;  // per view (identity where no camera saw it)
+  std::vector<bool> view_used;
+  double rms_px_per_coordinate = 0;  // inliers; what mrcal-calibrate-cameras prints
+  double rms_px_per_point = 0;       // inliers
+  double seed_rms_px_per_point = 0;  // before the joint solve (pinhole seed)
+  double mrcal_rms_px = 0;           // mrcal_optimize's own figure (mrcal_stats_t)
+  int points = 0, outliers = 0, views_used = 0;
+  std::vector<CameraResidualStats> cameras;
+  std::vector<ObservationError> errors;  // every corner, observation order
+  std::vector<ObservationError> worst;   // the largest inlier errors, largest first (up to 12)
+  double solve_time_s = 0;
+  std::vector<std::string> notes;  // views left out and why, frame choice, ...
+  std::string BriefReport() const;
+};
+
+// Solves the calibration. Throws CalibrationError naming the camera and reason when the data
+// cannot give a calibration (see the file comment), std::invalid_argument for invalid options.
+CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptions& options,
+                             const CalibrationProgress& progress = nullptr);
+
+// Writes our detections as mrcal's corners cache (vnlog "# filename x y level"; a missing corner
+// has level "-"), with file names <dir_prefix>/<view>/<camera>.png, so that
+// `mrcal-calibrate-cameras --corners-cache F --object-width-n W --object-height-n H
+// 'prefix/*/cam0.png' ...` solves the same problem.
+void WriteMrcalCorners(const CalibrationData& data, const std::string& path,
+                       const std::string& dir_prefix);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_CALIBRATION_CALIBRATE_H_

@@ -1,0 +1,340 @@
+#include "tools/calibrate_job.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <opencv2/imgproc.hpp>
+#include <sstream>
+
+#include "acquisition/config_reader.h"
+
+namespace flamerig {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+Eigen::Vector3d ReadVector3(const YAML::Node& node, const std::string& where) {
+  if (!node || !node.IsSequence() || node.size() != 3)
+    throw std::invalid_argument(where + " must be [x, y, z]");
+  try {
+    return Eigen::Vector3d(node[0].as<double>(), node[1].as<double>(), node[2].as<double>());
+  } catch (const YAML::Exception&) {
+    throw std::invalid_argument(where + " must hold three numbers");
+  }
+}
+
+ImageU8 FromBgr(const cv::Mat& bgr) {
+  cv::Mat rgb;
+  cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
+  ImageU8 out(rgb.cols, rgb.rows, 3);
+  for (int y = 0; y < rgb.rows; ++y)
+    std::copy(rgb.ptr<std::uint8_t>(y), rgb.ptr<std::uint8_t>(y) + 3 * rgb.cols, &out.at(0, y, 0));
+  return out;
+}
+
+// Green (0 px) through yellow to red (at `scale` px and above), BGR.
+cv::Scalar ErrorColour(double error_px, double scale) {
+  const double t = std::clamp(error_px / std::max(scale, 1e-9), 0.0, 1.0);
+  return t < 0.5 ? cv::Scalar(0, 200, 510 * t) : cv::Scalar(0, 200 * (1 - t) * 2, 255);
+}
+
+}  // namespace
+
+CalibrateConfig CalibrateConfig::Load(const std::string& path) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::Exception& e) {
+    throw std::invalid_argument(path + ": cannot read the calibration config: " + e.what());
+  }
+  if (!root["calibrate"] || !root["calibrate"].IsMap())
+    throw std::invalid_argument(path + ": needs a 'calibrate:' map");
+  const YAML::Node node = root["calibrate"];
+  const std::string where = path + ": calibrate";
+  ConfigReader r(node, where);
+  CalibrateConfig c;
+  r.Seen("board");
+  r.Seen("board_file");
+  r.Seen("box");
+  r.Seen("ring_origin");
+  if (node["ring_origin"])
+    c.options.ring_origin_m = ReadVector3(node["ring_origin"], where + ".ring_origin");
+  if (node["board"] && node["board_file"])
+    throw std::invalid_argument(where + ": give 'board' or 'board_file', not both");
+  if (node["board"]) {
+    // Parsed by the board reader from a temporary document, so that its errors name the keys.
+    YAML::Emitter e;
+    e << YAML::BeginMap << YAML::Key << "board" << YAML::Value << node["board"] << YAML::EndMap;
+    const fs::path tmp =
+        fs::temp_directory_path() / ("flamerig_board_" + std::to_string(::getpid()) + ".yaml");
+    std::ofstream(tmp) << e.c_str();
+    try {
+      c.board = LoadBoardSpec(tmp.string());
+    } catch (const std::exception& ex) {
+      fs::remove(tmp);
+      std::string what = ex.what();
+      const std::string prefix = tmp.string() + ": ";
+      if (what.rfind(prefix, 0) == 0) what = what.substr(prefix.size());
+      throw std::invalid_argument(where + ".board: " + what);
+    }
+    fs::remove(tmp);
+  }
+  if (node["board_file"]) {
+    fs::path f = node["board_file"].as<std::string>();
+    if (f.is_relative()) f = fs::path(path).parent_path() / f;
+    try {
+      c.board = LoadBoardSpec(f.string());
+    } catch (const std::exception& ex) {
+      throw std::invalid_argument(where + ".board_file: " + ex.what());
+    }
+  }
+  c.cameras = r.Get<std::vector<std::string>>("cameras", {});
+  c.options.lensmodel = r.Get<std::string>("lensmodel", c.options.lensmodel);
+  c.options.focal_px = r.Get<double>("focal_px", 0.0);
+  c.options.outlier_rejection = r.Get<bool>("outlier_rejection", true);
+  c.options.min_views_per_camera = r.Get<int>("min_views_per_camera", 3);
+  const std::string frame = r.Get<std::string>("frame", "ring");
+  if (frame == "ring")
+    c.options.frame = RigFrame::kRing;
+  else if (frame == "first-camera")
+    c.options.frame = RigFrame::kFirstCamera;
+  else
+    throw std::invalid_argument(where + ": 'frame' must be ring or first-camera, not '" + frame +
+                                "'");
+  c.options.rig_name = r.Get<std::string>("name", c.options.rig_name);
+  if (const YAML::Node box = node["box"]) {
+    ConfigReader br(box, where + ".box");
+    br.Seen("min");
+    br.Seen("max");
+    br.CheckKnown();
+    c.options.box.min_in_rig = ReadVector3(box["min"], where + ".box.min");
+    c.options.box.max_in_rig = ReadVector3(box["max"], where + ".box.max");
+    if (!c.options.box.IsValid())
+      throw std::invalid_argument(where + ".box: max must be greater than min on every axis");
+  }
+  r.CheckKnown();
+  try {
+    c.options.Validate();
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(path + ": " + e.what());
+  }
+  return c;
+}
+
+ImageU8 CoveragePicture(const CalibrationData& data, const CalibrationSummary& summary, int camera,
+                        double* covered_fraction) {
+  const int w = data.widths.at(camera), h = data.heights.at(camera);
+  const double scale = std::min(1.0, 800.0 / w);
+  const int W = std::max(1, static_cast<int>(w * scale)),
+            H = std::max(1, static_cast<int>(h * scale));
+  cv::Mat img(H, W, CV_8UC3, cv::Scalar(30, 30, 30));
+  // Coverage: the image split into 10 x 10 cells; a cell is covered when a corner falls in it.
+  const int cells = 10;
+  std::vector<bool> covered(cells * cells, false);
+  double error_scale = 0;
+  for (const auto& c : summary.cameras)
+    if (c.name == data.camera_names[camera]) error_scale = std::max(2 * c.p95_px, 0.1);
+  // Cells first, then the corners over them; summary.errors follows the observations' order.
+  for (const auto& o : data.observations) {
+    if (o.camera != camera) continue;
+    for (const auto& p : o.detection.corners_px) {
+      const int cx = std::clamp(static_cast<int>(p.x() / w * cells), 0, cells - 1);
+      const int cy = std::clamp(static_cast<int>(p.y() / h * cells), 0, cells - 1);
+      covered[cy * cells + cx] = true;
+    }
+  }
+  for (int cy = 0; cy < cells; ++cy)
+    for (int cx = 0; cx < cells; ++cx)
+      if (covered[cy * cells + cx])
+        cv::rectangle(img, cv::Point(cx * W / cells, cy * H / cells),
+                      cv::Point((cx + 1) * W / cells - 1, (cy + 1) * H / cells - 1),
+                      cv::Scalar(70, 60, 50), cv::FILLED);
+  std::size_t k = 0;
+  for (const auto& o : data.observations) {
+    for (std::size_t i = 0; i < o.detection.corner_ids.size(); ++i, ++k) {
+      if (o.camera != camera || k >= summary.errors.size()) continue;
+      const ObservationError& e = summary.errors[k];
+      const Eigen::Vector2d p = o.detection.corners_px[i] * scale;
+      const cv::Point q(static_cast<int>(std::lround(p.x())), static_cast<int>(std::lround(p.y())));
+      if (e.outlier)
+        cv::drawMarker(img, q, cv::Scalar(255, 0, 255), cv::MARKER_TILTED_CROSS, 7, 1);
+      else
+        cv::circle(img, q, 2, ErrorColour(e.error_px, error_scale), cv::FILLED, cv::LINE_AA);
+    }
+  }
+  int n = 0;
+  for (bool b : covered) n += b;
+  if (covered_fraction) *covered_fraction = static_cast<double>(n) / covered.size();
+  char text[160];
+  std::snprintf(text, sizeof(text),
+                "%s: %d%% of the image covered; green 0 px, red %.2f px, "
+                "magenta x outlier",
+                data.camera_names[camera].c_str(), 100 * n / (cells * cells), error_scale);
+  cv::putText(img, text, cv::Point(6, H - 8), cv::FONT_HERSHEY_SIMPLEX, 0.4,
+              cv::Scalar(255, 255, 255), 1, cv::LINE_AA);
+  return FromBgr(img);
+}
+
+ImageU8 RigFromAbove(const CalibrationSummary& summary, int size) {
+  const Rig& rig = summary.rig;
+  // Top view: looking down the rig's up axis. Horizontal axes: the two rig axes most orthogonal to
+  // up (x and z for a y-up rig).
+  const Eigen::Vector3d up = rig.up_in_rig.normalized();
+  Eigen::Vector3d a = std::abs(up.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitZ();
+  a = (a - a.dot(up) * up).normalized();
+  const Eigen::Vector3d b = up.cross(a);  // right-handed: looking down, a right, b down the page
+  std::vector<Eigen::Vector2d> pts;
+  auto plane = [&](const Eigen::Vector3d& p) { return Eigen::Vector2d(p.dot(a), p.dot(b)); };
+  for (const auto& c : rig.cameras) pts.push_back(plane(c.model.center_in_rig()));
+  for (int i = 0; i < 8; ++i)
+    pts.push_back(plane(Eigen::Vector3d(i & 1 ? rig.box.max_in_rig.x() : rig.box.min_in_rig.x(),
+                                        i & 2 ? rig.box.max_in_rig.y() : rig.box.min_in_rig.y(),
+                                        i & 4 ? rig.box.max_in_rig.z() : rig.box.min_in_rig.z())));
+  Eigen::Vector2d lo = pts[0], hi = pts[0];
+  for (const auto& p : pts) {
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  const double extent = std::max((hi - lo).maxCoeff(), 1e-6);
+  const Eigen::Vector2d mid = 0.5 * (lo + hi);
+  const double s = 0.8 * size / extent;
+  auto px = [&](const Eigen::Vector3d& p) {
+    const Eigen::Vector2d q = (plane(p) - mid) * s;
+    return cv::Point(static_cast<int>(size / 2 + q.x()), static_cast<int>(size / 2 + q.y()));
+  };
+  cv::Mat img(size, size, CV_8UC3, cv::Scalar(255, 255, 255));
+  // Board positions (views used), then the box, then the cameras with their viewing direction.
+  for (std::size_t v = 0; v < summary.rig_from_board.size(); ++v)
+    if (v < summary.view_used.size() && summary.view_used[v])
+      cv::circle(img, px(summary.rig_from_board[v].translation), 2, cv::Scalar(180, 180, 180),
+                 cv::FILLED);
+  const Box3& box = rig.box;
+  const Eigen::Vector3d c = box.center();
+  std::vector<cv::Point> outline;
+  for (int i : {0, 1, 3, 2}) {
+    Eigen::Vector3d corner = c;
+    const Eigen::Vector3d h = 0.5 * box.size();
+    corner += (i & 1 ? 1 : -1) * std::abs(h.dot(a)) * a + (i & 2 ? 1 : -1) * std::abs(h.dot(b)) * b;
+    outline.push_back(px(corner));
+  }
+  cv::polylines(img, outline, true, cv::Scalar(0, 120, 255), 2, cv::LINE_AA);
+  const double arrow_m = 0.25 * extent;
+  for (const auto& cam : rig.cameras) {
+    const Rigid3 rig_from_cam = cam.model.cam_from_rig().Inverse();
+    const Eigen::Vector3d o = rig_from_cam.translation;
+    const Eigen::Vector3d d = rig_from_cam.rotation * Eigen::Vector3d::UnitZ();
+    cv::arrowedLine(img, px(o), px(o + arrow_m * d), cv::Scalar(200, 80, 0), 2, cv::LINE_AA, 0,
+                    0.2);
+    cv::circle(img, px(o), 5, cv::Scalar(0, 0, 0), cv::FILLED, cv::LINE_AA);
+    cv::putText(img, cam.name, px(o) + cv::Point(8, -8), cv::FONT_HERSHEY_SIMPLEX, 0.5,
+                cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  }
+  char text[160];
+  std::snprintf(text, sizeof(text),
+                "rig '%s' from above: cameras (blue: view), box (orange), "
+                "boards (grey); %.3f m across",
+                rig.name.c_str(), extent);
+  cv::putText(img, text, cv::Point(8, size - 10), cv::FONT_HERSHEY_SIMPLEX, 0.4,
+              cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  return FromBgr(img);
+}
+
+CalibrationSummary RunCalibration(const CalibrateConfig& config, const CalibrateInput& input,
+                                  const std::string& out_dir, const CalibrationProgress& progress,
+                                  CalibrationData* data_out) {
+  if (input.images_dir.empty() == input.recording_dir.empty())
+    throw std::invalid_argument("calibrate: give either images or a recording");
+  BoardSpec board;
+  if (config.board) {
+    board = *config.board;
+  } else {
+    const fs::path beside =
+        fs::path(input.images_dir.empty() ? input.recording_dir : input.images_dir) / "board.yaml";
+    if (!fs::exists(beside))
+      throw std::invalid_argument(
+          "calibrate: no board described: give one in the config (board: or board_file:) or put "
+          "a board.yaml beside the images (" +
+          beside.string() + " does not exist)");
+    board = LoadBoardSpec(beside.string());
+  }
+  fs::create_directories(out_dir);
+  const std::string cache = (fs::path(out_dir) / "detections.cache").string();
+  CalibrationData data = input.images_dir.empty()
+                             ? DetectViewsInRecording(input.recording_dir, board, config.cameras,
+                                                      cache, config.detect, progress)
+                             : DetectViewsInFolder(input.images_dir, board, config.cameras, cache,
+                                                   config.detect, progress);
+  WriteMrcalCorners(data, (fs::path(out_dir) / "corners.vnl").string(), "views");
+  CalibrationSummary summary = Calibrate(data, config.options, progress);
+  summary.rig.Save((fs::path(out_dir) / "rig.yaml").string());
+
+  // The report.
+  std::ostringstream md;
+  md << "# Calibration of rig '" << summary.rig.name << "'\n\n";
+  md << "Board: " << board.Describe() << ". Lens model: " << config.options.lensmodel << ".\n\n";
+  md << "Detection: " << data.detected << " images detected, " << data.from_cache
+     << " from the cache, in " << data.detect_time_s << " s. Solve: " << summary.solve_time_s
+     << " s.\n\n```\n"
+     << summary.BriefReport() << "```\n\n";
+  md << "The RMS per point is sqrt(mean(dx^2 + dy^2)) over inlier corners; per coordinate (what "
+        "mrcal-calibrate-cameras prints) it is smaller by sqrt(2).\n\n";
+  md << "| camera | views | corners | outliers | RMS px | median px | p95 px | max px | image "
+        "covered |\n|---|---|---|---|---|---|---|---|---|\n";
+  for (std::size_t c = 0; c < summary.cameras.size(); ++c) {
+    const auto& s = summary.cameras[c];
+    double covered = 0;
+    WritePng((fs::path(out_dir) / ("coverage_" + s.name + ".png")).string(),
+             CoveragePicture(data, summary, static_cast<int>(c), &covered));
+    char row[256];
+    std::snprintf(row, sizeof(row), "| %s | %d | %d | %d | %.3f | %.3f | %.3f | %.3f | %.0f%% |\n",
+                  s.name.c_str(), s.views, s.points, s.outliers, s.rms_px_per_point, s.median_px,
+                  s.p95_px, s.max_px, 100 * covered);
+    md << row;
+  }
+  md << "\n## Worst corners (inliers)\n\n| camera | view | corner | error px "
+        "|\n|---|---|---|---|\n";
+  for (const auto& e : summary.worst) {
+    char row[256];
+    std::snprintf(row, sizeof(row), "| %s | %s | %d | %.3f |\n",
+                  data.camera_names[e.camera].c_str(), data.view_names[e.view].c_str(), e.corner,
+                  e.error_px);
+    md << row;
+  }
+  md << "\n## Camera poses (rig frame)\n\n| camera | centre m | viewing direction "
+        "|\n|---|---|---|\n";
+  for (const auto& cam : summary.rig.cameras) {
+    const Rigid3 rig_from_cam = cam.model.cam_from_rig().Inverse();
+    const Eigen::Vector3d o = rig_from_cam.translation,
+                          d = rig_from_cam.rotation * Eigen::Vector3d::UnitZ();
+    char row[256];
+    std::snprintf(row, sizeof(row), "| %s | (%.4f, %.4f, %.4f) | (%.3f, %.3f, %.3f) |\n",
+                  cam.name.c_str(), o.x(), o.y(), o.z(), d.x(), d.y(), d.z());
+    md << row;
+  }
+  md << "\n## Notes\n\n";
+  for (const auto& n : summary.notes) md << "- " << n << "\n";
+  for (std::size_t c = 0; c < data.camera_names.size(); ++c)
+    for (const auto& f : data.failures_per_camera[c]) md << "- board not found: " << f << "\n";
+  WritePng((fs::path(out_dir) / "rig_top.png").string(), RigFromAbove(summary));
+  md << "\n![rig from above](rig_top.png)\n\n";
+  for (const auto& s : summary.cameras)
+    md << "![coverage " << s.name << "](coverage_" << s.name << ".png)\n";
+  md << "\nTo solve the same detections with mrcal's own tool: `mrcal-calibrate-cameras "
+        "--corners-cache corners.vnl --lensmodel "
+     << config.options.lensmodel << " --focal F --object-spacing " << board.square_m
+     << " --object-width-n " << board.corners_x() << " --object-height-n " << board.corners_y();
+  for (const auto& name : data.camera_names) md << " 'views/*/" << name << ".png'";
+  md << "` (with `--imagersize W H` since the paths are virtual).\n";
+  std::ofstream report((fs::path(out_dir) / "report.md").string());
+  report << md.str();
+  if (!report) throw std::runtime_error(out_dir + "/report.md: write failed");
+  if (data_out) *data_out = std::move(data);
+  return summary;
+}
+
+}  // namespace flamerig

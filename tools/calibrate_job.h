@@ -1,0 +1,70 @@
+// `flamerig calibrate`: from board views (a folder of images or a recording) to a rig on disk, with
+// a report a person can read.
+//
+// Config (YAML, every key optional; see config/calibrate_sim.yaml):
+//   calibrate:
+//     board: {type: charuco, squares: [7, 5], square_m: 0.006, marker_m: 0.0045,
+//             aruco_dictionary: 0}   # or board_file: PATH (a board.yaml); default: the
+//                                    # board.yaml beside the images, if there is one
+//     cameras: [cam0, cam1]          # order (the first is mrcal's reference); default: sorted
+//     lensmodel: LENSMODEL_OPENCV8
+//     focal_px: 0                    # seed; 0 = estimate from the board
+//     outlier_rejection: true
+//     min_views_per_camera: 3
+//     frame: ring                    # ring | first-camera (calibration/calibrate.h)
+//     ring_origin: [0, 0, 0]         # the rig origin in the ring frame, metres
+//     box: {min: [x, y, z], max: [x, y, z]}   # reconstruction box in that frame, metres
+//     name: calibrated
+//
+// Outputs in OUT:
+//   rig.yaml, cameras/<camera>.cameramodel   the rig (reconstruct and fit read it; mrcal's tools
+//                                            read the models)
+//   report.md                                RMS (per point and per coordinate), per-camera
+//                                            residuals, worst corners, notes, pictures:
+//   coverage_<camera>.png                    the image area covered by corners, coloured by error
+//   rig_top.png                              the rig from above: cameras, box, board positions
+//   corners.vnl                              the detections in mrcal's corners format (re-solve
+//                                            with mrcal-calibrate-cameras)
+//   detections.cache                         so that a second run detects nothing again
+#ifndef FLAMERIG_TOOLS_CALIBRATE_JOB_H_
+#define FLAMERIG_TOOLS_CALIBRATE_JOB_H_
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "calibration/calibrate.h"
+
+namespace flamerig {
+
+struct CalibrateConfig {
+  std::optional<BoardSpec> board;  // unset: board.yaml beside the images
+  std::vector<std::string> cameras;
+  CalibrationOptions options;
+  DetectOptions detect;
+  // Reads the `calibrate:` map of a YAML file; errors (std::invalid_argument) name the file and
+  // key. Relative board_file paths are relative to the config file.
+  static CalibrateConfig Load(const std::string& path);
+};
+
+struct CalibrateInput {
+  std::string images_dir;     // DIR/<view>/<camera>.png, or
+  std::string recording_dir;  // a flamerig recording
+};
+
+// Detects, solves and writes everything listed above into out_dir. Returns the summary; the data
+// (detections) through *data when not null.
+CalibrationSummary RunCalibration(const CalibrateConfig& config, const CalibrateInput& input,
+                                  const std::string& out_dir,
+                                  const CalibrationProgress& progress = nullptr,
+                                  CalibrationData* data = nullptr);
+
+// The report pictures, exposed for tests: corners over the image area (RGB, at most 800 px wide),
+// and the rig from above (RGB, size x size).
+ImageU8 CoveragePicture(const CalibrationData& data, const CalibrationSummary& summary, int camera,
+                        double* covered_fraction);
+ImageU8 RigFromAbove(const CalibrationSummary& summary, int size = 700);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_TOOLS_CALIBRATE_JOB_H_
