@@ -141,11 +141,10 @@ TEST_F(Ring, RecoversTheRingFromRenderedImages) {
   EXPECT_NEAR(s.rms_px_per_coordinate * std::sqrt(2.0), s.rms_px_per_point, 1e-9);
   // Our residuals, recomputed through our camera models, agree with mrcal's own figure.
   EXPECT_NEAR(s.rms_px_per_coordinate, s.mrcal_rms_px, 0.25 * s.mrcal_rms_px);
-  // The bar is 0.1 degree and 3 mm. Measured here: up to 0.12 degree (cam1..cam3
-  // relative to cam0) and under 3 mm; exact corners give the truth back (below) and mrcal's own
-  // tool agrees with us on these detections, so the gap is the rendered corners' quality (without
-  // mrcal's outlier rejection it grows to 0.23 degree). Asserted at 0.15 degree until it is closed.
-  ExpectExtrinsicsNear(s.rig, *truth_, 0.15, 0.003);
+  // The bar: 0.1 degree and 3 mm (measured: 0.036 degree and 0.44 mm at worst). It holds
+  // because the shared views vary in depth and tilt; boards all at the ring's centre and nearly
+  // square-on to both cameras gave 0.2 degree (rotation trades against translation).
+  ExpectExtrinsicsNear(s.rig, *truth_, 0.1, 0.003);
   // The ring frame is the simulated rig frame (both: y up, z towards cam0, origin as set).
   for (std::size_t c = 0; c < 4; ++c) {
     const Rigid3& g = s.rig.cameras[c].model.cam_from_rig();

@@ -89,6 +89,22 @@ std::string Fixed(double v, int digits);
 // "CPU model, N cores, date" for the report header.
 std::string MachineDescription();
 
+struct CalibrationBenchmarkOptions {
+  int cameras = 4;
+  int width = 640;
+  int height = 480;
+  int views_per_pair = 24;    // boards shared by neighbouring cameras
+  int views_per_camera = 24;  // close-ups
+  bool quick = false;         // CI smoke mode: 8 + 8 views
+};
+
+// The calibration benchmark (issue 6): a ring from `flamerig simulate` (boards rendered with
+// noise); our detection (cold and from the cache) and joint solve against `mrcal-calibrate-cameras`
+// on the same detections, each with its error against the true rig (relative camera rotations and
+// translations) and its RMS. Returns the Markdown section.
+std::string RunCalibrationBenchmark(const CalibrationBenchmarkOptions& options,
+                                    const std::function<void(const std::string&)>& log);
+
 }  // namespace flamerig
 
 #endif  // FLAMERIG_TOOLS_BENCHMARK_H_

@@ -82,11 +82,12 @@ commands:
         Write a recording's (or StreamPix sequences') frame sets as DIR/frame_NNNNNN/<camera>.png
         (the layout reconstruct and fit read) and DIR/sets.csv; reports what a recovered recording
         left out.
-  benchmark render|tomography|fit|capture [--out BENCHMARKS.md] [--quick] [--figures DIR]
+  benchmark render|tomography|fit|capture|calibration [--out BENCHMARKS.md] [--quick] [--figures DIR]
             [--seconds S]
         Time the forward renderer, the tomography or the fit (ours against the paper's
         Algorithm 2) against its error, or sustained recording from simulated and Aravis fake
-        cameras against the disk's bandwidth, and write the figures to BENCHMARKS.md, plots to
+        cameras against the disk's bandwidth, or the calibration of a simulated ring against
+        mrcal-calibrate-cameras, and write the figures to BENCHMARKS.md, plots to
         DIR (default benchmarks/) (--quick: a small smoke run).
   help  This text.
 
@@ -392,9 +393,13 @@ int Benchmark(const Args& args) {
     command.insert(command.end(), args.original.begin(), args.original.end());
     RerunInLoopbackNamespace(command);
     md = RunCaptureBenchmark(options, log);
+  } else if (target == "calibration") {
+    CalibrationBenchmarkOptions options;
+    options.quick = args.named.count("quick") > 0;
+    md = RunCalibrationBenchmark(options, log);
   } else {
     throw std::invalid_argument("benchmark target '" + target +
-                                "': use render, tomography, fit or capture");
+                                "': use render, tomography, fit, capture or calibration");
   }
   std::string out = args.Get("out", "BENCHMARKS.md");
   WriteBenchmarkSection(out, target, md);

@@ -581,8 +581,10 @@ std::vector<BoardView> MakeCalibrationViews(const Rig& rig, const BoardSpec& boa
       const double d = std::min((rig.cameras[a].model.center_in_rig() - center).norm(),
                                 (rig.cameras[b].model.center_in_rig() - center).norm());
       // Seen whole by two cameras: only near the middle of both fields.
-      Eigen::Vector3d c = center + lateral(0.25, d, facing);
-      Rigid3 pose = BoardPose(board, c, facing, rig.up_in_rig, 0.4, rng);
+      // Towards the pair by up to a third of the way, and tilted, for depth across the board.
+      Eigen::Vector3d c =
+          center + facing * d * 0.35 * (uni(rng) + 1) / 2 + lateral(0.25, d, facing);
+      Rigid3 pose = BoardPose(board, c, facing, rig.up_in_rig, 0.6, rng);
       if (SeesWholeBoard(rig.cameras[a].model, board, pose) &&
           SeesWholeBoard(rig.cameras[b].model, board, pose)) {
         add(pose, "shared");
