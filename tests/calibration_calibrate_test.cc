@@ -46,7 +46,7 @@ class Ring : public ::testing::Test {
   static void SetUpTestSuite() {
     const fs::path root = fs::path(FLAMERIG_TEST_DATA_DIR);
     fs::create_directories(root);
-    dir_ = new fs::path(root / "calibration_ring_v1");
+    dir_ = new fs::path(root / "calibration_ring_v2");
     const int lock = ::open((root / "calibration_ring.lock").c_str(), O_CREAT | O_RDWR, 0644);
     ASSERT_GE(lock, 0);
     ASSERT_EQ(::flock(lock, LOCK_EX), 0);
@@ -141,7 +141,7 @@ TEST_F(Ring, RecoversTheRingFromRenderedImages) {
   EXPECT_NEAR(s.rms_px_per_coordinate * std::sqrt(2.0), s.rms_px_per_point, 1e-9);
   // Our residuals, recomputed through our camera models, agree with mrcal's own figure.
   EXPECT_NEAR(s.rms_px_per_coordinate, s.mrcal_rms_px, 0.25 * s.mrcal_rms_px);
-  // The bar: 0.1 degree and 3 mm (measured: 0.036 degree and 0.44 mm at worst). It holds
+  // The bar: 0.1 degree and 3 mm (measured: 0.073 degree and 0.46 mm at worst). It holds
   // because the shared views vary in depth and tilt; boards all at the ring's centre and nearly
   // square-on to both cameras gave 0.2 degree (rotation trades against translation).
   ExpectExtrinsicsNear(s.rig, *truth_, 0.1, 0.003);
@@ -220,7 +220,12 @@ TEST_F(Ring, ExactCornersGiveTheTruthBack) {
 TEST_F(Ring, AgreesWithMrcalCalibrateCameras) {
   if (std::system("command -v mrcal-calibrate-cameras > /dev/null 2>&1") != 0)
     GTEST_SKIP() << "mrcal-calibrate-cameras is not installed (Debian package mrcal)";
-  const CalibrationData data = Detect();
+  // Whole boards only: with partial (ChArUco) views the tool solves, then fails computing its
+  // valid-intrinsics region ("factorization computation failed") and writes no models.
+  CalibrationData data = Detect();
+  std::erase_if(data.observations, [&](const BoardObservation& o) {
+    return static_cast<int>(o.detection.corner_ids.size()) < data.board.num_corners();
+  });
   CalibrationOptions options;
   const CalibrationSummary ours = Calibrate(data, options);
   const fs::path work = TempDir("mrcal_tool");
@@ -425,9 +430,16 @@ TEST_F(Ring, AWrongBoardSizeNeverReachesTheSolve) {
   wrong.squares_x += 2;
   wrong.squares_y += 2;
   const CalibrationData data = DetectViewsInFolder((*dir_ / "calibration").string(), wrong, {}, "");
-  EXPECT_TRUE(data.observations.empty()) << data.observations.size() << " views kept";
+  // Nearly every view is refused. A view showing only a few markers can be consistent with both
+  // layouts (the first row of markers is the same on a 7x5 and a 9x7 board) and pass; too few to
+  // calibrate, and the error says why the others were refused.
+  const CalibrationData right = Detect();
+  EXPECT_LT(data.observations.size(), right.observations.size() / 20)
+      << data.observations.size() << " views kept";
   const std::string e = ErrorOf([&] { Calibrate(data, CalibrationOptions{}); });
-  EXPECT_NE(e.find("never sees the board"), std::string::npos) << e;
+  EXPECT_TRUE(e.find("never sees the board") != std::string::npos ||
+              e.find("sees the board in only") != std::string::npos)
+      << e;
   EXPECT_NE(e.find("wrong board size"), std::string::npos) << e;
 }
 

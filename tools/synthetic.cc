@@ -492,23 +492,31 @@ bool SeesWholeBoard(const CameraModel& camera, const BoardSpec& board,
                                        0.5 * board.squares_y * board.square_m, 0);
   Eigen::Vector3d to_camera = (camera.center_in_rig() - center).normalized();
   if (normal_in_rig.dot(to_camera) < 0.3) return false;  // more oblique than ~72 degrees
+  // A chessboard is found only whole, with its white border; a ChArUco board is identified by its
+  // markers, so a view that shows most of its corners counts (views reaching the image edges are
+  // what pins the principal point and the distortion down).
   std::vector<Eigen::Vector3d> pts;
   double W = board.squares_x * board.square_m, H = board.squares_y * board.square_m,
          m = board.square_m;
-  for (const auto& c : {Eigen::Vector3d(-m, -m, 0), Eigen::Vector3d(W + m, -m, 0),
-                        Eigen::Vector3d(-m, H + m, 0), Eigen::Vector3d(W + m, H + m, 0)}) {
-    pts.push_back(rig_from_board * c);
+  const bool whole = board.type == BoardType::kChessboard;
+  if (whole) {
+    for (const auto& c : {Eigen::Vector3d(-m, -m, 0), Eigen::Vector3d(W + m, -m, 0),
+                          Eigen::Vector3d(-m, H + m, 0), Eigen::Vector3d(W + m, H + m, 0)}) {
+      pts.push_back(rig_from_board * c);
+    }
   }
   for (const auto& c : board.InnerCornersInBoard()) pts.push_back(rig_from_board * c);
   for (const auto& p : pts) {
     if (!camera.InFront(p)) return false;
   }
+  int inside = 0;
   for (const auto& q : camera.Project(pts)) {
-    if (!q.allFinite() || q.x() < margin_px || q.y() < margin_px ||
-        q.x() > camera.width() - 1 - margin_px || q.y() > camera.height() - 1 - margin_px) {
-      return false;
-    }
+    inside += q.allFinite() && q.x() >= margin_px && q.y() >= margin_px &&
+              q.x() <= camera.width() - 1 - margin_px && q.y() <= camera.height() - 1 - margin_px;
   }
+  if (whole ? inside < static_cast<int>(pts.size())
+            : inside < 0.6 * static_cast<double>(pts.size()))
+    return false;
   return true;
 }
 
