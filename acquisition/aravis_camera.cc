@@ -251,6 +251,33 @@ void AravisCamera::Configure(const CameraSettings& s) {
       arv_camera_set_trigger(cam, s.trigger_source.c_str(), &e);
       Check(e, impl_->id, "TriggerSource " + s.trigger_source);
       break;
+    case TriggerMode::kAction: {
+      // SFNC: the action keys the camera answers to, then the trigger on Action1; scheduled
+      // actions need the camera's PTP clock on.
+      auto set_int = [&](const char* feature, std::int64_t value) {
+        if (!impl_->Has(feature))
+          throw std::invalid_argument("aravis camera '" + impl_->id + "': has no " + feature +
+                                      " (it cannot take action commands)");
+        arv_device_set_integer_feature_value(impl_->device(), feature, value, &e);
+        Check(e, impl_->id, std::string(feature) + " " + std::to_string(value));
+      };
+      if (impl_->Has("ActionSelector")) set_int("ActionSelector", 1);
+      set_int("ActionDeviceKey", s.action_device_key);
+      set_int("ActionGroupKey", s.action_group_key);
+      set_int("ActionGroupMask", s.action_group_mask);
+      const char* ptp = impl_->Has("PtpEnable")     ? "PtpEnable"
+                        : impl_->Has("GevIEEE1588") ? "GevIEEE1588"
+                                                    : nullptr;
+      if (!ptp)
+        throw std::invalid_argument("aravis camera '" + impl_->id +
+                                    "': has no PtpEnable or GevIEEE1588 (no PTP clock for "
+                                    "scheduled action commands)");
+      arv_device_set_boolean_feature_value(impl_->device(), ptp, TRUE, &e);
+      Check(e, impl_->id, std::string(ptp) + " on");
+      arv_camera_set_trigger(cam, "Action1", &e);
+      Check(e, impl_->id, "TriggerSource Action1");
+      break;
+    }
   }
   // Free-run: the rate. Triggered: set too, as the camera's ceiling; a camera without the feature
   // runs at its own rate.
@@ -262,8 +289,11 @@ void AravisCamera::Configure(const CameraSettings& s) {
     Check(e, impl_->id, "AcquisitionFrameRate " + std::to_string(s.frame_rate_hz));
     // arv_camera_set_frame_rate may switch triggers off: put the trigger back.
     if (s.trigger != TriggerMode::kFreeRun) {
-      arv_camera_set_trigger(
-          cam, s.trigger == TriggerMode::kSoftware ? "Software" : s.trigger_source.c_str(), &e);
+      arv_camera_set_trigger(cam,
+                             s.trigger == TriggerMode::kSoftware ? "Software"
+                             : s.trigger == TriggerMode::kAction ? "Action1"
+                                                                 : s.trigger_source.c_str(),
+                             &e);
       Check(e, impl_->id, "TriggerSource");
     }
   }

@@ -23,9 +23,11 @@ struct CameraDescription {
   std::string vendor, model, address;
 };
 
-enum class TriggerMode { kFreeRun, kSoftware, kHardware };
+// kAction: a GigE Vision action command (acquisition/gige_action.h), scheduled on the PTP clock.
+enum class TriggerMode { kFreeRun, kSoftware, kHardware, kAction };
 const char* ToString(TriggerMode mode);
-TriggerMode TriggerModeFromName(const std::string& name);  // "free-run" | "software" | "hardware"
+// "free-run" | "software" | "hardware" | "action"
+TriggerMode TriggerModeFromName(const std::string& name);
 
 struct CameraSettings {
   int width = 640, height = 480;
@@ -36,7 +38,10 @@ struct CameraSettings {
   TriggerMode trigger = TriggerMode::kFreeRun;
   std::string trigger_source = "Line0";  // hardware trigger input
   int packet_size = 0;                   // GigE Vision packet size, 0 = the device's
-  void Validate() const;                 // throws std::invalid_argument naming the field
+  // kAction: the camera fires on action commands carrying these (SFNC ActionDeviceKey,
+  // ActionGroupKey, ActionGroupMask).
+  std::uint32_t action_device_key = 0, action_group_key = 1, action_group_mask = 0xffffffff;
+  void Validate() const;  // throws std::invalid_argument naming the field
 };
 
 struct StreamCounters {

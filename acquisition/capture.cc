@@ -78,6 +78,42 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
       static_cast<std::uint64_t>(r.NonNegative("max_recording_mb", 0) * (1 << 20));
   c.control = r.Get<std::string>("control", "");
   c.allow_remote = r.Get<bool>("allow_remote", false);
+  r.Seen("action");
+  if (const YAML::Node action = root["action"]) {
+    if (c.sync != SyncMode::kPtp)
+      throw std::invalid_argument(where +
+                                  ": 'action' (GigE Vision action commands) needs sync: ptp");
+    if (!action.IsMap()) throw std::invalid_argument(where + ": 'action' must be a mapping");
+    ConfigReader ar(action, where + ": action");
+    ActionConfig& a = c.action;
+    a.enabled = true;
+    // Decimal or 0x hexadecimal, as camera manuals write keys and masks.
+    auto key = [&](const char* name, std::uint32_t fallback) {
+      const std::string text = ar.Get<std::string>(name, std::to_string(fallback));
+      std::size_t used = 0;
+      unsigned long long v = 0;
+      try {
+        if (text.empty() || text[0] == '-') throw std::invalid_argument("negative");
+        v = std::stoull(text, &used, 0);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      if (used != text.size() || v > 0xffffffffULL)
+        throw std::invalid_argument(where + ": action: '" + name + "' (" + text +
+                                    ") must be an integer in [0, 2^32), decimal or 0x hex");
+      return static_cast<std::uint32_t>(v);
+    };
+    a.device_key = key("device_key", a.device_key);
+    a.group_key = key("group_key", a.group_key);
+    a.group_mask = key("group_mask", a.group_mask);
+    if (a.group_mask == 0)
+      throw std::invalid_argument(where + ": action: 'group_mask' 0 would fire no camera");
+    a.lead_ms = ar.Positive("lead_ms", a.lead_ms);
+    a.destination = ar.Get<std::string>("destination", a.destination);
+    a.port = static_cast<int>(ar.Positive("port", a.port));
+    if (a.port > 65535) throw std::invalid_argument(where + ": action: 'port' must be < 65536");
+    ar.CheckKnown();
+  }
   r.Seen("cameras");
   r.CheckKnown();
   const YAML::Node cams = root["cameras"];
@@ -124,6 +160,14 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     s.trigger = c.sync == SyncMode::kHardwareTrigger   ? TriggerMode::kHardware
                 : c.sync == SyncMode::kSoftwareTrigger ? TriggerMode::kSoftware
                                                        : TriggerMode::kFreeRun;
+    // Action commands reach GigE Vision cameras only; sim cameras stay free-run on the shared
+    // clock.
+    if (c.action.enabled && cc.driver == "aravis") {
+      s.trigger = TriggerMode::kAction;
+      s.action_device_key = c.action.device_key;
+      s.action_group_key = c.action.group_key;
+      s.action_group_mask = c.action.group_mask;
+    }
     try {
       s.Validate();
     } catch (const std::invalid_argument& e) {
@@ -269,6 +313,7 @@ std::string CaptureStatus::ToYaml() const {
       << incoming_queued << incoming_capacity << YAML::EndSeq;
   out << YAML::Key << "incoming_dropped" << YAML::Value << incoming_dropped;
   out << YAML::Key << "trigger_overruns" << YAML::Value << trigger_overruns;
+  out << YAML::Key << "action_commands" << YAML::Value << action_commands;
   out << YAML::Key << "rejected_sets" << YAML::Value << rejected_sets;
   if (!last_error.empty()) out << YAML::Key << "last_error" << YAML::Value << last_error;
   out << YAML::Key << "pretrigger_ring" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key
@@ -350,8 +395,17 @@ void CaptureDaemon::Start() {
     throw std::runtime_error("capture: camera '" + config_.cameras[c].name + "' (" +
                              config_.cameras[c].id + "): " + e.what());
   }
+  if (config_.sync == SyncMode::kPtp && config_.action.enabled) {
+    try {
+      action_sender_ = std::make_unique<ActionCommandSender>(
+          config_.action.destination, static_cast<std::uint16_t>(config_.action.port));
+    } catch (const std::exception& e) {
+      Stop();
+      throw std::runtime_error(std::string("capture: action commands: ") + e.what());
+    }
+  }
   if (config_.sync == SyncMode::kSoftwareTrigger ||
-      (config_.sync == SyncMode::kHardwareTrigger && bus_ != nullptr))
+      (config_.sync == SyncMode::kHardwareTrigger && bus_ != nullptr) || action_sender_)
     threads_.emplace_back([this] { TriggerLoop(); });
 }
 
@@ -435,7 +489,23 @@ void CaptureDaemon::TriggerLoop() {
       clock_->SleepUntil(std::min(next, clock_->MonotonicNs() + 50'000'000));
     if (!running_) break;
     const std::int64_t now = clock_->MonotonicNs();
-    if (config_.sync == SyncMode::kHardwareTrigger && bus_) {
+    if (action_sender_) {
+      // Scheduled on the PTP clock, lead_ms ahead, so that every camera fires at the same instant
+      // however late the datagram reaches each of them.
+      ActionCommand command;
+      command.device_key = config_.action.device_key;
+      command.group_key = config_.action.group_key;
+      command.group_mask = config_.action.group_mask;
+      command.action_time_ns =
+          PtpNowNs() + static_cast<std::uint64_t>(config_.action.lead_ms * 1e6);
+      try {
+        action_sender_->Send(command);
+        ++action_commands_;
+      } catch (const std::exception& e) {
+        std::lock_guard<std::mutex> lock(state_mutex_);
+        last_error_ = e.what();
+      }
+    } else if (config_.sync == SyncMode::kHardwareTrigger && bus_) {
       bus_->Fire(id, now);  // the simulated trigger line
     } else {
       for (auto& c : cameras_) c->SoftwareTrigger(id);
@@ -596,6 +666,7 @@ CaptureStatus CaptureDaemon::status() const {
   s.recorder = recorder_ ? recorder_->status() : last_recorder_status_;
   s.ring_sets = ring_.size();
   s.trigger_overruns = trigger_overruns_;
+  s.action_commands = action_commands_;
   s.rejected_sets = rejected_sets_;
   s.last_error = last_error_;
   s.ring_bytes = ring_bytes_;

@@ -32,6 +32,13 @@
 //   min_free_mb: 64
 //   sync_interval_s: 1
 //   control: unix:recordings/control.sock   # or tcp:127.0.0.1:PORT (loopback unless `allow_remote`)
+//   action:                       # sync: ptp only: trigger aravis cameras by scheduled GigE Vision
+//     device_key: 0               # action commands, trigger_rate_hz times a second, each to fire
+//     group_key: 1                # lead_ms ahead on the PTP clock (acquisition/gige_action.h);
+//     group_mask: 0xffffffff      # without it, ptp is free-run matched by device timestamps
+//     lead_ms: 20
+//     destination: 255.255.255.255   # the cameras' broadcast address (or one camera's)
+//     port: 3956
 //   cameras:
 //     - name: cam0
 //       driver: sim                # sim | aravis | v4l2
@@ -63,6 +70,7 @@
 
 #include "acquisition/camera.h"
 #include "acquisition/frame_set.h"
+#include "acquisition/gige_action.h"
 #include "acquisition/recording.h"
 #include "acquisition/sim_camera.h"
 
@@ -80,6 +88,14 @@ struct CaptureCameraConfig {
   SimCameraOptions sim;  // driver sim only
 };
 
+struct ActionConfig {
+  bool enabled = false;
+  std::uint32_t device_key = 0, group_key = 1, group_mask = 0xffffffff;
+  double lead_ms = 20;  // how far ahead of now (PTP time) each action is scheduled
+  std::string destination = "255.255.255.255";
+  int port = 3956;
+};
+
 struct CaptureConfig {
   std::string data_dir = "recordings";
   SyncMode sync = SyncMode::kSoftwareTrigger;
@@ -92,6 +108,7 @@ struct CaptureConfig {
   RecorderOptions recorder;
   std::string control;  // empty: unix:<data_dir>/control.sock
   bool allow_remote = false;
+  ActionConfig action;
   std::vector<CaptureCameraConfig> cameras;
   std::string source_yaml;  // the text it was parsed from (kept in every recording)
 
@@ -127,6 +144,7 @@ struct CaptureStatus {
   std::size_t incoming_queued = 0, incoming_capacity = 0;
   std::uint64_t incoming_dropped = 0;  // frames the assembler could not take in time
   std::uint64_t trigger_overruns = 0;  // trigger slots skipped because the trigger thread was late
+  std::uint64_t action_commands = 0;   // GigE Vision action commands sent (sync: ptp, action)
   std::uint64_t rejected_sets = 0;     // sets the recorder refused as malformed (see last_error)
   std::string last_error;
   std::size_t ring_sets = 0;
@@ -185,7 +203,9 @@ class CaptureDaemon {
   std::vector<std::unique_ptr<CameraState>> camera_state_;
   std::atomic<bool> running_{false};
   std::atomic<std::uint64_t> trigger_overruns_{0};
-  std::int64_t last_trigger_id_ = 0;  // used by the trigger thread only
+  std::atomic<std::uint64_t> action_commands_{0};
+  std::unique_ptr<ActionCommandSender> action_sender_;  // sync: ptp with action commands
+  std::int64_t last_trigger_id_ = 0;                    // used by the trigger thread only
 
   // camera threads -> assembler
   mutable std::mutex incoming_mutex_;

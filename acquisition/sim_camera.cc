@@ -23,14 +23,18 @@ const char* ToString(TriggerMode mode) {
       return "software";
     case TriggerMode::kHardware:
       return "hardware";
+    case TriggerMode::kAction:
+      return "action";
   }
   return "?";
 }
 
 TriggerMode TriggerModeFromName(const std::string& name) {
-  for (TriggerMode m : {TriggerMode::kFreeRun, TriggerMode::kSoftware, TriggerMode::kHardware})
+  for (TriggerMode m : {TriggerMode::kFreeRun, TriggerMode::kSoftware, TriggerMode::kHardware,
+                        TriggerMode::kAction})
     if (name == ToString(m)) return m;
-  throw std::invalid_argument("trigger mode '" + name + "': use free-run, software or hardware");
+  throw std::invalid_argument("trigger mode '" + name +
+                              "': use free-run, software, hardware or action");
 }
 
 void CameraSettings::Validate() const {
@@ -201,6 +205,9 @@ void SimCamera::Configure(const CameraSettings& settings) {
   } catch (const std::invalid_argument& e) {
     throw std::invalid_argument("sim camera '" + options_.id + "': " + e.what());
   }
+  if (settings.trigger == TriggerMode::kAction)
+    throw std::invalid_argument("sim camera '" + options_.id +
+                                "': GigE Vision action commands reach real cameras only");
   if (settings.trigger == TriggerMode::kHardware && !bus_) {
     throw std::invalid_argument("sim camera '" + options_.id +
                                 "': hardware trigger needs a trigger bus (TriggerSource " +
