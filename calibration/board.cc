@@ -54,34 +54,40 @@ BoardSpec LoadBoardSpec(const std::string& yaml_path) {
   } catch (const YAML::Exception& e) {
     throw std::runtime_error(yaml_path + ": cannot read the board description: " + e.what());
   }
-  YAML::Node node = root["board"] ? root["board"] : root;
-  if (!node.IsMap()) throw std::runtime_error(yaml_path + ": 'board' must be a map");
+  const YAML::Node node = root["board"] ? root["board"] : root;
   try {
-    ConfigReader r(node, yaml_path + ": board");
-    BoardSpec b;
-    const std::string type = r.Get<std::string>("type", "charuco");
-    if (type == "charuco")
-      b.type = BoardType::kCharuco;
-    else if (type == "chessboard")
-      b.type = BoardType::kChessboard;
-    else
-      throw std::invalid_argument(yaml_path + ": board: 'type' must be charuco or chessboard");
-    const auto squares = r.Get<std::vector<int>>("squares", {b.squares_x, b.squares_y});
-    if (squares.size() != 2)
-      throw std::invalid_argument(yaml_path + ": board: 'squares' must be [x, y]");
-    b.squares_x = squares[0];
-    b.squares_y = squares[1];
-    b.square_m = r.Positive("square_m", b.square_m);
-    b.marker_m = r.Positive("marker_m", b.marker_m);
-    b.aruco_dictionary = r.Get<int>("aruco_dictionary", b.aruco_dictionary);
-    r.Seen("frame");  // free text written by `flamerig simulate`
-    r.CheckKnown();
-    b.Validate();
-    return b;
+    return ParseBoardSpec(node, yaml_path + ": board");
   } catch (const std::invalid_argument& e) {
-    const std::string what = e.what();
-    throw std::runtime_error(what.rfind(yaml_path, 0) == 0 ? what : yaml_path + ": " + what);
+    throw std::runtime_error(e.what());
   }
+}
+
+BoardSpec ParseBoardSpec(const YAML::Node& node, const std::string& where) {
+  if (!node.IsMap()) throw std::invalid_argument(where + ": must be a map");
+  ConfigReader r(node, where);
+  BoardSpec b;
+  const std::string type = r.Get<std::string>("type", "charuco");
+  if (type == "charuco")
+    b.type = BoardType::kCharuco;
+  else if (type == "chessboard")
+    b.type = BoardType::kChessboard;
+  else
+    throw std::invalid_argument(where + ": 'type' must be charuco or chessboard");
+  const auto squares = r.Get<std::vector<int>>("squares", {b.squares_x, b.squares_y});
+  if (squares.size() != 2) throw std::invalid_argument(where + ": 'squares' must be [x, y]");
+  b.squares_x = squares[0];
+  b.squares_y = squares[1];
+  b.square_m = r.Positive("square_m", b.square_m);
+  b.marker_m = r.Positive("marker_m", b.marker_m);
+  b.aruco_dictionary = r.Get<int>("aruco_dictionary", b.aruco_dictionary);
+  r.Seen("frame");  // free text written by `flamerig simulate`
+  r.CheckKnown();
+  try {
+    b.Validate();
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(where + ": " + e.what());
+  }
+  return b;
 }
 
 namespace {

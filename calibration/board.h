@@ -23,6 +23,8 @@
 #ifndef FLAMERIG_CALIBRATION_BOARD_H_
 #define FLAMERIG_CALIBRATION_BOARD_H_
 
+#include <yaml-cpp/yaml.h>
+
 #include <Eigen/Core>
 #include <string>
 #include <vector>
@@ -58,6 +60,9 @@ struct BoardSpec {
 //   board: {type: charuco, squares: [7, 5], square_m: 0.012, marker_m: 0.009, aruco_dictionary: 0}
 // Errors (std::runtime_error) name the file, the key and the rule.
 BoardSpec LoadBoardSpec(const std::string& yaml_path);
+// The same from a YAML map already read (the `board:` map of another config); errors
+// (std::invalid_argument) start with `where`.
+BoardSpec ParseBoardSpec(const YAML::Node& node, const std::string& where);
 
 // Corners of one board found in one image.
 struct BoardDetection {

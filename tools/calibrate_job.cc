@@ -66,24 +66,7 @@ CalibrateConfig CalibrateConfig::Load(const std::string& path) {
     c.options.ring_origin_m = ReadVector3(node["ring_origin"], where + ".ring_origin");
   if (node["board"] && node["board_file"])
     throw std::invalid_argument(where + ": give 'board' or 'board_file', not both");
-  if (node["board"]) {
-    // Parsed by the board reader from a temporary document, so that its errors name the keys.
-    YAML::Emitter e;
-    e << YAML::BeginMap << YAML::Key << "board" << YAML::Value << node["board"] << YAML::EndMap;
-    const fs::path tmp =
-        fs::temp_directory_path() / ("flamerig_board_" + std::to_string(::getpid()) + ".yaml");
-    std::ofstream(tmp) << e.c_str();
-    try {
-      c.board = LoadBoardSpec(tmp.string());
-    } catch (const std::exception& ex) {
-      fs::remove(tmp);
-      std::string what = ex.what();
-      const std::string prefix = tmp.string() + ": ";
-      if (what.rfind(prefix, 0) == 0) what = what.substr(prefix.size());
-      throw std::invalid_argument(where + ".board: " + what);
-    }
-    fs::remove(tmp);
-  }
+  if (node["board"]) c.board = ParseBoardSpec(node["board"], where + ".board");
   if (node["board_file"]) {
     fs::path f = node["board_file"].as<std::string>();
     if (f.is_relative()) f = fs::path(path).parent_path() / f;
