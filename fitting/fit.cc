@@ -199,7 +199,7 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
 // cover start from the emission.
 void Resample(const State& from, const std::vector<float>& emission, const ThinEmissionTable& table,
               double exposure_tomography, double n_min, double n_max, const FitOptions& options,
-              State* to) {
+              State* to, bool density_from_emission = false) {
   // Pack (T, ln n, 1) per voxel so that the emission resampler carries them, then normalise by
   // the coverage channel.
   std::vector<float> packed(from.grid.num_voxels() * 3, 0.0f);
@@ -209,7 +209,10 @@ void Resample(const State& from, const std::vector<float>& emission, const ThinE
     p[1] = static_cast<float>(std::log(from.n[a]));
     p[2] = 1.0f;
   }
-  std::vector<float> up = ResampleEmission(from.grid, packed, to->grid);
+  // On the same grid (a warm start from the previous frame) the values carry over exactly.
+  std::vector<float> up = from.grid.SameVoxels(to->grid)
+                              ? std::move(packed)
+                              : ResampleEmission(from.grid, packed, to->grid);
   State fresh;
   fresh.grid = to->grid;
   fresh.active = to->active;
@@ -224,7 +227,17 @@ void Resample(const State& from, const std::vector<float>& emission, const ThinE
     const float* p = &up[3 * to->active[a]];
     if (p[2] > 0.5f) {
       to->t[a] = p[0] / p[2];
-      to->n[a] = std::clamp(std::exp(double(p[1]) / p[2]), n_min, n_max);
+      if (density_from_emission) {
+        // This frame's brightness at the carried temperature, in units of the carried exposure.
+        const double per_density =
+            table.RgbPerDensity(to->t[a]).dot(Eigen::Vector3d(0.2126, 0.7152, 0.0722));
+        const double b = per_density > 0
+                             ? std::max(0.0, Luminance(&emission[3 * to->active[a]])) / per_density
+                             : 0.0;
+        to->n[a] = std::clamp(b * exposure_tomography / from.s, n_min, n_max);
+      } else {
+        to->n[a] = std::clamp(std::exp(double(p[1]) / p[2]), n_min, n_max);
+      }
     } else {
       to->n[a] = std::clamp(to->n[a] * rescale, n_min, n_max);
     }
@@ -437,8 +450,10 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     FitObjective objective(st.grid, st.active, views, absorption, options.render,
                            options.objective);
     if (have_previous) {
+      // From another frame (level 0 of a warm start): the temperatures carry over, the densities
+      // follow this frame's brightness (options.warm_start_density_from_emission).
       Resample(previous, emission, table, s_tomo, objective.n_min(), objective.n_max(), options,
-               &st);
+               &st, warm_start && level == 0 && options.warm_start_density_from_emission);
     } else {
       InitialiseFromEmission(emission, table, s_tomo, objective.n_min(), objective.n_max(), options,
                              &st);

@@ -113,6 +113,11 @@ struct FitOptions {
   // with it, at 128^3 the density term outweighs the data and the fitted views' Delta E rises
   // (0.30 -> 0.50 measured).
   bool density_pairwise = false;
+  // Warm start from another frame: the previous temperatures carry over, and each voxel's density
+  // is what this frame's tomography brightness implies at that temperature (true), or the previous
+  // density carries over too (false). The fire moves between frames; its temperature field
+  // changes less than where the soot is.
+  bool warm_start_density_from_emission = true;
   void Validate() const;  // throws std::invalid_argument naming the field
 };
 

@@ -3,10 +3,15 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include <zlib.h>
+
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <sstream>
 #include <stdexcept>
 
@@ -124,6 +129,7 @@ struct Reconstructor::Level {
   std::vector<std::vector<std::uint8_t>> envelope_pixels;  // per solve camera
   std::vector<int> cameras;  // the rig indices the matrix was built for
   SystemMatrix holdout;
+  std::vector<std::uint8_t> holdout_pixels;  // the held-out camera's pixels it was built for
   bool has_holdout = false;
   VoxelProjections projections;  // every rig camera, computed on first use
 };
@@ -285,28 +291,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
         for (std::size_t c = 0; c < cams.size(); ++c)
           pixels[c] = Union(level->envelope_pixels[c], pixels[c]);
       }
-      const std::uint64_t key = SystemMatrix::Key(g, solve_rays, pixels, envelope, options_.matrix);
-      std::string path;
-      bool loaded = false;
-      if (!options_.cache_dir.empty()) {
-        std::filesystem::create_directories(options_.cache_dir);
-        path =
-            (std::filesystem::path(options_.cache_dir) / ("system_matrix_" + HexKey(key) + ".bin"))
-                .string();
-        loaded = level->a.Load(path, key);
-      }
-      if (loaded) {
-        source = "disk cache";
-      } else {
-        level->a = SystemMatrix::Build(g, solve_rays, pixels, envelope, options_.matrix);
-        source = "built";
-        if (!path.empty()) level->a.Save(path);
-      }
-      level->envelope_voxels = std::move(envelope);
-      level->envelope_pixels = std::move(pixels);
-      level->cameras = solve_cameras;
-      level->has_matrix = true;
-      level->has_holdout = false;
+      source = MakeMatrix(level, solve_cameras, std::move(pixels), std::move(envelope));
     }
     const SystemMatrix& a = level->a;
     if (use_holdout && !level->has_holdout) {
@@ -314,10 +299,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
       // rest of its image is background that the hull already keeps dark.
       FireMask mask =
           ComputeFireMask(g, rig_.cameras[holdout_index_], frames[holdout_index_], options_.hull);
-      std::vector<std::vector<std::uint8_t>> pixels(1, std::move(mask.mask));
-      level->holdout = SystemMatrix::Build(g, {rays_[holdout_index_].get()}, pixels,
-                                           level->envelope_voxels, options_.matrix);
-      level->has_holdout = true;
+      MakeHoldoutMatrix(level, std::move(mask.mask));
     }
     summary.matrix_ms += Ms(t0);
     if (is_fine) {
@@ -516,6 +498,221 @@ std::vector<float> ResampleEmission(const GridGeometry& from,
       }
   });
   return out;
+}
+
+}  // namespace flamerig
+
+namespace flamerig {
+
+namespace {
+
+// The state file: "FRRS", version, the state key, then per level (fine, coarse) its masks; all
+// masks as bits, lengths as uint64; a CRC-32 of everything before it at the end.
+constexpr char kStateMagic[4] = {'F', 'R', 'R', 'S'};
+constexpr std::uint32_t kStateVersion = 1;
+
+class StateWriter {
+ public:
+  template <typename T>
+  void Value(const T& v) {
+    const char* p = reinterpret_cast<const char*>(&v);
+    bytes_.insert(bytes_.end(), p, p + sizeof(T));
+  }
+  void Mask(const std::vector<std::uint8_t>& mask) {
+    Value(static_cast<std::uint64_t>(mask.size()));
+    std::vector<char> bits((mask.size() + 7) / 8, 0);
+    for (std::size_t i = 0; i < mask.size(); ++i)
+      if (mask[i]) bits[i / 8] = static_cast<char>(bits[i / 8] | (1 << (i % 8)));
+    bytes_.insert(bytes_.end(), bits.begin(), bits.end());
+  }
+  const std::vector<char>& bytes() const { return bytes_; }
+
+ private:
+  std::vector<char> bytes_;
+};
+
+class StateReader {
+ public:
+  StateReader(const std::vector<char>& bytes, const std::string& path)
+      : bytes_(bytes), path_(path) {}
+  template <typename T>
+  T Value() {
+    Need(sizeof(T));
+    T v;
+    std::memcpy(&v, bytes_.data() + at_, sizeof(T));
+    at_ += sizeof(T);
+    return v;
+  }
+  std::vector<std::uint8_t> Mask(std::size_t max_size) {
+    const auto n = Value<std::uint64_t>();
+    if (n > max_size) Fail("a mask of " + std::to_string(n) + " entries");
+    Need((n + 7) / 8);
+    std::vector<std::uint8_t> mask(n);
+    for (std::size_t i = 0; i < n; ++i) mask[i] = (bytes_[at_ + i / 8] >> (i % 8)) & 1;
+    at_ += (n + 7) / 8;
+    return mask;
+  }
+  [[noreturn]] void Fail(const std::string& what) const {
+    throw std::runtime_error(path_ + ": reconstructor state is corrupt (" + what + " at byte " +
+                             std::to_string(at_) + ")");
+  }
+
+ private:
+  void Need(std::size_t n) const {
+    if (at_ + n > bytes_.size()) Fail("truncated");
+  }
+  const std::vector<char>& bytes_;
+  std::string path_;
+  std::size_t at_ = 0;
+};
+
+}  // namespace
+
+std::uint64_t Reconstructor::StateKey() const {
+  // The grid and the options that shape envelopes and matrices; the rig through the key of a matrix
+  // over all its cameras' rays with empty masks (cheap: no matrix is built).
+  std::vector<const CameraRays*> rays;
+  std::vector<std::vector<std::uint8_t>> pixels;
+  for (const auto& r : rays_) {
+    rays.push_back(r.get());
+    pixels.emplace_back();
+  }
+  std::uint64_t key = SystemMatrix::Key(grid_, rays, pixels, {}, options_.matrix);
+  const double numbers[] = {static_cast<double>(options_.envelope_margin_voxels),
+                            options_.envelope_pixel_tolerance, static_cast<double>(holdout_index_),
+                            static_cast<double>(coarse_ != nullptr)};
+  for (double v : numbers) {
+    std::uint64_t bits;
+    std::memcpy(&bits, &v, sizeof bits);
+    key = (key ^ bits) * 1099511628211ull;
+  }
+  return key;
+}
+
+std::string Reconstructor::MakeMatrix(Level* level, const std::vector<int>& cameras,
+                                      std::vector<std::vector<std::uint8_t>> pixels,
+                                      std::vector<std::uint8_t> envelope) {
+  std::vector<const CameraRays*> rays;
+  for (int c : cameras) rays.push_back(rays_[c].get());
+  const GridGeometry& g = level->grid;
+  const std::uint64_t key = SystemMatrix::Key(g, rays, pixels, envelope, options_.matrix);
+  std::string path;
+  bool loaded = false;
+  if (!options_.cache_dir.empty()) {
+    std::filesystem::create_directories(options_.cache_dir);
+    path = (std::filesystem::path(options_.cache_dir) / ("system_matrix_" + HexKey(key) + ".bin"))
+               .string();
+    loaded = level->a.Load(path, key);
+  }
+  std::string source = "disk cache";
+  if (!loaded) {
+    level->a = SystemMatrix::Build(g, rays, pixels, envelope, options_.matrix);
+    source = "built";
+    if (!path.empty()) level->a.Save(path);
+  }
+  level->envelope_voxels = std::move(envelope);
+  level->envelope_pixels = std::move(pixels);
+  level->cameras = cameras;
+  level->has_matrix = true;
+  level->has_holdout = false;
+  level->holdout_pixels.clear();
+  return source;
+}
+
+void Reconstructor::MakeHoldoutMatrix(Level* level, std::vector<std::uint8_t> pixels) {
+  level->holdout = SystemMatrix::Build(level->grid, {rays_[holdout_index_].get()}, {pixels},
+                                       level->envelope_voxels, options_.matrix);
+  level->holdout_pixels = std::move(pixels);
+  level->has_holdout = true;
+}
+
+void Reconstructor::SaveState(const std::string& path) const {
+  StateWriter w;
+  for (char c : kStateMagic) w.Value(c);
+  w.Value(kStateVersion);
+  w.Value(StateKey());
+  for (const Level* level : {fine_.get(), coarse_.get()}) {
+    const bool has = level && level->has_matrix;
+    w.Value(static_cast<std::uint8_t>(has));
+    if (!has) continue;
+    w.Value(static_cast<std::uint64_t>(level->cameras.size()));
+    for (std::size_t c = 0; c < level->cameras.size(); ++c) {
+      w.Value(static_cast<std::int32_t>(level->cameras[c]));
+      w.Mask(level->envelope_pixels[c]);
+    }
+    w.Mask(level->envelope_voxels);
+    w.Value(static_cast<std::uint8_t>(level->has_holdout));
+    if (level->has_holdout) w.Mask(level->holdout_pixels);
+  }
+  std::vector<char> bytes = w.bytes();
+  const std::uint32_t crc = static_cast<std::uint32_t>(
+      crc32_z(0, reinterpret_cast<const Bytef*>(bytes.data()), bytes.size()));
+  const char* p = reinterpret_cast<const char*>(&crc);
+  bytes.insert(bytes.end(), p, p + sizeof crc);
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+    out.close();
+    if (!out) {
+      std::filesystem::remove(tmp);
+      throw std::runtime_error(path + ": cannot write the reconstructor state (disk full?)");
+    }
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) throw std::runtime_error(path + ": " + ec.message());
+}
+
+void Reconstructor::LoadState(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(path + ": cannot read the reconstructor state");
+  std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (bytes.size() < 4 + 4 + 8 + 4)
+    throw std::runtime_error(path + ": reconstructor state is truncated");
+  std::uint32_t crc;
+  std::memcpy(&crc, bytes.data() + bytes.size() - 4, 4);
+  bytes.resize(bytes.size() - 4);
+  if (crc != static_cast<std::uint32_t>(
+                 crc32_z(0, reinterpret_cast<const Bytef*>(bytes.data()), bytes.size())))
+    throw std::runtime_error(path + ": reconstructor state fails its checksum");
+  StateReader r(bytes, path);
+  for (char c : kStateMagic)
+    if (r.Value<char>() != c) r.Fail("not a reconstructor state file");
+  if (r.Value<std::uint32_t>() != kStateVersion) r.Fail("unknown version");
+  if (r.Value<std::uint64_t>() != StateKey())
+    throw std::runtime_error(path +
+                             ": reconstructor state was saved for another rig, grid or options");
+  for (Level* level : {fine_.get(), coarse_.get()}) {
+    const bool has = r.Value<std::uint8_t>() != 0;
+    if (!has) {
+      if (level) level->has_matrix = level->has_holdout = false;
+      continue;
+    }
+    if (!level) r.Fail("a coarse level this reconstructor does not have");
+    const std::size_t pixels_per_camera = 1u << 28;
+    const auto ncam = r.Value<std::uint64_t>();
+    if (ncam > rays_.size()) r.Fail("more cameras than the rig has");
+    std::vector<int> cameras;
+    std::vector<std::vector<std::uint8_t>> pixels;
+    for (std::size_t c = 0; c < ncam; ++c) {
+      const int index = r.Value<std::int32_t>();
+      if (index < 0 || index >= static_cast<int>(rays_.size())) r.Fail("a camera index");
+      cameras.push_back(index);
+      pixels.push_back(r.Mask(pixels_per_camera));
+      const std::size_t n =
+          static_cast<std::size_t>(rays_[index]->width()) * rays_[index]->height();
+      if (pixels.back().size() != n) r.Fail("a pixel mask of the wrong size");
+    }
+    std::vector<std::uint8_t> envelope = r.Mask(level->grid.num_voxels());
+    if (envelope.size() != level->grid.num_voxels()) r.Fail("a voxel mask of the wrong size");
+    const bool has_holdout = r.Value<std::uint8_t>() != 0;
+    std::vector<std::uint8_t> holdout;
+    if (has_holdout) holdout = r.Mask(pixels_per_camera);
+    if (has_holdout && holdout_index_ < 0) r.Fail("a held-out camera this reconstructor lacks");
+    MakeMatrix(level, cameras, std::move(pixels), std::move(envelope));
+    if (has_holdout) MakeHoldoutMatrix(level, std::move(holdout));
+  }
 }
 
 }  // namespace flamerig

@@ -84,6 +84,17 @@ class Reconstructor {
   FireVolume Reconstruct(const std::vector<LinearFrame>& frames, ReconstructSummary* summary,
                          const FireVolume* warm_start = nullptr);
 
+  // The state that the next frame's result depends on besides its images and warm start: per grid
+  // level, the envelope its system matrix was built for (voxels, each camera's pixels, the held-out
+  // camera's pixels) and the cameras it covers. A run stopped after a frame saves it and resumes
+  // with exactly what an uninterrupted run would have had. SaveState writes a checksummed binary
+  // file (to path.tmp, then renamed; std::runtime_error naming the path on I/O failure).
+  // LoadState reads one back and rebuilds the matrices for it (from cache_dir when they are
+  // there); it throws std::runtime_error naming the file when it is unreadable, corrupt, or was
+  // saved for another rig, grid or set of options.
+  void SaveState(const std::string& path) const;
+  void LoadState(const std::string& path);
+
   const GridGeometry& grid() const { return grid_; }
   const Rig& rig() const { return rig_; }
 
@@ -93,6 +104,13 @@ class Reconstructor {
   ReconstructOptions options_;
   GridGeometry grid_;
   std::vector<std::unique_ptr<CameraRays>> rays_;
+  // The matrix of `level` for `envelope` and the cameras' `pixels`: from the disk cache when it
+  // is there, else built (and cached). Returns "disk cache" or "built".
+  std::string MakeMatrix(Level* level, const std::vector<int>& cameras,
+                         std::vector<std::vector<std::uint8_t>> pixels,
+                         std::vector<std::uint8_t> envelope);
+  void MakeHoldoutMatrix(Level* level, std::vector<std::uint8_t> pixels);
+  std::uint64_t StateKey() const;  // what a saved state must have been saved for
   std::unique_ptr<Level> fine_, coarse_;
   int holdout_index_ = -1;
 };

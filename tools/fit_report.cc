@@ -100,7 +100,8 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
                                       const std::vector<FitView>& fitted,
                                       const std::vector<FitView>& held_out,
                                       const AbsorptionModel& absorption,
-                                      const RenderOptions& render, const std::string& title) {
+                                      const RenderOptions& render, const std::string& title,
+                                      std::vector<ImageU8>* rendered_out) {
   const FireVolume& v = result.volume;
   FireRenderer renderer(absorption, render);
   renderer.SetVolume(v.geometry, v.temperature_k, v.density_per_m3);
@@ -147,6 +148,7 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
     tiles.push_back(view.image);
     tiles.push_back(rendered);
     tiles.push_back(heat);
+    if (rendered_out) rendered_out->push_back(rendered);
   }
   if (dir.empty()) return scores;
   fs::create_directories(dir);
@@ -177,6 +179,44 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
   md << "\n![views: input, rendered, Delta E x10 (red above 25)](views.png)\n\n"
         "![error against time](error.png)\n";
   return scores;
+}
+
+}  // namespace flamerig
+
+namespace flamerig {
+
+TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
+  TruthError out;
+  if (truth.temperature_k.empty() || truth.density_per_m3.empty() || fitted.temperature_k.empty() ||
+      fitted.density_per_m3.empty()) {
+    out.why_not = "a volume lacks temperature or density";
+    return out;
+  }
+  if (!truth.geometry.SameVoxels(fitted.geometry)) {
+    out.why_not = "the volumes are on different grids";
+    return out;
+  }
+  const std::vector<float>& e = truth.emission_rgb;
+  double peak = 0;
+  for (std::size_t v = 0; !e.empty() && v < truth.geometry.num_voxels(); ++v)
+    peak = std::max(peak, double(e[3 * v + 1]));
+  double se = 0, bias = 0;
+  for (std::size_t v = 0; v < truth.geometry.num_voxels(); ++v) {
+    if (truth.temperature_k[v] < 1300 || !(truth.density_per_m3[v] > 0)) continue;
+    if (!e.empty() && e[3 * v + 1] < 0.01 * peak) continue;
+    ++out.visible;
+    if (!(fitted.density_per_m3[v] > 0)) continue;
+    const double d = double(fitted.temperature_k[v]) - truth.temperature_k[v];
+    se += d * d;
+    bias += d;
+    ++out.counted;
+  }
+  out.compared = true;
+  if (out.counted) {
+    out.rms_k = std::sqrt(se / out.counted);
+    out.mean_k = bias / out.counted;
+  }
+  return out;
 }
 
 }  // namespace flamerig

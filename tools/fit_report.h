@@ -32,12 +32,27 @@ struct ViewScore {
 
 // Renders `result.volume` through each view at `result.exposure`, scores it and, when `dir` is
 // not empty, writes <dir>/views.png (input | rendered | Delta E x10 per view), <dir>/error.png
-// (mean Delta E against time), <dir>/trace.csv and <dir>/report.md. Returns the scores.
+// (mean Delta E against time), <dir>/trace.csv and <dir>/report.md. Returns the scores, and the
+// rendered 8-bit views (fitted, then held out) through *rendered when not null.
 std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& result,
                                       const std::vector<FitView>& fitted,
                                       const std::vector<FitView>& held_out,
                                       const AbsorptionModel& absorption,
-                                      const RenderOptions& render, const std::string& title);
+                                      const RenderOptions& render, const std::string& title,
+                                      std::vector<ImageU8>* rendered = nullptr);
+
+// A fitted volume's temperature against a ground truth on the same voxels, where it can be judged:
+// the visible voxels (truth >= 1300 K with soot, and, when the truth has an emission grid, at least
+// 1% of its peak emission: cooler or fainter voxels leave no trace in 8-bit images,
+// notes/physics.md) in which the fit put medium.
+struct TruthError {
+  bool compared = false;  // false: other grid, or no temperature in either
+  std::string why_not;
+  std::size_t visible = 0;       // visible voxels of the truth
+  std::size_t counted = 0;       // of those, where the fit has medium
+  double rms_k = 0, mean_k = 0;  // fit - truth
+};
+TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted);
 
 }  // namespace flamerig
 

@@ -33,6 +33,8 @@
 #include "tools/calibrate_job.h"
 #include "tools/export.h"
 #include "tools/fit_report.h"
+#include "tools/run_job.h"
+#include "tools/run_report.h"
 #include "tools/simulate.h"
 
 namespace fs = std::filesystem;
@@ -65,6 +67,16 @@ commands:
         fit (default) or the paper's Algorithm 1 or 2. The tomography is reconstructed from the
         fitted views unless given. Writes F.vdb (temperature, density; exposure in metadata) and a
         report (input, rendered and Delta E images per view and held-out view, error against time).
+  run (--recording DIR | --seq A.seq,B.seq [--names CAM,CAM] | --images DIR)
+      (--rig RIG.yaml | --calibration-recording DIR | --calibration-images DIR [--board B.yaml]
+       [--calibrate-config C.yaml]) --out OUT [--first N] [--count N] [--resolution N]
+      [--exposure S] [--absorption soot|grey] [--iterations N] [--holdout CAMERA] [--truth DIR]
+      [--no-skip-unchanged] [--no-blender] [--cold] [--threads N]
+        The daily job: every frame set of a recording through tomography and the fit (warm
+        started from the previous frame) into OUT/frame_NNNNNN.vdb, a Blender-ready sequence in
+        OUT/blender/, a summary line per frame and OUT/report/index.html. Stopped runs resume at
+        the first frame without a complete output. Under `mpirun -n N` the frames are split into
+        contiguous runs per rank. --truth: ground-truth volumes of a simulated recording.
   capture --config RIG.yaml [--record NAME | --event NAME] [--duration S]
         Run the capture daemon: open the cameras of the config (see config/capture_sim.yaml),
         stream, assemble frame sets and serve the control API (`flamerig ctl`). --record starts
@@ -244,20 +256,6 @@ void ReadFrameSet(const Rig& rig, const std::string& dir, double exposure, const
   }
 }
 
-// The absorption model recorded in dataset.yaml beside a rig file ("soot" when there is none).
-std::string DatasetAbsorption(const std::string& rig_path) {
-  fs::path dataset = fs::path(rig_path).parent_path() / "dataset.yaml";
-  if (!fs::exists(dataset)) return "soot";
-  try {
-    YAML::Node root = YAML::LoadFile(dataset.string());
-    if (root["dataset"] && root["dataset"]["absorption"])
-      return root["dataset"]["absorption"].as<std::string>();
-  } catch (const YAML::Exception& e) {
-    throw std::runtime_error(dataset.string() + ": " + e.what());
-  }
-  return "soot";
-}
-
 std::vector<std::string> SplitList(const std::string& text) {
   std::vector<std::string> out;
   std::stringstream ss(text);
@@ -265,22 +263,6 @@ std::vector<std::string> SplitList(const std::string& text) {
   while (std::getline(ss, item, ','))
     if (!item.empty()) out.push_back(item);
   return out;
-}
-
-// The exposure recorded in dataset.yaml beside a rig file, if any.
-bool DatasetExposure(const std::string& rig_path, double* exposure) {
-  fs::path dataset = fs::path(rig_path).parent_path() / "dataset.yaml";
-  if (!fs::exists(dataset)) return false;
-  try {
-    YAML::Node root = YAML::LoadFile(dataset.string());
-    if (root["dataset"] && root["dataset"]["exposure"]) {
-      *exposure = root["dataset"]["exposure"].as<double>();
-      return true;
-    }
-  } catch (const YAML::Exception& e) {
-    throw std::runtime_error(dataset.string() + ": " + e.what());
-  }
-  return false;
 }
 
 int Reconstruct(const Args& args) {
@@ -530,36 +512,110 @@ int Fit(const Args& args) {
   std::printf("  report: %s/report.md\n", report.c_str());
   if (args.named.count("truth")) {
     const FireVolume truth = ReadVdb(args.Get("truth", ""));
-    if (!truth.geometry.SameVoxels(result.volume.geometry) || truth.temperature_k.empty()) {
-      std::printf("  truth: %s is on another grid or has no temperature; not compared\n",
-                  args.Get("truth", "").c_str());
-    } else {
-      // Visible voxels: hot enough to be seen (>= 1300 K) and emitting at least 1% of the
-      // brightest voxel.
-      const std::vector<float> e = truth.emission_rgb;
-      double peak = 0;
-      for (std::size_t v = 0; !e.empty() && v < truth.geometry.num_voxels(); ++v)
-        peak = std::max(peak, double(e[3 * v + 1]));
-      double se = 0, bias = 0;
-      std::size_t count = 0, visible = 0;
-      for (std::size_t v = 0; v < truth.geometry.num_voxels(); ++v) {
-        if (truth.temperature_k[v] < 1300 || truth.density_per_m3[v] <= 0) continue;
-        if (!e.empty() && e[3 * v + 1] < 0.01 * peak) continue;
-        ++visible;
-        if (!(result.volume.density_per_m3[v] > 0)) continue;
-        const double d = double(result.volume.temperature_k[v]) - truth.temperature_k[v];
-        se += d * d;
-        bias += d;
-        ++count;
-      }
-      if (count) {
-        std::printf(
-            "  temperature against %s on the %zu of %zu visible voxels (>= 1300 K, >= 1%% "
-            "of the peak emission) with medium: RMS %.1f K, mean %+.1f K\n",
-            args.Get("truth", "").c_str(), count, visible, std::sqrt(se / count), bias / count);
-      }
+    const TruthError t = CompareWithTruth(truth, result.volume);
+    if (!t.compared) {
+      std::printf("  truth: %s not compared: %s\n", args.Get("truth", "").c_str(),
+                  t.why_not.c_str());
+    } else if (t.counted) {
+      std::printf(
+          "  temperature against %s on the %zu of %zu visible voxels (>= 1300 K, >= 1%% "
+          "of the peak emission) with medium: RMS %.1f K, mean %+.1f K\n",
+          args.Get("truth", "").c_str(), t.counted, t.visible, t.rms_k, t.mean_k);
     }
   }
+  return 0;
+}
+
+// `flamerig run`: see tools/run_job.h.
+int Run(const Args& args) {
+  args.CheckKnown({"recording",
+                   "seq",
+                   "names",
+                   "images",
+                   "rig",
+                   "calibration-recording",
+                   "calibration-images",
+                   "board",
+                   "calibrate-config",
+                   "out",
+                   "first",
+                   "count",
+                   "resolution",
+                   "exposure",
+                   "absorption",
+                   "iterations",
+                   "holdout",
+                   "truth",
+                   "no-skip-unchanged",
+                   "no-blender",
+                   "threads",
+                   "cold"});
+  RunOptions o;
+  o.source.recording_dir = args.Get("recording", "");
+  o.source.seq_files = SplitList(args.Get("seq", ""));
+  o.source.seq_names = SplitList(args.Get("names", ""));
+  o.source.images_dir = args.Get("images", "");
+  o.rig_path = args.Get("rig", "");
+  o.calibration.recording_dir = args.Get("calibration-recording", "");
+  o.calibration.images_dir = args.Get("calibration-images", "");
+  if (args.named.count("calibrate-config"))
+    o.calibrate = CalibrateConfig::Load(args.Get("calibrate-config", ""));
+  if (args.named.count("board")) o.calibrate.board = LoadBoardSpec(args.Get("board", ""));
+  o.out_dir = args.Required("out");
+  auto integer = [&](const std::string& key) {
+    const double v = ParseNumber(args.Get(key, ""), "--" + key);
+    if (v < 0 || v != std::floor(v)) throw std::invalid_argument("--" + key + " must be a count");
+    return static_cast<std::size_t>(v);
+  };
+  if (args.named.count("first")) o.first = integer("first");
+  if (args.named.count("count")) o.count = integer("count");
+  if (args.named.count("resolution"))
+    o.reconstruct.resolution = static_cast<int>(integer("resolution"));
+  if (args.named.count("exposure"))
+    o.exposure = ParseNumber(args.Get("exposure", ""), "--exposure");
+  o.absorption = args.Get("absorption", "");
+  if (args.named.count("iterations"))
+    o.fit.iterations_finest = static_cast<int>(integer("iterations"));
+  o.holdout_camera = args.Get("holdout", "");
+  o.truth_dir = args.Get("truth", "");
+  o.skip_unchanged = args.named.count("no-skip-unchanged") == 0;
+  o.blender = args.named.count("no-blender") == 0;
+  o.warm_start = args.named.count("cold") == 0;
+  std::unique_ptr<tbb::global_control> threads;
+  if (args.named.count("threads"))
+    threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                                    std::max<std::size_t>(1, integer("threads")));
+  o.Validate();
+  fs::create_directories(o.out_dir);
+  const std::string rig_path = PrepareRig(o, ProgressBar);
+  std::size_t begin, end;
+  {
+    const FrameSource source(o.source, Rig::Load(rig_path));
+    for (const auto& note : source.notes()) std::fprintf(stderr, "run: %s\n", note.c_str());
+    RunRange(o, source, &begin, &end);
+  }
+  std::fprintf(stderr, "run: frames %zu..%zu of %s through %s into %s\n", begin, end - 1,
+               o.source.Describe().c_str(), rig_path.c_str(), o.out_dir.c_str());
+  auto progress = [](const RunProgress& p) {
+    std::fprintf(stderr, "\r%-78s\r", "");
+    if (p.last) std::fprintf(stderr, "%s\n", p.last->Line().c_str());
+    const int width = 30;
+    const int filled = p.total ? static_cast<int>(width * p.done / p.total) : width;
+    std::fprintf(stderr, "run [%s%s] %zu/%zu frames, %.1f frames/min, %.0f s left",
+                 std::string(filled, '#').c_str(), std::string(width - filled, '.').c_str(), p.done,
+                 p.total, p.elapsed_s > 0 ? 60.0 * p.done / p.elapsed_s : 0.0, p.eta_s);
+    if (p.done >= p.total) std::fprintf(stderr, "\n");
+    std::fflush(stderr);
+  };
+  const RunSummary summary = RunFrames(o, rig_path, begin, end, progress);
+  std::printf("run: %s\n", summary.BriefReport().c_str());
+  RunReportInfo info;
+  info.source = o.source.Describe();
+  info.rig_path = rig_path;
+  info.truth_dir = o.truth_dir;
+  info.wall_seconds = summary.seconds;
+  const std::string report = WriteRunReport(o.out_dir, summary.frames, info);
+  std::printf("run: report %s\n", report.c_str());
   return 0;
 }
 
@@ -720,6 +776,8 @@ int main(int argc, char** argv) {
     if (command == "ctl") return Ctl(Args(argc, argv, 2, {}));
     if (command == "calibrate") return Calibrate(Args(argc, argv, 2, {}));
     if (command == "export") return Export(Args(argc, argv, 2, {}));
+    if (command == "run")
+      return Run(Args(argc, argv, 2, {"no-skip-unchanged", "no-blender", "cold"}));
     std::fprintf(stderr, "flamerig: unknown command '%s'\n\n%s", command.c_str(), kUsage);
     return 2;
   } catch (const std::exception& e) {

@@ -1,0 +1,271 @@
+#include "tools/frame_source.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <stdexcept>
+
+#include "acquisition/frame.h"
+#include "acquisition/recording.h"
+#include "acquisition/srgb.h"
+#include "acquisition/streampix.h"
+
+namespace flamerig {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string SetName(std::size_t i) {
+  char name[32];
+  std::snprintf(name, sizeof name, "frame_%06zu", i);
+  return name;
+}
+
+// Fills the RGB8 and linear views of one camera's image (8-bit sRGB or 16-bit linear).
+void Fill(const ImageU8& u8, const ImageU16& u16, int bits, double exposure, ImageU8* image,
+          LinearFrame* linear) {
+  if (bits == 16) {
+    ImageU16 rgb16 = u16;
+    if (u16.channels == 1) {
+      rgb16 = ImageU16(u16.width, u16.height, 3);
+      for (std::size_t p = 0; p < u16.num_pixels(); ++p)
+        for (int c = 0; c < 3; ++c) rgb16.pixels[3 * p + c] = u16.pixels[p];
+    }
+    *linear = DecodeLinear16(rgb16, exposure);
+    *image = ImageU8(rgb16.width, rgb16.height, 3);
+    for (std::size_t p = 0; p < rgb16.pixels.size(); ++p)
+      image->pixels[p] = QuantizeU8(SrgbEncode(rgb16.pixels[p] / 65535.0));
+    return;
+  }
+  if (u8.channels == 1) {
+    *image = ImageU8(u8.width, u8.height, 3);
+    for (std::size_t p = 0; p < u8.num_pixels(); ++p)
+      for (int c = 0; c < 3; ++c) image->pixels[3 * p + c] = u8.pixels[p];
+  } else {
+    *image = u8;
+  }
+  *linear = DecodeSrgb8(*image, exposure);
+}
+
+}  // namespace
+
+void FrameSourceSpec::Validate() const {
+  const int kinds = !recording_dir.empty() + !seq_files.empty() + !images_dir.empty();
+  if (kinds != 1)
+    throw std::invalid_argument(
+        "frame source: give exactly one of a recording, StreamPix .seq files or an images folder");
+  if (!seq_names.empty() && seq_names.size() != seq_files.size())
+    throw std::invalid_argument("frame source: " + std::to_string(seq_names.size()) +
+                                " camera names for " + std::to_string(seq_files.size()) +
+                                " .seq files");
+}
+
+std::string FrameSourceSpec::Describe() const {
+  if (!recording_dir.empty()) return "recording " + recording_dir;
+  if (!seq_files.empty()) return std::to_string(seq_files.size()) + " StreamPix sequences";
+  return "images " + images_dir;
+}
+
+int SourceFrameSet::present() const {
+  int n = 0;
+  for (const auto& i : images) n += !i.empty();
+  return n;
+}
+
+struct FrameSource::Impl {
+  FrameSourceSpec spec;
+  Rig rig;
+  std::vector<int> source_camera;  // per rig camera: its index in the source
+  std::vector<std::string> notes;
+  std::size_t sets = 0;
+  std::unique_ptr<Recording> recording;
+  std::vector<StreamPixSequence> seqs;
+
+  // Checks a decoded camera image against the rig camera's imager.
+  void CheckSize(int c, std::size_t set, int width, int height) const {
+    const CameraModel& m = rig.cameras[c].model;
+    if (width != m.width() || height != m.height()) {
+      throw std::invalid_argument(spec.Describe() + ", set " + std::to_string(set) + ", camera '" +
+                                  rig.cameras[c].name + "': the frame is " + std::to_string(width) +
+                                  "x" + std::to_string(height) + ", its model's imager is " +
+                                  std::to_string(m.width()) + "x" + std::to_string(m.height()));
+    }
+  }
+
+  void MatchCameras(const std::vector<std::string>& names) {
+    source_camera.assign(rig.cameras.size(), -1);
+    std::vector<std::string> missing;
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+      const auto it = std::find(names.begin(), names.end(), rig.cameras[c].name);
+      if (it == names.end())
+        missing.push_back(rig.cameras[c].name);
+      else
+        source_camera[c] = static_cast<int>(it - names.begin());
+    }
+    if (!missing.empty()) {
+      std::string m, have;
+      for (const auto& n : missing) m += (m.empty() ? "" : ", ") + n;
+      for (const auto& n : names) have += (have.empty() ? "" : ", ") + n;
+      throw std::invalid_argument(spec.Describe() + ": no camera named " + m +
+                                  " (the rig's); the source has " +
+                                  (have.empty() ? std::string("none") : have));
+    }
+  }
+};
+
+FrameSource::FrameSource(const FrameSourceSpec& spec, const Rig& rig)
+    : impl_(std::make_unique<Impl>()) {
+  spec.Validate();
+  impl_->spec = spec;
+  impl_->rig = rig;
+  if (!spec.recording_dir.empty()) {
+    impl_->recording = std::make_unique<Recording>(Recording::Open(spec.recording_dir));
+    impl_->notes = impl_->recording->recovery().notes;
+    std::vector<std::string> names;
+    for (const auto& c : impl_->recording->metadata().cameras) names.push_back(c.name);
+    impl_->MatchCameras(names);
+    impl_->sets = impl_->recording->num_sets();
+  } else if (!spec.seq_files.empty()) {
+    std::vector<std::string> names = spec.seq_names;
+    if (names.empty())
+      for (const auto& f : spec.seq_files) names.push_back(fs::path(f).stem().string());
+    impl_->sets = ~std::size_t(0);
+    for (const auto& f : spec.seq_files) {
+      impl_->seqs.emplace_back(f);
+      impl_->sets = std::min(impl_->sets, impl_->seqs.back().num_frames());
+    }
+    for (std::size_t s = 0; s < impl_->seqs.size(); ++s)
+      if (impl_->seqs[s].num_frames() > impl_->sets)
+        impl_->notes.push_back(
+            spec.seq_files[s] + " has " + std::to_string(impl_->seqs[s].num_frames()) +
+            " frames; the sets stop at the shortest sequence's " + std::to_string(impl_->sets));
+    impl_->MatchCameras(names);
+  } else {
+    if (!fs::is_directory(spec.images_dir))
+      throw std::invalid_argument(spec.images_dir + ": no such folder of frame sets");
+    // Sets are frame_000000, frame_000001, ... up to the first gap.
+    while (fs::is_directory(fs::path(spec.images_dir) / SetName(impl_->sets))) ++impl_->sets;
+    if (impl_->sets == 0)
+      throw std::invalid_argument(spec.images_dir + ": no frame_000000/ folder (the layout is " +
+                                  "DIR/frame_NNNNNN/<camera>.png)");
+    std::vector<std::string> names;
+    for (const auto& c : rig.cameras)
+      if (fs::exists(fs::path(spec.images_dir) / SetName(0) / (c.name + ".png")))
+        names.push_back(c.name);
+    impl_->MatchCameras(names);
+  }
+}
+
+FrameSource::~FrameSource() = default;
+FrameSource::FrameSource(FrameSource&&) noexcept = default;
+FrameSource& FrameSource::operator=(FrameSource&&) noexcept = default;
+
+std::size_t FrameSource::num_sets() const { return impl_->sets; }
+const std::vector<std::string>& FrameSource::notes() const { return impl_->notes; }
+
+SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
+  if (i >= impl_->sets)
+    throw std::out_of_range(impl_->spec.Describe() + ": set " + std::to_string(i) + " of " +
+                            std::to_string(impl_->sets));
+  const Rig& rig = impl_->rig;
+  SourceFrameSet out;
+  out.index = i;
+  out.images.resize(rig.cameras.size());
+  out.linear.resize(rig.cameras.size());
+  bool have_id = false;
+  for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+    const std::string& name = rig.cameras[c].name;
+    ImageU8 u8;
+    ImageU16 u16;
+    int bits = 8;
+    if (impl_->recording) {
+      const std::optional<Frame> f = impl_->recording->ReadFrame(i, impl_->source_camera[c]);
+      if (!f) {
+        out.notes.push_back(name + " left out: no frame in set " + std::to_string(i) +
+                            " (dropped)");
+        continue;
+      }
+      if (f->info.status != FrameStatus::kOk) {
+        out.notes.push_back(name + " left out: its frame is " + ToString(f->info.status));
+        continue;
+      }
+      if (!have_id) {
+        out.frame_id = f->info.frame_id;
+        out.timestamp_ns = f->info.host_realtime_ns;
+        have_id = true;
+      }
+      bits = DecodeFrame(*f, &u8, &u16);
+    } else if (!impl_->seqs.empty()) {
+      const int s = impl_->source_camera[c];
+      const Frame f = impl_->seqs[s].ReadFrame(i, s);
+      if (!have_id) {
+        out.frame_id = i;
+        out.timestamp_ns = f.info.device_timestamp_ns;
+        have_id = true;
+      }
+      bits = DecodeFrame(f, &u8, &u16);
+    } else {
+      const fs::path path = fs::path(impl_->spec.images_dir) / SetName(i) / (name + ".png");
+      out.frame_id = i;
+      if (!fs::exists(path)) {
+        out.notes.push_back(name + " left out: no " + path.string());
+        continue;
+      }
+      bits = ReadImage(path.string(), &u8, &u16);
+    }
+    const int width = bits == 16 ? u16.width : u8.width;
+    const int height = bits == 16 ? u16.height : u8.height;
+    impl_->CheckSize(static_cast<int>(c), i, width, height);
+    try {
+      Fill(u8, u16, bits, exposure, &out.images[c], &out.linear[c]);
+    } catch (const std::invalid_argument& e) {
+      throw std::invalid_argument(impl_->spec.Describe() + ", set " + std::to_string(i) +
+                                  ", camera '" + name + "': " + e.what());
+    }
+  }
+  return out;
+}
+
+void ChangeOptions::Validate() const {
+  if (!(min_threshold_dn >= 0) || !(min_threshold_dn <= 255))
+    throw std::invalid_argument("ChangeOptions.min_threshold_dn must be in [0, 255]");
+  if (!(noise_sigmas >= 0) || !std::isfinite(noise_sigmas))
+    throw std::invalid_argument("ChangeOptions.noise_sigmas must be finite and >= 0");
+  if (!(max_changed_fraction >= 0) || !(max_changed_fraction <= 1))
+    throw std::invalid_argument("ChangeOptions.max_changed_fraction must be in [0, 1]");
+}
+
+ImageChange CompareImages(const ImageU8& a, const ImageU8& b, const ChangeOptions& options) {
+  if (a.width != b.width || a.height != b.height || a.channels != b.channels)
+    throw std::invalid_argument("CompareImages: images of different sizes or channel counts");
+  const int ch = a.channels;
+  const std::size_t n = a.num_pixels();
+  // Per pixel, the largest channel difference.
+  std::vector<int> diff(n);
+  std::vector<int> dark;
+  for (std::size_t p = 0; p < n; ++p) {
+    int d = 0, level = 0;
+    for (int c = 0; c < ch; ++c) {
+      const int x = a.pixels[p * ch + c], y = b.pixels[p * ch + c];
+      d = std::max(d, std::abs(x - y));
+      level = std::max(level, std::max(x, y));
+    }
+    diff[p] = d;
+    if (level < 32) dark.push_back(d);
+  }
+  ImageChange out;
+  if (dark.size() >= 1000) {
+    auto mid = dark.begin() + static_cast<std::ptrdiff_t>(dark.size() / 2);
+    std::nth_element(dark.begin(), mid, dark.end());
+    out.noise_dn = 1.4826 * *mid;
+  }
+  out.threshold_dn = std::max(options.min_threshold_dn, options.noise_sigmas * out.noise_dn);
+  std::size_t changed = 0;
+  for (int d : diff) changed += d > out.threshold_dn;
+  out.changed_fraction = n ? double(changed) / n : 0.0;
+  return out;
+}
+
+}  // namespace flamerig

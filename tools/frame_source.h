@@ -1,0 +1,95 @@
+// Frame sets for per-frame processing, whatever they were recorded with: a flamerig recording, a set
+// of StreamPix `.seq` files (one per camera, frame i of each is set i), or a folder of exported or
+// simulated images (DIR/frame_NNNNNN/<camera>.png). A FrameSource hands out each set as one image per
+// camera of a rig, in the rig's order, matched by camera name.
+//
+// Decoding: 8-bit frames (mono, RGB, Bayer demosaiced) are what the camera wrote, sRGB-encoded;
+// 16-bit frames (Mono16, 16-bit PNG) are linear, value / 65535 being the linear signal (as
+// `flamerig reconstruct` reads them). Each camera's image comes as RGB8 for the fit (16-bit ones
+// sRGB-encoded) and as a LinearFrame (radiance / exposure) for the tomography.
+//
+// A camera is left out of a set, with a note that says why, when: the recording has no frame of it
+// in that set (a drop), its frame's status is not ok (incomplete, corrupt), or the images folder has
+// no file for it. A frame whose size is not the rig camera's imager size is an error naming the
+// camera, the set and both sizes; so is a frame whose checksum fails (RecordingError).
+//
+// Thread safety: Read() may be called from one thread at a time.
+#ifndef FLAMERIG_TOOLS_FRAME_SOURCE_H_
+#define FLAMERIG_TOOLS_FRAME_SOURCE_H_
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "calibration/rig.h"
+#include "tomography/visual_hull.h"
+
+namespace flamerig {
+
+struct FrameSourceSpec {
+  std::string recording_dir;           // a flamerig recording, or
+  std::vector<std::string> seq_files;  // StreamPix sequences, one per camera, or
+  std::vector<std::string> seq_names;  //   their camera names (default: the file stems)
+  std::string images_dir;              // DIR/frame_NNNNNN/<camera>.png
+  // Throws std::invalid_argument unless exactly one kind of input is given.
+  void Validate() const;
+  std::string Describe() const;  // "recording DIR", "2 StreamPix sequences", "images DIR"
+};
+
+struct SourceFrameSet {
+  std::size_t index = 0;            // the set's number in the source
+  std::vector<ImageU8> images;      // per rig camera: RGB8, or empty when left out
+  std::vector<LinearFrame> linear;  // per rig camera: radiance / exposure, or empty
+  std::vector<std::string> notes;   // cameras left out and why
+  // The device frame id of the set's first present frame (recordings), the file's frame number
+  // (StreamPix), or the set number (images): what a simulated camera replaying a dataset showed.
+  std::uint64_t frame_id = 0;
+  std::int64_t timestamp_ns = 0;  // the set's reference time, 0 when unknown
+  int present() const;            // cameras with an image
+};
+
+class FrameSource {
+ public:
+  // Opens the source and matches its cameras to the rig's by name. Throws std::invalid_argument
+  // naming the rig cameras the source lacks (and the ones it has), or RecordingError /
+  // std::runtime_error naming the file that cannot be read.
+  FrameSource(const FrameSourceSpec& spec, const Rig& rig);
+  ~FrameSource();
+  FrameSource(FrameSource&&) noexcept;
+  FrameSource& operator=(FrameSource&&) noexcept;
+
+  std::size_t num_sets() const;
+  // Set i (< num_sets()) decoded with `exposure` (> 0) for the linear frames.
+  SourceFrameSet Read(std::size_t i, double exposure) const;
+  // Notes about the whole source (a recovered recording's ignored tail, ...).
+  const std::vector<std::string>& notes() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// One camera's view of the question "did this frame change beyond noise since that one?".
+struct ImageChange {
+  double noise_dn = 0;          // robust noise of the difference, from pixels dark in both
+  double threshold_dn = 0;      // a pixel differing by more than this changed
+  double changed_fraction = 0;  // of the pixels
+};
+
+struct ChangeOptions {
+  double min_threshold_dn = 3;         // a pixel never counts as changed below this difference
+  double noise_sigmas = 5;             // nor below this many noise deviations of the difference
+  double max_changed_fraction = 1e-4;  // a view is unchanged when at most this share changed
+  void Validate() const;               // throws std::invalid_argument naming the field
+};
+
+// Compares two images of one camera (same size and channels; else std::invalid_argument). The
+// noise of the difference is 1.4826 times the median absolute difference over the pixels that are
+// dark (below 32) in both images, where only sensor noise can differ; with fewer than 1000 such
+// pixels it is taken as 0 and the threshold is min_threshold_dn.
+ImageChange CompareImages(const ImageU8& a, const ImageU8& b, const ChangeOptions& options);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_TOOLS_FRAME_SOURCE_H_

@@ -1,0 +1,161 @@
+// `flamerig run`: the daily job. Every frame set of a recording (ours, StreamPix sequences, or a
+// folder of images), in a chosen range, goes through decode -> tomography -> fit and comes out as
+// a volume, with a summary line per frame and, at the end, a report a person can look at.
+//
+// Per frame (DESIGN sections 6 and 7):
+//   1. Read the set (frame_source.h). Cameras that dropped the frame, or delivered it incomplete,
+//      are left out of this frame, with a note.
+//   2. Skip when nothing changed: if every camera's image equals the one of the last frame that was
+//      computed, up to noise (CompareImages), the previous result is reused (copied) and the
+//      summary says so. The comparison is with the last *computed* frame, so slow drift cannot
+//      accumulate unseen.
+//   3. Tomography (Reconstructor): the system matrix is kept and reused while the fire stays in its
+//      envelope, and the previous frame's emission starts the solve.
+//   4. Fit (FastFit) warm-started from the previous frame's result.
+//   5. Write OUT/frame_NNNNNN.vdb (temperature K, density m^-3; exposure, Delta E and timings in
+//      metadata), OUT/blender/frame_NNNNNN.vdb (blender_export.h), the summary
+//      OUT/frames/frame_NNNNNN.yaml and a small picture OUT/frames/frame_NNNNNN.png (input over
+//      rendered, per camera).
+//
+// Resuming. Every output is written to a temporary name and renamed, so a killed run never leaves a
+// half-written file under a final name; a frame is complete when its summary exists (written last).
+// A run started again over the same OUT continues at the first frame of its range without a
+// complete output, with the state an uninterrupted run would have had there: the previous result
+// (read back from its .vdb; floats and the exposure are stored exactly), the last computed frame's
+// tomography (OUT/tomography/frame_NNNNNN.vdb) and images (read again from the source), and the
+// reconstructor's envelope (OUT/state/frame_NNNNNN.state). With one thread the resumed outputs are
+// bit-identical to an uninterrupted run's (tested); with more, TBB's reductions may round
+// differently from run to run, a few ulps that L-BFGS can grow.
+//
+// Ranks (MPI, run_mpi.h): a run over frames [begin, end) of the range is what one rank does; warm
+// starts chain inside it; the first frame of a rank's run starts cold (from the tomography) unless
+// the previous frame's output is already there.
+//
+// Thread safety: RunFrames uses TBB inside; call it from one thread.
+#ifndef FLAMERIG_TOOLS_RUN_JOB_H_
+#define FLAMERIG_TOOLS_RUN_JOB_H_
+
+#include <cstddef>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "fitting/fit.h"
+#include "tomography/reconstruct.h"
+#include "tools/calibrate_job.h"
+#include "tools/frame_source.h"
+
+namespace flamerig {
+
+struct RunOptions {
+  FrameSourceSpec source;
+  // The rig: a rig file, or a calibration recording (or folder of board views) calibrated first
+  // into OUT/calibrated with `calibrate` (reused when OUT/calibrated/rig.yaml exists).
+  std::string rig_path;
+  CalibrateInput calibration;
+  CalibrateConfig calibrate;
+  std::string out_dir;
+  std::size_t first = 0;                // first frame set
+  std::size_t count = ~std::size_t(0);  // how many (clipped to the source)
+  // The exposure the images were taken with, in the renderer's units, for the tomography (the fit
+  // finds its own, starting from it); 0 = the rig's dataset.yaml when there is one, else 1.
+  double exposure = 0;
+  std::string absorption;  // soot | grey; "" = the rig's dataset.yaml, else soot
+  ReconstructOptions reconstruct = [] {
+    ReconstructOptions r;
+    r.resolution = 64;
+    return r;
+  }();
+  FitOptions fit;
+  std::string holdout_camera;  // scored, not fitted; "" = none
+  ChangeOptions unchanged;
+  bool skip_unchanged = true;
+  bool warm_start = true;  // false: every frame starts from its own tomography (for comparisons)
+  // Ground truth of a simulated recording: DIR/frame_NNNNNN.vdb. The truth of a set is the one
+  // numbered by its frame id modulo the number of truth volumes (a simulated camera replaying a
+  // dataset shows frame id mod N).
+  std::string truth_dir;
+  bool blender = true;    // also write OUT/blender/
+  bool pictures = true;   // per-frame picture (input over rendered)
+  void Validate() const;  // throws std::invalid_argument naming the field
+};
+
+struct ViewDeltaE {
+  std::string camera;
+  bool held_out = false;
+  double mean = 0;  // over all pixels
+  double fire = 0;  // over pixels where the input or the render is not black
+};
+
+struct FrameSummary {
+  std::size_t frame = 0;
+  std::string status;              // "computed", "unchanged (reused frame N)", "failed: ..."
+  std::vector<std::string> notes;  // cameras left out and why, matrix rebuilt, ...
+  int cameras_used = 0;
+  double read_ms = 0, reconstruct_ms = 0, fit_ms = 0, write_ms = 0, total_ms = 0;
+  std::string matrix_source;  // "built", "reused (envelope)", "disk cache", "" when not run
+  double hull_fraction = 0;   // of the voxels
+  std::size_t active_voxels = 0;
+  int fit_evaluations = 0;
+  double exposure = 0;
+  double energy = 0;
+  std::vector<ViewDeltaE> delta_e;
+  // Against the truth, on visible voxels (>= 1300 K, >= 1% of the peak emission) where the fit put
+  // medium; -1 without truth.
+  double truth_rms_k = -1, truth_bias_k = 0;
+  std::size_t truth_voxels = 0, truth_visible = 0;
+  int truth_frame = -1;
+
+  double MeanFittedDeltaE() const;  // mean over the fitted views (fire pixels), 0 if none
+  std::string Line() const;         // one line for the console and frames.csv's companion log
+  std::string ToYaml() const;
+  static FrameSummary FromYaml(const std::string& text, const std::string& where);
+};
+
+struct RunProgress {
+  std::size_t done = 0, total = 0;  // frames of this run (resumed ones count as done)
+  double elapsed_s = 0, eta_s = 0;
+  const FrameSummary* last = nullptr;
+};
+using RunProgressCallback = std::function<void(const RunProgress&)>;
+
+struct RunSummary {
+  std::size_t begin = 0, end = 0;                        // frames of the range this call covered
+  std::size_t computed = 0, unchanged = 0, resumed = 0;  // resumed: complete before this call
+  std::vector<FrameSummary> frames;                      // every frame of [begin, end), in order
+  std::string rig_path;                                  // the rig used
+  double seconds = 0;
+  std::string BriefReport() const;
+};
+
+// The rig for a run: options.rig_path, else a calibration (done now unless OUT/calibrated/rig.yaml
+// exists). Returns the rig file's path.
+std::string PrepareRig(const RunOptions& options, const CalibrationProgress& progress = nullptr);
+
+// The frames of the range: [first, min(first + count, sets)).
+void RunRange(const RunOptions& options, const FrameSource& source, std::size_t* begin,
+              std::size_t* end);
+
+// Processes frames [begin, end) (inside the range) as described above and returns their
+// summaries. The rig must exist (PrepareRig). Throws std::invalid_argument / std::runtime_error for
+// bad options or unreadable input, naming what and where; a frame that fails to fit (no fire in
+// view, say) is reported in its summary, not thrown, and the next frame starts cold.
+RunSummary RunFrames(const RunOptions& options, const std::string& rig_path, std::size_t begin,
+                     std::size_t end, const RunProgressCallback& progress = nullptr);
+
+// Reads the summaries of frames [begin, end) from OUT/frames (missing ones are skipped).
+std::vector<FrameSummary> ReadFrameSummaries(const std::string& out_dir, std::size_t begin,
+                                             std::size_t end);
+
+// The name of frame i's files: "frame_NNNNNN".
+std::string FrameName(std::size_t i);
+
+// What a `flamerig simulate` dataset beside a rig file says: the exposure its images were taken
+// with (false when there is no dataset.yaml or it has none) and its absorption model ("soot" when
+// there is none). std::runtime_error naming dataset.yaml when it is malformed.
+bool DatasetExposure(const std::string& rig_path, double* exposure);
+std::string DatasetAbsorption(const std::string& rig_path);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_TOOLS_RUN_JOB_H_

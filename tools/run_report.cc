@@ -1,0 +1,353 @@
+#include "tools/run_report.h"
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <ctime>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+#include <sstream>
+
+#include "acquisition/image.h"
+#include "tomography/vdb_io.h"
+#include "tools/fit_report.h"
+#include "tools/simulate.h"
+
+namespace flamerig {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string Html(const std::string& text) {
+  std::string out;
+  for (char c : text) {
+    if (c == '<')
+      out += "&lt;";
+    else if (c == '>')
+      out += "&gt;";
+    else if (c == '&')
+      out += "&amp;";
+    else
+      out += c;
+  }
+  return out;
+}
+
+cv::Mat ToMat(const ImageU8& image) {
+  cv::Mat m(image.height, image.width, CV_8UC3);
+  for (int y = 0; y < image.height; ++y)
+    for (int x = 0; x < image.width; ++x)
+      for (int c = 0; c < 3; ++c)
+        m.at<cv::Vec3b>(y, x)[2 - c] = image.at(x, y, image.channels == 1 ? 0 : c);
+  return m;
+}
+
+ImageU8 FromMat(const cv::Mat& m) {
+  ImageU8 image(m.cols, m.rows, 3);
+  for (int y = 0; y < m.rows; ++y)
+    for (int x = 0; x < m.cols; ++x)
+      for (int c = 0; c < 3; ++c) image.at(x, y, c) = m.at<cv::Vec3b>(y, x)[2 - c];
+  return image;
+}
+
+// RGB of a temperature on the report's colour scale (OpenCV's inferno map).
+cv::Vec3b ColourOf(double t, double t_lo, double t_hi) {
+  const double u = std::clamp((t - t_lo) / std::max(1e-9, t_hi - t_lo), 0.0, 1.0);
+  cv::Mat one(1, 1, CV_8UC1, cv::Scalar(static_cast<int>(std::lround(255 * u))));
+  cv::Mat coloured;
+  cv::applyColorMap(one, coloured, cv::COLORMAP_INFERNO);
+  return coloured.at<cv::Vec3b>(0, 0);  // BGR
+}
+
+// A vertical colour bar with ticks in kelvin, BGR.
+cv::Mat ColourBar(int height, double t_lo, double t_hi) {
+  cv::Mat bar(height, 110, CV_8UC3, cv::Scalar(255, 255, 255));
+  const int top = 10, bottom = height - 10;
+  for (int y = top; y <= bottom; ++y) {
+    const double t = t_hi - (t_hi - t_lo) * (y - top) / double(bottom - top);
+    cv::line(bar, cv::Point(5, y), cv::Point(30, y), ColourOf(t, t_lo, t_hi));
+  }
+  for (int k = 0; k <= 4; ++k) {
+    const double t = t_lo + (t_hi - t_lo) * k / 4.0;
+    const int y = bottom - (bottom - top) * k / 4;
+    cv::line(bar, cv::Point(30, y), cv::Point(36, y), cv::Scalar(0, 0, 0));
+    cv::putText(bar, std::to_string(static_cast<int>(std::lround(t))) + " K", cv::Point(40, y + 5),
+                cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  }
+  return bar;
+}
+
+cv::Mat Labelled(const cv::Mat& image, const std::string& label) {
+  cv::Mat out(image.rows + 24, std::max(image.cols, 10), CV_8UC3, cv::Scalar(255, 255, 255));
+  image.copyTo(out(cv::Rect(0, 24, image.cols, image.rows)));
+  cv::putText(out, label, cv::Point(2, 17), cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1,
+              cv::LINE_AA);
+  return out;
+}
+
+cv::Mat HorizontalConcat(const std::vector<cv::Mat>& parts, int gap) {
+  int width = 0, height = 0;
+  for (const auto& p : parts) {
+    width += p.cols + gap;
+    height = std::max(height, p.rows);
+  }
+  cv::Mat out(height, std::max(1, width), CV_8UC3, cv::Scalar(255, 255, 255));
+  int x = 0;
+  for (const auto& p : parts) {
+    p.copyTo(out(cv::Rect(x, 0, p.cols, p.rows)));
+    x += p.cols + gap;
+  }
+  return out;
+}
+
+void WritePicture(const fs::path& path, const ImageU8& image) { WritePng(path.string(), image); }
+
+bool Computed(const FrameSummary& f) { return f.status == "computed"; }
+
+}  // namespace
+
+ImageU8 TemperatureSlice(const FireVolume& volume, int axis, int index, double t_lo, double t_hi,
+                         int scale) {
+  const GridGeometry& g = volume.geometry;
+  if (volume.temperature_k.size() != g.num_voxels())
+    throw std::invalid_argument("TemperatureSlice: the volume has no temperature grid");
+  if (axis != 0 && axis != 2) throw std::invalid_argument("TemperatureSlice: axis must be 0 or 2");
+  const int across = axis == 2 ? g.dims.x() : g.dims.z();
+  const int up = g.dims.y();
+  const int depth = axis == 2 ? g.dims.z() : g.dims.x();
+  index = std::clamp(index, 0, depth - 1);
+  scale = std::max(1, scale);
+  ImageU8 out(across * scale, up * scale, 3);
+  const bool have_density = volume.density_per_m3.size() == g.num_voxels();
+  for (int j = 0; j < up; ++j)
+    for (int a = 0; a < across; ++a) {
+      const std::size_t v = axis == 2 ? g.Flat(a, j, index) : g.Flat(index, j, a);
+      std::uint8_t rgb[3] = {40, 40, 40};
+      if (!have_density || volume.density_per_m3[v] > 0) {
+        const cv::Vec3b c = ColourOf(volume.temperature_k[v], t_lo, t_hi);
+        rgb[0] = c[2];
+        rgb[1] = c[1];
+        rgb[2] = c[0];
+      }
+      for (int dy = 0; dy < scale; ++dy)
+        for (int dx = 0; dx < scale; ++dx)
+          for (int c = 0; c < 3; ++c) out.at(a * scale + dx, (up - 1 - j) * scale + dy, c) = rgb[c];
+    }
+  return out;
+}
+
+std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSummary>& frames,
+                           const RunReportInfo& info) {
+  const fs::path out(out_dir);
+  const fs::path dir = out / "report";
+  fs::create_directories(dir);
+
+  // frames.csv: one row per frame.
+  {
+    std::set<std::string> cameras;
+    for (const auto& f : frames)
+      for (const auto& d : f.delta_e) cameras.insert(d.camera);
+    std::ofstream csv(out / "frames.csv");
+    csv << "frame,status,cameras_used,total_ms,read_ms,tomography_ms,fit_ms,write_ms,matrix,"
+           "active_voxels,exposure,energy,truth_frame,truth_rms_k,truth_bias_k";
+    for (const auto& c : cameras) csv << ",delta_e_fire_" << c << ",delta_e_all_" << c;
+    csv << ",notes\n";
+    for (const auto& f : frames) {
+      csv << f.frame << ",\"" << f.status << "\"," << f.cameras_used << "," << f.total_ms << ","
+          << f.read_ms << "," << f.reconstruct_ms << "," << f.fit_ms << "," << f.write_ms << ","
+          << f.matrix_source << "," << f.active_voxels << "," << f.exposure << "," << f.energy
+          << "," << f.truth_frame << "," << f.truth_rms_k << "," << f.truth_bias_k;
+      for (const auto& c : cameras) {
+        auto it = std::find_if(f.delta_e.begin(), f.delta_e.end(),
+                               [&](const ViewDeltaE& d) { return d.camera == c; });
+        if (it == f.delta_e.end())
+          csv << ",,";
+        else
+          csv << "," << it->fire << "," << it->mean;
+      }
+      std::string notes;
+      for (const auto& n : f.notes) notes += (notes.empty() ? "" : "; ") + n;
+      csv << ",\"" << notes << "\"\n";
+    }
+    if (!csv) throw std::runtime_error((out / "frames.csv").string() + ": cannot write");
+  }
+
+  // Plots.
+  std::map<std::string, PlotSeries> per_view;
+  PlotSeries truth{"temperature RMS error / 100 K (visible voxels)", {}, {}};
+  PlotSeries tomo{"tomography", {}, {}}, fit{"fit", {}, {}}, total{"whole frame", {}, {}};
+  std::size_t computed = 0, unchanged = 0, failed = 0;
+  double de_sum = 0, t_sum = 0;
+  int de_n = 0, t_n = 0;
+  for (const auto& f : frames) {
+    if (Computed(f)) ++computed;
+    if (f.status.rfind("unchanged", 0) == 0) ++unchanged;
+    if (f.status.rfind("failed", 0) == 0) ++failed;
+    for (const auto& d : f.delta_e) {
+      PlotSeries& s = per_view[d.camera];
+      s.name = d.camera + (d.held_out ? " (held out)" : " (fitted)");
+      s.x.push_back(static_cast<double>(f.frame));
+      s.y.push_back(d.fire);
+    }
+    if (!f.delta_e.empty()) {
+      de_sum += f.MeanFittedDeltaE();
+      ++de_n;
+    }
+    if (f.truth_rms_k >= 0) {
+      truth.x.push_back(static_cast<double>(f.frame));
+      truth.y.push_back(f.truth_rms_k / 100.0);
+      t_sum += f.truth_rms_k;
+      ++t_n;
+    }
+    if (Computed(f)) {
+      tomo.x.push_back(static_cast<double>(f.frame));
+      tomo.y.push_back(f.reconstruct_ms / 1000);
+      fit.x.push_back(static_cast<double>(f.frame));
+      fit.y.push_back(f.fit_ms / 1000);
+    }
+    total.x.push_back(static_cast<double>(f.frame));
+    total.y.push_back(f.total_ms / 1000);
+  }
+  std::vector<PlotSeries> error_series;
+  for (auto& [name, s] : per_view) error_series.push_back(s);
+  if (!truth.x.empty()) error_series.push_back(truth);
+  WritePicture(dir / "errors.png",
+               PlotLines(error_series, "Delta E of each view's fire pixels over the frames",
+                         "frame", "mean Delta E (fire pixels)", false, 900, 420));
+  WritePicture(dir / "timing.png", PlotLines({tomo, fit, total}, "Run time per frame by stage",
+                                             "frame", "seconds", false, 900, 420));
+
+  // Contact sheet: input over rendered for a few frames, evenly spaced among the computed ones.
+  std::vector<const FrameSummary*> shown;
+  {
+    std::vector<const FrameSummary*> candidates;
+    for (const auto& f : frames)
+      if (Computed(f) && fs::exists(out / "frames" / (FrameName(f.frame) + ".png")))
+        candidates.push_back(&f);
+    const int n = std::min<int>(info.contact_frames, static_cast<int>(candidates.size()));
+    for (int k = 0; k < n; ++k)
+      shown.push_back(candidates[n == 1 ? 0 : k * (candidates.size() - 1) / (n - 1)]);
+  }
+  if (!shown.empty()) {
+    std::vector<cv::Mat> columns;
+    for (const auto* f : shown) {
+      const ImageU8 picture =
+          ReadImageU8((out / "frames" / (FrameName(f->frame) + ".png")).string(), 3);
+      columns.push_back(Labelled(ToMat(picture), FrameName(f->frame)));
+    }
+    // At most three frames per row.
+    std::vector<cv::Mat> rows;
+    for (std::size_t k = 0; k < columns.size(); k += 3) {
+      std::vector<cv::Mat> row(columns.begin() + k,
+                               columns.begin() + std::min(columns.size(), k + 3));
+      rows.push_back(HorizontalConcat(row, 16));
+    }
+    int width = 0, height = 0;
+    for (const auto& r : rows) {
+      width = std::max(width, r.cols);
+      height += r.rows + 16;
+    }
+    cv::Mat sheet(height, width, CV_8UC3, cv::Scalar(255, 255, 255));
+    int y = 0;
+    for (const auto& r : rows) {
+      r.copyTo(sheet(cv::Rect(0, y, r.cols, r.rows)));
+      y += r.rows + 16;
+    }
+    WritePicture(dir / "contact.png", FromMat(sheet));
+  }
+
+  // Temperature slices of a few computed frames.
+  std::vector<std::string> slice_files;
+  {
+    std::vector<const FrameSummary*> candidates;
+    for (const auto& f : frames)
+      if (Computed(f) && fs::exists(out / (FrameName(f.frame) + ".vdb"))) candidates.push_back(&f);
+    const int n = std::min<int>(info.slice_frames, static_cast<int>(candidates.size()));
+    for (int k = 0; k < n; ++k) {
+      const FrameSummary* f = candidates[n == 1 ? 0 : k * (candidates.size() - 1) / (n - 1)];
+      const FireVolume v = ReadVdb((out / (FrameName(f->frame) + ".vdb")).string());
+      FireVolume truth;
+      if (!info.truth_dir.empty() && f->truth_frame >= 0) {
+        const fs::path t = fs::path(info.truth_dir) / (FrameName(f->truth_frame) + ".vdb");
+        if (fs::exists(t)) truth = ReadVdb(t.string());
+        if (!truth.geometry.SameVoxels(v.geometry)) truth = FireVolume();
+      }
+      double t_hi = 1500;
+      for (std::size_t i = 0; i < v.temperature_k.size(); ++i)
+        if (v.density_per_m3[i] > 0) t_hi = std::max(t_hi, double(v.temperature_k[i]));
+      const double t_lo = 300;
+      const GridGeometry& g = v.geometry;
+      const int scale = std::max(1, 320 / std::max(1, g.dims.y()));
+      std::vector<cv::Mat> parts;
+      auto add = [&](const FireVolume& vol, const std::string& what) {
+        parts.push_back(Labelled(ToMat(TemperatureSlice(vol, 2, g.dims.z() / 2, t_lo, t_hi, scale)),
+                                 what + " front"));
+        parts.push_back(Labelled(ToMat(TemperatureSlice(vol, 0, g.dims.x() / 2, t_lo, t_hi, scale)),
+                                 what + " side"));
+      };
+      add(v, "fit");
+      if (!truth.temperature_k.empty()) add(truth, "truth");
+      parts.push_back(ColourBar(parts.front().rows, t_lo, t_hi));
+      const std::string name = "slices_" + FrameName(f->frame).substr(6) + ".png";
+      WritePicture(dir / name, FromMat(HorizontalConcat(parts, 12)));
+      slice_files.push_back(name);
+    }
+  }
+
+  // The page.
+  std::ostringstream h;
+  h.setf(std::ios::fixed);
+  const std::time_t now = std::time(nullptr);
+  char date[64];
+  std::strftime(date, sizeof date, "%Y-%m-%d %H:%M UTC", std::gmtime(&now));
+  h << "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>" << Html(info.title)
+    << "</title>\n<style>body{font-family:sans-serif;margin:2em;max-width:1100px}"
+       "table{border-collapse:collapse;font-size:85%}td,th{border:1px solid #ccc;padding:2px 6px}"
+       "img{max-width:100%}code{background:#eee}</style></head><body>\n";
+  h << "<h1>" << Html(info.title) << "</h1>\n<p>" << date << ". Source: <code>" << Html(info.source)
+    << "</code>; rig: <code>" << Html(info.rig_path) << "</code>"
+    << (info.ranks > 1 ? "; " + std::to_string(info.ranks) + " MPI ranks" : std::string())
+    << ".</p>\n<h2>Results</h2>\n<ul>\n";
+  h.precision(3);
+  h << "<li>" << frames.size() << " frames: " << computed << " computed, " << unchanged
+    << " unchanged (the previous result reused), " << failed << " failed.</li>\n";
+  if (de_n)
+    h << "<li>Mean Delta E of the fitted views' fire pixels: <b>" << de_sum / de_n
+      << "</b> (CIELab; 1 is about the smallest difference a person sees).</li>\n";
+  h.precision(1);
+  if (t_n)
+    h << "<li>Temperature against the known truth on visible voxels: <b>" << t_sum / t_n
+      << " K RMS</b> on average over the frames (truth: <code>" << Html(info.truth_dir)
+      << "</code>).</li>\n";
+  if (info.wall_seconds > 0)
+    h << "<li>" << info.wall_seconds << " s in all, "
+      << (computed ? 60.0 * computed / info.wall_seconds : 0.0)
+      << " computed frames per minute.</li>\n";
+  h << "</ul>\n";
+  h << "<h2>Error over the frames</h2>\n<img src=\"errors.png\">\n";
+  if (!shown.empty())
+    h << "<h2>Input (top) against rendered (bottom)</h2>\n<img src=\"contact.png\">\n";
+  if (!slice_files.empty()) {
+    h << "<h2>Fitted temperature" << (info.truth_dir.empty() ? "" : " and the truth")
+      << ", slices through the middle of the box</h2>\n";
+    for (const auto& s : slice_files) h << "<p><img src=\"" << s << "\"></p>\n";
+  }
+  h << "<h2>Run time</h2>\n<img src=\"timing.png\">\n";
+  h << "<h2>Frames</h2>\n<p>Volumes: <code>frame_NNNNNN.vdb</code> (temperature in K, density in "
+       "m<sup>-3</sup>); Blender-ready: <code>blender/frame_NNNNNN.vdb</code>; every number: "
+       "<code>frames.csv</code>.</p>\n<table><tr><th>summary</th></tr>\n";
+  for (const auto& f : frames) h << "<tr><td>" << Html(f.Line()) << "</td></tr>\n";
+  h << "</table>\n</body></html>\n";
+  const fs::path index = dir / "index.html";
+  std::ofstream page(index);
+  page << h.str();
+  if (!page) throw std::runtime_error(index.string() + ": cannot write");
+  return index.string();
+}
+
+}  // namespace flamerig

@@ -1,0 +1,46 @@
+// The report of a `flamerig run`: one HTML page (OUT/report/index.html) with pictures a person can
+// look at, made from the per-frame summaries and outputs in OUT:
+//   errors.png       Delta E (fire pixels) of every view over the frames, held-out views dashed in
+//                    the legend's name, and the temperature error against the truth when known
+//   timing.png       run time per frame by stage (tomography, fit, everything)
+//   contact.png      input over rendered views for up to `contact_frames` frames, evenly spaced
+//   slices_NNNNNN.png  the fitted temperature of a few frames as slices through the middle of the
+//                    box (front: the x-y plane; side: the z-y plane; up is up), with the truth's
+//                    beside it when known, coloured by one scale with its colour bar in kelvin
+//   frames.csv       every frame's summary as a table (OUT/frames.csv)
+// plus a table of every frame's summary line.
+#ifndef FLAMERIG_TOOLS_RUN_REPORT_H_
+#define FLAMERIG_TOOLS_RUN_REPORT_H_
+
+#include <string>
+#include <vector>
+
+#include "tools/run_job.h"
+
+namespace flamerig {
+
+struct RunReportInfo {
+  std::string title = "flamerig run";
+  std::string source;  // what was read
+  std::string rig_path;
+  std::string truth_dir;  // "" = no truth
+  double wall_seconds = 0;
+  int ranks = 1;
+  int contact_frames = 6;
+  int slice_frames = 3;
+};
+
+// Writes OUT/frames.csv and OUT/report/ (index.html and the pictures); returns index.html's path.
+// Throws std::runtime_error naming a file that cannot be written or read.
+std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSummary>& frames,
+                           const RunReportInfo& info);
+
+// A temperature slice picture of a volume (kelvin coloured from t_lo to t_hi, voxels without soot
+// dark grey): the plane of voxels at index `index` along `axis` (0 = x: the z-y plane, 2 = z: the
+// x-y plane), y up, each voxel `scale` pixels. Exposed for tests.
+ImageU8 TemperatureSlice(const FireVolume& volume, int axis, int index, double t_lo, double t_hi,
+                         int scale);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_TOOLS_RUN_REPORT_H_
