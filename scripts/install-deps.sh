@@ -13,6 +13,8 @@ PACKAGES=(
   libceres-dev
   libaravis-dev aravis-tools-cli aravis-tools libusb-1.0-0-dev iproute2
   colord-data
+  libopenmpi-dev openmpi-bin
+  blender
 )
 
 missing=()

@@ -1,11 +1,16 @@
 #!/usr/bin/env bash
-# The main job on the built-in simulated rig: installs what is missing, builds, simulates a candle
-# filmed by the two-camera rig of config/sim_rig.yaml (camera models, calibration board views, fire
-# images and ground truth), records the calibration board with the capture daemon and calibrates
-# the rig from that recording (mrcal), records 2 s of the fire and exports the recording, renders
-# the ground truth back through the rig's cameras, reconstructs frame 0 by tomography with the
-# calibrated rig and fits its temperature, density and exposure (with a report).
-# Output in runs/sim (override with FLAMERIG_RUN_DIR); open runs/sim/preview.png first.
+# The main job on the built-in simulated rig, from nothing: installs what is missing, builds, and
+# tells the whole story on simulated hardware:
+#   1. simulate: a flickering candle (12 frames) and a ChArUco board, as the two cameras of
+#      config/sim_rig.yaml would see them, with the ground truth;
+#   2. the capture daemon records the board waved in front of the simulated cameras, and
+#      `flamerig calibrate` builds the rig from that recording (mrcal);
+#   3. the capture daemon records the burning fire (the sim cameras replay the dataset on a
+#      hardware trigger line), and `flamerig export` writes the recording as PNG frame sets;
+#   4. `flamerig run` reconstructs and fits every recorded frame set through the calibrated rig,
+#      warm-starting each frame from the one before, and writes the volumes, a Blender-ready
+#      sequence and a report with the error against the known truth.
+# Output in runs/sim (override with FLAMERIG_RUN_DIR); open runs/sim/run/report/index.html.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install-deps.sh
@@ -13,12 +18,17 @@ bash scripts/build.sh
 RUN_DIR="${FLAMERIG_RUN_DIR:-runs/sim}"
 BIN="${FLAMERIG_BUILD_DIR:-build}/tools/flamerig"
 case "$BIN" in /*) ;; *) BIN="$PWD/$BIN" ;; esac
+START=$(date +%s)
+
+# 1. The synthetic fire and board.
 "$BIN" simulate --config config/sim_rig.yaml --out "$RUN_DIR"
-# Calibration: the sim cameras replay the board views (a board waved in front of the rig; a camera
-# that does not see it shows a dark frame) at 10 Hz into a recording, which `calibrate` turns into
-# a rig (the ring frame put at the candle's base, config/calibrate_sim.yaml).
+FRAMES=$(find "$RUN_DIR/truth" -name "frame_*.vdb" | wc -l)
+
+# 2. Calibration: the sim cameras replay the board views (a board waved in front of the rig; a
+# camera that does not see it shows a dark frame) at 10 Hz into a recording, which `calibrate`
+# turns into a rig (the ring frame put at the candle's base, config/calibrate_sim.yaml).
 VIEWS=$(find "$RUN_DIR/calibration" -mindepth 1 -maxdepth 1 -type d | wc -l)
-cat > "$RUN_DIR/capture_calibration.yaml" <<EOF
+cat > "$RUN_DIR/capture_calibration.yaml" <<YAML
 data_dir: recordings
 sync: hardware-trigger
 trigger_rate_hz: 10
@@ -26,41 +36,46 @@ pretrigger_seconds: 0
 cameras:
   - {name: cam0, width: 320, height: 240, pixel_format: Mono8, sim: {replay: ., replay_content: calibration}}
   - {name: cam1, width: 320, height: 240, pixel_format: Mono8, sim: {replay: ., replay_content: calibration}}
-EOF
+YAML
 rm -rf "$RUN_DIR/recordings/calibration"
 (cd "$RUN_DIR" && "$BIN" capture --config capture_calibration.yaml --record calibration \
   --duration "$(( VIEWS / 10 + 2 ))")
 "$BIN" calibrate --recording "$RUN_DIR/recordings/calibration" \
   --board "$RUN_DIR/calibration/board.yaml" --config config/calibrate_sim.yaml \
   --out "$RUN_DIR/calibrated"
-# The capture daemon on the simulated rig: two sim cameras on a hardware trigger line replay the
-# dataset's images (frames/) for 2 s into a lossless recording, which is then exported as PNG sets.
-cat > "$RUN_DIR/capture.yaml" <<EOF
+
+# 3. The fire: two sim cameras on a hardware trigger line replay the dataset's frames for about
+# one pass through them (frame k of a camera shows dataset frame k mod FRAMES) into a lossless
+# recording, which is also exported as PNG frame sets.
+cat > "$RUN_DIR/capture.yaml" <<YAML
 data_dir: recordings
 sync: hardware-trigger
-trigger_rate_hz: 30
+trigger_rate_hz: 10
 pretrigger_seconds: 0
 cameras:
   - {name: cam0, width: 320, height: 240, pixel_format: RGB8, sim: {replay: .}}
   - {name: cam1, width: 320, height: 240, pixel_format: RGB8, sim: {replay: .}}
-EOF
-rm -rf "$RUN_DIR/recordings/take"
-(cd "$RUN_DIR" && "$BIN" capture --config capture.yaml --record take --duration 2)
-"$BIN" export --recording "$RUN_DIR/recordings/take" --out "$RUN_DIR/recorded"
-"$BIN" render --rig "$RUN_DIR/rig.yaml" --volume "$RUN_DIR/truth/frame_000000.vdb" --out "$RUN_DIR/rendered"
-# The cameras' exposure is a capture setting, not part of the calibration: the dataset's.
+YAML
+rm -rf "$RUN_DIR/recordings/fire"
+(cd "$RUN_DIR" && "$BIN" capture --config capture.yaml --record fire \
+  --duration "$(awk "BEGIN { print $FRAMES / 10 + 0.05 }")")
+"$BIN" export --recording "$RUN_DIR/recordings/fire" --out "$RUN_DIR/recorded"
+
+# 4. Every recorded frame set: tomography and fit through the calibrated rig. The cameras'
+# exposure is a capture setting, not part of the calibration: the dataset's. The truth of a set
+# is the dataset frame its cameras showed (frame id mod FRAMES).
 EXPOSURE=$(sed -n 's/^  exposure: //p' "$RUN_DIR/dataset.yaml")
-"$BIN" reconstruct --rig "$RUN_DIR/calibrated/rig.yaml" --images "$RUN_DIR/frames/frame_000000" \
-  --exposure "$EXPOSURE" \
-  --out "$RUN_DIR/reconstruction/frame_000000.vdb" --truth "$RUN_DIR/truth/frame_000000.vdb" \
-  --cache "$RUN_DIR/cache" --preview "$RUN_DIR/reconstruction/preview.png"
-"$BIN" fit --rig "$RUN_DIR/calibrated/rig.yaml" --images "$RUN_DIR/frames/frame_000000" \
-  --tomography "$RUN_DIR/reconstruction/frame_000000.vdb" --out "$RUN_DIR/fit/frame_000000.vdb" \
-  --truth "$RUN_DIR/truth/frame_000000.vdb"
+rm -rf "$RUN_DIR/run"
+"$BIN" run --recording "$RUN_DIR/recordings/fire" --rig "$RUN_DIR/calibrated/rig.yaml" \
+  --exposure "$EXPOSURE" --truth "$RUN_DIR/truth" --out "$RUN_DIR/run"
+
 echo
-echo "main job done: dataset in $RUN_DIR (preview.png, frames/, calibration/, truth/*.vdb, rig.yaml);"
-echo "the ground truth re-rendered through the rig is in $RUN_DIR/rendered; the tomography of frame 0"
-echo "(emission volume and a preview of input against reconstruction) is in $RUN_DIR/reconstruction;"
-echo "the fitted temperature and density of frame 0 are in $RUN_DIR/fit (report: fit/frame_000000_report/report.md);"
-echo "the rig calibrated from the recorded board views is in $RUN_DIR/calibrated (report.md, rig_top.png);"
-echo "the capture daemon's recording is in $RUN_DIR/recordings/take, exported to $RUN_DIR/recorded."
+echo "main job done in $(( $(date +%s) - START )) s after the build. Open:"
+echo "  $RUN_DIR/run/report/index.html   the report: error against the truth, input against"
+echo "                                   rendered views, temperature slices, run time per frame"
+echo "  $RUN_DIR/run/frame_NNNNNN.vdb    fitted temperature (K) and density (m^-3) per frame"
+echo "  $RUN_DIR/run/blender/            the same as a Blender-ready .vdb sequence (README)"
+echo "  $RUN_DIR/calibrated/report.md    the rig calibrated from the recorded board views"
+echo "  $RUN_DIR/recordings/             the capture daemon's recordings (calibration, fire),"
+echo "                                   exported to $RUN_DIR/recorded"
+echo "  $RUN_DIR/preview.png             the simulated dataset"

@@ -20,7 +20,7 @@ ImageU8 PlotLines(const std::vector<PlotSeries>& series, const std::string& titl
                   const std::string& x_label, const std::string& y_label, bool log_x, int width,
                   int height) {
   cv::Mat img(height, width, CV_8UC3, cv::Scalar(255, 255, 255));
-  const int left = 80, right = 20, top = 40, bottom = 60;
+  const int left = 80, right = 20, top = 52, bottom = 60;
   double x0 = 1e300, x1 = -1e300, y0 = 0, y1 = -1e300;
   auto tx = [&](double x) { return log_x ? std::log10(std::max(x, 1e-6)) : x; };
   for (const auto& s : series)
@@ -81,7 +81,7 @@ ImageU8 PlotLines(const std::vector<PlotSeries>& series, const std::string& titl
     cv::putText(img, series[s].name, cv::Point(left + 46, top + 19 + 18 * static_cast<int>(s)),
                 cv::FONT_HERSHEY_SIMPLEX, 0.45, black, 1, cv::LINE_AA);
   }
-  cv::putText(img, title, cv::Point(left, 25), cv::FONT_HERSHEY_SIMPLEX, 0.6, black, 1,
+  cv::putText(img, title, cv::Point(left, 20), cv::FONT_HERSHEY_SIMPLEX, 0.6, black, 1,
               cv::LINE_AA);
   cv::putText(img, x_label + (log_x ? " (log scale)" : ""), cv::Point(width / 2 - 60, height - 18),
               cv::FONT_HERSHEY_SIMPLEX, 0.5, black, 1, cv::LINE_AA);

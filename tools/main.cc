@@ -34,6 +34,7 @@
 #include "tools/export.h"
 #include "tools/fit_report.h"
 #include "tools/run_job.h"
+#include "tools/run_mpi.h"
 #include "tools/run_report.h"
 #include "tools/simulate.h"
 
@@ -526,8 +527,8 @@ int Fit(const Args& args) {
   return 0;
 }
 
-// `flamerig run`: see tools/run_job.h.
-int Run(const Args& args) {
+// `flamerig run`: see tools/run_job.h (and tools/run_mpi.h under mpirun).
+int Run(const Args& args, MpiSession& mpi) {
   args.CheckKnown({"recording",
                    "seq",
                    "names",
@@ -581,40 +582,81 @@ int Run(const Args& args) {
   o.skip_unchanged = args.named.count("no-skip-unchanged") == 0;
   o.blender = args.named.count("no-blender") == 0;
   o.warm_start = args.named.count("cold") == 0;
-  std::unique_ptr<tbb::global_control> threads;
-  if (args.named.count("threads"))
-    threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
-                                                    std::max<std::size_t>(1, integer("threads")));
+  // Threads: --threads, else under mpirun the cores shared among this node's ranks.
+  std::size_t threads = 0;
+  if (args.named.count("threads")) {
+    threads = std::max<std::size_t>(1, integer("threads"));
+  } else if (mpi.ranks_on_this_node() > 1) {
+    threads = std::max<std::size_t>(
+        1, std::thread::hardware_concurrency() / static_cast<unsigned>(mpi.ranks_on_this_node()));
+  }
+  std::unique_ptr<tbb::global_control> limit;
+  if (threads)
+    limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                                  threads);
   o.Validate();
-  fs::create_directories(o.out_dir);
-  const std::string rig_path = PrepareRig(o, ProgressBar);
+  const auto start = std::chrono::steady_clock::now();
+  const std::string who = mpi.size() > 1 ? "[rank " + std::to_string(mpi.rank()) + "] " : "";
+  // Rank 0 prepares the rig (it may calibrate) while the others wait.
+  std::string rig_path;
+  if (mpi.rank() == 0) {
+    fs::create_directories(o.out_dir);
+    rig_path = PrepareRig(o, ProgressBar);
+  }
+  mpi.Barrier();
+  if (mpi.rank() != 0) rig_path = PrepareRig(o);
   std::size_t begin, end;
   {
     const FrameSource source(o.source, Rig::Load(rig_path));
-    for (const auto& note : source.notes()) std::fprintf(stderr, "run: %s\n", note.c_str());
+    if (mpi.rank() == 0)
+      for (const auto& note : source.notes()) std::fprintf(stderr, "run: %s\n", note.c_str());
     RunRange(o, source, &begin, &end);
   }
-  std::fprintf(stderr, "run: frames %zu..%zu of %s through %s into %s\n", begin, end - 1,
-               o.source.Describe().c_str(), rig_path.c_str(), o.out_dir.c_str());
-  auto progress = [](const RunProgress& p) {
-    std::fprintf(stderr, "\r%-78s\r", "");
-    if (p.last) std::fprintf(stderr, "%s\n", p.last->Line().c_str());
+  std::size_t mine_begin, mine_end;
+  RankFrames(begin, end, mpi.rank(), mpi.size(), &mine_begin, &mine_end);
+  std::fprintf(stderr, "%srun: frames %zu..%zu of %s through %s into %s\n", who.c_str(), mine_begin,
+               mine_end - 1, o.source.Describe().c_str(), rig_path.c_str(), o.out_dir.c_str());
+  const bool bar = mpi.rank() == 0;
+  auto progress = [&](const RunProgress& p) {
+    if (bar) std::fprintf(stderr, "\r%-78s\r", "");
+    if (p.last) std::fprintf(stderr, "%s%s\n", who.c_str(), p.last->Line().c_str());
+    if (!bar) return;
     const int width = 30;
     const int filled = p.total ? static_cast<int>(width * p.done / p.total) : width;
-    std::fprintf(stderr, "run [%s%s] %zu/%zu frames, %.1f frames/min, %.0f s left",
+    std::fprintf(stderr, "%srun [%s%s] %zu/%zu frames, %.1f frames/min, %.0f s left", who.c_str(),
                  std::string(filled, '#').c_str(), std::string(width - filled, '.').c_str(), p.done,
                  p.total, p.elapsed_s > 0 ? 60.0 * p.done / p.elapsed_s : 0.0, p.eta_s);
     if (p.done >= p.total) std::fprintf(stderr, "\n");
     std::fflush(stderr);
   };
-  const RunSummary summary = RunFrames(o, rig_path, begin, end, progress);
-  std::printf("run: %s\n", summary.BriefReport().c_str());
+  RunSummary summary;
+  if (mine_begin < mine_end) summary = RunFrames(o, rig_path, mine_begin, mine_end, progress);
+  std::printf("%srun: %s\n", who.c_str(), summary.BriefReport().c_str());
+  std::fflush(stdout);
+  // Every rank's summaries to rank 0, which writes the one report.
+  std::string mine;
+  for (const auto& f : summary.frames) mine += f.ToYaml() + '\0';
+  const std::vector<std::string> all = mpi.Gather(mine);
+  if (mpi.rank() != 0) return 0;
+  std::vector<FrameSummary> frames;
+  for (const auto& text : all) {
+    std::size_t at = 0;
+    while (at < text.size()) {
+      const std::size_t stop = text.find('\0', at);
+      frames.push_back(FrameSummary::FromYaml(text.substr(at, stop - at), "a rank's summary"));
+      at = stop + 1;
+    }
+  }
+  std::sort(frames.begin(), frames.end(),
+            [](const FrameSummary& a, const FrameSummary& b) { return a.frame < b.frame; });
   RunReportInfo info;
   info.source = o.source.Describe();
   info.rig_path = rig_path;
   info.truth_dir = o.truth_dir;
-  info.wall_seconds = summary.seconds;
-  const std::string report = WriteRunReport(o.out_dir, summary.frames, info);
+  info.ranks = mpi.size();
+  info.wall_seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const std::string report = WriteRunReport(o.out_dir, frames, info);
   std::printf("run: report %s\n", report.c_str());
   return 0;
 }
@@ -766,6 +808,18 @@ int main(int argc, char** argv) {
     return argc < 2 ? 2 : 0;
   }
   const std::string command = argv[1];
+  if (command == "run") {
+    // Under mpirun every rank runs this; a failing rank stops the others.
+    std::unique_ptr<MpiSession> mpi;
+    try {
+      mpi = std::make_unique<MpiSession>(&argc, &argv);
+      return Run(Args(argc, argv, 2, {"no-skip-unchanged", "no-blender", "cold"}), *mpi);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "flamerig run: error: %s\n", e.what());
+      if (mpi && mpi->size() > 1) mpi->Abort(1);
+      return 1;
+    }
+  }
   try {
     if (command == "simulate") return Simulate(Args(argc, argv, 2, {}));
     if (command == "render") return Render(Args(argc, argv, 2, {}));
@@ -776,8 +830,6 @@ int main(int argc, char** argv) {
     if (command == "ctl") return Ctl(Args(argc, argv, 2, {}));
     if (command == "calibrate") return Calibrate(Args(argc, argv, 2, {}));
     if (command == "export") return Export(Args(argc, argv, 2, {}));
-    if (command == "run")
-      return Run(Args(argc, argv, 2, {"no-skip-unchanged", "no-blender", "cold"}));
     std::fprintf(stderr, "flamerig: unknown command '%s'\n\n%s", command.c_str(), kUsage);
     return 2;
   } catch (const std::exception& e) {

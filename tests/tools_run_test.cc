@@ -1,0 +1,412 @@
+// `flamerig run`: whole recordings through tomography and the fit. Oracles: the simulator's ground
+// truth (temperature, images), the recording's own content (which camera missed which set), an
+// uninterrupted run for a killed-and-resumed one, closed forms for the Blender grids.
+#include <gtest/gtest.h>
+#include <openvdb/openvdb.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <tbb/global_control.h>
+#include <unistd.h>
+
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <thread>
+
+#include "acquisition/recording.h"
+#include "fitting/physics.h"
+#include "tests/run_test_util.h"
+#include "tomography/vdb_io.h"
+#include "tools/blender_export.h"
+#include "tools/run_job.h"
+#include "tools/run_mpi.h"
+#include "tools/run_report.h"
+#include "tools/simulate.h"
+
+namespace flamerig {
+namespace {
+
+namespace fs = std::filesystem;
+
+using namespace testing_run;
+
+TEST(RunFrames, SplitsContiguouslyAcrossRanks) {
+  for (int size = 1; size <= 5; ++size) {
+    std::size_t expect = 3;
+    for (int r = 0; r < size; ++r) {
+      std::size_t b, e;
+      RankFrames(3, 20, r, size, &b, &e);
+      EXPECT_EQ(b, expect);
+      EXPECT_LE(e - b, 17u / size + 1);
+      EXPECT_GE(e - b, 17u / size);
+      expect = e;
+    }
+    EXPECT_EQ(expect, 20u);
+  }
+  std::size_t b, e;
+  EXPECT_THROW(RankFrames(0, 4, 2, 2, &b, &e), std::invalid_argument);
+}
+
+TEST(RunFrames, ChangeDetectionSeesALocalChangeAndIgnoresNoise) {
+  std::mt19937 rng(3);
+  std::normal_distribution<double> noise(0, 1.0);
+  ImageU8 a(160, 120, 3, 0);
+  for (int y = 40; y < 100; ++y)
+    for (int x = 70; x < 90; ++x)
+      for (int c = 0; c < 3; ++c) a.at(x, y, c) = static_cast<std::uint8_t>(120 + 40 * c);
+  auto noisy = [&](const ImageU8& in) {
+    ImageU8 out = in;
+    for (auto& p : out.pixels)
+      p = static_cast<std::uint8_t>(std::clamp(p + noise(rng), 0.0, 255.0));
+    return out;
+  };
+  const ImageU8 a1 = noisy(a), a2 = noisy(a);
+  const ChangeOptions options;
+  const ImageChange same = CompareImages(a1, a2, options);
+  EXPECT_NEAR(same.noise_dn, std::sqrt(2.0), 0.6);  // two frames' noise of 1 DN each
+  EXPECT_LE(same.changed_fraction, options.max_changed_fraction);
+  // A lick of flame 4x3 pixels large, 30 levels brighter: a change.
+  ImageU8 b = a;
+  for (int y = 30; y < 33; ++y)
+    for (int x = 75; x < 79; ++x) b.at(x, y, 0) = 30;
+  const ImageChange changed = CompareImages(a1, noisy(b), options);
+  EXPECT_GT(changed.changed_fraction, options.max_changed_fraction);
+  EXPECT_THROW(CompareImages(a, ImageU8(10, 10, 3), options), std::invalid_argument);
+}
+
+TEST(RunFrames, ReconstructorStateResumesBitExactly) {
+  const tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
+  const fs::path dir = TempDir("state");
+  SimulateDataset(dir / "sim", 2);
+  const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
+  FrameSourceSpec spec;
+  spec.images_dir = (dir / "sim" / "frames").string();
+  const FrameSource source(spec, rig);
+  ReconstructOptions ro;
+  ro.resolution = 24;
+  ro.cache_dir = (dir / "cache").string();
+  const auto f0 = source.Read(0, 1.0), f1 = source.Read(1, 1.0);
+  Reconstructor first(rig, ro);
+  const FireVolume v0 = first.Reconstruct(f0.linear, nullptr);
+  const std::string state = (dir / "after0.state").string();
+  first.SaveState(state);
+  ReconstructSummary s1;
+  const FireVolume v1 = first.Reconstruct(f1.linear, &s1, &v0);
+  Reconstructor second(rig, ro);
+  second.LoadState(state);
+  ReconstructSummary s2;
+  const FireVolume w1 = second.Reconstruct(f1.linear, &s2, &v0);
+  EXPECT_EQ(s1.matrix_source, "reused (envelope)");
+  EXPECT_EQ(s2.matrix_source, "reused (envelope)");  // the loaded envelope, not a fresh one
+  EXPECT_TRUE(v1.emission_rgb == w1.emission_rgb);
+
+  // Damaged, or saved for another grid: errors that name the file.
+  {
+    std::fstream f(state, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(40);
+    f.put('\x5a');
+  }
+  try {
+    second.LoadState(state);
+    ADD_FAILURE() << "a corrupt state loaded";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find(state), std::string::npos) << e.what();
+  }
+  first.SaveState(state);
+  ReconstructOptions other = ro;
+  other.resolution = 20;
+  Reconstructor third(rig, other);
+  try {
+    third.LoadState(state);
+    ADD_FAILURE() << "a state for another grid loaded";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("another rig, grid or options"), std::string::npos);
+  }
+  fs::remove_all(dir);
+}
+
+// The main promise: every frame reconstructed and fitted, images reproduced and the temperature
+// close to the simulator's truth where it can be seen.
+TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
+  const fs::path dir = TempDir("e2e");
+  SimulateDataset(dir / "sim", 4);
+  const RunOptions o = SmallRun(dir / "sim", dir / "out");
+  std::size_t calls = 0;
+  const FrameSource source(o.source, Rig::Load(o.rig_path));
+  const RunSummary run = RunFrames(o, o.rig_path, 0, 4, [&](const RunProgress& p) {
+    ++calls;
+    EXPECT_EQ(p.done, calls);
+    EXPECT_EQ(p.total, 4u);
+  });
+  ASSERT_EQ(run.frames.size(), 4u);
+  EXPECT_EQ(run.computed, 4u);
+  EXPECT_EQ(calls, 4u);
+  for (const auto& f : run.frames) {
+    SCOPED_TRACE(f.Line());
+    EXPECT_EQ(f.status, "computed");
+    EXPECT_EQ(f.cameras_used, 3);
+    ASSERT_EQ(f.delta_e.size(), 3u);
+    // Measured about 1.0 on the fire pixels; a black render scores about 14 there.
+    for (const auto& d : f.delta_e) EXPECT_LT(d.fire, 2.0) << d.camera;
+    // Measured 110 to 160 K; a uniform random start in 300..2300 K gives about 700 K.
+    EXPECT_GE(f.truth_rms_k, 0);
+    EXPECT_LT(f.truth_rms_k, 250);
+    EXPECT_GT(f.truth_voxels, f.truth_visible / 2);
+    EXPECT_EQ(f.truth_frame, static_cast<int>(f.frame));
+    EXPECT_TRUE(fs::exists(dir / "out" / (FrameName(f.frame) + ".vdb")));
+    EXPECT_TRUE(fs::exists(dir / "out" / "blender" / (FrameName(f.frame) + ".vdb")));
+    EXPECT_TRUE(fs::exists(dir / "out" / "tomography" / (FrameName(f.frame) + ".vdb")));
+    EXPECT_TRUE(fs::exists(dir / "out" / "frames" / (FrameName(f.frame) + ".png")));
+    // The summary on disk is the one returned.
+    const auto back = ReadFrameSummaries(o.out_dir, f.frame, f.frame + 1);
+    ASSERT_EQ(back.size(), 1u);
+    EXPECT_EQ(back[0].Line(), f.Line());
+  }
+  // The matrix built once, then reused while the fire stays in its envelope.
+  EXPECT_EQ(run.frames[0].matrix_source, "built");
+  int reused = 0;
+  for (const auto& f : run.frames) reused += f.matrix_source == "reused (envelope)";
+  EXPECT_GE(reused, 2);
+  // The output volume carries its exposure and renders: temperature and density present.
+  const FireVolume v = ReadVdb((dir / "out" / "frame_000002.vdb").string());
+  EXPECT_GT(v.metadata_numbers.at("exposure"), 0);
+  EXPECT_EQ(v.metadata_numbers.at("frame"), 2);
+
+  // The report: a page with its pictures.
+  RunReportInfo info;
+  info.truth_dir = o.truth_dir;
+  const std::string page = WriteRunReport(o.out_dir, run.frames, info);
+  std::ifstream in(page);
+  const std::string html((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  for (const char* picture : {"errors.png", "timing.png", "contact.png", "slices_000000.png"}) {
+    EXPECT_NE(html.find(picture), std::string::npos) << picture;
+    EXPECT_FALSE(ReadImageU8((fs::path(page).parent_path() / picture).string()).empty());
+  }
+  EXPECT_NE(html.find("K RMS"), std::string::npos);
+  EXPECT_TRUE(fs::exists(dir / "out" / "frames.csv"));
+
+  // Nothing left to do: a second call reads what is there.
+  const RunSummary again = RunAll(o);
+  EXPECT_EQ(again.resumed, 4u);
+  EXPECT_EQ(again.computed, 0u);
+  fs::remove_all(dir);
+}
+
+// A frame whose images did not change beyond noise reuses the previous result.
+TEST(RunFrames, UnchangedFramesReuseThePreviousResult) {
+  const fs::path dir = TempDir("unchanged");
+  SimulateDataset(dir / "sim", 3);
+  // Frame 2 becomes frame 1 again, with new sensor noise.
+  const fs::path frames = dir / "sim" / "frames";
+  std::mt19937 rng(5);
+  std::normal_distribution<double> noise(0, 0.5);
+  for (const auto& e : fs::directory_iterator(frames / "frame_000001")) {
+    ImageU8 image = ReadImageU8(e.path().string(), 3);
+    for (auto& p : image.pixels)
+      p = static_cast<std::uint8_t>(std::clamp(std::lround(p + noise(rng)), 0L, 255L));
+    WritePng((frames / "frame_000002" / e.path().filename()).string(), image);
+  }
+  const RunOptions o = SmallRun(dir / "sim", dir / "out");
+  const RunSummary run = RunAll(o);
+  ASSERT_EQ(run.frames.size(), 3u);
+  EXPECT_EQ(run.frames[1].status, "computed");
+  EXPECT_EQ(run.frames[2].status, "unchanged (reused frame 1)") << run.frames[2].Line();
+  EXPECT_EQ(run.unchanged, 1u);
+  EXPECT_EQ(run.frames[2].fit_ms, 0);
+  ExpectSameVolume(dir / "out" / "frame_000001.vdb", dir / "out" / "frame_000002.vdb");
+  // With the skip off, it is computed.
+  RunOptions all = o;
+  all.out_dir = (dir / "out2").string();
+  all.skip_unchanged = false;
+  EXPECT_EQ(RunAll(all).frames[2].status, "computed");
+  fs::remove_all(dir);
+}
+
+// A recording: a camera that dropped a set and a frame delivered incomplete are left out of their
+// frame with a note; a set whose pixels fail their checksum is a failed frame naming the file, and
+// the run goes on.
+TEST(RunFrames, RecordingsWithDropsAndCorruptionAreReportedPerFrame) {
+  const fs::path dir = TempDir("recording");
+  SimulateDataset(dir / "sim", 4);
+  const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
+  RecordingMetadata meta;
+  meta.sync_mode = "hardware-trigger";
+  for (const auto& c : rig.cameras) {
+    RecordingCamera rc;
+    rc.name = c.name;
+    rc.description.driver = "sim";
+    rc.settings.width = 120;
+    rc.settings.height = 90;
+    rc.settings.pixel_format = PixelFormat::kRgb8;
+    meta.cameras.push_back(rc);
+  }
+  const fs::path rec_dir = dir / "rec";
+  {
+    Recorder recorder(rec_dir.string(), meta);
+    for (int s = 0; s < 4; ++s) {
+      FrameSet set;
+      set.index = s;
+      set.trigger_id = s;
+      set.frames.resize(3);
+      for (int c = 0; c < 3; ++c) {
+        if (s == 1 && c == 2) continue;  // dropped
+        const ImageU8 image = ReadImageU8(
+            (dir / "sim" / "frames" / FrameName(s) / (rig.cameras[c].name + ".png")).string(), 3);
+        Frame f;
+        f.info.camera = c;
+        f.info.frame_id = 100 + s;
+        f.info.trigger_id = s;
+        f.info.pixel_format = PixelFormat::kRgb8;
+        f.info.width = 120;
+        f.info.height = 90;
+        f.info.status = s == 2 && c == 0 ? FrameStatus::kIncomplete : FrameStatus::kOk;
+        f.data = std::make_shared<std::vector<std::uint8_t>>(image.pixels);
+        set.frames[c] = f;
+      }
+      ASSERT_TRUE(recorder.Submit(set));
+    }
+    EXPECT_EQ(recorder.Close().sets_recorded, 4u);
+  }
+  // Corrupt a pixel of camera 1's frame in set 3.
+  {
+    const Recording r = Recording::Open(rec_dir.string());
+    const std::uint64_t offset = r.frames(1)[3].offset + sizeof(FrameRecord) + 1000;
+    std::fstream f(rec_dir / CameraDataFile(1), std::ios::in | std::ios::out | std::ios::binary);
+    f.seekg(static_cast<std::streamoff>(offset));
+    const char c = static_cast<char>(f.get());
+    f.seekp(static_cast<std::streamoff>(offset));
+    f.put(static_cast<char>(c ^ 0x40));
+  }
+  RunOptions o = SmallRun(dir / "sim", dir / "out");
+  o.source = FrameSourceSpec();
+  o.source.recording_dir = rec_dir.string();
+  const RunSummary run = RunAll(o);
+  ASSERT_EQ(run.frames.size(), 4u);
+  EXPECT_EQ(run.frames[0].status, "computed");
+  EXPECT_EQ(run.frames[0].cameras_used, 3);
+  // Set 1: cam2 dropped.
+  EXPECT_EQ(run.frames[1].status, "computed");
+  EXPECT_EQ(run.frames[1].cameras_used, 2);
+  ASSERT_FALSE(run.frames[1].notes.empty());
+  EXPECT_NE(run.frames[1].notes[0].find(rig.cameras[2].name + " left out"), std::string::npos);
+  EXPECT_EQ(run.frames[1].delta_e.size(), 2u);
+  // Set 2: cam0's frame incomplete.
+  EXPECT_EQ(run.frames[2].cameras_used, 2);
+  ASSERT_FALSE(run.frames[2].notes.empty());
+  EXPECT_NE(run.frames[2].notes[0].find("incomplete"), std::string::npos) << run.frames[2].notes[0];
+  // Set 3: corrupt, named.
+  EXPECT_EQ(run.frames[3].status.rfind("failed", 0), 0u) << run.frames[3].status;
+  EXPECT_NE(run.frames[3].status.find(CameraDataFile(1)), std::string::npos)
+      << run.frames[3].status;
+  EXPECT_FALSE(fs::exists(dir / "out" / "frame_000003.vdb"));
+  // The truth of a recorded set is found by its frame id (100 + s) modulo the 4 truth volumes.
+  EXPECT_EQ(run.frames[1].truth_frame, 1);
+
+  // A rig camera the recording lacks, and frames of the wrong size: errors that name them.
+  Rig renamed = rig;
+  renamed.cameras[1].name = "side";
+  try {
+    FrameSource s(o.source, renamed);
+    ADD_FAILURE() << "a camera the recording lacks was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("no camera named side"), std::string::npos) << e.what();
+  }
+  const fs::path bad = dir / "bad" / "frame_000000";
+  fs::create_directories(bad);
+  for (const auto& c : rig.cameras)
+    WritePng((bad / (c.name + ".png")).string(), ImageU8(64, 48, 3));
+  FrameSourceSpec images;
+  images.images_dir = (dir / "bad").string();
+  const FrameSource wrong(images, rig);
+  try {
+    wrong.Read(0, 1.0);
+    ADD_FAILURE() << "a wrongly sized image was accepted";
+  } catch (const std::invalid_argument& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("64x48"), std::string::npos) << m;
+    EXPECT_NE(m.find("120x90"), std::string::npos) << m;
+    EXPECT_NE(m.find(rig.cameras[0].name), std::string::npos) << m;
+  }
+  fs::remove_all(dir);
+}
+
+// The Blender grids against their definitions: kappa = sigma_550 n, temperature zero outside the
+// soot, emission luminance = n x the luminance of sigma B_T (the Planck curve through the colour
+// matching functions), and a transform that stands the Y-up rig on Blender's Z up.
+TEST(RunFrames, BlenderGridsFollowTheirDefinitions) {
+  FireVolume v;
+  v.geometry.dims = Eigen::Vector3i(4, 6, 5);
+  v.geometry.origin_in_rig = Eigen::Vector3d(-0.02, 0.01, -0.03);
+  v.geometry.voxel_size_m = Eigen::Vector3d::Constant(0.005);
+  const std::size_t n = v.geometry.num_voxels();
+  v.temperature_k.assign(n, 300.0f);
+  v.density_per_m3.assign(n, 0.0f);
+  const std::size_t hot = v.geometry.Flat(1, 4, 2), warm = v.geometry.Flat(2, 1, 3);
+  v.temperature_k[hot] = 2300;
+  v.density_per_m3[hot] = 2e16f;
+  v.temperature_k[warm] = 1300;
+  v.density_per_m3[warm] = 2e16f;
+  v.metadata_numbers["exposure"] = 3.5;
+  const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
+  const BlenderGrids b = MakeBlenderGrids(v, grey);
+  EXPECT_FLOAT_EQ(b.density_per_m[hot], grey.CrossSectionM2(550) * 2e16);
+  EXPECT_EQ(b.temperature_k[hot], 2300.0f);
+  EXPECT_EQ(b.temperature_k[0], 0.0f);  // no soot: no glow in Blender
+  EXPECT_EQ(b.density_per_m[0], 0.0f);
+  // Luminance per metre of a grey body: sigma n integral(B ybar) / integral(ybar), by quadrature of
+  // the Planck formula over colord-data's independent copy of CIE 1931 (5 nm, from 360 nm).
+  std::vector<double> ybar;
+  {
+    std::ifstream cmf("/usr/share/colord/cmf/CIE1931-2deg-XYZ.cmf");
+    ASSERT_TRUE(cmf) << "colord-data is missing: scripts/install-deps.sh installs it";
+    std::string line;
+    while (std::getline(cmf, line) && line.rfind("BEGIN_DATA", 0) != 0 &&
+           line.rfind("BEGIN_DATA_FORMAT", 0) != 0) {
+    }
+    while (std::getline(cmf, line) && line.rfind("BEGIN_DATA", 0) != 0) {
+    }
+    std::getline(cmf, line);  // xbar
+    std::getline(cmf, line);  // ybar
+    std::istringstream values(line);
+    for (double y; values >> y;) ybar.push_back(y);
+    ASSERT_EQ(ybar.size(), 95u);
+  }
+  auto luminance = [&](double t) {
+    double num = 0, den = 0;
+    for (std::size_t i = 0; i < ybar.size(); ++i) {
+      num += physics::PlanckRadiancePerNm(360.0 + 5.0 * i, t) * ybar[i];
+      den += ybar[i];
+    }
+    return grey.CrossSectionM2(550) * 2e16 * num / den;
+  };
+  EXPECT_NEAR(b.flame[hot] / luminance(2300), 1.0, 0.01);
+  EXPECT_NEAR(b.flame[warm] / luminance(1300), 1.0, 0.01);
+  // notes/physics.md: Y(2300 K) is about 3650 Y(1300 K).
+  EXPECT_NEAR(b.flame[hot] / b.flame[warm], 3650, 150);
+
+  const fs::path dir = TempDir("blender");
+  const std::string path = (dir / "b.vdb").string();
+  WriteBlenderVdb(path, v, grey);
+  openvdb::initialize();
+  openvdb::io::File file(path);
+  file.open();
+  auto grid = openvdb::gridPtrCast<openvdb::FloatGrid>(file.readGrid("temperature"));
+  for (const auto& name : {"density", "temperature", "emission", "flame"})
+    EXPECT_TRUE(file.hasGrid(name)) << name;
+  file.close();
+  ASSERT_TRUE(grid);
+  EXPECT_EQ(grid->tree().getValue(openvdb::Coord(1, 4, 2)), 2300.0f);
+  const Eigen::Vector3d rig = v.geometry.VoxelCenter(1, 4, 2);
+  const openvdb::Vec3d world = grid->indexToWorld(openvdb::Vec3d(1, 4, 2));
+  EXPECT_NEAR(world.x(), rig.x(), 1e-9);
+  EXPECT_NEAR(world.y(), -rig.z(), 1e-9);  // Blender's y is the rig's -z
+  EXPECT_NEAR(world.z(), rig.y(), 1e-9);   // Blender's z (up) is the rig's y (up)
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace flamerig
