@@ -506,7 +506,12 @@ void CaptureDaemon::TriggerLoop() {
         last_error_ = e.what();
       }
     } else if (config_.sync == SyncMode::kHardwareTrigger && bus_) {
-      bus_->Fire(id, now);  // the simulated trigger line
+      // The simulated trigger line stands for a hardware trigger generator, which never runs
+      // late: a pulse carries its scheduled time even when this thread wakes late (the cameras
+      // expose then and the frames wait in their buffers), and no slot is skipped.
+      bus_->Fire(id, next);
+      next += period;
+      continue;
     } else {
       for (auto& c : cameras_) c->SoftwareTrigger(id);
     }

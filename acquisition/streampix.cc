@@ -1,5 +1,6 @@
 #include "acquisition/streampix.h"
 
+#include <algorithm>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -80,7 +81,10 @@ StreamPixSequence::StreamPixSequence(const std::string& path, PixelFormat bayer)
   std::error_code ec;
   const std::uint64_t size = std::filesystem::file_size(path, ec);
   if (ec) fail("cannot read its size");
-  frames_ = size > s.header_size ? (size - s.header_size) / s.true_image_size : 0;
+  // StreamPix 6 and later (version >= 5) write an 8192-byte header but keep 1024 in its size field
+  // (the pims project's sample_norpix6.seq is laid out so, and its reader starts at 8192).
+  first_image_ = s.version >= 5 ? std::max<std::uint64_t>(8192, s.header_size) : s.header_size;
+  frames_ = size > first_image_ ? (size - first_image_) / s.true_image_size : 0;
 }
 
 Frame StreamPixSequence::ReadFrame(std::size_t i, int camera) const {
@@ -89,7 +93,7 @@ Frame StreamPixSequence::ReadFrame(std::size_t i, int camera) const {
                             " of " + std::to_string(frames_));
   }
   std::ifstream in(path_, std::ios::binary);
-  const std::uint64_t at = header_.header_size + std::uint64_t(i) * header_.true_image_size;
+  const std::uint64_t at = first_image_ + std::uint64_t(i) * header_.true_image_size;
   in.seekg(static_cast<std::streamoff>(at));
   auto bytes = std::make_shared<std::vector<std::uint8_t>>(header_.image_size_bytes);
   in.read(reinterpret_cast<char*>(bytes->data()), static_cast<std::streamsize>(bytes->size()));

@@ -1,7 +1,9 @@
 // Reading Norpix StreamPix `.seq` sequences, the format the paper's capture used (one file per
 // camera, hardware-triggered, so frame i of every file is one frame set).
 //
-// Layout (little-endian): a header of `header_size` bytes (1024), then fixed-size frames of
+// Layout (little-endian): a header of `header_size` bytes (1024; versions 5 and later, written by
+// StreamPix 6 and later, have an 8192-byte header although the field still says 1024: their first
+// image is at byte 8192, as in the pims project's sample file), then fixed-size frames of
 // `true_image_size` bytes: the image (`image_size_bytes`), an 8-byte timestamp (int32 seconds
 // since 1970, uint16 milliseconds, uint16 microseconds; version 5 and later, earlier versions
 // leave the microseconds 0), padding. Header fields, by byte offset: 0 magic 0xFEED, 28 version,
@@ -50,6 +52,7 @@ class StreamPixSequence {
   PixelFormat format_ = PixelFormat::kMono8;
   bool bgr_ = false;
   std::size_t frames_ = 0;
+  std::uint64_t first_image_ = 0;  // byte offset of frame 0
 };
 
 }  // namespace flamerig

@@ -105,6 +105,20 @@ struct CalibrationBenchmarkOptions {
 std::string RunCalibrationBenchmark(const CalibrationBenchmarkOptions& options,
                                     const std::function<void(const std::string&)>& log);
 
+struct RunBenchmarkOptions {
+  int frames = 12;       // of the simulated candle
+  int resolution = 64;   // grid along the box's longest axis
+  int width = 320, height = 240;
+  bool quick = false;    // CI smoke mode: 3 frames, 24^3, 120x90
+};
+
+// The run benchmark (issue 7): frames per minute of `flamerig run` on a simulated recording with
+// the share of each stage, against every frame processed on its own (no matrix reuse, no warm
+// start), and a still stretch of fire recognised as unchanged; error against the truth side by
+// side. Returns the Markdown section.
+std::string RunRunBenchmark(const RunBenchmarkOptions& options,
+                            const std::function<void(const std::string&)>& log);
+
 }  // namespace flamerig
 
 #endif  // FLAMERIG_TOOLS_BENCHMARK_H_

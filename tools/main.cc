@@ -95,7 +95,7 @@ commands:
         Write a recording's (or StreamPix sequences') frame sets as DIR/frame_NNNNNN/<camera>.png
         (the layout reconstruct and fit read) and DIR/sets.csv; reports what a recovered recording
         left out.
-  benchmark render|tomography|fit|capture|calibration [--out BENCHMARKS.md] [--quick] [--figures DIR]
+  benchmark render|tomography|fit|capture|calibration|run [--out BENCHMARKS.md] [--quick] [--figures DIR]
             [--seconds S]
         Time the forward renderer, the tomography or the fit (ours against the paper's
         Algorithm 2) against its error, or sustained recording from simulated and Aravis fake
@@ -348,7 +348,7 @@ int Reconstruct(const Args& args) {
 int Benchmark(const Args& args) {
   const std::string target = args.positional.empty() ? "" : args.positional[0];
   if (target.empty()) {
-    throw std::invalid_argument("benchmark needs a target: render, tomography, fit or capture");
+    throw std::invalid_argument("benchmark needs a target: render, tomography, fit, capture, calibration or run");
   }
   args.CheckKnown({"out", "quick", "figures", "seconds"});
   auto log = [](const std::string& line) { std::fprintf(stderr, "%s\n", line.c_str()); };
@@ -376,13 +376,17 @@ int Benchmark(const Args& args) {
     command.insert(command.end(), args.original.begin(), args.original.end());
     RerunInLoopbackNamespace(command);
     md = RunCaptureBenchmark(options, log);
+  } else if (target == "run") {
+    RunBenchmarkOptions options;
+    options.quick = args.named.count("quick") > 0;
+    md = RunRunBenchmark(options, log);
   } else if (target == "calibration") {
     CalibrationBenchmarkOptions options;
     options.quick = args.named.count("quick") > 0;
     md = RunCalibrationBenchmark(options, log);
   } else {
     throw std::invalid_argument("benchmark target '" + target +
-                                "': use render, tomography, fit, capture or calibration");
+                                "': use render, tomography, fit, capture, calibration or run");
   }
   std::string out = args.Get("out", "BENCHMARKS.md");
   WriteBenchmarkSection(out, target, md);
