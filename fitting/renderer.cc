@@ -282,10 +282,17 @@ void FireRenderer::MarchRay(const RayMarch& march, MarchCounters* c, Visit&& vis
 }
 
 template <typename Real>
-RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* linear_rgb) const {
+RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* linear_rgb,
+                                       const std::vector<float>* max_distance_m,
+                                       ImageF* transmittance_rgb) const {
   const auto start = std::chrono::steady_clock::now();
   const int width = camera_rays.width(), height = camera_rays.height();
   *linear_rgb = ImageF(width, height, 3, 0.0f);
+  if (transmittance_rgb) *transmittance_rgb = ImageF(width, height, 3, 1.0f);
+  // Per channel, the colour matching weights of the bins (spectral transmittance to RGB).
+  Eigen::Vector3d weight_sum = Eigen::Vector3d::Zero();
+  if (path_ == SpectralPath::kSpectral)
+    for (int b = 0; b < bins_->count(); ++b) weight_sum += bins_->weight(b);
 
   const GridGeometry& g = geometry_;
   const double step_m = options_.step_voxels * g.voxel_size_m.minCoeff();
@@ -309,6 +316,17 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
       for (int x = 0; x < width; ++x) {
         RayMarch march;
         if (!RayMarch::Make(g, camera_rays.at(x, y), step_m, &march)) continue;
+        if (max_distance_m) {
+          // An opaque surface inside or in front of the box ends the march there.
+          const double stop = (*max_distance_m)[static_cast<std::size_t>(y) * width + x];
+          if (!(stop > march.t_enter)) continue;
+          if (stop < march.t_exit) {
+            march.t_exit = stop;
+            march.n_steps = std::max<std::int64_t>(
+                1, static_cast<std::int64_t>(
+                       std::ceil((march.t_exit - march.t_enter) / step_m - 1e-9)));
+          }
+        }
         ++c.hit;
         for (int b = 0; b < nbins; ++b) {
           radiance[b] = Real(0);
@@ -370,6 +388,16 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
         }
         const Eigen::Vector3d rgb = to_rgb * xyz;
         for (int ch = 0; ch < 3; ++ch) linear_rgb->at(x, y, ch) = static_cast<float>(rgb[ch]);
+        if (transmittance_rgb) {
+          Eigen::Vector3d tr = Eigen::Vector3d::Constant(double(transmittance[0]));
+          if (spectral) {
+            tr.setZero();
+            for (int b = 0; b < nbins; ++b) tr += double(transmittance[b]) * bins_->weight(b);
+            tr = tr.cwiseQuotient(weight_sum);
+          }
+          for (int ch = 0; ch < 3; ++ch)
+            transmittance_rgb->at(x, y, ch) = static_cast<float>(std::clamp(tr[ch], 0.0, 1.0));
+        }
       }
     }
     hit += c.hit;
@@ -627,6 +655,16 @@ RenderSummary FireRenderer::Render(const CameraRays& rays, ImageF* linear_rgb) c
   if (!has_volume_) throw std::logic_error("FireRenderer::Render called before SetVolume");
   if (options_.double_precision) return RenderImpl<double>(rays, linear_rgb);
   return RenderImpl<float>(rays, linear_rgb);
+}
+
+RenderSummary FireRenderer::Render(const CameraRays& rays, const std::vector<float>& max_distance_m,
+                                   ImageF* linear_rgb, ImageF* transmittance_rgb) const {
+  if (!has_volume_) throw std::logic_error("FireRenderer::Render called before SetVolume");
+  if (max_distance_m.size() != static_cast<std::size_t>(rays.width()) * rays.height())
+    throw std::invalid_argument("FireRenderer::Render: need one max distance per pixel");
+  if (options_.double_precision)
+    return RenderImpl<double>(rays, linear_rgb, &max_distance_m, transmittance_rgb);
+  return RenderImpl<float>(rays, linear_rgb, &max_distance_m, transmittance_rgb);
 }
 
 ImageU8 ApplyCameraResponse(const ImageF& linear_rgb, double exposure) {

@@ -123,6 +123,16 @@ class FireRenderer {
   // 3 channels). Requires SetVolume() first.
   RenderSummary Render(const CameraRays& rays, ImageF* linear_rgb) const;
 
+  // The same for rays that end at an opaque surface: max_distance_m (one per pixel, metres along the
+  // ray from its origin; +inf = no surface) ends the march there; when not null,
+  // *transmittance_rgb (3 channels) receives the fraction of the surface's light that crosses the
+  // medium to the camera: the grey transmittance on the fast path; on the spectral path the bins'
+  // transmittances averaged with xbar, ybar, zbar for R, G, B (exact for grey surfaces seen through
+  // grey media, an approximation otherwise). Throws std::invalid_argument when max_distance_m does
+  // not have one value per pixel.
+  RenderSummary Render(const CameraRays& rays, const std::vector<float>& max_distance_m,
+                       ImageF* linear_rgb, ImageF* transmittance_rgb) const;
+
   // Adds dLoss/dT (per kelvin) and dLoss/dn (per particle/m^3) of every voxel to the two arrays
   // (resized to the grid and zeroed when empty; otherwise they must have one value per voxel),
   // given d_loss_d_rgb: dLoss/d(linear sRGB radiance) per pixel, 3 channels, the camera's size.
@@ -137,7 +147,9 @@ class FireRenderer {
 
  private:
   template <typename Real>
-  RenderSummary RenderImpl(const CameraRays& rays, ImageF* linear_rgb) const;
+  RenderSummary RenderImpl(const CameraRays& rays, ImageF* linear_rgb,
+                           const std::vector<float>* max_distance_m = nullptr,
+                           ImageF* transmittance_rgb = nullptr) const;
   template <typename Real>
   RenderSummary GradientImpl(const CameraRays& rays, const ImageF& d_loss_d_rgb,
                              std::vector<double>* d_temperature,

@@ -15,6 +15,7 @@ PACKAGES=(
   colord-data
   libopenmpi-dev openmpi-bin
   blender
+  libembree-dev libtinyobjloader-dev
 )
 
 missing=()
