@@ -191,8 +191,17 @@ struct SceneRenderer::Impl {
   RTCScene rtc = nullptr;
   unsigned triangle_geometry = RTC_INVALID_GEOMETRY_ID, sphere_geometry = RTC_INVALID_GEOMETRY_ID;
   std::vector<Fire> fires;
-  std::vector<Emitter> emitters;
-  std::vector<double> cdf;  // cumulative luminance of the emitters, normalised to 1
+  std::vector<Emitter> emitters;  // sorted by brick
+  std::vector<double> cdf;        // cumulative luminance of the emitters, normalised to 1
+  // Emitters grouped in bricks of kBrick^3 voxels, for sampling by power over distance squared.
+  struct Brick {
+    std::size_t first = 0, count = 0;  // emitters[first, first + count)
+    Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+    double radius = 0;     // half its diagonal, scene metres
+    double luminance = 0;  // of its emitters' intensities
+  };
+  static constexpr int kBrick = 4;
+  std::vector<Brick> bricks;
   double total_luminance = 0;
   SceneLight light;
   double min_distance_m = 1e-4;  // light samples closer than this are clamped (half a voxel)
@@ -288,16 +297,33 @@ struct SceneRenderer::Impl {
   }
 
   // One light sample's irradiance at p (normal n), and its incoming direction.
+  // `stratum` of `strata`: the emitter is chosen in that slice of the power CDF (stratified
+  // sampling across a pixel's samples: unbiased, and neighbouring voxels of the CDF are neighbours
+  // in space, so the samples spread over the fire).
   Eigen::Vector3d SampleIrradiance(const Eigen::Vector3d& p, const Eigen::Vector3d& n,
                                    SceneLighting lighting, double sphere_radius, Random* rng,
-                                   Eigen::Vector3d* incoming, std::int64_t* shadow_rays) const {
+                                   Eigen::Vector3d* incoming, std::int64_t* shadow_rays,
+                                   const std::vector<double>& brick_cdf, int stratum = 0,
+                                   int strata = 1) const {
     if (emitters.empty()) return Eigen::Vector3d::Zero();
     Eigen::Vector3d x, intensity;
     bool through_fire = false;
     if (lighting == SceneLighting::kFireVolume) {
-      const double u = rng->Uniform();
+      // A brick by its power over its distance squared (brick_cdf, for this point), then a voxel
+      // of it by power: probability (w_b / W) (Y_e / Y_b).
+      const double u = (stratum + rng->Uniform()) / strata;
+      const std::size_t b = std::min<std::size_t>(
+          bricks.size() - 1,
+          std::upper_bound(brick_cdf.begin(), brick_cdf.end(), u) - brick_cdf.begin());
+      const Brick& brick = bricks[b];
+      const double lo = brick.first == 0 ? 0.0 : cdf[brick.first - 1];
+      const double hi = cdf[brick.first + brick.count - 1];
+      const double v = lo + rng->Uniform() * (hi - lo);
+      const auto begin = cdf.begin() + static_cast<std::ptrdiff_t>(brick.first);
       const std::size_t e = std::min<std::size_t>(
-          emitters.size() - 1, std::upper_bound(cdf.begin(), cdf.end(), u) - cdf.begin());
+          brick.first + brick.count - 1,
+          std::upper_bound(begin, begin + static_cast<std::ptrdiff_t>(brick.count), v) -
+              cdf.begin());
       const Emitter& em = emitters[e];
       const Fire& f = fires[em.fire];
       const std::size_t nx = f.grid.dims.x(), ny = f.grid.dims.y();
@@ -306,7 +332,8 @@ struct SceneRenderer::Impl {
       const Eigen::Vector3d jitter(rng->Uniform() - 0.5, rng->Uniform() - 0.5,
                                    rng->Uniform() - 0.5);
       x = f.ToScene(f.grid.VoxelCenter(i, j, k) + jitter.cwiseProduct(f.grid.voxel_size_m));
-      const double probability = (e == 0 ? cdf[0] : cdf[e] - cdf[e - 1]);
+      const double brick_probability = brick_cdf[b] - (b == 0 ? 0.0 : brick_cdf[b - 1]);
+      const double probability = brick_probability * Luminance(em.intensity) / brick.luminance;
       intensity = em.intensity / probability;
       through_fire = true;
     } else {
@@ -336,6 +363,20 @@ struct SceneRenderer::Impl {
     Eigen::Vector3d e = intensity * cosine / std::max(d * d, min_distance_m * min_distance_m);
     if (through_fire) e = e.cwiseProduct(Transmittance(x, p));
     return e;
+  }
+
+  // The cumulative brick probabilities for a shading point: brick power over the square of its
+  // distance, never nearer than its own radius (every brick keeps a weight > 0: unbiased).
+  void BrickCdf(const Eigen::Vector3d& p, std::vector<double>* out) const {
+    out->resize(bricks.size());
+    double acc = 0;
+    for (std::size_t b = 0; b < bricks.size(); ++b) {
+      const double d = std::max((bricks[b].centre - p).norm() - bricks[b].radius, bricks[b].radius);
+      acc += bricks[b].luminance / (d * d);
+      (*out)[b] = acc;
+    }
+    for (double& c : *out) c /= acc;
+    if (!out->empty()) out->back() = 1.0;
   }
 
   // Reflected radiance towards `outgoing` for light arriving from `incoming` (unit vectors).
@@ -465,6 +506,40 @@ SceneRenderer::SceneRenderer(const Scene& scene) : impl_(std::make_unique<Impl>(
   }
   if (std::isfinite(smallest_voxel)) m.min_distance_m = 0.5 * smallest_voxel;
   m.light.emitting_voxels = m.emitters.size();
+  // Group the emitters by brick (stable: voxel order inside a brick).
+  auto brick_key = [&](const Impl::Emitter& e) {
+    const GridGeometry& g = m.fires[e.fire].grid;
+    const std::size_t nx = g.dims.x(), ny = g.dims.y();
+    const std::size_t i = e.voxel % nx, j = (e.voxel / nx) % ny, k = e.voxel / (nx * ny);
+    const std::size_t bx = (nx + Impl::kBrick - 1) / Impl::kBrick,
+                      by = (ny + Impl::kBrick - 1) / Impl::kBrick;
+    return std::make_pair(e.fire,
+                          i / Impl::kBrick + bx * (j / Impl::kBrick + by * (k / Impl::kBrick)));
+  };
+  std::stable_sort(
+      m.emitters.begin(), m.emitters.end(),
+      [&](const Impl::Emitter& a, const Impl::Emitter& b) { return brick_key(a) < brick_key(b); });
+  for (std::size_t e = 0; e < m.emitters.size(); ++e) {
+    if (e == 0 || brick_key(m.emitters[e]) != brick_key(m.emitters[e - 1])) {
+      m.bricks.emplace_back();
+      m.bricks.back().first = e;
+    }
+    Impl::Brick& b = m.bricks.back();
+    ++b.count;
+    const double y = Luminance(m.emitters[e].intensity);
+    const Impl::Fire& f = m.fires[m.emitters[e].fire];
+    const std::size_t nx = f.grid.dims.x(), ny = f.grid.dims.y();
+    const std::uint32_t v = m.emitters[e].voxel;
+    b.centre +=
+        y * f.ToScene(f.grid.VoxelCenter(static_cast<int>(v % nx), static_cast<int>((v / nx) % ny),
+                                         static_cast<int>(v / (nx * ny))));
+    b.luminance += y;
+  }
+  for (Impl::Brick& b : m.bricks) {
+    b.centre /= b.luminance;  // power-weighted centre; the radius covers the whole brick
+    const Impl::Fire& f = m.fires[m.emitters[b.first].fire];
+    b.radius = std::sqrt(3.0) * Impl::kBrick * f.scale * f.grid.voxel_size_m.maxCoeff();
+  }
   if (weighted > 0) {
     m.total_luminance = weighted;
     m.light.centroid = centroid / weighted;
@@ -505,9 +580,11 @@ Eigen::Vector3d SceneRenderer::Irradiance(const Eigen::Vector3d& point,
   Eigen::Vector3d sum = Eigen::Vector3d::Zero(), incoming;
   std::int64_t shadow_rays = 0;
   const double radius = sphere_radius_m > 0 ? sphere_radius_m : impl_->light.rms_radius_m;
+  std::vector<double> brick_cdf;
+  impl_->BrickCdf(point, &brick_cdf);
   for (int k = 0; k < samples; ++k)
     sum += impl_->SampleIrradiance(point, normal.normalized(), lighting, radius, &rng, &incoming,
-                                   &shadow_rays);
+                                   &shadow_rays, brick_cdf, k, samples);
   return samples > 0 ? Eigen::Vector3d(sum / samples) : sum;
 }
 
@@ -592,6 +669,7 @@ SceneRenderSummary SceneRenderer::Render(const SceneRenderOptions& options, Imag
     const int samples = std::min(options.samples_per_pass, options.samples_per_pixel - done);
     tbb::parallel_for(tbb::blocked_range<int>(0, height), [&](const tbb::blocked_range<int>& r) {
       std::int64_t rays = 0, hits = 0;
+      std::vector<double> brick_cdf;
       for (int y = r.begin(); y < r.end(); ++y)
         for (int x = 0; x < width; ++x) {
           const std::size_t p = static_cast<std::size_t>(y) * width + x;
@@ -602,10 +680,12 @@ SceneRenderSummary SceneRenderer::Render(const SceneRenderOptions& options, Imag
           const Eigen::Vector3d n = hit_normal[p].cast<double>();
           const SceneMaterial& mat = m.scene.materials[hit_material[p]];
           Random rng(Mix(Mix(options.seed, p), static_cast<std::uint64_t>(pass)));
+          if (options.lighting == SceneLighting::kFireVolume) m.BrickCdf(point, &brick_cdf);
           Eigen::Vector3d acc = Eigen::Vector3d::Zero(), incoming;
           for (int k = 0; k < samples; ++k) {
-            const Eigen::Vector3d e = m.SampleIrradiance(point, n, options.lighting, sphere_radius,
-                                                         &rng, &incoming, &rays);
+            const Eigen::Vector3d e =
+                m.SampleIrradiance(point, n, options.lighting, sphere_radius, &rng, &incoming,
+                                   &rays, brick_cdf, k, samples);
             if (e.isZero()) continue;
             acc += Impl::Brdf(mat, n, incoming, -d).cwiseProduct(e);
           }

@@ -15,9 +15,13 @@
 //     E(p) = sum_j integral over voxel j of  j_rgb Tr(x -> p) V(x, p) cos(theta_p) / |x - p|^2 dx,
 // Tr the transmittance through the fires between x and p (per channel: kappa at 610, 550 and
 // 465 nm for R, G, B; exact for grey soot, an approximation of the spectrum for Rayleigh soot),
-// V the visibility through the scene's geometry. It is estimated by Monte Carlo: a voxel chosen
-// with probability proportional to its emitted power (luminance of I_j; a cumulative table over the
-// emitting voxels of every fire), a point uniform in it, one shadow ray. Surfaces reflect with a
+// V the visibility through the scene's geometry. It is estimated by Monte Carlo: a brick of 4^3
+// voxels chosen with probability proportional to its emitted power over its squared distance from
+// p (never nearer than the brick's own radius, so every brick keeps a chance: unbiased), then a
+// voxel of it by power (luminance of I_j), a point uniform in the voxel, one shadow ray; the brick
+// choice is stratified over a pixel's samples. Against choosing voxels by power alone this cut the
+// variance about five times on a candle beside a table (surfaces near an extended light see 1/d^2
+// vary across it). Surfaces reflect with a
 // Lambertian term (albedo / pi) plus, for glossy materials, a normalised Blinn-Phong lobe
 // ((shininess + 8) / (8 pi) specular cos^shininess of the half angle). Only direct light: the fire
 // lights the scene, the scene does not light the scene again (no interreflection), and the fire

@@ -9,7 +9,8 @@
 #      hardware trigger line), and `flamerig export` writes the recording as PNG frame sets;
 #   4. `flamerig run` reconstructs and fits every recorded frame set through the calibrated rig,
 #      warm-starting each frame from the one before, and writes the volumes, a Blender-ready
-#      sequence and a report with the error against the known truth.
+#      sequence and a report with the error against the known truth;
+#   5. `flamerig render --scene` lights a small still life with the first fitted frame.
 # Output in runs/sim (override with FLAMERIG_RUN_DIR); open runs/sim/run/report/index.html.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -69,12 +70,18 @@ rm -rf "$RUN_DIR/run"
 "$BIN" run --recording "$RUN_DIR/recordings/fire" --rig "$RUN_DIR/calibrated/rig.yaml" \
   --exposure "$EXPOSURE" --truth "$RUN_DIR/truth" --out "$RUN_DIR/run"
 
+# 5. The first fitted frame lighting a small still life, beside the usual point and sphere lights.
+FIRST=$(find "$RUN_DIR/run" -maxdepth 1 -name "frame_*.vdb" | sort | head -1)
+"$BIN" render --scene config/scene_candle.yaml --volume "$FIRST" --samples 32 --out "$RUN_DIR/scene"
+
 echo
 echo "main job done in $(( $(date +%s) - START )) s after the build. Open:"
 echo "  $RUN_DIR/run/report/index.html   the report: error against the truth, input against"
 echo "                                   rendered views, temperature slices, run time per frame"
 echo "  $RUN_DIR/run/frame_NNNNNN.vdb    fitted temperature (K) and density (m^-3) per frame"
 echo "  $RUN_DIR/run/blender/            the same as a Blender-ready .vdb sequence (README)"
+echo "  $RUN_DIR/scene/compare.png       the fitted fire lighting a scene, against a point and a"
+echo "                                   sphere light (fire.exr: the linear HDR render)"
 echo "  $RUN_DIR/calibrated/report.md    the rig calibrated from the recorded board views"
 echo "  $RUN_DIR/recordings/             the capture daemon's recordings (calibration, fire),"
 echo "                                   exported to $RUN_DIR/recorded"

@@ -117,6 +117,41 @@ TEST(RunCli, TwoMpiRanksMatchOneRank) {
   fs::remove_all(dir);
 }
 
+// `run` calibrates first when given board views instead of a rig, into OUT/calibrated, and reuses
+// that rig when started again.
+TEST(RunCli, CalibratesFirstFromBoardViews) {
+  const fs::path dir = TempDir("calibrate");
+  SimulateConfig c;
+  c.frames = 1;
+  c.grid_resolution = 24;
+  c.shared_per_pair = 12;
+  c.closeups_per_camera = 12;
+  c.ring.fill = 0.6;  // as config/sim_rig.yaml: room around the fire for the board
+  Simulate(c, (dir / "sim").string());
+  const std::string command =
+      std::string(FLAMERIG_BINARY) + " run --images " + (dir / "sim" / "frames").string() +
+      " --calibration-images " + (dir / "sim" / "calibration").string() + " --board " +
+      (dir / "sim" / "calibration" / "board.yaml").string() + " --calibrate-config " +
+      FLAMERIG_SOURCE_DIR + "/config/calibrate_sim.yaml --resolution 24 --truth " +
+      (dir / "sim" / "truth").string() + " --out " + (dir / "out").string();
+  const Result first = Shell(command);
+  ASSERT_EQ(first.status, 0) << first.output;
+  ASSERT_TRUE(fs::exists(dir / "out" / "calibrated" / "rig.yaml"));
+  EXPECT_TRUE(fs::exists(dir / "out" / "calibrated" / "report.md"));
+  const auto frames = ReadFrameSummaries((dir / "out").string(), 0, 1);
+  ASSERT_EQ(frames.size(), 1u);
+  EXPECT_EQ(frames[0].status, "computed") << frames[0].Line();
+  // Through the calibrated rig the temperature is still close to the truth (measured about 160 K;
+  // a uniform random start gives about 700 K).
+  EXPECT_LT(frames[0].truth_rms_k, 300) << frames[0].Line();
+  const auto written = fs::last_write_time(dir / "out" / "calibrated" / "rig.yaml");
+  const Result again = Shell(command + " --first 0 --count 1");
+  ASSERT_EQ(again.status, 0) << again.output;
+  EXPECT_EQ(fs::last_write_time(dir / "out" / "calibrated" / "rig.yaml"), written);
+  EXPECT_NE(again.output.find("already done"), std::string::npos) << again.output;
+  fs::remove_all(dir);
+}
+
 // Blender itself (Debian's, through tools/blender_fire.py) renders the Blender export as a fire: an
 // upright flame (our Y-up rig turned to Blender's Z up), orange (red over green over blue), where
 // the camera looks; both with the script's material and with the README's Principled Volume

@@ -102,7 +102,7 @@ commands:
         Write a recording's (or StreamPix sequences') frame sets as DIR/frame_NNNNNN/<camera>.png
         (the layout reconstruct and fit read) and DIR/sets.csv; reports what a recovered recording
         left out.
-  benchmark render|tomography|fit|capture|calibration|run [--out BENCHMARKS.md] [--quick] [--figures DIR]
+  benchmark render|tomography|fit|capture|calibration|run|scene [--out BENCHMARKS.md] [--quick] [--figures DIR]
             [--seconds S]
         Time the forward renderer, the tomography or the fit (ours against the paper's
         Algorithm 2) against its error, or sustained recording from simulated and Aravis fake
@@ -388,7 +388,7 @@ int Benchmark(const Args& args) {
   const std::string target = args.positional.empty() ? "" : args.positional[0];
   if (target.empty()) {
     throw std::invalid_argument(
-        "benchmark needs a target: render, tomography, fit, capture, calibration or run");
+        "benchmark needs a target: render, tomography, fit, capture, calibration, run or scene");
   }
   args.CheckKnown({"out", "quick", "figures", "seconds"});
   auto log = [](const std::string& line) { std::fprintf(stderr, "%s\n", line.c_str()); };
@@ -416,6 +416,10 @@ int Benchmark(const Args& args) {
     command.insert(command.end(), args.original.begin(), args.original.end());
     RerunInLoopbackNamespace(command);
     md = RunCaptureBenchmark(options, log);
+  } else if (target == "scene") {
+    SceneBenchmarkOptions options;
+    options.quick = args.named.count("quick") > 0;
+    md = RunSceneBenchmark(options, log);
   } else if (target == "run") {
     RunBenchmarkOptions options;
     options.quick = args.named.count("quick") > 0;
@@ -426,7 +430,7 @@ int Benchmark(const Args& args) {
     md = RunCalibrationBenchmark(options, log);
   } else {
     throw std::invalid_argument("benchmark target '" + target +
-                                "': use render, tomography, fit, capture, calibration or run");
+                                "': use render, tomography, fit, capture, calibration, run or scene");
   }
   std::string out = args.Get("out", "BENCHMARKS.md");
   WriteBenchmarkSection(out, target, md);
