@@ -50,6 +50,44 @@ void CalibrationOptions::Validate() const {
 // ---- Detection
 // ----------------------------------------------------------------------------------
 
+int ParseDetectionCache(const std::string& text, const BoardSpec& board,
+                        std::map<std::string, BoardDetection>* entries) {
+  std::istringstream in(text);
+  std::string line;
+  if (!std::getline(in, line) || line != "# flamerig board detections v1") return 0;
+  if (!std::getline(in, line) || line != "board " + board.Describe()) return 0;  // another board
+  const int corners = board.num_corners();
+  int kept = 0;
+  while (std::getline(in, line)) {
+    std::istringstream s(line);
+    std::string key;
+    long long n = 0;
+    if (!(s >> key >> n) || n < 0 || n > corners) continue;
+    BoardDetection d;
+    if (n == 0) {
+      s >> std::ws;
+      std::getline(s, d.failure);
+      if (d.failure.empty()) d.failure = "no board";
+    }
+    bool good = true;
+    for (long long i = 0; good && i < n; ++i) {
+      int id;
+      double x, y;
+      // A corner of this board, at a finite position, in ascending order (so never twice).
+      good = static_cast<bool>(s >> id >> x >> y) && id >= 0 && id < corners && std::isfinite(x) &&
+             std::isfinite(y) && (d.corner_ids.empty() || id > d.corner_ids.back());
+      if (good) {
+        d.corner_ids.push_back(id);
+        d.corners_px.emplace_back(x, y);
+      }
+    }
+    if (!good) continue;
+    (*entries)[key] = std::move(d);
+    ++kept;
+  }
+  return kept;
+}
+
 namespace {
 
 // Cached detections, keyed by "<crc32 of the pixels>_<width>x<height>".
@@ -59,29 +97,10 @@ class DetectionCache {
       : path_(std::move(path)), board_(board.Describe()) {
     if (path_.empty()) return;
     std::ifstream in(path_);
-    std::string line;
-    if (!in || !std::getline(in, line) || line != "# flamerig board detections v1") return;
-    if (!std::getline(in, line) || line != "board " + board_) return;  // another board: ignore
-    while (std::getline(in, line)) {
-      std::istringstream s(line);
-      std::string key;
-      int n = 0;
-      if (!(s >> key >> n)) continue;
-      BoardDetection d;
-      if (n == 0) {
-        s >> std::ws;
-        std::getline(s, d.failure);
-        if (d.failure.empty()) d.failure = "no board";
-      }
-      for (int i = 0; i < n; ++i) {
-        int id;
-        double x, y;
-        if (!(s >> id >> x >> y)) break;
-        d.corner_ids.push_back(id);
-        d.corners_px.emplace_back(x, y);
-      }
-      if (static_cast<int>(d.corner_ids.size()) == n) entries_[key] = std::move(d);
-    }
+    if (!in) return;
+    std::stringstream text;
+    text << in.rdbuf();
+    ParseDetectionCache(text.str(), board, &entries_);
   }
 
   bool Find(const std::string& key, BoardDetection* d) const {

@@ -26,6 +26,7 @@
 #define FLAMERIG_CALIBRATION_CALIBRATE_H_
 
 #include <functional>
+#include <map>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -145,6 +146,16 @@ struct CalibrationSummary {
 // cannot give a calibration (see the file comment), std::invalid_argument for invalid options.
 CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptions& options,
                              const CalibrationProgress& progress = nullptr);
+
+// Reads the text of a detection cache (the file DetectViews keeps): a first line
+// "# flamerig board detections v1", then "board <BoardSpec::Describe()>" (a cache made for another
+// board is ignored), then one line per image: "<key> <n> <failure reason>" for n = 0, else
+// "<key> <n>" and n triples "<corner id> <x px> <y px>" in ascending id order. A line that is
+// malformed, names a corner the board does not have, is out of order or gives a non-finite
+// position is dropped (the image is
+// then detected again). Adds the entries to *entries and returns how many; never throws.
+int ParseDetectionCache(const std::string& text, const BoardSpec& board,
+                        std::map<std::string, BoardDetection>* entries);
 
 // Writes our detections as mrcal's corners cache (vnlog "# filename x y level"; a missing corner
 // has level "-"), with file names <dir_prefix>/<view>/<camera>.png, so that

@@ -68,7 +68,9 @@ TEST(RunCli, KilledRunResumesToTheUninterruptedOutputs) {
   ASSERT_TRUE(fs::exists(dir / "killed" / "frames" / "frame_000001.yaml"));
   // Every volume under a final name is whole.
   for (const auto& e : fs::directory_iterator(dir / "killed"))
-    if (e.path().extension() == ".vdb") EXPECT_NO_THROW(ReadVdb(e.path().string())) << e.path();
+    if (e.path().extension() == ".vdb") {
+      EXPECT_NO_THROW(ReadVdb(e.path().string())) << e.path();
+    }
 
   const Result resumed = Shell(RunCommand(dir / "sim", dir / "killed"));
   ASSERT_EQ(resumed.status, 0) << resumed.output;

@@ -1,0 +1,165 @@
+// Writes the seed corpora of the fuzz targets into tests/fuzz/corpus/<target>/ (checked in; run
+// again only when a format changes): `build/tests/fuzz_make_seeds tests/fuzz/corpus`. Each seed is a
+// small valid input written by flamerig's own writers, so the fuzzers start from the formats'
+// structure.
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+
+#include "acquisition/recording.h"
+#include "calibration/camera_model.h"
+#include "tomography/vdb_io.h"
+
+namespace fs = std::filesystem;
+using namespace flamerig;
+
+namespace {
+
+void Write(const fs::path& path, const std::string& text) {
+  fs::create_directories(path.parent_path());
+  std::ofstream(path, std::ios::binary) << text;
+}
+
+std::string Slurp(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc != 2) {
+    std::cerr << "usage: fuzz_make_seeds CORPUS_DIR\n";
+    return 2;
+  }
+  const fs::path out(argv[1]);
+  const fs::path tmp = fs::temp_directory_path() / "flamerig_fuzz_seeds";
+  fs::remove_all(tmp);
+  fs::create_directories(tmp);
+
+  // capture_config
+  Write(out / "capture_config" / "sim.yaml",
+        "data_dir: recordings\nsync: hardware-trigger\ntrigger_rate_hz: 30\nset_timeout_ms: 200\n"
+        "buffers: 8\npretrigger_seconds: 2\nqueue_mb: 512\ncameras:\n"
+        "  - {name: cam0, driver: sim, id: SIM0, width: 64, height: 48, pixel_format: Mono8,\n"
+        "     sim: {jitter_us: 50, drop_probability: 0.01}}\n"
+        "  - {name: cam1, driver: sim, id: SIM1, width: 64, height: 48, pixel_format: BayerRG8}\n");
+  Write(out / "capture_config" / "ptp.yaml",
+        "sync: ptp\ntrigger_rate_hz: 100\naction: {device_key: 0x10, group_key: 1, group_mask: "
+        "0xffffffff, lead_ms: 20, destination: 127.0.0.1, port: 3956}\ncameras:\n"
+        "  - {name: a, driver: aravis, id: 127.0.0.2, width: 640, height: 480}\n");
+
+  // cameramodel and rig
+  const CameraModel model("LENSMODEL_OPENCV8",
+                          {500, 505, 159.5, 119.5, 0.01, -0.02, 0.001, 0.0005, 0.001, 0, 0, 0},
+                          Rigid3(), 320, 240);
+  model.Save((tmp / "cam.cameramodel").string());
+  Write(out / "cameramodel" / "opencv8.cameramodel", Slurp(tmp / "cam.cameramodel"));
+  const CameraModel pinhole("LENSMODEL_PINHOLE", {500, 500, 319.5, 239.5}, Rigid3(), 640, 480);
+  pinhole.Save((tmp / "pin.cameramodel").string());
+  Write(out / "cameramodel" / "pinhole.cameramodel", Slurp(tmp / "pin.cameramodel"));
+  Write(out / "rig" / "rig.yaml",
+        "rig:\n  name: fuzz\n  up: [0, 1, 0]\n  box:\n    min: [-0.05, 0.0, -0.05]\n"
+        "    max: [0.05, 0.15, 0.05]\n  cameras:\n    - name: cam0\n"
+        "      model: cameras/cam0.cameramodel\n");
+
+  // vdb
+  FireVolume v;
+  v.geometry.dims = Eigen::Vector3i(3, 4, 2);
+  v.geometry.origin_in_rig = Eigen::Vector3d(-0.01, 0, -0.01);
+  v.geometry.voxel_size_m = Eigen::Vector3d::Constant(0.005);
+  v.temperature_k.assign(v.geometry.num_voxels(), 300.0f);
+  v.density_per_m3.assign(v.geometry.num_voxels(), 0.0f);
+  v.temperature_k[5] = 1800;
+  v.density_per_m3[5] = 1e16f;
+  v.emission_rgb.assign(3 * v.geometry.num_voxels(), 0.0f);
+  v.emission_rgb[16] = 2.5f;
+  v.metadata_numbers["exposure"] = 1.5;
+  v.metadata_text["absorption_model"] = "soot";
+  WriteVdb((tmp / "v.vdb").string(), v);
+  Write(out / "vdb" / "small.vdb", Slurp(tmp / "v.vdb"));
+
+  // streampix: version 5 (images from byte 8192), 2 frames of 4x3 mono 8-bit.
+  {
+    std::string h(8192, '\0');
+    auto put32 = [&](std::size_t at, std::uint32_t x) { std::memcpy(&h[at], &x, 4); };
+    put32(0, 0xFEED);
+    put32(28, 5);
+    put32(32, 1024);
+    put32(548, 4);
+    put32(552, 3);
+    put32(556, 8);
+    put32(560, 8);
+    put32(564, 12);
+    put32(568, 100);
+    put32(572, 2);
+    put32(580, 24);
+    const double fps = 30;
+    std::memcpy(&h[584], &fps, 8);
+    std::string frames;
+    for (int f = 0; f < 2; ++f) {
+      std::string block(24, '\0');
+      for (int i = 0; i < 12; ++i) block[i] = static_cast<char>(20 * f + i);
+      const std::int32_t sec = 1600000000 + f;
+      std::memcpy(&block[12], &sec, 4);
+      frames += block;
+    }
+    Write(out / "streampix" / "v5.seq", h + frames);
+  }
+
+  // detection_cache (the default board: ChArUco 7x5, 24 inner corners)
+  Write(out / "detection_cache" / "cache.txt",
+        "# flamerig board detections v1\n"
+        "board charuco 7x5 squares of 0.012 m, markers 0.009 m, dictionary 0\n"
+        "0a1b2c3d_320x240 3 0 10.5 20.25 1 30.5 20.5 7 11 40\n"
+        "deadbeef_320x240 0 no board: blurred\n");
+
+  // control
+  int k = 0;
+  for (const char* line : {"status", "cameras", "configure cam0 width 64", "preview cam0 2",
+                           "start take1", "stop", "event ignition", "arm", "disarm"})
+    Write(out / "control" / ("request_" + std::to_string(k++)), line);
+
+  // recording: one camera, three sets (the second missing), as the target joins the files.
+  {
+    RecordingMetadata meta;
+    meta.sync_mode = "software-trigger";
+    RecordingCamera c;
+    c.name = "cam0";
+    c.description.driver = "sim";
+    c.settings.width = 4;
+    c.settings.height = 2;
+    meta.cameras.push_back(c);
+    const fs::path dir = tmp / "rec";
+    {
+      Recorder recorder(dir.string(), meta);
+      for (int s = 0; s < 3; ++s) {
+        FrameSet set;
+        set.index = s;
+        set.trigger_id = s;
+        set.frames.resize(1);
+        if (s != 1) {
+          Frame f;
+          f.info.frame_id = 10 + s;
+          f.info.width = 4;
+          f.info.height = 2;
+          f.data = std::make_shared<std::vector<std::uint8_t>>(8, static_cast<std::uint8_t>(s));
+          set.frames[0] = f;
+        }
+        recorder.Submit(set);
+      }
+      recorder.Close();
+    }
+    const std::string sep("\0FLAMERIG-FILE\0", 15);
+    Write(out / "recording" / "three_sets",
+          Slurp(dir / "metadata.yaml") + sep + Slurp(dir / "sets.index") + sep +
+              Slurp(dir / "cam00.index") + sep + Slurp(dir / "cam00.data"));
+  }
+  fs::remove_all(tmp);
+  std::cout << "seeds written to " << out << "\n";
+  return 0;
+}
