@@ -60,22 +60,23 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
   ConfigReader r(root, where);
   c.data_dir = r.Get<std::string>("data_dir", c.data_dir);
   c.sync = SyncModeFromName(r.Get<std::string>("sync", ToString(c.sync)));
-  c.trigger_rate_hz = r.Positive("trigger_rate_hz", c.trigger_rate_hz);
+  c.trigger_rate_hz = r.Range("trigger_rate_hz", c.trigger_rate_hz, 1e-3, 1e5);
   // Timestamp matching: about half a frame period by default (notes/aravis.md: the spread of host
   // receive times inside a set reaches a few ms, more on a loaded host).
-  c.match_tolerance_ns =
-      static_cast<std::int64_t>(r.Positive("match_tolerance_ms", 400.0 / c.trigger_rate_hz) * 1e6);
-  c.set_timeout_ns = static_cast<std::int64_t>(r.Positive("set_timeout_ms", 200) * 1e6);
-  c.buffers = static_cast<int>(r.Positive("buffers", c.buffers));
-  c.pretrigger_seconds = r.NonNegative("pretrigger_seconds", c.pretrigger_seconds);
+  c.match_tolerance_ns = static_cast<std::int64_t>(
+      r.Range("match_tolerance_ms", 400.0 / c.trigger_rate_hz, 1e-6, 1e6) * 1e6);
+  c.set_timeout_ns = static_cast<std::int64_t>(r.Range("set_timeout_ms", 200, 1e-3, 1e6) * 1e6);
+  c.buffers = static_cast<int>(r.Range("buffers", c.buffers, 1, 1024));
+  c.pretrigger_seconds = r.Range("pretrigger_seconds", c.pretrigger_seconds, 0, 3600);
   c.pretrigger_max_bytes =
-      static_cast<std::uint64_t>(r.NonNegative("pretrigger_max_mb", 256) * (1 << 20));
-  c.recorder.max_queued_bytes = static_cast<std::uint64_t>(r.Positive("queue_mb", 512) * (1 << 20));
+      static_cast<std::uint64_t>(r.Range("pretrigger_max_mb", 256, 0, 1e7) * (1 << 20));
+  c.recorder.max_queued_bytes =
+      static_cast<std::uint64_t>(r.Range("queue_mb", 512, 1e-3, 1e7) * (1 << 20));
   c.recorder.min_free_bytes =
-      static_cast<std::uint64_t>(r.NonNegative("min_free_mb", 64) * (1 << 20));
+      static_cast<std::uint64_t>(r.Range("min_free_mb", 64, 0, 1e9) * (1 << 20));
   c.recorder.sync_interval_s = r.NonNegative("sync_interval_s", c.recorder.sync_interval_s);
   c.recorder.max_bytes =
-      static_cast<std::uint64_t>(r.NonNegative("max_recording_mb", 0) * (1 << 20));
+      static_cast<std::uint64_t>(r.Range("max_recording_mb", 0, 0, 1e12) * (1 << 20));
   c.control = r.Get<std::string>("control", "");
   c.allow_remote = r.Get<bool>("allow_remote", false);
   r.Seen("action");
@@ -108,10 +109,9 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     a.group_mask = key("group_mask", a.group_mask);
     if (a.group_mask == 0)
       throw std::invalid_argument(where + ": action: 'group_mask' 0 would fire no camera");
-    a.lead_ms = ar.Positive("lead_ms", a.lead_ms);
+    a.lead_ms = ar.Range("lead_ms", a.lead_ms, 1e-3, 1e6);
     a.destination = ar.Get<std::string>("destination", a.destination);
-    a.port = static_cast<int>(ar.Positive("port", a.port));
-    if (a.port > 65535) throw std::invalid_argument(where + ": action: 'port' must be < 65536");
+    a.port = static_cast<int>(ar.Range("port", a.port, 1, 65535));
     ar.CheckKnown();
   }
   r.Seen("cameras");
@@ -135,8 +135,8 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     if (cc.id.empty())
       throw std::invalid_argument(at + ": 'id' (serial, address or device) is required");
     CameraSettings& s = cc.settings;
-    s.width = static_cast<int>(cr.Positive("width", s.width));
-    s.height = static_cast<int>(cr.Positive("height", s.height));
+    s.width = static_cast<int>(cr.Range("width", s.width, 1, 65536));
+    s.height = static_cast<int>(cr.Range("height", s.height, 1, 65536));
     try {
       s.pixel_format = PixelFormatFromName(cr.Get<std::string>("pixel_format", "Mono8"));
     } catch (const std::invalid_argument& e) {
@@ -147,16 +147,16 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     const bool triggered =
         c.sync == SyncMode::kHardwareTrigger || c.sync == SyncMode::kSoftwareTrigger;
     s.frame_rate_hz =
-        cr.Positive("frame_rate_hz", triggered ? 2 * c.trigger_rate_hz : c.trigger_rate_hz);
+        cr.Range("frame_rate_hz", triggered ? 2 * c.trigger_rate_hz : c.trigger_rate_hz, 1e-3, 1e6);
     if (triggered && s.frame_rate_hz < 1.1 * c.trigger_rate_hz) {
       throw std::invalid_argument(at + ": frame_rate_hz " + std::to_string(s.frame_rate_hz) +
                                   " (the camera's maximum rate when triggered) must be at least "
                                   "1.1 x trigger_rate_hz, or it will ignore triggers");
     }
-    s.exposure_us = cr.Positive("exposure_us", s.exposure_us);
-    s.gain_db = cr.Get<double>("gain_db", s.gain_db);
+    s.exposure_us = cr.Range("exposure_us", s.exposure_us, 1e-3, 1e9);
+    s.gain_db = cr.Range("gain_db", s.gain_db, -100, 100);
     s.trigger_source = cr.Get<std::string>("trigger_source", s.trigger_source);
-    s.packet_size = static_cast<int>(cr.NonNegative("packet_size", 0));
+    s.packet_size = static_cast<int>(cr.Range("packet_size", 0, 0, 65535));
     s.trigger = c.sync == SyncMode::kHardwareTrigger   ? TriggerMode::kHardware
                 : c.sync == SyncMode::kSoftwareTrigger ? TriggerMode::kSoftware
                                                        : TriggerMode::kFreeRun;
@@ -181,12 +181,12 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     if (const YAML::Node sim = cams[i]["sim"]) {
       if (cc.driver != "sim") throw std::invalid_argument(at + ": 'sim' is for driver sim only");
       ConfigReader sr(sim, at + ".sim");
-      cc.sim.seed = static_cast<std::uint64_t>(sr.NonNegative("seed", double(cc.sim.seed)));
+      cc.sim.seed = static_cast<std::uint64_t>(sr.Range("seed", double(cc.sim.seed), 0, 9e15));
       cc.sim.drop_probability = sr.NonNegative("drop_probability", 0);
       cc.sim.late_probability = sr.NonNegative("late_probability", 0);
       cc.sim.incomplete_probability = sr.NonNegative("incomplete_probability", 0);
-      cc.sim.jitter_ns = static_cast<std::int64_t>(sr.NonNegative("jitter_us", 0) * 1e3);
-      cc.sim.drift_ppm = sr.Get<double>("drift_ppm", 0);
+      cc.sim.jitter_ns = static_cast<std::int64_t>(sr.Range("jitter_us", 0, 0, 1e9) * 1e3);
+      cc.sim.drift_ppm = sr.Range("drift_ppm", 0, -1e5, 1e5);
       const std::string replay = sr.Get<std::string>("replay", "");
       const std::string replay_content = sr.Get<std::string>("replay_content", "fire");
       if (replay_content != "fire" && replay_content != "calibration")
@@ -204,8 +204,8 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
           throw std::invalid_argument(at + ".sim.replay: " + e.what());
         }
       }
-      const double d = sr.Get<double>("disconnect_at_s", -1),
-                   re = sr.Get<double>("reconnect_at_s", -1);
+      const double d = sr.Range("disconnect_at_s", -1, -1, 1e9),
+                   re = sr.Range("reconnect_at_s", -1, -1, 1e9);
       cc.sim.disconnect_at_ns = d < 0 ? -1 : static_cast<std::int64_t>(d * 1e9);
       cc.sim.reconnect_at_ns = re < 0 ? -1 : static_cast<std::int64_t>(re * 1e9);
       for (double p :
@@ -697,14 +697,20 @@ void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::strin
     return v;
   };
   try {
+    // Sizes in [1, 65536] before they become ints (a conversion out of range is undefined).
+    auto size = [&] {
+      const double v = number();
+      if (!(v >= 1 && v <= 65536)) throw std::invalid_argument(where + ": must be in [1, 65536]");
+      return static_cast<int>(v);
+    };
     if (key == "width")
-      s.width = static_cast<int>(number());
+      s.width = size();
     else if (key == "height")
-      s.height = static_cast<int>(number());
+      s.height = size();
     else if (key == "pixel_format")
       s.pixel_format = PixelFormatFromName(value);
     else if (key == "frame_rate_hz")
-      s.frame_rate_hz = number();
+      s.frame_rate_hz = std::clamp(number(), 0.0, 2e6);  // Validate() below names the range
     else if (key == "exposure_us")
       s.exposure_us = number();
     else if (key == "gain_db")

@@ -10,6 +10,7 @@
 
 #include <cmath>
 #include <set>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -40,6 +41,16 @@ class ConfigReader {
     const double v = Get<double>(key, fallback);
     if (!(v >= 0) || !std::isfinite(v))
       throw std::invalid_argument(where_ + ": '" + key + "' must be >= 0");
+    return v;
+  }
+  // A number in [lo, hi] (bounds that keep every later conversion to an integer type defined).
+  double Range(const std::string& key, double fallback, double lo, double hi) {
+    const double v = Get<double>(key, fallback);
+    if (!(v >= lo) || !(v <= hi)) {
+      std::ostringstream rule;
+      rule << "must be in [" << lo << ", " << hi << "]";
+      throw std::invalid_argument(where_ + ": '" + key + "' " + rule.str());
+    }
     return v;
   }
   void Seen(const std::string& key) { seen_.insert(key); }

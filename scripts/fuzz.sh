@@ -14,7 +14,8 @@ cmake -S . -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_CO
   -DCMAKE_C_COMPILER="$CC_BIN" -DFLAMERIG_FUZZ=ON -DFLAMERIG_BUILD_TESTS=OFF -DFLAMERIG_MPI=OFF \
   > "$BUILD.configure.log" 2>&1 || { cat "$BUILD.configure.log"; exit 1; }
 cmake --build "$BUILD" --target fuzz_all -j "$(nproc)"
-export ASAN_OPTIONS="detect_leaks=0:allocator_may_return_null=1"
+# Full stacks on allocations, so that a report says whose allocation it was.
+export ASAN_OPTIONS="detect_leaks=0:allocator_may_return_null=1:fast_unwind_on_malloc=0"
 export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
 status=0
 for bin in "$BUILD"/tests/fuzz/fuzz_*; do
@@ -23,14 +24,37 @@ for bin in "$BUILD"/tests/fuzz/fuzz_*; do
   rm -rf "$corpus" "$findings"; mkdir -p "$corpus" "$findings"
   cp -r tests/fuzz/corpus/"$target"/. "$corpus"/ 2>/dev/null || true
   if [ -d tests/fuzz/regressions/"$target" ]; then
-    "$bin" -rss_limit_mb=2048 -timeout=20 tests/fuzz/regressions/"$target"/* > "$findings/replay.log" 2>&1 \
+    "$bin" -rss_limit_mb=3072 -malloc_limit_mb=4096 -timeout=20 tests/fuzz/regressions/"$target"/* > "$findings/replay.log" 2>&1 \
       || { echo "fuzz $target: a regression input fails again"; tail -30 "$findings/replay.log"; status=1; }
   fi
-  if "$bin" -max_total_time="$SECONDS_PER_TARGET" -rss_limit_mb=2048 -timeout=20 -max_len=65536 \
-       -artifact_prefix="$findings/" "$corpus" > "$findings/fuzz.log" 2>&1; then
-    runs=$(grep -o 'stat::number_of_executed_units: [0-9]*' "$findings/fuzz.log" | awk '{print $2}')
-    [ -n "$runs" ] || runs=$(grep -oE '#[0-9]+' "$findings/fuzz.log" | tail -1 | tr -d '#')
-    echo "fuzz $target: ${runs:-?} executions in ${SECONDS_PER_TARGET} s, no finding"
+  # OpenVDB's reader trusts the sizes a file states (a name length, a compressed block size): a
+  # damaged .vdb makes it ask for gigabytes to terabytes before the read fails. Without sanitizers
+  # that is std::bad_alloc, which ReadVdb turns into an error naming the file; under ASan it is a
+  # report. Such reports (an out-of-memory whose allocation comes from libopenvdb) are counted and
+  # fuzzing goes on; every other finding fails the run.
+  deadline=$(( $(date +%s) + SECONDS_PER_TARGET )); runs_total=0; dependency_ooms=0; verdict=""
+  while [ -z "$verdict" ]; do
+    left=$(( deadline - $(date +%s) )); [ "$left" -ge 1 ] || { verdict=ok; break; }
+    rm -f "$findings"/crash-* "$findings"/oom-* "$findings"/timeout-*
+    if "$bin" -max_total_time="$left" -rss_limit_mb=3072 -malloc_limit_mb=4096 -timeout=20 \
+         -max_len=65536 -print_final_stats=1 -artifact_prefix="$findings/" "$corpus" \
+         > "$findings/fuzz.log" 2>&1; then
+      verdict=ok
+    elif [ "$target" = vdb ] && grep -q "out-of-memory\|out of memory" "$findings/fuzz.log" &&
+         grep -A16 -E "out-of-memory|out of memory" "$findings/fuzz.log" | grep -q "libopenvdb"; then
+      dependency_ooms=$((dependency_ooms + 1))
+    else
+      verdict=finding
+    fi
+    runs=$( (grep -o 'stat::number_of_executed_units: *[0-9]*' "$findings/fuzz.log" || true) |
+      awk '{print $2}')
+    [ -n "$runs" ] || runs=$( (grep -oE '^#[0-9]+' "$findings/fuzz.log" || true) | tail -1 | tr -d '#')
+    runs_total=$(( runs_total + ${runs:-0} ))
+  done
+  if [ "$verdict" = ok ]; then
+    cov=$( (grep -oE 'cov: [0-9]+' "$findings/fuzz.log" || true) | tail -1 | awk '{print $2}')
+    note=""; [ "$dependency_ooms" -eq 0 ] || note=" ($dependency_ooms OpenVDB allocations of damaged sizes)"
+    echo "fuzz $target: $runs_total executions in ${SECONDS_PER_TARGET} s, coverage ${cov:-?} edges, no finding$note"
   else
     echo "fuzz $target: FINDING (input in $findings)"; tail -40 "$findings/fuzz.log"; status=1
   fi

@@ -16,6 +16,7 @@ PACKAGES=(
   libopenmpi-dev openmpi-bin
   blender
   libembree-dev libtinyobjloader-dev
+  clang-14 libclang-rt-14-dev
 )
 
 missing=()

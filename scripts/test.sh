@@ -2,10 +2,39 @@
 # The test command: installs what is missing, builds, and runs the whole test suite with CTest.
 # Labels: unit (fast, no subprocesses), integration (runs the flamerig binary or mrcal's Python tools),
 # slow (longer end-to-end runs). Pass CTest arguments through, e.g. scripts/test.sh -L unit.
+#
+# With CI=true (or FLAMERIG_HARDENING=1) it then runs the hardening passes (issue 9), each in its own
+# build folder:
+#   build-asan   the whole suite again under AddressSanitizer + UndefinedBehaviorSanitizer
+#   build-tsan   the threaded capture tests (acquisition) under ThreadSanitizer
+#   build-fuzz   every fuzz target for FUZZ_SECONDS (default 10) after replaying its regressions
+#                (scripts/fuzz.sh)
+# FLAMERIG_HARDENING=0 skips them even in CI.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install-deps.sh
 bash scripts/build.sh
-cd "${FLAMERIG_BUILD_DIR:-build}"
-# A per-test limit, so that a hung test fails instead of holding CI to its own limit.
-ctest --output-on-failure --timeout 300 -j "$(nproc)" "$@"
+(cd "${FLAMERIG_BUILD_DIR:-build}" &&
+  # A per-test limit, so that a hung test fails instead of holding CI to its own limit.
+  ctest --output-on-failure --timeout 300 -j "$(nproc)" "$@")
+
+HARDENING="${FLAMERIG_HARDENING:-0}"
+if [ "$HARDENING" != "1" ]; then exit 0; fi
+
+echo "== AddressSanitizer + UndefinedBehaviorSanitizer: the whole suite =="
+FLAMERIG_BUILD_DIR=build-asan bash scripts/build.sh -DFLAMERIG_SANITIZE=ON -DFLAMERIG_MPI=OFF
+(cd build-asan &&
+  ASAN_OPTIONS="detect_leaks=0:abort_on_error=1" UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1" \
+  ctest --output-on-failure --timeout 900 -j "$(nproc)")
+
+echo "== ThreadSanitizer: the capture daemon, recorder and drivers =="
+FLAMERIG_BUILD_DIR=build-tsan \
+  FLAMERIG_BUILD_TARGETS="acquisition_sim_test acquisition_capture_test acquisition_recording_test" \
+  bash scripts/build.sh -DFLAMERIG_TSAN=ON -DFLAMERIG_MPI=OFF
+(cd build-tsan &&
+  TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1" \
+  ctest --output-on-failure --timeout 900 -j "$(nproc)" \
+    -R "^(acquisition_sim_test|acquisition_capture_test|acquisition_recording_test)\.")
+
+echo "== libFuzzer: every parser of outside input =="
+bash scripts/fuzz.sh

@@ -158,6 +158,12 @@ FireVolume ReadVdb(const std::string& path) {
     file.close();
   } catch (const openvdb::Exception& e) {
     throw std::runtime_error(path + ": not a readable VDB file: " + e.what());
+  } catch (const std::bad_alloc&) {
+    // OpenVDB trusts the sizes a file states (found by fuzzing: a damaged name length asked for
+    // gigabytes); when the allocation fails, say which file.
+    throw std::runtime_error(path + ": not a readable VDB file: it states sizes it cannot have");
+  } catch (const std::exception& e) {
+    throw std::runtime_error(path + ": not a readable VDB file: " + e.what());
   }
   bool have_geometry = false;
   auto adopt_geometry = [&](const openvdb::GridBase& grid) {
