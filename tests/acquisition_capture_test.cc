@@ -83,7 +83,15 @@ TEST(CaptureConfig, ParsesAndNamesTheKeyOfEveryMistake) {
   EXPECT_NE(
       ParseError("cameras: [{name: a, width: wide}]").find("'width' has a value of the wrong type"),
       std::string::npos);
-  EXPECT_NE(ParseError("cameras: [{name: a, width: -4}]").find("'width' must be a positive"),
+  EXPECT_NE(ParseError("cameras: [{name: a, width: -4}]").find("'width' must be in [1, 65536]"),
+            std::string::npos);
+  // Found by fuzzing: numbers far out of range were converted to int (undefined behaviour).
+  EXPECT_NE(ParseError("buffers: 6666666666666668\ncameras: [{name: a}]")
+                .find("'buffers' must be in [1, 1024]"),
+            std::string::npos);
+  EXPECT_NE(ParseError("cameras: [{name: a, width: 1e300}]").find("'width' must be in"),
+            std::string::npos);
+  EXPECT_NE(ParseError("trigger_rate_hz: 1e-300\ncameras: [{name: a}]").find("trigger_rate_hz"),
             std::string::npos);
   EXPECT_NE(ParseError("cameras: [{name: a, pixel_format: YUV}]").find("cameras[0]"),
             std::string::npos);
@@ -330,6 +338,10 @@ TEST(ControlApi, StatusRecordingAndPreviewOverAUnixSocket) {
   r = ControlRequest(config.control, "configure cam1 exposure_us -5");
   EXPECT_FALSE(r.ok);
   EXPECT_NE(r.body.find("camera 'cam1': exposure_us '-5'"), std::string::npos) << r.body;
+  // Found by fuzzing: a width of 66 digits was converted to int (undefined behaviour).
+  r = ControlRequest(config.control, "configure cam1 width 2222222222222222222222222222222222");
+  EXPECT_FALSE(r.ok);
+  EXPECT_NE(r.body.find("must be in [1, 65536]"), std::string::npos) << r.body;
   r = ControlRequest(config.control, "configure cam1 focus 3");
   EXPECT_FALSE(r.ok);
   EXPECT_NE(r.body.find("unknown key"), std::string::npos) << r.body;
