@@ -1,0 +1,212 @@
+#include "tools/soak.h"
+
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/socket.h>
+#include <sys/un.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <thread>
+
+#include "acquisition/control.h"
+#include "acquisition/recording.h"
+#include "acquisition/sim_camera.h"
+#include "tools/benchmark.h"
+
+namespace flamerig {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+using SteadyClock = std::chrono::steady_clock;
+
+double ResidentMb(pid_t pid) {
+  std::ifstream status("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(status, line))
+    if (line.rfind("VmRSS:", 0) == 0) return std::atof(line.c_str() + 6) / 1024.0;
+  return 0;
+}
+
+// A client that connects to the Unix socket and then misbehaves: `mode` 0 closes at once, 1 sends
+// half a request and vanishes, 2 says nothing for 3 s.
+void Misbehave(const std::string& socket_path, int mode) {
+  const int fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  if (fd < 0) return;
+  sockaddr_un addr{};
+  addr.sun_family = AF_UNIX;
+  std::strncpy(addr.sun_path, socket_path.c_str(), sizeof(addr.sun_path) - 1);
+  if (::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) == 0) {
+    if (mode == 1) {
+      const char half[] = "previ";
+      (void)!::write(fd, half, sizeof half - 1);
+    } else if (mode == 2) {
+      std::this_thread::sleep_for(std::chrono::seconds(3));
+    }
+  }
+  ::close(fd);
+}
+
+}  // namespace
+
+std::string SoakReport::Markdown() const {
+  std::ostringstream md;
+  md << "| seconds | frame sets reported recorded | read back, checksums and pixels exact | lost | "
+        "dropped by the bounded queue (reported) | camera outages | stalls (SIGSTOP/SIGCONT) | "
+        "preview clients | vanishing clients | peak memory MB (bound) |\n"
+        "|---|---|---|---|---|---|---|---|---|---|\n";
+  md << "| " << Fixed(seconds, 0) << " | " << sets_reported << " | " << sets_readable << " ("
+     << frames_checked << " frames, " << frames_wrong << " wrong) | " << lost << " | "
+     << sets_dropped << " | " << outages << " | " << stalls << " | " << preview_clients << " | "
+     << vanishing_clients << " | " << Fixed(peak_rss_mb, 0) << " (" << Fixed(rss_bound_mb, 0)
+     << ") |\n";
+  return md.str();
+}
+
+SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::string&)>& log) {
+  const fs::path dir = fs::absolute(o.directory);
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  std::mt19937_64 rng(o.seed);
+  std::uniform_real_distribution<double> uniform(0, 1);
+  SoakReport report;
+  // The config: cameras on a simulated trigger line, each with one outage at a random time.
+  const std::string socket_path = (dir / "control.sock").string();
+  {
+    std::ofstream y(dir / "soak.yaml");
+    y << "data_dir: " << (dir / "rec").string()
+      << "\nsync: hardware-trigger\ntrigger_rate_hz: " << o.rate_hz
+      << "\npretrigger_seconds: 0\nqueue_mb: " << o.queue_mb
+      << "\nset_timeout_ms: 300\nmin_free_mb: 16\ncontrol: unix:" << socket_path << "\ncameras:\n";
+    for (int c = 0; c < o.cameras; ++c) {
+      const double down = (0.15 + 0.6 * uniform(rng)) * o.seconds;
+      const double up = down + 0.3 + std::min(3.0, 0.1 * o.seconds) * uniform(rng);
+      y << "  - {name: cam" << c << ", width: " << o.width << ", height: " << o.height
+        << ", pixel_format: Mono8, sim: {seed: " << c + 1
+        << ", jitter_us: 100, disconnect_at_s: " << down << ", reconnect_at_s: " << up << "}}\n";
+      ++report.outages;
+    }
+  }
+  // The daemon, as its own process (so that it can be stopped, resumed and measured).
+  const fs::path log_path = dir / "daemon.log";
+  const pid_t pid = ::fork();
+  if (pid < 0) throw std::runtime_error("soak: fork failed");
+  if (pid == 0) {
+    const int out = ::open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    ::dup2(out, 1);
+    ::dup2(out, 2);
+    const std::string config = (dir / "soak.yaml").string(), duration = std::to_string(o.seconds);
+    ::execl(o.binary.c_str(), o.binary.c_str(), "capture", "--config", config.c_str(), "--record",
+            "soak", "--duration", duration.c_str(), static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  const auto start = SteadyClock::now();
+  auto elapsed = [&] { return std::chrono::duration<double>(SteadyClock::now() - start).count(); };
+  std::atomic<bool> done{false};
+  std::atomic<int> previews{0}, vanishing{0};
+  // Control clients, at random.
+  std::thread clients([&] {
+    std::mt19937_64 r(o.seed * 7 + 1);
+    while (!done) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(100 + r() % 400));
+      if (done || !fs::exists(socket_path)) continue;
+      const int what = static_cast<int>(r() % 4);
+      if (what == 0) {
+        try {
+          ControlRequest("unix:" + socket_path,
+                         "preview cam" + std::to_string(r() % o.cameras) + " 4", 5);
+          ++previews;
+        } catch (const std::exception&) {
+        }
+      } else {
+        std::thread(Misbehave, socket_path, what - 1).detach();
+        ++vanishing;
+      }
+    }
+  });
+  // Stalls, and the memory samples.
+  int status = 0;
+  bool exited = false;
+  double next_stall = 1.0 + uniform(rng) * 2;
+  while (!exited) {
+    report.peak_rss_mb = std::max(report.peak_rss_mb, ResidentMb(pid));
+    if (::waitpid(pid, &status, WNOHANG) == pid) {
+      exited = true;
+      break;
+    }
+    if (elapsed() > next_stall && elapsed() < o.seconds - 1) {
+      const int ms = 50 + static_cast<int>(750 * uniform(rng));
+      ::kill(pid, SIGSTOP);
+      std::this_thread::sleep_for(std::chrono::milliseconds(ms));
+      ::kill(pid, SIGCONT);
+      ++report.stalls;
+      next_stall = elapsed() + 0.5 + 2.5 * uniform(rng);
+    }
+    if (elapsed() > o.seconds + 60) {  // a hung daemon is a failure, not a wait
+      ::kill(pid, SIGKILL);
+      ::waitpid(pid, &status, 0);
+      exited = true;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  done = true;
+  clients.join();
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));  // detached misbehavers
+  report.preview_clients = previews;
+  report.vanishing_clients = vanishing;
+  report.seconds = elapsed();
+  {
+    std::ifstream in(log_path);
+    std::string line, all;
+    while (std::getline(in, line)) {
+      all += line + "\n";
+      const auto at = line.find(" frame sets recorded, ");
+      if (at != std::string::npos) {
+        const auto colon = line.rfind(": ", at);
+        report.sets_reported = std::stoull(line.substr(colon + 2));
+        report.sets_dropped = std::stoull(line.substr(at + 22));
+      }
+    }
+    report.daemon_tail = all.size() > 2000 ? all.substr(all.size() - 2000) : all;
+  }
+  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0)
+    throw std::runtime_error("soak: the daemon did not exit cleanly:\n" + report.daemon_tail);
+  if (log) log("soak: daemon done, reading the recording back");
+  // Every set back, every frame against the pattern its camera produced.
+  const Recording rec = Recording::Open((dir / "rec" / "soak").string());
+  const ImageSource pattern = TestPatternSource();
+  std::vector<std::uint8_t> expected;
+  for (std::size_t i = 0; i < rec.num_sets(); ++i) {
+    FrameSet set;
+    try {
+      set = rec.ReadSet(i);
+    } catch (const RecordingError&) {
+      continue;  // counted as lost below
+    }
+    ++report.sets_readable;
+    for (const auto& f : set.frames) {
+      if (!f) continue;
+      ++report.frames_checked;
+      pattern(f->info, &expected);
+      if (!f->data || *f->data != expected) ++report.frames_wrong;
+    }
+  }
+  report.lost =
+      report.sets_reported > report.sets_readable ? report.sets_reported - report.sets_readable : 0;
+  // Memory: the recorder's queue bound plus the cameras' buffers and the process itself.
+  const double frame_mb = o.width * double(o.height) / 1048576.0;
+  report.rss_bound_mb = o.queue_mb + 64 * frame_mb * o.cameras + 200;
+  if (!o.keep) fs::remove_all(dir);
+  return report;
+}
+
+}  // namespace flamerig
