@@ -10,9 +10,10 @@ BUILD="${FLAMERIG_FUZZ_BUILD_DIR:-build-fuzz}"
 SECONDS_PER_TARGET="${FUZZ_SECONDS:-10}"
 CXX_BIN="$(command -v clang++-14 || command -v clang++)"
 CC_BIN="$(command -v clang-14 || command -v clang)"
+mkdir -p "$BUILD"
 cmake -S . -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER="$CXX_BIN" \
   -DCMAKE_C_COMPILER="$CC_BIN" -DFLAMERIG_FUZZ=ON -DFLAMERIG_BUILD_TESTS=OFF -DFLAMERIG_MPI=OFF \
-  > "$BUILD.configure.log" 2>&1 || { cat "$BUILD.configure.log"; exit 1; }
+  > "$BUILD/configure.log" 2>&1 || { cat "$BUILD/configure.log"; exit 1; }
 cmake --build "$BUILD" --target fuzz_all -j "$(nproc)"
 # Full stacks on allocations, so that a report says whose allocation it was.
 export ASAN_OPTIONS="detect_leaks=0:allocator_may_return_null=1:fast_unwind_on_malloc=0"
