@@ -153,6 +153,7 @@ Reconstructor::Reconstructor(const Rig& rig, const ReconstructOptions& options)
     coarse_ = std::make_unique<Level>();
     coarse_->grid = GridGeometry::FromBox(rig_.box, options_.resolution / 2);
   }
+  state_key_ = StateKey();
 }
 
 Reconstructor::~Reconstructor() = default;
@@ -630,7 +631,7 @@ void Reconstructor::SaveState(const std::string& path) const {
   StateWriter w;
   for (char c : kStateMagic) w.Value(c);
   w.Value(kStateVersion);
-  w.Value(StateKey());
+  w.Value(state_key_);
   for (const Level* level : {fine_.get(), coarse_.get()}) {
     const bool has = level && level->has_matrix;
     w.Value(static_cast<std::uint8_t>(has));
@@ -680,7 +681,7 @@ void Reconstructor::LoadState(const std::string& path) {
   for (char c : kStateMagic)
     if (r.Value<char>() != c) r.Fail("not a reconstructor state file");
   if (r.Value<std::uint32_t>() != kStateVersion) r.Fail("unknown version");
-  if (r.Value<std::uint64_t>() != StateKey())
+  if (r.Value<std::uint64_t>() != state_key_)
     throw std::runtime_error(path +
                              ": reconstructor state was saved for another rig, grid or options");
   for (Level* level : {fine_.get(), coarse_.get()}) {

@@ -111,6 +111,7 @@ class Reconstructor {
                          std::vector<std::uint8_t> envelope);
   void MakeHoldoutMatrix(Level* level, std::vector<std::uint8_t> pixels);
   std::uint64_t StateKey() const;  // what a saved state must have been saved for
+  std::uint64_t state_key_ = 0;    // StateKey(), computed once (it hashes every ray)
   std::unique_ptr<Level> fine_, coarse_;
   int holdout_index_ = -1;
 };

@@ -106,10 +106,10 @@ std::string RunCalibrationBenchmark(const CalibrationBenchmarkOptions& options,
                                     const std::function<void(const std::string&)>& log);
 
 struct RunBenchmarkOptions {
-  int frames = 12;       // of the simulated candle
-  int resolution = 64;   // grid along the box's longest axis
+  int frames = 12;      // of the simulated candle
+  int resolution = 64;  // grid along the box's longest axis
   int width = 320, height = 240;
-  bool quick = false;    // CI smoke mode: 3 frames, 24^3, 120x90
+  bool quick = false;  // CI smoke mode: 3 frames, 24^3, 120x90
 };
 
 // The run benchmark (issue 7): frames per minute of `flamerig run` on a simulated recording with

@@ -23,9 +23,10 @@ std::string SetName(std::size_t i) {
   return name;
 }
 
-// Fills the RGB8 and linear views of one camera's image (8-bit sRGB or 16-bit linear).
-void Fill(const ImageU8& u8, const ImageU16& u16, int bits, double exposure, ImageU8* image,
-          LinearFrame* linear) {
+}  // namespace
+
+void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double exposure,
+                       ImageU8* image, LinearFrame* linear) {
   if (bits == 16) {
     ImageU16 rgb16 = u16;
     if (u16.channels == 1) {
@@ -48,8 +49,6 @@ void Fill(const ImageU8& u8, const ImageU16& u16, int bits, double exposure, Ima
   }
   *linear = DecodeSrgb8(*image, exposure);
 }
-
-}  // namespace
 
 void FrameSourceSpec::Validate() const {
   const int kinds = !recording_dir.empty() + !seq_files.empty() + !images_dir.empty();
@@ -219,7 +218,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
     const int height = bits == 16 ? u16.height : u8.height;
     impl_->CheckSize(static_cast<int>(c), i, width, height);
     try {
-      Fill(u8, u16, bits, exposure, &out.images[c], &out.linear[c]);
+      DecodeCameraImage(u8, u16, bits, exposure, &out.images[c], &out.linear[c]);
     } catch (const std::invalid_argument& e) {
       throw std::invalid_argument(impl_->spec.Describe() + ", set " + std::to_string(i) +
                                   ", camera '" + name + "': " + e.what());

@@ -70,6 +70,13 @@ class FrameSource {
   std::unique_ptr<Impl> impl_;
 };
 
+// One camera's image as the tomography and the fit take it, from what ReadImage or DecodeFrame gave
+// (`bits` 8: *u8, sRGB; 16: *u16, linear): *rgb8 (grey replicated to RGB; 16-bit values
+// sRGB-encoded) and *linear (radiance / exposure). Throws std::invalid_argument for a bad exposure
+// or channel count.
+void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double exposure,
+                       ImageU8* rgb8, LinearFrame* linear);
+
 // One camera's view of the question "did this frame change beyond noise since that one?".
 struct ImageChange {
   double noise_dn = 0;          // robust noise of the difference, from pixels dark in both

@@ -280,17 +280,11 @@ void ReadFrameSet(const Rig& rig, const std::string& dir, double exposure, const
                    rig.cameras[c].name.c_str(), path.c_str());
       continue;
     }
+    ImageU8 image8;
     ImageU16 image16;
-    ImageU8& image8 = (*images8)[c];
     try {
-      if (ReadImage(path.string(), &image8, &image16, 3) == 16) {
-        (*frames)[c] = DecodeLinear16(image16, exposure);
-        image8 = ImageU8(image16.width, image16.height, image16.channels);
-        for (std::size_t p = 0; p < image16.pixels.size(); ++p)
-          image8.pixels[p] = QuantizeU8(SrgbEncode(image16.pixels[p] / 65535.0));
-      } else {
-        (*frames)[c] = DecodeSrgb8(image8, exposure);
-      }
+      const int bits = ReadImage(path.string(), &image8, &image16, 3);
+      DecodeCameraImage(image8, image16, bits, exposure, &(*images8)[c], &(*frames)[c]);
     } catch (const std::invalid_argument& e) {
       throw std::invalid_argument(path.string() + ": " + e.what());
     }
@@ -425,24 +419,7 @@ int Benchmark(const Args& args) {
     options.seconds = args.named.count("seconds")
                           ? ParseNumber(args.Get("seconds", ""), "--seconds")
                           : (args.named.count("quick") ? 10 : 600);
-    log("soak: " + Fixed(options.seconds, 0) + " s of capture with faults injected");
-    const SoakReport r = RunSoak(options, log);
-    std::ostringstream m;
-    m << "## Capture soak (issue 9)\n\nMachine: " << MachineDescription() << ".\n\n"
-      << "`flamerig capture` records " << options.cameras << " simulated cameras (" << options.width
-      << "x" << options.height << " Mono8, " << options.rate_hz
-      << " Hz hardware trigger) as its own process while faults are injected at random: each "
-         "camera dies once and comes back, the daemon is stopped and resumed (SIGSTOP/SIGCONT, "
-         "50 to 800 ms: a disk or scheduler stall), and control clients ask for previews, "
-         "connect and vanish, send half a request or say nothing. Afterwards every frame set is "
-         "read back (checksums) and every frame compared byte for byte with the pattern its "
-         "camera produced; lost counts sets the daemon reported as recorded that did not read "
-         "back exactly. Memory is the daemon's peak resident set, sampled every 20 ms, against "
-         "its queue bound plus the frames in flight.\n\n"
-      << r.Markdown() << "\n"
-      << (r.ok() ? "Verdict: nothing lost, memory bounded.\n" : "Verdict: FAILED.\n");
-    md = m.str();
-    if (!r.ok()) std::fprintf(stderr, "%s\n", r.daemon_tail.c_str());
+    md = RunSoakBenchmark(options, log);
   } else if (target == "scene") {
     SceneBenchmarkOptions options;
     options.quick = args.named.count("quick") > 0;

@@ -474,7 +474,7 @@ RunSummary RunFrames(const RunOptions& options_in, const std::string& rig_path, 
         s.energy = reused[0].energy;
       }
       s.status = "unchanged (reused frame " + std::to_string(chain.last_computed) + ")";
-      if (truth_count) fitted = ReadVdb(paths.Volume(i).string());
+      if (truth_count) fitted = previous.volume;  // what was just copied
       have_output = true;
     } else {
       // Tomography from the fitted views.

@@ -49,6 +49,11 @@ struct SoakReport {
 SoakReport RunSoak(const SoakOptions& options,
                    const std::function<void(const std::string&)>& log = nullptr);
 
+// `flamerig benchmark soak`: RunSoak, and its BENCHMARKS.md section (the daemon's last lines go
+// to `log` when it failed).
+std::string RunSoakBenchmark(const SoakOptions& options,
+                             const std::function<void(const std::string&)>& log);
+
 }  // namespace flamerig
 
 #endif  // FLAMERIG_TOOLS_SOAK_H_
