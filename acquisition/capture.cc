@@ -2,6 +2,7 @@
 
 #include "acquisition/aravis_camera.h"
 #include "acquisition/config_reader.h"
+#include "acquisition/thread_name.h"
 #include "acquisition/v4l2_camera.h"
 
 #include <yaml-cpp/yaml.h>
@@ -204,10 +205,30 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
           throw std::invalid_argument(at + ".sim.replay: " + e.what());
         }
       }
+      // Outages: disconnect_at_s / reconnect_at_s for one, `outages: [[down_s, up_s], ...]` for
+      // several (up_s = -1: for good); seconds from the daemon's start.
       const double d = sr.Range("disconnect_at_s", -1, -1, 1e9),
                    re = sr.Range("reconnect_at_s", -1, -1, 1e9);
-      cc.sim.disconnect_at_ns = d < 0 ? -1 : static_cast<std::int64_t>(d * 1e9);
-      cc.sim.reconnect_at_ns = re < 0 ? -1 : static_cast<std::int64_t>(re * 1e9);
+      auto ns = [](double s) { return s < 0 ? std::int64_t(-1) : std::llround(s * 1e9); };
+      if (d >= 0) cc.sim.outages.push_back({ns(d), ns(re)});
+      if (re >= 0 && d < 0)
+        throw std::invalid_argument(at + ".sim: 'reconnect_at_s' needs 'disconnect_at_s'");
+      const auto outages = sr.Get<std::vector<std::vector<double>>>("outages", {});
+      for (std::size_t i = 0; i < outages.size(); ++i) {
+        const auto& o = outages[i];
+        if (o.size() != 2 || !(o[0] >= 0 && o[0] <= 1e9) ||
+            !(o[1] == -1 || (o[1] > o[0] && o[1] <= 1e9)))
+          throw std::invalid_argument(at + ".sim.outages[" + std::to_string(i) +
+                                      "]: must be [down_s, up_s] with 0 <= down_s < up_s, or "
+                                      "up_s = -1 (for good)");
+        cc.sim.outages.push_back({ns(o[0]), ns(o[1])});
+      }
+      for (std::size_t i = 1; i < cc.sim.outages.size(); ++i)
+        if (cc.sim.outages[i - 1].up_ns < 0 ||
+            cc.sim.outages[i].down_ns < cc.sim.outages[i - 1].up_ns)
+          throw std::invalid_argument(at +
+                                      ".sim: outages must be in order and not overlap (the "
+                                      "disconnect_at_s one first)");
       for (double p :
            {cc.sim.drop_probability, cc.sim.late_probability, cc.sim.incomplete_probability})
         if (p > 1) throw std::invalid_argument(at + ".sim: probabilities must be in [0, 1]");
@@ -244,11 +265,13 @@ std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config, Cl
   std::vector<std::unique_ptr<Camera>> cameras;
   for (const auto& c : config.cameras) {
     if (c.driver == "sim") {
-      // The config's disconnect times count from now.
+      // The config's outage times count from now.
       SimCameraOptions o = c.sim;
       const std::int64_t now = clock->MonotonicNs();
-      if (o.disconnect_at_ns >= 0) o.disconnect_at_ns += now;
-      if (o.reconnect_at_ns >= 0) o.reconnect_at_ns += now;
+      for (SimOutage& outage : o.outages) {
+        outage.down_ns += now;
+        if (outage.up_ns >= 0) outage.up_ns += now;
+      }
       cameras.push_back(std::make_unique<SimCamera>(o, clock, bus));
     } else if (c.driver == "aravis") {
       try {
@@ -286,6 +309,7 @@ std::string CaptureStatus::ToYaml() const {
     out << YAML::Key << "missing_by_frame_id" << YAML::Value << c.stream.missing_by_id;
     out << YAML::Key << "missing_by_timestamp" << YAML::Value << c.stream.missing_by_time;
     out << YAML::Key << "underruns" << YAML::Value << c.stream.underruns;
+    out << YAML::Key << "disconnects" << YAML::Value << c.disconnects;
     out << YAML::Key << "reconnect_attempts" << YAML::Value << c.reconnect_attempts;
     out << YAML::Key << "reconnects" << YAML::Value << c.reconnects;
     if (!c.error.empty()) out << YAML::Key << "error" << YAML::Value << c.error;
@@ -381,10 +405,16 @@ void CaptureDaemon::Start() {
   try {
     for (c = 0; c < cameras_.size(); ++c) cameras_[c]->Configure(config_.cameras[c].settings);
     running_ = true;
-    threads_.emplace_back([this] { AssemblerLoop(); });
+    threads_.emplace_back([this] {
+      NameThisThread("fr-assemble");
+      AssemblerLoop();
+    });
     for (c = 0; c < cameras_.size(); ++c) {
       cameras_[c]->Start(config_.buffers);
-      threads_.emplace_back([this, c] { CameraLoop(static_cast<int>(c)); });
+      threads_.emplace_back([this, c] {
+        NameThisThread("fr-cam" + std::to_string(c));
+        CameraLoop(static_cast<int>(c));
+      });
     }
   } catch (const std::exception& e) {
     running_ = false;
@@ -406,7 +436,10 @@ void CaptureDaemon::Start() {
   }
   if (config_.sync == SyncMode::kSoftwareTrigger ||
       (config_.sync == SyncMode::kHardwareTrigger && bus_ != nullptr) || action_sender_)
-    threads_.emplace_back([this] { TriggerLoop(); });
+    threads_.emplace_back([this] {
+      NameThisThread("fr-trigger");
+      TriggerLoop();
+    });
 }
 
 void CaptureDaemon::Stop() {
@@ -430,8 +463,15 @@ void CaptureDaemon::CameraLoop(int camera) {
   CameraState& st = *camera_state_[camera];
   const std::int64_t timeout = 100'000'000;  // wake up at least 10 times a second to see Stop
   std::int64_t last_attempt = 0;
+  bool was_connected = true;
   while (running_) {
-    if (!cam.connected()) {
+    const bool connected = cam.connected();
+    if (!connected && was_connected) {
+      std::lock_guard<std::mutex> lock(st.mutex);
+      ++st.live.disconnects;
+    }
+    was_connected = connected;
+    if (!connected) {
       // A lost camera: try to bring it back about once a second; the others go on meanwhile.
       const std::int64_t t = clock_->MonotonicNs();
       if (t - last_attempt >= 1'000'000'000) {

@@ -53,6 +53,7 @@
 //       packet_size: 0
 //       sim: {drop_probability: 0, jitter_us: 0, drift_ppm: 0, late_probability: 0,
 //             incomplete_probability: 0, disconnect_at_s: -1, reconnect_at_s: -1, seed: 1,
+//             outages: [[12, 14.5], [30, -1]],  # more outages: [down_s, up_s], -1 = for good
 //             replay: DATASET,      # show a `flamerig simulate` dataset's images of this camera
 //                                   # (name), path relative to this file; else a test pattern
 //             replay_content: fire} # fire (its frames) or calibration (its board views)
@@ -129,7 +130,9 @@ struct CameraLiveStatus {
   double fps = 0;  // over the last second
   double megabytes_per_s = 0;
   std::uint64_t frames = 0;
-  std::uint64_t reconnect_attempts = 0, reconnects = 0;
+  std::uint64_t disconnects = 0;  // times it was seen gone after being connected
+  std::uint64_t reconnect_attempts = 0, reconnects = 0;  // by the daemon (a camera may also come
+                                                         // back by itself)
   std::string error;      // the last error of its driver or image source, if any
   StreamCounters stream;  // the driver's counters
 };

@@ -17,6 +17,8 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
+#include "acquisition/thread_name.h"
+
 namespace flamerig {
 
 namespace {
@@ -300,7 +302,10 @@ ControlServer::ControlServer(CaptureDaemon* daemon, const std::string& endpoint,
     ::close(listen_fd_);
     throw std::runtime_error("control endpoint " + endpoint + ": listen: " + std::strerror(errno));
   }
-  thread_ = std::thread([this] { Serve(); });
+  thread_ = std::thread([this] {
+    NameThisThread("fr-control");
+    Serve();
+  });
 }
 
 ControlServer::~ControlServer() {

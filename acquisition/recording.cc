@@ -14,6 +14,8 @@
 #include <fstream>
 #include <sstream>
 
+#include "acquisition/thread_name.h"
+
 namespace flamerig {
 
 static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "the recording format is little-endian");
@@ -253,8 +255,15 @@ Recorder::Recorder(const std::string& directory, const RecordingMetadata& metada
   queues_.resize(n);
   status_.max_queued_bytes = options_.max_queued_bytes;
   last_sync_ns_ = SystemClock().MonotonicNs();
-  for (std::uint32_t c = 0; c < n; ++c) writers_.emplace_back([this, c] { WriterLoop(c); });
-  committer_ = std::thread([this] { CommitterLoop(); });
+  for (std::uint32_t c = 0; c < n; ++c)
+    writers_.emplace_back([this, c] {
+      NameThisThread("fr-write" + std::to_string(c));
+      WriterLoop(c);
+    });
+  committer_ = std::thread([this] {
+    NameThisThread("fr-commit");
+    CommitterLoop();
+  });
 }
 
 Recorder::~Recorder() {

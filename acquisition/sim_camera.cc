@@ -190,6 +190,15 @@ SimCamera::SimCamera(const SimCameraOptions& options, Clock* clock, SimTriggerBu
   if (options.jitter_ns < 0 || options.transfer_ns < 0 || options.trigger_latency_ns < 0 ||
       options.late_ns < 0)
     throw std::invalid_argument("sim camera '" + options.id + "': times must be >= 0");
+  for (std::size_t i = 0; i < options.outages.size(); ++i) {
+    const SimOutage& o = options.outages[i];
+    const bool ordered =
+        i == 0 || (options.outages[i - 1].up_ns >= 0 && o.down_ns >= options.outages[i - 1].up_ns);
+    if (o.down_ns < 0 || (o.up_ns >= 0 && o.up_ns <= o.down_ns) || !ordered)
+      throw std::invalid_argument("sim camera '" + options.id + "': outage " +
+                                  std::to_string(i + 1) +
+                                  " must end after it starts and after the one before it");
+  }
 }
 
 CameraDescription SimCamera::description() const {
@@ -234,11 +243,13 @@ void SimCamera::Stop() {
   pending_.clear();
 }
 
-bool SimCamera::connected() const {
-  const std::int64_t now = clock_->MonotonicNs();
-  if (options_.disconnect_at_ns < 0 || now < options_.disconnect_at_ns) return true;
-  return options_.reconnect_at_ns >= 0 && now >= options_.reconnect_at_ns;
+bool SimCamera::Gone(std::int64_t t) const {
+  for (const SimOutage& o : options_.outages)
+    if (t >= o.down_ns && (o.up_ns < 0 || t < o.up_ns)) return true;
+  return false;
 }
+
+bool SimCamera::connected() const { return !Gone(clock_->MonotonicNs()); }
 
 void SimCamera::SoftwareTrigger(std::int64_t trigger_id) {
   std::lock_guard<std::mutex> lock(trigger_mutex_);
@@ -249,9 +260,7 @@ void SimCamera::SoftwareTrigger(std::int64_t trigger_id) {
 
 void SimCamera::AddExposure(std::int64_t start_ns, std::int64_t trigger_id) {
   ++produced_;  // exposures attempted (time passes while the camera is gone too)
-  const bool gone = options_.disconnect_at_ns >= 0 && start_ns >= options_.disconnect_at_ns &&
-                    !(options_.reconnect_at_ns >= 0 && start_ns >= options_.reconnect_at_ns);
-  if (gone) return;
+  if (Gone(start_ns)) return;
   std::uniform_real_distribution<double> u(0, 1);
   Pending p;
   p.info.camera = options_.camera_index;

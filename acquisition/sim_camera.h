@@ -8,9 +8,10 @@
 //
 // Each camera models, from its seed: a free-run period with clock drift (ppm) and Gaussian jitter
 // of its exposure start, a device clock offset, dropped frames (probability per frame: the frame id
-// advances, no frame arrives), late frames (host receive delayed), incomplete frames, a disconnect
-// at a given time (optionally reconnecting later), a device frame counter of a given width that
-// wraps, and images from a pluggable source (a test pattern by default, or a callback).
+// advances, no frame arrives), late frames (host receive delayed), incomplete frames, outages
+// (disconnected from one time to another, or for good; as many as wanted), a device frame counter
+// of a given width that wraps, and images from a pluggable source (a test pattern by default, or a
+// callback).
 #ifndef FLAMERIG_ACQUISITION_SIM_CAMERA_H_
 #define FLAMERIG_ACQUISITION_SIM_CAMERA_H_
 
@@ -64,6 +65,12 @@ enum class ReplayContent { kFire, kCalibration };
 ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera,
                                 ReplayContent content = ReplayContent::kFire);
 
+// The camera is gone (no frames, connected() false) from down_ns until up_ns; up_ns = -1: for good.
+struct SimOutage {
+  std::int64_t down_ns = 0;
+  std::int64_t up_ns = -1;
+};
+
 struct SimCameraOptions {
   std::string id = "sim0";
   int camera_index = 0;  // written into FrameInfo::camera
@@ -76,10 +83,9 @@ struct SimCameraOptions {
   double drop_probability = 0;               // frame produced but never delivered
   double late_probability = 0;               // delivered `late_ns` later than normal
   std::int64_t late_ns = 100'000'000;
-  double incomplete_probability = 0;   // delivered with status incomplete
-  std::int64_t disconnect_at_ns = -1;  // monotonic time the camera disappears; -1 = never
-  std::int64_t reconnect_at_ns = -1;   // and comes back; -1 = never
-  int frame_id_bits = 16;              // device counter width (GigE Vision: 16)
+  double incomplete_probability = 0;  // delivered with status incomplete
+  std::vector<SimOutage> outages;     // monotonic times, in order, not overlapping
+  int frame_id_bits = 16;             // device counter width (GigE Vision: 16)
   std::uint64_t first_frame_id = 1;
   ImageSource source;  // empty = TestPatternSource()
 };
@@ -108,6 +114,7 @@ class SimCamera : public Camera {
   // Produces the frames whose exposure started by `until_ns` into pending_ (ordered by delivery).
   void Produce(std::int64_t until_ns);
   void AddExposure(std::int64_t start_ns, std::int64_t trigger_id);
+  bool Gone(std::int64_t monotonic_ns) const;  // inside an outage
 
   SimCameraOptions options_;
   Clock* clock_;

@@ -98,6 +98,25 @@ TEST(CaptureConfig, ParsesAndNamesTheKeyOfEveryMistake) {
   EXPECT_NE(ParseError("cameras: [{name: a, driver: aravis}]").find("'id'"), std::string::npos);
   EXPECT_NE(ParseError("cameras: [{name: a, sim: {drop_probability: 2}}]").find("[0, 1]"),
             std::string::npos);
+  // Outages: one by disconnect_at_s/reconnect_at_s, more by a list; in order, not overlapping.
+  const CaptureConfig outages = CaptureConfig::Parse(
+      "cameras: [{name: a, sim: {disconnect_at_s: 1, reconnect_at_s: 2, outages: [[3, 4.5], [6, "
+      "-1]]}}]",
+      "rig.yaml");
+  ASSERT_EQ(outages.cameras[0].sim.outages.size(), 3u);
+  EXPECT_EQ(outages.cameras[0].sim.outages[1].down_ns, 3'000'000'000);
+  EXPECT_EQ(outages.cameras[0].sim.outages[1].up_ns, 4'500'000'000);
+  EXPECT_EQ(outages.cameras[0].sim.outages[2].up_ns, -1);
+  EXPECT_NE(ParseError("cameras: [{name: a, sim: {outages: [[3, 4], [3.5, 5]]}}]")
+                .find("cameras[0].sim: outages must be in order and not overlap"),
+            std::string::npos);
+  EXPECT_NE(ParseError("cameras: [{name: a, sim: {outages: [[3, 2]]}}]")
+                .find("cameras[0].sim.outages[0]: must be [down_s, up_s]"),
+            std::string::npos);
+  EXPECT_NE(ParseError("cameras: [{name: a, sim: {outages: [[3, .nan]]}}]").find("outages[0]"),
+            std::string::npos);
+  EXPECT_NE(ParseError("cameras: [{name: a, sim: {reconnect_at_s: 3}}]").find("disconnect_at_s"),
+            std::string::npos);
   EXPECT_NE(ParseError("cameras: [{name: a\n").find("not valid YAML"), std::string::npos);
   EXPECT_NE(ParseError("- just\n- a list\n").find("expected a mapping"), std::string::npos);
 }
@@ -157,10 +176,15 @@ TEST(CaptureDaemon, RecordsEverySoftwareTriggeredSetBitExact) {
 TEST(CaptureDaemon, ADeadCameraNeverStallsTheOthers) {
   TempDir dir;
   // Camera 2 disappears after 0.3 s of a 1.2 s take; hardware trigger on the simulated line.
+  CaptureStatus status;
   const Recording r =
       RecordFor(Config(dir.path, "hardware-trigger", 40, "    sim: {disconnect_at_s: 0.3}\n",
                        "set_timeout_ms: 100\n"),
-                1.2, "take2");
+                1.2, "take2", &status);
+  ASSERT_EQ(status.cameras.size(), 3u);
+  EXPECT_EQ(status.cameras[2].disconnects, 1u);
+  EXPECT_FALSE(status.cameras[2].connected);
+  EXPECT_EQ(status.cameras[0].disconnects, 0u);
   ASSERT_GE(r.num_sets(), 35u);
   std::size_t complete = 0, without_2 = 0;
   for (std::size_t i = 0; i < r.num_sets(); ++i) {

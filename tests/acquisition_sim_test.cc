@@ -182,11 +182,42 @@ TEST(SimCamera, FreeRunsAtItsRateWithDriftJitterAndAWrappingCounter) {
   EXPECT_EQ(cam.counters().missing_by_id, 0u);
 }
 
+TEST(SimCamera, RepeatedOutagesComeAndGoAtTheirTimes) {
+  ManualClock clock(0);
+  SimCameraOptions o;
+  // Gone in [1, 2) s and [3, 4) s at 100 fps: frames only in [0, 1), [2, 3) and [4, 5).
+  o.outages = {{1'000'000'000, 2'000'000'000}, {3'000'000'000, 4'000'000'000}};
+  SimCamera cam(o, &clock, nullptr);
+  cam.Configure(Settings(100));
+  cam.Start(4);
+  int got = 0, got_while_gone = 0;
+  std::vector<std::pair<double, bool>> seen;  // (time, connected) at a few moments
+  while (clock.MonotonicNs() < 5'000'000'000) {
+    const std::int64_t now = clock.MonotonicNs();
+    if (now % 500'000'000 < 10'000'000) seen.emplace_back(now * 1e-9, cam.connected());
+    if (auto f = cam.Pop(10'000'000)) {
+      ++got;
+      // Received an exposure and a transfer (a few ms) after its exposure started.
+      const double t = f->info.host_monotonic_ns * 1e-9;
+      if ((t >= 1.05 && t < 2) || (t >= 3.05 && t < 4)) ++got_while_gone;
+    }
+  }
+  EXPECT_EQ(got_while_gone, 0);
+  EXPECT_NEAR(got, 300, 3);  // three connected seconds at 100 fps
+  for (const auto& [t, connected] : seen) {
+    const bool want = !((t >= 1 && t < 2) || (t >= 3 && t < 4));
+    EXPECT_EQ(connected, want) << "at " << t << " s";
+  }
+  SimCameraOptions bad;
+  bad.outages = {{2'000'000'000, -1}, {3'000'000'000, 4'000'000'000}};  // after "for good"
+  EXPECT_THROW(SimCamera(bad, &clock, nullptr), std::invalid_argument);
+}
+
 TEST(SimCamera, DropsAreSeenInFrameIdsAndTimestampsAndDisconnectStopsFrames) {
   ManualClock clock(0);
   SimCameraOptions o;
   o.drop_probability = 0.1;
-  o.disconnect_at_ns = 3'000'000'000;
+  o.outages = {{3'000'000'000, -1}};
   o.seed = 5;
   SimCamera cam(o, &clock, nullptr);
   cam.Configure(Settings(200));

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 
@@ -30,8 +31,14 @@ TEST(Soak, NothingReportedAsRecordedIsLostAndMemoryStaysBounded) {
   EXPECT_GT(r.frames_checked, r.sets_readable);  // several cameras per set
   EXPECT_LE(r.peak_rss_mb, r.rss_bound_mb);
   // The faults happened.
-  EXPECT_EQ(r.outages, o.cameras);
-  EXPECT_GE(r.stalls, 2);
+  EXPECT_GE(r.outages, 2 * o.cameras);   // each camera went and came back at least twice
+  EXPECT_GE(r.outages_seen, o.cameras);  // and the daemon noticed
+  EXPECT_GE(r.stalls, 1);
+  if (r.writer_stall_refused.empty()) {  // ptrace allowed here: the writers were stopped too
+    EXPECT_GE(r.writer_stalls + r.disk_stalls, 2);
+  } else {
+    std::printf("soak: threads could not be stopped here (%s)\n", r.writer_stall_refused.c_str());
+  }
   EXPECT_GE(r.preview_clients + r.vanishing_clients, 5);
 }
 

@@ -783,6 +783,15 @@ int Capture(const Args& args) {
                  s.recording_dir.c_str(), (unsigned long long)r.sets_recorded,
                  (unsigned long long)r.sets_dropped, r.error.empty() ? "" : "; ", r.error.c_str());
   }
+  // Each camera's story, for the log (and the soak test, which reads the disconnects).
+  for (const auto& c : daemon.status().cameras)
+    std::fprintf(
+        stderr,
+        "capture: %s: %llu frames, %llu missing by frame id, %llu incomplete, %llu "
+        "disconnects, %llu reconnects%s%s\n",
+        c.name.c_str(), (unsigned long long)c.frames, (unsigned long long)c.stream.missing_by_id,
+        (unsigned long long)c.stream.incomplete, (unsigned long long)c.disconnects,
+        (unsigned long long)c.reconnects, c.error.empty() ? "" : "; last error: ", c.error.c_str());
   daemon.Stop();
   return 0;
 }

@@ -1,7 +1,9 @@
 #include "tools/soak.h"
 
+#include <dirent.h>
 #include <fcntl.h>
 #include <signal.h>
+#include <sys/ptrace.h>
 #include <sys/socket.h>
 #include <sys/un.h>
 #include <sys/wait.h>
@@ -15,6 +17,7 @@
 #include <random>
 #include <sstream>
 #include <thread>
+#include <vector>
 
 #include "acquisition/control.h"
 #include "acquisition/recording.h"
@@ -56,19 +59,63 @@ void Misbehave(const std::string& socket_path, int mode) {
   ::close(fd);
 }
 
+// The threads of process `pid` whose names (/proc/PID/task/TID/comm) start with one of `prefixes`.
+std::vector<pid_t> ThreadsNamed(pid_t pid, const std::vector<std::string>& prefixes) {
+  std::vector<pid_t> found;
+  const std::string task = "/proc/" + std::to_string(pid) + "/task";
+  DIR* d = ::opendir(task.c_str());
+  if (!d) return found;
+  while (const dirent* e = ::readdir(d)) {
+    if (e->d_name[0] == '.') continue;
+    std::ifstream comm(task + "/" + e->d_name + "/comm");
+    std::string name;
+    std::getline(comm, name);
+    for (const auto& p : prefixes)
+      if (name.rfind(p, 0) == 0) found.push_back(static_cast<pid_t>(std::atoi(e->d_name)));
+  }
+  ::closedir(d);
+  return found;
+}
+
+// Stops the threads `tids` (ptrace: seize, interrupt, wait for the stop) for `ms`, then lets them
+// go. The rest of their process runs on. Returns "" or why ptrace refused (nothing is left
+// stopped either way). A thread that has exited meanwhile is skipped.
+std::string StopThreadsFor(const std::vector<pid_t>& tids, int ms) {
+  std::vector<pid_t> held;
+  std::string refused;
+  for (const pid_t tid : tids) {
+    if (::ptrace(PTRACE_SEIZE, tid, nullptr, nullptr) != 0) {
+      if (errno == EPERM || errno == EACCES)
+        refused = std::string("ptrace: ") + std::strerror(errno);
+      continue;  // ESRCH: gone
+    }
+    held.push_back(tid);
+    int status = 0;
+    if (::ptrace(PTRACE_INTERRUPT, tid, nullptr, nullptr) == 0)
+      (void)::waitpid(tid, &status, __WALL);  // the thread is stopped (or has exited)
+  }
+  if (refused.empty()) std::this_thread::sleep_for(std::chrono::milliseconds(ms));
+  for (const pid_t tid : held) (void)::ptrace(PTRACE_DETACH, tid, nullptr, nullptr);
+  return refused;
+}
+
 }  // namespace
 
 std::string SoakReport::Markdown() const {
   std::ostringstream md;
   md << "| seconds | frame sets reported recorded | read back, checksums and pixels exact | lost | "
-        "dropped by the bounded queue (reported) | camera outages | stalls (SIGSTOP/SIGCONT) | "
+        "dropped by the bounded queue (reported) | camera outages (disconnects the daemon saw) | "
+        "daemon stalls (SIGSTOP) | one writer stopped | disk stalls (all writers stopped) | "
         "preview clients | vanishing clients | peak memory MB (bound) |\n"
-        "|---|---|---|---|---|---|---|---|---|---|\n";
+        "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  const std::string refused =
+      writer_stall_refused.empty() ? "" : " (refused: " + writer_stall_refused + ")";
   md << "| " << Fixed(seconds, 0) << " | " << sets_reported << " | " << sets_readable << " ("
      << frames_checked << " frames, " << frames_wrong << " wrong) | " << lost << " | "
-     << sets_dropped << " | " << outages << " | " << stalls << " | " << preview_clients << " | "
-     << vanishing_clients << " | " << Fixed(peak_rss_mb, 0) << " (" << Fixed(rss_bound_mb, 0)
-     << ") |\n";
+     << sets_dropped << " | " << outages << " (" << outages_seen << ") | " << stalls << " | "
+     << writer_stalls << refused << " | " << disk_stalls << refused << " | " << preview_clients
+     << " | " << vanishing_clients << " | " << Fixed(peak_rss_mb, 0) << " ("
+     << Fixed(rss_bound_mb, 0) << ") |\n";
   return md.str();
 }
 
@@ -79,7 +126,8 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
   std::mt19937_64 rng(o.seed);
   std::uniform_real_distribution<double> uniform(0, 1);
   SoakReport report;
-  // The config: cameras on a simulated trigger line, each with one outage at a random time.
+  // The config: cameras on a simulated trigger line, each with outages at random times: the first
+  // 1 to 3 s in, each 0.3 to 2 s long, 1 to 8 s apart, none in the last second.
   const std::string socket_path = (dir / "control.sock").string();
   {
     std::ofstream y(dir / "soak.yaml");
@@ -88,12 +136,17 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
       << "\npretrigger_seconds: 0\nqueue_mb: " << o.queue_mb
       << "\nset_timeout_ms: 300\nmin_free_mb: 16\ncontrol: unix:" << socket_path << "\ncameras:\n";
     for (int c = 0; c < o.cameras; ++c) {
-      const double down = (0.15 + 0.6 * uniform(rng)) * o.seconds;
-      const double up = down + 0.3 + std::min(3.0, 0.1 * o.seconds) * uniform(rng);
       y << "  - {name: cam" << c << ", width: " << o.width << ", height: " << o.height
-        << ", pixel_format: Mono8, sim: {seed: " << c + 1
-        << ", jitter_us: 100, disconnect_at_s: " << down << ", reconnect_at_s: " << up << "}}\n";
-      ++report.outages;
+        << ", pixel_format: Mono8, sim: {seed: " << c + 1 << ", jitter_us: 100, outages: [";
+      double down = 1 + 2 * uniform(rng);
+      for (int k = 0;; ++k) {
+        const double up = down + 0.3 + 1.7 * uniform(rng);
+        if (up > o.seconds - 1) break;
+        y << (k ? ", " : "") << "[" << down << ", " << up << "]";
+        ++report.outages;
+        down = up + 1 + 7 * uniform(rng);
+      }
+      y << "]}}\n";
     }
   }
   // The daemon, as its own process (so that it can be stopped, resumed and measured).
@@ -144,11 +197,28 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
       break;
     }
     if (elapsed() > next_stall && elapsed() < o.seconds - 1) {
-      const int ms = 50 + static_cast<int>(750 * uniform(rng));
-      ::kill(pid, SIGSTOP);
-      std::this_thread::sleep_for(std::chrono::milliseconds(ms));
-      ::kill(pid, SIGCONT);
-      ++report.stalls;
+      // One fault at a time, so that a thread held by ptrace never meets a SIGSTOP; each ends a
+      // second before the daemon does.
+      const double kind = uniform(rng), left_ms = (o.seconds - 1 - elapsed()) * 1000;
+      auto cap = [&](double ms) { return static_cast<int>(std::min(ms, left_ms)); };
+      if (kind < 0.4 || !report.writer_stall_refused.empty()) {
+        const int ms = cap(50 + 750 * uniform(rng));
+        ::kill(pid, SIGSTOP);
+        std::this_thread::sleep_for(std::chrono::milliseconds(ms));
+        ::kill(pid, SIGCONT);
+        ++report.stalls;
+      } else if (kind < 0.7) {
+        const int ms = cap(50 + 1950 * uniform(rng));
+        const std::string writer = "fr-write" + std::to_string(rng() % o.cameras);
+        const auto tids = ThreadsNamed(pid, {writer});
+        report.writer_stall_refused = StopThreadsFor(tids, ms);
+        if (report.writer_stall_refused.empty() && !tids.empty()) ++report.writer_stalls;
+      } else {
+        const int ms = cap(50 + 4950 * uniform(rng));
+        const auto tids = ThreadsNamed(pid, {"fr-write", "fr-commit"});
+        report.writer_stall_refused = StopThreadsFor(tids, ms);
+        if (report.writer_stall_refused.empty() && !tids.empty()) ++report.disk_stalls;
+      }
       next_stall = elapsed() + 0.5 + 2.5 * uniform(rng);
     }
     if (elapsed() > o.seconds + 60) {  // a hung daemon is a failure, not a wait
@@ -169,6 +239,9 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
     std::string line, all;
     while (std::getline(in, line)) {
       all += line + "\n";
+      const auto gone = line.find(" disconnects, ");
+      if (line.rfind("capture: cam", 0) == 0 && gone != std::string::npos)
+        report.outages_seen += std::stoi(line.substr(line.rfind(", ", gone) + 2));
       const auto at = line.find(" frame sets recorded, ");
       if (at != std::string::npos) {
         const auto colon = line.rfind(": ", at);
@@ -222,10 +295,14 @@ std::string RunSoakBenchmark(const SoakOptions& options,
   m << "## Capture soak (issue 9)\n\nMachine: " << MachineDescription() << ".\n\n"
     << "`flamerig capture` records " << options.cameras << " simulated cameras (" << options.width
     << "x" << options.height << " Mono8, " << options.rate_hz
-    << " Hz hardware trigger) as its own process while faults are injected at random: each "
-       "camera dies once and comes back, the daemon is stopped and resumed (SIGSTOP/SIGCONT, "
-       "50 to 800 ms: a disk or scheduler stall), and control clients ask for previews, "
-       "connect and vanish, send half a request or say nothing. Afterwards every frame set is "
+    << " Hz hardware trigger) as its own process while faults are injected at random: every "
+       "camera dies and comes back again and again (0.3 to 2 s, 1 to 8 s apart), the daemon "
+       "is stopped and resumed (SIGSTOP/SIGCONT, 50 to 800 ms: a scheduler stall), one "
+       "camera's writer thread is stopped while capture goes on (ptrace, 50 ms to 2 s), every "
+       "writer thread and the set committer are stopped (a disk stall, 50 ms to 5 s: the "
+       "queue fills and whole sets are dropped and reported), and control clients ask for "
+       "previews, connect and vanish, send half a request or say nothing. Afterwards every frame "
+       "set is "
        "read back (checksums) and every frame compared byte for byte with the pattern its "
        "camera produced; lost counts sets the daemon reported as recorded that did not read "
        "back exactly. Memory is the daemon's peak resident set, sampled every 20 ms, against "

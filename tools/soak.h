@@ -1,8 +1,15 @@
 // The capture soak test (issue 9): `flamerig capture` records simulated cameras for a while as a
 // separate process, while faults are injected at random (seeded):
-//   - cameras dying and coming back (each camera's outage at a random time, for a random while);
-//   - the whole daemon stopped and resumed (SIGSTOP / SIGCONT, 50 to 800 ms): a disk or scheduler
-//     stall, during which nothing is written and the cameras' frames pile up;
+//   - cameras dying and coming back, again and again (each camera's outages at random times, for
+//     random whiles, set in the simulated cameras' config);
+//   - the whole daemon stopped and resumed (SIGSTOP / SIGCONT, 50 to 800 ms): a scheduler stall,
+//     during which nothing runs and the cameras' frames pile up;
+//   - the writer alone stopped and resumed while capture goes on: one camera's writer thread, or
+//     every writer thread and the set committer (a disk stall: 50 ms to 5 s, long enough to fill
+//     the queue). SIGSTOP stops a whole process (POSIX), so threads are stopped with ptrace
+//     (PTRACE_SEIZE + PTRACE_INTERRUPT, then PTRACE_DETACH), found by their names
+//     (acquisition/thread_name.h). Where ptrace is refused (a container's seccomp, Yama's
+//     ptrace_scope 3) these are skipped and `writer_stall_refused` says why;
 //   - control clients that ask for a preview, that connect and vanish, that send half a request
 //     and vanish, and that connect and say nothing (the server cuts them after 2 s).
 // Afterwards every frame set of the recording is read back and every frame compared byte for byte
@@ -35,9 +42,15 @@ struct SoakReport {
   std::uint64_t sets_reported = 0;  // "N frame sets recorded" in the daemon's last line
   std::uint64_t sets_readable = 0;  // in the recording, every frame's checksum verified
   std::uint64_t frames_checked = 0, frames_wrong = 0;  // bytes against the test pattern
-  std::uint64_t sets_dropped = 0;  // refused by the bounded queue (reported, not lost)
-  std::uint64_t lost = 0;          // reported as recorded but not read back exactly: must be 0
-  int outages = 0, stalls = 0, preview_clients = 0, vanishing_clients = 0;
+  std::uint64_t sets_dropped = 0;    // refused by the bounded queue (reported, not lost)
+  std::uint64_t lost = 0;            // reported as recorded but not read back exactly: must be 0
+  int outages = 0;                   // scheduled in the cameras' config
+  int outages_seen = 0;              // disconnects the daemon reported at its end
+  int stalls = 0;                    // the whole daemon: SIGSTOP / SIGCONT
+  int writer_stalls = 0;             // one camera's writer thread stopped (ptrace)
+  int disk_stalls = 0;               // every writer thread and the committer stopped (ptrace)
+  std::string writer_stall_refused;  // why ptrace could not stop threads here; empty if it could
+  int preview_clients = 0, vanishing_clients = 0;
   double peak_rss_mb = 0, rss_bound_mb = 0;
   std::string daemon_tail;  // the daemon's last lines, for a failure message
   bool ok() const { return lost == 0 && frames_wrong == 0 && peak_rss_mb <= rss_bound_mb; }
