@@ -23,9 +23,11 @@ TEST(Soak, NothingReportedAsRecordedIsLostAndMemoryStaysBounded) {
   o.seconds =
       std::getenv("FLAMERIG_SOAK_SECONDS") ? std::atof(std::getenv("FLAMERIG_SOAK_SECONDS")) : 15;
   o.seed = 42;
+  o.segment_seconds = 5;  // the recording is closed and another started twice
   const SoakReport r = RunSoak(o);
   SCOPED_TRACE(r.Markdown() + "\n" + r.daemon_tail);
   EXPECT_GT(r.sets_reported, 0u);
+  EXPECT_GE(r.segments, 3);
   EXPECT_EQ(r.lost, 0u);
   EXPECT_EQ(r.frames_wrong, 0u);
   EXPECT_GT(r.frames_checked, r.sets_readable);  // several cameras per set

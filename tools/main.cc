@@ -104,12 +104,13 @@ commands:
         (the layout reconstruct and fit read) and DIR/sets.csv; reports what a recovered recording
         left out.
   benchmark render|tomography|fit|capture|calibration|run|scene|soak [--out BENCHMARKS.md] [--quick] [--figures DIR]
-            [--seconds S]
+            [--seconds S] [--segment-seconds S]
         Time the forward renderer, the tomography or the fit (ours against the paper's
         Algorithm 2) against its error, or sustained recording from simulated and Aravis fake
         cameras against the disk's bandwidth, or the calibration of a simulated ring against
         mrcal-calibrate-cameras, and write the figures to BENCHMARKS.md, plots to
-        DIR (default benchmarks/) (--quick: a small smoke run).
+        DIR (default benchmarks/) (--quick: a small smoke run). soak: S seconds (default 600) of
+        capture with faults injected, a new recording every --segment-seconds (default 300).
   help  This text.
 
 Errors name the file, the field and the rule; the exit status is non-zero.
@@ -386,7 +387,7 @@ int Benchmark(const Args& args) {
         "benchmark needs a target: render, tomography, fit, capture, calibration, run, scene or "
         "soak");
   }
-  args.CheckKnown({"out", "quick", "figures", "seconds"});
+  args.CheckKnown({"out", "quick", "figures", "seconds", "segment-seconds"});
   auto log = [](const std::string& line) { std::fprintf(stderr, "%s\n", line.c_str()); };
   std::string md;
   if (target == "render") {
@@ -419,6 +420,10 @@ int Benchmark(const Args& args) {
     options.seconds = args.named.count("seconds")
                           ? ParseNumber(args.Get("seconds", ""), "--seconds")
                           : (args.named.count("quick") ? 10 : 600);
+    options.segment_seconds =
+        args.named.count("segment-seconds")
+            ? ParseNumber(args.Get("segment-seconds", ""), "--segment-seconds")
+            : 300;
     md = RunSoakBenchmark(options, log);
   } else if (target == "scene") {
     SceneBenchmarkOptions options;

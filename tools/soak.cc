@@ -14,10 +14,13 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <random>
 #include <sstream>
 #include <thread>
 #include <vector>
+
+#include <yaml-cpp/yaml.h>
 
 #include "acquisition/control.h"
 #include "acquisition/recording.h"
@@ -99,22 +102,73 @@ std::string StopThreadsFor(const std::vector<pid_t>& tids, int ms) {
   return refused;
 }
 
+// What one closed recording holds against what the daemon reported for it.
+struct SegmentCheck {
+  std::uint64_t readable = 0, frames = 0, wrong = 0, lost = 0;
+};
+
+// Reads every set of the recording at `path` back (checksums), compares every frame byte for byte
+// with the pattern its camera produced, and counts as lost what the daemon reported as recorded
+// but did not read back.
+SegmentCheck CheckSegment(const fs::path& path, std::uint64_t reported) {
+  SegmentCheck c;
+  const Recording rec = Recording::Open(path.string());
+  const ImageSource pattern = TestPatternSource();
+  std::vector<std::uint8_t> expected;
+  for (std::size_t i = 0; i < rec.num_sets(); ++i) {
+    FrameSet set;
+    try {
+      set = rec.ReadSet(i);
+    } catch (const RecordingError&) {
+      continue;  // counted as lost below
+    }
+    ++c.readable;
+    for (const auto& f : set.frames) {
+      if (!f) continue;
+      ++c.frames;
+      pattern(f->info, &expected);
+      if (!f->data || *f->data != expected) ++c.wrong;
+    }
+  }
+  c.lost = reported > c.readable ? reported - c.readable : 0;
+  return c;
+}
+
+// What the daemon reported for a closed recording: sets recorded and dropped, -1 when unknown.
+struct Reported {
+  long long recorded = -1, dropped = -1;
+};
+
+// From the "stop" reply's body, or from the recording's metadata.yaml (the recorder writes its
+// final counters there when it closes).
+Reported ParseReported(const YAML::Node& counters) {
+  Reported r;
+  try {
+    r.recorded = counters["sets_recorded"].as<long long>();
+    r.dropped = counters["sets_dropped"].as<long long>();
+  } catch (const std::exception&) {
+    r = Reported{};
+  }
+  return r;
+}
+
 }  // namespace
 
 std::string SoakReport::Markdown() const {
   std::ostringstream md;
-  md << "| seconds | frame sets reported recorded | read back, checksums and pixels exact | lost | "
+  md << "| seconds | recordings | frame sets reported recorded | read back, checksums and pixels "
+        "exact | lost | "
         "dropped by the bounded queue (reported) | camera outages (disconnects the daemon saw) | "
         "daemon stalls (SIGSTOP) | one writer stopped | disk stalls (all writers stopped) | "
         "preview clients | vanishing clients | peak memory MB (bound) |\n"
-        "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   const std::string refused =
       writer_stall_refused.empty() ? "" : " (refused: " + writer_stall_refused + ")";
-  md << "| " << Fixed(seconds, 0) << " | " << sets_reported << " | " << sets_readable << " ("
-     << frames_checked << " frames, " << frames_wrong << " wrong) | " << lost << " | "
-     << sets_dropped << " | " << outages << " (" << outages_seen << ") | " << stalls << " | "
-     << writer_stalls << refused << " | " << disk_stalls << refused << " | " << preview_clients
-     << " | " << vanishing_clients << " | " << Fixed(peak_rss_mb, 0) << " ("
+  md << "| " << Fixed(seconds, 0) << " | " << segments << " | " << sets_reported << " | "
+     << sets_readable << " (" << frames_checked << " frames, " << frames_wrong << " wrong) | "
+     << lost << " | " << sets_dropped << " | " << outages << " (" << outages_seen << ") | "
+     << stalls << " | " << writer_stalls << refused << " | " << disk_stalls << refused << " | "
+     << preview_clients << " | " << vanishing_clients << " | " << Fixed(peak_rss_mb, 0) << " ("
      << Fixed(rss_bound_mb, 0) << ") |\n";
   return md.str();
 }
@@ -186,6 +240,52 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
       }
     }
   });
+  // Every closed segment is checked (then removed) while capture goes on.
+  std::mutex checks_mutex;
+  std::vector<std::future<void>> checks;
+  auto check = [&](const fs::path& path, Reported reported) {
+    const SegmentCheck c = CheckSegment(path, reported.recorded);
+    if (!o.keep) fs::remove_all(path);
+    std::lock_guard<std::mutex> lock(checks_mutex);
+    report.sets_reported += reported.recorded;
+    report.sets_dropped += reported.dropped;
+    report.sets_readable += c.readable;
+    report.frames_checked += c.frames;
+    report.frames_wrong += c.wrong;
+    report.lost += c.lost;
+    ++report.segments;
+  };
+  // Rotation: "stop" (its reply: the recorder's final counters) and "start soak_K". A stop whose
+  // reply was lost (the server busy with misbehaving clients past the timeout) is taken from the
+  // recording's metadata.yaml, which the recorder wrote when it closed.
+  std::string segment = "soak";
+  int next_segment = 1;
+  double next_rotation = o.segment_seconds > 0 ? o.segment_seconds : 1e300;
+  auto rotate = [&] {
+    const fs::path closed = dir / "rec" / segment;
+    Reported reported;
+    try {
+      const ControlReply r = ControlRequest("unix:" + socket_path, "stop", 30);
+      if (r.ok) reported = ParseReported(YAML::Load(r.body));
+    } catch (const std::exception&) {
+    }
+    if (reported.recorded < 0) {
+      try {
+        reported = ParseReported(YAML::LoadFile((closed / "metadata.yaml").string())["counters"]);
+      } catch (const std::exception&) {
+      }
+    }
+    if (reported.recorded < 0) return;  // not closed yet: try again at the next turn
+    checks.push_back(std::async(std::launch::async, check, closed, reported));
+    segment = "soak_" + std::to_string(next_segment++);
+    for (int attempt = 0; attempt < 3; ++attempt) {
+      try {
+        ControlRequest("unix:" + socket_path, "start " + segment, 30);
+        break;
+      } catch (const std::exception&) {  // unanswered: an answered refusal is not retried
+      }
+    }
+  };
   // Stalls, and the memory samples.
   int status = 0;
   bool exited = false;
@@ -195,6 +295,10 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
     if (::waitpid(pid, &status, WNOHANG) == pid) {
       exited = true;
       break;
+    }
+    if (elapsed() > next_rotation && elapsed() < o.seconds - 3) {
+      rotate();
+      next_rotation = elapsed() + o.segment_seconds;
     }
     if (elapsed() > next_stall && elapsed() < o.seconds - 1) {
       // One fault at a time, so that a thread held by ptrace never meets a SIGSTOP; each ends a
@@ -234,6 +338,7 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
   report.preview_clients = previews;
   report.vanishing_clients = vanishing;
   report.seconds = elapsed();
+  Reported last;  // the daemon's last line: its last recording
   {
     std::ifstream in(log_path);
     std::string line, all;
@@ -245,36 +350,21 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
       const auto at = line.find(" frame sets recorded, ");
       if (at != std::string::npos) {
         const auto colon = line.rfind(": ", at);
-        report.sets_reported = std::stoull(line.substr(colon + 2));
-        report.sets_dropped = std::stoull(line.substr(at + 22));
+        last.recorded = std::stoll(line.substr(colon + 2));
+        last.dropped = std::stoll(line.substr(at + 22));
       }
     }
     report.daemon_tail = all.size() > 2000 ? all.substr(all.size() - 2000) : all;
   }
   if (!WIFEXITED(status) || WEXITSTATUS(status) != 0)
     throw std::runtime_error("soak: the daemon did not exit cleanly:\n" + report.daemon_tail);
-  if (log) log("soak: daemon done, reading the recording back");
-  // Every set back, every frame against the pattern its camera produced.
-  const Recording rec = Recording::Open((dir / "rec" / "soak").string());
-  const ImageSource pattern = TestPatternSource();
-  std::vector<std::uint8_t> expected;
-  for (std::size_t i = 0; i < rec.num_sets(); ++i) {
-    FrameSet set;
-    try {
-      set = rec.ReadSet(i);
-    } catch (const RecordingError&) {
-      continue;  // counted as lost below
-    }
-    ++report.sets_readable;
-    for (const auto& f : set.frames) {
-      if (!f) continue;
-      ++report.frames_checked;
-      pattern(f->info, &expected);
-      if (!f->data || *f->data != expected) ++report.frames_wrong;
-    }
-  }
-  report.lost =
-      report.sets_reported > report.sets_readable ? report.sets_reported - report.sets_readable : 0;
+  if (log) log("soak: daemon done, reading the last recording back");
+  if (last.recorded < 0)
+    throw std::runtime_error("soak: the daemon did not report its last recording:\n" +
+                             report.daemon_tail);
+  check(dir / "rec" / segment, last);
+  for (auto& c : checks)
+    c.get();  // rethrows what a check threw (a recording that cannot be opened)
   // Memory: the recorder's queue bound plus the cameras' buffers and the process itself.
   const double frame_mb = o.width * double(o.height) / 1048576.0;
   report.rss_bound_mb = o.queue_mb + 64 * frame_mb * o.cameras + 200;
@@ -301,10 +391,15 @@ std::string RunSoakBenchmark(const SoakOptions& options,
        "camera's writer thread is stopped while capture goes on (ptrace, 50 ms to 2 s), every "
        "writer thread and the set committer are stopped (a disk stall, 50 ms to 5 s: the "
        "queue fills and whole sets are dropped and reported), and control clients ask for "
-       "previews, connect and vanish, send half a request or say nothing. Afterwards every frame "
-       "set is "
-       "read back (checksums) and every frame compared byte for byte with the pattern its "
-       "camera produced; lost counts sets the daemon reported as recorded that did not read "
+       "previews, connect and vanish, send half a request or say nothing. Every "
+    << (options.segment_seconds > 0 ? Fixed(options.segment_seconds, 0) +
+                                          " s the recording is "
+                                          "closed and another started through the control API, "
+                                          "and the closed one is checked while capture goes on: "
+                                    : std::string())
+    << "every frame set is read back (checksums) and every frame compared byte for byte with "
+       "the pattern its camera produced; lost counts sets the daemon reported as recorded that did "
+       "not read "
        "back exactly. Memory is the daemon's peak resident set, sampled every 20 ms, against "
        "its queue bound plus the frames in flight.\n\n"
     << r.Markdown() << "\n"

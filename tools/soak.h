@@ -12,10 +12,12 @@
 //     ptrace_scope 3) these are skipped and `writer_stall_refused` says why;
 //   - control clients that ask for a preview, that connect and vanish, that send half a request
 //     and vanish, and that connect and say nothing (the server cuts them after 2 s).
-// Afterwards every frame set of the recording is read back and every frame compared byte for byte
-// with what the simulated camera produced (its test pattern is a function of camera and frame id),
-// the number of sets the daemon reported as recorded is compared with the number readable, and the
-// daemon's peak resident memory (sampled from /proc) is compared with its queue bounds.
+// Every frame set of each recording is read back and every frame compared byte for byte with what
+// the simulated camera produced (its test pattern is a function of camera and frame id), the number
+// of sets the daemon reported as recorded is compared with the number readable, and the daemon's
+// peak resident memory (sampled from /proc) is compared with its queue bounds. Long soaks close
+// the recording every `segment_seconds` and start another through the control API, and check and
+// remove the closed one while capture goes on: an hour at 4 x 320x240 x 50 Hz is 55 GB otherwise.
 #ifndef FLAMERIG_TOOLS_SOAK_H_
 #define FLAMERIG_TOOLS_SOAK_H_
 
@@ -33,13 +35,18 @@ struct SoakOptions {
   int width = 320, height = 240;
   double rate_hz = 50;
   double queue_mb = 64;  // the recorder's queue bound
+  // Every this many seconds the recording is closed ("stop") and a new one started ("start"), and
+  // the closed one is checked and removed while capture goes on (so that hours fit on a disk);
+  // 0 = one recording.
+  double segment_seconds = 0;
   std::uint64_t seed = 1;
   bool keep = false;
 };
 
 struct SoakReport {
   double seconds = 0;
-  std::uint64_t sets_reported = 0;  // "N frame sets recorded" in the daemon's last line
+  int segments = 0;                 // recordings checked
+  std::uint64_t sets_reported = 0;  // by "stop" replies and the daemon's last line
   std::uint64_t sets_readable = 0;  // in the recording, every frame's checksum verified
   std::uint64_t frames_checked = 0, frames_wrong = 0;  // bytes against the test pattern
   std::uint64_t sets_dropped = 0;    // refused by the bounded queue (reported, not lost)
