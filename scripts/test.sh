@@ -8,9 +8,10 @@
 #   fuzz   every fuzz target for FUZZ_SECONDS (default 10) after replaying its
 #          checked-in regressions (scripts/fuzz.sh)                               (build-fuzz, ~5 min)
 #   asan   the whole suite again under AddressSanitizer + UndefinedBehaviorSanitizer
-#          (build-asan; ~25 min to build and ~12 to run on two cores)
-# FLAMERIG_HARDENING="tsan fuzz" is the default in CI (CI=true), "" elsewhere; "all" = all three;
-# "none" = none.
+#          (build-asan; ~15 min to build and ~7 to run on two cores; the calibration tests reuse
+#          the ring the plain build rendered, FLAMERIG_TEST_DATA_DIR)
+# FLAMERIG_HARDENING="tsan fuzz asan" is the default in CI (CI=true), "" elsewhere; "all" = all
+# three; "none" = none.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install-deps.sh
@@ -20,7 +21,7 @@ bash scripts/build.sh
   ctest --output-on-failure --timeout 300 -j "$(nproc)" "$@")
 
 PASSES="${FLAMERIG_HARDENING-}"
-if [ -z "${FLAMERIG_HARDENING+set}" ] && [ "${CI:-}" = "true" ]; then PASSES="tsan fuzz"; fi
+if [ -z "${FLAMERIG_HARDENING+set}" ] && [ "${CI:-}" = "true" ]; then PASSES="tsan fuzz asan"; fi
 if [ "$PASSES" = all ]; then PASSES="tsan fuzz asan"; fi
 if [ "$PASSES" = none ]; then PASSES=""; fi
 
@@ -44,6 +45,7 @@ for pass in $PASSES; do
       echo "== AddressSanitizer + UndefinedBehaviorSanitizer: the whole suite =="
       FLAMERIG_BUILD_DIR=build-asan bash scripts/build.sh -DFLAMERIG_SANITIZE=ON -DFLAMERIG_MPI=OFF
       (cd build-asan &&
+        FLAMERIG_TEST_DATA_DIR="$PWD/../${FLAMERIG_BUILD_DIR:-build}/testdata" \
         ASAN_OPTIONS="detect_leaks=0:abort_on_error=1" \
         UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1" \
         ctest --output-on-failure --timeout 900 -j "$(nproc)")
