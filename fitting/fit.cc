@@ -694,7 +694,10 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
                               (vary_density ? "density" : "temperature") + ")";
     const double sigma_t = paper.initial_sigma_t_k / it;
     const double sigma_n = paper.initial_sigma_log_n / it;
-    for (const auto& [lo, hi] : clusters) {
+    for (const auto& cluster : clusters) {
+      // Plain names, not a structured binding: the lambdas below capture them (clang 14, which
+      // builds the fuzz targets, cannot capture structured bindings).
+      const auto lo = cluster.first, hi = cluster.second;
       if (hi <= lo || out_of_time()) continue;
       // The pairwise terms that a move of this cluster changes: those of its voxels with their
       // neighbours, counted from both ends (pairs inside the cluster stay equal, so they add a

@@ -24,15 +24,22 @@ for bin in "$BUILD"/tests/fuzz/fuzz_*; do
   corpus="$BUILD/corpus/$target"; findings="$BUILD/findings/$target"
   rm -rf "$corpus" "$findings"; mkdir -p "$corpus" "$findings"
   cp -r tests/fuzz/corpus/"$target"/. "$corpus"/ 2>/dev/null || true
-  if [ -d tests/fuzz/regressions/"$target" ]; then
-    "$bin" -rss_limit_mb=3072 -malloc_limit_mb=4096 -timeout=20 tests/fuzz/regressions/"$target"/* > "$findings/replay.log" 2>&1 \
-      || { echo "fuzz $target: a regression input fails again"; tail -30 "$findings/replay.log"; status=1; }
-  fi
   # OpenVDB's reader trusts the sizes a file states (a name length, a compressed block size): a
   # damaged .vdb makes it ask for gigabytes to terabytes before the read fails. Without sanitizers
-  # that is std::bad_alloc, which ReadVdb turns into an error naming the file; under ASan it is a
-  # report. Such reports (an out-of-memory whose allocation comes from libopenvdb) are counted and
-  # fuzzing goes on; every other finding fails the run.
+  # that is std::bad_alloc, which ReadVdb turns into an error naming the file (a test checks it);
+  # under ASan it is a report. Such reports (an out-of-memory whose allocation comes from
+  # libopenvdb) are counted and fuzzing goes on; every other finding fails the run.
+  dependency_oom() {
+    [ "$target" = vdb ] && grep -q "out-of-memory\|out of memory" "$1" &&
+      grep -A16 -E "out-of-memory|out of memory" "$1" | grep -q "libopenvdb"
+  }
+  # The regressions, one at a time.
+  for input in tests/fuzz/regressions/"$target"/*; do
+    [ -f "$input" ] || continue
+    "$bin" -rss_limit_mb=3072 -malloc_limit_mb=4096 -timeout=20 "$input" > "$findings/replay.log" 2>&1 ||
+      dependency_oom "$findings/replay.log" ||
+      { echo "fuzz $target: regression input $input fails again"; tail -30 "$findings/replay.log"; status=1; }
+  done
   deadline=$(( $(date +%s) + SECONDS_PER_TARGET )); runs_total=0; dependency_ooms=0; verdict=""
   while [ -z "$verdict" ]; do
     left=$(( deadline - $(date +%s) )); [ "$left" -ge 1 ] || { verdict=ok; break; }
@@ -41,8 +48,7 @@ for bin in "$BUILD"/tests/fuzz/fuzz_*; do
          -max_len=65536 -print_final_stats=1 -artifact_prefix="$findings/" "$corpus" \
          > "$findings/fuzz.log" 2>&1; then
       verdict=ok
-    elif [ "$target" = vdb ] && grep -q "out-of-memory\|out of memory" "$findings/fuzz.log" &&
-         grep -A16 -E "out-of-memory|out of memory" "$findings/fuzz.log" | grep -q "libopenvdb"; then
+    elif dependency_oom "$findings/fuzz.log"; then
       dependency_ooms=$((dependency_ooms + 1))
     else
       verdict=finding

@@ -152,7 +152,10 @@ FireVolume ReadVdb(const std::string& path) {
   openvdb::MetaMap::Ptr meta;
   try {
     openvdb::io::File file(path);
-    file.open();
+    // Every voxel is read now (no delayed loading): the grids are used whole at once, and a damaged
+    // file's delayed-load table made OpenVDB abort on an assertion when it skipped a leaf (found
+    // by fuzzing: tests/fuzz/regressions/vdb).
+    file.open(/*delayLoad=*/false);
     grids = file.getGrids();
     meta = file.getMetadata();
     file.close();

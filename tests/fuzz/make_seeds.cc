@@ -83,6 +83,35 @@ int main(int argc, char** argv) {
   WriteVdb((tmp / "v.vdb").string(), v);
   Write(out / "vdb" / "small.vdb", Slurp(tmp / "v.vdb"));
 
+  // simulate_config: the shapes of config/sim_rig.yaml and config/sim_licks.yaml, small
+  Write(out / "simulate_config" / "ring.yaml",
+        "simulate:\n  seed: 3\n  frames: 2\n  fire: {kind: licks, peak_temperature_k: 2100, "
+        "peak_soot_volume_fraction: 2.0e-6}\n  absorption: soot\n  grid_resolution: 16\n"
+        "  box: {min: [-0.05, 0.0, -0.05], max: [0.05, 0.14, 0.05]}\n"
+        "  rig: {cameras: 3, distance_m: 0.5, elevation_deg: 10, width: 64, height: 48}\n"
+        "  calibration: {enabled: true, board: charuco, squares: [7, 5], square_m: 0.015, "
+        "marker_m: 0.011}\n");
+  Write(out / "simulate_config" / "plain.yaml",
+        "simulate:\n  frames: 1\n  grid_resolution: 8\n  calibration: {enabled: false}\n");
+
+  // scene: the shape of config/scene_candle.yaml, with the fuzz target's fire.vdb and mesh.obj
+  Write(out / "scene" / "candle.yaml",
+        "scene:\n  camera: {position: [0.0, 0.09, 0.34], look_at: [0.0, 0.03, 0.0], fov_deg: 35, "
+        "width: 96, height: 54}\n  background: [0, 0, 0]\n  materials:\n"
+        "    table: {albedo: [0.55, 0.45, 0.35]}\n"
+        "    pewter: {albedo: [0.15, 0.15, 0.15], specular: [0.5, 0.5, 0.5], shininess: 300}\n"
+        "  objects:\n"
+        "    - {type: plane, centre: [0, 0, 0], normal: [0, 1, 0], size: [0.6, 0.6], material: "
+        "table}\n"
+        "    - {type: sphere, centre: [0.045, 0.02, 0.03], radius: 0.02, material: pewter}\n"
+        "    - {type: box, min: [-0.075, 0.0, -0.03], max: [-0.045, 0.045, 0.0], material: "
+        "table}\n"
+        "    - {type: mesh, file: mesh.obj, scale: 2, rotate_y_deg: 30, translate: [0, 0, 0], "
+        "material: pewter}\n"
+        "  fires:\n    - {volume: fire.vdb, absorption: soot, scale: 1, translate: [0, 0, 0]}\n"
+        "render: {samples: 4, samples_per_pass: 2, seed: 1, lighting: compare}\n"
+        "display: {exposure: 1, key: 0.18, white: 0}\n");
+
   // streampix: version 5 (images from byte 8192), 2 frames of 4x3 mono 8-bit.
   {
     std::string h(8192, '\0');

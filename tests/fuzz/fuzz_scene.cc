@@ -1,0 +1,38 @@
+// The scene file of `flamerig render --scene` (tools/scene_job.h), read and built (Embree) but not
+// rendered: errors are std::invalid_argument naming the file and key, or std::runtime_error naming
+// a volume or mesh file. Next to the scene file the seeds refer to: fire.vdb (a small fire) and
+// mesh.obj (a triangle), written once.
+#include "tests/fuzz/fuzz_util.h"
+#include "tomography/vdb_io.h"
+#include "tools/scene_job.h"
+
+namespace {
+
+void WriteNeighbours() {
+  flamerig::FireVolume v;
+  v.geometry.dims = Eigen::Vector3i(4, 4, 4);
+  v.geometry.origin_in_rig = Eigen::Vector3d(-0.01, 0, -0.01);
+  v.geometry.voxel_size_m = Eigen::Vector3d::Constant(0.005);
+  v.temperature_k.assign(v.geometry.num_voxels(), 300.0f);
+  v.density_per_m3.assign(v.geometry.num_voxels(), 0.0f);
+  v.temperature_k[21] = 1800;
+  v.density_per_m3[21] = 1e16f;
+  flamerig::WriteVdb((flamerig_fuzz::Dir() / "fire.vdb").string(), v);
+  const std::string obj = "v 0 0 0\nv 0.01 0 0\nv 0 0.01 0\nf 1 2 3\n";
+  flamerig_fuzz::WriteFile("mesh.obj", reinterpret_cast<const std::uint8_t*>(obj.data()),
+                           obj.size());
+}
+
+}  // namespace
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+  static const bool ready = (WriteNeighbours(), true);
+  (void)ready;
+  const std::string path = flamerig_fuzz::WriteFile("scene.yaml", data, size);
+  try {
+    flamerig::SceneJob::Load(path);
+  } catch (const std::runtime_error&) {
+  } catch (const std::invalid_argument&) {
+  }
+  return 0;
+}
