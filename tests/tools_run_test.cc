@@ -22,6 +22,7 @@
 #include "tests/run_test_util.h"
 #include "tomography/vdb_io.h"
 #include "tools/blender_export.h"
+#include "tools/fit_report.h"
 #include "tools/run_job.h"
 #include "tools/run_mpi.h"
 #include "tools/run_report.h"
@@ -33,6 +34,47 @@ namespace {
 namespace fs = std::filesystem;
 
 using namespace testing_run;
+
+// A uniform field on `dims` voxels over the 4 mm cube at the origin.
+FireVolume Cube(int n, float temperature_k) {
+  FireVolume v;
+  v.geometry.dims = Eigen::Vector3i::Constant(n);
+  v.geometry.origin_in_rig = Eigen::Vector3d::Zero();
+  v.geometry.voxel_size_m = Eigen::Vector3d::Constant(0.004 / n);
+  v.temperature_k.assign(v.geometry.num_voxels(), temperature_k);
+  v.density_per_m3.assign(v.geometry.num_voxels(), 1e16f);
+  return v;
+}
+
+TEST(TruthError, SameGridVoxelByVoxelOtherGridsByTheVoxelHoldingEachCentre) {
+  const FireVolume truth = Cube(4, 1500);  // 64 visible voxels of 1 mm
+  // The same grid, 20 K too hot: 20 K RMS and bias over every voxel.
+  TruthError same = CompareWithTruth(truth, Cube(4, 1520));
+  EXPECT_TRUE(same.compared && same.same_grid);
+  EXPECT_EQ(same.visible, 64u);
+  EXPECT_EQ(same.counted, 64u);
+  EXPECT_NEAR(same.rms_k, 20, 1e-9);
+  EXPECT_NEAR(same.mean_k, 20, 1e-9);
+  // A fit on 2 mm voxels whose voxel c (flat index 0..7) is 1500 + 10 c: each holds 8 truth
+  // voxels, so the RMS is sqrt(mean of (10 c)^2) = sqrt(1750) and the bias 35 K.
+  FireVolume coarse = Cube(2, 0);
+  for (int c = 0; c < 8; ++c) coarse.temperature_k[c] = 1500.0f + 10.0f * c;
+  const TruthError other = CompareWithTruth(truth, coarse);
+  EXPECT_TRUE(other.compared);
+  EXPECT_FALSE(other.same_grid);
+  EXPECT_EQ(other.counted, 64u);
+  EXPECT_NEAR(other.rms_k, std::sqrt(1750.0), 1e-4);
+  EXPECT_NEAR(other.mean_k, 35, 1e-4);
+  // A fitted box that holds only the lower half (y < 2 mm): the rest is visible, not counted.
+  FireVolume half = Cube(2, 1510);
+  half.geometry.dims.y() = 1;
+  half.temperature_k.resize(4);
+  half.density_per_m3.resize(4);
+  const TruthError part = CompareWithTruth(truth, half);
+  EXPECT_EQ(part.visible, 64u);
+  EXPECT_EQ(part.counted, 32u);
+  EXPECT_NEAR(part.rms_k, 10, 1e-4);
+}
 
 TEST(RunFrames, SplitsContiguouslyAcrossRanks) {
   for (int size = 1; size <= 5; ++size) {

@@ -192,25 +192,34 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
     out.why_not = "a volume lacks temperature or density";
     return out;
   }
-  if (!truth.geometry.SameVoxels(fitted.geometry)) {
-    out.why_not = "the volumes are on different grids";
-    return out;
-  }
+  const GridGeometry& tg = truth.geometry;
+  const GridGeometry& fg = fitted.geometry;
+  out.same_grid = tg.SameVoxels(fg);
   const std::vector<float>& e = truth.emission_rgb;
   double peak = 0;
-  for (std::size_t v = 0; !e.empty() && v < truth.geometry.num_voxels(); ++v)
+  for (std::size_t v = 0; !e.empty() && v < tg.num_voxels(); ++v)
     peak = std::max(peak, double(e[3 * v + 1]));
   double se = 0, bias = 0;
-  for (std::size_t v = 0; v < truth.geometry.num_voxels(); ++v) {
-    if (truth.temperature_k[v] < 1300 || !(truth.density_per_m3[v] > 0)) continue;
-    if (!e.empty() && e[3 * v + 1] < 0.01 * peak) continue;
-    ++out.visible;
-    if (!(fitted.density_per_m3[v] > 0)) continue;
-    const double d = double(fitted.temperature_k[v]) - truth.temperature_k[v];
-    se += d * d;
-    bias += d;
-    ++out.counted;
-  }
+  for (int k = 0; k < tg.dims.z(); ++k)
+    for (int j = 0; j < tg.dims.y(); ++j)
+      for (int i = 0; i < tg.dims.x(); ++i) {
+        const std::size_t v = tg.Flat(i, j, k);
+        if (truth.temperature_k[v] < 1300 || !(truth.density_per_m3[v] > 0)) continue;
+        if (!e.empty() && e[3 * v + 1] < 0.01 * peak) continue;
+        ++out.visible;
+        std::size_t f = v;
+        if (!out.same_grid) {
+          const Eigen::Vector3d at = fg.IndexFromRig(tg.VoxelCenter(i, j, k)).array().round();
+          if ((at.array() < 0).any() || (at.array() >= fg.dims.cast<double>().array()).any())
+            continue;
+          f = fg.Flat(int(at.x()), int(at.y()), int(at.z()));
+        }
+        if (!(fitted.density_per_m3[f] > 0)) continue;
+        const double d = double(fitted.temperature_k[f]) - truth.temperature_k[v];
+        se += d * d;
+        bias += d;
+        ++out.counted;
+      }
   out.compared = true;
   if (out.counted) {
     out.rms_k = std::sqrt(se / out.counted);
