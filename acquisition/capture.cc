@@ -374,9 +374,12 @@ CaptureDaemon::CaptureDaemon(const CaptureConfig& config,
     camera_state_.push_back(std::move(s));
   }
   incoming_capacity_ = std::max<std::size_t>(64, 4 * cameras_.size() * config_.buffers);
-  // The ring is flushed into a new recording at once: its queue must hold it.
-  config_.recorder.max_queued_bytes = std::max<std::uint64_t>(
-      config_.recorder.max_queued_bytes, config_.pretrigger_max_bytes + (std::uint64_t(64) << 20));
+  // The ring is flushed into a new recording at once: its queue must hold it. Without a ring the
+  // queue is what the config says (found by the soak: a 64 MB queue had silently become 320 MB).
+  if (config_.pretrigger_seconds > 0)
+    config_.recorder.max_queued_bytes =
+        std::max<std::uint64_t>(config_.recorder.max_queued_bytes,
+                                config_.pretrigger_max_bytes + (std::uint64_t(64) << 20));
 }
 
 CaptureDaemon::~CaptureDaemon() {

@@ -28,7 +28,7 @@
 //   buffers: 8                    # per camera stream
 //   pretrigger_seconds: 2
 //   pretrigger_max_mb: 256
-//   queue_mb: 512                 # recorder queue bound
+//   queue_mb: 512                 # recorder queue bound (with a ring: at least pretrigger_max_mb + 64)
 //   min_free_mb: 64
 //   sync_interval_s: 1
 //   control: unix:recordings/control.sock   # or tcp:127.0.0.1:PORT (loopback unless `allow_remote`)

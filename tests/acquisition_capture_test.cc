@@ -173,6 +173,27 @@ TEST(CaptureDaemon, RecordsEverySoftwareTriggeredSetBitExact) {
   EXPECT_EQ(status.incoming_dropped, 0u);
 }
 
+// The recorder's queue is what the config says; only a pre-trigger ring (flushed into the queue at
+// once) raises it to pretrigger_max_mb + 64 MB. Found by the soak: a 64 MB queue had become 320 MB.
+TEST(CaptureDaemon, TheQueueBoundIsTheConfigsUnlessARingNeedsMore) {
+  TempDir dir;
+  auto bound_mb = [&](const std::string& extra, const std::string& name) {
+    const CaptureConfig config =
+        CaptureConfig::Parse(Config(dir.path, "software-trigger", 20, "", extra), "test");
+    SystemClock clock;
+    SimTriggerBus bus;
+    CaptureDaemon daemon(config, MakeCameras(config, &clock, &bus), &clock, &bus);
+    daemon.Start();
+    daemon.StartRecording(name);
+    const double mb = daemon.status().recorder.max_queued_bytes / double(1 << 20);
+    daemon.StopRecording();
+    daemon.Stop();
+    return mb;
+  };
+  EXPECT_EQ(bound_mb("queue_mb: 2\npretrigger_seconds: 0\n", "a"), 2);
+  EXPECT_EQ(bound_mb("queue_mb: 2\npretrigger_seconds: 1\npretrigger_max_mb: 8\n", "b"), 72);
+}
+
 TEST(CaptureDaemon, ADeadCameraNeverStallsTheOthers) {
   TempDir dir;
   // Camera 2 disappears after 0.3 s of a 1.2 s take; hardware trigger on the simulated line.

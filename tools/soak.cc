@@ -318,7 +318,7 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
         report.writer_stall_refused = StopThreadsFor(tids, ms);
         if (report.writer_stall_refused.empty() && !tids.empty()) ++report.writer_stalls;
       } else {
-        const int ms = cap(50 + 4950 * uniform(rng));
+        const int ms = cap(50 + 7950 * uniform(rng));
         const auto tids = ThreadsNamed(pid, {"fr-write", "fr-commit"});
         report.writer_stall_refused = StopThreadsFor(tids, ms);
         if (report.writer_stall_refused.empty() && !tids.empty()) ++report.disk_stalls;
@@ -389,8 +389,10 @@ std::string RunSoakBenchmark(const SoakOptions& options,
        "camera dies and comes back again and again (0.3 to 2 s, 1 to 8 s apart), the daemon "
        "is stopped and resumed (SIGSTOP/SIGCONT, 50 to 800 ms: a scheduler stall), one "
        "camera's writer thread is stopped while capture goes on (ptrace, 50 ms to 2 s), every "
-       "writer thread and the set committer are stopped (a disk stall, 50 ms to 5 s: the "
-       "queue fills and whole sets are dropped and reported), and control clients ask for "
+       "writer thread and the set committer are stopped (a disk stall, 50 ms to 8 s: the "
+       "longer ones fill the "
+    << Fixed(options.queue_mb, 0)
+    << " MB queue, and whole sets are dropped and reported), and control clients ask for "
        "previews, connect and vanish, send half a request or say nothing. Every "
     << (options.segment_seconds > 0 ? Fixed(options.segment_seconds, 0) +
                                           " s the recording is "

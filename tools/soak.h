@@ -5,7 +5,7 @@
 //   - the whole daemon stopped and resumed (SIGSTOP / SIGCONT, 50 to 800 ms): a scheduler stall,
 //     during which nothing runs and the cameras' frames pile up;
 //   - the writer alone stopped and resumed while capture goes on: one camera's writer thread, or
-//     every writer thread and the set committer (a disk stall: 50 ms to 5 s, long enough to fill
+//     every writer thread and the set committer (a disk stall: 50 ms to 8 s, long enough to fill
 //     the queue). SIGSTOP stops a whole process (POSIX), so threads are stopped with ptrace
 //     (PTRACE_SEIZE + PTRACE_INTERRUPT, then PTRACE_DETACH), found by their names
 //     (acquisition/thread_name.h). Where ptrace is refused (a container's seccomp, Yama's
