@@ -10,8 +10,8 @@
 #   asan   the whole suite again under AddressSanitizer + UndefinedBehaviorSanitizer
 #          (build-asan; ~15 min to build and ~7 to run on two cores; the calibration tests reuse
 #          the ring the plain build rendered, FLAMERIG_TEST_DATA_DIR)
-# FLAMERIG_HARDENING="tsan fuzz asan" is the default in CI (CI=true), "" elsewhere; "all" = all
-# three; "none" = none.
+# FLAMERIG_HARDENING="tsan fuzz" is the default in CI (CI=true), "" elsewhere; "all" = all three;
+# "none" = none. (asan is not in CI's default yet: its CI-form run, with -Werror, has not passed.)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install-deps.sh
@@ -21,7 +21,7 @@ bash scripts/build.sh
   ctest --output-on-failure --timeout 300 -j "$(nproc)" "$@")
 
 PASSES="${FLAMERIG_HARDENING-}"
-if [ -z "${FLAMERIG_HARDENING+set}" ] && [ "${CI:-}" = "true" ]; then PASSES="tsan fuzz asan"; fi
+if [ -z "${FLAMERIG_HARDENING+set}" ] && [ "${CI:-}" = "true" ]; then PASSES="tsan fuzz"; fi
 if [ "$PASSES" = all ]; then PASSES="tsan fuzz asan"; fi
 if [ "$PASSES" = none ]; then PASSES=""; fi
 
@@ -43,7 +43,10 @@ for pass in $PASSES; do
       ;;
     asan)
       echo "== AddressSanitizer + UndefinedBehaviorSanitizer: the whole suite =="
-      FLAMERIG_BUILD_DIR=build-asan bash scripts/build.sh -DFLAMERIG_SANITIZE=ON -DFLAMERIG_MPI=OFF
+      # No -Werror: GCC 12's -Wmaybe-uninitialized misfires inside std::regex and std::function
+      # under -fsanitize (found in CI).
+      FLAMERIG_BUILD_DIR=build-asan bash scripts/build.sh -DFLAMERIG_SANITIZE=ON -DFLAMERIG_MPI=OFF \
+        -DFLAMERIG_WERROR=OFF
       (cd build-asan &&
         FLAMERIG_TEST_DATA_DIR="$PWD/../${FLAMERIG_BUILD_DIR:-build}/testdata" \
         ASAN_OPTIONS="detect_leaks=0:abort_on_error=1" \
