@@ -10,8 +10,8 @@
 #   asan   the whole suite again under AddressSanitizer + UndefinedBehaviorSanitizer
 #          (build-asan; ~15 min to build and ~7 to run on two cores; the calibration tests reuse
 #          the ring the plain build rendered, FLAMERIG_TEST_DATA_DIR)
-# FLAMERIG_HARDENING="tsan fuzz" is the default in CI (CI=true), "" elsewhere; "all" = all three;
-# "none" = none. (asan is not in CI's default yet: its CI-form run, with -Werror, has not passed.)
+# FLAMERIG_HARDENING="tsan fuzz asan" is the default in CI (CI=true), "" elsewhere; "all" = all three;
+# "none" = none.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install-deps.sh
@@ -21,7 +21,7 @@ bash scripts/build.sh
   ctest --output-on-failure --timeout 300 -j "$(nproc)" "$@")
 
 PASSES="${FLAMERIG_HARDENING-}"
-if [ -z "${FLAMERIG_HARDENING+set}" ] && [ "${CI:-}" = "true" ]; then PASSES="tsan fuzz"; fi
+if [ -z "${FLAMERIG_HARDENING+set}" ] && [ "${CI:-}" = "true" ]; then PASSES="tsan fuzz asan"; fi
 if [ "$PASSES" = all ]; then PASSES="tsan fuzz asan"; fi
 if [ "$PASSES" = none ]; then PASSES=""; fi
 
