@@ -223,12 +223,10 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
                                       "up_s = -1 (for good)");
         cc.sim.outages.push_back({ns(o[0]), ns(o[1])});
       }
-      for (std::size_t i = 1; i < cc.sim.outages.size(); ++i)
-        if (cc.sim.outages[i - 1].up_ns < 0 ||
-            cc.sim.outages[i].down_ns < cc.sim.outages[i - 1].up_ns)
-          throw std::invalid_argument(at +
-                                      ".sim: outages must be in order and not overlap (the "
-                                      "disconnect_at_s one first)");
+      if (FirstInvalidOutage(cc.sim.outages) >= 0)
+        throw std::invalid_argument(at +
+                                    ".sim: outages must be in order and not overlap (the "
+                                    "disconnect_at_s one first)");
       for (double p :
            {cc.sim.drop_probability, cc.sim.late_probability, cc.sim.incomplete_probability})
         if (p > 1) throw std::invalid_argument(at + ".sim: probabilities must be in [0, 1]");

@@ -65,8 +65,7 @@ const char* ToString(FrameStatus status) {
   return "?";
 }
 
-FrameIdUnwrapper::FrameIdUnwrapper(int bits, std::uint64_t wrap_to)
-    : bits_(bits), wrap_to_(wrap_to) {
+FrameIdUnwrapper::FrameIdUnwrapper(int bits, std::uint64_t wrap_to) : wrap_to_(wrap_to) {
   if (bits < 1 || bits > 64)
     throw std::invalid_argument("FrameIdUnwrapper: bits must be in [1, 64]");
   modulus_minus_one_ =

@@ -73,7 +73,6 @@ class FrameIdUnwrapper {
   std::uint64_t out_of_order() const { return out_of_order_; }
 
  private:
-  int bits_;
   std::uint64_t wrap_to_;
   std::uint64_t modulus_minus_one_;
   bool started_ = false;

@@ -190,15 +190,18 @@ SimCamera::SimCamera(const SimCameraOptions& options, Clock* clock, SimTriggerBu
   if (options.jitter_ns < 0 || options.transfer_ns < 0 || options.trigger_latency_ns < 0 ||
       options.late_ns < 0)
     throw std::invalid_argument("sim camera '" + options.id + "': times must be >= 0");
-  for (std::size_t i = 0; i < options.outages.size(); ++i) {
-    const SimOutage& o = options.outages[i];
-    const bool ordered =
-        i == 0 || (options.outages[i - 1].up_ns >= 0 && o.down_ns >= options.outages[i - 1].up_ns);
-    if (o.down_ns < 0 || (o.up_ns >= 0 && o.up_ns <= o.down_ns) || !ordered)
-      throw std::invalid_argument("sim camera '" + options.id + "': outage " +
-                                  std::to_string(i + 1) +
-                                  " must end after it starts and after the one before it");
+  if (const int i = FirstInvalidOutage(options.outages); i >= 0)
+    throw std::invalid_argument("sim camera '" + options.id + "': outage " + std::to_string(i + 1) +
+                                " must end after it starts and after the one before it");
+}
+
+int FirstInvalidOutage(const std::vector<SimOutage>& outages) {
+  for (std::size_t i = 0; i < outages.size(); ++i) {
+    const SimOutage& o = outages[i];
+    const bool ordered = i == 0 || (outages[i - 1].up_ns >= 0 && o.down_ns >= outages[i - 1].up_ns);
+    if (o.down_ns < 0 || (o.up_ns >= 0 && o.up_ns <= o.down_ns) || !ordered) return int(i);
   }
+  return -1;
 }
 
 CameraDescription SimCamera::description() const {

@@ -71,6 +71,10 @@ struct SimOutage {
   std::int64_t up_ns = -1;
 };
 
+// The index of the first outage that starts before 0, ends before it starts, or starts before the
+// previous one ends (or after one that lasts for good); -1 when the list is valid.
+int FirstInvalidOutage(const std::vector<SimOutage>& outages);
+
 struct SimCameraOptions {
   std::string id = "sim0";
   int camera_index = 0;  // written into FrameInfo::camera

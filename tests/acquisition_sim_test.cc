@@ -213,6 +213,15 @@ TEST(SimCamera, RepeatedOutagesComeAndGoAtTheirTimes) {
   EXPECT_THROW(SimCamera(bad, &clock, nullptr), std::invalid_argument);
 }
 
+TEST(SimCamera, FirstInvalidOutageNamesTheFirstOneOutOfOrder) {
+  EXPECT_EQ(FirstInvalidOutage({}), -1);
+  EXPECT_EQ(FirstInvalidOutage({{0, 1}, {1, 2}, {5, -1}}), -1);  // touching is allowed
+  EXPECT_EQ(FirstInvalidOutage({{-1, 5}}), 0);                   // before the start
+  EXPECT_EQ(FirstInvalidOutage({{0, 1}, {3, 3}}), 1);            // ends as it starts
+  EXPECT_EQ(FirstInvalidOutage({{0, 4}, {3, 6}, {2, 1}}), 1);    // overlaps the one before
+  EXPECT_EQ(FirstInvalidOutage({{0, 1}, {2, -1}, {9, 10}}), 2);  // after one for good
+}
+
 TEST(SimCamera, DropsAreSeenInFrameIdsAndTimestampsAndDisconnectStopsFrames) {
   ManualClock clock(0);
   SimCameraOptions o;

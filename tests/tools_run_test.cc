@@ -11,6 +11,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -208,6 +209,14 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
     ASSERT_EQ(back.size(), 1u);
     EXPECT_EQ(back[0].Line(), f.Line());
   }
+  // The brief report splits the computed frames' time between tomography and fit (sums of the
+  // frames' own times, in seconds with one decimal).
+  double tomo_ms = 0, fit_ms = 0;
+  for (const auto& f : run.frames) tomo_ms += f.reconstruct_ms, fit_ms += f.fit_ms;
+  char split[96];
+  std::snprintf(split, sizeof split, "tomography %.1f s, fit %.1f s)", tomo_ms / 1000,
+                fit_ms / 1000);
+  EXPECT_NE(run.BriefReport().find(split), std::string::npos) << run.BriefReport();
   // The matrix built once, then reused while the fire stays in its envelope.
   EXPECT_EQ(run.frames[0].matrix_source, "built");
   int reused = 0;

@@ -309,7 +309,8 @@ std::string RunSummary::BriefReport() const {
     << unchanged << " unchanged (reused), " << resumed << " already done, " << failed << " failed; "
     << seconds << " s";
   if (computed > 0)
-    s << " (" << 60.0 * computed / std::max(seconds, 1e-9) << " computed frames/min)";
+    s << " (" << 60.0 * computed / std::max(seconds, 1e-9) << " computed frames/min; tomography "
+      << tomo_ms / 1000 << " s, fit " << fit_ms / 1000 << " s)";
   s.precision(3);
   if (de_n) s << "; mean Delta E of the fitted views " << de / de_n;
   return s.str();

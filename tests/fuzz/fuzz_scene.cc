@@ -3,20 +3,14 @@
 // a volume or mesh file. Next to the scene file the seeds refer to: fire.vdb (a small fire) and
 // mesh.obj (a triangle), written once.
 #include "tests/fuzz/fuzz_util.h"
+#include "tests/fuzz/small_fire.h"
 #include "tomography/vdb_io.h"
 #include "tools/scene_job.h"
 
 namespace {
 
 void WriteNeighbours() {
-  flamerig::FireVolume v;
-  v.geometry.dims = Eigen::Vector3i(4, 4, 4);
-  v.geometry.origin_in_rig = Eigen::Vector3d(-0.01, 0, -0.01);
-  v.geometry.voxel_size_m = Eigen::Vector3d::Constant(0.005);
-  v.temperature_k.assign(v.geometry.num_voxels(), 300.0f);
-  v.density_per_m3.assign(v.geometry.num_voxels(), 0.0f);
-  v.temperature_k[21] = 1800;
-  v.density_per_m3[21] = 1e16f;
+  const flamerig::FireVolume v = flamerig_fuzz::SmallFire(Eigen::Vector3i(4, 4, 4), 21);
   flamerig::WriteVdb((flamerig_fuzz::Dir() / "fire.vdb").string(), v);
   const std::string obj = "v 0 0 0\nv 0.01 0 0\nv 0 0.01 0\nf 1 2 3\n";
   flamerig_fuzz::WriteFile("mesh.obj", reinterpret_cast<const std::uint8_t*>(obj.data()),

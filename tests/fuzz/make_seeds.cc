@@ -10,6 +10,7 @@
 
 #include "acquisition/recording.h"
 #include "calibration/camera_model.h"
+#include "tests/fuzz/small_fire.h"
 #include "tomography/vdb_io.h"
 
 namespace fs = std::filesystem;
@@ -68,14 +69,7 @@ int main(int argc, char** argv) {
         "      model: cameras/cam0.cameramodel\n");
 
   // vdb
-  FireVolume v;
-  v.geometry.dims = Eigen::Vector3i(3, 4, 2);
-  v.geometry.origin_in_rig = Eigen::Vector3d(-0.01, 0, -0.01);
-  v.geometry.voxel_size_m = Eigen::Vector3d::Constant(0.005);
-  v.temperature_k.assign(v.geometry.num_voxels(), 300.0f);
-  v.density_per_m3.assign(v.geometry.num_voxels(), 0.0f);
-  v.temperature_k[5] = 1800;
-  v.density_per_m3[5] = 1e16f;
+  FireVolume v = flamerig_fuzz::SmallFire(Eigen::Vector3i(3, 4, 2), 5);
   v.emission_rgb.assign(3 * v.geometry.num_voxels(), 0.0f);
   v.emission_rgb[16] = 2.5f;
   v.metadata_numbers["exposure"] = 1.5;
