@@ -9,6 +9,7 @@
 #define FLAMERIG_CALIBRATION_CAMERA_RAYS_H_
 
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 #include "calibration/camera_model.h"
@@ -19,11 +20,22 @@ class CameraRays {
  public:
   explicit CameraRays(const CameraModel& camera)
       : width_(camera.width()), height_(camera.height()), rays_(camera.UnprojectAllPixels()) {}
-  // Throws std::invalid_argument unless rays.size() == width * height.
+  // Throws std::invalid_argument unless rays.size() == width * height and every valid ray has a
+  // finite origin and a finite, non-zero direction (a zero direction would march forever).
   CameraRays(int width, int height, std::vector<Ray> rays)
       : width_(width), height_(height), rays_(std::move(rays)) {
     if (width <= 0 || height <= 0 || rays_.size() != static_cast<std::size_t>(width) * height) {
       throw std::invalid_argument("CameraRays: need width * height rays");
+    }
+    for (std::size_t i = 0; i < rays_.size(); ++i) {
+      const Ray& r = rays_[i];
+      if (r.valid && (!r.origin_in_rig.allFinite() || !r.direction_in_rig.allFinite() ||
+                      !(r.direction_in_rig.squaredNorm() > 0))) {
+        throw std::invalid_argument("CameraRays: the ray of pixel (" + std::to_string(i % width) +
+                                    ", " + std::to_string(i / width) +
+                                    ") is valid but its origin or direction is not finite, or "
+                                    "its direction is zero");
+      }
     }
   }
   int width() const { return width_; }

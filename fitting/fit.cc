@@ -34,7 +34,7 @@ double Sigmoid(double u) {
 }
 // Inverse of Sigmoid for p in (0, 1), clamped away from the ends.
 double Logit(double p) {
-  p = std::clamp(p, 1e-9, 1.0 - 1e-9);
+  p = std::clamp(p, 1e-2, 1.0 - 1e-2);
   return std::log(p / (1.0 - p));
 }
 
@@ -226,7 +226,11 @@ void Resample(const State& from, const std::vector<float>& emission, const ThinE
   for (std::size_t a = 0; a < to->active.size(); ++a) {
     const float* p = &up[3 * to->active[a]];
     if (p[2] > 0.5f) {
-      to->t[a] = p[0] / p[2];
+      // A temperature carried from the ends of the search range holds no information (the fit
+      // pinned it there, where the sigmoid's gradient vanishes): the emission's colour restarts it.
+      const double carried = p[0] / p[2];
+      const double margin = 0.01 * (table.t_max() - table.t_min());
+      if (carried > table.t_min() + margin && carried < table.t_max() - margin) to->t[a] = carried;
       if (density_from_emission) {
         // This frame's brightness at the carried temperature, in units of the carried exposure.
         const double per_density =

@@ -120,8 +120,9 @@ void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<flo
     for (std::uint32_t v : active_voxels_) {
       double xyz[3];
       table.Lookup(double(temperature_k[v]), xyz);
-      fast_[4 * v] = static_cast<float>(sigma * density_per_m3[v]);
-      for (int c = 0; c < 3; ++c) fast_[4 * v + 1 + c] = static_cast<float>(xyz[c]);
+      const std::size_t i = 4 * static_cast<std::size_t>(v);  // 2^30 voxels overflow 32 bits
+      fast_[i] = static_cast<float>(sigma * density_per_m3[v]);
+      for (int c = 0; c < 3; ++c) fast_[i + 1 + c] = static_cast<float>(xyz[c]);
     }
   } else {
     // Per voxel with soot: B_b(T) for every bin (kappa_b = sigma_b * n is formed per sample).

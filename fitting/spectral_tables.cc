@@ -50,11 +50,13 @@ SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm) : st
         std::to_string(first_nm) + ".." + std::to_string(last_nm) + " step " +
         std::to_string(step_nm));
   }
-  int n = static_cast<int>(std::floor((last_nm - first_nm) / step_nm + 1e-9)) + 1;
-  if (n > kMaxBins) {
-    throw std::invalid_argument("spectral bins: " + std::to_string(n) +
+  // Counted in double first: a tiny step would overflow an int.
+  const double bins = std::floor((last_nm - first_nm) / step_nm + 1e-9) + 1;
+  if (bins > kMaxBins) {
+    throw std::invalid_argument("spectral bins: " + std::to_string(bins) +
                                 " bins exceed the maximum of " + std::to_string(kMaxBins));
   }
+  const int n = static_cast<int>(bins);
   const auto& cie = colour::CieObserver::Cie1931TwoDegree();
   for (int i = 0; i < n; ++i) {
     double center = first_nm + i * step_nm;
@@ -67,6 +69,15 @@ SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm) : st
     }
     weights_.push_back(sum / sub * step_nm / cie.YIntegral());
   }
+  // Every colour channel needs some response in the range (spectral transmittance to RGB divides
+  // by each channel's weight sum): z-bar is 0 from 650 nm on, x-bar and y-bar below 360 nm.
+  Eigen::Vector3d total = Eigen::Vector3d::Zero();
+  for (const auto& w : weights_) total += w;
+  for (int c = 0; c < 3; ++c)
+    if (!(total[c] > 0))
+      throw std::invalid_argument("spectral bins: " + std::to_string(first_nm) + ".." +
+                                  std::to_string(last_nm) + " nm hold no response of the CIE " +
+                                  "xyz"[c] + "-bar colour matching function");
   planck_.assign(static_cast<std::size_t>(kMaxTableK + 2) * n, 0.0f);
   for (int t = 1; t <= kMaxTableK + 1; ++t) {
     for (int i = 0; i < n; ++i) {

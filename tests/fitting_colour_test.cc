@@ -198,6 +198,16 @@ TEST(Tables, SpectralBinsIntegrateLikeTheTable) {
   for (int c = 0; c < 3; ++c) EXPECT_NEAR(xyz[c] / exact[c], 1.0, 3e-4) << c;
   EXPECT_THROW(SpectralBins(300, 780, 10), std::invalid_argument);
   EXPECT_THROW(SpectralBins(380, 780, 0), std::invalid_argument);
+  // A step so small that the bin count overflows an int: the same clear error.
+  EXPECT_THROW(SpectralBins(380, 780, 1e-9), std::invalid_argument);
+  // z-bar is 0 from 650 nm on (CIE 1931): a range there could not give blue transmittance.
+  try {
+    SpectralBins red(660, 780, 10);
+    ADD_FAILURE() << "660..780 nm accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("z-bar"), std::string::npos) << e.what();
+  }
+  EXPECT_NO_THROW(SpectralBins(380, 700, 10));
 }
 
 }  // namespace

@@ -351,6 +351,37 @@ TEST(FastFit, WarmStartFromTheResultNeedsLittleWork) {
   EXPECT_LT(again.trace.front().mean_delta_e, first.trace.front().mean_delta_e);
 }
 
+// A previous frame's result may hold voxels exactly on a bound (the sigmoid's end): the next fit
+// must still move them. Every temperature is put on the search range's ends; the images need
+// 1500 to 2000 K.
+TEST(FastFit, AWarmStartOnTheBoundsStillMoves) {
+  const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
+  RoundTrip r = MakeRoundTrip(grey, 24, 96);
+  FitOptions options;
+  const FitResult first = FastFit(r.grid, r.tomography, r.views, grey, options);
+  for (const double bound : {options.objective.t_min_k, options.objective.t_max_k}) {
+    SCOPED_TRACE(bound);
+    FitResult start = first;
+    std::size_t active = 0;
+    for (std::size_t v = 0; v < r.grid.num_voxels(); ++v) {
+      if (start.volume.density_per_m3[v] <= 0) continue;
+      start.volume.temperature_k[v] = static_cast<float>(bound);
+      ++active;
+    }
+    ASSERT_GT(active, 100u);
+    const FitResult fit = FastFit(r.grid, r.tomography, r.views, grey, options, &start);
+    double moved = 0;
+    for (std::size_t v = 0; v < r.grid.num_voxels(); ++v)
+      if (fit.volume.density_per_m3[v] > 0) moved += std::abs(fit.volume.temperature_k[v] - bound);
+    // Carried over as they were, the temperatures moved by the start margin alone (20 K from
+    // 300 K, 24 K from 2300 K, on average), and from 2300 K the fitted views ended at Delta E 0.82
+    // against the cold fit's 0.25.
+    EXPECT_GT(moved / active, 100);
+    EXPECT_LT(fit.final_terms.mean_delta_e, 1.1 * first.final_terms.mean_delta_e)
+        << "cold fit " << first.final_terms.mean_delta_e;
+  }
+}
+
 TEST(PaperFit, AlgorithmTwoLowersItsEnergyAndKeepsTheBounds) {
   const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
   RoundTrip r = MakeRoundTrip(grey, 16, 80);

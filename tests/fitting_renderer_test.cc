@@ -350,6 +350,25 @@ TEST(Renderer, DegenerateGridsAndBadInput) {
   EXPECT_THROW(FireRenderer(AbsorptionModel::DefaultSoot(), o), std::invalid_argument);
   EXPECT_THROW(ApplyCameraResponse(img, 0.0), std::invalid_argument);
   EXPECT_THROW(ApplyCameraResponse(img, std::nan("")), std::invalid_argument);
+  // Spectral bins beyond z-bar's end (650 nm): blue transmittance would be 0 / 0.
+  o = RenderOptions();
+  o.spectral_first_nm = 660;
+  EXPECT_THROW(FireRenderer(AbsorptionModel::DefaultSoot(), o), std::invalid_argument);
+  // Explicit rays: a valid ray with a zero or NaN direction would march without end.
+  std::vector<Ray> rays(4);
+  for (Ray& r : rays) r.valid = true;
+  EXPECT_NO_THROW(CameraRays(2, 2, rays));
+  rays[3].direction_in_rig = Eigen::Vector3d::Zero();
+  try {
+    CameraRays(2, 2, rays);
+    ADD_FAILURE() << "a zero direction accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("(1, 1)"), std::string::npos) << e.what();
+  }
+  rays[3].direction_in_rig = Eigen::Vector3d(0, std::nan(""), 1);
+  EXPECT_THROW(CameraRays(2, 2, rays), std::invalid_argument);
+  rays[3].valid = false;  // an invalid ray carries no light: its direction does not matter
+  EXPECT_NO_THROW(CameraRays(2, 2, rays));
 }
 
 TEST(CameraResponse, ExposureAndSaturation) {
