@@ -52,8 +52,41 @@ TEST(Cli, HelpAndUnknownCommands) {
   EXPECT_EQ(unknown.status, 2);
   EXPECT_NE(unknown.output.find("unknown command"), std::string::npos);
   Result missing = Flamerig("simulate --out /tmp/x");
-  EXPECT_EQ(missing.status, 1);
+  EXPECT_EQ(missing.status, 2);  // a usage error
   EXPECT_NE(missing.output.find("--config"), std::string::npos);
+}
+
+// Command lines that would lose input or cast garbage are usage errors (status 2) naming the
+// option, before any work: no file is written.
+TEST(Cli, UsageErrorsNameTheOptionAndWriteNothing) {
+  const fs::path dir = TempDir();
+  const std::string rig = " --rig " + (dir / "rig.yaml").string();
+  const std::string out = (dir / "out.vdb").string();
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      // A forgotten value: the next option would have become the output's name.
+      {"reconstruct" + rig + " --images x --out --resolution 16", "--out needs a value"},
+      {"reconstruct" + rig + " --images x --out " + out + " stray", "unexpected argument 'stray'"},
+      {"export --recording x --out " + out + " --count 1 --count 2", "--count is given twice"},
+      {"export --recording x --out " + out + " --count -1", "--count '-1' must be a whole number"},
+      {"export --recording x --out " + out + " --first nan", "--first 'nan' must be a whole"},
+      {"export --recording x --out " + out + " --first 1e30", "--first '1e30' must be a whole"},
+      {"run --images x" + rig + " --out " + out + " --first 2.5", "--first '2.5' must be"},
+      {"reconstruct" + rig + " --images x --out " + out + " --resolution 16.7",
+       "--resolution '16.7' must be a whole number in [1, 1024]"},
+      {"reconstruct" + rig + " --images x --out " + out + " --exposure 0",
+       "--exposure '0' must be finite and > 0"},
+      {"render --scene x.yaml --out " + out + " --threads -3", "--threads '-3' must be"},
+      {"capture --config x.yaml --duration nan", "--duration 'nan' must be finite and > 0"},
+      {"benchmark run extra", "unexpected argument 'extra'"},
+  };
+  for (const auto& [command, expected] : cases) {
+    const Result r = Flamerig(command);
+    EXPECT_EQ(r.status, 2) << command << "\n" << r.output;
+    EXPECT_NE(r.output.find(expected), std::string::npos) << command << "\n" << r.output;
+  }
+  EXPECT_FALSE(fs::exists(out));
+  EXPECT_FALSE(fs::exists("--resolution"));
+  fs::remove_all(dir);
 }
 
 TEST(Cli, MalformedConfigNamesFileAndField) {

@@ -13,6 +13,7 @@
 #include <fstream>
 #include <thread>
 
+#include "acquisition/image.h"
 #include "tests/run_test_util.h"
 #include "tools/run_mpi.h"
 
@@ -151,6 +152,23 @@ TEST(RunCli, CalibratesFirstFromBoardViews) {
   ASSERT_EQ(again.status, 0) << again.output;
   EXPECT_EQ(fs::last_write_time(dir / "out" / "calibrated" / "rig.yaml"), written);
   EXPECT_NE(again.output.find("already done"), std::string::npos) << again.output;
+  fs::remove_all(dir);
+}
+
+// A frame that fails (images of another size than the rig's cameras) does not stop the others,
+// but the run's exit status says that it is not complete: a script must not take it for done.
+TEST(RunCli, AFailedFrameMakesTheExitStatusNonZero) {
+  const fs::path dir = TempDir("failed_frame");
+  SimulateDataset(dir / "sim", 2);
+  for (const auto& e : fs::directory_iterator(dir / "sim" / "frames" / "frame_000001"))
+    if (e.path().extension() == ".png") WritePng(e.path().string(), ImageU8(16, 12, 3, 0));
+  const Result r = Shell(RunCommand(dir / "sim", dir / "out"));
+  EXPECT_EQ(r.status, 1) << r.output;
+  EXPECT_NE(r.output.find("1 of 2 frame(s) failed"), std::string::npos) << r.output;
+  const auto frames = ReadFrameSummaries((dir / "out").string(), 0, 2);
+  ASSERT_EQ(frames.size(), 2u);
+  EXPECT_EQ(frames[0].status, "computed") << frames[0].Line();
+  EXPECT_EQ(frames[1].status.rfind("failed", 0), 0u) << frames[1].Line();
   fs::remove_all(dir);
 }
 

@@ -31,6 +31,10 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
                               const std::function<void(std::size_t, std::size_t)>& progress) {
   const Recording rec = Recording::Open(recording_dir);
   ExportSummary summary;
+  if (options.first > 0 && options.first >= rec.num_sets())
+    throw std::invalid_argument("export: --first " + std::to_string(options.first) +
+                                " is past the recording's last frame set (" +
+                                std::to_string(rec.num_sets()) + " sets)");
   fs::create_directories(out_dir);
   std::ofstream csv(fs::path(out_dir) / "sets.csv");
   if (!csv)
@@ -83,6 +87,10 @@ ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
     seqs.emplace_back(f);
     n = std::min(n, seqs.back().num_frames());
   }
+  if (options.first > 0 && options.first >= n)
+    throw std::invalid_argument("export: --first " + std::to_string(options.first) +
+                                " is past the sequences' last frame set (" + std::to_string(n) +
+                                " sets)");
   fs::create_directories(out_dir);
   std::ofstream csv(fs::path(out_dir) / "sets.csv");
   csv << "set";

@@ -116,33 +116,47 @@ commands:
 Errors name the file, the field and the rule; the exit status is non-zero.
 )";
 
-// --key value pairs after the command; flags without a value get "1".
+// A command line that does not parse: exit status 2 (other errors: 1).
+struct UsageError : std::invalid_argument {
+  using std::invalid_argument::invalid_argument;
+};
+
+// --key value pairs after the command; flags without a value get "1". A value that starts with
+// "--" (a forgotten value), an option given twice, or more words than the command takes
+// (`max_positional`) is a UsageError naming it.
 struct Args {
   std::vector<std::string> positional;
   std::map<std::string, std::string> named;
   std::vector<std::string> original;  // argv[1..]: the command line, to run it again
 
-  Args(int argc, char** argv, int first, const std::vector<std::string>& flags) {
+  Args(int argc, char** argv, int first, const std::vector<std::string>& flags,
+       std::size_t max_positional = 0) {
     for (int i = 1; i < argc; ++i) original.push_back(argv[i]);
     for (int i = first; i < argc; ++i) {
       std::string a = argv[i];
       if (a.rfind("--", 0) == 0) {
         std::string key = a.substr(2);
+        if (named.count(key)) throw UsageError("option --" + key + " is given twice");
         bool is_flag = std::find(flags.begin(), flags.end(), key) != flags.end();
         if (is_flag) {
           named[key] = "1";
         } else {
-          if (i + 1 >= argc) throw std::invalid_argument("option --" + key + " needs a value");
-          named[key] = argv[++i];
+          if (i + 1 >= argc) throw UsageError("option --" + key + " needs a value");
+          const std::string value = argv[++i];
+          if (value.rfind("--", 0) == 0)
+            throw UsageError("option --" + key + " needs a value, got the option " + value);
+          named[key] = value;
         }
       } else {
+        if (positional.size() >= max_positional)
+          throw UsageError("unexpected argument '" + a + "' (options are --key value)");
         positional.push_back(a);
       }
     }
   }
   std::string Required(const std::string& key) const {
     auto it = named.find(key);
-    if (it == named.end()) throw std::invalid_argument("missing required option --" + key);
+    if (it == named.end()) throw UsageError("missing required option --" + key);
     return it->second;
   }
   std::string Get(const std::string& key, const std::string& fallback) const {
@@ -152,7 +166,7 @@ struct Args {
   void CheckKnown(const std::vector<std::string>& known) const {
     for (const auto& [k, v] : named) {
       if (std::find(known.begin(), known.end(), k) == known.end()) {
-        throw std::invalid_argument("unknown option --" + k);
+        throw UsageError("unknown option --" + k);
       }
     }
   }
@@ -165,9 +179,29 @@ double ParseNumber(const std::string& text, const std::string& what) {
     if (used != text.size()) throw std::invalid_argument("");
     return v;
   } catch (const std::exception&) {
-    throw std::invalid_argument(what + " '" + text + "' is not a number");
+    throw UsageError(what + " '" + text + "' is not a number");
   }
 }
+
+// A whole number in [min, max] (finite; 2.5, nan and 1e30 are refused), naming the option.
+std::int64_t ParseInteger(const std::string& text, const std::string& what, std::int64_t min,
+                          std::int64_t max) {
+  const double v = ParseNumber(text, what);
+  if (!(v >= double(min) && v <= double(max)) || v != std::floor(v))
+    throw UsageError(what + " '" + text + "' must be a whole number in [" + std::to_string(min) +
+                     ", " + std::to_string(max) + "]");
+  return static_cast<std::int64_t>(v);
+}
+
+// A finite number > 0 (exposures, durations), naming the option.
+double ParsePositive(const std::string& text, const std::string& what) {
+  const double v = ParseNumber(text, what);
+  if (!(std::isfinite(v) && v > 0))
+    throw UsageError(what + " '" + text + "' must be finite and > 0");
+  return v;
+}
+
+constexpr std::int64_t kMaxFrames = std::int64_t(1) << 48;  // frame indices and counts
 
 void ProgressBar(const std::string& stage, int done, int total) {
   const int width = 30;
@@ -200,24 +234,30 @@ int Simulate(const Args& args) {
 // `flamerig render --scene`: fires lighting a scene (tools/scene_job.h).
 int RenderScene(const Args& args) {
   args.CheckKnown({"scene", "out", "volume", "samples", "lighting", "seed", "threads"});
+  // The numbers first: a bad one is reported before the scene is loaded.
+  const std::int64_t samples = args.named.count("samples")
+                                   ? ParseInteger(args.Get("samples", ""), "--samples", 1, 1 << 20)
+                                   : 0;
+  const std::int64_t seed = args.named.count("seed") ? ParseInteger(args.Get("seed", ""), "--seed",
+                                                                    0, std::int64_t(1) << 53)
+                                                     : -1;
+  const std::int64_t threads =
+      args.named.count("threads") ? ParseInteger(args.Get("threads", ""), "--threads", 1, 4096) : 0;
   // --volume: the same fire placement with another volume (a frame of a run, say).
   SceneJob job = SceneJob::Load(args.Required("scene"), args.Get("volume", ""));
-  if (args.named.count("samples")) {
-    job.render.samples_per_pixel =
-        static_cast<int>(ParseNumber(args.Get("samples", ""), "--samples"));
+  if (samples > 0) {
+    job.render.samples_per_pixel = static_cast<int>(samples);
     job.render.Validate();
   }
-  if (args.named.count("seed"))
-    job.render.seed = static_cast<std::uint64_t>(ParseNumber(args.Get("seed", ""), "--seed"));
+  if (seed >= 0) job.render.seed = static_cast<std::uint64_t>(seed);
   if (args.named.count("lighting")) {
     job.compare = args.Get("lighting", "") == "compare";
     if (!job.compare) job.render.lighting = SceneLightingFromName(args.Get("lighting", ""));
   }
   std::unique_ptr<tbb::global_control> limit;
-  if (args.named.count("threads"))
-    limit = std::make_unique<tbb::global_control>(
-        tbb::global_control::max_allowed_parallelism,
-        static_cast<std::size_t>(std::max(1.0, ParseNumber(args.Get("threads", ""), "--threads"))));
+  if (threads > 0)
+    limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                                  static_cast<std::size_t>(threads));
   std::string stage;
   auto progress = [&](const SceneProgress& p) {
     ProgressBar("render", p.samples_done, p.samples_total);
@@ -252,7 +292,7 @@ int Render(const Args& args) {
     auto it = volume.metadata_numbers.find("exposure");
     exposure = it != volume.metadata_numbers.end() ? it->second : 1.0;
   } else {
-    exposure = ParseNumber(exposure_text, "--exposure");
+    exposure = ParsePositive(exposure_text, "--exposure");
   }
   std::string out = args.Required("out");
   fs::create_directories(out);
@@ -305,27 +345,28 @@ int Reconstruct(const Args& args) {
   args.CheckKnown({"rig", "images", "out", "exposure", "resolution", "solver", "iterations",
                    "holdout", "cache", "no-coarse", "truth", "preview"});
   const std::string rig_path = args.Required("rig");
-  Rig rig = Rig::Load(rig_path);
   ReconstructOptions options;
   std::string exposure_source = "default 1";
   if (args.named.count("exposure")) {
-    options.exposure = ParseNumber(args.Get("exposure", ""), "--exposure");
+    options.exposure = ParsePositive(args.Get("exposure", ""), "--exposure");
     exposure_source = "--exposure";
   } else if (DatasetExposure(rig_path, &options.exposure)) {
     exposure_source = "dataset.yaml";
   }
   if (args.named.count("resolution"))
-    options.resolution = static_cast<int>(ParseNumber(args.Get("resolution", ""), "--resolution"));
+    options.resolution =
+        static_cast<int>(ParseInteger(args.Get("resolution", ""), "--resolution", 1, 1024));
   if (args.named.count("solver"))
     options.solve.solver = TomographySolverFromName(args.Get("solver", ""));
   if (args.named.count("iterations")) {
     options.solve.max_iterations =
-        static_cast<int>(ParseNumber(args.Get("iterations", ""), "--iterations"));
+        static_cast<int>(ParseInteger(args.Get("iterations", ""), "--iterations", 1, 100000));
   }
   options.holdout_camera = args.Get("holdout", "");
   options.cache_dir = args.Get("cache", "");
   options.coarse_to_fine = args.named.count("no-coarse") == 0;
-  std::vector<ImageU8> images;  // 8-bit views of the inputs, for the preview
+  Rig rig = Rig::Load(rig_path);  // after the options: a bad number is reported before any I/O
+  std::vector<ImageU8> images;    // 8-bit views of the inputs, for the preview
   std::vector<LinearFrame> frames;
   ReadFrameSet(rig, args.Required("images"), options.exposure, "reconstruct", &images, &frames);
   Reconstructor reconstructor(rig, options);
@@ -456,7 +497,7 @@ int Fit(const Args& args) {
   Rig rig = Rig::Load(rig_path);
   double exposure = 1.0;
   if (args.named.count("exposure"))
-    exposure = ParseNumber(args.Get("exposure", ""), "--exposure");
+    exposure = ParsePositive(args.Get("exposure", ""), "--exposure");
   else
     DatasetExposure(rig_path, &exposure);
   const std::string absorption_name = args.Get("absorption", DatasetAbsorption(rig_path));
@@ -499,7 +540,8 @@ int Fit(const Args& args) {
   ReconstructOptions ro;
   ro.exposure = exposure;
   if (args.named.count("resolution"))
-    ro.resolution = static_cast<int>(ParseNumber(args.Get("resolution", ""), "--resolution"));
+    ro.resolution =
+        static_cast<int>(ParseInteger(args.Get("resolution", ""), "--resolution", 1, 1024));
   // The tomography: from a file, or reconstructed here from the fitted views only.
   FireVolume tomography;
   if (args.named.count("tomography")) {
@@ -533,7 +575,7 @@ int Fit(const Args& args) {
   if (method == "fast") {
     if (args.named.count("iterations")) {
       options.iterations_finest = options.iterations_per_level =
-          static_cast<int>(ParseNumber(args.Get("iterations", ""), "--iterations"));
+          static_cast<int>(ParseInteger(args.Get("iterations", ""), "--iterations", 0, 1000000));
     }
     options.coarse_to_fine = args.named.count("coarse-to-fine") > 0;
     result = FastFit(grid, tomography, views, absorption, options, nullptr, progress);
@@ -543,9 +585,11 @@ int Fit(const Args& args) {
         method == "alg1" ? PaperAlgorithm::kPerVoxelDensity : PaperAlgorithm::kDensityScale;
     paper.time_limit_s = options.time_limit_s;
     if (args.named.count("iterations"))
-      paper.iterations = static_cast<int>(ParseNumber(args.Get("iterations", ""), "--iterations"));
+      paper.iterations =
+          static_cast<int>(ParseInteger(args.Get("iterations", ""), "--iterations", 1, 1000000));
     if (args.named.count("seed"))
-      paper.seed = static_cast<std::uint64_t>(ParseNumber(args.Get("seed", ""), "--seed"));
+      paper.seed = static_cast<std::uint64_t>(
+          ParseInteger(args.Get("seed", ""), "--seed", 0, std::int64_t(1) << 53));
     result = PaperFit(grid, tomography, views, absorption, options, paper, progress);
   } else {
     throw std::invalid_argument("--method '" + method + "': use fast, alg1 or alg2");
@@ -621,20 +665,18 @@ int Run(const Args& args, MpiSession& mpi) {
     o.calibrate = CalibrateConfig::Load(args.Get("calibrate-config", ""));
   if (args.named.count("board")) o.calibrate.board = LoadBoardSpec(args.Get("board", ""));
   o.out_dir = args.Required("out");
-  auto integer = [&](const std::string& key) {
-    const double v = ParseNumber(args.Get(key, ""), "--" + key);
-    if (v < 0 || v != std::floor(v)) throw std::invalid_argument("--" + key + " must be a count");
-    return static_cast<std::size_t>(v);
+  auto integer = [&](const std::string& key, std::int64_t min, std::int64_t max) {
+    return static_cast<std::size_t>(ParseInteger(args.Get(key, ""), "--" + key, min, max));
   };
-  if (args.named.count("first")) o.first = integer("first");
-  if (args.named.count("count")) o.count = integer("count");
+  if (args.named.count("first")) o.first = integer("first", 0, kMaxFrames);
+  if (args.named.count("count")) o.count = integer("count", 1, kMaxFrames);
   if (args.named.count("resolution"))
-    o.reconstruct.resolution = static_cast<int>(integer("resolution"));
+    o.reconstruct.resolution = static_cast<int>(integer("resolution", 1, 1024));
   if (args.named.count("exposure"))
-    o.exposure = ParseNumber(args.Get("exposure", ""), "--exposure");
+    o.exposure = ParsePositive(args.Get("exposure", ""), "--exposure");
   o.absorption = args.Get("absorption", "");
   if (args.named.count("iterations"))
-    o.fit.iterations_finest = static_cast<int>(integer("iterations"));
+    o.fit.iterations_finest = static_cast<int>(integer("iterations", 0, 1000000));
   o.holdout_camera = args.Get("holdout", "");
   o.truth_dir = args.Get("truth", "");
   o.skip_unchanged = args.named.count("no-skip-unchanged") == 0;
@@ -643,7 +685,7 @@ int Run(const Args& args, MpiSession& mpi) {
   // Threads: --threads, else under mpirun the cores shared among this node's ranks.
   std::size_t threads = 0;
   if (args.named.count("threads")) {
-    threads = std::max<std::size_t>(1, integer("threads"));
+    threads = integer("threads", 1, 4096);
   } else if (mpi.ranks_on_this_node() > 1) {
     threads = std::max<std::size_t>(
         1, std::thread::hardware_concurrency() / static_cast<unsigned>(mpi.ranks_on_this_node()));
@@ -716,6 +758,15 @@ int Run(const Args& args, MpiSession& mpi) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   const std::string report = WriteRunReport(o.out_dir, frames, info);
   std::printf("run: report %s\n", report.c_str());
+  std::size_t failed = 0;
+  for (const auto& f : frames) failed += f.status.rfind("failed", 0) == 0;
+  if (failed) {
+    // The other frames are written; a script must still see that this run is not complete.
+    std::fprintf(stderr,
+                 "flamerig run: %zu of %zu frame(s) failed (their lines above, OUT/frames)\n",
+                 failed, frames.size());
+    return 1;
+  }
   return 0;
 }
 
@@ -724,6 +775,11 @@ void OnSignal(int) { g_interrupted = true; }
 
 int Capture(const Args& args) {
   args.CheckKnown({"config", "record", "event", "duration"});
+  // Checked before the cameras start.
+  const double duration =
+      args.named.count("duration") ? ParsePositive(args.Get("duration", ""), "--duration") : -1;
+  if (args.named.count("record") && args.named.count("event"))
+    throw UsageError("--record and --event: give one");
   const CaptureConfig config = CaptureConfig::Load(args.Required("config"));
   fs::create_directories(config.data_dir);
   SystemClock clock;
@@ -733,10 +789,6 @@ int Capture(const Args& args) {
   ControlServer server(&daemon, config.control, config.allow_remote);
   std::fprintf(stderr, "capture: %zu camera(s), %s, control at %s\n", config.cameras.size(),
                ToString(config.sync), config.control.c_str());
-  const double duration =
-      args.named.count("duration") ? ParseNumber(args.Get("duration", ""), "--duration") : -1;
-  if (args.named.count("record") && args.named.count("event"))
-    throw std::invalid_argument("--record and --event: give one");
   if (args.named.count("event") && config.pretrigger_seconds > 0) {
     // Let the ring fill before the event.
     std::this_thread::sleep_for(std::chrono::duration<double>(config.pretrigger_seconds));
@@ -843,9 +895,11 @@ int Export(const Args& args) {
   args.CheckKnown({"recording", "seq", "names", "out", "first", "count"});
   ExportOptions o;
   if (args.named.count("first"))
-    o.first = static_cast<std::size_t>(ParseNumber(args.Get("first", ""), "--first"));
+    o.first =
+        static_cast<std::size_t>(ParseInteger(args.Get("first", ""), "--first", 0, kMaxFrames));
   if (args.named.count("count"))
-    o.count = static_cast<std::size_t>(ParseNumber(args.Get("count", ""), "--count"));
+    o.count =
+        static_cast<std::size_t>(ParseInteger(args.Get("count", ""), "--count", 1, kMaxFrames));
   auto progress = [](std::size_t done, std::size_t total) {
     ProgressBar("export", static_cast<int>(done), static_cast<int>(total));
   };
@@ -883,8 +937,9 @@ int main(int argc, char** argv) {
       return Run(Args(argc, argv, 2, {"no-skip-unchanged", "no-blender", "cold"}), *mpi);
     } catch (const std::exception& e) {
       std::fprintf(stderr, "flamerig run: error: %s\n", e.what());
-      if (mpi && mpi->size() > 1) mpi->Abort(1);
-      return 1;
+      const bool usage = dynamic_cast<const UsageError*>(&e) != nullptr;
+      if (mpi && mpi->size() > 1) mpi->Abort(usage ? 2 : 1);
+      return usage ? 2 : 1;
     }
   }
   try {
@@ -892,12 +947,15 @@ int main(int argc, char** argv) {
     if (command == "render") return Render(Args(argc, argv, 2, {}));
     if (command == "reconstruct") return Reconstruct(Args(argc, argv, 2, {"no-coarse"}));
     if (command == "fit") return Fit(Args(argc, argv, 2, {"coarse-to-fine"}));
-    if (command == "benchmark") return Benchmark(Args(argc, argv, 2, {"quick"}));
+    if (command == "benchmark") return Benchmark(Args(argc, argv, 2, {"quick"}, 1));
     if (command == "capture") return Capture(Args(argc, argv, 2, {}));
-    if (command == "ctl") return Ctl(Args(argc, argv, 2, {}));
+    if (command == "ctl") return Ctl(Args(argc, argv, 2, {}, 64));
     if (command == "calibrate") return Calibrate(Args(argc, argv, 2, {}));
     if (command == "export") return Export(Args(argc, argv, 2, {}));
     std::fprintf(stderr, "flamerig: unknown command '%s'\n\n%s", command.c_str(), kUsage);
+    return 2;
+  } catch (const UsageError& e) {
+    std::fprintf(stderr, "flamerig %s: error: %s (see flamerig help)\n", command.c_str(), e.what());
     return 2;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "flamerig %s: error: %s\n", command.c_str(), e.what());
