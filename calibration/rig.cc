@@ -32,6 +32,20 @@ Eigen::Vector3d ReadVector3(const YAML::Node& node, const std::string& path,
   return v;
 }
 
+// A map whose keys are all in `known` (a misspelt key would silently be ignored).
+void CheckMap(const YAML::Node& node, std::initializer_list<const char*> known,
+              const std::string& path, const std::string& field) {
+  if (!node.IsMap()) Fail(path, field, "must be a map of keys");
+  for (const auto& kv : node) {
+    const std::string key = kv.first.as<std::string>();
+    bool found = false;
+    for (const char* k : known) found = found || key == k;
+    if (!found) Fail(path, field + "." + key, "unknown key");
+  }
+}
+
+Rig ReadRig(const YAML::Node& r, const std::string& yaml_path);  // the `rig:` map; below
+
 }  // namespace
 
 int Rig::FindCamera(const std::string& camera_name) const {
@@ -42,6 +56,8 @@ int Rig::FindCamera(const std::string& camera_name) const {
 }
 
 Rig Rig::Load(const std::string& yaml_path) {
+  if (fs::is_directory(yaml_path))
+    throw std::runtime_error(yaml_path + ": a folder, not a rig file");
   YAML::Node root;
   try {
     root = YAML::LoadFile(yaml_path);
@@ -50,8 +66,19 @@ Rig Rig::Load(const std::string& yaml_path) {
   } catch (const YAML::Exception& e) {
     throw std::runtime_error(yaml_path + ": not valid YAML: " + e.what());
   }
-  YAML::Node r = root["rig"];
+  YAML::Node r = root.IsMap() ? root["rig"] : YAML::Node();
   if (!r || !r.IsMap()) Fail(yaml_path, "rig", "missing; a rig file has a top-level 'rig' map");
+  try {
+    return ReadRig(r, yaml_path);
+  } catch (const YAML::Exception& e) {  // a value of the wrong shape
+    throw std::runtime_error(yaml_path + ": " + e.what());
+  }
+}
+
+namespace {
+
+Rig ReadRig(const YAML::Node& r, const std::string& yaml_path) {
+  CheckMap(r, {"name", "up", "box", "cameras"}, yaml_path, "rig");
   Rig rig;
   if (r["name"]) rig.name = r["name"].as<std::string>();
   if (r["up"]) {
@@ -62,6 +89,7 @@ Rig Rig::Load(const std::string& yaml_path) {
   YAML::Node box = r["box"];
   if (!box || !box.IsMap())
     Fail(yaml_path, "rig.box", "missing; give min and max corners in metres");
+  CheckMap(box, {"min", "max"}, yaml_path, "rig.box");
   rig.box.min_in_rig = ReadVector3(box["min"], yaml_path, "rig.box.min");
   rig.box.max_in_rig = ReadVector3(box["max"], yaml_path, "rig.box.max");
   if (!rig.box.IsValid()) Fail(yaml_path, "rig.box", "max must exceed min on every axis");
@@ -75,6 +103,7 @@ Rig Rig::Load(const std::string& yaml_path) {
   for (std::size_t i = 0; i < cams.size(); ++i) {
     std::string field = "rig.cameras[" + std::to_string(i) + "]";
     YAML::Node c = cams[i];
+    CheckMap(c, {"name", "model"}, yaml_path, field);
     if (!c["name"] || !c["model"]) Fail(yaml_path, field, "needs 'name' and 'model'");
     std::string name = c["name"].as<std::string>();
     if (name.empty()) Fail(yaml_path, field + ".name", "must not be empty");
@@ -90,6 +119,8 @@ Rig Rig::Load(const std::string& yaml_path) {
   }
   return rig;
 }
+
+}  // namespace
 
 void Rig::Save(const std::string& yaml_path) const {
   fs::path base = fs::path(yaml_path).parent_path();

@@ -36,8 +36,9 @@ void RenderOptions::Validate() const {
     s << "RenderOptions." << field << " = " << value << ": " << rule;
     throw std::invalid_argument(s.str());
   };
-  if (!(step_voxels > 0) || !(step_voxels <= 4))
-    fail("step_voxels", step_voxels, "must be in (0, 4]");
+  // Below 0.01 (100 samples per voxel) a render would take hours, not be more exact.
+  if (!(step_voxels >= 0.01) || !(step_voxels <= 4))
+    fail("step_voxels", step_voxels, "must be in [0.01, 4]");
   if (!(min_transmittance >= 0) || !(min_transmittance < 1)) {
     fail("min_transmittance", min_transmittance, "must be in [0, 1)");
   }

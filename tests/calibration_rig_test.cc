@@ -89,6 +89,23 @@ TEST(Rig, MalformedFilesNameTheField) {
       "rig:\n  up: [0, 0, 0]\n  box: {min: [0, 0, 0], max: [1, 1, 1]}\n  cameras:\n    - {name: a, "
       "model: x}\n",
       "rig.up");
+  // A misspelt key would silently be ignored; a value of the wrong shape names the file.
+  ExpectLoadError(
+      "rig:\n  upp: [0, 1, 0]\n  box: {min: [0, 0, 0], max: [1, 1, 1]}\n  cameras:\n    - {name: "
+      "a, model: x}\n",
+      "rig.upp': unknown key");
+  ExpectLoadError(
+      "rig:\n  box: {min: [0, 0, 0], max: [1, 1, 1], maxx: 2}\n  cameras:\n    - {name: a, model: "
+      "x}\n",
+      "rig.box.maxx");
+  ExpectLoadError(
+      "rig:\n  box: {min: [0, 0, 0], max: [1, 1, 1]}\n  cameras:\n    - {name: a, modle: x}\n",
+      "rig.cameras[0].modle");
+  ExpectLoadError(
+      "rig:\n  name: [a, b]\n  box: {min: [0, 0, 0], max: [1, 1, 1]}\n  cameras:\n    - {name: "
+      "a, model: x}\n",
+      "bad conversion");
+  ExpectLoadError("just a line\n", "'rig'");
 }
 
 }  // namespace

@@ -345,6 +345,8 @@ TEST(Renderer, DegenerateGridsAndBadInput) {
   RenderOptions o;
   o.step_voxels = 0;
   EXPECT_THROW(FireRenderer(AbsorptionModel::DefaultGrey(), o), std::invalid_argument);
+  o.step_voxels = 1e-9;  // a billion samples per voxel: hours, not more exact
+  EXPECT_THROW(FireRenderer(AbsorptionModel::DefaultGrey(), o), std::invalid_argument);
   o = RenderOptions();
   o.path = SpectralPath::kFast;
   EXPECT_THROW(FireRenderer(AbsorptionModel::DefaultSoot(), o), std::invalid_argument);

@@ -102,6 +102,22 @@ TEST(Cli, MalformedConfigNamesFileAndField) {
                (dir / "out").string());
   EXPECT_EQ(r.status, 1);
   EXPECT_NE(r.output.find("simulate.rig.width"), std::string::npos) << r.output;
+  // A misspelt key would silently keep its default; a value of the wrong shape names the file.
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"simulate:\n  nosie_dn: 0.5\n", "simulate.nosie_dn': unknown key"},
+      {"simulate:\n  rig: [1]\n", "simulate.rig': must be a map"},
+      {"simulate:\n  fire: 3\n", "simulate.fire': must be a map"},
+      {"simulate:\n  calibration: {squares: [seven, 5]}\n", "bad3.yaml: "},
+  };
+  for (const auto& [text, expected] : cases) {
+    std::ofstream((dir / "bad3.yaml").string()) << text;
+    r = Flamerig("simulate --config " + (dir / "bad3.yaml").string() + " --out " +
+                 (dir / "out").string());
+    EXPECT_EQ(r.status, 1) << text;
+    EXPECT_NE(r.output.find(expected), std::string::npos) << text << r.output;
+  }
+  r = Flamerig("simulate --config " + dir.string() + " --out " + (dir / "out").string());
+  EXPECT_NE(r.output.find("a folder, not a config file"), std::string::npos) << r.output;
   fs::remove_all(dir);
 }
 
@@ -237,6 +253,18 @@ TEST(Cli, FitASimulatedFrameSet) {
   Result bad = Flamerig("fit --rig " + rig + " --images " + images + " --out x.vdb --method magic");
   EXPECT_EQ(bad.status, 1);
   EXPECT_NE(bad.output.find("magic"), std::string::npos) << bad.output;
+  // A view both fitted and held out, or fitted twice; a truth file that is not there (found before
+  // the fit, not after it).
+  for (const auto& [extra, expected] : std::vector<std::pair<std::string, std::string>>{
+           {" --views cam0 --holdout cam0", "--views and --holdout both name 'cam0'"},
+           {" --views cam0,cam0", "--views names 'cam0' twice"},
+           {" --truth /nonexistent.vdb", "/nonexistent.vdb (--truth): no such file"}}) {
+    const Result r = Flamerig("fit --rig " + rig + " --images " + images + " --out " +
+                              (dir / "never.vdb").string() + extra);
+    EXPECT_NE(r.status, 0) << extra;
+    EXPECT_NE(r.output.find(expected), std::string::npos) << extra << "\n" << r.output;
+    EXPECT_FALSE(fs::exists(dir / "never.vdb")) << extra;
+  }
   Result nocam = Flamerig("fit --rig " + rig + " --images " + images + " --out x.vdb --views cam9");
   EXPECT_EQ(nocam.status, 1);
   EXPECT_NE(nocam.output.find("cam9"), std::string::npos) << nocam.output;

@@ -15,9 +15,10 @@
 namespace flamerig {
 
 void SystemMatrixOptions::Validate() const {
-  if (!(step_voxels > 0) || !(step_voxels <= 0.5)) {
+  if (!(step_voxels >= 0.01) || !(step_voxels <= 0.5)) {
     throw std::invalid_argument("SystemMatrixOptions.step_voxels = " + std::to_string(step_voxels) +
-                                ": must be in (0, 0.5] (samples at most half a voxel apart)");
+                                ": must be in [0.01, 0.5] (samples at most half a voxel apart, "
+                                "at most 100 per voxel)");
   }
 }
 

@@ -201,6 +201,13 @@ double ParsePositive(const std::string& text, const std::string& what) {
   return v;
 }
 
+// An input file given with --key exists, checked before the work that would need it at the end.
+void CheckInputFile(const Args& args, const std::string& key) {
+  if (!args.named.count(key)) return;
+  const std::string path = args.Get(key, "");
+  if (!fs::is_regular_file(path)) throw std::runtime_error(path + " (--" + key + "): no such file");
+}
+
 constexpr std::int64_t kMaxFrames = std::int64_t(1) << 48;  // frame indices and counts
 
 void ProgressBar(const std::string& stage, int done, int total) {
@@ -344,6 +351,7 @@ std::vector<std::string> SplitList(const std::string& text) {
 int Reconstruct(const Args& args) {
   args.CheckKnown({"rig", "images", "out", "exposure", "resolution", "solver", "iterations",
                    "holdout", "cache", "no-coarse", "truth", "preview"});
+  CheckInputFile(args, "truth");
   const std::string rig_path = args.Required("rig");
   ReconstructOptions options;
   std::string exposure_source = "default 1";
@@ -493,6 +501,8 @@ int Fit(const Args& args) {
   args.CheckKnown({"rig", "images", "out", "views", "holdout", "resolution", "tomography", "method",
                    "absorption", "exposure", "w-sm", "time-limit", "iterations", "report", "truth",
                    "seed", "coarse-to-fine"});
+  CheckInputFile(args, "truth");
+  CheckInputFile(args, "tomography");
   const std::string rig_path = args.Required("rig");
   Rig rig = Rig::Load(rig_path);
   double exposure = 1.0;
@@ -518,6 +528,14 @@ int Fit(const Args& args) {
     for (std::size_t c = 0; c < rig.cameras.size(); ++c)
       if (!images[c].empty() && rig.cameras[c].name != holdout)
         view_names.push_back(rig.cameras[c].name);
+  }
+  for (std::size_t i = 0; i < view_names.size(); ++i) {
+    if (view_names[i] == holdout)
+      throw UsageError("--views and --holdout both name '" + holdout +
+                       "': a view is fitted or held out");
+    for (std::size_t j = 0; j < i; ++j)
+      if (view_names[j] == view_names[i])
+        throw UsageError("--views names '" + view_names[i] + "' twice");
   }
   std::vector<std::unique_ptr<CameraRays>> rays(rig.cameras.size());
   auto make_view = [&](const std::string& name) {

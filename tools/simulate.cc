@@ -22,6 +22,18 @@ namespace fs = std::filesystem;
   throw std::runtime_error(path + ": field '" + field + "': " + rule);
 }
 
+// A map whose keys are all in `known` (a misspelt key would silently keep its default).
+void CheckMap(const YAML::Node& node, std::initializer_list<const char*> known,
+              const std::string& path, const std::string& field) {
+  if (!node.IsMap()) Fail(path, field, "must be a map of keys");
+  for (const auto& kv : node) {
+    const std::string key = kv.first.as<std::string>();
+    bool found = false;
+    for (const char* k : known) found = found || key == k;
+    if (!found) Fail(path, field + "." + key, "unknown key");
+  }
+}
+
 template <typename T>
 void Read(const YAML::Node& map, const char* key, T* value, const std::string& path,
           const std::string& prefix) {
@@ -87,19 +99,15 @@ void AddSensorNoise(ImageU8* image, double sigma_dn, std::uint64_t seed) {
     p = static_cast<std::uint8_t>(std::clamp(std::lround(p + noise(rng)), 0L, 255L));
 }
 
-SimulateConfig SimulateConfig::Load(const std::string& path) {
-  YAML::Node root;
-  try {
-    root = YAML::LoadFile(path);
-  } catch (const YAML::BadFile&) {
-    throw std::runtime_error(path + ": cannot open config file");
-  } catch (const YAML::Exception& e) {
-    throw std::runtime_error(path + ": not valid YAML: " + e.what());
-  }
-  YAML::Node s = root["simulate"];
-  if (!s || !s.IsMap())
-    Fail(path, "simulate", "missing; a simulation config has a top-level 'simulate' map");
-  SimulateConfig c;
+namespace {
+
+// The keys of the `simulate:` map `s` into `c` (SimulateConfig::Load).
+void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out) {
+  SimulateConfig& c = *out;
+  CheckMap(s,
+           {"seed", "frames", "frame_rate_hz", "absorption", "grid_resolution", "noise_dn",
+            "exposure", "fire", "box", "rig", "calibration", "render"},
+           path, "simulate");
   Read(s, "seed", &c.seed, path, "simulate.");
   Read(s, "frames", &c.frames, path, "simulate.");
   Read(s, "frame_rate_hz", &c.frame_rate_hz, path, "simulate.");
@@ -116,6 +124,10 @@ SimulateConfig SimulateConfig::Load(const std::string& path) {
     }
   }
   if (YAML::Node f = s["fire"]) {
+    CheckMap(f,
+             {"kind", "peak_temperature_k", "ambient_temperature_k", "peak_soot_volume_fraction",
+              "licks", "supersample"},
+             path, "simulate.fire");
     std::string kind = "candle";
     Read(f, "kind", &kind, path, "simulate.fire.");
     try {
@@ -130,11 +142,16 @@ SimulateConfig SimulateConfig::Load(const std::string& path) {
     Read(f, "supersample", &c.fire.supersample, path, "simulate.fire.");
   }
   if (YAML::Node b = s["box"]) {
+    CheckMap(b, {"min", "max"}, path, "simulate.box");
     if (!b["min"] || !b["max"]) Fail(path, "simulate.box", "needs min and max");
     c.box.min_in_rig = ReadVec3(b["min"], path, "simulate.box.min");
     c.box.max_in_rig = ReadVec3(b["max"], path, "simulate.box.max");
   }
   if (YAML::Node r = s["rig"]) {
+    CheckMap(r,
+             {"cameras", "azimuths_deg", "distance_m", "elevation_deg", "width", "height", "fill",
+              "lensmodel"},
+             path, "simulate.rig");
     Read(r, "cameras", &c.ring.cameras, path, "simulate.rig.");
     Read(r, "azimuths_deg", &c.ring.azimuths_deg, path, "simulate.rig.");
     Read(r, "distance_m", &c.ring.distance_m, path, "simulate.rig.");
@@ -145,6 +162,10 @@ SimulateConfig SimulateConfig::Load(const std::string& path) {
     Read(r, "lensmodel", &c.ring.lensmodel, path, "simulate.rig.");
   }
   if (YAML::Node cal = s["calibration"]) {
+    CheckMap(cal,
+             {"enabled", "board", "squares", "square_m", "marker_m", "shared_per_pair",
+              "closeups_per_camera"},
+             path, "simulate.calibration");
     Read(cal, "enabled", &c.calibration, path, "simulate.calibration.");
     std::string board = "charuco";
     Read(cal, "board", &board, path, "simulate.calibration.");
@@ -166,7 +187,31 @@ SimulateConfig SimulateConfig::Load(const std::string& path) {
     Read(cal, "closeups_per_camera", &c.closeups_per_camera, path, "simulate.calibration.");
   }
   if (YAML::Node r = s["render"]) {
+    CheckMap(r, {"step_voxels"}, path, "simulate.render");
     Read(r, "step_voxels", &c.render.step_voxels, path, "simulate.render.");
+  }
+}
+
+}  // namespace
+
+SimulateConfig SimulateConfig::Load(const std::string& path) {
+  if (fs::is_directory(path)) throw std::runtime_error(path + ": a folder, not a config file");
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    throw std::runtime_error(path + ": cannot open config file");
+  } catch (const YAML::Exception& e) {
+    throw std::runtime_error(path + ": not valid YAML: " + e.what());
+  }
+  YAML::Node s = root.IsMap() ? root["simulate"] : YAML::Node();
+  if (!s || !s.IsMap())
+    Fail(path, "simulate", "missing; a simulation config has a top-level 'simulate' map");
+  SimulateConfig c;
+  try {
+    ReadMaps(s, path, &c);
+  } catch (const YAML::Exception& e) {  // a value of the wrong shape deeper down
+    throw std::runtime_error(path + ": " + e.what());
   }
   try {
     c.Validate();
