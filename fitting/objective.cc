@@ -157,7 +157,7 @@ double FitObjective::NormaliseT(double t) const {
 }
 
 double FitObjective::NormaliseN(double n) const {
-  return (std::log(std::max(n, 1e-300)) - std::log(n_min_)) / (std::log(n_max_) - std::log(n_min_));
+  return (std::log(std::max(n, n_min_)) - std::log(n_min_)) / (std::log(n_max_) - std::log(n_min_));
 }
 
 double FitObjective::LocalPairwise(const std::vector<double>& values, std::uint32_t a,
@@ -286,14 +286,16 @@ EnergyTerms FitObjective::Evaluate(const std::vector<double>& t, const std::vect
       (*d_t)[a] -= g;
     }
     if (density_pairwise) {
-      const double na = std::max(n[a], 1e-300), nb = std::max(n[b], 1e-300);
+      // Below the search range's lowest density (down to 0, where ln n has no value) a density
+      // counts as that lowest one: the term and its gradient stay finite, and flat there.
+      const double na = std::max(n[a], n_min_), nb = std::max(n[b], n_min_);
       const double dn = (std::log(nb) - std::log(na)) / ln_range;
       pair_exact += 2 * std::abs(dn);
       pair_smooth += 2 * Charbonnier(dn, eps_n);
       if (d_n) {
         const double g = 2 * options_.w_sm * CharbonnierDerivative(dn, eps_n) / ln_range;
-        (*d_n)[b] += g / nb;
-        (*d_n)[a] -= g / na;
+        if (n[b] > n_min_) (*d_n)[b] += g / nb;
+        if (n[a] > n_min_) (*d_n)[a] -= g / na;
       }
     }
   }

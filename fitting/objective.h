@@ -98,7 +98,8 @@ class FitObjective {
   // E at temperatures `t` and densities `n` (one per active voxel) and exposure `s`. With
   // gradient pointers non-null, also dE/dt, dE/dn (per active voxel) and dE/ds. `density_pairwise`
   // includes the density in the pairwise term (per-voxel density unknowns). Values outside the
-  // bounds are allowed (the energy is defined for any T >= 0, n >= 0, s > 0); NaN inputs throw.
+  // bounds are allowed (the energy is defined for any T >= 0, n >= 0, s > 0; in the density
+  // pairwise term a density below n_min() counts as n_min()); NaN inputs throw.
   EnergyTerms Evaluate(const std::vector<double>& t, const std::vector<double>& n, double s,
                        bool density_pairwise, std::vector<double>* d_t = nullptr,
                        std::vector<double>* d_n = nullptr, double* d_s = nullptr) const;

@@ -167,6 +167,26 @@ TEST(FitObjective, RejectsBadInput) {
   t[3] = std::nan("");
   EXPECT_THROW(objective.Evaluate(t, s.n, 1.0, true), std::invalid_argument);
   EXPECT_THROW(objective.Evaluate(s.t, s.n, 0.0, true), std::invalid_argument);
+  // Zero densities with the density pairwise term and a huge weight: ln 0 has no value, and its
+  // floor at 1e-300 gave gradients of 1e300 and more (Inf from w_sm ~ 6e7).
+  ObjectiveOptions heavy = o;
+  heavy.w_sm = 1e12;
+  FitObjective zero_objective(s.grid, s.active, s.views, grey, render, heavy);
+  std::vector<double> n = s.n;
+  n[0] = n[2] = 0;
+  std::vector<double> d_t, d_n;
+  double d_s = 0;
+  const EnergyTerms e = zero_objective.Evaluate(s.t, n, 1.0, true, &d_t, &d_n, &d_s);
+  EXPECT_TRUE(std::isfinite(e.energy));
+  EXPECT_TRUE(std::isfinite(d_s));
+  // The term is flat below the lowest density: at a zero density only the data term pulls.
+  std::vector<double> d_t_data, d_n_data;
+  zero_objective.Evaluate(s.t, n, 1.0, false, &d_t_data, &d_n_data);
+  for (std::size_t a = 0; a < n.size(); ++a) {
+    EXPECT_TRUE(std::isfinite(d_t[a])) << a;
+    EXPECT_TRUE(std::isfinite(d_n[a])) << a;
+    if (n[a] == 0) EXPECT_DOUBLE_EQ(d_n[a], d_n_data[a]) << a;
+  }
   ObjectiveOptions bad;
   bad.t_max_k = 100;
   EXPECT_THROW(FitObjective(s.grid, s.active, s.views, grey, render, bad), std::invalid_argument);
