@@ -185,7 +185,9 @@ TEST(FitObjective, RejectsBadInput) {
   for (std::size_t a = 0; a < n.size(); ++a) {
     EXPECT_TRUE(std::isfinite(d_t[a])) << a;
     EXPECT_TRUE(std::isfinite(d_n[a])) << a;
-    if (n[a] == 0) EXPECT_DOUBLE_EQ(d_n[a], d_n_data[a]) << a;
+    if (n[a] == 0) {
+      EXPECT_DOUBLE_EQ(d_n[a], d_n_data[a]) << a;
+    }
   }
   ObjectiveOptions bad;
   bad.t_max_k = 100;
