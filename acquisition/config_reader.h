@@ -9,6 +9,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include <cmath>
+#include <initializer_list>
 #include <set>
 #include <sstream>
 #include <stdexcept>
@@ -68,6 +69,16 @@ class ConfigReader {
   std::string where_;
   std::set<std::string> seen_;
 };
+
+// For readers that take values without a ConfigReader: `node` is a map whose keys are all in
+// `known`. Throws std::invalid_argument "<where>: must be a map" or "<where>: unknown key 'k'".
+inline void CheckKeys(const YAML::Node& node, std::initializer_list<const char*> known,
+                      const std::string& where) {
+  if (!node.IsMap()) throw std::invalid_argument(where + ": must be a map");
+  ConfigReader r(node, where);
+  for (const char* k : known) r.Seen(k);
+  r.CheckKnown();
+}
 
 }  // namespace flamerig
 

@@ -7,6 +7,8 @@
 #include <set>
 #include <stdexcept>
 
+#include "acquisition/config_reader.h"
+
 namespace flamerig {
 namespace {
 
@@ -30,18 +32,6 @@ Eigen::Vector3d ReadVector3(const YAML::Node& node, const std::string& path,
     if (!std::isfinite(v[i])) Fail(path, field, "element " + std::to_string(i) + " is not finite");
   }
   return v;
-}
-
-// A map whose keys are all in `known` (a misspelt key would silently be ignored).
-void CheckMap(const YAML::Node& node, std::initializer_list<const char*> known,
-              const std::string& path, const std::string& field) {
-  if (!node.IsMap()) Fail(path, field, "must be a map of keys");
-  for (const auto& kv : node) {
-    const std::string key = kv.first.as<std::string>();
-    bool found = false;
-    for (const char* k : known) found = found || key == k;
-    if (!found) Fail(path, field + "." + key, "unknown key");
-  }
 }
 
 Rig ReadRig(const YAML::Node& r, const std::string& yaml_path);  // the `rig:` map; below
@@ -72,13 +62,15 @@ Rig Rig::Load(const std::string& yaml_path) {
     return ReadRig(r, yaml_path);
   } catch (const YAML::Exception& e) {  // a value of the wrong shape
     throw std::runtime_error(yaml_path + ": " + e.what());
+  } catch (const std::invalid_argument& e) {  // CheckKeys: an unknown key, or not a map
+    throw std::runtime_error(e.what());
   }
 }
 
 namespace {
 
 Rig ReadRig(const YAML::Node& r, const std::string& yaml_path) {
-  CheckMap(r, {"name", "up", "box", "cameras"}, yaml_path, "rig");
+  CheckKeys(r, {"name", "up", "box", "cameras"}, yaml_path + ": rig");
   Rig rig;
   if (r["name"]) rig.name = r["name"].as<std::string>();
   if (r["up"]) {
@@ -89,7 +81,7 @@ Rig ReadRig(const YAML::Node& r, const std::string& yaml_path) {
   YAML::Node box = r["box"];
   if (!box || !box.IsMap())
     Fail(yaml_path, "rig.box", "missing; give min and max corners in metres");
-  CheckMap(box, {"min", "max"}, yaml_path, "rig.box");
+  CheckKeys(box, {"min", "max"}, yaml_path + ": rig.box");
   rig.box.min_in_rig = ReadVector3(box["min"], yaml_path, "rig.box.min");
   rig.box.max_in_rig = ReadVector3(box["max"], yaml_path, "rig.box.max");
   if (!rig.box.IsValid()) Fail(yaml_path, "rig.box", "max must exceed min on every axis");
@@ -103,7 +95,7 @@ Rig ReadRig(const YAML::Node& r, const std::string& yaml_path) {
   for (std::size_t i = 0; i < cams.size(); ++i) {
     std::string field = "rig.cameras[" + std::to_string(i) + "]";
     YAML::Node c = cams[i];
-    CheckMap(c, {"name", "model"}, yaml_path, field);
+    CheckKeys(c, {"name", "model"}, yaml_path + ": " + field);
     if (!c["name"] || !c["model"]) Fail(yaml_path, field, "needs 'name' and 'model'");
     std::string name = c["name"].as<std::string>();
     if (name.empty()) Fail(yaml_path, field + ".name", "must not be empty");

@@ -93,14 +93,14 @@ TEST(Rig, MalformedFilesNameTheField) {
   ExpectLoadError(
       "rig:\n  upp: [0, 1, 0]\n  box: {min: [0, 0, 0], max: [1, 1, 1]}\n  cameras:\n    - {name: "
       "a, model: x}\n",
-      "rig.upp': unknown key");
+      "rig: unknown key 'upp'");
   ExpectLoadError(
       "rig:\n  box: {min: [0, 0, 0], max: [1, 1, 1], maxx: 2}\n  cameras:\n    - {name: a, model: "
       "x}\n",
-      "rig.box.maxx");
+      "rig.box: unknown key 'maxx'");
   ExpectLoadError(
       "rig:\n  box: {min: [0, 0, 0], max: [1, 1, 1]}\n  cameras:\n    - {name: a, modle: x}\n",
-      "rig.cameras[0].modle");
+      "rig.cameras[0]: unknown key 'modle'");
   ExpectLoadError(
       "rig:\n  name: [a, b]\n  box: {min: [0, 0, 0], max: [1, 1, 1]}\n  cameras:\n    - {name: "
       "a, model: x}\n",

@@ -104,9 +104,9 @@ TEST(Cli, MalformedConfigNamesFileAndField) {
   EXPECT_NE(r.output.find("simulate.rig.width"), std::string::npos) << r.output;
   // A misspelt key would silently keep its default; a value of the wrong shape names the file.
   const std::vector<std::pair<std::string, std::string>> cases = {
-      {"simulate:\n  nosie_dn: 0.5\n", "simulate.nosie_dn': unknown key"},
-      {"simulate:\n  rig: [1]\n", "simulate.rig': must be a map"},
-      {"simulate:\n  fire: 3\n", "simulate.fire': must be a map"},
+      {"simulate:\n  nosie_dn: 0.5\n", "simulate: unknown key 'nosie_dn'"},
+      {"simulate:\n  rig: [1]\n", "simulate.rig: must be a map"},
+      {"simulate:\n  fire: 3\n", "simulate.fire: must be a map"},
       {"simulate:\n  calibration: {squares: [seven, 5]}\n", "bad3.yaml: "},
   };
   for (const auto& [text, expected] : cases) {

@@ -11,6 +11,7 @@
 #include <random>
 #include <stdexcept>
 
+#include "acquisition/config_reader.h"
 #include "tomography/vdb_io.h"
 
 namespace flamerig {
@@ -20,18 +21,6 @@ namespace fs = std::filesystem;
 
 [[noreturn]] void Fail(const std::string& path, const std::string& field, const std::string& rule) {
   throw std::runtime_error(path + ": field '" + field + "': " + rule);
-}
-
-// A map whose keys are all in `known` (a misspelt key would silently keep its default).
-void CheckMap(const YAML::Node& node, std::initializer_list<const char*> known,
-              const std::string& path, const std::string& field) {
-  if (!node.IsMap()) Fail(path, field, "must be a map of keys");
-  for (const auto& kv : node) {
-    const std::string key = kv.first.as<std::string>();
-    bool found = false;
-    for (const char* k : known) found = found || key == k;
-    if (!found) Fail(path, field + "." + key, "unknown key");
-  }
 }
 
 template <typename T>
@@ -104,10 +93,10 @@ namespace {
 // The keys of the `simulate:` map `s` into `c` (SimulateConfig::Load).
 void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out) {
   SimulateConfig& c = *out;
-  CheckMap(s,
-           {"seed", "frames", "frame_rate_hz", "absorption", "grid_resolution", "noise_dn",
-            "exposure", "fire", "box", "rig", "calibration", "render"},
-           path, "simulate");
+  CheckKeys(s,
+            {"seed", "frames", "frame_rate_hz", "absorption", "grid_resolution", "noise_dn",
+             "exposure", "fire", "box", "rig", "calibration", "render"},
+            path + ": simulate");
   Read(s, "seed", &c.seed, path, "simulate.");
   Read(s, "frames", &c.frames, path, "simulate.");
   Read(s, "frame_rate_hz", &c.frame_rate_hz, path, "simulate.");
@@ -124,10 +113,10 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
     }
   }
   if (YAML::Node f = s["fire"]) {
-    CheckMap(f,
-             {"kind", "peak_temperature_k", "ambient_temperature_k", "peak_soot_volume_fraction",
-              "licks", "supersample"},
-             path, "simulate.fire");
+    CheckKeys(f,
+              {"kind", "peak_temperature_k", "ambient_temperature_k", "peak_soot_volume_fraction",
+               "licks", "supersample"},
+              path + ": simulate.fire");
     std::string kind = "candle";
     Read(f, "kind", &kind, path, "simulate.fire.");
     try {
@@ -142,16 +131,16 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
     Read(f, "supersample", &c.fire.supersample, path, "simulate.fire.");
   }
   if (YAML::Node b = s["box"]) {
-    CheckMap(b, {"min", "max"}, path, "simulate.box");
+    CheckKeys(b, {"min", "max"}, path + ": simulate.box");
     if (!b["min"] || !b["max"]) Fail(path, "simulate.box", "needs min and max");
     c.box.min_in_rig = ReadVec3(b["min"], path, "simulate.box.min");
     c.box.max_in_rig = ReadVec3(b["max"], path, "simulate.box.max");
   }
   if (YAML::Node r = s["rig"]) {
-    CheckMap(r,
-             {"cameras", "azimuths_deg", "distance_m", "elevation_deg", "width", "height", "fill",
-              "lensmodel"},
-             path, "simulate.rig");
+    CheckKeys(r,
+              {"cameras", "azimuths_deg", "distance_m", "elevation_deg", "width", "height", "fill",
+               "lensmodel"},
+              path + ": simulate.rig");
     Read(r, "cameras", &c.ring.cameras, path, "simulate.rig.");
     Read(r, "azimuths_deg", &c.ring.azimuths_deg, path, "simulate.rig.");
     Read(r, "distance_m", &c.ring.distance_m, path, "simulate.rig.");
@@ -162,10 +151,10 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
     Read(r, "lensmodel", &c.ring.lensmodel, path, "simulate.rig.");
   }
   if (YAML::Node cal = s["calibration"]) {
-    CheckMap(cal,
-             {"enabled", "board", "squares", "square_m", "marker_m", "shared_per_pair",
-              "closeups_per_camera"},
-             path, "simulate.calibration");
+    CheckKeys(cal,
+              {"enabled", "board", "squares", "square_m", "marker_m", "shared_per_pair",
+               "closeups_per_camera"},
+              path + ": simulate.calibration");
     Read(cal, "enabled", &c.calibration, path, "simulate.calibration.");
     std::string board = "charuco";
     Read(cal, "board", &board, path, "simulate.calibration.");
@@ -187,7 +176,7 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
     Read(cal, "closeups_per_camera", &c.closeups_per_camera, path, "simulate.calibration.");
   }
   if (YAML::Node r = s["render"]) {
-    CheckMap(r, {"step_voxels"}, path, "simulate.render");
+    CheckKeys(r, {"step_voxels"}, path + ": simulate.render");
     Read(r, "step_voxels", &c.render.step_voxels, path, "simulate.render.");
   }
 }
@@ -212,6 +201,8 @@ SimulateConfig SimulateConfig::Load(const std::string& path) {
     ReadMaps(s, path, &c);
   } catch (const YAML::Exception& e) {  // a value of the wrong shape deeper down
     throw std::runtime_error(path + ": " + e.what());
+  } catch (const std::invalid_argument& e) {  // CheckKeys: an unknown key, or not a map
+    throw std::runtime_error(e.what());
   }
   try {
     c.Validate();
