@@ -9,6 +9,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include <cmath>
+#include <filesystem>
 #include <initializer_list>
 #include <set>
 #include <sstream>
@@ -69,6 +70,20 @@ class ConfigReader {
   std::string where_;
   std::set<std::string> seen_;
 };
+
+// The YAML file at `path`, a `kind` of file ("config file", "rig file"). Throws std::runtime_error
+// naming the path: "a folder, not a <kind>", "cannot open <kind>", "not valid YAML: ...".
+inline YAML::Node LoadYamlFile(const std::string& path, const std::string& kind) {
+  if (std::filesystem::is_directory(path))
+    throw std::runtime_error(path + ": a folder, not a " + kind);
+  try {
+    return YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    throw std::runtime_error(path + ": cannot open " + kind);
+  } catch (const YAML::Exception& e) {
+    throw std::runtime_error(path + ": not valid YAML: " + e.what());
+  }
+}
 
 // For readers that take values without a ConfigReader: `node` is a map whose keys are all in
 // `known`. Throws std::invalid_argument "<where>: must be a map" or "<where>: unknown key 'k'".

@@ -46,16 +46,7 @@ int Rig::FindCamera(const std::string& camera_name) const {
 }
 
 Rig Rig::Load(const std::string& yaml_path) {
-  if (fs::is_directory(yaml_path))
-    throw std::runtime_error(yaml_path + ": a folder, not a rig file");
-  YAML::Node root;
-  try {
-    root = YAML::LoadFile(yaml_path);
-  } catch (const YAML::BadFile&) {
-    throw std::runtime_error(yaml_path + ": cannot open rig file");
-  } catch (const YAML::Exception& e) {
-    throw std::runtime_error(yaml_path + ": not valid YAML: " + e.what());
-  }
+  const YAML::Node root = LoadYamlFile(yaml_path, "rig file");
   YAML::Node r = root.IsMap() ? root["rig"] : YAML::Node();
   if (!r || !r.IsMap()) Fail(yaml_path, "rig", "missing; a rig file has a top-level 'rig' map");
   try {

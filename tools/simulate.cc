@@ -184,15 +184,7 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
 }  // namespace
 
 SimulateConfig SimulateConfig::Load(const std::string& path) {
-  if (fs::is_directory(path)) throw std::runtime_error(path + ": a folder, not a config file");
-  YAML::Node root;
-  try {
-    root = YAML::LoadFile(path);
-  } catch (const YAML::BadFile&) {
-    throw std::runtime_error(path + ": cannot open config file");
-  } catch (const YAML::Exception& e) {
-    throw std::runtime_error(path + ": not valid YAML: " + e.what());
-  }
+  const YAML::Node root = LoadYamlFile(path, "config file");
   YAML::Node s = root.IsMap() ? root["simulate"] : YAML::Node();
   if (!s || !s.IsMap())
     Fail(path, "simulate", "missing; a simulation config has a top-level 'simulate' map");
