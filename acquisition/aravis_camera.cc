@@ -9,6 +9,8 @@
 #include <stdexcept>
 #include <thread>
 
+#include "core/error.h"
+
 namespace flamerig {
 
 namespace {
@@ -18,7 +20,7 @@ void Check(GError* error, const std::string& camera, const std::string& what) {
   if (!error) return;
   const std::string message = error->message ? error->message : "unknown error";
   g_clear_error(&error);
-  throw std::runtime_error("aravis camera '" + camera + "': " + what + ": " + message);
+  throw IoError("aravis camera '" + camera + "': " + what + ": " + message);
 }
 
 bool IsIpv4(const std::string& s) {
@@ -145,7 +147,7 @@ void AravisCamera::Open() {
     impl_->camera = arv_camera_new(id.c_str(), &error);
   }
   Check(error, id, "cannot open");
-  if (!impl_->camera) throw std::runtime_error("aravis camera '" + id + "': cannot open");
+  if (!impl_->camera) throw IoError("aravis camera '" + id + "': cannot open");
   auto s = [&](const char* p) { return std::string(p ? p : ""); };
   impl_->description.driver = "aravis";
   impl_->description.id = id;
@@ -202,7 +204,7 @@ CameraDescription AravisCamera::description() const { return impl_->description;
 
 void AravisCamera::Configure(const CameraSettings& s) {
   s.Validate();
-  if (!impl_->camera) throw std::runtime_error("aravis camera '" + impl_->id + "': not connected");
+  if (!impl_->camera) throw IoError("aravis camera '" + impl_->id + "': not connected");
   if (impl_->stream)
     throw std::logic_error("aravis camera '" + impl_->id + "': Configure while streaming");
   ArvCamera* cam = impl_->camera;
@@ -217,14 +219,14 @@ void AravisCamera::Configure(const CameraSettings& s) {
   arv_camera_get_region(cam, &x, &y, &w, &h, &e);
   Check(e, impl_->id, "reading Width/Height");
   if (w != s.width || h != s.height) {
-    throw std::runtime_error("aravis camera '" + impl_->id + "': Width/Height " + size +
+    throw InputError("aravis camera '" + impl_->id + "': Width/Height " + size +
                              " refused (the camera set " + std::to_string(w) + "x" +
                              std::to_string(h) + ")");
   }
   const ArvPixelFormat applied = arv_camera_get_pixel_format(cam, &e);
   Check(e, impl_->id, "reading PixelFormat");
   if (applied != ToArv(s.pixel_format)) {
-    throw std::runtime_error("aravis camera '" + impl_->id + "': PixelFormat " +
+    throw InputError("aravis camera '" + impl_->id + "': PixelFormat " +
                              ToString(s.pixel_format) + " refused");
   }
   // Exposure: SFNC ExposureTime, or ExposureTimeAbs on older GigE Vision cameras (and the fake).
@@ -256,7 +258,7 @@ void AravisCamera::Configure(const CameraSettings& s) {
       // actions need the camera's PTP clock on.
       auto set_int = [&](const char* feature, std::int64_t value) {
         if (!impl_->Has(feature))
-          throw std::invalid_argument("aravis camera '" + impl_->id + "': has no " + feature +
+          throw InputError("aravis camera '" + impl_->id + "': has no " + feature +
                                       " (it cannot take action commands)");
         arv_device_set_integer_feature_value(impl_->device(), feature, value, &e);
         Check(e, impl_->id, std::string(feature) + " " + std::to_string(value));
@@ -269,7 +271,7 @@ void AravisCamera::Configure(const CameraSettings& s) {
                         : impl_->Has("GevIEEE1588") ? "GevIEEE1588"
                                                     : nullptr;
       if (!ptp)
-        throw std::invalid_argument("aravis camera '" + impl_->id +
+        throw InputError("aravis camera '" + impl_->id +
                                     "': has no PtpEnable or GevIEEE1588 (no PTP clock for "
                                     "scheduled action commands)");
       arv_device_set_boolean_feature_value(impl_->device(), ptp, TRUE, &e);
@@ -308,7 +310,7 @@ void AravisCamera::Configure(const CameraSettings& s) {
 void AravisCamera::Start(int buffers) {
   if (impl_->stream) return;
   if (buffers < 2)
-    throw std::invalid_argument("aravis camera '" + impl_->id + "': at least 2 buffers");
+    throw InputError("aravis camera '" + impl_->id + "': at least 2 buffers");
   impl_->buffers = buffers;
   impl_->streaming = true;
   ArvCamera* cam = impl_->camera;

@@ -1,7 +1,8 @@
 #include "acquisition/capture.h"
 
+#include "core/error.h"
 #include "acquisition/aravis_camera.h"
-#include "acquisition/config_reader.h"
+#include "core/config_reader.h"
 #include "acquisition/thread_name.h"
 #include "acquisition/v4l2_camera.h"
 
@@ -36,13 +37,13 @@ SyncMode SyncModeFromName(const std::string& name) {
   for (SyncMode m :
        {SyncMode::kHardwareTrigger, SyncMode::kSoftwareTrigger, SyncMode::kFreeRun, SyncMode::kPtp})
     if (name == ToString(m)) return m;
-  throw std::invalid_argument("sync '" + name +
+  throw InputError("sync '" + name +
                               "': use hardware-trigger, software-trigger, free-run or ptp");
 }
 
 CaptureConfig CaptureConfig::Load(const std::string& path) {
   std::ifstream in(path);
-  if (!in) throw std::invalid_argument("capture config " + path + ": cannot be read");
+  if (!in) throw InputError("capture config " + path + ": cannot be read");
   std::stringstream s;
   s << in.rdbuf();
   return Parse(s.str(), path);
@@ -53,9 +54,9 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
   try {
     root = YAML::Load(text);
   } catch (const YAML::Exception& e) {
-    throw std::invalid_argument(where + ": not valid YAML: " + e.what());
+    throw InputError(where + ": not valid YAML: " + e.what());
   }
-  if (!root.IsMap()) throw std::invalid_argument(where + ": expected a mapping of settings");
+  if (!root.IsMap()) throw InputError(where + ": expected a mapping of settings");
   CaptureConfig c;
   c.source_yaml = text;
   ConfigReader r(root, where);
@@ -83,9 +84,9 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
   r.Seen("action");
   if (const YAML::Node action = root["action"]) {
     if (c.sync != SyncMode::kPtp)
-      throw std::invalid_argument(where +
+      throw InputError(where +
                                   ": 'action' (GigE Vision action commands) needs sync: ptp");
-    if (!action.IsMap()) throw std::invalid_argument(where + ": 'action' must be a mapping");
+    if (!action.IsMap()) throw InputError(where + ": 'action' must be a mapping");
     ConfigReader ar(action, where + ": action");
     ActionConfig& a = c.action;
     a.enabled = true;
@@ -95,13 +96,13 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
       std::size_t used = 0;
       unsigned long long v = 0;
       try {
-        if (text.empty() || text[0] == '-') throw std::invalid_argument("negative");
+        if (text.empty() || text[0] == '-') throw InputError("negative");
         v = std::stoull(text, &used, 0);
       } catch (const std::exception&) {
         used = 0;
       }
       if (used != text.size() || v > 0xffffffffULL)
-        throw std::invalid_argument(where + ": action: '" + name + "' (" + text +
+        throw InputError(where + ": action: '" + name + "' (" + text +
                                     ") must be an integer in [0, 2^32), decimal or 0x hex");
       return static_cast<std::uint32_t>(v);
     };
@@ -109,7 +110,7 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     a.group_key = key("group_key", a.group_key);
     a.group_mask = key("group_mask", a.group_mask);
     if (a.group_mask == 0)
-      throw std::invalid_argument(where + ": action: 'group_mask' 0 would fire no camera");
+      throw InputError(where + ": action: 'group_mask' 0 would fire no camera");
     a.lead_ms = ar.Range("lead_ms", a.lead_ms, 1e-3, 1e6);
     a.destination = ar.Get<std::string>("destination", a.destination);
     a.port = static_cast<int>(ar.Range("port", a.port, 1, 65535));
@@ -119,29 +120,29 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
   r.CheckKnown();
   const YAML::Node cams = root["cameras"];
   if (!cams || !cams.IsSequence() || cams.size() == 0)
-    throw std::invalid_argument(where + ": 'cameras' must list at least one camera");
+    throw InputError(where + ": 'cameras' must list at least one camera");
   std::set<std::string> names;
   for (std::size_t i = 0; i < cams.size(); ++i) {
     const std::string at = where + ": cameras[" + std::to_string(i) + "]";
-    if (!cams[i].IsMap()) throw std::invalid_argument(at + ": expected a mapping");
+    if (!cams[i].IsMap()) throw InputError(at + ": expected a mapping");
     ConfigReader cr(cams[i], at);
     CaptureCameraConfig cc;
     cc.name = cr.Get<std::string>("name", "cam" + std::to_string(i));
     if (!names.insert(cc.name).second)
-      throw std::invalid_argument(at + ": camera name '" + cc.name + "' is used twice");
+      throw InputError(at + ": camera name '" + cc.name + "' is used twice");
     cc.driver = cr.Get<std::string>("driver", "sim");
     if (cc.driver != "sim" && cc.driver != "aravis" && cc.driver != "v4l2")
-      throw std::invalid_argument(at + ": driver '" + cc.driver + "': use sim, aravis or v4l2");
+      throw InputError(at + ": driver '" + cc.driver + "': use sim, aravis or v4l2");
     cc.id = cr.Get<std::string>("id", cc.driver == "sim" ? "SIM" + std::to_string(i) : "");
     if (cc.id.empty())
-      throw std::invalid_argument(at + ": 'id' (serial, address or device) is required");
+      throw InputError(at + ": 'id' (serial, address or device) is required");
     CameraSettings& s = cc.settings;
     s.width = static_cast<int>(cr.Range("width", s.width, 1, 65536));
     s.height = static_cast<int>(cr.Range("height", s.height, 1, 65536));
     try {
       s.pixel_format = PixelFormatFromName(cr.Get<std::string>("pixel_format", "Mono8"));
-    } catch (const std::invalid_argument& e) {
-      throw std::invalid_argument(at + ": " + e.what());
+    } catch (const InputError& e) {
+      throw InputError(at + ": " + e.what());
     }
     // Free-run: the rate. Triggered: the camera's maximum rate, which must leave room for the
     // trigger's timing jitter (a camera ignores a trigger that comes before it is ready).
@@ -150,7 +151,7 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     s.frame_rate_hz =
         cr.Range("frame_rate_hz", triggered ? 2 * c.trigger_rate_hz : c.trigger_rate_hz, 1e-3, 1e6);
     if (triggered && s.frame_rate_hz < 1.1 * c.trigger_rate_hz) {
-      throw std::invalid_argument(at + ": frame_rate_hz " + std::to_string(s.frame_rate_hz) +
+      throw InputError(at + ": frame_rate_hz " + std::to_string(s.frame_rate_hz) +
                                   " (the camera's maximum rate when triggered) must be at least "
                                   "1.1 x trigger_rate_hz, or it will ignore triggers");
     }
@@ -171,8 +172,8 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     }
     try {
       s.Validate();
-    } catch (const std::invalid_argument& e) {
-      throw std::invalid_argument(at + ": " + e.what());
+    } catch (const InputError& e) {
+      throw InputError(at + ": " + e.what());
     }
     cc.sim.id = cc.id;
     cc.sim.camera_index = static_cast<int>(i);
@@ -180,7 +181,7 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     cr.Seen("sim");
     cr.CheckKnown();
     if (const YAML::Node sim = cams[i]["sim"]) {
-      if (cc.driver != "sim") throw std::invalid_argument(at + ": 'sim' is for driver sim only");
+      if (cc.driver != "sim") throw InputError(at + ": 'sim' is for driver sim only");
       ConfigReader sr(sim, at + ".sim");
       cc.sim.seed = static_cast<std::uint64_t>(sr.Range("seed", double(cc.sim.seed), 0, 9e15));
       cc.sim.drop_probability = sr.NonNegative("drop_probability", 0);
@@ -191,7 +192,7 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
       const std::string replay = sr.Get<std::string>("replay", "");
       const std::string replay_content = sr.Get<std::string>("replay_content", "fire");
       if (replay_content != "fire" && replay_content != "calibration")
-        throw std::invalid_argument(at + ".sim: 'replay_content' must be fire or calibration");
+        throw InputError(at + ".sim: 'replay_content' must be fire or calibration");
       if (!replay.empty()) {
         // Relative to the config file's folder, like every path in a config.
         const fs::path dataset = fs::path(replay).is_absolute()
@@ -202,7 +203,7 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
               dataset.string(), cr.Get<std::string>("name", cc.name),
               replay_content == "fire" ? ReplayContent::kFire : ReplayContent::kCalibration);
         } catch (const std::exception& e) {
-          throw std::invalid_argument(at + ".sim.replay: " + e.what());
+          throw InputError(at + ".sim.replay: " + e.what());
         }
       }
       // Outages: disconnect_at_s / reconnect_at_s for one, `outages: [[down_s, up_s], ...]` for
@@ -212,24 +213,24 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
       auto ns = [](double s) { return s < 0 ? std::int64_t(-1) : std::llround(s * 1e9); };
       if (d >= 0) cc.sim.outages.push_back({ns(d), ns(re)});
       if (re >= 0 && d < 0)
-        throw std::invalid_argument(at + ".sim: 'reconnect_at_s' needs 'disconnect_at_s'");
+        throw InputError(at + ".sim: 'reconnect_at_s' needs 'disconnect_at_s'");
       const auto outages = sr.Get<std::vector<std::vector<double>>>("outages", {});
       for (std::size_t i = 0; i < outages.size(); ++i) {
         const auto& o = outages[i];
         if (o.size() != 2 || !(o[0] >= 0 && o[0] <= 1e9) ||
             !(o[1] == -1 || (o[1] > o[0] && o[1] <= 1e9)))
-          throw std::invalid_argument(at + ".sim.outages[" + std::to_string(i) +
+          throw InputError(at + ".sim.outages[" + std::to_string(i) +
                                       "]: must be [down_s, up_s] with 0 <= down_s < up_s, or "
                                       "up_s = -1 (for good)");
         cc.sim.outages.push_back({ns(o[0]), ns(o[1])});
       }
       if (FirstInvalidOutage(cc.sim.outages) >= 0)
-        throw std::invalid_argument(at +
+        throw InputError(at +
                                     ".sim: outages must be in order and not overlap (the "
                                     "disconnect_at_s one first)");
       for (double p :
            {cc.sim.drop_probability, cc.sim.late_probability, cc.sim.incomplete_probability})
-        if (p > 1) throw std::invalid_argument(at + ".sim: probabilities must be in [0, 1]");
+        if (p > 1) throw InputError(at + ".sim: probabilities must be in [0, 1]");
       sr.CheckKnown();
     }
     c.cameras.push_back(cc);
@@ -275,13 +276,13 @@ std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config, Cl
       try {
         cameras.push_back(std::make_unique<AravisCamera>(c.id, static_cast<int>(cameras.size())));
       } catch (const std::exception& e) {
-        throw std::runtime_error("camera '" + c.name + "': " + e.what());
+        Rethrow(e, "camera '" + c.name + "': ", Error::Kind::kIo);
       }
     } else {  // v4l2 (the config allows nothing else)
       try {
         cameras.push_back(std::make_unique<V4l2Camera>(c.id, static_cast<int>(cameras.size())));
       } catch (const std::exception& e) {
-        throw std::runtime_error("camera '" + c.name + "': " + e.what());
+        Rethrow(e, "camera '" + c.name + "': ", Error::Kind::kIo);
       }
     }
   }
@@ -362,7 +363,7 @@ CaptureDaemon::CaptureDaemon(const CaptureConfig& config,
       bus_(bus),
       assembler_(config.AssemblerOptions()) {
   if (cameras_.size() != config_.cameras.size())
-    throw std::invalid_argument("capture: the config lists " +
+    throw InputError("capture: the config lists " +
                                 std::to_string(config_.cameras.size()) + " cameras, " +
                                 std::to_string(cameras_.size()) + " were given");
   for (std::size_t c = 0; c < cameras_.size(); ++c) {
@@ -423,8 +424,8 @@ void CaptureDaemon::Start() {
     for (auto& t : threads_) t.join();
     threads_.clear();
     for (std::size_t k = 0; k < c && k < cameras_.size(); ++k) cameras_[k]->Stop();
-    throw std::runtime_error("capture: camera '" + config_.cameras[c].name + "' (" +
-                             config_.cameras[c].id + "): " + e.what());
+    Rethrow(e, "capture: camera '" + config_.cameras[c].name + "' (" + config_.cameras[c].id + "): ",
+            Error::Kind::kIo);
   }
   if (config_.sync == SyncMode::kPtp && config_.action.enabled) {
     try {
@@ -432,7 +433,7 @@ void CaptureDaemon::Start() {
           config_.action.destination, static_cast<std::uint16_t>(config_.action.port));
     } catch (const std::exception& e) {
       Stop();
-      throw std::runtime_error(std::string("capture: action commands: ") + e.what());
+      Rethrow(e, "capture: action commands: ", Error::Kind::kIo);
     }
   }
   if (config_.sync == SyncMode::kSoftwareTrigger ||
@@ -641,7 +642,7 @@ std::string CaptureDaemon::RecordingPath(const std::string& name) const {
         return std::isalnum(static_cast<unsigned char>(ch)) || ch == '_' || ch == '-' || ch == '.';
       });
   if (!safe) {
-    throw std::invalid_argument("recording name '" + name.substr(0, 64) +
+    throw InputError("recording name '" + name.substr(0, 64) +
                                 "': use letters, digits, '_', '-' and '.' only (at most 128), not "
                                 "'.' or '..'");
   }
@@ -726,7 +727,7 @@ void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::strin
   for (std::size_t c = 0; c < config_.cameras.size(); ++c)
     if (config_.cameras[c].name == camera || std::to_string(c) == camera)
       index = static_cast<int>(c);
-  if (index < 0) throw std::invalid_argument("capture: no camera '" + camera + "'");
+  if (index < 0) throw InputError("capture: no camera '" + camera + "'");
   CameraSettings s = config_.cameras[index].settings;
   const std::string where =
       "camera '" + config_.cameras[index].name + "': " + key + " '" + value + "'";
@@ -734,14 +735,14 @@ void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::strin
     char* end = nullptr;
     const double v = std::strtod(value.c_str(), &end);
     if (value.empty() || *end != '\0' || !std::isfinite(v))
-      throw std::invalid_argument(where + ": not a number");
+      throw InputError(where + ": not a number");
     return v;
   };
   try {
     // Sizes in [1, 65536] before they become ints (a conversion out of range is undefined).
     auto size = [&] {
       const double v = number();
-      if (!(v >= 1 && v <= 65536)) throw std::invalid_argument(where + ": must be in [1, 65536]");
+      if (!(v >= 1 && v <= 65536)) throw InputError(where + ": must be in [1, 65536]");
       return static_cast<int>(v);
     };
     if (key == "width")
@@ -757,13 +758,13 @@ void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::strin
     else if (key == "gain_db")
       s.gain_db = number();
     else
-      throw std::invalid_argument(
+      throw InputError(
           "unknown key (width, height, pixel_format, frame_rate_hz, "
           "exposure_us, gain_db)");
     s.Validate();
-  } catch (const std::invalid_argument& e) {
+  } catch (const InputError& e) {
     const std::string m = e.what();
-    throw std::invalid_argument(m.rfind(where, 0) == 0 ? m : where + ": " + m);
+    throw InputError(m.rfind(where, 0) == 0 ? m : where + ": " + m);
   }
   config_.cameras[index].settings = s;
 }

@@ -17,6 +17,7 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
+#include "core/error.h"
 #include "acquisition/thread_name.h"
 
 namespace flamerig {
@@ -68,22 +69,22 @@ std::string RecorderYaml(const RecorderStatus& s) {
 }
 
 std::string PreviewPng(const CaptureDaemon& daemon, const std::vector<std::string>& w) {
-  if (w.size() < 2 || w.size() > 3) throw std::invalid_argument("usage: preview CAMERA [K]");
+  if (w.size() < 2 || w.size() > 3) throw InputError("usage: preview CAMERA [K]");
   const auto& cams = daemon.config().cameras;
   int camera = -1;
   for (std::size_t c = 0; c < cams.size(); ++c)
     if (cams[c].name == w[1] || std::to_string(c) == w[1]) camera = static_cast<int>(c);
-  if (camera < 0) throw std::invalid_argument("preview: no camera '" + w[1] + "'");
+  if (camera < 0) throw InputError("preview: no camera '" + w[1] + "'");
   int k = 4;
   if (w.size() == 3) {
     char* end = nullptr;
     const long v = std::strtol(w[2].c_str(), &end, 10);
-    if (*end != '\0' || v < 1 || v > 64) throw std::invalid_argument("preview: K must be 1..64");
+    if (*end != '\0' || v < 1 || v > 64) throw InputError("preview: K must be 1..64");
     k = static_cast<int>(v);
   }
   const std::shared_ptr<const FrameSet> set = daemon.LatestSet();
   if (!set || !set->frames[camera])
-    throw std::runtime_error("preview: no frame from camera '" + cams[camera].name + "' yet");
+    throw InputError("preview: no frame from camera '" + cams[camera].name + "' yet");
   ImageU8 u8;
   ImageU16 u16;
   const int depth = DecodeFrame(*set->frames[camera], &u8, &u16);
@@ -155,7 +156,7 @@ Endpoint ParseEndpoint(const std::string& endpoint) {
   if (endpoint.rfind("unix:", 0) == 0) {
     e.path = endpoint.substr(5);
     if (e.path.empty() || e.path.size() >= sizeof(sockaddr_un{}.sun_path))
-      throw std::runtime_error("control endpoint '" + endpoint +
+      throw InputError("control endpoint '" + endpoint +
                                "': socket path empty or too long");
     return e;
   }
@@ -163,7 +164,7 @@ Endpoint ParseEndpoint(const std::string& endpoint) {
     const std::string rest = endpoint.substr(4);
     const auto colon = rest.rfind(':');
     if (colon == std::string::npos)
-      throw std::runtime_error("control endpoint '" + endpoint + "': use tcp:HOST:PORT");
+      throw InputError("control endpoint '" + endpoint + "': use tcp:HOST:PORT");
     e.is_unix = false;
     e.host = rest.substr(0, colon);
     try {
@@ -172,10 +173,10 @@ Endpoint ParseEndpoint(const std::string& endpoint) {
       e.port = -1;
     }
     if (e.port < 0 || e.port > 65535)
-      throw std::runtime_error("control endpoint '" + endpoint + "': bad port");
+      throw InputError("control endpoint '" + endpoint + "': bad port");
     return e;
   }
-  throw std::runtime_error("control endpoint '" + endpoint + "': use unix:PATH or tcp:HOST:PORT");
+  throw InputError("control endpoint '" + endpoint + "': use unix:PATH or tcp:HOST:PORT");
 }
 
 }  // namespace
@@ -185,11 +186,11 @@ ControlReply HandleControlRequest(CaptureDaemon& daemon, const std::string& line
   ControlReply r;
   try {
     const std::vector<std::string> w = Words(line);
-    if (w.empty()) throw std::invalid_argument("empty request");
+    if (w.empty()) throw InputError("empty request");
     const std::string& cmd = w[0];
     auto arity = [&](std::size_t n) {
       if (w.size() != n)
-        throw std::invalid_argument("'" + cmd + "' takes " + std::to_string(n - 1) +
+        throw InputError("'" + cmd + "' takes " + std::to_string(n - 1) +
                                     " argument(s)");
     };
     if (cmd == "status") {
@@ -226,7 +227,7 @@ ControlReply HandleControlRequest(CaptureDaemon& daemon, const std::string& line
       if (shutdown_requested) *shutdown_requested = true;
       r.body = "shutting down\n";
     } else {
-      throw std::invalid_argument("unknown request '" + cmd.substr(0, 32) +
+      throw InputError("unknown request '" + cmd.substr(0, 32) +
                                   "': status, cameras, arm, disarm, configure CAMERA KEY VALUE, "
                                   "start NAME, stop, event NAME, preview CAMERA [K], shutdown");
     }
@@ -254,11 +255,11 @@ ControlServer::ControlServer(CaptureDaemon* daemon, const std::string& endpoint,
       ::close(probe);
       if (alive) {
         ::close(listen_fd_);
-        throw std::runtime_error("control socket " + e.path + ": another daemon is listening");
+        throw IoError("control socket " + e.path + ": another daemon is listening");
       }
       if (!std::filesystem::is_socket(e.path, ec)) {
         ::close(listen_fd_);
-        throw std::runtime_error("control socket " + e.path + ": exists and is not a socket");
+        throw IoError("control socket " + e.path + ": exists and is not a socket");
       }
       std::filesystem::remove(e.path, ec);
     }
@@ -268,17 +269,17 @@ ControlServer::ControlServer(CaptureDaemon* daemon, const std::string& endpoint,
     if (rc != 0) {
       const std::string why = std::strerror(errno);
       ::close(listen_fd_);
-      throw std::runtime_error("control socket " + e.path + ": " + why);
+      throw IoError("control socket " + e.path + ": " + why);
     }
     ::chmod(e.path.c_str(), 0600);
     unix_path_ = e.path;
   } else {
     in_addr host{};
     if (::inet_pton(AF_INET, e.host.c_str(), &host) != 1)
-      throw std::runtime_error("control endpoint " + endpoint + ": host must be an IPv4 address");
+      throw InputError("control endpoint " + endpoint + ": host must be an IPv4 address");
     const bool loopback = (ntohl(host.s_addr) >> 24) == 127;
     if (!loopback && !allow_remote) {
-      throw std::runtime_error("control endpoint " + endpoint +
+      throw InputError("control endpoint " + endpoint +
                                ": not a loopback address; set allow_remote: true to open the "
                                "control API to the network");
     }
@@ -292,7 +293,7 @@ ControlServer::ControlServer(CaptureDaemon* daemon, const std::string& endpoint,
     if (::bind(listen_fd_, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0) {
       const std::string why = std::strerror(errno);
       ::close(listen_fd_);
-      throw std::runtime_error("control endpoint " + endpoint + ": " + why);
+      throw IoError("control endpoint " + endpoint + ": " + why);
     }
     socklen_t len = sizeof addr;
     ::getsockname(listen_fd_, reinterpret_cast<sockaddr*>(&addr), &len);
@@ -300,7 +301,7 @@ ControlServer::ControlServer(CaptureDaemon* daemon, const std::string& endpoint,
   }
   if (::listen(listen_fd_, 8) != 0) {
     ::close(listen_fd_);
-    throw std::runtime_error("control endpoint " + endpoint + ": listen: " + std::strerror(errno));
+    throw IoError("control endpoint " + endpoint + ": listen: " + std::strerror(errno));
   }
   thread_ = std::thread([this] {
     NameThisThread("fr-control");
@@ -359,12 +360,12 @@ ControlReply ControlRequest(const std::string& endpoint, const std::string& line
   if (rc != 0) {
     const std::string why = std::strerror(errno);
     ::close(fd);
-    throw std::runtime_error("cannot reach the capture daemon at " + endpoint + " (" + why +
+    throw IoError("cannot reach the capture daemon at " + endpoint + " (" + why +
                              "); is `flamerig capture` running?");
   }
   if (!SendAll(fd, line + "\n")) {
     ::close(fd);
-    throw std::runtime_error("control " + endpoint + ": the daemon closed the connection");
+    throw IoError("control " + endpoint + ": the daemon closed the connection");
   }
   std::string header;
   const int ms = static_cast<int>(timeout_s * 1000);
@@ -382,13 +383,13 @@ ControlReply ControlRequest(const std::string& endpoint, const std::string& line
     pollfd p{fd, POLLIN, 0};
     if (left <= 0 || ::poll(&p, 1, static_cast<int>(left)) <= 0) {
       ::close(fd);
-      throw std::runtime_error("control " + endpoint + ": no reply within " +
+      throw IoError("control " + endpoint + ": no reply within " +
                                std::to_string(timeout_s) + " s");
     }
     const ssize_t n = ::recv(fd, buf, sizeof buf, 0);
     if (n <= 0) {
       ::close(fd);
-      throw std::runtime_error("control " + endpoint + ": reply cut short");
+      throw IoError("control " + endpoint + ": reply cut short");
     }
     data.append(buf, static_cast<std::size_t>(n));
     if (need == std::string::npos) {
@@ -397,7 +398,7 @@ ControlReply ControlRequest(const std::string& endpoint, const std::string& line
       const std::vector<std::string> h = Words(data.substr(0, nl));
       if (h.size() != 2 || (h[0] != "ok" && h[0] != "error")) {
         ::close(fd);
-        throw std::runtime_error("control " + endpoint + ": malformed reply");
+        throw IoError("control " + endpoint + ": malformed reply");
       }
       ok = h[0] == "ok";
       need = std::stoull(h[1]);

@@ -7,6 +7,8 @@
 #include <limits>
 #include <stdexcept>
 
+#include "core/error.h"
+
 namespace flamerig {
 
 const char* ToString(PixelFormat format) {
@@ -35,7 +37,7 @@ PixelFormat PixelFormatFromName(const std::string& name) {
         PixelFormat::kBayerGr8, PixelFormat::kBayerGb8, PixelFormat::kBayerBg8}) {
     if (name == ToString(f)) return f;
   }
-  throw std::invalid_argument(
+  throw InputError(
       "pixel format '" + name +
       "': use Mono8, Mono16, RGB8, BayerRG8, BayerGR8, BayerGB8 or BayerBG8");
 }
@@ -67,11 +69,11 @@ const char* ToString(FrameStatus status) {
 
 FrameIdUnwrapper::FrameIdUnwrapper(int bits, std::uint64_t wrap_to) : wrap_to_(wrap_to) {
   if (bits < 1 || bits > 64)
-    throw std::invalid_argument("FrameIdUnwrapper: bits must be in [1, 64]");
+    throw InputError("FrameIdUnwrapper: bits must be in [1, 64]");
   modulus_minus_one_ =
       bits == 64 ? std::numeric_limits<std::uint64_t>::max() : (std::uint64_t(1) << bits) - 1;
   if (wrap_to > modulus_minus_one_)
-    throw std::invalid_argument("FrameIdUnwrapper: wrap_to outside the counter's range");
+    throw InputError("FrameIdUnwrapper: wrap_to outside the counter's range");
 }
 
 std::uint64_t FrameIdUnwrapper::Next(std::uint64_t device_id) {
@@ -107,7 +109,7 @@ int DecodeFrame(const Frame& frame, ImageU8* u8, ImageU16* u16) {
   const std::size_t expect =
       std::size_t(std::max(in.width, 0)) * std::max(in.height, 0) * BytesPerPixel(in.pixel_format);
   if (in.width <= 0 || in.height <= 0 || frame.bytes() != expect) {
-    throw std::invalid_argument("camera " + std::to_string(in.camera) + " frame " +
+    throw InputError("camera " + std::to_string(in.camera) + " frame " +
                                 std::to_string(in.frame_id) + ": " + std::to_string(frame.bytes()) +
                                 " bytes for " + std::to_string(in.width) + "x" +
                                 std::to_string(in.height) + " " + ToString(in.pixel_format));

@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-#include "acquisition/image.h"
+#include "core/image.h"
 
 namespace flamerig {
 

@@ -4,11 +4,13 @@
 #include <stdexcept>
 #include <string>
 
+#include "core/error.h"
+
 namespace flamerig {
 
 void FrameSetOptions::Validate() const {
   auto fail = [](const std::string& what) {
-    throw std::invalid_argument("frame set options: " + what);
+    throw InputError("frame set options: " + what);
   };
   if (cameras < 1) fail("cameras must be >= 1");
   if (tolerance_ns < 0) fail("tolerance_ns must be >= 0");
@@ -41,7 +43,7 @@ std::int64_t FrameSetAssembler::Stamp(const Frame& f) const {
 bool FrameSetAssembler::Add(Frame frame, std::int64_t now_ns, std::vector<FrameSet>* ready) {
   const int c = frame.info.camera;
   if (c < 0 || c >= options_.cameras) {
-    throw std::invalid_argument("frame set: camera index " + std::to_string(c) + " outside 0.." +
+    throw InputError("frame set: camera index " + std::to_string(c) + " outside 0.." +
                                 std::to_string(options_.cameras - 1));
   }
   const bool by_trigger = options_.match == MatchBy::kTriggerId;

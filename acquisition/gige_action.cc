@@ -12,6 +12,8 @@
 #include <ctime>
 #include <stdexcept>
 
+#include "core/error.h"
+
 namespace flamerig {
 
 namespace {
@@ -36,9 +38,9 @@ std::uint32_t Get32(const std::uint8_t* p) {
 }  // namespace
 
 std::vector<std::uint8_t> EncodeActionCommand(const ActionCommand& c) {
-  if (c.request_id == 0) throw std::invalid_argument("action command: request id 0 is reserved");
+  if (c.request_id == 0) throw InputError("action command: request id 0 is reserved");
   if (c.group_mask == 0)
-    throw std::invalid_argument("action command: a group mask of 0 fires no camera");
+    throw InputError("action command: a group mask of 0 fires no camera");
   std::vector<std::uint8_t> b;
   b.reserve(28);
   b.push_back(kGvcpKey);
@@ -97,10 +99,10 @@ ActionCommandSender::ActionCommandSender(const std::string& destination, std::ui
     : destination_(destination), port_(port) {
   in_addr addr{};
   if (inet_pton(AF_INET, destination.c_str(), &addr) != 1)
-    throw std::runtime_error("action commands: '" + destination + "' is not an IPv4 address");
+    throw InputError("action commands: '" + destination + "' is not an IPv4 address");
   socket_ = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
   if (socket_ < 0)
-    throw std::runtime_error("action commands to " + destination +
+    throw IoError("action commands to " + destination +
                              ": socket: " + std::strerror(errno));
   const int on = 1;
   setsockopt(socket_, SOL_SOCKET, SO_BROADCAST, &on, sizeof on);
@@ -122,7 +124,7 @@ std::vector<ActionAck> ActionCommandSender::Send(ActionCommand command, int expe
   inet_pton(AF_INET, destination_.c_str(), &to.sin_addr);
   if (::sendto(socket_, bytes.data(), bytes.size(), 0, reinterpret_cast<sockaddr*>(&to),
                sizeof to) != static_cast<ssize_t>(bytes.size()))
-    throw std::runtime_error("action command to " + destination_ + ":" + std::to_string(port_) +
+    throw IoError("action command to " + destination_ + ":" + std::to_string(port_) +
                              ": " + std::strerror(errno));
   ++sent_;
   std::vector<ActionAck> acks;

@@ -14,6 +14,8 @@
 #include <fstream>
 #include <sstream>
 
+#include "core/atomic_file.h"
+#include "core/error.h"
 #include "acquisition/thread_name.h"
 
 namespace flamerig {
@@ -139,20 +141,10 @@ std::string MetadataYaml(const RecordingMetadata& m, bool closed,
 
 // Writes `text` to dir/name through a temporary file, fsync and rename: never half a file.
 void WriteAtomically(const fs::path& dir, const std::string& name, const std::string& text) {
-  const fs::path tmp = dir / (name + ".tmp");
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) throw RecordingError("recording: cannot write " + tmp.string() + ": " + Errno(errno));
-  int e = WriteAll(fd, text.data(), text.size());
-  if (!e && ::fsync(fd) != 0) e = errno;
-  ::close(fd);
-  if (e) throw RecordingError("recording: cannot write " + tmp.string() + ": " + Errno(e));
-  std::error_code ec;
-  fs::rename(tmp, dir / name, ec);
-  if (ec) throw RecordingError("recording: cannot rename " + tmp.string() + ": " + ec.message());
-  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dfd >= 0) {
-    ::fsync(dfd);
-    ::close(dfd);
+  try {
+    WriteFileAtomically((dir / name).string(), text);
+  } catch (const IoError& e) {
+    throw RecordingError(std::string("recording: ") + e.what());
   }
 }
 
@@ -210,9 +202,9 @@ std::string CameraIndexFile(int camera) {
 }
 
 void RecorderOptions::Validate() const {
-  if (max_queued_bytes == 0) throw std::invalid_argument("recorder: max_queued_bytes must be > 0");
+  if (max_queued_bytes == 0) throw InputError("recorder: max_queued_bytes must be > 0");
   if (!(sync_interval_s >= 0))
-    throw std::invalid_argument("recorder: sync_interval_s must be >= 0");
+    throw InputError("recorder: sync_interval_s must be >= 0");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -230,7 +222,7 @@ Recorder::Recorder(const std::string& directory, const RecordingMetadata& metada
                    const RecorderOptions& options)
     : directory_(directory), metadata_(metadata), options_(options) {
   options_.Validate();
-  if (metadata_.cameras.empty()) throw std::invalid_argument("recorder: no cameras");
+  if (metadata_.cameras.empty()) throw InputError("recorder: no cameras");
   const fs::path dir(directory_);
   std::error_code ec;
   if (fs::exists(dir, ec) && !fs::is_empty(dir, ec)) {
@@ -277,7 +269,7 @@ bool Recorder::Submit(const FrameSet& set) {
   std::lock_guard<std::mutex> lock(mutex_);
   ++status_.sets_submitted;
   if (set.frames.size() != cameras_.size()) {
-    throw std::invalid_argument("recorder: a frame set with " + std::to_string(set.frames.size()) +
+    throw InputError("recorder: a frame set with " + std::to_string(set.frames.size()) +
                                 " camera slots for a recording of " +
                                 std::to_string(cameras_.size()) + " cameras");
   }
@@ -292,7 +284,7 @@ bool Recorder::Submit(const FrameSet& set) {
     const std::uint64_t expect =
         std::uint64_t(f->info.width) * f->info.height * BytesPerPixel(f->info.pixel_format);
     if (f->bytes() != 0 && f->bytes() != expect) {
-      throw std::invalid_argument(
+      throw InputError(
           "recorder: camera " + std::to_string(c) + " frame " + std::to_string(f->info.frame_id) +
           ": " + std::to_string(f->bytes()) + " bytes for " + std::to_string(f->info.width) + "x" +
           std::to_string(f->info.height) + " " + ToString(f->info.pixel_format) + " (expected " +
@@ -586,7 +578,7 @@ Recording Recording::Open(const std::string& directory) {
         rec.final_counters_[kv.first.as<std::string>()] = kv.second.as<std::string>();
   } catch (const YAML::Exception& e) {
     throw RecordingError("recording: " + meta_path.string() + ": " + e.what());
-  } catch (const std::invalid_argument& e) {
+  } catch (const InputError& e) {
     throw RecordingError("recording: " + meta_path.string() + ": " + e.what());
   }
   const int n = rec.num_cameras();

@@ -50,13 +50,14 @@
 #include "acquisition/clock.h"
 #include "acquisition/frame.h"
 #include "acquisition/frame_set.h"
+#include "core/error.h"
 
 namespace flamerig {
 
 // A recording that cannot be read: names the file and, where it applies, the byte offset.
-class RecordingError : public std::runtime_error {
+class RecordingError : public DataError {
  public:
-  using std::runtime_error::runtime_error;
+  using DataError::DataError;
 };
 
 struct RecordingCamera {

@@ -4,7 +4,8 @@
 #include <filesystem>
 #include <stdexcept>
 
-#include "acquisition/image.h"
+#include "core/error.h"
+#include "core/image.h"
 
 #include <algorithm>
 #include <chrono>
@@ -33,13 +34,13 @@ TriggerMode TriggerModeFromName(const std::string& name) {
   for (TriggerMode m : {TriggerMode::kFreeRun, TriggerMode::kSoftware, TriggerMode::kHardware,
                         TriggerMode::kAction})
     if (name == ToString(m)) return m;
-  throw std::invalid_argument("trigger mode '" + name +
+  throw InputError("trigger mode '" + name +
                               "': use free-run, software, hardware or action");
 }
 
 void CameraSettings::Validate() const {
   auto fail = [](const std::string& what) {
-    throw std::invalid_argument("camera settings: " + what);
+    throw InputError("camera settings: " + what);
   };
   if (width < 1 || height < 1 || width > 16384 || height > 16384)
     fail("width and height must be in [1, 16384]");
@@ -98,7 +99,7 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
       images->push_back(ReadImageU8(path.string(), 3));
     }
     if (images->empty()) {
-      throw std::runtime_error("replay of " + dataset_dir + ": no frames/frame_000000/" + camera +
+      throw InputError("replay of " + dataset_dir + ": no frames/frame_000000/" + camera +
                                ".png");
     }
   } else {
@@ -124,14 +125,14 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
       }
     }
     if (width == 0)
-      throw std::runtime_error("replay of " + dataset_dir + ": no calibration/*/" + camera +
+      throw InputError("replay of " + dataset_dir + ": no calibration/*/" + camera +
                                ".png");
     for (int k : missing) (*images)[k] = ImageU8(width, height, 3, 8);
   }
   return [images, dataset_dir, camera](const FrameInfo& info, std::vector<std::uint8_t>* bytes) {
     const ImageU8& img = (*images)[info.frame_id % images->size()];
     if (img.width != info.width || img.height != info.height) {
-      throw std::runtime_error("replay of " + dataset_dir + " camera " + camera + ": images are " +
+      throw InputError("replay of " + dataset_dir + " camera " + camera + ": images are " +
                                std::to_string(img.width) + "x" + std::to_string(img.height) +
                                ", the camera is set to " + std::to_string(info.width) + "x" +
                                std::to_string(info.height));
@@ -180,18 +181,18 @@ SimCamera::SimCamera(const SimCameraOptions& options, Clock* clock, SimTriggerBu
       rng_(options.seed),
       unwrapper_(options.frame_id_bits, 1),
       source_(options.source ? options.source : TestPatternSource()) {
-  if (!clock_) throw std::invalid_argument("sim camera '" + options.id + "': no clock");
+  if (!clock_) throw InputError("sim camera '" + options.id + "': no clock");
   for (double p :
        {options.drop_probability, options.late_probability, options.incomplete_probability}) {
     if (!(p >= 0 && p <= 1))
-      throw std::invalid_argument("sim camera '" + options.id +
+      throw InputError("sim camera '" + options.id +
                                   "': probabilities must be in [0, 1]");
   }
   if (options.jitter_ns < 0 || options.transfer_ns < 0 || options.trigger_latency_ns < 0 ||
       options.late_ns < 0)
-    throw std::invalid_argument("sim camera '" + options.id + "': times must be >= 0");
+    throw InputError("sim camera '" + options.id + "': times must be >= 0");
   if (const int i = FirstInvalidOutage(options.outages); i >= 0)
-    throw std::invalid_argument("sim camera '" + options.id + "': outage " + std::to_string(i + 1) +
+    throw InputError("sim camera '" + options.id + "': outage " + std::to_string(i + 1) +
                                 " must end after it starts and after the one before it");
 }
 
@@ -211,17 +212,17 @@ CameraDescription SimCamera::description() const {
 
 void SimCamera::Configure(const CameraSettings& settings) {
   if (running_)
-    throw std::invalid_argument("sim camera '" + options_.id + "': configure it while stopped");
+    throw InputError("sim camera '" + options_.id + "': configure it while stopped");
   try {
     settings.Validate();
-  } catch (const std::invalid_argument& e) {
-    throw std::invalid_argument("sim camera '" + options_.id + "': " + e.what());
+  } catch (const InputError& e) {
+    throw InputError("sim camera '" + options_.id + "': " + e.what());
   }
   if (settings.trigger == TriggerMode::kAction)
-    throw std::invalid_argument("sim camera '" + options_.id +
+    throw InputError("sim camera '" + options_.id +
                                 "': GigE Vision action commands reach real cameras only");
   if (settings.trigger == TriggerMode::kHardware && !bus_) {
-    throw std::invalid_argument("sim camera '" + options_.id +
+    throw InputError("sim camera '" + options_.id +
                                 "': hardware trigger needs a trigger bus (TriggerSource " +
                                 settings.trigger_source + " is not wired)");
   }
@@ -229,7 +230,7 @@ void SimCamera::Configure(const CameraSettings& settings) {
 }
 
 void SimCamera::Start(int buffers) {
-  if (buffers < 1) throw std::invalid_argument("sim camera '" + options_.id + "': buffers >= 1");
+  if (buffers < 1) throw InputError("sim camera '" + options_.id + "': buffers >= 1");
   running_ = true;
   started_ns_ = clock_->MonotonicNs();
   produced_ = 0;

@@ -7,6 +7,8 @@
 #include <stdexcept>
 #include <vector>
 
+#include "core/error.h"
+
 namespace flamerig {
 
 namespace {
@@ -22,11 +24,11 @@ T At(const std::vector<char>& b, std::size_t offset) {
 
 StreamPixSequence::StreamPixSequence(const std::string& path, PixelFormat bayer) : path_(path) {
   std::ifstream in(path, std::ios::binary);
-  if (!in) throw std::runtime_error("StreamPix sequence " + path + ": cannot be opened");
+  if (!in) throw IoError("StreamPix sequence " + path + ": cannot be opened");
   std::vector<char> h(1024);
   in.read(h.data(), static_cast<std::streamsize>(h.size()));
   auto fail = [&](const std::string& why) {
-    throw std::runtime_error("StreamPix sequence " + path + ": " + why);
+    throw DataError("StreamPix sequence " + path + ": " + why);
   };
   if (in.gcount() < 1024) fail("shorter than its 1024-byte header");
   if (At<std::uint32_t>(h, 0) != 0xFEED) fail("not a .seq file (magic is not 0xFEED)");
@@ -100,7 +102,7 @@ Frame StreamPixSequence::ReadFrame(std::size_t i, int camera) const {
   char stamp[8];
   in.read(stamp, 8);
   if (!in) {
-    throw std::runtime_error("StreamPix sequence " + path_ + ": frame " + std::to_string(i) +
+    throw DataError("StreamPix sequence " + path_ + ": frame " + std::to_string(i) +
                              " at byte " + std::to_string(at) + " cut short");
   }
   if (bgr_)

@@ -13,6 +13,8 @@
 #include <filesystem>
 #include <stdexcept>
 
+#include "core/error.h"
+
 namespace flamerig {
 
 namespace {
@@ -101,9 +103,9 @@ V4l2Camera::V4l2Camera(const std::string& path, int camera_index,
   const std::uint32_t caps =
       (cap.capabilities & V4L2_CAP_DEVICE_CAPS) ? cap.device_caps : cap.capabilities;
   if (!(caps & V4L2_CAP_VIDEO_CAPTURE))
-    throw std::runtime_error("v4l2 camera " + path + ": not a video capture device");
+    throw InputError("v4l2 camera " + path + ": not a video capture device");
   if (!(caps & V4L2_CAP_STREAMING))
-    throw std::runtime_error("v4l2 camera " + path + ": does not support streaming I/O");
+    throw InputError("v4l2 camera " + path + ": does not support streaming I/O");
   description_.driver = "v4l2";
   description_.id = path;
   description_.vendor = reinterpret_cast<const char*>(cap.driver);
@@ -120,14 +122,14 @@ V4l2Camera::~V4l2Camera() {
 }
 
 void V4l2Camera::Fail(const std::string& what, int error) const {
-  throw std::runtime_error("v4l2 camera " + path_ + ": " + what + ": " + std::strerror(error));
+  throw IoError("v4l2 camera " + path_ + ": " + what + ": " + std::strerror(error));
 }
 
 void V4l2Camera::Configure(const CameraSettings& s) {
   s.Validate();
   if (streaming_) throw std::logic_error("v4l2 camera " + path_ + ": Configure while streaming");
   if (s.trigger != TriggerMode::kFreeRun) {
-    throw std::runtime_error(
+    throw InputError(
         "v4l2 camera " + path_ +
         ": V4L2 has no trigger input; use sync: free-run (timestamp matching)");
   }
@@ -142,7 +144,7 @@ void V4l2Camera::Configure(const CameraSettings& s) {
   if (fmt.fmt.pix.width != std::uint32_t(s.width) ||
       fmt.fmt.pix.height != std::uint32_t(s.height) ||
       fmt.fmt.pix.pixelformat != FourccOf(s.pixel_format)) {
-    throw std::runtime_error(
+    throw InputError(
         "v4l2 camera " + path_ + ": asked for " + std::to_string(s.width) + "x" +
         std::to_string(s.height) + " " + FourccName(FourccOf(s.pixel_format)) +
         ", the driver offers " + std::to_string(fmt.fmt.pix.width) + "x" +
@@ -173,14 +175,14 @@ void V4l2Camera::Configure(const CameraSettings& s) {
 
 void V4l2Camera::Start(int buffers) {
   if (streaming_) return;
-  if (buffers < 2) throw std::invalid_argument("v4l2 camera " + path_ + ": at least 2 buffers");
+  if (buffers < 2) throw InputError("v4l2 camera " + path_ + ": at least 2 buffers");
   v4l2_requestbuffers req{};
   req.count = static_cast<std::uint32_t>(buffers);
   req.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
   req.memory = V4L2_MEMORY_MMAP;
   if (Xioctl(*device_, VIDIOC_REQBUFS, &req) != 0) Fail("VIDIOC_REQBUFS", errno);
   if (req.count < 2) {
-    throw std::runtime_error("v4l2 camera " + path_ + ": the driver granted " +
+    throw IoError("v4l2 camera " + path_ + ": the driver granted " +
                              std::to_string(req.count) + " buffers, at least 2 are needed");
   }
   for (std::uint32_t i = 0; i < req.count; ++i) {

@@ -10,12 +10,13 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "acquisition/config_reader.h"
+#include "core/error.h"
+#include "core/config_reader.h"
 
 namespace flamerig {
 
 void BoardSpec::Validate() const {
-  auto fail = [](const std::string& what) { throw std::invalid_argument("board: " + what); };
+  auto fail = [](const std::string& what) { throw InputError("board: " + what); };
   if (squares_x < 3 || squares_y < 3 || squares_x > 64 || squares_y > 64)
     fail("squares must be in [3, 64], got [" + std::to_string(squares_x) + ", " +
          std::to_string(squares_y) + "]");
@@ -52,18 +53,18 @@ BoardSpec LoadBoardSpec(const std::string& yaml_path) {
   try {
     root = YAML::LoadFile(yaml_path);
   } catch (const YAML::Exception& e) {
-    throw std::runtime_error(yaml_path + ": cannot read the board description: " + e.what());
+    throw InputError(yaml_path + ": cannot read the board description: " + e.what());
   }
   const YAML::Node node = root["board"] ? root["board"] : root;
   try {
     return ParseBoardSpec(node, yaml_path + ": board");
-  } catch (const std::invalid_argument& e) {
-    throw std::runtime_error(e.what());
+  } catch (const InputError& e) {
+    throw InputError(e.what());
   }
 }
 
 BoardSpec ParseBoardSpec(const YAML::Node& node, const std::string& where) {
-  if (!node.IsMap()) throw std::invalid_argument(where + ": must be a map");
+  if (!node.IsMap()) throw InputError(where + ": must be a map");
   ConfigReader r(node, where);
   BoardSpec b;
   const std::string type = r.Get<std::string>("type", "charuco");
@@ -72,9 +73,9 @@ BoardSpec ParseBoardSpec(const YAML::Node& node, const std::string& where) {
   else if (type == "chessboard")
     b.type = BoardType::kChessboard;
   else
-    throw std::invalid_argument(where + ": 'type' must be charuco or chessboard");
+    throw InputError(where + ": 'type' must be charuco or chessboard");
   const auto squares = r.Get<std::vector<int>>("squares", {b.squares_x, b.squares_y});
-  if (squares.size() != 2) throw std::invalid_argument(where + ": 'squares' must be [x, y]");
+  if (squares.size() != 2) throw InputError(where + ": 'squares' must be [x, y]");
   b.squares_x = squares[0];
   b.squares_y = squares[1];
   b.square_m = r.Positive("square_m", b.square_m);
@@ -84,8 +85,8 @@ BoardSpec ParseBoardSpec(const YAML::Node& node, const std::string& where) {
   r.CheckKnown();
   try {
     b.Validate();
-  } catch (const std::invalid_argument& e) {
-    throw std::invalid_argument(where + ": " + e.what());
+  } catch (const InputError& e) {
+    throw InputError(where + ": " + e.what());
   }
   return b;
 }
@@ -242,7 +243,7 @@ BoardDetection DetectBoard(const ImageU8& image, const BoardSpec& board,
                            const DetectOptions& options) {
   board.Validate();
   if (image.channels != 1 || image.empty())
-    throw std::invalid_argument("DetectBoard: need a non-empty 8-bit grey image, got " +
+    throw InputError("DetectBoard: need a non-empty 8-bit grey image, got " +
                                 std::to_string(image.channels) + " channels");
   cv::Mat grey(image.height, image.width, CV_8UC1, const_cast<std::uint8_t*>(image.pixels.data()));
   BoardDetection d = board.type == BoardType::kCharuco ? DetectCharuco(grey, board)

@@ -29,7 +29,7 @@
 #include <string>
 #include <vector>
 
-#include "acquisition/image.h"
+#include "core/image.h"
 
 namespace flamerig {
 

@@ -18,6 +18,8 @@
 #include <set>
 #include <sstream>
 
+#include "core/atomic_file.h"
+#include "core/error.h"
 #include "acquisition/frame.h"
 #include "acquisition/recording.h"
 
@@ -32,19 +34,19 @@ namespace fs = std::filesystem;
 void CalibrationOptions::Validate() const {
   mrcal_lensmodel_t lm;
   if (!mrcal_lensmodel_from_name(&lm, lensmodel.c_str()) || !mrcal_lensmodel_type_is_valid(lm.type))
-    throw std::invalid_argument("calibration: lensmodel '" + lensmodel +
+    throw InputError("calibration: lensmodel '" + lensmodel +
                                 "' is not an mrcal lens model name");
   if (!mrcal_lensmodel_metadata(&lm).has_core)
-    throw std::invalid_argument("calibration: lensmodel '" + lensmodel +
+    throw InputError("calibration: lensmodel '" + lensmodel +
                                 "' has no fx fy cx cy core; use a PINHOLE or OPENCV model");
   if (!(focal_px >= 0) || !std::isfinite(focal_px))
-    throw std::invalid_argument("calibration: focal_px must be >= 0 (0: estimate)");
+    throw InputError("calibration: focal_px must be >= 0 (0: estimate)");
   if (min_views_per_camera < 1)
-    throw std::invalid_argument("calibration: min_views_per_camera must be >= 1");
+    throw InputError("calibration: min_views_per_camera must be >= 1");
   if (!ring_origin_m.allFinite())
-    throw std::invalid_argument("calibration: ring_origin must be finite");
+    throw InputError("calibration: ring_origin must be finite");
   if (frame == RigFrame::kFirstCamera && !box.IsValid())
-    throw std::invalid_argument("calibration: with frame first-camera a box must be given");
+    throw InputError("calibration: with frame first-camera a box must be given");
 }
 
 // ---- Detection
@@ -118,24 +120,20 @@ class DetectionCache {
   // Written to a temporary file and renamed, so that a killed run never leaves a torn cache.
   void Save() const {
     if (path_.empty() || !dirty_) return;
-    const std::string tmp = path_ + ".tmp";
-    {
-      std::ofstream out(tmp);
-      out << "# flamerig board detections v1\nboard " << board_ << "\n";
-      char buf[64];
-      for (const auto& [key, d] : entries_) {
-        out << key << " " << d.corner_ids.size();
-        if (!d.found()) out << " " << d.failure;
-        for (std::size_t i = 0; i < d.corner_ids.size(); ++i) {
-          std::snprintf(buf, sizeof(buf), " %d %.9g %.9g", d.corner_ids[i], d.corners_px[i].x(),
-                        d.corners_px[i].y());
-          out << buf;
-        }
-        out << "\n";
+    std::ostringstream out;
+    out << "# flamerig board detections v1\nboard " << board_ << "\n";
+    char buf[64];
+    for (const auto& [key, d] : entries_) {
+      out << key << " " << d.corner_ids.size();
+      if (!d.found()) out << " " << d.failure;
+      for (std::size_t i = 0; i < d.corner_ids.size(); ++i) {
+        std::snprintf(buf, sizeof(buf), " %d %.9g %.9g", d.corner_ids[i], d.corners_px[i].x(),
+                      d.corners_px[i].y());
+        out << buf;
       }
-      if (!out) throw CalibrationError(tmp + ": cannot write the detection cache");
+      out << "\n";
     }
-    fs::rename(tmp, path_);
+    WriteFileAtomically(path_, out.str());
   }
 
  private:

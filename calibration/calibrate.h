@@ -32,13 +32,14 @@
 #include <vector>
 
 #include "calibration/board.h"
+#include "core/error.h"
 #include "calibration/rig.h"
 
 namespace flamerig {
 
-class CalibrationError : public std::runtime_error {
+class CalibrationError : public DataError {
  public:
-  using std::runtime_error::runtime_error;
+  using DataError::DataError;
 };
 
 // One camera's view of the board at one instant.

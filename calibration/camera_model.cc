@@ -11,6 +11,9 @@ extern "C" {
 #include <mrcal/mrcal.h>
 }
 
+#include "core/atomic_file.h"
+#include "core/error.h"
+
 namespace flamerig {
 namespace {
 
@@ -36,27 +39,27 @@ CameraModel::CameraModel(const std::string& lensmodel, std::vector<double> intri
   auto parsed = std::make_shared<mrcal_lensmodel_t>();
   if (!mrcal_lensmodel_from_name(parsed.get(), lensmodel.c_str()) ||
       !mrcal_lensmodel_type_is_valid(parsed->type)) {
-    throw std::invalid_argument("lens model '" + lensmodel +
+    throw InputError("lens model '" + lensmodel +
                                 "' is not a valid mrcal lens model name");
   }
   int expected = mrcal_lensmodel_num_params(parsed.get());
   if (static_cast<int>(intrinsics_.size()) != expected) {
-    throw std::invalid_argument("lens model " + lensmodel + " needs " + std::to_string(expected) +
+    throw InputError("lens model " + lensmodel + " needs " + std::to_string(expected) +
                                 " intrinsics, got " + std::to_string(intrinsics_.size()));
   }
   for (std::size_t i = 0; i < intrinsics_.size(); ++i) {
     if (!std::isfinite(intrinsics_[i])) {
-      throw std::invalid_argument("intrinsics[" + std::to_string(i) + "] of " + lensmodel +
+      throw InputError("intrinsics[" + std::to_string(i) + "] of " + lensmodel +
                                   " is not finite");
     }
   }
   if (width_px <= 0 || height_px <= 0) {
-    throw std::invalid_argument("imager size " + std::to_string(width_px) + "x" +
+    throw InputError("imager size " + std::to_string(width_px) + "x" +
                                 std::to_string(height_px) + " must be positive");
   }
   auto rt = cam_from_rig.ToRt();
   for (double v : rt) {
-    if (!std::isfinite(v)) throw std::invalid_argument("camera pose is not finite");
+    if (!std::isfinite(v)) throw InputError("camera pose is not finite");
   }
   mrcal_lensmodel_ = parsed;
 }
@@ -69,16 +72,16 @@ CameraModel CameraModel::Pinhole(double fx, double fy, double cx, double cy,
 CameraModel CameraModel::Load(const std::string& path) {
   {
     std::ifstream probe(path);
-    if (!probe) throw std::runtime_error(path + ": cannot open camera model file");
+    if (!probe) throw IoError(path + ": cannot open camera model file");
   }
   mrcal_cameramodel_t* model = mrcal_read_cameramodel_file(path.c_str());
   if (model == nullptr) {
-    throw std::runtime_error(path + ": mrcal could not parse this .cameramodel file");
+    throw InputError(path + ": mrcal could not parse this .cameramodel file");
   }
   char name[1024];
   if (!mrcal_lensmodel_name(name, sizeof(name), &model->lensmodel)) {
     mrcal_free_cameramodel(&model);
-    throw std::runtime_error(path + ": lens model name too long");
+    throw InputError(path + ": lens model name too long");
   }
   int n = mrcal_lensmodel_num_params(&model->lensmodel);
   std::vector<double> intrinsics(model->intrinsics, model->intrinsics + n);
@@ -88,8 +91,8 @@ CameraModel CameraModel::Load(const std::string& path) {
   mrcal_free_cameramodel(&model);
   try {
     return CameraModel(name, std::move(intrinsics), cam_from_rig, w, h);
-  } catch (const std::invalid_argument& e) {
-    throw std::runtime_error(path + ": " + e.what());
+  } catch (const InputError& e) {
+    throw InputError(path + ": " + e.what());
   }
 }
 
@@ -116,11 +119,7 @@ void CameraModel::Save(const std::string& path, const std::string& comment) cons
   out << " ],\n";
   out << "    'imagersize': [ " << width_ << ", " << height_ << " ],\n";
   out << "}\n";
-  std::ofstream file(path, std::ios::trunc);
-  if (!file) throw std::runtime_error(path + ": cannot open for writing");
-  file << out.str();
-  file.close();
-  if (!file) throw std::runtime_error(path + ": write failed");
+  WriteFileAtomically(path, out.str());
 }
 
 Eigen::Vector2d CameraModel::Project(const Eigen::Vector3d& point_in_rig) const {

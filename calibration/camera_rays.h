@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "core/error.h"
 #include "calibration/camera_model.h"
 
 namespace flamerig {
@@ -25,13 +26,13 @@ class CameraRays {
   CameraRays(int width, int height, std::vector<Ray> rays)
       : width_(width), height_(height), rays_(std::move(rays)) {
     if (width <= 0 || height <= 0 || rays_.size() != static_cast<std::size_t>(width) * height) {
-      throw std::invalid_argument("CameraRays: need width * height rays");
+      throw InputError("CameraRays: need width * height rays");
     }
     for (std::size_t i = 0; i < rays_.size(); ++i) {
       const Ray& r = rays_[i];
       if (r.valid && (!r.origin_in_rig.allFinite() || !r.direction_in_rig.allFinite() ||
                       !(r.direction_in_rig.squaredNorm() > 0))) {
-        throw std::invalid_argument("CameraRays: the ray of pixel (" + std::to_string(i % width) +
+        throw InputError("CameraRays: the ray of pixel (" + std::to_string(i % width) +
                                     ", " + std::to_string(i / width) +
                                     ") is valid but its origin or direction is not finite, or "
                                     "its direction is zero");

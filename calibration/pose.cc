@@ -3,6 +3,8 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "core/error.h"
+
 namespace flamerig {
 
 std::array<double, 6> Rigid3::ToRt() const {
@@ -29,10 +31,10 @@ Rigid3 Rigid3::FromRt(const std::array<double, 6>& rt) { return FromRt(rt.data()
 Rigid3 LookAt(const Eigen::Vector3d& eye_in_rig, const Eigen::Vector3d& target_in_rig,
               const Eigen::Vector3d& up_in_rig) {
   Eigen::Vector3d z = target_in_rig - eye_in_rig;
-  if (z.norm() < 1e-12) throw std::invalid_argument("LookAt: eye and target coincide");
+  if (z.norm() < 1e-12) throw InputError("LookAt: eye and target coincide");
   z.normalize();
   Eigen::Vector3d x = z.cross(up_in_rig);
-  if (x.norm() < 1e-9) throw std::invalid_argument("LookAt: viewing direction is parallel to up");
+  if (x.norm() < 1e-9) throw InputError("LookAt: viewing direction is parallel to up");
   x.normalize();
   Eigen::Vector3d y = z.cross(x);  // image down
   Eigen::Matrix3d rig_from_cam_rotation;

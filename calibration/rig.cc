@@ -7,7 +7,9 @@
 #include <set>
 #include <stdexcept>
 
-#include "acquisition/config_reader.h"
+#include "core/atomic_file.h"
+#include "core/error.h"
+#include "core/config_reader.h"
 
 namespace flamerig {
 namespace {
@@ -15,7 +17,7 @@ namespace {
 namespace fs = std::filesystem;
 
 [[noreturn]] void Fail(const std::string& path, const std::string& field, const std::string& rule) {
-  throw std::runtime_error(path + ": field '" + field + "': " + rule);
+  throw InputError(path + ": field '" + field + "': " + rule);
 }
 
 Eigen::Vector3d ReadVector3(const YAML::Node& node, const std::string& path,
@@ -52,9 +54,9 @@ Rig Rig::Load(const std::string& yaml_path) {
   try {
     return ReadRig(r, yaml_path);
   } catch (const YAML::Exception& e) {  // a value of the wrong shape
-    throw std::runtime_error(yaml_path + ": " + e.what());
-  } catch (const std::invalid_argument& e) {  // CheckKeys: an unknown key, or not a map
-    throw std::runtime_error(e.what());
+    throw InputError(yaml_path + ": " + e.what());
+  } catch (const InputError& e) {  // CheckKeys: an unknown key, or not a map
+    throw InputError(e.what());
   }
 }
 
@@ -130,10 +132,7 @@ void Rig::Save(const std::string& yaml_path) const {
         << YAML::Value << model_path << YAML::EndMap;
   }
   out << YAML::EndSeq << YAML::EndMap << YAML::EndMap;
-  std::ofstream file(yaml_path, std::ios::trunc);
-  if (!file) throw std::runtime_error(yaml_path + ": cannot open for writing");
-  file << out.c_str() << "\n";
-  if (!file) throw std::runtime_error(yaml_path + ": write failed");
+  WriteFileAtomically(yaml_path, std::string(out.c_str()) + "\n");
 }
 
 }  // namespace flamerig

@@ -3,13 +3,14 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "core/error.h"
 #include "fitting/physics.h"
 
 namespace flamerig {
 
 AbsorptionModel AbsorptionModel::Grey(double cross_section_m2) {
   if (!(cross_section_m2 > 0) || !std::isfinite(cross_section_m2)) {
-    throw std::invalid_argument("grey absorption: cross_section_m2 = " +
+    throw InputError("grey absorption: cross_section_m2 = " +
                                 std::to_string(cross_section_m2) + " must be finite and > 0");
   }
   AbsorptionModel m;
@@ -21,7 +22,7 @@ AbsorptionModel AbsorptionModel::Grey(double cross_section_m2) {
 AbsorptionModel AbsorptionModel::Soot(const SootParameters& p) {
   auto check = [](double v, double lo, double hi, const char* name) {
     if (!(v > lo) || !(v <= hi) || !std::isfinite(v)) {
-      throw std::invalid_argument(std::string("soot absorption: ") + name + " = " +
+      throw InputError(std::string("soot absorption: ") + name + " = " +
                                   std::to_string(v) + " must be in (" + std::to_string(lo) + ", " +
                                   std::to_string(hi) + "]");
     }
@@ -42,7 +43,7 @@ AbsorptionModel AbsorptionModel::DefaultGrey() { return Grey(DefaultSoot().Cross
 AbsorptionModel AbsorptionModel::FromName(const std::string& name) {
   if (name == "grey" || name == "gray") return DefaultGrey();
   if (name == "soot") return DefaultSoot();
-  throw std::invalid_argument("absorption model '" + name + "' is unknown; use 'grey' or 'soot'");
+  throw InputError("absorption model '" + name + "' is unknown; use 'grey' or 'soot'");
 }
 
 double AbsorptionModel::CrossSectionM2(double wavelength_nm) const {

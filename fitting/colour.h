@@ -18,7 +18,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "acquisition/srgb.h"
+#include "core/srgb.h"
 
 namespace flamerig::colour {
 
@@ -66,7 +66,7 @@ const Eigen::Matrix3d& XyzFromLinearSrgb();
 // XYZ of linear sRGB white (1, 1, 1): the D65 reference white used for CIELab.
 Eigen::Vector3d D65White();
 
-// The sRGB transfer curve and quantisation live with images (acquisition/srgb.h).
+// The sRGB transfer curve and quantisation live with images (core/srgb.h).
 using ::flamerig::QuantizeU8;
 using ::flamerig::SrgbDecode;
 using ::flamerig::SrgbEncode;

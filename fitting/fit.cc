@@ -14,6 +14,7 @@
 #include <stdexcept>
 #include <tuple>
 
+#include "core/error.h"
 #include "fitting/colour.h"
 #include "fitting/physics.h"
 #include "tomography/reconstruct.h"
@@ -45,7 +46,7 @@ double Luminance(const float* rgb) { return 0.2126 * rgb[0] + 0.7152 * rgb[1] + 
 void FitOptions::Validate() const {
   objective.Validate();
   render.Validate();
-  auto fail = [](const std::string& what) { throw std::invalid_argument("fit options: " + what); };
+  auto fail = [](const std::string& what) { throw InputError("fit options: " + what); };
   if (!(activity_threshold >= 0 && activity_threshold < 1))
     fail("activity_threshold must be in [0, 1)");
   if (!(exposure_min > 0) || !(exposure_max > exposure_min) || !std::isfinite(exposure_max))
@@ -73,7 +74,7 @@ ThinEmissionTable::ThinEmissionTable(const AbsorptionModel& absorption, double t
                                      double t_max_k)
     : t_min_(t_min_k), t_max_(t_max_k) {
   if (!(t_min_k > 0) || !(t_max_k > t_min_k))
-    throw std::invalid_argument("ThinEmissionTable: need 0 < t_min < t_max");
+    throw InputError("ThinEmissionTable: need 0 < t_min < t_max");
   const auto& cie = colour::CieObserver::Cie1931TwoDegree();
   std::vector<double> sigma(colour::CieObserver::kCount);
   for (int i = 0; i < colour::CieObserver::kCount; ++i)
@@ -113,7 +114,7 @@ double ThinEmissionTable::TemperatureOf(const Eigen::Vector3d& rgb) const {
 std::vector<std::uint32_t> ActiveVoxels(const GridGeometry& grid, const FireVolume& tomography,
                                         double threshold, std::vector<float>* emission_on_grid) {
   if (tomography.emission_rgb.size() != tomography.geometry.num_voxels() * 3)
-    throw std::invalid_argument("fit: the tomography volume has no emission (3 values per voxel)");
+    throw InputError("fit: the tomography volume has no emission (3 values per voxel)");
   std::vector<float> e = tomography.geometry.SameVoxels(grid)
                              ? tomography.emission_rgb
                              : ResampleEmission(tomography.geometry, tomography.emission_rgb, grid);
@@ -121,7 +122,7 @@ std::vector<std::uint32_t> ActiveVoxels(const GridGeometry& grid, const FireVolu
   for (std::size_t v = 0; v < grid.num_voxels(); ++v) {
     const double y = Luminance(&e[3 * v]);
     if (!std::isfinite(y))
-      throw std::invalid_argument("fit: the tomography emission is not finite at voxel " +
+      throw InputError("fit: the tomography emission is not finite at voxel " +
                                   std::to_string(v));
     peak = std::max(peak, y);
   }
@@ -291,7 +292,7 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
       terms = objective_.Evaluate(st.t, st.n, st.s, options_.density_pairwise,
                                   gradient ? &d_t : nullptr, gradient ? &d_n : nullptr,
                                   gradient ? &d_s : nullptr);
-    } catch (const std::invalid_argument&) {
+    } catch (const InputError&) {
       return false;  // a non-finite trial point: Ceres backs off
     }
     ++*evaluations_;
@@ -447,7 +448,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     std::vector<float> emission;
     st.active = ActiveVoxels(st.grid, tomography, options.activity_threshold, &emission);
     if (st.active.empty()) {
-      throw std::invalid_argument(
+      throw InputError(
           "fit: no active voxels (the tomography volume is black or below the activity "
           "threshold)");
     }
@@ -550,7 +551,7 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
   if (paper.iterations < 1 || paper.samples_per_cluster < 1 || paper.exposure_sweep < 2 ||
       paper.exposure_samples < 0 || !(paper.initial_sigma_t_k > 0) ||
       !(paper.initial_sigma_log_n > 0) || !(paper.time_limit_s >= 0)) {
-    throw std::invalid_argument(
+    throw InputError(
         "paper fit options: iterations, samples_per_cluster >= 1, exposure_sweep >= 2, "
         "exposure_samples >= 0, deviations > 0, time_limit_s >= 0");
   }
@@ -562,7 +563,7 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
   const std::vector<std::uint32_t> active =
       ActiveVoxels(grid, tomography, options.activity_threshold, &emission);
   if (active.empty()) {
-    throw std::invalid_argument(
+    throw InputError(
         "fit: no active voxels (the tomography volume is black or below the activity threshold)");
   }
   const FitObjective objective(grid, active, views, absorption, options.render, options.objective);

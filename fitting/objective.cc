@@ -7,14 +7,15 @@
 #include <cmath>
 #include <stdexcept>
 
-#include "acquisition/srgb.h"
+#include "core/error.h"
+#include "core/srgb.h"
 #include "fitting/colour.h"
 
 namespace flamerig {
 
 void ObjectiveOptions::Validate() const {
   auto fail = [](const std::string& what) {
-    throw std::invalid_argument("objective options: " + what);
+    throw InputError("objective options: " + what);
   };
   if (!(w_am >= 0) || !std::isfinite(w_am)) fail("w_am must be finite and >= 0");
   if (!(w_sm >= 0) || !std::isfinite(w_sm)) fail("w_sm must be finite and >= 0");
@@ -79,22 +80,22 @@ FitObjective::FitObjective(const GridGeometry& grid, std::vector<std::uint32_t> 
     : grid_(grid), active_(std::move(active)), views_(std::move(views)), options_(options) {
   options_.Validate();
   grid_.Validate();
-  if (views_.empty()) throw std::invalid_argument("fit: no views to match");
+  if (views_.empty()) throw InputError("fit: no views to match");
   const std::size_t nvox = grid_.num_voxels();
   std::vector<std::int32_t> index(nvox, -1);
   for (std::size_t a = 0; a < active_.size(); ++a) {
     if (active_[a] >= nvox)
-      throw std::invalid_argument("fit: active voxel " + std::to_string(active_[a]) +
+      throw InputError("fit: active voxel " + std::to_string(active_[a]) +
                                   " outside the grid");
     if (index[active_[a]] >= 0)
-      throw std::invalid_argument("fit: active voxel " + std::to_string(active_[a]) + " repeated");
+      throw InputError("fit: active voxel " + std::to_string(active_[a]) + " repeated");
     index[active_[a]] = static_cast<std::int32_t>(a);
   }
   for (const FitView& v : views_) {
-    if (!v.rays) throw std::invalid_argument("fit: view '" + v.name + "' has no camera rays");
+    if (!v.rays) throw InputError("fit: view '" + v.name + "' has no camera rays");
     if (v.image.width != v.rays->width() || v.image.height != v.rays->height() ||
         v.image.channels != 3) {
-      throw std::invalid_argument(
+      throw InputError(
           "fit: view '" + v.name + "': image is " + std::to_string(v.image.width) + "x" +
           std::to_string(v.image.height) + "x" + std::to_string(v.image.channels) +
           ", the camera is " + std::to_string(v.rays->width()) + "x" +
@@ -171,11 +172,11 @@ double FitObjective::LocalPairwise(const std::vector<double>& values, std::uint3
 FitObjective::Renders FitObjective::Render(const std::vector<double>& t,
                                            const std::vector<double>& n) const {
   if (t.size() != active_.size() || n.size() != active_.size())
-    throw std::invalid_argument("fit: temperature and density need one value per active voxel");
+    throw InputError("fit: temperature and density need one value per active voxel");
   std::vector<float> tt(grid_.num_voxels(), 0.0f), nn(grid_.num_voxels(), 0.0f);
   for (std::size_t a = 0; a < active_.size(); ++a) {
     if (!std::isfinite(t[a]) || !std::isfinite(n[a]))
-      throw std::invalid_argument("fit: non-finite temperature or density at active voxel " +
+      throw InputError("fit: non-finite temperature or density at active voxel " +
                                   std::to_string(a));
     tt[active_[a]] = static_cast<float>(std::max(0.0, t[a]));
     nn[active_[a]] = static_cast<float>(std::max(0.0, n[a]));
@@ -212,7 +213,7 @@ EnergyTerms FitObjective::Evaluate(const std::vector<double>& t, const std::vect
                                    double s, bool density_pairwise, std::vector<double>* d_t,
                                    std::vector<double>* d_n, double* d_s) const {
   if (!(s > 0) || !std::isfinite(s))
-    throw std::invalid_argument("fit: exposure " + std::to_string(s) + " must be finite and > 0");
+    throw InputError("fit: exposure " + std::to_string(s) + " must be finite and > 0");
   const bool want_gradient = d_t || d_n || d_s;
   Renders renders = Render(t, n);
   EnergyTerms terms;

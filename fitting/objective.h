@@ -31,7 +31,7 @@
 #include <string>
 #include <vector>
 
-#include "acquisition/image.h"
+#include "core/image.h"
 #include "calibration/camera_rays.h"
 #include "fitting/absorption.h"
 #include "fitting/renderer.h"

@@ -13,6 +13,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "core/error.h"
 #include "fitting/colour.h"
 #include "tomography/ray_march.h"
 
@@ -34,7 +35,7 @@ void RenderOptions::Validate() const {
   auto fail = [](const std::string& field, double value, const std::string& rule) {
     std::ostringstream s;
     s << "RenderOptions." << field << " = " << value << ": " << rule;
-    throw std::invalid_argument(s.str());
+    throw InputError(s.str());
   };
   // Below 0.01 (100 samples per voxel) a render would take hours, not be more exact.
   if (!(step_voxels >= 0.01) || !(step_voxels <= 4))
@@ -63,7 +64,7 @@ FireRenderer::FireRenderer(const AbsorptionModel& absorption, const RenderOption
     : absorption_(absorption), options_(options) {
   options_.Validate();
   if (options_.path == SpectralPath::kFast && !absorption_.is_grey()) {
-    throw std::invalid_argument("RenderOptions.path = fast needs grey absorption; the model is " +
+    throw InputError("RenderOptions.path = fast needs grey absorption; the model is " +
                                 absorption_.name());
   }
   if (options_.path == SpectralPath::kSpectral) {
@@ -94,7 +95,7 @@ void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<flo
   check.density_per_m3 = density_per_m3;
   if (temperature_k.size() != geometry.num_voxels() ||
       density_per_m3.size() != geometry.num_voxels()) {
-    throw std::invalid_argument("SetVolume: temperature and density need " +
+    throw InputError("SetVolume: temperature and density need " +
                                 std::to_string(geometry.num_voxels()) + " values each, got " +
                                 std::to_string(temperature_k.size()) + " and " +
                                 std::to_string(density_per_m3.size()));
@@ -634,7 +635,7 @@ RenderSummary FireRenderer::RenderGradient(const CameraRays& rays, const ImageF&
   if (!has_volume_) throw std::logic_error("FireRenderer::RenderGradient called before SetVolume");
   if (d_loss_d_rgb.width != rays.width() || d_loss_d_rgb.height != rays.height() ||
       d_loss_d_rgb.channels != 3) {
-    throw std::invalid_argument(
+    throw InputError(
         "RenderGradient: d_loss_d_rgb is " + std::to_string(d_loss_d_rgb.width) + "x" +
         std::to_string(d_loss_d_rgb.height) + "x" + std::to_string(d_loss_d_rgb.channels) +
         ", the camera is " + std::to_string(rays.width()) + "x" + std::to_string(rays.height()) +
@@ -644,7 +645,7 @@ RenderSummary FireRenderer::RenderGradient(const CameraRays& rays, const ImageF&
   for (std::vector<double>* v : {d_temperature, d_density}) {
     if (v->empty()) v->assign(nvox, 0.0);
     if (v->size() != nvox) {
-      throw std::invalid_argument("RenderGradient: gradient arrays need " + std::to_string(nvox) +
+      throw InputError("RenderGradient: gradient arrays need " + std::to_string(nvox) +
                                   " values, got " + std::to_string(v->size()));
     }
   }
@@ -663,7 +664,7 @@ RenderSummary FireRenderer::Render(const CameraRays& rays, const std::vector<flo
                                    ImageF* linear_rgb, ImageF* transmittance_rgb) const {
   if (!has_volume_) throw std::logic_error("FireRenderer::Render called before SetVolume");
   if (max_distance_m.size() != static_cast<std::size_t>(rays.width()) * rays.height())
-    throw std::invalid_argument("FireRenderer::Render: need one max distance per pixel");
+    throw InputError("FireRenderer::Render: need one max distance per pixel");
   if (options_.double_precision)
     return RenderImpl<double>(rays, linear_rgb, &max_distance_m, transmittance_rgb);
   return RenderImpl<float>(rays, linear_rgb, &max_distance_m, transmittance_rgb);
@@ -671,11 +672,11 @@ RenderSummary FireRenderer::Render(const CameraRays& rays, const std::vector<flo
 
 ImageU8 ApplyCameraResponse(const ImageF& linear_rgb, double exposure) {
   if (!(exposure > 0) || !std::isfinite(exposure)) {
-    throw std::invalid_argument("exposure = " + std::to_string(exposure) +
+    throw InputError("exposure = " + std::to_string(exposure) +
                                 " must be finite and > 0");
   }
   if (linear_rgb.channels != 3)
-    throw std::invalid_argument("ApplyCameraResponse needs a 3-channel image");
+    throw InputError("ApplyCameraResponse needs a 3-channel image");
   ImageU8 out(linear_rgb.width, linear_rgb.height, 3);
   for (std::size_t i = 0; i < linear_rgb.pixels.size(); ++i) {
     out.pixels[i] = colour::QuantizeU8(colour::SrgbEncode(exposure * double(linear_rgb.pixels[i])));

@@ -13,6 +13,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "core/error.h"
 #include "fitting/fit.h"
 #include "tomography/ray_march.h"
 
@@ -71,41 +72,41 @@ SceneLighting SceneLightingFromName(const std::string& name) {
   if (name == "fire") return SceneLighting::kFireVolume;
   if (name == "point") return SceneLighting::kPointLight;
   if (name == "sphere") return SceneLighting::kSphereLight;
-  throw std::invalid_argument("lighting '" + name + "': use fire, point or sphere");
+  throw InputError("lighting '" + name + "': use fire, point or sphere");
 }
 
 void SceneMaterial::Validate() const {
   auto in01 = [&](const Eigen::Vector3d& v, const char* field) {
     if (!v.allFinite() || v.minCoeff() < 0 || v.maxCoeff() > 1)
-      throw std::invalid_argument("material '" + name + "': " + field + " must be in [0, 1]");
+      throw InputError("material '" + name + "': " + field + " must be in [0, 1]");
   };
   in01(albedo, "albedo");
   in01(specular, "specular");
   if ((albedo + specular).maxCoeff() > 1)
-    throw std::invalid_argument("material '" + name +
+    throw InputError("material '" + name +
                                 "': albedo + specular above 1 would reflect more than it receives");
   if (!(shininess >= 1) || !(shininess <= 1e5))
-    throw std::invalid_argument("material '" + name + "': shininess must be in [1, 1e5]");
+    throw InputError("material '" + name + "': shininess must be in [1, 1e5]");
 }
 
 void SceneCamera::Validate() const {
   if (!position.allFinite() || !look_at.allFinite() || !up.allFinite())
-    throw std::invalid_argument("camera: position, look_at and up must be finite");
+    throw InputError("camera: position, look_at and up must be finite");
   if ((look_at - position).norm() < 1e-9)
-    throw std::invalid_argument("camera: look_at must differ from position");
+    throw InputError("camera: look_at must differ from position");
   if ((look_at - position).normalized().cross(up).norm() < 1e-6)
-    throw std::invalid_argument("camera: up must not be parallel to the viewing direction");
+    throw InputError("camera: up must not be parallel to the viewing direction");
   if (!(vertical_fov_deg > 0) || !(vertical_fov_deg < 170))
-    throw std::invalid_argument("camera: fov_deg must be in (0, 170)");
+    throw InputError("camera: fov_deg must be in (0, 170)");
   if (width < 1 || height < 1 || width > 16384 || height > 16384)
-    throw std::invalid_argument("camera: width and height must be in [1, 16384]");
+    throw InputError("camera: width and height must be in [1, 16384]");
 }
 
 void SceneRenderOptions::Validate() const {
-  if (samples_per_pixel < 1) throw std::invalid_argument("samples must be >= 1");
-  if (samples_per_pass < 1) throw std::invalid_argument("samples_per_pass must be >= 1");
+  if (samples_per_pixel < 1) throw InputError("samples must be >= 1");
+  if (samples_per_pass < 1) throw InputError("samples_per_pass must be >= 1");
   if (!(sphere_light_radius_m >= 0) || !std::isfinite(sphere_light_radius_m))
-    throw std::invalid_argument("sphere_light_radius_m must be finite and >= 0");
+    throw InputError("sphere_light_radius_m must be finite and >= 0");
   fire.Validate();
 }
 
@@ -147,7 +148,7 @@ void SceneGeometry::AddMesh(const std::vector<Eigen::Vector3f>& v,
   vertices.insert(vertices.end(), v.begin(), v.end());
   for (const auto& tri : t) {
     if ((tri.array() < 0).any() || (tri.array() >= static_cast<int>(v.size())).any())
-      throw std::invalid_argument("mesh: a triangle refers to a vertex it does not have");
+      throw InputError("mesh: a triangle refers to a vertex it does not have");
     triangles.push_back(tri + Eigen::Vector3i::Constant(base));
     triangle_material.push_back(material);
   }
@@ -400,21 +401,21 @@ SceneRenderer::SceneRenderer(const Scene& scene) : impl_(std::make_unique<Impl>(
   const SceneGeometry& g = scene.geometry;
   const int nmat = static_cast<int>(scene.materials.size());
   if (g.triangle_material.size() != g.triangles.size())
-    throw std::invalid_argument("scene: every triangle needs a material");
+    throw InputError("scene: every triangle needs a material");
   for (int mat : g.triangle_material)
-    if (mat < 0 || mat >= nmat) throw std::invalid_argument("scene: a surface has no material");
+    if (mat < 0 || mat >= nmat) throw InputError("scene: a surface has no material");
   for (const auto& s : g.spheres) {
     if (s.material < 0 || s.material >= nmat)
-      throw std::invalid_argument("scene: a sphere has no material");
+      throw InputError("scene: a sphere has no material");
     if (!(s.radius > 0) || !s.centre.allFinite())
-      throw std::invalid_argument("scene: a sphere needs a finite centre and a radius > 0");
+      throw InputError("scene: a sphere needs a finite centre and a radius > 0");
   }
   for (const auto& v : g.vertices)
-    if (!v.allFinite()) throw std::invalid_argument("scene: a vertex is not finite");
+    if (!v.allFinite()) throw InputError("scene: a vertex is not finite");
 
   // Embree: the triangles and the spheres.
   m.device = rtcNewDevice(nullptr);
-  if (!m.device) throw std::runtime_error("scene: Embree could not create a device");
+  if (!m.device) throw IoError("scene: Embree could not create a device");
   m.rtc = rtcNewScene(m.device);
   if (!g.triangles.empty()) {
     RTCGeometry geom = rtcNewGeometry(m.device, RTC_GEOMETRY_TYPE_TRIANGLE);
@@ -455,9 +456,9 @@ SceneRenderer::SceneRenderer(const Scene& scene) : impl_(std::make_unique<Impl>(
     const std::size_t n = grid.num_voxels();
     const std::string name = "fire " + std::to_string(fi);
     if (sf.volume.temperature_k.size() != n || sf.volume.density_per_m3.size() != n)
-      throw std::invalid_argument("scene: " + name + " needs temperature and density grids");
+      throw InputError("scene: " + name + " needs temperature and density grids");
     if (!(sf.scale > 0) || !std::isfinite(sf.scale))
-      throw std::invalid_argument("scene: " + name + " needs a finite scale > 0");
+      throw InputError("scene: " + name + " needs a finite scale > 0");
     Impl::Fire f;
     FireRenderer(sf.absorption)
         .SetVolume(grid, sf.volume.temperature_k,

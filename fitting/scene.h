@@ -52,7 +52,7 @@
 #include <string>
 #include <vector>
 
-#include "acquisition/image.h"
+#include "core/image.h"
 #include "fitting/absorption.h"
 #include "fitting/renderer.h"
 #include "tomography/volume.h"

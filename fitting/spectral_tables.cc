@@ -3,6 +3,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "core/error.h"
 #include "fitting/colour.h"
 #include "fitting/physics.h"
 
@@ -45,7 +46,7 @@ template void BlackbodyXyzTable::LookupExactWithDerivative<double>(double, doubl
 
 SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm) : step_nm_(step_nm) {
   if (!(first_nm >= 360) || !(last_nm <= 830) || !(first_nm < last_nm) || !(step_nm > 0)) {
-    throw std::invalid_argument(
+    throw InputError(
         "spectral bins: need 360 <= first_nm < last_nm <= 830 and step_nm > 0, got " +
         std::to_string(first_nm) + ".." + std::to_string(last_nm) + " step " +
         std::to_string(step_nm));
@@ -53,7 +54,7 @@ SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm) : st
   // Counted in double first: a tiny step would overflow an int.
   const double bins = std::floor((last_nm - first_nm) / step_nm + 1e-9) + 1;
   if (bins > kMaxBins) {
-    throw std::invalid_argument("spectral bins: " + std::to_string(bins) +
+    throw InputError("spectral bins: " + std::to_string(bins) +
                                 " bins exceed the maximum of " + std::to_string(kMaxBins));
   }
   const int n = static_cast<int>(bins);
@@ -75,7 +76,7 @@ SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm) : st
   for (const auto& w : weights_) total += w;
   for (int c = 0; c < 3; ++c)
     if (!(total[c] > 0))
-      throw std::invalid_argument("spectral bins: " + std::to_string(first_nm) + ".." +
+      throw InputError("spectral bins: " + std::to_string(first_nm) + ".." +
                                   std::to_string(last_nm) + " nm hold no response of the CIE " +
                                   "xyz"[c] + "-bar colour matching function");
   planck_.assign(static_cast<std::size_t>(kMaxTableK + 2) * n, 0.0f);

@@ -5,7 +5,8 @@
 #include <limits>
 #include <stdexcept>
 
-#include "acquisition/srgb.h"
+#include "core/error.h"
+#include "core/srgb.h"
 
 namespace flamerig {
 
@@ -20,14 +21,14 @@ double Luminance(const float* rgb) {
 
 void ToneMapOptions::Validate() const {
   if (!(exposure > 0) || !std::isfinite(exposure))
-    throw std::invalid_argument("ToneMapOptions.exposure must be finite and > 0");
+    throw InputError("ToneMapOptions.exposure must be finite and > 0");
   if (!(key > 0) || !(key <= 1))
-    throw std::invalid_argument("ToneMapOptions.key must be in (0, 1]");
+    throw InputError("ToneMapOptions.key must be in (0, 1]");
   if (!(white >= 0) || !std::isfinite(white))
-    throw std::invalid_argument("ToneMapOptions.white must be finite and >= 0 (0 = automatic)");
-  if (!(delta > 0)) throw std::invalid_argument("ToneMapOptions.delta must be > 0");
+    throw InputError("ToneMapOptions.white must be finite and >= 0 (0 = automatic)");
+  if (!(delta > 0)) throw InputError("ToneMapOptions.delta must be > 0");
   if (!(log_average >= 0) || !std::isfinite(log_average))
-    throw std::invalid_argument("ToneMapOptions.log_average must be finite and >= 0 (0 = own)");
+    throw InputError("ToneMapOptions.log_average must be finite and >= 0 (0 = own)");
 }
 
 double ReinhardDisplayLuminance(double l, double white) {
@@ -39,7 +40,7 @@ double ReinhardDisplayLuminance(double l, double white) {
 ImageU8 ToneMapReinhard(const ImageF& linear, const ToneMapOptions& options,
                         ToneMapSummary* summary) {
   options.Validate();
-  if (linear.channels != 3) throw std::invalid_argument("ToneMapReinhard: needs 3 channels");
+  if (linear.channels != 3) throw InputError("ToneMapReinhard: needs 3 channels");
   const std::size_t n = linear.num_pixels();
   double log_sum = 0;
   for (std::size_t p = 0; p < n; ++p)

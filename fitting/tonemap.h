@@ -12,7 +12,7 @@
 #ifndef FLAMERIG_FITTING_TONEMAP_H_
 #define FLAMERIG_FITTING_TONEMAP_H_
 
-#include "acquisition/image.h"
+#include "core/image.h"
 
 namespace flamerig {
 

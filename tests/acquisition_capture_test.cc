@@ -11,9 +11,10 @@
 #include <opencv2/imgcodecs.hpp>
 #include <thread>
 
+#include "core/error.h"
 #include "acquisition/capture.h"
 #include "acquisition/control.h"
-#include "acquisition/image.h"
+#include "core/image.h"
 
 namespace flamerig {
 namespace {
@@ -45,7 +46,7 @@ std::string Config(const fs::path& data_dir, const std::string& sync, double rat
 std::string ParseError(const std::string& yaml) {
   try {
     CaptureConfig::Parse(yaml, "rig.yaml");
-  } catch (const std::invalid_argument& e) {
+  } catch (const InputError& e) {
     return e.what();
   }
   return "";
@@ -317,7 +318,7 @@ TEST(CaptureDaemon, RecordingNamesCannotLeaveTheDataDirectory) {
   SystemClock clock;
   CaptureDaemon daemon(config, MakeCameras(config, &clock, nullptr), &clock, nullptr);
   for (const std::string bad : {"../escape", "a/b", "", "..", ".", "/abs", "x\ny", "a b"})
-    EXPECT_THROW(daemon.StartRecording(bad), std::invalid_argument) << bad;
+    EXPECT_THROW(daemon.StartRecording(bad), InputError) << bad;
   EXPECT_FALSE(fs::exists(dir.path / "escape"));
   EXPECT_THROW(daemon.StopRecording(), std::logic_error);
 }
@@ -460,7 +461,7 @@ TEST(DecodeFrame, BayerLayoutsDecodeARedSceneAsRed) {
   ASSERT_EQ(DecodeFrame(mono, &u8, &u16), 16);
   EXPECT_EQ(u16.at(3, 1), 257);
   mono.data = std::make_shared<std::vector<std::uint8_t>>(15, 1);
-  EXPECT_THROW(DecodeFrame(mono, &u8, &u16), std::invalid_argument);
+  EXPECT_THROW(DecodeFrame(mono, &u8, &u16), InputError);
 }
 
 }  // namespace

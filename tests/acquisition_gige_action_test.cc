@@ -14,6 +14,7 @@
 #include <mutex>
 #include <thread>
 
+#include "core/error.h"
 #include "acquisition/capture.h"
 #include "acquisition/gige_action.h"
 
@@ -77,10 +78,10 @@ TEST(ActionCommand, MalformedDatagramsAreNotCommands) {
   flagged_scheduled[1] = 0x80;  // says scheduled but carries 12 bytes
   EXPECT_FALSE(DecodeActionCommand(flagged_scheduled.data(), flagged_scheduled.size()).has_value());
   c.request_id = 0;
-  EXPECT_THROW(EncodeActionCommand(c), std::invalid_argument);
+  EXPECT_THROW(EncodeActionCommand(c), InputError);
   c.request_id = 1;
   c.group_mask = 0;
-  EXPECT_THROW(EncodeActionCommand(c), std::invalid_argument);
+  EXPECT_THROW(EncodeActionCommand(c), InputError);
 }
 
 TEST(ActionAck, BytesAndParsing) {
@@ -226,7 +227,7 @@ TEST(CaptureConfig, ActionCommandsNeedPtpAndAMask) {
   auto error = [](const std::string& yaml) {
     try {
       CaptureConfig::Parse(yaml + "cameras: [{name: a}]\n", "rig.yaml");
-    } catch (const std::invalid_argument& e) {
+    } catch (const InputError& e) {
       return std::string(e.what());
     }
     return std::string("(no error)");

@@ -12,6 +12,7 @@
 #include <fstream>
 #include <thread>
 
+#include "core/error.h"
 #include "acquisition/recording.h"
 
 namespace flamerig {
@@ -181,14 +182,14 @@ TEST(Recording, RefusesToOverwriteAndFramesOfTheWrongSize) {
   try {
     rec.Submit(bad);
     FAIL() << "a frame of the wrong size was accepted";
-  } catch (const std::invalid_argument& e) {
+  } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("camera 1"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("3071 bytes for 64x48 Mono8"), std::string::npos)
         << e.what();
   }
   FrameSet two = MakeSet(0);
   two.frames.pop_back();
-  EXPECT_THROW(rec.Submit(two), std::invalid_argument);
+  EXPECT_THROW(rec.Submit(two), InputError);
 }
 
 std::uint64_t FileSize(const fs::path& p) { return fs::file_size(p); }

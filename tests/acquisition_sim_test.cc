@@ -5,6 +5,7 @@
 #include <cmath>
 #include <memory>
 
+#include "core/error.h"
 #include "acquisition/frame_set.h"
 #include "acquisition/sim_camera.h"
 
@@ -37,7 +38,7 @@ TEST(FrameIdUnwrapper, SixteenBitCounterWrapsToOneLikeGigEVision) {
     ASSERT_EQ(id, last + 1);
     last = id;
   }
-  EXPECT_THROW(FrameIdUnwrapper(0), std::invalid_argument);
+  EXPECT_THROW(FrameIdUnwrapper(0), InputError);
 }
 
 Frame MakeFrame(int camera, std::int64_t trigger, std::int64_t t_ns) {
@@ -131,7 +132,7 @@ TEST(FrameSetAssembler, MatchesTimestampsWithinTheToleranceAndBoundsMemory) {
   a.Flush(&out);
   EXPECT_EQ(out.size(), 20u);
   EXPECT_EQ(a.counters().incomplete, 15u);
-  EXPECT_THROW(a.Add(MakeFrame(7, -1, 0), 0, &out), std::invalid_argument);
+  EXPECT_THROW(a.Add(MakeFrame(7, -1, 0), 0, &out), InputError);
 }
 
 CameraSettings Settings(double fps, TriggerMode mode = TriggerMode::kFreeRun) {
@@ -210,7 +211,7 @@ TEST(SimCamera, RepeatedOutagesComeAndGoAtTheirTimes) {
   }
   SimCameraOptions bad;
   bad.outages = {{2'000'000'000, -1}, {3'000'000'000, 4'000'000'000}};  // after "for good"
-  EXPECT_THROW(SimCamera(bad, &clock, nullptr), std::invalid_argument);
+  EXPECT_THROW(SimCamera(bad, &clock, nullptr), InputError);
 }
 
 TEST(SimCamera, FirstInvalidOutageNamesTheFirstOneOutOfOrder) {
@@ -276,7 +277,7 @@ TEST(SimCamera, HardwareTriggerBusDrivesAllCamerasIntoCompleteSets) {
   }
   // A camera without a bus cannot be put on a hardware trigger.
   SimCamera lone(SimCameraOptions{}, &clock, nullptr);
-  EXPECT_THROW(lone.Configure(Settings(100, TriggerMode::kHardware)), std::invalid_argument);
+  EXPECT_THROW(lone.Configure(Settings(100, TriggerMode::kHardware)), InputError);
 }
 
 TEST(SimCamera, SoftwareTriggerAndBadSettings) {
@@ -299,12 +300,12 @@ TEST(SimCamera, SoftwareTriggerAndBadSettings) {
   cam.Stop();
   CameraSettings bad = Settings(100);
   bad.exposure_us = 20000;  // longer than the 10 ms period
-  EXPECT_THROW(cam.Configure(bad), std::invalid_argument);
+  EXPECT_THROW(cam.Configure(bad), InputError);
   bad = Settings(0);
-  EXPECT_THROW(cam.Configure(bad), std::invalid_argument);
+  EXPECT_THROW(cam.Configure(bad), InputError);
   SimCameraOptions wrong;
   wrong.drop_probability = 2;
-  EXPECT_THROW(SimCamera(wrong, &clock, nullptr), std::invalid_argument);
+  EXPECT_THROW(SimCamera(wrong, &clock, nullptr), InputError);
 }
 
 }  // namespace

@@ -2,6 +2,7 @@
 // turned in the image (the true corners come from projecting the rendered board's known pose).
 #include <gtest/gtest.h>
 
+#include "core/error.h"
 #include "calibration/board.h"
 #include "tools/synthetic.h"
 
@@ -64,7 +65,7 @@ TEST(DetectBoard, NoBoardIsAReasonNotAnError) {
   d = DetectBoard(blank, chess);
   EXPECT_FALSE(d.found());
   EXPECT_FALSE(d.failure.empty());
-  EXPECT_THROW(DetectBoard(ImageU8(10, 10, 3), charuco), std::invalid_argument);
+  EXPECT_THROW(DetectBoard(ImageU8(10, 10, 3), charuco), InputError);
 }
 
 TEST(BoardSpec, AmbiguousChessboardsAreRefused) {
@@ -72,7 +73,7 @@ TEST(BoardSpec, AmbiguousChessboardsAreRefused) {
   b.type = BoardType::kChessboard;
   b.squares_x = 8;
   b.squares_y = 6;  // turned by 180 degrees it looks the same
-  EXPECT_THROW(b.Validate(), std::invalid_argument);
+  EXPECT_THROW(b.Validate(), InputError);
   b.squares_y = 5;
   EXPECT_NO_THROW(b.Validate());
 }

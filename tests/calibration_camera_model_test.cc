@@ -10,6 +10,7 @@
 #include <random>
 #include <sstream>
 
+#include "core/error.h"
 #include "calibration/camera_model.h"
 
 namespace flamerig {
@@ -75,8 +76,8 @@ TEST(Pose, LookAtPointsTheOpticalAxis) {
   // Rig up (+y) is image up (-y in the camera).
   Eigen::Vector3d up = cam_from_rig.rotation * Eigen::Vector3d::UnitY();
   EXPECT_LT(up.y(), -0.99);
-  EXPECT_THROW(LookAt(Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(0, 0, 0)), std::invalid_argument);
-  EXPECT_THROW(LookAt(Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(0, 1, 0)), std::invalid_argument);
+  EXPECT_THROW(LookAt(Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(0, 0, 0)), InputError);
+  EXPECT_THROW(LookAt(Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(0, 1, 0)), InputError);
 }
 
 TEST(CameraModel, PinholeProjectsByTheBook) {
@@ -179,13 +180,13 @@ TEST(CameraModel, WeReadMrcalPythonFiles) {
 TEST(CameraModel, BadInputGivesClearErrors) {
   Rigid3 identity;
   EXPECT_THROW(CameraModel("LENSMODEL_NONSENSE", {1, 2, 3, 4}, identity, 10, 10),
-               std::invalid_argument);
+               InputError);
   EXPECT_THROW(CameraModel("LENSMODEL_OPENCV8", {1, 2, 3, 4}, identity, 10, 10),
-               std::invalid_argument);
+               InputError);
   EXPECT_THROW(CameraModel("LENSMODEL_PINHOLE", {1, 2, NAN, 4}, identity, 10, 10),
-               std::invalid_argument);
+               InputError);
   EXPECT_THROW(CameraModel("LENSMODEL_PINHOLE", {1, 2, 3, 4}, identity, 0, 10),
-               std::invalid_argument);
+               InputError);
   fs::path dir = TempDir();
   try {
     CameraModel::Load((dir / "missing.cameramodel").string());

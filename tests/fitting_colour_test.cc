@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "core/error.h"
 #include "fitting/absorption.h"
 #include "fitting/colour.h"
 #include "fitting/physics.h"
@@ -148,11 +149,11 @@ TEST(Absorption, BadParametersNameTheField) {
   try {
     AbsorptionModel::Soot(p);
     FAIL();
-  } catch (const std::invalid_argument& e) {
+  } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("particle_radius_m"), std::string::npos);
   }
-  EXPECT_THROW(AbsorptionModel::Grey(std::nan("")), std::invalid_argument);
-  EXPECT_THROW(AbsorptionModel::FromName("purple"), std::invalid_argument);
+  EXPECT_THROW(AbsorptionModel::Grey(std::nan("")), InputError);
+  EXPECT_THROW(AbsorptionModel::FromName("purple"), InputError);
 }
 
 TEST(Absorption, DensityBounds) {
@@ -196,15 +197,15 @@ TEST(Tables, SpectralBinsIntegrateLikeTheTable) {
   for (int i = 0; i < fine.count(); ++i) xyz += fine.Planck(i, 1500.0) * fine.weight(i);
   Eigen::Vector3d exact = BlackbodyXyz(1500.0);
   for (int c = 0; c < 3; ++c) EXPECT_NEAR(xyz[c] / exact[c], 1.0, 3e-4) << c;
-  EXPECT_THROW(SpectralBins(300, 780, 10), std::invalid_argument);
-  EXPECT_THROW(SpectralBins(380, 780, 0), std::invalid_argument);
+  EXPECT_THROW(SpectralBins(300, 780, 10), InputError);
+  EXPECT_THROW(SpectralBins(380, 780, 0), InputError);
   // A step so small that the bin count overflows an int: the same clear error.
-  EXPECT_THROW(SpectralBins(380, 780, 1e-9), std::invalid_argument);
+  EXPECT_THROW(SpectralBins(380, 780, 1e-9), InputError);
   // z-bar is 0 from 650 nm on (CIE 1931): a range there could not give blue transmittance.
   try {
     SpectralBins red(660, 780, 10);
     ADD_FAILURE() << "660..780 nm accepted";
-  } catch (const std::invalid_argument& e) {
+  } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("z-bar"), std::string::npos) << e.what();
   }
   EXPECT_NO_THROW(SpectralBins(380, 700, 10));

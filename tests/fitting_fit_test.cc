@@ -7,6 +7,7 @@
 #include <cmath>
 #include <random>
 
+#include "core/error.h"
 #include "fitting/colour.h"
 #include "fitting/fit.h"
 #include "tomography/reconstruct.h"
@@ -155,18 +156,18 @@ TEST(FitObjective, RejectsBadInput) {
   SmallScene s = MakeSmallScene(grey);
   RenderOptions render;
   ObjectiveOptions o;
-  EXPECT_THROW(FitObjective(s.grid, s.active, {}, grey, render, o), std::invalid_argument);
+  EXPECT_THROW(FitObjective(s.grid, s.active, {}, grey, render, o), InputError);
   std::vector<FitView> wrong = s.views;
   wrong[1].image = ImageU8(5, 5, 3);
-  EXPECT_THROW(FitObjective(s.grid, s.active, wrong, grey, render, o), std::invalid_argument);
+  EXPECT_THROW(FitObjective(s.grid, s.active, wrong, grey, render, o), InputError);
   std::vector<std::uint32_t> repeated = s.active;
   repeated.push_back(repeated.front());
-  EXPECT_THROW(FitObjective(s.grid, repeated, s.views, grey, render, o), std::invalid_argument);
+  EXPECT_THROW(FitObjective(s.grid, repeated, s.views, grey, render, o), InputError);
   FitObjective objective(s.grid, s.active, s.views, grey, render, o);
   std::vector<double> t = s.t;
   t[3] = std::nan("");
-  EXPECT_THROW(objective.Evaluate(t, s.n, 1.0, true), std::invalid_argument);
-  EXPECT_THROW(objective.Evaluate(s.t, s.n, 0.0, true), std::invalid_argument);
+  EXPECT_THROW(objective.Evaluate(t, s.n, 1.0, true), InputError);
+  EXPECT_THROW(objective.Evaluate(s.t, s.n, 0.0, true), InputError);
   // Zero densities with the density pairwise term and a huge weight: ln 0 has no value, and its
   // floor at 1e-300 gave gradients of 1e300 and more (Inf from w_sm ~ 6e7).
   ObjectiveOptions heavy = o;
@@ -191,7 +192,7 @@ TEST(FitObjective, RejectsBadInput) {
   }
   ObjectiveOptions bad;
   bad.t_max_k = 100;
-  EXPECT_THROW(FitObjective(s.grid, s.active, s.views, grey, render, bad), std::invalid_argument);
+  EXPECT_THROW(FitObjective(s.grid, s.active, s.views, grey, render, bad), InputError);
 }
 
 TEST(ThinEmissionTable, RecoversTheTemperatureOfABlackBodyColour) {
@@ -463,7 +464,7 @@ TEST(FastFit, StressBlackSaturatedAndExtremeBounds) {
   // A black tomography: a clear error, no NaN.
   FireVolume black = r.tomography;
   std::fill(black.emission_rgb.begin(), black.emission_rgb.end(), 0.0f);
-  EXPECT_THROW(FastFit(r.grid, black, r.views, grey, options), std::invalid_argument);
+  EXPECT_THROW(FastFit(r.grid, black, r.views, grey, options), InputError);
   // Saturated images (all 255): a finite result.
   std::vector<FitView> saturated = r.views;
   for (auto& v : saturated) std::fill(v.image.pixels.begin(), v.image.pixels.end(), 255);
@@ -494,7 +495,7 @@ TEST(FastFit, StressBlackSaturatedAndExtremeBounds) {
   // Bad options name the field.
   FitOptions bad;
   bad.exposure_min = -1;
-  EXPECT_THROW(FastFit(r.grid, r.tomography, r.views, grey, bad), std::invalid_argument);
+  EXPECT_THROW(FastFit(r.grid, r.tomography, r.views, grey, bad), InputError);
 }
 
 }  // namespace

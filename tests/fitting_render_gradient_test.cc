@@ -5,6 +5,7 @@
 #include <cmath>
 #include <random>
 
+#include "core/error.h"
 #include "fitting/renderer.h"
 
 namespace flamerig {
@@ -177,9 +178,9 @@ TEST(RenderGradient, RejectsMisSizedInputs) {
   EXPECT_THROW(r.RenderGradient(rays, c, &dt, &dn), std::logic_error);  // no volume yet
   r.SetVolume(s.grid, s.temperature, s.density);
   ImageF wrong(3, 3, 3, 1.0f);
-  EXPECT_THROW(r.RenderGradient(rays, wrong, &dt, &dn), std::invalid_argument);
+  EXPECT_THROW(r.RenderGradient(rays, wrong, &dt, &dn), InputError);
   std::vector<double> short_dt(5), dn2;
-  EXPECT_THROW(r.RenderGradient(rays, c, &short_dt, &dn2), std::invalid_argument);
+  EXPECT_THROW(r.RenderGradient(rays, c, &short_dt, &dn2), InputError);
 }
 
 }  // namespace

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <random>
 
+#include "core/error.h"
 #include "fitting/colour.h"
 #include "fitting/physics.h"
 #include "fitting/renderer.h"
@@ -333,29 +334,29 @@ TEST(Renderer, DegenerateGridsAndBadInput) {
   try {
     renderer.SetVolume(bad.grid, bad.temperature, bad.density);
     FAIL();
-  } catch (const std::invalid_argument& e) {
+  } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("(1, 2, 3)"), std::string::npos) << e.what();
   }
   bad.temperature[bad.grid.Flat(1, 2, 3)] = 2000;
   bad.density[0] = -1;
-  EXPECT_THROW(renderer.SetVolume(bad.grid, bad.temperature, bad.density), std::invalid_argument);
+  EXPECT_THROW(renderer.SetVolume(bad.grid, bad.temperature, bad.density), InputError);
   bad.density.pop_back();
-  EXPECT_THROW(renderer.SetVolume(bad.grid, bad.temperature, bad.density), std::invalid_argument);
+  EXPECT_THROW(renderer.SetVolume(bad.grid, bad.temperature, bad.density), InputError);
   // Options.
   RenderOptions o;
   o.step_voxels = 0;
-  EXPECT_THROW(FireRenderer(AbsorptionModel::DefaultGrey(), o), std::invalid_argument);
+  EXPECT_THROW(FireRenderer(AbsorptionModel::DefaultGrey(), o), InputError);
   o.step_voxels = 1e-9;  // a billion samples per voxel: hours, not more exact
-  EXPECT_THROW(FireRenderer(AbsorptionModel::DefaultGrey(), o), std::invalid_argument);
+  EXPECT_THROW(FireRenderer(AbsorptionModel::DefaultGrey(), o), InputError);
   o = RenderOptions();
   o.path = SpectralPath::kFast;
-  EXPECT_THROW(FireRenderer(AbsorptionModel::DefaultSoot(), o), std::invalid_argument);
-  EXPECT_THROW(ApplyCameraResponse(img, 0.0), std::invalid_argument);
-  EXPECT_THROW(ApplyCameraResponse(img, std::nan("")), std::invalid_argument);
+  EXPECT_THROW(FireRenderer(AbsorptionModel::DefaultSoot(), o), InputError);
+  EXPECT_THROW(ApplyCameraResponse(img, 0.0), InputError);
+  EXPECT_THROW(ApplyCameraResponse(img, std::nan("")), InputError);
   // Spectral bins beyond z-bar's end (650 nm): blue transmittance would be 0 / 0.
   o = RenderOptions();
   o.spectral_first_nm = 660;
-  EXPECT_THROW(FireRenderer(AbsorptionModel::DefaultSoot(), o), std::invalid_argument);
+  EXPECT_THROW(FireRenderer(AbsorptionModel::DefaultSoot(), o), InputError);
   // Explicit rays: a valid ray with a zero or NaN direction would march without end.
   std::vector<Ray> rays(4);
   for (Ray& r : rays) r.valid = true;
@@ -364,11 +365,11 @@ TEST(Renderer, DegenerateGridsAndBadInput) {
   try {
     CameraRays(2, 2, rays);
     ADD_FAILURE() << "a zero direction accepted";
-  } catch (const std::invalid_argument& e) {
+  } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("(1, 1)"), std::string::npos) << e.what();
   }
   rays[3].direction_in_rig = Eigen::Vector3d(0, std::nan(""), 1);
-  EXPECT_THROW(CameraRays(2, 2, rays), std::invalid_argument);
+  EXPECT_THROW(CameraRays(2, 2, rays), InputError);
   rays[3].valid = false;  // an invalid ray carries no light: its direction does not matter
   EXPECT_NO_THROW(CameraRays(2, 2, rays));
 }

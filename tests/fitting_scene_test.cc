@@ -11,7 +11,8 @@
 #include <fstream>
 #include <sstream>
 
-#include "acquisition/srgb.h"
+#include "core/error.h"
+#include "core/srgb.h"
 #include "fitting/physics.h"
 #include "fitting/scene.h"
 #include "fitting/tonemap.h"
@@ -184,7 +185,7 @@ TEST(Scene, ReinhardMatchesItsFormula) {
   const ImageU8 b = ToneMapReinhard(bad, o);
   for (auto v : b.pixels) EXPECT_EQ(v, 0);
   o.key = 0;
-  EXPECT_THROW(ToneMapReinhard(image, o), std::invalid_argument);
+  EXPECT_THROW(ToneMapReinhard(image, o), InputError);
 }
 
 // A floor and a sphere lit by a small candle-like fire.
@@ -286,13 +287,13 @@ TEST(Scene, StaysFiniteOverThePhysicalRange) {
   // Degenerate cameras and scenes are refused, naming the field.
   Scene bad = LitScene(8, 8);
   bad.camera.look_at = bad.camera.position;
-  EXPECT_THROW(SceneRenderer{bad}, std::invalid_argument);
+  EXPECT_THROW(SceneRenderer{bad}, InputError);
   bad = LitScene(8, 8);
   bad.fires[0].scale = 0;
-  EXPECT_THROW(SceneRenderer{bad}, std::invalid_argument);
+  EXPECT_THROW(SceneRenderer{bad}, InputError);
   bad = LitScene(8, 8);
   bad.geometry.triangle_material[0] = 7;
-  EXPECT_THROW(SceneRenderer{bad}, std::invalid_argument);
+  EXPECT_THROW(SceneRenderer{bad}, InputError);
 }
 
 fs::path TempDir() {

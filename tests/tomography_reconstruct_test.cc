@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <random>
 
+#include "core/error.h"
 #include "fitting/renderer.h"
 #include "tomography/reconstruct.h"
 #include "tools/synthetic.h"
@@ -376,20 +377,20 @@ TEST(Reconstruct, StressCasesGiveResultsOrClearErrors) {
     try {
       Reconstructor(d.rig, o).Reconstruct(wrong, nullptr);
       FAIL();
-    } catch (const std::invalid_argument& e) {
+    } catch (const InputError& e) {
       EXPECT_NE(std::string(e.what()).find("cam1"), std::string::npos) << e.what();
     }
     EXPECT_THROW(Reconstructor(d.rig, o).Reconstruct(std::vector<ImageU8>(1), nullptr),
-                 std::invalid_argument);
+                 InputError);
     EXPECT_THROW(
         Reconstructor(d.rig, o).Reconstruct(std::vector<ImageU8>(d.images.size()), nullptr),
-        std::invalid_argument);
+        InputError);
     ReconstructOptions bad = o;
     bad.holdout_camera = "nobody";
-    EXPECT_THROW(Reconstructor(d.rig, bad), std::invalid_argument);
+    EXPECT_THROW(Reconstructor(d.rig, bad), InputError);
     bad = o;
     bad.exposure = std::nan("");
-    EXPECT_THROW(Reconstructor(d.rig, bad), std::invalid_argument);
+    EXPECT_THROW(Reconstructor(d.rig, bad), InputError);
   }
   // NaN in linear data.
   {
@@ -400,7 +401,7 @@ TEST(Reconstruct, StressCasesGiveResultsOrClearErrors) {
     try {
       FireVolume v = Reconstructor(d.rig, o).Reconstruct(frames, &s);
       ExpectFinite(v);  // a NaN pixel outside the fire may simply not be used
-    } catch (const std::invalid_argument& e) {
+    } catch (const InputError& e) {
       EXPECT_NE(std::string(e.what()).find("NaN"), std::string::npos) << e.what();
     }
   }

@@ -9,6 +9,7 @@
 #include <memory>
 #include <random>
 
+#include "core/error.h"
 #include "tomography/vdb_io.h"
 #include "tomography/volume.h"
 
@@ -59,9 +60,9 @@ TEST(GridGeometry, FromBoxMakesCubicVoxelsCentredOnTheBox) {
   EXPECT_EQ(g.Flat(1, 0, 0), 1u);
   EXPECT_EQ(g.Flat(0, 1, 0), 32u);
   EXPECT_EQ(g.Flat(0, 0, 1), 32u * 64u);
-  EXPECT_THROW(GridGeometry::FromBox(box, 0), std::invalid_argument);
+  EXPECT_THROW(GridGeometry::FromBox(box, 0), InputError);
   EXPECT_THROW(GridGeometry::FromBox(Box3{box.max_in_rig, box.min_in_rig}, 8),
-               std::invalid_argument);
+               InputError);
   EXPECT_EQ(GridGeometry::FromBox(box, 1).num_voxels(), 1u);
 }
 

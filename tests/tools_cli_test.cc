@@ -9,8 +9,8 @@
 #include <filesystem>
 #include <fstream>
 
-#include "acquisition/image.h"
-#include "acquisition/srgb.h"
+#include "core/image.h"
+#include "core/srgb.h"
 #include "tomography/vdb_io.h"
 
 namespace {

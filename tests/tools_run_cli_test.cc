@@ -13,7 +13,7 @@
 #include <fstream>
 #include <thread>
 
-#include "acquisition/image.h"
+#include "core/image.h"
 #include "tests/run_test_util.h"
 #include "tools/run_mpi.h"
 

@@ -18,6 +18,7 @@
 #include <sstream>
 #include <thread>
 
+#include "core/error.h"
 #include "acquisition/recording.h"
 #include "fitting/physics.h"
 #include "tests/run_test_util.h"
@@ -91,7 +92,7 @@ TEST(RunFrames, SplitsContiguouslyAcrossRanks) {
     EXPECT_EQ(expect, 20u);
   }
   std::size_t b, e;
-  EXPECT_THROW(RankFrames(0, 4, 2, 2, &b, &e), std::invalid_argument);
+  EXPECT_THROW(RankFrames(0, 4, 2, 2, &b, &e), InputError);
 }
 
 TEST(RunFrames, ChangeDetectionSeesALocalChangeAndIgnoresNoise) {
@@ -118,7 +119,7 @@ TEST(RunFrames, ChangeDetectionSeesALocalChangeAndIgnoresNoise) {
     for (int x = 75; x < 79; ++x) b.at(x, y, 0) = 30;
   const ImageChange changed = CompareImages(a1, noisy(b), options);
   EXPECT_GT(changed.changed_fraction, options.max_changed_fraction);
-  EXPECT_THROW(CompareImages(a, ImageU8(10, 10, 3), options), std::invalid_argument);
+  EXPECT_THROW(CompareImages(a, ImageU8(10, 10, 3), options), InputError);
 }
 
 TEST(RunFrames, ReconstructorStateResumesBitExactly) {
@@ -363,7 +364,7 @@ TEST(RunFrames, RecordingsWithDropsAndCorruptionAreReportedPerFrame) {
   try {
     FrameSource s(o.source, renamed);
     ADD_FAILURE() << "a camera the recording lacks was accepted";
-  } catch (const std::invalid_argument& e) {
+  } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("no camera named side"), std::string::npos) << e.what();
   }
   const fs::path bad = dir / "bad" / "frame_000000";
@@ -376,7 +377,7 @@ TEST(RunFrames, RecordingsWithDropsAndCorruptionAreReportedPerFrame) {
   try {
     wrong.Read(0, 1.0);
     ADD_FAILURE() << "a wrongly sized image was accepted";
-  } catch (const std::invalid_argument& e) {
+  } catch (const InputError& e) {
     const std::string m = e.what();
     EXPECT_NE(m.find("64x48"), std::string::npos) << m;
     EXPECT_NE(m.find("120x90"), std::string::npos) << m;

@@ -5,6 +5,7 @@
 #include <opencv2/aruco/charuco.hpp>
 #include <opencv2/calib3d.hpp>
 
+#include "core/error.h"
 #include "fitting/colour.h"
 #include "fitting/renderer.h"
 #include "tomography/vdb_io.h"
@@ -120,7 +121,7 @@ TEST(Ring, CamerasLookAtTheBoxCentre) {
   Eigen::Vector3d b = pair.cameras[1].model.center_in_rig() - kBox.center();
   EXPECT_NEAR(a.normalized().dot(b.normalized()), 0.0, 1e-12);
   o.distance_m = 0.01;
-  EXPECT_THROW(MakeRingRig(kBox, o), std::invalid_argument);
+  EXPECT_THROW(MakeRingRig(kBox, o), InputError);
 }
 
 // A rendered chessboard is found by OpenCV where the board's true corners project.

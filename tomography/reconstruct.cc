@@ -15,7 +15,9 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "acquisition/srgb.h"
+#include "core/atomic_file.h"
+#include "core/error.h"
+#include "core/srgb.h"
 #include "tomography/ray_march.h"
 
 namespace flamerig {
@@ -87,7 +89,7 @@ std::string HexKey(std::uint64_t key) {
 
 void ReconstructOptions::Validate() const {
   auto fail = [](const std::string& what) {
-    throw std::invalid_argument("ReconstructOptions." + what);
+    throw InputError("ReconstructOptions." + what);
   };
   if (resolution < 1 || resolution > 1024) fail("resolution must be in [1, 1024]");
   if (!(exposure > 0) || !std::isfinite(exposure)) fail("exposure must be finite and > 0");
@@ -137,13 +139,13 @@ struct Reconstructor::Level {
 Reconstructor::Reconstructor(const Rig& rig, const ReconstructOptions& options)
     : rig_(rig), options_(options) {
   options_.Validate();
-  if (rig_.cameras.empty()) throw std::invalid_argument("Reconstructor: the rig has no cameras");
+  if (rig_.cameras.empty()) throw InputError("Reconstructor: the rig has no cameras");
   grid_ = GridGeometry::FromBox(rig_.box, options_.resolution);
   for (const auto& c : rig_.cameras) rays_.push_back(std::make_unique<CameraRays>(c.model));
   if (!options_.holdout_camera.empty()) {
     holdout_index_ = rig_.FindCamera(options_.holdout_camera);
     if (holdout_index_ < 0) {
-      throw std::invalid_argument("ReconstructOptions.holdout_camera: no camera named '" +
+      throw InputError("ReconstructOptions.holdout_camera: no camera named '" +
                                   options_.holdout_camera + "' in rig '" + rig_.name + "'");
     }
   }
@@ -164,7 +166,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<ImageU8>& images,
                                       ReconstructSummary* summary, const FireVolume* warm_start) {
   const auto start = Clock::now();
   if (images.size() != rig_.cameras.size()) {
-    throw std::invalid_argument("reconstruct: " + std::to_string(images.size()) + " images for " +
+    throw InputError("reconstruct: " + std::to_string(images.size()) + " images for " +
                                 std::to_string(rig_.cameras.size()) + " cameras of rig '" +
                                 rig_.name + "'");
   }
@@ -173,8 +175,8 @@ FireVolume Reconstructor::Reconstruct(const std::vector<ImageU8>& images,
     if (images[c].empty()) continue;
     try {
       frames[c] = DecodeSrgb8(images[c], options_.exposure);
-    } catch (const std::invalid_argument& e) {
-      throw std::invalid_argument("camera '" + rig_.cameras[c].name + "': " + e.what());
+    } catch (const InputError& e) {
+      throw InputError("camera '" + rig_.cameras[c].name + "': " + e.what());
     }
   }
   const double decode_ms = Ms(start);
@@ -193,7 +195,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
   ReconstructSummary summary;
   summary.grid = grid_;
   if (frames.size() != rig_.cameras.size()) {
-    throw std::invalid_argument("reconstruct: " + std::to_string(frames.size()) + " frames for " +
+    throw InputError("reconstruct: " + std::to_string(frames.size()) + " frames for " +
                                 std::to_string(rig_.cameras.size()) + " cameras");
   }
   // Cameras taking part in the solve.
@@ -206,7 +208,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     }
     if (frames[c].radiance.width != cam.model.width() ||
         frames[c].radiance.height != cam.model.height()) {
-      throw std::invalid_argument(
+      throw InputError(
           "camera '" + cam.name + "': frame is " + std::to_string(frames[c].radiance.width) + "x" +
           std::to_string(frames[c].radiance.height) + ", its model's imager is " +
           std::to_string(cam.model.width()) + "x" + std::to_string(cam.model.height()));
@@ -215,7 +217,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     solve_cameras.push_back(static_cast<int>(c));
   }
   if (solve_cameras.empty()) {
-    throw std::invalid_argument("reconstruct: no camera with a usable frame to reconstruct from");
+    throw InputError("reconstruct: no camera with a usable frame to reconstruct from");
   }
   const bool use_holdout = holdout_index_ >= 0 && !frames[holdout_index_].radiance.empty();
   if (use_holdout) summary.holdout_camera = rig_.cameras[holdout_index_].name;
@@ -438,7 +440,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
 ImageF RenderThinEmission(const GridGeometry& grid, const std::vector<float>& emission_rgb,
                           const CameraRays& rays, double step_voxels) {
   if (emission_rgb.size() != grid.num_voxels() * 3) {
-    throw std::invalid_argument("RenderThinEmission: emission needs 3 values per voxel");
+    throw InputError("RenderThinEmission: emission needs 3 values per voxel");
   }
   ImageF image(rays.width(), rays.height(), 3, 0.0f);
   const double step_m = step_voxels * grid.voxel_size_m.minCoeff();
@@ -473,7 +475,7 @@ std::vector<float> ResampleEmission(const GridGeometry& from,
                                     const std::vector<float>& emission_rgb,
                                     const GridGeometry& to) {
   if (emission_rgb.size() != from.num_voxels() * 3) {
-    throw std::invalid_argument(
+    throw InputError(
         "ResampleEmission: emission needs 3 values per voxel of the source grid");
   }
   std::vector<float> out(to.num_voxels() * 3, 0.0f);
@@ -554,7 +556,7 @@ class StateReader {
     return mask;
   }
   [[noreturn]] void Fail(const std::string& what) const {
-    throw std::runtime_error(path_ + ": reconstructor state is corrupt (" + what + " at byte " +
+    throw DataError(path_ + ": reconstructor state is corrupt (" + what + " at byte " +
                              std::to_string(at_) + ")");
   }
 
@@ -650,39 +652,27 @@ void Reconstructor::SaveState(const std::string& path) const {
       crc32_z(0, reinterpret_cast<const Bytef*>(bytes.data()), bytes.size()));
   const char* p = reinterpret_cast<const char*>(&crc);
   bytes.insert(bytes.end(), p, p + sizeof crc);
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-    out.close();
-    if (!out) {
-      std::filesystem::remove(tmp);
-      throw std::runtime_error(path + ": cannot write the reconstructor state (disk full?)");
-    }
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) throw std::runtime_error(path + ": " + ec.message());
+  WriteFileAtomically(path, std::string_view(bytes.data(), bytes.size()));
 }
 
 void Reconstructor::LoadState(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
-  if (!in) throw std::runtime_error(path + ": cannot read the reconstructor state");
+  if (!in) throw IoError(path + ": cannot read the reconstructor state");
   std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   if (bytes.size() < 4 + 4 + 8 + 4)
-    throw std::runtime_error(path + ": reconstructor state is truncated");
+    throw DataError(path + ": reconstructor state is truncated");
   std::uint32_t crc;
   std::memcpy(&crc, bytes.data() + bytes.size() - 4, 4);
   bytes.resize(bytes.size() - 4);
   if (crc != static_cast<std::uint32_t>(
                  crc32_z(0, reinterpret_cast<const Bytef*>(bytes.data()), bytes.size())))
-    throw std::runtime_error(path + ": reconstructor state fails its checksum");
+    throw DataError(path + ": reconstructor state fails its checksum");
   StateReader r(bytes, path);
   for (char c : kStateMagic)
     if (r.Value<char>() != c) r.Fail("not a reconstructor state file");
   if (r.Value<std::uint32_t>() != kStateVersion) r.Fail("unknown version");
   if (r.Value<std::uint64_t>() != state_key_)
-    throw std::runtime_error(path +
+    throw InputError(path +
                              ": reconstructor state was saved for another rig, grid or options");
   for (Level* level : {fine_.get(), coarse_.get()}) {
     const bool has = r.Value<std::uint8_t>() != 0;

@@ -6,6 +6,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "core/error.h"
+
 namespace flamerig {
 
 const char* ToString(TomographySolver solver) {
@@ -15,7 +17,7 @@ const char* ToString(TomographySolver solver) {
 TomographySolver TomographySolverFromName(const std::string& name) {
   if (name == "sart") return TomographySolver::kSart;
   if (name == "cgls") return TomographySolver::kCgls;
-  throw std::invalid_argument("solver '" + name + "' is unknown; use 'sart' or 'cgls'");
+  throw InputError("solver '" + name + "' is unknown; use 'sart' or 'cgls'");
 }
 
 const char* ToString(SolveStop stop) {
@@ -35,7 +37,7 @@ const char* ToString(SolveStop stop) {
 }
 
 void SolveOptions::Validate() const {
-  auto fail = [](const std::string& what) { throw std::invalid_argument("SolveOptions." + what); };
+  auto fail = [](const std::string& what) { throw InputError("SolveOptions." + what); };
   if (max_iterations < 1 || max_iterations > 100000) fail("max_iterations must be in [1, 100000]");
   if (!(relaxation > 0) || !(relaxation < 2)) fail("relaxation must be in (0, 2)");
   if (!(noise_sigma >= 0) || !std::isfinite(noise_sigma))
@@ -89,13 +91,13 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
                              const SolveProgress& progress) {
   const auto start = std::chrono::steady_clock::now();
   options.Validate();
-  if (problem.a == nullptr) throw std::invalid_argument("SolveTomography: no system matrix");
+  if (problem.a == nullptr) throw InputError("SolveTomography: no system matrix");
   const SystemMatrix& a = *problem.a;
   const std::vector<float>& b = problem.b;
   const std::vector<std::uint8_t>& lower_bound_rows = problem.lower_bound_rows;
   const std::vector<std::uint8_t>& active = problem.active_cols;
   if (!active.empty() && active.size() != a.cols()) {
-    throw std::invalid_argument("SolveTomography: active_cols needs one value per column");
+    throw InputError("SolveTomography: active_cols needs one value per column");
   }
   auto pin = [&](std::vector<float>* v) {
     if (active.empty()) return;
@@ -105,9 +107,9 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
   };
   const std::size_t m = a.rows(), n = a.cols();
   if (b.size() != m * kChannels)
-    throw std::invalid_argument("SolveTomography: b needs rows * 3 values");
+    throw InputError("SolveTomography: b needs rows * 3 values");
   if (!lower_bound_rows.empty() && lower_bound_rows.size() != m) {
-    throw std::invalid_argument("SolveTomography: lower_bound_rows needs one value per row");
+    throw InputError("SolveTomography: lower_bound_rows needs one value per row");
   }
   if (x->size() != n * kChannels) x->assign(n * kChannels, 0.0f);
   for (float& v : *x) {
@@ -124,7 +126,7 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
   double data_sum = 0;
   for (float v : b) {
     if (!std::isfinite(v))
-      throw std::invalid_argument("SolveTomography: the data contain NaN or Inf");
+      throw InputError("SolveTomography: the data contain NaN or Inf");
     data_sum += double(v) * v;
   }
   summary.data_rms = std::sqrt(data_sum / b.size());

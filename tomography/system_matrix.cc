@@ -10,13 +10,15 @@
 #include <fstream>
 #include <stdexcept>
 
+#include "core/atomic_file.h"
+#include "core/error.h"
 #include "tomography/ray_march.h"
 
 namespace flamerig {
 
 void SystemMatrixOptions::Validate() const {
   if (!(step_voxels >= 0.01) || !(step_voxels <= 0.5)) {
-    throw std::invalid_argument("SystemMatrixOptions.step_voxels = " + std::to_string(step_voxels) +
+    throw InputError("SystemMatrixOptions.step_voxels = " + std::to_string(step_voxels) +
                                 ": must be in [0.01, 0.5] (samples at most half a voxel apart, "
                                 "at most 100 per voxel)");
   }
@@ -79,9 +81,9 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
   options.Validate();
   grid.Validate();
   if (pixel_used.size() != cameras.size())
-    throw std::invalid_argument("SystemMatrix: one pixel mask per camera");
+    throw InputError("SystemMatrix: one pixel mask per camera");
   if (voxel_used.size() != grid.num_voxels())
-    throw std::invalid_argument("SystemMatrix: voxel mask size");
+    throw InputError("SystemMatrix: voxel mask size");
   SystemMatrix m;
   m.key_ = Key(grid, cameras, pixel_used, voxel_used, options);
 
@@ -97,7 +99,7 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
   for (std::size_t c = 0; c < cameras.size(); ++c) {
     const std::size_t n = static_cast<std::size_t>(cameras[c]->width()) * cameras[c]->height();
     if (pixel_used[c].size() != n)
-      throw std::invalid_argument("SystemMatrix: pixel mask size of camera " + std::to_string(c));
+      throw InputError("SystemMatrix: pixel mask size of camera " + std::to_string(c));
     for (std::size_t p = 0; p < n; ++p)
       if (pixel_used[c][p])
         candidates.emplace_back(static_cast<std::int32_t>(c), static_cast<std::int32_t>(p));
@@ -272,7 +274,7 @@ void MultiplyRowsKernel(const std::int64_t* row_ptr, const std::uint32_t* cols, 
 void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float* x, float* y,
                                 int channels) const {
   if (channels < 1 || channels > 4)
-    throw std::invalid_argument("SystemMatrix: 1 to 4 channels, not " + std::to_string(channels));
+    throw InputError("SystemMatrix: 1 to 4 channels, not " + std::to_string(channels));
   last = std::min(last, rows());
   if (first >= last) return;
   if (channels == 3) {
@@ -333,27 +335,20 @@ bool ReadVector(std::ifstream& in, std::vector<T>* v, std::uint64_t remaining_by
 }  // namespace
 
 void SystemMatrix::Save(const std::string& path) const {
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    if (!out) throw std::runtime_error(path + ": cannot write the system matrix cache");
-    out.write(kMagic, sizeof(kMagic));
-    out.write(reinterpret_cast<const char*>(&key_), sizeof(key_));
-    WriteVector(out, row_ptr_);
-    WriteVector(out, cols_);
-    WriteVector(out, values_);
-    WriteVector(out, row_camera_);
-    WriteVector(out, row_pixel_);
-    WriteVector(out, col_voxel_);
-    out.close();
-    if (!out) {
-      std::filesystem::remove(tmp);
-      throw std::runtime_error(path + ": writing the system matrix cache failed (disk full?)");
-    }
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) throw std::runtime_error(path + ": " + ec.message());
+  AtomicFile file(path);
+  std::ofstream out(file.temp_path(), std::ios::binary | std::ios::trunc);
+  if (!out) throw IoError(path + ": cannot write the system matrix cache");
+  out.write(kMagic, sizeof(kMagic));
+  out.write(reinterpret_cast<const char*>(&key_), sizeof(key_));
+  WriteVector(out, row_ptr_);
+  WriteVector(out, cols_);
+  WriteVector(out, values_);
+  WriteVector(out, row_camera_);
+  WriteVector(out, row_pixel_);
+  WriteVector(out, col_voxel_);
+  out.close();
+  if (!out) throw IoError(path + ": writing the system matrix cache failed (disk full?)");
+  file.Commit();
 }
 
 bool SystemMatrix::Load(const std::string& path, std::uint64_t expected_key) {

@@ -28,6 +28,7 @@
 #include <utility>
 #include <vector>
 
+#include "core/error.h"
 #include "calibration/camera_rays.h"
 #include "tomography/volume.h"
 
@@ -131,7 +132,7 @@ template <typename Visit>
 void SystemMatrix::BackprojectRows(std::size_t first, std::size_t last, const float* y,
                                    int channels, Visit&& visit) const {
   if (channels < 1 || channels > 4)
-    throw std::invalid_argument("SystemMatrix: 1 to 4 channels, not " + std::to_string(channels));
+    throw InputError("SystemMatrix: 1 to 4 channels, not " + std::to_string(channels));
   const std::size_t n = cols(), stride = n + 1;
   // Subsets overlapping [first, last); a subset wholly inside needs no row filtering.
   std::vector<std::size_t> parts;

@@ -7,6 +7,9 @@
 #include <mutex>
 #include <stdexcept>
 
+#include "core/atomic_file.h"
+#include "core/error.h"
+
 namespace flamerig {
 namespace {
 
@@ -50,18 +53,18 @@ openvdb::FloatGrid::Ptr MakeFloatGrid(const GridGeometry& g, const std::vector<f
 GridGeometry GeometryOf(const openvdb::GridBase& grid, const std::string& path) {
   const openvdb::math::Transform& xf = grid.transform();
   if (!xf.isLinear())
-    throw std::runtime_error(path + ": grid '" + grid.getName() + "' has a non-linear transform");
+    throw DataError(path + ": grid '" + grid.getName() + "' has a non-linear transform");
   openvdb::math::Mat4d m = xf.baseMap()->getAffineMap()->getMat4();
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c)
       if (r != c && std::abs(m(r, c)) > 1e-12 * std::abs(m(r, r))) {
-        throw std::runtime_error(path + ": grid '" + grid.getName() +
+        throw DataError(path + ": grid '" + grid.getName() +
                                  "' is rotated or sheared; only axis-aligned grids are supported");
       }
   GridGeometry g;
   for (int a = 0; a < 3; ++a) g.voxel_size_m[a] = m(a, a);
   if ((g.voxel_size_m.array() <= 0).any()) {
-    throw std::runtime_error(path + ": grid '" + grid.getName() +
+    throw DataError(path + ": grid '" + grid.getName() +
                              "' has a non-positive voxel size");
   }
   openvdb::Vec3d t = m.getTranslation();
@@ -74,13 +77,13 @@ GridGeometry GeometryOf(const openvdb::GridBase& grid, const std::string& path) 
   } else {
     openvdb::CoordBBox bbox = grid.evalActiveVoxelBoundingBox();
     if (bbox.empty())
-      throw std::runtime_error(path + ": grid '" + grid.getName() + "' has no active voxels");
+      throw DataError(path + ": grid '" + grid.getName() + "' has no active voxels");
     lo = bbox.min();
     openvdb::Coord ext = bbox.dim();
     g.dims = Eigen::Vector3i(ext.x(), ext.y(), ext.z());
   }
   if ((g.dims.array() < 1).any() || g.num_voxels() > (std::size_t(1) << 31)) {
-    throw std::runtime_error(path + ": grid '" + grid.getName() + "' has unusable dimensions");
+    throw DataError(path + ": grid '" + grid.getName() + "' has unusable dimensions");
   }
   Eigen::Vector3d lo_d(lo.x(), lo.y(), lo.z());
   g.origin_in_rig = center0 + lo_d.cwiseProduct(g.voxel_size_m) - 0.5 * g.voxel_size_m;
@@ -98,7 +101,7 @@ void WriteVdb(const std::string& path, const FireVolume& volume) {
   volume.Validate();
   if (volume.temperature_k.empty() && volume.density_per_m3.empty() &&
       volume.emission_rgb.empty()) {
-    throw std::invalid_argument(path + ": the volume has no field to write");
+    throw InputError(path + ": the volume has no field to write");
   }
   InitializeOpenVdb();
   const GridGeometry& g = volume.geometry;
@@ -129,24 +132,20 @@ void WriteVdb(const std::string& path, const FireVolume& volume) {
   for (const auto& [key, value] : volume.metadata_text)
     meta.insertMeta(key, openvdb::StringMetadata(value));
 
-  std::string tmp = path + ".tmp";
+  AtomicFile out(path);
   try {
-    openvdb::io::File file(tmp);
+    openvdb::io::File file(out.temp_path());
     file.write(grids, meta);
     file.close();
   } catch (const openvdb::Exception& e) {
-    std::filesystem::remove(tmp);
-    throw std::runtime_error(path + ": cannot write VDB: " + e.what());
+    throw IoError(path + ": cannot write VDB: " + e.what());
   }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec)
-    throw std::runtime_error(path + ": cannot move the written file into place: " + ec.message());
+  out.Commit();
 }
 
 FireVolume ReadVdb(const std::string& path) {
   InitializeOpenVdb();
-  if (!std::filesystem::exists(path)) throw std::runtime_error(path + ": no such file");
+  if (!std::filesystem::exists(path)) throw InputError(path + ": no such file");
   FireVolume volume;
   openvdb::GridPtrVecPtr grids;
   openvdb::MetaMap::Ptr meta;
@@ -160,13 +159,13 @@ FireVolume ReadVdb(const std::string& path) {
     meta = file.getMetadata();
     file.close();
   } catch (const openvdb::Exception& e) {
-    throw std::runtime_error(path + ": not a readable VDB file: " + e.what());
+    throw DataError(path + ": not a readable VDB file: " + e.what());
   } catch (const std::bad_alloc&) {
     // OpenVDB trusts the sizes a file states (found by fuzzing: a damaged name length asked for
     // gigabytes); when the allocation fails, say which file.
-    throw std::runtime_error(path + ": not a readable VDB file: it states sizes it cannot have");
+    throw DataError(path + ": not a readable VDB file: it states sizes it cannot have");
   } catch (const std::exception& e) {
-    throw std::runtime_error(path + ": not a readable VDB file: " + e.what());
+    throw DataError(path + ": not a readable VDB file: " + e.what());
   }
   bool have_geometry = false;
   auto adopt_geometry = [&](const openvdb::GridBase& grid) {
@@ -177,7 +176,7 @@ FireVolume ReadVdb(const std::string& path) {
     } else if (!(g.dims == volume.geometry.dims) ||
                !g.origin_in_rig.isApprox(volume.geometry.origin_in_rig, 1e-9) ||
                !g.voxel_size_m.isApprox(volume.geometry.voxel_size_m, 1e-12)) {
-      throw std::runtime_error(path + ": grid '" + grid.getName() +
+      throw DataError(path + ": grid '" + grid.getName() +
                                "' does not share the lattice of the other grids");
     }
   };
@@ -203,11 +202,11 @@ FireVolume ReadVdb(const std::string& path) {
     const std::string name = base->getName();
     if (name == "temperature" || name == "density") {
       auto grid = openvdb::gridConstPtrCast<openvdb::FloatGrid>(base);
-      if (!grid) throw std::runtime_error(path + ": grid '" + name + "' is not a float grid");
+      if (!grid) throw DataError(path + ": grid '" + name + "' is not a float grid");
       read_float(*grid, name == "temperature" ? volume.temperature_k : volume.density_per_m3);
     } else if (name == "emission") {
       auto grid = openvdb::gridConstPtrCast<openvdb::Vec3SGrid>(base);
-      if (!grid) throw std::runtime_error(path + ": grid 'emission' is not a Vec3s grid");
+      if (!grid) throw DataError(path + ": grid 'emission' is not a Vec3s grid");
       adopt_geometry(*grid);
       const GridGeometry& g = volume.geometry;
       openvdb::Coord off = OffsetOf(*grid);
@@ -229,7 +228,7 @@ FireVolume ReadVdb(const std::string& path) {
     }
   }
   if (!have_geometry) {
-    throw std::runtime_error(path + ": no grid named temperature, density or emission");
+    throw DataError(path + ": no grid named temperature, density or emission");
   }
   if (meta) {
     for (auto it = meta->beginMeta(); it != meta->endMeta(); ++it) {
@@ -242,8 +241,8 @@ FireVolume ReadVdb(const std::string& path) {
   }
   try {
     volume.Validate();
-  } catch (const std::invalid_argument& e) {
-    throw std::runtime_error(path + ": " + e.what());
+  } catch (const InputError& e) {
+    throw DataError(path + ": " + e.what());
   }
   return volume;
 }

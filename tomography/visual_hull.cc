@@ -9,17 +9,18 @@
 #include <cmath>
 #include <stdexcept>
 
-#include "acquisition/srgb.h"
+#include "core/error.h"
+#include "core/srgb.h"
 
 namespace flamerig {
 
 LinearFrame DecodeSrgb8(const ImageU8& image, double exposure) {
   if (!(exposure > 0) || !std::isfinite(exposure)) {
-    throw std::invalid_argument("exposure = " + std::to_string(exposure) +
+    throw InputError("exposure = " + std::to_string(exposure) +
                                 " must be finite and > 0");
   }
   if (image.channels != 1 && image.channels != 3) {
-    throw std::invalid_argument("an 8-bit frame must have 1 or 3 channels, not " +
+    throw InputError("an 8-bit frame must have 1 or 3 channels, not " +
                                 std::to_string(image.channels));
   }
   const auto& table = SrgbU8ToLinearTable();
@@ -39,12 +40,12 @@ LinearFrame DecodeSrgb8(const ImageU8& image, double exposure) {
 
 LinearFrame DecodeLinear16(const ImageU16& image, double exposure, double white) {
   if (!(exposure > 0) || !std::isfinite(exposure)) {
-    throw std::invalid_argument("exposure = " + std::to_string(exposure) +
+    throw InputError("exposure = " + std::to_string(exposure) +
                                 " must be finite and > 0");
   }
-  if (!(white > 0)) throw std::invalid_argument("white level must be > 0");
+  if (!(white > 0)) throw InputError("white level must be > 0");
   if (image.channels != 1 && image.channels != 3) {
-    throw std::invalid_argument("a 16-bit frame must have 1 or 3 channels");
+    throw InputError("a 16-bit frame must have 1 or 3 channels");
   }
   LinearFrame f;
   f.radiance = ImageF(image.width, image.height, 3);
@@ -62,7 +63,7 @@ LinearFrame DecodeLinear16(const ImageU16& image, double exposure, double white)
 
 void VisualHullOptions::Validate() const {
   auto fail = [](const std::string& what) {
-    throw std::invalid_argument("VisualHullOptions." + what);
+    throw InputError("VisualHullOptions." + what);
   };
   if (!(noise_sigma >= 0) || !std::isfinite(noise_sigma))
     fail("noise_sigma must be finite and >= 0");
@@ -127,7 +128,7 @@ FireMask ComputeFireMask(const GridGeometry& grid, const RigCamera& camera, cons
                          const VisualHullOptions& options) {
   const CameraModel& cam = camera.model;
   if (f.radiance.width != cam.width() || f.radiance.height != cam.height()) {
-    throw std::invalid_argument(
+    throw InputError(
         "camera '" + camera.name + "': frame is " + std::to_string(f.radiance.width) + "x" +
         std::to_string(f.radiance.height) + ", the camera model's imager is " +
         std::to_string(cam.width()) + "x" + std::to_string(cam.height()));
@@ -209,11 +210,11 @@ VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCame
     const std::size_t k =
         projection_index.empty() ? c : static_cast<std::size_t>(projection_index[c]);
     if (k >= projections.pixel.size())
-      throw std::invalid_argument("visual hull: no projections for camera " + cameras[c].name);
+      throw InputError("visual hull: no projections for camera " + cameras[c].name);
     table[c] = &projections.pixel[k];
   }
   if (cameras.size() != frames.size()) {
-    throw std::invalid_argument("visual hull: " + std::to_string(frames.size()) + " frames for " +
+    throw InputError("visual hull: " + std::to_string(frames.size()) + " frames for " +
                                 std::to_string(cameras.size()) + " cameras");
   }
   const std::size_t ncam = cameras.size();
@@ -236,7 +237,7 @@ VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCame
   std::size_t inside = 0;
   for (std::size_t c = 0; c < ncam; ++c) {
     if (table[c]->size() != grid.num_voxels()) {
-      throw std::invalid_argument("visual hull: projections of camera '" + cameras[c].name +
+      throw InputError("visual hull: projections of camera '" + cameras[c].name +
                                   "' do not match the grid");
     }
   }

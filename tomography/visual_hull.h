@@ -18,7 +18,7 @@
 #include <string>
 #include <vector>
 
-#include "acquisition/image.h"
+#include "core/image.h"
 #include "calibration/rig.h"
 #include "tomography/volume.h"
 

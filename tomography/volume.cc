@@ -3,12 +3,14 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "core/error.h"
+
 namespace flamerig {
 
 GridGeometry GridGeometry::FromBox(const Box3& box, int resolution) {
-  if (!box.IsValid()) throw std::invalid_argument("grid box: max must exceed min on every axis");
+  if (!box.IsValid()) throw InputError("grid box: max must exceed min on every axis");
   if (resolution < 1) {
-    throw std::invalid_argument("grid resolution " + std::to_string(resolution) + " must be >= 1");
+    throw InputError("grid resolution " + std::to_string(resolution) + " must be >= 1");
   }
   Eigen::Vector3d size = box.size();
   double voxel = size.maxCoeff() / resolution;
@@ -22,8 +24,8 @@ GridGeometry GridGeometry::FromBox(const Box3& box, int resolution) {
 }
 
 GridGeometry GridGeometry::FromBoxAndDims(const Box3& box, const Eigen::Vector3i& dims) {
-  if (!box.IsValid()) throw std::invalid_argument("grid box: max must exceed min on every axis");
-  if ((dims.array() < 1).any()) throw std::invalid_argument("grid dims must all be >= 1");
+  if (!box.IsValid()) throw InputError("grid box: max must exceed min on every axis");
+  if ((dims.array() < 1).any()) throw InputError("grid dims must all be >= 1");
   GridGeometry g;
   g.dims = dims;
   g.origin_in_rig = box.min_in_rig;
@@ -32,10 +34,10 @@ GridGeometry GridGeometry::FromBoxAndDims(const Box3& box, const Eigen::Vector3i
 }
 
 void GridGeometry::Validate() const {
-  if ((dims.array() < 1).any()) throw std::invalid_argument("grid dims must all be >= 1");
-  if (!origin_in_rig.allFinite()) throw std::invalid_argument("grid origin_in_rig is not finite");
+  if ((dims.array() < 1).any()) throw InputError("grid dims must all be >= 1");
+  if (!origin_in_rig.allFinite()) throw InputError("grid origin_in_rig is not finite");
   if (!voxel_size_m.allFinite() || (voxel_size_m.array() <= 0).any()) {
-    throw std::invalid_argument("grid voxel_size_m must be finite and positive");
+    throw InputError("grid voxel_size_m must be finite and positive");
   }
 }
 
@@ -45,7 +47,7 @@ void CheckField(const GridGeometry& g, const std::vector<float>& values, int cha
                 const char* name, bool allow_negative) {
   if (values.empty()) return;
   if (values.size() != g.num_voxels() * channels) {
-    throw std::invalid_argument(std::string("field '") + name + "' has " +
+    throw InputError(std::string("field '") + name + "' has " +
                                 std::to_string(values.size()) + " values, expected " +
                                 std::to_string(g.num_voxels() * channels));
   }
@@ -56,7 +58,7 @@ void CheckField(const GridGeometry& g, const std::vector<float>& values, int cha
       int i = static_cast<int>(flat % g.dims.x());
       int j = static_cast<int>((flat / g.dims.x()) % g.dims.y());
       int k = static_cast<int>(flat / (static_cast<std::size_t>(g.dims.x()) * g.dims.y()));
-      throw std::invalid_argument(
+      throw InputError(
           std::string("field '") + name + "' at voxel (" + std::to_string(i) + ", " +
           std::to_string(j) + ", " + std::to_string(k) + ") is " + std::to_string(v) +
           (allow_negative ? "; values must be finite" : "; values must be finite and >= 0"));

@@ -13,6 +13,7 @@
 #include <stdexcept>
 #include <thread>
 
+#include "core/error.h"
 #include "fitting/colour.h"
 #include "fitting/fit.h"
 #include "fitting/renderer.h"
@@ -408,7 +409,7 @@ void WriteBenchmarkSection(const std::string& path, const std::string& name,
     content += "\n" + block + "\n";
   }
   std::ofstream out(path, std::ios::trunc);
-  if (!out) throw std::runtime_error(path + ": cannot write");
+  if (!out) throw IoError(path + ": cannot write");
   out << content;
 }
 

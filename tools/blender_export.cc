@@ -8,6 +8,8 @@
 #include <mutex>
 #include <stdexcept>
 
+#include "core/atomic_file.h"
+#include "core/error.h"
 #include "fitting/fit.h"
 
 namespace flamerig {
@@ -59,7 +61,7 @@ BlenderGrids MakeBlenderGrids(const FireVolume& fitted, const AbsorptionModel& a
   const GridGeometry& g = fitted.geometry;
   const std::size_t n = g.num_voxels();
   if (fitted.temperature_k.size() != n || fitted.density_per_m3.size() != n)
-    throw std::invalid_argument("Blender export: the volume needs temperature and density grids");
+    throw InputError("Blender export: the volume needs temperature and density grids");
   BlenderGrids out;
   out.density_per_m.assign(n, 0.0f);
   out.temperature_k.assign(n, 0.0f);
@@ -122,18 +124,15 @@ void WriteBlenderVdb(const std::string& path, const FireVolume& fitted,
       meta.insertMeta(key, openvdb::DoubleMetadata(it->second));
   }
   meta.insertMeta("absorption_model", openvdb::StringMetadata(absorption.name()));
-  const std::string tmp = path + ".tmp";
+  AtomicFile out(path);
   try {
-    openvdb::io::File file(tmp);
+    openvdb::io::File file(out.temp_path());
     file.write(grids, meta);
     file.close();
   } catch (const openvdb::Exception& e) {
-    std::filesystem::remove(tmp);
-    throw std::runtime_error(path + ": cannot write VDB: " + e.what());
+    throw IoError(path + ": cannot write VDB: " + e.what());
   }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) throw std::runtime_error(path + ": " + ec.message());
+  out.Commit();
 }
 
 }  // namespace flamerig

@@ -10,7 +10,8 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
-#include "acquisition/config_reader.h"
+#include "core/error.h"
+#include "core/config_reader.h"
 
 namespace flamerig {
 
@@ -20,11 +21,11 @@ namespace {
 
 Eigen::Vector3d ReadVector3(const YAML::Node& node, const std::string& where) {
   if (!node || !node.IsSequence() || node.size() != 3)
-    throw std::invalid_argument(where + " must be [x, y, z]");
+    throw InputError(where + " must be [x, y, z]");
   try {
     return Eigen::Vector3d(node[0].as<double>(), node[1].as<double>(), node[2].as<double>());
   } catch (const YAML::Exception&) {
-    throw std::invalid_argument(where + " must hold three numbers");
+    throw InputError(where + " must hold three numbers");
   }
 }
 
@@ -50,10 +51,10 @@ CalibrateConfig CalibrateConfig::Load(const std::string& path) {
   try {
     root = YAML::LoadFile(path);
   } catch (const YAML::Exception& e) {
-    throw std::invalid_argument(path + ": cannot read the calibration config: " + e.what());
+    throw InputError(path + ": cannot read the calibration config: " + e.what());
   }
   if (!root["calibrate"] || !root["calibrate"].IsMap())
-    throw std::invalid_argument(path + ": needs a 'calibrate:' map");
+    throw InputError(path + ": needs a 'calibrate:' map");
   const YAML::Node node = root["calibrate"];
   const std::string where = path + ": calibrate";
   ConfigReader r(node, where);
@@ -65,7 +66,7 @@ CalibrateConfig CalibrateConfig::Load(const std::string& path) {
   if (node["ring_origin"])
     c.options.ring_origin_m = ReadVector3(node["ring_origin"], where + ".ring_origin");
   if (node["board"] && node["board_file"])
-    throw std::invalid_argument(where + ": give 'board' or 'board_file', not both");
+    throw InputError(where + ": give 'board' or 'board_file', not both");
   if (node["board"]) c.board = ParseBoardSpec(node["board"], where + ".board");
   if (node["board_file"]) {
     fs::path f = node["board_file"].as<std::string>();
@@ -73,7 +74,7 @@ CalibrateConfig CalibrateConfig::Load(const std::string& path) {
     try {
       c.board = LoadBoardSpec(f.string());
     } catch (const std::exception& ex) {
-      throw std::invalid_argument(where + ".board_file: " + ex.what());
+      throw InputError(where + ".board_file: " + ex.what());
     }
   }
   c.cameras = r.Get<std::vector<std::string>>("cameras", {});
@@ -87,7 +88,7 @@ CalibrateConfig CalibrateConfig::Load(const std::string& path) {
   else if (frame == "first-camera")
     c.options.frame = RigFrame::kFirstCamera;
   else
-    throw std::invalid_argument(where + ": 'frame' must be ring or first-camera, not '" + frame +
+    throw InputError(where + ": 'frame' must be ring or first-camera, not '" + frame +
                                 "'");
   c.options.rig_name = r.Get<std::string>("name", c.options.rig_name);
   if (const YAML::Node box = node["box"]) {
@@ -98,13 +99,13 @@ CalibrateConfig CalibrateConfig::Load(const std::string& path) {
     c.options.box.min_in_rig = ReadVector3(box["min"], where + ".box.min");
     c.options.box.max_in_rig = ReadVector3(box["max"], where + ".box.max");
     if (!c.options.box.IsValid())
-      throw std::invalid_argument(where + ".box: max must be greater than min on every axis");
+      throw InputError(where + ".box: max must be greater than min on every axis");
   }
   r.CheckKnown();
   try {
     c.options.Validate();
-  } catch (const std::invalid_argument& e) {
-    throw std::invalid_argument(path + ": " + e.what());
+  } catch (const InputError& e) {
+    throw InputError(path + ": " + e.what());
   }
   return c;
 }
@@ -231,7 +232,7 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
                                   const std::string& out_dir, const CalibrationProgress& progress,
                                   CalibrationData* data_out) {
   if (input.images_dir.empty() == input.recording_dir.empty())
-    throw std::invalid_argument("calibrate: give either images or a recording");
+    throw InputError("calibrate: give either images or a recording");
   BoardSpec board;
   if (config.board) {
     board = *config.board;
@@ -239,7 +240,7 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
     const fs::path beside =
         fs::path(input.images_dir.empty() ? input.recording_dir : input.images_dir) / "board.yaml";
     if (!fs::exists(beside))
-      throw std::invalid_argument(
+      throw InputError(
           "calibrate: no board described: give one in the config (board: or board_file:) or put "
           "a board.yaml beside the images (" +
           beside.string() + " does not exist)");
@@ -315,7 +316,7 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   md << "` (with `--imagersize W H` since the paths are virtual).\n";
   std::ofstream report((fs::path(out_dir) / "report.md").string());
   report << md.str();
-  if (!report) throw std::runtime_error(out_dir + "/report.md: write failed");
+  if (!report) throw IoError(out_dir + "/report.md: write failed");
   if (data_out) *data_out = std::move(data);
   return summary;
 }

@@ -11,6 +11,7 @@
 #include <sstream>
 #include <thread>
 
+#include "core/error.h"
 #include "acquisition/capture.h"
 #include "acquisition/netns.h"
 #include "tools/benchmark.h"
@@ -36,13 +37,13 @@ double CpuSeconds() {
 double DiskMegabytesPerSecond(const fs::path& dir, std::uint64_t bytes) {
   const fs::path file = dir / "disk_probe.bin";
   const int fd = ::open(file.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) throw std::runtime_error("benchmark capture: cannot write " + file.string());
+  if (fd < 0) throw IoError("benchmark capture: cannot write " + file.string());
   std::vector<char> chunk(4 << 20, 0x5a);
   const double t0 = Now();
   for (std::uint64_t done = 0; done < bytes; done += chunk.size()) {
     if (::write(fd, chunk.data(), chunk.size()) != static_cast<ssize_t>(chunk.size())) {
       ::close(fd);
-      throw std::runtime_error("benchmark capture: writing " + file.string() + " failed");
+      throw IoError("benchmark capture: writing " + file.string() + " failed");
     }
   }
   ::fdatasync(fd);

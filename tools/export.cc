@@ -4,7 +4,8 @@
 #include <filesystem>
 #include <fstream>
 
-#include "acquisition/image.h"
+#include "core/error.h"
+#include "core/image.h"
 #include "acquisition/recording.h"
 #include "acquisition/streampix.h"
 
@@ -32,13 +33,13 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   const Recording rec = Recording::Open(recording_dir);
   ExportSummary summary;
   if (options.first > 0 && options.first >= rec.num_sets())
-    throw std::invalid_argument("export: --first " + std::to_string(options.first) +
+    throw InputError("export: --first " + std::to_string(options.first) +
                                 " is past the recording's last frame set (" +
                                 std::to_string(rec.num_sets()) + " sets)");
   fs::create_directories(out_dir);
   std::ofstream csv(fs::path(out_dir) / "sets.csv");
   if (!csv)
-    throw std::runtime_error("export: cannot write " + (fs::path(out_dir) / "sets.csv").string());
+    throw IoError("export: cannot write " + (fs::path(out_dir) / "sets.csv").string());
   csv << "set,trigger_id,reference_ns,spread_ns";
   for (const auto& c : rec.metadata().cameras)
     csv << "," << c.name << "_frame_id," << c.name << "_status";
@@ -74,12 +75,12 @@ ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
                               const std::vector<std::string>& names_in, const std::string& out_dir,
                               const ExportOptions& options,
                               const std::function<void(std::size_t, std::size_t)>& progress) {
-  if (seq_files.empty()) throw std::invalid_argument("export: no .seq files");
+  if (seq_files.empty()) throw InputError("export: no .seq files");
   std::vector<std::string> names = names_in;
   if (names.empty())
     for (const auto& f : seq_files) names.push_back(fs::path(f).stem().string());
   if (names.size() != seq_files.size())
-    throw std::invalid_argument("export: " + std::to_string(names.size()) + " names for " +
+    throw InputError("export: " + std::to_string(names.size()) + " names for " +
                                 std::to_string(seq_files.size()) + " .seq files");
   std::vector<StreamPixSequence> seqs;
   std::size_t n = ~std::size_t(0);
@@ -88,7 +89,7 @@ ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
     n = std::min(n, seqs.back().num_frames());
   }
   if (options.first > 0 && options.first >= n)
-    throw std::invalid_argument("export: --first " + std::to_string(options.first) +
+    throw InputError("export: --first " + std::to_string(options.first) +
                                 " is past the sequences' last frame set (" + std::to_string(n) +
                                 " sets)");
   fs::create_directories(out_dir);

@@ -6,9 +6,10 @@
 #include <filesystem>
 #include <stdexcept>
 
+#include "core/error.h"
 #include "acquisition/frame.h"
 #include "acquisition/recording.h"
-#include "acquisition/srgb.h"
+#include "core/srgb.h"
 #include "acquisition/streampix.h"
 
 namespace flamerig {
@@ -53,10 +54,10 @@ void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double 
 void FrameSourceSpec::Validate() const {
   const int kinds = !recording_dir.empty() + !seq_files.empty() + !images_dir.empty();
   if (kinds != 1)
-    throw std::invalid_argument(
+    throw InputError(
         "frame source: give exactly one of a recording, StreamPix .seq files or an images folder");
   if (!seq_names.empty() && seq_names.size() != seq_files.size())
-    throw std::invalid_argument("frame source: " + std::to_string(seq_names.size()) +
+    throw InputError("frame source: " + std::to_string(seq_names.size()) +
                                 " camera names for " + std::to_string(seq_files.size()) +
                                 " .seq files");
 }
@@ -86,7 +87,7 @@ struct FrameSource::Impl {
   void CheckSize(int c, std::size_t set, int width, int height) const {
     const CameraModel& m = rig.cameras[c].model;
     if (width != m.width() || height != m.height()) {
-      throw std::invalid_argument(spec.Describe() + ", set " + std::to_string(set) + ", camera '" +
+      throw InputError(spec.Describe() + ", set " + std::to_string(set) + ", camera '" +
                                   rig.cameras[c].name + "': the frame is " + std::to_string(width) +
                                   "x" + std::to_string(height) + ", its model's imager is " +
                                   std::to_string(m.width()) + "x" + std::to_string(m.height()));
@@ -107,7 +108,7 @@ struct FrameSource::Impl {
       std::string m, have;
       for (const auto& n : missing) m += (m.empty() ? "" : ", ") + n;
       for (const auto& n : names) have += (have.empty() ? "" : ", ") + n;
-      throw std::invalid_argument(spec.Describe() + ": no camera named " + m +
+      throw InputError(spec.Describe() + ": no camera named " + m +
                                   " (the rig's); the source has " +
                                   (have.empty() ? std::string("none") : have));
     }
@@ -143,11 +144,11 @@ FrameSource::FrameSource(const FrameSourceSpec& spec, const Rig& rig)
     impl_->MatchCameras(names);
   } else {
     if (!fs::is_directory(spec.images_dir))
-      throw std::invalid_argument(spec.images_dir + ": no such folder of frame sets");
+      throw InputError(spec.images_dir + ": no such folder of frame sets");
     // Sets are frame_000000, frame_000001, ... up to the first gap.
     while (fs::is_directory(fs::path(spec.images_dir) / SetName(impl_->sets))) ++impl_->sets;
     if (impl_->sets == 0)
-      throw std::invalid_argument(spec.images_dir + ": no frame_000000/ folder (the layout is " +
+      throw InputError(spec.images_dir + ": no frame_000000/ folder (the layout is " +
                                   "DIR/frame_NNNNNN/<camera>.png)");
     std::vector<std::string> names;
     for (const auto& c : rig.cameras)
@@ -219,8 +220,8 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
     impl_->CheckSize(static_cast<int>(c), i, width, height);
     try {
       DecodeCameraImage(u8, u16, bits, exposure, &out.images[c], &out.linear[c]);
-    } catch (const std::invalid_argument& e) {
-      throw std::invalid_argument(impl_->spec.Describe() + ", set " + std::to_string(i) +
+    } catch (const InputError& e) {
+      throw DataError(impl_->spec.Describe() + ", set " + std::to_string(i) +
                                   ", camera '" + name + "': " + e.what());
     }
   }
@@ -229,16 +230,16 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
 
 void ChangeOptions::Validate() const {
   if (!(min_threshold_dn >= 0) || !(min_threshold_dn <= 255))
-    throw std::invalid_argument("ChangeOptions.min_threshold_dn must be in [0, 255]");
+    throw InputError("ChangeOptions.min_threshold_dn must be in [0, 255]");
   if (!(noise_sigmas >= 0) || !std::isfinite(noise_sigmas))
-    throw std::invalid_argument("ChangeOptions.noise_sigmas must be finite and >= 0");
+    throw InputError("ChangeOptions.noise_sigmas must be finite and >= 0");
   if (!(max_changed_fraction >= 0) || !(max_changed_fraction <= 1))
-    throw std::invalid_argument("ChangeOptions.max_changed_fraction must be in [0, 1]");
+    throw InputError("ChangeOptions.max_changed_fraction must be in [0, 1]");
 }
 
 ImageChange CompareImages(const ImageU8& a, const ImageU8& b, const ChangeOptions& options) {
   if (a.width != b.width || a.height != b.height || a.channels != b.channels)
-    throw std::invalid_argument("CompareImages: images of different sizes or channel counts");
+    throw InputError("CompareImages: images of different sizes or channel counts");
   const int ch = a.channels;
   const std::size_t n = a.num_pixels();
   // Per pixel, the largest channel difference.

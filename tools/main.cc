@@ -20,11 +20,12 @@
 #include <thread>
 #include <vector>
 
+#include "core/error.h"
 #include "acquisition/capture.h"
 #include "acquisition/control.h"
 #include "acquisition/netns.h"
 #include "acquisition/recording.h"
-#include "acquisition/srgb.h"
+#include "core/srgb.h"
 #include "fitting/fit.h"
 #include "fitting/renderer.h"
 #include "tomography/reconstruct.h"
@@ -116,10 +117,6 @@ commands:
 Errors name the file, the field and the rule; the exit status is non-zero.
 )";
 
-// A command line that does not parse: exit status 2 (other errors: 1).
-struct UsageError : std::invalid_argument {
-  using std::invalid_argument::invalid_argument;
-};
 
 // --key value pairs after the command; flags without a value get "1". A value that starts with
 // "--" (a forgotten value), an option given twice, or more words than the command takes
@@ -176,7 +173,7 @@ double ParseNumber(const std::string& text, const std::string& what) {
   try {
     std::size_t used = 0;
     double v = std::stod(text, &used);
-    if (used != text.size()) throw std::invalid_argument("");
+    if (used != text.size()) throw InputError("");
     return v;
   } catch (const std::exception&) {
     throw UsageError(what + " '" + text + "' is not a number");
@@ -205,7 +202,7 @@ double ParsePositive(const std::string& text, const std::string& what) {
 void CheckInputFile(const Args& args, const std::string& key) {
   if (!args.named.count(key)) return;
   const std::string path = args.Get(key, "");
-  if (!fs::is_regular_file(path)) throw std::runtime_error(path + " (--" + key + "): no such file");
+  if (!fs::is_regular_file(path)) throw InputError(path + " (--" + key + "): no such file");
 }
 
 constexpr std::int64_t kMaxFrames = std::int64_t(1) << 48;  // frame indices and counts
@@ -281,7 +278,7 @@ int Render(const Args& args) {
   Rig rig = Rig::Load(args.Required("rig"));
   FireVolume volume = ReadVdb(args.Required("volume"));
   if (volume.temperature_k.empty() || volume.density_per_m3.empty()) {
-    throw std::invalid_argument(args.Required("volume") +
+    throw InputError(args.Required("volume") +
                                 ": needs both 'temperature' and 'density' grids to render");
   }
   std::string absorption_name = args.Get("absorption", "");
@@ -333,8 +330,8 @@ void ReadFrameSet(const Rig& rig, const std::string& dir, double exposure, const
     try {
       const int bits = ReadImage(path.string(), &image8, &image16, 3);
       DecodeCameraImage(image8, image16, bits, exposure, &(*images8)[c], &(*frames)[c]);
-    } catch (const std::invalid_argument& e) {
-      throw std::invalid_argument(path.string() + ": " + e.what());
+    } catch (const InputError& e) {
+      throw InputError(path.string() + ": " + e.what());
     }
   }
 }
@@ -413,7 +410,7 @@ int Reconstruct(const Args& args) {
   if (args.named.count("truth")) {
     FireVolume truth = ReadVdb(args.Get("truth", ""));
     if (truth.emission_rgb.empty())
-      throw std::invalid_argument(args.Get("truth", "") + ": has no 'emission' grid");
+      throw InputError(args.Get("truth", "") + ": has no 'emission' grid");
     std::vector<float> t =
         truth.geometry.SameVoxels(volume.geometry)
             ? truth.emission_rgb
@@ -432,7 +429,7 @@ int Reconstruct(const Args& args) {
 int Benchmark(const Args& args) {
   const std::string target = args.positional.empty() ? "" : args.positional[0];
   if (target.empty()) {
-    throw std::invalid_argument(
+    throw InputError(
         "benchmark needs a target: render, tomography, fit, capture, calibration, run, scene or "
         "soak");
   }
@@ -487,7 +484,7 @@ int Benchmark(const Args& args) {
     options.quick = args.named.count("quick") > 0;
     md = RunCalibrationBenchmark(options, log);
   } else {
-    throw std::invalid_argument(
+    throw InputError(
         "benchmark target '" + target +
         "': use render, tomography, fit, capture, calibration, run, scene or soak");
   }
@@ -522,7 +519,7 @@ int Fit(const Args& args) {
   auto camera_index = [&](const std::string& name) {
     for (std::size_t c = 0; c < rig.cameras.size(); ++c)
       if (rig.cameras[c].name == name) return static_cast<int>(c);
-    throw std::invalid_argument(rig_path + ": no camera named '" + name + "'");
+    throw InputError(rig_path + ": no camera named '" + name + "'");
   };
   if (view_names.empty()) {
     for (std::size_t c = 0; c < rig.cameras.size(); ++c)
@@ -541,7 +538,7 @@ int Fit(const Args& args) {
   auto make_view = [&](const std::string& name) {
     const int c = camera_index(name);
     if (images[c].empty())
-      throw std::invalid_argument("fit: camera '" + name + "' has no image in " +
+      throw InputError("fit: camera '" + name + "' has no image in " +
                                   args.Required("images"));
     if (!rays[c]) rays[c] = std::make_unique<CameraRays>(rig.cameras[c].model);
     FitView v;
@@ -553,7 +550,7 @@ int Fit(const Args& args) {
   std::vector<FitView> views, held;
   for (const auto& name : view_names) views.push_back(make_view(name));
   if (!holdout.empty()) held.push_back(make_view(holdout));
-  if (views.empty()) throw std::invalid_argument("fit: no views to fit");
+  if (views.empty()) throw InputError("fit: no views to fit");
 
   ReconstructOptions ro;
   ro.exposure = exposure;
@@ -610,7 +607,7 @@ int Fit(const Args& args) {
           ParseInteger(args.Get("seed", ""), "--seed", 0, std::int64_t(1) << 53));
     result = PaperFit(grid, tomography, views, absorption, options, paper, progress);
   } else {
-    throw std::invalid_argument("--method '" + method + "': use fast, alg1 or alg2");
+    throw InputError("--method '" + method + "': use fast, alg1 or alg2");
   }
   std::fprintf(stderr, "\n");
   result.volume.metadata_text["absorption_model"] = absorption.name();
@@ -875,7 +872,7 @@ int Ctl(const Args& args) {
   args.CheckKnown({"config", "endpoint", "out"});
   std::string endpoint = args.Get("endpoint", "");
   if (endpoint.empty()) endpoint = CaptureConfig::Load(args.Required("config")).control;
-  if (args.positional.empty()) throw std::invalid_argument("ctl: give a request (status, ...)");
+  if (args.positional.empty()) throw InputError("ctl: give a request (status, ...)");
   std::string line;
   for (const auto& w : args.positional) line += (line.empty() ? "" : " ") + w;
   const ControlReply r = ControlRequest(endpoint, line);
@@ -886,7 +883,7 @@ int Ctl(const Args& args) {
   if (args.named.count("out")) {
     std::ofstream out(args.Get("out", ""), std::ios::binary);
     out << r.body;
-    if (!out) throw std::runtime_error("cannot write " + args.Get("out", ""));
+    if (!out) throw IoError("cannot write " + args.Get("out", ""));
   } else {
     std::fwrite(r.body.data(), 1, r.body.size(), stdout);
   }

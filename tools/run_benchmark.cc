@@ -10,7 +10,7 @@
 #include <random>
 #include <sstream>
 
-#include "acquisition/image.h"
+#include "core/image.h"
 #include "tools/benchmark.h"
 #include "tools/run_job.h"
 #include "tools/run_mpi.h"

@@ -13,6 +13,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "core/error.h"
 #include "acquisition/recording.h"
 #include "fitting/renderer.h"
 #include "tomography/vdb_io.h"
@@ -36,14 +37,14 @@ double Ms(SteadyClock::time_point since) {
 void WriteFileAtomically(const fs::path& path, const std::string& text) {
   const fs::path tmp = path.string() + ".tmp";
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) throw std::runtime_error(path.string() + ": cannot write");
+  if (fd < 0) throw IoError(path.string() + ": cannot write");
   std::size_t done = 0;
   while (done < text.size()) {
     const ssize_t n = ::write(fd, text.data() + done, text.size() - done);
     if (n <= 0) {
       ::close(fd);
       fs::remove(tmp);
-      throw std::runtime_error(path.string() + ": write failed (disk full?)");
+      throw IoError(path.string() + ": write failed (disk full?)");
     }
     done += static_cast<std::size_t>(n);
   }
@@ -107,7 +108,7 @@ ChainState ReadChain(const fs::path& path) {
     s.last_computed = n["last_computed"].as<long long>();
     return s;
   } catch (const YAML::Exception& e) {
-    throw std::runtime_error(path.string() + ": cannot resume from this state file: " + e.what());
+    throw DataError(path.string() + ": cannot resume from this state file: " + e.what());
   }
 }
 
@@ -116,7 +117,7 @@ std::size_t CountTruth(const std::string& dir) {
   if (dir.empty()) return 0;
   std::size_t n = 0;
   while (fs::exists(fs::path(dir) / (FrameName(n) + ".vdb"))) ++n;
-  if (n == 0) throw std::invalid_argument("--truth " + dir + ": no frame_000000.vdb there");
+  if (n == 0) throw InputError("--truth " + dir + ": no frame_000000.vdb there");
   return n;
 }
 
@@ -126,7 +127,7 @@ FitResult ResultFromVolume(const fs::path& path) {
   auto it = r.volume.metadata_numbers.find("exposure");
   if (r.volume.temperature_k.empty() || r.volume.density_per_m3.empty() ||
       it == r.volume.metadata_numbers.end())
-    throw std::runtime_error(path.string() +
+    throw DataError(path.string() +
                              ": not a flamerig run output (temperature, density, exposure)");
   r.exposure = it->second;
   return r;
@@ -150,7 +151,7 @@ bool DatasetExposure(const std::string& rig_path, double* exposure) {
       return true;
     }
   } catch (const YAML::Exception& e) {
-    throw std::runtime_error(dataset.string() + ": " + e.what());
+    throw InputError(dataset.string() + ": " + e.what());
   }
   return false;
 }
@@ -163,7 +164,7 @@ std::string DatasetAbsorption(const std::string& rig_path) {
     if (root["dataset"] && root["dataset"]["absorption"])
       return root["dataset"]["absorption"].as<std::string>();
   } catch (const YAML::Exception& e) {
-    throw std::runtime_error(dataset.string() + ": " + e.what());
+    throw InputError(dataset.string() + ": " + e.what());
   }
   return "soot";
 }
@@ -171,13 +172,13 @@ std::string DatasetAbsorption(const std::string& rig_path) {
 void RunOptions::Validate() const {
   source.Validate();
   if (rig_path.empty() && calibration.images_dir.empty() && calibration.recording_dir.empty())
-    throw std::invalid_argument("run: give a rig (--rig) or a calibration to make one");
-  if (out_dir.empty()) throw std::invalid_argument("run: give an output folder (--out)");
-  if (count == 0) throw std::invalid_argument("run: count must be >= 1");
+    throw InputError("run: give a rig (--rig) or a calibration to make one");
+  if (out_dir.empty()) throw InputError("run: give an output folder (--out)");
+  if (count == 0) throw InputError("run: count must be >= 1");
   if (!(exposure >= 0) || !std::isfinite(exposure))
-    throw std::invalid_argument("run: exposure must be finite and >= 0 (0 = from the dataset)");
+    throw InputError("run: exposure must be finite and >= 0 (0 = from the dataset)");
   if (!absorption.empty() && absorption != "soot" && absorption != "grey")
-    throw std::invalid_argument("run: absorption '" + absorption + "': use soot or grey");
+    throw InputError("run: absorption '" + absorption + "': use soot or grey");
   ReconstructOptions r = reconstruct;
   r.exposure = 1;
   r.Validate();
@@ -285,7 +286,7 @@ FrameSummary FrameSummary::FromYaml(const std::string& text, const std::string& 
     s.truth_frame = n["truth_frame"].as<int>();
     return s;
   } catch (const YAML::Exception& e) {
-    throw std::runtime_error(where + ": not a frame summary: " + e.what());
+    throw DataError(where + ": not a frame summary: " + e.what());
   }
 }
 
@@ -329,7 +330,7 @@ void RunRange(const RunOptions& options, const FrameSource& source, std::size_t*
               std::size_t* end) {
   const std::size_t n = source.num_sets();
   if (options.first >= n)
-    throw std::invalid_argument("run: --first " + std::to_string(options.first) + " but " +
+    throw InputError("run: --first " + std::to_string(options.first) + " but " +
                                 options.source.Describe() + " has " + std::to_string(n) +
                                 " frame sets");
   *begin = options.first;
@@ -362,7 +363,7 @@ RunSummary RunFrames(const RunOptions& options_in, const std::string& rig_path, 
     std::size_t range_begin, range_end;
     RunRange(options, source, &range_begin, &range_end);
     if (begin < range_begin || end > range_end || begin > end)
-      throw std::invalid_argument("run: frames " + std::to_string(begin) + ".." +
+      throw InputError("run: frames " + std::to_string(begin) + ".." +
                                   std::to_string(end) + " are outside the range");
   }
   double exposure = options.exposure;
@@ -374,7 +375,7 @@ RunSummary RunFrames(const RunOptions& options_in, const std::string& rig_path, 
   if (!options.holdout_camera.empty()) {
     holdout = rig.FindCamera(options.holdout_camera);
     if (holdout < 0)
-      throw std::invalid_argument("run: held-out camera '" + options.holdout_camera +
+      throw InputError("run: held-out camera '" + options.holdout_camera +
                                   "' is not in " + rig_path);
   }
   ReconstructOptions ro = options.reconstruct;
@@ -430,7 +431,7 @@ RunSummary RunFrames(const RunOptions& options_in, const std::string& rig_path, 
       set = source.Read(i, exposure);
     } catch (const RecordingError& e) {
       failure = e.what();
-    } catch (const std::invalid_argument& e) {
+    } catch (const InputError& e) {
       failure = e.what();
     }
     s.read_ms = Ms(t0);
@@ -487,7 +488,7 @@ RunSummary RunFrames(const RunOptions& options_in, const std::string& rig_path, 
       try {
         tomography = reconstructor.Reconstruct(
             linear, &rs, chain.last_computed >= 0 ? &last_tomography : nullptr);
-      } catch (const std::invalid_argument& e) {
+      } catch (const InputError& e) {
         failure = std::string("tomography: ") + e.what();
       }
       s.reconstruct_ms = Ms(t0);
@@ -512,7 +513,7 @@ RunSummary RunFrames(const RunOptions& options_in, const std::string& rig_path, 
         try {
           result = FastFit(reconstructor.grid(), tomography, views, absorption, options.fit,
                            chain.previous_result >= 0 && options.warm_start ? &previous : nullptr);
-        } catch (const std::invalid_argument& e) {
+        } catch (const InputError& e) {
           failure = std::string("fit: ") + e.what();
         }
       }

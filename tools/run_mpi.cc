@@ -5,6 +5,8 @@
 
 #ifdef FLAMERIG_HAVE_MPI
 #include <mpi.h>
+
+#include "core/error.h"
 #endif
 
 namespace flamerig {
@@ -42,7 +44,7 @@ MpiSession::MpiSession(int* argc, char*** argv) {
 #else
   const int size = EnvInt("OMPI_COMM_WORLD_SIZE", EnvInt("PMI_SIZE", 1));
   if (size > 1)
-    throw std::runtime_error("started by mpirun with " + std::to_string(size) +
+    throw InputError("started by mpirun with " + std::to_string(size) +
                              " ranks, but this flamerig was built without MPI (install "
                              "libopenmpi-dev and rebuild)");
 #endif
@@ -95,7 +97,7 @@ void MpiSession::Abort(int code) {
 void RankFrames(std::size_t begin, std::size_t end, int rank, int size, std::size_t* rank_begin,
                 std::size_t* rank_end) {
   if (size < 1 || rank < 0 || rank >= size || end < begin)
-    throw std::invalid_argument("RankFrames: need 0 <= rank < size and begin <= end");
+    throw InputError("RankFrames: need 0 <= rank < size and begin <= end");
   const std::size_t n = end - begin, r = static_cast<std::size_t>(rank);
   const std::size_t base = n / size, extra = n % size;
   *rank_begin = begin + r * base + std::min(r, extra);

@@ -12,7 +12,8 @@
 #include <set>
 #include <sstream>
 
-#include "acquisition/image.h"
+#include "core/error.h"
+#include "core/image.h"
 #include "tomography/vdb_io.h"
 #include "tools/fit_report.h"
 #include "tools/simulate.h"
@@ -115,8 +116,8 @@ ImageU8 TemperatureSlice(const FireVolume& volume, int axis, int index, double t
                          int scale) {
   const GridGeometry& g = volume.geometry;
   if (volume.temperature_k.size() != g.num_voxels())
-    throw std::invalid_argument("TemperatureSlice: the volume has no temperature grid");
-  if (axis != 0 && axis != 2) throw std::invalid_argument("TemperatureSlice: axis must be 0 or 2");
+    throw InputError("TemperatureSlice: the volume has no temperature grid");
+  if (axis != 0 && axis != 2) throw InputError("TemperatureSlice: axis must be 0 or 2");
   const int across = axis == 2 ? g.dims.x() : g.dims.z();
   const int up = g.dims.y();
   const int depth = axis == 2 ? g.dims.z() : g.dims.x();
@@ -174,7 +175,7 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
       for (const auto& n : f.notes) notes += (notes.empty() ? "" : "; ") + n;
       csv << ",\"" << notes << "\"\n";
     }
-    if (!csv) throw std::runtime_error((out / "frames.csv").string() + ": cannot write");
+    if (!csv) throw IoError((out / "frames.csv").string() + ": cannot write");
   }
 
   // Plots.
@@ -346,7 +347,7 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   const fs::path index = dir / "index.html";
   std::ofstream page(index);
   page << h.str();
-  if (!page) throw std::runtime_error(index.string() + ": cannot write");
+  if (!page) throw IoError(index.string() + ": cannot write");
   return index.string();
 }
 

@@ -11,7 +11,8 @@
 #include <filesystem>
 #include <stdexcept>
 
-#include "acquisition/config_reader.h"
+#include "core/error.h"
+#include "core/config_reader.h"
 #include "fitting/renderer.h"
 #include "tomography/vdb_io.h"
 #include "tools/simulate.h"
@@ -25,12 +26,12 @@ namespace {
 Eigen::Vector3d Vec3(ConfigReader& r, const std::string& key, const Eigen::Vector3d& fallback) {
   const auto v = r.Get<std::vector<double>>(key, {fallback.x(), fallback.y(), fallback.z()});
   if (v.size() != 3 || !Eigen::Vector3d(v[0], v[1], v[2]).allFinite())
-    throw std::invalid_argument(r.where() + ": '" + key + "' must be three finite numbers");
+    throw InputError(r.where() + ": '" + key + "' must be three finite numbers");
   return Eigen::Vector3d(v[0], v[1], v[2]);
 }
 
 ConfigReader Map(const YAML::Node& node, const std::string& where) {
-  if (!node.IsMap()) throw std::invalid_argument(where + ": must be a map");
+  if (!node.IsMap()) throw InputError(where + ": must be a map");
   return ConfigReader(node, where);
 }
 
@@ -42,7 +43,7 @@ void ReadObj(const std::string& path, std::vector<Eigen::Vector3f>* vertices,
   config.triangulate = true;
   tinyobj::ObjReader reader;
   if (!reader.ParseFromFile(path, config))
-    throw std::runtime_error(path + ": cannot read the mesh: " + reader.Error());
+    throw InputError(path + ": cannot read the mesh: " + reader.Error());
   const auto& v = reader.GetAttrib().vertices;
   vertices->clear();
   triangles->clear();
@@ -54,12 +55,12 @@ void ReadObj(const std::string& path, std::vector<Eigen::Vector3f>* vertices,
       const Eigen::Vector3i t(idx[f].vertex_index, idx[f + 1].vertex_index,
                               idx[f + 2].vertex_index);
       if ((t.array() < 0).any() || (t.array() >= static_cast<int>(vertices->size())).any())
-        throw std::runtime_error(path + ": face " + std::to_string(f / 3) +
+        throw DataError(path + ": face " + std::to_string(f / 3) +
                                  " refers to a vertex the file does not have");
       triangles->push_back(t);
     }
   }
-  if (triangles->empty()) throw std::runtime_error(path + ": the mesh has no faces");
+  if (triangles->empty()) throw DataError(path + ": the mesh has no faces");
 }
 
 SceneJob SceneJob::Load(const std::string& path, const std::string& volume_override) {
@@ -67,7 +68,7 @@ SceneJob SceneJob::Load(const std::string& path, const std::string& volume_overr
   try {
     root = YAML::LoadFile(path);
   } catch (const YAML::Exception& e) {
-    throw std::invalid_argument(path + ": not a readable YAML file: " + e.what());
+    throw InputError(path + ": not a readable YAML file: " + e.what());
   }
   const fs::path base = fs::path(path).parent_path();
   auto resolve = [&](const std::string& file) {
@@ -79,7 +80,7 @@ SceneJob SceneJob::Load(const std::string& path, const std::string& volume_overr
   top.Seen("render");
   top.Seen("display");
   top.CheckKnown();
-  if (!root["scene"]) throw std::invalid_argument(path + ": no 'scene' map");
+  if (!root["scene"]) throw InputError(path + ": no 'scene' map");
   ConfigReader s = Map(root["scene"], path + ": scene");
   Scene& scene = job.scene;
   if (root["scene"]["camera"]) {
@@ -93,8 +94,8 @@ SceneJob SceneJob::Load(const std::string& path, const std::string& volume_overr
     c.CheckKnown();
     try {
       scene.camera.Validate();
-    } catch (const std::invalid_argument& e) {
-      throw std::invalid_argument(path + ": scene." + e.what());
+    } catch (const InputError& e) {
+      throw InputError(path + ": scene." + e.what());
     }
   }
   s.Seen("camera");
@@ -114,8 +115,8 @@ SceneJob SceneJob::Load(const std::string& path, const std::string& volume_overr
       m.CheckKnown();
       try {
         mat.Validate();
-      } catch (const std::invalid_argument& e) {
-        throw std::invalid_argument(path + ": scene.materials." + name + ": " + e.what());
+      } catch (const InputError& e) {
+        throw InputError(path + ": scene.materials." + name + ": " + e.what());
       }
       material_index[name] = static_cast<int>(scene.materials.size());
       scene.materials.push_back(mat);
@@ -131,20 +132,20 @@ SceneJob SceneJob::Load(const std::string& path, const std::string& volume_overr
       const std::string material = o.Get<std::string>("material", "");
       auto it = material_index.find(material);
       if (it == material_index.end())
-        throw std::invalid_argument(at + ": material '" + material + "' is not in scene.materials");
+        throw InputError(at + ": material '" + material + "' is not in scene.materials");
       if (type == "plane") {
         const Eigen::Vector3d n = Vec3(o, "normal", Eigen::Vector3d::UnitY());
-        if (n.norm() < 1e-9) throw std::invalid_argument(at + ": 'normal' must not be zero");
+        if (n.norm() < 1e-9) throw InputError(at + ": 'normal' must not be zero");
         const auto size = o.Get<std::vector<double>>("size", {1, 1});
         if (size.size() != 2 || !(size[0] > 0) || !(size[1] > 0))
-          throw std::invalid_argument(at + ": 'size' must be two positive numbers");
+          throw InputError(at + ": 'size' must be two positive numbers");
         scene.geometry.AddQuad(Vec3(o, "centre", Eigen::Vector3d::Zero()), n, {size[0], size[1]},
                                it->second);
       } else if (type == "box") {
         const Eigen::Vector3d lo = Vec3(o, "min", Eigen::Vector3d::Zero());
         const Eigen::Vector3d hi = Vec3(o, "max", Eigen::Vector3d::Ones());
         if (!(hi.array() > lo.array()).all())
-          throw std::invalid_argument(at + ": 'max' must exceed 'min' on every axis");
+          throw InputError(at + ": 'max' must exceed 'min' on every axis");
         scene.geometry.AddBox(lo, hi, it->second);
       } else if (type == "sphere") {
         SceneGeometry::Sphere sphere;
@@ -157,8 +158,8 @@ SceneJob SceneJob::Load(const std::string& path, const std::string& volume_overr
         std::vector<Eigen::Vector3i> t;
         try {
           ReadObj(resolve(o.Get<std::string>("file", "")), &v, &t);
-        } catch (const std::runtime_error& e) {
-          throw std::runtime_error(at + ": " + e.what());
+        } catch (const Error& e) {
+          Rethrow(e, at + ": ", Error::Kind::kInput);
         }
         const double scale = o.Positive("scale", 1);
         const Eigen::Matrix3d r = Eigen::AngleAxisd(o.Get<double>("rotate_y_deg", 0) * M_PI / 180,
@@ -168,7 +169,7 @@ SceneJob SceneJob::Load(const std::string& path, const std::string& volume_overr
         for (auto& p : v) p = (translate + scale * (r * p.cast<double>())).cast<float>();
         scene.geometry.AddMesh(v, t, it->second);
       } else {
-        throw std::invalid_argument(at + ": 'type' must be plane, box, sphere or mesh");
+        throw InputError(at + ": 'type' must be plane, box, sphere or mesh");
       }
       o.CheckKnown();
     }
@@ -182,11 +183,11 @@ SceneJob SceneJob::Load(const std::string& path, const std::string& volume_overr
       SceneFire fire;
       const std::string file = f.Get<std::string>("volume", "");
       if (file.empty() && volume_override.empty())
-        throw std::invalid_argument(at + ": 'volume' (a .vdb file) is required");
+        throw InputError(at + ": 'volume' (a .vdb file) is required");
       try {
         fire.volume = ReadVdb(volume_override.empty() ? resolve(file) : volume_override);
-      } catch (const std::runtime_error& e) {
-        throw std::runtime_error(at + ": " + e.what());
+      } catch (const Error& e) {
+        Rethrow(e, at + ": ", Error::Kind::kInput);
       }
       std::string absorption = f.Get<std::string>("absorption", "");
       if (absorption.empty()) {
@@ -195,20 +196,20 @@ SceneJob SceneJob::Load(const std::string& path, const std::string& volume_overr
       }
       try {
         fire.absorption = AbsorptionModel::FromName(absorption);
-      } catch (const std::invalid_argument& e) {
-        throw std::invalid_argument(at + ": " + e.what());
+      } catch (const InputError& e) {
+        throw InputError(at + ": " + e.what());
       }
       fire.scale = f.Positive("scale", 1);
       fire.rotate_y_deg = f.Get<double>("rotate_y_deg", 0);
       fire.translate = Vec3(f, "translate", Eigen::Vector3d::Zero());
       f.CheckKnown();
       if (fire.volume.temperature_k.empty() || fire.volume.density_per_m3.empty())
-        throw std::invalid_argument(at + ": " + file + " needs temperature and density grids");
+        throw InputError(at + ": " + file + " needs temperature and density grids");
       scene.fires.push_back(std::move(fire));
     }
   }
   s.CheckKnown();
-  if (scene.fires.empty()) throw std::invalid_argument(path + ": scene.fires: no fire to light it");
+  if (scene.fires.empty()) throw InputError(path + ": scene.fires: no fire to light it");
 
   if (root["render"]) {
     ConfigReader r = Map(root["render"], path + ": render");
@@ -221,16 +222,16 @@ SceneJob SceneJob::Load(const std::string& path, const std::string& volume_overr
     } else {
       try {
         job.render.lighting = SceneLightingFromName(lighting);
-      } catch (const std::invalid_argument& e) {
-        throw std::invalid_argument(path + ": render.lighting: " + e.what() + " or compare");
+      } catch (const InputError& e) {
+        throw InputError(path + ": render.lighting: " + e.what() + " or compare");
       }
     }
     job.render.sphere_light_radius_m = r.NonNegative("sphere_radius_m", 0);
     r.CheckKnown();
     try {
       job.render.Validate();
-    } catch (const std::invalid_argument& e) {
-      throw std::invalid_argument(path + ": render: " + e.what());
+    } catch (const InputError& e) {
+      throw InputError(path + ": render: " + e.what());
     }
   }
   if (root["display"]) {
@@ -241,15 +242,15 @@ SceneJob SceneJob::Load(const std::string& path, const std::string& volume_overr
     d.CheckKnown();
     try {
       job.display.Validate();
-    } catch (const std::invalid_argument& e) {
-      throw std::invalid_argument(path + ": display: " + e.what());
+    } catch (const InputError& e) {
+      throw InputError(path + ": display: " + e.what());
     }
   }
   return job;
 }
 
 void WriteExr(const std::string& path, const ImageF& image) {
-  if (image.channels != 3) throw std::invalid_argument("WriteExr: needs a 3-channel image");
+  if (image.channels != 3) throw InputError("WriteExr: needs a 3-channel image");
   try {
     Imf::Header header(image.width, image.height);
     for (const char* c : {"R", "G", "B"}) header.channels().insert(c, Imf::Channel(Imf::FLOAT));
@@ -263,7 +264,7 @@ void WriteExr(const std::string& path, const ImageF& image) {
     file.setFrameBuffer(fb);
     file.writePixels(image.height);
   } catch (const std::exception& e) {
-    throw std::runtime_error(path + ": cannot write OpenEXR: " + e.what());
+    throw IoError(path + ": cannot write OpenEXR: " + e.what());
   }
 }
 
@@ -284,7 +285,7 @@ ImageF ReadExr(const std::string& path) {
     file.readPixels(dw.min.y, dw.max.y);
     return image;
   } catch (const std::exception& e) {
-    throw std::runtime_error(path + ": cannot read OpenEXR: " + e.what());
+    throw DataError(path + ": cannot read OpenEXR: " + e.what());
   }
 }
 

@@ -11,7 +11,8 @@
 #include <random>
 #include <stdexcept>
 
-#include "acquisition/config_reader.h"
+#include "core/error.h"
+#include "core/config_reader.h"
 #include "tomography/vdb_io.h"
 
 namespace flamerig {
@@ -20,7 +21,7 @@ namespace {
 namespace fs = std::filesystem;
 
 [[noreturn]] void Fail(const std::string& path, const std::string& field, const std::string& rule) {
-  throw std::runtime_error(path + ": field '" + field + "': " + rule);
+  throw InputError(path + ": field '" + field + "': " + rule);
 }
 
 template <typename T>
@@ -121,7 +122,7 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
     Read(f, "kind", &kind, path, "simulate.fire.");
     try {
       c.fire.kind = synthetic::FireKindFromName(kind);
-    } catch (const std::invalid_argument& e) {
+    } catch (const InputError& e) {
       Fail(path, "simulate.fire.kind", e.what());
     }
     Read(f, "peak_temperature_k", &c.fire.peak_temperature_k, path, "simulate.fire.");
@@ -192,20 +193,20 @@ SimulateConfig SimulateConfig::Load(const std::string& path) {
   try {
     ReadMaps(s, path, &c);
   } catch (const YAML::Exception& e) {  // a value of the wrong shape deeper down
-    throw std::runtime_error(path + ": " + e.what());
-  } catch (const std::invalid_argument& e) {  // CheckKeys: an unknown key, or not a map
-    throw std::runtime_error(e.what());
+    throw InputError(path + ": " + e.what());
+  } catch (const InputError& e) {  // CheckKeys: an unknown key, or not a map
+    throw InputError(e.what());
   }
   try {
     c.Validate();
-  } catch (const std::invalid_argument& e) {
-    throw std::runtime_error(path + ": " + e.what());
+  } catch (const InputError& e) {
+    throw InputError(path + ": " + e.what());
   }
   return c;
 }
 
 void SimulateConfig::Validate() const {
-  auto fail = [](const std::string& what) { throw std::invalid_argument("simulate." + what); };
+  auto fail = [](const std::string& what) { throw InputError("simulate." + what); };
   if (frames < 1 || frames > 100000) fail("frames must be in [1, 100000]");
   if (!(frame_rate_hz > 0) || !(frame_rate_hz <= 100000))
     fail("frame_rate_hz must be in (0, 100000]");
@@ -382,7 +383,7 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
   yaml << YAML::EndMap << YAML::EndMap;
   std::ofstream dataset((fs::path(out_dir) / "dataset.yaml").string());
   dataset << yaml.c_str() << "\n";
-  if (!dataset) throw std::runtime_error(out_dir + "/dataset.yaml: write failed");
+  if (!dataset) throw IoError(out_dir + "/dataset.yaml: write failed");
   if (!preview.empty())
     WritePng((fs::path(out_dir) / "preview.png").string(), ContactSheet(preview, 240));
   summary.time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

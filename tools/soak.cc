@@ -22,6 +22,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include "core/error.h"
 #include "acquisition/control.h"
 #include "acquisition/recording.h"
 #include "acquisition/sim_camera.h"
@@ -206,7 +207,7 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
   // The daemon, as its own process (so that it can be stopped, resumed and measured).
   const fs::path log_path = dir / "daemon.log";
   const pid_t pid = ::fork();
-  if (pid < 0) throw std::runtime_error("soak: fork failed");
+  if (pid < 0) throw IoError("soak: fork failed");
   if (pid == 0) {
     const int out = ::open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     ::dup2(out, 1);
@@ -357,10 +358,10 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
     report.daemon_tail = all.size() > 2000 ? all.substr(all.size() - 2000) : all;
   }
   if (!WIFEXITED(status) || WEXITSTATUS(status) != 0)
-    throw std::runtime_error("soak: the daemon did not exit cleanly:\n" + report.daemon_tail);
+    throw DataError("soak: the daemon did not exit cleanly:\n" + report.daemon_tail);
   if (log) log("soak: daemon done, reading the last recording back");
   if (last.recorded < 0)
-    throw std::runtime_error("soak: the daemon did not report its last recording:\n" +
+    throw DataError("soak: the daemon did not report its last recording:\n" +
                              report.daemon_tail);
   check(dir / "rec" / segment, last);
   for (auto& c : checks)

@@ -10,6 +10,7 @@
 #include <random>
 #include <stdexcept>
 
+#include "core/error.h"
 #include "fitting/colour.h"
 #include "fitting/physics.h"
 #include "fitting/spectral_tables.h"
@@ -180,13 +181,13 @@ class LicksFire {
 FireKind FireKindFromName(const std::string& name) {
   if (name == "candle") return FireKind::kCandle;
   if (name == "licks") return FireKind::kLicks;
-  throw std::invalid_argument("fire kind '" + name + "' is unknown; use 'candle' or 'licks'");
+  throw InputError("fire kind '" + name + "' is unknown; use 'candle' or 'licks'");
 }
 
 const char* ToString(FireKind kind) { return kind == FireKind::kCandle ? "candle" : "licks"; }
 
 void FireOptions::Validate() const {
-  auto fail = [](const std::string& what) { throw std::invalid_argument("FireOptions." + what); };
+  auto fail = [](const std::string& what) { throw InputError("FireOptions." + what); };
   if (!(peak_temperature_k > ambient_temperature_k) || !(peak_temperature_k <= 1e5)) {
     fail("peak_temperature_k must exceed ambient_temperature_k and be <= 1e5");
   }
@@ -285,7 +286,7 @@ std::vector<float> ThinEmissionRgb(const FireVolume& fire, const AbsorptionModel
 }
 
 void RingOptions::Validate() const {
-  auto fail = [](const std::string& what) { throw std::invalid_argument("RingOptions." + what); };
+  auto fail = [](const std::string& what) { throw InputError("RingOptions." + what); };
   if (cameras < 1 || cameras > 16) fail("cameras must be in [1, 16]");
   if (!azimuths_deg.empty() && static_cast<int>(azimuths_deg.size()) != cameras) {
     fail("azimuths_deg must have one entry per camera");
@@ -302,7 +303,7 @@ void RingOptions::Validate() const {
 
 Rig MakeRingRig(const Box3& box, const RingOptions& options, const std::string& name) {
   options.Validate();
-  if (!box.IsValid()) throw std::invalid_argument("MakeRingRig: invalid box");
+  if (!box.IsValid()) throw InputError("MakeRingRig: invalid box");
   std::vector<double> azimuths = options.azimuths_deg;
   if (azimuths.empty()) {
     if (options.cameras == 2) {
@@ -313,7 +314,7 @@ Rig MakeRingRig(const Box3& box, const RingOptions& options, const std::string& 
   }
   const double radius = 0.5 * box.size().norm();
   if (options.distance_m <= radius * 1.05) {
-    throw std::invalid_argument("RingOptions.distance_m = " + std::to_string(options.distance_m) +
+    throw InputError("RingOptions.distance_m = " + std::to_string(options.distance_m) +
                                 " puts the cameras inside the box's bounding sphere (radius " +
                                 std::to_string(radius) + " m)");
   }
@@ -408,10 +409,10 @@ ImageU8 RenderBoard(const CameraModel& camera, const std::vector<Ray>& rays, con
                     int supersample) {
   board.Validate();
   if (rays.size() != static_cast<std::size_t>(camera.width()) * camera.height()) {
-    throw std::invalid_argument("RenderBoard: need one ray per pixel of the camera");
+    throw InputError("RenderBoard: need one ray per pixel of the camera");
   }
   if (supersample < 1 || supersample > 8)
-    throw std::invalid_argument("RenderBoard: supersample must be in [1, 8]");
+    throw InputError("RenderBoard: supersample must be in [1, 8]");
   const int px_per_square = 64;
   cv::Mat texture = BoardTexture(board, px_per_square);
   const double texels_per_m = px_per_square / board.square_m;

@@ -19,7 +19,7 @@
 #include <string>
 #include <vector>
 
-#include "acquisition/image.h"
+#include "core/image.h"
 #include "calibration/board.h"
 #include "calibration/rig.h"
 #include "fitting/absorption.h"

@@ -30,7 +30,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     const flamerig::Recording rec = flamerig::Recording::Open(dir.string());
     for (std::size_t i = 0; i < std::min<std::size_t>(rec.num_sets(), 16); ++i) rec.ReadSet(i);
     rec.MissingByFrameId();
-  } catch (const flamerig::RecordingError&) {
+  } catch (const flamerig::Error&) {  // every error of the hierarchy (core/error.h)
   } catch (const std::invalid_argument&) {
   }
   return 0;

@@ -6,8 +6,8 @@
 // happens only inside the file I/O functions below.
 //
 // Thread safety: an Image is a value; concurrent reads are safe, writes need external locking.
-#ifndef FLAMERIG_ACQUISITION_IMAGE_H_
-#define FLAMERIG_ACQUISITION_IMAGE_H_
+#ifndef FLAMERIG_CORE_IMAGE_H_
+#define FLAMERIG_CORE_IMAGE_H_
 
 #include <cstddef>
 #include <cstdint>
@@ -60,4 +60,4 @@ int ReadImage(const std::string& path, ImageU8* image8, ImageU16* image16, int c
 
 }  // namespace flamerig
 
-#endif  // FLAMERIG_ACQUISITION_IMAGE_H_
+#endif  // FLAMERIG_CORE_IMAGE_H_

@@ -1,9 +1,11 @@
-#include "acquisition/image.h"
+#include "core/image.h"
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <stdexcept>
+
+#include "core/error.h"
 
 namespace flamerig {
 
@@ -13,7 +15,7 @@ template <typename T>
 void WritePngImpl(const std::string& path, const Image<T>& image) {
   constexpr int depth = sizeof(T) == 1 ? CV_8U : CV_16U;
   if (image.channels != 1 && image.channels != 3) {
-    throw std::runtime_error(path + ": cannot write an image with " +
+    throw InputError(path + ": cannot write an image with " +
                              std::to_string(image.channels) + " channels (need 1 or 3)");
   }
   cv::Mat view(image.height, image.width, CV_MAKETYPE(depth, image.channels),
@@ -28,16 +30,16 @@ void WritePngImpl(const std::string& path, const Image<T>& image) {
   try {
     ok = cv::imwrite(path, out);
   } catch (const cv::Exception& e) {
-    throw std::runtime_error(path + ": cannot write image: " + e.what());
+    throw IoError(path + ": cannot write image: " + e.what());
   }
-  if (!ok) throw std::runtime_error(path + ": cannot write image");
+  if (!ok) throw IoError(path + ": cannot write image");
 }
 
 template <typename T>
 Image<T> FromMat(const std::string& path, const cv::Mat& in, int channels) {
   const int file_channels = in.channels();
   const int want = channels == 0 ? (file_channels == 1 ? 1 : 3) : channels;
-  if (want != 1 && want != 3) throw std::runtime_error(path + ": can only read as 1 or 3 channels");
+  if (want != 1 && want != 3) throw InputError(path + ": can only read as 1 or 3 channels");
   cv::Mat rgb;
   if (want == 1) {
     if (file_channels == 1)
@@ -68,9 +70,9 @@ cv::Mat Decode(const std::string& path) {
   try {
     in = cv::imread(path, cv::IMREAD_UNCHANGED);
   } catch (const cv::Exception& e) {
-    throw std::runtime_error(path + ": cannot decode: " + e.what());
+    throw DataError(path + ": cannot decode: " + e.what());
   }
-  if (in.empty()) throw std::runtime_error(path + ": missing or not a decodable image");
+  if (in.empty()) throw DataError(path + ": missing or not a decodable image");
   return in;
 }
 
@@ -82,7 +84,7 @@ void WritePng16(const std::string& path, const ImageU16& image) { WritePngImpl(p
 ImageU8 ReadImageU8(const std::string& path, int channels) {
   cv::Mat in = Decode(path);
   if (in.depth() != CV_8U) {
-    throw std::runtime_error(path + ": expected an 8-bit image, found another bit depth");
+    throw DataError(path + ": expected an 8-bit image, found another bit depth");
   }
   return FromMat<std::uint8_t>(path, in, channels);
 }
@@ -99,7 +101,7 @@ int ReadImage(const std::string& path, ImageU8* image8, ImageU16* image16, int c
     *image8 = ImageU8();
     return 16;
   }
-  throw std::runtime_error(path + ": expected an 8-bit or 16-bit unsigned image");
+  throw DataError(path + ": expected an 8-bit or 16-bit unsigned image");
 }
 
 }  // namespace flamerig

@@ -1,4 +1,4 @@
-#include "acquisition/srgb.h"
+#include "core/srgb.h"
 
 #include <cmath>
 

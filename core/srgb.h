@@ -1,8 +1,8 @@
 // The sRGB transfer curve and 8-bit quantisation: how a camera's linear signal becomes the 8-bit
 // values in an image file, and back. Encoded values are in [0, 1]; linear values are clamped to [0,
 // 1] before encoding (saturation), NaN maps to 0.
-#ifndef FLAMERIG_ACQUISITION_SRGB_H_
-#define FLAMERIG_ACQUISITION_SRGB_H_
+#ifndef FLAMERIG_CORE_SRGB_H_
+#define FLAMERIG_CORE_SRGB_H_
 
 #include <array>
 #include <cstdint>
@@ -18,4 +18,4 @@ const std::array<double, 256>& SrgbU8ToLinearTable();
 
 }  // namespace flamerig
 
-#endif  // FLAMERIG_ACQUISITION_SRGB_H_
+#endif  // FLAMERIG_CORE_SRGB_H_

@@ -3,8 +3,8 @@
 // Errors name where the map is (a file and a key path, given by the caller) and the key, and say
 // the rule broken; keys that no Get() asked for are errors (CheckKnown), so that a typo never
 // falls back silently to a default. Throws std::invalid_argument.
-#ifndef FLAMERIG_ACQUISITION_CONFIG_READER_H_
-#define FLAMERIG_ACQUISITION_CONFIG_READER_H_
+#ifndef FLAMERIG_CORE_CONFIG_READER_H_
+#define FLAMERIG_CORE_CONFIG_READER_H_
 
 #include <yaml-cpp/yaml.h>
 
@@ -16,6 +16,8 @@
 #include <stdexcept>
 #include <string>
 #include <utility>
+
+#include "core/error.h"
 
 namespace flamerig {
 
@@ -30,19 +32,19 @@ class ConfigReader {
     try {
       return v.as<T>();
     } catch (const YAML::Exception&) {
-      throw std::invalid_argument(where_ + ": '" + key + "' has a value of the wrong type");
+      throw InputError(where_ + ": '" + key + "' has a value of the wrong type");
     }
   }
   double Positive(const std::string& key, double fallback) {
     const double v = Get<double>(key, fallback);
     if (!(v > 0) || !std::isfinite(v))
-      throw std::invalid_argument(where_ + ": '" + key + "' must be a positive number");
+      throw InputError(where_ + ": '" + key + "' must be a positive number");
     return v;
   }
   double NonNegative(const std::string& key, double fallback) {
     const double v = Get<double>(key, fallback);
     if (!(v >= 0) || !std::isfinite(v))
-      throw std::invalid_argument(where_ + ": '" + key + "' must be >= 0");
+      throw InputError(where_ + ": '" + key + "' must be >= 0");
     return v;
   }
   // A number in [lo, hi] (bounds that keep every later conversion to an integer type defined).
@@ -51,7 +53,7 @@ class ConfigReader {
     if (!(v >= lo) || !(v <= hi)) {
       std::ostringstream rule;
       rule << "must be in [" << lo << ", " << hi << "]";
-      throw std::invalid_argument(where_ + ": '" + key + "' " + rule.str());
+      throw InputError(where_ + ": '" + key + "' " + rule.str());
     }
     return v;
   }
@@ -60,7 +62,7 @@ class ConfigReader {
   void CheckKnown() const {
     for (const auto& kv : node_) {
       const std::string k = kv.first.as<std::string>();
-      if (!seen_.count(k)) throw std::invalid_argument(where_ + ": unknown key '" + k + "'");
+      if (!seen_.count(k)) throw InputError(where_ + ": unknown key '" + k + "'");
     }
   }
   const std::string& where() const { return where_; }
@@ -75,13 +77,13 @@ class ConfigReader {
 // naming the path: "a folder, not a <kind>", "cannot open <kind>", "not valid YAML: ...".
 inline YAML::Node LoadYamlFile(const std::string& path, const std::string& kind) {
   if (std::filesystem::is_directory(path))
-    throw std::runtime_error(path + ": a folder, not a " + kind);
+    throw InputError(path + ": a folder, not a " + kind);
   try {
     return YAML::LoadFile(path);
   } catch (const YAML::BadFile&) {
-    throw std::runtime_error(path + ": cannot open " + kind);
+    throw InputError(path + ": cannot open " + kind);
   } catch (const YAML::Exception& e) {
-    throw std::runtime_error(path + ": not valid YAML: " + e.what());
+    throw InputError(path + ": not valid YAML: " + e.what());
   }
 }
 
@@ -89,7 +91,7 @@ inline YAML::Node LoadYamlFile(const std::string& path, const std::string& kind)
 // `known`. Throws std::invalid_argument "<where>: must be a map" or "<where>: unknown key 'k'".
 inline void CheckKeys(const YAML::Node& node, std::initializer_list<const char*> known,
                       const std::string& where) {
-  if (!node.IsMap()) throw std::invalid_argument(where + ": must be a map");
+  if (!node.IsMap()) throw InputError(where + ": must be a map");
   ConfigReader r(node, where);
   for (const char* k : known) r.Seen(k);
   r.CheckKnown();
@@ -97,4 +99,4 @@ inline void CheckKeys(const YAML::Node& node, std::initializer_list<const char*>
 
 }  // namespace flamerig
 
-#endif  // FLAMERIG_ACQUISITION_CONFIG_READER_H_
+#endif  // FLAMERIG_CORE_CONFIG_READER_H_
