@@ -3,6 +3,8 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <algorithm>
+#include <random>
 #include <stdexcept>
 
 #include "core/error.h"
@@ -102,6 +104,37 @@ int ReadImage(const std::string& path, ImageU8* image8, ImageU16* image16, int c
     return 16;
   }
   throw DataError(path + ": expected an 8-bit or 16-bit unsigned image");
+}
+
+ImageU8 ContactSheet(const std::vector<ImageU8>& tiles, int tile_height) {
+  int total_w = 0;
+  std::vector<int> widths;
+  for (const auto& t : tiles) {
+    int w = std::max(1, t.width * tile_height / std::max(1, t.height));
+    widths.push_back(w);
+    total_w += w + 4;
+  }
+  ImageU8 sheet(std::max(total_w, 1), tile_height, 3, 16);
+  int x0 = 0;
+  for (std::size_t n = 0; n < tiles.size(); ++n) {
+    const ImageU8& t = tiles[n];
+    for (int y = 0; y < tile_height; ++y)
+      for (int x = 0; x < widths[n]; ++x) {
+        int sx = std::min(t.width - 1, x * t.width / widths[n]);
+        int sy = std::min(t.height - 1, y * t.height / tile_height);
+        for (int c = 0; c < 3; ++c) sheet.at(x0 + x, y, c) = t.at(sx, sy, t.channels == 1 ? 0 : c);
+      }
+    x0 += widths[n] + 4;
+  }
+  return sheet;
+}
+
+void AddSensorNoise(ImageU8* image, double sigma_dn, std::uint64_t seed) {
+  if (!(sigma_dn > 0)) return;
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> noise(0.0, sigma_dn);
+  for (auto& p : image->pixels)
+    p = static_cast<std::uint8_t>(std::clamp(std::lround(p + noise(rng)), 0L, 255L));
 }
 
 }  // namespace flamerig

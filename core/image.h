@@ -58,6 +58,14 @@ ImageU8 ReadImageU8(const std::string& path, int channels = 0);
 // the bit depth, 8 or 16. Same channel rules and errors as ReadImageU8.
 int ReadImage(const std::string& path, ImageU8* image8, ImageU16* image16, int channels = 0);
 
+// Tiles side by side, scaled to a common height (grey promoted to RGB), 4 px apart on a dark grey
+// background: a picture to look at.
+ImageU8 ContactSheet(const std::vector<ImageU8>& tiles, int tile_height);
+
+// Adds Gaussian noise of `sigma_dn` 8-bit units to every channel, rounded and clamped to [0, 255],
+// deterministically from `seed` (std::mt19937_64).
+void AddSensorNoise(ImageU8* image, double sigma_dn, std::uint64_t seed);
+
 }  // namespace flamerig
 
 #endif  // FLAMERIG_CORE_IMAGE_H_

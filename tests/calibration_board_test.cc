@@ -4,7 +4,7 @@
 
 #include "core/error.h"
 #include "calibration/board.h"
-#include "tools/synthetic.h"
+#include "calibration/synthetic_rig.h"
 
 namespace flamerig {
 namespace {

@@ -1,4 +1,4 @@
-// Calibration against known truth: a 4-camera ring from `flamerig simulate` (cameras 90 degrees
+// Calibration against known truth: a 4-camera ring (tests/calibration_ring.h: cameras 90 degrees
 // apart, boards seen by neighbours only, plus close-ups), boards rendered and detected in images;
 // mrcal's own tool on the same detections; and bad input.
 #include <fcntl.h>
@@ -21,109 +21,11 @@
 
 #include "acquisition/recording.h"
 #include "calibration/calibrate.h"
-#include "tools/calibrate_job.h"
-#include "tools/simulate.h"
-#include "tools/synthetic.h"
+#include "calibration/synthetic_rig.h"
+#include "tests/calibration_ring.h"
 
 namespace flamerig {
 namespace {
-
-namespace fs = std::filesystem;
-constexpr double kRadToDeg = 180.0 / 3.14159265358979323846;
-
-fs::path TempDir(const std::string& what) {
-  fs::path d =
-      fs::temp_directory_path() / ("flamerig_calib_" + what + "_" + std::to_string(::getpid()));
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
-
-// The ring of the issue: 4 cameras 90 degrees apart at 640x480, boards shared by neighbours only,
-// close-ups per camera. Rendered once for the whole suite (a few seconds).
-class Ring : public ::testing::Test {
- protected:
-  // Each test runs in its own process under ctest, so the rendered ring is kept in the build tree
-  // (made once, under a lock, by whichever test gets there first). The environment variable
-  // FLAMERIG_TEST_DATA_DIR points elsewhere: the sanitizer pass reuses the ring that the plain
-  // build rendered (rendering it under ASan and UBSan takes 5.5 minutes; the renderer itself is
-  // covered under the sanitizers by smaller tests).
-  static void SetUpTestSuite() {
-    const char* data_dir = std::getenv("FLAMERIG_TEST_DATA_DIR");
-    const fs::path root = fs::path(data_dir && *data_dir ? data_dir : FLAMERIG_TEST_DATA_DIR);
-    fs::create_directories(root);
-    dir_ = new fs::path(root / "calibration_ring_v2");
-    const int lock = ::open((root / "calibration_ring.lock").c_str(), O_CREAT | O_RDWR, 0644);
-    ASSERT_GE(lock, 0);
-    ASSERT_EQ(::flock(lock, LOCK_EX), 0);
-    if (!fs::exists(*dir_ / "done")) {
-      const fs::path tmp = root / ("calibration_ring_tmp_" + std::to_string(::getpid()));
-      fs::remove_all(tmp);
-      SimulateConfig c;
-      c.seed = 21;
-      c.frames = 1;
-      c.grid_resolution = 12;
-      c.ring.cameras = 4;
-      c.ring.width = 640;
-      c.ring.height = 480;
-      c.ring.fill = 0.45;  // a wider field than the flame needs, as on a real rig (f about 780 px)
-      c.board.square_m = 0.012;
-      c.board.marker_m = 0.009;
-      c.shared_per_pair = 24;
-      c.closeups_per_camera = 24;
-      Simulate(c, tmp.string());
-      std::ofstream(tmp / "done") << "complete\n";
-      fs::remove_all(*dir_);
-      fs::rename(tmp, *dir_);
-    }
-    ::close(lock);  // releases the lock
-    truth_ = new Rig(Rig::Load((*dir_ / "rig.yaml").string()));
-  }
-  static void TearDownTestSuite() {
-    delete dir_;
-    delete truth_;
-  }
-  static CalibrationData Detect(const std::string& cache = "") {
-    return DetectViewsInFolder((*dir_ / "calibration").string(),
-                               LoadBoardSpec((*dir_ / "calibration" / "board.yaml").string()), {},
-                               cache);
-  }
-  static fs::path* dir_;
-  static Rig* truth_;
-};
-fs::path* Ring::dir_ = nullptr;
-Rig* Ring::truth_ = nullptr;
-
-double AngleDeg(const Eigen::Quaterniond& a, const Eigen::Quaterniond& b) {
-  return Eigen::AngleAxisd(a.inverse() * b).angle() * kRadToDeg;
-}
-
-// Relative poses cam_i_from_cam_0 do not depend on the rig frame: compare them with the truth.
-void ExpectExtrinsicsNear(const Rig& got, const Rig& truth, double max_deg, double max_m) {
-  ASSERT_EQ(got.cameras.size(), truth.cameras.size());
-  const Rigid3 g0 = got.cameras[0].model.cam_from_rig(), t0 = truth.cameras[0].model.cam_from_rig();
-  for (std::size_t c = 1; c < got.cameras.size(); ++c) {
-    const Rigid3 g = got.cameras[c].model.cam_from_rig() * g0.Inverse();
-    const Rigid3 t = truth.cameras[c].model.cam_from_rig() * t0.Inverse();
-    EXPECT_LT(AngleDeg(g.rotation, t.rotation), max_deg) << got.cameras[c].name;
-    EXPECT_LT((g.translation - t.translation).norm(), max_m) << got.cameras[c].name;
-  }
-}
-
-// The worst pixel disagreement between two models of one camera over points of the reconstruction
-// box, each model in its own rig frame (`got_from_truth` maps truth rig points to the other).
-double WorstProjectionDifferencePx(const CameraModel& got, const CameraModel& truth,
-                                   const Box3& box, const Rigid3& got_from_truth) {
-  double worst = 0;
-  for (int i = 0; i <= 4; ++i)
-    for (int j = 0; j <= 4; ++j)
-      for (int k = 0; k <= 4; ++k) {
-        const Eigen::Vector3d p =
-            box.min_in_rig + box.size().cwiseProduct(Eigen::Vector3d(i, j, k) / 4.0);
-        worst = std::max(worst, (got.Project(got_from_truth * p) - truth.Project(p)).norm());
-      }
-  return worst;
-}
 
 TEST_F(Ring, RecoversTheRingFromRenderedImages) {
   const CalibrationData data = Detect();
@@ -400,17 +302,6 @@ TEST_F(Ring, ReadsARecording) {
   fs::remove_all(rec_dir.parent_path());
 }
 
-// ---- Bad input: each error names the camera (or file) and the reason.
-
-std::string ErrorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const std::exception& e) {
-    return e.what();
-  }
-  return "(no error)";
-}
-
 TEST_F(Ring, TooFewViewsNamesTheCamera) {
   CalibrationData data = Detect();
   // Keep only two views of cam2.
@@ -497,47 +388,6 @@ TEST_F(Ring, AWrongBoardSizeNeverReachesTheSolve) {
               e.find("sees the board in only") != std::string::npos)
       << e;
   EXPECT_NE(e.find("wrong board size"), std::string::npos) << e;
-}
-
-TEST_F(Ring, WritesARigThatLoadsAndAReport) {
-  const fs::path out = TempDir("job");
-  CalibrateConfig config =
-      CalibrateConfig::Load(std::string(FLAMERIG_SOURCE_DIR) + "/config/calibrate_sim.yaml");
-  const CalibrationSummary s =
-      RunCalibration(config, CalibrateInput{(*dir_ / "calibration").string(), ""}, out.string());
-  const Rig rig = Rig::Load((out / "rig.yaml").string());
-  ASSERT_EQ(rig.cameras.size(), 4u);
-  EXPECT_EQ(rig.box.min_in_rig, config.options.box.min_in_rig);
-  // The models on disk are the solved ones, at full precision.
-  for (std::size_t c = 0; c < 4; ++c)
-    for (std::size_t i = 0; i < rig.cameras[c].model.intrinsics().size(); ++i)
-      EXPECT_EQ(rig.cameras[c].model.intrinsics()[i], s.rig.cameras[c].model.intrinsics()[i]);
-  for (const char* f : {"report.md", "rig_top.png", "coverage_cam0.png", "coverage_cam3.png",
-                        "corners.vnl", "detections.cache"})
-    EXPECT_TRUE(fs::exists(out / f)) << f;
-  std::ifstream report(out / "report.md");
-  std::string text((std::istreambuf_iterator<char>(report)), std::istreambuf_iterator<char>());
-  EXPECT_NE(text.find("per coordinate"), std::string::npos);
-  EXPECT_NE(text.find("Worst corners"), std::string::npos);
-  fs::remove_all(out);
-}
-
-TEST(CalibrateConfig, ErrorsNameTheFileAndKey) {
-  const fs::path dir = TempDir("config");
-  auto write = [&](const std::string& text) {
-    std::ofstream((dir / "c.yaml").string()) << text;
-    return ErrorOf([&] { CalibrateConfig::Load((dir / "c.yaml").string()); });
-  };
-  EXPECT_NE(write("calibrate: {lensmodel: LENSMODEL_NOPE}\n").find("LENSMODEL_NOPE"),
-            std::string::npos);
-  EXPECT_NE(write("calibrate: {frame: sideways}\n").find("'frame'"), std::string::npos);
-  EXPECT_NE(write("calibrate: {bogus: 1}\n").find("unknown key 'bogus'"), std::string::npos);
-  EXPECT_NE(write("calibrate: {box: {min: [0, 0, 0], max: [1, -1, 1]}}\n").find("box"),
-            std::string::npos);
-  const std::string e = write("calibrate: {board: {type: chessboard, squares: [8, 6]}}\n");
-  EXPECT_NE(e.find("c.yaml"), std::string::npos) << e;
-  EXPECT_NE(e.find("one odd and one even"), std::string::npos) << e;
-  fs::remove_all(dir);
 }
 
 }  // namespace

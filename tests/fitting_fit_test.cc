@@ -11,8 +11,9 @@
 #include "fitting/colour.h"
 #include "fitting/fit.h"
 #include "tomography/reconstruct.h"
-#include "tools/simulate.h"
-#include "tools/synthetic.h"
+#include "pipeline/simulate.h"
+#include "calibration/synthetic_rig.h"
+#include "fitting/synthetic_fire.h"
 
 namespace flamerig {
 namespace {

@@ -1,7 +1,7 @@
 // Fire lighting a scene: energy against closed forms (a small thin fire is a point source of its
 // total intensity: inverse square and cosine laws; an optically thick cube dims by
 // (1 - exp(-kappa a)) / (kappa a)), closed shadows, Reinhard's formula, convergence with samples,
-// determinism, stress, and the scene file's errors.
+// determinism and stress.
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
 #include <unistd.h>
@@ -17,23 +17,12 @@
 #include "fitting/scene.h"
 #include "fitting/tonemap.h"
 #include "tomography/vdb_io.h"
-#include "tools/scene_job.h"
+#include "tests/scene_util.h"
 
 namespace flamerig {
 namespace {
 
 namespace fs = std::filesystem;
-
-// A cube of `n` voxels a side, `size_m` across, uniform temperature and density, its min corner at
-// the origin of its rig frame.
-FireVolume UniformCube(int n, double size_m, double temperature_k, double density) {
-  FireVolume v;
-  v.geometry.dims = Eigen::Vector3i::Constant(n);
-  v.geometry.voxel_size_m = Eigen::Vector3d::Constant(size_m / n);
-  v.temperature_k.assign(v.geometry.num_voxels(), static_cast<float>(temperature_k));
-  v.density_per_m3.assign(v.geometry.num_voxels(), static_cast<float>(density));
-  return v;
-}
 
 // The luminance of a grey body's emission per metre per unit cross-section and density: the Planck
 // radiance weighted by ybar over ybar's integral, by quadrature on colord-data's independent copy
@@ -55,24 +44,6 @@ double PlanckLuminance(double temperature_k) {
     den += y;
   }
   return num / den;
-}
-
-double Luminance(const Eigen::Vector3d& rgb) {
-  return 0.2126 * rgb.x() + 0.7152 * rgb.y() + 0.0722 * rgb.z();
-}
-
-Scene FloorScene() {
-  Scene s;
-  SceneMaterial white;
-  white.name = "white";
-  white.albedo = Eigen::Vector3d::Constant(1.0);
-  s.materials.push_back(white);
-  s.geometry.AddQuad(Eigen::Vector3d::Zero(), Eigen::Vector3d::UnitY(), {10, 10}, 0);
-  s.camera.position = Eigen::Vector3d(0, 1.5, 2.5);
-  s.camera.look_at = Eigen::Vector3d(0, 0.2, 0);
-  s.camera.width = 64;
-  s.camera.height = 48;
-  return s;
 }
 
 TEST(Scene, ASmallThinFireIsAPointSourceOfItsTotalIntensity) {
@@ -188,37 +159,6 @@ TEST(Scene, ReinhardMatchesItsFormula) {
   EXPECT_THROW(ToneMapReinhard(image, o), InputError);
 }
 
-// A floor and a sphere lit by a small candle-like fire.
-Scene LitScene(int width, int height) {
-  Scene scene = FloorScene();
-  scene.camera.width = width;
-  scene.camera.height = height;
-  scene.camera.position = Eigen::Vector3d(0, 0.25, 0.6);
-  scene.camera.look_at = Eigen::Vector3d(0, 0.03, 0);
-  SceneMaterial glossy;
-  glossy.name = "glossy";
-  glossy.albedo = Eigen::Vector3d::Constant(0.2);
-  glossy.specular = Eigen::Vector3d::Constant(0.5);
-  glossy.shininess = 100;
-  scene.materials.push_back(glossy);
-  scene.geometry.spheres.push_back({Eigen::Vector3d(0.05, 0.02, 0.02), 0.02, 1});
-  SceneFire fire;
-  FireVolume v = UniformCube(16, 0.02, 300, 0);
-  for (int k = 0; k < 16; ++k)
-    for (int j = 0; j < 16; ++j)
-      for (int i = 0; i < 16; ++i) {
-        const double r = std::hypot(i - 7.5, k - 7.5) / 8, h = j / 16.0;
-        if (r < 1 - h) {
-          v.temperature_k[v.geometry.Flat(i, j, k)] = static_cast<float>(1500 + 600 * (1 - r));
-          v.density_per_m3[v.geometry.Flat(i, j, k)] = 3e16f;
-        }
-      }
-  fire.volume = v;
-  fire.translate = Eigen::Vector3d(-0.01, 0.02, -0.01);  // a flame above a wick, off the floor
-  scene.fires.push_back(fire);
-  return scene;
-}
-
 double Rmse(const ImageF& a, const ImageF& b) {
   double s = 0;
   for (std::size_t i = 0; i < a.pixels.size(); ++i)
@@ -294,81 +234,6 @@ TEST(Scene, StaysFiniteOverThePhysicalRange) {
   bad = LitScene(8, 8);
   bad.geometry.triangle_material[0] = 7;
   EXPECT_THROW(SceneRenderer{bad}, InputError);
-}
-
-fs::path TempDir() {
-  const fs::path dir =
-      fs::temp_directory_path() / ("flamerig_scene_test_" + std::to_string(::getpid()) + "_" +
-                                   ::testing::UnitTest::GetInstance()->current_test_info()->name());
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
-
-TEST(SceneJob, ReadsScenesMeshesAndWritesExr) {
-  const fs::path dir = TempDir();
-  const Scene lit = LitScene(32, 24);
-  WriteVdb((dir / "fire.vdb").string(), lit.fires[0].volume);
-  // A mesh: one triangle standing between the fire and the floor to its right.
-  std::ofstream(dir / "wall.obj") << "v 0.03 0 -0.05\nv 0.03 0 0.05\nv 0.03 0.08 0\nf 1 2 3\n";
-  const std::string yaml =
-      "scene:\n"
-      "  camera: {position: [0, 0.25, 0.6], look_at: [0, 0.03, 0], fov_deg: 40, width: 32, "
-      "height: 24}\n"
-      "  materials:\n    white: {albedo: [1, 1, 1]}\n"
-      "  objects:\n"
-      "    - {type: plane, centre: [0, 0, 0], normal: [0, 1, 0], size: [2, 2], material: white}\n"
-      "    - {type: mesh, file: wall.obj, material: white}\n"
-      "  fires:\n    - {volume: fire.vdb, translate: [-0.01, 0, -0.01]}\n"
-      "render: {samples: 8, lighting: compare}\n";
-  std::ofstream(dir / "scene.yaml") << yaml;
-  const SceneJob job = SceneJob::Load((dir / "scene.yaml").string());
-  EXPECT_EQ(job.scene.geometry.triangles.size(), 3u);  // the plane's two and the mesh's one
-  EXPECT_TRUE(job.compare);
-  const SceneJobResult r = RunSceneJob(job, (dir / "out").string());
-  EXPECT_EQ(r.renders.size(), 3u);
-  for (const auto& f : r.files) EXPECT_TRUE(fs::exists(f)) << f;
-  // The EXR holds the linear render: the same numbers back, and the floor right of the mesh is
-  // in its shadow (darker than the mirror point on the left).
-  SceneJob fire_only = job;
-  fire_only.compare = false;
-  const SceneRenderer renderer(fire_only.scene);
-  ImageF linear;
-  renderer.Render(fire_only.render, &linear);
-  const ImageF back = ReadExr((dir / "out" / "fire.exr").string());
-  EXPECT_TRUE(back.pixels == linear.pixels);
-  const Eigen::Vector3d left = renderer.Irradiance({-0.08, 0, 0}, Eigen::Vector3d::UnitY(),
-                                                   SceneLighting::kFireVolume, 1024, 1);
-  const Eigen::Vector3d right = renderer.Irradiance({0.08, 0, 0}, Eigen::Vector3d::UnitY(),
-                                                    SceneLighting::kFireVolume, 1024, 1);
-  EXPECT_LT(Luminance(right), 0.5 * Luminance(left));
-
-  // Mistakes name the file and the key.
-  auto expect_error = [&](const std::string& text, const std::string& words) {
-    std::ofstream(dir / "bad.yaml") << text;
-    try {
-      SceneJob::Load((dir / "bad.yaml").string());
-      ADD_FAILURE() << "accepted: " << text;
-    } catch (const std::exception& e) {
-      EXPECT_NE(std::string(e.what()).find(words), std::string::npos) << e.what();
-      EXPECT_NE(std::string(e.what()).find("bad.yaml"), std::string::npos) << e.what();
-    }
-  };
-  expect_error("scene:\n  fires: [{volume: fire.vdb}]\n  colour: red\n", "unknown key 'colour'");
-  expect_error(
-      "scene:\n  materials: {a: {albedo: [1, 1, 1]}}\n  objects: [{type: sphere, centre: [0, 0, "
-      "0], radius: 1, material: b}]\n  fires: [{volume: fire.vdb}]\n",
-      "material 'b'");
-  expect_error("scene:\n  materials: {a: {albedo: [2, 1, 1]}}\n  fires: [{volume: fire.vdb}]\n",
-               "albedo");
-  expect_error("scene:\n  objects: []\n", "no fire");
-  expect_error("scene:\n  fires: [{volume: missing.vdb}]\n", "missing.vdb");
-  std::ofstream(dir / "broken.obj") << "v 0 0 0\nf 1 2 3\n";
-  expect_error(
-      "scene:\n  materials: {a: {albedo: [1, 1, 1]}}\n  objects: [{type: mesh, file: broken.obj, "
-      "material: a}]\n  fires: [{volume: fire.vdb}]\n",
-      "broken.obj");
-  fs::remove_all(dir);
 }
 
 }  // namespace

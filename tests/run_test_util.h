@@ -9,8 +9,8 @@
 #include <string>
 
 #include "tomography/vdb_io.h"
-#include "tools/run_job.h"
-#include "tools/simulate.h"
+#include "pipeline/run.h"
+#include "pipeline/simulate.h"
 
 namespace flamerig {
 namespace testing_run {

@@ -9,7 +9,8 @@
 #include "core/error.h"
 #include "fitting/renderer.h"
 #include "tomography/reconstruct.h"
-#include "tools/synthetic.h"
+#include "calibration/synthetic_rig.h"
+#include "fitting/synthetic_fire.h"
 
 namespace flamerig {
 namespace {

@@ -9,7 +9,8 @@
 #include "fitting/renderer.h"
 #include "tomography/reconstruct.h"
 #include "tomography/system_matrix.h"
-#include "tools/synthetic.h"
+#include "calibration/synthetic_rig.h"
+#include "fitting/synthetic_fire.h"
 
 namespace flamerig {
 namespace {

@@ -15,7 +15,7 @@
 
 #include "core/image.h"
 #include "tests/run_test_util.h"
-#include "tools/run_mpi.h"
+#include "pipeline/distributed.h"
 
 namespace flamerig {
 namespace {
@@ -189,7 +189,7 @@ TEST(RunCli, BlenderRendersTheExportAsAnUprightFire) {
     SCOPED_TRACE(mode.empty() ? "script material" : "README settings");
     const fs::path png = dir / ("blender" + mode + ".png");
     // The README's route needs more light: Blender's blackbody ignores the soot's amount and is
-    // scaled by 1e-6 sigma / pi (notes in tools/blender_export.h).
+    // scaled by 1e-6 sigma / pi (notes in pipeline/blender_export.h).
     const double stops = mode.empty() ? 0 : 7;
     const Result b = Shell("blender --background --python " + std::string(FLAMERIG_SOURCE_DIR) +
                            "/tools/blender_fire.py -- " + (dir / "out" / "blender").string() +

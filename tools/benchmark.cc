@@ -18,9 +18,10 @@
 #include "fitting/fit.h"
 #include "fitting/renderer.h"
 #include "tomography/reconstruct.h"
-#include "tools/fit_report.h"
-#include "tools/simulate.h"
-#include "tools/synthetic.h"
+#include "pipeline/fit_report.h"
+#include "pipeline/simulate.h"
+#include "calibration/synthetic_rig.h"
+#include "fitting/synthetic_fire.h"
 
 namespace flamerig {
 namespace {

@@ -8,7 +8,7 @@
 
 #include "calibration/calibrate.h"
 #include "tools/benchmark.h"
-#include "tools/simulate.h"
+#include "pipeline/simulate.h"
 
 namespace flamerig {
 

@@ -31,14 +31,14 @@
 #include "tomography/reconstruct.h"
 #include "tomography/vdb_io.h"
 #include "tools/benchmark.h"
-#include "tools/calibrate_job.h"
-#include "tools/export.h"
-#include "tools/fit_report.h"
-#include "tools/run_job.h"
-#include "tools/run_mpi.h"
-#include "tools/run_report.h"
-#include "tools/scene_job.h"
-#include "tools/simulate.h"
+#include "pipeline/calibrate_job.h"
+#include "pipeline/export.h"
+#include "pipeline/fit_report.h"
+#include "pipeline/run.h"
+#include "pipeline/distributed.h"
+#include "pipeline/run_report.h"
+#include "pipeline/scene_job.h"
+#include "pipeline/simulate.h"
 #include "tools/soak.h"
 
 namespace fs = std::filesystem;
@@ -220,7 +220,9 @@ int Simulate(const Args& args) {
   args.CheckKnown({"config", "out"});
   SimulateConfig config = SimulateConfig::Load(args.Required("config"));
   std::string out = args.Required("out");
-  SimulateSummary s = Simulate(config, out, ProgressBar);
+  SimulateSummary s = Simulate(config, out, Observe([](const Progress& p) {
+    ProgressBar(p.stage, static_cast<int>(p.done), static_cast<int>(p.total));
+  }));
   std::printf("simulate: wrote %s\n", out.c_str());
   std::printf(
       "  %d camera(s), %d frame(s) of a %s fire, grid %d along the longest axis, %s absorption\n",
@@ -235,7 +237,7 @@ int Simulate(const Args& args) {
   return 0;
 }
 
-// `flamerig render --scene`: fires lighting a scene (tools/scene_job.h).
+// `flamerig render --scene`: fires lighting a scene (pipeline/scene_job.h).
 int RenderScene(const Args& args) {
   args.CheckKnown({"scene", "out", "volume", "samples", "lighting", "seed", "threads"});
   // The numbers first: a bad one is reported before the scene is loaded.
@@ -644,7 +646,7 @@ int Fit(const Args& args) {
   return 0;
 }
 
-// `flamerig run`: see tools/run_job.h (and tools/run_mpi.h under mpirun).
+// `flamerig run`: see pipeline/run.h (and pipeline/distributed.h under mpirun).
 int Run(const Args& args, MpiSession& mpi) {
   args.CheckKnown({"recording",
                    "seq",

@@ -12,9 +12,9 @@
 
 #include "core/image.h"
 #include "tools/benchmark.h"
-#include "tools/run_job.h"
-#include "tools/run_mpi.h"
-#include "tools/simulate.h"
+#include "pipeline/run.h"
+#include "pipeline/distributed.h"
+#include "pipeline/simulate.h"
 
 namespace flamerig {
 

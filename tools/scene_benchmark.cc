@@ -5,7 +5,8 @@
 
 #include "fitting/scene.h"
 #include "tools/benchmark.h"
-#include "tools/synthetic.h"
+#include "calibration/synthetic_rig.h"
+#include "fitting/synthetic_fire.h"
 
 namespace flamerig {
 

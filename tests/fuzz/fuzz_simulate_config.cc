@@ -1,7 +1,7 @@
-// The `flamerig simulate` config (tools/simulate.h): errors are std::runtime_error or
+// The `flamerig simulate` config (pipeline/simulate.h): errors are std::runtime_error or
 // std::invalid_argument naming the file and the field.
 #include "tests/fuzz/fuzz_util.h"
-#include "tools/simulate.h"
+#include "pipeline/simulate.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   const std::string path = flamerig_fuzz::WriteFile("simulate.yaml", data, size);

@@ -11,8 +11,8 @@
 // (OMPI_COMM_WORLD_LOCAL_SIZE), unless --threads says otherwise.
 //
 // Thread safety: one MpiSession per process, used from the main thread.
-#ifndef FLAMERIG_TOOLS_RUN_MPI_H_
-#define FLAMERIG_TOOLS_RUN_MPI_H_
+#ifndef FLAMERIG_PIPELINE_DISTRIBUTED_H_
+#define FLAMERIG_PIPELINE_DISTRIBUTED_H_
 
 #include <cstddef>
 #include <string>
@@ -55,4 +55,4 @@ void RankFrames(std::size_t begin, std::size_t end, int rank, int size, std::siz
 
 }  // namespace flamerig
 
-#endif  // FLAMERIG_TOOLS_RUN_MPI_H_
+#endif  // FLAMERIG_PIPELINE_DISTRIBUTED_H_

@@ -14,8 +14,8 @@
 // camera, the set and both sizes; so is a frame whose checksum fails (RecordingError).
 //
 // Thread safety: Read() may be called from one thread at a time.
-#ifndef FLAMERIG_TOOLS_FRAME_SOURCE_H_
-#define FLAMERIG_TOOLS_FRAME_SOURCE_H_
+#ifndef FLAMERIG_PIPELINE_FRAME_SOURCE_H_
+#define FLAMERIG_PIPELINE_FRAME_SOURCE_H_
 
 #include <cstdint>
 #include <memory>
@@ -99,4 +99,4 @@ ImageChange CompareImages(const ImageU8& a, const ImageU8& b, const ChangeOption
 
 }  // namespace flamerig
 
-#endif  // FLAMERIG_TOOLS_FRAME_SOURCE_H_
+#endif  // FLAMERIG_PIPELINE_FRAME_SOURCE_H_

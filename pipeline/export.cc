@@ -1,4 +1,4 @@
-#include "tools/export.h"
+#include "pipeline/export.h"
 
 #include <cstdio>
 #include <filesystem>

@@ -32,8 +32,8 @@
 // the previous frame's output is already there.
 //
 // Thread safety: RunFrames uses TBB inside; call it from one thread.
-#ifndef FLAMERIG_TOOLS_RUN_JOB_H_
-#define FLAMERIG_TOOLS_RUN_JOB_H_
+#ifndef FLAMERIG_PIPELINE_RUN_H_
+#define FLAMERIG_PIPELINE_RUN_H_
 
 #include <cstddef>
 #include <functional>
@@ -42,8 +42,8 @@
 
 #include "fitting/fit.h"
 #include "tomography/reconstruct.h"
-#include "tools/calibrate_job.h"
-#include "tools/frame_source.h"
+#include "pipeline/calibrate_job.h"
+#include "pipeline/frame_source.h"
 
 namespace flamerig {
 
@@ -158,4 +158,4 @@ std::string DatasetAbsorption(const std::string& rig_path);
 
 }  // namespace flamerig
 
-#endif  // FLAMERIG_TOOLS_RUN_JOB_H_
+#endif  // FLAMERIG_PIPELINE_RUN_H_

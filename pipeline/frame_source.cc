@@ -1,4 +1,4 @@
-#include "tools/frame_source.h"
+#include "pipeline/frame_source.h"
 
 #include <algorithm>
 #include <cmath>

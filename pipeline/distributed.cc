@@ -1,4 +1,4 @@
-#include "tools/run_mpi.h"
+#include "pipeline/distributed.h"
 
 #include <cstdlib>
 #include <stdexcept>

@@ -23,8 +23,8 @@
 // (x, -z, y)_rig, a rotation of +90 degrees about X, so the flame stands upright.
 // File metadata: exposure (render the sequence with Film > Exposure = log2(exposure) stops and the
 // "Standard" view transform to get the camera's image), units, source frame.
-#ifndef FLAMERIG_TOOLS_BLENDER_EXPORT_H_
-#define FLAMERIG_TOOLS_BLENDER_EXPORT_H_
+#ifndef FLAMERIG_PIPELINE_BLENDER_EXPORT_H_
+#define FLAMERIG_PIPELINE_BLENDER_EXPORT_H_
 
 #include <string>
 
@@ -50,4 +50,4 @@ void WriteBlenderVdb(const std::string& path, const FireVolume& fitted,
 
 }  // namespace flamerig
 
-#endif  // FLAMERIG_TOOLS_BLENDER_EXPORT_H_
+#endif  // FLAMERIG_PIPELINE_BLENDER_EXPORT_H_

@@ -1,4 +1,4 @@
-#include "tools/run_job.h"
+#include "pipeline/run.h"
 
 #include <fcntl.h>
 #include <unistd.h>
@@ -17,9 +17,9 @@
 #include "acquisition/recording.h"
 #include "fitting/renderer.h"
 #include "tomography/vdb_io.h"
-#include "tools/blender_export.h"
-#include "tools/fit_report.h"
-#include "tools/simulate.h"
+#include "pipeline/blender_export.h"
+#include "pipeline/fit_report.h"
+#include "pipeline/simulate.h"
 
 namespace flamerig {
 

@@ -1,4 +1,4 @@
-#include "tools/simulate.h"
+#include "pipeline/simulate.h"
 
 #include <yaml-cpp/yaml.h>
 
@@ -57,37 +57,6 @@ std::string FrameName(int f) {
 }
 
 }  // namespace
-
-ImageU8 ContactSheet(const std::vector<ImageU8>& tiles, int tile_height) {
-  int total_w = 0;
-  std::vector<int> widths;
-  for (const auto& t : tiles) {
-    int w = std::max(1, t.width * tile_height / std::max(1, t.height));
-    widths.push_back(w);
-    total_w += w + 4;
-  }
-  ImageU8 sheet(std::max(total_w, 1), tile_height, 3, 16);
-  int x0 = 0;
-  for (std::size_t n = 0; n < tiles.size(); ++n) {
-    const ImageU8& t = tiles[n];
-    for (int y = 0; y < tile_height; ++y)
-      for (int x = 0; x < widths[n]; ++x) {
-        int sx = std::min(t.width - 1, x * t.width / widths[n]);
-        int sy = std::min(t.height - 1, y * t.height / tile_height);
-        for (int c = 0; c < 3; ++c) sheet.at(x0 + x, y, c) = t.at(sx, sy, t.channels == 1 ? 0 : c);
-      }
-    x0 += widths[n] + 4;
-  }
-  return sheet;
-}
-
-void AddSensorNoise(ImageU8* image, double sigma_dn, std::uint64_t seed) {
-  if (!(sigma_dn > 0)) return;
-  std::mt19937_64 rng(seed);
-  std::normal_distribution<double> noise(0.0, sigma_dn);
-  for (auto& p : image->pixels)
-    p = static_cast<std::uint8_t>(std::clamp(std::lround(p + noise(rng)), 0L, 255L));
-}
 
 namespace {
 
@@ -228,7 +197,12 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
   config.Validate();
   const auto start = std::chrono::steady_clock::now();
   auto report = [&](const std::string& stage, int done, int total) {
-    if (progress) progress(stage, done, total);
+    Progress p;
+    p.stage = stage;
+    p.unit = "frames";
+    p.done = done;
+    p.total = total;
+    if (ReportProgress(progress, p)) throw Cancelled("simulate: cancelled");
   };
   fs::create_directories(out_dir);
   SimulateSummary summary;
@@ -334,50 +308,13 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
   summary.frames = config.frames;
 
   if (config.calibration) {
-    auto views = synthetic::MakeCalibrationViews(
-        rig, config.board, config.seed + 1, config.shared_per_pair, config.closeups_per_camera);
-    fs::path cal_dir = fs::path(out_dir) / "calibration";
-    fs::create_directories(cal_dir);
-    YAML::Emitter board_yaml;
-    board_yaml << YAML::BeginMap << YAML::Key << "board" << YAML::Value << YAML::BeginMap;
-    board_yaml << YAML::Key << "type" << YAML::Value
-               << (config.board.type == synthetic::BoardType::kCharuco ? "charuco" : "chessboard");
-    board_yaml << YAML::Key << "squares" << YAML::Value << YAML::Flow
-               << std::vector<int>{config.board.squares_x, config.board.squares_y};
-    board_yaml << YAML::Key << "square_m" << YAML::Value << config.board.square_m;
-    board_yaml << YAML::Key << "marker_m" << YAML::Value << config.board.marker_m;
-    board_yaml << YAML::Key << "aruco_dictionary" << YAML::Value << config.board.aruco_dictionary;
-    board_yaml << YAML::Key << "frame" << YAML::Value
-               << "origin at the pattern's top-left corner, x along squares_x, y along squares_y, "
-                  "printed side faces -z";
-    board_yaml << YAML::EndMap;
-    board_yaml << YAML::Key << "views" << YAML::Value << YAML::BeginSeq;
-    for (std::size_t v = 0; v < views.size(); ++v) {
-      report("calibration views", static_cast<int>(v), static_cast<int>(views.size()));
-      char vname[32];
-      std::snprintf(vname, sizeof(vname), "view_%03zu", v);
-      fs::create_directories(cal_dir / vname);
-      std::vector<std::string> names;
-      for (int c : views[v].cameras) {
-        ImageU8 img = synthetic::RenderBoard(
-            rig.cameras[c].model, rays[c].rays(), config.board, views[v].rig_from_board,
-            config.noise_dn > 0 ? std::max(config.noise_dn, 1.0) : 0.0,
-            config.seed * 7919ULL + v * 31ULL + c);
-        WritePng((cal_dir / vname / (rig.cameras[c].name + ".png")).string(), img);
-        names.push_back(rig.cameras[c].name);
-        ++summary.calibration_images;
-        if (v == 0) preview.push_back(img);
-      }
-      auto rt = views[v].rig_from_board.ToRt();
-      board_yaml << YAML::BeginMap << YAML::Key << "name" << YAML::Value << vname << YAML::Key
-                 << "kind" << YAML::Value << views[v].kind << YAML::Key << "rt_rig_from_board"
-                 << YAML::Value << YAML::Flow << std::vector<double>(rt.begin(), rt.end())
-                 << YAML::Key << "cameras" << YAML::Value << YAML::Flow << names << YAML::EndMap;
-    }
-    board_yaml << YAML::EndSeq << YAML::EndMap;
-    std::ofstream((cal_dir / "board.yaml").string()) << board_yaml.c_str() << "\n";
-    summary.calibration_views = static_cast<int>(views.size());
-    report("calibration views", summary.calibration_views, summary.calibration_views);
+    auto written = synthetic::WriteCalibrationViews(
+        rig, config.board, config.seed, config.shared_per_pair, config.closeups_per_camera,
+        config.noise_dn, (fs::path(out_dir) / "calibration").string(),
+        progress);
+    for (auto& image : written.first_view) preview.push_back(std::move(image));
+    summary.calibration_views = written.views;
+    summary.calibration_images = written.images;
     yaml << YAML::Key << "calibration" << YAML::Value << "calibration/board.yaml";
   }
   yaml << YAML::EndMap << YAML::EndMap;

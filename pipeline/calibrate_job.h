@@ -26,8 +26,8 @@
 //   corners.vnl                              the detections in mrcal's corners format (re-solve
 //                                            with mrcal-calibrate-cameras)
 //   detections.cache                         so that a second run detects nothing again
-#ifndef FLAMERIG_TOOLS_CALIBRATE_JOB_H_
-#define FLAMERIG_TOOLS_CALIBRATE_JOB_H_
+#ifndef FLAMERIG_PIPELINE_CALIBRATE_JOB_H_
+#define FLAMERIG_PIPELINE_CALIBRATE_JOB_H_
 
 #include <optional>
 #include <string>
@@ -67,4 +67,4 @@ ImageU8 RigFromAbove(const CalibrationSummary& summary, int size = 700);
 
 }  // namespace flamerig
 
-#endif  // FLAMERIG_TOOLS_CALIBRATE_JOB_H_
+#endif  // FLAMERIG_PIPELINE_CALIBRATE_JOB_H_

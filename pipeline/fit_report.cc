@@ -1,4 +1,4 @@
-#include "tools/fit_report.h"
+#include "pipeline/fit_report.h"
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -10,7 +10,7 @@
 #include <sstream>
 
 #include "fitting/colour.h"
-#include "tools/simulate.h"
+#include "pipeline/simulate.h"
 
 namespace flamerig {
 

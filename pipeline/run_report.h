@@ -9,13 +9,13 @@
 //                    beside it when known, coloured by one scale with its colour bar in kelvin
 //   frames.csv       every frame's summary as a table (OUT/frames.csv)
 // plus a table of every frame's summary line.
-#ifndef FLAMERIG_TOOLS_RUN_REPORT_H_
-#define FLAMERIG_TOOLS_RUN_REPORT_H_
+#ifndef FLAMERIG_PIPELINE_RUN_REPORT_H_
+#define FLAMERIG_PIPELINE_RUN_REPORT_H_
 
 #include <string>
 #include <vector>
 
-#include "tools/run_job.h"
+#include "pipeline/run.h"
 
 namespace flamerig {
 
@@ -43,4 +43,4 @@ ImageU8 TemperatureSlice(const FireVolume& volume, int axis, int index, double t
 
 }  // namespace flamerig
 
-#endif  // FLAMERIG_TOOLS_RUN_REPORT_H_
+#endif  // FLAMERIG_PIPELINE_RUN_REPORT_H_

@@ -1,8 +1,8 @@
 // Pictures and numbers a person can look at after a fit: for every view (the fitted ones and any
 // held-out one) the input, the fitted volume rendered through the camera and their difference as
 // a Delta E heat map; a plot of error against time; the trace as CSV; a Markdown summary.
-#ifndef FLAMERIG_TOOLS_FIT_REPORT_H_
-#define FLAMERIG_TOOLS_FIT_REPORT_H_
+#ifndef FLAMERIG_PIPELINE_FIT_REPORT_H_
+#define FLAMERIG_PIPELINE_FIT_REPORT_H_
 
 #include <string>
 #include <vector>
@@ -60,4 +60,4 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted);
 
 }  // namespace flamerig
 
-#endif  // FLAMERIG_TOOLS_FIT_REPORT_H_
+#endif  // FLAMERIG_PIPELINE_FIT_REPORT_H_

@@ -1,8 +1,8 @@
 // `flamerig export`: a recording's frame sets as standard image files, in the dataset layout that
 // `flamerig reconstruct` and `flamerig fit` read (OUT/frame_NNNNNN/<camera>.png), with a CSV of
 // what each set holds.
-#ifndef FLAMERIG_TOOLS_EXPORT_H_
-#define FLAMERIG_TOOLS_EXPORT_H_
+#ifndef FLAMERIG_PIPELINE_EXPORT_H_
+#define FLAMERIG_PIPELINE_EXPORT_H_
 
 #include <cstddef>
 #include <functional>
@@ -38,4 +38,4 @@ ExportSummary ExportStreamPix(
 
 }  // namespace flamerig
 
-#endif  // FLAMERIG_TOOLS_EXPORT_H_
+#endif  // FLAMERIG_PIPELINE_EXPORT_H_

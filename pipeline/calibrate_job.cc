@@ -1,4 +1,4 @@
-#include "tools/calibrate_job.h"
+#include "pipeline/calibrate_job.h"
 
 #include <yaml-cpp/yaml.h>
 

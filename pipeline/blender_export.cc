@@ -1,4 +1,4 @@
-#include "tools/blender_export.h"
+#include "pipeline/blender_export.h"
 
 #include <openvdb/openvdb.h>
 

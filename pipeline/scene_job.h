@@ -36,8 +36,8 @@
 //   NAME_linear.png the exposure only, clipped and sRGB-encoded (what a camera would record)
 //   compare.png     with lighting: compare, the three tone-mapped images side by side, mapped with
 //                   the fire-lit image's adaptation and white so that they compare
-#ifndef FLAMERIG_TOOLS_SCENE_JOB_H_
-#define FLAMERIG_TOOLS_SCENE_JOB_H_
+#ifndef FLAMERIG_PIPELINE_SCENE_JOB_H_
+#define FLAMERIG_PIPELINE_SCENE_JOB_H_
 
 #include <string>
 #include <vector>
@@ -79,4 +79,4 @@ void ReadObj(const std::string& path, std::vector<Eigen::Vector3f>* vertices,
 
 }  // namespace flamerig
 
-#endif  // FLAMERIG_TOOLS_SCENE_JOB_H_
+#endif  // FLAMERIG_PIPELINE_SCENE_JOB_H_

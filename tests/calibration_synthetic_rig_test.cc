@@ -1,99 +1,18 @@
-// The synthetic rig: fires, rings of cameras and calibration boards whose truth is known.
+// Synthetic rigs and calibration boards: rings of cameras looking at the box, boards rendered
+// through the lens models and detected at their true corners, views seen by the cameras listed.
 #include <gtest/gtest.h>
 
 #include <filesystem>
 #include <opencv2/aruco/charuco.hpp>
 #include <opencv2/calib3d.hpp>
 
+#include "calibration/synthetic_rig.h"
 #include "core/error.h"
-#include "fitting/colour.h"
-#include "fitting/renderer.h"
-#include "tomography/vdb_io.h"
-#include "tools/simulate.h"
-#include "tools/synthetic.h"
 
 namespace flamerig::synthetic {
 namespace {
 
-namespace fs = std::filesystem;
-
 const Box3 kBox{Eigen::Vector3d(-0.02, 0.0, -0.02), Eigen::Vector3d(0.02, 0.08, 0.02)};
-
-TEST(Fire, DeterministicSeededAndPhysical) {
-  GridGeometry g = GridGeometry::FromBox(kBox, 32);
-  AbsorptionModel soot = AbsorptionModel::DefaultSoot();
-  for (FireKind kind : {FireKind::kCandle, FireKind::kLicks}) {
-    FireOptions o;
-    o.kind = kind;
-    o.seed = 3;
-    FireVolume a = MakeFire(g, o, soot), b = MakeFire(g, o, soot);
-    EXPECT_EQ(a.temperature_k, b.temperature_k);
-    EXPECT_EQ(a.density_per_m3, b.density_per_m3);
-    o.seed = 4;
-    FireVolume c = MakeFire(g, o, soot);
-    EXPECT_NE(a.density_per_m3, c.density_per_m3) << ToString(kind);
-    o.seed = 3;
-    o.time_s = 0.1;
-    FireVolume d = MakeFire(g, o, soot);
-    EXPECT_NE(a.temperature_k, d.temperature_k) << ToString(kind);
-
-    float t_max = 0, t_min = 1e9f, n_max = 0;
-    std::size_t burning = 0;
-    for (std::size_t i = 0; i < g.num_voxels(); ++i) {
-      t_max = std::max(t_max, a.temperature_k[i]);
-      t_min = std::min(t_min, a.temperature_k[i]);
-      n_max = std::max(n_max, a.density_per_m3[i]);
-      if (a.density_per_m3[i] > 0) ++burning;
-    }
-    EXPECT_GE(t_min, 300.0f);
-    EXPECT_LE(t_max, 2000.0f);
-    EXPECT_GT(t_max, 1700.0f) << ToString(kind);
-    EXPECT_LE(n_max, soot.DensityFromVolumeFraction(1e-6) * 1.0001);
-    EXPECT_GT(n_max, soot.DensityFromVolumeFraction(1e-6) * 0.3);
-    // The flame fills a part of the box, and nothing touches its sides.
-    double fraction = double(burning) / g.num_voxels();
-    EXPECT_GT(fraction, 0.02) << ToString(kind);
-    EXPECT_LT(fraction, 0.6) << ToString(kind);
-    for (int k = 0; k < g.dims.z(); ++k)
-      for (int j = 0; j < g.dims.y(); ++j) {
-        EXPECT_EQ(a.density_per_m3[g.Flat(0, j, k)], 0.0f);
-        EXPECT_EQ(a.density_per_m3[g.Flat(g.dims.x() - 1, j, k)], 0.0f);
-      }
-  }
-}
-
-TEST(Fire, ThinEmissionIsWhatTheRendererIntegrates) {
-  // A uniform, optically thin block: the pixel is emission per metre times the path length.
-  GridGeometry g = GridGeometry::FromBoxAndDims(
-      Box3{Eigen::Vector3d(-0.5, -0.5, -0.01), Eigen::Vector3d(0.5, 0.5, 0.01)},
-      Eigen::Vector3i(4, 4, 4));
-  for (bool soot : {false, true}) {
-    AbsorptionModel absorption =
-        soot ? AbsorptionModel::DefaultSoot() : AbsorptionModel::DefaultGrey();
-    FireVolume fire;
-    fire.geometry = g;
-    fire.temperature_k.assign(g.num_voxels(), 1800.0f);
-    fire.density_per_m3.assign(g.num_voxels(),
-                               static_cast<float>(1e-4 / absorption.CrossSectionM2(550)));
-    std::vector<float> emission = ThinEmissionRgb(fire, absorption);
-    RenderOptions o;
-    o.spectral_first_nm = 360;
-    o.spectral_last_nm = 830;
-    o.spectral_step_nm = 1;
-    FireRenderer renderer(absorption, o);
-    renderer.SetVolume(g, fire.temperature_k, fire.density_per_m3);
-    Rigid3 pose = LookAt(Eigen::Vector3d(0, 0, 1), Eigen::Vector3d::Zero());
-    ImageF image;
-    renderer.Render(CameraRays(CameraModel::Pinhole(50, 50, 10, 10, pose, 21, 21)), &image);
-    // Relative to the brightest channel: the blue channel of an 1800 K fire is a near-cancellation.
-    const double scale =
-        0.02 * std::max({std::abs(emission[0]), std::abs(emission[1]), std::abs(emission[2])});
-    for (int c = 0; c < 3; ++c) {
-      EXPECT_NEAR(image.at(10, 10, c), emission[c] * 0.02, 2e-4 * scale)
-          << "soot " << soot << " channel " << c;
-    }
-  }
-}
 
 TEST(Ring, CamerasLookAtTheBoxCentre) {
   RingOptions o;
@@ -220,48 +139,6 @@ TEST(Board, CalibrationViewsAreSeenByTheCamerasListed) {
     }
     EXPECT_GE(shared, 4 * 4);  // every neighbouring pair shares views
   }
-}
-
-TEST(Simulate, WritesACompleteDeterministicDataset) {
-  fs::path dir = fs::temp_directory_path() / ("flamerig_sim_test_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  SimulateConfig config;
-  config.frames = 2;
-  config.grid_resolution = 24;
-  config.ring.width = 160;
-  config.ring.height = 120;
-  config.shared_per_pair = 2;
-  config.closeups_per_camera = 1;
-  config.board.square_m = 0.008;
-  config.board.marker_m = 0.006;
-  SimulateSummary s = Simulate(config, (dir / "a").string());
-  Simulate(config, (dir / "b").string());
-  EXPECT_EQ(s.frames, 2);
-  EXPECT_GT(s.calibration_views, 0);
-  EXPECT_GE(s.exposure, 0.01);
-  EXPECT_LE(s.exposure, 1000);
-  Rig rig = Rig::Load((dir / "a" / "rig.yaml").string());
-  ASSERT_EQ(rig.cameras.size(), 2u);
-  FireVolume truth = ReadVdb((dir / "a" / "truth" / "frame_000001.vdb").string());
-  EXPECT_EQ(truth.geometry.dims.y(), 24);
-  EXPECT_FALSE(truth.emission_rgb.empty());
-  EXPECT_NEAR(truth.metadata_numbers.at("exposure"), s.exposure, 1e-12);
-  for (const auto& cam : rig.cameras) {
-    for (const char* frame : {"frame_000000", "frame_000001"}) {
-      ImageU8 a = ReadImageU8((dir / "a" / "frames" / frame / (cam.name + ".png")).string());
-      ImageU8 b = ReadImageU8((dir / "b" / "frames" / frame / (cam.name + ".png")).string());
-      EXPECT_EQ(a.width, 160);
-      EXPECT_EQ(a.channels, 3);
-      EXPECT_EQ(a.pixels, b.pixels);  // deterministic
-      int brightest = 0;
-      for (auto p : a.pixels) brightest = std::max<int>(brightest, p);
-      EXPECT_GT(brightest, 200);  // the fire is visible and well exposed
-    }
-  }
-  EXPECT_TRUE(fs::exists(dir / "a" / "calibration" / "board.yaml"));
-  EXPECT_TRUE(fs::exists(dir / "a" / "preview.png"));
-  EXPECT_TRUE(fs::exists(dir / "a" / "dataset.yaml"));
-  fs::remove_all(dir);
 }
 
 }  // namespace

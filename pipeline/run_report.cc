@@ -1,4 +1,4 @@
-#include "tools/run_report.h"
+#include "pipeline/run_report.h"
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -15,8 +15,8 @@
 #include "core/error.h"
 #include "core/image.h"
 #include "tomography/vdb_io.h"
-#include "tools/fit_report.h"
-#include "tools/simulate.h"
+#include "pipeline/fit_report.h"
+#include "pipeline/simulate.h"
 
 namespace flamerig {
 

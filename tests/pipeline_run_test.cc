@@ -23,12 +23,12 @@
 #include "fitting/physics.h"
 #include "tests/run_test_util.h"
 #include "tomography/vdb_io.h"
-#include "tools/blender_export.h"
-#include "tools/fit_report.h"
-#include "tools/run_job.h"
-#include "tools/run_mpi.h"
-#include "tools/run_report.h"
-#include "tools/simulate.h"
+#include "pipeline/blender_export.h"
+#include "pipeline/fit_report.h"
+#include "pipeline/run.h"
+#include "pipeline/distributed.h"
+#include "pipeline/run_report.h"
+#include "pipeline/simulate.h"
 
 namespace flamerig {
 namespace {

@@ -20,15 +20,17 @@
 //   calibration: {enabled [true], board [charuco|chessboard], squares [7, 5], square_m [0.012],
 //                 marker_m [0.009], shared_per_pair [6], closeups_per_camera [4]}
 //   render: {step_voxels [0.5]}
-#ifndef FLAMERIG_TOOLS_SIMULATE_H_
-#define FLAMERIG_TOOLS_SIMULATE_H_
+#ifndef FLAMERIG_PIPELINE_SIMULATE_H_
+#define FLAMERIG_PIPELINE_SIMULATE_H_
 
 #include <functional>
 #include <string>
 #include <vector>
 
+#include "core/progress.h"
 #include "fitting/renderer.h"
-#include "tools/synthetic.h"
+#include "calibration/synthetic_rig.h"
+#include "fitting/synthetic_fire.h"
 
 namespace flamerig {
 
@@ -69,18 +71,11 @@ struct SimulateSummary {
   double time_s = 0;
 };
 
-// Progress: (stage, done, total).
-using ProgressCallback = std::function<void(const std::string& stage, int done, int total)>;
-
+// Writes the dataset into `out_dir`. Progress: stages "fire frames" (unit frames) and
+// "calibration views" (unit views); cancelling throws Cancelled, leaving what was written.
 SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_dir,
                          const ProgressCallback& progress = nullptr);
 
-// Tiles side by side, scaled to a common height (grey promoted to RGB), 4 px apart: a picture to look at.
-ImageU8 ContactSheet(const std::vector<ImageU8>& tiles, int tile_height);
-
-// Adds Gaussian noise of `sigma_dn` 8-bit units to every channel, deterministically from `seed`.
-void AddSensorNoise(ImageU8* image, double sigma_dn, std::uint64_t seed);
-
 }  // namespace flamerig
 
-#endif  // FLAMERIG_TOOLS_SIMULATE_H_
+#endif  // FLAMERIG_PIPELINE_SIMULATE_H_

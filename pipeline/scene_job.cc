@@ -1,4 +1,4 @@
-#include "tools/scene_job.h"
+#include "pipeline/scene_job.h"
 
 #include <OpenEXR/ImfChannelList.h>
 #include <OpenEXR/ImfFrameBuffer.h>
@@ -15,7 +15,7 @@
 #include "core/config_reader.h"
 #include "fitting/renderer.h"
 #include "tomography/vdb_io.h"
-#include "tools/simulate.h"
+#include "pipeline/simulate.h"
 
 namespace flamerig {
 

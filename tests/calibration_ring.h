@@ -1,0 +1,138 @@
+// The calibration tests' ring: 4 cameras 90 degrees apart at 640x480, boards shared by
+// neighbours only, close-ups per camera, rendered once into the build tree and shared by the
+// calibration tests and the calibrate job's tests.
+#ifndef FLAMERIG_TESTS_CALIBRATION_RING_H_
+#define FLAMERIG_TESTS_CALIBRATION_RING_H_
+
+#include <fcntl.h>
+#include <gtest/gtest.h>
+#include <sys/file.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <string>
+
+#include "calibration/calibrate.h"
+#include "calibration/synthetic_rig.h"
+
+namespace flamerig {
+namespace {
+
+namespace fs = std::filesystem;
+constexpr double kRadToDeg = 180.0 / 3.14159265358979323846;
+
+fs::path TempDir(const std::string& what) {
+  fs::path d =
+      fs::temp_directory_path() / ("flamerig_calib_" + what + "_" + std::to_string(::getpid()));
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+
+// Rendered once for the whole suite (a few seconds).
+class Ring : public ::testing::Test {
+ protected:
+  // Each test runs in its own process under ctest, so the rendered ring is kept in the build tree
+  // (made once, under a lock, by whichever test gets there first). The environment variable
+  // FLAMERIG_TEST_DATA_DIR points elsewhere: the sanitizer pass reuses the ring that the plain
+  // build rendered (rendering it under ASan and UBSan takes 5.5 minutes; the renderer itself is
+  // covered under the sanitizers by smaller tests).
+  static void SetUpTestSuite() {
+    const char* data_dir = std::getenv("FLAMERIG_TEST_DATA_DIR");
+    const fs::path root = fs::path(data_dir && *data_dir ? data_dir : FLAMERIG_TEST_DATA_DIR);
+    fs::create_directories(root);
+    dir_ = new fs::path(root / "calibration_ring_v2");
+    const int lock = ::open((root / "calibration_ring.lock").c_str(), O_CREAT | O_RDWR, 0644);
+    ASSERT_GE(lock, 0);
+    ASSERT_EQ(::flock(lock, LOCK_EX), 0);
+    if (!fs::exists(*dir_ / "done")) {
+      const fs::path tmp = root / ("calibration_ring_tmp_" + std::to_string(::getpid()));
+      fs::remove_all(tmp);
+      // What `flamerig simulate` writes for its calibration (seed 21, noise 0.5 DN), made here by
+      // the calibration layer's own generator.
+      const Box3 box{Eigen::Vector3d(-0.015, 0.0, -0.015), Eigen::Vector3d(0.015, 0.07, 0.015)};
+      synthetic::RingOptions ring;
+      ring.cameras = 4;
+      ring.width = 640;
+      ring.height = 480;
+      ring.fill = 0.45;  // a wider field than the flame needs, as on a real rig (f about 780 px)
+      const Rig rig = synthetic::MakeRingRig(box, ring, "sim");
+      fs::create_directories(tmp);
+      rig.Save((tmp / "rig.yaml").string());
+      BoardSpec board;
+      board.square_m = 0.012;
+      board.marker_m = 0.009;
+      synthetic::WriteCalibrationViews(rig, board, 21, 24, 24, 0.5,
+                                       (tmp / "calibration").string());
+      std::ofstream(tmp / "done") << "complete\n";
+      fs::remove_all(*dir_);
+      fs::rename(tmp, *dir_);
+    }
+    ::close(lock);  // releases the lock
+    truth_ = new Rig(Rig::Load((*dir_ / "rig.yaml").string()));
+  }
+  static void TearDownTestSuite() {
+    delete dir_;
+    delete truth_;
+  }
+  static CalibrationData Detect(const std::string& cache = "") {
+    return DetectViewsInFolder((*dir_ / "calibration").string(),
+                               LoadBoardSpec((*dir_ / "calibration" / "board.yaml").string()), {},
+                               cache);
+  }
+  static fs::path* dir_;
+  static Rig* truth_;
+};
+fs::path* Ring::dir_ = nullptr;
+Rig* Ring::truth_ = nullptr;
+
+double AngleDeg(const Eigen::Quaterniond& a, const Eigen::Quaterniond& b) {
+  return Eigen::AngleAxisd(a.inverse() * b).angle() * kRadToDeg;
+}
+
+// Relative poses cam_i_from_cam_0 do not depend on the rig frame: compare them with the truth.
+void ExpectExtrinsicsNear(const Rig& got, const Rig& truth, double max_deg, double max_m) {
+  ASSERT_EQ(got.cameras.size(), truth.cameras.size());
+  const Rigid3 g0 = got.cameras[0].model.cam_from_rig(), t0 = truth.cameras[0].model.cam_from_rig();
+  for (std::size_t c = 1; c < got.cameras.size(); ++c) {
+    const Rigid3 g = got.cameras[c].model.cam_from_rig() * g0.Inverse();
+    const Rigid3 t = truth.cameras[c].model.cam_from_rig() * t0.Inverse();
+    EXPECT_LT(AngleDeg(g.rotation, t.rotation), max_deg) << got.cameras[c].name;
+    EXPECT_LT((g.translation - t.translation).norm(), max_m) << got.cameras[c].name;
+  }
+}
+
+// The worst pixel disagreement between two models of one camera over points of the reconstruction
+// box, each model in its own rig frame (`got_from_truth` maps truth rig points to the other).
+double WorstProjectionDifferencePx(const CameraModel& got, const CameraModel& truth,
+                                   const Box3& box, const Rigid3& got_from_truth) {
+  double worst = 0;
+  for (int i = 0; i <= 4; ++i)
+    for (int j = 0; j <= 4; ++j)
+      for (int k = 0; k <= 4; ++k) {
+        const Eigen::Vector3d p =
+            box.min_in_rig + box.size().cwiseProduct(Eigen::Vector3d(i, j, k) / 4.0);
+        worst = std::max(worst, (got.Project(got_from_truth * p) - truth.Project(p)).norm());
+      }
+  return worst;
+}
+
+// ---- Bad input: each error names the camera (or file) and the reason.
+
+std::string ErrorOf(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const std::exception& e) {
+    return e.what();
+  }
+  return "(no error)";
+}
+
+}  // namespace
+}  // namespace flamerig
+
+#endif  // FLAMERIG_TESTS_CALIBRATION_RING_H_

@@ -1,0 +1,59 @@
+// The calibrate job (`flamerig calibrate`): the rig, its models at full precision and the report
+// from the calibration tests' ring; config errors name the file and key.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "pipeline/calibrate_job.h"
+#include "tests/calibration_ring.h"
+
+namespace flamerig {
+namespace {
+
+namespace fs = std::filesystem;
+
+TEST_F(Ring, WritesARigThatLoadsAndAReport) {
+  const fs::path out = TempDir("job");
+  CalibrateConfig config =
+      CalibrateConfig::Load(std::string(FLAMERIG_SOURCE_DIR) + "/config/calibrate_sim.yaml");
+  const CalibrationSummary s =
+      RunCalibration(config, CalibrateInput{(*dir_ / "calibration").string(), ""}, out.string());
+  const Rig rig = Rig::Load((out / "rig.yaml").string());
+  ASSERT_EQ(rig.cameras.size(), 4u);
+  EXPECT_EQ(rig.box.min_in_rig, config.options.box.min_in_rig);
+  // The models on disk are the solved ones, at full precision.
+  for (std::size_t c = 0; c < 4; ++c)
+    for (std::size_t i = 0; i < rig.cameras[c].model.intrinsics().size(); ++i)
+      EXPECT_EQ(rig.cameras[c].model.intrinsics()[i], s.rig.cameras[c].model.intrinsics()[i]);
+  for (const char* f : {"report.md", "rig_top.png", "coverage_cam0.png", "coverage_cam3.png",
+                        "corners.vnl", "detections.cache"})
+    EXPECT_TRUE(fs::exists(out / f)) << f;
+  std::ifstream report(out / "report.md");
+  std::string text((std::istreambuf_iterator<char>(report)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("per coordinate"), std::string::npos);
+  EXPECT_NE(text.find("Worst corners"), std::string::npos);
+  fs::remove_all(out);
+}
+
+TEST(CalibrateConfig, ErrorsNameTheFileAndKey) {
+  const fs::path dir = TempDir("config");
+  auto write = [&](const std::string& text) {
+    std::ofstream((dir / "c.yaml").string()) << text;
+    return ErrorOf([&] { CalibrateConfig::Load((dir / "c.yaml").string()); });
+  };
+  EXPECT_NE(write("calibrate: {lensmodel: LENSMODEL_NOPE}\n").find("LENSMODEL_NOPE"),
+            std::string::npos);
+  EXPECT_NE(write("calibrate: {frame: sideways}\n").find("'frame'"), std::string::npos);
+  EXPECT_NE(write("calibrate: {bogus: 1}\n").find("unknown key 'bogus'"), std::string::npos);
+  EXPECT_NE(write("calibrate: {box: {min: [0, 0, 0], max: [1, -1, 1]}}\n").find("box"),
+            std::string::npos);
+  const std::string e = write("calibrate: {board: {type: chessboard, squares: [8, 6]}}\n");
+  EXPECT_NE(e.find("c.yaml"), std::string::npos) << e;
+  EXPECT_NE(e.find("one odd and one even"), std::string::npos) << e;
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace flamerig
