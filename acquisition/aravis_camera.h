@@ -37,7 +37,7 @@ void EnableAravisFakeInterface();
 
 class AravisCamera : public Camera {
  public:
-  // Opens the camera; throws std::runtime_error naming `id` and Aravis' reason.
+  // Opens the camera; throws IoError naming `id` and Aravis' reason.
   AravisCamera(const std::string& id, int camera_index);
   ~AravisCamera() override;
   AravisCamera(const AravisCamera&) = delete;
@@ -59,7 +59,7 @@ class AravisCamera : public Camera {
   std::string FeatureAsString(const std::string& name) const;
 
  private:
-  void Open();   // opens impl_->id; throws std::runtime_error
+  void Open();   // opens impl_->id; throws IoError
   void Close();  // drops the stream and the device without talking to it
   struct Impl;
   std::unique_ptr<Impl> impl_;

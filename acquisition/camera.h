@@ -41,7 +41,7 @@ struct CameraSettings {
   // kAction: the camera fires on action commands carrying these (SFNC ActionDeviceKey,
   // ActionGroupKey, ActionGroupMask).
   std::uint32_t action_device_key = 0, action_group_key = 1, action_group_mask = 0xffffffff;
-  void Validate() const;  // throws std::invalid_argument naming the field
+  void Validate() const;  // throws InputError naming the field
 };
 
 struct StreamCounters {
@@ -57,7 +57,7 @@ class Camera {
  public:
   virtual ~Camera() = default;
   virtual CameraDescription description() const = 0;
-  // Applies settings while stopped; throws std::invalid_argument naming the camera and the feature
+  // Applies settings while stopped; throws InputError naming the camera and the feature
   // the device refuses.
   virtual void Configure(const CameraSettings& settings) = 0;
   virtual CameraSettings settings() const = 0;

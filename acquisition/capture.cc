@@ -1,6 +1,7 @@
 #include "acquisition/capture.h"
 
 #include "core/error.h"
+#include "core/log.h"
 #include "acquisition/aravis_camera.h"
 #include "core/config_reader.h"
 #include "acquisition/thread_name.h"
@@ -442,10 +443,13 @@ void CaptureDaemon::Start() {
       NameThisThread("fr-trigger");
       TriggerLoop();
     });
+  Log().info("capture: armed: {} camera(s) streaming, sync {}", cameras_.size(),
+             ToString(config_.sync));
 }
 
 void CaptureDaemon::Stop() {
   if (!running_.exchange(false)) return;
+  Log().info("capture: disarming: cameras stop");
   incoming_cv_.notify_all();
   for (auto& t : threads_) t.join();
   threads_.clear();
@@ -457,7 +461,17 @@ void CaptureDaemon::Stop() {
   if (recorder_) {
     last_recorder_status_ = recorder_->Close();
     recorder_.reset();
+    LogClosed(recording_dir_, last_recorder_status_);
   }
+}
+
+void CaptureDaemon::LogClosed(const std::string& dir, const RecorderStatus& r) {
+  if (r.error.empty())
+    Log().info("capture: {}: {} frame sets recorded, {} dropped", dir, r.sets_recorded,
+               r.sets_dropped);
+  else
+    Log().error("capture: {}: {} frame sets recorded, {} dropped; {}", dir, r.sets_recorded,
+                r.sets_dropped, r.error);
 }
 
 void CaptureDaemon::CameraLoop(int camera) {
@@ -469,6 +483,7 @@ void CaptureDaemon::CameraLoop(int camera) {
   while (running_) {
     const bool connected = cam.connected();
     if (!connected && was_connected) {
+      Log().warn("capture: camera {} ({}) disconnected", st.live.name, st.live.id);
       std::lock_guard<std::mutex> lock(st.mutex);
       ++st.live.disconnects;
     }
@@ -479,6 +494,7 @@ void CaptureDaemon::CameraLoop(int camera) {
       if (t - last_attempt >= 1'000'000'000) {
         last_attempt = t;
         const bool back = cam.Reconnect();
+        if (back) Log().info("capture: camera {} ({}) reconnected", st.live.name, st.live.id);
         std::lock_guard<std::mutex> lock(st.mutex);
         ++st.live.reconnect_attempts;
         if (back) ++st.live.reconnects;
@@ -490,10 +506,13 @@ void CaptureDaemon::CameraLoop(int camera) {
     } catch (const std::exception& e) {
       // A driver or image-source failure: reported, and this camera keeps trying; the others
       // are not affected.
+      bool changed;
       {
         std::lock_guard<std::mutex> lock(st.mutex);
+        changed = st.live.error != e.what();
         st.live.error = e.what();
       }
+      if (changed) Log().warn("capture: camera {}: {}", st.live.name, e.what());
       std::this_thread::sleep_for(std::chrono::milliseconds(100));
       continue;
     }
@@ -659,14 +678,19 @@ std::string CaptureDaemon::TriggerEvent(const std::string& name) {
 
 std::string CaptureDaemon::BeginRecording(const std::string& name, bool with_ring) {
   const std::string dir = RecordingPath(name);
-  if (!running_) throw std::logic_error("capture: arm the cameras before recording");
+  if (!running_) throw InputError("capture: arm the cameras before recording");
   std::lock_guard<std::mutex> lock(state_mutex_);
-  if (recorder_) throw std::logic_error("capture: already recording into " + recording_dir_);
+  if (recorder_) throw InputError("capture: already recording into " + recording_dir_);
   recorder_ = std::make_unique<Recorder>(dir, Metadata(), config_.recorder);
   recording_dir_ = dir;
   // The ring is bounded by pretrigger_max_bytes and the queue was sized to hold it.
   if (with_ring)
     for (const FrameSet& s : ring_) recorder_->Submit(s);
+  if (with_ring)
+    Log().info("capture: event: recording into {}, starting with the pre-trigger ring ({} sets)",
+               dir, ring_.size());
+  else
+    Log().info("capture: recording into {}", dir);
   return dir;
 }
 
@@ -674,12 +698,13 @@ RecorderStatus CaptureDaemon::StopRecording() {
   std::unique_ptr<Recorder> r;
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
-    if (!recorder_) throw std::logic_error("capture: not recording");
+    if (!recorder_) throw InputError("capture: not recording");
     r = std::move(recorder_);
   }
   const RecorderStatus st = r->Close();  // outside the lock: capture goes on meanwhile
   std::lock_guard<std::mutex> lock(state_mutex_);
   last_recorder_status_ = st;
+  LogClosed(recording_dir_, st);
   return st;
 }
 
@@ -722,7 +747,7 @@ CaptureStatus CaptureDaemon::status() const {
 
 void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::string& key,
                                      const std::string& value) {
-  if (running_) throw std::logic_error("capture: disarm before configuring cameras");
+  if (running_) throw InputError("capture: disarm before configuring cameras");
   int index = -1;
   for (std::size_t c = 0; c < config_.cameras.size(); ++c)
     if (config_.cameras[c].name == camera || std::to_string(c) == camera)
@@ -767,6 +792,8 @@ void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::strin
     throw InputError(m.rfind(where, 0) == 0 ? m : where + ": " + m);
   }
   config_.cameras[index].settings = s;
+  Log().info("capture: camera {}: {} = {} (applied when armed)", config_.cameras[index].name, key,
+             value);
 }
 
 std::shared_ptr<const FrameSet> CaptureDaemon::LatestSet() const {

@@ -79,7 +79,7 @@ namespace flamerig {
 
 enum class SyncMode { kHardwareTrigger, kSoftwareTrigger, kFreeRun, kPtp };
 const char* ToString(SyncMode mode);
-SyncMode SyncModeFromName(const std::string& name);  // throws std::invalid_argument
+SyncMode SyncModeFromName(const std::string& name);  // throws InputError
 
 struct CaptureCameraConfig {
   std::string name;
@@ -113,14 +113,14 @@ struct CaptureConfig {
   std::vector<CaptureCameraConfig> cameras;
   std::string source_yaml;  // the text it was parsed from (kept in every recording)
 
-  // Throws std::invalid_argument naming the file, the key and what is wrong.
+  // Throws InputError naming the file, the key and what is wrong.
   static CaptureConfig Load(const std::string& path);
   static CaptureConfig Parse(const std::string& yaml_text, const std::string& where);
   FrameSetOptions AssemblerOptions() const;
 };
 
 // The cameras of a config: sim cameras share `clock` and `bus`; aravis and v4l2 cameras are opened
-// by id. Throws std::runtime_error naming the camera that cannot be opened.
+// by id. Throws IoError naming the camera that cannot be opened.
 std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config, Clock* clock,
                                                  SimTriggerBus* bus);
 
@@ -167,11 +167,13 @@ class CaptureDaemon {
   // Stops a recording in progress (closing it cleanly), then the threads and the streams.
   void Stop();
 
-  // Starts recording every frame set into data_dir/name. Throws std::invalid_argument for a name
-  // that is not a single safe path component, RecordingError when it exists, std::logic_error
-  // when already recording. Returns the recording's directory.
+  // Starts recording every frame set into data_dir/name. Throws InputError for a name
+  // that is not a single safe path component, when not armed or already recording, and
+  // RecordingError when it exists. Returns the recording's directory. Logged (core/log.h), as
+  // are arming, disarming, the end of a recording, settings and camera disconnects.
   std::string StartRecording(const std::string& name);
-  // Closes the recording; its final status (the counters written into its metadata).
+  // Closes the recording; its final status (the counters written into its metadata). Throws
+  // InputError when not recording.
   RecorderStatus StopRecording();
   // An event (ignition): a recording that starts with the pre-trigger ring and continues live.
   std::string TriggerEvent(const std::string& name);
@@ -179,8 +181,7 @@ class CaptureDaemon {
   bool running() const { return running_; }
   // Changes one setting of one camera (by name or index) while the daemon is stopped (disarmed);
   // applied at the next Start. Keys: width, height, pixel_format, frame_rate_hz, exposure_us,
-  // gain_db. Throws std::invalid_argument naming the camera, key and value, std::logic_error
-  // while running.
+  // gain_db. Throws InputError naming the camera, key and value, or while running.
   void SetCameraSetting(const std::string& camera, const std::string& key,
                         const std::string& value);
 
@@ -203,6 +204,7 @@ class CaptureDaemon {
   std::vector<std::unique_ptr<Camera>> cameras_;
   Clock* clock_;
   SimTriggerBus* bus_;
+  static void LogClosed(const std::string& dir, const RecorderStatus& r);
   std::vector<std::unique_ptr<CameraState>> camera_state_;
   std::atomic<bool> running_{false};
   std::atomic<std::uint64_t> trigger_overruns_{0};

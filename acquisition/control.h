@@ -44,7 +44,7 @@ ControlReply HandleControlRequest(CaptureDaemon& daemon, const std::string& line
 
 class ControlServer {
  public:
-  // Binds the endpoint (throws std::runtime_error naming it when it cannot, or when a TCP host is
+  // Binds the endpoint (throws IoError naming it when it cannot, or when a TCP host is
   // not loopback and allow_remote is false) and starts serving on its own thread.
   ControlServer(CaptureDaemon* daemon, const std::string& endpoint, bool allow_remote);
   ~ControlServer();  // stops serving, removes the Unix socket file
@@ -62,7 +62,7 @@ class ControlServer {
   std::thread thread_;
 };
 
-// Sends one request and returns the reply. Throws std::runtime_error naming the endpoint when the
+// Sends one request and returns the reply. Throws IoError naming the endpoint when the
 // daemon cannot be reached or the reply is malformed.
 ControlReply ControlRequest(const std::string& endpoint, const std::string& line,
                             double timeout_s = 10);

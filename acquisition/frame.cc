@@ -109,7 +109,7 @@ int DecodeFrame(const Frame& frame, ImageU8* u8, ImageU16* u16) {
   const std::size_t expect =
       std::size_t(std::max(in.width, 0)) * std::max(in.height, 0) * BytesPerPixel(in.pixel_format);
   if (in.width <= 0 || in.height <= 0 || frame.bytes() != expect) {
-    throw InputError("camera " + std::to_string(in.camera) + " frame " +
+    throw DataError("camera " + std::to_string(in.camera) + " frame " +
                                 std::to_string(in.frame_id) + ": " + std::to_string(frame.bytes()) +
                                 " bytes for " + std::to_string(in.width) + "x" +
                                 std::to_string(in.height) + " " + ToString(in.pixel_format));

@@ -56,7 +56,7 @@ struct Frame {
 
 // A frame's pixels as an image: Mono8 -> 1 channel 8-bit, Mono16 -> 1 channel 16-bit, RGB8 -> RGB
 // 8-bit, Bayer 8-bit (GenICam names: BayerRG8 has R at (0,0)) -> RGB 8-bit by OpenCV's bilinear
-// demosaicing. Fills *u8 or *u16 and returns the bit depth (8 or 16). Throws std::invalid_argument
+// demosaicing. Fills *u8 or *u16 and returns the bit depth (8 or 16). Throws DataError
 // naming the camera and frame when the bytes do not match the size and format.
 int DecodeFrame(const Frame& frame, ImageU8* u8, ImageU16* u16);
 

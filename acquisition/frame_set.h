@@ -37,7 +37,7 @@ struct FrameSetOptions {
   std::int64_t tolerance_ns = 2'000'000;  // timestamp matching: about half a frame period
   std::int64_t timeout_ns = 200'000'000;  // how long a set waits for its missing cameras
   int max_open_sets = 64;
-  void Validate() const;  // throws std::invalid_argument naming the field
+  void Validate() const;  // throws InputError naming the field
 };
 
 struct FrameSet {
@@ -65,7 +65,7 @@ class FrameSetAssembler {
 
   // Adds a frame received at `now_ns`; appends the sets that became ready to *ready (complete ones,
   // and timed-out ones). Returns false (and counts) when the frame was late or a duplicate. A frame
-  // with a camera index outside the rig throws std::invalid_argument.
+  // with a camera index outside the rig throws InputError.
   bool Add(Frame frame, std::int64_t now_ns, std::vector<FrameSet>* ready);
   // Emits the sets that have waited longer than the timeout at `now_ns`.
   void Poll(std::int64_t now_ns, std::vector<FrameSet>* ready);

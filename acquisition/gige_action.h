@@ -44,7 +44,7 @@ struct ActionCommand {
   std::uint16_t request_id = 1;  // must not be 0
 };
 
-// The datagram's bytes. Throws std::invalid_argument for request id 0 or group mask 0 (a mask of
+// The datagram's bytes. Throws InputError for request id 0 or group mask 0 (a mask of
 // 0 fires no camera).
 std::vector<std::uint8_t> EncodeActionCommand(const ActionCommand& command);
 
@@ -67,7 +67,7 @@ std::uint64_t PtpNowNs();
 class ActionCommandSender {
  public:
   // `destination`: an IPv4 address (a camera, or a subnet's broadcast address such as
-  // 192.168.1.255, or 255.255.255.255); `port` 3956 for cameras. Throws std::runtime_error naming
+  // 192.168.1.255, or 255.255.255.255); `port` 3956 for cameras. Throws IoError naming
   // the address when the socket cannot be made.
   explicit ActionCommandSender(const std::string& destination, std::uint16_t port = kGvcpPort);
   ~ActionCommandSender();
@@ -77,7 +77,7 @@ class ActionCommandSender {
   // Sends one command under the next request id (1, 2, ... skipping 0; command.request_id is
   // replaced and returned through last_request_id()). With command.ack_required, waits up to `ack_timeout_ms` for `expected_acks` answers carrying
   // its request id and returns them (late ones included, with their status); else returns none.
-  // Throws std::runtime_error when the datagram cannot be sent.
+  // Throws IoError when the datagram cannot be sent.
   std::vector<ActionAck> Send(ActionCommand command, int expected_acks = 0,
                               int ack_timeout_ms = 20);
   std::uint64_t sent() const { return sent_; }

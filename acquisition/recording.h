@@ -98,7 +98,7 @@ struct RecorderOptions {
   double sync_interval_s = 1.0;                   // fdatasync cadence; 0 = only at close
   std::uint64_t min_free_bytes = 64ull << 20;     // stop cleanly below this much free space
   std::uint64_t max_bytes = 0;                    // stop cleanly past this size; 0 = no limit
-  void Validate() const;                          // throws std::invalid_argument naming the field
+  void Validate() const;                          // throws InputError naming the field
 };
 
 struct RecorderStatus {

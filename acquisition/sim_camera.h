@@ -55,7 +55,7 @@ ImageSource TestPatternSource();
 // Replays a `flamerig simulate` dataset: frame k of the camera shows
 // dataset_dir/frames/frame_NNNNNN/<camera>.png with N = k mod the number of frames (loaded once,
 // here), converted to the frame's pixel format (Mono8/Mono16: Rec. 709 luma of the 8-bit sRGB
-// values; RGB8 as is; Bayer: the matching colour of each site). Throws std::runtime_error naming
+// values; RGB8 as is; Bayer: the matching colour of each site). Throws DataError naming
 // the file when a frame is missing or unreadable; a frame asked for at another size than the
 // images gets an error naming both sizes.
 // With ReplayContent::kCalibration frame k shows the k-th board view instead

@@ -36,7 +36,7 @@ struct SeqHeader {
 
 class StreamPixSequence {
  public:
-  // Reads and checks the header; throws std::runtime_error naming the file and the field.
+  // Reads and checks the header; throws InputError naming the file and the field.
   // `bayer` is the pattern of image format 101 files (the header does not always say).
   explicit StreamPixSequence(const std::string& path, PixelFormat bayer = PixelFormat::kBayerRg8);
   const SeqHeader& header() const { return header_; }

@@ -59,7 +59,7 @@ std::vector<std::string> ListV4l2Devices();
 
 class V4l2Camera : public Camera {
  public:
-  // Opens `path` through `device` (a SystemV4l2Device when null). Throws std::runtime_error
+  // Opens `path` through `device` (a SystemV4l2Device when null). Throws InputError
   // naming the path and the reason.
   V4l2Camera(const std::string& path, int camera_index,
              std::unique_ptr<V4l2Device> device = nullptr);

@@ -48,7 +48,7 @@ struct BoardSpec {
   int num_corners() const { return corners_x() * corners_y(); }
   // The inner corners in the board frame, row-major (see above).
   std::vector<Eigen::Vector3d> InnerCornersInBoard() const;
-  // Throws std::invalid_argument naming the field and the rule broken.
+  // Throws InputError naming the field and the rule broken.
   void Validate() const;
   // A one-line description ("charuco 7x5 squares of 0.012 m, markers 0.009 m, dictionary 0"),
   // also the key that ties cached detections to the board they were made for.
@@ -58,10 +58,10 @@ struct BoardSpec {
 // Reads a board description from YAML: either a file whose top level has a `board:` map (the
 // `calibration/board.yaml` that `flamerig simulate` writes) or a map given directly:
 //   board: {type: charuco, squares: [7, 5], square_m: 0.012, marker_m: 0.009, aruco_dictionary: 0}
-// Errors (std::runtime_error) name the file, the key and the rule.
+// Errors (InputError) name the file, the key and the rule.
 BoardSpec LoadBoardSpec(const std::string& yaml_path);
 // The same from a YAML map already read (the `board:` map of another config); errors
-// (std::invalid_argument) start with `where`.
+// (InputError) start with `where`.
 BoardSpec ParseBoardSpec(const YAML::Node& node, const std::string& where);
 
 // Corners of one board found in one image.
@@ -88,7 +88,7 @@ struct DetectOptions {
 
 // Finds the board in an 8-bit grey image. Never throws for an image without a board: the reason
 // is in `failure` ("no markers", "too few corners (4 < 6)", "corners on a line", ...). Throws
-// std::invalid_argument for an image that is not 1-channel 8-bit or an invalid spec.
+// InputError for an image that is not 1-channel 8-bit or an invalid spec.
 BoardDetection DetectBoard(const ImageU8& grey, const BoardSpec& board,
                            const DetectOptions& options = {});
 

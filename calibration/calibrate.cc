@@ -173,8 +173,10 @@ CalibrationData RunDetection(CalibrationData data, std::vector<DetectJob> jobs,
   std::vector<DetectResult> results(jobs.size());
   std::vector<std::string> errors(jobs.size());
   std::atomic<int> done{0};
+  std::atomic<bool> cancelled{false};
   std::mutex progress_mutex;
   tbb::parallel_for(std::size_t{0}, jobs.size(), [&](std::size_t i) {
+    if (cancelled) return;
     try {
       ImageU8 image = jobs[i].load();
       results[i].width = image.width;
@@ -192,10 +194,16 @@ CalibrationData RunDetection(CalibrationData data, std::vector<DetectJob> jobs,
     const int n = ++done;
     if (progress) {
       std::lock_guard<std::mutex> lock(progress_mutex);
-      progress("detect", n, static_cast<int>(jobs.size()));
+      Progress p;
+      p.stage = "detect";
+      p.unit = "images";
+      p.done = n;
+      p.total = static_cast<std::int64_t>(jobs.size());
+      if (!cancelled && progress(p) == ProgressAction::kCancel) cancelled = true;
     }
   });
   cache.Save();  // keep what was detected even when an image below is refused
+  if (cancelled) throw Cancelled("calibration: cancelled during board detection");
   for (std::size_t i = 0; i < jobs.size(); ++i)
     if (!errors[i].empty()) {
       const std::string& e = errors[i];
@@ -647,11 +655,20 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
                           pool.data(), &lensmodel, imagersizes.data(), s, &constants,
                           board.square_m, W, H, false, false);
   };
-  if (progress) progress("solve", 0, 2);
+  auto report = [&](int done) {
+    Progress p;
+    p.stage = "solve";
+    p.unit = "solves";
+    p.done = done;
+    p.total = 2;
+    if (ReportProgress(progress, p) && done < 2)
+      throw Cancelled("calibration: cancelled before the solve");
+  };
+  report(0);
   mrcal_stats_t stats = solve(false, false);
-  if (progress) progress("solve", 1, 2);
+  report(1);
   stats = solve(mrcal_lensmodel_num_params(&lensmodel) > 4, options.outlier_rejection);
-  if (progress) progress("solve", 2, 2);
+  report(2);
   if (!std::isfinite(stats.rms_reproj_error__pixels) || stats.rms_reproj_error__pixels < 0)
     throw CalibrationError("calibration: mrcal's solve failed (RMS " +
                            std::to_string(stats.rms_reproj_error__pixels) + ")");

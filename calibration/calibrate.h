@@ -33,6 +33,7 @@
 
 #include "calibration/board.h"
 #include "core/error.h"
+#include "core/progress.h"
 #include "calibration/rig.h"
 
 namespace flamerig {
@@ -66,8 +67,10 @@ struct CalibrationData {
   double detect_time_s = 0;
 };
 
-// Progress: (stage, done, total). Stages: "detect", "solve".
-using CalibrationProgress = std::function<void(const std::string&, int, int)>;
+// Progress (core/progress.h): stages "detect" (unit images) and "solve" (unit solves). A cancel
+// stops detection at the next image (what was detected is kept in the cache) or before the solve,
+// and throws Cancelled.
+using CalibrationProgress = ProgressCallback;
 
 // Reads board views from a folder laid out as `flamerig simulate` and `flamerig export` write
 // them: DIR/<view>/<camera>.png, one subfolder per instant (view_000, frame_000000, ...), or from a
@@ -110,7 +113,7 @@ struct CalibrationOptions {
   Box3 box;  // reconstruction box in the rig frame; invalid: a cube of side 0.3
              // times the mean camera distance around the origin (kRing only)
   std::string rig_name = "calibrated";
-  // Throws std::invalid_argument naming the field and the rule.
+  // Throws InputError naming the field and the rule.
   void Validate() const;
 };
 
@@ -144,7 +147,7 @@ struct CalibrationSummary {
 };
 
 // Solves the calibration. Throws CalibrationError naming the camera and reason when the data
-// cannot give a calibration (see the file comment), std::invalid_argument for invalid options.
+// cannot give a calibration (see the file comment), InputError for invalid options.
 CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptions& options,
                              const CalibrationProgress& progress = nullptr);
 

@@ -37,7 +37,7 @@ class CameraModel {
   // `lensmodel` is an mrcal lens model name ("LENSMODEL_PINHOLE", "LENSMODEL_OPENCV8",
   // "LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=16_Ny=12_fov_x_deg=100", ...). `intrinsics` must
   // have the model's parameter count (fx, fy, cx, cy first for models with a core). Throws
-  // std::invalid_argument naming the problem when the name is unknown, the parameter count is
+  // InputError naming the problem when the name is unknown, the parameter count is
   // wrong, a value is not finite, or the imager size is not positive.
   CameraModel(const std::string& lensmodel, std::vector<double> intrinsics,
               const Rigid3& cam_from_rig, int width_px, int height_px);
@@ -46,10 +46,10 @@ class CameraModel {
   static CameraModel Pinhole(double fx, double fy, double cx, double cy, const Rigid3& cam_from_rig,
                              int width_px, int height_px);
 
-  // Reads a .cameramodel file. Throws std::runtime_error naming the file when it is missing or
+  // Reads a .cameramodel file. Throws IoError naming the file when it is missing or
   // mrcal cannot parse it.
   static CameraModel Load(const std::string& path);
-  // Writes a .cameramodel file at full precision. Throws std::runtime_error naming the file on I/O
+  // Writes a .cameramodel file at full precision. Throws IoError naming the file on I/O
   // failure. `comment` lines (optional) are written as '#' comments at the top.
   void Save(const std::string& path, const std::string& comment = "") const;
 

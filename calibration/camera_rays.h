@@ -21,7 +21,7 @@ class CameraRays {
  public:
   explicit CameraRays(const CameraModel& camera)
       : width_(camera.width()), height_(camera.height()), rays_(camera.UnprojectAllPixels()) {}
-  // Throws std::invalid_argument unless rays.size() == width * height and every valid ray has a
+  // Throws InputError unless rays.size() == width * height and every valid ray has a
   // finite origin and a finite, non-zero direction (a zero direction would march forever).
   CameraRays(int width, int height, std::vector<Ray> rays)
       : width_(width), height_(height), rays_(std::move(rays)) {

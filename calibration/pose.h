@@ -45,7 +45,7 @@ struct Rigid3 {
 };
 
 // The pose of a camera placed at `eye_in_rig` looking at `target_in_rig`, with image "up" as close
-// as possible to `up_in_rig`. Returns cam_from_rig. Throws std::invalid_argument when eye and
+// as possible to `up_in_rig`. Returns cam_from_rig. Throws InputError when eye and
 // target coincide or the viewing direction is parallel to up.
 Rigid3 LookAt(const Eigen::Vector3d& eye_in_rig, const Eigen::Vector3d& target_in_rig,
               const Eigen::Vector3d& up_in_rig = Eigen::Vector3d::UnitY());

@@ -14,7 +14,7 @@
 //       - name: cam0                # unique; used to name images and outputs
 //         model: cameras/cam0.cameramodel
 //
-// Load errors name the file, the field and the rule broken (std::runtime_error).
+// Load errors name the file, the field and the rule broken (InputError).
 #ifndef FLAMERIG_CALIBRATION_RIG_H_
 #define FLAMERIG_CALIBRATION_RIG_H_
 

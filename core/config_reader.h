@@ -2,7 +2,7 @@
 //
 // Errors name where the map is (a file and a key path, given by the caller) and the key, and say
 // the rule broken; keys that no Get() asked for are errors (CheckKnown), so that a typo never
-// falls back silently to a default. Throws std::invalid_argument.
+// falls back silently to a default. Throws InputError.
 #ifndef FLAMERIG_CORE_CONFIG_READER_H_
 #define FLAMERIG_CORE_CONFIG_READER_H_
 
@@ -73,7 +73,7 @@ class ConfigReader {
   std::set<std::string> seen_;
 };
 
-// The YAML file at `path`, a `kind` of file ("config file", "rig file"). Throws std::runtime_error
+// The YAML file at `path`, a `kind` of file ("config file", "rig file"). Throws InputError
 // naming the path: "a folder, not a <kind>", "cannot open <kind>", "not valid YAML: ...".
 inline YAML::Node LoadYamlFile(const std::string& path, const std::string& kind) {
   if (std::filesystem::is_directory(path))
@@ -88,7 +88,7 @@ inline YAML::Node LoadYamlFile(const std::string& path, const std::string& kind)
 }
 
 // For readers that take values without a ConfigReader: `node` is a map whose keys are all in
-// `known`. Throws std::invalid_argument "<where>: must be a map" or "<where>: unknown key 'k'".
+// `known`. Throws InputError "<where>: must be a map" or "<where>: unknown key 'k'".
 inline void CheckKeys(const YAML::Node& node, std::initializer_list<const char*> known,
                       const std::string& where) {
   if (!node.IsMap()) throw InputError(where + ": must be a map");

@@ -44,14 +44,14 @@ using ImageU8 = Image<std::uint8_t>;
 using ImageU16 = Image<std::uint16_t>;
 using ImageF = Image<float>;
 
-// Writes an 8-bit image (1 or 3 channels, RGB order) as PNG. Throws std::runtime_error naming the
+// Writes an 8-bit image (1 or 3 channels, RGB order) as PNG. Throws IoError naming the
 // path when the file cannot be written.
 void WritePng(const std::string& path, const ImageU8& image);
 // The same for 16-bit images (PNG stores 16 bits per channel).
 void WritePng16(const std::string& path, const ImageU16& image);
 
 // Reads an 8-bit PNG (or any format OpenCV decodes) as 1 or 3 channels (RGB order); `channels` 0
-// keeps the file's channel count (alpha dropped). Throws std::runtime_error naming the path when
+// keeps the file's channel count (alpha dropped). Throws DataError naming the path when
 // the file is missing, cannot be decoded, or is not 8-bit.
 ImageU8 ReadImageU8(const std::string& path, int channels = 0);
 // Reads an 8-bit or 16-bit image into *image8 or *image16 (the other is left empty) and returns

@@ -11,8 +11,9 @@
 // Library code never prints: the CLI subscribes and draws progress bars (tools/cli.h), a test
 // subscribes and counts, or asks to stop. A null callback means no progress and no cancellation.
 //
-// Thread safety: an operation calls its callback from the thread that called the operation,
-// never concurrently; CancelFlag may be set from any thread or a signal handler.
+// Thread safety: an operation never calls its callback concurrently (parallel work reports under
+// a lock, so the call may come from a worker thread); CancelFlag may be raised from any thread or
+// a signal handler.
 #ifndef FLAMERIG_CORE_PROGRESS_H_
 #define FLAMERIG_CORE_PROGRESS_H_
 
@@ -20,6 +21,8 @@
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <utility>
+#include <vector>
 
 namespace flamerig {
 
@@ -29,6 +32,9 @@ struct Progress {
   std::int64_t total = 0;  // units in the stage; 0 when unknown
   std::string unit;        // what a unit is: "frames", "samples", "iterations", "images"
   std::string message;     // a line worth logging now (a frame's summary); "" = none
+  // Named figures of the work so far, units in the names: {"energy", 1.2e4},
+  // {"mean_delta_e", 0.21}, {"residual_rms", 3e-3}.
+  std::vector<std::pair<std::string, double>> values;
 };
 
 enum class ProgressAction { kContinue, kCancel };

@@ -38,12 +38,12 @@ class AbsorptionModel {
 
   // Grey absorption with the given cross-section (m^2 per particle, > 0 and finite).
   static AbsorptionModel Grey(double cross_section_m2);
-  // Rayleigh soot. Throws std::invalid_argument naming the bad parameter.
+  // Rayleigh soot. Throws InputError naming the bad parameter.
   static AbsorptionModel Soot(const SootParameters& parameters);
   // Default soot, and a grey model with the default soot's cross-section at 550 nm.
   static AbsorptionModel DefaultSoot() { return Soot(SootParameters{}); }
   static AbsorptionModel DefaultGrey();
-  // "grey" or "soot" with default parameters; throws std::invalid_argument for other names.
+  // "grey" or "soot" with default parameters; throws InputError for other names.
   static AbsorptionModel FromName(const std::string& name);
 
   Kind kind() const { return kind_; }

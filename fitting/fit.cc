@@ -57,11 +57,24 @@ void FitOptions::Validate() const {
   if (!(time_limit_s >= 0)) fail("time_limit_s must be >= 0");
 }
 
+const char* ToString(FitTermination termination) {
+  switch (termination) {
+    case FitTermination::kConverged: return "converged";
+    case FitTermination::kIterationLimit: return "iteration limit";
+    case FitTermination::kTimeLimit: return "time limit";
+    case FitTermination::kCancelled: return "cancelled";
+    case FitTermination::kFailed: return "failed";
+  }
+  return "?";
+}
+
 std::string FitResult::BriefReport() const {
   std::ostringstream s;
   s.precision(4);
-  s << method << ": " << active_voxels << " active voxels, " << evaluations << " evaluations, "
-    << seconds << " s; energy " << final_terms.exact_energy() << " (data " << final_terms.data_exact
+  s << method << ": " << ToString(termination) << " after " << iterations << " iterations ("
+    << message << "), " << active_voxels << " active voxels, " << evaluations << " evaluations, "
+    << seconds << " s; energy " << initial_energy << " -> " << final_terms.exact_energy()
+    << " (data " << final_terms.data_exact
     << ", pairwise " << final_terms.smooth_exact << "), mean Delta E " << final_terms.mean_delta_e
     << " (per view:";
   for (double d : final_terms.view_mean_delta_e) s << " " << d;
@@ -289,9 +302,8 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
     double d_s = 0;
     EnergyTerms terms;
     try {
-      terms = objective_.Evaluate(st.t, st.n, st.s, options_.density_pairwise,
-                                  gradient ? &d_t : nullptr, gradient ? &d_n : nullptr,
-                                  gradient ? &d_s : nullptr);
+      terms = objective_.Evaluate(st.t, st.n, st.s, gradient ? &d_t : nullptr,
+                                  gradient ? &d_n : nullptr, gradient ? &d_s : nullptr);
     } catch (const InputError&) {
       return false;  // a non-finite trial point: Ceres backs off
     }
@@ -327,14 +339,18 @@ class TraceCallback : public ceres::IterationCallback {
  public:
   TraceCallback(Clock::time_point start, int level, const std::string& stage,
                 std::deque<std::pair<double, EnergyTerms>>* seen, std::vector<FitTracePoint>* trace,
-                const FitProgressCallback& progress, double time_limit_s)
+                const ProgressCallback& progress, double time_limit_s, int max_iterations)
       : start_(start),
         level_(level),
         stage_(stage),
         seen_(seen),
         trace_(trace),
         progress_(progress),
-        time_limit_s_(time_limit_s) {}
+        time_limit_s_(time_limit_s),
+        max_iterations_(max_iterations) {}
+  // Why the callback stopped the solver, if it did (Ceres reports USER_SUCCESS for both).
+  bool cancelled() const { return cancelled_; }
+  bool out_of_time() const { return out_of_time_; }
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override {
     auto it = std::find_if(seen_->rbegin(), seen_->rend(),
                            [&](const auto& e) { return e.first == summary.cost; });
@@ -346,18 +362,28 @@ class TraceCallback : public ceres::IterationCallback {
       p.level = level_;
       p.stage = stage_;
       trace_->push_back(p);
-      if (progress_) {
-        FitProgress f;
-        f.stage = stage_;
-        f.iteration = summary.iteration;
-        f.seconds = p.seconds;
-        f.energy = p.energy;
-        f.mean_delta_e = p.mean_delta_e;
-        progress_(f);
-      }
     }
-    if (time_limit_s_ > 0 && Seconds(start_) > time_limit_s_)
+    Progress f;
+    f.stage = "fit";
+    f.message = stage_;
+    f.unit = "iterations";
+    f.done = summary.iteration;
+    f.total = max_iterations_;
+    f.values = {{"seconds", Seconds(start_)}};
+    if (!trace_->empty() && it != seen_->rend()) {
+      f.values.push_back({"energy", trace_->back().energy});
+      f.values.push_back({"mean_delta_e", trace_->back().mean_delta_e});
+    }
+    // SOLVER_TERMINATE_SUCCESSFULLY keeps the current parameters (SOLVER_ABORT would discard
+    // them); the flags say why.
+    if (ReportProgress(progress_, f)) {
+      cancelled_ = true;
       return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
+    }
+    if (time_limit_s_ > 0 && Seconds(start_) > time_limit_s_) {
+      out_of_time_ = true;
+      return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
+    }
     return ceres::SOLVER_CONTINUE;
   }
 
@@ -367,8 +393,10 @@ class TraceCallback : public ceres::IterationCallback {
   std::string stage_;
   std::deque<std::pair<double, EnergyTerms>>* seen_;
   std::vector<FitTracePoint>* trace_;
-  const FitProgressCallback& progress_;
+  const ProgressCallback& progress_;
   double time_limit_s_;
+  int max_iterations_;
+  bool cancelled_ = false, out_of_time_ = false;
 };
 
 // Voxels outside the medium get the ambient (lowest) temperature: they hold no soot, so they
@@ -388,6 +416,10 @@ FireVolume ToVolume(const State& st, const FitResult& r, double ambient_k) {
   v.metadata_numbers["energy"] = r.final_terms.exact_energy();
   v.metadata_numbers["active_voxels"] = static_cast<double>(st.active.size());
   v.metadata_text["method"] = r.method;
+  v.metadata_text["termination"] = ToString(r.termination);
+  v.metadata_text["termination_message"] = r.message;
+  v.metadata_numbers["iterations"] = r.iterations;
+  v.metadata_numbers["initial_energy"] = r.initial_energy;
   return v;
 }
 
@@ -413,12 +445,13 @@ double TomographyExposure(const FireVolume& tomography) {
 FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
                   const std::vector<FitView>& views, const AbsorptionModel& absorption,
                   const FitOptions& options_in, const FitResult* warm_start,
-                  const FitProgressCallback& progress) {
+                  const ProgressCallback& progress) {
   const auto start = Clock::now();
   FitOptions options = options_in;
   options.Validate();
   options.objective.smooth_delta_e = options.smooth_delta_e;
   options.objective.smooth_neighbour = options.smooth_neighbour;
+  options.objective.density_pairwise = options.density_pairwise;
   const ThinEmissionTable table(absorption, options.objective.t_min_k, options.objective.t_max_k);
   const double s_tomo = TomographyExposure(tomography);
   FitResult result;
@@ -448,7 +481,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     std::vector<float> emission;
     st.active = ActiveVoxels(st.grid, tomography, options.activity_threshold, &emission);
     if (st.active.empty()) {
-      throw InputError(
+      throw DataError(
           "fit: no active voxels (the tomography volume is black or below the activity "
           "threshold)");
     }
@@ -480,20 +513,51 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     solver.gradient_tolerance = 1e-12;
     solver.logging_type = ceres::SILENT;
     TraceCallback callback(start, static_cast<int>(level), stage, &seen, &result.trace, progress,
-                           options.time_limit_s);
+                           options.time_limit_s, solver.max_num_iterations);
     solver.callbacks.push_back(&callback);
     ceres::GradientProblemSolver::Summary summary;
-    if (solver.max_num_iterations > 0) ceres::Solve(solver, problem, u.data(), &summary);
+    const std::size_t trace_start = result.trace.size();
+    if (solver.max_num_iterations > 0) {
+      ceres::Solve(solver, problem, u.data(), &summary);
+      // Ceres reports iteration 0 at the starting point: the trace's first point of the level.
+      if (level == 0 && result.trace.size() > trace_start)
+        result.initial_energy = result.trace[trace_start].energy;
+      result.iterations += std::max(0, static_cast<int>(summary.iterations.size()) - 1);
+      result.message = summary.message;
+      if (callback.cancelled()) {
+        result.termination = FitTermination::kCancelled;
+        result.message = "the progress callback asked to stop";
+      } else if (callback.out_of_time()) {
+        result.termination = FitTermination::kTimeLimit;
+        result.message = "time limit of " + std::to_string(options.time_limit_s) + " s reached";
+      } else if (summary.termination_type == ceres::CONVERGENCE) {
+        result.termination = FitTermination::kConverged;
+      } else if (summary.termination_type == ceres::NO_CONVERGENCE) {
+        result.termination = FitTermination::kIterationLimit;
+      } else {
+        result.termination = FitTermination::kFailed;
+      }
+    } else {
+      result.termination = FitTermination::kIterationLimit;
+      result.message = "no iterations asked for";
+    }
     problem_function->Decode(u.data(), &st);
     previous = st;
     have_previous = true;
     result.active_voxels = st.active.size();
     if (level + 1 == levels.size()) {
       // Its data_exact and smooth_exact are the exact (non-smoothed) terms.
-      result.final_terms = objective.Evaluate(st.t, st.n, st.s, options.density_pairwise);
+      result.final_terms = objective.Evaluate(st.t, st.n, st.s);
     }
-    if (options.time_limit_s > 0 && Seconds(start) > options.time_limit_s) {
-      // Out of time: carry the current level's state to the finest grid without more iterations.
+    const bool stop = result.termination == FitTermination::kCancelled ||
+                      (options.time_limit_s > 0 && Seconds(start) > options.time_limit_s);
+    if (stop) {
+      if (result.termination != FitTermination::kCancelled) {
+        result.termination = FitTermination::kTimeLimit;
+        result.message = "time limit of " + std::to_string(options.time_limit_s) + " s reached";
+      }
+      // Out of time (or cancelled): carry the current level's state to the finest grid without
+      // more iterations.
       if (level + 1 < levels.size()) {
         State fine;
         fine.grid = grid;
@@ -505,11 +569,12 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
                  &fine);
         st = fine;
         result.active_voxels = st.active.size();
-        result.final_terms = fine_objective.Evaluate(st.t, st.n, st.s, options.density_pairwise);
+        result.final_terms = fine_objective.Evaluate(st.t, st.n, st.s);
       }
       break;
     }
   }
+  if (result.trace.empty()) result.initial_energy = result.final_terms.exact_energy();
   result.exposure = st.s;
   result.seconds = Seconds(start);
   result.volume = ToVolume(st, result, options.objective.t_min_k);
@@ -543,7 +608,7 @@ std::vector<std::uint32_t> YzxOrder(const GridGeometry& grid,
 FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
                    const std::vector<FitView>& views, const AbsorptionModel& absorption,
                    const FitOptions& options_in, const PaperFitOptions& paper,
-                   const FitProgressCallback& progress) {
+                   const ProgressCallback& progress) {
   const auto start = Clock::now();
   FitOptions options = options_in;
   options.Validate();
@@ -556,6 +621,8 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
         "exposure_samples >= 0, deviations > 0, time_limit_s >= 0");
   }
   const bool per_voxel_density = paper.algorithm == PaperAlgorithm::kPerVoxelDensity;
+  // Algorithm 1's energy has the pairwise term on the densities too.
+  options.objective.density_pairwise = per_voxel_density;
   FitResult result;
   result.method = per_voxel_density ? "paper Algorithm 1 (per-voxel temperature and density)"
                                     : "paper Algorithm 2 (per-voxel temperature, density scale)";
@@ -600,16 +667,9 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
     }
     return n;
   };
-  auto pairwise_total = [&]() {
-    double sum = 0;
-    for (const auto& [a, b] : objective.neighbour_pairs()) {
-      sum += 2 * std::abs(objective.NormaliseT(t[b]) - objective.NormaliseT(t[a]));
-      if (per_voxel_density) sum += 2 * std::abs(ln_n[b] - ln_n[a]) / (ln_n_hi - ln_n_lo);
-    }
-    return sum;
-  };
+  bool cancelled = false;
   auto out_of_time = [&]() {
-    return paper.time_limit_s > 0 && Seconds(start) > paper.time_limit_s;
+    return cancelled || (paper.time_limit_s > 0 && Seconds(start) > paper.time_limit_s);
   };
 
   // Initial exposure (and density scale) by a log-spaced sweep; one render per density scale,
@@ -666,7 +726,8 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
     last_trace = now;
     FitTracePoint p;
     p.seconds = now;
-    p.energy = options.objective.w_am * data + options.objective.w_sm * pairwise_total();
+    const std::vector<double> n_now = densities(ln_scale);
+    p.energy = objective.EnergyWithData(data, FitParameters{t, n_now, std::exp(ln_s)});
     p.mean_delta_e = data / double(std::max<std::int64_t>(1, [&] {
                        std::int64_t px = 0;
                        for (const FitView& v : views) px += v.image.num_pixels();
@@ -675,23 +736,21 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
     p.level = iteration;
     p.stage = stage;
     result.trace.push_back(p);
-    if (progress) {
-      FitProgress f;
-      f.stage = stage;
-      f.iteration = iteration;
-      f.seconds = now;
-      f.energy = p.energy;
-      f.mean_delta_e = p.mean_delta_e;
-      progress(f);
-    }
+    Progress f;
+    f.stage = "fit";
+    f.message = stage;
+    f.unit = "iterations";
+    f.done = iteration;
+    f.total = paper.iterations;
+    f.values = {{"seconds", now}, {"energy", p.energy}, {"mean_delta_e", p.mean_delta_e}};
+    if (ReportProgress(progress, f)) cancelled = true;
   };
   trace(0, "start", true);
+  result.initial_energy = result.trace.back().energy;
+  int sweeps = 0;
 
-  std::vector<double> vt(m), vn(m);  // normalised values for the pairwise term
-  for (std::size_t a = 0; a < m; ++a) {
-    vt[a] = objective.NormaliseT(t[a]);
-    vn[a] = (ln_n[a] - ln_n_lo) / (ln_n_hi - ln_n_lo);
-  }
+  // The densities in force, kept up to date for the local terms (Algorithm 1's pairwise density).
+  std::vector<double> n_now = densities(ln_scale);
   bool vary_density = false;  // Algorithm 1 alternates; Algorithm 2 only varies temperature
   for (int it = 1; it <= paper.iterations && !out_of_time(); ++it) {
     const std::string stage = "iteration " + std::to_string(it) + " (" +
@@ -708,12 +767,9 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
       // neighbours, counted from both ends (pairs inside the cluster stay equal, so they add a
       // constant).
       auto local_pairwise = [&]() {
+        const FitParameters x{t, n_now, std::exp(ln_s)};
         double sum = 0;
-        for (std::size_t i = lo; i < hi; ++i) {
-          const std::uint32_t a = order[i];
-          sum += 2 * objective.LocalPairwise(vt, a, vt[a]);
-          if (per_voxel_density) sum += 2 * objective.LocalPairwise(vn, a, vn[a]);
-        }
+        for (std::size_t i = lo; i < hi; ++i) sum += 2 * objective.LocalEnergy(x, order[i]);
         return sum;
       };
       auto set_cluster = [&](double v) {
@@ -721,17 +777,15 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
           const std::uint32_t a = order[i];
           if (vary_density) {
             ln_n[a] = v;
-            vn[a] = (v - ln_n_lo) / (ln_n_hi - ln_n_lo);
+            n_now[a] = std::exp(v);
           } else {
             t[a] = v;
-            vt[a] = objective.NormaliseT(v);
           }
         }
       };
       const double current_value = vary_density ? ln_n[order[lo]] : t[order[lo]];
       double best_value = current_value;
-      double current_score =
-          options.objective.w_am * data + options.objective.w_sm * local_pairwise();
+      double current_score = objective.WeightedData(data) + local_pairwise();
       for (int j = 0; j < paper.samples_per_cluster; ++j) {
         double v = vary_density ? std::clamp(best_value + sigma_n * normal(rng), ln_n_lo, ln_n_hi)
                                 : std::clamp(best_value + sigma_t * normal(rng), t_lo, t_hi);
@@ -739,7 +793,7 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
         const FitObjective::Renders renders = objective.Render(t, densities(ln_scale));
         ++result.evaluations;
         const double d = objective.DataTermAt(renders, std::exp(ln_s));
-        const double score = options.objective.w_am * d + options.objective.w_sm * local_pairwise();
+        const double score = objective.WeightedData(d) + local_pairwise();
         if (score < current_score) {
           current_score = score;
           best_value = v;
@@ -760,6 +814,7 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
         if (d < data) {
           data = d;
           ln_scale = ln_scale_new;
+          n_now = densities(ln_scale);
         }
       }
     }
@@ -785,6 +840,18 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
     }
     clusters = std::move(finer);
     if (per_voxel_density) vary_density = !vary_density;
+    if (!out_of_time()) sweeps = it;
+  }
+  result.iterations = sweeps;
+  if (cancelled) {
+    result.termination = FitTermination::kCancelled;
+    result.message = "the progress callback asked to stop";
+  } else if (sweeps < paper.iterations) {
+    result.termination = FitTermination::kTimeLimit;
+    result.message = "time limit of " + std::to_string(paper.time_limit_s) + " s reached";
+  } else {
+    result.termination = FitTermination::kIterationLimit;
+    result.message = "all " + std::to_string(paper.iterations) + " sweeps done";
   }
 
   State st;
@@ -795,7 +862,7 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
   st.s = std::exp(ln_s);
   result.exposure = st.s;
   result.density_scale = per_voxel_density ? 1.0 : std::exp(ln_scale);
-  result.final_terms = objective.Evaluate(st.t, st.n, st.s, per_voxel_density);
+  result.final_terms = objective.Evaluate(st.t, st.n, st.s);
   result.active_voxels = m;
   result.seconds = Seconds(start);
   result.volume = ToVolume(st, result, options.objective.t_min_k);

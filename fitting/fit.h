@@ -38,7 +38,10 @@
 // paper's dataTerm() does.
 //
 // Both report a trace of (time, exact energy, mean Delta E) so benchmarks can plot error against
-// time, and call `progress` as they go.
+// time, and call `progress` as they go (stage "fit", unit "iterations", values "energy",
+// "mean_delta_e", "seconds"); a progress callback that answers kCancel stops the fit at that
+// iteration with its current parameters (termination kCancelled). The result says why the fit
+// stopped (FitTermination), in the manner of Ceres' Solver::Summary.
 #ifndef FLAMERIG_FITTING_FIT_H_
 #define FLAMERIG_FITTING_FIT_H_
 
@@ -47,6 +50,7 @@
 #include <string>
 #include <vector>
 
+#include "core/progress.h"
 #include "fitting/objective.h"
 #include "tomography/volume.h"
 
@@ -78,14 +82,16 @@ struct FitTracePoint {
   std::string stage;
 };
 
-struct FitProgress {
-  std::string stage;
-  int iteration = 0;
-  double seconds = 0;
-  double energy = 0;
-  double mean_delta_e = 0;
+// Why a fit stopped (after Ceres' TerminationType).
+enum class FitTermination {
+  kConverged,       // a convergence criterion held (FitResult::message says which)
+  kIterationLimit,  // the iteration (or sweep) budget was spent
+  kTimeLimit,       // FitOptions::time_limit_s or PaperFitOptions::time_limit_s
+  kCancelled,       // the progress callback asked to stop
+  kFailed,          // the solver gave up (a line search that found no descent, say)
 };
-using FitProgressCallback = std::function<void(const FitProgress&)>;
+// "converged", "iteration limit", "time limit", "cancelled", "failed"
+const char* ToString(FitTermination termination);
 
 struct FitOptions {
   ObjectiveOptions objective;  // weights and bounds (the paper's by default)
@@ -118,7 +124,7 @@ struct FitOptions {
   // density carries over too (false). The fire moves between frames; its temperature field
   // changes less than where the soot is.
   bool warm_start_density_from_emission = true;
-  void Validate() const;  // throws std::invalid_argument naming the field
+  void Validate() const;  // throws InputError naming the field
 };
 
 struct FitResult {
@@ -132,6 +138,12 @@ struct FitResult {
   std::vector<FitTracePoint> trace;
   std::size_t active_voxels = 0;
   int evaluations = 0;  // energy (and gradient) evaluations
+  int iterations = 0;   // solver iterations (L-BFGS steps; sweeps of the paper's algorithms)
+  // Why it stopped, and the solver's own words ("Function tolerance reached. |cost_change|/cost:
+  // 8.1e-08 <= 1.0e-07"); a cancelled or timed-out fit returns its best parameters so far.
+  FitTermination termination = FitTermination::kIterationLimit;
+  std::string message;
+  double initial_energy = 0;  // exact energy at the start (the initialisation or warm start)
   double seconds = 0;
   std::string method;
   std::string BriefReport() const;
@@ -143,7 +155,7 @@ struct FitResult {
 FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
                   const std::vector<FitView>& views, const AbsorptionModel& absorption,
                   const FitOptions& options, const FitResult* warm_start = nullptr,
-                  const FitProgressCallback& progress = nullptr);
+                  const ProgressCallback& progress = nullptr);
 
 enum class PaperAlgorithm { kPerVoxelDensity = 1, kDensityScale = 2 };
 
@@ -162,7 +174,7 @@ struct PaperFitOptions {
 FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
                    const std::vector<FitView>& views, const AbsorptionModel& absorption,
                    const FitOptions& options, const PaperFitOptions& paper,
-                   const FitProgressCallback& progress = nullptr);
+                   const ProgressCallback& progress = nullptr);
 
 // Active voxels of `grid` from an emission volume (resampled onto it when its grid differs).
 std::vector<std::uint32_t> ActiveVoxels(const GridGeometry& grid, const FireVolume& tomography,

@@ -27,7 +27,11 @@ void ObjectiveOptions::Validate() const {
     fail("density bounds: both 0 (plausible soot), or 0 < n_min_per_m3 < n_max_per_m3");
 }
 
-double EnergyTerms::exact_energy() const { return w_am * data_exact + w_sm * smooth_exact; }
+double EnergyTerms::exact_energy() const {
+  double sum = 0;
+  for (const TermValue& t : terms) sum += t.weight * t.exact;
+  return sum;
+}
 
 Eigen::Vector3d CameraLab(const Eigen::Vector3d& linear_rgb, double exposure,
                           Eigen::Matrix3d* d_lab_d_linear) {
@@ -71,6 +75,159 @@ double CharbonnierDerivative(double x, double eps) {
   if (eps > 0) return x / std::sqrt(x * x + eps * eps);
   return x > 0 ? 1.0 : (x < 0 ? -1.0 : 0.0);
 }
+
+// ---- The terms of the energy
+
+// E_am: CIE76 Delta E between what the camera records of each rendered pixel and the recorded
+// pixel, over every pixel of every view; the gradient through the renderer's adjoint.
+class DataTerm : public EnergyTerm {
+ public:
+  DataTerm(const FitObjective& objective, double weight, double eps)
+      : objective_(objective), weight_(weight), eps_(eps) {}
+  std::string name() const override { return "data"; }
+  double weight() const override { return weight_; }
+
+  TermValue Evaluate(const FitParameters& x, const FitGradient& gradient,
+                     EnergyTerms* stats) const override {
+    const bool want_gradient = gradient.wanted();
+    const double s = x.s;
+    const FitObjective::Renders renders = objective_.Render(x.t, x.n);
+    TermValue value{name(), weight_, 0, 0};
+    double ds_total = 0;
+    std::vector<double> grad_t, grad_n;
+    const auto& views = objective_.views();
+    for (std::size_t v = 0; v < views.size(); ++v) {
+      const ImageF& img = renders.linear[v];
+      const auto& target = objective_.target_lab()[v];
+      ImageF d_img;
+      if (want_gradient) d_img = ImageF(img.width, img.height, 3, 0.0f);
+      struct Sums {
+        double exact = 0, smooth = 0, ds = 0;
+      };
+      const Sums sums = tbb::parallel_reduce(
+          tbb::blocked_range<std::size_t>(0, target.size(), 4096), Sums{},
+          [&](const tbb::blocked_range<std::size_t>& r, Sums acc) {
+            for (std::size_t p = r.begin(); p < r.end(); ++p) {
+              const Eigen::Vector3d linear(img.pixels[3 * p], img.pixels[3 * p + 1],
+                                           img.pixels[3 * p + 2]);
+              Eigen::Matrix3d jac;
+              const Eigen::Vector3d lab = CameraLab(linear, s, want_gradient ? &jac : nullptr);
+              const Eigen::Vector3d diff = lab - target[p].cast<double>();
+              const double de = diff.norm();
+              acc.exact += de;
+              acc.smooth += Charbonnier(de, eps_);
+              if (want_gradient && de > 0) {
+                // d/dLab of the (smoothed) distance, then through the camera to the radiance.
+                const Eigen::Vector3d g_lab = diff * (CharbonnierDerivative(de, eps_) / de);
+                const Eigen::Vector3d g_lin = jac.transpose() * g_lab * weight_;
+                for (int ch = 0; ch < 3; ++ch)
+                  d_img.pixels[3 * p + ch] = static_cast<float>(g_lin[ch]);
+                // c = s I, so dE/ds = sum over channels of dE/dc * I = (dE/dI * I) / s.
+                acc.ds += g_lin.dot(linear) / s;
+              }
+            }
+            return acc;
+          },
+          [](Sums a, const Sums& b) {
+            a.exact += b.exact;
+            a.smooth += b.smooth;
+            a.ds += b.ds;
+            return a;
+          });
+      value.exact += sums.exact;
+      value.smooth += sums.smooth;
+      ds_total += sums.ds;
+      if (stats) {
+        stats->view_mean_delta_e.push_back(target.empty() ? 0.0 : sums.exact / target.size());
+        stats->pixels += static_cast<std::int64_t>(target.size());
+      }
+      if (gradient.d_t || gradient.d_n)
+        objective_.renderer().RenderGradient(*views[v].rays, d_img, &grad_t, &grad_n);
+    }
+    const auto& active = objective_.active();
+    for (std::size_t a = 0; a < active.size(); ++a) {
+      if (gradient.d_t && !grad_t.empty()) (*gradient.d_t)[a] += grad_t[active[a]];
+      if (gradient.d_n && !grad_n.empty()) (*gradient.d_n)[a] += grad_n[active[a]];
+    }
+    if (gradient.d_s) *gradient.d_s += ds_total;
+    if (stats) stats->data_exact += value.exact;
+    return value;
+  }
+
+ private:
+  const FitObjective& objective_;
+  double weight_, eps_;
+};
+
+// E_sm on one parameter: for every active voxel the sum over its active 18-neighbours of
+// |v_j - v_i| in normalised units, each unordered pair counted from both ends (the paper's sum).
+class PairwiseTerm : public EnergyTerm {
+ public:
+  enum class Parameter { kTemperature, kDensity };
+  PairwiseTerm(const FitObjective& objective, Parameter parameter, double weight, double eps)
+      : objective_(objective), parameter_(parameter), weight_(weight), eps_(eps) {
+    const ObjectiveOptions& o = objective.options();
+    t_scale_ = 1.0 / (o.t_max_k - o.t_min_k);
+    ln_range_ = std::log(objective.n_max()) - std::log(objective.n_min());
+  }
+  std::string name() const override {
+    return parameter_ == Parameter::kTemperature ? "pairwise temperature" : "pairwise density";
+  }
+  double weight() const override { return weight_; }
+  bool local() const override { return true; }
+
+  TermValue Evaluate(const FitParameters& x, const FitGradient& gradient,
+                     EnergyTerms* stats) const override {
+    TermValue value{name(), weight_, 0, 0};
+    const double n_min = objective_.n_min();
+    std::vector<double>* d = parameter_ == Parameter::kTemperature ? gradient.d_t : gradient.d_n;
+    for (const auto& [a, b] : objective_.neighbour_pairs()) {
+      // Each unordered pair counts twice (the paper's sum over voxels of their neighbours).
+      if (parameter_ == Parameter::kTemperature) {
+        const double dt = (x.t[b] - x.t[a]) * t_scale_;
+        value.exact += 2 * std::abs(dt);
+        value.smooth += 2 * Charbonnier(dt, eps_);
+        if (d) {
+          const double g = 2 * weight_ * CharbonnierDerivative(dt, eps_) * t_scale_;
+          (*d)[b] += g;
+          (*d)[a] -= g;
+        }
+      } else {
+        // Below the search range's lowest density (down to 0, where ln n has no value) a density
+        // counts as that lowest one: the term and its gradient stay finite, and flat there.
+        const double na = std::max(x.n[a], n_min), nb = std::max(x.n[b], n_min);
+        const double dn = (std::log(nb) - std::log(na)) / ln_range_;
+        value.exact += 2 * std::abs(dn);
+        value.smooth += 2 * Charbonnier(dn, eps_);
+        if (d) {
+          const double g = 2 * weight_ * CharbonnierDerivative(dn, eps_) / ln_range_;
+          if (x.n[b] > n_min) (*d)[b] += g / nb;
+          if (x.n[a] > n_min) (*d)[a] -= g / na;
+        }
+      }
+    }
+    if (stats) stats->smooth_exact += value.exact;
+    return value;
+  }
+
+  double Local(const FitParameters& x, std::uint32_t a) const override {
+    double sum = 0;
+    const double va = Normalised(x, a);
+    for (const std::uint32_t* e = objective_.neighbours_begin(a); e != objective_.neighbours_end(a);
+         ++e)
+      sum += std::abs(Normalised(x, *e) - va);
+    return sum;
+  }
+
+ private:
+  double Normalised(const FitParameters& x, std::uint32_t a) const {
+    return parameter_ == Parameter::kTemperature ? objective_.NormaliseT(x.t[a])
+                                                 : objective_.NormaliseN(x.n[a]);
+  }
+  const FitObjective& objective_;
+  Parameter parameter_;
+  double weight_, eps_, t_scale_ = 0, ln_range_ = 0;
+};
 
 }  // namespace
 
@@ -149,6 +306,13 @@ FitObjective::FitObjective(const GridGeometry& grid, std::vector<std::uint32_t> 
     target_lab_.push_back(std::move(lab));
   }
   renderer_ = std::make_unique<FireRenderer>(absorption, render);
+  // The energy's terms: add a term here.
+  terms_.push_back(std::make_unique<DataTerm>(*this, options_.w_am, options_.smooth_delta_e));
+  terms_.push_back(std::make_unique<PairwiseTerm>(*this, PairwiseTerm::Parameter::kTemperature,
+                                                  options_.w_sm, options_.smooth_neighbour));
+  if (options_.density_pairwise)
+    terms_.push_back(std::make_unique<PairwiseTerm>(*this, PairwiseTerm::Parameter::kDensity,
+                                                    options_.w_sm, options_.smooth_neighbour));
 }
 
 FitObjective::~FitObjective() = default;
@@ -161,11 +325,21 @@ double FitObjective::NormaliseN(double n) const {
   return (std::log(std::max(n, n_min_)) - std::log(n_min_)) / (std::log(n_max_) - std::log(n_min_));
 }
 
-double FitObjective::LocalPairwise(const std::vector<double>& values, std::uint32_t a,
-                                   double value) const {
+double FitObjective::WeightedData(double data_exact) const {
+  return terms_.front()->weight() * data_exact;  // the data term is first (constructor)
+}
+
+double FitObjective::EnergyWithData(double data_exact, const FitParameters& x) const {
+  double sum = WeightedData(data_exact);
+  for (std::size_t k = 1; k < terms_.size(); ++k)
+    sum += terms_[k]->weight() * terms_[k]->Evaluate(x, FitGradient{}, nullptr).exact;
+  return sum;
+}
+
+double FitObjective::LocalEnergy(const FitParameters& x, std::uint32_t a) const {
   double sum = 0;
-  for (std::uint32_t e = neighbour_start_[a]; e < neighbour_start_[a + 1]; ++e)
-    sum += std::abs(values[neighbour_list_[e]] - value);
+  for (const auto& term : terms_)
+    if (term->local()) sum += term->weight() * term->Local(x, a);
   return sum;
 }
 
@@ -200,7 +374,7 @@ double FitObjective::DataTermAt(const Renders& renders, double s) const {
             const Eigen::Vector3d lab = CameraLab(
                 Eigen::Vector3d(img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]),
                 s);
-            acc += (lab - target[p].cast<double>()).norm();
+            acc += colour::DeltaE76(lab, target[p].cast<double>());
           }
           return acc;
         },
@@ -210,104 +384,22 @@ double FitObjective::DataTermAt(const Renders& renders, double s) const {
 }
 
 EnergyTerms FitObjective::Evaluate(const std::vector<double>& t, const std::vector<double>& n,
-                                   double s, bool density_pairwise, std::vector<double>* d_t,
-                                   std::vector<double>* d_n, double* d_s) const {
+                                   double s, std::vector<double>* d_t, std::vector<double>* d_n,
+                                   double* d_s) const {
   if (!(s > 0) || !std::isfinite(s))
     throw InputError("fit: exposure " + std::to_string(s) + " must be finite and > 0");
-  const bool want_gradient = d_t || d_n || d_s;
-  Renders renders = Render(t, n);
-  EnergyTerms terms;
-  terms.w_am = options_.w_am;
-  terms.w_sm = options_.w_sm;
-  const double eps = options_.smooth_delta_e;
-  double data_smooth = 0, ds_total = 0;
-  std::vector<double> grad_t, grad_n;
-  for (std::size_t v = 0; v < views_.size(); ++v) {
-    const ImageF& img = renders.linear[v];
-    const auto& target = target_lab_[v];
-    ImageF d_img;
-    if (want_gradient) d_img = ImageF(img.width, img.height, 3, 0.0f);
-    struct Sums {
-      double exact = 0, smooth = 0, ds = 0;
-    };
-    const Sums sums = tbb::parallel_reduce(
-        tbb::blocked_range<std::size_t>(0, target.size(), 4096), Sums{},
-        [&](const tbb::blocked_range<std::size_t>& r, Sums acc) {
-          for (std::size_t p = r.begin(); p < r.end(); ++p) {
-            const Eigen::Vector3d linear(img.pixels[3 * p], img.pixels[3 * p + 1],
-                                         img.pixels[3 * p + 2]);
-            Eigen::Matrix3d jac;
-            const Eigen::Vector3d lab = CameraLab(linear, s, want_gradient ? &jac : nullptr);
-            const Eigen::Vector3d diff = lab - target[p].cast<double>();
-            const double de = diff.norm();
-            acc.exact += de;
-            acc.smooth += Charbonnier(de, eps);
-            if (want_gradient && de > 0) {
-              // d/dLab of the (smoothed) distance, then through the camera to the radiance.
-              const Eigen::Vector3d g_lab = diff * (CharbonnierDerivative(de, eps) / de);
-              const Eigen::Vector3d g_lin = jac.transpose() * g_lab * options_.w_am;
-              for (int ch = 0; ch < 3; ++ch)
-                d_img.pixels[3 * p + ch] = static_cast<float>(g_lin[ch]);
-              // c = s I, so dE/ds = sum over channels of dE/dc * I = (dE/dI * I) / s.
-              acc.ds += g_lin.dot(linear) / s;
-            }
-          }
-          return acc;
-        },
-        [](Sums a, const Sums& b) {
-          a.exact += b.exact;
-          a.smooth += b.smooth;
-          a.ds += b.ds;
-          return a;
-        });
-    terms.data_exact += sums.exact;
-    terms.view_mean_delta_e.push_back(target.empty() ? 0.0 : sums.exact / target.size());
-    terms.pixels += static_cast<std::int64_t>(target.size());
-    data_smooth += sums.smooth;
-    ds_total += sums.ds;
-    if (d_t || d_n) renderer_->RenderGradient(*views_[v].rays, d_img, &grad_t, &grad_n);
-  }
-  terms.mean_delta_e = terms.pixels ? terms.data_exact / terms.pixels : 0.0;
-
-  // Pairwise term.
-  const double eps_n = options_.smooth_neighbour;
-  const double t_scale = 1.0 / (options_.t_max_k - options_.t_min_k);
-  const double ln_range = std::log(n_max_) - std::log(n_min_);
-  double pair_exact = 0, pair_smooth = 0;
   if (d_t) d_t->assign(active_.size(), 0.0);
   if (d_n) d_n->assign(active_.size(), 0.0);
-  for (const auto& [a, b] : pairs_) {
-    // Each unordered pair counts twice (the paper's sum over voxels of their neighbours).
-    const double dt = (t[b] - t[a]) * t_scale;
-    pair_exact += 2 * std::abs(dt);
-    pair_smooth += 2 * Charbonnier(dt, eps_n);
-    if (d_t) {
-      const double g = 2 * options_.w_sm * CharbonnierDerivative(dt, eps_n) * t_scale;
-      (*d_t)[b] += g;
-      (*d_t)[a] -= g;
-    }
-    if (density_pairwise) {
-      // Below the search range's lowest density (down to 0, where ln n has no value) a density
-      // counts as that lowest one: the term and its gradient stay finite, and flat there.
-      const double na = std::max(n[a], n_min_), nb = std::max(n[b], n_min_);
-      const double dn = (std::log(nb) - std::log(na)) / ln_range;
-      pair_exact += 2 * std::abs(dn);
-      pair_smooth += 2 * Charbonnier(dn, eps_n);
-      if (d_n) {
-        const double g = 2 * options_.w_sm * CharbonnierDerivative(dn, eps_n) / ln_range;
-        if (n[b] > n_min_) (*d_n)[b] += g / nb;
-        if (n[a] > n_min_) (*d_n)[a] -= g / na;
-      }
-    }
+  if (d_s) *d_s = 0.0;
+  const FitParameters x{t, n, s};
+  const FitGradient gradient{d_t, d_n, d_s};
+  EnergyTerms result;
+  for (const auto& term : terms_) {
+    result.terms.push_back(term->Evaluate(x, gradient, &result));
+    result.energy += term->weight() * result.terms.back().smooth;
   }
-  terms.smooth_exact = pair_exact;
-  terms.energy = options_.w_am * data_smooth + options_.w_sm * pair_smooth;
-  for (std::size_t a = 0; a < active_.size(); ++a) {
-    if (d_t && !grad_t.empty()) (*d_t)[a] += grad_t[active_[a]];
-    if (d_n && !grad_n.empty()) (*d_n)[a] += grad_n[active_[a]];
-  }
-  if (d_s) *d_s = ds_total;
-  return terms;
+  result.mean_delta_e = result.pixels ? result.data_exact / result.pixels : 0.0;
+  return result;
 }
 
 }  // namespace flamerig

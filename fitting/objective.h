@@ -1,5 +1,9 @@
 // The paper's energy (DESIGN section 7), E = w_am * E_am + w_sm * E_sm, and its exact gradient.
 //
+// The energy is a list of terms, E = sum_k w_k * term_k (EnergyTerm below), that the fast fit
+// (through Evaluate, with gradients) and the paper's algorithms (through Evaluate, DataTermAt and
+// the local parts of the terms) all evaluate; a new term is a class and one line in MakeTerms
+// (objective.cc). The terms now:
 //  - Data term E_am: for every pixel of every view, the CIELab distance (CIE76 Delta E) between
 //    the rendered pixel and the recorded one. The rendered pixel is what the camera records of the
 //    renderer's linear sRGB radiance I: c = clamp(s * I, 0, 1) with s the exposure (no
@@ -49,7 +53,10 @@ struct ObjectiveOptions {
   // Search ranges, which also normalise the pairwise term.
   double t_min_k = 300, t_max_k = 2300;
   double n_min_per_m3 = 0, n_max_per_m3 = 0;  // 0, 0: DensityBounds::Plausible of the model
-  void Validate() const;                      // throws std::invalid_argument naming the field
+  // The pairwise term on the per-voxel densities too (Algorithm 1; the fast fit's
+  // FitOptions::density_pairwise). Off: the pairwise term is on the temperature only.
+  bool density_pairwise = false;
+  void Validate() const;  // throws InputError naming the field
 };
 
 // One view to match: the camera's rays and its recorded 8-bit sRGB image (3 channels, the
@@ -60,27 +67,73 @@ struct FitView {
   ImageU8 image;
 };
 
+// One term's part of an evaluation.
+struct TermValue {
+  std::string name;   // EnergyTerm::name()
+  double weight = 0;  // w_k
+  double exact = 0;   // the term without smoothing, unweighted
+  double smooth = 0;  // the term as minimised (Charbonnier-smoothed if the options say so)
+};
+
 struct EnergyTerms {
-  double energy = 0;        // what Evaluate returns (smooth if the options say so)
+  double energy = 0;        // what Evaluate returns: sum of weight * smooth over the terms
   double data_exact = 0;    // sum of Delta E over all pixels of all views (unweighted)
-  double smooth_exact = 0;  // sum of |v_j - v_i| (unweighted, normalised units)
+  double smooth_exact = 0;  // sum of the pairwise terms' |v_j - v_i| (unweighted, normalised)
   std::int64_t pixels = 0;
   double mean_delta_e = 0;  // data_exact / pixels
   std::vector<double> view_mean_delta_e;
-  double exact_energy() const;  // w_am data_exact + w_sm smooth_exact (set by Evaluate)
-  double w_am = 1, w_sm = 10;
+  std::vector<TermValue> terms;  // every term of the energy, in order
+  double exact_energy() const;   // sum of weight * exact over the terms
+};
+
+class FitObjective;
+
+// The parameters of an evaluation: one temperature (K) and density (m^-3) per active voxel, and
+// the exposure.
+struct FitParameters {
+  const std::vector<double>& t;
+  const std::vector<double>& n;
+  double s;
+};
+
+// Where a term adds its weighted gradient: per active voxel, and the exposure. Null members are
+// not wanted.
+struct FitGradient {
+  std::vector<double>* d_t = nullptr;
+  std::vector<double>* d_n = nullptr;
+  double* d_s = nullptr;
+  bool wanted() const { return d_t || d_n || d_s; }
+};
+
+// One term of the energy. Stateless apart from what its constructor precomputes; Evaluate may be
+// called from one thread at a time.
+class EnergyTerm {
+ public:
+  virtual ~EnergyTerm() = default;
+  virtual std::string name() const = 0;  // "data", "pairwise temperature", "pairwise density"
+  virtual double weight() const = 0;
+  // The term's exact and smoothed values (unweighted) at `x`; adds weight * d(smooth)/dx to
+  // `gradient`. `stats` (data terms) gets the per-view figures.
+  virtual TermValue Evaluate(const FitParameters& x, const FitGradient& gradient,
+                             EnergyTerms* stats) const = 0;
+  // Coordinate descent (the paper's algorithms): the exact, unweighted part of the term that
+  // involves active voxel `a` (0 for terms that are not sums over voxels; see local()).
+  virtual bool local() const { return false; }
+  virtual double Local(const FitParameters& x, std::uint32_t a) const { return 0.0; }
 };
 
 // The objective over a fixed set of active voxels.
 class FitObjective {
  public:
   // `active`: flat voxel indices of the unknowns (no repeats, inside the grid). Views must have
-  // rays and 3-channel images of their camera's size. Throws std::invalid_argument naming the
+  // rays and 3-channel images of their camera's size. Throws InputError naming the
   // problem.
   FitObjective(const GridGeometry& grid, std::vector<std::uint32_t> active,
                std::vector<FitView> views, const AbsorptionModel& absorption,
                const RenderOptions& render, const ObjectiveOptions& options);
   ~FitObjective();
+  FitObjective(const FitObjective&) = delete;  // its terms refer to it
+  FitObjective& operator=(const FitObjective&) = delete;
 
   std::size_t num_active() const { return active_.size(); }
   const std::vector<std::uint32_t>& active() const { return active_; }
@@ -94,15 +147,17 @@ class FitObjective {
     return pairs_;
   }
 
+  // The energy's terms, in the order they are evaluated (the data term first).
+  const std::vector<std::unique_ptr<EnergyTerm>>& terms() const { return terms_; }
+
   // Not safe to call concurrently on one objective (it owns one renderer).
-  // E at temperatures `t` and densities `n` (one per active voxel) and exposure `s`. With
-  // gradient pointers non-null, also dE/dt, dE/dn (per active voxel) and dE/ds. `density_pairwise`
-  // includes the density in the pairwise term (per-voxel density unknowns). Values outside the
-  // bounds are allowed (the energy is defined for any T >= 0, n >= 0, s > 0; in the density
-  // pairwise term a density below n_min() counts as n_min()); NaN inputs throw.
+  // E at temperatures `t` and densities `n` (one per active voxel) and exposure `s`: the sum of
+  // every term. With gradient pointers non-null, also dE/dt, dE/dn (per active voxel) and dE/ds.
+  // Values outside the bounds are allowed (the energy is defined for any T >= 0, n >= 0, s > 0;
+  // in the density pairwise term a density below n_min() counts as n_min()); NaN inputs throw.
   EnergyTerms Evaluate(const std::vector<double>& t, const std::vector<double>& n, double s,
-                       bool density_pairwise, std::vector<double>* d_t = nullptr,
-                       std::vector<double>* d_n = nullptr, double* d_s = nullptr) const;
+                       std::vector<double>* d_t = nullptr, std::vector<double>* d_n = nullptr,
+                       double* d_s = nullptr) const;
 
   // Only the data term, per view, and the rendered linear images (for reports and exposure
   // searches that hold the volume fixed): renders once, then scores any exposure cheaply.
@@ -113,12 +168,27 @@ class FitObjective {
   // Sum of Delta E over all views at exposure s for renders made by Render().
   double DataTermAt(const Renders& renders, double s) const;
 
-  // The pairwise term of one voxel (normalised |differences| to its active neighbours), for
-  // coordinate descent; `values` are normalised per active voxel.
-  double LocalPairwise(const std::vector<double>& values, std::uint32_t a, double value) const;
+  // Coordinate descent (the paper's algorithms), which render once per move and score exposures
+  // on that render (DataTermAt):
+  // the data term's weighted value for its exact value `data_exact`;
+  double WeightedData(double data_exact) const;
+  // the weighted sum of the local terms' parts that involve active voxel `a`;
+  double LocalEnergy(const FitParameters& x, std::uint32_t a) const;
+  // the exact energy at x when the data term's exact value is already known.
+  double EnergyWithData(double data_exact, const FitParameters& x) const;
   // Normalisations used by the pairwise term.
   double NormaliseT(double t) const;
   double NormaliseN(double n) const;
+  // The active neighbours of active voxel a: [begin, end) of indices into active().
+  const std::uint32_t* neighbours_begin(std::uint32_t a) const {
+    return neighbour_list_.data() + neighbour_start_[a];
+  }
+  const std::uint32_t* neighbours_end(std::uint32_t a) const {
+    return neighbour_list_.data() + neighbour_start_[a + 1];
+  }
+  // Renders all views (the data term's use); not safe concurrently.
+  FireRenderer& renderer() const { return *renderer_; }
+  const std::vector<std::vector<Eigen::Vector3f>>& target_lab() const { return target_lab_; }
 
  private:
   GridGeometry grid_;
@@ -130,10 +200,12 @@ class FitObjective {
   std::vector<std::uint32_t> neighbour_start_, neighbour_list_;  // CSR of neighbours per active
   std::vector<std::vector<Eigen::Vector3f>> target_lab_;         // per view, per pixel
   std::unique_ptr<FireRenderer> renderer_;
+  std::vector<std::unique_ptr<EnergyTerm>> terms_;
 };
 
 // Lab of what the camera records from linear radiance I at exposure s, c = clamp(s I, 0, 1), and
-// its Jacobian d Lab / d I (3x3, row = L, a, b) for the gradient.
+// its Jacobian d Lab / d I (3x3, row = L, a, b) for the gradient. Pixel errors everywhere in
+// flamerig (energies, reports, benchmarks) are colour::DeltaE76 of two such Labs.
 Eigen::Vector3d CameraLab(const Eigen::Vector3d& linear_rgb, double exposure,
                           Eigen::Matrix3d* d_lab_d_linear = nullptr);
 

@@ -89,7 +89,7 @@ struct RenderOptions {
   // March in double instead of float precision (slower; for reference renders and tests).
   bool double_precision = false;
 
-  // Throws std::invalid_argument naming the field, its value and the rule.
+  // Throws InputError naming the field, its value and the rule.
   void Validate() const;
 };
 
@@ -111,11 +111,11 @@ struct RenderSummary {
 
 class FireRenderer {
  public:
-  // Throws std::invalid_argument for invalid options, or kFast requested with non-grey absorption.
+  // Throws InputError for invalid options, or kFast requested with non-grey absorption.
   FireRenderer(const AbsorptionModel& absorption, const RenderOptions& options = RenderOptions());
 
   // Copies the volume in (float). Validates: sizes match the geometry, every value finite and >= 0
-  // (std::invalid_argument naming the field and voxel). Builds the empty-space bricks.
+  // (InputError naming the field and voxel). Builds the empty-space bricks.
   void SetVolume(const GridGeometry& geometry, const std::vector<float>& temperature_k,
                  const std::vector<float>& density_per_m3);
 
@@ -128,7 +128,7 @@ class FireRenderer {
   // *transmittance_rgb (3 channels) receives the fraction of the surface's light that crosses the
   // medium to the camera: the grey transmittance on the fast path; on the spectral path the bins'
   // transmittances averaged with xbar, ybar, zbar for R, G, B (exact for grey surfaces seen through
-  // grey media, an approximation otherwise). Throws std::invalid_argument when max_distance_m does
+  // grey media, an approximation otherwise). Throws InputError when max_distance_m does
   // not have one value per pixel.
   RenderSummary Render(const CameraRays& rays, const std::vector<float>& max_distance_m,
                        ImageF* linear_rgb, ImageF* transmittance_rgb) const;
@@ -188,7 +188,7 @@ class FireRenderer {
 };
 
 // What an 8-bit camera records: clamp(exposure * linear_rgb, 0, 1), sRGB-encoded, rounded to 8
-// bits. Throws std::invalid_argument unless exposure is finite and > 0 and the image has 3
+// bits. Throws InputError unless exposure is finite and > 0 and the image has 3
 // channels.
 ImageU8 ApplyCameraResponse(const ImageF& linear_rgb, double exposure);
 

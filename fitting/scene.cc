@@ -590,7 +590,7 @@ Eigen::Vector3d SceneRenderer::Irradiance(const Eigen::Vector3d& point,
 }
 
 SceneRenderSummary SceneRenderer::Render(const SceneRenderOptions& options, ImageF* linear_rgb,
-                                         const SceneProgressCallback& progress) const {
+                                         const ProgressCallback& progress) const {
   options.Validate();
   const auto start = Clock::now();
   const Impl& m = *impl_;
@@ -696,7 +696,13 @@ SceneRenderSummary SceneRenderer::Render(const SceneRenderOptions& options, Imag
       if (pass == 0) surfaces += hits;
     });
     done += samples;
-    if (progress) progress({done, options.samples_per_pixel, Ms(start) / 1000});
+    Progress p;
+    p.stage = "render";
+    p.unit = "samples";
+    p.done = done;
+    p.total = options.samples_per_pixel;
+    p.values = {{"seconds", Ms(start) / 1000}};
+    if (ReportProgress(progress, p)) throw Cancelled("render: cancelled");
   }
   summary.lighting_ms = Ms(t0);
   summary.shadow_rays = shadow_rays;

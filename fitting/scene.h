@@ -52,6 +52,7 @@
 #include <string>
 #include <vector>
 
+#include "core/progress.h"
 #include "core/image.h"
 #include "fitting/absorption.h"
 #include "fitting/renderer.h"
@@ -65,7 +66,7 @@ struct SceneMaterial {
       Eigen::Vector3d::Constant(0.5);                  // diffuse reflectance per channel, [0, 1]
   Eigen::Vector3d specular = Eigen::Vector3d::Zero();  // glossy reflectance, [0, 1]
   double shininess = 50;  // Blinn-Phong exponent of the glossy lobe, [1, 1e5]
-  void Validate() const;  // throws std::invalid_argument naming the material and field
+  void Validate() const;  // throws InputError naming the material and field
 };
 
 // Triangles (planes, boxes and meshes become triangles) and spheres, in the scene frame.
@@ -101,7 +102,7 @@ struct SceneCamera {
   Eigen::Vector3d up = Eigen::Vector3d::UnitY();
   double vertical_fov_deg = 40;  // (0, 170)
   int width = 960, height = 540;
-  void Validate() const;  // throws std::invalid_argument naming the field
+  void Validate() const;  // throws InputError naming the field
 };
 
 enum class SceneLighting { kFireVolume, kPointLight, kSphereLight };
@@ -123,14 +124,8 @@ struct SceneRenderOptions {
   SceneLighting lighting = SceneLighting::kFireVolume;
   double sphere_light_radius_m = 0;  // kSphereLight; 0 = the fire's RMS radius about its centroid
   RenderOptions fire;                // how the camera rays march the fires
-  void Validate() const;             // throws std::invalid_argument naming the field
+  void Validate() const;             // throws InputError naming the field
 };
-
-struct SceneProgress {
-  int samples_done = 0, samples_total = 0;
-  double seconds = 0;
-};
-using SceneProgressCallback = std::function<void(const SceneProgress&)>;
 
 struct SceneLight {  // what the comparison lighting uses, and what the fire amounts to
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();       // power-weighted, scene frame
@@ -153,7 +148,7 @@ struct SceneRenderSummary {
 
 class SceneRenderer {
  public:
-  // Builds the Embree scene and the fires' light tables. Throws std::invalid_argument for a scene
+  // Builds the Embree scene and the fires' light tables. Throws InputError for a scene
   // that cannot be rendered (a triangle or sphere naming a missing material, a fire without
   // temperature or density, a non-positive scale), naming what is wrong.
   explicit SceneRenderer(const Scene& scene);
@@ -161,9 +156,10 @@ class SceneRenderer {
   SceneRenderer(const SceneRenderer&) = delete;
   SceneRenderer& operator=(const SceneRenderer&) = delete;
 
-  // Renders the linear image (3 channels, camera size). Deterministic for a seed.
+  // Renders the linear image (3 channels, camera size). Deterministic for a seed. Progress after
+  // each pass: stage "render", unit "samples" (per pixel); a cancel throws Cancelled.
   SceneRenderSummary Render(const SceneRenderOptions& options, ImageF* linear_rgb,
-                            const SceneProgressCallback& progress = nullptr) const;
+                            const ProgressCallback& progress = nullptr) const;
 
   // The irradiance (per channel) at a point with a normal, from `lighting`, estimated with
   // `samples` light samples (seeded): what a surface receives. Exposed for tests and energy checks.

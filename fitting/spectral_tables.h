@@ -69,7 +69,7 @@ class BlackbodyXyzTable {
 
 class SpectralBins {
  public:
-  // Bins centred on first_nm, first_nm + step_nm, ..., last_nm. Throws std::invalid_argument unless
+  // Bins centred on first_nm, first_nm + step_nm, ..., last_nm. Throws InputError unless
   // 360 <= first < last <= 830, step > 0 and there are at most kMaxBins bins.
   SpectralBins(double first_nm, double last_nm, double step_nm);
   static constexpr int kMaxBins = 512;

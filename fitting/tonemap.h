@@ -24,7 +24,7 @@ struct ToneMapOptions {
   // L_avg to use instead of the image's own (after the exposure); 0 = the image's. Images mapped
   // with one adaptation and white compare with each other.
   double log_average = 0;
-  void Validate() const;  // throws std::invalid_argument naming the field
+  void Validate() const;  // throws InputError naming the field
 };
 
 struct ToneMapSummary {

@@ -41,10 +41,10 @@ struct BlenderGrids {
 };
 
 // The grids above from a fitted volume (temperature and density on its grid). Throws
-// std::invalid_argument when the volume lacks either field.
+// InputError when the volume lacks either field.
 BlenderGrids MakeBlenderGrids(const FireVolume& fitted, const AbsorptionModel& absorption);
 
-// Writes them to `path` (to path.tmp, then renamed); std::runtime_error naming the path on failure.
+// Writes them to `path` (to path.tmp, then renamed); IoError naming the path on failure.
 void WriteBlenderVdb(const std::string& path, const FireVolume& fitted,
                      const AbsorptionModel& absorption);
 

@@ -42,7 +42,7 @@ struct CalibrateConfig {
   std::vector<std::string> cameras;
   CalibrationOptions options;
   DetectOptions detect;
-  // Reads the `calibrate:` map of a YAML file; errors (std::invalid_argument) name the file and
+  // Reads the `calibrate:` map of a YAML file; errors (InputError) name the file and
   // key. Relative board_file paths are relative to the config file.
   static CalibrateConfig Load(const std::string& path);
 };

@@ -3,7 +3,9 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 
+#include "core/atomic_file.h"
 #include "core/error.h"
 #include "core/image.h"
 #include "acquisition/recording.h"
@@ -25,11 +27,26 @@ void WriteFramePng(const Frame& f, const fs::path& path) {
     WritePng(path.string(), u8);
 }
 
+// Reports set i of [first, end) done; true when the export must stop.
+bool SetDone(const ProgressCallback& progress, std::size_t i, std::size_t first, std::size_t end) {
+  Progress p;
+  p.stage = "export";
+  p.unit = "sets";
+  p.done = static_cast<std::int64_t>(i - first + 1);
+  p.total = static_cast<std::int64_t>(end - first);
+  return ReportProgress(progress, p);
+}
+
+std::string SetName(std::size_t i) {
+  char name[32];
+  std::snprintf(name, sizeof name, "frame_%06zu", i);
+  return name;
+}
+
 }  // namespace
 
 ExportSummary ExportRecording(const std::string& recording_dir, const std::string& out_dir,
-                              const ExportOptions& options,
-                              const std::function<void(std::size_t, std::size_t)>& progress) {
+                              const ExportOptions& options, const ProgressCallback& progress) {
   const Recording rec = Recording::Open(recording_dir);
   ExportSummary summary;
   if (options.first > 0 && options.first >= rec.num_sets())
@@ -37,9 +54,7 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
                                 " is past the recording's last frame set (" +
                                 std::to_string(rec.num_sets()) + " sets)");
   fs::create_directories(out_dir);
-  std::ofstream csv(fs::path(out_dir) / "sets.csv");
-  if (!csv)
-    throw IoError("export: cannot write " + (fs::path(out_dir) / "sets.csv").string());
+  std::ostringstream csv;
   csv << "set,trigger_id,reference_ns,spread_ns";
   for (const auto& c : rec.metadata().cameras)
     csv << "," << c.name << "_frame_id," << c.name << "_status";
@@ -47,10 +62,19 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   const std::size_t first = std::min(options.first, rec.num_sets());
   const std::size_t end = first + std::min(options.count, rec.num_sets() - first);
   for (std::size_t i = first; i < end; ++i) {
-    const FrameSet set = rec.ReadSet(i);
-    char name[32];
-    std::snprintf(name, sizeof name, "frame_%06zu", i);
-    const fs::path dir = fs::path(out_dir) / name;
+    FrameSet set;
+    try {
+      set = rec.ReadSet(i);
+    } catch (const DataError& e) {
+      summary.failed.push_back("set " + std::to_string(i) + ": " + e.what());
+      csv << i << ",damaged,,\n";
+      if (SetDone(progress, i, first, end)) {
+        summary.cancelled = true;
+        break;
+      }
+      continue;
+    }
+    const fs::path dir = fs::path(out_dir) / SetName(i);
     fs::create_directories(dir);
     csv << i << "," << set.trigger_id << "," << set.reference_ns << "," << set.spread_ns;
     for (int c = 0; c < rec.num_cameras(); ++c) {
@@ -60,21 +84,31 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
         continue;
       }
       const Frame& f = *set.frames[c];
-      csv << "," << f.info.frame_id << "," << ToString(f.info.status);
-      WriteFramePng(f, dir / (rec.metadata().cameras[c].name + ".png"));
-      ++summary.images;
+      const std::string& camera = rec.metadata().cameras[c].name;
+      try {
+        WriteFramePng(f, dir / (camera + ".png"));
+        csv << "," << f.info.frame_id << "," << ToString(f.info.status);
+        ++summary.images;
+      } catch (const DataError& e) {
+        summary.failed.push_back("set " + std::to_string(i) + ", camera " + camera + ": " +
+                                 e.what());
+        csv << "," << f.info.frame_id << ",damaged";
+      }
     }
     csv << "\n";
     ++summary.sets;
-    if (progress) progress(i - first + 1, end - first);
+    if (SetDone(progress, i, first, end)) {
+      summary.cancelled = true;
+      break;
+    }
   }
+  WriteFileAtomically((fs::path(out_dir) / "sets.csv").string(), csv.str());
   return summary;
 }
 
 ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
                               const std::vector<std::string>& names_in, const std::string& out_dir,
-                              const ExportOptions& options,
-                              const std::function<void(std::size_t, std::size_t)>& progress) {
+                              const ExportOptions& options, const ProgressCallback& progress) {
   if (seq_files.empty()) throw InputError("export: no .seq files");
   std::vector<std::string> names = names_in;
   if (names.empty())
@@ -93,7 +127,7 @@ ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
                                 " is past the sequences' last frame set (" + std::to_string(n) +
                                 " sets)");
   fs::create_directories(out_dir);
-  std::ofstream csv(fs::path(out_dir) / "sets.csv");
+  std::ostringstream csv;
   csv << "set";
   for (const auto& name : names) csv << "," << name << "_timestamp_ns";
   csv << "\n";
@@ -101,21 +135,29 @@ ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
   const std::size_t first = std::min(options.first, n);
   const std::size_t end = first + std::min(options.count, n - first);
   for (std::size_t i = first; i < end; ++i) {
-    char name[32];
-    std::snprintf(name, sizeof name, "frame_%06zu", i);
-    const fs::path dir = fs::path(out_dir) / name;
+    const fs::path dir = fs::path(out_dir) / SetName(i);
     fs::create_directories(dir);
     csv << i;
     for (std::size_t c = 0; c < seqs.size(); ++c) {
-      const Frame f = seqs[c].ReadFrame(i, static_cast<int>(c));
-      csv << "," << f.info.device_timestamp_ns;
-      WriteFramePng(f, dir / (names[c] + ".png"));
-      ++summary.images;
+      try {
+        const Frame f = seqs[c].ReadFrame(i, static_cast<int>(c));
+        WriteFramePng(f, dir / (names[c] + ".png"));
+        csv << "," << f.info.device_timestamp_ns;
+        ++summary.images;
+      } catch (const DataError& e) {
+        summary.failed.push_back("set " + std::to_string(i) + ", camera " + names[c] + ": " +
+                                 e.what());
+        csv << ",damaged";
+      }
     }
     csv << "\n";
     ++summary.sets;
-    if (progress) progress(i - first + 1, end - first);
+    if (SetDone(progress, i, first, end)) {
+      summary.cancelled = true;
+      break;
+    }
   }
+  WriteFileAtomically((fs::path(out_dir) / "sets.csv").string(), csv.str());
   return summary;
 }
 

@@ -9,6 +9,8 @@
 #include <string>
 #include <vector>
 
+#include "core/progress.h"
+
 namespace flamerig {
 
 struct ExportOptions {
@@ -19,22 +21,29 @@ struct ExportOptions {
 struct ExportSummary {
   std::size_t sets = 0, images = 0;
   std::size_t missing_frames = 0;  // cameras absent from a set (no file written for them)
+  // Damaged frames or sets (a DataError: a checksum, a frame cut short, a pixel format that cannot
+  // be decoded), each "set N[, camera C]: what", in order. They are left out and the export goes on.
+  std::vector<std::string> failed;
+  bool cancelled = false;  // the progress callback asked to stop (the sets before are whole)
 };
 
 // Writes OUT/frame_NNNNNN/<camera name>.png (8-bit, or 16-bit for Mono16; Bayer demosaiced to RGB)
 // and OUT/sets.csv (set, trigger id, reference time, spread, then per camera frame id and status,
-// empty when missing). Throws RecordingError for an unreadable recording, naming the file.
-ExportSummary ExportRecording(
-    const std::string& recording_dir, const std::string& out_dir, const ExportOptions& options,
-    const std::function<void(std::size_t done, std::size_t total)>& progress = nullptr);
+// empty when missing; a damaged set's row says "damaged"). Throws RecordingError for a recording
+// that cannot be opened, naming the file; a damaged set is reported in the summary and skipped.
+// Progress: stage "export", unit "sets"; a cancel stops after the current set.
+ExportSummary ExportRecording(const std::string& recording_dir, const std::string& out_dir,
+                              const ExportOptions& options,
+                              const ProgressCallback& progress = nullptr);
 
 // The same for StreamPix .seq files, one per camera (frame i of every file is set i, as the
 // paper's hardware-triggered capture wrote them); `names` gives the camera names (default the
-// file stems). Stops at the shortest sequence.
-ExportSummary ExportStreamPix(
-    const std::vector<std::string>& seq_files, const std::vector<std::string>& names,
-    const std::string& out_dir, const ExportOptions& options,
-    const std::function<void(std::size_t done, std::size_t total)>& progress = nullptr);
+// file stems). Stops at the shortest sequence. A damaged frame is reported and left out; the other
+// cameras of its set are written.
+ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
+                              const std::vector<std::string>& names, const std::string& out_dir,
+                              const ExportOptions& options,
+                              const ProgressCallback& progress = nullptr);
 
 }  // namespace flamerig
 

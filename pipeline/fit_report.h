@@ -41,22 +41,6 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
                                       const RenderOptions& render, const std::string& title,
                                       std::vector<ImageU8>* rendered = nullptr);
 
-// A fitted volume's temperature against a ground truth, where it can be judged: the visible voxels
-// of the truth (>= 1300 K with soot, and, when the truth has an emission grid, at least 1% of its
-// peak emission: cooler or fainter voxels leave no trace in 8-bit images, notes/physics.md) in
-// which the fit put medium. On the same voxels, voxel against voxel; on another grid (a truth
-// simulated finer than the fit, or a fit in a calibrated rig's box), each visible truth voxel
-// against the fitted voxel that holds its centre (a visible voxel outside the fitted box is
-// visible, not counted).
-struct TruthError {
-  bool compared = false;  // false: no temperature or density in either
-  bool same_grid = false;
-  std::string why_not;
-  std::size_t visible = 0;       // visible voxels of the truth
-  std::size_t counted = 0;       // of those, where the fit has medium
-  double rms_k = 0, mean_k = 0;  // fit - truth
-};
-TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted);
 
 }  // namespace flamerig
 

@@ -51,6 +51,38 @@ void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double 
   *linear = DecodeSrgb8(*image, exposure);
 }
 
+SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double exposure) {
+  if (!fs::is_directory(dir)) throw InputError(dir + ": no such folder of camera images");
+  SourceFrameSet out;
+  out.images.resize(rig.cameras.size());
+  out.linear.resize(rig.cameras.size());
+  for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+    const RigCamera& camera = rig.cameras[c];
+    const fs::path path = fs::path(dir) / (camera.name + ".png");
+    if (!fs::exists(path)) {
+      out.notes.push_back("no image for camera '" + camera.name + "' (" + path.string() +
+                          "): camera left out");
+      continue;
+    }
+    ImageU8 u8;
+    ImageU16 u16;
+    const int bits = ReadImage(path.string(), &u8, &u16, 3);
+    const int width = bits == 16 ? u16.width : u8.width;
+    const int height = bits == 16 ? u16.height : u8.height;
+    if (width != camera.model.width() || height != camera.model.height())
+      throw DataError(path.string() + ": the image is " + std::to_string(width) + "x" +
+                      std::to_string(height) + ", camera '" + camera.name + "' is " +
+                      std::to_string(camera.model.width()) + "x" +
+                      std::to_string(camera.model.height()));
+    try {
+      DecodeCameraImage(u8, u16, bits, exposure, &out.images[c], &out.linear[c]);
+    } catch (const InputError& e) {
+      throw DataError(path.string() + ": " + e.what());
+    }
+  }
+  return out;
+}
+
 void FrameSourceSpec::Validate() const {
   const int kinds = !recording_dir.empty() + !seq_files.empty() + !images_dir.empty();
   if (kinds != 1)
@@ -87,7 +119,7 @@ struct FrameSource::Impl {
   void CheckSize(int c, std::size_t set, int width, int height) const {
     const CameraModel& m = rig.cameras[c].model;
     if (width != m.width() || height != m.height()) {
-      throw InputError(spec.Describe() + ", set " + std::to_string(set) + ", camera '" +
+      throw DataError(spec.Describe() + ", set " + std::to_string(set) + ", camera '" +
                                   rig.cameras[c].name + "': the frame is " + std::to_string(width) +
                                   "x" + std::to_string(height) + ", its model's imager is " +
                                   std::to_string(m.width()) + "x" + std::to_string(m.height()));

@@ -32,7 +32,7 @@ struct FrameSourceSpec {
   std::vector<std::string> seq_files;  // StreamPix sequences, one per camera, or
   std::vector<std::string> seq_names;  //   their camera names (default: the file stems)
   std::string images_dir;              // DIR/frame_NNNNNN/<camera>.png
-  // Throws std::invalid_argument unless exactly one kind of input is given.
+  // Throws InputError unless exactly one kind of input is given.
   void Validate() const;
   std::string Describe() const;  // "recording DIR", "2 StreamPix sequences", "images DIR"
 };
@@ -51,9 +51,9 @@ struct SourceFrameSet {
 
 class FrameSource {
  public:
-  // Opens the source and matches its cameras to the rig's by name. Throws std::invalid_argument
+  // Opens the source and matches its cameras to the rig's by name. Throws InputError
   // naming the rig cameras the source lacks (and the ones it has), or RecordingError /
-  // std::runtime_error naming the file that cannot be read.
+  // IoError naming the file that cannot be read.
   FrameSource(const FrameSourceSpec& spec, const Rig& rig);
   ~FrameSource();
   FrameSource(FrameSource&&) noexcept;
@@ -70,9 +70,15 @@ class FrameSource {
   std::unique_ptr<Impl> impl_;
 };
 
+// One frame set from a folder, DIR/<camera>.png for every rig camera: 8-bit sRGB as the camera
+// wrote it or 16-bit linear (value / 65535 is the linear signal), decoded with `exposure` (> 0).
+// A missing file leaves that camera out with a note in the set's notes; a damaged file or an image
+// of the wrong size is a DataError naming the file.
+SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double exposure);
+
 // One camera's image as the tomography and the fit take it, from what ReadImage or DecodeFrame gave
 // (`bits` 8: *u8, sRGB; 16: *u16, linear): *rgb8 (grey replicated to RGB; 16-bit values
-// sRGB-encoded) and *linear (radiance / exposure). Throws std::invalid_argument for a bad exposure
+// sRGB-encoded) and *linear (radiance / exposure). Throws InputError for a bad exposure
 // or channel count.
 void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double exposure,
                        ImageU8* rgb8, LinearFrame* linear);
@@ -88,10 +94,10 @@ struct ChangeOptions {
   double min_threshold_dn = 3;         // a pixel never counts as changed below this difference
   double noise_sigmas = 5;             // nor below this many noise deviations of the difference
   double max_changed_fraction = 1e-4;  // a view is unchanged when at most this share changed
-  void Validate() const;               // throws std::invalid_argument naming the field
+  void Validate() const;               // throws InputError naming the field
 };
 
-// Compares two images of one camera (same size and channels; else std::invalid_argument). The
+// Compares two images of one camera (same size and channels; else InputError). The
 // noise of the difference is 1.4826 times the median absolute difference over the pixels that are
 // dark (below 32) in both images, where only sensor noise can differ; with fewer than 1000 such
 // pixels it is taken as 0 and the threshold is min_threshold_dn.

@@ -2,34 +2,44 @@
 // folder of images), in a chosen range, goes through decode -> tomography -> fit and comes out as
 // a volume, with a summary line per frame and, at the end, a report a person can look at.
 //
-// Per frame (DESIGN sections 6 and 7):
+// Per frame, as explicit stages (pipeline/frame_stages.h, which a caller can run, test and
+// replace one by one):
 //   1. Read the set (frame_source.h). Cameras that dropped the frame, or delivered it incomplete,
 //      are left out of this frame, with a note.
 //   2. Skip when nothing changed: if every camera's image equals the one of the last frame that was
 //      computed, up to noise (CompareImages), the previous result is reused (copied) and the
 //      summary says so. The comparison is with the last *computed* frame, so slow drift cannot
 //      accumulate unseen.
-//   3. Tomography (Reconstructor): the system matrix is kept and reused while the fire stays in its
-//      envelope, and the previous frame's emission starts the solve.
+//   3. Reconstruct (Reconstructor): the system matrix is kept and reused while the fire stays in
+//      its envelope, and the previous frame's emission starts the solve.
 //   4. Fit (FastFit) warm-started from the previous frame's result.
-//   5. Write OUT/frame_NNNNNN.vdb (temperature K, density m^-3; exposure, Delta E and timings in
-//      metadata), OUT/blender/frame_NNNNNN.vdb (blender_export.h), the summary
-//      OUT/frames/frame_NNNNNN.yaml and a small picture OUT/frames/frame_NNNNNN.png (input over
-//      rendered, per camera).
+//   5. Write OUT/frame_NNNNNN.vdb (temperature K, density m^-3; exposure, Delta E, timings and the
+//      fit's termination in metadata), OUT/blender/frame_NNNNNN.vdb (blender_export.h) and a small
+//      picture OUT/frames/frame_NNNNNN.png (input over rendered, per camera).
+//   6. Score against the truth, when there is one (truth.h).
+//   7. Commit: the state the next frame starts from, then the summary OUT/frames/frame_NNNNNN.yaml,
+//      written last: the mark of a complete frame.
 //
-// Resuming. Every output is written to a temporary name and renamed, so a killed run never leaves a
-// half-written file under a final name; a frame is complete when its summary exists (written last).
+// Failures. A DataError in any stage (a corrupt PNG, a StreamPix frame cut short, a recording frame
+// whose checksum fails, an image of the wrong size, no fire in view) fails that frame only: its
+// summary says why, the next frame starts cold, and the run goes on. Bad options, a missing rig
+// (InputError) and a disk that refuses to write (IoError) stop the run.
+//
+// Resuming and stopping. Every output is written to a temporary name and renamed, so a killed run
+// never leaves a half-written file under a final name; a frame is complete when its summary exists.
 // A run started again over the same OUT continues at the first frame of its range without a
 // complete output, with the state an uninterrupted run would have had there: the previous result
 // (read back from its .vdb; floats and the exposure are stored exactly), the last computed frame's
 // tomography (OUT/tomography/frame_NNNNNN.vdb) and images (read again from the source), and the
 // reconstructor's envelope (OUT/state/frame_NNNNNN.state). With one thread the resumed outputs are
 // bit-identical to an uninterrupted run's (tested); with more, TBB's reductions may round
-// differently from run to run, a few ulps that L-BFGS can grow.
+// differently from run to run, a few ulps that L-BFGS can grow. A progress callback that answers
+// kCancel (SIGINT in the CLI) stops the run inside the frame at hand (its solve or fit stops at the
+// next iteration) and commits nothing for that frame: a run started again computes it.
 //
-// Ranks (MPI, run_mpi.h): a run over frames [begin, end) of the range is what one rank does; warm
-// starts chain inside it; the first frame of a rank's run starts cold (from the tomography) unless
-// the previous frame's output is already there.
+// Ranks (MPI, distributed.h): a run over frames [begin, end) of the range is what one rank does;
+// warm starts chain inside it; the first frame of a rank's run starts cold (from the tomography)
+// unless the previous frame's output is already there.
 //
 // Thread safety: RunFrames uses TBB inside; call it from one thread.
 #ifndef FLAMERIG_PIPELINE_RUN_H_
@@ -42,6 +52,7 @@
 
 #include "fitting/fit.h"
 #include "tomography/reconstruct.h"
+#include "core/progress.h"
 #include "pipeline/calibrate_job.h"
 #include "pipeline/frame_source.h"
 
@@ -77,7 +88,7 @@ struct RunOptions {
   std::string truth_dir;
   bool blender = true;    // also write OUT/blender/
   bool pictures = true;   // per-frame picture (input over rendered)
-  void Validate() const;  // throws std::invalid_argument naming the field
+  void Validate() const;  // throws InputError naming the field
 };
 
 struct ViewDeltaE {
@@ -99,6 +110,12 @@ struct FrameSummary {
   int fit_evaluations = 0;
   double exposure = 0;
   double energy = 0;
+  // The fit's summary (fitting/fit.h): why it stopped, in the solver's words, after how many
+  // iterations, from what energy.
+  std::string fit_termination;
+  std::string fit_message;
+  int fit_iterations = 0;
+  double initial_energy = 0;
   std::vector<ViewDeltaE> delta_e;
   // Against the truth, on visible voxels (>= 1300 K, >= 1% of the peak emission) where the fit put
   // medium; -1 without truth.
@@ -112,17 +129,12 @@ struct FrameSummary {
   static FrameSummary FromYaml(const std::string& text, const std::string& where);
 };
 
-struct RunProgress {
-  std::size_t done = 0, total = 0;  // frames of this run (resumed ones count as done)
-  double elapsed_s = 0, eta_s = 0;
-  const FrameSummary* last = nullptr;
-};
-using RunProgressCallback = std::function<void(const RunProgress&)>;
-
 struct RunSummary {
   std::size_t begin = 0, end = 0;                        // frames of the range this call covered
   std::size_t computed = 0, unchanged = 0, resumed = 0;  // resumed: complete before this call
-  std::vector<FrameSummary> frames;                      // every frame of [begin, end), in order
+  std::size_t failed = 0;
+  bool cancelled = false;  // stopped by the progress callback; frames after the last are not done
+  std::vector<FrameSummary> frames;  // every frame of [begin, end) done, in order
   std::string rig_path;                                  // the rig used
   double seconds = 0;
   std::string BriefReport() const;
@@ -130,18 +142,26 @@ struct RunSummary {
 
 // The rig for a run: options.rig_path, else a calibration (done now unless OUT/calibrated/rig.yaml
 // exists). Returns the rig file's path.
-std::string PrepareRig(const RunOptions& options, const CalibrationProgress& progress = nullptr);
+std::string PrepareRig(const RunOptions& options, const ProgressCallback& progress = nullptr);
 
 // The frames of the range: [first, min(first + count, sets)).
 void RunRange(const RunOptions& options, const FrameSource& source, std::size_t* begin,
               std::size_t* end);
 
+class FrameStages;
+
 // Processes frames [begin, end) (inside the range) as described above and returns their
-// summaries. The rig must exist (PrepareRig). Throws std::invalid_argument / std::runtime_error for
-// bad options or unreadable input, naming what and where; a frame that fails to fit (no fire in
-// view, say) is reported in its summary, not thrown, and the next frame starts cold.
+// summaries. The rig must exist (PrepareRig). Throws InputError for bad options or a source that
+// does not fit the rig, IoError when outputs cannot be written; a frame with a DataError is
+// reported in its summary, not thrown. Progress: stage "frames", unit "frames" (done counts the
+// frames of [begin, end) complete, resumed ones too; the message is the frame's summary line),
+// and the inner stages' own progress (the solve's, the fit's) while a frame is computed; a cancel
+// from either stops the run as described above. `stages` (optional) replaces the stages
+// (frame_stages.h), for tests and other pipelines; it must be made for the same options, rig and
+// frames.
 RunSummary RunFrames(const RunOptions& options, const std::string& rig_path, std::size_t begin,
-                     std::size_t end, const RunProgressCallback& progress = nullptr);
+                     std::size_t end, const ProgressCallback& progress = nullptr,
+                     FrameStages* stages = nullptr);
 
 // Reads the summaries of frames [begin, end) from OUT/frames (missing ones are skipped).
 std::vector<FrameSummary> ReadFrameSummaries(const std::string& out_dir, std::size_t begin,
@@ -152,7 +172,7 @@ std::string FrameName(std::size_t i);
 
 // What a `flamerig simulate` dataset beside a rig file says: the exposure its images were taken
 // with (false when there is no dataset.yaml or it has none) and its absorption model ("soot" when
-// there is none). std::runtime_error naming dataset.yaml when it is malformed.
+// there is none). InputError naming dataset.yaml when it is malformed.
 bool DatasetExposure(const std::string& rig_path, double* exposure);
 std::string DatasetAbsorption(const std::string& rig_path);
 

@@ -31,7 +31,7 @@ struct RunReportInfo {
 };
 
 // Writes OUT/frames.csv and OUT/report/ (index.html and the pictures); returns index.html's path.
-// Throws std::runtime_error naming a file that cannot be written or read.
+// Throws IoError naming a file that cannot be written or read.
 std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSummary>& frames,
                            const RunReportInfo& info);
 

@@ -290,7 +290,7 @@ ImageF ReadExr(const std::string& path) {
 }
 
 SceneJobResult RunSceneJob(const SceneJob& job, const std::string& out_dir,
-                           const SceneProgressCallback& progress) {
+                           const ProgressCallback& progress) {
   fs::create_directories(out_dir);
   const SceneRenderer renderer(job.scene);
   std::vector<SceneLighting> lightings = {job.render.lighting};

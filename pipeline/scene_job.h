@@ -53,8 +53,8 @@ struct SceneJob {
   bool compare = false;  // render fire, point and sphere lighting
   ToneMapOptions display;
   // Reads a scene file (format above); `volume` (optional) replaces every fire's volume file (the
-  // placement is kept). Throws std::invalid_argument naming the file and the key,
-  // std::runtime_error naming a volume or mesh file that cannot be read.
+  // placement is kept). Throws InputError naming the file and the key,
+  // IoError naming a volume or mesh file that cannot be read.
   static SceneJob Load(const std::string& path, const std::string& volume = "");
 };
 
@@ -64,15 +64,15 @@ struct SceneJobResult {
 };
 
 SceneJobResult RunSceneJob(const SceneJob& job, const std::string& out_dir,
-                           const SceneProgressCallback& progress = nullptr);
+                           const ProgressCallback& progress = nullptr);
 
 // Writes a 3-channel float image as an OpenEXR file of 32-bit float R, G, B channels. Throws
-// std::runtime_error naming the path.
+// InputError naming the path.
 void WriteExr(const std::string& path, const ImageF& image);
 // Reads one back (for tests).
 ImageF ReadExr(const std::string& path);
 
-// Reads a Wavefront OBJ mesh (triangulated) with tinyobjloader. Throws std::runtime_error naming
+// Reads a Wavefront OBJ mesh (triangulated) with tinyobjloader. Throws InputError naming
 // the file and the loader's message.
 void ReadObj(const std::string& path, std::vector<Eigen::Vector3f>* vertices,
              std::vector<Eigen::Vector3i>* triangles);

@@ -53,9 +53,9 @@ struct SimulateConfig {
   RenderOptions render;
 
   // Reads the `simulate:` map of a YAML file; missing keys keep their defaults. Throws
-  // std::runtime_error naming the file, the field and the rule.
+  // InputError naming the file, the field and the rule.
   static SimulateConfig Load(const std::string& path);
-  void Validate() const;  // throws std::invalid_argument naming the field
+  void Validate() const;  // throws InputError naming the field
 };
 
 struct SimulateSummary {

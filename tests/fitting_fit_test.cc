@@ -105,16 +105,17 @@ void CheckEnergyGradient(const AbsorptionModel& absorption) {
   ObjectiveOptions o;
   o.smooth_delta_e = 0.5;
   o.smooth_neighbour = 0.01;
+  o.density_pairwise = true;
   FitObjective objective(s.grid, s.active, s.views, absorption, render, o);
   ASSERT_GT(objective.neighbour_pairs().size(), s.active.size());  // the 18-neighbourhood
   const double exposure = 0.04;
   std::vector<double> d_t, d_n;
   double d_s = 0;
-  const EnergyTerms terms = objective.Evaluate(s.t, s.n, exposure, true, &d_t, &d_n, &d_s);
+  const EnergyTerms terms = objective.Evaluate(s.t, s.n, exposure, &d_t, &d_n, &d_s);
   ASSERT_GT(terms.data_exact, 0);
   ASSERT_GT(terms.smooth_exact, 0);
   auto energy = [&](const std::vector<double>& t, const std::vector<double>& n, double e) {
-    return objective.Evaluate(t, n, e, true).energy;
+    return objective.Evaluate(t, n, e).energy;
   };
   double max_t = 0, max_n = 0;
   for (std::size_t a = 0; a < s.active.size(); ++a) {
@@ -129,7 +130,7 @@ void CheckEnergyGradient(const AbsorptionModel& absorption) {
     tp[a] += 0.4;
     tm[a] -= 0.4;
     std::vector<double> g_t;
-    objective.Evaluate(t, s.n, exposure, true, &g_t);
+    objective.Evaluate(t, s.n, exposure, &g_t);
     const double fd_t = (energy(tp, s.n, exposure) - energy(tm, s.n, exposure)) / 0.8;
     EXPECT_NEAR(g_t[a], fd_t, 2e-3 * max_t + 2e-3 * std::abs(fd_t)) << "voxel " << a;
     std::vector<double> np = s.n, nm = s.n;
@@ -152,6 +153,54 @@ TEST(FitObjective, GradientMatchesFiniteDifferencesSoot) {
   CheckEnergyGradient(AbsorptionModel::DefaultSoot());
 }
 
+// The energy is its list of terms: the data term and the pairwise terms, each with its weight;
+// the pairwise terms against a brute-force sum over the 18-neighbourhood by voxel coordinates,
+// and the local parts (coordinate descent) add up to the whole.
+TEST(FitObjective, TheEnergyIsTheSumOfItsTerms) {
+  const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
+  SmallScene s = MakeSmallScene(grey);
+  ObjectiveOptions o;
+  o.w_am = 1.5;
+  o.w_sm = 7;
+  o.density_pairwise = true;
+  FitObjective objective(s.grid, s.active, s.views, grey, RenderOptions(), o);
+  const EnergyTerms e = objective.Evaluate(s.t, s.n, 0.04);
+  ASSERT_EQ(e.terms.size(), 3u);
+  EXPECT_EQ(e.terms[0].name, "data");
+  EXPECT_EQ(e.terms[1].name, "pairwise temperature");
+  EXPECT_EQ(e.terms[2].name, "pairwise density");
+  EXPECT_EQ(e.terms[0].weight, 1.5);
+  EXPECT_EQ(e.terms[1].weight, 7);
+  EXPECT_EQ(e.terms[2].weight, 7);
+  EXPECT_DOUBLE_EQ(e.terms[0].exact, e.data_exact);
+  // Brute force: every ordered pair of active voxels whose coordinates differ by one or two unit
+  // steps, |v_j - v_i| in normalised units.
+  const double ln_lo = std::log(objective.n_min()), ln_hi = std::log(objective.n_max());
+  double pair_t = 0, pair_n = 0;
+  auto coords = [&](std::uint32_t f) {
+    const int nx = s.grid.dims.x(), ny = s.grid.dims.y();
+    return Eigen::Vector3i(f % nx, (f / nx) % ny, f / (nx * ny));
+  };
+  for (std::size_t a = 0; a < s.active.size(); ++a)
+    for (std::size_t b = 0; b < s.active.size(); ++b) {
+      const Eigen::Vector3i d = coords(s.active[a]) - coords(s.active[b]);
+      const int steps = (d.array() != 0).count();
+      if (d.cwiseAbs().maxCoeff() != 1 || steps < 1 || steps > 2) continue;
+      pair_t += std::abs(s.t[b] - s.t[a]) / (o.t_max_k - o.t_min_k);
+      pair_n += std::abs(std::log(s.n[b]) - std::log(s.n[a])) / (ln_hi - ln_lo);
+    }
+  EXPECT_NEAR(e.terms[1].exact, pair_t, 1e-9 * pair_t);
+  EXPECT_NEAR(e.terms[2].exact, pair_n, 1e-9 * pair_n);
+  EXPECT_NEAR(e.exact_energy(), 1.5 * e.data_exact + 7 * (pair_t + pair_n),
+              1e-9 * e.exact_energy());
+  const FitParameters x{s.t, s.n, 0.04};
+  EXPECT_NEAR(objective.EnergyWithData(e.data_exact, x), e.exact_energy(),
+              1e-9 * e.exact_energy());
+  double local = 0;
+  for (std::uint32_t a = 0; a < s.active.size(); ++a) local += objective.LocalEnergy(x, a);
+  EXPECT_NEAR(local, 7 * (pair_t + pair_n), 1e-9 * local);
+}
+
 TEST(FitObjective, RejectsBadInput) {
   const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
   SmallScene s = MakeSmallScene(grey);
@@ -167,23 +216,27 @@ TEST(FitObjective, RejectsBadInput) {
   FitObjective objective(s.grid, s.active, s.views, grey, render, o);
   std::vector<double> t = s.t;
   t[3] = std::nan("");
-  EXPECT_THROW(objective.Evaluate(t, s.n, 1.0, true), InputError);
-  EXPECT_THROW(objective.Evaluate(s.t, s.n, 0.0, true), InputError);
+  EXPECT_THROW(objective.Evaluate(t, s.n, 1.0), InputError);
+  EXPECT_THROW(objective.Evaluate(s.t, s.n, 0.0), InputError);
   // Zero densities with the density pairwise term and a huge weight: ln 0 has no value, and its
   // floor at 1e-300 gave gradients of 1e300 and more (Inf from w_sm ~ 6e7).
   ObjectiveOptions heavy = o;
   heavy.w_sm = 1e12;
+  heavy.density_pairwise = true;
   FitObjective zero_objective(s.grid, s.active, s.views, grey, render, heavy);
+  ObjectiveOptions heavy_t = heavy;  // the pairwise term on the temperature only
+  heavy_t.density_pairwise = false;
+  FitObjective zero_objective_t(s.grid, s.active, s.views, grey, render, heavy_t);
   std::vector<double> n = s.n;
   n[0] = n[2] = 0;
   std::vector<double> d_t, d_n;
   double d_s = 0;
-  const EnergyTerms e = zero_objective.Evaluate(s.t, n, 1.0, true, &d_t, &d_n, &d_s);
+  const EnergyTerms e = zero_objective.Evaluate(s.t, n, 1.0, &d_t, &d_n, &d_s);
   EXPECT_TRUE(std::isfinite(e.energy));
   EXPECT_TRUE(std::isfinite(d_s));
   // The term is flat below the lowest density: at a zero density only the data term pulls.
   std::vector<double> d_t_data, d_n_data;
-  zero_objective.Evaluate(s.t, n, 1.0, false, &d_t_data, &d_n_data);
+  zero_objective_t.Evaluate(s.t, n, 1.0, &d_t_data, &d_n_data);
   for (std::size_t a = 0; a < n.size(); ++a) {
     EXPECT_TRUE(std::isfinite(d_t[a])) << a;
     EXPECT_TRUE(std::isfinite(d_n[a])) << a;
@@ -283,7 +336,7 @@ double MeanDeltaE(const RoundTrip& r, const FireVolume& v, double exposure,
     }
   }
   FitObjective o(r.grid, active, views, absorption, RenderOptions(), ObjectiveOptions());
-  return o.Evaluate(t, n, exposure, true).mean_delta_e;
+  return o.Evaluate(t, n, exposure).mean_delta_e;
 }
 
 // RMS temperature error on the visible voxels (>= 1300 K and at least 1% of the peak emission)
@@ -306,13 +359,56 @@ double VisibleTemperatureRms(const RoundTrip& r, const std::vector<float>& t,
   return count ? std::sqrt(se / count) : 0.0;
 }
 
+// The fit says why it stopped, in the manner of Ceres' Summary: the iteration limit, a time
+// limit, a progress callback that cancels (with the parameters reached so far, not the start).
+TEST(FastFit, SaysWhyItStopped) {
+  const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
+  RoundTrip r = MakeRoundTrip(soot, 16, 80);
+  FitOptions options;
+  options.iterations_finest = 3;
+  const FitResult limited = FastFit(r.grid, r.tomography, r.views, soot, options);
+  EXPECT_EQ(limited.termination, FitTermination::kIterationLimit) << limited.message;
+  EXPECT_EQ(limited.iterations, 3);
+  EXPECT_LT(limited.final_terms.exact_energy(), limited.initial_energy);
+  EXPECT_EQ(limited.volume.metadata_text.at("termination"), "iteration limit");
+  EXPECT_EQ(limited.volume.metadata_numbers.at("iterations"), 3);
+
+  options.iterations_finest = 1000;
+  int calls = 0;
+  const FitResult cancelled =
+      FastFit(r.grid, r.tomography, r.views, soot, options, nullptr, [&](const Progress& p) {
+        return ++calls >= 5 ? ProgressAction::kCancel : ProgressAction::kContinue;
+      });
+  EXPECT_EQ(cancelled.termination, FitTermination::kCancelled);
+  EXPECT_LE(cancelled.iterations, 5);
+  EXPECT_LT(cancelled.final_terms.exact_energy(), cancelled.initial_energy);  // kept its steps
+
+  options.time_limit_s = 1e-6;
+  const FitResult timed = FastFit(r.grid, r.tomography, r.views, soot, options);
+  EXPECT_EQ(timed.termination, FitTermination::kTimeLimit) << timed.message;
+
+  // The paper's algorithm: all its sweeps, or cancelled.
+  PaperFitOptions paper;
+  paper.iterations = 2;
+  paper.samples_per_cluster = 2;
+  paper.exposure_sweep = 4;
+  FitOptions plain;
+  const FitResult swept = PaperFit(r.grid, r.tomography, r.views, soot, plain, paper);
+  EXPECT_EQ(swept.termination, FitTermination::kIterationLimit) << swept.message;
+  EXPECT_EQ(swept.iterations, 2);
+  const FitResult stopped = PaperFit(r.grid, r.tomography, r.views, soot, plain, paper,
+                                     [](const Progress&) { return ProgressAction::kCancel; });
+  EXPECT_EQ(stopped.termination, FitTermination::kCancelled);
+  EXPECT_EQ(stopped.iterations, 0);
+}
+
 TEST(FastFit, SyntheticRoundTripFromTwoViews) {
   const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
   RoundTrip r = MakeRoundTrip(soot, 32, 160);
   FitOptions options;
   int progress_calls = 0;
   FitResult fit = FastFit(r.grid, r.tomography, r.views, soot, options, nullptr,
-                          [&](const FitProgress&) { ++progress_calls; });
+                          Observe([&](const Progress&) { ++progress_calls; }));
   EXPECT_GT(progress_calls, 10);
   ASSERT_FALSE(fit.trace.empty());
   // The energy went down from the start.
@@ -465,7 +561,7 @@ TEST(FastFit, StressBlackSaturatedAndExtremeBounds) {
   // A black tomography: a clear error, no NaN.
   FireVolume black = r.tomography;
   std::fill(black.emission_rgb.begin(), black.emission_rgb.end(), 0.0f);
-  EXPECT_THROW(FastFit(r.grid, black, r.views, grey, options), InputError);
+  EXPECT_THROW(FastFit(r.grid, black, r.views, grey, options), DataError);
   // Saturated images (all 255): a finite result.
   std::vector<FitView> saturated = r.views;
   for (auto& v : saturated) std::fill(v.image.pixels.begin(), v.image.pixels.end(), 255);

@@ -25,6 +25,7 @@
 #include "tomography/vdb_io.h"
 #include "pipeline/blender_export.h"
 #include "pipeline/fit_report.h"
+#include "pipeline/truth.h"
 #include "pipeline/run.h"
 #include "pipeline/distributed.h"
 #include "pipeline/run_report.h"
@@ -181,11 +182,14 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
   const RunOptions o = SmallRun(dir / "sim", dir / "out");
   std::size_t calls = 0;
   const FrameSource source(o.source, Rig::Load(o.rig_path));
-  const RunSummary run = RunFrames(o, o.rig_path, 0, 4, [&](const RunProgress& p) {
-    ++calls;
-    EXPECT_EQ(p.done, calls);
-    EXPECT_EQ(p.total, 4u);
-  });
+  const RunSummary run = RunFrames(o, o.rig_path, 0, 4, Observe([&](const Progress& p) {
+                                     if (p.stage != "frames") return;  // the solves', the fits'
+                                     ++calls;
+                                     EXPECT_EQ(p.done, static_cast<std::int64_t>(calls));
+                                     EXPECT_EQ(p.total, 4);
+                                     EXPECT_NE(p.message.find(FrameName(calls - 1)),
+                                               std::string::npos);
+                                   }));
   ASSERT_EQ(run.frames.size(), 4u);
   EXPECT_EQ(run.computed, 4u);
   EXPECT_EQ(calls, 4u);
@@ -377,7 +381,7 @@ TEST(RunFrames, RecordingsWithDropsAndCorruptionAreReportedPerFrame) {
   try {
     wrong.Read(0, 1.0);
     ADD_FAILURE() << "a wrongly sized image was accepted";
-  } catch (const InputError& e) {
+  } catch (const DataError& e) {
     const std::string m = e.what();
     EXPECT_NE(m.find("64x48"), std::string::npos) << m;
     EXPECT_NE(m.find("120x90"), std::string::npos) << m;

@@ -378,14 +378,14 @@ TEST(Reconstruct, StressCasesGiveResultsOrClearErrors) {
     try {
       Reconstructor(d.rig, o).Reconstruct(wrong, nullptr);
       FAIL();
-    } catch (const InputError& e) {
+    } catch (const DataError& e) {
       EXPECT_NE(std::string(e.what()).find("cam1"), std::string::npos) << e.what();
     }
     EXPECT_THROW(Reconstructor(d.rig, o).Reconstruct(std::vector<ImageU8>(1), nullptr),
                  InputError);
-    EXPECT_THROW(
+    EXPECT_THROW(  // no camera with a frame: the frame's data, not the options
         Reconstructor(d.rig, o).Reconstruct(std::vector<ImageU8>(d.images.size()), nullptr),
-        InputError);
+        DataError);
     ReconstructOptions bad = o;
     bad.holdout_camera = "nobody";
     EXPECT_THROW(Reconstructor(d.rig, bad), InputError);

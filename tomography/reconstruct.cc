@@ -163,7 +163,8 @@ Reconstructor::Reconstructor(Reconstructor&&) noexcept = default;
 Reconstructor& Reconstructor::operator=(Reconstructor&&) noexcept = default;
 
 FireVolume Reconstructor::Reconstruct(const std::vector<ImageU8>& images,
-                                      ReconstructSummary* summary, const FireVolume* warm_start) {
+                                      ReconstructSummary* summary, const FireVolume* warm_start,
+                                      const ProgressCallback& progress) {
   const auto start = Clock::now();
   if (images.size() != rig_.cameras.size()) {
     throw InputError("reconstruct: " + std::to_string(images.size()) + " images for " +
@@ -180,7 +181,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<ImageU8>& images,
     }
   }
   const double decode_ms = Ms(start);
-  FireVolume v = Reconstruct(frames, summary, warm_start);
+  FireVolume v = Reconstruct(frames, summary, warm_start, progress);
   if (summary) {
     summary->decode_ms = decode_ms;
     summary->total_ms += decode_ms;
@@ -190,7 +191,8 @@ FireVolume Reconstructor::Reconstruct(const std::vector<ImageU8>& images,
 
 FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
                                       ReconstructSummary* summary_out,
-                                      const FireVolume* warm_start) {
+                                      const FireVolume* warm_start,
+                                      const ProgressCallback& progress) {
   const auto start = Clock::now();
   ReconstructSummary summary;
   summary.grid = grid_;
@@ -208,7 +210,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     }
     if (frames[c].radiance.width != cam.model.width() ||
         frames[c].radiance.height != cam.model.height()) {
-      throw InputError(
+      throw DataError(
           "camera '" + cam.name + "': frame is " + std::to_string(frames[c].radiance.width) + "x" +
           std::to_string(frames[c].radiance.height) + ", its model's imager is " +
           std::to_string(cam.model.width()) + "x" + std::to_string(cam.model.height()));
@@ -217,7 +219,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     solve_cameras.push_back(static_cast<int>(c));
   }
   if (solve_cameras.empty()) {
-    throw InputError("reconstruct: no camera with a usable frame to reconstruct from");
+    throw DataError("reconstruct: no camera with a usable frame to reconstruct from");
   }
   const bool use_holdout = holdout_index_ >= 0 && !frames[holdout_index_].radiance.empty();
   if (use_holdout) summary.holdout_camera = rig_.cameras[holdout_index_].name;
@@ -404,7 +406,8 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
       };
     }
     t0 = Clock::now();
-    SolveSummary solve = SolveTomography(problem, &x, solve_options, scorer);
+    SolveSummary solve = SolveTomography(problem, &x, solve_options, scorer, progress);
+    if (solve.stop == SolveStop::kCancelled) throw Cancelled("reconstruct: cancelled");
     summary.solve_ms += Ms(t0);
     summary.solves.push_back(solve);
     if (use_holdout && is_fine) summary.holdout_rms = scorer(x);
@@ -430,7 +433,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
   out.metadata_numbers["hull_voxel_fraction"] = summary.voxel_fraction_in_hull;
   out.metadata_numbers["iterations"] =
       summary.solves.empty() ? 0 : summary.solves.back().iterations;
-  out.metadata_text["solver"] = ToString(options_.solve.solver);
+  out.metadata_text["solver"] = options_.solve.solver;
   out.metadata_text["emission_units"] =
       "linear sRGB radiance per metre (W m^-2 sr^-1 nm^-1 m^-1, luminance-normalised)";
   if (summary_out) *summary_out = summary;

@@ -47,7 +47,7 @@ struct ReconstructOptions {
   // rebuilt (those pixels are left out of that frame); [0, 0.1].
   double envelope_pixel_tolerance = 0.01;
   std::string cache_dir;  // on-disk matrix cache; "" = memory only
-  void Validate() const;  // throws std::invalid_argument naming the field
+  void Validate() const;  // throws InputError naming the field
 };
 
 struct ReconstructSummary {
@@ -70,7 +70,7 @@ struct ReconstructSummary {
 
 class Reconstructor {
  public:
-  // Unprojects every camera's rays once. Throws std::invalid_argument for invalid options, a rig
+  // Unprojects every camera's rays once. Throws InputError for invalid options, a rig
   // without cameras, or a held-out camera that is not in the rig.
   Reconstructor(const Rig& rig, const ReconstructOptions& options);
   ~Reconstructor();
@@ -78,19 +78,23 @@ class Reconstructor {
   Reconstructor& operator=(Reconstructor&&) noexcept;
 
   // One frame set, one image per rig camera in rig order (an empty image skips that camera).
-  // `warm_start` (optional) is a previous result on the same grid.
+  // `warm_start` (optional) is a previous result on the same grid. Progress: the solves' (stage
+  // "solve", solvers.h); a cancel throws Cancelled after the solve stops, leaving the
+  // reconstructor's state as it was before the frame (its matrices stay valid).
   FireVolume Reconstruct(const std::vector<ImageU8>& images, ReconstructSummary* summary,
-                         const FireVolume* warm_start = nullptr);
+                         const FireVolume* warm_start = nullptr,
+                         const ProgressCallback& progress = nullptr);
   FireVolume Reconstruct(const std::vector<LinearFrame>& frames, ReconstructSummary* summary,
-                         const FireVolume* warm_start = nullptr);
+                         const FireVolume* warm_start = nullptr,
+                         const ProgressCallback& progress = nullptr);
 
   // The state that the next frame's result depends on besides its images and warm start: per grid
   // level, the envelope its system matrix was built for (voxels, each camera's pixels, the held-out
   // camera's pixels) and the cameras it covers. A run stopped after a frame saves it and resumes
   // with exactly what an uninterrupted run would have had. SaveState writes a checksummed binary
-  // file (to path.tmp, then renamed; std::runtime_error naming the path on I/O failure).
+  // file (to path.tmp, then renamed; IoError naming the path on I/O failure).
   // LoadState reads one back and rebuilds the matrices for it (from cache_dir when they are
-  // there); it throws std::runtime_error naming the file when it is unreadable, corrupt, or was
+  // there); it throws DataError naming the file when it is unreadable, corrupt, or was
   // saved for another rig, grid or set of options.
   void SaveState(const std::string& path) const;
   void LoadState(const std::string& path);

@@ -1,43 +1,48 @@
 // Solvers for the tomography's A e = b (system_matrix.h), three colour channels at once.
 //
-//  - SART (simultaneous algebraic reconstruction): e += lambda * C^-1 A^T R^-1 (b - A e), with R
+// Each solver is one iteration behind one interface (IterativeSolver), found by name in a
+// registry (TomographySolvers()); the driver, SolveTomography, owns everything else: validation,
+// the warm start, pinned columns, the stopping rules, the held-out camera, cancellation and the
+// summary. Adding a solver is a class in its own file and one entry in the registry (README,
+// "Extending flamerig").
+//
+//  - "sart" (simultaneous algebraic reconstruction): e += lambda * C^-1 A^T R^-1 (b - A e), with R
 //    and C the row and column sums, then projected onto e >= 0. Robust, non-negative at every
 //    iterate. With ordered_subsets (the default) each iteration sweeps the cameras one at a time
 //    (OS-SART), which converges about as many times faster per pass as there are cameras; the
 //    residual reported for such an iteration is the one accumulated during the sweep.
-//  - CGLS (conjugate gradients on the normal equations): converges faster on well-posed problems;
+//  - "cgls" (conjugate gradients on the normal equations): converges faster on well-posed problems;
 //    non-negativity is applied to the result only (the amount clipped is reported).
 //
 // Saturated pixels constrain only from below: their residual counts only where the model is darker
 // than the pixel (SART); CGLS, which needs a linear problem, leaves them out.
 //
-// Early stopping (choose by what is available, all optional):
+// Stopping rules (the driver's, for every solver; choose by what is available, all optional):
 //  - a held-out camera: a callback scores each iterate on images the solve did not use; the best
 //    iterate is kept and the solve stops after `holdout_patience` iterations without improvement;
 //  - the discrepancy principle: stop once the RMS residual is below discrepancy_tau * noise_sigma;
 //  - stagnation: stop when an iteration improves the RMS residual by less than
-//  stagnation_tolerance.
+//    stagnation_tolerance;
+//  - the iteration limit; and a progress callback that asks to stop (SolveStop::kCancelled).
 #ifndef FLAMERIG_TOMOGRAPHY_SOLVERS_H_
 #define FLAMERIG_TOMOGRAPHY_SOLVERS_H_
 
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
+#include "core/progress.h"
 #include "tomography/system_matrix.h"
 
 namespace flamerig {
 
-enum class TomographySolver { kSart, kCgls };
-const char* ToString(TomographySolver solver);
-TomographySolver TomographySolverFromName(const std::string& name);  // "sart" | "cgls"; throws
-
-enum class SolveStop { kMaxIterations, kDiscrepancy, kHoldout, kStagnation, kNoData };
+enum class SolveStop { kMaxIterations, kDiscrepancy, kHoldout, kStagnation, kNoData, kCancelled };
 const char* ToString(SolveStop stop);
 
 struct SolveOptions {
-  TomographySolver solver = TomographySolver::kSart;
+  std::string solver = "sart";  // a name in TomographySolvers(): "sart" | "cgls"
   int max_iterations = 100;     // [1, 100000]
   double relaxation = 1.5;      // SART lambda, (0, 2); 1.5 reaches a given error in fewer passes
                                 // than 1 on our fires (BENCHMARKS.md)
@@ -47,11 +52,11 @@ struct SolveOptions {
   double discrepancy_tau = 1.0;        // > 0
   double stagnation_tolerance = 5e-3;  // relative improvement per iteration; 0 disables
   int holdout_patience = 10;           // >= 1
-  void Validate() const;               // throws std::invalid_argument naming the field
+  void Validate() const;               // throws InputError naming the field (an unknown solver too)
 };
 
 struct SolveSummary {
-  TomographySolver solver = TomographySolver::kSart;
+  std::string solver;
   int iterations = 0;
   SolveStop stop = SolveStop::kMaxIterations;
   std::vector<double> residual_rms;   // after each iteration (radiance units)
@@ -67,7 +72,6 @@ struct SolveSummary {
 
 // Scores an iterate (cols * 3 values) on data the solve does not use; lower is better.
 using HoldoutScorer = std::function<double(const std::vector<float>& x)>;
-using SolveProgress = std::function<void(int iteration, double residual_rms)>;
 
 // What a solve works on besides A: the data and which rows and columns take part.
 struct SolveProblem {
@@ -77,11 +81,41 @@ struct SolveProblem {
   std::vector<std::uint8_t> active_cols;       // optional, per column: 0 pins the column at zero
 };
 
+// One solver's iteration. The driver calls Start once with the cleaned, pinned initial guess, then
+// Iterate until a stopping rule holds, then Finish. A solver keeps whatever state it needs
+// between calls; it is used for one solve.
+class IterativeSolver {
+ public:
+  virtual ~IterativeSolver() = default;
+  // The RMS of the residual b - A x at the start (with the lower-bound rule for saturated rows).
+  virtual double Start(const SolveProblem& problem, const SolveOptions& options,
+                       std::vector<float>* x) = 0;
+  // One iteration: updates *x and returns the RMS residual after it.
+  virtual double Iterate(const SolveProblem& problem, const SolveOptions& options,
+                         std::vector<float>* x) = 0;
+  // The iterate as a result (e.g. clipped to >= 0); returns the share of the mass removed.
+  virtual double Result(const SolveOptions& options, std::vector<float>* x) const {
+    return 0.0;
+  }
+};
+
+struct TomographySolverEntry {
+  std::string name;
+  std::string description;
+  std::unique_ptr<IterativeSolver> (*make)();
+};
+// Every solver, in the order the CLI lists them.
+const std::vector<TomographySolverEntry>& TomographySolvers();
+// The entry named `name`; throws InputError listing the names when there is none.
+const TomographySolverEntry& FindTomographySolver(const std::string& name);
+
 // Solves for x (cols * 3, interleaved RGB; its input is the initial guess, e.g. a warm start).
-// Throws std::invalid_argument for mis-sized inputs or non-finite data.
+// Progress: stage "solve", unit "iterations", value "residual_rms" after each iteration; a cancel
+// stops at that iteration with SolveStop::kCancelled (the best iterate so far is returned).
+// Throws InputError for mis-sized inputs or non-finite data.
 SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
                              const SolveOptions& options, const HoldoutScorer& holdout = nullptr,
-                             const SolveProgress& progress = nullptr);
+                             const ProgressCallback& progress = nullptr);
 
 }  // namespace flamerig
 

@@ -96,7 +96,7 @@ class SystemMatrix {
                            const SystemMatrixOptions& options);
   std::uint64_t key() const { return key_; }
 
-  // Binary cache file. Save throws std::runtime_error naming the path on I/O failure (writes to
+  // Binary cache file. Save throws IoError naming the path on I/O failure (writes to
   // path.tmp, then renames). Load returns false (and leaves *this untouched) when the file is
   // missing, truncated, corrupt or made for another key; it never throws for a bad cache file.
   void Save(const std::string& path) const;

@@ -20,14 +20,14 @@
 
 namespace flamerig {
 
-// Validates `volume` and writes it. Throws std::invalid_argument (bad volume) or std::runtime_error
+// Validates `volume` and writes it. Throws InputError (bad volume) or IoError
 // naming the path (I/O failure). Writes to path + ".tmp" and renames, so a crash never leaves a
 // half-written file under the final name.
 void WriteVdb(const std::string& path, const FireVolume& volume);
 
 // Reads the grids named temperature, density and emission (any subset; at least one must exist).
-// Throws std::runtime_error naming the path and the problem: missing file, not a VDB file, no known
-// grid, a non-linear or rotated transform, grids whose transforms disagree.
+// Throws InputError for a missing file, DataError naming the path and the problem: not a VDB
+// file, no known grid, a non-linear or rotated transform, grids whose transforms disagree.
 FireVolume ReadVdb(const std::string& path);
 
 }  // namespace flamerig

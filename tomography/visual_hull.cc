@@ -128,7 +128,7 @@ FireMask ComputeFireMask(const GridGeometry& grid, const RigCamera& camera, cons
                          const VisualHullOptions& options) {
   const CameraModel& cam = camera.model;
   if (f.radiance.width != cam.width() || f.radiance.height != cam.height()) {
-    throw InputError(
+    throw DataError(
         "camera '" + camera.name + "': frame is " + std::to_string(f.radiance.width) + "x" +
         std::to_string(f.radiance.height) + ", the camera model's imager is " +
         std::to_string(cam.width()) + "x" + std::to_string(cam.height()));

@@ -30,7 +30,7 @@ struct LinearFrame {
   double full_scale = 1.0;  // the radiance a saturated channel stands for (1 / exposure)
 };
 
-// Throws std::invalid_argument unless exposure is finite and > 0 and the image has 1 or 3 channels
+// Throws InputError unless exposure is finite and > 0 and the image has 1 or 3 channels
 // (grey is replicated to RGB).
 LinearFrame DecodeSrgb8(const ImageU8& image, double exposure);
 // 16-bit linear images: value / white is the linear signal.
@@ -41,7 +41,7 @@ struct VisualHullOptions {
   double threshold_sigmas = 5.0;  // fire when brighter than this many sigmas; > 0
   int dilation_px = 2;            // extra dilation of the fire masks, pixels; [0, 64]
   int min_views = 2;              // cameras that must see fire at a voxel; >= 1
-  void Validate() const;          // throws std::invalid_argument naming the field
+  void Validate() const;          // throws InputError naming the field
 };
 
 struct VisualHull {
@@ -56,7 +56,7 @@ struct VisualHull {
   double time_ms = 0;
 };
 
-// `cameras` and `frames` are parallel (one frame per rig camera). Throws std::invalid_argument when
+// `cameras` and `frames` are parallel (one frame per rig camera). Throws InputError when
 // a frame's size differs from its camera's imager (naming the camera) or the counts differ.
 VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCamera>& cameras,
                              const std::vector<LinearFrame>& frames,
@@ -79,7 +79,7 @@ VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCame
                              const VisualHullOptions& options, const VoxelProjections& projections,
                              const std::vector<int>& projection_index = {});
 
-// One camera's dilated fire mask, as the hull computes it. Throws std::invalid_argument naming the
+// One camera's dilated fire mask, as the hull computes it. Throws InputError naming the
 // camera when the frame's size is not the camera's.
 struct FireMask {
   std::vector<std::uint8_t> mask;

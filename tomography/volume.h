@@ -33,7 +33,7 @@ struct GridGeometry {
 
   // Cubic voxels covering `box`: `resolution` voxels along its longest axis, and as many as fit
   // (rounded, at least 1) along the others; the grid is centred on the box. Throws
-  // std::invalid_argument for an invalid box or resolution < 1.
+  // InputError for an invalid box or resolution < 1.
   static GridGeometry FromBox(const Box3& box, int resolution);
   // Exactly `dims` voxels spanning `box` (voxels may be non-cubic).
   static GridGeometry FromBoxAndDims(const Box3& box, const Eigen::Vector3i& dims);
@@ -55,7 +55,7 @@ struct GridGeometry {
   Box3 box() const {
     return Box3{origin_in_rig, origin_in_rig + dims.cast<double>().cwiseProduct(voxel_size_m)};
   }
-  // Throws std::invalid_argument naming the bad member.
+  // Throws InputError naming the bad member.
   void Validate() const;
   bool operator==(const GridGeometry& o) const {
     return dims == o.dims && origin_in_rig == o.origin_in_rig && voxel_size_m == o.voxel_size_m;
@@ -79,7 +79,7 @@ struct FireVolume {
 
   // Checks sizes and that every value is finite, and temperature and density non-negative (emission
   // may be negative: linear sRGB of deep-red fire colours is out of gamut); throws
-  // std::invalid_argument naming the field and the first bad voxel (its i, j, k).
+  // InputError naming the field and the first bad voxel (its i, j, k).
   void Validate() const;
 };
 

@@ -299,13 +299,13 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
         truth.push_back(std::move(t));
         frames.push_back(std::move(images));
       }
-      for (TomographySolver solver : {TomographySolver::kSart, TomographySolver::kCgls}) {
+      for (const std::string solver : {"sart", "cgls"}) {
         ReconstructOptions ro;
         ro.resolution = n;
         ro.exposure = exposure;
         ro.holdout_camera = "holdout";
         ro.solve.solver = solver;
-        ro.solve.max_iterations = solver == TomographySolver::kSart ? 50 : 100;
+        ro.solve.max_iterations = solver == "sart" ? 50 : 100;
         Reconstructor rec(rig, ro);
         ReconstructSummary s0;
         FireVolume v0 = rec.Reconstruct(frames[0], &s0);
@@ -340,13 +340,13 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
         for (float x : held.radiance.pixels) sum += double(x) * x;
         const double held_rms = std::sqrt(sum / held.radiance.pixels.size());
         const SolveSummary& solve = s0.solves.back();
-        if (n == 128 && views == 8 && solver == TomographySolver::kSart && cached)
+        if (n == 128 && views == 8 && solver == "sart" && cached)
           target_ms = cached_ms;
         int iterations = 0;
         for (const auto& sv : s0.solves) iterations += sv.iterations;
         md << "| " << n << "^3 | " << views << " | " << Fixed(100 * s0.voxel_fraction_in_hull, 1)
            << "% | " << s0.matrix_nnz << ", " << Fixed(s0.matrix_bytes / 1048576.0, 1) << " | "
-           << Fixed(s0.matrix_ms, 0) << " | " << ToString(solver)
+           << Fixed(s0.matrix_ms, 0) << " | " << solver
            << (ro.coarse_to_fine ? " (coarse-to-fine)" : "") << " | " << iterations << " ("
            << ToString(solve.stop) << ") | " << Fixed(s0.solve_ms, 0) << " | "
            << Fixed(RelativeL2(v0.emission_rgb, truth[0].emission_rgb), 3) << " | "
@@ -363,7 +363,7 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
             h << "\n  held-out:";
             for (double r : sv.holdout_error) h << " " << r;
           }
-          log(std::to_string(n) + "^3, " + std::to_string(views) + " views, " + ToString(solver) +
+          log(std::to_string(n) + "^3, " + std::to_string(views) + " views, " + solver +
               ": " + s0.BriefReport() + h.str() + later_log);
         }
       }
@@ -434,7 +434,7 @@ double VolumeDeltaE(const FireVolume& v, double exposure, const std::vector<FitV
   }
   if (active.empty()) return -1;
   FitObjective o(v.geometry, active, views, absorption, RenderOptions(), ObjectiveOptions());
-  return o.Evaluate(t, n, exposure, true).mean_delta_e;
+  return o.Evaluate(t, n, exposure).mean_delta_e;
 }
 
 // RMS temperature error on visible voxels (>= 1300 K and >= 1% of the peak thin emission) where
@@ -561,17 +561,22 @@ std::string RunFitBenchmark(const FitBenchmarkOptions& options,
     FitOptions fo;
     auto progress_log = [&](const std::string& who) {
       auto last = std::make_shared<double>(-100.0);
-      return [&, who, last](const FitProgress& p) {
-        if (p.seconds - *last < 30) return;
-        *last = p.seconds;
+      return Observe([&, who, last](const Progress& p) {
+        double seconds = 0, delta_e = -1;
+        for (const auto& [name, value] : p.values) {
+          if (name == "seconds") seconds = value;
+          if (name == "mean_delta_e") delta_e = value;
+        }
+        if (seconds - *last < 30 || delta_e < 0) return;
+        *last = seconds;
         if (log) {
           std::ostringstream s;
           s.precision(4);
-          s << "  " << n << "^3 " << who << ": " << p.stage << ", " << p.seconds
-            << " s, mean Delta E " << p.mean_delta_e;
+          s << "  " << n << "^3 " << who << ": " << p.message << ", " << seconds
+            << " s, mean Delta E " << delta_e;
           log(s.str());
         }
-      };
+      });
     };
     PaperFitOptions po;
     po.time_limit_s = paper_s;

@@ -346,7 +346,8 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
     while (std::getline(in, line)) {
       all += line + "\n";
       const auto gone = line.find(" disconnects, ");
-      if (line.rfind("capture: cam", 0) == 0 && gone != std::string::npos)
+      // Lines are "<date> <time> <level> capture: cam0: ... disconnects, ..." (core/log.h).
+      if (line.find("capture: cam") != std::string::npos && gone != std::string::npos)
         report.outages_seen += std::stoi(line.substr(line.rfind(", ", gone) + 2));
       const auto at = line.find(" frame sets recorded, ");
       if (at != std::string::npos) {

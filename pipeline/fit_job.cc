@@ -1,0 +1,116 @@
+#include "pipeline/fit_job.h"
+
+#include <filesystem>
+#include <memory>
+
+#include "core/error.h"
+#include "pipeline/frame_source.h"
+#include "pipeline/run.h"
+#include "tomography/vdb_io.h"
+
+namespace flamerig {
+
+namespace fs = std::filesystem;
+
+const char* ToString(FitMethod method) {
+  switch (method) {
+    case FitMethod::kFast: return "fast";
+    case FitMethod::kAlgorithm1: return "alg1";
+    case FitMethod::kAlgorithm2: return "alg2";
+  }
+  return "?";
+}
+
+FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
+  // Files needed at the end are checked before the work.
+  for (const auto& [path, option] :
+       {std::pair{job.truth_path, "--truth"}, std::pair{job.tomography_path, "--tomography"}})
+    if (!path.empty() && !fs::is_regular_file(path))
+      throw InputError(path + " (" + option + "): no such file");
+  const Rig rig = Rig::Load(job.rig_path);
+  double exposure = job.exposure;
+  if (!(exposure > 0) && !DatasetExposure(job.rig_path, &exposure)) exposure = 1.0;
+  const AbsorptionModel absorption = AbsorptionModel::FromName(
+      job.absorption.empty() ? DatasetAbsorption(job.rig_path) : job.absorption);
+  const SourceFrameSet set = ReadFrameFolder(rig, job.images_dir, exposure);
+
+  // Views: the job's, else every camera with an image but the held-out one.
+  std::vector<std::string> names = job.views;
+  auto camera_index = [&](const std::string& name) {
+    const int c = rig.FindCamera(name);
+    if (c < 0) throw InputError(job.rig_path + ": no camera named '" + name + "'");
+    return c;
+  };
+  if (names.empty())
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c)
+      if (!set.images[c].empty() && rig.cameras[c].name != job.holdout)
+        names.push_back(rig.cameras[c].name);
+  for (std::size_t i = 0; i < names.size(); ++i) {
+    if (names[i] == job.holdout)
+      throw UsageError("--views and --holdout both name '" + job.holdout +
+                       "': a view is fitted or held out");
+    for (std::size_t j = 0; j < i; ++j)
+      if (names[j] == names[i]) throw UsageError("--views names '" + names[i] + "' twice");
+  }
+  std::vector<std::unique_ptr<CameraRays>> rays(rig.cameras.size());
+  auto make_view = [&](const std::string& name) {
+    const int c = camera_index(name);
+    if (set.images[c].empty())
+      throw InputError("fit: camera '" + name + "' has no image in " + job.images_dir);
+    if (!rays[c]) rays[c] = std::make_unique<CameraRays>(rig.cameras[c].model);
+    FitView v;
+    v.name = name;
+    v.rays = rays[c].get();
+    v.image = set.images[c];
+    return v;
+  };
+  std::vector<FitView> views, held;
+  for (const auto& name : names) views.push_back(make_view(name));
+  if (!job.holdout.empty()) held.push_back(make_view(job.holdout));
+  if (views.empty()) throw InputError("fit: no views to fit");
+
+  FitJobResult out;
+  ReconstructOptions ro;
+  ro.exposure = exposure;
+  if (job.resolution > 0) ro.resolution = job.resolution;
+  // The tomography: from a file, or reconstructed here from the fitted views only.
+  FireVolume tomography;
+  if (!job.tomography_path.empty()) {
+    tomography = ReadVdb(job.tomography_path);
+    out.tomography = "file " + job.tomography_path;
+  } else {
+    std::vector<LinearFrame> used(rig.cameras.size());
+    for (const auto& v : views) used[camera_index(v.name)] = set.linear[camera_index(v.name)];
+    Reconstructor reconstructor(rig, ro);
+    ReconstructSummary rs;
+    tomography = reconstructor.Reconstruct(used, &rs, nullptr, progress);
+    out.tomography = "from " + std::to_string(views.size()) + " view(s): " + rs.BriefReport();
+  }
+  const GridGeometry grid = GridGeometry::FromBox(rig.box, ro.resolution);
+  if (job.method == FitMethod::kFast) {
+    out.result = FastFit(grid, tomography, views, absorption, job.fit, nullptr, progress);
+  } else {
+    PaperFitOptions paper = job.paper;
+    paper.algorithm = job.method == FitMethod::kAlgorithm1 ? PaperAlgorithm::kPerVoxelDensity
+                                                           : PaperAlgorithm::kDensityScale;
+    out.result = PaperFit(grid, tomography, views, absorption, job.fit, paper, progress);
+  }
+  out.result.volume.metadata_text["absorption_model"] = absorption.name();
+  if (fs::path(job.out_path).has_parent_path())
+    fs::create_directories(fs::path(job.out_path).parent_path());
+  WriteVdb(job.out_path, out.result.volume);
+  out.report_dir =
+      !job.report_dir.empty()
+          ? job.report_dir
+          : (fs::path(job.out_path).parent_path() / (fs::path(job.out_path).stem().string() + "_report"))
+                .string();
+  out.scores = WriteFitReport(out.report_dir, out.result, views, held, absorption, job.fit.render,
+                              std::string("flamerig fit (") + ToString(job.method) + ")");
+  if (!job.truth_path.empty()) {
+    out.have_truth = true;
+    out.truth = CompareWithTruth(ReadVdb(job.truth_path), out.result.volume);
+  }
+  return out;
+}
+
+}  // namespace flamerig

@@ -1,0 +1,56 @@
+// `flamerig fit`: temperature, density and exposure from one frame set (a folder DIR/<camera>.png
+// for every rig camera), by the fast fit or the paper's Algorithm 1 or 2 (fitting/fit.h), with the
+// report a person looks at (fit_report.h) and an optional score against a ground truth.
+#ifndef FLAMERIG_PIPELINE_FIT_JOB_H_
+#define FLAMERIG_PIPELINE_FIT_JOB_H_
+
+#include <string>
+#include <vector>
+
+#include "core/progress.h"
+#include "fitting/fit.h"
+#include "pipeline/fit_report.h"
+#include "pipeline/truth.h"
+#include "tomography/reconstruct.h"
+
+namespace flamerig {
+
+// The fit methods, by the names the CLI takes.
+enum class FitMethod { kFast, kAlgorithm1, kAlgorithm2 };
+const char* ToString(FitMethod method);  // "fast", "alg1", "alg2"
+
+struct FitJob {
+  std::string rig_path;
+  std::string images_dir;
+  std::string out_path;        // the .vdb (its folder is made)
+  std::vector<std::string> views;  // cameras to fit; empty: every camera with an image but holdout
+  std::string holdout;         // scored, not fitted; "" = none
+  int resolution = 0;          // voxels along the box's longest side; 0 = the tomography default
+  std::string tomography_path;  // "" = reconstruct from the fitted views
+  FitMethod method = FitMethod::kFast;
+  std::string absorption;  // soot | grey; "" = the rig's dataset.yaml, else soot
+  double exposure = 0;     // of the images; 0 = dataset.yaml beside the rig, else 1
+  FitOptions fit;
+  PaperFitOptions paper;   // alg1, alg2
+  std::string report_dir;  // "" = beside the output: F_report/
+  std::string truth_path;  // "" = none
+};
+
+struct FitJobResult {
+  FitResult result;
+  std::vector<ViewScore> scores;
+  std::string report_dir;
+  std::string tomography;  // how the tomography was had: "file ..." or the reconstruction's report
+  bool have_truth = false;
+  TruthError truth;
+};
+
+// Throws InputError for bad options (views that are not in the rig, a view both fitted and held
+// out, missing files), DataError for damaged input or no fire in view, IoError for outputs that
+// cannot be written. Progress: the tomography's and the fit's; a cancel stops the fit, which still
+// writes its result (termination "cancelled" in the volume's metadata).
+FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress = nullptr);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_PIPELINE_FIT_JOB_H_

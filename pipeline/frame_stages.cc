@@ -1,0 +1,321 @@
+#include "pipeline/frame_stages.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <filesystem>
+#include <sstream>
+
+#include "core/atomic_file.h"
+#include "core/error.h"
+#include "pipeline/blender_export.h"
+#include "pipeline/fit_report.h"
+#include "pipeline/truth.h"
+#include "tomography/vdb_io.h"
+
+namespace flamerig {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+using SteadyClock = std::chrono::steady_clock;
+double Ms(SteadyClock::time_point since) {
+  return std::chrono::duration<double, std::milli>(SteadyClock::now() - since).count();
+}
+
+std::string In(const std::string& out, const char* sub, std::size_t i, const char* ext) {
+  return (fs::path(out) / sub / (FrameName(i) + ext)).string();
+}
+
+// WriteVdb writes and renames; this makes the result durable before anything refers to it.
+void WriteVolume(const std::string& path, const FireVolume& volume) {
+  WriteVdb(path, volume);
+  SyncFile(path);
+}
+
+// The truth volumes DIR/frame_NNNNNN.vdb, counted from 0 up to the first gap.
+std::size_t CountTruth(const std::string& dir) {
+  if (dir.empty()) return 0;
+  std::size_t n = 0;
+  while (fs::exists(fs::path(dir) / (FrameName(n) + ".vdb"))) ++n;
+  if (n == 0) throw InputError("--truth " + dir + ": no frame_000000.vdb there");
+  return n;
+}
+
+FitResult ResultFromVolume(const std::string& path) {
+  FitResult r;
+  r.volume = ReadVdb(path);
+  auto it = r.volume.metadata_numbers.find("exposure");
+  if (r.volume.temperature_k.empty() || r.volume.density_per_m3.empty() ||
+      it == r.volume.metadata_numbers.end())
+    throw DataError(path + ": not a flamerig run output (temperature, density, exposure)");
+  r.exposure = it->second;
+  return r;
+}
+
+// Input over rendered, camera by camera.
+ImageU8 InputOverRendered(const std::vector<ImageU8>& inputs, const std::vector<ImageU8>& rendered) {
+  const ImageU8 top = ContactSheet(inputs, 180), bottom = ContactSheet(rendered, 180);
+  ImageU8 picture(std::max(top.width, bottom.width), top.height + bottom.height + 4, 3, 16);
+  for (int y = 0; y < top.height; ++y)
+    for (int x = 0; x < top.width; ++x)
+      for (int c = 0; c < 3; ++c) picture.at(x, y, c) = top.at(x, y, c);
+  for (int y = 0; y < bottom.height; ++y)
+    for (int x = 0; x < bottom.width; ++x)
+      for (int c = 0; c < 3; ++c) picture.at(x, top.height + 4 + y, c) = bottom.at(x, y, c);
+  return picture;
+}
+
+}  // namespace
+
+std::string RunPaths::Volume(std::size_t i) const {
+  return (fs::path(out) / (FrameName(i) + ".vdb")).string();
+}
+std::string RunPaths::Summary(std::size_t i) const { return In(out, "frames", i, ".yaml"); }
+std::string RunPaths::Picture(std::size_t i) const { return In(out, "frames", i, ".png"); }
+std::string RunPaths::Tomography(std::size_t i) const { return In(out, "tomography", i, ".vdb"); }
+std::string RunPaths::Blender(std::size_t i) const { return In(out, "blender", i, ".vdb"); }
+std::string RunPaths::StateYaml(std::size_t i) const { return In(out, "state", i, ".yaml"); }
+std::string RunPaths::StateBin(std::size_t i) const { return In(out, "state", i, ".state"); }
+bool RunPaths::Complete(std::size_t i) const { return fs::exists(Summary(i)); }
+
+FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
+                         std::size_t begin)
+    : options_(options),
+      begin_(begin),
+      rig_(Rig::Load(rig_path)),
+      source_(options.source, rig_),
+      paths_{options.out_dir},
+      absorption_(AbsorptionModel::FromName(options.absorption.empty()
+                                                ? DatasetAbsorption(rig_path)
+                                                : options.absorption)) {
+  options_.Validate();
+  exposure_ = options_.exposure;
+  if (!(exposure_ > 0) && !DatasetExposure(rig_path, &exposure_)) exposure_ = 1.0;
+  if (!options_.holdout_camera.empty()) {
+    holdout_ = rig_.FindCamera(options_.holdout_camera);
+    if (holdout_ < 0)
+      throw InputError("run: held-out camera '" + options_.holdout_camera + "' is not in " +
+                       rig_path);
+  }
+  ReconstructOptions ro = options_.reconstruct;
+  ro.exposure = exposure_;
+  ro.holdout_camera.clear();  // the held-out camera stays out of the tomography too
+  if (ro.cache_dir.empty()) ro.cache_dir = (fs::path(options_.out_dir) / "cache").string();
+  reconstructor_ = std::make_unique<Reconstructor>(rig_, ro);
+  for (const auto& c : rig_.cameras) rays_.push_back(std::make_unique<CameraRays>(c.model));
+  truth_count_ = CountTruth(options_.truth_dir);
+  for (const char* sub : {"frames", "tomography", "state", "blender"})
+    fs::create_directories(fs::path(options_.out_dir) / sub);
+}
+
+FrameStages::~FrameStages() = default;
+
+void FrameStages::Resume(std::size_t next) {
+  if (next <= begin_) return;
+  const std::string state = paths_.StateYaml(next - 1);
+  try {
+    const YAML::Node n = YAML::LoadFile(state);
+    chain_.previous_result = n["previous_result"].as<long long>();
+    chain_.last_computed = n["last_computed"].as<long long>();
+  } catch (const YAML::Exception& e) {
+    throw DataError(state + ": cannot resume from this state file: " + e.what());
+  }
+  if (chain_.previous_result >= 0) {
+    previous_ = ResultFromVolume(paths_.Volume(chain_.previous_result));
+    // The grid as the reconstructor has it, not as the file's transform rounds it.
+    if (previous_.volume.geometry.SameVoxels(reconstructor_->grid()))
+      previous_.volume.geometry = reconstructor_->grid();
+  }
+  if (chain_.last_computed >= 0) {
+    last_tomography_ = ReadVdb(paths_.Tomography(chain_.last_computed));
+    last_images_ = source_.Read(static_cast<std::size_t>(chain_.last_computed), exposure_).images;
+    reconstructor_->LoadState(paths_.StateBin(next - 1));
+  }
+}
+
+void FrameStages::Read(FrameWork* w) {
+  const auto t0 = SteadyClock::now();
+  FrameSummary& s = w->summary;
+  try {
+    w->set = source_.Read(w->index, exposure_);
+  } catch (...) {
+    s.read_ms = Ms(t0);
+    throw;
+  }
+  s.read_ms = Ms(t0);
+  s.notes = w->set.notes;
+  s.cameras_used = w->set.present();
+  if (holdout_ >= 0 && w->set.images[holdout_].empty())
+    s.notes.push_back("held-out camera " + options_.holdout_camera + " has no frame");
+  if (truth_count_) s.truth_frame = static_cast<int>(w->set.frame_id % truth_count_);
+}
+
+bool FrameStages::SkipUnchanged(FrameWork* w) {
+  if (!options_.skip_unchanged || chain_.last_computed < 0 || chain_.previous_result < 0 ||
+      last_images_.size() != w->set.images.size())
+    return false;
+  for (std::size_t c = 0; c < w->set.images.size(); ++c) {
+    if (w->set.images[c].empty() != last_images_[c].empty()) return false;
+    if (w->set.images[c].empty()) continue;
+    const ImageChange change = CompareImages(w->set.images[c], last_images_[c], options_.unchanged);
+    if (change.changed_fraction > options_.unchanged.max_changed_fraction) return false;
+  }
+  w->unchanged = true;
+  return true;
+}
+
+void FrameStages::Reuse(FrameWork* w) {
+  const auto t0 = SteadyClock::now();
+  FrameSummary& s = w->summary;
+  const std::size_t from = static_cast<std::size_t>(chain_.previous_result);
+  CopyFileAtomically(paths_.Volume(from), paths_.Volume(w->index));
+  if (options_.blender && fs::exists(paths_.Blender(from)))
+    CopyFileAtomically(paths_.Blender(from), paths_.Blender(w->index));
+  if (options_.pictures && fs::exists(paths_.Picture(from)))
+    CopyFileAtomically(paths_.Picture(from), paths_.Picture(w->index));
+  s.write_ms = Ms(t0);
+  const std::vector<FrameSummary> reused = ReadFrameSummaries(options_.out_dir, from, from + 1);
+  if (!reused.empty()) {
+    const FrameSummary& r = reused[0];
+    s.delta_e = r.delta_e;
+    s.active_voxels = r.active_voxels;
+    s.exposure = r.exposure;
+    s.energy = r.energy;
+    s.fit_termination = r.fit_termination;
+    s.fit_message = r.fit_message;
+    s.fit_iterations = r.fit_iterations;
+    s.initial_energy = r.initial_energy;
+  }
+  s.status = "unchanged (reused frame " + std::to_string(chain_.last_computed) + ")";
+  scored_ = previous_.volume;  // what was just copied
+  w->have_output = true;
+  chain_.previous_result = static_cast<long long>(w->index);
+}
+
+void FrameStages::Reconstruct(FrameWork* w, const ProgressCallback& progress) {
+  std::vector<LinearFrame> linear = w->set.linear;
+  if (holdout_ >= 0) linear[holdout_] = LinearFrame();
+  const auto t0 = SteadyClock::now();
+  ReconstructSummary rs;
+  FrameSummary& s = w->summary;
+  try {
+    w->tomography = reconstructor_->Reconstruct(
+        linear, &rs, chain_.last_computed >= 0 ? &last_tomography_ : nullptr, progress);
+  } catch (const DataError& e) {
+    s.reconstruct_ms = Ms(t0);
+    throw DataError(std::string("tomography: ") + e.what());
+  }
+  s.reconstruct_ms = Ms(t0);
+  s.matrix_source = rs.matrix_source;
+  s.hull_fraction = rs.voxel_fraction_in_hull;
+  if (rs.fire_pixels_outside_envelope)
+    s.notes.push_back(std::to_string(rs.fire_pixels_outside_envelope) +
+                      " fire pixels outside the matrix's envelope left out");
+}
+
+void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
+  for (std::size_t c = 0; c < rig_.cameras.size(); ++c) {
+    if (w->set.images[c].empty()) continue;
+    FitView v;
+    v.name = rig_.cameras[c].name;
+    v.rays = rays_[c].get();
+    v.image = w->set.images[c];
+    (static_cast<int>(c) == holdout_ ? w->held : w->views).push_back(std::move(v));
+  }
+  const auto t0 = SteadyClock::now();
+  try {
+    w->result =
+        FastFit(reconstructor_->grid(), w->tomography, w->views, absorption_, options_.fit,
+                chain_.previous_result >= 0 && options_.warm_start ? &previous_ : nullptr,
+                progress);
+  } catch (const DataError& e) {
+    w->summary.fit_ms = Ms(t0);
+    throw DataError(std::string("fit: ") + e.what());
+  }
+  w->summary.fit_ms = Ms(t0);
+  if (w->result.termination == FitTermination::kCancelled) throw Cancelled("run: cancelled");
+}
+
+void FrameStages::Write(FrameWork* w) {
+  const auto t0 = SteadyClock::now();
+  FrameSummary& s = w->summary;
+  FitResult& result = w->result;
+  std::vector<ImageU8> rendered;
+  const std::vector<ViewScore> scores = WriteFitReport("", result, w->views, w->held, absorption_,
+                                                       options_.fit.render, "", &rendered);
+  for (const auto& sc : scores)
+    s.delta_e.push_back(ViewDeltaE{sc.name, sc.held_out, sc.mean_delta_e, sc.fire_delta_e});
+  result.volume.metadata_text["absorption_model"] = absorption_.name();
+  result.volume.metadata_numbers["frame"] = static_cast<double>(w->index);
+  result.volume.metadata_numbers["source_frame_id"] = static_cast<double>(w->set.frame_id);
+  WriteVolume(paths_.Volume(w->index), result.volume);
+  WriteVolume(paths_.Tomography(w->index), w->tomography);
+  if (options_.blender) WriteBlenderVdb(paths_.Blender(w->index), result.volume, absorption_);
+  if (options_.pictures) {
+    // Input over rendered, camera by camera (fitted views, then the held-out one).
+    std::vector<ImageU8> inputs;
+    for (const auto& v : w->views) inputs.push_back(v.image);
+    for (const auto& v : w->held) inputs.push_back(v.image);
+    AtomicFile picture(paths_.Picture(w->index));
+    WritePng(picture.temp_path(), InputOverRendered(inputs, rendered));
+    picture.Commit();
+  }
+  s.write_ms = Ms(t0);
+  s.status = "computed";
+  s.active_voxels = result.active_voxels;
+  s.fit_evaluations = result.evaluations;
+  s.exposure = result.exposure;
+  s.energy = result.final_terms.exact_energy();
+  s.fit_termination = ToString(result.termination);
+  s.fit_message = result.message;
+  s.fit_iterations = result.iterations;
+  s.initial_energy = result.initial_energy;
+  w->have_output = true;
+  scored_ = result.volume;
+  previous_ = std::move(result);
+  last_tomography_ = std::move(w->tomography);
+  last_images_ = w->set.images;
+  chain_.last_computed = static_cast<long long>(w->index);
+  chain_.previous_result = static_cast<long long>(w->index);
+}
+
+void FrameStages::Score(FrameWork* w) {
+  if (!w->have_output || !truth_count_) return;
+  FrameSummary& s = w->summary;
+  const FireVolume truth =
+      ReadVdb((fs::path(options_.truth_dir) / (FrameName(s.truth_frame) + ".vdb")).string());
+  const TruthError t = CompareWithTruth(truth, scored_);
+  if (t.compared && t.counted) {
+    s.truth_rms_k = t.rms_k;
+    s.truth_bias_k = t.mean_k;
+  } else if (!t.compared) {
+    s.notes.push_back("truth not compared: " + t.why_not);
+  }
+  s.truth_voxels = t.counted;
+  s.truth_visible = t.visible;
+}
+
+void FrameStages::Fail(FrameWork* w, const std::string& what) {
+  w->summary.status = "failed: " + what;
+  w->have_output = false;
+  chain_.previous_result = -1;  // a failed frame has no output to start from
+}
+
+void FrameStages::Commit(FrameWork* w) {
+  const std::size_t i = w->index;
+  w->summary.total_ms = Ms(w->start);
+  std::ostringstream chain;
+  chain << "previous_result: " << chain_.previous_result
+        << "\nlast_computed: " << chain_.last_computed << "\n";
+  WriteFileAtomically(paths_.StateYaml(i), chain.str());
+  if (chain_.last_computed >= 0) reconstructor_->SaveState(paths_.StateBin(i));
+  WriteFileAtomically(paths_.Summary(i), w->summary.ToYaml());
+  if (i > begin_) {
+    std::error_code ec;
+    fs::remove(paths_.StateYaml(i - 1), ec);
+    fs::remove(paths_.StateBin(i - 1), ec);
+  }
+}
+
+}  // namespace flamerig

@@ -1,0 +1,118 @@
+// The stages of `flamerig run`'s per-frame work (pipeline/run.h), one method each, so that a
+// caller can run, test and replace them one by one: a test makes a stage fail, counts calls or
+// cancels inside one; another pipeline overrides the fit and keeps the rest.
+//
+// A FrameWork carries one frame from stage to stage; the FrameStages object carries what passes
+// from frame to frame (the warm start, the last computed frame's images and tomography, the
+// reconstructor and its cached matrices, the chain state written at every commit).
+//
+// RunFrames calls, per frame i:
+//   Read(i) -> SkipUnchanged ? Reuse : (Reconstruct -> Fit -> Write) -> Score -> Commit
+// and, when a stage throws a DataError, Fail(what) -> Commit. A stage that is cancelled (through
+// the progress callback given to it) throws Cancelled, and RunFrames stops without committing.
+//
+// Errors: DataError for the frame's data (see run.h), InputError and IoError for the run.
+// Thread safety: one thread; the stages use TBB inside.
+#ifndef FLAMERIG_PIPELINE_FRAME_STAGES_H_
+#define FLAMERIG_PIPELINE_FRAME_STAGES_H_
+
+#include <chrono>
+#include <cstddef>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "core/progress.h"
+#include "fitting/fit.h"
+#include "pipeline/frame_source.h"
+#include "pipeline/run.h"
+#include "tomography/reconstruct.h"
+
+namespace flamerig {
+
+// One frame on its way through the stages.
+struct FrameWork {
+  std::size_t index = 0;
+  SourceFrameSet set;
+  FrameSummary summary;
+  bool unchanged = false;         // SkipUnchanged said so: Reuse replaced Reconstruct..Write
+  FireVolume tomography;          // Reconstruct's result
+  FitResult result;               // Fit's result (its volume is what Write writes)
+  std::vector<FitView> views;     // the fitted views
+  std::vector<FitView> held;      // the held-out view, if any
+  bool have_output = false;       // a volume was written (computed or reused)
+  std::chrono::steady_clock::time_point start;
+};
+
+// The output files of a run (OUT = options.out_dir).
+struct RunPaths {
+  std::string out;
+  std::string Volume(std::size_t i) const;      // OUT/frame_NNNNNN.vdb
+  std::string Summary(std::size_t i) const;     // OUT/frames/frame_NNNNNN.yaml
+  std::string Picture(std::size_t i) const;     // OUT/frames/frame_NNNNNN.png
+  std::string Tomography(std::size_t i) const;  // OUT/tomography/frame_NNNNNN.vdb
+  std::string Blender(std::size_t i) const;     // OUT/blender/frame_NNNNNN.vdb
+  std::string StateYaml(std::size_t i) const;   // OUT/state/frame_NNNNNN.yaml
+  std::string StateBin(std::size_t i) const;    // OUT/state/frame_NNNNNN.state
+  bool Complete(std::size_t i) const;           // the summary exists
+};
+
+class FrameStages {
+ public:
+  // Opens the source, the reconstructor (its matrix cache in OUT/cache unless the options name
+  // one) and the camera rays; creates OUT's folders. `begin` is the first frame of this call's
+  // range: the chain state of the frame before it is not removed.
+  FrameStages(const RunOptions& options, const std::string& rig_path, std::size_t begin);
+  virtual ~FrameStages();
+  FrameStages(const FrameStages&) = delete;
+  FrameStages& operator=(const FrameStages&) = delete;
+
+  // Restores what the frame `next` starts from, saved by the commit of frame next - 1.
+  virtual void Resume(std::size_t next);
+
+  virtual void Read(FrameWork* w);
+  virtual bool SkipUnchanged(FrameWork* w);
+  virtual void Reuse(FrameWork* w);
+  virtual void Reconstruct(FrameWork* w, const ProgressCallback& progress);
+  virtual void Fit(FrameWork* w, const ProgressCallback& progress);
+  virtual void Write(FrameWork* w);
+  virtual void Score(FrameWork* w);
+  // A stage threw a DataError: the frame failed, and the next one starts cold.
+  virtual void Fail(FrameWork* w, const std::string& what);
+  // The chain state, then the summary (the mark of a complete frame); removes the previous frame's
+  // chain state.
+  virtual void Commit(FrameWork* w);
+
+  const FrameSource& source() const { return source_; }
+  const Rig& rig() const { return rig_; }
+  const RunPaths& paths() const { return paths_; }
+  double exposure() const { return exposure_; }
+
+ protected:
+  // What the next frame starts from, saved at every commit (state/frame_NNNNNN.yaml).
+  struct Chain {
+    long long previous_result = -1;  // frame whose .vdb warm-starts the fit; -1 = cold
+    long long last_computed = -1;    // frame whose tomography and images were computed last
+  };
+
+  RunOptions options_;
+  std::size_t begin_;
+  Rig rig_;
+  FrameSource source_;
+  RunPaths paths_;
+  double exposure_ = 1;
+  AbsorptionModel absorption_;
+  int holdout_ = -1;
+  std::size_t truth_count_ = 0;
+  std::unique_ptr<Reconstructor> reconstructor_;
+  std::vector<std::unique_ptr<CameraRays>> rays_;
+  Chain chain_;
+  FitResult previous_;
+  FireVolume last_tomography_;
+  std::vector<ImageU8> last_images_;
+  FireVolume scored_;  // what Score compares with the truth (the computed or reused volume)
+};
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_PIPELINE_FRAME_STAGES_H_

@@ -1,0 +1,74 @@
+#include "pipeline/reconstruct_job.h"
+
+#include <algorithm>
+#include <cstdlib>
+#include <filesystem>
+
+#include "core/error.h"
+#include "fitting/renderer.h"
+#include "pipeline/frame_source.h"
+#include "pipeline/run.h"
+#include "pipeline/truth.h"
+#include "tomography/vdb_io.h"
+
+namespace flamerig {
+
+namespace fs = std::filesystem;
+
+ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
+                                       const ProgressCallback& progress) {
+  if (!job.truth_path.empty() && !fs::is_regular_file(job.truth_path))
+    throw InputError(job.truth_path + " (--truth): no such file");
+  ReconstructJobResult out;
+  ReconstructOptions options = job.reconstruct;
+  out.exposure_source = "default 1";
+  if (job.exposure > 0) {
+    options.exposure = job.exposure;
+    out.exposure_source = "--exposure";
+  } else if (DatasetExposure(job.rig_path, &options.exposure)) {
+    out.exposure_source = "dataset.yaml";
+  } else {
+    options.exposure = 1;
+  }
+  out.exposure = options.exposure;
+  const Rig rig = Rig::Load(job.rig_path);
+  const SourceFrameSet set = ReadFrameFolder(rig, job.images_dir, options.exposure);
+  out.notes = set.notes;
+  if (!options.holdout_camera.empty()) {
+    const int h = rig.FindCamera(options.holdout_camera);
+    if (h >= 0 && set.images[h].empty())
+      throw InputError("held-out camera '" + options.holdout_camera + "' has no image in " +
+                       job.images_dir + ": nothing to score on");
+  }
+  Reconstructor reconstructor(rig, options);
+  FireVolume volume = reconstructor.Reconstruct(set.linear, &out.summary, nullptr, progress);
+  volume.metadata_text["exposure_source"] = out.exposure_source;
+  if (fs::path(job.out_path).has_parent_path())
+    fs::create_directories(fs::path(job.out_path).parent_path());
+  WriteVdb(job.out_path, volume);
+  if (!job.preview_path.empty()) {
+    // Each camera: its input, the reconstruction rendered back through it, and 4x their difference.
+    std::vector<ImageU8> tiles;
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+      const ImageU8& input = set.images[c];
+      if (input.empty()) continue;
+      const ImageU8 rendered =
+          ApplyCameraResponse(RenderThinEmission(volume.geometry, volume.emission_rgb,
+                                                 CameraRays(rig.cameras[c].model)),
+                              options.exposure);
+      ImageU8 difference(rendered.width, rendered.height, 3);
+      for (std::size_t p = 0; p < difference.pixels.size(); ++p)
+        difference.pixels[p] = static_cast<std::uint8_t>(
+            std::min(255, 4 * std::abs(int(input.pixels[p]) - int(rendered.pixels[p]))));
+      tiles.push_back(input);
+      tiles.push_back(rendered);
+      tiles.push_back(difference);
+    }
+    WritePng(job.preview_path, ContactSheet(tiles, 240));
+  }
+  if (!job.truth_path.empty())
+    out.truth_error = EmissionError(volume, ReadVdb(job.truth_path), job.truth_path);
+  return out;
+}
+
+}  // namespace flamerig

@@ -1,0 +1,37 @@
+// Scoring against a ground truth (a simulated recording's truth volumes): what a fit's
+// temperatures and a reconstruction's emission are worth, on the voxels the images can show.
+#ifndef FLAMERIG_PIPELINE_TRUTH_H_
+#define FLAMERIG_PIPELINE_TRUTH_H_
+
+#include <string>
+
+#include "tomography/volume.h"
+
+namespace flamerig {
+
+// A fitted volume's temperature against a ground truth, where it can be judged: the visible voxels
+// of the truth (>= 1300 K with soot, and, when the truth has an emission grid, at least 1% of its
+// peak emission: cooler or fainter voxels leave no trace in 8-bit images, notes/physics.md) in
+// which the fit put medium. On the same voxels, voxel against voxel; on another grid (a truth
+// simulated finer than the fit, or a fit in a calibrated rig's box), each visible truth voxel
+// against the fitted voxel that holds its centre (a visible voxel outside the fitted box is
+// visible, not counted).
+struct TruthError {
+  bool compared = false;  // false: no temperature or density in either
+  bool same_grid = false;
+  std::string why_not;
+  std::size_t visible = 0;       // visible voxels of the truth
+  std::size_t counted = 0;       // of those, where the fit has medium
+  double rms_k = 0, mean_k = 0;  // fit - truth
+};
+TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted);
+
+// The relative L2 error of a reconstruction's emission against a truth's emission grid (resampled
+// onto the reconstruction's grid when they differ): |e - e_truth| / |e_truth|. Throws DataError
+// naming `truth_name` when the truth has no emission grid.
+double EmissionError(const FireVolume& reconstruction, const FireVolume& truth,
+                     const std::string& truth_name);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_PIPELINE_TRUTH_H_

@@ -1,0 +1,206 @@
+#include "tools/cli.h"
+
+#include <signal.h>
+
+#include <cmath>
+#include <cstdio>
+#include <memory>
+#include <sstream>
+
+namespace flamerig::cli {
+
+namespace {
+
+CancelFlag g_cancel;
+
+void OnSignal(int) { g_cancel.Raise(); }  // lock-free (core/progress.h)
+
+std::string Number(double v) {
+  char b[32];
+  if (std::abs(v) >= 1e5 || (v != 0 && std::abs(v) < 1e-3))
+    std::snprintf(b, sizeof b, "%.3g", v);
+  else
+    std::snprintf(b, sizeof b, "%.4g", v);
+  return b;
+}
+
+std::string Duration(double s) {
+  char b[32];
+  if (s < 120)
+    std::snprintf(b, sizeof b, "%.0f s", s);
+  else if (s < 7200)
+    std::snprintf(b, sizeof b, "%.1f min", s / 60);
+  else
+    std::snprintf(b, sizeof b, "%.1f h", s / 3600);
+  return b;
+}
+
+// What one stage's progress says: "frames 3/12 (25%), 4.1 frames/min, 2.2 min left".
+std::string Describe(const Progress& p, double elapsed_s) {
+  std::ostringstream s;
+  s << p.stage << " " << p.done;
+  if (p.total > 0) {
+    s << "/" << p.total;
+    if (!p.unit.empty()) s << " " << p.unit;
+    s << " (" << static_cast<int>(100.0 * p.done / p.total) << "%)";
+    if (p.done > 0 && elapsed_s > 1 && p.done < p.total)
+      s << ", " << Duration(elapsed_s / p.done * (p.total - p.done)) << " left";
+  } else if (!p.unit.empty()) {
+    s << " " << p.unit;
+  }
+  for (const auto& [name, value] : p.values) s << ", " << name << " " << Number(value);
+  return s.str();
+}
+
+class Display {
+ public:
+  Display(Verbosity verbosity, bool terminal, double period_s)
+      : verbosity_(verbosity), terminal_(terminal), period_s_(period_s) {}
+  ~Display() { EndBar(); }
+
+  void Show(const Progress& p) {
+    if (verbosity_ == Verbosity::kQuiet) return;
+    const auto now = std::chrono::steady_clock::now();
+    Stage& st = stages_[p.stage];
+    if (!st.seen || p.done < st.last_done) {
+      st.seen = true;
+      st.start = now;
+      st.last_line = now - std::chrono::hours(1);
+    }
+    st.last_done = p.done;
+    const double elapsed = std::chrono::duration<double>(now - st.start).count();
+    if (!p.message.empty()) {
+      EndBar();
+      Log().info("{}", p.message);
+    }
+    const bool finished = p.total > 0 && p.done >= p.total;
+    if (terminal_) {
+      // Redraw the bar in place, at most ten times a second.
+      if (!finished && now - last_draw_ < std::chrono::milliseconds(100)) return;
+      last_draw_ = now;
+      const int width = 24;
+      const int filled =
+          p.total > 0 ? static_cast<int>(width * std::min<double>(1, double(p.done) / p.total)) : 0;
+      std::string line = "[" + std::string(filled, '#') + std::string(width - filled, '.') + "] " +
+                         Describe(p, elapsed);
+      if (line.size() > 110) line.resize(110);
+      std::fprintf(stderr, "\r%-110s", line.c_str());
+      std::fflush(stderr);
+      bar_shown_ = true;
+      if (finished) EndBar();
+      return;
+    }
+    // Plain lines: the first of a stage, one every period, and the last.
+    const bool first = st.lines == 0;
+    if (first || finished ||
+        std::chrono::duration<double>(now - st.last_line).count() >= period_s_) {
+      st.last_line = now;
+      ++st.lines;
+      Log().info("{}", Describe(p, elapsed));
+    }
+  }
+
+ private:
+  struct Stage {
+    bool seen = false;
+    std::int64_t last_done = 0;
+    int lines = 0;
+    std::chrono::steady_clock::time_point start, last_line;
+  };
+  void EndBar() {
+    if (!bar_shown_) return;
+    std::fprintf(stderr, "\r%-110s\r", "");
+    std::fflush(stderr);
+    bar_shown_ = false;
+  }
+  Verbosity verbosity_;
+  bool terminal_;
+  double period_s_;
+  bool bar_shown_ = false;
+  std::chrono::steady_clock::time_point last_draw_;
+  std::map<std::string, Stage> stages_;
+};
+
+bool Finite(const std::string& text, double* v) {
+  try {
+    std::size_t used = 0;
+    *v = std::stod(text, &used);
+    return used == text.size() && std::isfinite(*v);
+  } catch (const std::exception&) {
+    return false;
+  }
+}
+
+}  // namespace
+
+const CLI::Validator kPositive(
+    [](std::string& text) -> std::string {
+      double v;
+      if (!Finite(text, &v) || !(v > 0)) return "'" + text + "' must be a finite number > 0";
+      return "";
+    },
+    "POSITIVE");
+
+const CLI::Validator kNonNegative(
+    [](std::string& text) -> std::string {
+      double v;
+      if (!Finite(text, &v) || !(v >= 0)) return "'" + text + "' must be a finite number >= 0";
+      return "";
+    },
+    "NONNEGATIVE");
+
+CLI::Validator Whole(std::int64_t min, std::int64_t max) {
+  return CLI::Validator(
+      [min, max](std::string& text) -> std::string {
+        double v;
+        if (!Finite(text, &v) || v != std::floor(v) || v < double(min) || v > double(max))
+          return "'" + text + "' must be a whole number in [" + std::to_string(min) + ", " +
+                 std::to_string(max) + "]";
+        return "";
+      },
+      std::to_string(min) + ".." + (max >= (std::int64_t(1) << 40) ? "2^" + std::to_string(
+                                                                          int(std::log2(max)))
+                                                                    : std::to_string(max)));
+}
+
+const CLI::Validator kNotAnOption(
+    [](std::string& text) -> std::string {
+      if (text.rfind("--", 0) == 0) return "needs a value, got the option " + text;
+      return "";
+    },
+    "");
+
+void Context::StopOnSignals() {
+  struct sigaction action {};
+  action.sa_handler = OnSignal;
+  action.sa_flags = SA_RESETHAND;  // a second Ctrl-C ends the process at once
+  sigemptyset(&action.sa_mask);
+  sigaction(SIGINT, &action, nullptr);
+  sigaction(SIGTERM, &action, nullptr);
+}
+
+const CancelFlag& Context::cancel() const { return g_cancel; }
+
+ProgressCallback Context::Progress(double period_s) {
+  auto display = std::make_shared<Display>(verbosity_, terminal_, period_s);
+  return CancelledBy(&g_cancel, [display](const flamerig::Progress& p) {
+    display->Show(p);
+    return ProgressAction::kContinue;
+  });
+}
+
+std::vector<std::string> SplitList(const std::string& text) {
+  std::vector<std::string> out;
+  std::stringstream ss(text);
+  std::string item;
+  while (std::getline(ss, item, ','))
+    if (!item.empty()) out.push_back(item);
+  return out;
+}
+
+ProcessArgs& Args() {
+  static ProcessArgs args;
+  return args;
+}
+
+}  // namespace flamerig::cli

@@ -1,0 +1,103 @@
+// What every subcommand of `flamerig` shares: the command table's entry type, the context a
+// command runs in (its log, its progress display, Ctrl-C), option validators, and exit statuses.
+//
+// A command is one file, tools/cmd_<name>.cc, with one function that declares its options on a
+// CLI11 subcommand, bound to an options struct, and returns the code that runs it. The table of
+// commands is in tools/main.cc. Options are declared once: `flamerig CMD --help` is made from them
+// and a test checks the README's synopsis against it.
+//
+// Exit statuses: 0 done; 1 an error (bad input, a damaged file, a refused write, failed frames);
+// 2 a command line that does not parse (usage); 130 stopped by Ctrl-C (SIGINT) or SIGTERM.
+#ifndef FLAMERIG_TOOLS_CLI_H_
+#define FLAMERIG_TOOLS_CLI_H_
+
+#include <CLI/CLI.hpp>
+
+#include <chrono>
+#include <functional>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "core/log.h"
+#include "core/progress.h"
+
+namespace flamerig::cli {
+
+constexpr int kExitOk = 0;
+constexpr int kExitError = 1;
+constexpr int kExitUsage = 2;
+constexpr int kExitCancelled = 130;
+
+// The run of one command.
+class Context {
+ public:
+  Context(Verbosity verbosity, bool terminal) : verbosity_(verbosity), terminal_(terminal) {}
+
+  // Ctrl-C (SIGINT) and SIGTERM raise cancel(): the command stops at its next safe point. A second
+  // Ctrl-C ends the process at once.
+  void StopOnSignals();
+  const CancelFlag& cancel() const;
+
+  // A progress callback that shows progress and answers kCancel once cancel() is raised. On a
+  // terminal: a bar redrawn in place ("\r"), and each message as a log line above it. Otherwise
+  // (a log file, a pipe): plain timestamped log lines, at most one per stage every `period_s`
+  // seconds plus each stage's first and last, and every message. --quiet shows none of it.
+  ProgressCallback Progress(double period_s = 10.0);
+
+  Verbosity verbosity() const { return verbosity_; }
+  bool terminal() const { return terminal_; }
+
+ private:
+  Verbosity verbosity_;
+  bool terminal_;
+};
+
+// Declares a subcommand's options and returns the code that runs it; the code returns the exit
+// status. Called once, before parsing.
+using Runner = std::function<int(Context&)>;
+struct Command {
+  const char* name;
+  const char* summary;
+  Runner (*add)(CLI::App* command);
+};
+
+// Validators that CLI11 lacks: a finite number > 0 (CLI11's PositiveNumber lets NaN through), a
+// finite number >= 0, and a whole number of frames.
+extern const CLI::Validator kPositive;
+extern const CLI::Validator kNonNegative;
+// A whole number in [min, max] ("2.5", "nan" and "1e30" are refused, naming the range).
+CLI::Validator Whole(std::int64_t min, std::int64_t max);
+// Put on every option that takes a value: a value that is itself an option ("--out --resolution")
+// is a forgotten value, not a file named "--resolution".
+extern const CLI::Validator kNotAnOption;
+
+// "a,b,,c" -> {"a", "b", "c"}.
+std::vector<std::string> SplitList(const std::string& text);
+
+// Frame indices and counts go up to 2^48.
+constexpr std::int64_t kMaxFrames = std::int64_t(1) << 48;
+
+// The commands, each in tools/cmd_<name>.cc.
+Runner AddSimulate(CLI::App* command);
+Runner AddRender(CLI::App* command);
+Runner AddReconstruct(CLI::App* command);
+Runner AddFit(CLI::App* command);
+Runner AddRun(CLI::App* command);
+Runner AddCapture(CLI::App* command);
+Runner AddCtl(CLI::App* command);
+Runner AddCalibrate(CLI::App* command);
+Runner AddExport(CLI::App* command);
+Runner AddBenchmark(CLI::App* command);
+
+// The process's arguments, for commands that run themselves again (in a network namespace) or
+// hand the command line to another process (MPI).
+struct ProcessArgs {
+  int* argc = nullptr;
+  char*** argv = nullptr;
+};
+ProcessArgs& Args();
+
+}  // namespace flamerig::cli
+
+#endif  // FLAMERIG_TOOLS_CLI_H_

@@ -1,0 +1,120 @@
+// `flamerig capture`: the capture daemon (acquisition/capture.h) and its control API.
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <memory>
+#include <thread>
+
+#include "acquisition/capture.h"
+#include "acquisition/control.h"
+#include "core/error.h"
+#include "tools/cli.h"
+
+namespace flamerig::cli {
+
+namespace {
+
+// One line of the daemon's state: fps per camera, sets, recording.
+std::string StatusLine(const CaptureStatus& s, double elapsed_s) {
+  std::string fps;
+  for (const auto& c : s.cameras) {
+    char b[96];
+    std::snprintf(b, sizeof b, " %s %.0f fps%s", c.name.c_str(), c.fps,
+                  c.connected ? "" : " (gone)");
+    fps += b;
+  }
+  char line[512];
+  std::snprintf(line, sizeof line,
+                "%.1f s:%s | sets %llu (%llu incomplete) | recorded %llu, dropped %llu, backlog "
+                "%.0f MB",
+                elapsed_s, fps.c_str(), (unsigned long long)s.sets.sets,
+                (unsigned long long)s.sets.incomplete, (unsigned long long)s.recorder.sets_recorded,
+                (unsigned long long)s.recorder.sets_dropped, s.recorder.queued_bytes / 1048576.0);
+  return line;
+}
+
+}  // namespace
+
+Runner AddCapture(CLI::App* command) {
+  struct Options {
+    std::string config, record, event;
+    double duration = -1;
+  };
+  auto o = std::make_shared<Options>();
+  command->footer(
+      "Run the capture daemon: open the cameras of the config (see config/capture_sim.yaml),\n"
+      "stream, assemble frame sets and serve the control API (`flamerig ctl`). --record starts\n"
+      "recording into data_dir/NAME at once; --event saves the pre-trigger ring first;\n"
+      "--duration stops after S seconds (else: Ctrl-C or `flamerig ctl shutdown`). Every state\n"
+      "change and camera event is logged to stderr and to data_dir/capture.log.");
+  command->add_option("--config", o->config, "Capture config")->required()->type_name("RIG.yaml");
+  command->add_option("--record", o->record, "Record into data_dir/NAME at once")
+      ->type_name("NAME");
+  command->add_option("--event", o->event, "Save the pre-trigger ring into data_dir/NAME, then live")
+      ->type_name("NAME");
+  command->add_option("--duration", o->duration, "Stop after S seconds")
+      ->type_name("S")
+      ->check(kPositive);
+  return [o](Context& context) {
+    if (!o->record.empty() && !o->event.empty()) throw UsageError("--record and --event: give one");
+    const CaptureConfig config = CaptureConfig::Load(o->config);
+    std::filesystem::create_directories(config.data_dir);
+    const std::string log_file = (std::filesystem::path(config.data_dir) / "capture.log").string();
+    AddLogFile(log_file);
+    SystemClock clock;
+    SimTriggerBus bus;
+    CaptureDaemon daemon(config, MakeCameras(config, &clock, &bus), &clock, &bus);
+    daemon.Start();
+    ControlServer server(&daemon, config.control, config.allow_remote);
+    Log().info("capture: control at {}; log in {}", config.control, log_file);
+    if (!o->event.empty() && config.pretrigger_seconds > 0)
+      std::this_thread::sleep_for(std::chrono::duration<double>(config.pretrigger_seconds));
+    if (!o->record.empty()) daemon.StartRecording(o->record);
+    if (!o->event.empty()) daemon.TriggerEvent(o->event);
+    context.StopOnSignals();
+    const auto start = std::chrono::steady_clock::now();
+    auto elapsed = [&] {
+      return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    };
+    // The status: redrawn in place each second on a terminal, a log line every 10 s otherwise.
+    const double period = context.terminal() ? 1.0 : 10.0;
+    double last_line = 0;
+    bool drawn = false;
+    while (!context.cancel().raised() && !server.shutdown_requested() &&
+           (o->duration < 0 || elapsed() < o->duration)) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      const CaptureStatus s = daemon.status();
+      if (s.recorder.stopped && s.recording) {
+        // A full disk or a write error: the recording stops cleanly, the daemon goes on.
+        if (drawn) std::fputs("\n", stderr);
+        drawn = false;
+        Log().error("capture: recording stopped: {}", s.recorder.error);
+        daemon.StopRecording();
+      }
+      if (elapsed() - last_line < period || context.verbosity() == Verbosity::kQuiet) continue;
+      last_line = elapsed();
+      if (context.terminal()) {
+        std::fprintf(stderr, "\r%-120s", StatusLine(s, elapsed()).c_str());
+        std::fflush(stderr);
+        drawn = true;
+      } else {
+        Log().info("capture: {}", StatusLine(s, elapsed()));
+      }
+    }
+    if (drawn) std::fputs("\n", stderr);
+    if (context.cancel().raised()) Log().info("capture: stopping (signal)");
+    if (daemon.status().recording) daemon.StopRecording();
+    // Each camera's story, for the log (and the soak test, which reads the disconnects).
+    for (const auto& c : daemon.status().cameras)
+      Log().info(
+          "capture: {}: {} frames, {} missing by frame id, {} incomplete, {} disconnects, {} "
+          "reconnects{}{}",
+          c.name, c.frames, c.stream.missing_by_id, c.stream.incomplete, c.disconnects,
+          c.reconnects, c.error.empty() ? "" : "; last error: ", c.error);
+    daemon.Stop();
+    RemoveLogFile(log_file);
+    return kExitOk;
+  };
+}
+
+}  // namespace flamerig::cli

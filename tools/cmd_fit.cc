@@ -1,0 +1,106 @@
+// `flamerig fit`: temperature, density and exposure from one frame set (pipeline/fit_job.h).
+#include <cstdio>
+#include <memory>
+
+#include "pipeline/fit_job.h"
+#include "tools/cli.h"
+
+namespace flamerig::cli {
+
+Runner AddFit(CLI::App* command) {
+  struct Options {
+    FitJob job;
+    std::string views, method = "fast";
+    int iterations = -1;
+    std::int64_t seed = -1;
+  };
+  auto o = std::make_shared<Options>();
+  FitJob& job = o->job;
+  command->footer(
+      "Fit temperature, density and exposure so that rendering reproduces the images: the fast\n"
+      "fit (default) or the paper's Algorithm 1 or 2. The tomography is reconstructed from the\n"
+      "fitted views unless given. Writes F.vdb (temperature, density; exposure and why the fit\n"
+      "stopped in its metadata) and a report (input, rendered and Delta E images per view and\n"
+      "held-out view, error against time). Ctrl-C stops the fit and writes what it has.");
+  command->add_option("--rig", job.rig_path, "Rig file")->required()->type_name("RIG.yaml");
+  command->add_option("--images", job.images_dir, "Folder of one image per camera")
+      ->required()
+      ->type_name("DIR");
+  command->add_option("--out", job.out_path, "Fitted volume to write")
+      ->required()
+      ->type_name("F.vdb");
+  command->add_option("--views", o->views, "Cameras to fit (default: every camera with an image)")
+      ->type_name("CAM,CAM");
+  command->add_option("--holdout", job.holdout, "Camera to score but not fit")
+      ->type_name("CAMERA");
+  command->add_option("--resolution", job.resolution, "Voxels along the box's longest side")
+      ->type_name("N")
+      ->check(Whole(1, 1024));
+  command->add_option("--tomography", job.tomography_path,
+                      "Emission volume to start from (default: reconstructed here)")
+      ->type_name("E.vdb");
+  command->add_option("--method", o->method, "fast, or the paper's Algorithm 1 or 2")
+      ->check(CLI::IsMember({"fast", "alg1", "alg2"}));
+  command->add_option("--absorption", job.absorption, "Absorption model (default: dataset.yaml's)")
+      ->check(CLI::IsMember({"soot", "grey"}));
+  command->add_option("--exposure", job.exposure, "Exposure the images were taken with")
+      ->type_name("S")
+      ->check(kPositive);
+  command->add_option("--w-sm", job.fit.objective.w_sm, "Weight of the neighbour term (paper: 10)")
+      ->type_name("W")
+      ->check(kNonNegative);
+  command->add_option("--fit-iterations", o->iterations,
+                      "Fast fit: L-BFGS iterations per grid level; alg1/alg2: sweeps")
+      ->type_name("N")
+      ->check(Whole(0, 1000000));
+  command->add_option("--time-limit", job.fit.time_limit_s, "Stop the fit after S seconds")
+      ->type_name("S")
+      ->check(kNonNegative);
+  command->add_option("--seed", o->seed, "alg1/alg2: random seed")
+      ->type_name("N")
+      ->check(Whole(0, std::int64_t(1) << 53));
+  command->add_option("--report", job.report_dir, "Report folder (default: beside F.vdb)")
+      ->type_name("DIR");
+  command->add_option("--truth", job.truth_path, "Ground-truth volume: score the temperature")
+      ->type_name("T.vdb");
+  command->add_flag("--coarse-to-fine,!--no-coarse-to-fine", job.fit.coarse_to_fine,
+                    "Fast fit: start at 32^3 and double (default off)");
+  return [o](Context& context) {
+    context.StopOnSignals();
+    FitJob job = o->job;
+    job.views = SplitList(o->views);
+    job.method = o->method == "alg1"   ? FitMethod::kAlgorithm1
+                 : o->method == "alg2" ? FitMethod::kAlgorithm2
+                                       : FitMethod::kFast;
+    job.paper.time_limit_s = job.fit.time_limit_s;
+    if (o->iterations >= 0) {
+      job.fit.iterations_finest = job.fit.iterations_per_level = o->iterations;
+      job.paper.iterations = std::max(1, o->iterations);
+    }
+    if (o->seed >= 0) job.paper.seed = static_cast<std::uint64_t>(o->seed);
+    const FitJobResult r = RunFitJob(job, context.Progress(2.0));
+    Log().info("fit: tomography {}", r.tomography);
+    std::printf("fit: wrote %s\n  %s\n", job.out_path.c_str(), r.result.BriefReport().c_str());
+    for (const auto& sc : r.scores)
+      std::printf(
+          "  %s (%s): mean Delta E %.3f over all pixels, %.3f over fire pixels (95th "
+          "percentile %.2f)\n",
+          sc.name.c_str(), sc.held_out ? "held out" : "fitted", sc.mean_delta_e, sc.fire_delta_e,
+          sc.p95_delta_e);
+    std::printf("  report: %s/report.md\n", r.report_dir.c_str());
+    if (r.have_truth) {
+      if (!r.truth.compared)
+        std::printf("  truth: %s not compared: %s\n", job.truth_path.c_str(),
+                    r.truth.why_not.c_str());
+      else if (r.truth.counted)
+        std::printf(
+            "  temperature against %s on the %zu of %zu visible voxels (>= 1300 K, >= 1%% of the "
+            "peak emission) with medium: RMS %.1f K, mean %+.1f K\n",
+            job.truth_path.c_str(), r.truth.counted, r.truth.visible, r.truth.rms_k,
+            r.truth.mean_k);
+    }
+    return r.result.termination == FitTermination::kCancelled ? kExitCancelled : kExitOk;
+  };
+}
+
+}  // namespace flamerig::cli

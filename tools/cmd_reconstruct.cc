@@ -1,0 +1,67 @@
+// `flamerig reconstruct`: algebraic tomography of one frame set (pipeline/reconstruct_job.h).
+#include <cstdio>
+#include <memory>
+
+#include "pipeline/reconstruct_job.h"
+#include "tools/cli.h"
+
+namespace flamerig::cli {
+
+Runner AddReconstruct(CLI::App* command) {
+  auto job = std::make_shared<ReconstructJob>();
+  auto holdout = std::make_shared<std::string>();
+  command->footer(
+      "Algebraic tomography of one frame set (DIR/<camera>.png for every rig camera) into an RGB\n"
+      "emission volume. The exposure defaults to the one in dataset.yaml beside the rig, else 1.\n"
+      "With --truth, report the error against a ground-truth volume's emission.");
+  command->add_option("--rig", job->rig_path, "Rig file")->required()->type_name("RIG.yaml");
+  command->add_option("--images", job->images_dir, "Folder of one image per camera")
+      ->required()
+      ->type_name("DIR");
+  command->add_option("--out", job->out_path, "Emission volume to write")
+      ->required()
+      ->type_name("E.vdb");
+  command->add_option("--exposure", job->exposure, "Exposure the images were taken with")
+      ->type_name("S")
+      ->check(kPositive);
+  command->add_option("--resolution", job->reconstruct.resolution,
+                      "Voxels along the box's longest side")
+      ->type_name("N")
+      ->check(Whole(1, 1024));
+  std::vector<std::string> solvers;
+  for (const auto& s : TomographySolvers()) solvers.push_back(s.name);
+  command->add_option("--solver", job->reconstruct.solve.solver, "Tomography solver")
+      ->check(CLI::IsMember(solvers));
+  command->add_option("--solve-iterations", job->reconstruct.solve.max_iterations,
+                      "At most this many solver iterations (it stops earlier on its own rules)")
+      ->type_name("N")
+      ->check(Whole(1, 100000));
+  command->add_option("--holdout", *holdout, "Camera to leave out of the solve and score on")
+      ->type_name("CAMERA");
+  command->add_option("--cache", job->reconstruct.cache_dir, "Keep system matrices in DIR")
+      ->type_name("DIR");
+  command->add_flag("--coarse-to-fine,!--no-coarse-to-fine", job->reconstruct.coarse_to_fine,
+                    "Solve a half-resolution grid first (default on)");
+  command->add_option("--truth", job->truth_path, "Ground-truth volume with an emission grid")
+      ->type_name("T.vdb");
+  command->add_option("--preview", job->preview_path,
+                      "Picture: input, reconstruction rendered back, 4x difference per camera")
+      ->type_name("P.png");
+  return [job, holdout](Context& context) {
+    context.StopOnSignals();
+    job->reconstruct.holdout_camera = *holdout;
+    const ReconstructJobResult r = RunReconstructJob(*job, context.Progress());
+    for (const auto& note : r.notes) Log().warn("reconstruct: {}", note);
+    if (!job->preview_path.empty())
+      std::printf("  preview (input, reconstruction rendered back, 4x difference per camera): %s\n",
+                  job->preview_path.c_str());
+    std::printf("reconstruct: wrote %s (exposure %.6g from %s)\n  %s\n", job->out_path.c_str(),
+                r.exposure, r.exposure_source.c_str(), r.summary.BriefReport().c_str());
+    if (r.truth_error >= 0)
+      std::printf("  volume error against %s: relative L2 %.4f\n", job->truth_path.c_str(),
+                  r.truth_error);
+    return kExitOk;
+  };
+}
+
+}  // namespace flamerig::cli

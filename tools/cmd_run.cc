@@ -1,0 +1,128 @@
+// `flamerig run`: every frame set of a recording through tomography and the fit
+// (pipeline/run.h), over MPI ranks when started by mpirun (pipeline/distributed.h).
+#include <cstdio>
+#include <memory>
+
+#include "core/error.h"
+#include "pipeline/distributed.h"
+#include "tools/cli.h"
+
+namespace flamerig::cli {
+
+Runner AddRun(CLI::App* command) {
+  struct Options {
+    RunOptions run;
+    std::string seq, names, calibrate_config, board;
+    std::int64_t first = -1, count = -1;
+    int fit_iterations = -1;
+    bool no_skip_unchanged = false, no_blender = false, cold = false;
+    std::size_t threads = 0;
+  };
+  auto o = std::make_shared<Options>();
+  RunOptions& run = o->run;
+  command->footer(
+      "The daily job: every frame set of a recording through tomography and the fit (warm\n"
+      "started from the previous frame) into OUT/frame_NNNNNN.vdb, a Blender-ready sequence in\n"
+      "OUT/blender/, a summary line per frame and OUT/report/index.html. A damaged frame fails\n"
+      "alone; the exit status is then 1. Stopped runs (Ctrl-C, a kill) resume at the first frame\n"
+      "without a complete output. Under `mpirun -n N` the frames are split into contiguous runs\n"
+      "per rank. --truth: ground-truth volumes of a simulated recording.");
+  command->add_option("--recording", run.source.recording_dir, "A flamerig recording")
+      ->type_name("DIR");
+  command->add_option("--seq", o->seq, "StreamPix sequences, one per camera")
+      ->type_name("A.seq,B.seq");
+  command->add_option("--names", o->names, "Camera names of the sequences (default: file stems)")
+      ->type_name("CAM,CAM");
+  command->add_option("--images", run.source.images_dir, "Folders DIR/frame_NNNNNN/<camera>.png")
+      ->type_name("DIR");
+  command->add_option("--rig", run.rig_path, "Rig file")->type_name("RIG.yaml");
+  command->add_option("--calibration-recording", run.calibration.recording_dir,
+                      "Calibrate first from this recording of a board")
+      ->type_name("DIR");
+  command->add_option("--calibration-images", run.calibration.images_dir,
+                      "Calibrate first from these board views")
+      ->type_name("DIR");
+  command->add_option("--board", o->board, "The calibration board")->type_name("B.yaml");
+  command->add_option("--calibrate-config", o->calibrate_config, "Calibration config")
+      ->type_name("C.yaml");
+  command->add_option("--out", run.out_dir, "Output folder")->required()->type_name("OUT");
+  command->add_option("--first", o->first, "First frame set")
+      ->type_name("N")
+      ->check(Whole(0, kMaxFrames));
+  command->add_option("--count", o->count, "How many frame sets")
+      ->type_name("N")
+      ->check(Whole(1, kMaxFrames));
+  command->add_option("--resolution", run.reconstruct.resolution,
+                      "Voxels along the box's longest side (default 64)")
+      ->type_name("N")
+      ->check(Whole(1, 1024));
+  command->add_option("--exposure", run.exposure, "Exposure the images were taken with")
+      ->type_name("S")
+      ->check(kPositive);
+  command->add_option("--absorption", run.absorption, "Absorption model (default: dataset.yaml's)")
+      ->check(CLI::IsMember({"soot", "grey"}));
+  command->add_option("--fit-iterations", o->fit_iterations, "L-BFGS iterations of each frame's fit")
+      ->type_name("N")
+      ->check(Whole(0, 1000000));
+  command->add_option("--holdout", run.holdout_camera, "Camera to score but not fit")
+      ->type_name("CAMERA");
+  command->add_option("--truth", run.truth_dir, "Ground-truth volumes DIR/frame_NNNNNN.vdb")
+      ->type_name("DIR");
+  command->add_flag("--no-skip-unchanged", o->no_skip_unchanged,
+                    "Compute frames whose images did not change too");
+  command->add_flag("--no-blender", o->no_blender, "Do not write OUT/blender/");
+  command->add_flag("--cold", o->cold, "Start every frame from its own tomography");
+  command->add_option("--threads", o->threads,
+                      "Threads per process (default: all cores, shared among a node's ranks)")
+      ->type_name("N")
+      ->check(Whole(1, 4096));
+  return [o](Context& context) {
+    RunOptions run = o->run;
+    run.source.seq_files = SplitList(o->seq);
+    run.source.seq_names = SplitList(o->names);
+    if (!o->calibrate_config.empty()) run.calibrate = CalibrateConfig::Load(o->calibrate_config);
+    if (!o->board.empty()) run.calibrate.board = LoadBoardSpec(o->board);
+    if (o->first >= 0) run.first = static_cast<std::size_t>(o->first);
+    if (o->count >= 0) run.count = static_cast<std::size_t>(o->count);
+    if (o->fit_iterations >= 0) run.fit.iterations_finest = o->fit_iterations;
+    run.skip_unchanged = !o->no_skip_unchanged;
+    run.blender = !o->no_blender;
+    run.warm_start = !o->cold;
+    // Under mpirun every rank runs this; a failing rank stops the others.
+    std::unique_ptr<MpiSession> mpi;
+    try {
+      mpi = std::make_unique<MpiSession>(Args().argc, Args().argv);
+      run.Validate();
+      context.StopOnSignals();
+      DistributedOptions distributed;
+      distributed.threads = o->threads;
+      const DistributedRun r = RunDistributed(run, distributed, *mpi, context.Progress());
+      std::printf("%srun: %s\n",
+                  mpi->size() > 1 ? ("[rank " + std::to_string(mpi->rank()) + "] ").c_str() : "",
+                  r.mine.BriefReport().c_str());
+      std::fflush(stdout);
+      if (mpi->rank() != 0) return r.cancelled ? kExitCancelled : kExitOk;
+      std::printf("run: report %s\n", r.report.c_str());
+      if (r.cancelled) {
+        Log().warn("flamerig run: stopped; run the same command again to go on");
+        return kExitCancelled;
+      }
+      if (r.failed) {
+        // The other frames are written; a script must still see that this run is not complete.
+        Log().error("flamerig run: {} of {} frame(s) failed (their lines above, OUT/frames)",
+                    r.failed, r.frames.size());
+        return kExitError;
+      }
+      return kExitOk;
+    } catch (const std::exception& e) {
+      if (mpi && mpi->size() > 1) {
+        const bool usage = dynamic_cast<const UsageError*>(&e) != nullptr;
+        Log().error("flamerig run: error: {}", e.what());
+        mpi->Abort(usage ? kExitUsage : kExitError);
+      }
+      throw;
+    }
+  };
+}
+
+}  // namespace flamerig::cli
