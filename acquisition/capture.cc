@@ -487,6 +487,8 @@ void CaptureDaemon::CameraLoop(int camera) {
       std::lock_guard<std::mutex> lock(st.mutex);
       ++st.live.disconnects;
     }
+    if (connected && !was_connected)
+      Log().info("capture: camera {} ({}) reconnected", st.live.name, st.live.id);
     was_connected = connected;
     if (!connected) {
       // A lost camera: try to bring it back about once a second; the others go on meanwhile.
@@ -494,7 +496,6 @@ void CaptureDaemon::CameraLoop(int camera) {
       if (t - last_attempt >= 1'000'000'000) {
         last_attempt = t;
         const bool back = cam.Reconnect();
-        if (back) Log().info("capture: camera {} ({}) reconnected", st.live.name, st.live.id);
         std::lock_guard<std::mutex> lock(st.mutex);
         ++st.live.reconnect_attempts;
         if (back) ++st.live.reconnects;

@@ -86,7 +86,10 @@ StreamPixSequence::StreamPixSequence(const std::string& path, PixelFormat bayer)
   // StreamPix 6 and later (version >= 5) write an 8192-byte header but keep 1024 in its size field
   // (the pims project's sample_norpix6.seq is laid out so, and its reader starts at 8192).
   first_image_ = s.version >= 5 ? std::max<std::uint64_t>(8192, s.header_size) : s.header_size;
-  frames_ = size > first_image_ ? (size - first_image_) / s.true_image_size : 0;
+  // A last frame that the file cuts short counts: reading it is an error that says so, rather
+  // than a frame that silently is not there.
+  frames_ = size > first_image_ ? (size - first_image_ + s.true_image_size - 1) / s.true_image_size
+                                : 0;
 }
 
 Frame StreamPixSequence::ReadFrame(std::size_t i, int camera) const {

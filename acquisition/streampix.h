@@ -36,14 +36,17 @@ struct SeqHeader {
 
 class StreamPixSequence {
  public:
-  // Reads and checks the header; throws InputError naming the file and the field.
+  // Reads and checks the header; throws IoError when the file cannot be opened, DataError naming
+  // the file and the field when it is not a sequence we read.
   // `bayer` is the pattern of image format 101 files (the header does not always say).
   explicit StreamPixSequence(const std::string& path, PixelFormat bayer = PixelFormat::kBayerRg8);
   const SeqHeader& header() const { return header_; }
-  // Frames wholly present in the file (a sequence cut short by a crash has fewer than allocated).
+  // Frames present in the file, whole or not: a sequence cut short by a crash ends in a frame
+  // that ReadFrame refuses (and may have fewer frames than the header allocated).
   std::size_t num_frames() const { return frames_; }
   // Frame i: pixels (BGR converted to RGB), its index as frame id, its timestamp as the device
-  // timestamp (ns since 1970); `camera` goes into the frame's info.
+  // timestamp (ns since 1970); `camera` goes into the frame's info. Throws DataError naming the
+  // file, the frame and the byte offset when the file cuts the frame short.
   Frame ReadFrame(std::size_t i, int camera = 0) const;
 
  private:

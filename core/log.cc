@@ -14,7 +14,7 @@ namespace flamerig {
 
 namespace {
 
-constexpr const char* kPattern = "%Y-%m-%d %H:%M:%S.%e %-5l %v";
+constexpr const char* kPattern = "%Y-%m-%d %H:%M:%S.%e %-7l %v";
 
 struct LogState {
   std::mutex mutex;

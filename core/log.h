@@ -6,8 +6,8 @@
 // test, a program of the user's) prints nothing. The CLI attaches the sinks (ConfigureLog): stderr,
 // and for the capture daemon a file in its data directory (AddLogFile).
 //
-// Every line reads "2026-11-23 19:44:01.123 info  capture: recording started in ...": local date
-// and time to the millisecond, the level, the message. Plain lines only: a log never holds "\r" or
+// Every line reads "2026-11-23 19:44:01.123 info    capture: recording into ...": local date and
+// time to the millisecond, the level (debug, info, warning, error), the message. Plain lines only: a log never holds "\r" or
 // terminal escapes, whether it goes to a terminal or a file.
 //
 // Levels: debug (--verbose), info (default), warn, error; --quiet shows warnings and errors only.

@@ -365,7 +365,7 @@ class TraceCallback : public ceres::IterationCallback {
     }
     Progress f;
     f.stage = "fit";
-    f.message = stage_;
+    if (summary.iteration == 0) f.message = "fit: " + stage_;  // a line at each level's start
     f.unit = "iterations";
     f.done = summary.iteration;
     f.total = max_iterations_;
@@ -720,6 +720,7 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
     data = objective.DataTermAt(renders, std::exp(ln_s));
   }
   double last_trace = -1;
+  std::string last_stage;
   auto trace = [&](int iteration, const std::string& stage, bool force) {
     const double now = Seconds(start);
     if (!force && now - last_trace < 0.25) return;
@@ -738,7 +739,8 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
     result.trace.push_back(p);
     Progress f;
     f.stage = "fit";
-    f.message = stage;
+    if (stage != last_stage) f.message = "fit: " + stage;  // a line at each sweep's start
+    last_stage = stage;
     f.unit = "iterations";
     f.done = iteration;
     f.total = paper.iterations;

@@ -13,6 +13,7 @@
 #include <sstream>
 
 #include "core/error.h"
+#include "core/atomic_file.h"
 #include "core/image.h"
 #include "tomography/vdb_io.h"
 #include "pipeline/fit_report.h"
@@ -153,16 +154,25 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     std::set<std::string> cameras;
     for (const auto& f : frames)
       for (const auto& d : f.delta_e) cameras.insert(d.camera);
-    std::ofstream csv(out / "frames.csv");
+    // A field in double quotes, its quotes doubled (RFC 4180).
+    auto quoted = [](const std::string& text) {
+      std::string q = "\"";
+      for (char c : text) q += c == '"' ? std::string("\"\"") : std::string(1, c);
+      return q + "\"";
+    };
+    std::ostringstream csv;
     csv << "frame,status,cameras_used,total_ms,read_ms,tomography_ms,fit_ms,write_ms,matrix,"
-           "active_voxels,exposure,energy,truth_frame,truth_rms_k,truth_bias_k";
+           "active_voxels,exposure,initial_energy,energy,fit_termination,fit_iterations,"
+           "fit_message,truth_frame,truth_rms_k,truth_bias_k";
     for (const auto& c : cameras) csv << ",delta_e_fire_" << c << ",delta_e_all_" << c;
     csv << ",notes\n";
     for (const auto& f : frames) {
-      csv << f.frame << ",\"" << f.status << "\"," << f.cameras_used << "," << f.total_ms << ","
-          << f.read_ms << "," << f.reconstruct_ms << "," << f.fit_ms << "," << f.write_ms << ","
-          << f.matrix_source << "," << f.active_voxels << "," << f.exposure << "," << f.energy
-          << "," << f.truth_frame << "," << f.truth_rms_k << "," << f.truth_bias_k;
+      csv << f.frame << "," << quoted(f.status) << "," << f.cameras_used << "," << f.total_ms
+          << "," << f.read_ms << "," << f.reconstruct_ms << "," << f.fit_ms << "," << f.write_ms
+          << "," << f.matrix_source << "," << f.active_voxels << "," << f.exposure << ","
+          << f.initial_energy << "," << f.energy << "," << f.fit_termination << ","
+          << f.fit_iterations << "," << quoted(f.fit_message) << "," << f.truth_frame << ","
+          << f.truth_rms_k << "," << f.truth_bias_k;
       for (const auto& c : cameras) {
         auto it = std::find_if(f.delta_e.begin(), f.delta_e.end(),
                                [&](const ViewDeltaE& d) { return d.camera == c; });
@@ -173,9 +183,9 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
       }
       std::string notes;
       for (const auto& n : f.notes) notes += (notes.empty() ? "" : "; ") + n;
-      csv << ",\"" << notes << "\"\n";
+      csv << "," << quoted(notes) << "\n";
     }
-    if (!csv) throw IoError((out / "frames.csv").string() + ": cannot write");
+    WriteFileAtomically((out / "frames.csv").string(), csv.str());
   }
 
   // Plots.

@@ -11,6 +11,7 @@
 #include <fstream>
 
 #include "acquisition/streampix.h"
+#include "core/error.h"
 
 namespace flamerig {
 namespace {
@@ -102,8 +103,17 @@ TEST(StreamPix, BgrBecomesRgbAndOldVersionsHaveNoMicroseconds) {
 
 TEST(StreamPix, CutShortCompressedAndForeignFilesAreClear) {
   const fs::path p = WriteSeq("cut", SeqSpec{});
-  fs::resize_file(p, fs::file_size(p) - 5);  // the last frame is incomplete
-  EXPECT_EQ(StreamPixSequence(p.string()).num_frames(), 2u);
+  fs::resize_file(p, fs::file_size(p) - 20);  // the last frame is cut inside its pixels
+  const StreamPixSequence cut(p.string());
+  EXPECT_EQ(cut.num_frames(), 3u);  // the damaged frame is there, and reading it says so
+  cut.ReadFrame(1, 0);
+  try {
+    cut.ReadFrame(2, 0);
+    FAIL() << "a frame cut short was read";
+  } catch (const DataError& e) {
+    EXPECT_NE(std::string(e.what()).find("frame 2"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("cut short"), std::string::npos) << e.what();
+  }
   SeqSpec c;
   c.compression = 1;
   const fs::path q = WriteSeq("jpeg", c);

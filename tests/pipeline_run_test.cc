@@ -28,6 +28,7 @@
 #include "pipeline/truth.h"
 #include "pipeline/run.h"
 #include "pipeline/distributed.h"
+#include "pipeline/frame_stages.h"
 #include "pipeline/run_report.h"
 #include "pipeline/simulate.h"
 
@@ -279,6 +280,135 @@ TEST(RunFrames, UnchangedFramesReuseThePreviousResult) {
   all.out_dir = (dir / "out2").string();
   all.skip_unchanged = false;
   EXPECT_EQ(RunAll(all).frames[2].status, "computed");
+  fs::remove_all(dir);
+}
+
+// A damaged frame fails alone, whatever the source: a corrupt PNG in the middle of a folder, and
+// a StreamPix sequence that a crash cut short inside its last frame. The frames around it are
+// computed, the failed one names the file, and the one after it starts cold.
+TEST(RunFrames, ADamagedFrameFailsAloneWhateverTheSource) {
+  const fs::path dir = TempDir("damaged");
+  SimulateDataset(dir / "sim", 3);
+  const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
+  // StreamPix sequences of the same frames, one per camera, before the PNG is damaged.
+  std::vector<std::string> seqs;
+  for (const auto& c : rig.cameras) {
+    std::vector<ImageU8> frames;
+    for (int f = 0; f < 3; ++f)
+      frames.push_back(ReadImageU8(
+          (dir / "sim" / "frames" / FrameName(f) / (c.name + ".png")).string(), 3));
+    seqs.push_back((dir / (c.name + ".seq")).string());
+    WriteStreamPix(seqs.back(), frames);
+  }
+  const fs::path bad_png = dir / "sim" / "frames" / "frame_000001" / (rig.cameras[1].name + ".png");
+  std::ofstream(bad_png, std::ios::binary | std::ios::trunc) << "\x89PNG\r\n\x1a\n not an image";
+  {
+    SCOPED_TRACE("PNG folder");
+    const RunSummary run = RunAll(SmallRun(dir / "sim", dir / "out_png"));
+    ASSERT_EQ(run.frames.size(), 3u);
+    EXPECT_EQ(run.frames[0].status, "computed");
+    EXPECT_EQ(run.frames[1].status.rfind("failed: ", 0), 0u) << run.frames[1].status;
+    EXPECT_NE(run.frames[1].status.find(bad_png.string()), std::string::npos)
+        << run.frames[1].status;
+    EXPECT_EQ(run.frames[2].status, "computed");
+    EXPECT_EQ(run.failed, 1u);
+    EXPECT_EQ(run.computed, 2u);
+    EXPECT_FALSE(fs::exists(dir / "out_png" / "frame_000001.vdb"));
+  }
+  {
+    SCOPED_TRACE("StreamPix");
+    fs::resize_file(seqs[2], fs::file_size(seqs[2]) - 1000);  // inside frame 2 of camera 2
+    RunOptions o = SmallRun(dir / "sim", dir / "out_seq");
+    o.source.images_dir.clear();
+    o.source.seq_files = seqs;
+    const RunSummary run = RunAll(o);
+    ASSERT_EQ(run.frames.size(), 3u);
+    EXPECT_EQ(run.frames[0].status, "computed");
+    EXPECT_EQ(run.frames[1].status, "computed");
+    EXPECT_EQ(run.frames[2].status.rfind("failed: ", 0), 0u) << run.frames[2].status;
+    EXPECT_NE(run.frames[2].status.find("cut short"), std::string::npos) << run.frames[2].status;
+    EXPECT_EQ(run.failed, 1u);
+  }
+  fs::remove_all(dir);
+}
+
+// The stages can be replaced one by one: a fit that fails on one frame fails that frame only, a
+// reconstruction that is watched sees every frame it is asked for.
+TEST(RunFrames, StagesCanBeReplacedOneByOne) {
+  const fs::path dir = TempDir("stages");
+  SimulateDataset(dir / "sim", 3);
+  const RunOptions o = SmallRun(dir / "sim", dir / "out");
+  struct Stages : FrameStages {
+    using FrameStages::FrameStages;
+    std::vector<std::size_t> reconstructed;
+    void Reconstruct(FrameWork* w, const ProgressCallback& p) override {
+      reconstructed.push_back(w->index);
+      FrameStages::Reconstruct(w, p);
+    }
+    void Fit(FrameWork* w, const ProgressCallback& p) override {
+      if (w->index == 1) throw DataError("a fit that cannot converge on this frame");
+      FrameStages::Fit(w, p);
+    }
+  } stages(o, o.rig_path, 0);
+  const RunSummary run = RunFrames(o, o.rig_path, 0, 3, nullptr, &stages);
+  EXPECT_EQ((std::vector<std::size_t>{0, 1, 2}), stages.reconstructed);
+  ASSERT_EQ(run.frames.size(), 3u);
+  EXPECT_EQ(run.frames[1].status, "failed: a fit that cannot converge on this frame");
+  EXPECT_EQ(run.frames[2].status, "computed");
+  fs::remove_all(dir);
+}
+
+// A cancel inside a frame (here at the first iteration of frame 1's fit) stops the run without
+// committing that frame; the same run started again computes it and the rest.
+TEST(RunFrames, ACancelInsideAFrameCommitsNothingOfItAndTheRunResumes) {
+  const fs::path dir = TempDir("cancel");
+  SimulateDataset(dir / "sim", 3);
+  const RunOptions o = SmallRun(dir / "sim", dir / "out");
+  int frames_done = 0;
+  const RunSummary stopped = RunFrames(o, o.rig_path, 0, 3, [&](const Progress& p) {
+    if (p.stage == "frames") ++frames_done;
+    return frames_done == 1 && p.stage == "fit" ? ProgressAction::kCancel
+                                                 : ProgressAction::kContinue;
+  });
+  EXPECT_TRUE(stopped.cancelled);
+  ASSERT_EQ(stopped.frames.size(), 1u);
+  EXPECT_EQ(stopped.frames[0].status, "computed");
+  EXPECT_TRUE(fs::exists(dir / "out" / "frames" / "frame_000000.yaml"));
+  EXPECT_FALSE(fs::exists(dir / "out" / "frames" / "frame_000001.yaml"));
+  for (const auto& e : fs::recursive_directory_iterator(dir / "out"))
+    EXPECT_EQ(e.path().string().find(".tmp"), std::string::npos) << e.path();
+  const RunSummary resumed = RunAll(o);
+  EXPECT_FALSE(resumed.cancelled);
+  EXPECT_EQ(resumed.resumed, 1u);
+  EXPECT_EQ(resumed.computed, 2u);
+  ASSERT_EQ(resumed.frames.size(), 3u);
+  for (const auto& f : resumed.frames) EXPECT_EQ(f.status, "computed") << f.Line();
+  fs::remove_all(dir);
+}
+
+// The orchestration of ranks, in process: two ranks as threads split the frames contiguously,
+// rank 0 writes the one report with every frame, in order.
+TEST(RunDistributed, TwoRanksAsThreadsShareTheFramesAndOneReport) {
+  const fs::path dir = TempDir("ranks");
+  SimulateDataset(dir / "sim", 3);
+  const RunOptions o = SmallRun(dir / "sim", dir / "out");
+  ThreadRanks ranks(2);
+  std::array<DistributedRun, 2> runs;
+  DistributedOptions d;
+  d.threads = 1;
+  std::vector<std::thread> threads;
+  for (int r = 0; r < 2; ++r)
+    threads.emplace_back([&, r] { runs[r] = RunDistributed(o, d, ranks.rank(r)); });
+  for (auto& t : threads) t.join();
+  EXPECT_EQ(runs[0].mine.begin, 0u);
+  EXPECT_EQ(runs[0].mine.end, 2u);
+  EXPECT_EQ(runs[1].mine.begin, 2u);
+  EXPECT_EQ(runs[1].mine.end, 3u);
+  ASSERT_EQ(runs[0].frames.size(), 3u);
+  for (std::size_t i = 0; i < 3; ++i) EXPECT_EQ(runs[0].frames[i].frame, i);
+  EXPECT_TRUE(runs[1].frames.empty());
+  EXPECT_TRUE(fs::exists(runs[0].report)) << runs[0].report;
+  EXPECT_EQ(runs[0].failed, 0u);
   fs::remove_all(dir);
 }
 

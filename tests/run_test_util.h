@@ -5,9 +5,13 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <string>
+#include <vector>
 
+#include "core/image.h"
 #include "tomography/vdb_io.h"
 #include "pipeline/run.h"
 #include "pipeline/simulate.h"
@@ -55,6 +59,39 @@ inline RunSummary RunAll(const RunOptions& o) {
   std::size_t begin, end;
   RunRange(o, source, &begin, &end);
   return RunFrames(o, o.rig_path, begin, end);
+}
+
+// Writes 8-bit RGB images as an uncompressed StreamPix 6 sequence (BGR, image format 200) with
+// timestamps 33 ms apart, laid out as the published format says (acquisition/streampix.h).
+inline void WriteStreamPix(const fs::path& path, const std::vector<ImageU8>& frames) {
+  auto put = [](std::vector<char>* b, std::size_t at, auto v) {
+    std::memcpy(b->data() + at, &v, sizeof v);
+  };
+  const std::uint32_t w = frames.at(0).width, h = frames.at(0).height, image = w * h * 3;
+  const std::uint32_t true_size = image + 8 + 8;
+  std::vector<char> header(8192, 0);
+  put(&header, 0, std::uint32_t(0xFEED));
+  put(&header, 28, std::int32_t(5));
+  put(&header, 32, std::int32_t(1024));
+  put(&header, 548, w);
+  put(&header, 552, h);
+  put(&header, 556, std::uint32_t(24));
+  put(&header, 560, std::uint32_t(24));
+  put(&header, 564, image);
+  put(&header, 568, std::uint32_t(200));
+  put(&header, 572, static_cast<std::uint32_t>(frames.size()));
+  put(&header, 580, true_size);
+  put(&header, 584, 30.0);
+  std::ofstream out(path, std::ios::binary);
+  out.write(header.data(), static_cast<std::streamsize>(header.size()));
+  for (std::size_t f = 0; f < frames.size(); ++f) {
+    std::vector<char> bytes(true_size, 0);
+    for (std::uint32_t p = 0; p < w * h; ++p)
+      for (int c = 0; c < 3; ++c) bytes[3 * p + c] = static_cast<char>(frames[f].pixels[3 * p + 2 - c]);
+    put(&bytes, image, std::int32_t(1'700'000'000));
+    put(&bytes, image + 4, static_cast<std::uint16_t>(33 * f));
+    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  }
 }
 
 inline void ExpectSameVolume(const fs::path& a, const fs::path& b) {

@@ -2,18 +2,22 @@
 #include <gtest/gtest.h>
 
 #include <signal.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <regex>
 #include <set>
 #include <sstream>
+#include <thread>
 
 #include "core/image.h"
 #include "core/srgb.h"
@@ -416,6 +420,53 @@ TEST(Cli, CalibrateFromARecordingThenFit) {
   fs::remove_all(dir);
 }
 
+// Ctrl-C (SIGINT) during a long fit: the fit stops at its next iteration, writes what it has with
+// the termination "cancelled" in the volume's metadata, and the exit status is 130.
+TEST(Cli, FitStopsOnSigintAndWritesWhatItHas) {
+  const fs::path dir = TempDir();
+  std::ofstream(dir / "sim.yaml") << "simulate:\n  frames: 1\n  grid_resolution: 32\n"
+                                     "  rig: {cameras: 2, width: 160, height: 120}\n"
+                                     "  calibration: {enabled: false}\n";
+  ASSERT_EQ(Flamerig("simulate --config " + (dir / "sim.yaml").string() + " --out " +
+                     (dir / "sim").string())
+                .status,
+            0);
+  const fs::path out = dir / "fit.vdb", log = dir / "fit.log";
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    const std::string command = std::string(FLAMERIG_BINARY) + " fit --rig " +
+                                (dir / "sim" / "rig.yaml").string() + " --images " +
+                                (dir / "sim" / "frames" / "frame_000000").string() + " --out " +
+                                out.string() + " --fit-iterations 100000 > " + log.string() +
+                                " 2>&1";
+    ::execl("/bin/sh", "sh", "-c", ("exec " + command).c_str(), static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  // Wait for the fit's first progress line, then interrupt it.
+  std::string said;
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  while (said.find(" fit ") == std::string::npos && std::chrono::steady_clock::now() < until) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    std::ifstream in(log);
+    said.assign((std::istreambuf_iterator<char>(in)), {});
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  ::kill(child, SIGINT);
+  int status = 0;
+  ::waitpid(child, &status, 0);
+  std::ifstream in(log);
+  said.assign((std::istreambuf_iterator<char>(in)), {});
+  ASSERT_TRUE(WIFEXITED(status)) << said;
+  EXPECT_EQ(WEXITSTATUS(status), 130) << said;
+  ASSERT_TRUE(fs::exists(out)) << said;
+  const flamerig::FireVolume v = flamerig::ReadVdb(out.string());
+  EXPECT_EQ(v.metadata_text.at("termination"), "cancelled");
+  EXPECT_LT(v.metadata_numbers.at("iterations"), 100000);
+  EXPECT_NE(said.find("cancelled after"), std::string::npos) << said;
+  fs::remove_all(dir);
+}
+
 // The capture daemon from the command line: record for a second from simulated cameras while `ctl`
 // asks for the status from another process, then export the recording as PNG frame sets.
 TEST(Cli, CaptureCtlAndExport) {
@@ -469,6 +520,45 @@ TEST(Cli, CaptureCtlAndExport) {
 }  // namespace
 
 namespace {
+
+// The daemon's log, with stderr to a file as under a service manager: timestamped lines for the
+// start, the recording's start and end, a camera that drops off and comes back; no "\r" (no
+// progress redrawn in place) and the same lines in data_dir/capture.log.
+TEST(Cli, CaptureLogsEveryEventWithATimestamp) {
+  fs::path dir = TempDir();
+  std::ofstream(dir / "rig.yaml") << "data_dir: " << (dir / "rec").string()
+                                  << "\nsync: hardware-trigger\ntrigger_rate_hz: 50\ncameras:\n"
+                                     "  - {name: a, width: 32, height: 24}\n"
+                                     "  - {name: b, width: 32, height: 24, sim: {outages: [[0.5, "
+                                     "1.5]]}}\n";
+  const std::string command = std::string(FLAMERIG_BINARY) + " capture --config " +
+                              (dir / "rig.yaml").string() + " --record take --duration 3.5 2> " +
+                              (dir / "stderr.txt").string();
+  const int status = std::system(command.c_str());
+  ASSERT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << command;
+  std::ifstream in(dir / "stderr.txt");
+  const std::string log((std::istreambuf_iterator<char>(in)), {});
+  EXPECT_EQ(log.find('\r'), std::string::npos) << log;
+  const std::regex stamp(R"(^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d{3} (info|warning|error) +capture: )");
+  auto line_with = [&](const std::string& words) {
+    std::istringstream lines(log);
+    std::string line;
+    while (std::getline(lines, line))
+      if (line.find(words) != std::string::npos) return std::regex_search(line, stamp);
+    return false;
+  };
+  for (const char* event : {"armed: 2 camera(s) streaming", "recording into", "camera b (SIM1) "
+                            "disconnected", "camera b (SIM1) reconnected", "frame sets recorded",
+                            "disarming"})
+    EXPECT_TRUE(line_with(event)) << "no timestamped line with '" << event << "' in\n" << log;
+  // Without a terminal, the status is a plain line now and then, not redrawn in place.
+  EXPECT_TRUE(line_with("sets ")) << log;
+  std::ifstream file(dir / "rec" / "capture.log");
+  const std::string saved((std::istreambuf_iterator<char>(file)), {});
+  EXPECT_NE(saved.find("reconnected"), std::string::npos) << saved;
+  EXPECT_NE(saved.find("frame sets recorded"), std::string::npos) << saved;
+  fs::remove_all(dir);
+}
 
 // SIGTERM (as a service manager sends it) stops the daemon cleanly: the recording closes with
 // every frame set flushed and metadata.yaml saying so.

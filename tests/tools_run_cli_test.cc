@@ -44,7 +44,7 @@ std::string RunCommand(const fs::path& sim, const fs::path& out, const std::stri
          out.string() + " --resolution 24 --threads 1 " + extra;
 }
 
-TEST(RunCli, KilledRunResumesToTheUninterruptedOutputs) {
+TEST(RunCli, KilledOrInterruptedRunResumesToTheUninterruptedOutputs) {
   const fs::path dir = TempDir("resume");
   SimulateDataset(dir / "sim", 5);
   const Result whole = Shell(RunCommand(dir / "sim", dir / "whole"));
@@ -82,6 +82,45 @@ TEST(RunCli, KilledRunResumesToTheUninterruptedOutputs) {
                      dir / "killed" / (FrameName(i) + ".vdb"));
   }
   EXPECT_TRUE(fs::exists(dir / "killed" / "report" / "index.html"));
+
+  // Ctrl-C (SIGINT) in the middle of a frame: the run stops at the next safe point inside that
+  // frame (its solve or fit), commits nothing of it, says so and exits 130; started again, it
+  // computes the rest to the uninterrupted outputs.
+  const fs::path log = dir / "interrupted.log";
+  const pid_t run = ::fork();
+  ASSERT_GE(run, 0);
+  if (run == 0) {
+    const std::string command =
+        RunCommand(dir / "sim", dir / "interrupted") + " > " + log.string() + " 2>&1";
+    ::execl("/bin/sh", "sh", "-c", ("exec " + command).c_str(), static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+  while (!fs::exists(dir / "interrupted" / "frames" / "frame_000001.yaml") &&
+         std::chrono::steady_clock::now() < until)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  std::this_thread::sleep_for(std::chrono::milliseconds(150));  // into frame 2's work
+  ::kill(run, SIGINT);
+  ::waitpid(run, &status, 0);
+  std::ifstream in(log);
+  const std::string said((std::istreambuf_iterator<char>(in)), {});
+  ASSERT_TRUE(WIFEXITED(status)) << said;
+  EXPECT_EQ(WEXITSTATUS(status), 130) << said;
+  EXPECT_NE(said.find("stopped; run the same command again"), std::string::npos) << said;
+  int complete = 0;
+  while (fs::exists(dir / "interrupted" / "frames" / (FrameName(complete) + ".yaml"))) ++complete;
+  EXPECT_GE(complete, 2);
+  EXPECT_LT(complete, 5) << "the interrupt came after the last frame";
+  for (const auto& e : fs::recursive_directory_iterator(dir / "interrupted"))
+    EXPECT_EQ(e.path().string().find(".tmp"), std::string::npos) << e.path();
+  EXPECT_FALSE(fs::exists(dir / "interrupted" / (FrameName(complete) + ".vdb")));
+  const Result again = Shell(RunCommand(dir / "sim", dir / "interrupted"));
+  ASSERT_EQ(again.status, 0) << again.output;
+  for (int i = 0; i < 5; ++i) {
+    SCOPED_TRACE(i);
+    ExpectSameVolume(dir / "whole" / (FrameName(i) + ".vdb"),
+                     dir / "interrupted" / (FrameName(i) + ".vdb"));
+  }
   fs::remove_all(dir);
 }
 
@@ -157,18 +196,30 @@ TEST(RunCli, CalibratesFirstFromBoardViews) {
 
 // A frame that fails (images of another size than the rig's cameras) does not stop the others,
 // but the run's exit status says that it is not complete: a script must not take it for done.
-TEST(RunCli, AFailedFrameMakesTheExitStatusNonZero) {
+// A corrupt PNG in the middle of a folder of frames (and, in the frame after it, images of the
+// wrong size): those frames fail, the others are computed, the report is written, and the exit
+// status says that the run is not complete.
+TEST(RunCli, ACorruptFrameFailsAloneAndTheExitStatusSaysSo) {
   const fs::path dir = TempDir("failed_frame");
-  SimulateDataset(dir / "sim", 2);
-  for (const auto& e : fs::directory_iterator(dir / "sim" / "frames" / "frame_000001"))
+  SimulateDataset(dir / "sim", 4);
+  const fs::path corrupt = dir / "sim" / "frames" / "frame_000001" / "cam1.png";
+  std::ofstream(corrupt, std::ios::binary | std::ios::trunc) << "\x89PNG\r\n\x1a\ncut short";
+  for (const auto& e : fs::directory_iterator(dir / "sim" / "frames" / "frame_000002"))
     if (e.path().extension() == ".png") WritePng(e.path().string(), ImageU8(16, 12, 3, 0));
   const Result r = Shell(RunCommand(dir / "sim", dir / "out"));
   EXPECT_EQ(r.status, 1) << r.output;
-  EXPECT_NE(r.output.find("1 of 2 frame(s) failed"), std::string::npos) << r.output;
-  const auto frames = ReadFrameSummaries((dir / "out").string(), 0, 2);
-  ASSERT_EQ(frames.size(), 2u);
+  EXPECT_NE(r.output.find("2 of 4 frame(s) failed"), std::string::npos) << r.output;
+  const auto frames = ReadFrameSummaries((dir / "out").string(), 0, 4);
+  ASSERT_EQ(frames.size(), 4u);
   EXPECT_EQ(frames[0].status, "computed") << frames[0].Line();
   EXPECT_EQ(frames[1].status.rfind("failed", 0), 0u) << frames[1].Line();
+  EXPECT_NE(frames[1].status.find(corrupt.string()), std::string::npos) << frames[1].Line();
+  EXPECT_NE(frames[2].status.find("16x12"), std::string::npos) << frames[2].Line();
+  EXPECT_EQ(frames[3].status, "computed") << frames[3].Line();
+  EXPECT_TRUE(fs::exists(dir / "out" / "report" / "index.html"));
+  std::ifstream csv(dir / "out" / "frames.csv");
+  const std::string table((std::istreambuf_iterator<char>(csv)), {});
+  EXPECT_NE(table.find("fit_termination"), std::string::npos) << table;
   fs::remove_all(dir);
 }
 

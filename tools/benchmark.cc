@@ -561,7 +561,9 @@ std::string RunFitBenchmark(const FitBenchmarkOptions& options,
     FitOptions fo;
     auto progress_log = [&](const std::string& who) {
       auto last = std::make_shared<double>(-100.0);
-      return Observe([&, who, last](const Progress& p) {
+      auto stage = std::make_shared<std::string>();
+      return Observe([&, who, last, stage](const Progress& p) {
+        if (!p.message.empty()) *stage = p.message;
         double seconds = 0, delta_e = -1;
         for (const auto& [name, value] : p.values) {
           if (name == "seconds") seconds = value;
@@ -572,7 +574,7 @@ std::string RunFitBenchmark(const FitBenchmarkOptions& options,
         if (log) {
           std::ostringstream s;
           s.precision(4);
-          s << "  " << n << "^3 " << who << ": " << p.message << ", " << seconds
+          s << "  " << n << "^3 " << who << ": " << *stage << ", " << seconds
             << " s, mean Delta E " << delta_e;
           log(s.str());
         }

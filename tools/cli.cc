@@ -65,7 +65,6 @@ class Display {
     if (!st.seen || p.done < st.last_done) {
       st.seen = true;
       st.start = now;
-      st.last_line = now - std::chrono::hours(1);
     }
     st.last_done = p.done;
     const double elapsed = std::chrono::duration<double>(now - st.start).count();
@@ -90,10 +89,11 @@ class Display {
       if (finished) EndBar();
       return;
     }
-    // Plain lines: the first of a stage, one every period, and the last.
+    // Plain lines: a stage's first, one every period, and its last when it ran long enough to
+    // have had periodic ones (a stage that restarts, as each frame's fit does, is not repeated).
     const bool first = st.lines == 0;
-    if (first || finished ||
-        std::chrono::duration<double>(now - st.last_line).count() >= period_s_) {
+    const double since = std::chrono::duration<double>(now - st.last_line).count();
+    if (first || since >= period_s_ || (finished && elapsed >= period_s_)) {
       st.last_line = now;
       ++st.lines;
       Log().info("{}", Describe(p, elapsed));

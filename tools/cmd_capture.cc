@@ -78,7 +78,7 @@ Runner AddCapture(CLI::App* command) {
     };
     // The status: redrawn in place each second on a terminal, a log line every 10 s otherwise.
     const double period = context.terminal() ? 1.0 : 10.0;
-    double last_line = 0;
+    double last_line = context.terminal() ? 0 : 1 - period;  // the first plain line after 1 s
     bool drawn = false;
     while (!context.cancel().raised() && !server.shutdown_requested() &&
            (o->duration < 0 || elapsed() < o->duration)) {
