@@ -9,6 +9,7 @@
 #include <stdexcept>
 #include <thread>
 
+#include "acquisition/camera_drivers.h"
 #include "core/error.h"
 
 namespace flamerig {
@@ -437,6 +438,19 @@ std::string AravisCamera::FeatureAsString(const std::string& name) const {
   const std::string out = (!e && v) ? v : "";
   g_clear_error(&e);
   return out;
+}
+
+CameraDriver AravisCameraDriver() {
+  CameraDriver d;
+  d.name = "aravis";
+  d.description = "GigE Vision and USB3 Vision cameras through Aravis";
+  d.capabilities.action_commands = true;
+  d.open = [](const CaptureCameraConfig& camera, int index,
+              const DriverContext&) -> std::unique_ptr<Camera> {
+    return std::make_unique<AravisCamera>(camera.id, index);
+  };
+  d.discover = &DiscoverAravisCameras;
+  return d;
 }
 
 }  // namespace flamerig

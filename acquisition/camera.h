@@ -2,8 +2,9 @@
 // controls) -> stream (a preallocated buffer pool) -> frames (frame.h).
 //
 // A Camera is configured, started with a number of buffers, and then delivers frames through Pop()
-// in the order the device produced them. Drivers: `sim` (sim_camera.h, deterministic, for tests and
-// the simulated rig), `aravis` and `v4l2` (to come). A camera is used from one thread at a time
+// in the order the device produced them. Drivers (camera_drivers.h): `sim` (sim_camera.h,
+// deterministic, for tests and the simulated rig), `aravis` (GigE Vision and USB3 Vision) and
+// `v4l2`. A camera is used from one thread at a time
 // (the daemon gives each camera its own thread) except SoftwareTrigger(), which any thread may call.
 #ifndef FLAMERIG_ACQUISITION_CAMERA_H_
 #define FLAMERIG_ACQUISITION_CAMERA_H_
@@ -72,6 +73,16 @@ class Camera {
   // and stream; true when it is back. The daemon calls it about once a second.
   virtual bool Reconnect() { return connected(); }
   virtual StreamCounters counters() const = 0;
+};
+
+// A trigger generator that the daemon drives in hardware-trigger mode: a pulse on the line wired
+// to every camera's trigger input at the given time. The simulated rig's line is SimTriggerBus
+// (sim_camera.h); a real generator (a microcontroller, a camera's output line) is another.
+// Fire may be called from the daemon's trigger thread while cameras read the line.
+class TriggerLine {
+ public:
+  virtual ~TriggerLine() = default;
+  virtual void Fire(std::int64_t trigger_id, std::int64_t monotonic_ns) = 0;
 };
 
 }  // namespace flamerig

@@ -1,5 +1,6 @@
 #include "acquisition/capture.h"
 
+#include "acquisition/camera_drivers.h"
 #include "core/error.h"
 #include "core/log.h"
 #include "acquisition/aravis_camera.h"
@@ -132,9 +133,15 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     if (!names.insert(cc.name).second)
       throw InputError(at + ": camera name '" + cc.name + "' is used twice");
     cc.driver = cr.Get<std::string>("driver", "sim");
-    if (cc.driver != "sim" && cc.driver != "aravis" && cc.driver != "v4l2")
-      throw InputError(at + ": driver '" + cc.driver + "': use sim, aravis or v4l2");
-    cc.id = cr.Get<std::string>("id", cc.driver == "sim" ? "SIM" + std::to_string(i) : "");
+    const CameraDriver* found = nullptr;
+    try {
+      found = &FindCameraDriver(cc.driver);
+    } catch (const InputError& e) {
+      throw InputError(at + ": " + e.what());
+    }
+    const CameraDriver& driver = *found;
+    cc.id = cr.Get<std::string>(
+        "id", driver.default_id ? driver.default_id(static_cast<int>(i)) : std::string());
     if (cc.id.empty())
       throw InputError(at + ": 'id' (serial, address or device) is required");
     CameraSettings& s = cc.settings;
@@ -165,7 +172,7 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
                                                        : TriggerMode::kFreeRun;
     // Action commands reach GigE Vision cameras only; sim cameras stay free-run on the shared
     // clock.
-    if (c.action.enabled && cc.driver == "aravis") {
+    if (c.action.enabled && driver.capabilities.action_commands) {
       s.trigger = TriggerMode::kAction;
       s.action_device_key = c.action.device_key;
       s.action_group_key = c.action.group_key;
@@ -176,64 +183,20 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     } catch (const InputError& e) {
       throw InputError(at + ": " + e.what());
     }
-    cc.sim.id = cc.id;
-    cc.sim.camera_index = static_cast<int>(i);
-    cc.sim.seed = i + 1;
-    cr.Seen("sim");
-    cr.CheckKnown();
-    if (const YAML::Node sim = cams[i]["sim"]) {
-      if (cc.driver != "sim") throw InputError(at + ": 'sim' is for driver sim only");
-      ConfigReader sr(sim, at + ".sim");
-      cc.sim.seed = static_cast<std::uint64_t>(sr.Range("seed", double(cc.sim.seed), 0, 9e15));
-      cc.sim.drop_probability = sr.NonNegative("drop_probability", 0);
-      cc.sim.late_probability = sr.NonNegative("late_probability", 0);
-      cc.sim.incomplete_probability = sr.NonNegative("incomplete_probability", 0);
-      cc.sim.jitter_ns = static_cast<std::int64_t>(sr.Range("jitter_us", 0, 0, 1e9) * 1e3);
-      cc.sim.drift_ppm = sr.Range("drift_ppm", 0, -1e5, 1e5);
-      const std::string replay = sr.Get<std::string>("replay", "");
-      const std::string replay_content = sr.Get<std::string>("replay_content", "fire");
-      if (replay_content != "fire" && replay_content != "calibration")
-        throw InputError(at + ".sim: 'replay_content' must be fire or calibration");
-      if (!replay.empty()) {
-        // Relative to the config file's folder, like every path in a config.
-        const fs::path dataset = fs::path(replay).is_absolute()
-                                     ? fs::path(replay)
-                                     : fs::path(where).parent_path() / replay;
-        try {
-          cc.sim.source = DatasetReplaySource(
-              dataset.string(), cr.Get<std::string>("name", cc.name),
-              replay_content == "fire" ? ReplayContent::kFire : ReplayContent::kCalibration);
-        } catch (const std::exception& e) {
-          throw InputError(at + ".sim.replay: " + e.what());
-        }
-      }
-      // Outages: disconnect_at_s / reconnect_at_s for one, `outages: [[down_s, up_s], ...]` for
-      // several (up_s = -1: for good); seconds from the daemon's start.
-      const double d = sr.Range("disconnect_at_s", -1, -1, 1e9),
-                   re = sr.Range("reconnect_at_s", -1, -1, 1e9);
-      auto ns = [](double s) { return s < 0 ? std::int64_t(-1) : std::llround(s * 1e9); };
-      if (d >= 0) cc.sim.outages.push_back({ns(d), ns(re)});
-      if (re >= 0 && d < 0)
-        throw InputError(at + ".sim: 'reconnect_at_s' needs 'disconnect_at_s'");
-      const auto outages = sr.Get<std::vector<std::vector<double>>>("outages", {});
-      for (std::size_t i = 0; i < outages.size(); ++i) {
-        const auto& o = outages[i];
-        if (o.size() != 2 || !(o[0] >= 0 && o[0] <= 1e9) ||
-            !(o[1] == -1 || (o[1] > o[0] && o[1] <= 1e9)))
-          throw InputError(at + ".sim.outages[" + std::to_string(i) +
-                                      "]: must be [down_s, up_s] with 0 <= down_s < up_s, or "
-                                      "up_s = -1 (for good)");
-        cc.sim.outages.push_back({ns(o[0]), ns(o[1])});
-      }
-      if (FirstInvalidOutage(cc.sim.outages) >= 0)
-        throw InputError(at +
-                                    ".sim: outages must be in order and not overlap (the "
-                                    "disconnect_at_s one first)");
-      for (double p :
-           {cc.sim.drop_probability, cc.sim.late_probability, cc.sim.incomplete_probability})
-        if (p > 1) throw InputError(at + ".sim: probabilities must be in [0, 1]");
-      sr.CheckKnown();
+    // The driver's own keys: the map under its name (`sim:` for the sim driver); another
+    // driver's map is a mistake.
+    for (const CameraDriver& other : CameraDrivers()) {
+      cr.Seen(other.name);
+      if (other.name != cc.driver && cams[i][other.name])
+        throw InputError(at + ": '" + other.name + "' is for driver " + other.name + " only");
     }
+    cr.CheckKnown();
+    const YAML::Node keys = cams[i][cc.driver];
+    if (driver.read_keys)
+      driver.read_keys(keys, at + "." + cc.driver, where, static_cast<int>(i), &cc);
+    else if (keys)
+      throw InputError(at + ": driver " + cc.driver + " has no keys of its own ('" + cc.driver +
+                       "')");
     c.cameras.push_back(cc);
   }
   if (c.control.empty()) c.control = "unix:" + (fs::path(c.data_dir) / "control.sock").string();
@@ -244,11 +207,13 @@ FrameSetOptions CaptureConfig::AssemblerOptions() const {
   FrameSetOptions o;
   o.cameras = static_cast<int>(cameras.size());
   const bool triggered = sync == SyncMode::kHardwareTrigger || sync == SyncMode::kSoftwareTrigger;
-  // Only the sim driver knows which trigger made a frame; real cameras' frames carry no trigger
-  // id, so triggered sets are matched by receive time, within 40% of the trigger period (every
-  // camera exposes on the same pulse; their receive times differ by transfer jitter).
-  const bool ids = std::all_of(cameras.begin(), cameras.end(),
-                               [](const CaptureCameraConfig& c) { return c.driver == "sim"; });
+  // Only drivers whose frames carry the trigger's id (the sim driver) match triggered sets by id;
+  // real cameras' frames carry none, so triggered sets are matched by receive time, within 40% of
+  // the trigger period (every camera exposes on the same pulse; their receive times differ by
+  // transfer jitter).
+  const bool ids = std::all_of(cameras.begin(), cameras.end(), [](const CaptureCameraConfig& c) {
+    return FindCameraDriver(c.driver).capabilities.trigger_ids;
+  });
   o.match = triggered && ids ? MatchBy::kTriggerId : MatchBy::kTimestamp;
   // PTP cameras share a clock: match their own timestamps. Otherwise the cameras' clocks are
   // unrelated: match the host's receive times.
@@ -260,31 +225,14 @@ FrameSetOptions CaptureConfig::AssemblerOptions() const {
   return o;
 }
 
-std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config, Clock* clock,
-                                                 SimTriggerBus* bus) {
+std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config,
+                                                 const DriverContext& context) {
   std::vector<std::unique_ptr<Camera>> cameras;
   for (const auto& c : config.cameras) {
-    if (c.driver == "sim") {
-      // The config's outage times count from now.
-      SimCameraOptions o = c.sim;
-      const std::int64_t now = clock->MonotonicNs();
-      for (SimOutage& outage : o.outages) {
-        outage.down_ns += now;
-        if (outage.up_ns >= 0) outage.up_ns += now;
-      }
-      cameras.push_back(std::make_unique<SimCamera>(o, clock, bus));
-    } else if (c.driver == "aravis") {
-      try {
-        cameras.push_back(std::make_unique<AravisCamera>(c.id, static_cast<int>(cameras.size())));
-      } catch (const std::exception& e) {
-        Rethrow(e, "camera '" + c.name + "': ", Error::Kind::kIo);
-      }
-    } else {  // v4l2 (the config allows nothing else)
-      try {
-        cameras.push_back(std::make_unique<V4l2Camera>(c.id, static_cast<int>(cameras.size())));
-      } catch (const std::exception& e) {
-        Rethrow(e, "camera '" + c.name + "': ", Error::Kind::kIo);
-      }
+    try {
+      cameras.push_back(FindCameraDriver(c.driver).open(c, static_cast<int>(cameras.size()), context));
+    } catch (const std::exception& e) {
+      Rethrow(e, "camera '" + c.name + "': ", Error::Kind::kIo);
     }
   }
   return cameras;
@@ -357,11 +305,11 @@ struct CaptureDaemon::CameraState {
 
 CaptureDaemon::CaptureDaemon(const CaptureConfig& config,
                              std::vector<std::unique_ptr<Camera>> cameras, Clock* clock,
-                             SimTriggerBus* bus)
+                             TriggerLine* trigger_line)
     : config_(config),
       cameras_(std::move(cameras)),
       clock_(clock),
-      bus_(bus),
+      trigger_line_(trigger_line),
       assembler_(config.AssemblerOptions()) {
   if (cameras_.size() != config_.cameras.size())
     throw InputError("capture: the config lists " +
@@ -438,7 +386,7 @@ void CaptureDaemon::Start() {
     }
   }
   if (config_.sync == SyncMode::kSoftwareTrigger ||
-      (config_.sync == SyncMode::kHardwareTrigger && bus_ != nullptr) || action_sender_)
+      (config_.sync == SyncMode::kHardwareTrigger && trigger_line_ != nullptr) || action_sender_)
     threads_.emplace_back([this] {
       NameThisThread("fr-trigger");
       TriggerLoop();
@@ -567,11 +515,11 @@ void CaptureDaemon::TriggerLoop() {
         std::lock_guard<std::mutex> lock(state_mutex_);
         last_error_ = e.what();
       }
-    } else if (config_.sync == SyncMode::kHardwareTrigger && bus_) {
+    } else if (config_.sync == SyncMode::kHardwareTrigger && trigger_line_) {
       // The simulated trigger line stands for a hardware trigger generator, which never runs
       // late: a pulse carries its scheduled time even when this thread wakes late (the cameras
       // expose then and the frames wait in their buffers), and no slot is skipped.
-      bus_->Fire(id, next);
+      trigger_line_->Fire(id, next);
       next += period;
       continue;
     } else {

@@ -41,7 +41,7 @@
 //     port: 3956
 //   cameras:
 //     - name: cam0
-//       driver: sim                # sim | aravis | v4l2
+//       driver: sim                # sim | aravis | v4l2 (acquisition/camera_drivers.h)
 //       id: SIM0                   # serial, address or device path
 //       width: 640
 //       height: 480
@@ -70,6 +70,7 @@
 #include <vector>
 
 #include "acquisition/camera.h"
+#include "acquisition/camera_drivers.h"
 #include "acquisition/frame_set.h"
 #include "acquisition/gige_action.h"
 #include "acquisition/recording.h"
@@ -80,14 +81,6 @@ namespace flamerig {
 enum class SyncMode { kHardwareTrigger, kSoftwareTrigger, kFreeRun, kPtp };
 const char* ToString(SyncMode mode);
 SyncMode SyncModeFromName(const std::string& name);  // throws InputError
-
-struct CaptureCameraConfig {
-  std::string name;
-  std::string driver = "sim";
-  std::string id;
-  CameraSettings settings;
-  SimCameraOptions sim;  // driver sim only
-};
 
 struct ActionConfig {
   bool enabled = false;
@@ -119,10 +112,11 @@ struct CaptureConfig {
   FrameSetOptions AssemblerOptions() const;
 };
 
-// The cameras of a config: sim cameras share `clock` and `bus`; aravis and v4l2 cameras are opened
-// by id. Throws IoError naming the camera that cannot be opened.
-std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config, Clock* clock,
-                                                 SimTriggerBus* bus);
+// The cameras of a config, each opened by its driver (camera_drivers.h): sim cameras share the
+// context's clock and simulated trigger line; aravis and v4l2 cameras are opened by id. Throws
+// IoError naming the camera that cannot be opened.
+std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config,
+                                                 const DriverContext& context);
 
 struct CameraLiveStatus {
   std::string name, id;
@@ -159,7 +153,7 @@ class CaptureDaemon {
  public:
   // `clock` and `bus` (may be null) must outlive the daemon; they are the ones the cameras use.
   CaptureDaemon(const CaptureConfig& config, std::vector<std::unique_ptr<Camera>> cameras,
-                Clock* clock, SimTriggerBus* bus);
+                Clock* clock, TriggerLine* trigger_line);
   ~CaptureDaemon();  // Stop()
 
   // Configures every camera (a refusal names the camera), starts the streams and the threads.
@@ -203,7 +197,7 @@ class CaptureDaemon {
   CaptureConfig config_;
   std::vector<std::unique_ptr<Camera>> cameras_;
   Clock* clock_;
-  SimTriggerBus* bus_;
+  TriggerLine* trigger_line_;
   static void LogClosed(const std::string& dir, const RecorderStatus& r);
   std::vector<std::unique_ptr<CameraState>> camera_state_;
   std::atomic<bool> running_{false};

@@ -4,6 +4,8 @@
 #include <filesystem>
 #include <stdexcept>
 
+#include "acquisition/camera_drivers.h"
+#include "core/config_reader.h"
 #include "core/error.h"
 #include "core/image.h"
 
@@ -376,6 +378,94 @@ std::optional<Frame> SimCamera::Pop(std::int64_t timeout_ns) {
   }
   ++counters_.timeouts;
   return std::nullopt;
+}
+
+namespace {
+
+// The sim driver's keys (acquisition/capture.h documents them).
+void ReadSimKeys(const YAML::Node& keys, const std::string& where, const std::string& config_path,
+                 int index, CaptureCameraConfig* camera) {
+  namespace fs = std::filesystem;
+  SimCameraOptions o;
+  o.id = camera->id;
+  o.camera_index = index;
+  o.seed = static_cast<std::uint64_t>(index) + 1;
+  if (keys) {
+    ConfigReader sr(keys, where);
+    o.seed = static_cast<std::uint64_t>(sr.Range("seed", double(o.seed), 0, 9e15));
+    o.drop_probability = sr.NonNegative("drop_probability", 0);
+    o.late_probability = sr.NonNegative("late_probability", 0);
+    o.incomplete_probability = sr.NonNegative("incomplete_probability", 0);
+    o.jitter_ns = static_cast<std::int64_t>(sr.Range("jitter_us", 0, 0, 1e9) * 1e3);
+    o.drift_ppm = sr.Range("drift_ppm", 0, -1e5, 1e5);
+    const std::string replay = sr.Get<std::string>("replay", "");
+    const std::string replay_content = sr.Get<std::string>("replay_content", "fire");
+    if (replay_content != "fire" && replay_content != "calibration")
+      throw InputError(where + ": 'replay_content' must be fire or calibration");
+    if (!replay.empty()) {
+      // Relative to the config file's folder, like every path in a config.
+      const fs::path dataset = fs::path(replay).is_absolute()
+                                   ? fs::path(replay)
+                                   : fs::path(config_path).parent_path() / replay;
+      try {
+        o.source = DatasetReplaySource(
+            dataset.string(), camera->name,
+            replay_content == "fire" ? ReplayContent::kFire : ReplayContent::kCalibration);
+      } catch (const std::exception& e) {
+        throw InputError(where + ".replay: " + e.what());
+      }
+    }
+    // Outages: disconnect_at_s / reconnect_at_s for one, `outages: [[down_s, up_s], ...]` for
+    // several (up_s = -1: for good); seconds from the daemon's start.
+    const double d = sr.Range("disconnect_at_s", -1, -1, 1e9),
+                 re = sr.Range("reconnect_at_s", -1, -1, 1e9);
+    auto ns = [](double s) { return s < 0 ? std::int64_t(-1) : std::llround(s * 1e9); };
+    if (d >= 0) o.outages.push_back({ns(d), ns(re)});
+    if (re >= 0 && d < 0)
+      throw InputError(where + ": 'reconnect_at_s' needs 'disconnect_at_s'");
+    const auto outages = sr.Get<std::vector<std::vector<double>>>("outages", {});
+    for (std::size_t i = 0; i < outages.size(); ++i) {
+      const auto& pair = outages[i];
+      if (pair.size() != 2 || !(pair[0] >= 0 && pair[0] <= 1e9) ||
+          !(pair[1] == -1 || (pair[1] > pair[0] && pair[1] <= 1e9)))
+        throw InputError(where + ".outages[" + std::to_string(i) +
+                                    "]: must be [down_s, up_s] with 0 <= down_s < up_s, or "
+                                    "up_s = -1 (for good)");
+      o.outages.push_back({ns(pair[0]), ns(pair[1])});
+    }
+    if (FirstInvalidOutage(o.outages) >= 0)
+      throw InputError(where +
+                                  ": outages must be in order and not overlap (the "
+                                  "disconnect_at_s one first)");
+    for (double p :
+         {o.drop_probability, o.late_probability, o.incomplete_probability})
+      if (p > 1) throw InputError(where + ": probabilities must be in [0, 1]");
+    sr.CheckKnown();
+  }
+  camera->options = o;
+}
+
+}  // namespace
+
+CameraDriver SimCameraDriver() {
+  CameraDriver d;
+  d.name = "sim";
+  d.description = "simulated cameras: a deterministic clock, trigger line, drops and outages";
+  d.capabilities.trigger_ids = true;
+  d.default_id = [](int index) { return "SIM" + std::to_string(index); };
+  d.read_keys = &ReadSimKeys;
+  d.open = [](const CaptureCameraConfig& camera, int,
+              const DriverContext& context) -> std::unique_ptr<Camera> {
+    // The config's outage times count from now.
+    SimCameraOptions o = camera.Options<SimCameraOptions>();
+    const std::int64_t now = context.clock->MonotonicNs();
+    for (SimOutage& outage : o.outages) {
+      outage.down_ns += now;
+      if (outage.up_ns >= 0) outage.up_ns += now;
+    }
+    return std::make_unique<SimCamera>(o, context.clock, context.sim_trigger_line);
+  };
+  return d;
 }
 
 }  // namespace flamerig

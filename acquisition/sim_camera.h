@@ -31,13 +31,13 @@
 namespace flamerig {
 
 // Trigger pulses shared by the cameras subscribed to it: pulse k at a time, with an id.
-class SimTriggerBus {
+class SimTriggerBus : public TriggerLine {
  public:
   struct Pulse {
     std::int64_t trigger_id;
     std::int64_t monotonic_ns;
   };
-  void Fire(std::int64_t trigger_id, std::int64_t monotonic_ns);
+  void Fire(std::int64_t trigger_id, std::int64_t monotonic_ns) override;
   // Pulses with index >= from (a subscriber keeps its own read position).
   std::vector<Pulse> Since(std::size_t from) const;
   std::size_t count() const;

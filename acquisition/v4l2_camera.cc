@@ -13,6 +13,7 @@
 #include <filesystem>
 #include <stdexcept>
 
+#include "acquisition/camera_drivers.h"
 #include "core/error.h"
 
 namespace flamerig {
@@ -270,6 +271,38 @@ std::optional<Frame> V4l2Camera::Pop(std::int64_t timeout_ns) {
   ++counters_.delivered;
   if (f.info.status != FrameStatus::kOk) ++counters_.incomplete;
   return f;
+}
+
+namespace {
+
+// Every /dev/video* that is a streaming capture device.
+std::vector<CameraDescription> DiscoverV4l2Cameras() {
+  std::vector<CameraDescription> out;
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator("/dev", ec)) {
+    const std::string path = e.path().string();
+    if (e.path().filename().string().rfind("video", 0) != 0) continue;
+    try {
+      out.push_back(V4l2Camera(path, 0).description());
+    } catch (const std::exception&) {
+      // Not a capture device (metadata nodes are video* too), or busy.
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+CameraDriver V4l2CameraDriver() {
+  CameraDriver d;
+  d.name = "v4l2";
+  d.description = "Video4Linux2 capture devices (USB and CSI cameras), mmap streaming";
+  d.open = [](const CaptureCameraConfig& camera, int index,
+              const DriverContext&) -> std::unique_ptr<Camera> {
+    return std::make_unique<V4l2Camera>(camera.id, index);
+  };
+  d.discover = &DiscoverV4l2Cameras;
+  return d;
 }
 
 }  // namespace flamerig

@@ -172,7 +172,7 @@ TEST(AravisCamera, TheDaemonRecordsTwoFakeCameras) {
                            "test");
   EXPECT_EQ(config.AssemblerOptions().match, MatchBy::kTimestamp);
   SystemClock clock;
-  CaptureDaemon daemon(config, MakeCameras(config, &clock, nullptr), &clock, nullptr);
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
   daemon.Start();
   const std::string rec_dir = daemon.StartRecording("take");
   std::this_thread::sleep_for(std::chrono::milliseconds(1500));

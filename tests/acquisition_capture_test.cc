@@ -12,6 +12,7 @@
 #include <thread>
 
 #include "core/error.h"
+#include "acquisition/camera_drivers.h"
 #include "acquisition/capture.h"
 #include "acquisition/control.h"
 #include "core/image.h"
@@ -104,10 +105,10 @@ TEST(CaptureConfig, ParsesAndNamesTheKeyOfEveryMistake) {
       "cameras: [{name: a, sim: {disconnect_at_s: 1, reconnect_at_s: 2, outages: [[3, 4.5], [6, "
       "-1]]}}]",
       "rig.yaml");
-  ASSERT_EQ(outages.cameras[0].sim.outages.size(), 3u);
-  EXPECT_EQ(outages.cameras[0].sim.outages[1].down_ns, 3'000'000'000);
-  EXPECT_EQ(outages.cameras[0].sim.outages[1].up_ns, 4'500'000'000);
-  EXPECT_EQ(outages.cameras[0].sim.outages[2].up_ns, -1);
+  ASSERT_EQ(outages.cameras[0].Options<SimCameraOptions>().outages.size(), 3u);
+  EXPECT_EQ(outages.cameras[0].Options<SimCameraOptions>().outages[1].down_ns, 3'000'000'000);
+  EXPECT_EQ(outages.cameras[0].Options<SimCameraOptions>().outages[1].up_ns, 4'500'000'000);
+  EXPECT_EQ(outages.cameras[0].Options<SimCameraOptions>().outages[2].up_ns, -1);
   EXPECT_NE(ParseError("cameras: [{name: a, sim: {outages: [[3, 4], [3.5, 5]]}}]")
                 .find("cameras[0].sim: outages must be in order and not overlap"),
             std::string::npos);
@@ -128,7 +129,7 @@ Recording RecordFor(const std::string& yaml, double seconds, const std::string& 
   const CaptureConfig config = CaptureConfig::Parse(yaml, "test");
   SystemClock clock;
   SimTriggerBus bus;
-  CaptureDaemon daemon(config, MakeCameras(config, &clock, &bus), &clock, &bus);
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, &bus}), &clock, &bus);
   daemon.Start();
   const std::string dir = daemon.StartRecording(name);
   Sleep(seconds);
@@ -143,6 +144,51 @@ void ExpectTestPattern(const Frame& f) {
   std::vector<std::uint8_t> want;
   TestPatternSource()(f.info, &want);
   ASSERT_TRUE(*f.data == want) << "camera " << f.info.camera << " frame " << f.info.frame_id;
+}
+
+// The drivers are found by name in one registry and the daemon decides by their capabilities:
+// frames with trigger ids (sim) are matched by id, a rig with any camera without them by receive
+// time; a driver's keys belong to it alone.
+TEST(CameraDrivers, TheRegistryNamesTheDriversAndTheirCapabilities) {
+  std::vector<std::string> names;
+  for (const CameraDriver& d : CameraDrivers()) names.push_back(d.name);
+  EXPECT_EQ(names, (std::vector<std::string>{"sim", "aravis", "v4l2"}));
+  EXPECT_TRUE(FindCameraDriver("sim").capabilities.trigger_ids);
+  EXPECT_FALSE(FindCameraDriver("aravis").capabilities.trigger_ids);
+  EXPECT_TRUE(FindCameraDriver("aravis").capabilities.action_commands);
+  EXPECT_FALSE(FindCameraDriver("v4l2").capabilities.action_commands);
+  try {
+    FindCameraDriver("gentl");
+    FAIL();
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("use sim, aravis, v4l2"), std::string::npos) << e.what();
+  }
+  const CaptureConfig sims = CaptureConfig::Parse(
+      "sync: hardware-trigger\ncameras: [{name: a}, {name: b}]", "rig.yaml");
+  EXPECT_EQ(sims.AssemblerOptions().match, MatchBy::kTriggerId);
+  EXPECT_EQ(sims.cameras[1].id, "SIM1");
+  EXPECT_EQ(sims.cameras[1].Options<SimCameraOptions>().camera_index, 1);
+  const CaptureConfig mixed = CaptureConfig::Parse(
+      "sync: hardware-trigger\ncameras: [{name: a}, {name: b, driver: v4l2, id: /dev/video9}]",
+      "rig.yaml");
+  EXPECT_EQ(mixed.AssemblerOptions().match, MatchBy::kTimestamp);
+  EXPECT_THROW(mixed.cameras[1].Options<SimCameraOptions>(), std::logic_error);
+  auto error = [](const std::string& yaml) {
+    try {
+      CaptureConfig::Parse(yaml, "rig.yaml");
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("(no error)");
+  };
+  EXPECT_NE(error("cameras: [{name: a, driver: aravis, id: X, sim: {seed: 2}}]")
+                .find("cameras[0]: 'sim' is for driver sim only"),
+            std::string::npos);
+  EXPECT_NE(error("cameras: [{name: a, driver: v4l2, id: /dev/video0, v4l2: {}}]")
+                .find("driver v4l2 has no keys of its own"),
+            std::string::npos);
+  EXPECT_NE(error("cameras: [{name: a, driver: gentl, id: X}]").find("cameras[0]: driver 'gentl'"),
+            std::string::npos);
 }
 
 TEST(CaptureDaemon, RecordsEverySoftwareTriggeredSetBitExact) {
@@ -183,7 +229,7 @@ TEST(CaptureDaemon, TheQueueBoundIsTheConfigsUnlessARingNeedsMore) {
         CaptureConfig::Parse(Config(dir.path, "software-trigger", 20, "", extra), "test");
     SystemClock clock;
     SimTriggerBus bus;
-    CaptureDaemon daemon(config, MakeCameras(config, &clock, &bus), &clock, &bus);
+    CaptureDaemon daemon(config, MakeCameras(config, {&clock, &bus}), &clock, &bus);
     daemon.Start();
     daemon.StartRecording(name);
     const double mb = daemon.status().recorder.max_queued_bytes / double(1 << 20);
@@ -242,7 +288,7 @@ TEST(CaptureDaemon, AnEventSavesThePreTriggerRing) {
   const CaptureConfig config = CaptureConfig::Parse(
       Config(dir.path, "software-trigger", 50, "", "pretrigger_seconds: 0.5\n"), "test");
   SystemClock clock;
-  CaptureDaemon daemon(config, MakeCameras(config, &clock, nullptr), &clock, nullptr);
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
   daemon.Start();
   Sleep(1.0);
   const std::int64_t event_ns = clock.MonotonicNs();
@@ -289,7 +335,7 @@ TEST(CaptureDaemon, SimCamerasReplayADataset) {
   std::ofstream(dir.path / "rig.yaml") << yaml;
   const CaptureConfig config = CaptureConfig::Load((dir.path / "rig.yaml").string());
   SystemClock clock;
-  CaptureDaemon daemon(config, MakeCameras(config, &clock, nullptr), &clock, nullptr);
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
   daemon.Start();
   const std::string rec = daemon.StartRecording("replay");
   Sleep(0.6);
@@ -316,7 +362,7 @@ TEST(CaptureDaemon, RecordingNamesCannotLeaveTheDataDirectory) {
   TempDir dir;
   const CaptureConfig config = CaptureConfig::Parse(Config(dir.path / "data", "free-run", 30), "t");
   SystemClock clock;
-  CaptureDaemon daemon(config, MakeCameras(config, &clock, nullptr), &clock, nullptr);
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
   for (const std::string bad : {"../escape", "a/b", "", "..", ".", "/abs", "x\ny", "a b"})
     EXPECT_THROW(daemon.StartRecording(bad), InputError) << bad;
   EXPECT_FALSE(fs::exists(dir.path / "escape"));
@@ -329,7 +375,7 @@ TEST(ControlApi, StatusRecordingAndPreviewOverAUnixSocket) {
       CaptureConfig::Parse(Config(dir.path, "software-trigger", 50), "test");
   fs::create_directories(dir.path);
   SystemClock clock;
-  CaptureDaemon daemon(config, MakeCameras(config, &clock, nullptr), &clock, nullptr);
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
   daemon.Start();
   ControlServer server(&daemon, config.control, false);
   const std::string socket_path = config.control.substr(5);
@@ -406,7 +452,7 @@ TEST(ControlApi, TcpOnlyOnLoopbackUnlessAsked) {
   TempDir dir;
   const CaptureConfig config = CaptureConfig::Parse(Config(dir.path, "free-run", 30), "test");
   SystemClock clock;
-  CaptureDaemon daemon(config, MakeCameras(config, &clock, nullptr), &clock, nullptr);
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
   try {
     ControlServer open(&daemon, "tcp:0.0.0.0:0", false);
     FAIL() << "bound to every interface without allow_remote";

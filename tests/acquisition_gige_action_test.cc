@@ -196,7 +196,7 @@ TEST(CaptureDaemon, PtpModeSchedulesActionCommands) {
                            "}\ncameras:\n  - {name: a, width: 32, height: 24}\n";
   const CaptureConfig config = CaptureConfig::Parse(yaml, "test");
   SystemClock clock;
-  CaptureDaemon daemon(config, MakeCameras(config, &clock, nullptr), &clock, nullptr);
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
   daemon.Start();
   std::this_thread::sleep_for(std::chrono::milliseconds(1000));
   const std::uint64_t sent = daemon.status().action_commands;

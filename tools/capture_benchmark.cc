@@ -81,10 +81,10 @@ Outcome Run(const std::string& yaml, double seconds, const fs::path& dir, bool s
   CaptureConfig config = CaptureConfig::Parse(yaml, "benchmark");
   config.data_dir = dir.string();
   if (sim_copy_source)
-    for (auto& c : config.cameras) c.sim.source = CopySource(frame_bytes);
+    for (auto& c : config.cameras) c.Options<SimCameraOptions>().source = CopySource(frame_bytes);
   SystemClock clock;
   SimTriggerBus bus;
-  CaptureDaemon daemon(config, MakeCameras(config, &clock, &bus), &clock, &bus);
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, &bus}), &clock, &bus);
   daemon.Start();
   std::this_thread::sleep_for(std::chrono::milliseconds(300));  // streams settle
   const double cpu0 = CpuSeconds(), t0 = Now();

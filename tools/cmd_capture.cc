@@ -63,7 +63,7 @@ Runner AddCapture(CLI::App* command) {
     AddLogFile(log_file);
     SystemClock clock;
     SimTriggerBus bus;
-    CaptureDaemon daemon(config, MakeCameras(config, &clock, &bus), &clock, &bus);
+    CaptureDaemon daemon(config, MakeCameras(config, {&clock, &bus}), &clock, &bus);
     daemon.Start();
     ControlServer server(&daemon, config.control, config.allow_remote);
     Log().info("capture: control at {}; log in {}", config.control, log_file);

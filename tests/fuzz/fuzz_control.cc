@@ -19,7 +19,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         "  - {name: cam1, width: 32, height: 24}\n";
     const flamerig::CaptureConfig config = flamerig::CaptureConfig::Parse(yaml, "fuzz");
     auto d = std::make_unique<flamerig::CaptureDaemon>(
-        config, flamerig::MakeCameras(config, &clock, &bus), &clock, &bus);
+        config, flamerig::MakeCameras(config, {&clock, &bus}), &clock, &bus);
     d->Start();
     return d;
   }();
