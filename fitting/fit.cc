@@ -339,7 +339,8 @@ class TraceCallback : public ceres::IterationCallback {
  public:
   TraceCallback(Clock::time_point start, int level, const std::string& stage,
                 std::deque<std::pair<double, EnergyTerms>>* seen, std::vector<FitTracePoint>* trace,
-                const ProgressCallback& progress, double time_limit_s, int max_iterations)
+                const ProgressCallback& progress, double time_limit_s, int max_iterations,
+                bool announce)
       : start_(start),
         level_(level),
         stage_(stage),
@@ -347,7 +348,8 @@ class TraceCallback : public ceres::IterationCallback {
         trace_(trace),
         progress_(progress),
         time_limit_s_(time_limit_s),
-        max_iterations_(max_iterations) {}
+        max_iterations_(max_iterations),
+        announce_(announce) {}
   // Why the callback stopped the solver, if it did (Ceres reports USER_SUCCESS for both).
   bool cancelled() const { return cancelled_; }
   bool out_of_time() const { return out_of_time_; }
@@ -365,7 +367,8 @@ class TraceCallback : public ceres::IterationCallback {
     }
     Progress f;
     f.stage = "fit";
-    if (summary.iteration == 0) f.message = "fit: " + stage_;  // a line at each level's start
+    // A line at each level's start, when there are several (coarse to fine).
+    if (summary.iteration == 0 && announce_) f.message = "fit: " + stage_;
     f.unit = "iterations";
     f.done = summary.iteration;
     f.total = max_iterations_;
@@ -396,6 +399,7 @@ class TraceCallback : public ceres::IterationCallback {
   const ProgressCallback& progress_;
   double time_limit_s_;
   int max_iterations_;
+  bool announce_;
   bool cancelled_ = false, out_of_time_ = false;
 };
 
@@ -513,7 +517,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     solver.gradient_tolerance = 1e-12;
     solver.logging_type = ceres::SILENT;
     TraceCallback callback(start, static_cast<int>(level), stage, &seen, &result.trace, progress,
-                           options.time_limit_s, solver.max_num_iterations);
+                           options.time_limit_s, solver.max_num_iterations, levels.size() > 1);
     solver.callbacks.push_back(&callback);
     ceres::GradientProblemSolver::Summary summary;
     const std::size_t trace_start = result.trace.size();

@@ -10,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
+#include "core/atomic_file.h"
 #include "core/error.h"
 #include "core/config_reader.h"
 
@@ -314,9 +315,7 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
      << " --object-width-n " << board.corners_x() << " --object-height-n " << board.corners_y();
   for (const auto& name : data.camera_names) md << " 'views/*/" << name << ".png'";
   md << "` (with `--imagersize W H` since the paths are virtual).\n";
-  std::ofstream report((fs::path(out_dir) / "report.md").string());
-  report << md.str();
-  if (!report) throw IoError(out_dir + "/report.md: write failed");
+  WriteFileAtomically((fs::path(out_dir) / "report.md").string(), md.str());
   if (data_out) *data_out = std::move(data);
   return summary;
 }

@@ -203,7 +203,6 @@ DistributedRun RunDistributed(const RunOptions& options, const DistributedOption
   if (mine_begin < mine_end)
     out.mine = RunFrames(options, out.rig_path, mine_begin, mine_end, progress);
   out.cancelled = out.mine.cancelled;
-  Log().info("{}run: {}", who, out.mine.BriefReport());
   // Every rank's summaries to rank 0, which writes the one report.
   std::string text;
   for (const auto& f : out.mine.frames) text += f.ToYaml() + '\0';

@@ -9,6 +9,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "core/atomic_file.h"
 #include "fitting/colour.h"
 #include "pipeline/simulate.h"
 
@@ -162,13 +163,14 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
            PlotLines({series}, title + ": mean Delta E of the fitted views against time", "seconds",
                      "mean Delta E", true));
   {
-    std::ofstream csv(fs::path(dir) / "trace.csv");
+    std::ostringstream csv;
     csv << "seconds,energy,mean_delta_e,level,stage\n";
     for (const auto& p : result.trace)
       csv << p.seconds << "," << p.energy << "," << p.mean_delta_e << "," << p.level << ",\""
           << p.stage << "\"\n";
+    WriteFileAtomically((fs::path(dir) / "trace.csv").string(), csv.str());
   }
-  std::ofstream md(fs::path(dir) / "report.md");
+  std::ostringstream md;
   md << "# " << title << "\n\n" << result.BriefReport() << "\n\n";
   md << "| view | role | mean Delta E (all pixels) | mean Delta E (fire pixels) | 95th percentile "
         "(fire pixels) |\n|---|---|---|---|---|\n";
@@ -178,6 +180,7 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
   }
   md << "\n![views: input, rendered, Delta E x10 (red above 25)](views.png)\n\n"
         "![error against time](error.png)\n";
+  WriteFileAtomically((fs::path(dir) / "report.md").string(), md.str());
   return scores;
 }
 

@@ -355,9 +355,7 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   for (const auto& f : frames) h << "<tr><td>" << Html(f.Line()) << "</td></tr>\n";
   h << "</table>\n</body></html>\n";
   const fs::path index = dir / "index.html";
-  std::ofstream page(index);
-  page << h.str();
-  if (!page) throw IoError(index.string() + ": cannot write");
+  WriteFileAtomically(index.string(), h.str());
   return index.string();
 }
 

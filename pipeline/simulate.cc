@@ -11,6 +11,7 @@
 #include <random>
 #include <stdexcept>
 
+#include "core/atomic_file.h"
 #include "core/error.h"
 #include "core/config_reader.h"
 #include "tomography/vdb_io.h"
@@ -318,9 +319,8 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
     yaml << YAML::Key << "calibration" << YAML::Value << "calibration/board.yaml";
   }
   yaml << YAML::EndMap << YAML::EndMap;
-  std::ofstream dataset((fs::path(out_dir) / "dataset.yaml").string());
-  dataset << yaml.c_str() << "\n";
-  if (!dataset) throw IoError(out_dir + "/dataset.yaml: write failed");
+  WriteFileAtomically((fs::path(out_dir) / "dataset.yaml").string(),
+                      std::string(yaml.c_str()) + "\n");
   if (!preview.empty())
     WritePng((fs::path(out_dir) / "preview.png").string(), ContactSheet(preview, 240));
   summary.time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

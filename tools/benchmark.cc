@@ -574,7 +574,7 @@ std::string RunFitBenchmark(const FitBenchmarkOptions& options,
         if (log) {
           std::ostringstream s;
           s.precision(4);
-          s << "  " << n << "^3 " << who << ": " << *stage << ", " << seconds
+          s << "  " << n << "^3 " << who << ": " << (stage->empty() ? "fit" : *stage) << ", " << seconds
             << " s, mean Delta E " << delta_e;
           log(s.str());
         }
