@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
@@ -38,17 +39,23 @@ void RenameInto(const std::string& temp, const std::string& path) {
   SyncFolderOf(path);
 }
 
-std::string TempName(const std::string& path) {
+// A name beside `path` that no other writer uses: ".tmp-<pid>-<n>" before the extension (some
+// writers choose the format by it), so that two writers of one path (two processes, two threads)
+// never write into each other's file.
+std::string TempName(const std::string& path, bool keep_extension) {
+  static std::atomic<unsigned long> counter{0};
+  const std::string tag =
+      ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(counter.fetch_add(1));
   const fs::path p(path);
   const std::string ext = p.extension().string();
-  if (ext.empty()) return path + ".tmp";
-  return (p.parent_path() / (p.stem().string() + ".tmp" + ext)).string();
+  if (!keep_extension || ext.empty()) return path + tag;
+  return (p.parent_path() / (p.stem().string() + tag + ext)).string();
 }
 
 }  // namespace
 
 void WriteFileAtomically(const std::string& path, std::string_view bytes) {
-  const std::string temp = path + ".tmp";
+  const std::string temp = TempName(path, false);
   const int fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) throw IoError(path + ": cannot write: " + Errno(errno));
   std::size_t done = 0;
@@ -82,7 +89,7 @@ void SyncFile(const std::string& path) {
 }
 
 void CopyFileAtomically(const std::string& from, const std::string& to) {
-  const std::string temp = to + ".tmp";
+  const std::string temp = TempName(to, false);
   std::error_code ec;
   fs::copy_file(from, temp, fs::copy_options::overwrite_existing, ec);
   if (ec) {
@@ -93,7 +100,7 @@ void CopyFileAtomically(const std::string& from, const std::string& to) {
   RenameInto(temp, to);
 }
 
-AtomicFile::AtomicFile(std::string path) : path_(std::move(path)), temp_(TempName(path_)) {}
+AtomicFile::AtomicFile(std::string path) : path_(std::move(path)), temp_(TempName(path_, true)) {}
 
 AtomicFile::~AtomicFile() {
   if (!committed_) {

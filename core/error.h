@@ -4,12 +4,13 @@
 // a caller can decide what to do by what happened rather than by which file threw it:
 //
 //   InputError  the user's input is wrong: a malformed config or rig file, an option out of range,
-//               a camera name that is not in the rig, an image of the wrong size for its camera.
+//               a camera name that is not in the rig.
 //               Nothing can go on until the user changes it. UsageError, a command line that does
 //               not parse, is one (the CLI exits 2 for it, 1 for the rest).
 //   DataError   a file or frame is damaged or unusable: a corrupt PNG, a StreamPix frame cut
-//               short, a recording whose checksum fails, a frame with no fire in view. A job that
-//               processes many frames (`run`, `export`) fails that frame only and goes on.
+//               short, a recording whose checksum fails, an image of the wrong size for its
+//               camera, a frame with no fire in view. A job that processes many frames (`run`,
+//               `export`) fails that frame only and goes on.
 //   IoError     the operating system refused: a file that cannot be opened, written or renamed, a
 //               full disk. Output already committed is never damaged by one.
 //

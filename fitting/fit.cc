@@ -553,9 +553,12 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
       // Its data_exact and smooth_exact are the exact (non-smoothed) terms.
       result.final_terms = objective.Evaluate(st.t, st.n, st.s);
     }
-    const bool stop = result.termination == FitTermination::kCancelled ||
-                      (options.time_limit_s > 0 && Seconds(start) > options.time_limit_s);
-    if (stop) {
+    // Out of time or cancelled with finer levels to go: they are skipped, and that is why the fit
+    // stopped. At the last level the solver's own reason stands.
+    const bool skip_rest = level + 1 < levels.size() &&
+                           (result.termination == FitTermination::kCancelled ||
+                            (options.time_limit_s > 0 && Seconds(start) > options.time_limit_s));
+    if (skip_rest) {
       if (result.termination != FitTermination::kCancelled) {
         result.termination = FitTermination::kTimeLimit;
         result.message = "time limit of " + std::to_string(options.time_limit_s) + " s reached";
@@ -634,7 +637,7 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
   const std::vector<std::uint32_t> active =
       ActiveVoxels(grid, tomography, options.activity_threshold, &emission);
   if (active.empty()) {
-    throw InputError(
+    throw DataError(
         "fit: no active voxels (the tomography volume is black or below the activity threshold)");
   }
   const FitObjective objective(grid, active, views, absorption, options.render, options.objective);

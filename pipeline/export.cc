@@ -67,7 +67,9 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
       set = rec.ReadSet(i);
     } catch (const DataError& e) {
       summary.failed.push_back("set " + std::to_string(i) + ": " + e.what());
-      csv << i << ",damaged,,\n";
+      csv << i << ",damaged,,";  // the set's columns, then each camera's, empty
+      for (int c = 0; c < rec.num_cameras(); ++c) csv << ",,";
+      csv << "\n";
       if (SetDone(progress, i, first, end)) {
         summary.cancelled = true;
         break;

@@ -175,7 +175,13 @@ void FrameStages::Reuse(FrameWork* w) {
   if (options_.pictures && fs::exists(paths_.Picture(from)))
     CopyFileAtomically(paths_.Picture(from), paths_.Picture(w->index));
   s.write_ms = Ms(t0);
-  const std::vector<FrameSummary> reused = ReadFrameSummaries(options_.out_dir, from, from + 1);
+  std::vector<FrameSummary> reused;
+  try {
+    reused = ReadFrameSummaries(options_.out_dir, from, from + 1);
+  } catch (const DataError& e) {  // the copies are made: a note, not a failed frame
+    s.notes.push_back(std::string("figures of frame ") + std::to_string(from) +
+                      " not copied: " + e.what());
+  }
   if (!reused.empty()) {
     const FrameSummary& r = reused[0];
     s.delta_e = r.delta_e;
@@ -283,8 +289,14 @@ void FrameStages::Write(FrameWork* w) {
 void FrameStages::Score(FrameWork* w) {
   if (!w->have_output || !truth_count_) return;
   FrameSummary& s = w->summary;
-  const FireVolume truth =
-      ReadVdb((fs::path(options_.truth_dir) / (FrameName(s.truth_frame) + ".vdb")).string());
+  // The frame's output is written: a truth that cannot be read is a note, not a failed frame.
+  FireVolume truth;
+  try {
+    truth = ReadVdb((fs::path(options_.truth_dir) / (FrameName(s.truth_frame) + ".vdb")).string());
+  } catch (const DataError& e) {
+    s.notes.push_back(std::string("truth not compared: ") + e.what());
+    return;
+  }
   const TruthError t = CompareWithTruth(truth, scored_);
   if (t.compared && t.counted) {
     s.truth_rms_k = t.rms_k;

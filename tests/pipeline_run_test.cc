@@ -332,6 +332,23 @@ TEST(RunFrames, ADamagedFrameFailsAloneWhateverTheSource) {
   fs::remove_all(dir);
 }
 
+// A truth volume that cannot be read is a note on a frame whose output is written, not a failed
+// frame (a failed frame would start the next one cold and never be computed again).
+TEST(RunFrames, AnUnreadableTruthIsANoteNotAFailedFrame) {
+  const fs::path dir = TempDir("truth");
+  SimulateDataset(dir / "sim", 2);
+  std::ofstream(dir / "sim" / "truth" / "frame_000001.vdb", std::ios::trunc) << "not a volume";
+  const RunSummary run = RunAll(SmallRun(dir / "sim", dir / "out"));
+  ASSERT_EQ(run.frames.size(), 2u);
+  EXPECT_EQ(run.failed, 0u);
+  EXPECT_EQ(run.frames[1].status, "computed");
+  ASSERT_FALSE(run.frames[1].notes.empty());
+  EXPECT_NE(run.frames[1].notes.back().find("truth not compared"), std::string::npos)
+      << run.frames[1].Line();
+  EXPECT_GE(run.frames[0].truth_rms_k, 0);
+  fs::remove_all(dir);
+}
+
 // The stages can be replaced one by one: a fit that fails on one frame fails that frame only, a
 // reconstruction that is watched sees every frame it is asked for.
 TEST(RunFrames, StagesCanBeReplacedOneByOne) {

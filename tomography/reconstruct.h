@@ -79,8 +79,9 @@ class Reconstructor {
 
   // One frame set, one image per rig camera in rig order (an empty image skips that camera).
   // `warm_start` (optional) is a previous result on the same grid. Progress: the solves' (stage
-  // "solve", solvers.h); a cancel throws Cancelled after the solve stops, leaving the
-  // reconstructor's state as it was before the frame (its matrices stay valid).
+  // "solve", solvers.h); a cancel throws Cancelled after the solve stops. The reconstructor may
+  // have rebuilt its matrices and envelope for the cancelled frame; they stay valid for the next
+  // frame (a run that resumes loads the state saved after the last committed frame instead).
   FireVolume Reconstruct(const std::vector<ImageU8>& images, ReconstructSummary* summary,
                          const FireVolume* warm_start = nullptr,
                          const ProgressCallback& progress = nullptr);

@@ -20,9 +20,9 @@
 
 namespace flamerig {
 
-// Validates `volume` and writes it. Throws InputError (bad volume) or IoError
-// naming the path (I/O failure). Writes to path + ".tmp" and renames, so a crash never leaves a
-// half-written file under the final name.
+// Validates `volume` and writes it. Throws InputError (bad volume) or IoError naming the path
+// (I/O failure). Writes to a temporary name beside it and renames (core/atomic_file.h), so a crash
+// never leaves a half-written file under the final name.
 void WriteVdb(const std::string& path, const FireVolume& volume);
 
 // Reads the grids named temperature, density and emission (any subset; at least one must exist).

@@ -41,8 +41,9 @@ class Context {
 
   // A progress callback that shows progress and answers kCancel once cancel() is raised. On a
   // terminal: a bar redrawn in place ("\r"), and each message as a log line above it. Otherwise
-  // (a log file, a pipe): plain timestamped log lines, at most one per stage every `period_s`
-  // seconds plus each stage's first and last, and every message. --quiet shows none of it.
+  // (a log file, a pipe): plain timestamped log lines: a stage's first, then at most one every
+  // `period_s` seconds and its last when it ran that long (a stage that restarts, as each frame's
+  // fit does, is not repeated), and every message. --quiet shows none of it.
   ProgressCallback Progress(double period_s = 10.0);
 
   Verbosity verbosity() const { return verbosity_; }
@@ -86,6 +87,7 @@ Runner AddFit(CLI::App* command);
 Runner AddRun(CLI::App* command);
 Runner AddCapture(CLI::App* command);
 Runner AddCtl(CLI::App* command);
+Runner AddCameras(CLI::App* command);
 Runner AddCalibrate(CLI::App* command);
 Runner AddExport(CLI::App* command);
 Runner AddBenchmark(CLI::App* command);

@@ -65,7 +65,7 @@ Runner AddCapture(CLI::App* command) {
     SimTriggerBus bus;
     CaptureDaemon daemon(config, MakeCameras(config, {&clock, &bus}), &clock, &bus);
     daemon.Start();
-    ControlServer server(&daemon, config.control, config.allow_remote);
+    auto server = std::make_unique<ControlServer>(&daemon, config.control, config.allow_remote);
     Log().info("capture: control at {}; log in {}", config.control, log_file);
     if (!o->event.empty() && config.pretrigger_seconds > 0)
       std::this_thread::sleep_for(std::chrono::duration<double>(config.pretrigger_seconds));
@@ -80,7 +80,7 @@ Runner AddCapture(CLI::App* command) {
     const double period = context.terminal() ? 1.0 : 10.0;
     double last_line = context.terminal() ? 0 : 1 - period;  // the first plain line after 1 s
     bool drawn = false;
-    while (!context.cancel().raised() && !server.shutdown_requested() &&
+    while (!context.cancel().raised() && !server->shutdown_requested() &&
            (o->duration < 0 || elapsed() < o->duration)) {
       std::this_thread::sleep_for(std::chrono::milliseconds(100));
       const CaptureStatus s = daemon.status();
@@ -103,6 +103,7 @@ Runner AddCapture(CLI::App* command) {
     }
     if (drawn) std::fputs("\n", stderr);
     if (context.cancel().raised()) Log().info("capture: stopping (signal)");
+    server.reset();  // no control request may log (or act) from here on
     if (daemon.status().recording) daemon.StopRecording();
     // Each camera's story, for the log (and the soak test, which reads the disconnects).
     for (const auto& c : daemon.status().cameras)

@@ -2,6 +2,7 @@
 #include <cstdio>
 #include <memory>
 
+#include "core/error.h"
 #include "pipeline/fit_job.h"
 #include "tools/cli.h"
 
@@ -21,7 +22,8 @@ Runner AddFit(CLI::App* command) {
       "fit (default) or the paper's Algorithm 1 or 2. The tomography is reconstructed from the\n"
       "fitted views unless given. Writes F.vdb (temperature, density; exposure and why the fit\n"
       "stopped in its metadata) and a report (input, rendered and Delta E images per view and\n"
-      "held-out view, error against time). Ctrl-C stops the fit and writes what it has.");
+      "held-out view, error against time). Ctrl-C during the fit stops it and writes what it has\n"
+      "(termination \"cancelled\"); during its tomography, it writes nothing.");
   command->add_option("--rig", job.rig_path, "Rig file")->required()->type_name("RIG.yaml");
   command->add_option("--images", job.images_dir, "Folder of one image per camera")
       ->required()
@@ -74,8 +76,10 @@ Runner AddFit(CLI::App* command) {
                                        : FitMethod::kFast;
     job.paper.time_limit_s = job.fit.time_limit_s;
     if (o->iterations >= 0) {
+      if (o->iterations == 0 && job.method != FitMethod::kFast)
+        throw UsageError("--fit-iterations 0: alg1 and alg2 need at least one sweep");
       job.fit.iterations_finest = job.fit.iterations_per_level = o->iterations;
-      job.paper.iterations = std::max(1, o->iterations);
+      job.paper.iterations = o->iterations;
     }
     if (o->seed >= 0) job.paper.seed = static_cast<std::uint64_t>(o->seed);
     const FitJobResult r = RunFitJob(job, context.Progress(2.0));

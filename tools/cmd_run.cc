@@ -96,7 +96,19 @@ Runner AddRun(CLI::App* command) {
       context.StopOnSignals();
       DistributedOptions distributed;
       distributed.threads = o->threads;
-      const DistributedRun r = RunDistributed(run, distributed, *mpi, context.Progress());
+      // Under mpirun: rank 0 shows progress, every rank's frame lines carry its rank.
+      ProgressCallback progress = context.Progress();
+      if (mpi->size() > 1) {
+        const std::string who = "[rank " + std::to_string(mpi->rank()) + "] ";
+        const bool show = mpi->rank() == 0;
+        progress = [progress, who, show, &context](const Progress& p) {
+          Progress q = p;
+          if (!q.message.empty()) q.message = who + q.message;
+          if (show || !q.message.empty()) return progress(q);
+          return context.cancel().raised() ? ProgressAction::kCancel : ProgressAction::kContinue;
+        };
+      }
+      const DistributedRun r = RunDistributed(run, distributed, *mpi, progress);
       std::printf("%srun: %s\n",
                   mpi->size() > 1 ? ("[rank " + std::to_string(mpi->rank()) + "] ").c_str() : "",
                   r.mine.BriefReport().c_str());
@@ -116,9 +128,11 @@ Runner AddRun(CLI::App* command) {
       return kExitOk;
     } catch (const std::exception& e) {
       if (mpi && mpi->size() > 1) {
+        // A failing (or stopped) rank stops the others, which would wait at the next barrier.
         const bool usage = dynamic_cast<const UsageError*>(&e) != nullptr;
-        Log().error("flamerig run: error: {}", e.what());
-        mpi->Abort(usage ? kExitUsage : kExitError);
+        const bool cancelled = dynamic_cast<const Cancelled*>(&e) != nullptr;
+        Log().error("flamerig run: {}: {}", cancelled ? "stopped" : "error", e.what());
+        mpi->Abort(cancelled ? kExitCancelled : usage ? kExitUsage : kExitError);
       }
       throw;
     }

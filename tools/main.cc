@@ -30,6 +30,7 @@ const std::vector<cli::Command>& Commands() {
       {"run", "Every frame set of a recording through tomography and the fit", &cli::AddRun},
       {"capture", "Run the capture daemon on a rig of cameras", &cli::AddCapture},
       {"ctl", "Talk to a running capture daemon", &cli::AddCtl},
+      {"cameras", "List the cameras each driver can see", &cli::AddCameras},
       {"calibrate", "Calibrate the rig from views of a board (mrcal)", &cli::AddCalibrate},
       {"export", "Write a recording's frame sets as PNG images", &cli::AddExport},
       {"benchmark", "Measure run time against error; write BENCHMARKS.md", &cli::AddBenchmark},

@@ -1,4 +1,4 @@
-// The capture daemon's YAML config (acquisition/capture.h): errors are std::invalid_argument.
+// The capture daemon's YAML config (acquisition/capture.h): errors are flamerig::InputError (core/error.h).
 #include <string>
 
 #include "acquisition/capture.h"

@@ -1,6 +1,6 @@
 // The scene file of `flamerig render --scene` (pipeline/scene_job.h), read and built (Embree) but not
-// rendered: errors are std::invalid_argument naming the file and key, or std::runtime_error naming
-// a volume or mesh file. Next to the scene file the seeds refer to: fire.vdb (a small fire) and
+// rendered: errors are flamerig::Error (core/error.h) naming the file and key, or a volume or mesh
+// file. Next to the scene file the seeds refer to: fire.vdb (a small fire) and
 // mesh.obj (a triangle), written once.
 #include "tests/fuzz/fuzz_util.h"
 #include "tests/fuzz/small_fire.h"
