@@ -27,6 +27,37 @@
 namespace flamerig {
 namespace {
 
+double AngleDeg(const Eigen::Quaterniond& a, const Eigen::Quaterniond& b) {
+  return Eigen::AngleAxisd(a.inverse() * b).angle() * kRadToDeg;
+}
+
+// Relative poses cam_i_from_cam_0 do not depend on the rig frame: compare them with the truth.
+void ExpectExtrinsicsNear(const Rig& got, const Rig& truth, double max_deg, double max_m) {
+  ASSERT_EQ(got.cameras.size(), truth.cameras.size());
+  const Rigid3 g0 = got.cameras[0].model.cam_from_rig(), t0 = truth.cameras[0].model.cam_from_rig();
+  for (std::size_t c = 1; c < got.cameras.size(); ++c) {
+    const Rigid3 g = got.cameras[c].model.cam_from_rig() * g0.Inverse();
+    const Rigid3 t = truth.cameras[c].model.cam_from_rig() * t0.Inverse();
+    EXPECT_LT(AngleDeg(g.rotation, t.rotation), max_deg) << got.cameras[c].name;
+    EXPECT_LT((g.translation - t.translation).norm(), max_m) << got.cameras[c].name;
+  }
+}
+
+// The worst pixel disagreement between two models of one camera over points of the reconstruction
+// box, each model in its own rig frame (`got_from_truth` maps truth rig points to the other).
+double WorstProjectionDifferencePx(const CameraModel& got, const CameraModel& truth,
+                                   const Box3& box, const Rigid3& got_from_truth) {
+  double worst = 0;
+  for (int i = 0; i <= 4; ++i)
+    for (int j = 0; j <= 4; ++j)
+      for (int k = 0; k <= 4; ++k) {
+        const Eigen::Vector3d p =
+            box.min_in_rig + box.size().cwiseProduct(Eigen::Vector3d(i, j, k) / 4.0);
+        worst = std::max(worst, (got.Project(got_from_truth * p) - truth.Project(p)).norm());
+      }
+  return worst;
+}
+
 TEST_F(Ring, RecoversTheRingFromRenderedImages) {
   const CalibrationData data = Detect();
   ASSERT_EQ(data.camera_names.size(), 4u);

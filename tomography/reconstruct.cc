@@ -517,24 +517,25 @@ namespace {
 constexpr char kStateMagic[4] = {'F', 'R', 'R', 'S'};
 constexpr std::uint32_t kStateVersion = 1;
 
+// Bytes in a std::string: GCC 12 misreads small std::vector<char> inserts inlined into SaveState
+// as overflows (-Wstringop-overflow, -Warray-bounds: false positives that -Werror turns fatal).
 class StateWriter {
  public:
   template <typename T>
   void Value(const T& v) {
-    const char* p = reinterpret_cast<const char*>(&v);
-    bytes_.insert(bytes_.end(), p, p + sizeof(T));
+    bytes_.append(reinterpret_cast<const char*>(&v), sizeof(T));
   }
   void Mask(const std::vector<std::uint8_t>& mask) {
     Value(static_cast<std::uint64_t>(mask.size()));
-    std::vector<char> bits((mask.size() + 7) / 8, 0);
+    std::string bits((mask.size() + 7) / 8, '\0');
     for (std::size_t i = 0; i < mask.size(); ++i)
       if (mask[i]) bits[i / 8] = static_cast<char>(bits[i / 8] | (1 << (i % 8)));
-    bytes_.insert(bytes_.end(), bits.begin(), bits.end());
+    bytes_ += bits;
   }
-  const std::vector<char>& bytes() const { return bytes_; }
+  const std::string& bytes() const { return bytes_; }
 
  private:
-  std::vector<char> bytes_;
+  std::string bytes_;
 };
 
 class StateReader {
@@ -650,12 +651,11 @@ void Reconstructor::SaveState(const std::string& path) const {
     w.Value(static_cast<std::uint8_t>(level->has_holdout));
     if (level->has_holdout) w.Mask(level->holdout_pixels);
   }
-  std::vector<char> bytes = w.bytes();
+  std::string bytes = w.bytes();
   const std::uint32_t crc = static_cast<std::uint32_t>(
       crc32_z(0, reinterpret_cast<const Bytef*>(bytes.data()), bytes.size()));
-  const char* p = reinterpret_cast<const char*>(&crc);
-  bytes.insert(bytes.end(), p, p + sizeof crc);
-  WriteFileAtomically(path, std::string_view(bytes.data(), bytes.size()));
+  bytes.append(reinterpret_cast<const char*>(&crc), sizeof crc);
+  WriteFileAtomically(path, bytes);
 }
 
 void Reconstructor::LoadState(const std::string& path) {
