@@ -55,6 +55,9 @@ void FitOptions::Validate() const {
   if (iterations_per_level < 0 || iterations_finest < 0) fail("iterations must be >= 0");
   if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0)) fail("smoothing must be >= 0");
   if (!(time_limit_s >= 0)) fail("time_limit_s must be >= 0");
+  if (!(known_exposure >= 0) || !std::isfinite(known_exposure) ||
+      (known_exposure > 0 && !(known_exposure >= exposure_min && known_exposure <= exposure_max)))
+    fail("known_exposure must be 0 (unknown) or in [exposure_min, exposure_max]");
 }
 
 const char* ToString(FitTermination termination) {
@@ -192,12 +195,13 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
         table.RgbPerDensity(st->t[a]).dot(Eigen::Vector3d(0.2126, 0.7152, 0.0722));
     brightness[a] = per_density > 0 ? std::max(0.0, Luminance(e)) / per_density : 0.0;
   }
-  // Image = s_tomo * integral(e) = s * integral(n * rgb(T)): n = brightness * s_tomo / s. Pick s
-  // so that the brighter voxels sit a decade inside the density bounds.
+  // Image = s_tomo * integral(e) = s * integral(n * rgb(T)): n = brightness * s_tomo / s. A known
+  // exposure is s; otherwise pick s so that the brighter voxels sit a decade inside the density
+  // bounds.
   std::vector<double> sorted = brightness;
   std::sort(sorted.begin(), sorted.end());
-  double s = exposure_tomography;
-  if (!sorted.empty() && sorted.back() > 0) {
+  double s = options.known_exposure > 0 ? options.known_exposure : exposure_tomography;
+  if (options.known_exposure <= 0 && !sorted.empty() && sorted.back() > 0) {
     const double reference = sorted[static_cast<std::size_t>(0.95 * (sorted.size() - 1))];
     const double n_ref = reference * exposure_tomography / s;
     if (n_ref > n_max / 10) s *= n_ref / (n_max / 10);
@@ -314,14 +318,18 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
     seen_->emplace_back(terms.energy, terms);
     if (seen_->size() > 64) seen_->pop_front();
     if (gradient) {
+      // A parameter that is held has no gradient: L-BFGS's steps then never move it (its
+      // components of every step and gradient difference are 0).
       for (std::size_t a = 0; a < m_; ++a) {
         const double pt = Sigmoid(u[a]);
-        gradient[a] = d_t[a] * t_span_ * pt * (1 - pt);
+        gradient[a] = options_.vary.temperature ? d_t[a] * t_span_ * pt * (1 - pt) : 0.0;
         const double pn = Sigmoid(u[m_ + a]);
-        gradient[m_ + a] = d_n[a] * st.n[a] * ln_n_span_ * pn * (1 - pn);
+        gradient[m_ + a] =
+            options_.vary.density ? d_n[a] * st.n[a] * ln_n_span_ * pn * (1 - pn) : 0.0;
       }
       const double ps = Sigmoid(u[2 * m_]);
-      gradient[2 * m_] = d_s * st.s * ln_s_span_ * ps * (1 - ps);
+      gradient[2 * m_] =
+          options_.known_exposure > 0 ? 0.0 : d_s * st.s * ln_s_span_ * ps * (1 - ps);
     }
     return std::isfinite(*cost);
   }
@@ -474,7 +482,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
         previous.n.push_back(warm_start->volume.density_per_m3[v]);
       }
     }
-    previous.s = warm_start->exposure;
+    previous.s = options.known_exposure > 0 ? options.known_exposure : warm_start->exposure;
     have_previous = !previous.active.empty();
   }
   std::deque<std::pair<double, EnergyTerms>> seen;
@@ -546,6 +554,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
       result.message = "no iterations asked for";
     }
     problem_function->Decode(u.data(), &st);
+    if (options.known_exposure > 0) st.s = options.known_exposure;  // exactly, not as decoded
     previous = st;
     have_previous = true;
     result.active_voxels = st.active.size();

@@ -93,8 +93,25 @@ enum class FitTermination {
 // "converged", "iteration limit", "time limit", "cancelled", "failed"
 const char* ToString(FitTermination termination);
 
+// The fit's unknowns that may change (the exposure is selected by FitOptions::known_exposure).
+struct FitSelection {
+  bool temperature = true;
+  bool density = true;
+};
+
 struct FitOptions {
-  ObjectiveOptions objective;  // weights and bounds (the paper's by default)
+  // Weights and bounds: the paper's, but for the neighbour weight, w_sm = 1 where the paper has 10.
+  // `flamerig benchmark accuracy` (BENCHMARKS.md, issue 19) chose it: on the 2-view candle and the
+  // 8-view licks, both at 30 iterations with the exposure known, w_sm 10 / 2 / 1 gave temperature
+  // RMS 155 / 150 / 145 K and 95 / 84 / 83 K; 0 overfits the noise (227 K, 131 K at 300
+  // iterations). In our normalised units (objective.h) 10 flattens the field: its spread 57 K
+  // against the truth's 142 K. The paper's algorithms are run with the paper's 10 (ObjectiveOptions'
+  // default; `flamerig fit --method alg1|alg2`).
+  ObjectiveOptions objective = [] {
+    ObjectiveOptions o;
+    o.w_sm = 1;
+    return o;
+  }();
   // The forward model's discretisation. Spectral bins of 20 nm: against a 1 nm reference they
   // differ by Delta E 0.06 on a candle's fire pixels (10 nm: 0.017), below the 8-bit floor
   // (about 0.19), at 60% of the 10 nm cost.
@@ -124,6 +141,14 @@ struct FitOptions {
   // density carries over too (false). The fire moves between frames; its temperature field
   // changes less than where the soot is.
   bool warm_start_density_from_emission = true;
+  // The cameras' exposure when it is known (the recording's exposure time x gain, in the
+  // renderer's units, as the tomography takes it): > 0 holds the fit's exposure there, so that
+  // densities come out absolute and comparable across frames; 0 = unknown, fitted (the paper's
+  // free exposure s). Must lie in [exposure_min, exposure_max].
+  double known_exposure = 0;
+  // What the fit may change; a parameter not selected keeps its start (mrcal's problem
+  // selections). The accuracy benchmark's oracle runs hold the truth's densities, say.
+  FitSelection vary;
   void Validate() const;  // throws InputError naming the field
 };
 

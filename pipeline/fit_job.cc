@@ -28,8 +28,8 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
     if (!path.empty() && !fs::is_regular_file(path))
       throw InputError(path + " (" + option + "): no such file");
   const Rig rig = Rig::Load(job.rig_path);
-  double exposure = job.exposure;
-  if (!(exposure > 0) && !DatasetExposure(job.rig_path, &exposure)) exposure = 1.0;
+  const ImagesExposure images_exposure = ResolveExposure(job.exposure, job.rig_path);
+  const double exposure = images_exposure.value;
   const AbsorptionModel absorption = AbsorptionModel::FromName(
       job.absorption.empty() ? DatasetAbsorption(job.rig_path) : job.absorption);
   const SourceFrameSet set = ReadFrameFolder(rig, job.images_dir, exposure);
@@ -88,7 +88,10 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
   }
   const GridGeometry grid = GridGeometry::FromBox(rig.box, ro.resolution);
   if (job.method == FitMethod::kFast) {
-    out.result = FastFit(grid, tomography, views, absorption, job.fit, nullptr, progress);
+    FitOptions fit = job.fit;
+    if (images_exposure.known && !job.fit_exposure) fit.known_exposure = exposure;
+    fit.Validate();
+    out.result = FastFit(grid, tomography, views, absorption, fit, nullptr, progress);
   } else {
     PaperFitOptions paper = job.paper;
     paper.algorithm = job.method == FitMethod::kAlgorithm1 ? PaperAlgorithm::kPerVoxelDensity

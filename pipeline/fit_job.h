@@ -29,7 +29,10 @@ struct FitJob {
   std::string tomography_path;  // "" = reconstruct from the fitted views
   FitMethod method = FitMethod::kFast;
   std::string absorption;  // soot | grey; "" = the rig's dataset.yaml, else soot
-  double exposure = 0;     // of the images; 0 = dataset.yaml beside the rig, else 1
+  // Of the images; 0 = dataset.yaml beside the rig, else unknown (1 for the tomography). The
+  // fast fit holds a known exposure unless fit_exposure; the paper's algorithms fit their own.
+  double exposure = 0;
+  bool fit_exposure = false;
   FitOptions fit;
   PaperFitOptions paper;   // alg1, alg2
   std::string report_dir;  // "" = beside the output: F_report/

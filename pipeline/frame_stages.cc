@@ -90,8 +90,14 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
                                                 ? DatasetAbsorption(rig_path)
                                                 : options.absorption)) {
   options_.Validate();
-  exposure_ = options_.exposure;
-  if (!(exposure_ > 0) && !DatasetExposure(rig_path, &exposure_)) exposure_ = 1.0;
+  const ImagesExposure exposure = ResolveExposure(options_.exposure, rig_path);
+  exposure_ = exposure.value;
+  exposure_known_ = exposure.known;
+  if (exposure_known_ && !options_.fit_exposure &&
+      !(exposure_ >= options_.fit.exposure_min && exposure_ <= options_.fit.exposure_max))
+    throw InputError("run: the images' exposure " + std::to_string(exposure_) +
+                     " is outside the fit's range [" + std::to_string(options_.fit.exposure_min) +
+                     ", " + std::to_string(options_.fit.exposure_max) + "]");
   if (!options_.holdout_camera.empty()) {
     holdout_ = rig_.FindCamera(options_.holdout_camera);
     if (holdout_ < 0)
@@ -118,6 +124,8 @@ void FrameStages::Resume(std::size_t next) {
     const YAML::Node n = YAML::LoadFile(state);
     chain_.previous_result = n["previous_result"].as<long long>();
     chain_.last_computed = n["last_computed"].as<long long>();
+    take_exposure_ = n["take_exposure"].as<double>(0.0);
+    take_exposure_frame_ = n["take_exposure_frame"].as<long long>(-1);
   } catch (const YAML::Exception& e) {
     throw DataError(state + ": cannot resume from this state file: " + e.what());
   }
@@ -187,6 +195,8 @@ void FrameStages::Reuse(FrameWork* w) {
     s.delta_e = r.delta_e;
     s.active_voxels = r.active_voxels;
     s.exposure = r.exposure;
+    s.exposure_from = r.exposure_from;
+    s.soot = r.soot;
     s.energy = r.energy;
     s.fit_termination = r.fit_termination;
     s.fit_message = r.fit_message;
@@ -229,10 +239,24 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
     v.image = w->set.images[c];
     (static_cast<int>(c) == holdout_ ? w->held : w->views).push_back(std::move(v));
   }
+  // The exposure: known, the take's, or fitted here (and the take's from here on).
+  FitOptions fit = options_.fit;
+  std::string& from = w->summary.exposure_from;
+  if (options_.fit_exposure) {
+    from = "fitted (free)";
+  } else if (exposure_known_) {
+    fit.known_exposure = exposure_;
+    from = "known";
+  } else if (take_exposure_ > 0) {
+    fit.known_exposure = take_exposure_;
+    from = "held from frame " + std::to_string(take_exposure_frame_);
+  } else {
+    from = "fitted";
+  }
   const auto t0 = SteadyClock::now();
   try {
     w->result =
-        FastFit(reconstructor_->grid(), w->tomography, w->views, absorption_, options_.fit,
+        FastFit(reconstructor_->grid(), w->tomography, w->views, absorption_, fit,
                 chain_.previous_result >= 0 && options_.warm_start ? &previous_ : nullptr,
                 progress);
   } catch (const DataError& e) {
@@ -272,6 +296,11 @@ void FrameStages::Write(FrameWork* w) {
   s.active_voxels = result.active_voxels;
   s.fit_evaluations = result.evaluations;
   s.exposure = result.exposure;
+  s.soot = TotalSoot(result.volume);
+  if (s.exposure_from == "fitted") {  // the take's exposure from here on
+    take_exposure_ = result.exposure;
+    take_exposure_frame_ = static_cast<long long>(w->index);
+  }
   s.energy = result.final_terms.exact_energy();
   s.fit_termination = ToString(result.termination);
   s.fit_message = result.message;
@@ -301,6 +330,7 @@ void FrameStages::Score(FrameWork* w) {
   if (t.compared && t.counted) {
     s.truth_rms_k = t.rms_k;
     s.truth_bias_k = t.mean_k;
+    s.truth_soot = t.truth_soot;
   } else if (!t.compared) {
     s.notes.push_back("truth not compared: " + t.why_not);
   }
@@ -318,8 +348,10 @@ void FrameStages::Commit(FrameWork* w) {
   const std::size_t i = w->index;
   w->summary.total_ms = Ms(w->start);
   std::ostringstream chain;
+  chain.precision(17);
   chain << "previous_result: " << chain_.previous_result
-        << "\nlast_computed: " << chain_.last_computed << "\n";
+        << "\nlast_computed: " << chain_.last_computed << "\ntake_exposure: " << take_exposure_
+        << "\ntake_exposure_frame: " << take_exposure_frame_ << "\n";
   WriteFileAtomically(paths_.StateYaml(i), chain.str());
   if (chain_.last_computed >= 0) reconstructor_->SaveState(paths_.StateBin(i));
   WriteFileAtomically(paths_.Summary(i), w->summary.ToYaml());

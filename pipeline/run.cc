@@ -47,6 +47,21 @@ bool DatasetExposure(const std::string& rig_path, double* exposure) {
   return false;
 }
 
+ImagesExposure ResolveExposure(double given, const std::string& rig_path) {
+  ImagesExposure e;
+  if (given > 0) {
+    e.value = given;
+    e.known = true;
+  } else {
+    e.known = DatasetExposure(rig_path, &e.value);
+    if (e.known && !(e.value > 0 && std::isfinite(e.value)))
+      throw InputError((fs::path(rig_path).parent_path() / "dataset.yaml").string() +
+                       ": exposure must be a positive number, not " + std::to_string(e.value));
+    if (!e.known) e.value = 1;
+  }
+  return e;
+}
+
 std::string DatasetAbsorption(const std::string& rig_path) {
   const fs::path dataset = fs::path(rig_path).parent_path() / "dataset.yaml";
   if (!fs::exists(dataset)) return "soot";
@@ -102,8 +117,11 @@ std::string FrameSummary::Line() const {
     s << ", " << active_voxels << " active voxels";
     if (!matrix_source.empty()) s << ", matrix " << matrix_source;
     if (!fit_termination.empty()) s << ", fit " << fit_termination << " after " << fit_iterations;
+    s.precision(4);
+    if (!exposure_from.empty()) s << ", exposure " << exposure << " (" << exposure_from << ")";
     s.precision(1);
-    if (truth_rms_k >= 0) s << ", T error " << truth_rms_k << " K RMS on visible voxels";
+    if (truth_rms_k >= 0)
+      s << ", T error " << truth_rms_k << " K RMS, bias " << truth_bias_k << " K on visible voxels";
   }
   for (const auto& n : notes) s << "; " << n;
   return s.str();
@@ -127,6 +145,8 @@ std::string FrameSummary::ToYaml() const {
   e << YAML::Key << "active_voxels" << YAML::Value << active_voxels;
   e << YAML::Key << "fit_evaluations" << YAML::Value << fit_evaluations;
   e << YAML::Key << "exposure" << YAML::Value << exposure;
+  e << YAML::Key << "exposure_from" << YAML::Value << exposure_from;
+  e << YAML::Key << "soot" << YAML::Value << soot;
   e << YAML::Key << "energy" << YAML::Value << energy;
   e << YAML::Key << "fit_termination" << YAML::Value << fit_termination;
   e << YAML::Key << "fit_message" << YAML::Value << fit_message;
@@ -144,6 +164,7 @@ std::string FrameSummary::ToYaml() const {
   e << YAML::Key << "truth_voxels" << YAML::Value << truth_voxels;
   e << YAML::Key << "truth_visible" << YAML::Value << truth_visible;
   e << YAML::Key << "truth_frame" << YAML::Value << truth_frame;
+  e << YAML::Key << "truth_soot" << YAML::Value << truth_soot;
   e << YAML::EndMap;
   return std::string(e.c_str()) + "\n";
 }
@@ -166,6 +187,9 @@ FrameSummary FrameSummary::FromYaml(const std::string& text, const std::string& 
     s.active_voxels = n["active_voxels"].as<std::size_t>();
     s.fit_evaluations = n["fit_evaluations"].as<int>();
     s.exposure = n["exposure"].as<double>();
+    // Summaries written before the exposure was held have neither.
+    s.exposure_from = n["exposure_from"].as<std::string>("");
+    s.soot = n["soot"].as<double>(0.0);
     s.energy = n["energy"].as<double>();
     // Summaries written before the fit reported why it stopped have none of these.
     s.fit_termination = n["fit_termination"].as<std::string>("");
@@ -185,6 +209,7 @@ FrameSummary FrameSummary::FromYaml(const std::string& text, const std::string& 
     s.truth_voxels = n["truth_voxels"].as<std::size_t>();
     s.truth_visible = n["truth_visible"].as<std::size_t>();
     s.truth_frame = n["truth_frame"].as<int>();
+    s.truth_soot = n["truth_soot"].as<double>(0.0);
     return s;
   } catch (const YAML::Exception& e) {
     throw DataError(where + ": not a frame summary: " + e.what());

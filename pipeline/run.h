@@ -68,9 +68,14 @@ struct RunOptions {
   std::string out_dir;
   std::size_t first = 0;                // first frame set
   std::size_t count = ~std::size_t(0);  // how many (clipped to the source)
-  // The exposure the images were taken with, in the renderer's units, for the tomography (the fit
-  // finds its own, starting from it); 0 = the rig's dataset.yaml when there is one, else 1.
+  // The exposure the images were taken with, in the renderer's units; 0 = the rig's dataset.yaml
+  // when it says, else unknown. A known exposure is the tomography's and the fit holds it, so
+  // that densities are absolute and comparable across frames. An unknown one: the tomography
+  // takes 1, the take's first computed frame fits the exposure and the frames after it hold
+  // that (one exposure per take, not per frame: a steady fire stays steady).
   double exposure = 0;
+  // Fit a free exposure on every frame (the paper's s), known or not.
+  bool fit_exposure = false;
   std::string absorption;  // soot | grey; "" = the rig's dataset.yaml, else soot
   ReconstructOptions reconstruct = [] {
     ReconstructOptions r;
@@ -109,6 +114,10 @@ struct FrameSummary {
   std::size_t active_voxels = 0;
   int fit_evaluations = 0;
   double exposure = 0;
+  // Where the exposure came from: "known" (given or the dataset's), "fitted" (this frame's, the
+  // take's from here on), "held from frame N" (the take's), "fitted (free)" (--fit-exposure).
+  std::string exposure_from;
+  double soot = 0;  // particles in the fitted volume (sum of density x voxel volume)
   double energy = 0;
   // The fit's summary (fitting/fit.h): why it stopped, in the solver's words, after how many
   // iterations, from what energy.
@@ -122,6 +131,7 @@ struct FrameSummary {
   double truth_rms_k = -1, truth_bias_k = 0;
   std::size_t truth_voxels = 0, truth_visible = 0;
   int truth_frame = -1;
+  double truth_soot = 0;  // particles in the truth
 
   double MeanFittedDeltaE() const;  // mean over the fitted views (fire pixels), 0 if none
   std::string Line() const;         // one line for the console and frames.csv's companion log
@@ -174,6 +184,14 @@ std::string FrameName(std::size_t i);
 // with (false when there is no dataset.yaml or it has none) and its absorption model ("soot" when
 // there is none). InputError naming dataset.yaml when it is malformed.
 bool DatasetExposure(const std::string& rig_path, double* exposure);
+
+// The exposure of a job's images: `given` when > 0, else the dataset's beside the rig; known when
+// one of them says. Unknown: value 1 (the tomography's), and the fit finds its own.
+struct ImagesExposure {
+  double value = 1;
+  bool known = false;
+};
+ImagesExposure ResolveExposure(double given, const std::string& rig_path);
 std::string DatasetAbsorption(const std::string& rig_path);
 
 }  // namespace flamerig

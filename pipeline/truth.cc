@@ -22,7 +22,9 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
   double peak = 0;
   for (std::size_t v = 0; !e.empty() && v < tg.num_voxels(); ++v)
     peak = std::max(peak, double(e[3 * v + 1]));
-  double se = 0, bias = 0;
+  // Sums over the counted voxels, plain and emission-weighted.
+  double n = 0, sf = 0, st = 0, sff = 0, stt = 0, sft = 0;
+  double w = 0, wd = 0, wdd = 0, wt = 0, wtt = 0;
   for (int k = 0; k < tg.dims.z(); ++k)
     for (int j = 0; j < tg.dims.y(); ++j)
       for (int i = 0; i < tg.dims.x(); ++i) {
@@ -38,17 +40,47 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
           f = fg.Flat(int(at.x()), int(at.y()), int(at.z()));
         }
         if (!(fitted.density_per_m3[f] > 0)) continue;
-        const double d = double(fitted.temperature_k[f]) - truth.temperature_k[v];
-        se += d * d;
-        bias += d;
+        const double x = fitted.temperature_k[f], t = truth.temperature_k[v];
+        n += 1;
+        sf += x;
+        st += t;
+        sff += x * x;
+        stt += t * t;
+        sft += x * t;
+        const double weight = e.empty() ? 1.0 : std::max(0.0, double(e[3 * v + 1]));
+        w += weight;
+        wd += weight * (x - t);
+        wdd += weight * (x - t) * (x - t);
+        wt += weight * t;
+        wtt += weight * t * t;
         ++out.counted;
       }
   out.compared = true;
+  out.truth_soot = TotalSoot(truth);
+  out.fit_soot = TotalSoot(fitted);
   if (out.counted) {
-    out.rms_k = std::sqrt(se / out.counted);
-    out.mean_k = bias / out.counted;
+    const double mf = sf / n, mt = st / n;
+    out.mean_k = mf - mt;
+    out.rms_k = std::sqrt(std::max(0.0, (sff - 2 * sft + stt) / n));
+    const double vf = std::max(0.0, sff / n - mf * mf), vt = std::max(0.0, stt / n - mt * mt);
+    out.fit_spread_k = std::sqrt(vf);
+    out.truth_spread_k = std::sqrt(vt);
+    out.correlation = vf > 0 && vt > 0 ? (sft / n - mf * mt) / std::sqrt(vf * vt) : 0.0;
+  }
+  if (w > 0) {
+    out.weighted_mean_k = wd / w;
+    out.weighted_rms_k = std::sqrt(wdd / w);
+    const double mt = wt / w;
+    out.weighted_truth_spread_k = std::sqrt(std::max(0.0, wtt / w - mt * mt));
   }
   return out;
+}
+
+double TotalSoot(const FireVolume& volume) {
+  double sum = 0;
+  for (float n : volume.density_per_m3)
+    if (n > 0) sum += n;
+  return sum * volume.geometry.voxel_size_m.prod();
 }
 
 double EmissionError(const FireVolume& reconstruction, const FireVolume& truth,

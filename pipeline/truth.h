@@ -23,7 +23,19 @@ struct TruthError {
   std::size_t visible = 0;       // visible voxels of the truth
   std::size_t counted = 0;       // of those, where the fit has medium
   double rms_k = 0, mean_k = 0;  // fit - truth
+  // On the counted voxels, what a combustion researcher weighs the error against:
+  double truth_spread_k = 0;  // the truth's standard deviation: the RMS of the best constant
+  double fit_spread_k = 0;    // the fit's standard deviation
+  double correlation = 0;     // Pearson's, fit against truth
+  // The same weighted by each truth voxel's emission (its green channel; 1 without an emission
+  // grid): the error where the light comes from.
+  double weighted_rms_k = 0, weighted_mean_k = 0, weighted_truth_spread_k = 0;
+  // The number of soot particles in each volume (sum of density x voxel volume over all voxels):
+  // absolute when the exposure is known, comparable across frames of a take.
+  double truth_soot = 0, fit_soot = 0;
 };
+// Sum of density x voxel volume: the number of particles in the volume.
+double TotalSoot(const FireVolume& volume);
 TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted);
 
 // The relative L2 error of a reconstruction's emission against a truth's emission grid (resampled

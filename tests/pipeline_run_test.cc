@@ -7,6 +7,7 @@
 #include <sys/wait.h>
 #include <tbb/global_control.h>
 #include <unistd.h>
+#include <yaml-cpp/yaml.h>
 
 #include <array>
 #include <chrono>
@@ -250,6 +251,61 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
   const RunSummary again = RunAll(o);
   EXPECT_EQ(again.resumed, 4u);
   EXPECT_EQ(again.computed, 0u);
+  fs::remove_all(dir);
+}
+
+// The exposure (issue 19): a known one (the dataset's) is held on every frame; an unknown one is
+// fitted on the take's first frame and held after it, across a resume too; --fit-exposure fits a
+// free one per frame (the paper's). Oracles: the dataset's exposure, and frame 0's own.
+TEST(RunFrames, AKnownExposureIsHeldAndAnUnknownOneIsFittedOncePerTake) {
+  const fs::path dir = TempDir("exposure");
+  SimulateDataset(dir / "sim", 3);
+  RunOptions o = SmallRun(dir / "sim", dir / "known");
+  const ImagesExposure dataset = ResolveExposure(0, o.rig_path);
+  ASSERT_TRUE(dataset.known);
+  for (const auto& f : RunAll(o).frames) {
+    SCOPED_TRACE(f.Line());
+    EXPECT_EQ(f.exposure_from, "known");
+    EXPECT_NEAR(f.exposure, dataset.value, 1e-8 * dataset.value);
+    EXPECT_GT(f.soot, 0);
+    EXPECT_GT(f.truth_soot, 0);
+    const FireVolume v = ReadVdb((dir / "known" / (FrameName(f.frame) + ".vdb")).string());
+    EXPECT_DOUBLE_EQ(v.metadata_numbers.at("exposure"), dataset.value);
+  }
+  // A given exposure outside the fit's range is refused before any work.
+  RunOptions far = o;
+  far.out_dir = (dir / "far").string();
+  far.exposure = 1e6;
+  EXPECT_THROW(RunAll(far), InputError);
+
+  // The dataset without its exposure: unknown.
+  {
+    const fs::path yaml = dir / "sim" / "dataset.yaml";
+    YAML::Node root = YAML::LoadFile(yaml.string());
+    root["dataset"].remove("exposure");
+    std::ofstream(yaml) << root;
+  }
+  ASSERT_FALSE(ResolveExposure(0, o.rig_path).known);
+  o.out_dir = (dir / "unknown").string();
+  o.count = 2;  // two frames, then the third after a resume
+  RunAll(o);
+  o.count = 3;
+  const RunSummary unknown = RunAll(o);
+  ASSERT_EQ(unknown.frames.size(), 3u);
+  EXPECT_EQ(unknown.computed, 1u);
+  const std::vector<std::string> from = {"fitted", "held from frame 0", "held from frame 0"};
+  for (const auto& f : unknown.frames) {
+    SCOPED_TRACE(f.Line());
+    EXPECT_EQ(f.status, "computed");
+    EXPECT_EQ(f.exposure_from, from[f.frame]);
+    EXPECT_NEAR(f.exposure, unknown.frames[0].exposure, 1e-8 * unknown.frames[0].exposure);
+  }
+  // Free per frame: each frame's own.
+  o.out_dir = (dir / "free").string();
+  o.fit_exposure = true;
+  const RunSummary free = RunAll(o);
+  for (const auto& f : free.frames) EXPECT_EQ(f.exposure_from, "fitted (free)") << f.Line();
+  EXPECT_NE(free.frames[1].exposure, free.frames[0].exposure);
   fs::remove_all(dir);
 }
 

@@ -132,6 +132,19 @@ struct SceneBenchmarkOptions {
 std::string RunSceneBenchmark(const SceneBenchmarkOptions& options,
                               const std::function<void(const std::string&)>& log);
 
+struct AccuracyBenchmarkOptions {
+  bool quick = false;  // CI smoke mode: 96x72 images, truth 24, fit 16, 4 views for the licks
+};
+
+// The accuracy benchmark (issue 19): oracle runs of the fast fit on a candle from two views and
+// licks of flame from eight, truth finer than the fit's grid: as `run` fits now, the exposure
+// known, converged, without the neighbour term, the start alone, started at the truth, the
+// truth's densities given, noise-free unsaturated images; the temperature's RMS, bias,
+// emission-weighted RMS, correlation and spread against the truth's own spread. Returns the
+// Markdown section.
+std::string RunAccuracyBenchmark(const AccuracyBenchmarkOptions& options,
+                                 const std::function<void(const std::string&)>& log);
+
 }  // namespace flamerig
 
 #endif  // FLAMERIG_TOOLS_BENCHMARK_H_

@@ -28,7 +28,8 @@ Runner AddBenchmark(CLI::App* command) {
       ->add_option("target", o->target, "What to measure")
       ->required()
       ->check(CLI::IsMember(
-          {"render", "tomography", "fit", "capture", "calibration", "run", "scene", "soak"}));
+          {"render", "tomography", "fit", "accuracy", "capture", "calibration", "run", "scene",
+           "soak"}));
   command->add_option("--out", o->out, "The Markdown file to write the section into")
       ->type_name("BENCHMARKS.md");
   command->add_flag("--quick", o->quick, "A small smoke run");
@@ -75,6 +76,10 @@ Runner AddBenchmark(CLI::App* command) {
       options.seconds = o->seconds > 0 ? o->seconds : (o->quick ? 10 : 600);
       options.segment_seconds = o->segment_seconds;
       md = RunSoakBenchmark(options, log);
+    } else if (target == "accuracy") {
+      AccuracyBenchmarkOptions options;
+      options.quick = o->quick;
+      md = RunAccuracyBenchmark(options, log);
     } else if (target == "scene") {
       SceneBenchmarkOptions options;
       options.quick = o->quick;

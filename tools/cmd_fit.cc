@@ -48,7 +48,11 @@ Runner AddFit(CLI::App* command) {
   command->add_option("--exposure", job.exposure, "Exposure the images were taken with")
       ->type_name("S")
       ->check(kPositive);
-  command->add_option("--w-sm", job.fit.objective.w_sm, "Weight of the neighbour term (paper: 10)")
+  command->add_flag("--fit-exposure", job.fit_exposure,
+                    "Fast fit: fit a free exposure (the paper's s), even a known one");
+  CLI::Option* w_sm = command->add_option(
+      "--w-sm", job.fit.objective.w_sm,
+      "Weight of the neighbour term (fast: 1; alg1/alg2: the paper's 10)")
       ->type_name("W")
       ->check(kNonNegative);
   command->add_option("--fit-iterations", o->iterations,
@@ -67,13 +71,16 @@ Runner AddFit(CLI::App* command) {
       ->type_name("T.vdb");
   command->add_flag("--coarse-to-fine,!--no-coarse-to-fine", job.fit.coarse_to_fine,
                     "Fast fit: start at 32^3 and double (default off)");
-  return [o](Context& context) {
+  return [o, w_sm](Context& context) {
     context.StopOnSignals();
     FitJob job = o->job;
     job.views = SplitList(o->views);
     job.method = o->method == "alg1"   ? FitMethod::kAlgorithm1
                  : o->method == "alg2" ? FitMethod::kAlgorithm2
                                        : FitMethod::kFast;
+    // The paper's algorithms minimise the paper's energy unless told otherwise.
+    if (job.method != FitMethod::kFast && w_sm->count() == 0)
+      job.fit.objective.w_sm = ObjectiveOptions().w_sm;
     job.paper.time_limit_s = job.fit.time_limit_s;
     if (o->iterations >= 0) {
       if (o->iterations == 0 && job.method != FitMethod::kFast)

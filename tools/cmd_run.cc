@@ -72,6 +72,8 @@ Runner AddRun(CLI::App* command) {
                     "Compute frames whose images did not change too");
   command->add_flag("--no-blender", o->no_blender, "Do not write OUT/blender/");
   command->add_flag("--cold", o->cold, "Start every frame from its own tomography");
+  command->add_flag("--fit-exposure", run.fit_exposure,
+                    "Fit a free exposure on every frame (the paper's s), even a known one");
   command->add_option("--threads", o->threads,
                       "Threads per process (default: all cores, shared among a node's ranks)")
       ->type_name("N")

@@ -1,0 +1,364 @@
+// `flamerig benchmark accuracy` (issue 19): what limits the fitted temperature, found by oracle
+// runs on a synthetic truth finer than the fit's grid. See tools/benchmark.h.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <memory>
+#include <sstream>
+
+#include "calibration/synthetic_rig.h"
+#include "core/image.h"
+#include "fitting/colour.h"
+#include "fitting/fit.h"
+#include "fitting/objective.h"
+#include "fitting/renderer.h"
+#include "fitting/synthetic_fire.h"
+#include "pipeline/truth.h"
+#include "tomography/reconstruct.h"
+#include "tools/benchmark.h"
+
+namespace flamerig {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double Since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+// A scene: a truth on a fine grid, the cameras that film it (the last one held out), their 8-bit
+// images, the exposure they were taken with, and the tomography of the fitted views on the fit's
+// grid.
+struct Scene {
+  std::string name;
+  Rig rig;
+  std::vector<std::unique_ptr<CameraRays>> rays;
+  FireVolume truth;
+  GridGeometry fit_grid;
+  double exposure = 1;
+  std::vector<ImageU8> images;  // per camera
+  FireVolume tomography;
+  AbsorptionModel absorption = AbsorptionModel::DefaultSoot();
+};
+
+struct SceneSpec {
+  std::string name;
+  synthetic::FireKind kind = synthetic::FireKind::kCandle;
+  std::uint64_t seed = 7;
+  double peak_k = 2000, soot = 1e-6;
+  Box3 box;
+  std::vector<double> azimuths_deg;  // fitted views, then the held-out one
+  double distance_m = 0.3, elevation_deg = 0, fill = 0.6;
+  int width = 320, height = 240;
+  int truth_resolution = 96, fit_resolution = 64;
+  double noise_dn = 0.5;
+  double exposure_scale = 1;  // 1: the brightest 0.5% of fire pixels saturate (as simulate does)
+};
+
+// Renders the truth through every camera and makes the 8-bit images as `flamerig simulate` does:
+// the exposure puts the 99.5th percentile of fire pixels at full scale (times exposure_scale),
+// sensor noise added.
+void Film(const SceneSpec& spec, Scene* s) {
+  FireRenderer renderer(s->absorption);
+  renderer.SetVolume(s->truth.geometry, s->truth.temperature_k, s->truth.density_per_m3);
+  std::vector<ImageF> linear(s->rays.size());
+  std::vector<float> fire;
+  float peak = 0;
+  for (std::size_t c = 0; c < s->rays.size(); ++c) {
+    renderer.Render(*s->rays[c], &linear[c]);
+    for (std::size_t p = 0; p < linear[c].num_pixels(); ++p) {
+      const float* v = &linear[c].pixels[3 * p];
+      const float m = std::max({v[0], v[1], v[2]});
+      peak = std::max(peak, m);
+      fire.push_back(m);
+    }
+  }
+  std::vector<float> lit;
+  for (float v : fire)
+    if (v > 1e-3f * peak) lit.push_back(v);
+  std::nth_element(lit.begin(), lit.begin() + static_cast<long>(0.995 * (lit.size() - 1)),
+                   lit.end());
+  s->exposure = spec.exposure_scale / lit[static_cast<std::size_t>(0.995 * (lit.size() - 1))];
+  s->images.clear();
+  for (std::size_t c = 0; c < linear.size(); ++c) {
+    s->images.push_back(ApplyCameraResponse(linear[c], s->exposure));
+    AddSensorNoise(&s->images.back(), spec.noise_dn, 1000 * spec.seed + c);
+  }
+}
+
+Scene MakeScene(const SceneSpec& spec) {
+  Scene s;
+  s.name = spec.name;
+  synthetic::RingOptions ring;
+  ring.cameras = static_cast<int>(spec.azimuths_deg.size());
+  ring.azimuths_deg = spec.azimuths_deg;
+  ring.distance_m = spec.distance_m;
+  ring.elevation_deg = spec.elevation_deg;
+  ring.fill = spec.fill;
+  ring.width = spec.width;
+  ring.height = spec.height;
+  s.rig = synthetic::MakeRingRig(spec.box, ring);
+  s.rig.cameras.back().name = "holdout";
+  for (const auto& c : s.rig.cameras) s.rays.push_back(std::make_unique<CameraRays>(c.model));
+  synthetic::FireOptions fo;
+  fo.kind = spec.kind;
+  fo.seed = spec.seed;
+  fo.peak_temperature_k = spec.peak_k;
+  fo.peak_soot_volume_fraction = spec.soot;
+  const GridGeometry truth_grid = GridGeometry::FromBox(spec.box, spec.truth_resolution);
+  s.truth = synthetic::MakeFire(truth_grid, fo, s.absorption);
+  s.truth.emission_rgb = synthetic::ThinEmissionRgb(s.truth, s.absorption);
+  s.fit_grid = GridGeometry::FromBox(spec.box, spec.fit_resolution);
+  Film(spec, &s);
+  // The tomography of the fitted views, on the fit's grid, with the exposure the images were
+  // taken with.
+  Rig fitted = s.rig;
+  fitted.cameras.pop_back();
+  ReconstructOptions ro;
+  ro.resolution = spec.fit_resolution;
+  ro.exposure = s.exposure;
+  Reconstructor rec(fitted, ro);
+  std::vector<ImageU8> used(s.images.begin(), s.images.end() - 1);
+  s.tomography = rec.Reconstruct(used, nullptr);
+  return s;
+}
+
+// The truth box-filtered onto the fit's grid: each fit voxel gets the density-weighted mean
+// temperature and the mean density of the truth voxels whose centres it holds.
+FireVolume TruthOnGrid(const FireVolume& truth, const GridGeometry& grid) {
+  const std::size_t n = grid.num_voxels();
+  std::vector<double> nt(n, 0), dn(n, 0), count(n, 0);
+  const GridGeometry& tg = truth.geometry;
+  for (int k = 0; k < tg.dims.z(); ++k)
+    for (int j = 0; j < tg.dims.y(); ++j)
+      for (int i = 0; i < tg.dims.x(); ++i) {
+        const Eigen::Vector3d at = grid.IndexFromRig(tg.VoxelCenter(i, j, k)).array().round();
+        if ((at.array() < 0).any() || (at.array() >= grid.dims.cast<double>().array()).any())
+          continue;
+        const std::size_t f = grid.Flat(int(at.x()), int(at.y()), int(at.z()));
+        const std::size_t v = tg.Flat(i, j, k);
+        nt[f] += double(truth.density_per_m3[v]) * truth.temperature_k[v];
+        dn[f] += truth.density_per_m3[v];
+        count[f] += 1;
+      }
+  FireVolume out;
+  out.geometry = grid;
+  out.temperature_k.assign(n, 300.0f);
+  out.density_per_m3.assign(n, 0.0f);
+  for (std::size_t f = 0; f < n; ++f) {
+    if (!(dn[f] > 0)) continue;
+    out.temperature_k[f] = static_cast<float>(nt[f] / dn[f]);
+    out.density_per_m3[f] = static_cast<float>(dn[f] / count[f]);
+  }
+  return out;
+}
+
+std::vector<FitView> Views(const Scene& s, bool held_out) {
+  std::vector<FitView> v;
+  const std::size_t n = s.rig.cameras.size();
+  for (std::size_t c = held_out ? n - 1 : 0; c < (held_out ? n : n - 1); ++c) {
+    FitView f;
+    f.name = s.rig.cameras[c].name;
+    f.rays = s.rays[c].get();
+    f.image = s.images[c];
+    v.push_back(f);
+  }
+  return v;
+}
+
+// Mean Delta E over the fire pixels (input or render not black) of `views` for a fitted volume.
+double FireDeltaE(const FitResult& r, const std::vector<FitView>& views,
+                  const AbsorptionModel& absorption) {
+  FireRenderer renderer(absorption);
+  renderer.SetVolume(r.volume.geometry, r.volume.temperature_k, r.volume.density_per_m3);
+  double sum = 0;
+  std::size_t n = 0;
+  for (const FitView& v : views) {
+    ImageF linear;
+    renderer.Render(*v.rays, &linear);
+    for (std::size_t p = 0; p < linear.num_pixels(); ++p) {
+      const Eigen::Vector3d in = colour::SrgbU8ToLab(v.image.pixels[3 * p], v.image.pixels[3 * p + 1],
+                                                     v.image.pixels[3 * p + 2]);
+      const Eigen::Vector3d out = CameraLab(
+          Eigen::Vector3d(linear.pixels[3 * p], linear.pixels[3 * p + 1], linear.pixels[3 * p + 2]),
+          r.exposure);
+      if (in[0] <= 1 && out[0] <= 1) continue;
+      sum += colour::DeltaE76(in, out);
+      ++n;
+    }
+  }
+  return n ? sum / n : 0.0;
+}
+
+struct Variant {
+  std::string name;
+  FitOptions options;
+  bool start_at_truth = false;  // warm start from the truth on the fit's grid
+};
+
+}  // namespace
+
+std::string RunAccuracyBenchmark(const AccuracyBenchmarkOptions& options,
+                                 const std::function<void(const std::string&)>& log) {
+  const bool quick = options.quick;
+  std::vector<SceneSpec> specs;
+  {
+    SceneSpec candle;
+    candle.name = "candle, 2 views (the paper's set-up)";
+    candle.box = Box3{Eigen::Vector3d(-0.015, 0.0, -0.015), Eigen::Vector3d(0.015, 0.07, 0.015)};
+    candle.azimuths_deg = {0, 90, 45};
+    specs.push_back(candle);
+    SceneSpec licks;
+    licks.name = "licks, 8 views";
+    licks.kind = synthetic::FireKind::kLicks;
+    licks.seed = 11;
+    licks.peak_k = 2100;
+    licks.soot = 2e-6;
+    licks.box = Box3{Eigen::Vector3d(-0.05, 0.0, -0.05), Eigen::Vector3d(0.05, 0.14, 0.05)};
+    for (int c = 0; c < 8; ++c) licks.azimuths_deg.push_back(45.0 * c);
+    licks.azimuths_deg.push_back(22.5);
+    licks.distance_m = 0.5;
+    licks.elevation_deg = 10;
+    licks.fill = 0.85;
+    specs.push_back(licks);
+    if (quick)
+      for (auto& s : specs) {
+        s.width = 96;
+        s.height = 72;
+        s.truth_resolution = 24;
+        s.fit_resolution = 16;
+        if (s.azimuths_deg.size() > 3) s.azimuths_deg = {0, 90, 180, 270, 45};
+      }
+  }
+  const int long_iterations = quick ? 20 : 300;
+
+  std::ostringstream md;
+  md << "## Temperature accuracy: what limits it (issue 19)\n\n";
+  md << "Machine: " << MachineDescription() << ".\n\n";
+  md << "Oracle runs of the fast fit on synthetic truths finer than the fit's grid (truth "
+     << specs[0].truth_resolution << ", fit " << specs[0].fit_resolution
+     << " along the box's longest side), filmed as `flamerig simulate` films them (soot on the "
+        "spectral path with self-absorption, 8-bit sRGB with 0.5 DN noise, the brightest 0.5% of "
+        "fire pixels saturated), through the true rig, plus one held-out camera. Each row changes "
+        "one thing. Temperature errors are over the truth's visible voxels (>= 1300 K and >= 1% "
+        "of the peak emission), each against the fitted voxel that holds its centre, where the "
+        "fit has medium: RMS, mean (bias), RMS weighted by the truth's emission, Pearson's "
+        "correlation, and the fitted field's spread; the truth's own spread (the RMS of the best "
+        "constant, the trivial baseline) is in each scene's heading. Delta E is the mean over fire "
+        "pixels.\n\n";
+  for (const SceneSpec& spec : specs) {
+    const auto t0 = Clock::now();
+    Scene scene = MakeScene(spec);
+    if (log) log("accuracy: " + spec.name + " filmed in " + Fixed(Since(t0), 1) + " s");
+    const std::vector<FitView> fitted = Views(scene, false), held = Views(scene, true);
+    // The oracles' scenes: noise-free unsaturated images (exposure halved) and their tomography.
+    SceneSpec clean_spec = spec;
+    clean_spec.noise_dn = 0;
+    clean_spec.exposure_scale = 0.5;
+    Scene clean = MakeScene(clean_spec);
+    const std::vector<FitView> clean_fitted = Views(clean, false);
+    const FireVolume truth_on_grid = TruthOnGrid(scene.truth, scene.fit_grid);
+
+    std::vector<Variant> variants;
+    const std::string its = std::to_string(long_iterations) + " iterations";
+    FitOptions before;  // before issue 19: the exposure fitted per frame, the paper's w_sm 10
+    before.objective.w_sm = ObjectiveOptions().w_sm;
+    variants.push_back({"before: exposure fitted, w_sm = 10, 30 iterations", before});
+    FitOptions known10 = before;
+    known10.known_exposure = scene.exposure;
+    variants.push_back({"exposure known, w_sm = 10", known10});
+    FitOptions known = known10;
+    known.objective.w_sm = FitOptions().objective.w_sm;
+    variants.push_back({"exposure known, w_sm = 1: `run` and `fit` now", known});
+    FitOptions converged10 = known10;
+    converged10.iterations_finest = long_iterations;
+    variants.push_back({"exposure known, w_sm = 10, " + its, converged10});
+    FitOptions converged = known;
+    converged.iterations_finest = long_iterations;
+    variants.push_back({"exposure known, w_sm = 1, " + its, converged});
+    for (double w : {0.0, 3.0}) {
+      FitOptions other = converged;
+      other.objective.w_sm = w;
+      variants.push_back({"... w_sm = " + Fixed(w, 0) + ", " + its, other});
+    }
+    FitOptions none = known;
+    none.iterations_finest = 0;
+    variants.push_back({"the start alone: the tomography's colour, no iteration", none});
+    FitOptions from_truth = converged;
+    from_truth.warm_start_density_from_emission = false;
+    variants.push_back({"started at the truth, exposure known, w_sm = 1, " + its, from_truth, true});
+    FitOptions t_only = converged;
+    t_only.vary.density = false;
+    t_only.warm_start_density_from_emission = false;
+    variants.push_back({"the truth's densities given, temperature fitted from the truth's",
+                        t_only, true});
+
+    const TruthError constant = CompareWithTruth(scene.truth, truth_on_grid);
+    md << "### " << spec.name << ", " << spec.width << "x" << spec.height
+       << ": the truth's spread (the best constant's RMS) " << Fixed(constant.truth_spread_k, 0)
+       << " K, emission-weighted " << Fixed(constant.weighted_truth_spread_k, 0)
+       << " K; the truth on the fit's grid scores RMS " << Fixed(constant.rms_k, 0)
+       << " K (the grid's own limit). The same limit against a truth of "
+       << 2 * spec.truth_resolution << ":";
+    {
+      // The grid's own limit at finer fits, scored against a truth twice as fine.
+      synthetic::FireOptions fo;
+      fo.kind = spec.kind;
+      fo.seed = spec.seed;
+      fo.peak_temperature_k = spec.peak_k;
+      fo.peak_soot_volume_fraction = spec.soot;
+      FireVolume fine = synthetic::MakeFire(
+          GridGeometry::FromBox(spec.box, 2 * spec.truth_resolution), fo, scene.absorption);
+      fine.emission_rgb = synthetic::ThinEmissionRgb(fine, scene.absorption);
+      const char* sep = " ";
+      for (int r : {spec.fit_resolution, spec.fit_resolution * 3 / 2, spec.fit_resolution * 2}) {
+        const GridGeometry g = GridGeometry::FromBox(spec.box, r);
+        md << sep << Fixed(CompareWithTruth(fine, TruthOnGrid(fine, g)).rms_k, 0) << " K at " << r;
+        sep = ", ";
+      }
+    }
+    md << ".\n\n";
+    md << "| oracle | seconds | iterations | stopped by | exposure / true | Delta E fitted | Delta "
+          "E held out | T RMS K | bias K | emission-weighted RMS K | correlation | fitted spread K "
+          "| visible voxels with medium |\n";
+    md << "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+    auto row = [&](const std::string& name, const FitResult& r, double seconds,
+                   const Scene& on, const std::vector<FitView>& views,
+                   const std::vector<FitView>& held_views) {
+      const TruthError t = CompareWithTruth(on.truth, r.volume);
+      md << "| " << name << " | " << Fixed(seconds, 1) << " | " << r.iterations << " | "
+         << ToString(r.termination) << " | " << Fixed(r.exposure / on.exposure, 3) << " | "
+         << Fixed(FireDeltaE(r, views, on.absorption), 2) << " | "
+         << Fixed(FireDeltaE(r, held_views, on.absorption), 2) << " | " << Fixed(t.rms_k, 0) << " | "
+         << Fixed(t.mean_k, 0) << " | " << Fixed(t.weighted_rms_k, 0) << " | "
+         << Fixed(t.correlation, 2) << " | " << Fixed(t.fit_spread_k, 0) << " | " << t.counted
+         << " / " << t.visible << " |\n";
+      if (log)
+        log("accuracy: " + spec.name + ": " + name + ": " + Fixed(seconds, 1) + " s, T RMS " +
+            Fixed(t.rms_k, 0) + " K, bias " + Fixed(t.mean_k, 0) + " K");
+    };
+    for (const Variant& v : variants) {
+      const auto start = Clock::now();
+      FitResult warm;
+      if (v.start_at_truth) {
+        warm.volume = truth_on_grid;
+        warm.exposure = scene.exposure;
+      }
+      const FitResult r = FastFit(scene.fit_grid, scene.tomography, fitted, scene.absorption,
+                                  v.options, v.start_at_truth ? &warm : nullptr);
+      row(v.name, r, Since(start), scene, fitted, held);
+    }
+    {
+      FitOptions o = converged;
+      o.known_exposure = clean.exposure;
+      const auto start = Clock::now();
+      const FitResult r =
+          FastFit(clean.fit_grid, clean.tomography, clean_fitted, clean.absorption, o);
+      row("noise-free, unsaturated images, exposure known, w_sm = 1, " + its,
+          r, Since(start), clean, clean_fitted, Views(clean, true));
+    }
+    md << "\n";
+  }
+  return md.str();
+}
+
+}  // namespace flamerig
