@@ -102,10 +102,10 @@ struct FitSelection {
 struct FitOptions {
   // Weights and bounds: the paper's, but for the neighbour weight, w_sm = 1 where the paper has 10.
   // `flamerig benchmark accuracy` (BENCHMARKS.md, issue 19) chose it: on the 2-view candle and the
-  // 8-view licks, both at 30 iterations with the exposure known, w_sm 10 / 2 / 1 gave temperature
-  // RMS 155 / 150 / 145 K and 95 / 84 / 83 K; 0 overfits the noise (227 K, 131 K at 300
-  // iterations). In our normalised units (objective.h) 10 flattens the field: its spread 57 K
-  // against the truth's 142 K. The paper's algorithms are run with the paper's 10 (ObjectiveOptions'
+  // 8-view licks, both at 30 iterations with the exposure known, w_sm 10 / 1 gave temperature RMS
+  // 155 / 145 K and 95 / 83 K (3 at 300 iterations: 148 and 82 K); 0 overfits the noise (234 K,
+  // 131 K at 300 iterations). In our normalised units (objective.h) 10 flattens the field: its
+  // spread 57 K against the truth's 142 K. The paper's algorithms are run with the paper's 10 (ObjectiveOptions'
   // default; `flamerig fit --method alg1|alg2`).
   ObjectiveOptions objective = [] {
     ObjectiveOptions o;

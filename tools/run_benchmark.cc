@@ -70,8 +70,11 @@ Row Measure(const std::string& name, const RunOptions& o, std::size_t begin, std
         r.soot_ratio.push_back(f.soot / f.truth_soot);
         r.bias_k.push_back(f.truth_bias_k);
         const FireVolume v = ReadVdb((fs::path(o.out_dir) / (FrameName(f.frame) + ".vdb")).string());
+        // At the bound: within 1% of the search range of it (the sigmoid never reaches it).
+        const ObjectiveOptions& b = o.fit.objective;
+        const double near = b.t_max_k - 0.01 * (b.t_max_k - b.t_min_k);
         for (std::size_t i = 0; i < v.temperature_k.size(); ++i)
-          r.at_bound += v.density_per_m3[i] > 0 && v.temperature_k[i] >= o.fit.objective.t_max_k - 1;
+          r.at_bound += v.density_per_m3[i] > 0 && v.temperature_k[i] >= near;
       }
     }
   }
@@ -215,9 +218,12 @@ std::string RunRunBenchmark(const RunBenchmarkOptions& options,
         "known, soot within 10% of the truth, temperature bias within 20 K, no voxel at a bound "
         "the truth does not reach; the truth's peak is "
      << Fixed(c.fire.peak_temperature_k, 0) << " K, the fit's upper bound "
-     << Fixed(base.fit.objective.t_max_k, 0) << " K):\n\n";
-  md << "| run | exposure / true | soot / truth | temperature bias K | voxels at the upper bound "
-        "(all frames) |\n|---|---|---|---|---|\n";
+     << Fixed(base.fit.objective.t_max_k, 0) << " K). Before issue 19 (exposure free, w_sm 10) "
+        "the exposure fell from 0.778 to 0.310 over the take and about 110 voxels per frame sat "
+        "at the bound.\n\n";
+  md << "| run | exposure / true | soot / truth | temperature bias K | voxels within "
+     << Fixed(0.01 * (base.fit.objective.t_max_k - base.fit.objective.t_min_k), 0)
+     << " K of the upper bound (all frames) |\n|---|---|---|---|---|\n";
   for (const Row* r : std::vector<const Row*>{&rows[0], &rows[1], &free})
     md << "| " << r->name << " | " << Range(r->exposure_ratio, 3) << " | "
        << Range(r->soot_ratio, 2) << " | " << Range(r->bias_k, 0) << " | " << r->at_bound
