@@ -30,6 +30,16 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
   const Rig rig = Rig::Load(job.rig_path);
   const ImagesExposure images_exposure = ResolveExposure(job.exposure, job.rig_path);
   const double exposure = images_exposure.value;
+  // The fast fit holds a known exposure: checked before any work.
+  FitOptions fit = job.fit;
+  if (job.method == FitMethod::kFast && images_exposure.known && !job.fit_exposure) {
+    if (!(exposure >= fit.exposure_min && exposure <= fit.exposure_max))
+      throw InputError("fit: the images' exposure " + std::to_string(exposure) +
+                       " (--exposure, or dataset.yaml beside the rig) is outside the fit's range [" +
+                       std::to_string(fit.exposure_min) + ", " + std::to_string(fit.exposure_max) +
+                       "]");
+    fit.known_exposure = exposure;
+  }
   const AbsorptionModel absorption = AbsorptionModel::FromName(
       job.absorption.empty() ? DatasetAbsorption(job.rig_path) : job.absorption);
   const SourceFrameSet set = ReadFrameFolder(rig, job.images_dir, exposure);
@@ -88,9 +98,6 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
   }
   const GridGeometry grid = GridGeometry::FromBox(rig.box, ro.resolution);
   if (job.method == FitMethod::kFast) {
-    FitOptions fit = job.fit;
-    if (images_exposure.known && !job.fit_exposure) fit.known_exposure = exposure;
-    fit.Validate();
     out.result = FastFit(grid, tomography, views, absorption, fit, nullptr, progress);
   } else {
     PaperFitOptions paper = job.paper;
