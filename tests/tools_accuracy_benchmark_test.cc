@@ -1,0 +1,64 @@
+// `flamerig benchmark accuracy --quick` (tools/accuracy_benchmark.cc): the oracle table is made
+// whole, and its rows say what they claim. Oracles: the images' exposure, which the benchmark
+// itself chose when filming (rows with a known exposure report exactly 1 of it, the paper's free
+// exposure does not), and the row count the variants define.
+#include <gtest/gtest.h>
+
+#include <regex>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "tools/benchmark.h"
+
+namespace flamerig {
+namespace {
+
+// The cells of the table row whose first cell starts with `name`, in the section after `scene`.
+std::vector<std::string> Row(const std::string& md, const std::string& scene,
+                             const std::string& name) {
+  const std::size_t from = md.find(scene);
+  if (from == std::string::npos) return {};
+  const std::size_t at = md.find("| " + name, from);
+  if (at == std::string::npos) return {};
+  const std::string line = md.substr(at, md.find('\n', at) - at);
+  std::vector<std::string> cells;
+  std::stringstream s(line.substr(2));
+  for (std::string cell; std::getline(s, cell, '|');) {
+    const auto b = cell.find_first_not_of(' '), e = cell.find_last_not_of(' ');
+    if (b != std::string::npos) cells.push_back(cell.substr(b, e - b + 1));
+  }
+  return cells;
+}
+
+TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
+  AccuracyBenchmarkOptions o;
+  o.quick = true;
+  const std::string md = RunAccuracyBenchmark(o, nullptr);
+  for (const std::string scene : {"### candle", "### licks"}) {
+    SCOPED_TRACE(scene);
+    // Column 4 is exposure / true, column 7 the temperature RMS.
+    const auto before = Row(md, scene, "before: exposure fitted");
+    const auto known = Row(md, scene, "exposure known, w_sm = 1: `run` and `fit` now");
+    const auto alone = Row(md, scene, "the start alone");
+    ASSERT_EQ(before.size(), 13u) << md;
+    ASSERT_EQ(known.size(), 13u) << md;
+    ASSERT_EQ(alone.size(), 13u) << md;
+    EXPECT_EQ(known[4], "1.000");
+    EXPECT_NE(before[4], "1.000");
+    EXPECT_EQ(alone[2], "0");  // no iteration
+    for (const auto* row : {&before, &known, &alone}) {
+      const double rms = std::stod((*row)[7]);
+      EXPECT_GT(rms, 0);
+      EXPECT_LT(rms, 2000);  // the search range
+    }
+  }
+  // Eleven oracle rows per scene: ten variants and the noise-free one (the header is "| oracle").
+  const std::regex row("\\n\\| (?!oracle)[a-z.`]");
+  const auto rows = std::distance(std::sregex_iterator(md.begin(), md.end(), row),
+                                  std::sregex_iterator());
+  EXPECT_EQ(rows, 2 * 11) << md;
+}
+
+}  // namespace
+}  // namespace flamerig
