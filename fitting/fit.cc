@@ -269,9 +269,14 @@ void Resample(const State& from, const std::vector<float>& emission, const ThinE
 // The energy in the unbounded parameters u = (u_T per voxel, u_n per voxel, u_s).
 class SigmoidProblem : public ceres::FirstOrderFunction {
  public:
-  SigmoidProblem(const FitObjective& objective, const FitOptions& options, int* evaluations,
-                 std::deque<std::pair<double, EnergyTerms>>* seen)
+  // `start`: the values of the parameters that are held (FitOptions::vary, known_exposure), used
+  // as they are rather than through the sigmoid (whose logit is clamped 1% inside the bounds).
+  SigmoidProblem(const FitObjective& objective, const FitOptions& options, const State& start,
+                 int* evaluations, std::deque<std::pair<double, EnergyTerms>>* seen)
       : objective_(objective), options_(options), evaluations_(evaluations), seen_(seen) {
+    if (!options.vary.temperature) held_t_ = start.t;
+    if (!options.vary.density) held_n_ = start.n;
+    held_s_ = options.known_exposure > 0 ? options.known_exposure : 0.0;
     m_ = objective.num_active();
     t_lo_ = options.objective.t_min_k;
     t_span_ = options.objective.t_max_k - options.objective.t_min_k;
@@ -286,10 +291,10 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
     st->t.resize(m_);
     st->n.resize(m_);
     for (std::size_t a = 0; a < m_; ++a) {
-      st->t[a] = t_lo_ + t_span_ * Sigmoid(u[a]);
-      st->n[a] = std::exp(ln_n_lo_ + ln_n_span_ * Sigmoid(u[m_ + a]));
+      st->t[a] = held_t_.empty() ? t_lo_ + t_span_ * Sigmoid(u[a]) : held_t_[a];
+      st->n[a] = held_n_.empty() ? std::exp(ln_n_lo_ + ln_n_span_ * Sigmoid(u[m_ + a])) : held_n_[a];
     }
-    st->s = std::exp(ln_s_lo_ + ln_s_span_ * Sigmoid(u[2 * m_]));
+    st->s = held_s_ > 0 ? held_s_ : std::exp(ln_s_lo_ + ln_s_span_ * Sigmoid(u[2 * m_]));
   }
   void Encode(const State& st, double* u) const {
     for (std::size_t a = 0; a < m_; ++a) {
@@ -341,6 +346,8 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
   std::deque<std::pair<double, EnergyTerms>>* seen_;
   std::size_t m_ = 0;
   double t_lo_, t_span_, ln_n_lo_, ln_n_span_, ln_s_lo_, ln_s_span_;
+  std::vector<double> held_t_, held_n_;  // empty: fitted
+  double held_s_ = 0;                    // 0: fitted
 };
 
 class TraceCallback : public ceres::IterationCallback {
@@ -475,11 +482,16 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   bool have_previous = false;
   if (warm_start) {
     previous.grid = warm_start->volume.geometry;
+    // Under a known exposure that is not the warm start's, its densities give the same images
+    // (image = s * integral(n * rgb(T))) scaled by the ratio of the two.
+    const double density_scale = options.known_exposure > 0 && warm_start->exposure > 0
+                                     ? warm_start->exposure / options.known_exposure
+                                     : 1.0;
     for (std::size_t v = 0; v < previous.grid.num_voxels(); ++v) {
       if (warm_start->volume.density_per_m3[v] > 0) {
         previous.active.push_back(static_cast<std::uint32_t>(v));
         previous.t.push_back(warm_start->volume.temperature_k[v]);
-        previous.n.push_back(warm_start->volume.density_per_m3[v]);
+        previous.n.push_back(density_scale * warm_start->volume.density_per_m3[v]);
       }
     }
     previous.s = options.known_exposure > 0 ? options.known_exposure : warm_start->exposure;
@@ -513,7 +525,8 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
         std::to_string(st.grid.dims.x()) + "x" + std::to_string(st.grid.dims.y()) + "x" +
         std::to_string(st.grid.dims.z()) + ", " + std::to_string(st.active.size()) +
         " active voxels)";
-    auto* problem_function = new SigmoidProblem(objective, options, &result.evaluations, &seen);
+    auto* problem_function =
+        new SigmoidProblem(objective, options, st, &result.evaluations, &seen);
     std::vector<double> u(2 * st.active.size() + 1);
     problem_function->Encode(st, u.data());
     ceres::GradientProblem problem(problem_function);
@@ -554,7 +567,6 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
       result.message = "no iterations asked for";
     }
     problem_function->Decode(u.data(), &st);
-    if (options.known_exposure > 0) st.s = options.known_exposure;  // exactly, not as decoded
     previous = st;
     have_previous = true;
     result.active_voxels = st.active.size();
@@ -627,6 +639,7 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
                    const ProgressCallback& progress) {
   const auto start = Clock::now();
   FitOptions options = options_in;
+  options.objective.w_sm = paper.w_sm;
   options.Validate();
   options.objective.smooth_delta_e = options.objective.smooth_neighbour = 0;  // exact energy
   if (paper.iterations < 1 || paper.samples_per_cluster < 1 || paper.exposure_sweep < 2 ||

@@ -106,7 +106,7 @@ struct FitOptions {
   // 155 / 145 K and 95 / 83 K (3 at 300 iterations: 148 and 82 K); 0 overfits the noise (234 K,
   // 131 K at 300 iterations). In our normalised units (objective.h) 10 flattens the field: its
   // spread 57 K against the truth's 142 K. The paper's algorithms are run with the paper's 10 (ObjectiveOptions'
-  // default; `flamerig fit --method alg1|alg2`).
+  // default; PaperFitOptions::w_sm).
   ObjectiveOptions objective = [] {
     ObjectiveOptions o;
     o.w_sm = 1;
@@ -194,6 +194,9 @@ struct PaperFitOptions {
   int exposure_samples = 8;        // per sweep, after the first
   double time_limit_s = 0;         // 0 = none
   std::uint64_t seed = 1;
+  // The neighbour weight: the paper's 10, whatever FitOptions::objective says (the fast fit's
+  // default differs, FitOptions above).
+  double w_sm = ObjectiveOptions().w_sm;
 };
 
 FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,

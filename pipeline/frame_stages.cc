@@ -297,7 +297,8 @@ void FrameStages::Write(FrameWork* w) {
   s.fit_evaluations = result.evaluations;
   s.exposure = result.exposure;
   s.soot = TotalSoot(result.volume);
-  if (s.exposure_from == "fitted") {  // the take's exposure from here on
+  // The take's exposure from here on (not a failed fit's).
+  if (s.exposure_from == "fitted" && result.termination != FitTermination::kFailed) {
     take_exposure_ = result.exposure;
     take_exposure_frame_ = static_cast<long long>(w->index);
   }
@@ -340,6 +341,7 @@ void FrameStages::Score(FrameWork* w) {
 
 void FrameStages::Fail(FrameWork* w, const std::string& what) {
   w->summary.status = "failed: " + what;
+  w->summary.exposure_from.clear();  // no output, no exposure
   w->have_output = false;
   chain_.previous_result = -1;  // a failed frame has no output to start from
 }

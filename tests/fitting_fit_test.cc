@@ -389,6 +389,17 @@ TEST(FastFit, HoldsAKnownExposureAndUnselectedParameters) {
   EXPECT_GT(compared, 100u);
   EXPECT_GT(moved_t, compared / 2);
   EXPECT_GT(moved_free_n, compared / 2);
+  // Near the bound, where the sigmoid's logit is clamped (1% of the log range inside, a factor
+  // 1.12): the fit works at the known exposure itself, so the energy of its last iterate is the
+  // energy of what it returns.
+  FitOptions edge_options;
+  edge_options.iterations_finest = 3;
+  edge_options.known_exposure = 1.05 * edge_options.exposure_min;
+  const FitResult edge = FastFit(r.grid, r.tomography, r.views, soot, edge_options);
+  EXPECT_EQ(edge.exposure, edge_options.known_exposure);
+  ASSERT_FALSE(edge.trace.empty());
+  const double final_energy = edge.final_terms.exact_energy();  // what the trace records
+  EXPECT_NEAR(edge.trace.back().energy, final_energy, 1e-9 * final_energy);
   FitOptions bad;
   bad.known_exposure = 1e6;
   EXPECT_THROW(bad.Validate(), InputError);

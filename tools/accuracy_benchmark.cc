@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "calibration/synthetic_rig.h"
+#include "core/error.h"
 #include "core/image.h"
 #include "fitting/colour.h"
 #include "fitting/fit.h"
@@ -75,6 +76,8 @@ void Film(const SceneSpec& spec, Scene* s) {
   std::vector<float> lit;
   for (float v : fire)
     if (v > 1e-3f * peak) lit.push_back(v);
+  if (lit.empty() || !(peak > 0))
+    throw DataError("accuracy benchmark: " + spec.name + ": no fire in view");
   std::nth_element(lit.begin(), lit.begin() + static_cast<long>(0.995 * (lit.size() - 1)),
                    lit.end());
   s->exposure = spec.exposure_scale / lit[static_cast<std::size_t>(0.995 * (lit.size() - 1))];

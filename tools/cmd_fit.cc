@@ -78,9 +78,8 @@ Runner AddFit(CLI::App* command) {
     job.method = o->method == "alg1"   ? FitMethod::kAlgorithm1
                  : o->method == "alg2" ? FitMethod::kAlgorithm2
                                        : FitMethod::kFast;
-    // The paper's algorithms minimise the paper's energy unless told otherwise.
-    if (job.method != FitMethod::kFast && w_sm->count() == 0)
-      job.fit.objective.w_sm = ObjectiveOptions().w_sm;
+    // The paper's algorithms minimise the paper's energy (w_sm 10) unless told otherwise.
+    if (w_sm->count() > 0) job.paper.w_sm = job.fit.objective.w_sm;
     job.paper.time_limit_s = job.fit.time_limit_s;
     if (o->iterations >= 0) {
       if (o->iterations == 0 && job.method != FitMethod::kFast)
