@@ -291,6 +291,10 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
   int status = 0;
   bool exited = false;
   double next_stall = 1.0 + uniform(rng) * 2;
+  // The first three faults are one of each kind (one writer, the disk, the whole daemon), so that a
+  // short soak meets every kind whatever the draws; after them the kind is drawn. A thread stall
+  // that finds no such thread yet (a slow start, a rotation) is tried again shortly and not counted.
+  int faults = 0;
   while (!exited) {
     report.peak_rss_mb = std::max(report.peak_rss_mb, ResidentMb(pid));
     if (::waitpid(pid, &status, WNOHANG) == pid) {
@@ -301,11 +305,21 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
       rotate();
       next_rotation = elapsed() + o.segment_seconds;
     }
-    if (elapsed() > next_stall && elapsed() < o.seconds - 1) {
+    // A stall ends before the next rotation is due, so that the recordings rotate on time.
+    const bool rotation_due = next_rotation < o.seconds - 3;
+    const double until_rotation_ms = (next_rotation - elapsed()) * 1000 - 100;
+    if (elapsed() > next_stall && elapsed() < o.seconds - 1 &&
+        !(rotation_due && until_rotation_ms < 50)) {
       // One fault at a time, so that a thread held by ptrace never meets a SIGSTOP; each ends a
       // second before the daemon does.
-      const double kind = uniform(rng), left_ms = (o.seconds - 1 - elapsed()) * 1000;
-      auto cap = [&](double ms) { return static_cast<int>(std::min(ms, left_ms)); };
+      const double drawn = uniform(rng), left_ms = (o.seconds - 1 - elapsed()) * 1000;
+      const double kind = faults == 0 ? 0.5 : faults == 1 ? 0.8 : faults == 2 ? 0.0 : drawn;
+      // A disk stall takes at most a fifth of the soak, leaving time for the other faults.
+      auto cap = [&](double ms) {
+        return static_cast<int>(std::min({ms, left_ms, o.seconds * 1000 / 5,
+                                          rotation_due ? until_rotation_ms : ms}));
+      };
+      bool done = true;
       if (kind < 0.4 || !report.writer_stall_refused.empty()) {
         const int ms = cap(50 + 750 * uniform(rng));
         ::kill(pid, SIGSTOP);
@@ -316,15 +330,18 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
         const int ms = cap(50 + 1950 * uniform(rng));
         const std::string writer = "fr-write" + std::to_string(rng() % o.cameras);
         const auto tids = ThreadsNamed(pid, {writer});
-        report.writer_stall_refused = StopThreadsFor(tids, ms);
-        if (report.writer_stall_refused.empty() && !tids.empty()) ++report.writer_stalls;
+        done = !tids.empty();
+        if (done) report.writer_stall_refused = StopThreadsFor(tids, ms);
+        if (done && report.writer_stall_refused.empty()) ++report.writer_stalls;
       } else {
         const int ms = cap(50 + 7950 * uniform(rng));
         const auto tids = ThreadsNamed(pid, {"fr-write", "fr-commit"});
-        report.writer_stall_refused = StopThreadsFor(tids, ms);
-        if (report.writer_stall_refused.empty() && !tids.empty()) ++report.disk_stalls;
+        done = !tids.empty();
+        if (done) report.writer_stall_refused = StopThreadsFor(tids, ms);
+        if (done && report.writer_stall_refused.empty()) ++report.disk_stalls;
       }
-      next_stall = elapsed() + 0.5 + 2.5 * uniform(rng);
+      faults += done;
+      next_stall = elapsed() + (done ? 0.5 + 2.5 * uniform(rng) : 0.2);
     }
     if (elapsed() > o.seconds + 60) {  // a hung daemon is a failure, not a wait
       ::kill(pid, SIGKILL);
