@@ -32,14 +32,8 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
   const double exposure = images_exposure.value;
   // The fast fit holds a known exposure: checked before any work.
   FitOptions fit = job.fit;
-  if (job.method == FitMethod::kFast && images_exposure.known && !job.fit_exposure) {
-    if (!(exposure >= fit.exposure_min && exposure <= fit.exposure_max))
-      throw InputError("fit: the images' exposure " + std::to_string(exposure) +
-                       " (--exposure, or dataset.yaml beside the rig) is outside the fit's range [" +
-                       std::to_string(fit.exposure_min) + ", " + std::to_string(fit.exposure_max) +
-                       "]");
-    fit.known_exposure = exposure;
-  }
+  if (job.method == FitMethod::kFast && images_exposure.known && !job.fit_exposure)
+    fit.known_exposure = HeldExposure(images_exposure, fit, "fit");
   const AbsorptionModel absorption = AbsorptionModel::FromName(
       job.absorption.empty() ? DatasetAbsorption(job.rig_path) : job.absorption);
   const SourceFrameSet set = ReadFrameFolder(rig, job.images_dir, exposure);

@@ -138,6 +138,7 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
     s.name = view.name;
     s.held_out = k >= fitted.size();
     s.mean_delta_e = rendered.num_pixels() ? sum / rendered.num_pixels() : 0;
+    s.fire_pixels = fire.size();
     if (!fire.empty()) {
       double fs_sum = 0;
       for (double d : fire) fs_sum += d;

@@ -27,6 +27,7 @@ struct ViewScore {
   bool held_out = false;
   double mean_delta_e = 0;  // over all pixels
   double fire_delta_e = 0;  // over pixels where the input or the render is not black
+  std::size_t fire_pixels = 0;  // how many
   double p95_delta_e = 0;   // 95th percentile over those pixels
 };
 

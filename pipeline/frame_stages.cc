@@ -93,11 +93,7 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
   const ImagesExposure exposure = ResolveExposure(options_.exposure, rig_path);
   exposure_ = exposure.value;
   exposure_known_ = exposure.known;
-  if (exposure_known_ && !options_.fit_exposure &&
-      !(exposure_ >= options_.fit.exposure_min && exposure_ <= options_.fit.exposure_max))
-    throw InputError("run: the images' exposure " + std::to_string(exposure_) +
-                     " is outside the fit's range [" + std::to_string(options_.fit.exposure_min) +
-                     ", " + std::to_string(options_.fit.exposure_max) + "]");
+  if (exposure_known_ && !options_.fit_exposure) HeldExposure(exposure, options_.fit, "run");
   if (!options_.holdout_camera.empty()) {
     holdout_ = rig_.FindCamera(options_.holdout_camera);
     if (holdout_ < 0)

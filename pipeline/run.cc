@@ -62,6 +62,15 @@ ImagesExposure ResolveExposure(double given, const std::string& rig_path) {
   return e;
 }
 
+double HeldExposure(const ImagesExposure& exposure, const FitOptions& fit, const std::string& job) {
+  if (!(exposure.value >= fit.exposure_min && exposure.value <= fit.exposure_max))
+    throw InputError(job + ": the images' exposure " + std::to_string(exposure.value) +
+                     " (--exposure, or dataset.yaml beside the rig) is outside the fit's range [" +
+                     std::to_string(fit.exposure_min) + ", " + std::to_string(fit.exposure_max) +
+                     "]");
+  return exposure.value;
+}
+
 std::string DatasetAbsorption(const std::string& rig_path) {
   const fs::path dataset = fs::path(rig_path).parent_path() / "dataset.yaml";
   if (!fs::exists(dataset)) return "soot";

@@ -192,6 +192,9 @@ struct ImagesExposure {
   bool known = false;
 };
 ImagesExposure ResolveExposure(double given, const std::string& rig_path);
+// `exposure.value`, checked against the fit's exposure range, for a fit that holds it; InputError
+// naming `job` and where the value came from when it lies outside.
+double HeldExposure(const ImagesExposure& exposure, const FitOptions& fit, const std::string& job);
 std::string DatasetAbsorption(const std::string& rig_path);
 
 }  // namespace flamerig

@@ -193,6 +193,24 @@ void SimulateConfig::Validate() const {
   render.Validate();
 }
 
+double AutoExposure(const std::vector<ImageF>& linear) {
+  std::vector<float> values;
+  float max_value = 0;
+  for (const auto& img : linear)
+    for (std::size_t p = 0; p < img.num_pixels(); ++p) {
+      const float m = std::max({img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]});
+      max_value = std::max(max_value, m);
+      values.push_back(m);
+    }
+  std::vector<float> fire_values;
+  for (float v : values)
+    if (v > 1e-3f * max_value && v > 0) fire_values.push_back(v);
+  if (fire_values.empty()) return 0;
+  const std::size_t idx = static_cast<std::size_t>(0.995 * (fire_values.size() - 1));
+  std::nth_element(fire_values.begin(), fire_values.begin() + idx, fire_values.end());
+  return 1.0 / fire_values[idx];
+}
+
 SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_dir,
                          const ProgressCallback& progress) {
   config.Validate();
@@ -250,26 +268,12 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
       summary.last_render = renderer.Render(rays[c], &linear[c]);
 
     if (f == 0 && config.auto_exposure) {
-      // Exposure such that the 99.5th percentile of the brightest channel over fire pixels is full
-      // scale: the cores of the flame saturate slightly, as in real footage.
-      std::vector<float> values;
-      float max_value = 0;
-      for (const auto& img : linear)
-        for (std::size_t p = 0; p < img.num_pixels(); ++p) {
-          float m = std::max({img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]});
-          max_value = std::max(max_value, m);
-          values.push_back(m);
-        }
-      std::vector<float> fire_values;
-      for (float v : values)
-        if (v > 1e-3f * max_value && v > 0) fire_values.push_back(v);
-      if (fire_values.empty()) {
+      const double automatic = AutoExposure(linear);
+      if (!(automatic > 0)) {
         exposure = 1.0;
         summary.exposure_source = "auto: no fire visible, exposure 1";
       } else {
-        std::size_t idx = static_cast<std::size_t>(0.995 * (fire_values.size() - 1));
-        std::nth_element(fire_values.begin(), fire_values.begin() + idx, fire_values.end());
-        exposure = std::clamp(1.0 / fire_values[idx], 0.01, 1000.0);
+        exposure = std::clamp(automatic, 0.01, 1000.0);
         summary.exposure_source = "auto: 99.5th percentile of fire pixels at full scale";
       }
     } else if (f == 0) {

@@ -73,6 +73,11 @@ struct SimulateSummary {
 
 // Writes the dataset into `out_dir`. Progress: stages "fire frames" (unit frames) and
 // "calibration views" (unit views); cancelling throws Cancelled, leaving what was written.
+// The exposure that puts the 99.5th percentile of the brightest channel over the fire pixels
+// (above 1e-3 of the brightest) of `linear` renders at full scale, so that the cores of the flame
+// saturate slightly, as in real footage; 0 when no fire is visible. Not clamped to any range.
+double AutoExposure(const std::vector<ImageF>& linear);
+
 SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_dir,
                          const ProgressCallback& progress = nullptr);
 

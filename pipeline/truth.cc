@@ -23,7 +23,7 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
   for (std::size_t v = 0; !e.empty() && v < tg.num_voxels(); ++v)
     peak = std::max(peak, double(e[3 * v + 1]));
   // Sums over the counted voxels, plain and emission-weighted.
-  double n = 0, sf = 0, st = 0, sff = 0, stt = 0, sft = 0;
+  double n = 0, sd = 0, sdd = 0, sf = 0, st = 0, sff = 0, stt = 0, sft = 0;
   double w = 0, wd = 0, wdd = 0, wt = 0, wtt = 0;
   for (int k = 0; k < tg.dims.z(); ++k)
     for (int j = 0; j < tg.dims.y(); ++j)
@@ -33,15 +33,12 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
         if (!e.empty() && e[3 * v + 1] < 0.01 * peak) continue;
         ++out.visible;
         std::size_t f = v;
-        if (!out.same_grid) {
-          const Eigen::Vector3d at = fg.IndexFromRig(tg.VoxelCenter(i, j, k)).array().round();
-          if ((at.array() < 0).any() || (at.array() >= fg.dims.cast<double>().array()).any())
-            continue;
-          f = fg.Flat(int(at.x()), int(at.y()), int(at.z()));
-        }
+        if (!out.same_grid && !fg.VoxelHolding(tg.VoxelCenter(i, j, k), &f)) continue;
         if (!(fitted.density_per_m3[f] > 0)) continue;
         const double x = fitted.temperature_k[f], t = truth.temperature_k[v];
         n += 1;
+        sd += x - t;
+        sdd += (x - t) * (x - t);
         sf += x;
         st += t;
         sff += x * x;
@@ -60,12 +57,13 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
   out.fit_soot = TotalSoot(fitted);
   if (out.counted) {
     const double mf = sf / n, mt = st / n;
-    out.mean_k = mf - mt;
-    out.rms_k = std::sqrt(std::max(0.0, (sff - 2 * sft + stt) / n));
+    out.mean_k = sd / n;
+    out.rms_k = std::sqrt(sdd / n);
     const double vf = std::max(0.0, sff / n - mf * mf), vt = std::max(0.0, stt / n - mt * mt);
     out.fit_spread_k = std::sqrt(vf);
     out.truth_spread_k = std::sqrt(vt);
-    out.correlation = vf > 0 && vt > 0 ? (sft / n - mf * mt) / std::sqrt(vf * vt) : 0.0;
+    out.correlation =
+        vf > 0 && vt > 0 ? std::clamp((sft / n - mf * mt) / std::sqrt(vf * vt), -1.0, 1.0) : 0.0;
   }
   if (w > 0) {
     out.weighted_mean_k = wd / w;

@@ -52,6 +52,13 @@ struct GridGeometry {
   Eigen::Vector3d IndexFromRig(const Eigen::Vector3d& point_in_rig) const {
     return ((point_in_rig - origin_in_rig).cwiseQuotient(voxel_size_m).array() - 0.5).matrix();
   }
+  // The voxel that holds `point_in_rig` (its flat index), false when the point is outside.
+  bool VoxelHolding(const Eigen::Vector3d& point_in_rig, std::size_t* flat) const {
+    const Eigen::Vector3d at = IndexFromRig(point_in_rig).array().round();
+    if ((at.array() < 0).any() || (at.array() >= dims.cast<double>().array()).any()) return false;
+    *flat = Flat(int(at.x()), int(at.y()), int(at.z()));
+    return true;
+  }
   Box3 box() const {
     return Box3{origin_in_rig, origin_in_rig + dims.cast<double>().cwiseProduct(voxel_size_m)};
   }

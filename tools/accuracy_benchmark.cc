@@ -5,15 +5,17 @@
 #include <cmath>
 #include <memory>
 #include <sstream>
+#include <utility>
 
 #include "calibration/synthetic_rig.h"
 #include "core/error.h"
 #include "core/image.h"
-#include "fitting/colour.h"
 #include "fitting/fit.h"
 #include "fitting/objective.h"
 #include "fitting/renderer.h"
 #include "fitting/synthetic_fire.h"
+#include "pipeline/fit_report.h"
+#include "pipeline/simulate.h"
 #include "pipeline/truth.h"
 #include "tomography/reconstruct.h"
 #include "tools/benchmark.h"
@@ -62,25 +64,10 @@ void Film(const SceneSpec& spec, Scene* s) {
   FireRenderer renderer(s->absorption);
   renderer.SetVolume(s->truth.geometry, s->truth.temperature_k, s->truth.density_per_m3);
   std::vector<ImageF> linear(s->rays.size());
-  std::vector<float> fire;
-  float peak = 0;
-  for (std::size_t c = 0; c < s->rays.size(); ++c) {
-    renderer.Render(*s->rays[c], &linear[c]);
-    for (std::size_t p = 0; p < linear[c].num_pixels(); ++p) {
-      const float* v = &linear[c].pixels[3 * p];
-      const float m = std::max({v[0], v[1], v[2]});
-      peak = std::max(peak, m);
-      fire.push_back(m);
-    }
-  }
-  std::vector<float> lit;
-  for (float v : fire)
-    if (v > 1e-3f * peak) lit.push_back(v);
-  if (lit.empty() || !(peak > 0))
-    throw DataError("accuracy benchmark: " + spec.name + ": no fire in view");
-  std::nth_element(lit.begin(), lit.begin() + static_cast<long>(0.995 * (lit.size() - 1)),
-                   lit.end());
-  s->exposure = spec.exposure_scale / lit[static_cast<std::size_t>(0.995 * (lit.size() - 1))];
+  for (std::size_t c = 0; c < s->rays.size(); ++c) renderer.Render(*s->rays[c], &linear[c]);
+  const double automatic = AutoExposure(linear);
+  if (!(automatic > 0)) throw DataError("accuracy benchmark: " + spec.name + ": no fire in view");
+  s->exposure = spec.exposure_scale * automatic;
   s->images.clear();
   for (std::size_t c = 0; c < linear.size(); ++c) {
     s->images.push_back(ApplyCameraResponse(linear[c], s->exposure));
@@ -134,10 +121,8 @@ FireVolume TruthOnGrid(const FireVolume& truth, const GridGeometry& grid) {
   for (int k = 0; k < tg.dims.z(); ++k)
     for (int j = 0; j < tg.dims.y(); ++j)
       for (int i = 0; i < tg.dims.x(); ++i) {
-        const Eigen::Vector3d at = grid.IndexFromRig(tg.VoxelCenter(i, j, k)).array().round();
-        if ((at.array() < 0).any() || (at.array() >= grid.dims.cast<double>().array()).any())
-          continue;
-        const std::size_t f = grid.Flat(int(at.x()), int(at.y()), int(at.z()));
+        std::size_t f;
+        if (!grid.VoxelHolding(tg.VoxelCenter(i, j, k), &f)) continue;
         const std::size_t v = tg.Flat(i, j, k);
         nt[f] += double(truth.density_per_m3[v]) * truth.temperature_k[v];
         dn[f] += truth.density_per_m3[v];
@@ -168,28 +153,17 @@ std::vector<FitView> Views(const Scene& s, bool held_out) {
   return v;
 }
 
-// Mean Delta E over the fire pixels (input or render not black) of `views` for a fitted volume.
-double FireDeltaE(const FitResult& r, const std::vector<FitView>& views,
-                  const AbsorptionModel& absorption) {
-  FireRenderer renderer(absorption);
-  renderer.SetVolume(r.volume.geometry, r.volume.temperature_k, r.volume.density_per_m3);
-  double sum = 0;
-  std::size_t n = 0;
-  for (const FitView& v : views) {
-    ImageF linear;
-    renderer.Render(*v.rays, &linear);
-    for (std::size_t p = 0; p < linear.num_pixels(); ++p) {
-      const Eigen::Vector3d in = colour::SrgbU8ToLab(v.image.pixels[3 * p], v.image.pixels[3 * p + 1],
-                                                     v.image.pixels[3 * p + 2]);
-      const Eigen::Vector3d out = CameraLab(
-          Eigen::Vector3d(linear.pixels[3 * p], linear.pixels[3 * p + 1], linear.pixels[3 * p + 2]),
-          r.exposure);
-      if (in[0] <= 1 && out[0] <= 1) continue;
-      sum += colour::DeltaE76(in, out);
-      ++n;
-    }
+// Mean Delta E over the fire pixels (fit_report.h) of the fitted views and of the held-out ones,
+// each pooled over their pixels.
+std::pair<double, double> FireDeltaE(const FitResult& r, const std::vector<FitView>& fitted,
+                                     const std::vector<FitView>& held,
+                                     const AbsorptionModel& absorption) {
+  double sum[2] = {0, 0}, pixels[2] = {0, 0};
+  for (const ViewScore& v : WriteFitReport("", r, fitted, held, absorption, RenderOptions(), "")) {
+    sum[v.held_out] += v.fire_delta_e * v.fire_pixels;
+    pixels[v.held_out] += v.fire_pixels;
   }
-  return n ? sum / n : 0.0;
+  return {pixels[0] > 0 ? sum[0] / pixels[0] : 0.0, pixels[1] > 0 ? sum[1] / pixels[1] : 0.0};
 }
 
 struct Variant {
@@ -328,10 +302,11 @@ std::string RunAccuracyBenchmark(const AccuracyBenchmarkOptions& options,
                    const Scene& on, const std::vector<FitView>& views,
                    const std::vector<FitView>& held_views) {
       const TruthError t = CompareWithTruth(on.truth, r.volume);
+      const auto delta_e = FireDeltaE(r, views, held_views, on.absorption);
       md << "| " << name << " | " << Fixed(seconds, 1) << " | " << r.iterations << " | "
          << ToString(r.termination) << " | " << Fixed(r.exposure / on.exposure, 3) << " | "
-         << Fixed(FireDeltaE(r, views, on.absorption), 2) << " | "
-         << Fixed(FireDeltaE(r, held_views, on.absorption), 2) << " | " << Fixed(t.rms_k, 0) << " | "
+         << Fixed(delta_e.first, 2) << " | " << Fixed(delta_e.second, 2) << " | "
+         << Fixed(t.rms_k, 0) << " | "
          << Fixed(t.mean_k, 0) << " | " << Fixed(t.weighted_rms_k, 0) << " | "
          << Fixed(t.correlation, 2) << " | " << Fixed(t.fit_spread_k, 0) << " | " << t.counted
          << " / " << t.visible << " |\n";

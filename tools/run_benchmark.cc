@@ -51,6 +51,7 @@ Row Measure(const std::string& name, const RunOptions& o, std::size_t begin, std
   r.frames = s.frames.size();
   r.computed = s.computed;
   r.unchanged = s.unchanged;
+  const double true_exposure = ResolveExposure(0, o.rig_path).value;
   int de_n = 0, t_n = 0;
   for (const auto& f : s.frames) {
     r.read_ms += f.read_ms;
@@ -66,7 +67,7 @@ Row Measure(const std::string& name, const RunOptions& o, std::size_t begin, std
       r.truth_k += f.truth_rms_k;
       ++t_n;
       if (f.status == "computed" && f.truth_soot > 0) {
-        r.exposure_ratio.push_back(f.exposure / ResolveExposure(0, o.rig_path).value);
+        r.exposure_ratio.push_back(f.exposure / true_exposure);
         r.soot_ratio.push_back(f.soot / f.truth_soot);
         r.bias_k.push_back(f.truth_bias_k);
         const FireVolume v = ReadVdb((fs::path(o.out_dir) / (FrameName(f.frame) + ".vdb")).string());
