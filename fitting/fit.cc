@@ -292,7 +292,8 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
     st->n.resize(m_);
     for (std::size_t a = 0; a < m_; ++a) {
       st->t[a] = held_t_.empty() ? t_lo_ + t_span_ * Sigmoid(u[a]) : held_t_[a];
-      st->n[a] = held_n_.empty() ? std::exp(ln_n_lo_ + ln_n_span_ * Sigmoid(u[m_ + a])) : held_n_[a];
+      st->n[a] =
+          held_n_.empty() ? std::exp(ln_n_lo_ + ln_n_span_ * Sigmoid(u[m_ + a])) : held_n_[a];
     }
     st->s = held_s_ > 0 ? held_s_ : std::exp(ln_s_lo_ + ln_s_span_ * Sigmoid(u[2 * m_]));
   }
@@ -525,8 +526,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
         std::to_string(st.grid.dims.x()) + "x" + std::to_string(st.grid.dims.y()) + "x" +
         std::to_string(st.grid.dims.z()) + ", " + std::to_string(st.active.size()) +
         " active voxels)";
-    auto* problem_function =
-        new SigmoidProblem(objective, options, st, &result.evaluations, &seen);
+    auto* problem_function = new SigmoidProblem(objective, options, st, &result.evaluations, &seen);
     std::vector<double> u(2 * st.active.size() + 1);
     problem_function->Encode(st, u.data());
     ceres::GradientProblem problem(problem_function);

@@ -251,10 +251,9 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
   }
   const auto t0 = SteadyClock::now();
   try {
-    w->result =
-        FastFit(reconstructor_->grid(), w->tomography, w->views, absorption_, fit,
-                chain_.previous_result >= 0 && options_.warm_start ? &previous_ : nullptr,
-                progress);
+    w->result = FastFit(reconstructor_->grid(), w->tomography, w->views, absorption_, fit,
+                        chain_.previous_result >= 0 && options_.warm_start ? &previous_ : nullptr,
+                        progress);
   } catch (const DataError& e) {
     w->summary.fit_ms = Ms(t0);
     throw DataError(std::string("fit: ") + e.what());

@@ -100,7 +100,7 @@ class FrameStages {
   Rig rig_;
   FrameSource source_;
   RunPaths paths_;
-  double exposure_ = 1;       // the images', or 1 when unknown
+  double exposure_ = 1;  // the images', or 1 when unknown
   bool exposure_known_ = false;
   // The take's exposure when the images' is unknown: fitted on the first computed frame, held
   // after it; 0 until then (and under --fit-exposure).

@@ -162,17 +162,18 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     };
     std::ostringstream csv;
     csv << "frame,status,cameras_used,total_ms,read_ms,tomography_ms,fit_ms,write_ms,matrix,"
-           "active_voxels,exposure,exposure_from,soot,initial_energy,energy,fit_termination,fit_iterations,"
-           "fit_message,truth_frame,truth_rms_k,truth_bias_k,truth_soot";
+           "active_voxels,exposure,exposure_from,soot,initial_energy,energy,fit_termination,"
+           "fit_iterations,fit_message,truth_frame,truth_rms_k,truth_bias_k,truth_soot";
     for (const auto& c : cameras) csv << ",delta_e_fire_" << c << ",delta_e_all_" << c;
     csv << ",notes\n";
     for (const auto& f : frames) {
-      csv << f.frame << "," << quoted(f.status) << "," << f.cameras_used << "," << f.total_ms
-          << "," << f.read_ms << "," << f.reconstruct_ms << "," << f.fit_ms << "," << f.write_ms
-          << "," << f.matrix_source << "," << f.active_voxels << "," << f.exposure << ","
-          << quoted(f.exposure_from) << "," << f.soot << "," << f.initial_energy << "," << f.energy << "," << f.fit_termination << ","
-          << f.fit_iterations << "," << quoted(f.fit_message) << "," << f.truth_frame << ","
-          << f.truth_rms_k << "," << f.truth_bias_k << "," << f.truth_soot;
+      csv << f.frame << "," << quoted(f.status) << "," << f.cameras_used << "," << f.total_ms << ","
+          << f.read_ms << "," << f.reconstruct_ms << "," << f.fit_ms << "," << f.write_ms << ","
+          << f.matrix_source << "," << f.active_voxels << "," << f.exposure << ","
+          << quoted(f.exposure_from) << "," << f.soot << "," << f.initial_energy << "," << f.energy
+          << "," << f.fit_termination << "," << f.fit_iterations << "," << quoted(f.fit_message)
+          << "," << f.truth_frame << "," << f.truth_rms_k << "," << f.truth_bias_k << ","
+          << f.truth_soot;
       for (const auto& c : cameras) {
         auto it = std::find_if(f.delta_e.begin(), f.delta_e.end(),
                                [&](const ViewDeltaE& d) { return d.camera == c; });

@@ -55,8 +55,8 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
   }
   // Eleven oracle rows per scene: ten variants and the noise-free one (the header is "| oracle").
   const std::regex row("\\n\\| (?!oracle)[a-z.`]");
-  const auto rows = std::distance(std::sregex_iterator(md.begin(), md.end(), row),
-                                  std::sregex_iterator());
+  const auto rows =
+      std::distance(std::sregex_iterator(md.begin(), md.end(), row), std::sregex_iterator());
   EXPECT_EQ(rows, 2 * 11) << md;
 }
 

@@ -26,7 +26,9 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-double Since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+double Since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
 
 // A scene: a truth on a fine grid, the cameras that film it (the last one held out), their 8-bit
 // images, the exposure they were taken with, and the tomography of the fitted views on the fit's
@@ -262,12 +264,13 @@ std::string RunAccuracyBenchmark(const AccuracyBenchmarkOptions& options,
     variants.push_back({"the start alone: the tomography's colour, no iteration", none});
     FitOptions from_truth = converged;
     from_truth.warm_start_density_from_emission = false;
-    variants.push_back({"started at the truth, exposure known, w_sm = 1, " + its, from_truth, true});
+    variants.push_back(
+        {"started at the truth, exposure known, w_sm = 1, " + its, from_truth, true});
     FitOptions t_only = converged;
     t_only.vary.density = false;
     t_only.warm_start_density_from_emission = false;
-    variants.push_back({"the truth's densities given, temperature fitted from the truth's",
-                        t_only, true});
+    variants.push_back(
+        {"the truth's densities given, temperature fitted from the truth's", t_only, true});
 
     const TruthError constant = CompareWithTruth(scene.truth, truth_on_grid);
     md << "### " << spec.name << ", " << spec.width << "x" << spec.height
@@ -298,18 +301,16 @@ std::string RunAccuracyBenchmark(const AccuracyBenchmarkOptions& options,
           "E held out | T RMS K | bias K | emission-weighted RMS K | correlation | fitted spread K "
           "| visible voxels with medium |\n";
     md << "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
-    auto row = [&](const std::string& name, const FitResult& r, double seconds,
-                   const Scene& on, const std::vector<FitView>& views,
-                   const std::vector<FitView>& held_views) {
+    auto row = [&](const std::string& name, const FitResult& r, double seconds, const Scene& on,
+                   const std::vector<FitView>& views, const std::vector<FitView>& held_views) {
       const TruthError t = CompareWithTruth(on.truth, r.volume);
       const auto delta_e = FireDeltaE(r, views, held_views, on.absorption);
       md << "| " << name << " | " << Fixed(seconds, 1) << " | " << r.iterations << " | "
          << ToString(r.termination) << " | " << Fixed(r.exposure / on.exposure, 3) << " | "
          << Fixed(delta_e.first, 2) << " | " << Fixed(delta_e.second, 2) << " | "
-         << Fixed(t.rms_k, 0) << " | "
-         << Fixed(t.mean_k, 0) << " | " << Fixed(t.weighted_rms_k, 0) << " | "
-         << Fixed(t.correlation, 2) << " | " << Fixed(t.fit_spread_k, 0) << " | " << t.counted
-         << " / " << t.visible << " |\n";
+         << Fixed(t.rms_k, 0) << " | " << Fixed(t.mean_k, 0) << " | " << Fixed(t.weighted_rms_k, 0)
+         << " | " << Fixed(t.correlation, 2) << " | " << Fixed(t.fit_spread_k, 0) << " | "
+         << t.counted << " / " << t.visible << " |\n";
       if (log)
         log("accuracy: " + spec.name + ": " + name + ": " + Fixed(seconds, 1) + " s, T RMS " +
             Fixed(t.rms_k, 0) + " K, bias " + Fixed(t.mean_k, 0) + " K");
@@ -331,8 +332,8 @@ std::string RunAccuracyBenchmark(const AccuracyBenchmarkOptions& options,
       const auto start = Clock::now();
       const FitResult r =
           FastFit(clean.fit_grid, clean.tomography, clean_fitted, clean.absorption, o);
-      row("noise-free, unsaturated images, exposure known, w_sm = 1, " + its,
-          r, Since(start), clean, clean_fitted, Views(clean, true));
+      row("noise-free, unsaturated images, exposure known, w_sm = 1, " + its, r, Since(start),
+          clean, clean_fitted, Views(clean, true));
     }
     md << "\n";
   }

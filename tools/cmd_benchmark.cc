@@ -24,12 +24,10 @@ Runner AddBenchmark(CLI::App* command) {
       "cameras, the calibration of a simulated ring against mrcal-calibrate-cameras, the daily\n"
       "job, a fire-lit scene, or a capture soak with faults injected, and write the figures to\n"
       "BENCHMARKS.md (--quick: a small smoke run).");
-  command
-      ->add_option("target", o->target, "What to measure")
+  command->add_option("target", o->target, "What to measure")
       ->required()
-      ->check(CLI::IsMember(
-          {"render", "tomography", "fit", "accuracy", "capture", "calibration", "run", "scene",
-           "soak"}));
+      ->check(CLI::IsMember({"render", "tomography", "fit", "accuracy", "capture", "calibration",
+                             "run", "scene", "soak"}));
   command->add_option("--out", o->out, "The Markdown file to write the section into")
       ->type_name("BENCHMARKS.md");
   command->add_flag("--quick", o->quick, "A small smoke run");

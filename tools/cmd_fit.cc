@@ -50,11 +50,12 @@ Runner AddFit(CLI::App* command) {
       ->check(kPositive);
   command->add_flag("--fit-exposure", job.fit_exposure,
                     "Fast fit: fit a free exposure (the paper's s), even a known one");
-  CLI::Option* w_sm = command->add_option(
-      "--w-sm", job.fit.objective.w_sm,
-      "Weight of the neighbour term (fast: 1; alg1/alg2: the paper's 10)")
-      ->type_name("W")
-      ->check(kNonNegative);
+  CLI::Option* w_sm =
+      command
+          ->add_option("--w-sm", job.fit.objective.w_sm,
+                       "Weight of the neighbour term (fast: 1; alg1/alg2: the paper's 10)")
+          ->type_name("W")
+          ->check(kNonNegative);
   command->add_option("--fit-iterations", o->iterations,
                       "Fast fit: L-BFGS iterations per grid level; alg1/alg2: sweeps")
       ->type_name("N")

@@ -12,11 +12,11 @@
 #include <sstream>
 
 #include "core/image.h"
+#include "pipeline/distributed.h"
+#include "pipeline/run.h"
+#include "pipeline/simulate.h"
 #include "tomography/vdb_io.h"
 #include "tools/benchmark.h"
-#include "pipeline/run.h"
-#include "pipeline/distributed.h"
-#include "pipeline/simulate.h"
 
 namespace flamerig {
 
@@ -70,7 +70,8 @@ Row Measure(const std::string& name, const RunOptions& o, std::size_t begin, std
         r.exposure_ratio.push_back(f.exposure / true_exposure);
         r.soot_ratio.push_back(f.soot / f.truth_soot);
         r.bias_k.push_back(f.truth_bias_k);
-        const FireVolume v = ReadVdb((fs::path(o.out_dir) / (FrameName(f.frame) + ".vdb")).string());
+        const FireVolume v =
+            ReadVdb((fs::path(o.out_dir) / (FrameName(f.frame) + ".vdb")).string());
         // At the bound: within 1% of the search range of it (the sigmoid never reaches it).
         const ObjectiveOptions& b = o.fit.objective;
         const double near = b.t_max_k - 0.01 * (b.t_max_k - b.t_min_k);
@@ -219,7 +220,8 @@ std::string RunRunBenchmark(const RunBenchmarkOptions& options,
         "known, soot within 10% of the truth, temperature bias within 20 K, no voxel at a bound "
         "the truth does not reach; the truth's peak is "
      << Fixed(c.fire.peak_temperature_k, 0) << " K, the fit's upper bound "
-     << Fixed(base.fit.objective.t_max_k, 0) << " K). Before issue 19 (exposure free, w_sm 10) "
+     << Fixed(base.fit.objective.t_max_k, 0)
+     << " K). Before issue 19 (exposure free, w_sm 10) "
         "the exposure fell from 0.778 to 0.310 over the take and about 110 voxels per frame sat "
         "at the bound.\n\n";
   md << "| run | exposure / true | soot / truth | temperature bias K | voxels within "
@@ -227,8 +229,7 @@ std::string RunRunBenchmark(const RunBenchmarkOptions& options,
      << " K of the upper bound (all frames) |\n|---|---|---|---|---|\n";
   for (const Row* r : std::vector<const Row*>{&rows[0], &rows[1], &free})
     md << "| " << r->name << " | " << Range(r->exposure_ratio, 3) << " | "
-       << Range(r->soot_ratio, 2) << " | " << Range(r->bias_k, 0) << " | " << r->at_bound
-       << " |\n";
+       << Range(r->soot_ratio, 2) << " | " << Range(r->bias_k, 0) << " | " << r->at_bound << " |\n";
   md << "\nStage shares are of the time spent in the four stages (the rest, under 1%, is "
         "bookkeeping: summaries and state files). In the still-fire rows the truth is not scored "
         "(the repeated frames no longer match it); "

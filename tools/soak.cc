@@ -316,8 +316,8 @@ SoakReport RunSoak(const SoakOptions& o, const std::function<void(const std::str
       const double kind = faults == 0 ? 0.5 : faults == 1 ? 0.8 : faults == 2 ? 0.0 : drawn;
       // A disk stall takes at most a fifth of the soak, leaving time for the other faults.
       auto cap = [&](double ms) {
-        return static_cast<int>(std::min({ms, left_ms, o.seconds * 1000 / 5,
-                                          rotation_due ? until_rotation_ms : ms}));
+        return static_cast<int>(
+            std::min({ms, left_ms, o.seconds * 1000 / 5, rotation_due ? until_rotation_ms : ms}));
       };
       bool done = true;
       if (kind < 0.4 || !report.writer_stall_refused.empty()) {
