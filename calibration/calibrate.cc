@@ -696,7 +696,8 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
     rig.cameras.push_back(RigCamera{
         data.camera_names[c], "cameras/" + data.camera_names[c] + ".cameramodel",
         CameraModel(options.lensmodel, std::move(in), solved_cam_from_ref[c] * ref_from_rig,
-                    data.widths[c], data.heights[c])});
+                    data.widths[c], data.heights[c]),
+        {}});
   }
   rig.box = options.box;
   if (!rig.box.IsValid()) {

@@ -88,7 +88,7 @@ Rig ReadRig(const YAML::Node& r, const std::string& yaml_path) {
   for (std::size_t i = 0; i < cams.size(); ++i) {
     std::string field = "rig.cameras[" + std::to_string(i) + "]";
     YAML::Node c = cams[i];
-    CheckKeys(c, {"name", "model"}, yaml_path + ": " + field);
+    CheckKeys(c, {"name", "model", "radiometry"}, yaml_path + ": " + field);
     if (!c["name"] || !c["model"]) Fail(yaml_path, field, "needs 'name' and 'model'");
     std::string name = c["name"].as<std::string>();
     if (name.empty()) Fail(yaml_path, field + ".name", "must not be empty");
@@ -97,10 +97,13 @@ Rig ReadRig(const YAML::Node& r, const std::string& yaml_path) {
     std::string model_path = c["model"].as<std::string>();
     fs::path full = fs::path(model_path).is_absolute() ? fs::path(model_path) : base / model_path;
     try {
-      rig.cameras.push_back(RigCamera{name, model_path, CameraModel::Load(full.string())});
+      rig.cameras.push_back(RigCamera{name, model_path, CameraModel::Load(full.string()), {}});
     } catch (const std::exception& e) {
       Fail(yaml_path, field + ".model", e.what());
     }
+    if (c["radiometry"])
+      rig.cameras.back().radiometry = CameraRadiometry::FromYaml(
+          c["radiometry"], base.string(), yaml_path + ": " + field + ".radiometry");
   }
   return rig;
 }
@@ -129,7 +132,12 @@ void Rig::Save(const std::string& yaml_path) const {
     fs::create_directories(full.parent_path());
     c.model.Save(full.string(), "flamerig camera '" + c.name + "' of rig '" + name + "'");
     out << YAML::BeginMap << YAML::Key << "name" << YAML::Value << c.name << YAML::Key << "model"
-        << YAML::Value << model_path << YAML::EndMap;
+        << YAML::Value << model_path;
+    if (!c.radiometry.is_default()) {
+      out << YAML::Key << "radiometry" << YAML::Value;
+      c.radiometry.ToYaml(&out);
+    }
+    out << YAML::EndMap;
   }
   out << YAML::EndSeq << YAML::EndMap << YAML::EndMap;
   WriteFileAtomically(yaml_path, std::string(out.c_str()) + "\n");

@@ -13,6 +13,7 @@
 //     cameras:
 //       - name: cam0                # unique; used to name images and outputs
 //         model: cameras/cam0.cameramodel
+//         radiometry: {transfer: linear, bit_depth: 12}   # optional; radiometry.h
 //
 // Load errors name the file, the field and the rule broken (InputError).
 #ifndef FLAMERIG_CALIBRATION_RIG_H_
@@ -23,6 +24,7 @@
 #include <vector>
 
 #include "calibration/camera_model.h"
+#include "calibration/radiometry.h"
 
 namespace flamerig {
 
@@ -43,6 +45,8 @@ struct RigCamera {
   std::string name;
   std::string model_path;  // as written in the YAML (relative to it), for Save()
   CameraModel model;
+  // How its pixels' codes relate to radiance (radiometry.h); the default is today's sRGB camera.
+  CameraRadiometry radiometry;
 };
 
 struct Rig {

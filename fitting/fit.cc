@@ -87,22 +87,36 @@ std::string FitResult::BriefReport() const {
 }
 
 ThinEmissionTable::ThinEmissionTable(const AbsorptionModel& absorption, double t_min_k,
-                                     double t_max_k)
+                                     double t_max_k,
+                                     std::shared_ptr<const ChannelResponse> response)
     : t_min_(t_min_k), t_max_(t_max_k) {
   if (!(t_min_k > 0) || !(t_max_k > t_min_k))
     throw InputError("ThinEmissionTable: need 0 < t_min < t_max");
-  const auto& cie = colour::CieObserver::Cie1931TwoDegree();
-  std::vector<double> sigma(colour::CieObserver::kCount);
-  for (int i = 0; i < colour::CieObserver::kCount; ++i)
-    sigma[i] = absorption.CrossSectionM2(colour::CieObserver::kFirstNm + i);
+  if (!response) response = ChannelResponse::SrgbObserver();
+  xyz_chromaticity_ = response == ChannelResponse::SrgbObserver();
+  const int first = xyz_chromaticity_ ? colour::CieObserver::kFirstNm : ChannelResponse::kFirstNm;
+  const int last = xyz_chromaticity_ ? colour::CieObserver::kLastNm : ChannelResponse::kLastNm;
+  std::vector<double> sigma(last - first + 1);
+  for (int i = first; i <= last; ++i) sigma[i - first] = absorption.CrossSectionM2(i);
   const int n = static_cast<int>(std::ceil(t_max_k - t_min_k)) + 1;
+  const auto& cie = colour::CieObserver::Cie1931TwoDegree();
   for (int k = 0; k < n; ++k) {
     const double t = std::min(t_max_k, t_min_k + k);
-    int i = 0;
-    const Eigen::Vector3d xyz =
-        cie.Integrate([&](double nm) { return sigma[i++] * physics::PlanckRadiancePerNm(nm, t); });
-    rgb_.push_back(colour::LinearSrgbFromXyz() * xyz);
-    xy_.push_back(colour::Chromaticity(xyz));
+    if (xyz_chromaticity_) {
+      int i = 0;
+      const Eigen::Vector3d xyz = cie.Integrate(
+          [&](double nm) { return sigma[i++] * physics::PlanckRadiancePerNm(nm, t); });
+      rgb_.push_back(colour::LinearSrgbFromXyz() * xyz);
+      xy_.push_back(colour::Chromaticity(xyz));
+    } else {
+      const Eigen::Vector3d c = response->Integrate([&](double nm) {
+        const int i = static_cast<int>(nm) - first;
+        return i >= 0 && i < int(sigma.size()) ? sigma[i] * physics::PlanckRadiancePerNm(nm, t)
+                                                : 0.0;
+      });
+      rgb_.push_back(c);
+      xy_.push_back(colour::Chromaticity(c));
+    }
   }
 }
 
@@ -114,7 +128,8 @@ Eigen::Vector3d ThinEmissionTable::RgbPerDensity(double t_k) const {
 }
 
 double ThinEmissionTable::TemperatureOf(const Eigen::Vector3d& rgb) const {
-  const Eigen::Vector3d xyz = colour::XyzFromLinearSrgb() * rgb;
+  const Eigen::Vector3d xyz = xyz_chromaticity_ ? Eigen::Vector3d(colour::XyzFromLinearSrgb() * rgb)
+                                                : rgb;
   if (!(xyz.sum() > 0)) return t_min_;
   const Eigen::Vector2d xy = colour::Chromaticity(xyz);
   auto dist = [&](std::size_t k) { return (xy_[k] - xy).squaredNorm(); };
@@ -472,7 +487,10 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   options.objective.smooth_delta_e = options.smooth_delta_e;
   options.objective.smooth_neighbour = options.smooth_neighbour;
   options.objective.density_pairwise = options.density_pairwise;
-  const ThinEmissionTable table(absorption, options.objective.t_min_k, options.objective.t_max_k);
+  const ThinEmissionTable table(absorption, options.objective.t_min_k, options.objective.t_max_k,
+                                !views.empty() && views.front().response
+                                    ? views.front().response
+                                    : options.render.response);
   const double s_tomo = TomographyExposure(tomography);
   FitResult result;
   result.method = "fast fit (L-BFGS, adjoint gradient" +

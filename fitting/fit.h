@@ -9,7 +9,7 @@
 // Fast fit (FastFit):
 //  1. Initialisation from the tomography emission: per voxel, the chromaticity of its emission
 //     gives the temperature (the nearest point of the absorption-weighted Planck colour curve,
-//     ThinEmissionTable) and its brightness gives density times exposure (the exposure starts at
+//     ThinEmissionTable, in the first view's camera response) and its brightness gives density times exposure (the exposure starts at
 //     the tomography's and is moved, with every density, when the densities would leave their
 //     bounds).
 //  2. Refinement: L-BFGS (Ceres' GradientProblemSolver) on the Charbonnier-smoothed energy with
@@ -57,10 +57,13 @@
 namespace flamerig {
 
 // Emission per unit density of a black body seen through the absorption model, in the renderer's
-// linear sRGB (what a voxel of density 1 per m^3 emits per metre in the thin limit), per kelvin.
+// linear sRGB (what a voxel of density 1 per m^3 emits per metre in the thin limit), per kelvin;
+// with a camera response (camera_response.h), in its channels, and the chromaticity below is then
+// the channels' (c0, c1) / (c0 + c1 + c2).
 class ThinEmissionTable {
  public:
-  ThinEmissionTable(const AbsorptionModel& absorption, double t_min_k, double t_max_k);
+  ThinEmissionTable(const AbsorptionModel& absorption, double t_min_k, double t_max_k,
+                    std::shared_ptr<const ChannelResponse> response = nullptr);
   Eigen::Vector3d RgbPerDensity(double t_k) const;
   // The temperature in [t_min, t_max] whose emission has the chromaticity nearest `rgb`'s
   // (CIE xy); t_min for black or non-positive colours.
@@ -70,6 +73,7 @@ class ThinEmissionTable {
 
  private:
   double t_min_, t_max_;
+  bool xyz_chromaticity_ = true;  // the sRGB observer: CIE xy
   std::vector<Eigen::Vector3d> rgb_;  // per kelvin from t_min
   std::vector<Eigen::Vector2d> xy_;
 };

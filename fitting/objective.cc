@@ -142,7 +142,7 @@ class DataTerm : public EnergyTerm {
         stats->pixels += static_cast<std::int64_t>(target.size());
       }
       if (gradient.d_t || gradient.d_n)
-        objective_.renderer().RenderGradient(*views[v].rays, d_img, &grad_t, &grad_n);
+        objective_.renderer(v).RenderGradient(*views[v].rays, d_img, &grad_t, &grad_n);
     }
     const auto& active = objective_.active();
     for (std::size_t a = 0; a < active.size(); ++a) {
@@ -258,6 +258,14 @@ FitObjective::FitObjective(const GridGeometry& grid, std::vector<std::uint32_t> 
           ", the camera is " + std::to_string(v.rays->width()) + "x" +
           std::to_string(v.rays->height()) + "x3");
     }
+    if (!v.signal.empty() && (v.signal.width != v.image.width ||
+                              v.signal.height != v.image.height || v.signal.channels != 3)) {
+      throw InputError("fit: view '" + v.name + "': signal is " + std::to_string(v.signal.width) +
+                       "x" + std::to_string(v.signal.height) + "x" +
+                       std::to_string(v.signal.channels) + ", the image " +
+                       std::to_string(v.image.width) + "x" + std::to_string(v.image.height) +
+                       "x3");
+    }
   }
   if (options_.n_max_per_m3 > 0) {
     n_min_ = options_.n_min_per_m3;
@@ -299,13 +307,35 @@ FitObjective::FitObjective(const GridGeometry& grid, std::vector<std::uint32_t> 
   for (const FitView& v : views_) {
     std::vector<Eigen::Vector3f> lab(v.image.num_pixels());
     for (std::size_t p = 0; p < lab.size(); ++p) {
-      lab[p] = colour::SrgbU8ToLab(v.image.pixels[3 * p], v.image.pixels[3 * p + 1],
-                                   v.image.pixels[3 * p + 2])
-                   .cast<float>();
+      if (v.signal.empty()) {
+        lab[p] = colour::SrgbU8ToLab(v.image.pixels[3 * p], v.image.pixels[3 * p + 1],
+                                     v.image.pixels[3 * p + 2])
+                     .cast<float>();
+      } else {
+        // The signal is what clamp(s I, 0, 1) predicts: its Lab, as CameraLab takes it.
+        const Eigen::Vector3d signal(v.signal.pixels[3 * p], v.signal.pixels[3 * p + 1],
+                                     v.signal.pixels[3 * p + 2]);
+        if (!signal.allFinite())
+          throw InputError("fit: view '" + v.name + "': signal pixel (" +
+                           std::to_string(p % v.signal.width) + ", " +
+                           std::to_string(p / v.signal.width) + ") is not finite");
+        lab[p] = CameraLab(signal, 1.0).cast<float>();
+      }
     }
     target_lab_.push_back(std::move(lab));
   }
-  renderer_ = std::make_unique<FireRenderer>(absorption, render);
+  // One renderer per distinct camera response.
+  std::vector<const ChannelResponse*> responses;
+  for (const FitView& v : views_) {
+    const ChannelResponse* r = v.response ? v.response.get() : render.response.get();
+    const auto found = std::find(responses.begin(), responses.end(), r);
+    view_renderer_.push_back(static_cast<std::size_t>(found - responses.begin()));
+    if (found != responses.end()) continue;
+    responses.push_back(r);
+    RenderOptions options = render;
+    if (v.response) options.response = v.response;
+    renderers_.push_back(std::make_unique<FireRenderer>(absorption, options));
+  }
   // The energy's terms: add a term here.
   terms_.push_back(std::make_unique<DataTerm>(*this, options_.w_am, options_.smooth_delta_e));
   terms_.push_back(std::make_unique<PairwiseTerm>(*this, PairwiseTerm::Parameter::kTemperature,
@@ -355,10 +385,10 @@ FitObjective::Renders FitObjective::Render(const std::vector<double>& t,
     tt[active_[a]] = static_cast<float>(std::max(0.0, t[a]));
     nn[active_[a]] = static_cast<float>(std::max(0.0, n[a]));
   }
-  renderer_->SetVolume(grid_, tt, nn);
+  for (auto& renderer : renderers_) renderer->SetVolume(grid_, tt, nn);
   Renders r;
   r.linear.resize(views_.size());
-  for (std::size_t v = 0; v < views_.size(); ++v) renderer_->Render(*views_[v].rays, &r.linear[v]);
+  for (std::size_t v = 0; v < views_.size(); ++v) renderer(v).Render(*views_[v].rays, &r.linear[v]);
   return r;
 }
 

@@ -8,7 +8,10 @@
 //    the rendered pixel and the recorded one. The rendered pixel is what the camera records of the
 //    renderer's linear sRGB radiance I: c = clamp(s * I, 0, 1) with s the exposure (no
 //    quantisation: the fit sees the continuous value), then c -> XYZ -> Lab (D65 white, colour.h).
-//    The recorded pixel is the 8-bit sRGB value decoded to Lab. Clamping at 1 is how saturated
+//    The recorded pixel is the camera's linear signal (FitView::signal, or the 8-bit sRGB value
+//    decoded) taken to Lab the same way. A camera with its own spectral response (FitView::
+//    response) is rendered in its own channels, and Lab is then a perceptual metric on them, not
+//    a colour: the physics is in the render, the metric only weighs the channels. Clamping at 1 is how saturated
 //    input pixels constrain only from below: a render brighter than a saturated channel clamps to
 //    it and costs nothing there.
 //  - Pairwise term E_sm: for every active voxel i, the sum over its 18 nearest neighbours j
@@ -59,12 +62,19 @@ struct ObjectiveOptions {
   void Validate() const;  // throws InputError naming the field
 };
 
-// One view to match: the camera's rays and its recorded 8-bit sRGB image (3 channels, the
-// camera's size).
+// One view to match: the camera's rays and its recorded image (3 channels, the camera's size).
 struct FitView {
   std::string name;
   const CameraRays* rays = nullptr;
+  // What the camera recorded as 8-bit sRGB (for pictures; and the measurement when `signal` is
+  // empty: the default camera, calibration/radiometry.h).
   ImageU8 image;
+  // The measurement in the camera's linear signal, 3 channels (a mono camera's one channel
+  // replicated), 0..1 with 1 saturated: the image decoded through the camera's radiometric model.
+  // Empty: SrgbDecode(image / 255).
+  ImageF signal;
+  // The camera's spectral response (the renderer's output channels); null = the sRGB observer.
+  std::shared_ptr<const ChannelResponse> response;
 };
 
 // One term's part of an evaluation.
@@ -186,8 +196,9 @@ class FitObjective {
   const std::uint32_t* neighbours_end(std::uint32_t a) const {
     return neighbour_list_.data() + neighbour_start_[a + 1];
   }
-  // Renders all views (the data term's use); not safe concurrently.
-  FireRenderer& renderer() const { return *renderer_; }
+  // The renderer of view v (one per distinct camera response; the data term's use); not safe
+  // concurrently.
+  FireRenderer& renderer(std::size_t view) const { return *renderers_[view_renderer_[view]]; }
   const std::vector<std::vector<Eigen::Vector3f>>& target_lab() const { return target_lab_; }
 
  private:
@@ -199,7 +210,8 @@ class FitObjective {
   std::vector<std::pair<std::uint32_t, std::uint32_t>> pairs_;
   std::vector<std::uint32_t> neighbour_start_, neighbour_list_;  // CSR of neighbours per active
   std::vector<std::vector<Eigen::Vector3f>> target_lab_;         // per view, per pixel
-  std::unique_ptr<FireRenderer> renderer_;
+  std::vector<std::unique_ptr<FireRenderer>> renderers_;
+  std::vector<std::size_t> view_renderer_;  // per view: index into renderers_
   std::vector<std::unique_ptr<EnergyTerm>> terms_;
 };
 

@@ -63,6 +63,7 @@ std::string RenderSummary::BriefReport() const {
 FireRenderer::FireRenderer(const AbsorptionModel& absorption, const RenderOptions& options)
     : absorption_(absorption), options_(options) {
   options_.Validate();
+  response_ = options_.response ? options_.response : ChannelResponse::SrgbObserver();
   if (options_.path == SpectralPath::kFast && !absorption_.is_grey()) {
     throw InputError("RenderOptions.path = fast needs grey absorption; the model is " +
                                 absorption_.name());
@@ -78,12 +79,11 @@ FireRenderer::FireRenderer(const AbsorptionModel& absorption, const RenderOption
     path_reason_ = "wavelength-dependent absorption (" + absorption_.name() + ")";
   }
   if (path_ == SpectralPath::kSpectral) {
-    bins_ = std::make_unique<SpectralBins>(options_.spectral_first_nm, options_.spectral_last_nm,
-                                           options_.spectral_step_nm);
+    bins_ = std::make_unique<SpectralBins>(
+        options_.spectral_first_nm, options_.spectral_last_nm, options_.spectral_step_nm,
+        response_->basis_is_xyz() ? nullptr : response_.get());
     for (double nm : bins_->centers_nm())
       bin_cross_section_m2_.push_back(absorption_.CrossSectionM2(nm));
-  } else {
-    BlackbodyXyzTable::Get();  // build the table now rather than inside the first render
   }
 }
 
@@ -117,7 +117,7 @@ void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<flo
   if (path_ == SpectralPath::kFast) {
     // Per voxel: kappa and XYZ(T), interleaved so that a trilinear sample reads 8 x 16 bytes.
     const double sigma = absorption_.CrossSectionM2(550.0);
-    const BlackbodyXyzTable& table = BlackbodyXyzTable::Get();
+    const ChannelResponse& table = *response_;
     fast_.assign(4 * nvox, 0.0f);
     for (std::uint32_t v : active_voxels_) {
       double xyz[3];
@@ -302,7 +302,7 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
   const Real min_tr = Real(options_.min_transmittance);
   const bool spectral = path_ == SpectralPath::kSpectral;
   const int nbins = spectral ? bins_->count() : 3;
-  const Eigen::Matrix3d& to_rgb = colour::LinearSrgbFromXyz();
+  const Eigen::Matrix3d& to_rgb = response_->output_from_basis();
 
   std::atomic<std::int64_t> hit{0}, early{0}, evaluated{0}, skipped{0}, after{0};
 
@@ -426,9 +426,9 @@ RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays, const Im
   const bool spectral = path_ == SpectralPath::kSpectral;
   const int nbins = spectral ? bins_->count() : 3;
   // rgb = M xyz, so dLoss/dxyz = M^T dLoss/drgb.
-  const Eigen::Matrix3d to_rgb_t = colour::LinearSrgbFromXyz().transpose();
+  const Eigen::Matrix3d to_rgb_t = response_->output_from_basis().transpose();
   const double grey_sigma = spectral ? 0.0 : absorption_.CrossSectionM2(550.0);
-  const BlackbodyXyzTable& table = BlackbodyXyzTable::Get();
+  const ChannelResponse& table = *response_;
   const std::size_t nactive = active_voxels_.size();
 
   struct Buffers {

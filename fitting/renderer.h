@@ -29,8 +29,9 @@
 // behind).
 //
 // Output: a 3-channel float image of linear sRGB radiance (W m^-2 sr^-1 nm^-1,
-// luminance-normalised, see colour.h) before exposure. ApplyCameraResponse() turns it into what an
-// 8-bit camera records.
+// luminance-normalised, see colour.h) before exposure, or with RenderOptions::response the
+// camera's own channels in the same units (camera_response.h). ApplyCameraResponse() turns it into
+// what an 8-bit sRGB camera records; RecordCameraImage() (pipeline) what any camera records.
 //
 // Gradients (RenderGradient): the adjoint of Render(). Given dLoss/d(linear RGB) for every pixel,
 // one backward pass per ray (the ray is marched forward once to get its radiance, then again with
@@ -61,6 +62,7 @@
 #include "core/image.h"
 #include "calibration/camera_rays.h"
 #include "fitting/absorption.h"
+#include "fitting/camera_response.h"
 #include "fitting/spectral_tables.h"
 #include "tomography/ray_march.h"
 #include "tomography/volume.h"
@@ -88,6 +90,10 @@ struct RenderOptions {
   double spectral_step_nm = 10.0;
   // March in double instead of float precision (slower; for reference renders and tests).
   bool double_precision = false;
+  // The camera's spectral response (camera_response.h): what the output channels are. Null: the
+  // sRGB observer, linear sRGB out. The spectral path sees only its bins' range (360..830 nm at
+  // most); the fast path integrates the response's whole range.
+  std::shared_ptr<const ChannelResponse> response;
 
   // Throws InputError naming the field, its value and the rule.
   void Validate() const;
@@ -167,6 +173,7 @@ class FireRenderer {
   RenderOptions options_;
   SpectralPath path_;
   std::string path_reason_;
+  std::shared_ptr<const ChannelResponse> response_;  // never null
   std::unique_ptr<SpectralBins> bins_;
   std::vector<double> bin_cross_section_m2_;
 

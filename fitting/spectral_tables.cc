@@ -4,6 +4,7 @@
 #include <string>
 
 #include "core/error.h"
+#include "fitting/camera_response.h"
 #include "fitting/colour.h"
 #include "fitting/physics.h"
 
@@ -44,7 +45,9 @@ void BlackbodyXyzTable::LookupExactWithDerivative(double temperature_k, Real* xy
 template void BlackbodyXyzTable::LookupExactWithDerivative<float>(double, float*, float*) const;
 template void BlackbodyXyzTable::LookupExactWithDerivative<double>(double, double*, double*) const;
 
-SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm) : step_nm_(step_nm) {
+SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm,
+                           const ChannelResponse* response)
+    : step_nm_(step_nm) {
   if (!(first_nm >= 360) || !(last_nm <= 830) || !(first_nm < last_nm) || !(step_nm > 0)) {
     throw InputError(
         "spectral bins: need 360 <= first_nm < last_nm <= 830 and step_nm > 0, got " +
@@ -62,6 +65,10 @@ SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm) : st
   for (int i = 0; i < n; ++i) {
     double center = first_nm + i * step_nm;
     centers_nm_.push_back(center);
+    if (response) {
+      weights_.push_back(response->BinWeight(center, step_nm));
+      continue;
+    }
     // Average the CMF over [center - step/2, center + step/2] with 0.1 nm sub-samples.
     Eigen::Vector3d sum = Eigen::Vector3d::Zero();
     const int sub = std::max(1, static_cast<int>(std::round(step_nm * 10)));
@@ -77,8 +84,10 @@ SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm) : st
   for (int c = 0; c < 3; ++c)
     if (!(total[c] > 0))
       throw InputError("spectral bins: " + std::to_string(first_nm) + ".." +
-                                  std::to_string(last_nm) + " nm hold no response of the CIE " +
-                                  "xyz"[c] + "-bar colour matching function");
+                       std::to_string(last_nm) + " nm hold no response of " +
+                       (response ? "channel " + std::to_string(c) + " of " + response->name()
+                                 : std::string("the CIE ") + "xyz"[c] +
+                                       "-bar colour matching function"));
   planck_.assign(static_cast<std::size_t>(kMaxTableK + 2) * n, 0.0f);
   for (int t = 1; t <= kMaxTableK + 1; ++t) {
     for (int i = 0; i < n; ++i) {

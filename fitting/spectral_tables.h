@@ -20,6 +20,8 @@
 
 namespace flamerig {
 
+class ChannelResponse;
+
 class BlackbodyXyzTable {
  public:
   static constexpr int kMaxTableK = 20000;
@@ -70,8 +72,11 @@ class BlackbodyXyzTable {
 class SpectralBins {
  public:
   // Bins centred on first_nm, first_nm + step_nm, ..., last_nm. Throws InputError unless
-  // 360 <= first < last <= 830, step > 0 and there are at most kMaxBins bins.
-  SpectralBins(double first_nm, double last_nm, double step_nm);
+  // 360 <= first < last <= 830, step > 0 and there are at most kMaxBins bins. The weights are a
+  // camera's basis channels (camera_response.h) when `response` is given, else the CIE observer's
+  // XYZ; either way every channel must respond somewhere in the bins.
+  SpectralBins(double first_nm, double last_nm, double step_nm,
+               const ChannelResponse* response = nullptr);
   static constexpr int kMaxBins = 512;
   static constexpr int kMaxTableK = 20000;
 
@@ -79,7 +84,8 @@ class SpectralBins {
   const std::vector<double>& centers_nm() const { return centers_nm_; }
   double step_nm() const { return step_nm_; }
   // Weight of bin i in X, Y or Z: the colour matching function averaged over the bin times its
-  // width, divided by the integral of ybar. XYZ = sum_i weight(i) * L_i (L per nm).
+  // width, divided by the integral of ybar. XYZ = sum_i weight(i) * L_i (L per nm). With a
+  // response: its basis channels likewise (ChannelResponse::BinWeight).
   const Eigen::Vector3d& weight(int i) const { return weights_[i]; }
 
   // Planck radiance per nm at bin i's centre, linearly interpolated from a 1 K table (exact above

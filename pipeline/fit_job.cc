@@ -66,6 +66,8 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
     v.name = name;
     v.rays = rays[c].get();
     v.image = set.images[c];
+    v.signal = set.signal[c];
+    v.response = ChannelResponse::ForCamera(rig.cameras[c].radiometry);
     return v;
   };
   std::vector<FitView> views, held;

@@ -27,28 +27,57 @@ std::string SetName(std::size_t i) {
 }  // namespace
 
 void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double exposure,
-                       ImageU8* image, LinearFrame* linear) {
-  if (bits == 16) {
-    ImageU16 rgb16 = u16;
-    if (u16.channels == 1) {
-      rgb16 = ImageU16(u16.width, u16.height, 3);
-      for (std::size_t p = 0; p < u16.num_pixels(); ++p)
-        for (int c = 0; c < 3; ++c) rgb16.pixels[3 * p + c] = u16.pixels[p];
+                       const CameraRadiometry& radiometry, ImageU8* image, LinearFrame* linear,
+                       ImageF* signal) {
+  if (!(exposure > 0) || !std::isfinite(exposure))
+    throw InputError("exposure = " + std::to_string(exposure) + " must be finite and > 0");
+  if (bits != 8 && bits != 16) throw InputError("frames are 8 or 16 bits, not " + std::to_string(bits));
+  const int channels = bits == 16 ? u16.channels : u8.channels;
+  const int width = bits == 16 ? u16.width : u8.width;
+  const int height = bits == 16 ? u16.height : u8.height;
+  if (channels != 1 && channels != 3)
+    throw InputError("a frame has 1 or 3 channels, not " + std::to_string(channels));
+  if (channels == 1 && radiometry.channels() == 3)
+    throw InputError(
+        "a one-channel (mono) frame from a camera the rig gives a colour response (" +
+        radiometry.spectral.Describe() +
+        "): a mono camera records no colour, so its temperature cannot be fitted as if it did; "
+        "give the camera's spectral sensitivity in the rig (radiometry: spectral: table or "
+        "bands, one channel)");
+  if (channels == 3 && radiometry.channels() == 1)
+    throw InputError("a colour frame from a camera the rig describes as mono (" +
+                     radiometry.spectral.Describe() + ")");
+  const CameraRadiometry::Decoding decoding = radiometry.DecodingFor(bits);
+  const std::vector<float> table = radiometry.SignalTable(bits);
+  const std::size_t n = static_cast<std::size_t>(width) * height;
+  *signal = ImageF(width, height, 3);
+  *image = ImageU8(width, height, 3);
+  linear->radiance = ImageF(width, height, 3);
+  linear->saturated.assign(n, 0);
+  linear->full_scale = 1.0 / exposure;
+  const double max_code = decoding.max_code;
+  for (std::size_t p = 0; p < n; ++p) {
+    for (int c = 0; c < 3; ++c) {
+      const std::size_t k = p * channels + (channels == 1 ? 0 : c);
+      const unsigned code = bits == 16 ? u16.pixels[k] : u8.pixels[k];
+      if (code > max_code)
+        throw InputError("pixel (" + std::to_string(p % width) + ", " + std::to_string(p / width) +
+                         ") holds " + std::to_string(code) + ", above the " +
+                         std::to_string(static_cast<int>(max_code)) + " of a " +
+                         std::to_string(radiometry.bit_depth) +
+                         "-bit camera (a wrong bit_depth in the rig, or a damaged frame)");
+      const float v = table[code];
+      signal->pixels[3 * p + c] = v;
+      linear->radiance.pixels[3 * p + c] = static_cast<float>(v / exposure);
+      if (code >= decoding.saturation) linear->saturated[p] = 1;
+      // What a person sees: the frame itself when it is 8-bit sRGB, else the signal encoded.
+      image->pixels[3 * p + c] =
+          bits == 8 && decoding.transfer == TransferFunction::kSrgb && decoding.black == 0 &&
+                  decoding.saturation == 255
+              ? static_cast<std::uint8_t>(code)
+              : QuantizeU8(SrgbEncode(v));
     }
-    *linear = DecodeLinear16(rgb16, exposure);
-    *image = ImageU8(rgb16.width, rgb16.height, 3);
-    for (std::size_t p = 0; p < rgb16.pixels.size(); ++p)
-      image->pixels[p] = QuantizeU8(SrgbEncode(rgb16.pixels[p] / 65535.0));
-    return;
   }
-  if (u8.channels == 1) {
-    *image = ImageU8(u8.width, u8.height, 3);
-    for (std::size_t p = 0; p < u8.num_pixels(); ++p)
-      for (int c = 0; c < 3; ++c) image->pixels[3 * p + c] = u8.pixels[p];
-  } else {
-    *image = u8;
-  }
-  *linear = DecodeSrgb8(*image, exposure);
 }
 
 SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double exposure) {
@@ -56,6 +85,7 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
   SourceFrameSet out;
   out.images.resize(rig.cameras.size());
   out.linear.resize(rig.cameras.size());
+  out.signal.resize(rig.cameras.size());
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const RigCamera& camera = rig.cameras[c];
     const fs::path path = fs::path(dir) / (camera.name + ".png");
@@ -66,7 +96,7 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
     }
     ImageU8 u8;
     ImageU16 u16;
-    const int bits = ReadImage(path.string(), &u8, &u16, 3);
+    const int bits = ReadImage(path.string(), &u8, &u16);
     const int width = bits == 16 ? u16.width : u8.width;
     const int height = bits == 16 ? u16.height : u8.height;
     if (width != camera.model.width() || height != camera.model.height())
@@ -75,7 +105,8 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
                       std::to_string(camera.model.width()) + "x" +
                       std::to_string(camera.model.height()));
     try {
-      DecodeCameraImage(u8, u16, bits, exposure, &out.images[c], &out.linear[c]);
+      DecodeCameraImage(u8, u16, bits, exposure, camera.radiometry, &out.images[c], &out.linear[c],
+                        &out.signal[c]);
     } catch (const InputError& e) {
       throw DataError(path.string() + ": " + e.what());
     }
@@ -206,6 +237,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
   out.index = i;
   out.images.resize(rig.cameras.size());
   out.linear.resize(rig.cameras.size());
+  out.signal.resize(rig.cameras.size());
   bool have_id = false;
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const std::string& name = rig.cameras[c].name;
@@ -251,7 +283,8 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
     const int height = bits == 16 ? u16.height : u8.height;
     impl_->CheckSize(static_cast<int>(c), i, width, height);
     try {
-      DecodeCameraImage(u8, u16, bits, exposure, &out.images[c], &out.linear[c]);
+      DecodeCameraImage(u8, u16, bits, exposure, impl_->rig.cameras[c].radiometry, &out.images[c],
+                        &out.linear[c], &out.signal[c]);
     } catch (const InputError& e) {
       throw DataError(impl_->spec.Describe() + ", set " + std::to_string(i) +
                                   ", camera '" + name + "': " + e.what());

@@ -3,10 +3,12 @@
 // simulated images (DIR/frame_NNNNNN/<camera>.png). A FrameSource hands out each set as one image per
 // camera of a rig, in the rig's order, matched by camera name.
 //
-// Decoding: 8-bit frames (mono, RGB, Bayer demosaiced) are what the camera wrote, sRGB-encoded;
-// 16-bit frames (Mono16, 16-bit PNG) are linear, value / 65535 being the linear signal (as
-// `flamerig reconstruct` reads them). Each camera's image comes as RGB8 for the fit (16-bit ones
-// sRGB-encoded) and as a LinearFrame (radiance / exposure) for the tomography.
+// Decoding: through each rig camera's radiometric model (DecodeCameraImage below). By default 8-bit
+// frames (mono, RGB, Bayer demosaiced) are what the camera wrote, sRGB-encoded, and 16-bit frames
+// (Mono16, 16-bit PNG) linear, value / 65535 being the linear signal (as `flamerig reconstruct`
+// reads them); a rig camera's `radiometry` says otherwise (machine-vision raw is linear). Each
+// camera's image comes as its linear signal and an RGB8 picture for the fit, and as a LinearFrame
+// (radiance / exposure) for the tomography.
 //
 // A camera is left out of a set, with a note that says why, when: the recording has no frame of it
 // in that set (a drop), its frame's status is not ok (incomplete, corrupt), or the images folder has
@@ -41,6 +43,7 @@ struct SourceFrameSet {
   std::size_t index = 0;            // the set's number in the source
   std::vector<ImageU8> images;      // per rig camera: RGB8, or empty when left out
   std::vector<LinearFrame> linear;  // per rig camera: radiance / exposure, or empty
+  std::vector<ImageF> signal;       // per rig camera: the linear signal (DecodeCameraImage)
   std::vector<std::string> notes;   // cameras left out and why
   // The device frame id of the set's first present frame (recordings), the file's frame number
   // (StreamPix), or the set number (images): what a simulated camera replaying a dataset showed.
@@ -76,12 +79,19 @@ class FrameSource {
 // of the wrong size is a DataError naming the file.
 SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double exposure);
 
-// One camera's image as the tomography and the fit take it, from what ReadImage or DecodeFrame gave
-// (`bits` 8: *u8, sRGB; 16: *u16, linear): *rgb8 (grey replicated to RGB; 16-bit values
-// sRGB-encoded) and *linear (radiance / exposure). Throws InputError for a bad exposure
-// or channel count.
+// One camera's image as the tomography and the fit take it, decoded through the camera's
+// radiometric model (calibration/radiometry.h) from what ReadImage or DecodeFrame gave (`bits` 8:
+// *u8; 16: *u16): *signal (the linear signal, 0..1 with 1 saturated, 3 channels, mono
+// replicated), *rgb8 (a picture: an 8-bit sRGB frame as it is, anything else its signal
+// sRGB-encoded) and *linear (signal / exposure; saturated where a code reached the saturation
+// level). With the default model, 8-bit frames are sRGB and 16-bit ones linear, as before cameras
+// had one. Throws InputError for a bad exposure; for a one-channel (mono) frame from a camera the
+// rig gives a colour response (colour cannot be fitted from one channel; the message says to give
+// the sensor's sensitivity) or a colour frame from a mono camera; for a code above the camera's bit
+// depth.
 void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double exposure,
-                       ImageU8* rgb8, LinearFrame* linear);
+                       const CameraRadiometry& radiometry, ImageU8* rgb8, LinearFrame* linear,
+                       ImageF* signal);
 
 // One camera's view of the question "did this frame change beyond noise since that one?".
 struct ImageChange {

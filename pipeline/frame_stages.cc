@@ -105,7 +105,10 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
   ro.holdout_camera.clear();  // the held-out camera stays out of the tomography too
   if (ro.cache_dir.empty()) ro.cache_dir = (fs::path(options_.out_dir) / "cache").string();
   reconstructor_ = std::make_unique<Reconstructor>(rig_, ro);
-  for (const auto& c : rig_.cameras) rays_.push_back(std::make_unique<CameraRays>(c.model));
+  for (const auto& c : rig_.cameras) {
+    rays_.push_back(std::make_unique<CameraRays>(c.model));
+    responses_.push_back(ChannelResponse::ForCamera(c.radiometry));
+  }
   truth_count_ = CountTruth(options_.truth_dir);
   for (const char* sub : {"frames", "tomography", "state", "blender"})
     fs::create_directories(fs::path(options_.out_dir) / sub);
@@ -233,6 +236,8 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
     v.name = rig_.cameras[c].name;
     v.rays = rays_[c].get();
     v.image = w->set.images[c];
+    v.signal = w->set.signal[c];
+    v.response = responses_[c];
     (static_cast<int>(c) == holdout_ ? w->held : w->views).push_back(std::move(v));
   }
   // The exposure: known, the take's, or fitted here (and the take's from here on).

@@ -111,6 +111,7 @@ class FrameStages {
   std::size_t truth_count_ = 0;
   std::unique_ptr<Reconstructor> reconstructor_;
   std::vector<std::unique_ptr<CameraRays>> rays_;
+  std::vector<std::shared_ptr<const ChannelResponse>> responses_;  // per rig camera
   Chain chain_;
   FitResult previous_;
   FireVolume last_tomography_;

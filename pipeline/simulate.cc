@@ -14,6 +14,7 @@
 #include "core/atomic_file.h"
 #include "core/error.h"
 #include "core/config_reader.h"
+#include "core/srgb.h"
 #include "tomography/vdb_io.h"
 
 namespace flamerig {
@@ -66,8 +67,11 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
   SimulateConfig& c = *out;
   CheckKeys(s,
             {"seed", "frames", "frame_rate_hz", "absorption", "grid_resolution", "noise_dn",
-             "exposure", "fire", "box", "rig", "calibration", "render"},
+             "exposure", "fire", "box", "rig", "calibration", "render", "radiometry"},
             path + ": simulate");
+  if (YAML::Node r = s["radiometry"])
+    c.radiometry = CameraRadiometry::FromYaml(
+        r, fs::path(path).parent_path().string(), path + ": simulate.radiometry");
   Read(s, "seed", &c.seed, path, "simulate.");
   Read(s, "frames", &c.frames, path, "simulate.");
   Read(s, "frame_rate_hz", &c.frame_rate_hz, path, "simulate.");
@@ -211,6 +215,41 @@ double AutoExposure(const std::vector<ImageF>& linear) {
   return 1.0 / fire_values[idx];
 }
 
+int RecordCameraImage(const ImageF& linear, double exposure, const CameraRadiometry& radiometry,
+                      double noise_dn, std::uint64_t seed, ImageU8* u8, ImageU16* u16) {
+  if (radiometry.is_default()) {
+    *u8 = ApplyCameraResponse(linear, exposure);
+    AddSensorNoise(u8, noise_dn, seed);
+    return 8;
+  }
+  if (!(exposure > 0) || !std::isfinite(exposure))
+    throw InputError("exposure = " + std::to_string(exposure) + " must be finite and > 0");
+  if (linear.channels != 3) throw InputError("a render has 3 channels");
+  const int bits = radiometry.bit_depth > 8 ? 16 : 8;
+  const CameraRadiometry::Decoding d = radiometry.DecodingFor(bits);
+  const int channels = radiometry.channels();
+  const double sigma = noise_dn * d.max_code / 255.0;
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> noise(0.0, 1.0);
+  const std::size_t n = linear.num_pixels();
+  std::vector<double> codes(n * channels);
+  for (std::size_t p = 0; p < n; ++p)
+    for (int c = 0; c < channels; ++c) {
+      double code = radiometry.Code(exposure * double(linear.pixels[3 * p + c]), d);
+      if (sigma > 0) code = std::clamp(std::round(code + sigma * noise(rng)), 0.0, d.max_code);
+      codes[p * channels + c] = code;
+    }
+  if (bits == 8) {
+    *u8 = ImageU8(linear.width, linear.height, channels);
+    for (std::size_t i = 0; i < codes.size(); ++i) u8->pixels[i] = static_cast<std::uint8_t>(codes[i]);
+  } else {
+    *u16 = ImageU16(linear.width, linear.height, channels);
+    for (std::size_t i = 0; i < codes.size(); ++i)
+      u16->pixels[i] = static_cast<std::uint16_t>(codes[i]);
+  }
+  return bits;
+}
+
 SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_dir,
                          const ProgressCallback& progress) {
   config.Validate();
@@ -228,12 +267,15 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
   summary.out_dir = out_dir;
 
   Rig rig = synthetic::MakeRingRig(config.box, config.ring, "sim");
+  for (RigCamera& c : rig.cameras) c.radiometry = config.radiometry;
   rig.Save((fs::path(out_dir) / "rig.yaml").string());
   summary.cameras = static_cast<int>(rig.cameras.size());
 
   const AbsorptionModel absorption = AbsorptionModel::FromName(config.absorption);
   const GridGeometry grid = GridGeometry::FromBox(config.box, config.grid_resolution);
-  FireRenderer renderer(absorption, config.render);
+  RenderOptions render = config.render;
+  render.response = ChannelResponse::ForCamera(config.radiometry);
+  FireRenderer renderer(absorption, render);
   std::vector<CameraRays> rays;
   for (const auto& c : rig.cameras) rays.emplace_back(c.model);
 
@@ -287,17 +329,31 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
     fs::create_directories(frame_dir);
     std::size_t saturated = 0, lit = 0;
     for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
-      ImageU8 image = ApplyCameraResponse(linear[c], exposure);
       if (f == 0) {
-        for (std::size_t p = 0; p < image.num_pixels(); ++p) {
-          int m = std::max({image.pixels[3 * p], image.pixels[3 * p + 1], image.pixels[3 * p + 2]});
+        const ImageU8 clean = ApplyCameraResponse(linear[c], exposure);
+        for (std::size_t p = 0; p < clean.num_pixels(); ++p) {
+          int m = std::max({clean.pixels[3 * p], clean.pixels[3 * p + 1], clean.pixels[3 * p + 2]});
           if (m > 2) ++lit;
           if (m == 255) ++saturated;
         }
       }
-      AddSensorNoise(&image, config.noise_dn, config.seed * 1000003ULL + f * 101ULL + c);
-      WritePng((frame_dir / (rig.cameras[c].name + ".png")).string(), image);
-      if (f == 0) preview.push_back(image);
+      ImageU8 u8;
+      ImageU16 u16;
+      const int bits =
+          RecordCameraImage(linear[c], exposure, config.radiometry, config.noise_dn,
+                            config.seed * 1000003ULL + f * 101ULL + c, &u8, &u16);
+      const std::string file = (frame_dir / (rig.cameras[c].name + ".png")).string();
+      if (bits == 16) {
+        WritePng16(file, u16);
+        // The picture: the signal sRGB-encoded.
+        const std::vector<float> table = config.radiometry.SignalTable(16);
+        u8 = ImageU8(u16.width, u16.height, u16.channels);
+        for (std::size_t p = 0; p < u16.pixels.size(); ++p)
+          u8.pixels[p] = QuantizeU8(SrgbEncode(table[u16.pixels[p]]));
+      } else {
+        WritePng(file, u8);
+      }
+      if (f == 0) preview.push_back(u8);
     }
     if (f == 0) summary.saturated_pixel_fraction = lit ? double(saturated) / lit : 0.0;
     yaml << YAML::BeginMap << YAML::Key << "name" << YAML::Value << name << YAML::Key << "time_s"

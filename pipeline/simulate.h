@@ -20,6 +20,9 @@
 //   calibration: {enabled [true], board [charuco|chessboard], squares [7, 5], square_m [0.012],
 //                 marker_m [0.009], shared_per_pair [6], closeups_per_camera [4]}
 //   render: {step_voxels [0.5]}
+//   radiometry: {...}   every camera's radiometric model (calibration/radiometry.h) [the default
+//                        8-bit sRGB camera]; written into OUT/rig.yaml. Cameras of more than 8 bits
+//                        write 16-bit PNGs holding their codes (0..2^bits - 1), mono cameras grey.
 #ifndef FLAMERIG_PIPELINE_SIMULATE_H_
 #define FLAMERIG_PIPELINE_SIMULATE_H_
 
@@ -51,6 +54,7 @@ struct SimulateConfig {
   int shared_per_pair = 6;
   int closeups_per_camera = 4;
   RenderOptions render;
+  CameraRadiometry radiometry;  // of every camera
 
   // Reads the `simulate:` map of a YAML file; missing keys keep their defaults. Throws
   // InputError naming the file, the field and the rule.
@@ -77,6 +81,16 @@ struct SimulateSummary {
 // (above 1e-3 of the brightest) of `linear` renders at full scale, so that the cores of the flame
 // saturate slightly, as in real footage; 0 when no fire is visible. Not clamped to any range.
 double AutoExposure(const std::vector<ImageF>& linear);
+
+// What a camera with `radiometry` records of a linear render (in its response's channels, as
+// FireRenderer gives it with RenderOptions::response): the signal clamp(exposure * linear, 0, 1)
+// encoded to codes (radiometry.h), with Gaussian noise of `noise_dn` 8-bit units scaled to the
+// camera's full scale added to the codes (rounded, clamped), deterministic in `seed`. Returns the
+// bit depth of the frame written into *u8 (8: bit_depth 0 or 8) or *u16 (16: deeper cameras, codes
+// in 0..2^bits - 1); one channel for a mono camera. The default camera gives exactly
+// ApplyCameraResponse then AddSensorNoise.
+int RecordCameraImage(const ImageF& linear, double exposure, const CameraRadiometry& radiometry,
+                      double noise_dn, std::uint64_t seed, ImageU8* u8, ImageU16* u16);
 
 SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_dir,
                          const ProgressCallback& progress = nullptr);

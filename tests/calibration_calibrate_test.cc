@@ -249,7 +249,7 @@ TEST_F(Ring, AgreesWithMrcalCalibrateCameras) {
   ASSERT_EQ(models.size(), 4u) << text;
   Rig tool;
   for (std::size_t c = 0; c < models.size(); ++c)
-    tool.cameras.push_back(RigCamera{data.camera_names[c], "", CameraModel::Load(models[c])});
+    tool.cameras.push_back(RigCamera{data.camera_names[c], "", CameraModel::Load(models[c]), {}});
   ExpectExtrinsicsNear(ours.rig, tool, 0.01, 0.0002);
   for (std::size_t c = 0; c < 4; ++c) {
     const auto& a = ours.rig.cameras[c].model.intrinsics();

@@ -48,9 +48,11 @@ double Loss(const FireRenderer& r, const CameraRays& rays, const ImageF& c) {
   return sum;
 }
 
-void CheckGradient(const AbsorptionModel& absorption, double optical_depth_per_voxel) {
+void CheckGradient(const AbsorptionModel& absorption, double optical_depth_per_voxel,
+                   std::shared_ptr<const ChannelResponse> response = nullptr) {
   Scene s = MakeScene(absorption, optical_depth_per_voxel, 7);
   RenderOptions options;
+  options.response = response;
   options.spectral_step_nm = 40;  // 11 bins: the same code as 41, a quarter of the test's time
   options.double_precision = true;
   options.min_transmittance = 0;  // no early termination: FD would straddle the cut
@@ -116,6 +118,24 @@ TEST(RenderGradient, FastPathMatchesFiniteDifferencesThick) {
 
 TEST(RenderGradient, SpectralPathMatchesFiniteDifferences) {
   CheckGradient(AbsorptionModel::DefaultSoot(), 0.8);
+}
+
+// A camera that is not the observer: its own basis channels, and a mono camera's three equal ones.
+std::shared_ptr<const ChannelResponse> BandCamera(int channels) {
+  CameraRadiometry r;
+  r.spectral.kind = SpectralSensitivity::Kind::kBands;
+  r.spectral.bands = {{620, 70}, {540, 70}, {460, 70}};
+  r.spectral.bands.resize(channels);
+  if (channels == 3) r.gain = Eigen::Vector3d(1.3, 1, 0.7);
+  return ChannelResponse::ForCamera(r);
+}
+
+TEST(RenderGradient, FastPathWithACameraResponseMatchesFiniteDifferences) {
+  CheckGradient(AbsorptionModel::DefaultGrey(), 1.5, BandCamera(3));
+}
+
+TEST(RenderGradient, SpectralPathWithAMonoCameraMatchesFiniteDifferences) {
+  CheckGradient(AbsorptionModel::DefaultSoot(), 0.8, BandCamera(1));
 }
 
 TEST(RenderGradient, FloatAgreesWithDoubleAndCountsOnlyMarchedPixels) {

@@ -1,0 +1,162 @@
+// The radiometric camera model through the pipeline: frames decoded through each rig camera's model
+// (a mono frame from a colour camera refused with the reason, a deep camera's codes checked
+// against its bit depth), what a simulated camera records decoding back to its signal, and the
+// end-to-end measurement the model exists for: a camera that is not the sRGB observer, fitted with
+// its own spectral response, gives the temperatures an sRGB camera gives, where assuming sRGB
+// leaves a bias (scored against the simulator's truth, finer than the fit's grid).
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <filesystem>
+
+#include "core/error.h"
+#include "fitting/camera_response.h"
+#include "pipeline/fit_job.h"
+#include "pipeline/frame_source.h"
+#include "pipeline/simulate.h"
+
+namespace flamerig {
+namespace {
+
+namespace fs = std::filesystem;
+
+CameraRadiometry Linear12() {
+  CameraRadiometry r;
+  r.transfer = TransferFunction::kLinear;
+  r.bit_depth = 12;
+  r.black_level = 64;
+  return r;
+}
+
+CameraRadiometry BandCamera() {
+  CameraRadiometry r = Linear12();
+  r.spectral.kind = SpectralSensitivity::Kind::kBands;
+  r.spectral.bands = {{640, 60}, {540, 80}, {450, 60}};
+  return r;
+}
+
+TEST(CameraModel, AMonoFrameFromAColourCameraIsRefusedWithTheReason) {
+  ImageU8 mono(8, 6, 1, 100), rgb8;
+  ImageU16 none;
+  LinearFrame linear;
+  ImageF signal;
+  try {
+    DecodeCameraImage(mono, none, 8, 1.0, CameraRadiometry(), &rgb8, &linear, &signal);
+    FAIL() << "a mono frame was decoded as colour";
+  } catch (const InputError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("one-channel (mono) frame"), std::string::npos) << what;
+    EXPECT_NE(what.find("spectral sensitivity"), std::string::npos) << what;
+  }
+  // With the sensor's sensitivity given it decodes, one channel in three.
+  CameraRadiometry m;
+  m.spectral.kind = SpectralSensitivity::Kind::kBands;
+  m.spectral.bands = {{650, 10}};
+  DecodeCameraImage(mono, none, 8, 1.0, m, &rgb8, &linear, &signal);
+  EXPECT_EQ(signal.channels, 3);
+  EXPECT_EQ(signal.at(3, 2, 0), signal.at(3, 2, 2));
+  // And a colour frame from a mono camera is an error too.
+  ImageU8 colour(8, 6, 3, 100);
+  EXPECT_THROW(DecodeCameraImage(colour, none, 8, 1.0, m, &rgb8, &linear, &signal), InputError);
+}
+
+TEST(CameraModel, DeepLinearFramesDecodeWithBlackLevelAndBitDepth) {
+  ImageU8 none, rgb8;
+  ImageU16 frame(4, 1, 3, 64);
+  frame.pixels[3] = 2079;  // pixel 1: (2079 - 64) / (4095 - 64) = 0.5
+  frame.pixels[6] = 4095;  // pixel 2: saturated
+  frame.pixels[9] = 10;    // pixel 3: below black
+  LinearFrame linear;
+  ImageF signal;
+  DecodeCameraImage(none, frame, 16, 2.0, Linear12(), &rgb8, &linear, &signal);
+  EXPECT_NEAR(signal.at(1, 0, 0), (2079.0 - 64) / (4095 - 64), 1e-7);
+  EXPECT_NEAR(linear.radiance.at(1, 0, 0), 0.5 * (2079.0 - 64) / (4095 - 64), 1e-7);
+  EXPECT_EQ(signal.at(2, 0, 0), 1.0f);
+  EXPECT_EQ(linear.saturated[2], 1);
+  EXPECT_EQ(linear.saturated[1], 0);
+  EXPECT_EQ(signal.at(3, 0, 0), 0.0f);
+  // The same frame read as the default camera (16-bit linear over 65535) is 16 times darker:
+  // that is what the bit depth is for.
+  DecodeCameraImage(none, frame, 16, 2.0, CameraRadiometry(), &rgb8, &linear, &signal);
+  EXPECT_NEAR(signal.at(1, 0, 0), 2079.0 / 65535, 1e-7);
+  // A code beyond 12 bits names the bit depth.
+  frame.pixels[0] = 5000;
+  try {
+    DecodeCameraImage(none, frame, 16, 2.0, Linear12(), &rgb8, &linear, &signal);
+    FAIL();
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("12-bit camera"), std::string::npos) << e.what();
+  }
+}
+
+TEST(CameraModel, WhatASimulatedCameraRecordsDecodesBackToItsSignal) {
+  ImageF linear(64, 1, 3);
+  for (int x = 0; x < 64; ++x)
+    for (int c = 0; c < 3; ++c) linear.at(x, 0, c) = float(x) / 50 * (1 + 0.1 * c);
+  const double exposure = 0.8;
+  for (const CameraRadiometry& r : {Linear12(), CameraRadiometry()}) {
+    ImageU8 u8, rgb8;
+    ImageU16 u16;
+    const int bits = RecordCameraImage(linear, exposure, r, 0, 1, &u8, &u16);
+    EXPECT_EQ(bits, r.bit_depth == 12 ? 16 : 8);
+    LinearFrame frame;
+    ImageF signal;
+    DecodeCameraImage(u8, u16, bits, exposure, r, &rgb8, &frame, &signal);
+    // Quantisation: half a code of the camera's depth, through the transfer's steepest slope.
+    const double tolerance = r.bit_depth == 12 ? 0.5 / 4031 + 1e-6 : 0.5 / 255 * 2.4 + 1e-6;
+    for (int x = 0; x < 64; ++x)
+      for (int c = 0; c < 3; ++c) {
+        const double expected = std::min(1.0, exposure * linear.at(x, 0, c));
+        EXPECT_NEAR(signal.at(x, 0, c), expected, tolerance) << x << " " << c;
+      }
+  }
+}
+
+// The temperature bias (fit - truth, K, on the truth's visible voxels) of a fit of a simulated
+// 2-view candle filmed by cameras of `film`, fitted assuming `assume`.
+double Bias(const fs::path& dir, const CameraRadiometry& film, const CameraRadiometry& assume,
+            double* rms_k) {
+  SimulateConfig config;
+  config.grid_resolution = 48;
+  config.ring.width = 160;
+  config.ring.height = 120;
+  config.calibration = false;
+  config.radiometry = film;
+  const SimulateSummary s = Simulate(config, (dir / "data").string());
+  Rig rig = Rig::Load((dir / "data" / "rig.yaml").string());
+  for (RigCamera& c : rig.cameras) c.radiometry = assume;
+  rig.Save((dir / "assumed" / "rig.yaml").string());
+  FitJob job;
+  job.rig_path = (dir / "assumed" / "rig.yaml").string();
+  job.images_dir = (dir / "data" / "frames" / "frame_000000").string();
+  job.out_path = (dir / "fit.vdb").string();
+  job.resolution = 32;
+  job.exposure = s.exposure;
+  job.absorption = "soot";
+  job.truth_path = (dir / "data" / "truth" / "frame_000000.vdb").string();
+  const FitJobResult r = RunFitJob(job);
+  EXPECT_TRUE(r.have_truth);
+  *rms_k = r.truth.rms_k;
+  return r.truth.mean_k;
+}
+
+TEST(CameraModel, ANonSrgbCameraFittedWithItsResponseLosesTheBiasThatAssumingSrgbLeaves) {
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_camera_model_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  CameraRadiometry srgb_by_frame = Linear12();  // decodes right, assumes the sRGB observer
+  double rms_reference = 0, rms_right = 0, rms_wrong = 0;
+  const double reference = Bias(dir / "srgb", Linear12(), Linear12(), &rms_reference);
+  const double right = Bias(dir / "right", BandCamera(), BandCamera(), &rms_right);
+  const double wrong = Bias(dir / "wrong", BandCamera(), srgb_by_frame, &rms_wrong);
+  std::printf("temperature bias / RMS: sRGB camera %.1f / %.1f K; band camera with its response "
+              "%.1f / %.1f K; assuming sRGB %.1f / %.1f K\n",
+              reference, rms_reference, right, rms_right, wrong, rms_wrong);
+  EXPECT_LT(std::abs(right - reference), 15.0);
+  EXPECT_GT(std::abs(wrong - reference), 3 * std::abs(right - reference) + 30.0);
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace flamerig
