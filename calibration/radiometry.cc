@@ -154,6 +154,11 @@ std::string SpectralSensitivity::Describe() const {
 }
 
 SpectralSensitivity SpectralSensitivity::FromTableFile(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec))
+    throw InputError(path + ": not a file; a spectral sensitivity table is a CSV file");
+  if (std::filesystem::file_size(path, ec) > (1u << 20))
+    throw InputError(path + ": over 1 MiB, too large for a spectral sensitivity table");
   std::ifstream in(path);
   if (!in) throw InputError(path + ": cannot open the spectral sensitivity table");
   SpectralSensitivity s;

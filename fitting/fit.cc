@@ -94,6 +94,7 @@ ThinEmissionTable::ThinEmissionTable(const AbsorptionModel& absorption, double t
     throw InputError("ThinEmissionTable: need 0 < t_min < t_max");
   if (!response) response = ChannelResponse::SrgbObserver();
   xyz_chromaticity_ = response == ChannelResponse::SrgbObserver();
+  mono_ = response->channels() == 1;
   const int first = xyz_chromaticity_ ? colour::CieObserver::kFirstNm : ChannelResponse::kFirstNm;
   const int last = xyz_chromaticity_ ? colour::CieObserver::kLastNm : ChannelResponse::kLastNm;
   std::vector<double> sigma(last - first + 1);
@@ -128,6 +129,7 @@ Eigen::Vector3d ThinEmissionTable::RgbPerDensity(double t_k) const {
 }
 
 double ThinEmissionTable::TemperatureOf(const Eigen::Vector3d& rgb) const {
+  if (mono_) return 0.5 * (t_min_ + t_max_);  // one channel has no colour to read
   const Eigen::Vector3d xyz = xyz_chromaticity_ ? Eigen::Vector3d(colour::XyzFromLinearSrgb() * rgb)
                                                 : rgb;
   if (!(xyz.sum() > 0)) return t_min_;

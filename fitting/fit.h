@@ -66,7 +66,8 @@ class ThinEmissionTable {
                     std::shared_ptr<const ChannelResponse> response = nullptr);
   Eigen::Vector3d RgbPerDensity(double t_k) const;
   // The temperature in [t_min, t_max] whose emission has the chromaticity nearest `rgb`'s
-  // (CIE xy); t_min for black or non-positive colours.
+  // (CIE xy); t_min for black or non-positive colours; the middle of the range for a mono
+  // response, which has no colour.
   double TemperatureOf(const Eigen::Vector3d& rgb) const;
   double t_min() const { return t_min_; }
   double t_max() const { return t_max_; }
@@ -74,6 +75,7 @@ class ThinEmissionTable {
  private:
   double t_min_, t_max_;
   bool xyz_chromaticity_ = true;  // the sRGB observer: CIE xy
+  bool mono_ = false;             // one channel: TemperatureOf gives the range's middle
   std::vector<Eigen::Vector3d> rgb_;  // per kelvin from t_min
   std::vector<Eigen::Vector2d> xy_;
 };

@@ -158,5 +158,26 @@ TEST(CameraModel, ANonSrgbCameraFittedWithItsResponseLosesTheBiasThatAssumingSrg
   fs::remove_all(dir);
 }
 
+TEST(CameraModel, AMonoCameraWithItsSensitivityGivenIsFittedWithFiniteResults) {
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_camera_mono_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  CameraRadiometry mono = Linear12();
+  mono.spectral.kind = SpectralSensitivity::Kind::kBands;
+  mono.spectral.bands = {{600, 200}};
+  mono.spectral.filter = SpectralBand{650, 40};
+  double rms = 0;
+  const double bias = Bias(dir, mono, mono, &rms);
+  std::printf("mono 650/40 nm camera, 2 views: bias %.1f K, RMS %.1f K\n", bias, rms);
+  EXPECT_TRUE(std::isfinite(bias) && std::isfinite(rms));
+  // Written as one channel per pixel.
+  ImageU8 u8;
+  ImageU16 u16;
+  ASSERT_EQ(ReadImage((dir / "data" / "frames" / "frame_000000" / "cam0.png").string(), &u8, &u16),
+            16);
+  EXPECT_EQ(u16.channels, 1);
+  fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace flamerig
