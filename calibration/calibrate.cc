@@ -694,7 +694,8 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
     std::vector<double> in(intrinsics.begin() + static_cast<std::ptrdiff_t>(c) * num_params,
                            intrinsics.begin() + static_cast<std::ptrdiff_t>(c + 1) * num_params);
     rig.cameras.push_back(RigCamera{
-        data.camera_names[c], "cameras/" + data.camera_names[c] + ".cameramodel",
+        data.camera_names[c],
+        "cameras/" + data.camera_names[c] + ".cameramodel",
         CameraModel(options.lensmodel, std::move(in), solved_cam_from_ref[c] * ref_from_rig,
                     data.widths[c], data.heights[c]),
         {}});

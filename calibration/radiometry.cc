@@ -33,8 +33,8 @@ double CurveAt(const std::vector<double>& curve, double x) {
 double CurveInverse(const std::vector<double>& curve, double y) {
   if (!(y > curve.front())) return 0;
   if (!(y < curve.back())) return 1;
-  const std::size_t i = static_cast<std::size_t>(
-      std::upper_bound(curve.begin(), curve.end(), y) - curve.begin() - 1);
+  const std::size_t i =
+      static_cast<std::size_t>(std::upper_bound(curve.begin(), curve.end(), y) - curve.begin() - 1);
   const double f = (y - curve[i]) / (curve[i + 1] - curve[i]);
   return (double(i) + f) / double(curve.size() - 1);
 }
@@ -57,8 +57,9 @@ void WriteBand(YAML::Emitter* out, const SpectralBand& b) {
 // response in every column.
 void CheckTable(const SpectralSensitivity& s, const std::string& where) {
   const std::size_t n = s.wavelengths_nm.size();
-  if (n < 2) throw InputError(where + ": a sensitivity table needs at least 2 rows, got " +
-                              std::to_string(n));
+  if (n < 2)
+    throw InputError(where + ": a sensitivity table needs at least 2 rows, got " +
+                     std::to_string(n));
   if (s.columns.size() != 1 && s.columns.size() != 3)
     throw InputError(where + ": a sensitivity table has 1 (mono) or 3 (colour) channels, got " +
                      std::to_string(s.columns.size()));
@@ -68,9 +69,8 @@ void CheckTable(const SpectralSensitivity& s, const std::string& where) {
       throw InputError(where + ": row " + std::to_string(i + 1) + ": wavelength " +
                        Num(s.wavelengths_nm[i]) + " nm is not in [200, 2000]");
     if (i > 0 && !(s.wavelengths_nm[i] > s.wavelengths_nm[i - 1]))
-      throw InputError(where + ": row " + std::to_string(i + 1) +
-                       ": wavelengths must increase, " + Num(s.wavelengths_nm[i]) + " follows " +
-                       Num(s.wavelengths_nm[i - 1]));
+      throw InputError(where + ": row " + std::to_string(i + 1) + ": wavelengths must increase, " +
+                       Num(s.wavelengths_nm[i]) + " follows " + Num(s.wavelengths_nm[i - 1]));
   }
   for (std::size_t c = 0; c < s.columns.size(); ++c) {
     if (s.columns[c].size() != n)
@@ -95,10 +95,14 @@ void CheckTable(const SpectralSensitivity& s, const std::string& where) {
 
 const char* ToString(TransferFunction transfer) {
   switch (transfer) {
-    case TransferFunction::kSrgb: return "srgb";
-    case TransferFunction::kLinear: return "linear";
-    case TransferFunction::kGamma: return "gamma";
-    case TransferFunction::kCurve: return "curve";
+    case TransferFunction::kSrgb:
+      return "srgb";
+    case TransferFunction::kLinear:
+      return "linear";
+    case TransferFunction::kGamma:
+      return "gamma";
+    case TransferFunction::kCurve:
+      return "curve";
   }
   return "?";
 }
@@ -111,9 +115,12 @@ double SpectralBand::At(double wavelength_nm) const {
 
 int SpectralSensitivity::channels() const {
   switch (kind) {
-    case Kind::kSrgbObserver: return 3;
-    case Kind::kTable: return static_cast<int>(columns.size());
-    case Kind::kBands: return static_cast<int>(bands.size());
+    case Kind::kSrgbObserver:
+      return 3;
+    case Kind::kTable:
+      return static_cast<int>(columns.size());
+    case Kind::kBands:
+      return static_cast<int>(bands.size());
   }
   return 3;
 }
@@ -245,10 +252,14 @@ double CameraRadiometry::Signal(double code, const Decoding& d) const {
   if (code >= d.saturation) return 1;
   const double e = (code - d.black) / (d.saturation - d.black);
   switch (d.transfer) {
-    case TransferFunction::kSrgb: return SrgbDecode(e);
-    case TransferFunction::kLinear: return e;
-    case TransferFunction::kGamma: return std::pow(e, gamma);
-    case TransferFunction::kCurve: return CurveAt(curve, e);
+    case TransferFunction::kSrgb:
+      return SrgbDecode(e);
+    case TransferFunction::kLinear:
+      return e;
+    case TransferFunction::kGamma:
+      return std::pow(e, gamma);
+    case TransferFunction::kCurve:
+      return CurveAt(curve, e);
   }
   return e;
 }
@@ -258,10 +269,17 @@ double CameraRadiometry::Code(double signal, const Decoding& d) const {
   const double s = std::min(signal, 1.0);
   double e = s;
   switch (d.transfer) {
-    case TransferFunction::kSrgb: e = SrgbEncode(s); break;
-    case TransferFunction::kLinear: break;
-    case TransferFunction::kGamma: e = std::pow(s, 1.0 / gamma); break;
-    case TransferFunction::kCurve: e = CurveInverse(curve, s); break;
+    case TransferFunction::kSrgb:
+      e = SrgbEncode(s);
+      break;
+    case TransferFunction::kLinear:
+      break;
+    case TransferFunction::kGamma:
+      e = std::pow(s, 1.0 / gamma);
+      break;
+    case TransferFunction::kCurve:
+      e = CurveInverse(curve, s);
+      break;
   }
   return std::clamp(std::round(d.black + e * (d.saturation - d.black)), 0.0, d.max_code);
 }
@@ -288,8 +306,8 @@ void CameraRadiometry::Validate(const std::string& where) const {
       if (!std::isfinite(curve[i]) || curve[i] < 0)
         fail("curve", "value " + std::to_string(i) + " must be finite and >= 0");
       if (i > 0 && !(curve[i] > curve[i - 1]))
-        fail("curve", "must increase strictly; value " + std::to_string(i) + " (" +
-                          Num(curve[i]) + ") does not exceed the one before");
+        fail("curve", "must increase strictly; value " + std::to_string(i) + " (" + Num(curve[i]) +
+                          ") does not exceed the one before");
     }
     if (curve.front() != 0 || curve.back() != 1)
       fail("curve", "must run from 0 (black) to 1 (saturation), got " + Num(curve.front()) +
@@ -302,20 +320,20 @@ void CameraRadiometry::Validate(const std::string& where) const {
     fail("saturation_level", "must be 0 (full scale) or in (black_level, " + Num(max_code) +
                                  "], got " + Num(saturation_level));
   if (saturation_level > 0 && !(saturation_level > black_level))
-    fail("saturation_level", "must exceed black_level (" + Num(black_level) + "), got " +
-                                 Num(saturation_level));
+    fail("saturation_level",
+         "must exceed black_level (" + Num(black_level) + "), got " + Num(saturation_level));
   const int n = spectral.channels();
   for (int c = 0; c < 3; ++c)
     if (!std::isfinite(gain[c]) || !(gain[c] > 0))
-      fail("gain", "channel " + std::to_string(c) + " must be finite and > 0, got " +
-                       Num(gain[c]));
+      fail("gain", "channel " + std::to_string(c) + " must be finite and > 0, got " + Num(gain[c]));
   if (n == 1 && !(gain[1] == gain[0] && gain[2] == gain[0]))
     fail("gain", "a mono camera has one gain");
   switch (spectral.kind) {
     case SpectralSensitivity::Kind::kSrgbObserver:
       if (spectral.has_filter())
-        fail("filter", "needs a sensor's sensitivity (spectral: table or bands); the sRGB "
-                       "observer describes a camera's colour output, not its sensor");
+        fail("filter",
+             "needs a sensor's sensitivity (spectral: table or bands); the sRGB "
+             "observer describes a camera's colour output, not its sensor");
       break;
     case SpectralSensitivity::Kind::kTable:
       CheckTable(spectral, where + ": radiometry.sensitivity");
@@ -334,8 +352,10 @@ std::string CameraRadiometry::Describe() const {
   s << ToString(transfer);
   if (transfer == TransferFunction::kGamma) s << " " << gamma;
   if (transfer == TransferFunction::kCurve) s << " of " << curve.size() << " points";
-  if (bit_depth) s << ", " << bit_depth << " bit";
-  else s << " (16-bit frames linear)";
+  if (bit_depth)
+    s << ", " << bit_depth << " bit";
+  else
+    s << " (16-bit frames linear)";
   if (black_level > 0) s << ", black " << black_level;
   if (saturation_level > 0) s << ", saturation " << saturation_level;
   if (gain != Eigen::Vector3d::Ones()) {
@@ -352,10 +372,14 @@ CameraRadiometry CameraRadiometry::FromYaml(const YAML::Node& node, const std::s
   ConfigReader r(node, where);
   CameraRadiometry m;
   const std::string transfer = r.Get<std::string>("transfer", "srgb");
-  if (transfer == "srgb") m.transfer = TransferFunction::kSrgb;
-  else if (transfer == "linear") m.transfer = TransferFunction::kLinear;
-  else if (transfer == "gamma") m.transfer = TransferFunction::kGamma;
-  else if (transfer == "curve") m.transfer = TransferFunction::kCurve;
+  if (transfer == "srgb")
+    m.transfer = TransferFunction::kSrgb;
+  else if (transfer == "linear")
+    m.transfer = TransferFunction::kLinear;
+  else if (transfer == "gamma")
+    m.transfer = TransferFunction::kGamma;
+  else if (transfer == "curve")
+    m.transfer = TransferFunction::kCurve;
   else
     throw InputError(where + ": 'transfer' is '" + transfer +
                      "'; one of srgb, linear, gamma, curve");
@@ -374,8 +398,9 @@ CameraRadiometry CameraRadiometry::FromYaml(const YAML::Node& node, const std::s
     const YAML::Node inline_table = node["sensitivity_table"];
     r.Seen("sensitivity_table");
     if (file.empty() == !inline_table)
-      throw InputError(where + ": spectral: table needs one of 'sensitivity_file' and "
-                               "'sensitivity_table'");
+      throw InputError(where +
+                       ": spectral: table needs one of 'sensitivity_file' and "
+                       "'sensitivity_table'");
     if (!file.empty()) {
       const std::filesystem::path p(file);
       m.spectral = SpectralSensitivity::FromTableFile(
@@ -401,7 +426,8 @@ CameraRadiometry CameraRadiometry::FromYaml(const YAML::Node& node, const std::s
           throw InputError(where + ": sensitivity_table row " + std::to_string(i + 1) +
                            " has a different number of channels");
         m.spectral.wavelengths_nm.push_back(row[0]);
-        for (std::size_t c = 0; c + 1 < row.size(); ++c) m.spectral.columns[c].push_back(row[c + 1]);
+        for (std::size_t c = 0; c + 1 < row.size(); ++c)
+          m.spectral.columns[c].push_back(row[c + 1]);
       }
     }
   } else if (spectral == "bands") {
@@ -419,9 +445,12 @@ CameraRadiometry CameraRadiometry::FromYaml(const YAML::Node& node, const std::s
   r.Seen("filter");
   const std::vector<double> gain = r.Get<std::vector<double>>("gain", {});
   if (!gain.empty()) {
-    if (gain.size() == 1) m.gain.setConstant(gain[0]);
-    else if (gain.size() == 3) m.gain = Eigen::Vector3d(gain[0], gain[1], gain[2]);
-    else throw InputError(where + ": 'gain' has 1 (mono) or 3 values");
+    if (gain.size() == 1)
+      m.gain.setConstant(gain[0]);
+    else if (gain.size() == 3)
+      m.gain = Eigen::Vector3d(gain[0], gain[1], gain[2]);
+    else
+      throw InputError(where + ": 'gain' has 1 (mono) or 3 values");
     if (gain.size() != static_cast<std::size_t>(m.channels()))
       throw InputError(where + ": 'gain' has " + std::to_string(gain.size()) +
                        " values for a camera of " + std::to_string(m.channels()) + " channels");

@@ -76,7 +76,8 @@ Rig MakeRingRig(const Box3& box, const RingOptions& options, const std::string& 
     }
     std::string cam_name = "cam" + std::to_string(i);
     rig.cameras.push_back(RigCamera{
-        cam_name, "cameras/" + cam_name + ".cameramodel",
+        cam_name,
+        "cameras/" + cam_name + ".cameramodel",
         CameraModel(options.lensmodel, intrinsics, cam_from_rig, options.width, options.height),
         {}});
   }

@@ -116,7 +116,8 @@ template void ChannelResponse::LookupExact<double>(double, double*) const;
 Eigen::Vector3d ChannelResponse::BinWeight(double centre_nm, double step_nm) const {
   Eigen::Vector3d sum = Eigen::Vector3d::Zero();
   const int sub = std::max(1, static_cast<int>(std::round(step_nm * 10)));
-  for (int k = 0; k < sub; ++k) sum += BasisAt(centre_nm - 0.5 * step_nm + (k + 0.5) * step_nm / sub);
+  for (int k = 0; k < sub; ++k)
+    sum += BasisAt(centre_nm - 0.5 * step_nm + (k + 0.5) * step_nm / sub);
   return sum / sub * step_nm;
 }
 

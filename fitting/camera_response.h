@@ -46,7 +46,7 @@ class ChannelResponse {
   static std::shared_ptr<const ChannelResponse> ForCamera(const CameraRadiometry& radiometry);
 
   const std::string& name() const { return name_; }  // "sRGB observer", or the camera's spectral
-  int channels() const { return channels_; }          // 1 or 3
+  int channels() const { return channels_; }         // 1 or 3
   // True when the basis is CIE XYZ (the sRGB observer, with any gains in output_from_basis).
   bool basis_is_xyz() const { return observer_; }
   const Eigen::Matrix3d& output_from_basis() const { return output_from_basis_; }

@@ -113,7 +113,7 @@ ThinEmissionTable::ThinEmissionTable(const AbsorptionModel& absorption, double t
       const Eigen::Vector3d c = response->Integrate([&](double nm) {
         const int i = static_cast<int>(nm) - first;
         return i >= 0 && i < int(sigma.size()) ? sigma[i] * physics::PlanckRadiancePerNm(nm, t)
-                                                : 0.0;
+                                               : 0.0;
       });
       rgb_.push_back(c);
       xy_.push_back(colour::Chromaticity(c));
@@ -130,8 +130,8 @@ Eigen::Vector3d ThinEmissionTable::RgbPerDensity(double t_k) const {
 
 double ThinEmissionTable::TemperatureOf(const Eigen::Vector3d& rgb) const {
   if (mono_) return 0.5 * (t_min_ + t_max_);  // one channel has no colour to read
-  const Eigen::Vector3d xyz = xyz_chromaticity_ ? Eigen::Vector3d(colour::XyzFromLinearSrgb() * rgb)
-                                                : rgb;
+  const Eigen::Vector3d xyz =
+      xyz_chromaticity_ ? Eigen::Vector3d(colour::XyzFromLinearSrgb() * rgb) : rgb;
   if (!(xyz.sum() > 0)) return t_min_;
   const Eigen::Vector2d xy = colour::Chromaticity(xyz);
   auto dist = [&](std::size_t k) { return (xy_[k] - xy).squaredNorm(); };
@@ -489,10 +489,9 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   options.objective.smooth_delta_e = options.smooth_delta_e;
   options.objective.smooth_neighbour = options.smooth_neighbour;
   options.objective.density_pairwise = options.density_pairwise;
-  const ThinEmissionTable table(absorption, options.objective.t_min_k, options.objective.t_max_k,
-                                !views.empty() && views.front().response
-                                    ? views.front().response
-                                    : options.render.response);
+  const ThinEmissionTable table(
+      absorption, options.objective.t_min_k, options.objective.t_max_k,
+      !views.empty() && views.front().response ? views.front().response : options.render.response);
   const double s_tomo = TomographyExposure(tomography);
   FitResult result;
   result.method = "fast fit (L-BFGS, adjoint gradient" +

@@ -74,8 +74,8 @@ class ThinEmissionTable {
 
  private:
   double t_min_, t_max_;
-  bool xyz_chromaticity_ = true;  // the sRGB observer: CIE xy
-  bool mono_ = false;             // one channel: TemperatureOf gives the range's middle
+  bool xyz_chromaticity_ = true;      // the sRGB observer: CIE xy
+  bool mono_ = false;                 // one channel: TemperatureOf gives the range's middle
   std::vector<Eigen::Vector3d> rgb_;  // per kelvin from t_min
   std::vector<Eigen::Vector2d> xy_;
 };

@@ -263,8 +263,7 @@ FitObjective::FitObjective(const GridGeometry& grid, std::vector<std::uint32_t> 
       throw InputError("fit: view '" + v.name + "': signal is " + std::to_string(v.signal.width) +
                        "x" + std::to_string(v.signal.height) + "x" +
                        std::to_string(v.signal.channels) + ", the image " +
-                       std::to_string(v.image.width) + "x" + std::to_string(v.image.height) +
-                       "x3");
+                       std::to_string(v.image.width) + "x" + std::to_string(v.image.height) + "x3");
     }
   }
   if (options_.n_max_per_m3 > 0) {

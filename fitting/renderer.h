@@ -59,8 +59,8 @@
 #include <string>
 #include <vector>
 
-#include "core/image.h"
 #include "calibration/camera_rays.h"
+#include "core/image.h"
 #include "fitting/absorption.h"
 #include "fitting/camera_response.h"
 #include "fitting/spectral_tables.h"

@@ -31,7 +31,8 @@ void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double 
                        ImageF* signal) {
   if (!(exposure > 0) || !std::isfinite(exposure))
     throw InputError("exposure = " + std::to_string(exposure) + " must be finite and > 0");
-  if (bits != 8 && bits != 16) throw InputError("frames are 8 or 16 bits, not " + std::to_string(bits));
+  if (bits != 8 && bits != 16)
+    throw InputError("frames are 8 or 16 bits, not " + std::to_string(bits));
   const int channels = bits == 16 ? u16.channels : u8.channels;
   const int width = bits == 16 ? u16.width : u8.width;
   const int height = bits == 16 ? u16.height : u8.height;
@@ -71,11 +72,10 @@ void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double 
       linear->radiance.pixels[3 * p + c] = static_cast<float>(v / exposure);
       if (code >= decoding.saturation) linear->saturated[p] = 1;
       // What a person sees: the frame itself when it is 8-bit sRGB, else the signal encoded.
-      image->pixels[3 * p + c] =
-          bits == 8 && decoding.transfer == TransferFunction::kSrgb && decoding.black == 0 &&
-                  decoding.saturation == 255
-              ? static_cast<std::uint8_t>(code)
-              : QuantizeU8(SrgbEncode(v));
+      image->pixels[3 * p + c] = bits == 8 && decoding.transfer == TransferFunction::kSrgb &&
+                                         decoding.black == 0 && decoding.saturation == 255
+                                     ? static_cast<std::uint8_t>(code)
+                                     : QuantizeU8(SrgbEncode(v));
     }
   }
 }

@@ -12,8 +12,8 @@
 #include <stdexcept>
 
 #include "core/atomic_file.h"
-#include "core/error.h"
 #include "core/config_reader.h"
+#include "core/error.h"
 #include "core/srgb.h"
 #include "tomography/vdb_io.h"
 
@@ -70,8 +70,8 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
              "exposure", "fire", "box", "rig", "calibration", "render", "radiometry"},
             path + ": simulate");
   if (YAML::Node r = s["radiometry"])
-    c.radiometry = CameraRadiometry::FromYaml(
-        r, fs::path(path).parent_path().string(), path + ": simulate.radiometry");
+    c.radiometry = CameraRadiometry::FromYaml(r, fs::path(path).parent_path().string(),
+                                              path + ": simulate.radiometry");
   Read(s, "seed", &c.seed, path, "simulate.");
   Read(s, "frames", &c.frames, path, "simulate.");
   Read(s, "frame_rate_hz", &c.frame_rate_hz, path, "simulate.");
@@ -241,7 +241,8 @@ int RecordCameraImage(const ImageF& linear, double exposure, const CameraRadiome
     }
   if (bits == 8) {
     *u8 = ImageU8(linear.width, linear.height, channels);
-    for (std::size_t i = 0; i < codes.size(); ++i) u8->pixels[i] = static_cast<std::uint8_t>(codes[i]);
+    for (std::size_t i = 0; i < codes.size(); ++i)
+      u8->pixels[i] = static_cast<std::uint8_t>(codes[i]);
   } else {
     *u16 = ImageU16(linear.width, linear.height, channels);
     for (std::size_t i = 0; i < codes.size(); ++i)
@@ -339,9 +340,8 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
       }
       ImageU8 u8;
       ImageU16 u16;
-      const int bits =
-          RecordCameraImage(linear[c], exposure, config.radiometry, config.noise_dn,
-                            config.seed * 1000003ULL + f * 101ULL + c, &u8, &u16);
+      const int bits = RecordCameraImage(linear[c], exposure, config.radiometry, config.noise_dn,
+                                         config.seed * 1000003ULL + f * 101ULL + c, &u8, &u16);
       const std::string file = (frame_dir / (rig.cameras[c].name + ".png")).string();
       if (bits == 16) {
         WritePng16(file, u16);

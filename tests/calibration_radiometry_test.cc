@@ -6,11 +6,11 @@
 #include <gtest/gtest.h>
 #include <yaml-cpp/yaml.h>
 
+#include <unistd.h>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <functional>
-#include <unistd.h>
 
 #include "calibration/rig.h"
 #include "core/error.h"
@@ -21,7 +21,8 @@ namespace {
 namespace fs = std::filesystem;
 
 std::string Temp(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("flamerig_radiometry_" + std::to_string(::getpid()));
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_radiometry_" + std::to_string(::getpid()));
   fs::create_directories(dir);
   return (dir / name).string();
 }
@@ -55,8 +56,8 @@ TEST(Radiometry, DefaultDecodesEightBitAsSrgbAndSixteenBitAsLinear) {
 TEST(Radiometry, EveryTransferFunctionRoundTripsEveryCodeAtEveryBitDepth) {
   for (const char* transfer : {"srgb", "linear", "gamma", "curve"}) {
     for (int bits : {8, 10, 12, 14, 16}) {
-      std::string yaml = std::string("{transfer: ") + transfer + ", bit_depth: " +
-                         std::to_string(bits) + ", black_level: 16";
+      std::string yaml = std::string("{transfer: ") + transfer +
+                         ", bit_depth: " + std::to_string(bits) + ", black_level: 16";
       if (std::string(transfer) == "gamma") yaml += ", gamma: 2.6";
       if (std::string(transfer) == "curve") yaml += ", curve: [0, 0.02, 0.1, 0.3, 0.6, 1]";
       yaml += "}";
@@ -87,8 +88,9 @@ TEST(Radiometry, GammaAndCurveFollowTheirClosedForms) {
   EXPECT_NEAR(g.Signal(2048, d), std::pow(2048 / 4095.0, 2.2), 1e-12);
   // A curve is the signal at evenly spaced normalised codes, linear between: code 0.3 of full
   // scale lies 1/2 of the way between the 0.2 and 0.4 points.
-  const CameraRadiometry c = FromText("{transfer: curve, curve: [0, 0.01, 0.05, 0.2, 0.5, 1], "
-                                      "bit_depth: 10}");
+  const CameraRadiometry c = FromText(
+      "{transfer: curve, curve: [0, 0.01, 0.05, 0.2, 0.5, 1], "
+      "bit_depth: 10}");
   const auto dc = c.DecodingFor(16);
   EXPECT_NEAR(c.Signal(0.3 * 1023, dc), 0.5 * (0.01 + 0.05), 1e-9);
   EXPECT_NEAR(c.Signal(0.9 * 1023, dc), 0.5 * (0.5 + 1), 1e-9);
@@ -118,26 +120,32 @@ TEST(Radiometry, BadValuesAreErrorsNamingTheKey) {
             std::string::npos);
   EXPECT_NE(ErrorOf([] { FromText("{bit_depth: 20}"); }).find("bit_depth"), std::string::npos);
   EXPECT_NE(ErrorOf([] { FromText("{bit_depth: 7}"); }).find("bit_depth"), std::string::npos);
-  EXPECT_NE(ErrorOf([] { FromText("{transfer: curve, curve: [0, 0.5, 0.4, 1]}"); })
-                .find("must increase strictly"),
+  EXPECT_NE(ErrorOf([] {
+              FromText("{transfer: curve, curve: [0, 0.5, 0.4, 1]}");
+            }).find("must increase strictly"),
             std::string::npos);
-  EXPECT_NE(ErrorOf([] { FromText("{transfer: curve, curve: [0, 0.5, 0.9]}"); })
-                .find("from 0 (black) to 1"),
+  EXPECT_NE(ErrorOf([] {
+              FromText("{transfer: curve, curve: [0, 0.5, 0.9]}");
+            }).find("from 0 (black) to 1"),
             std::string::npos);
   EXPECT_NE(ErrorOf([] { FromText("{curve: [0, 1]}"); }).find("'curve' is given"),
             std::string::npos);
-  EXPECT_NE(ErrorOf([] { FromText("{bit_depth: 12, black_level: 100, saturation_level: 50}"); })
-                .find("saturation_level"),
+  EXPECT_NE(ErrorOf([] {
+              FromText("{bit_depth: 12, black_level: 100, saturation_level: 50}");
+            }).find("saturation_level"),
             std::string::npos);
   EXPECT_NE(ErrorOf([] { FromText("{gain: [1, -2, 1]}"); }).find("gain"), std::string::npos);
   EXPECT_NE(ErrorOf([] { FromText("{gain: [1, 2]}"); }).find("'gain' has 1 (mono) or 3"),
             std::string::npos);
-  EXPECT_NE(ErrorOf([] { FromText("{spectral: bands, bands: [{centre_nm: 650, fwhm_nm: 10}], "
-                                  "gain: [1, 1, 1]}"); })
-                .find("3 values for a camera of 1 channels"),
+  EXPECT_NE(ErrorOf([] {
+              FromText(
+                  "{spectral: bands, bands: [{centre_nm: 650, fwhm_nm: 10}], "
+                  "gain: [1, 1, 1]}");
+            }).find("3 values for a camera of 1 channels"),
             std::string::npos);
-  EXPECT_NE(ErrorOf([] { FromText("{spectral: srgb, filter: {centre_nm: 650, fwhm_nm: 10}}"); })
-                .find("needs a sensor's sensitivity"),
+  EXPECT_NE(ErrorOf([] {
+              FromText("{spectral: srgb, filter: {centre_nm: 650, fwhm_nm: 10}}");
+            }).find("needs a sensor's sensitivity"),
             std::string::npos);
   EXPECT_NE(ErrorOf([] { FromText("{spectral: table}"); }).find("sensitivity_file"),
             std::string::npos);
@@ -204,9 +212,11 @@ TEST(Radiometry, TheRigStoresItAndReadsItBack) {
   rig.box.min_in_rig = Eigen::Vector3d(-1, -1, -1);
   rig.box.max_in_rig = Eigen::Vector3d(1, 1, 1);
   for (int i = 0; i < 2; ++i)
-    rig.cameras.push_back(RigCamera{"cam" + std::to_string(i), "",
-                                    CameraModel::Pinhole(300, 300, 159.5, 119.5, Rigid3(), 320, 240),
-                                    {}});
+    rig.cameras.push_back(
+        RigCamera{"cam" + std::to_string(i),
+                  "",
+                  CameraModel::Pinhole(300, 300, 159.5, 119.5, Rigid3(), 320, 240),
+                  {}});
   CameraRadiometry& m = rig.cameras[1].radiometry;
   m.transfer = TransferFunction::kGamma;
   m.gamma = 1.8;

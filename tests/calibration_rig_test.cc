@@ -25,8 +25,10 @@ Rig TwoCameraRig() {
   for (int i = 0; i < 2; ++i) {
     Rigid3 pose = LookAt(Eigen::Vector3d(i ? 1.0 : 0.0, 0.15, i ? 0.0 : 1.0), rig.box.center());
     rig.cameras.push_back(
-        RigCamera{"cam" + std::to_string(i), "",
-                  CameraModel::Pinhole(300 + i, 300, 159.5, 119.5, pose, 320, 240), {}});
+        RigCamera{"cam" + std::to_string(i),
+                  "",
+                  CameraModel::Pinhole(300 + i, 300, 159.5, 119.5, pose, 320, 240),
+                  {}});
   }
   return rig;
 }

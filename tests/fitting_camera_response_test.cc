@@ -15,7 +15,8 @@
 namespace flamerig {
 namespace {
 
-CameraRadiometry Bands(std::vector<SpectralBand> bands, Eigen::Vector3d gain = Eigen::Vector3d::Ones()) {
+CameraRadiometry Bands(std::vector<SpectralBand> bands,
+                       Eigen::Vector3d gain = Eigen::Vector3d::Ones()) {
   CameraRadiometry r;
   r.spectral.kind = SpectralSensitivity::Kind::kBands;
   r.spectral.bands = std::move(bands);
@@ -39,8 +40,7 @@ TEST(ChannelResponse, TheDefaultCameraIsTheSrgbObserver) {
 }
 
 TEST(ChannelResponse, NarrowBandCamerasReadPlancksLaw) {
-  const auto r = ChannelResponse::ForCamera(
-      Bands({{650, 0.5}, {550, 0.5}, {450, 0.5}}));
+  const auto r = ChannelResponse::ForCamera(Bands({{650, 0.5}, {550, 0.5}, {450, 0.5}}));
   EXPECT_FALSE(r->basis_is_xyz());
   EXPECT_EQ(r->channels(), 3);
   for (double t : {900.0, 1300.5, 1900.25, 2600.0, 5000.0, 25000.0}) {
@@ -146,7 +146,8 @@ TEST(ChannelResponse, FastAndSpectralPathsAgreeForACamera) {
   double peak = 0;
   for (float v : a.pixels) peak = std::max(peak, double(v));
   ASSERT_GT(peak, 0);
-  for (std::size_t i = 0; i < a.pixels.size(); ++i) ASSERT_NEAR(a.pixels[i], b.pixels[i], 2e-3 * peak) << i;
+  for (std::size_t i = 0; i < a.pixels.size(); ++i)
+    ASSERT_NEAR(a.pixels[i], b.pixels[i], 2e-3 * peak) << i;
 }
 
 TEST(ChannelResponse, ExtremeTemperaturesStayFinite) {

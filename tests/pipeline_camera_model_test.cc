@@ -150,9 +150,10 @@ TEST(CameraModel, ANonSrgbCameraFittedWithItsResponseLosesTheBiasThatAssumingSrg
   const double reference = Bias(dir / "srgb", Linear12(), Linear12(), &rms_reference);
   const double right = Bias(dir / "right", BandCamera(), BandCamera(), &rms_right);
   const double wrong = Bias(dir / "wrong", BandCamera(), srgb_by_frame, &rms_wrong);
-  std::printf("temperature bias / RMS: sRGB camera %.1f / %.1f K; band camera with its response "
-              "%.1f / %.1f K; assuming sRGB %.1f / %.1f K\n",
-              reference, rms_reference, right, rms_right, wrong, rms_wrong);
+  std::printf(
+      "temperature bias / RMS: sRGB camera %.1f / %.1f K; band camera with its response "
+      "%.1f / %.1f K; assuming sRGB %.1f / %.1f K\n",
+      reference, rms_reference, right, rms_right, wrong, rms_wrong);
   EXPECT_LT(std::abs(right - reference), 15.0);
   EXPECT_GT(std::abs(wrong - reference), 3 * std::abs(right - reference) + 30.0);
   fs::remove_all(dir);
