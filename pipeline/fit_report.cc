@@ -4,6 +4,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
+#include <memory>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -104,8 +105,21 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
                                       const RenderOptions& render, const std::string& title,
                                       std::vector<ImageU8>* rendered_out) {
   const FireVolume& v = result.volume;
-  FireRenderer renderer(absorption, render);
-  renderer.SetVolume(v.geometry, v.temperature_k, v.density_per_m3);
+  // One renderer per camera response, made when a view needs it (views of one response are
+  // usually together).
+  std::unique_ptr<FireRenderer> renderer;
+  std::shared_ptr<const ChannelResponse> renderer_response;
+  auto renderer_for = [&](const FitView& view) -> const FireRenderer& {
+    const auto want = view.response ? view.response : render.response;
+    if (!renderer || want != renderer_response) {
+      RenderOptions options = render;
+      options.response = want;
+      renderer = std::make_unique<FireRenderer>(absorption, options);
+      renderer->SetVolume(v.geometry, v.temperature_k, v.density_per_m3);
+      renderer_response = want;
+    }
+    return *renderer;
+  };
   std::vector<ViewScore> scores;
   std::vector<ImageU8> tiles;
   std::vector<const FitView*> all;
@@ -114,14 +128,20 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
   for (std::size_t k = 0; k < all.size(); ++k) {
     const FitView& view = *all[k];
     ImageF linear;
-    renderer.Render(*view.rays, &linear);
+    renderer_for(view).Render(*view.rays, &linear);
     const ImageU8 rendered = ApplyCameraResponse(linear, result.exposure);
     ImageU8 heat(rendered.width, rendered.height, 3, 0);
     std::vector<double> fire;
     double sum = 0;
     for (std::size_t p = 0; p < rendered.num_pixels(); ++p) {
-      const Eigen::Vector3d lab_in = colour::SrgbU8ToLab(
-          view.image.pixels[3 * p], view.image.pixels[3 * p + 1], view.image.pixels[3 * p + 2]);
+      // The measurement as the fit takes it (objective.h): the camera's signal when it has one.
+      const Eigen::Vector3d lab_in =
+          view.signal.empty()
+              ? colour::SrgbU8ToLab(view.image.pixels[3 * p], view.image.pixels[3 * p + 1],
+                                    view.image.pixels[3 * p + 2])
+              : CameraLab(Eigen::Vector3d(view.signal.pixels[3 * p], view.signal.pixels[3 * p + 1],
+                                          view.signal.pixels[3 * p + 2]),
+                          1.0);
       const Eigen::Vector3d lab_out = CameraLab(
           Eigen::Vector3d(linear.pixels[3 * p], linear.pixels[3 * p + 1], linear.pixels[3 * p + 2]),
           result.exposure);

@@ -116,7 +116,7 @@ TEST(CameraModel, WhatASimulatedCameraRecordsDecodesBackToItsSignal) {
 // The temperature bias (fit - truth, K, on the truth's visible voxels) of a fit of a simulated
 // 2-view candle filmed by cameras of `film`, fitted assuming `assume`.
 double Bias(const fs::path& dir, const CameraRadiometry& film, const CameraRadiometry& assume,
-            double* rms_k) {
+            double* rms_k, double* fire_delta_e = nullptr) {
   SimulateConfig config;
   config.grid_resolution = 48;
   config.ring.width = 160;
@@ -138,6 +138,7 @@ double Bias(const fs::path& dir, const CameraRadiometry& film, const CameraRadio
   const FitJobResult r = RunFitJob(job);
   EXPECT_TRUE(r.have_truth);
   *rms_k = r.truth.rms_k;
+  if (fire_delta_e && !r.scores.empty()) *fire_delta_e = r.scores.front().fire_delta_e;
   return r.truth.mean_k;
 }
 
@@ -146,14 +147,20 @@ TEST(CameraModel, ANonSrgbCameraFittedWithItsResponseLosesTheBiasThatAssumingSrg
       fs::temp_directory_path() / ("flamerig_camera_model_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   CameraRadiometry srgb_by_frame = Linear12();  // decodes right, assumes the sRGB observer
-  double rms_reference = 0, rms_right = 0, rms_wrong = 0;
-  const double reference = Bias(dir / "srgb", Linear12(), Linear12(), &rms_reference);
-  const double right = Bias(dir / "right", BandCamera(), BandCamera(), &rms_right);
+  double rms_reference = 0, rms_right = 0, rms_wrong = 0, de_reference = 0, de_right = 0;
+  const double reference =
+      Bias(dir / "srgb", Linear12(), Linear12(), &rms_reference, &de_reference);
+  const double right = Bias(dir / "right", BandCamera(), BandCamera(), &rms_right, &de_right);
   const double wrong = Bias(dir / "wrong", BandCamera(), srgb_by_frame, &rms_wrong);
   std::printf(
       "temperature bias / RMS: sRGB camera %.1f / %.1f K; band camera with its response "
       "%.1f / %.1f K; assuming sRGB %.1f / %.1f K\n",
       reference, rms_reference, right, rms_right, wrong, rms_wrong);
+  // The report scores a camera in its own channels against its own signal, as the fit does.
+  std::printf("fire-pixel Delta E of the first view: sRGB camera %.2f, band camera %.2f\n",
+              de_reference, de_right);
+  EXPECT_GT(de_right, 0);
+  EXPECT_LT(de_right, 2 * de_reference + 0.5);
   EXPECT_LT(std::abs(right - reference), 15.0);
   EXPECT_GT(std::abs(wrong - reference), 3 * std::abs(right - reference) + 30.0);
   fs::remove_all(dir);
