@@ -15,7 +15,7 @@ std::shared_ptr<const ChannelResponse> ChannelResponse::SrgbObserver() {
     std::shared_ptr<ChannelResponse> r(new ChannelResponse());
     r->name_ = "sRGB observer";
     r->output_from_basis_ = colour::LinearSrgbFromXyz();
-    BlackbodyXyzTable::Get();  // built now rather than inside a first render
+    r->rows_ = BlackbodyXyzTable::Get().rows();
     return r;
   }();
   return observer;
@@ -49,6 +49,7 @@ std::shared_ptr<const ChannelResponse> ChannelResponse::ForCamera(
   r->channels_ = s.channels();
   if (observer) {
     r->output_from_basis_ = radiometry.gain.asDiagonal() * colour::LinearSrgbFromXyz();
+    r->rows_ = BlackbodyXyzTable::Get().rows();
   } else {
     r->observer_ = false;
     r->first_nm_ = kFirstNm;
@@ -78,6 +79,7 @@ std::shared_ptr<const ChannelResponse> ChannelResponse::ForCamera(
         v += physics::PlanckRadiancePerNm(double(kFirstNm + i), double(t)) * r->basis_[i];
       for (int c = 0; c < 3; ++c) r->table_[3 * t + c] = v[c];
     }
+    r->rows_ = r->table_.data();
   }
   cache[key.str()] = r;
   return r;

@@ -15,7 +15,7 @@
 //
 // Black bodies: Lookup() and LookupWithDerivative() give the basis channels of B(lambda, T) per
 // kelvin from 0 to kMaxTableK, linear between kelvins, exact above (the same contract as
-// BlackbodyXyzTable, which serves the observer). A camera's table integrates Planck over 1 nm from
+// BlackbodyXyzTable, whose rows serve the observer). A camera's table integrates Planck over 1 nm from
 // 300 to 1100 nm (sensors see into the near infrared; the CIE table ends at 830 nm).
 //
 // Responses are immutable and shared (std::shared_ptr<const ChannelResponse>); ForCamera() returns
@@ -68,25 +68,21 @@ class ChannelResponse {
   // Basis channels of B(T): the table, interpolated (contract as BlackbodyXyzTable).
   template <typename Real>
   void Lookup(Real temperature_k, Real* out) const {
-    if (observer_) return BlackbodyXyzTable::Get().Lookup(temperature_k, out);
     if (!(temperature_k > Real(0))) {
       out[0] = out[1] = out[2] = Real(0);
       return;
     }
     if (temperature_k >= Real(kMaxTableK)) return LookupExact(double(temperature_k), out);
-    const int i = static_cast<int>(temperature_k);
-    const Real f = temperature_k - Real(i);
-    const double* a = &table_[3 * i];
-    for (int c = 0; c < 3; ++c) out[c] = Real(a[c] + f * (a[c + 3] - a[c]));
+    InterpolateKelvinRows<Real>(rows_, temperature_k, out, nullptr);
   }
   template <typename Real>
   void LookupWithDerivative(Real temperature_k, Real* out, Real* d_out) const {
-    if (observer_) return BlackbodyXyzTable::Get().LookupWithDerivative(temperature_k, out, d_out);
     if (!(temperature_k > Real(0))) {
       for (int c = 0; c < 3; ++c) out[c] = d_out[c] = Real(0);
       return;
     }
     if (temperature_k >= Real(kMaxTableK)) {
+      // Above the table the curve is smooth and flat in T: a central difference over 1 K.
       LookupExact(double(temperature_k), out);
       Real lo[3], hi[3];
       LookupExact(double(temperature_k) - 1.0, lo);
@@ -94,13 +90,7 @@ class ChannelResponse {
       for (int c = 0; c < 3; ++c) d_out[c] = Real(0.5) * (hi[c] - lo[c]);
       return;
     }
-    const int i = static_cast<int>(temperature_k);
-    const Real f = temperature_k - Real(i);
-    const double* a = &table_[3 * i];
-    for (int c = 0; c < 3; ++c) {
-      d_out[c] = Real(a[c + 3] - a[c]);
-      out[c] = Real(a[c] + f * (a[c + 3] - a[c]));
-    }
+    InterpolateKelvinRows<Real>(rows_, temperature_k, out, d_out);
   }
 
   // Basis weight of a spectral bin [centre - step/2, centre + step/2]: the basis averaged over the
@@ -120,6 +110,7 @@ class ChannelResponse {
   int first_nm_ = 360, last_nm_ = 830;
   std::vector<Eigen::Vector3d> basis_;  // per nm from first_nm_ (cameras only)
   std::vector<double> table_;           // 3 * (kMaxTableK + 2) (cameras only)
+  const double* rows_ = nullptr;        // the table: BlackbodyXyzTable's rows, or table_
 };
 
 }  // namespace flamerig

@@ -61,21 +61,10 @@ SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm,
                                 " bins exceed the maximum of " + std::to_string(kMaxBins));
   }
   const int n = static_cast<int>(bins);
-  const auto& cie = colour::CieObserver::Cie1931TwoDegree();
+  if (!response) response = ChannelResponse::SrgbObserver().get();
   for (int i = 0; i < n; ++i) {
-    double center = first_nm + i * step_nm;
-    centers_nm_.push_back(center);
-    if (response) {
-      weights_.push_back(response->BinWeight(center, step_nm));
-      continue;
-    }
-    // Average the CMF over [center - step/2, center + step/2] with 0.1 nm sub-samples.
-    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-    const int sub = std::max(1, static_cast<int>(std::round(step_nm * 10)));
-    for (int s = 0; s < sub; ++s) {
-      sum += cie.Interpolate(center - 0.5 * step_nm + (s + 0.5) * step_nm / sub);
-    }
-    weights_.push_back(sum / sub * step_nm / cie.YIntegral());
+    centers_nm_.push_back(first_nm + i * step_nm);
+    weights_.push_back(response->BinWeight(centers_nm_.back(), step_nm));
   }
   // Every colour channel needs some response in the range (spectral transmittance to RGB divides
   // by each channel's weight sum): z-bar is 0 from 650 nm on, x-bar and y-bar below 360 nm.
@@ -86,8 +75,9 @@ SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm,
       throw InputError(
           "spectral bins: " + std::to_string(first_nm) + ".." + std::to_string(last_nm) +
           " nm hold no response of " +
-          (response ? "channel " + std::to_string(c) + " of " + response->name()
-                    : std::string("the CIE ") + "xyz"[c] + "-bar colour matching function"));
+          (response->basis_is_xyz()
+               ? std::string("the CIE ") + "xyz"[c] + "-bar colour matching function"
+               : "channel " + std::to_string(c) + " of " + response->name()));
   planck_.assign(static_cast<std::size_t>(kMaxTableK + 2) * n, 0.0f);
   for (int t = 1; t <= kMaxTableK + 1; ++t) {
     for (int i = 0; i < n; ++i) {

@@ -22,6 +22,20 @@ namespace flamerig {
 
 class ChannelResponse;
 
+// Linear interpolation in a table of 3 values per kelvin (row i holds T = i K) for
+// 0 < T < the table's last row: the value, and when `d_out` is not null the slope of the segment
+// holding T (what the interpolation differentiates to). Shared by every per-kelvin table.
+template <typename Real>
+inline void InterpolateKelvinRows(const double* rows, Real temperature_k, Real* out, Real* d_out) {
+  const int i = static_cast<int>(temperature_k);
+  const Real f = temperature_k - Real(i);
+  const double* a = &rows[3 * i];
+  for (int c = 0; c < 3; ++c) {
+    if (d_out) d_out[c] = Real(a[c + 3] - a[c]);
+    out[c] = Real(a[c] + f * (a[c + 3] - a[c]));
+  }
+}
+
 class BlackbodyXyzTable {
  public:
   static constexpr int kMaxTableK = 20000;
@@ -35,10 +49,7 @@ class BlackbodyXyzTable {
       return;
     }
     if (temperature_k >= Real(kMaxTableK)) return LookupExact(double(temperature_k), xyz);
-    const int i = static_cast<int>(temperature_k);
-    const Real f = temperature_k - Real(i);
-    const double* a = &xyz_[3 * i];
-    for (int c = 0; c < 3; ++c) xyz[c] = Real(a[c] + f * (a[c + 3] - a[c]));
+    InterpolateKelvinRows<Real>(xyz_.data(), temperature_k, xyz, nullptr);
   }
 
   // XYZ and its derivative in T: the slope of the table segment holding T (what Lookup's linear
@@ -51,14 +62,11 @@ class BlackbodyXyzTable {
     }
     if (temperature_k >= Real(kMaxTableK))
       return LookupExactWithDerivative(double(temperature_k), xyz, d_xyz);
-    const int i = static_cast<int>(temperature_k);
-    const Real f = temperature_k - Real(i);
-    const double* a = &xyz_[3 * i];
-    for (int c = 0; c < 3; ++c) {
-      d_xyz[c] = Real(a[c + 3] - a[c]);
-      xyz[c] = Real(a[c] + f * (a[c + 3] - a[c]));
-    }
+    InterpolateKelvinRows<Real>(xyz_.data(), temperature_k, xyz, d_xyz);
   }
+
+  // The rows: 3 values per kelvin from 0 to kMaxTableK + 1.
+  const double* rows() const { return xyz_.data(); }
 
  private:
   BlackbodyXyzTable();
@@ -72,9 +80,9 @@ class BlackbodyXyzTable {
 class SpectralBins {
  public:
   // Bins centred on first_nm, first_nm + step_nm, ..., last_nm. Throws InputError unless
-  // 360 <= first < last <= 830, step > 0 and there are at most kMaxBins bins. The weights are a
-  // camera's basis channels (camera_response.h) when `response` is given, else the CIE observer's
-  // XYZ; either way every channel must respond somewhere in the bins.
+  // 360 <= first < last <= 830, step > 0 and there are at most kMaxBins bins. The weights are the
+  // basis channels of `response` (camera_response.h; null: the sRGB observer, whose basis is CIE
+  // XYZ); every channel must respond somewhere in the bins.
   SpectralBins(double first_nm, double last_nm, double step_nm,
                const ChannelResponse* response = nullptr);
   static constexpr int kMaxBins = 512;

@@ -57,6 +57,9 @@ void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double 
   linear->saturated.assign(n, 0);
   linear->full_scale = 1.0 / exposure;
   const double max_code = decoding.max_code;
+  // What a person sees: the frame itself when it is 8-bit sRGB, else the signal encoded.
+  const bool picture_is_frame = bits == 8 && decoding.transfer == TransferFunction::kSrgb &&
+                                decoding.black == 0 && decoding.saturation == 255;
   for (std::size_t p = 0; p < n; ++p) {
     for (int c = 0; c < 3; ++c) {
       const std::size_t k = p * channels + (channels == 1 ? 0 : c);
@@ -71,11 +74,8 @@ void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double 
       signal->pixels[3 * p + c] = v;
       linear->radiance.pixels[3 * p + c] = static_cast<float>(v / exposure);
       if (code >= decoding.saturation) linear->saturated[p] = 1;
-      // What a person sees: the frame itself when it is 8-bit sRGB, else the signal encoded.
-      image->pixels[3 * p + c] = bits == 8 && decoding.transfer == TransferFunction::kSrgb &&
-                                         decoding.black == 0 && decoding.saturation == 255
-                                     ? static_cast<std::uint8_t>(code)
-                                     : QuantizeU8(SrgbEncode(v));
+      image->pixels[3 * p + c] =
+          picture_is_frame ? static_cast<std::uint8_t>(code) : QuantizeU8(SrgbEncode(v));
     }
   }
 }

@@ -14,7 +14,7 @@
 #include "core/atomic_file.h"
 #include "core/config_reader.h"
 #include "core/error.h"
-#include "core/srgb.h"
+#include "pipeline/frame_source.h"
 #include "tomography/vdb_io.h"
 
 namespace flamerig {
@@ -343,17 +343,16 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
       const int bits = RecordCameraImage(linear[c], exposure, config.radiometry, config.noise_dn,
                                          config.seed * 1000003ULL + f * 101ULL + c, &u8, &u16);
       const std::string file = (frame_dir / (rig.cameras[c].name + ".png")).string();
-      if (bits == 16) {
-        WritePng16(file, u16);
-        // The picture: the signal sRGB-encoded.
-        const std::vector<float> table = config.radiometry.SignalTable(16);
-        u8 = ImageU8(u16.width, u16.height, u16.channels);
-        for (std::size_t p = 0; p < u16.pixels.size(); ++p)
-          u8.pixels[p] = QuantizeU8(SrgbEncode(table[u16.pixels[p]]));
-      } else {
-        WritePng(file, u8);
+      if (bits == 16) WritePng16(file, u16);
+      else WritePng(file, u8);
+      if (f == 0) {
+        // The picture a person sees of it, as every reader of frames makes it.
+        ImageU8 picture;
+        LinearFrame unused;
+        ImageF signal;
+        DecodeCameraImage(u8, u16, bits, exposure, config.radiometry, &picture, &unused, &signal);
+        preview.push_back(std::move(picture));
       }
-      if (f == 0) preview.push_back(u8);
     }
     if (f == 0) summary.saturated_pixel_fraction = lit ? double(saturated) / lit : 0.0;
     yaml << YAML::BeginMap << YAML::Key << "name" << YAML::Value << name << YAML::Key << "time_s"
