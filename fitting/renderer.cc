@@ -80,8 +80,7 @@ FireRenderer::FireRenderer(const AbsorptionModel& absorption, const RenderOption
   }
   if (path_ == SpectralPath::kSpectral) {
     bins_ = std::make_unique<SpectralBins>(options_.spectral_first_nm, options_.spectral_last_nm,
-                                           options_.spectral_step_nm,
-                                           response_.get());
+                                           options_.spectral_step_nm, response_.get());
     for (double nm : bins_->centers_nm())
       bin_cross_section_m2_.push_back(absorption_.CrossSectionM2(nm));
   }

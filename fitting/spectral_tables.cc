@@ -72,12 +72,11 @@ SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm,
   for (const auto& w : weights_) total += w;
   for (int c = 0; c < 3; ++c)
     if (!(total[c] > 0))
-      throw InputError(
-          "spectral bins: " + std::to_string(first_nm) + ".." + std::to_string(last_nm) +
-          " nm hold no response of " +
-          (response->basis_is_xyz()
-               ? std::string("the CIE ") + "xyz"[c] + "-bar colour matching function"
-               : "channel " + std::to_string(c) + " of " + response->name()));
+      throw InputError("spectral bins: " + std::to_string(first_nm) + ".." +
+                       std::to_string(last_nm) + " nm hold no response of " +
+                       (response->basis_is_xyz()
+                            ? std::string("the CIE ") + "xyz"[c] + "-bar colour matching function"
+                            : "channel " + std::to_string(c) + " of " + response->name()));
   planck_.assign(static_cast<std::size_t>(kMaxTableK + 2) * n, 0.0f);
   for (int t = 1; t <= kMaxTableK + 1; ++t) {
     for (int i = 0; i < n; ++i) {

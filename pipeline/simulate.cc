@@ -343,8 +343,10 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
       const int bits = RecordCameraImage(linear[c], exposure, config.radiometry, config.noise_dn,
                                          config.seed * 1000003ULL + f * 101ULL + c, &u8, &u16);
       const std::string file = (frame_dir / (rig.cameras[c].name + ".png")).string();
-      if (bits == 16) WritePng16(file, u16);
-      else WritePng(file, u8);
+      if (bits == 16)
+        WritePng16(file, u16);
+      else
+        WritePng(file, u8);
       if (f == 0) {
         // The picture a person sees of it, as every reader of frames makes it.
         ImageU8 picture;
