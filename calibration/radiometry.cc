@@ -265,7 +265,11 @@ double CameraRadiometry::Signal(double code, const Decoding& d) const {
 }
 
 double CameraRadiometry::Code(double signal, const Decoding& d) const {
-  if (!(signal > 0)) return std::round(std::clamp(d.black, 0.0, d.max_code));
+  return std::clamp(std::round(Encode(signal, d)), 0.0, d.max_code);
+}
+
+double CameraRadiometry::Encode(double signal, const Decoding& d) const {
+  if (!(signal > 0)) return d.black;
   const double s = std::min(signal, 1.0);
   double e = s;
   switch (d.transfer) {
@@ -281,7 +285,7 @@ double CameraRadiometry::Code(double signal, const Decoding& d) const {
       e = CurveInverse(curve, s);
       break;
   }
-  return std::clamp(std::round(d.black + e * (d.saturation - d.black)), 0.0, d.max_code);
+  return d.black + e * (d.saturation - d.black);
 }
 
 std::vector<float> CameraRadiometry::SignalTable(int frame_bits) const {

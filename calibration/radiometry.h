@@ -126,6 +126,9 @@ struct CameraRadiometry {
   // The code (rounded, clamped to [0, max_code]) that records `signal` (clamped to [0, 1]; NaN
   // records 0).
   double Code(double signal, const Decoding& d) const;
+  // The same code before rounding: black + encode(signal) * (saturation - black), a smooth
+  // function of the signal for fitting a model to mean codes (radiometric calibration).
+  double Encode(double signal, const Decoding& d) const;
   // A 256- or 65536-entry table of Signal() for every code of a frame of `frame_bits`.
   std::vector<float> SignalTable(int frame_bits) const;
 

@@ -1,5 +1,6 @@
 #include "fitting/camera_response.h"
 
+#include <deque>
 #include <map>
 #include <mutex>
 #include <sstream>
@@ -40,9 +41,15 @@ std::shared_ptr<const ChannelResponse> ChannelResponse::ForCamera(
     key << ",";
   }
   static std::mutex mutex;
+  // Weak entries, so that a response lives as long as its users, and the last few built held
+  // strongly, so that a caller asking again and again (calibration, simulate) builds one once.
   static std::map<std::string, std::weak_ptr<const ChannelResponse>> cache;
+  static std::deque<std::shared_ptr<const ChannelResponse>> recent;
+  constexpr std::size_t kRecent = 8;
   std::lock_guard<std::mutex> lock(mutex);
   if (auto found = cache[key.str()].lock()) return found;
+  for (auto it = cache.begin(); it != cache.end();)
+    it = it->second.expired() && it->first != key.str() ? cache.erase(it) : std::next(it);
 
   std::shared_ptr<ChannelResponse> r(new ChannelResponse());
   r->name_ = s.Describe();
@@ -82,6 +89,8 @@ std::shared_ptr<const ChannelResponse> ChannelResponse::ForCamera(
     r->rows_ = r->table_.data();
   }
   cache[key.str()] = r;
+  recent.push_back(r);
+  if (recent.size() > kRecent) recent.pop_front();
   return r;
 }
 

@@ -19,8 +19,8 @@
 // 300 to 1100 nm (sensors see into the near infrared; the CIE table ends at 830 nm).
 //
 // Responses are immutable and shared (std::shared_ptr<const ChannelResponse>); ForCamera() returns
-// one object per distinct sensitivity and gain, built once (a camera's black-body table takes
-// about 0.2 s).
+// one object per distinct sensitivity and gain while any user holds it, and keeps the last 8 built
+// alive, so that asking again does not rebuild (a camera's black-body table takes about 0.2 s).
 #ifndef FLAMERIG_FITTING_CAMERA_RESPONSE_H_
 #define FLAMERIG_FITTING_CAMERA_RESPONSE_H_
 

@@ -1,5 +1,7 @@
 #include "pipeline/simulate.h"
 
+#include "pipeline/radiometric_calibration.h"
+
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
@@ -15,6 +17,7 @@
 #include "core/config_reader.h"
 #include "core/error.h"
 #include "pipeline/frame_source.h"
+#include "pipeline/radiometric_calibration.h"
 #include "tomography/vdb_io.h"
 
 namespace flamerig {
@@ -67,11 +70,27 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
   SimulateConfig& c = *out;
   CheckKeys(s,
             {"seed", "frames", "frame_rate_hz", "absorption", "grid_resolution", "noise_dn",
-             "exposure", "fire", "box", "rig", "calibration", "render", "radiometry"},
+             "exposure", "fire", "box", "rig", "calibration", "render", "radiometry",
+             "camera_gains", "radiometric_calibration"},
             path + ": simulate");
   if (YAML::Node r = s["radiometry"])
     c.radiometry = CameraRadiometry::FromYaml(r, fs::path(path).parent_path().string(),
                                               path + ": simulate.radiometry");
+  if (YAML::Node g = s["camera_gains"]) {
+    if (!g.IsSequence()) Fail(path, "simulate.camera_gains", "a list of [r, g, b], one per camera");
+    for (std::size_t i = 0; i < g.size(); ++i)
+      c.camera_gains.push_back(
+          ReadVec3(g[i], path, "simulate.camera_gains[" + std::to_string(i) + "]"));
+  }
+  if (YAML::Node r = s["radiometric_calibration"]) {
+    CheckKeys(r, {"enabled", "temperatures_k", "levels", "emissivity"},
+              path + ": simulate.radiometric_calibration");
+    auto& rc = c.radiometric_calibration;
+    Read(r, "enabled", &rc.enabled, path, "simulate.radiometric_calibration.");
+    Read(r, "emissivity", &rc.emissivity, path, "simulate.radiometric_calibration.");
+    if (r["temperatures_k"]) rc.temperatures_k = r["temperatures_k"].as<std::vector<double>>();
+    if (r["levels"]) rc.levels = r["levels"].as<std::vector<double>>();
+  }
   Read(s, "seed", &c.seed, path, "simulate.");
   Read(s, "frames", &c.frames, path, "simulate.");
   Read(s, "frame_rate_hz", &c.frame_rate_hz, path, "simulate.");
@@ -191,10 +210,33 @@ void SimulateConfig::Validate() const {
   if (!(noise_dn >= 0) || !(noise_dn <= 50)) fail("noise_dn must be in [0, 50]");
   if (!box.IsValid()) fail("box: max must exceed min on every axis");
   if (shared_per_pair < 0 || closeups_per_camera < 0) fail("calibration view counts must be >= 0");
+  if (!camera_gains.empty() && int(camera_gains.size()) != ring.cameras)
+    fail("camera_gains: one [r, g, b] per camera (" + std::to_string(ring.cameras) + "), got " +
+         std::to_string(camera_gains.size()));
+  for (const Eigen::Vector3d& g : camera_gains)
+    if (!(g.minCoeff() > 0) || !g.allFinite()) fail("camera_gains: every gain must be > 0");
+  radiometry.Validate("simulate");
+  if (radiometric_calibration.enabled) {
+    const auto& rc = radiometric_calibration;
+    if (rc.temperatures_k.empty() || rc.levels.empty())
+      fail("radiometric_calibration: needs temperatures_k and levels");
+    for (double t : rc.temperatures_k)
+      if (!(t >= 500 && t <= 4000)) fail("radiometric_calibration.temperatures_k: in 500..4000 K");
+    for (double l : rc.levels)
+      if (!(l > 0 && l <= 10)) fail("radiometric_calibration.levels: in (0, 10]");
+    if (!(rc.emissivity > 0 && rc.emissivity <= 1))
+      fail("radiometric_calibration.emissivity: in (0, 1]");
+  }
   fire.Validate();
   ring.Validate();
   board.Validate();
   render.Validate();
+}
+
+CameraRadiometry SimulateConfig::CameraFilm(std::size_t c) const {
+  CameraRadiometry film = radiometry;
+  if (c < camera_gains.size()) film.gain = film.gain.cwiseProduct(camera_gains[c]);
+  return film;
 }
 
 double AutoExposure(const std::vector<ImageF>& linear) {
@@ -268,7 +310,8 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
   summary.out_dir = out_dir;
 
   Rig rig = synthetic::MakeRingRig(config.box, config.ring, "sim");
-  for (RigCamera& c : rig.cameras) c.radiometry = config.radiometry;
+  for (std::size_t c = 0; c < rig.cameras.size(); ++c)
+    rig.cameras[c].radiometry = config.CameraFilm(c);
   rig.Save((fs::path(out_dir) / "rig.yaml").string());
   summary.cameras = static_cast<int>(rig.cameras.size());
 
@@ -307,8 +350,13 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
     fire.emission_rgb = synthetic::ThinEmissionRgb(fire, absorption);
     renderer.SetVolume(grid, fire.temperature_k, fire.density_per_m3);
     std::vector<ImageF> linear(rig.cameras.size());
-    for (std::size_t c = 0; c < rig.cameras.size(); ++c)
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
       summary.last_render = renderer.Render(rays[c], &linear[c]);
+      // A camera's own gains scale its output channels (camera_response.h).
+      if (c < config.camera_gains.size())
+        for (std::size_t p = 0; p < linear[c].num_pixels(); ++p)
+          for (int k = 0; k < 3; ++k) linear[c].pixels[3 * p + k] *= float(config.camera_gains[c][k]);
+    }
 
     if (f == 0 && config.auto_exposure) {
       const double automatic = AutoExposure(linear);
@@ -340,7 +388,8 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
       }
       ImageU8 u8;
       ImageU16 u16;
-      const int bits = RecordCameraImage(linear[c], exposure, config.radiometry, config.noise_dn,
+      const CameraRadiometry film = config.CameraFilm(c);
+      const int bits = RecordCameraImage(linear[c], exposure, film, config.noise_dn,
                                          config.seed * 1000003ULL + f * 101ULL + c, &u8, &u16);
       const std::string file = (frame_dir / (rig.cameras[c].name + ".png")).string();
       if (bits == 16)
@@ -352,7 +401,7 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
         ImageU8 picture;
         LinearFrame unused;
         ImageF signal;
-        DecodeCameraImage(u8, u16, bits, exposure, config.radiometry, &picture, &unused, &signal);
+        DecodeCameraImage(u8, u16, bits, exposure, film, &picture, &unused, &signal);
         preview.push_back(std::move(picture));
       }
     }
@@ -378,6 +427,48 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
     summary.calibration_views = written.views;
     summary.calibration_images = written.images;
     yaml << YAML::Key << "calibration" << YAML::Value << "calibration/board.yaml";
+  }
+  if (config.radiometric_calibration.enabled) {
+    const auto& rc = config.radiometric_calibration;
+    RadiometricShots shots;
+    shots.emissivity = rc.emissivity;
+    const fs::path dir = fs::path(out_dir) / "radiometry";
+    fs::create_directories(dir);
+    const int total = int(rig.cameras.size() * rc.temperatures_k.size() * rc.levels.size());
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+      const CameraRadiometry film = config.CameraFilm(c);
+      const auto response = ChannelResponse::ForCamera(film);
+      for (std::size_t t = 0; t < rc.temperatures_k.size(); ++t) {
+        const double peak = rc.emissivity *
+                            response->Blackbody(rc.temperatures_k[t]).head(film.channels()).maxCoeff();
+        for (std::size_t l = 0; l < rc.levels.size(); ++l) {
+          report("radiometric calibration", int(shots.shots.size()), total);
+          RadiometricShot shot;
+          shot.camera = rig.cameras[c].name;
+          shot.temperature_k = rc.temperatures_k[t];
+          shot.exposure = rc.levels[l] / peak;
+          char name[96];
+          std::snprintf(name, sizeof(name), "%s_%.0fK_%zu.png", shot.camera.c_str(),
+                        shot.temperature_k, l);
+          shot.image = (dir / name).string();
+          ImageU8 u8;
+          ImageU16 u16;
+          const int bits = FilmCalibrationSource(
+              rig.cameras[c].model.width(), rig.cameras[c].model.height(), shot.temperature_k,
+              rc.emissivity, shot.exposure, film, config.noise_dn,
+              config.seed * 7919ULL + c * 1009ULL + t * 101ULL + l, &u8, &u16);
+          if (bits == 16)
+            WritePng16(shot.image, u16);
+          else
+            WritePng(shot.image, u8);
+          shots.shots.push_back(shot);
+        }
+      }
+    }
+    shots.Save((dir / "shots.yaml").string());
+    summary.radiometric_shots = int(shots.shots.size());
+    report("radiometric calibration", total, total);
+    yaml << YAML::Key << "radiometric_calibration" << YAML::Value << "radiometry/shots.yaml";
   }
   yaml << YAML::EndMap << YAML::EndMap;
   WriteFileAtomically((fs::path(out_dir) / "dataset.yaml").string(),

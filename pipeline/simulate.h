@@ -23,6 +23,14 @@
 //   radiometry: {...}   every camera's radiometric model (calibration/radiometry.h) [the default
 //                        8-bit sRGB camera]; written into OUT/rig.yaml. Cameras of more than 8 bits
 //                        write 16-bit PNGs holding their codes (0..2^bits - 1), mono cameras grey.
+//   camera_gains: [[r, g, b], ...]   per camera, multiplying radiometry.gain (white balance and
+//                        sensor spread, what radiometric calibration recovers) [all 1]
+//   radiometric_calibration: {enabled [false], temperatures_k [1300, 1600, 1900],
+//                        levels [0.05, 0.15, 0.35, 0.6, 0.85, 1.3], emissivity [0.98]}
+//                        images of a black-body calibrator per camera (FilmCalibrationSource in
+//                        radiometric_calibration.h) at exposures putting its brightest channel at
+//                        each level of full scale (above 1 saturates), written with their shots
+//                        file: OUT/radiometry/shots.yaml, OUT/radiometry/CAM_TK_I.png
 #ifndef FLAMERIG_PIPELINE_SIMULATE_H_
 #define FLAMERIG_PIPELINE_SIMULATE_H_
 
@@ -55,6 +63,15 @@ struct SimulateConfig {
   int closeups_per_camera = 4;
   RenderOptions render;
   CameraRadiometry radiometry;  // of every camera
+  std::vector<Eigen::Vector3d> camera_gains;  // empty, or one per camera: multiplies radiometry.gain
+  struct RadiometricShotsConfig {
+    bool enabled = false;
+    std::vector<double> temperatures_k{1300, 1600, 1900};
+    std::vector<double> levels{0.05, 0.15, 0.35, 0.6, 0.85, 1.3};
+    double emissivity = 0.98;
+  } radiometric_calibration;
+  // Camera c's radiometric model: radiometry with camera_gains[c] applied.
+  CameraRadiometry CameraFilm(std::size_t c) const;
 
   // Reads the `simulate:` map of a YAML file; missing keys keep their defaults. Throws
   // InputError naming the file, the field and the rule.
@@ -68,6 +85,7 @@ struct SimulateSummary {
   int cameras = 0;
   int calibration_views = 0;
   int calibration_images = 0;
+  int radiometric_shots = 0;  // images of the black-body calibrator
   double exposure = 0;
   std::string exposure_source;          // "auto: ..." or "config"
   double saturated_pixel_fraction = 0;  // of fire pixels at frame 0
