@@ -54,6 +54,7 @@ std::shared_ptr<const ChannelResponse> ChannelResponse::ForCamera(
   std::shared_ptr<ChannelResponse> r(new ChannelResponse());
   r->name_ = s.Describe();
   r->channels_ = s.channels();
+  r->gain_ = radiometry.gain;
   if (observer) {
     r->output_from_basis_ = radiometry.gain.asDiagonal() * colour::LinearSrgbFromXyz();
     r->rows_ = BlackbodyXyzTable::Get().rows();

@@ -50,6 +50,9 @@ class ChannelResponse {
   // True when the basis is CIE XYZ (the sRGB observer, with any gains in output_from_basis).
   bool basis_is_xyz() const { return observer_; }
   const Eigen::Matrix3d& output_from_basis() const { return output_from_basis_; }
+  // The camera's gains, included in the output: a camera's output divided by them is its
+  // unit-gain channels, what cameras of one kind but different gains agree on (the tomography's).
+  const Eigen::Vector3d& gain() const { return gain_; }
 
   // The basis sensitivities at a wavelength (linear between 1 nm samples; zero outside the range):
   // basis = sum_lambda L(lambda) BasisAt(lambda) dlambda.
@@ -107,6 +110,7 @@ class ChannelResponse {
   int channels_ = 3;
   bool observer_ = true;
   Eigen::Matrix3d output_from_basis_ = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d gain_ = Eigen::Vector3d::Ones();
   int first_nm_ = 360, last_nm_ = 830;
   std::vector<Eigen::Vector3d> basis_;  // per nm from first_nm_ (cameras only)
   std::vector<double> table_;           // 3 * (kMaxTableK + 2) (cameras only)

@@ -115,8 +115,9 @@ ThinEmissionTable::ThinEmissionTable(const AbsorptionModel& absorption, double t
         return i >= 0 && i < int(sigma.size()) ? sigma[i] * physics::PlanckRadiancePerNm(nm, t)
                                                : 0.0;
       });
-      rgb_.push_back(c);
-      xy_.push_back(colour::Chromaticity(c));
+      const Eigen::Vector3d unit = c.cwiseQuotient(response->gain());  // the tomography's units
+      rgb_.push_back(unit);
+      xy_.push_back(colour::Chromaticity(unit));
     }
   }
 }

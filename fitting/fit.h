@@ -58,8 +58,9 @@ namespace flamerig {
 
 // Emission per unit density of a black body seen through the absorption model, in the renderer's
 // linear sRGB (what a voxel of density 1 per m^3 emits per metre in the thin limit), per kelvin;
-// with a camera response (camera_response.h), in its channels, and the chromaticity below is then
-// the channels' (c0, c1) / (c0 + c1 + c2).
+// with a camera response (camera_response.h), in its unit-gain channels (the response's output
+// divided by its gains, as the tomography's frames are: frame_source.h), and the chromaticity
+// below is then the channels' (c0, c1) / (c0 + c1 + c2).
 class ThinEmissionTable {
  public:
   ThinEmissionTable(const AbsorptionModel& absorption, double t_min_k, double t_max_k,

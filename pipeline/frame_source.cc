@@ -55,8 +55,13 @@ void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double 
   *image = ImageU8(width, height, 3);
   linear->radiance = ImageF(width, height, 3);
   linear->saturated.assign(n, 0);
-  linear->full_scale = 1.0 / exposure;
   const double max_code = decoding.max_code;
+  // The tomography's frames are in the camera's unit-gain channels, so that cameras of one kind
+  // with different gains (white balance, sensor spread) agree on one emission.
+  double unit[3];
+  for (int c = 0; c < 3; ++c)
+    unit[c] = 1.0 / (exposure * radiometry.gain[radiometry.channels() == 1 ? 0 : c]);
+  linear->full_scale = std::max({unit[0], unit[1], unit[2]});
   // What a person sees: the frame itself when it is 8-bit sRGB, else the signal encoded.
   const bool picture_is_frame = bits == 8 && decoding.transfer == TransferFunction::kSrgb &&
                                 decoding.black == 0 && decoding.saturation == 255;
@@ -72,7 +77,7 @@ void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double 
                          "-bit camera (a wrong bit_depth in the rig, or a damaged frame)");
       const float v = table[code];
       signal->pixels[3 * p + c] = v;
-      linear->radiance.pixels[3 * p + c] = static_cast<float>(v / exposure);
+      linear->radiance.pixels[3 * p + c] = static_cast<float>(v * unit[c]);
       if (code >= decoding.saturation) linear->saturated[p] = 1;
       image->pixels[3 * p + c] =
           picture_is_frame ? static_cast<std::uint8_t>(code) : QuantizeU8(SrgbEncode(v));

@@ -99,8 +99,10 @@ std::array<int, 4> FindPatch(const ShotImage& image, int erode_px, const std::st
   const double median = quantile(0.5), peak = quantile(0.995);
   const double full = image.bits == 8 ? 255.0 : 65535.0;
   if (!(peak - median > 0.002 * full))
-    throw InputError(where + ": no bright source patch in the camera's brightest shot (its 99.5th "
-                     "percentile is " + Num(peak) + ", its median " + Num(median) +
+    throw InputError(where +
+                     ": no bright source patch in the camera's brightest shot (its 99.5th "
+                     "percentile is " +
+                     Num(peak) + ", its median " + Num(median) +
                      "): give `region: [x, y, width, height]`");
   cv::Mat mask = value > float(0.5 * (median + peak));
   cv::Mat labels, stats, centroids;
@@ -111,8 +113,9 @@ std::array<int, 4> FindPatch(const ShotImage& image, int erode_px, const std::st
       best = i;
   cv::Mat component = labels == best;
   if (erode_px > 0)
-    cv::erode(component, component,
-              cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * erode_px + 1, 2 * erode_px + 1)));
+    cv::erode(
+        component, component,
+        cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * erode_px + 1, 2 * erode_px + 1)));
   // The patch: the largest axis-aligned box inside the eroded area around its centroid, taken
   // as the bounding box of the eroded area shrunk until every pixel lies in it (a disc's
   // inscribed square).
@@ -244,18 +247,16 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
     r.shot = shots.shots[shot_indices[k]];
     const std::array<int, 4> patch = r.shot.region[2] > 0 ? r.shot.region : region;
     if (patch[0] + patch[2] > images[k].width || patch[1] + patch[3] > images[k].height)
-      throw InputError(where + ": region [" + std::to_string(patch[0]) + ", " +
-                       std::to_string(patch[1]) + ", " + std::to_string(patch[2]) + ", " +
-                       std::to_string(patch[3]) + "] leaves " + r.shot.image + " (" +
-                       std::to_string(images[k].width) + "x" + std::to_string(images[k].height) +
-                       ")");
+      throw InputError(
+          where + ": region [" + std::to_string(patch[0]) + ", " + std::to_string(patch[1]) + ", " +
+          std::to_string(patch[2]) + ", " + std::to_string(patch[3]) + "] leaves " + r.shot.image +
+          " (" + std::to_string(images[k].width) + "x" + std::to_string(images[k].height) + ")");
     r.patch_pixels = patch[2] * patch[3];
     Eigen::Vector3d saturated;
     PatchStatistics(images[k], patch, decoding.saturation, &r.mean_code, &saturated);
     if (k == 0) result->dark_level_dn = DarkLevel(images[k], patch);
-    const double emissivity = shots.source == RadiometricShots::Source::kBlackbody
-                                  ? shots.emissivity
-                                  : 1.0;
+    const double emissivity =
+        shots.source == RadiometricShots::Source::kBlackbody ? shots.emissivity : 1.0;
     const Eigen::Vector3d b = UnitGainBlackbody(model, r.shot.temperature_k);
     for (int c = 0; c < channels; ++c) {
       Observation o;
@@ -275,10 +276,8 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
         r.left_out[c] = "saturated (" + Num(100 * saturated[c], 3) + "% of the patch)";
         continue;  // a clipped mean says nothing exact, not even about the black level
       }
-      if (signal < options.min_signal) {
-        r.left_out[c] = "too dark for the gain (signal " + Num(signal, 3) + ")";
-        o.for_gain = false;
-      }
+      // Dark by the model's black level: in the fit only when the black level is fitted.
+      o.for_gain = signal >= options.min_signal;
       observations.push_back(o);
     }
     if (std::find(temperatures.begin(), temperatures.end(), r.shot.temperature_k) ==
@@ -320,8 +319,8 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
       if (xs[i] > 1.2 * xs[i - 1]) ++levels;
     gamma_levels = std::min(gamma_levels, levels);
   }
-  const bool gamma_identifiable = options.fit_gamma &&
-                                  decoding.transfer == TransferFunction::kGamma && gamma_levels >= 3;
+  const bool gamma_identifiable =
+      options.fit_gamma && decoding.transfer == TransferFunction::kGamma && gamma_levels >= 3;
   if (options.fit_black_level && !black_identifiable)
     result->notes.push_back("black level held at " + Num(model.black_level) +
                             " DN: the shots do not span signals a factor 1.5 apart in every "
@@ -380,8 +379,9 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
     // Ratios only: keep the model's mean gain.
     const double scale = model.gain.head(channels).mean() / after.gain.head(channels).mean();
     after.gain *= scale;
-    result->notes.push_back("lamp: the gains' ratios are calibrated, their scale is the model's "
-                            "(fit the exposure, or calibrate the scale with a black body)");
+    result->notes.push_back(
+        "lamp: the gains' ratios are calibrated, their scale is the model's "
+        "(fit the exposure, or calibrate the scale with a black body)");
   }
   after.Validate(where);
   result->after = after;
@@ -397,6 +397,11 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
     const double g = gains[o.channel];
     const double model_code = after.Encode(g * o.x, fitted);
     r.model_code[o.channel] = model_code;
+    if (g * o.x < options.min_signal)
+      r.left_out[std::size_t(o.channel)] =
+          !o.for_gain && !black_identifiable
+              ? "too dark for the gain (signal " + Num(g * o.x, 3) + "), left out"
+              : "dark (signal " + Num(g * o.x, 3) + "): weighs on the black level";
     sum += (model_code - o.code) * (model_code - o.code);
     ++result->residuals;
     if (o.for_gain && g * o.x >= options.min_signal) {
@@ -421,14 +426,17 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
       if (worst > options.max_spectral_mismatch)
         result->warnings.push_back(
             std::string("channel ") + names[c] + ": measured / model is " + Num(lo, 4) + " at " +
-            Num(t_lo) + " K but " + Num(hi, 4) + " at " + Num(t_hi) + " K: the camera's spectral "
-            "sensitivity is not what its model says (" + model.spectral.Describe() +
+            Num(t_lo) + " K but " + Num(hi, 4) + " at " + Num(t_hi) +
+            " K: the camera's spectral "
+            "sensitivity is not what its model says (" +
+            model.spectral.Describe() +
             "); gains cannot fix that, and fitted temperatures will be biased: give the "
             "sensor's measured curves (sensitivity_file)");
     }
   } else {
-    result->notes.push_back("one source temperature: the spectral sensitivity is not checked "
-                            "(film the source at two temperatures or more)");
+    result->notes.push_back(
+        "one source temperature: the spectral sensitivity is not checked "
+        "(film the source at two temperatures or more)");
   }
 }
 
@@ -468,8 +476,7 @@ RadiometricShots RadiometricShots::Load(const std::string& path) {
         throw InputError(path + ": source.kind: 'blackbody' or 'lamp', got '" + kind + "'");
       if (source["emissivity"]) s.emissivity = source["emissivity"].as<double>();
       if (!(s.emissivity > 0 && s.emissivity <= 1))
-        throw InputError(path + ": source.emissivity: must be in (0, 1], got " +
-                         Num(s.emissivity));
+        throw InputError(path + ": source.emissivity: must be in (0, 1], got " + Num(s.emissivity));
     }
     s.region = ReadRegion(root["region"], path);
     const YAML::Node list = root["shots"];
@@ -503,6 +510,7 @@ RadiometricShots RadiometricShots::Load(const std::string& path) {
 void RadiometricShots::Save(const std::string& path) const {
   const fs::path base = fs::path(path).parent_path();
   YAML::Emitter y;
+  y.SetDoublePrecision(10);
   y << YAML::BeginMap << YAML::Key << "source" << YAML::Value << YAML::Flow << YAML::BeginMap
     << YAML::Key << "kind" << YAML::Value << (source == Source::kLamp ? "lamp" : "blackbody");
   if (source == Source::kBlackbody) y << YAML::Key << "emissivity" << YAML::Value << emissivity;
@@ -522,8 +530,8 @@ void RadiometricShots::Save(const std::string& path) const {
   for (const RadiometricShot& s : shots) {
     y << YAML::Flow << YAML::BeginMap << YAML::Key << "camera" << YAML::Value << s.camera
       << YAML::Key << "image" << YAML::Value << fs::relative(s.image, base).string() << YAML::Key
-      << "temperature_k" << YAML::Value << s.temperature_k << YAML::Key << "exposure"
-      << YAML::Value << s.exposure;
+      << "temperature_k" << YAML::Value << s.temperature_k << YAML::Key << "exposure" << YAML::Value
+      << s.exposure;
     if (s.region[2] > 0) {
       y << YAML::Key << "region" << YAML::Value;
       region_value(s.region);
@@ -533,7 +541,8 @@ void RadiometricShots::Save(const std::string& path) const {
   y << YAML::EndSeq << YAML::EndMap;
   fs::create_directories(base.empty() ? fs::path(".") : base);
   std::ofstream f(path);
-  f << "# Radiometric calibration shots (pipeline/radiometric_calibration.h)\n" << y.c_str() << "\n";
+  f << "# Radiometric calibration shots (pipeline/radiometric_calibration.h)\n"
+    << y.c_str() << "\n";
   if (!f) throw IoError("cannot write " + path);
 }
 
@@ -586,8 +595,7 @@ std::string RadiometricCalibration::Brief() const {
   for (const CameraRadiometricResult& c : cameras) {
     s << c.camera << ": gain";
     for (int i = 0; i < c.channels; ++i) s << (i ? "/" : " ") << Num(c.after.gain[i]);
-    s << ", black " << Num(c.after.black_level) << " DN"
-      << (c.fitted_black_level ? "" : " (held)");
+    s << ", black " << Num(c.after.black_level) << " DN" << (c.fitted_black_level ? "" : " (held)");
     if (c.fitted_gamma) s << ", gamma " << Num(c.after.gamma);
     s << ", rms " << Num(c.rms_dn, 3) << " DN over " << c.residuals << " shot channels";
     if (c.temperatures_k.size() >= 2) {
@@ -641,7 +649,7 @@ std::string RadiometricCalibration::Report() const {
   }
   s << "\nThe spectral check: per channel, the largest |measured / model - 1| over the source "
        "temperatures; a right spectral model gives noise only.\n\n## Shots\n\n"
-    << "| camera | image | T (K) | exposure | mean code | model code | left out |\n"
+    << "| camera | image | T (K) | exposure | mean code | model code | note |\n"
     << "|---|---|---|---|---|---|---|\n";
   for (const RadiometricShotResult& r : shots) {
     const int channels = [&] {
@@ -654,8 +662,8 @@ std::string RadiometricCalibration::Report() const {
       mean += (i ? " / " : "") + Num(r.mean_code[i], 5);
       model += (i ? " / " : "") + (r.model_code[i] != 0 ? Num(r.model_code[i], 5) : "-");
       if (!r.left_out[i].empty())
-        left += (left.empty() ? "" : "; ") + std::string(1, channels == 1 ? 'M' : "RGB"[i]) +
-                ": " + r.left_out[i];
+        left += (left.empty() ? "" : "; ") + std::string(1, channels == 1 ? 'M' : "RGB"[i]) + ": " +
+                r.left_out[i];
     }
     s << "| " << r.shot.camera << " | " << fs::path(r.shot.image).filename().string() << " | "
       << Num(r.shot.temperature_k) << " | " << Num(r.shot.exposure) << " | " << mean << " | "
@@ -666,7 +674,7 @@ std::string RadiometricCalibration::Report() const {
 
 void RadiometricCalibration::WriteCsv(const std::string& path) const {
   std::ofstream f(path);
-  f << "camera,image,temperature_k,exposure,channel,patch_pixels,mean_code,model_code,left_out\n";
+  f << "camera,image,temperature_k,exposure,channel,patch_pixels,mean_code,model_code,note\n";
   f.precision(10);
   for (const RadiometricShotResult& r : shots) {
     int channels = 3;

@@ -23,8 +23,10 @@
 // gives, and what calibration checks.
 //
 // What is left out, per shot and channel, with the reason in the report: a channel with more than
-// 0.1% of its patch at the saturation level (it would pull the gain down), and a channel whose
-// patch signal is below 1% of full scale for the gains (it then still informs the black level).
+// 0.1% of its patch at the saturation level (it would pull the gain down), a channel the model
+// says sees nothing (the sRGB observer's negative blue of a cool black body), and, when the black
+// level is held, a channel below 1% of full scale (when the black level is fitted such a dark
+// channel stays in the fit, where it mostly weighs on the black level, and the report says so).
 //
 // The spectral check: with shots at two temperatures or more, the ratio of the measured signal to
 // the model's at each temperature, per channel, should be 1 whatever the temperature when the
@@ -88,13 +90,13 @@ struct RadiometricShots {
 };
 
 struct RadiometricOptions {
-  int erode_px = 3;                     // the auto patch shrinks by this against edge blur
+  int erode_px = 3;                      // the auto patch shrinks by this against edge blur
   double max_saturated_fraction = 1e-3;  // of a patch's pixels at the saturation level
-  double min_signal = 0.01;             // of full scale, for a shot's channel to count for gains
-  double max_spectral_mismatch = 0.02;  // the spectral check's warning threshold
-  bool fit_black_level = true;          // when the data allow
-  bool fit_gamma = true;                // transfer gamma, when the data allow
-  void Validate() const;                // throws InputError naming the field
+  double min_signal = 0.01;              // of full scale, for a shot's channel to count for gains
+  double max_spectral_mismatch = 0.02;   // the spectral check's warning threshold
+  bool fit_black_level = true;           // when the data allow
+  bool fit_gamma = true;                 // transfer gamma, when the data allow
+  void Validate() const;                 // throws InputError naming the field
 };
 
 struct RadiometricShotResult {
@@ -102,7 +104,7 @@ struct RadiometricShotResult {
   int patch_pixels = 0;
   Eigen::Vector3d mean_code = Eigen::Vector3d::Zero();   // per channel (mono: channel 0)
   Eigen::Vector3d model_code = Eigen::Vector3d::Zero();  // the fitted model's
-  std::array<std::string, 3> left_out;                   // empty = used for the gains
+  std::array<std::string, 3> left_out;  // why a channel was left out or what it weighs on
 };
 
 struct CameraRadiometricResult {
@@ -110,10 +112,10 @@ struct CameraRadiometricResult {
   int channels = 3;
   CameraRadiometry before, after;
   bool fitted_black_level = false, fitted_gamma = false;
-  int shots = 0;               // of this camera
-  int residuals = 0;           // shot channels in the fit
-  double rms_dn = 0;           // of the fit's code residuals
-  double dark_level_dn = 0;    // median code of the pixels far from the patch (a cross-check)
+  int shots = 0;             // of this camera
+  int residuals = 0;         // shot channels in the fit
+  double rms_dn = 0;         // of the fit's code residuals
+  double dark_level_dn = 0;  // median code of the pixels far from the patch (a cross-check)
   std::array<int, 4> region{0, 0, 0, 0};
   // The spectral check: per channel, max |measured / model - 1| over the temperatures (0 with one).
   Eigen::Vector3d spectral_mismatch = Eigen::Vector3d::Zero();
@@ -126,8 +128,8 @@ struct RadiometricCalibration {
   std::vector<CameraRadiometricResult> cameras;  // in rig order, cameras with shots only
   std::vector<RadiometricShotResult> shots;
   bool lamp = false;
-  std::string Report() const;   // markdown: per camera before/after, the check, the shots
-  std::string Brief() const;    // a few lines for the terminal
+  std::string Report() const;  // markdown: per camera before/after, the check, the shots
+  std::string Brief() const;   // a few lines for the terminal
   void WriteCsv(const std::string& path) const;  // one row per shot and channel
 };
 

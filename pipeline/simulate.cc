@@ -355,7 +355,8 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
       // A camera's own gains scale its output channels (camera_response.h).
       if (c < config.camera_gains.size())
         for (std::size_t p = 0; p < linear[c].num_pixels(); ++p)
-          for (int k = 0; k < 3; ++k) linear[c].pixels[3 * p + k] *= float(config.camera_gains[c][k]);
+          for (int k = 0; k < 3; ++k)
+            linear[c].pixels[3 * p + k] *= float(config.camera_gains[c][k]);
     }
 
     if (f == 0 && config.auto_exposure) {
@@ -439,8 +440,9 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
       const CameraRadiometry film = config.CameraFilm(c);
       const auto response = ChannelResponse::ForCamera(film);
       for (std::size_t t = 0; t < rc.temperatures_k.size(); ++t) {
-        const double peak = rc.emissivity *
-                            response->Blackbody(rc.temperatures_k[t]).head(film.channels()).maxCoeff();
+        const double peak =
+            rc.emissivity *
+            response->Blackbody(rc.temperatures_k[t]).head(film.channels()).maxCoeff();
         for (std::size_t l = 0; l < rc.levels.size(); ++l) {
           report("radiometric calibration", int(shots.shots.size()), total);
           RadiometricShot shot;

@@ -63,7 +63,8 @@ struct SimulateConfig {
   int closeups_per_camera = 4;
   RenderOptions render;
   CameraRadiometry radiometry;  // of every camera
-  std::vector<Eigen::Vector3d> camera_gains;  // empty, or one per camera: multiplies radiometry.gain
+  std::vector<Eigen::Vector3d>
+      camera_gains;  // empty, or one per camera: multiplies radiometry.gain
   struct RadiometricShotsConfig {
     bool enabled = false;
     std::vector<double> temperatures_k{1300, 1600, 1900};

@@ -200,8 +200,7 @@ TEST(RadiometricCalibration, BadShotsAreRefusedNamingWhatAndWhere) {
   const fs::path dir = TempDir("errors");
   Rig rig = SmallRig();
   rig.cameras[0].radiometry = BandCamera12();
-  RadiometricShots shots =
-      Film(dir, rig.cameras[0].name, BandCamera12(), {1500}, {0.3, 0.6}, 0.25);
+  RadiometricShots shots = Film(dir, rig.cameras[0].name, BandCamera12(), {1500}, {0.3, 0.6}, 0.25);
   auto message = [&](const RadiometricShots& s) -> std::string {
     try {
       CalibrateRadiometry(rig, s, RadiometricOptions());
@@ -281,10 +280,9 @@ TEST(RadiometricCalibration, EndToEndTheCalibratedRigFitsTheTemperaturesOfTheTru
   Rig datasheet = Rig::Load((data / "rig.yaml").string());
   for (RigCamera& c : datasheet.cameras) c.radiometry = BandCamera12();
   datasheet.Save((dir / "datasheet" / "rig.yaml").string());
-  const RadiometricCalibration cal =
-      RunRadiometricCalibration((dir / "datasheet" / "rig.yaml").string(),
-                                (data / "radiometry" / "shots.yaml").string(),
-                                (dir / "calibrated").string(), RadiometricOptions());
+  const RadiometricCalibration cal = RunRadiometricCalibration(
+      (dir / "datasheet" / "rig.yaml").string(), (data / "radiometry" / "shots.yaml").string(),
+      (dir / "calibrated").string(), RadiometricOptions());
   std::printf("%s", cal.Brief().c_str());
   ASSERT_EQ(cal.cameras.size(), 2u);
   for (std::size_t c = 0; c < 2; ++c)
@@ -295,8 +293,8 @@ TEST(RadiometricCalibration, EndToEndTheCalibratedRigFitsTheTemperaturesOfTheTru
 
   const TruthError uncalibrated = FitWith(data, (dir / "datasheet" / "rig.yaml").string(),
                                           s.exposure, dir / "fit_uncalibrated");
-  const TruthError calibrated = FitWith(data, (dir / "calibrated" / "rig.yaml").string(),
-                                        s.exposure, dir / "fit_calibrated");
+  const TruthError calibrated =
+      FitWith(data, (dir / "calibrated" / "rig.yaml").string(), s.exposure, dir / "fit_calibrated");
   const TruthError truth =
       FitWith(data, (data / "rig.yaml").string(), s.exposure, dir / "fit_true");
   std::printf(

@@ -4,6 +4,10 @@
 // exposure does not), and the row count the variants define.
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
+#include <cmath>
+#include <filesystem>
 #include <regex>
 #include <sstream>
 #include <string>
@@ -58,6 +62,44 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
   const auto rows =
       std::distance(std::sregex_iterator(md.begin(), md.end(), row), std::sregex_iterator());
   EXPECT_EQ(rows, 2 * 11) << md;
+}
+
+}  // namespace
+}  // namespace flamerig
+
+namespace flamerig {
+namespace {
+
+// `flamerig benchmark cameras --quick` (tools/camera_benchmark.cc): every row is filled, the
+// calibration recovers the gains the benchmark set, and the calibrated rig's temperature bias lies
+// near the true model's, far from the datasheet's (the oracle: the true model's own fit).
+TEST(CameraBenchmark, QuickRunCalibratedBiasIsThatOfTheTrueModel) {
+  CameraBenchmarkOptions o;
+  o.quick = true;
+  o.work_dir = (std::filesystem::temp_directory_path() /
+                ("flamerig_camera_benchmark_" + std::to_string(::getpid())))
+                   .string();
+  const std::string md = RunCameraBenchmark(o, nullptr);
+  const std::string scene = "### candle";
+  const auto reference = Row(md, scene, "sRGB observer, gains 1");
+  ASSERT_EQ(reference.size(), 8u) << md;
+  auto bias = [&](const std::string& model) {
+    const std::size_t from = md.find(scene);
+    const std::size_t at = md.find("| " + model, from);
+    EXPECT_NE(at, std::string::npos) << model << "\n" << md;
+    // The cell after the model's: "| model | bias |".
+    const std::size_t cell = md.find("| ", at + 2) + 2;
+    return std::stod(md.substr(cell));
+  };
+  const double datasheet = bias("datasheet: bands, gains 1, black 0");
+  const double calibrated = bias("**calibrated**");
+  const double truth = bias("the true model");
+  EXPECT_LT(std::abs(calibrated - truth), std::abs(datasheet - truth) / 3) << md;
+  const std::regex gains("gains within ([0-9.]+)% of the simulator's");
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(md, m, gains)) << md;
+  EXPECT_LT(std::stod(m[1]), 1.0) << md;
+  EXPECT_FALSE(std::filesystem::exists(o.work_dir));
 }
 
 }  // namespace

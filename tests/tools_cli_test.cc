@@ -19,6 +19,7 @@
 #include <sstream>
 #include <thread>
 
+#include "calibration/rig.h"
 #include "core/image.h"
 #include "core/srgb.h"
 #include "pipeline/run.h"
@@ -67,9 +68,9 @@ TEST(Cli, HelpAndUnknownCommands) {
   EXPECT_NE(missing.output.find("--config"), std::string::npos);
 }
 
-const std::vector<std::string> kCommands = {"simulate", "render",    "reconstruct", "fit",
-                                            "run",      "capture",   "ctl",         "cameras",
-                                            "calibrate", "export", "benchmark"};
+const std::vector<std::string> kCommands = {
+    "simulate", "render",  "reconstruct", "fit",    "run",       "capture",
+    "ctl",      "cameras", "calibrate",   "export", "benchmark", "calibrate-radiometry"};
 
 // The options a command's --help lists (the first column of its option lines), without -h/--help.
 std::set<std::string> HelpOptions(const std::string& help) {
@@ -373,6 +374,46 @@ TEST(Cli, FitASimulatedFrameSet) {
 }  // namespace
 
 namespace {
+
+// `calibrate-radiometry` on the shipped band-camera config: the simulator's calibrator images,
+// a rig that knows only the datasheet (unit gains, black 0), and back the gains the config set.
+TEST(Cli, CalibrateRadiometryRecoversTheConfigsGains) {
+  fs::path dir = TempDir();
+  Result sim = Flamerig("simulate --config " + std::string(FLAMERIG_SOURCE_DIR) +
+                        "/config/sim_band_cameras.yaml --out " + (dir / "data").string());
+  ASSERT_EQ(sim.status, 0) << sim.output;
+  EXPECT_NE(sim.output.find("radiometric calibration: 36 images"), std::string::npos) << sim.output;
+  flamerig::Rig rig = flamerig::Rig::Load((dir / "data" / "rig.yaml").string());
+  for (flamerig::RigCamera& c : rig.cameras) {
+    c.radiometry.gain = Eigen::Vector3d::Ones();
+    c.radiometry.black_level = 0;
+  }
+  rig.Save((dir / "datasheet" / "rig.yaml").string());
+  const std::string shots = (dir / "data" / "radiometry" / "shots.yaml").string();
+  Result cal = Flamerig("calibrate-radiometry --rig " + (dir / "datasheet" / "rig.yaml").string() +
+                        " --shots " + shots + " --out " + (dir / "cal").string());
+  ASSERT_EQ(cal.status, 0) << cal.output;
+  EXPECT_NE(cal.output.find("cam1: gain"), std::string::npos) << cal.output;
+  const flamerig::Rig out = flamerig::Rig::Load((dir / "cal" / "rig.yaml").string());
+  const Eigen::Vector3d expected[2] = {{0.55, 1.0, 1.45}, {0.70, 1.1, 1.20}};  // the config's
+  for (int c = 0; c < 2; ++c) {
+    for (int k = 0; k < 3; ++k)
+      EXPECT_NEAR(out.cameras[c].radiometry.gain[k] / expected[c][k], 1.0, 0.005) << c << " " << k;
+    EXPECT_NEAR(out.cameras[c].radiometry.black_level, 64, 1.0);
+  }
+  EXPECT_TRUE(fs::exists(dir / "cal" / "report.md"));
+  EXPECT_TRUE(fs::exists(dir / "cal" / "cameras" / "cam0.cameramodel"));
+  // A shot of a camera the rig lacks: status 1, naming it, and no rig written.
+  std::ofstream(dir / "bad.yaml") << "shots:\n  - {camera: cam7, image: data/radiometry/"
+                                     "cam0_1300K_2.png, temperature_k: 1300, exposure: 1}\n";
+  Result bad =
+      Flamerig("calibrate-radiometry --rig " + (dir / "datasheet" / "rig.yaml").string() +
+               " --shots " + (dir / "bad.yaml").string() + " --out " + (dir / "cal_bad").string());
+  EXPECT_EQ(bad.status, 1) << bad.output;
+  EXPECT_NE(bad.output.find("camera 'cam7' is not in the rig"), std::string::npos) << bad.output;
+  EXPECT_FALSE(fs::exists(dir / "cal_bad" / "rig.yaml"));
+  fs::remove_all(dir);
+}
 
 // Issue 6's "done when": the daemon records the simulated board views, `calibrate` turns the
 // recording into a rig, and `fit` works through it nearly as well as through the true rig.

@@ -25,9 +25,10 @@
 namespace flamerig {
 
 struct LinearFrame {
-  ImageF radiance;                      // 3 channels, linear RGB / exposure
+  ImageF radiance;  // 3 channels, linear RGB / exposure (a camera's: its unit-gain channels)
   std::vector<std::uint8_t> saturated;  // per pixel: some channel at full scale
-  double full_scale = 1.0;  // the radiance a saturated channel stands for (1 / exposure)
+  double full_scale = 1.0;  // the radiance a saturated channel stands for (1 / exposure; with
+                            // gains, the largest over the channels)
 };
 
 // Throws InputError unless exposure is finite and > 0 and the image has 1 or 3 channels

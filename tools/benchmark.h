@@ -132,6 +132,18 @@ struct SceneBenchmarkOptions {
 std::string RunSceneBenchmark(const SceneBenchmarkOptions& options,
                               const std::function<void(const std::string&)>& log);
 
+struct CameraBenchmarkOptions {
+  bool quick = false;  // CI smoke mode: the candle only, 96x72, truth 24, fit 16
+  std::string work_dir = ".flamerig_camera_benchmark";  // datasets, removed after
+};
+// The camera benchmark (issue 19): the candle from two views and licks from eight, filmed by
+// sRGB-observer cameras (the reference) and by band cameras with their own gains and a black level,
+// which also film a black-body calibrator; the fit's temperature error (bias, RMS, emission-
+// weighted) and time with the band cameras assumed sRGB, with their datasheet (unit gains, black 0),
+// calibrated by calibrate-radiometry, and with the true model. Returns the Markdown section.
+std::string RunCameraBenchmark(const CameraBenchmarkOptions& options,
+                               const std::function<void(const std::string&)>& log);
+
 struct AccuracyBenchmarkOptions {
   bool quick = false;  // CI smoke mode: 96x72 images, truth 24, fit 16, 4 views for the licks
 };

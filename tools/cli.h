@@ -89,6 +89,7 @@ Runner AddCapture(CLI::App* command);
 Runner AddCtl(CLI::App* command);
 Runner AddCameras(CLI::App* command);
 Runner AddCalibrate(CLI::App* command);
+Runner AddCalibrateRadiometry(CLI::App* command);
 Runner AddExport(CLI::App* command);
 Runner AddBenchmark(CLI::App* command);
 

@@ -32,6 +32,10 @@ Runner AddSimulate(CLI::App* command) {
                 s.exposure_source.c_str(), 100 * s.saturated_pixel_fraction);
     std::printf("  calibration: %d board views, %d images\n", s.calibration_views,
                 s.calibration_images);
+    if (s.radiometric_shots > 0)
+      std::printf(
+          "  radiometric calibration: %d images of a black body, %s/radiometry/shots.yaml\n",
+          s.radiometric_shots, o->out.c_str());
     std::printf("  last render: %s\n", s.last_render.BriefReport().c_str());
     std::printf("  preview: %s/preview.png; %.2f s in all\n", o->out.c_str(), s.time_s);
     return kExitOk;

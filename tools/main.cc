@@ -32,6 +32,8 @@ const std::vector<cli::Command>& Commands() {
       {"ctl", "Talk to a running capture daemon", &cli::AddCtl},
       {"cameras", "List the cameras each driver can see", &cli::AddCameras},
       {"calibrate", "Calibrate the rig from views of a board (mrcal)", &cli::AddCalibrate},
+      {"calibrate-radiometry", "Calibrate the cameras' gains from images of a black body",
+       &cli::AddCalibrateRadiometry},
       {"export", "Write a recording's frame sets as PNG images", &cli::AddExport},
       {"benchmark", "Measure run time against error; write BENCHMARKS.md", &cli::AddBenchmark},
   };
