@@ -46,6 +46,7 @@ double Luminance(const float* rgb) { return 0.2126 * rgb[0] + 0.7152 * rgb[1] + 
 void FitOptions::Validate() const {
   objective.Validate();
   render.Validate();
+  if (estimate_uncertainty) uncertainty.Validate();
   auto fail = [](const std::string& what) { throw InputError("fit options: " + what); };
   if (!(activity_threshold >= 0 && activity_threshold < 1))
     fail("activity_threshold must be in [0, 1)");
@@ -593,6 +594,9 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     if (level + 1 == levels.size()) {
       // Its data_exact and smooth_exact are the exact (non-smoothed) terms.
       result.final_terms = objective.Evaluate(st.t, st.n, st.s);
+      if (options.estimate_uncertainty && result.termination != FitTermination::kCancelled &&
+          !st.active.empty())
+        result.uncertainty = EstimateUncertainty(objective, st.t, st.n, st.s, options.uncertainty);
     }
     // Out of time or cancelled with finer levels to go: they are skipped, and that is why the fit
     // stopped. At the last level the solver's own reason stands.
@@ -626,6 +630,8 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   result.exposure = st.s;
   result.seconds = Seconds(start);
   result.volume = ToVolume(st, result, options.objective.t_min_k);
+  if (!result.uncertainty.temperature_sigma_k.empty())
+    StoreUncertainty(grid, st.active, result.uncertainty, &result.volume);
   return result;
 }
 
@@ -917,6 +923,8 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
   result.active_voxels = m;
   result.seconds = Seconds(start);
   result.volume = ToVolume(st, result, options.objective.t_min_k);
+  if (!result.uncertainty.temperature_sigma_k.empty())
+    StoreUncertainty(grid, st.active, result.uncertainty, &result.volume);
   return result;
 }
 

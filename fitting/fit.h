@@ -52,6 +52,7 @@
 
 #include "core/progress.h"
 #include "fitting/objective.h"
+#include "fitting/uncertainty.h"
 #include "tomography/volume.h"
 
 namespace flamerig {
@@ -156,6 +157,11 @@ struct FitOptions {
   // What the fit may change; a parameter not selected keeps its start (mrcal's problem
   // selections). The accuracy benchmark's oracle runs hold the truth's densities, say.
   FitSelection vary;
+  // Per-voxel confidence (uncertainty.h) at the finest level's result: the sigma and determined
+  // grids in the volume. Off by default (it costs `uncertainty.probes` adjoint passes per view);
+  // `fit` and `run` turn it on.
+  bool estimate_uncertainty = false;
+  UncertaintyOptions uncertainty;
   void Validate() const;  // throws InputError naming the field
 };
 
@@ -176,6 +182,7 @@ struct FitResult {
   FitTermination termination = FitTermination::kIterationLimit;
   std::string message;
   double initial_energy = 0;  // exact energy at the start (the initialisation or warm start)
+  VoxelUncertainty uncertainty;  // FitOptions::estimate_uncertainty; empty otherwise
   double seconds = 0;
   std::string method;
   std::string BriefReport() const;

@@ -32,6 +32,7 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
   const double exposure = images_exposure.value;
   // The fast fit holds a known exposure: checked before any work.
   FitOptions fit = job.fit;
+  fit.estimate_uncertainty = fit.estimate_uncertainty || job.uncertainty;
   if (job.method == FitMethod::kFast && images_exposure.known && !job.fit_exposure)
     fit.known_exposure = HeldExposure(images_exposure, fit, "fit");
   const AbsorptionModel absorption = AbsorptionModel::FromName(

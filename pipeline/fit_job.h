@@ -37,6 +37,8 @@ struct FitJob {
   PaperFitOptions paper;   // alg1, alg2
   std::string report_dir;  // "" = beside the output: F_report/
   std::string truth_path;  // "" = none
+  // Per-voxel sigma and determined grids in the .vdb (fitting/uncertainty.h; fast fit only).
+  bool uncertainty = true;
 };
 
 struct FitJobResult {

@@ -70,8 +70,7 @@ ShotImage ReadShot(const RadiometricShot& shot, const RigCamera& camera, const s
                      std::to_string(camera.model.width()) + "x" +
                      std::to_string(camera.model.height()));
   const int want = camera.radiometry.channels();
-  if (!(image.channels == want || (want == 3 && image.channels == 3) ||
-        (want == 1 && image.channels == 1)))
+  if (image.channels != want)
     throw InputError(where + ": " + shot.image + " has " + std::to_string(image.channels) +
                      " channel(s); camera " + camera.name + "'s model (" +
                      camera.radiometry.spectral.Describe() + ") has " + std::to_string(want));

@@ -25,6 +25,9 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
   // Sums over the counted voxels, plain and emission-weighted.
   double n = 0, sd = 0, sdd = 0, sf = 0, st = 0, sff = 0, stt = 0, sft = 0;
   double w = 0, wd = 0, wdd = 0, wt = 0, wtt = 0;
+  const bool have_sigma = fitted.temperature_sigma_k.size() == fg.num_voxels();
+  double within1 = 0, within2 = 0, determined = 0;
+  std::vector<double> sigmas;
   for (int k = 0; k < tg.dims.z(); ++k)
     for (int j = 0; j < tg.dims.y(); ++j)
       for (int i = 0; i < tg.dims.x(); ++i) {
@@ -51,6 +54,13 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
         wt += weight * t;
         wtt += weight * t * t;
         ++out.counted;
+        if (have_sigma) {
+          const double sigma = fitted.temperature_sigma_k[f];
+          sigmas.push_back(sigma);
+          if (std::abs(x - t) <= sigma) within1 += 1;
+          if (std::abs(x - t) <= 2 * sigma) within2 += 1;
+          if (!fitted.determined.empty() && fitted.determined[f] > 0.5) determined += 1;
+        }
       }
   out.compared = true;
   out.truth_soot = TotalSoot(truth);
@@ -64,6 +74,14 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
     out.truth_spread_k = std::sqrt(vt);
     out.correlation =
         vf > 0 && vt > 0 ? std::clamp((sft / n - mf * mt) / std::sqrt(vf * vt), -1.0, 1.0) : 0.0;
+  }
+  if (have_sigma && out.counted) {
+    out.have_sigma = true;
+    out.within_1_sigma = within1 / n;
+    out.within_2_sigma = within2 / n;
+    out.determined_share = determined / n;
+    std::nth_element(sigmas.begin(), sigmas.begin() + sigmas.size() / 2, sigmas.end());
+    out.median_sigma_k = sigmas[sigmas.size() / 2];
   }
   if (w > 0) {
     out.weighted_mean_k = wd / w;

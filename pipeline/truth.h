@@ -33,6 +33,11 @@ struct TruthError {
   // The number of soot particles in each volume (sum of density x voxel volume over all voxels):
   // absolute when the exposure is known, comparable across frames of a take.
   double truth_soot = 0, fit_soot = 0;
+  // When the fit has a temperature_sigma grid (fitting/uncertainty.h): of the counted voxels, the
+  // share whose error lies within one and within two sigma (a calibrated sigma gives 0.68 and
+  // 0.95), the median sigma, and the share the images determine (`determined` grid).
+  bool have_sigma = false;
+  double within_1_sigma = 0, within_2_sigma = 0, median_sigma_k = 0, determined_share = 0;
 };
 // Sum of density x voxel volume: the number of particles in the volume.
 double TotalSoot(const FireVolume& volume);

@@ -156,6 +156,59 @@ TEST(FitObjective, GradientMatchesFiniteDifferencesSoot) {
 // The energy is its list of terms: the data term and the pairwise terms, each with its weight;
 // the pairwise terms against a brute-force sum over the 18-neighbourhood by voxel coordinates,
 // and the local parts (coordinate descent) add up to the whole.
+// The data's curvature (the uncertainty's input) against J^T J built column by column from finite
+// differences of every pixel's CIELab value: the Hutchinson estimate with many probes must agree.
+TEST(FitObjective, DataCurvatureMatchesFiniteDifferenceJacobians) {
+  const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
+  SmallScene s = MakeSmallScene(soot);
+  RenderOptions render;
+  render.double_precision = true;
+  render.min_transmittance = 0;
+  render.spectral_step_nm = 40;
+  FitObjective objective(s.grid, s.active, s.views, soot, render, ObjectiveOptions());
+  const double exposure = 0.04;
+  const int probes = 2000;
+  const FitObjective::Curvature c = objective.DataCurvature(s.t, s.n, exposure, probes, 3);
+  ASSERT_EQ(c.tt.size(), s.active.size());
+  EXPECT_GT(c.residuals, 0);
+  auto labs = [&](const std::vector<double>& t, const std::vector<double>& n) {
+    const FitObjective::Renders r = objective.Render(t, n);
+    std::vector<Eigen::Vector3d> out;
+    for (const ImageF& img : r.linear)
+      for (std::size_t p = 0; p < img.num_pixels(); ++p)
+        out.push_back(CameraLab(
+            Eigen::Vector3d(img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]),
+            exposure, nullptr));
+    return out;
+  };
+  const double tolerance = 4 * std::sqrt(2.0 / probes);  // four deviations of the estimate
+  int compared = 0;
+  for (std::size_t a = 0; a < s.active.size(); a += 7) {
+    std::vector<double> t = s.t;
+    t[a] = std::floor(t[a]) + 0.5;  // one 1 K segment of the tables
+    std::vector<double> tp = t, tm = t, np = s.n, nm = s.n;
+    tp[a] += 0.4;
+    tm[a] -= 0.4;
+    np[a] *= std::exp(0.002);
+    nm[a] *= std::exp(-0.002);
+    const auto lt_p = labs(tp, s.n), lt_m = labs(tm, s.n), ln_p = labs(t, np), ln_m = labs(t, nm);
+    double tt = 0, tn = 0, nn = 0;
+    for (std::size_t p = 0; p < lt_p.size(); ++p) {
+      const Eigen::Vector3d jt = (lt_p[p] - lt_m[p]) / 0.8, jn = (ln_p[p] - ln_m[p]) / 0.004;
+      tt += jt.squaredNorm();
+      tn += jt.dot(jn);
+      nn += jn.squaredNorm();
+    }
+    if (!(tt > 0)) continue;  // a voxel hidden from both views
+    ++compared;
+    // The estimate at s.t (FD at t differs by under a kelvin: the same to well within tolerance).
+    EXPECT_NEAR(c.tt[a], tt, tolerance * tt) << "voxel " << a;
+    EXPECT_NEAR(c.nn[a], nn, tolerance * nn) << "voxel " << a;
+    EXPECT_NEAR(c.tn[a], tn, tolerance * std::sqrt(tt * nn)) << "voxel " << a;
+  }
+  EXPECT_GT(compared, 3);
+}
+
 TEST(FitObjective, TheEnergyIsTheSumOfItsTerms) {
   const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
   SmallScene s = MakeSmallScene(grey);

@@ -110,6 +110,12 @@ void WriteVdb(const std::string& path, const FireVolume& volume) {
     grids.push_back(MakeFloatGrid(g, volume.temperature_k, "temperature", "K"));
   if (!volume.density_per_m3.empty())
     grids.push_back(MakeFloatGrid(g, volume.density_per_m3, "density", "m^-3"));
+  if (!volume.temperature_sigma_k.empty())
+    grids.push_back(MakeFloatGrid(g, volume.temperature_sigma_k, "temperature_sigma", "K"));
+  if (!volume.density_sigma.empty())
+    grids.push_back(MakeFloatGrid(g, volume.density_sigma, "density_sigma", "sigma of ln density"));
+  if (!volume.determined.empty())
+    grids.push_back(MakeFloatGrid(g, volume.determined, "determined", "1 = by the images"));
   if (!volume.emission_rgb.empty()) {
     auto grid = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.0f));
     grid->setName("emission");
@@ -200,10 +206,16 @@ FireVolume ReadVdb(const std::string& path) {
   };
   for (const auto& base : *grids) {
     const std::string name = base->getName();
-    if (name == "temperature" || name == "density") {
+    std::vector<float>* field = name == "temperature"         ? &volume.temperature_k
+                                : name == "density"           ? &volume.density_per_m3
+                                : name == "temperature_sigma" ? &volume.temperature_sigma_k
+                                : name == "density_sigma"     ? &volume.density_sigma
+                                : name == "determined"        ? &volume.determined
+                                                              : nullptr;
+    if (field) {
       auto grid = openvdb::gridConstPtrCast<openvdb::FloatGrid>(base);
       if (!grid) throw DataError(path + ": grid '" + name + "' is not a float grid");
-      read_float(*grid, name == "temperature" ? volume.temperature_k : volume.density_per_m3);
+      read_float(*grid, *field);
     } else if (name == "emission") {
       auto grid = openvdb::gridConstPtrCast<openvdb::Vec3SGrid>(base);
       if (!grid) throw DataError(path + ": grid 'emission' is not a Vec3s grid");

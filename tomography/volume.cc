@@ -74,6 +74,9 @@ void FireVolume::Validate() const {
   CheckField(geometry, density_per_m3, 1, "density", false);
   // Linear sRGB emission of out-of-gamut (deep red) fire colours has negative components.
   CheckField(geometry, emission_rgb, 3, "emission", true);
+  CheckField(geometry, temperature_sigma_k, 1, "temperature_sigma", false);
+  CheckField(geometry, density_sigma, 1, "density_sigma", false);
+  CheckField(geometry, determined, 1, "determined", false);
 }
 
 }  // namespace flamerig

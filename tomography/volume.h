@@ -81,6 +81,13 @@ struct FireVolume {
   std::vector<float> temperature_k;   // num_voxels values, or empty
   std::vector<float> density_per_m3;  // num_voxels values, or empty
   std::vector<float> emission_rgb;    // 3 * num_voxels values (interleaved RGB), or empty
+  // A fit's per-voxel confidence (fitting/uncertainty.h), each num_voxels values or empty; 0 where
+  // the fit has no medium: the standard deviation of the temperature (K) and of the natural log of
+  // the density (a relative error: 0.1 is about 10%), and 1 where the images determine the voxel's
+  // temperature, 0 where the prior does.
+  std::vector<float> temperature_sigma_k;
+  std::vector<float> density_sigma;
+  std::vector<float> determined;
   std::map<std::string, double> metadata_numbers;    // e.g. "exposure", "density_scale"
   std::map<std::string, std::string> metadata_text;  // e.g. "absorption_model"
 

@@ -109,7 +109,20 @@ Runner AddFit(CLI::App* command) {
             "peak emission) with medium: RMS %.1f K, mean %+.1f K\n",
             job.truth_path.c_str(), r.truth.counted, r.truth.visible, r.truth.rms_k,
             r.truth.mean_k);
+      if (r.truth.have_sigma)
+        std::printf(
+            "  its sigma: %.0f%% of those voxels within one sigma, %.0f%% within two (calibrated: "
+            "68%%, 95%%); median sigma %.0f K; %.0f%% determined by the images\n",
+            100 * r.truth.within_1_sigma, 100 * r.truth.within_2_sigma, r.truth.median_sigma_k,
+            100 * r.truth.determined_share);
     }
+    if (!r.result.uncertainty.temperature_sigma_k.empty())
+      std::printf(
+          "  sigma grids: %zu of %zu active voxels determined by the images, noise %.2f "
+          "per Lab residual, %d probes in %.1f s\n",
+          r.result.uncertainty.determined_count, r.result.active_voxels,
+          r.result.uncertainty.sigma_lab, r.result.uncertainty.probes,
+          r.result.uncertainty.seconds);
     return r.result.termination == FitTermination::kCancelled ? kExitCancelled : kExitOk;
   };
 }

@@ -1,0 +1,76 @@
+#include "fitting/uncertainty.h"
+
+#include <chrono>
+#include <cmath>
+
+#include "core/error.h"
+
+namespace flamerig {
+
+void UncertaintyOptions::Validate() const {
+  if (probes < 1 || probes > 4096) throw InputError("uncertainty: probes must be in 1..4096");
+  if (!(determined_fraction > 0 && determined_fraction <= 1))
+    throw InputError("uncertainty: determined_fraction must be in (0, 1]");
+}
+
+VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::vector<double>& t,
+                                     const std::vector<double>& n, double s,
+                                     const UncertaintyOptions& options) {
+  options.Validate();
+  const auto start = std::chrono::steady_clock::now();
+  const FitObjective::Curvature c = objective.DataCurvature(t, n, s, options.probes, options.seed);
+  const std::size_t na = objective.num_active();
+  VoxelUncertainty u;
+  u.probes = options.probes;
+  // The noise per residual from the fit's own residuals (degrees of freedom: less two per voxel,
+  // at least half the residuals).
+  const double dof = std::max(0.5 * double(c.residuals), double(c.residuals) - 2.0 * double(na));
+  u.sigma_lab = dof > 0 ? std::sqrt(c.residual_sq / dof) : 0.0;
+  const ObjectiveOptions& o = objective.options();
+  u.prior_sigma_k = (o.t_max_k - o.t_min_k) / std::sqrt(12.0);
+  const double prior_ln =
+      std::max(1e-6, std::log(objective.n_max() / objective.n_min())) / std::sqrt(12.0);
+  // A noise level of zero (a perfect fit of noise-free data) would make every voxel exact: keep
+  // a floor of a hundredth of a Delta E.
+  const double noise2 = std::max(u.sigma_lab * u.sigma_lab, 1e-4);
+  u.temperature_sigma_k.resize(na);
+  u.log_density_sigma.resize(na);
+  u.determined.resize(na);
+  for (std::size_t a = 0; a < na; ++a) {
+    const double htt = c.tt[a] / noise2 + 1.0 / (u.prior_sigma_k * u.prior_sigma_k);
+    const double hnn = c.nn[a] / noise2 + 1.0 / (prior_ln * prior_ln);
+    double htn = c.tn[a] / noise2;
+    // The probes' estimate of the cross term may break positive definiteness: shrink it.
+    const double limit = 0.99 * std::sqrt(htt * hnn);
+    htn = std::clamp(htn, -limit, limit);
+    const double det = htt * hnn - htn * htn;
+    const double var_t = hnn / det, var_n = htt / det;
+    const double sigma_t = std::isfinite(var_t) ? std::sqrt(var_t) : u.prior_sigma_k;
+    const double sigma_n = std::isfinite(var_n) ? std::sqrt(var_n) : prior_ln;
+    u.temperature_sigma_k[a] = float(std::min(sigma_t, u.prior_sigma_k));
+    u.log_density_sigma[a] = float(std::min(sigma_n, prior_ln));
+    const bool determined = sigma_t < options.determined_fraction * u.prior_sigma_k;
+    u.determined[a] = determined ? 1.0f : 0.0f;
+    u.determined_count += determined;
+  }
+  u.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return u;
+}
+
+void StoreUncertainty(const GridGeometry& grid, const std::vector<std::uint32_t>& active,
+                      const VoxelUncertainty& u, FireVolume* volume) {
+  const std::size_t nv = grid.num_voxels();
+  volume->temperature_sigma_k.assign(nv, 0.0f);
+  volume->density_sigma.assign(nv, 0.0f);
+  volume->determined.assign(nv, 0.0f);
+  for (std::size_t a = 0; a < active.size() && a < u.temperature_sigma_k.size(); ++a) {
+    volume->temperature_sigma_k[active[a]] = u.temperature_sigma_k[a];
+    volume->density_sigma[active[a]] = u.log_density_sigma[a];
+    volume->determined[active[a]] = u.determined[a];
+  }
+  volume->metadata_numbers["sigma_lab"] = u.sigma_lab;
+  volume->metadata_numbers["determined_voxels"] = double(u.determined_count);
+  volume->metadata_numbers["uncertainty_probes"] = u.probes;
+}
+
+}  // namespace flamerig
