@@ -923,8 +923,6 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
   result.active_voxels = m;
   result.seconds = Seconds(start);
   result.volume = ToVolume(st, result, options.objective.t_min_k);
-  if (!result.uncertainty.temperature_sigma_k.empty())
-    StoreUncertainty(grid, st.active, result.uncertainty, &result.volume);
   return result;
 }
 

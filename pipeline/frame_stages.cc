@@ -242,6 +242,7 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
   }
   // The exposure: known, the take's, or fitted here (and the take's from here on).
   FitOptions fit = options_.fit;
+  fit.estimate_uncertainty = fit.estimate_uncertainty || options_.sigma;
   std::string& from = w->summary.exposure_from;
   if (options_.fit_exposure) {
     from = "fitted (free)";

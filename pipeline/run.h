@@ -86,6 +86,8 @@ struct RunOptions {
   std::string holdout_camera;  // scored, not fitted; "" = none
   ChangeOptions unchanged;
   bool skip_unchanged = true;
+  // Per-voxel sigma and determined grids in every frame's .vdb (fitting/uncertainty.h).
+  bool sigma = true;
   bool warm_start = true;  // false: every frame starts from its own tomography (for comparisons)
   // Ground truth of a simulated recording: DIR/frame_NNNNNN.vdb. The truth of a set is the one
   // numbered by its frame id modulo the number of truth volumes (a simulated camera replaying a

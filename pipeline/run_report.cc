@@ -8,16 +8,18 @@
 #include <ctime>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <set>
 #include <sstream>
 
-#include "core/error.h"
 #include "core/atomic_file.h"
+#include "core/error.h"
 #include "core/image.h"
-#include "tomography/vdb_io.h"
 #include "pipeline/fit_report.h"
 #include "pipeline/simulate.h"
+#include "pipeline/truth.h"
+#include "tomography/vdb_io.h"
 
 namespace flamerig {
 
@@ -66,22 +68,81 @@ cv::Vec3b ColourOf(double t, double t_lo, double t_hi) {
   return coloured.at<cv::Vec3b>(0, 0);  // BGR
 }
 
-// A vertical colour bar with ticks in kelvin, BGR.
-cv::Mat ColourBar(int height, double t_lo, double t_hi) {
+// The error map: blue below zero, white at zero, red above, saturating at +-range. BGR.
+cv::Vec3b DivergingColourOf(double e, double range) {
+  const double u = std::clamp(e / std::max(1e-9, range), -1.0, 1.0);
+  const int fade = static_cast<int>(std::lround(255 * (1 - std::abs(u))));
+  return u >= 0 ? cv::Vec3b(fade, fade, 255) : cv::Vec3b(255, fade, fade);
+}
+
+// The sigma map (OpenCV's viridis) from 0 to `hi`. BGR.
+cv::Vec3b SigmaColourOf(double sigma, double hi) {
+  const double u = std::clamp(sigma / std::max(1e-9, hi), 0.0, 1.0);
+  cv::Mat one(1, 1, CV_8UC1, cv::Scalar(static_cast<int>(std::lround(255 * u))));
+  cv::Mat coloured;
+  cv::applyColorMap(one, coloured, cv::COLORMAP_VIRIDIS);
+  return coloured.at<cv::Vec3b>(0, 0);
+}
+
+// A vertical colour bar from lo to hi with five ticks in `unit` ("K", or "K" with a sign), BGR.
+cv::Mat ColourBar(int height, double lo, double hi, const std::function<cv::Vec3b(double)>& colour,
+                  bool signed_ticks = false) {
   cv::Mat bar(height, 110, CV_8UC3, cv::Scalar(255, 255, 255));
   const int top = 10, bottom = height - 10;
   for (int y = top; y <= bottom; ++y) {
-    const double t = t_hi - (t_hi - t_lo) * (y - top) / double(bottom - top);
-    cv::line(bar, cv::Point(5, y), cv::Point(30, y), ColourOf(t, t_lo, t_hi));
+    const double t = hi - (hi - lo) * (y - top) / double(bottom - top);
+    cv::line(bar, cv::Point(5, y), cv::Point(30, y), colour(t));
   }
   for (int k = 0; k <= 4; ++k) {
-    const double t = t_lo + (t_hi - t_lo) * k / 4.0;
+    const double t = lo + (hi - lo) * k / 4.0;
     const int y = bottom - (bottom - top) * k / 4;
+    const long v = std::lround(t);
     cv::line(bar, cv::Point(30, y), cv::Point(36, y), cv::Scalar(0, 0, 0));
-    cv::putText(bar, std::to_string(static_cast<int>(std::lround(t))) + " K", cv::Point(40, y + 5),
-                cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+    cv::putText(bar, (signed_ticks && v > 0 ? "+" : "") + std::to_string(v) + " K",
+                cv::Point(40, y + 5), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1,
+                cv::LINE_AA);
   }
   return bar;
+}
+
+cv::Mat ColourBar(int height, double t_lo, double t_hi) {
+  return ColourBar(height, t_lo, t_hi, [&](double t) { return ColourOf(t, t_lo, t_hi); });
+}
+
+// A slice of any per-voxel field: `colour` of each voxel where `shown` says, dark grey elsewhere;
+// the plane and orientation of TemperatureSlice. BGR.
+cv::Mat FieldSlice(const GridGeometry& g, int axis, int index, int scale,
+                   const std::function<bool(std::size_t)>& shown,
+                   const std::function<cv::Vec3b(std::size_t)>& colour) {
+  const int across = axis == 2 ? g.dims.x() : g.dims.z();
+  const int up = g.dims.y();
+  const int depth = axis == 2 ? g.dims.z() : g.dims.x();
+  index = std::clamp(index, 0, depth - 1);
+  scale = std::max(1, scale);
+  cv::Mat out(up * scale, across * scale, CV_8UC3, cv::Scalar(40, 40, 40));
+  for (int j = 0; j < up; ++j)
+    for (int a = 0; a < across; ++a) {
+      const std::size_t v = axis == 2 ? g.Flat(a, j, index) : g.Flat(index, j, a);
+      if (!shown(v)) continue;
+      out(cv::Rect(a * scale, (up - 1 - j) * scale, scale, scale)).setTo(colour(v));
+    }
+  return out;
+}
+
+// Stacks rows of pictures, left-aligned, on white.
+cv::Mat VerticalConcat(const std::vector<cv::Mat>& rows, int gap) {
+  int width = 0, height = 0;
+  for (const auto& r : rows) {
+    width = std::max(width, r.cols);
+    height += r.rows + gap;
+  }
+  cv::Mat out(std::max(1, height), std::max(1, width), CV_8UC3, cv::Scalar(255, 255, 255));
+  int y = 0;
+  for (const auto& r : rows) {
+    r.copyTo(out(cv::Rect(0, y, r.cols, r.rows)));
+    y += r.rows + gap;
+  }
+  return out;
 }
 
 cv::Mat Labelled(const cv::Mat& image, const std::string& label) {
@@ -119,28 +180,11 @@ ImageU8 TemperatureSlice(const FireVolume& volume, int axis, int index, double t
   if (volume.temperature_k.size() != g.num_voxels())
     throw InputError("TemperatureSlice: the volume has no temperature grid");
   if (axis != 0 && axis != 2) throw InputError("TemperatureSlice: axis must be 0 or 2");
-  const int across = axis == 2 ? g.dims.x() : g.dims.z();
-  const int up = g.dims.y();
-  const int depth = axis == 2 ? g.dims.z() : g.dims.x();
-  index = std::clamp(index, 0, depth - 1);
-  scale = std::max(1, scale);
-  ImageU8 out(across * scale, up * scale, 3);
   const bool have_density = volume.density_per_m3.size() == g.num_voxels();
-  for (int j = 0; j < up; ++j)
-    for (int a = 0; a < across; ++a) {
-      const std::size_t v = axis == 2 ? g.Flat(a, j, index) : g.Flat(index, j, a);
-      std::uint8_t rgb[3] = {40, 40, 40};
-      if (!have_density || volume.density_per_m3[v] > 0) {
-        const cv::Vec3b c = ColourOf(volume.temperature_k[v], t_lo, t_hi);
-        rgb[0] = c[2];
-        rgb[1] = c[1];
-        rgb[2] = c[0];
-      }
-      for (int dy = 0; dy < scale; ++dy)
-        for (int dx = 0; dx < scale; ++dx)
-          for (int c = 0; c < 3; ++c) out.at(a * scale + dx, (up - 1 - j) * scale + dy, c) = rgb[c];
-    }
-  return out;
+  return FromMat(FieldSlice(
+      g, axis, index, scale,
+      [&](std::size_t v) { return !have_density || volume.density_per_m3[v] > 0; },
+      [&](std::size_t v) { return ColourOf(volume.temperature_k[v], t_lo, t_hi); }));
 }
 
 std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSummary>& frames,
@@ -286,8 +330,9 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
       FireVolume truth;
       if (!info.truth_dir.empty() && f->truth_frame >= 0) {
         const fs::path t = fs::path(info.truth_dir) / (FrameName(f->truth_frame) + ".vdb");
-        if (fs::exists(t)) truth = ReadVdb(t.string());
-        if (!truth.geometry.SameVoxels(v.geometry)) truth = FireVolume();
+        // The truth is finer than the fit (the main job's 96 against 64): shown on the fit's
+        // grid, each fit voxel with the truth voxel holding its centre, as the scorer pairs them.
+        if (fs::exists(t)) truth = SampleOnGrid(ReadVdb(t.string()), v.geometry);
       }
       double t_hi = 1500;
       for (std::size_t i = 0; i < v.temperature_k.size(); ++i)
@@ -295,18 +340,50 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
       const double t_lo = 300;
       const GridGeometry& g = v.geometry;
       const int scale = std::max(1, 320 / std::max(1, g.dims.y()));
-      std::vector<cv::Mat> parts;
-      auto add = [&](const FireVolume& vol, const std::string& what) {
-        parts.push_back(Labelled(ToMat(TemperatureSlice(vol, 2, g.dims.z() / 2, t_lo, t_hi, scale)),
-                                 what + " front"));
-        parts.push_back(Labelled(ToMat(TemperatureSlice(vol, 0, g.dims.x() / 2, t_lo, t_hi, scale)),
-                                 what + " side"));
+      // One row per field: front (the x-y plane through the middle) and side (z-y), its bar.
+      std::vector<cv::Mat> rows;
+      auto row = [&](const std::string& what, const std::function<bool(std::size_t)>& shown,
+                     const std::function<cv::Vec3b(std::size_t)>& colour, const cv::Mat& bar) {
+        const cv::Mat front = FieldSlice(g, 2, g.dims.z() / 2, scale, shown, colour);
+        const cv::Mat side = FieldSlice(g, 0, g.dims.x() / 2, scale, shown, colour);
+        cv::Mat scaled_bar;
+        cv::resize(bar, scaled_bar, cv::Size(bar.cols, front.rows + 24), 0, 0, cv::INTER_NEAREST);
+        rows.push_back(Labelled(
+            HorizontalConcat({Labelled(front, "front"), Labelled(side, "side"), scaled_bar}, 12),
+            what));
       };
-      add(v, "fit");
-      if (!truth.temperature_k.empty()) add(truth, "truth");
-      parts.push_back(ColourBar(parts.front().rows, t_lo, t_hi));
+      auto has_fit = [&](std::size_t i) { return v.density_per_m3[i] > 0; };
+      auto temperature_bar = ColourBar(g.dims.y() * scale, t_lo, t_hi);
+      row(
+          "fit (K)", has_fit,
+          [&](std::size_t i) { return ColourOf(v.temperature_k[i], t_lo, t_hi); }, temperature_bar);
+      if (!truth.temperature_k.empty() && truth.density_per_m3.size() == g.num_voxels()) {
+        auto has_truth = [&](std::size_t i) { return truth.density_per_m3[i] > 0; };
+        row(
+            "truth on the fit's grid (K)", has_truth,
+            [&](std::size_t i) { return ColourOf(truth.temperature_k[i], t_lo, t_hi); },
+            temperature_bar);
+        const double range = 400;
+        row(
+            "fit - truth", [&](std::size_t i) { return has_fit(i) && has_truth(i); },
+            [&](std::size_t i) {
+              return DivergingColourOf(double(v.temperature_k[i]) - truth.temperature_k[i], range);
+            },
+            ColourBar(
+                g.dims.y() * scale, -range, range,
+                [&](double e) { return DivergingColourOf(e, range); }, true));
+      }
+      if (v.temperature_sigma_k.size() == g.num_voxels()) {
+        double sigma_hi = 1;
+        for (float x : v.temperature_sigma_k) sigma_hi = std::max(sigma_hi, double(x));
+        row(
+            "temperature sigma", has_fit,
+            [&](std::size_t i) { return SigmaColourOf(v.temperature_sigma_k[i], sigma_hi); },
+            ColourBar(g.dims.y() * scale, 0, sigma_hi,
+                      [&](double x) { return SigmaColourOf(x, sigma_hi); }));
+      }
       const std::string name = "slices_" + FrameName(f->frame).substr(6) + ".png";
-      WritePicture(dir / name, FromMat(HorizontalConcat(parts, 12)));
+      WritePicture(dir / name, FromMat(VerticalConcat(rows, 16)));
       slice_files.push_back(name);
     }
   }
@@ -345,8 +422,12 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   if (!shown.empty())
     h << "<h2>Input (top) against rendered (bottom)</h2>\n<img src=\"contact.png\">\n";
   if (!slice_files.empty()) {
-    h << "<h2>Fitted temperature" << (info.truth_dir.empty() ? "" : " and the truth")
-      << ", slices through the middle of the box</h2>\n";
+    h << "<h2>Fitted temperature" << (info.truth_dir.empty() ? "" : ", the truth, the error")
+      << " and its sigma, slices through the middle of the box</h2>\n"
+      << "<p>Each row a field, front (x-y) and side (z-y) through the box's middle, y up; dark "
+         "grey: no medium. The truth is shown on the fit's grid (each fit voxel with the truth "
+         "voxel holding its centre, as the error is scored); fit - truth is blue where the fit "
+         "is too cold, red where too hot.</p>\n";
     for (const auto& s : slice_files) h << "<p><img src=\"" << s << "\"></p>\n";
   }
   h << "<h2>Run time</h2>\n<img src=\"timing.png\">\n";

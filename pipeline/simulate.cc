@@ -1,7 +1,5 @@
 #include "pipeline/simulate.h"
 
-#include "pipeline/radiometric_calibration.h"
-
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>

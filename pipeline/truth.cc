@@ -92,6 +92,28 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
   return out;
 }
 
+FireVolume SampleOnGrid(const FireVolume& volume, const GridGeometry& grid) {
+  FireVolume out;
+  out.geometry = grid;
+  const bool have_t = volume.temperature_k.size() == volume.geometry.num_voxels();
+  const bool have_n = volume.density_per_m3.size() == volume.geometry.num_voxels();
+  float ambient = 0;
+  if (have_t && !volume.temperature_k.empty())
+    ambient = *std::min_element(volume.temperature_k.begin(), volume.temperature_k.end());
+  if (have_t) out.temperature_k.assign(grid.num_voxels(), ambient);
+  if (have_n) out.density_per_m3.assign(grid.num_voxels(), 0.0f);
+  for (int k = 0; k < grid.dims.z(); ++k)
+    for (int j = 0; j < grid.dims.y(); ++j)
+      for (int i = 0; i < grid.dims.x(); ++i) {
+        std::size_t from = 0;
+        if (!volume.geometry.VoxelHolding(grid.VoxelCenter(i, j, k), &from)) continue;
+        const std::size_t to = grid.Flat(i, j, k);
+        if (have_t) out.temperature_k[to] = volume.temperature_k[from];
+        if (have_n) out.density_per_m3[to] = volume.density_per_m3[from];
+      }
+  return out;
+}
+
 double TotalSoot(const FireVolume& volume) {
   double sum = 0;
   for (float n : volume.density_per_m3)

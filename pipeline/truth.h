@@ -39,6 +39,10 @@ struct TruthError {
   bool have_sigma = false;
   double within_1_sigma = 0, within_2_sigma = 0, median_sigma_k = 0, determined_share = 0;
 };
+// `volume`'s temperature and density on `grid`: each voxel of `grid` takes the value of the voxel
+// of `volume` that holds its centre (none: no medium, the lowest temperature of `volume`), as the
+// scorer pairs voxels, so that a truth finer (or coarser) than a fit can be shown beside it.
+FireVolume SampleOnGrid(const FireVolume& volume, const GridGeometry& grid);
 // Sum of density x voxel volume: the number of particles in the volume.
 double TotalSoot(const FireVolume& volume);
 TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted);

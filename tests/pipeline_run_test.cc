@@ -51,6 +51,70 @@ FireVolume Cube(int n, float temperature_k) {
   return v;
 }
 
+// A truth three times finer than the fit, shown on the fit's grid: each fit voxel takes the truth
+// voxel holding its centre, the middle one of its 3x3x3 (index arithmetic is the oracle).
+TEST(TruthOnTheFitsGrid, EachFitVoxelTakesTheTruthVoxelHoldingItsCentre) {
+  FireVolume fine = Cube(12, 0);
+  for (int k = 0; k < 12; ++k)
+    for (int j = 0; j < 12; ++j)
+      for (int i = 0; i < 12; ++i)
+        fine.temperature_k[fine.geometry.Flat(i, j, k)] = float(1000 + 100 * i + 10 * j + k);
+  const FireVolume coarse = Cube(4, 0);
+  const FireVolume sampled = SampleOnGrid(fine, coarse.geometry);
+  ASSERT_EQ(sampled.temperature_k.size(), 64u);
+  for (int k = 0; k < 4; ++k)
+    for (int j = 0; j < 4; ++j)
+      for (int i = 0; i < 4; ++i)
+        EXPECT_EQ(sampled.temperature_k[coarse.geometry.Flat(i, j, k)],
+                  float(1000 + 100 * (3 * i + 1) + 10 * (3 * j + 1) + (3 * k + 1)));
+  // A grid reaching beyond the truth's box: no medium there.
+  FireVolume wide = Cube(4, 0);
+  wide.geometry.voxel_size_m *= 2;
+  const FireVolume outside = SampleOnGrid(fine, wide.geometry);
+  EXPECT_GT(outside.density_per_m3[wide.geometry.Flat(0, 0, 0)], 0);
+  EXPECT_EQ(outside.density_per_m3[wide.geometry.Flat(3, 3, 3)], 0);
+}
+
+// The run report's slices: a row each for the fit, the truth (finer than the fit, resampled), the
+// error and the sigma; the truth row shows the truth's colours, not the fit's.
+TEST(RunReport, SlicesShowFitTruthErrorAndSigmaWhenTheTruthIsFiner) {
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_report_slices_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir / "out");
+  fs::create_directories(dir / "truth");
+  FireVolume fit = Cube(8, 1200);
+  fit.temperature_sigma_k.assign(fit.geometry.num_voxels(), 150.0f);
+  WriteVdb((dir / "out" / "frame_000000.vdb").string(), fit);
+  WriteVdb((dir / "truth" / "frame_000000.vdb").string(), Cube(24, 2000));
+  FrameSummary f;
+  f.frame = 0;
+  f.status = "computed";
+  f.truth_frame = 0;
+  RunReportInfo info;
+  info.truth_dir = (dir / "truth").string();
+  WriteRunReport((dir / "out").string(), {f}, info);
+  const ImageU8 slices = ReadImageU8((dir / "out" / "report" / "slices_000000.png").string(), 3);
+  // Four rows of (24 px title + 24 px panel label + 8 voxels x 40 px + 16 px gap).
+  const int row = 24 + 24 + 8 * 40 + 16;
+  ASSERT_EQ(slices.height, 4 * row);
+  auto pixel = [&](int r) {
+    const int x = 160, y = r * row + 48 + 160;  // the middle of the front panel
+    return std::array<int, 3>{slices.at(x, y, 0), slices.at(x, y, 1), slices.at(x, y, 2)};
+  };
+  const auto fit_colour = pixel(0), truth_colour = pixel(1), error_colour = pixel(2);
+  EXPECT_NE(truth_colour, fit_colour);                        // 2000 K against 1200 K
+  EXPECT_NE(truth_colour, (std::array<int, 3>{40, 40, 40}));  // medium, not "none"
+  // fit - truth = -800 K: saturated blue.
+  EXPECT_EQ(error_colour, (std::array<int, 3>{0, 0, 255}));
+  // Without the truth and the sigma: the fit's row alone.
+  fit.temperature_sigma_k.clear();
+  WriteVdb((dir / "out" / "frame_000000.vdb").string(), fit);
+  WriteRunReport((dir / "out").string(), {f}, RunReportInfo());
+  EXPECT_EQ(ReadImageU8((dir / "out" / "report" / "slices_000000.png").string(), 3).height, row);
+  fs::remove_all(dir);
+}
+
 TEST(TruthError, SameGridVoxelByVoxelOtherGridsByTheVoxelHoldingEachCentre) {
   const FireVolume truth = Cube(4, 1500);  // 64 visible voxels of 1 mm
   // The same grid, 20 K too hot: 20 K RMS and bias over every voxel.

@@ -50,6 +50,9 @@ Runner AddFit(CLI::App* command) {
       ->check(kPositive);
   command->add_flag("--fit-exposure", job.fit_exposure,
                     "Fast fit: fit a free exposure (the paper's s), even a known one");
+  command->add_flag(
+      "--no-sigma", [&job](std::int64_t) { job.uncertainty = false; },
+      "Fast fit: do not write the per-voxel sigma grids");
   CLI::Option* w_sm =
       command
           ->add_option("--w-sm", job.fit.objective.w_sm,

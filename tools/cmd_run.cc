@@ -15,7 +15,7 @@ Runner AddRun(CLI::App* command) {
     std::string seq, names, calibrate_config, board;
     std::int64_t first = -1, count = -1;
     int fit_iterations = -1;
-    bool no_skip_unchanged = false, no_blender = false, cold = false;
+    bool no_skip_unchanged = false, no_blender = false, cold = false, no_sigma = false;
     std::size_t threads = 0;
   };
   auto o = std::make_shared<Options>();
@@ -72,6 +72,8 @@ Runner AddRun(CLI::App* command) {
                     "Compute frames whose images did not change too");
   command->add_flag("--no-blender", o->no_blender, "Do not write OUT/blender/");
   command->add_flag("--cold", o->cold, "Start every frame from its own tomography");
+  command->add_flag("--no-sigma", o->no_sigma,
+                    "Do not write the per-voxel sigma grids (saves about a fifth of the fit)");
   command->add_flag("--fit-exposure", run.fit_exposure,
                     "Fit a free exposure on every frame (the paper's s), even a known one");
   command->add_option("--threads", o->threads,
@@ -89,6 +91,7 @@ Runner AddRun(CLI::App* command) {
     if (o->fit_iterations >= 0) run.fit.iterations_finest = o->fit_iterations;
     run.skip_unchanged = !o->no_skip_unchanged;
     run.blender = !o->no_blender;
+    run.sigma = !o->no_sigma;
     run.warm_start = !o->cold;
     // Under mpirun every rank runs this; a failing rank stops the others.
     std::unique_ptr<MpiSession> mpi;
