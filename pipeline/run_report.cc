@@ -84,7 +84,7 @@ cv::Vec3b SigmaColourOf(double sigma, double hi) {
   return coloured.at<cv::Vec3b>(0, 0);
 }
 
-// A vertical colour bar from lo to hi with five ticks in `unit` ("K", or "K" with a sign), BGR.
+// A vertical colour bar from lo to hi with five ticks in kelvin (signed for differences), BGR.
 cv::Mat ColourBar(int height, double lo, double hi, const std::function<cv::Vec3b(double)>& colour,
                   bool signed_ticks = false) {
   cv::Mat bar(height, 110, CV_8UC3, cv::Scalar(255, 255, 255));
