@@ -563,8 +563,26 @@ TEST(Cli, CaptureCtlAndExport) {
   EXPECT_EQ(right.channels, 3);  // Bayer, demosaiced
   std::size_t sets = 0;
   for (const auto& e : fs::directory_iterator(dir / "png")) sets += e.is_directory();
-  EXPECT_GE(sets, 20u);  // 20 Hz for about 1.5 s
-  EXPECT_LE(sets, 31u);
+  // 20 Hz for about 1.5 s: triggers at 0, 0.05, ..., 1.5 s are 31 sets, and a stop that comes
+  // late (a slow machine, a sanitizer) adds one per 50 ms. So the count must match the span
+  // between the first and the last set's timestamps at 20 Hz, and that span the duration within
+  // a quarter of a second of stop latency.
+  EXPECT_GE(sets, 20u);
+  std::ifstream csv(dir / "png" / "sets.csv");
+  std::string line, first, last;
+  std::getline(csv, line);  // the header
+  while (std::getline(csv, line))
+    if (!line.empty()) (first.empty() ? first : last) = line;
+  auto reference_s = [](const std::string& row) {
+    std::stringstream cells(row);
+    std::string cell;
+    for (int i = 0; i < 3; ++i) std::getline(cells, cell, ',');
+    return std::stod(cell) * 1e-9;
+  };
+  ASSERT_FALSE(last.empty());
+  const double span_s = reference_s(last) - reference_s(first);
+  EXPECT_NEAR(double(sets), std::round(span_s * 20) + 1, 1.0) << "span " << span_s << " s";
+  EXPECT_LE(span_s, 1.5 + 0.25);
   // A missing daemon and a bad request are clear errors.
   const Result gone = Flamerig("ctl --endpoint unix:" + (dir / "none.sock").string() + " status");
   EXPECT_EQ(gone.status, 1);
