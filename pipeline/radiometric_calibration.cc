@@ -40,13 +40,6 @@ std::array<int, 4> ReadRegion(const YAML::Node& node, const std::string& where) 
   return r;
 }
 
-// The camera's channels of a black body at T with unit gains, in the renderer's units.
-Eigen::Vector3d UnitGainBlackbody(const CameraRadiometry& radiometry, double temperature_k) {
-  CameraRadiometry unit = radiometry;
-  unit.gain = Eigen::Vector3d::Ones();
-  return ChannelResponse::ForCamera(unit)->Blackbody(temperature_k);
-}
-
 // One shot's image, read and checked against its camera.
 struct ShotImage {
   int bits = 8;
@@ -222,6 +215,12 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
                        std::to_string(images[k].bits) + "-bit, its first shot " +
                        std::to_string(bits) + "-bit");
   const CameraRadiometry::Decoding decoding = model.DecodingFor(bits);
+  // The camera's channels of a black body with unit gains, in the renderer's units: one response
+  // for all its shots.
+  const auto response = ChannelResponse::ForCamera(model);
+  auto unit_gain_blackbody = [&](double temperature_k) -> Eigen::Vector3d {
+    return response->Blackbody(temperature_k).cwiseQuotient(response->gain());
+  };
 
   // The patch: given, or from the brightest shot.
   std::array<int, 4> region = shots.region;
@@ -230,7 +229,7 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
     double best = -1;
     for (std::size_t k = 0; k < images.size(); ++k) {
       const RadiometricShot& s = shots.shots[shot_indices[k]];
-      const double level = s.exposure * UnitGainBlackbody(model, s.temperature_k).maxCoeff();
+      const double level = s.exposure * unit_gain_blackbody(s.temperature_k).maxCoeff();
       if (level > best) best = level, brightest = k;
     }
     region = FindPatch(images[brightest], options.erode_px,
@@ -256,7 +255,7 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
     if (k == 0) result->dark_level_dn = DarkLevel(images[k], patch);
     const double emissivity =
         shots.source == RadiometricShots::Source::kBlackbody ? shots.emissivity : 1.0;
-    const Eigen::Vector3d b = UnitGainBlackbody(model, r.shot.temperature_k);
+    const Eigen::Vector3d b = unit_gain_blackbody(r.shot.temperature_k);
     for (int c = 0; c < channels; ++c) {
       Observation o;
       o.shot = out->shots.size();

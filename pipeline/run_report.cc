@@ -59,13 +59,18 @@ ImageU8 FromMat(const cv::Mat& m) {
   return image;
 }
 
+// The colour of u in [0, 1] (clamped) on one of OpenCV's colour maps, BGR.
+cv::Vec3b MapColour(double u, cv::ColormapTypes map) {
+  const int level = static_cast<int>(std::lround(255 * std::clamp(u, 0.0, 1.0)));
+  cv::Mat one(1, 1, CV_8UC1, cv::Scalar(level));
+  cv::Mat coloured;
+  cv::applyColorMap(one, coloured, map);
+  return coloured.at<cv::Vec3b>(0, 0);
+}
+
 // RGB of a temperature on the report's colour scale (OpenCV's inferno map).
 cv::Vec3b ColourOf(double t, double t_lo, double t_hi) {
-  const double u = std::clamp((t - t_lo) / std::max(1e-9, t_hi - t_lo), 0.0, 1.0);
-  cv::Mat one(1, 1, CV_8UC1, cv::Scalar(static_cast<int>(std::lround(255 * u))));
-  cv::Mat coloured;
-  cv::applyColorMap(one, coloured, cv::COLORMAP_INFERNO);
-  return coloured.at<cv::Vec3b>(0, 0);  // BGR
+  return MapColour((t - t_lo) / std::max(1e-9, t_hi - t_lo), cv::COLORMAP_INFERNO);
 }
 
 // The error map: blue below zero, white at zero, red above, saturating at +-range. BGR.
@@ -77,11 +82,7 @@ cv::Vec3b DivergingColourOf(double e, double range) {
 
 // The sigma map (OpenCV's viridis) from 0 to `hi`. BGR.
 cv::Vec3b SigmaColourOf(double sigma, double hi) {
-  const double u = std::clamp(sigma / std::max(1e-9, hi), 0.0, 1.0);
-  cv::Mat one(1, 1, CV_8UC1, cv::Scalar(static_cast<int>(std::lround(255 * u))));
-  cv::Mat coloured;
-  cv::applyColorMap(one, coloured, cv::COLORMAP_VIRIDIS);
-  return coloured.at<cv::Vec3b>(0, 0);
+  return MapColour(sigma / std::max(1e-9, hi), cv::COLORMAP_VIRIDIS);
 }
 
 // A vertical colour bar from lo to hi with five ticks in kelvin (signed for differences), BGR.
