@@ -346,6 +346,31 @@ TEST(Cli, FitASimulatedFrameSet) {
                            (dir / "rendered").string());
   EXPECT_EQ(render.status, 0) << render.output;
   EXPECT_TRUE(fs::exists(dir / "rendered" / "cam2.png"));
+  // `export-volume` writes the fit as a table with its sigma: one row per voxel with medium.
+  std::size_t with_medium = 0;
+  for (float d : v.density_per_m3) with_medium += d > 0;
+  Result table = Flamerig("export-volume --volume " + out + " --out " +
+                          (dir / "tables" / "fire.csv").string());
+  ASSERT_EQ(table.status, 0) << table.output;
+  EXPECT_NE(table.output.find(std::to_string(with_medium) + " voxels x 11 columns"),
+            std::string::npos)
+      << table.output;
+  {
+    std::ifstream csv((dir / "tables" / "fire.csv").string());
+    std::string header;
+    std::getline(csv, header);
+    EXPECT_EQ(header,
+              "i,j,k,x_m,y_m,z_m,temperature_k,density_per_m3,temperature_sigma_k,density_sigma,"
+              "determined");
+  }
+  for (const auto& [args, expected] : std::vector<std::pair<std::string, std::string>>{
+           {"--volume " + out + " --out t.txt", "unknown table format '.txt'"},
+           {"--volume /nonexistent.vdb --out " + (dir / "t.csv").string(), "/nonexistent.vdb"}}) {
+    const Result r = Flamerig("export-volume " + args);
+    EXPECT_EQ(r.status, 1) << args;
+    EXPECT_NE(r.output.find(expected), std::string::npos) << args << "\n" << r.output;
+  }
+  EXPECT_FALSE(fs::exists(dir / "t.csv"));
   // The paper's Algorithm 2, briefly.
   Result alg2 = Flamerig("fit --rig " + rig + " --images " + images + " --out " +
                          (dir / "alg2.vdb").string() +

@@ -91,6 +91,7 @@ Runner AddCameras(CLI::App* command);
 Runner AddCalibrate(CLI::App* command);
 Runner AddCalibrateRadiometry(CLI::App* command);
 Runner AddExport(CLI::App* command);
+Runner AddExportVolume(CLI::App* command);
 Runner AddBenchmark(CLI::App* command);
 
 // The process's arguments, for commands that run themselves again (in a network namespace) or
