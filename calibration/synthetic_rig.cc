@@ -383,6 +383,7 @@ WrittenViews WriteCalibrationViews(const Rig& rig, const BoardSpec& board, std::
   yaml << YAML::EndMap;
   yaml << YAML::Key << "views" << YAML::Value << YAML::BeginSeq;
   WrittenViews written;
+  written.first_view.assign(rig.cameras.size(), ImageU8());
   for (std::size_t v = 0; v < views.size(); ++v) {
     Progress p;
     p.stage = "calibration views";
@@ -401,7 +402,7 @@ WrittenViews WriteCalibrationViews(const Rig& rig, const BoardSpec& board, std::
       WritePng((fs::path(dir) / name / (rig.cameras[c].name + ".png")).string(), image);
       names.push_back(rig.cameras[c].name);
       ++written.images;
-      if (v == 0) written.first_view.push_back(std::move(image));
+      if (v == 0) written.first_view[static_cast<std::size_t>(c)] = std::move(image);
     }
     const auto rt = views[v].rig_from_board.ToRt();
     yaml << YAML::BeginMap << YAML::Key << "name" << YAML::Value << name << YAML::Key << "kind"

@@ -66,7 +66,8 @@ std::vector<BoardView> MakeCalibrationViews(const Rig& rig, const BoardSpec& boa
 struct WrittenViews {
   int views = 0;                   // board poses
   int images = 0;                  // images written (a view's cameras that see the whole board)
-  std::vector<ImageU8> first_view;  // the images of view 0, for a preview
+  // The images of view 0 per camera, for a preview (empty for the cameras that do not see it).
+  std::vector<ImageU8> first_view;
 };
 
 // Renders calibration views of `board` for `rig` (MakeCalibrationViews with seed + 1; noise of

@@ -11,8 +11,9 @@
 #include <sstream>
 
 #include "core/atomic_file.h"
-#include "core/error.h"
 #include "core/config_reader.h"
+#include "core/error.h"
+#include "pipeline/picture.h"
 
 namespace flamerig {
 
@@ -155,14 +156,12 @@ ImageU8 CoveragePicture(const CalibrationData& data, const CalibrationSummary& s
   int n = 0;
   for (bool b : covered) n += b;
   if (covered_fraction) *covered_fraction = static_cast<double>(n) / covered.size();
-  char text[160];
+  char text[200];
   std::snprintf(text, sizeof(text),
-                "%s: %d%% of the image covered; green 0 px, red %.2f px, "
-                "magenta x outlier",
+                "%s: %d%% of the image covered by corners\n"
+                "corner error: green 0 px, red %.2f px; magenta x: outlier",
                 data.camera_names[camera].c_str(), 100 * n / (cells * cells), error_scale);
-  cv::putText(img, text, cv::Point(6, H - 8), cv::FONT_HERSHEY_SIMPLEX, 0.4,
-              cv::Scalar(255, 255, 255), 1, cv::LINE_AA);
-  return FromBgr(img);
+  return Labelled(FromBgr(img), text);
 }
 
 ImageU8 RigFromAbove(const CalibrationSummary& summary, int size) {

@@ -11,17 +11,6 @@
 
 namespace flamerig {
 
-// One line of a plot: points (x, y) and a name for the legend.
-struct PlotSeries {
-  std::string name;
-  std::vector<double> x, y;
-};
-
-// A line plot (axes, ticks, legend) as an RGB image. log_x: logarithmic time axis (x > 0 only).
-ImageU8 PlotLines(const std::vector<PlotSeries>& series, const std::string& title,
-                  const std::string& x_label, const std::string& y_label, bool log_x,
-                  int width = 800, int height = 500);
-
 struct ViewScore {
   std::string name;
   bool held_out = false;
@@ -32,8 +21,8 @@ struct ViewScore {
 };
 
 // Renders `result.volume` through each view at `result.exposure`, scores it and, when `dir` is
-// not empty, writes <dir>/views.png (input | rendered | Delta E x10 per view), <dir>/error.png
-// (mean Delta E against time), <dir>/trace.csv and <dir>/report.md. Returns the scores, and the
+// not empty, writes <dir>/views.png (input, rendered, Delta E map per view, labelled), <dir>/error.png
+// and .svg (mean Delta E against time, pipeline/plot.h), <dir>/trace.csv and <dir>/report.md. Returns the scores, and the
 // rendered 8-bit views (fitted, then held out) through *rendered when not null.
 std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& result,
                                       const std::vector<FitView>& fitted,

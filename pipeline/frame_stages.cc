@@ -9,6 +9,7 @@
 #include "core/error.h"
 #include "pipeline/blender_export.h"
 #include "pipeline/fit_report.h"
+#include "pipeline/picture.h"
 #include "pipeline/truth.h"
 #include "tomography/vdb_io.h"
 
@@ -53,17 +54,15 @@ FitResult ResultFromVolume(const std::string& path) {
   return r;
 }
 
-// Input over rendered, camera by camera.
-ImageU8 InputOverRendered(const std::vector<ImageU8>& inputs, const std::vector<ImageU8>& rendered) {
-  const ImageU8 top = ContactSheet(inputs, 180), bottom = ContactSheet(rendered, 180);
-  ImageU8 picture(std::max(top.width, bottom.width), top.height + bottom.height + 4, 3, 16);
-  for (int y = 0; y < top.height; ++y)
-    for (int x = 0; x < top.width; ++x)
-      for (int c = 0; c < 3; ++c) picture.at(x, y, c) = top.at(x, y, c);
-  for (int y = 0; y < bottom.height; ++y)
-    for (int x = 0; x < bottom.width; ++x)
-      for (int c = 0; c < 3; ++c) picture.at(x, top.height + 4 + y, c) = bottom.at(x, y, c);
-  return picture;
+// Input over rendered, camera by camera, each column named.
+ImageU8 InputOverRendered(const std::vector<std::string>& names, const std::vector<ImageU8>& inputs,
+                          const std::vector<ImageU8>& rendered) {
+  PictureGrid grid;
+  grid.column_labels = names;
+  grid.row_labels = {"input", "rendered from the fit"};
+  grid.rows = {inputs, rendered};
+  grid.tile_height = 180;
+  return DrawPictureGrid(grid);
 }
 
 }  // namespace
@@ -286,10 +285,17 @@ void FrameStages::Write(FrameWork* w) {
   if (options_.pictures) {
     // Input over rendered, camera by camera (fitted views, then the held-out one).
     std::vector<ImageU8> inputs;
-    for (const auto& v : w->views) inputs.push_back(v.image);
-    for (const auto& v : w->held) inputs.push_back(v.image);
+    std::vector<std::string> names;
+    for (const auto& v : w->views) {
+      inputs.push_back(v.image);
+      names.push_back(v.name + " (fitted)");
+    }
+    for (const auto& v : w->held) {
+      inputs.push_back(v.image);
+      names.push_back(v.name + " (held out)");
+    }
     AtomicFile picture(paths_.Picture(w->index));
-    WritePng(picture.temp_path(), InputOverRendered(inputs, rendered));
+    WritePng(picture.temp_path(), InputOverRendered(names, inputs, rendered));
     picture.Commit();
   }
   s.write_ms = Ms(t0);

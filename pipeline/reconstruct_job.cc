@@ -7,6 +7,7 @@
 #include "core/error.h"
 #include "fitting/renderer.h"
 #include "pipeline/frame_source.h"
+#include "pipeline/picture.h"
 #include "pipeline/run.h"
 #include "pipeline/truth.h"
 #include "tomography/vdb_io.h"
@@ -48,7 +49,8 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
   WriteVdb(job.out_path, volume);
   if (!job.preview_path.empty()) {
     // Each camera: its input, the reconstruction rendered back through it, and 4x their difference.
-    std::vector<ImageU8> tiles;
+    PictureGrid grid;
+    grid.column_labels = {"input", "reconstruction rendered back", "|difference| x 4"};
     for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
       const ImageU8& input = set.images[c];
       if (input.empty()) continue;
@@ -60,11 +62,10 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
       for (std::size_t p = 0; p < difference.pixels.size(); ++p)
         difference.pixels[p] = static_cast<std::uint8_t>(
             std::min(255, 4 * std::abs(int(input.pixels[p]) - int(rendered.pixels[p]))));
-      tiles.push_back(input);
-      tiles.push_back(rendered);
-      tiles.push_back(difference);
+      grid.row_labels.push_back(rig.cameras[c].name);
+      grid.rows.push_back({input, rendered, difference});
     }
-    WritePng(job.preview_path, ContactSheet(tiles, 240));
+    WritePng(job.preview_path, DrawPictureGrid(grid));
   }
   if (!job.truth_path.empty())
     out.truth_error = EmissionError(volume, ReadVdb(job.truth_path), job.truth_path);

@@ -1,8 +1,5 @@
 #include "pipeline/run_report.h"
 
-#include <opencv2/core.hpp>
-#include <opencv2/imgproc.hpp>
-
 #include <algorithm>
 #include <cmath>
 #include <ctime>
@@ -16,7 +13,10 @@
 #include "core/atomic_file.h"
 #include "core/error.h"
 #include "core/image.h"
+#include "core/log.h"
 #include "pipeline/fit_report.h"
+#include "pipeline/picture.h"
+#include "pipeline/plot.h"
 #include "pipeline/simulate.h"
 #include "pipeline/truth.h"
 #include "tomography/vdb_io.h"
@@ -42,130 +42,31 @@ std::string Html(const std::string& text) {
   return out;
 }
 
-cv::Mat ToMat(const ImageU8& image) {
-  cv::Mat m(image.height, image.width, CV_8UC3);
-  for (int y = 0; y < image.height; ++y)
-    for (int x = 0; x < image.width; ++x)
-      for (int c = 0; c < 3; ++c)
-        m.at<cv::Vec3b>(y, x)[2 - c] = image.at(x, y, image.channels == 1 ? 0 : c);
-  return m;
-}
-
-ImageU8 FromMat(const cv::Mat& m) {
-  ImageU8 image(m.cols, m.rows, 3);
-  for (int y = 0; y < m.rows; ++y)
-    for (int x = 0; x < m.cols; ++x)
-      for (int c = 0; c < 3; ++c) image.at(x, y, c) = m.at<cv::Vec3b>(y, x)[2 - c];
-  return image;
-}
-
-// The colour of u in [0, 1] (clamped) on one of OpenCV's colour maps, BGR.
-cv::Vec3b MapColour(double u, cv::ColormapTypes map) {
-  const int level = static_cast<int>(std::lround(255 * std::clamp(u, 0.0, 1.0)));
-  cv::Mat one(1, 1, CV_8UC1, cv::Scalar(level));
-  cv::Mat coloured;
-  cv::applyColorMap(one, coloured, map);
-  return coloured.at<cv::Vec3b>(0, 0);
-}
-
-// RGB of a temperature on the report's colour scale (OpenCV's inferno map).
-cv::Vec3b ColourOf(double t, double t_lo, double t_hi) {
-  return MapColour((t - t_lo) / std::max(1e-9, t_hi - t_lo), cv::COLORMAP_INFERNO);
-}
-
-// The error map: blue below zero, white at zero, red above, saturating at +-range. BGR.
-cv::Vec3b DivergingColourOf(double e, double range) {
-  const double u = std::clamp(e / std::max(1e-9, range), -1.0, 1.0);
-  const int fade = static_cast<int>(std::lround(255 * (1 - std::abs(u))));
-  return u >= 0 ? cv::Vec3b(fade, fade, 255) : cv::Vec3b(255, fade, fade);
-}
-
-// The sigma map (OpenCV's viridis) from 0 to `hi`. BGR.
-cv::Vec3b SigmaColourOf(double sigma, double hi) {
-  return MapColour(sigma / std::max(1e-9, hi), cv::COLORMAP_VIRIDIS);
-}
-
-// A vertical colour bar from lo to hi with five ticks in kelvin (signed for differences), BGR.
-cv::Mat ColourBar(int height, double lo, double hi, const std::function<cv::Vec3b(double)>& colour,
-                  bool signed_ticks = false) {
-  cv::Mat bar(height, 110, CV_8UC3, cv::Scalar(255, 255, 255));
-  const int top = 10, bottom = height - 10;
-  for (int y = top; y <= bottom; ++y) {
-    const double t = hi - (hi - lo) * (y - top) / double(bottom - top);
-    cv::line(bar, cv::Point(5, y), cv::Point(30, y), colour(t));
-  }
-  for (int k = 0; k <= 4; ++k) {
-    const double t = lo + (hi - lo) * k / 4.0;
-    const int y = bottom - (bottom - top) * k / 4;
-    const long v = std::lround(t);
-    cv::line(bar, cv::Point(30, y), cv::Point(36, y), cv::Scalar(0, 0, 0));
-    cv::putText(bar, (signed_ticks && v > 0 ? "+" : "") + std::to_string(v) + " K",
-                cv::Point(40, y + 5), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1,
-                cv::LINE_AA);
-  }
-  return bar;
-}
-
-cv::Mat ColourBar(int height, double t_lo, double t_hi) {
-  return ColourBar(height, t_lo, t_hi, [&](double t) { return ColourOf(t, t_lo, t_hi); });
+// The colour of a temperature on the report's scale.
+Rgb ColourOf(double t, double t_lo, double t_hi) {
+  return InfernoColour((t - t_lo) / std::max(1e-9, t_hi - t_lo));
 }
 
 // A slice of any per-voxel field: `colour` of each voxel where `shown` says, dark grey elsewhere;
-// the plane and orientation of TemperatureSlice. BGR.
-cv::Mat FieldSlice(const GridGeometry& g, int axis, int index, int scale,
+// the plane and orientation of TemperatureSlice.
+ImageU8 FieldSlice(const GridGeometry& g, int axis, int index, int scale,
                    const std::function<bool(std::size_t)>& shown,
-                   const std::function<cv::Vec3b(std::size_t)>& colour) {
+                   const std::function<Rgb(std::size_t)>& colour) {
   const int across = axis == 2 ? g.dims.x() : g.dims.z();
   const int up = g.dims.y();
   const int depth = axis == 2 ? g.dims.z() : g.dims.x();
   index = std::clamp(index, 0, depth - 1);
   scale = std::max(1, scale);
-  cv::Mat out(up * scale, across * scale, CV_8UC3, cv::Scalar(40, 40, 40));
+  ImageU8 out(across * scale, up * scale, 3, 40);
   for (int j = 0; j < up; ++j)
     for (int a = 0; a < across; ++a) {
       const std::size_t v = axis == 2 ? g.Flat(a, j, index) : g.Flat(index, j, a);
       if (!shown(v)) continue;
-      out(cv::Rect(a * scale, (up - 1 - j) * scale, scale, scale)).setTo(colour(v));
+      const Rgb c = colour(v);
+      for (int y = (up - 1 - j) * scale; y < (up - j) * scale; ++y)
+        for (int x = a * scale; x < (a + 1) * scale; ++x)
+          for (int ch = 0; ch < 3; ++ch) out.at(x, y, ch) = c[ch];
     }
-  return out;
-}
-
-// Stacks rows of pictures, left-aligned, on white.
-cv::Mat VerticalConcat(const std::vector<cv::Mat>& rows, int gap) {
-  int width = 0, height = 0;
-  for (const auto& r : rows) {
-    width = std::max(width, r.cols);
-    height += r.rows + gap;
-  }
-  cv::Mat out(std::max(1, height), std::max(1, width), CV_8UC3, cv::Scalar(255, 255, 255));
-  int y = 0;
-  for (const auto& r : rows) {
-    r.copyTo(out(cv::Rect(0, y, r.cols, r.rows)));
-    y += r.rows + gap;
-  }
-  return out;
-}
-
-cv::Mat Labelled(const cv::Mat& image, const std::string& label) {
-  cv::Mat out(image.rows + 24, std::max(image.cols, 10), CV_8UC3, cv::Scalar(255, 255, 255));
-  image.copyTo(out(cv::Rect(0, 24, image.cols, image.rows)));
-  cv::putText(out, label, cv::Point(2, 17), cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1,
-              cv::LINE_AA);
-  return out;
-}
-
-cv::Mat HorizontalConcat(const std::vector<cv::Mat>& parts, int gap) {
-  int width = 0, height = 0;
-  for (const auto& p : parts) {
-    width += p.cols + gap;
-    height = std::max(height, p.rows);
-  }
-  cv::Mat out(height, std::max(1, width), CV_8UC3, cv::Scalar(255, 255, 255));
-  int x = 0;
-  for (const auto& p : parts) {
-    p.copyTo(out(cv::Rect(x, 0, p.cols, p.rows)));
-    x += p.cols + gap;
-  }
   return out;
 }
 
@@ -182,10 +83,10 @@ ImageU8 TemperatureSlice(const FireVolume& volume, int axis, int index, double t
     throw InputError("TemperatureSlice: the volume has no temperature grid");
   if (axis != 0 && axis != 2) throw InputError("TemperatureSlice: axis must be 0 or 2");
   const bool have_density = volume.density_per_m3.size() == g.num_voxels();
-  return FromMat(FieldSlice(
+  return FieldSlice(
       g, axis, index, scale,
       [&](std::size_t v) { return !have_density || volume.density_per_m3[v] > 0; },
-      [&](std::size_t v) { return ColourOf(volume.temperature_k[v], t_lo, t_hi); }));
+      [&](std::size_t v) { return ColourOf(volume.temperature_k[v], t_lo, t_hi); });
 }
 
 std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSummary>& frames,
@@ -236,7 +137,7 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
 
   // Plots.
   std::map<std::string, PlotSeries> per_view;
-  PlotSeries truth{"temperature RMS error / 100 K (visible voxels)", {}, {}};
+  PlotSeries truth{"temperature RMS error on visible voxels (K, right axis)", {}, {}, true};
   PlotSeries tomo{"tomography", {}, {}}, fit{"fit", {}, {}}, total{"whole frame", {}, {}};
   std::size_t computed = 0, unchanged = 0, failed = 0;
   double de_sum = 0, t_sum = 0;
@@ -257,7 +158,7 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     }
     if (f.truth_rms_k >= 0) {
       truth.x.push_back(static_cast<double>(f.frame));
-      truth.y.push_back(f.truth_rms_k / 100.0);
+      truth.y.push_back(f.truth_rms_k);
       t_sum += f.truth_rms_k;
       ++t_n;
     }
@@ -270,14 +171,29 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     total.x.push_back(static_cast<double>(f.frame));
     total.y.push_back(f.total_ms / 1000);
   }
-  std::vector<PlotSeries> error_series;
-  for (auto& [name, s] : per_view) error_series.push_back(s);
-  if (!truth.x.empty()) error_series.push_back(truth);
-  WritePicture(dir / "errors.png",
-               PlotLines(error_series, "Delta E of each view's fire pixels over the frames",
-                         "frame", "mean Delta E (fire pixels)", false, 900, 420));
-  WritePicture(dir / "timing.png", PlotLines({tomo, fit, total}, "Run time per frame by stage",
-                                             "frame", "seconds", false, 900, 420));
+  std::vector<std::string> plot_errors;
+  {
+    PlotSpec errors;
+    errors.title = "Error over the frames";
+    errors.x_label = "frame";
+    errors.y_label = "mean Delta E of the view's fire pixels (CIELab)";
+    errors.integer_x = true;
+    for (auto& [name, s] : per_view) errors.series.push_back(s);
+    if (!truth.x.empty()) {
+      errors.y2_label = "temperature RMS error (K)";
+      errors.series.push_back(truth);
+    }
+    std::string why;
+    if (!WritePlot(errors, (dir / "errors").string(), &why)) plot_errors.push_back(why);
+    PlotSpec timing;
+    timing.title = "Run time per frame by stage";
+    timing.x_label = "frame";
+    timing.y_label = "time (s)";
+    timing.integer_x = true;
+    timing.series = {tomo, fit, total};
+    if (!WritePlot(timing, (dir / "timing").string(), &why)) plot_errors.push_back(why);
+    for (const auto& e : plot_errors) Log().warn("run report: a plot is missing: {}", e);
+  }
 
   // Contact sheet: input over rendered for a few frames, evenly spaced among the computed ones.
   std::vector<const FrameSummary*> shown;
@@ -291,31 +207,18 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
       shown.push_back(candidates[n == 1 ? 0 : k * (candidates.size() - 1) / (n - 1)]);
   }
   if (!shown.empty()) {
-    std::vector<cv::Mat> columns;
-    for (const auto* f : shown) {
-      const ImageU8 picture =
-          ReadImageU8((out / "frames" / (FrameName(f->frame) + ".png")).string(), 3);
-      columns.push_back(Labelled(ToMat(picture), FrameName(f->frame)));
-    }
+    std::vector<ImageU8> columns;
+    for (const auto* f : shown)
+      columns.push_back(
+          Labelled(ReadImageU8((out / "frames" / (FrameName(f->frame) + ".png")).string(), 3),
+                   FrameName(f->frame)));
     // At most three frames per row.
-    std::vector<cv::Mat> rows;
-    for (std::size_t k = 0; k < columns.size(); k += 3) {
-      std::vector<cv::Mat> row(columns.begin() + k,
-                               columns.begin() + std::min(columns.size(), k + 3));
-      rows.push_back(HorizontalConcat(row, 16));
-    }
-    int width = 0, height = 0;
-    for (const auto& r : rows) {
-      width = std::max(width, r.cols);
-      height += r.rows + 16;
-    }
-    cv::Mat sheet(height, width, CV_8UC3, cv::Scalar(255, 255, 255));
-    int y = 0;
-    for (const auto& r : rows) {
-      r.copyTo(sheet(cv::Rect(0, y, r.cols, r.rows)));
-      y += r.rows + 16;
-    }
-    WritePicture(dir / "contact.png", FromMat(sheet));
+    std::vector<ImageU8> rows;
+    for (std::size_t k = 0; k < columns.size(); k += 3)
+      rows.push_back(Beside(std::vector<ImageU8>(columns.begin() + k,
+                                                 columns.begin() + std::min(columns.size(), k + 3)),
+                            16));
+    WritePicture(dir / "contact.png", Stacked(rows, 16));
   }
 
   // Temperature slices of a few computed frames.
@@ -341,50 +244,55 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
       const double t_lo = 300;
       const GridGeometry& g = v.geometry;
       const int scale = std::max(1, 320 / std::max(1, g.dims.y()));
-      // One row per field: front (the x-y plane through the middle) and side (z-y), its bar.
-      std::vector<cv::Mat> rows;
+      // One row per field: front (the x-y plane through the middle) and side (z-y), its bar; a
+      // scale bar in each front view.
+      const double pixels_per_m = scale / g.voxel_size_m.y();
+      const double bar_m = ScaleBarLength(pixels_per_m);
+      std::vector<ImageU8> rows;
       auto row = [&](const std::string& what, const std::function<bool(std::size_t)>& shown,
-                     const std::function<cv::Vec3b(std::size_t)>& colour, const cv::Mat& bar) {
-        const cv::Mat front = FieldSlice(g, 2, g.dims.z() / 2, scale, shown, colour);
-        const cv::Mat side = FieldSlice(g, 0, g.dims.x() / 2, scale, shown, colour);
-        cv::Mat scaled_bar;
-        cv::resize(bar, scaled_bar, cv::Size(bar.cols, front.rows + 24), 0, 0, cv::INTER_NEAREST);
+                     const std::function<Rgb(std::size_t)>& colour, const ColourScale& bar) {
+        ImageU8 front = FieldSlice(g, 2, g.dims.z() / 2, scale, shown, colour);
+        ImageU8 side = FieldSlice(g, 0, g.dims.x() / 2, scale, shown, colour);
+        DrawScaleBar(&front, pixels_per_m, bar_m);
+        DrawScaleBar(&side, pixels_per_m, bar_m);
         rows.push_back(Labelled(
-            HorizontalConcat({Labelled(front, "front"), Labelled(side, "side"), scaled_bar}, 12),
+            Beside({Labelled(front, "front (x right, y up)"),
+                    Labelled(side, "side (z right, y up)"), ColourBar(bar, front.height + 24)},
+                   12),
             what));
       };
       auto has_fit = [&](std::size_t i) { return v.density_per_m3[i] > 0; };
-      auto temperature_bar = ColourBar(g.dims.y() * scale, t_lo, t_hi);
+      const ColourScale temperature{"temperature", "K", t_lo, t_hi,
+                                    [&](double t) { return ColourOf(t, t_lo, t_hi); }};
       row(
           "fit (K)", has_fit,
-          [&](std::size_t i) { return ColourOf(v.temperature_k[i], t_lo, t_hi); }, temperature_bar);
+          [&](std::size_t i) { return ColourOf(v.temperature_k[i], t_lo, t_hi); }, temperature);
       if (!truth.temperature_k.empty() && truth.density_per_m3.size() == g.num_voxels()) {
         auto has_truth = [&](std::size_t i) { return truth.density_per_m3[i] > 0; };
         row(
             "truth on the fit's grid (K)", has_truth,
             [&](std::size_t i) { return ColourOf(truth.temperature_k[i], t_lo, t_hi); },
-            temperature_bar);
+            temperature);
         const double range = 400;
         row(
-            "fit - truth", [&](std::size_t i) { return has_fit(i) && has_truth(i); },
+            "fit - truth (K)", [&](std::size_t i) { return has_fit(i) && has_truth(i); },
             [&](std::size_t i) {
-              return DivergingColourOf(double(v.temperature_k[i]) - truth.temperature_k[i], range);
+              return DivergingColour(double(v.temperature_k[i]) - truth.temperature_k[i], range);
             },
-            ColourBar(
-                g.dims.y() * scale, -range, range,
-                [&](double e) { return DivergingColourOf(e, range); }, true));
+            ColourScale{"fit - truth", "K", -range, range,
+                        [&](double e) { return DivergingColour(e, range); }, true});
       }
       if (v.temperature_sigma_k.size() == g.num_voxels()) {
         double sigma_hi = 1;
         for (float x : v.temperature_sigma_k) sigma_hi = std::max(sigma_hi, double(x));
         row(
-            "temperature sigma", has_fit,
-            [&](std::size_t i) { return SigmaColourOf(v.temperature_sigma_k[i], sigma_hi); },
-            ColourBar(g.dims.y() * scale, 0, sigma_hi,
-                      [&](double x) { return SigmaColourOf(x, sigma_hi); }));
+            "temperature sigma (K)", has_fit,
+            [&](std::size_t i) { return ViridisColour(v.temperature_sigma_k[i] / sigma_hi); },
+            ColourScale{"sigma", "K", 0, sigma_hi,
+                        [&](double x) { return ViridisColour(x / sigma_hi); }});
       }
       const std::string name = "slices_" + FrameName(f->frame).substr(6) + ".png";
-      WritePicture(dir / name, FromMat(VerticalConcat(rows, 16)));
+      WritePicture(dir / name, Stacked(rows, 16));
       slice_files.push_back(name);
     }
   }
@@ -419,7 +327,8 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
       << (computed ? 60.0 * computed / info.wall_seconds : 0.0)
       << " computed frames per minute.</li>\n";
   h << "</ul>\n";
-  h << "<h2>Error over the frames</h2>\n<img src=\"errors.png\">\n";
+  h << "<h2>Error over the frames</h2>\n<img src=\"errors.png\" alt=\"error over the frames\">\n";
+  for (const auto& e : plot_errors) h << "<p><b>A plot is missing:</b> " << Html(e) << "</p>\n";
   if (!shown.empty())
     h << "<h2>Input (top) against rendered (bottom)</h2>\n<img src=\"contact.png\">\n";
   if (!slice_files.empty()) {
@@ -431,7 +340,9 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
          "is too cold, red where too hot.</p>\n";
     for (const auto& s : slice_files) h << "<p><img src=\"" << s << "\"></p>\n";
   }
-  h << "<h2>Run time</h2>\n<img src=\"timing.png\">\n";
+  h << "<h2>Run time</h2>\n<img src=\"timing.png\" alt=\"run time per frame\">\n"
+    << "<p>Each plot's data and gnuplot script are beside it (<code>errors.dat</code>, "
+       "<code>errors.gp</code>; <code>errors.svg</code> scales).</p>\n";
   h << "<h2>Frames</h2>\n<p>Volumes: <code>frame_NNNNNN.vdb</code> (temperature in K, density in "
        "m<sup>-3</sup>); Blender-ready: <code>blender/frame_NNNNNN.vdb</code>; every number: "
        "<code>frames.csv</code>.</p>\n<table><tr><th>summary</th></tr>\n";

@@ -11,11 +11,12 @@
 #include <filesystem>
 #include <stdexcept>
 
-#include "core/error.h"
 #include "core/config_reader.h"
+#include "core/error.h"
 #include "fitting/renderer.h"
-#include "tomography/vdb_io.h"
+#include "pipeline/picture.h"
 #include "pipeline/simulate.h"
+#include "tomography/vdb_io.h"
 
 namespace flamerig {
 
@@ -324,7 +325,13 @@ SceneJobResult RunSceneJob(const SceneJob& job, const std::string& out_dir,
   }
   if (job.compare) {
     const fs::path sheet = fs::path(out_dir) / "compare.png";
-    WritePng(sheet.string(), ContactSheet(mapped, job.scene.camera.height));
+    PictureGrid grid;
+    grid.title = "the same scene lit by the fitted fire and by stand-in lights, one tone mapping";
+    for (const auto& l : lightings)
+      grid.column_labels.push_back(std::string("lit by ") + ToString(l));
+    grid.rows.push_back(mapped);
+    grid.tile_height = job.scene.camera.height;
+    WritePng(sheet.string(), DrawPictureGrid(grid));
     result.files.push_back(sheet.string());
   }
   return result;

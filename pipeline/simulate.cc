@@ -15,6 +15,7 @@
 #include "core/config_reader.h"
 #include "core/error.h"
 #include "pipeline/frame_source.h"
+#include "pipeline/picture.h"
 #include "pipeline/radiometric_calibration.h"
 #include "tomography/vdb_io.h"
 
@@ -338,7 +339,7 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
 
   double exposure = config.exposure;
   yaml << YAML::Key << "frames" << YAML::Value << YAML::BeginSeq;
-  std::vector<ImageU8> preview;
+  std::vector<ImageU8> preview, board_preview;  // frame 0 and the first board view, per camera
   for (int f = 0; f < config.frames; ++f) {
     report("fire frames", f, config.frames);
     synthetic::FireOptions fire_options = config.fire;
@@ -422,7 +423,7 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
         rig, config.board, config.seed, config.shared_per_pair, config.closeups_per_camera,
         config.noise_dn, (fs::path(out_dir) / "calibration").string(),
         progress);
-    for (auto& image : written.first_view) preview.push_back(std::move(image));
+    for (auto& image : written.first_view) board_preview.push_back(std::move(image));
     summary.calibration_views = written.views;
     summary.calibration_images = written.images;
     yaml << YAML::Key << "calibration" << YAML::Value << "calibration/board.yaml";
@@ -473,8 +474,19 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
   yaml << YAML::EndMap << YAML::EndMap;
   WriteFileAtomically((fs::path(out_dir) / "dataset.yaml").string(),
                       std::string(yaml.c_str()) + "\n");
-  if (!preview.empty())
-    WritePng((fs::path(out_dir) / "preview.png").string(), ContactSheet(preview, 240));
+  if (!preview.empty()) {
+    PictureGrid grid;
+    grid.title = "simulated dataset: " + std::to_string(rig.cameras.size()) + " cameras";
+    for (const auto& camera : rig.cameras) grid.column_labels.push_back(camera.name);
+    grid.row_labels.push_back("fire, frame 0");
+    grid.rows.push_back(std::move(preview));
+    if (!board_preview.empty()) {
+      grid.row_labels.push_back("calibration board, first view");
+      grid.rows.push_back(std::move(board_preview));
+    }
+    grid.tile_height = rig.cameras.size() > 4 ? 160 : 240;
+    WritePng((fs::path(out_dir) / "preview.png").string(), DrawPictureGrid(grid));
+  }
   summary.time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return summary;
 }

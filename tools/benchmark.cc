@@ -13,15 +13,16 @@
 #include <stdexcept>
 #include <thread>
 
+#include "calibration/synthetic_rig.h"
 #include "core/error.h"
 #include "fitting/colour.h"
 #include "fitting/fit.h"
 #include "fitting/renderer.h"
-#include "tomography/reconstruct.h"
-#include "pipeline/fit_report.h"
-#include "pipeline/simulate.h"
-#include "calibration/synthetic_rig.h"
 #include "fitting/synthetic_fire.h"
+#include "pipeline/fit_report.h"
+#include "pipeline/plot.h"
+#include "pipeline/simulate.h"
+#include "tomography/reconstruct.h"
 
 namespace flamerig {
 namespace {
@@ -615,21 +616,25 @@ std::string RunFitBenchmark(const FitBenchmarkOptions& options,
       log(std::to_string(n) + "^3 next frame: " + next.BriefReport());
     }
     // Error against time.
-    PlotSeries a{"paper Algorithm 2", {}, {}}, b{"fast fit", {}, {}};
+    PlotSpec plot;
+    plot.title = std::to_string(n) + "^3, two 320x240 views: mean Delta E against time";
+    plot.x_label = "time (s, log scale)";
+    plot.y_label = "mean Delta E of the fitted views (CIELab)";
+    plot.log_x = true;
+    plot.series = {{"paper Algorithm 2", {}, {}}, {"fast fit", {}, {}}};
     for (const auto& p : paper.trace) {
-      a.x.push_back(std::max(1e-2, p.seconds));
-      a.y.push_back(p.mean_delta_e);
+      plot.series[0].x.push_back(std::max(1e-2, p.seconds));
+      plot.series[0].y.push_back(p.mean_delta_e);
     }
     for (const auto& p : fast.trace) {
-      b.x.push_back(std::max(1e-2, p.seconds));
-      b.y.push_back(p.mean_delta_e);
+      plot.series[1].x.push_back(std::max(1e-2, p.seconds));
+      plot.series[1].y.push_back(p.mean_delta_e);
     }
-    const std::string png =
-        (std::filesystem::path(options.figure_dir) / ("fit_" + std::to_string(n) + ".png"))
-            .string();
-    WritePng(png, PlotLines({a, b},
-                            std::to_string(n) + "^3, two 320x240 views: mean Delta E against time",
-                            "seconds", "mean Delta E (fitted views)", true));
+    const std::string base =
+        (std::filesystem::path(options.figure_dir) / ("fit_" + std::to_string(n))).string();
+    const std::string png = base + ".png";
+    std::string why;
+    if (!WritePlot(plot, base, &why)) throw IoError("benchmark fit: " + why);
     figures += "![" + std::to_string(n) + "^3 error against time](" + png + ")\n";
   }
   md << "\n" << figures;

@@ -1,0 +1,182 @@
+// The reports' pictures and plots: gnuplot draws what was asked (sizes, labels, one style per
+// series, a second axis, whole-number frame ticks, the data beside it), grids place each tile
+// where its row and column say, and scale bars are round lengths of a readable size.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+#include <string>
+
+#include "core/image.h"
+#include "pipeline/picture.h"
+#include "pipeline/plot.h"
+
+namespace flamerig {
+namespace {
+
+namespace fs = std::filesystem;
+
+fs::path TempDir() {
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_picture_" + std::to_string(::getpid()) + "_" +
+                                   ::testing::UnitTest::GetInstance()->current_test_info()->name());
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+std::string Read(const fs::path& path) {
+  std::ifstream in(path);
+  std::ostringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+PlotSpec FramesPlot(int series) {
+  PlotSpec spec;
+  spec.title = "Error over the frames";
+  spec.x_label = "frame";
+  spec.y_label = "mean Delta E";
+  spec.y2_label = "temperature RMS error (K)";
+  spec.integer_x = true;
+  spec.width = 700;
+  spec.height = 400;
+  for (int s = 0; s < series; ++s) {
+    PlotSeries p;
+    p.name = "cam" + std::to_string(s) + "_view";  // an underscore: not a subscript
+    for (int f = 0; f < 6; ++f) {
+      p.x.push_back(f);
+      p.y.push_back(s + 0.25 * f);
+    }
+    spec.series.push_back(p);
+  }
+  spec.series.back().right_axis = true;
+  spec.series.front().y[2] = std::nan("");  // left out, not plotted as 0
+  return spec;
+}
+
+TEST(Plot, GnuplotDrawsLabelledAxesOneStylePerSeriesAndKeepsItsData) {
+  const fs::path dir = TempDir();
+  std::string error;
+  ASSERT_TRUE(WritePlot(FramesPlot(12), (dir / "errors").string(), &error)) << error;
+  const ImageU8 png = ReadImageU8((dir / "errors.png").string(), 3);
+  EXPECT_EQ(png.width, 700);
+  EXPECT_EQ(png.height, 400);
+  // The SVG's text is the plot's text.
+  const std::string svg = Read(dir / "errors.svg");
+  for (const char* text : {"Error over the frames", "frame", "mean Delta E",
+                           "temperature RMS error (K)", "cam0_view", "cam11_view"})
+    EXPECT_NE(svg.find(text), std::string::npos) << text;
+  // Whole-number ticks only on the frame axis: 0..5, no 2.5.
+  const std::string gp = Read(dir / "errors.gp");
+  EXPECT_NE(gp.find("set xtics 1\n"), std::string::npos) << gp;
+  EXPECT_NE(gp.find("axes x1y2"), std::string::npos);
+  // Twelve series, twelve different (colour, dash) pairs.
+  std::set<std::string> styles;
+  std::istringstream lines(gp);
+  for (std::string line; std::getline(lines, line);)
+    if (line.rfind("set linetype", 0) == 0) styles.insert(line.substr(line.find(" lc ")));
+  EXPECT_EQ(styles.size(), 12u) << gp;
+  // The data beside it: twelve blocks, the NaN point left out.
+  const std::string dat = Read(dir / "errors.dat");
+  std::size_t blocks = 0, points = 0;
+  std::istringstream rows(dat);
+  for (std::string row; std::getline(rows, row);) {
+    if (row.rfind("# ", 0) == 0) ++blocks;
+    if (!row.empty() && row[0] != '#') ++points;
+  }
+  EXPECT_EQ(blocks, 12u);
+  EXPECT_EQ(points, 12u * 6 - 1);
+  EXPECT_EQ(dat.find("nan"), std::string::npos);
+  // No temporary file left behind.
+  for (const auto& e : fs::directory_iterator(dir))
+    EXPECT_EQ(e.path().filename().string().find("tmp"), std::string::npos) << e.path();
+  fs::remove_all(dir);
+}
+
+TEST(Plot, WithoutGnuplotSaysWhatToInstallAndKeepsTheScript) {
+  const fs::path dir = TempDir();
+  const char* path = std::getenv("PATH");
+  const std::string saved = path ? path : "";
+  ::setenv("PATH", dir.c_str(), 1);
+  std::string error;
+  const bool drawn = WritePlot(FramesPlot(2), (dir / "p").string(), &error);
+  ::setenv("PATH", saved.c_str(), 1);
+  EXPECT_FALSE(drawn);
+  EXPECT_NE(error.find("gnuplot-nox"), std::string::npos) << error;
+  EXPECT_TRUE(fs::exists(dir / "p.gp"));
+  EXPECT_TRUE(fs::exists(dir / "p.dat"));
+  EXPECT_FALSE(fs::exists(dir / "p.png"));
+  // An empty plot is drawn, saying so, rather than failing.
+  PlotSpec empty;
+  empty.title = "nothing yet";
+  EXPECT_TRUE(WritePlot(empty, (dir / "empty").string(), &error)) << error;
+  EXPECT_NE(Read(dir / "empty.svg").find("no data"), std::string::npos);
+  fs::remove_all(dir);
+}
+
+TEST(Picture, GridPlacesEachTileInItsRowAndColumnWithItsBar) {
+  // Two rows of three solid tiles, each a distinct colour, 40x30 drawn at height 60 (80x60).
+  PictureGrid grid;
+  grid.column_labels = {"a", "b", "c"};
+  grid.row_labels = {"first", "second"};
+  grid.tile_height = 60;
+  for (int r = 0; r < 2; ++r) {
+    grid.rows.emplace_back();
+    for (int c = 0; c < 3; ++c)
+      grid.rows.back().push_back(
+          ImageU8(40, 30, 3, static_cast<std::uint8_t>(20 + 40 * (3 * r + c))));
+  }
+  grid.bars.push_back(
+      {"K", "K", 300, 2300, [](double t) { return InfernoColour((t - 300) / 2000); }});
+  const ImageU8 out = DrawPictureGrid(grid);
+  // Layout (picture.cc): margin 8, label rows 22 px, gap 6, no title.
+  const int top = 8 + 22;
+  for (int r = 0; r < 2; ++r)
+    for (int c = 0; c < 3; ++c) {
+      const int x = 8 + c * (80 + 6) + 40, y = top + r * (22 + 60 + 6) + 22 + 30;
+      EXPECT_EQ(out.at(x, y, 0), 20 + 40 * (3 * r + c)) << r << "," << c;
+    }
+  // The bar right of the tiles: its top hotter (brighter) than its bottom.
+  const int bar_x = 8 + 3 * 86 + 15;
+  const int bar_top = top + 26 + 2, bar_bottom = top + 22 + 60 - 12;
+  auto luminance = [&](int y) {
+    return out.at(bar_x, y, 0) + out.at(bar_x, y, 1) + out.at(bar_x, y, 2);
+  };
+  EXPECT_GT(luminance(bar_top), luminance(bar_bottom) + 200);
+  EXPECT_GE(out.width, 8 + 3 * 86 + 124);
+}
+
+TEST(Picture, ColourMapsAndScaleBars) {
+  EXPECT_EQ(DivergingColour(0, 400), (Rgb{255, 255, 255}));
+  EXPECT_EQ(DivergingColour(400, 400), (Rgb{255, 0, 0}));
+  EXPECT_EQ(DivergingColour(-1e9, 400), (Rgb{0, 0, 255}));
+  // Viridis runs dark to bright; inferno black to pale yellow.
+  auto sum = [](const Rgb& c) { return c[0] + c[1] + c[2]; };
+  EXPECT_LT(sum(ViridisColour(0)), sum(ViridisColour(1)));
+  EXPECT_LT(sum(InfernoColour(0)), 30);
+  // A scale bar is 1, 2 or 5 times a power of ten metres, 40 to 100 pixels long.
+  for (double ppm : {800.0, 3000.0, 9142.0, 20000.0, 1e5, 3.3e6}) {
+    const double m = ScaleBarLength(ppm);
+    const double mantissa = m / std::pow(10.0, std::floor(std::log10(m) + 1e-9));
+    EXPECT_TRUE(std::abs(mantissa - 1) < 1e-9 || std::abs(mantissa - 2) < 1e-9 ||
+                std::abs(mantissa - 5) < 1e-9)
+        << ppm << " -> " << m;
+    EXPECT_GE(m * ppm, 40 - 1e-9) << ppm;
+    EXPECT_LE(m * ppm, 100 + 1e-9) << ppm;
+  }
+  // At 2000 px/m, 1 cm would be 20 px, too short to read: 2 cm, 40 px, drawn white from x = 8
+  // in the bottom-left corner.
+  ImageU8 image(200, 100, 3, 0);
+  EXPECT_DOUBLE_EQ(ScaleBarLength(2000), 0.02);
+  DrawScaleBar(&image, 2000, ScaleBarLength(2000));
+  EXPECT_EQ(image.at(8 + 30, 100 - 10, 0), 255);
+  EXPECT_EQ(image.at(8 + 60, 100 - 10, 0), 0);
+}
+
+}  // namespace
+}  // namespace flamerig
