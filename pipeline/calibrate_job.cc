@@ -14,6 +14,7 @@
 #include "core/config_reader.h"
 #include "core/error.h"
 #include "pipeline/picture.h"
+#include "pipeline/report_page.h"
 
 namespace flamerig {
 
@@ -257,63 +258,122 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   CalibrationSummary summary = Calibrate(data, config.options, progress);
   summary.rig.Save((fs::path(out_dir) / "rig.yaml").string());
 
-  // The report.
-  std::ostringstream md;
-  md << "# Calibration of rig '" << summary.rig.name << "'\n\n";
-  md << "Board: " << board.Describe() << ". Lens model: " << config.options.lensmodel << ".\n\n";
-  md << "Detection: " << data.detected << " images detected, " << data.from_cache
-     << " from the cache, in " << data.detect_time_s << " s. Solve: " << summary.solve_time_s
-     << " s.\n\n```\n"
-     << summary.BriefReport() << "```\n\n";
-  md << "The RMS per point is sqrt(mean(dx^2 + dy^2)) over inlier corners; per coordinate (what "
-        "mrcal-calibrate-cameras prints) it is smaller by sqrt(2).\n\n";
-  md << "| camera | views | corners | outliers | RMS px | median px | p95 px | max px | image "
-        "covered |\n|---|---|---|---|---|---|---|---|---|\n";
+  // The report: the same tables as Markdown (report.md) and as a page (index.html).
+  using Rows = std::vector<std::vector<std::string>>;
+  auto fmt = [](const char* format, auto... values) {
+    char cell[128];
+    std::snprintf(cell, sizeof cell, format, values...);
+    return std::string(cell);
+  };
+  const std::vector<std::string> camera_header = {"camera",   "views",  "corners",
+                                                  "outliers", "RMS px", "median px",
+                                                  "p95 px",   "max px", "image covered"};
+  Rows camera_rows;
   for (std::size_t c = 0; c < summary.cameras.size(); ++c) {
     const auto& s = summary.cameras[c];
     double covered = 0;
     WritePng((fs::path(out_dir) / ("coverage_" + s.name + ".png")).string(),
              CoveragePicture(data, summary, static_cast<int>(c), &covered));
-    char row[256];
-    std::snprintf(row, sizeof(row), "| %s | %d | %d | %d | %.3f | %.3f | %.3f | %.3f | %.0f%% |\n",
-                  s.name.c_str(), s.views, s.points, s.outliers, s.rms_px_per_point, s.median_px,
-                  s.p95_px, s.max_px, 100 * covered);
-    md << row;
+    camera_rows.push_back({s.name, std::to_string(s.views), std::to_string(s.points),
+                           std::to_string(s.outliers), fmt("%.3f", s.rms_px_per_point),
+                           fmt("%.3f", s.median_px), fmt("%.3f", s.p95_px), fmt("%.3f", s.max_px),
+                           fmt("%.0f%%", 100 * covered)});
   }
-  md << "\n## Worst corners (inliers)\n\n| camera | view | corner | error px "
-        "|\n|---|---|---|---|\n";
-  for (const auto& e : summary.worst) {
-    char row[256];
-    std::snprintf(row, sizeof(row), "| %s | %s | %d | %.3f |\n",
-                  data.camera_names[e.camera].c_str(), data.view_names[e.view].c_str(), e.corner,
-                  e.error_px);
-    md << row;
-  }
-  md << "\n## Camera poses (rig frame)\n\n| camera | centre m | viewing direction "
-        "|\n|---|---|---|\n";
+  const std::vector<std::string> worst_header = {"camera", "view", "corner", "error px"};
+  Rows worst_rows;
+  for (const auto& e : summary.worst)
+    worst_rows.push_back({data.camera_names[e.camera], data.view_names[e.view],
+                          std::to_string(e.corner), fmt("%.3f", e.error_px)});
+  const std::vector<std::string> pose_header = {"camera", "centre m", "viewing direction"};
+  Rows pose_rows;
   for (const auto& cam : summary.rig.cameras) {
     const Rigid3 rig_from_cam = cam.model.cam_from_rig().Inverse();
     const Eigen::Vector3d o = rig_from_cam.translation,
                           d = rig_from_cam.rotation * Eigen::Vector3d::UnitZ();
-    char row[256];
-    std::snprintf(row, sizeof(row), "| %s | (%.4f, %.4f, %.4f) | (%.3f, %.3f, %.3f) |\n",
-                  cam.name.c_str(), o.x(), o.y(), o.z(), d.x(), d.y(), d.z());
-    md << row;
+    pose_rows.push_back({cam.name, fmt("(%.4f, %.4f, %.4f)", o.x(), o.y(), o.z()),
+                         fmt("(%.3f, %.3f, %.3f)", d.x(), d.y(), d.z())});
   }
-  md << "\n## Notes\n\n";
-  for (const auto& n : summary.notes) md << "- " << n << "\n";
+  std::vector<std::string> notes = summary.notes;
   for (std::size_t c = 0; c < data.camera_names.size(); ++c)
-    for (const auto& f : data.failures_per_camera[c]) md << "- board not found: " << f << "\n";
+    for (const auto& f : data.failures_per_camera[c]) notes.push_back("board not found: " + f);
   WritePng((fs::path(out_dir) / "rig_top.png").string(), RigFromAbove(summary));
+  std::ostringstream mrcal;
+  mrcal << "mrcal-calibrate-cameras --corners-cache corners.vnl --lensmodel "
+        << config.options.lensmodel << " --focal F --object-spacing " << board.square_m
+        << " --object-width-n " << board.corners_x() << " --object-height-n " << board.corners_y();
+  for (const auto& name : data.camera_names) mrcal << " 'views/*/" << name << ".png'";
+  std::ostringstream header;
+  header << "Board: " << board.Describe() << ". Lens model: " << config.options.lensmodel
+         << ". Detection: " << data.detected << " images detected, " << data.from_cache
+         << " from the cache, in " << data.detect_time_s << " s. Solve: " << summary.solve_time_s
+         << " s.";
+  const char* rms_note =
+      "The RMS per point is sqrt(mean(dx^2 + dy^2)) over inlier corners; per coordinate (what "
+      "mrcal-calibrate-cameras prints) it is smaller by sqrt(2).";
+
+  std::ostringstream md;
+  auto md_table = [&md](const std::vector<std::string>& head, const Rows& rows) {
+    for (const auto& h : head) md << "| " << h << " ";
+    md << "|\n";
+    for (std::size_t k = 0; k < head.size(); ++k) md << "|---";
+    md << "|\n";
+    for (const auto& row : rows) {
+      for (const auto& cell : row) md << "| " << cell << " ";
+      md << "|\n";
+    }
+  };
+  md << "# Calibration of rig '" << summary.rig.name << "'\n\n"
+     << header.str() << "\n\n```\n"
+     << summary.BriefReport() << "```\n\n"
+     << rms_note << "\n\n";
+  md_table(camera_header, camera_rows);
+  md << "\n## Worst corners (inliers)\n\n";
+  md_table(worst_header, worst_rows);
+  md << "\n## Camera poses (rig frame)\n\n";
+  md_table(pose_header, pose_rows);
+  md << "\n## Notes\n\n";
+  for (const auto& n : notes) md << "- " << n << "\n";
   md << "\n![rig from above](rig_top.png)\n\n";
   for (const auto& s : summary.cameras)
     md << "![coverage " << s.name << "](coverage_" << s.name << ".png)\n";
-  md << "\nTo solve the same detections with mrcal's own tool: `mrcal-calibrate-cameras "
-        "--corners-cache corners.vnl --lensmodel "
-     << config.options.lensmodel << " --focal F --object-spacing " << board.square_m
-     << " --object-width-n " << board.corners_x() << " --object-height-n " << board.corners_y();
-  for (const auto& name : data.camera_names) md << " 'views/*/" << name << ".png'";
-  md << "` (with `--imagersize W H` since the paths are virtual).\n";
+  md << "\nTo solve the same detections with mrcal's own tool: `" << mrcal.str()
+     << "` (with `--imagersize W H` since the paths are virtual).\n";
+
+  ReportPage page("Calibration of rig '" + summary.rig.name + "'",
+                  {{"images", input.images_dir.empty() ? input.recording_dir : input.images_dir}});
+  page.Text(header.str());
+  page.Html("<pre>" + HtmlEscape(summary.BriefReport()) + "</pre>");
+  page.Section("Residuals per camera");
+  page.Text(rms_note);
+  page.Table(camera_header, camera_rows);
+  for (const auto& s : summary.cameras)
+    page.Figure("coverage_" + s.name + ".png",
+                s.name +
+                    ": where its corners fell on the image, each coloured by its "
+                    "reprojection error; magenta crosses are outliers.");
+  page.Section("The rig");
+  page.Table(pose_header, pose_rows);
+  page.Figure("rig_top.png",
+              "The rig from above: cameras and their views, the reconstruction "
+              "box and the boards.");
+  page.Section("Worst corners (inliers)");
+  page.Table(worst_header, worst_rows);
+  if (!notes.empty()) {
+    page.Section("Notes");
+    page.List([&] {
+      std::vector<std::string> items;
+      for (const auto& n : notes) items.push_back(HtmlEscape(n));
+      return items;
+    }());
+  }
+  page.Section("Data");
+  page.Files({{"rig.yaml", "the calibrated rig"},
+              {"cameras/", "each camera as an mrcal .cameramodel"},
+              {"corners.vnl", "every detected corner, in mrcal's corners-cache format"},
+              {"report.md", "this report as Markdown"}});
+  page.Html("The same detections through mrcal's own tool: <code>" + HtmlEscape(mrcal.str()) +
+            "</code> (with <code>--imagersize W H</code>, the paths being virtual).");
+  page.Write((fs::path(out_dir) / "index.html").string());
   WriteFileAtomically((fs::path(out_dir) / "report.md").string(), md.str());
   if (data_out) *data_out = std::move(data);
   return summary;

@@ -111,11 +111,14 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
           ? job.report_dir
           : (fs::path(job.out_path).parent_path() / (fs::path(job.out_path).stem().string() + "_report"))
                 .string();
+  FireVolume truth;
+  if (!job.truth_path.empty()) truth = ReadVdb(job.truth_path);
   out.scores = WriteFitReport(out.report_dir, out.result, views, held, absorption, job.fit.render,
-                              std::string("flamerig fit (") + ToString(job.method) + ")");
+                              std::string("flamerig fit (") + ToString(job.method) + ")", nullptr,
+                              job.truth_path.empty() ? nullptr : &truth);
   if (!job.truth_path.empty()) {
     out.have_truth = true;
-    out.truth = CompareWithTruth(ReadVdb(job.truth_path), out.result.volume);
+    out.truth = CompareWithTruth(truth, out.result.volume);
   }
   return out;
 }

@@ -13,6 +13,8 @@
 #include "fitting/colour.h"
 #include "pipeline/picture.h"
 #include "pipeline/plot.h"
+#include "pipeline/report_page.h"
+#include "pipeline/run_report.h"
 #include "pipeline/simulate.h"
 
 namespace flamerig {
@@ -30,7 +32,7 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
                                       const std::vector<FitView>& held_out,
                                       const AbsorptionModel& absorption,
                                       const RenderOptions& render, const std::string& title,
-                                      std::vector<ImageU8>* rendered_out) {
+                                      std::vector<ImageU8>* rendered_out, const FireVolume* truth) {
   const FireVolume& v = result.volume;
   // One renderer per camera response, made when a view needs it (views of one response are
   // usually together).
@@ -117,8 +119,11 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
     plot.series[0].y.push_back(p.mean_delta_e);
   }
   std::string plot_error;
-  if (!WritePlot(plot, (fs::path(dir) / "error").string(), &plot_error))
-    Log().warn("fit report: no error plot: {}", plot_error);
+  const bool plotted = WritePlot(plot, (fs::path(dir) / "error").string(), &plot_error);
+  if (!plotted) Log().warn("fit report: no error plot: {}", plot_error);
+  const bool sliced = v.temperature_k.size() == v.geometry.num_voxels() &&
+                      v.density_per_m3.size() == v.geometry.num_voxels();
+  if (sliced) WritePng((fs::path(dir) / "slices.png").string(), SlicesPicture(v, truth));
   {
     std::ostringstream csv;
     csv << "seconds,energy,mean_delta_e,level,stage\n";
@@ -136,8 +141,48 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
        << " | " << s.fire_delta_e << " | " << s.p95_delta_e << " |\n";
   }
   md << "\n![each view: input, rendered from the fit, Delta E (0 to 20, viridis)](views.png)\n\n"
-        "![error against time](error.png)\n";
+     << (sliced ? "![temperature slices](slices.png)\n\n" : "")
+     << "![error against time](error.png)\n";
   WriteFileAtomically((fs::path(dir) / "report.md").string(), md.str());
+
+  ReportPage page(title);
+  page.Section("Result");
+  page.Text(result.BriefReport());
+  char cell[32];
+  auto number = [&](double x, const char* format) {
+    std::snprintf(cell, sizeof cell, format, x);
+    return std::string(cell);
+  };
+  std::vector<std::vector<std::string>> rows;
+  for (const auto& s : scores)
+    rows.push_back({s.name, s.held_out ? "held out" : "fitted", number(s.mean_delta_e, "%.3f"),
+                    number(s.fire_delta_e, "%.3f"), number(s.p95_delta_e, "%.2f"),
+                    std::to_string(s.fire_pixels)});
+  page.Table({"view", "role", "mean Delta E (all pixels)", "mean Delta E (fire pixels)",
+              "95th percentile (fire pixels)", "fire pixels"},
+             rows);
+  page.Section("Views");
+  page.Figure("views.png",
+              "Each view: its input, the fitted volume rendered through it, and their Delta E "
+              "(CIELab, 0 to 20 on viridis; 1 is about the smallest difference a person sees).");
+  if (sliced) {
+    page.Section("Temperature slices");
+    page.Figure("slices.png",
+                std::string("Front (x-y) and side (z-y) slices through the box's middle, y up; "
+                            "dark grey: no medium. The fitted temperature") +
+                    (truth ? ", the truth on the fit's grid and fit - truth (blue too cold, red "
+                             "too hot)"
+                           : "") +
+                    (v.temperature_sigma_k.empty() ? "." : ", and its one-sigma uncertainty."));
+  }
+  page.Section("Error against time");
+  if (!plotted) page.Warning("No plot: " + plot_error);
+  page.Figure("error.png", "Mean Delta E of the fitted views as the fit ran (log time axis).");
+  page.Section("Data");
+  page.Files({{"trace.csv", "the fit's energy and Delta E at each step"},
+              {"error.dat", "the plot's data; error.gp redraws it with gnuplot"},
+              {"report.md", "this report as Markdown"}});
+  page.Write((fs::path(dir) / "index.html").string());
   return scores;
 }
 

@@ -21,16 +21,18 @@ struct ViewScore {
 };
 
 // Renders `result.volume` through each view at `result.exposure`, scores it and, when `dir` is
-// not empty, writes <dir>/views.png (input, rendered, Delta E map per view, labelled), <dir>/error.png
-// and .svg (mean Delta E against time, pipeline/plot.h), <dir>/trace.csv and <dir>/report.md. Returns the scores, and the
-// rendered 8-bit views (fitted, then held out) through *rendered when not null.
+// not empty, writes the report there: index.html (pipeline/report_page.h) and report.md over
+// views.png (input, rendered, Delta E map per view, labelled), slices.png (the fitted temperature,
+// with `truth` the truth and the error, and the sigma; run_report.h's SlicesPicture), error.png
+// and .svg (mean Delta E against time, pipeline/plot.h) and trace.csv. Returns the scores, and
+// the rendered 8-bit views (fitted, then held out) through *rendered when not null.
 std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& result,
                                       const std::vector<FitView>& fitted,
                                       const std::vector<FitView>& held_out,
                                       const AbsorptionModel& absorption,
                                       const RenderOptions& render, const std::string& title,
-                                      std::vector<ImageU8>* rendered = nullptr);
-
+                                      std::vector<ImageU8>* rendered = nullptr,
+                                      const FireVolume* truth = nullptr);
 
 }  // namespace flamerig
 

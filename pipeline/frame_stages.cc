@@ -61,7 +61,7 @@ ImageU8 InputOverRendered(const std::vector<std::string>& names, const std::vect
   grid.column_labels = names;
   grid.row_labels = {"input", "rendered from the fit"};
   grid.rows = {inputs, rendered};
-  grid.tile_height = 180;
+  grid.tile_height = names.size() > 4 ? 120 : 180;  // eight cameras stay under 2000 px wide
   return DrawPictureGrid(grid);
 }
 

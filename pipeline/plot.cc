@@ -149,8 +149,9 @@ bool WritePlot(const PlotSpec& spec, const std::string& base, std::string* error
     // Whole-number ticks, about ten of them at most.
     const double range = std::max(1.0, x_hi - x_lo);
     const double step = std::max(1.0, std::ceil(range / 10));
-    gp << "set xtics " << step << "\nset format x '%.0f'\nset xrange [" << std::floor(x_lo) << ":"
-       << std::ceil(x_hi) + (x_hi == x_lo ? 1 : 0) << "]\n";
+    // Half a frame of room on each side, so that the first and last points are off the axes.
+    gp << "set xtics " << step << "\nset format x '%.0f'\nset xrange [" << std::floor(x_lo) - 0.5
+       << ":" << std::ceil(x_hi) + 0.5 << "]\n";
   }
   if (spec.y_from_zero) gp << "set yrange [0:*]\nset y2range [0:*]\n";
   for (std::size_t k = 0; k < plotted.size(); ++k)

@@ -1,6 +1,7 @@
 #include "pipeline/reconstruct_job.h"
 
 #include <algorithm>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 
@@ -8,6 +9,7 @@
 #include "fitting/renderer.h"
 #include "pipeline/frame_source.h"
 #include "pipeline/picture.h"
+#include "pipeline/report_page.h"
 #include "pipeline/run.h"
 #include "pipeline/truth.h"
 #include "tomography/vdb_io.h"
@@ -47,7 +49,8 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
   if (fs::path(job.out_path).has_parent_path())
     fs::create_directories(fs::path(job.out_path).parent_path());
   WriteVdb(job.out_path, volume);
-  if (!job.preview_path.empty()) {
+  ImageU8 views;
+  if (!job.preview_path.empty() || !job.report_dir.empty()) {
     // Each camera: its input, the reconstruction rendered back through it, and 4x their difference.
     PictureGrid grid;
     grid.column_labels = {"input", "reconstruction rendered back", "|difference| x 4"};
@@ -65,10 +68,36 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
       grid.row_labels.push_back(rig.cameras[c].name);
       grid.rows.push_back({input, rendered, difference});
     }
-    WritePng(job.preview_path, DrawPictureGrid(grid));
+    views = DrawPictureGrid(grid);
+    if (!job.preview_path.empty()) WritePng(job.preview_path, views);
   }
   if (!job.truth_path.empty())
     out.truth_error = EmissionError(volume, ReadVdb(job.truth_path), job.truth_path);
+  if (!job.report_dir.empty()) {
+    fs::create_directories(job.report_dir);
+    WritePng((fs::path(job.report_dir) / "views.png").string(), views);
+    ReportPage page("flamerig reconstruct",
+                    {{"rig", job.rig_path}, {"images", job.images_dir}, {"volume", job.out_path}});
+    page.Section("Tomography");
+    page.Text(out.summary.BriefReport());
+    std::vector<std::string> facts = {"Exposure " + std::to_string(out.exposure) + " (" +
+                                      HtmlEscape(out.exposure_source) + ")."};
+    for (const auto& n : out.notes) facts.push_back(HtmlEscape(n));
+    if (out.truth_error >= 0) {
+      char line[200];
+      std::snprintf(line, sizeof line,
+                    "Relative L2 error of the emission against the truth (<code>%s</code>): "
+                    "<b>%.4f</b>.",
+                    HtmlEscape(job.truth_path).c_str(), out.truth_error);
+      facts.push_back(line);
+    }
+    page.List(facts);
+    page.Section("Views");
+    page.Figure("views.png",
+                "Each camera: its input, the reconstructed emission rendered back through it (thin "
+                "limit), and their absolute difference times 4.");
+    page.Write((fs::path(job.report_dir) / "index.html").string());
+  }
   return out;
 }
 

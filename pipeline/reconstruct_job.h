@@ -21,6 +21,9 @@ struct ReconstructJob {
   ReconstructOptions reconstruct;  // its exposure is the job's
   std::string preview_path;        // "" = none: per camera input, rendered back, 4x difference
   std::string truth_path;          // "" = none: a volume with an 'emission' grid
+  // "" = none: a report folder, index.html (pipeline/report_page.h) with the tomography's summary,
+  // the score against the truth and views.png (the preview's picture).
+  std::string report_dir;
 };
 
 struct ReconstructJobResult {

@@ -10,6 +10,8 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <stdexcept>
 
@@ -136,45 +138,76 @@ std::string FrameSummary::Line() const {
   return s.str();
 }
 
+std::string FrameSummary::ToJson() const {
+  nlohmann::json j;
+  j["frame"] = frame;
+  j["status"] = status;
+  j["notes"] = notes;
+  j["cameras_used"] = cameras_used;
+  j["read_ms"] = read_ms;
+  j["reconstruct_ms"] = reconstruct_ms;
+  j["fit_ms"] = fit_ms;
+  j["write_ms"] = write_ms;
+  j["total_ms"] = total_ms;
+  j["matrix_source"] = matrix_source;
+  j["hull_fraction"] = hull_fraction;
+  j["active_voxels"] = active_voxels;
+  j["fit_evaluations"] = fit_evaluations;
+  j["exposure"] = exposure;
+  j["exposure_from"] = exposure_from;
+  j["soot"] = soot;
+  j["energy"] = energy;
+  j["fit_termination"] = fit_termination;
+  j["fit_message"] = fit_message;
+  j["fit_iterations"] = fit_iterations;
+  j["initial_energy"] = initial_energy;
+  j["delta_e"] = nlohmann::json::array();
+  for (const auto& d : delta_e)
+    j["delta_e"].push_back(
+        {{"camera", d.camera}, {"held_out", d.held_out}, {"mean", d.mean}, {"fire", d.fire}});
+  j["truth_rms_k"] = truth_rms_k;
+  j["truth_bias_k"] = truth_bias_k;
+  j["truth_voxels"] = truth_voxels;
+  j["truth_visible"] = truth_visible;
+  j["truth_frame"] = truth_frame;
+  j["truth_soot"] = truth_soot;
+  return j.dump(2) + "\n";
+}
+
+namespace {
+
+// JSON as YAML (the state files' format), types kept: JSON's are explicit.
+void EmitYaml(YAML::Emitter& e, const nlohmann::json& j) {
+  if (j.is_object()) {
+    e << YAML::BeginMap;
+    for (const auto& [key, value] : j.items()) {
+      e << YAML::Key << key << YAML::Value;
+      EmitYaml(e, value);
+    }
+    e << YAML::EndMap;
+  } else if (j.is_array()) {
+    e << YAML::BeginSeq;
+    for (const auto& value : j) EmitYaml(e, value);
+    e << YAML::EndSeq;
+  } else if (j.is_boolean()) {
+    e << j.get<bool>();
+  } else if (j.is_number_integer()) {
+    e << j.get<long long>();
+  } else if (j.is_number()) {
+    e << j.get<double>();
+  } else if (j.is_string()) {
+    e << YAML::DoubleQuoted << j.get<std::string>();
+  } else {
+    e << std::numeric_limits<double>::quiet_NaN();  // JSON writes a NaN as null
+  }
+}
+
+}  // namespace
+
 std::string FrameSummary::ToYaml() const {
   YAML::Emitter e;
-  e.SetDoublePrecision(9);
-  e << YAML::BeginMap;
-  e << YAML::Key << "frame" << YAML::Value << frame;
-  e << YAML::Key << "status" << YAML::Value << status;
-  e << YAML::Key << "notes" << YAML::Value << YAML::Flow << notes;
-  e << YAML::Key << "cameras_used" << YAML::Value << cameras_used;
-  e << YAML::Key << "read_ms" << YAML::Value << read_ms;
-  e << YAML::Key << "reconstruct_ms" << YAML::Value << reconstruct_ms;
-  e << YAML::Key << "fit_ms" << YAML::Value << fit_ms;
-  e << YAML::Key << "write_ms" << YAML::Value << write_ms;
-  e << YAML::Key << "total_ms" << YAML::Value << total_ms;
-  e << YAML::Key << "matrix_source" << YAML::Value << matrix_source;
-  e << YAML::Key << "hull_fraction" << YAML::Value << hull_fraction;
-  e << YAML::Key << "active_voxels" << YAML::Value << active_voxels;
-  e << YAML::Key << "fit_evaluations" << YAML::Value << fit_evaluations;
-  e << YAML::Key << "exposure" << YAML::Value << exposure;
-  e << YAML::Key << "exposure_from" << YAML::Value << exposure_from;
-  e << YAML::Key << "soot" << YAML::Value << soot;
-  e << YAML::Key << "energy" << YAML::Value << energy;
-  e << YAML::Key << "fit_termination" << YAML::Value << fit_termination;
-  e << YAML::Key << "fit_message" << YAML::Value << fit_message;
-  e << YAML::Key << "fit_iterations" << YAML::Value << fit_iterations;
-  e << YAML::Key << "initial_energy" << YAML::Value << initial_energy;
-  e << YAML::Key << "delta_e" << YAML::Value << YAML::BeginSeq;
-  for (const auto& d : delta_e) {
-    e << YAML::Flow << YAML::BeginMap << YAML::Key << "camera" << YAML::Value << d.camera
-      << YAML::Key << "held_out" << YAML::Value << d.held_out << YAML::Key << "mean" << YAML::Value
-      << d.mean << YAML::Key << "fire" << YAML::Value << d.fire << YAML::EndMap;
-  }
-  e << YAML::EndSeq;
-  e << YAML::Key << "truth_rms_k" << YAML::Value << truth_rms_k;
-  e << YAML::Key << "truth_bias_k" << YAML::Value << truth_bias_k;
-  e << YAML::Key << "truth_voxels" << YAML::Value << truth_voxels;
-  e << YAML::Key << "truth_visible" << YAML::Value << truth_visible;
-  e << YAML::Key << "truth_frame" << YAML::Value << truth_frame;
-  e << YAML::Key << "truth_soot" << YAML::Value << truth_soot;
-  e << YAML::EndMap;
+  e.SetDoublePrecision(17);
+  EmitYaml(e, nlohmann::json::parse(ToJson()));
   return std::string(e.c_str()) + "\n";
 }
 

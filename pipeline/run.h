@@ -137,6 +137,8 @@ struct FrameSummary {
 
   double MeanFittedDeltaE() const;  // mean over the fitted views (fire pixels), 0 if none
   std::string Line() const;         // one line for the console and frames.csv's companion log
+  // Every field, as JSON (OUT/report/frame_NNNNNN.json) and as YAML (the run's state files).
+  std::string ToJson() const;
   std::string ToYaml() const;
   static FrameSummary FromYaml(const std::string& text, const std::string& where);
 };

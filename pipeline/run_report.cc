@@ -17,6 +17,7 @@
 #include "pipeline/fit_report.h"
 #include "pipeline/picture.h"
 #include "pipeline/plot.h"
+#include "pipeline/report_page.h"
 #include "pipeline/simulate.h"
 #include "pipeline/truth.h"
 #include "tomography/vdb_io.h"
@@ -26,21 +27,6 @@ namespace flamerig {
 namespace fs = std::filesystem;
 
 namespace {
-
-std::string Html(const std::string& text) {
-  std::string out;
-  for (char c : text) {
-    if (c == '<')
-      out += "&lt;";
-    else if (c == '>')
-      out += "&gt;";
-    else if (c == '&')
-      out += "&amp;";
-    else
-      out += c;
-  }
-  return out;
-}
 
 // The colour of a temperature on the report's scale.
 Rgb ColourOf(double t, double t_lo, double t_hi) {
@@ -89,6 +75,68 @@ ImageU8 TemperatureSlice(const FireVolume& volume, int axis, int index, double t
       [&](std::size_t v) { return ColourOf(volume.temperature_k[v], t_lo, t_hi); });
 }
 
+ImageU8 SlicesPicture(const FireVolume& v, const FireVolume* truth_volume) {
+  const GridGeometry& g = v.geometry;
+  if (v.temperature_k.size() != g.num_voxels() || v.density_per_m3.size() != g.num_voxels())
+    throw InputError("SlicesPicture: the volume needs temperature and density grids");
+  // The truth is usually finer than the fit (the main job's 96 against 64): shown on the fit's
+  // grid, each fit voxel with the truth voxel holding its centre, as the scorer pairs them.
+  FireVolume truth;
+  if (truth_volume) truth = SampleOnGrid(*truth_volume, g);
+  double t_hi = 1500;
+  for (std::size_t i = 0; i < v.temperature_k.size(); ++i)
+    if (v.density_per_m3[i] > 0) t_hi = std::max(t_hi, double(v.temperature_k[i]));
+  const double t_lo = 300;
+  const int scale = std::max(1, 320 / std::max(1, g.dims.y()));
+  // One row per field: front (the x-y plane through the middle) and side (z-y), its bar; a
+  // scale bar in each front view.
+  const double pixels_per_m = scale / g.voxel_size_m.y();
+  const double bar_m = ScaleBarLength(pixels_per_m);
+  std::vector<ImageU8> rows;
+  auto row = [&](const std::string& what, const std::function<bool(std::size_t)>& shown,
+                 const std::function<Rgb(std::size_t)>& colour, const ColourScale& bar) {
+    ImageU8 front = FieldSlice(g, 2, g.dims.z() / 2, scale, shown, colour);
+    ImageU8 side = FieldSlice(g, 0, g.dims.x() / 2, scale, shown, colour);
+    DrawScaleBar(&front, pixels_per_m, bar_m);
+    DrawScaleBar(&side, pixels_per_m, bar_m);
+    rows.push_back(
+        Labelled(Beside({Labelled(front, "front (x right, y up)"),
+                         Labelled(side, "side (z right, y up)"), ColourBar(bar, front.height + 24)},
+                        12),
+                 what));
+  };
+  auto has_fit = [&](std::size_t i) { return v.density_per_m3[i] > 0; };
+  const ColourScale temperature{"temperature", "K", t_lo, t_hi,
+                                [&](double t) { return ColourOf(t, t_lo, t_hi); }};
+  row(
+      "fit (K)", has_fit, [&](std::size_t i) { return ColourOf(v.temperature_k[i], t_lo, t_hi); },
+      temperature);
+  if (!truth.temperature_k.empty() && truth.density_per_m3.size() == g.num_voxels()) {
+    auto has_truth = [&](std::size_t i) { return truth.density_per_m3[i] > 0; };
+    row(
+        "truth on the fit's grid (K)", has_truth,
+        [&](std::size_t i) { return ColourOf(truth.temperature_k[i], t_lo, t_hi); }, temperature);
+    const double range = 400;
+    row(
+        "fit - truth (K)", [&](std::size_t i) { return has_fit(i) && has_truth(i); },
+        [&](std::size_t i) {
+          return DivergingColour(double(v.temperature_k[i]) - truth.temperature_k[i], range);
+        },
+        ColourScale{"fit - truth", "K", -range, range,
+                    [&](double e) { return DivergingColour(e, range); }, true});
+  }
+  if (v.temperature_sigma_k.size() == g.num_voxels()) {
+    double sigma_hi = 1;
+    for (float x : v.temperature_sigma_k) sigma_hi = std::max(sigma_hi, double(x));
+    row(
+        "temperature sigma (K)", has_fit,
+        [&](std::size_t i) { return ViridisColour(v.temperature_sigma_k[i] / sigma_hi); },
+        ColourScale{"sigma", "K", 0, sigma_hi,
+                    [&](double x) { return ViridisColour(x / sigma_hi); }});
+  }
+  return Stacked(rows, 16);
+}
+
 std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSummary>& frames,
                            const RunReportInfo& info) {
   const fs::path out(out_dir);
@@ -134,6 +182,9 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     }
     WriteFileAtomically((out / "frames.csv").string(), csv.str());
   }
+  // Every number of each frame as JSON, for scripts.
+  for (const auto& f : frames)
+    WriteFileAtomically((dir / (FrameName(f.frame) + ".json")).string(), f.ToJson());
 
   // Plots.
   std::map<std::string, PlotSeries> per_view;
@@ -212,12 +263,15 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
       columns.push_back(
           Labelled(ReadImageU8((out / "frames" / (FrameName(f->frame) + ".png")).string(), 3),
                    FrameName(f->frame)));
-    // At most three frames per row.
+    // At most three frames per row, and a row at most about 2000 px wide.
+    const std::size_t per_row =
+        std::clamp<std::size_t>(2000 / static_cast<std::size_t>(columns.front().width + 16), 1, 3);
     std::vector<ImageU8> rows;
-    for (std::size_t k = 0; k < columns.size(); k += 3)
-      rows.push_back(Beside(std::vector<ImageU8>(columns.begin() + k,
-                                                 columns.begin() + std::min(columns.size(), k + 3)),
-                            16));
+    for (std::size_t k = 0; k < columns.size(); k += per_row)
+      rows.push_back(
+          Beside(std::vector<ImageU8>(columns.begin() + k,
+                                      columns.begin() + std::min(columns.size(), k + per_row)),
+                 16));
     WritePicture(dir / "contact.png", Stacked(rows, 16));
   }
 
@@ -236,120 +290,90 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
         const fs::path t = fs::path(info.truth_dir) / (FrameName(f->truth_frame) + ".vdb");
         // The truth is finer than the fit (the main job's 96 against 64): shown on the fit's
         // grid, each fit voxel with the truth voxel holding its centre, as the scorer pairs them.
-        if (fs::exists(t)) truth = SampleOnGrid(ReadVdb(t.string()), v.geometry);
-      }
-      double t_hi = 1500;
-      for (std::size_t i = 0; i < v.temperature_k.size(); ++i)
-        if (v.density_per_m3[i] > 0) t_hi = std::max(t_hi, double(v.temperature_k[i]));
-      const double t_lo = 300;
-      const GridGeometry& g = v.geometry;
-      const int scale = std::max(1, 320 / std::max(1, g.dims.y()));
-      // One row per field: front (the x-y plane through the middle) and side (z-y), its bar; a
-      // scale bar in each front view.
-      const double pixels_per_m = scale / g.voxel_size_m.y();
-      const double bar_m = ScaleBarLength(pixels_per_m);
-      std::vector<ImageU8> rows;
-      auto row = [&](const std::string& what, const std::function<bool(std::size_t)>& shown,
-                     const std::function<Rgb(std::size_t)>& colour, const ColourScale& bar) {
-        ImageU8 front = FieldSlice(g, 2, g.dims.z() / 2, scale, shown, colour);
-        ImageU8 side = FieldSlice(g, 0, g.dims.x() / 2, scale, shown, colour);
-        DrawScaleBar(&front, pixels_per_m, bar_m);
-        DrawScaleBar(&side, pixels_per_m, bar_m);
-        rows.push_back(Labelled(
-            Beside({Labelled(front, "front (x right, y up)"),
-                    Labelled(side, "side (z right, y up)"), ColourBar(bar, front.height + 24)},
-                   12),
-            what));
-      };
-      auto has_fit = [&](std::size_t i) { return v.density_per_m3[i] > 0; };
-      const ColourScale temperature{"temperature", "K", t_lo, t_hi,
-                                    [&](double t) { return ColourOf(t, t_lo, t_hi); }};
-      row(
-          "fit (K)", has_fit,
-          [&](std::size_t i) { return ColourOf(v.temperature_k[i], t_lo, t_hi); }, temperature);
-      if (!truth.temperature_k.empty() && truth.density_per_m3.size() == g.num_voxels()) {
-        auto has_truth = [&](std::size_t i) { return truth.density_per_m3[i] > 0; };
-        row(
-            "truth on the fit's grid (K)", has_truth,
-            [&](std::size_t i) { return ColourOf(truth.temperature_k[i], t_lo, t_hi); },
-            temperature);
-        const double range = 400;
-        row(
-            "fit - truth (K)", [&](std::size_t i) { return has_fit(i) && has_truth(i); },
-            [&](std::size_t i) {
-              return DivergingColour(double(v.temperature_k[i]) - truth.temperature_k[i], range);
-            },
-            ColourScale{"fit - truth", "K", -range, range,
-                        [&](double e) { return DivergingColour(e, range); }, true});
-      }
-      if (v.temperature_sigma_k.size() == g.num_voxels()) {
-        double sigma_hi = 1;
-        for (float x : v.temperature_sigma_k) sigma_hi = std::max(sigma_hi, double(x));
-        row(
-            "temperature sigma (K)", has_fit,
-            [&](std::size_t i) { return ViridisColour(v.temperature_sigma_k[i] / sigma_hi); },
-            ColourScale{"sigma", "K", 0, sigma_hi,
-                        [&](double x) { return ViridisColour(x / sigma_hi); }});
+        if (fs::exists(t)) truth = ReadVdb(t.string());
       }
       const std::string name = "slices_" + FrameName(f->frame).substr(6) + ".png";
-      WritePicture(dir / name, Stacked(rows, 16));
+      WritePicture(dir / name, SlicesPicture(v, truth.temperature_k.empty() ? nullptr : &truth));
       slice_files.push_back(name);
     }
   }
 
   // The page.
-  std::ostringstream h;
-  h.setf(std::ios::fixed);
-  const std::time_t now = std::time(nullptr);
-  char date[64];
-  std::strftime(date, sizeof date, "%Y-%m-%d %H:%M UTC", std::gmtime(&now));
-  h << "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>" << Html(info.title)
-    << "</title>\n<style>body{font-family:sans-serif;margin:2em;max-width:1100px}"
-       "table{border-collapse:collapse;font-size:85%}td,th{border:1px solid #ccc;padding:2px 6px}"
-       "img{max-width:100%}code{background:#eee}</style></head><body>\n";
-  h << "<h1>" << Html(info.title) << "</h1>\n<p>" << date << ". Source: <code>" << Html(info.source)
-    << "</code>; rig: <code>" << Html(info.rig_path) << "</code>"
-    << (info.ranks > 1 ? "; " + std::to_string(info.ranks) + " MPI ranks" : std::string())
-    << ".</p>\n<h2>Results</h2>\n<ul>\n";
-  h.precision(3);
-  h << "<li>" << frames.size() << " frames: " << computed << " computed, " << unchanged
-    << " unchanged (the previous result reused), " << failed << " failed.</li>\n";
-  if (de_n)
-    h << "<li>Mean Delta E of the fitted views' fire pixels: <b>" << de_sum / de_n
-      << "</b> (CIELab; 1 is about the smallest difference a person sees).</li>\n";
-  h.precision(1);
-  if (t_n)
-    h << "<li>Temperature against the known truth on visible voxels: <b>" << t_sum / t_n
-      << " K RMS</b> on average over the frames (truth: <code>" << Html(info.truth_dir)
-      << "</code>).</li>\n";
-  if (info.wall_seconds > 0)
-    h << "<li>" << info.wall_seconds << " s in all, "
-      << (computed ? 60.0 * computed / info.wall_seconds : 0.0)
-      << " computed frames per minute.</li>\n";
-  h << "</ul>\n";
-  h << "<h2>Error over the frames</h2>\n<img src=\"errors.png\" alt=\"error over the frames\">\n";
-  for (const auto& e : plot_errors) h << "<p><b>A plot is missing:</b> " << Html(e) << "</p>\n";
-  if (!shown.empty())
-    h << "<h2>Input (top) against rendered (bottom)</h2>\n<img src=\"contact.png\">\n";
-  if (!slice_files.empty()) {
-    h << "<h2>Fitted temperature" << (info.truth_dir.empty() ? "" : ", the truth, the error")
-      << " and its sigma, slices through the middle of the box</h2>\n"
-      << "<p>Each row a field, front (x-y) and side (z-y) through the box's middle, y up; dark "
-         "grey: no medium. The truth is shown on the fit's grid (each fit voxel with the truth "
-         "voxel holding its centre, as the error is scored); fit - truth is blue where the fit "
-         "is too cold, red where too hot.</p>\n";
-    for (const auto& s : slice_files) h << "<p><img src=\"" << s << "\"></p>\n";
+  std::vector<std::pair<std::string, std::string>> inputs = {{"source", info.source},
+                                                             {"rig", info.rig_path}};
+  if (!info.truth_dir.empty()) inputs.emplace_back("truth", info.truth_dir);
+  if (info.ranks > 1) inputs.emplace_back("MPI ranks", std::to_string(info.ranks));
+  ReportPage page(info.title, inputs);
+  page.Section("Results");
+  char line[256];
+  std::vector<std::string> results;
+  std::snprintf(line, sizeof line,
+                "%zu frame%s: %zu computed, %zu unchanged (the previous result reused), %zu "
+                "failed.",
+                frames.size(), frames.size() == 1 ? "" : "s", computed, unchanged, failed);
+  results.push_back(line);
+  if (de_n) {
+    std::snprintf(line, sizeof line,
+                  "Mean Delta E of the fitted views' fire pixels: <b>%.3f</b> (CIELab; 1 is about "
+                  "the smallest difference a person sees).",
+                  de_sum / de_n);
+    results.push_back(line);
   }
-  h << "<h2>Run time</h2>\n<img src=\"timing.png\" alt=\"run time per frame\">\n"
-    << "<p>Each plot's data and gnuplot script are beside it (<code>errors.dat</code>, "
-       "<code>errors.gp</code>; <code>errors.svg</code> scales).</p>\n";
-  h << "<h2>Frames</h2>\n<p>Volumes: <code>frame_NNNNNN.vdb</code> (temperature in K, density in "
-       "m<sup>-3</sup>); Blender-ready: <code>blender/frame_NNNNNN.vdb</code>; every number: "
-       "<code>frames.csv</code>.</p>\n<table><tr><th>summary</th></tr>\n";
-  for (const auto& f : frames) h << "<tr><td>" << Html(f.Line()) << "</td></tr>\n";
-  h << "</table>\n</body></html>\n";
+  if (t_n) {
+    std::snprintf(line, sizeof line,
+                  "Temperature against the known truth on visible voxels: <b>%.1f K RMS</b> on "
+                  "average over the frames.",
+                  t_sum / t_n);
+    results.push_back(line);
+  }
+  if (info.wall_seconds > 0) {
+    std::snprintf(line, sizeof line, "%.1f s in all, %.1f computed frames per minute.",
+                  info.wall_seconds, computed ? 60.0 * computed / info.wall_seconds : 0.0);
+    results.push_back(line);
+  }
+  page.List(results);
+  page.Section("Error over the frames");
+  for (const auto& e : plot_errors) page.Warning("A plot is missing: " + e);
+  page.Figure("errors.png",
+              "Mean Delta E of each view's fire pixels per frame (left axis)" +
+                  std::string(truth.x.empty() ? "."
+                                              : "; the temperature RMS error against the truth on "
+                                                "visible voxels, in kelvin (right axis)."));
+  if (!shown.empty()) {
+    page.Section("Input against rendered");
+    page.Figure("contact.png",
+                "A few frames: each camera's input (top row) and the fitted volume rendered "
+                "through it (bottom row).");
+  }
+  if (!slice_files.empty()) {
+    page.Section(std::string("Fitted temperature") +
+                 (info.truth_dir.empty() ? "" : ", the truth, the error") +
+                 " and its sigma, slices through the middle of the box");
+    page.Text(
+        "Each row a field, front (x-y) and side (z-y) through the box's middle, y up; dark grey: "
+        "no medium. The truth is shown on the fit's grid (each fit voxel with the truth voxel "
+        "holding its centre, as the error is scored); fit - truth is blue where the fit is too "
+        "cold, red where too hot; the sigma is the fit's one-standard-deviation temperature "
+        "uncertainty.");
+    for (const auto& f : slice_files) page.Figure(f, "Slices of frame " + f.substr(7, 6) + ".");
+  }
+  page.Section("Run time");
+  page.Figure("timing.png", "Seconds per frame: tomography, fit and the whole frame.");
+  page.Section("Data");
+  page.Files({{"../frames.csv", "every frame's numbers, one row per frame"},
+              {"frame_000000.json", "every number of one frame (one file per frame)"},
+              {"errors.dat", "the error plot's data; errors.gp redraws it with gnuplot"},
+              {"errors.svg", "the error plot, scalable"}});
+  page.Html(
+      "Volumes: <code>frame_NNNNNN.vdb</code> (temperature in K, density in m<sup>-3</sup>, "
+      "sigma); Blender-ready: <code>blender/frame_NNNNNN.vdb</code>; as a table: "
+      "<code>flamerig export-volume</code>.");
+  page.Section("Frames");
+  std::vector<std::vector<std::string>> rows;
+  for (const auto& f : frames) rows.push_back({f.Line()});
+  page.Table({"summary"}, rows);
   const fs::path index = dir / "index.html";
-  WriteFileAtomically(index.string(), h.str());
+  page.Write(index.string());
   return index.string();
 }
 

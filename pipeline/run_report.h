@@ -41,6 +41,13 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
 ImageU8 TemperatureSlice(const FireVolume& volume, int axis, int index, double t_lo, double t_hi,
                          int scale);
 
+// The report's slices of a fitted volume, a row per field, front (x-y) and side (z-y) through the
+// box's middle, each with its colour bar and a scale bar: the fitted temperature; with `truth`
+// (any grid, resampled onto the fit's: each fit voxel with the truth voxel holding its centre)
+// the truth and fit - truth; the temperature sigma when the volume has one. Throws InputError
+// when the volume lacks temperature or density.
+ImageU8 SlicesPicture(const FireVolume& fit, const FireVolume* truth = nullptr);
+
 }  // namespace flamerig
 
 #endif  // FLAMERIG_PIPELINE_RUN_REPORT_H_

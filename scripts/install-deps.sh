@@ -18,6 +18,7 @@ PACKAGES=(
   libembree-dev libtinyobjloader-dev
   clang-14 libclang-rt-14-dev
   libhdf5-dev python3-h5py nlohmann-json3-dev gnuplot-nox
+  chromium
 )
 
 missing=()

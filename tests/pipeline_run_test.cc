@@ -15,6 +15,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <random>
 #include <sstream>
 #include <thread>
@@ -310,6 +311,32 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
   }
   EXPECT_NE(html.find("K RMS"), std::string::npos);
   EXPECT_TRUE(fs::exists(dir / "out" / "frames.csv"));
+  // Every frame's numbers as JSON, read back by Python's json module (an independent reader):
+  // the frame, its status, the truth's error and a view's Delta E as the summary holds them.
+  for (const auto& f : run.frames) {
+    const fs::path json = fs::path(page).parent_path() / (FrameName(f.frame) + ".json");
+    ASSERT_TRUE(fs::exists(json)) << json;
+    const std::string command =
+        "/usr/bin/python3 -c \"import json,sys; j=json.load(open(sys.argv[1])); "
+        "print(j['frame'], j['status'].split()[0], '%.17g' % j['truth_rms_k'], "
+        "'%.17g' % j['delta_e'][0]['fire'], j['delta_e'][0]['camera'])\" " +
+        json.string();
+    std::unique_ptr<FILE, int (*)(FILE*)> pipe(popen(command.c_str(), "r"), pclose);
+    ASSERT_TRUE(pipe);
+    char line[512] = {0};
+    ASSERT_TRUE(fgets(line, sizeof line, pipe.get())) << command;
+    std::istringstream words(line);
+    std::size_t frame = 0;
+    std::string status, camera;
+    double rms = 0, fire = 0;
+    words >> frame >> status >> rms >> fire >> camera;
+    EXPECT_EQ(frame, f.frame);
+    EXPECT_EQ(status, f.status.substr(0, f.status.find(' ')));
+    EXPECT_EQ(rms, f.truth_rms_k);
+    ASSERT_FALSE(f.delta_e.empty());
+    EXPECT_EQ(fire, f.delta_e[0].fire);
+    EXPECT_EQ(camera, f.delta_e[0].camera);
+  }
 
   // Nothing left to do: a second call reads what is there.
   const RunSummary again = RunAll(o);

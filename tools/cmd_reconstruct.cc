@@ -47,6 +47,10 @@ Runner AddReconstruct(CLI::App* command) {
   command->add_option("--preview", job->preview_path,
                       "Picture: input, reconstruction rendered back, 4x difference per camera")
       ->type_name("P.png");
+  command
+      ->add_option("--report", job->report_dir,
+                   "Report folder: index.html with the summary, the views and the score")
+      ->type_name("DIR");
   return [job, holdout](Context& context) {
     context.StopOnSignals();
     job->reconstruct.holdout_camera = *holdout;
@@ -60,6 +64,7 @@ Runner AddReconstruct(CLI::App* command) {
     if (r.truth_error >= 0)
       std::printf("  volume error against %s: relative L2 %.4f\n", job->truth_path.c_str(),
                   r.truth_error);
+    if (!job->report_dir.empty()) std::printf("  report: %s/index.html\n", job->report_dir.c_str());
     return kExitOk;
   };
 }
