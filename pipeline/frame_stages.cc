@@ -339,6 +339,11 @@ void FrameStages::Score(FrameWork* w) {
     s.truth_rms_k = t.rms_k;
     s.truth_bias_k = t.mean_k;
     s.truth_soot = t.truth_soot;
+    if (t.have_sigma) {
+      s.truth_within_1_sigma = t.within_1_sigma;
+      s.truth_within_2_sigma = t.within_2_sigma;
+      s.truth_median_sigma_k = t.median_sigma_k;
+    }
   } else if (!t.compared) {
     s.notes.push_back("truth not compared: " + t.why_not);
   }

@@ -133,6 +133,9 @@ std::string FrameSummary::Line() const {
     s.precision(1);
     if (truth_rms_k >= 0)
       s << ", T error " << truth_rms_k << " K RMS, bias " << truth_bias_k << " K on visible voxels";
+    if (truth_within_1_sigma >= 0)
+      s << " (" << 100 * truth_within_1_sigma << "% within 1 sigma, " << 100 * truth_within_2_sigma
+        << "% within 2; median sigma " << truth_median_sigma_k << " K)";
   }
   for (const auto& n : notes) s << "; " << n;
   return s.str();
@@ -171,6 +174,9 @@ std::string FrameSummary::ToJson() const {
   j["truth_visible"] = truth_visible;
   j["truth_frame"] = truth_frame;
   j["truth_soot"] = truth_soot;
+  j["truth_within_1_sigma"] = truth_within_1_sigma;
+  j["truth_within_2_sigma"] = truth_within_2_sigma;
+  j["truth_median_sigma_k"] = truth_median_sigma_k;
   return j.dump(2) + "\n";
 }
 
@@ -252,6 +258,10 @@ FrameSummary FrameSummary::FromYaml(const std::string& text, const std::string& 
     s.truth_visible = n["truth_visible"].as<std::size_t>();
     s.truth_frame = n["truth_frame"].as<int>();
     s.truth_soot = n["truth_soot"].as<double>(0.0);
+    // Summaries written before the sigma was scored have none.
+    s.truth_within_1_sigma = n["truth_within_1_sigma"].as<double>(-1.0);
+    s.truth_within_2_sigma = n["truth_within_2_sigma"].as<double>(-1.0);
+    s.truth_median_sigma_k = n["truth_median_sigma_k"].as<double>(-1.0);
     return s;
   } catch (const YAML::Exception& e) {
     throw DataError(where + ": not a frame summary: " + e.what());

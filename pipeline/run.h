@@ -134,6 +134,10 @@ struct FrameSummary {
   std::size_t truth_voxels = 0, truth_visible = 0;
   int truth_frame = -1;
   double truth_soot = 0;  // particles in the truth
+  // The fit's temperature sigma against the truth (fitting/uncertainty.h): the share of the
+  // counted voxels whose error lies within one and two sigma (calibrated: 0.68 and 0.95), and
+  // the median sigma; -1 without a sigma grid or truth.
+  double truth_within_1_sigma = -1, truth_within_2_sigma = -1, truth_median_sigma_k = -1;
 
   double MeanFittedDeltaE() const;  // mean over the fitted views (fire pixels), 0 if none
   std::string Line() const;         // one line for the console and frames.csv's companion log

@@ -157,7 +157,8 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     std::ostringstream csv;
     csv << "frame,status,cameras_used,total_ms,read_ms,tomography_ms,fit_ms,write_ms,matrix,"
            "active_voxels,exposure,exposure_from,soot,initial_energy,energy,fit_termination,"
-           "fit_iterations,fit_message,truth_frame,truth_rms_k,truth_bias_k,truth_soot";
+           "fit_iterations,fit_message,truth_frame,truth_rms_k,truth_bias_k,truth_soot,"
+           "truth_within_1_sigma,truth_within_2_sigma,truth_median_sigma_k";
     for (const auto& c : cameras) csv << ",delta_e_fire_" << c << ",delta_e_all_" << c;
     csv << ",notes\n";
     for (const auto& f : frames) {
@@ -167,7 +168,8 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
           << quoted(f.exposure_from) << "," << f.soot << "," << f.initial_energy << "," << f.energy
           << "," << f.fit_termination << "," << f.fit_iterations << "," << quoted(f.fit_message)
           << "," << f.truth_frame << "," << f.truth_rms_k << "," << f.truth_bias_k << ","
-          << f.truth_soot;
+          << f.truth_soot << "," << f.truth_within_1_sigma << "," << f.truth_within_2_sigma << ","
+          << f.truth_median_sigma_k;
       for (const auto& c : cameras) {
         auto it = std::find_if(f.delta_e.begin(), f.delta_e.end(),
                                [&](const ViewDeltaE& d) { return d.camera == c; });
@@ -191,8 +193,8 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   PlotSeries truth{"temperature RMS error on visible voxels (K, right axis)", {}, {}, true};
   PlotSeries tomo{"tomography", {}, {}}, fit{"fit", {}, {}}, total{"whole frame", {}, {}};
   std::size_t computed = 0, unchanged = 0, failed = 0;
-  double de_sum = 0, t_sum = 0;
-  int de_n = 0, t_n = 0;
+  double de_sum = 0, t_sum = 0, in1_sum = 0, in2_sum = 0, sigma_sum = 0;
+  int de_n = 0, t_n = 0, sigma_n = 0;
   for (const auto& f : frames) {
     if (Computed(f)) ++computed;
     if (f.status.rfind("unchanged", 0) == 0) ++unchanged;
@@ -212,6 +214,12 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
       truth.y.push_back(f.truth_rms_k);
       t_sum += f.truth_rms_k;
       ++t_n;
+      if (f.truth_within_1_sigma >= 0) {
+        in1_sum += f.truth_within_1_sigma;
+        in2_sum += f.truth_within_2_sigma;
+        sigma_sum += f.truth_median_sigma_k;
+        ++sigma_n;
+      }
     }
     if (Computed(f)) {
       tomo.x.push_back(static_cast<double>(f.frame));
@@ -324,6 +332,13 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
                   "Temperature against the known truth on visible voxels: <b>%.1f K RMS</b> on "
                   "average over the frames.",
                   t_sum / t_n);
+    results.push_back(line);
+  }
+  if (sigma_n) {
+    std::snprintf(line, sizeof line,
+                  "Its sigma: %.0f%% of those voxels within one sigma, %.0f%% within two (a "
+                  "calibrated sigma: 68%%, 95%%); median sigma %.0f K.",
+                  100 * in1_sum / sigma_n, 100 * in2_sum / sigma_n, sigma_sum / sigma_n);
     results.push_back(line);
   }
   if (info.wall_seconds > 0) {

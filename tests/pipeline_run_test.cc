@@ -276,6 +276,16 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
     EXPECT_TRUE(fs::exists(dir / "out" / "blender" / (FrameName(f.frame) + ".vdb")));
     EXPECT_TRUE(fs::exists(dir / "out" / "tomography" / (FrameName(f.frame) + ".vdb")));
     EXPECT_TRUE(fs::exists(dir / "out" / "frames" / (FrameName(f.frame) + ".png")));
+    // The sigma's coverage is that of the written volume's sigma grid against the truth file.
+    const TruthError written =
+        CompareWithTruth(ReadVdb((fs::path(o.truth_dir) / (FrameName(f.frame) + ".vdb")).string()),
+                         ReadVdb((dir / "out" / (FrameName(f.frame) + ".vdb")).string()));
+    ASSERT_TRUE(written.have_sigma);
+    EXPECT_EQ(f.truth_within_1_sigma, written.within_1_sigma);
+    EXPECT_EQ(f.truth_within_2_sigma, written.within_2_sigma);
+    EXPECT_GE(f.truth_within_2_sigma, f.truth_within_1_sigma);
+    EXPECT_GT(f.truth_median_sigma_k, 0);
+    EXPECT_NE(f.Line().find("within 1 sigma"), std::string::npos) << f.Line();
     // The summary on disk is the one returned.
     const auto back = ReadFrameSummaries(o.out_dir, f.frame, f.frame + 1);
     ASSERT_EQ(back.size(), 1u);
