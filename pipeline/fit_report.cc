@@ -177,7 +177,8 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
   }
   page.Section("Error against time");
   if (!plotted) page.Warning("No plot: " + plot_error);
-  page.Figure("error.png", "Mean Delta E of the fitted views as the fit ran (log time axis).");
+  if (plotted)
+    page.Figure("error.png", "Mean Delta E of the fitted views as the fit ran (log time axis).");
   page.Section("Data");
   page.Files({{"trace.csv", "the fit's energy and Delta E at each step"},
               {"error.dat", "the plot's data; error.gp redraws it with gnuplot"},

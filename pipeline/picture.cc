@@ -129,7 +129,10 @@ ImageU8 DrawPictureGrid(const PictureGrid& grid) {
   width += static_cast<int>(grid.bars.size()) * 124 + kMargin;
   const int row_height = (have_rows ? kLabel : 0) + h + kGap;
   const int grid_top = kMargin + (grid.title.empty() ? 0 : kTitle) + (have_columns ? kLabel : 0);
-  const int height = grid_top + static_cast<int>(tiles.size()) * row_height + kMargin;
+  // Tall enough for the colour bars too (at least 60 px each, picture.h) when rows are few or low.
+  const int height =
+      std::max(grid_top + static_cast<int>(tiles.size()) * row_height + kMargin,
+               grid.bars.empty() ? 0 : grid_top + std::max(60, h + kLabel) + kMargin);
   cv::Mat out(std::max(height, 1), std::max(width, 1), CV_8UC3, kWhite);
   if (!grid.title.empty()) Text(&out, grid.title, cv::Point(kMargin, kMargin + 20), 0.6, width);
   int x = kMargin;

@@ -150,8 +150,10 @@ bool WritePlot(const PlotSpec& spec, const std::string& base, std::string* error
     const double range = std::max(1.0, x_hi - x_lo);
     const double step = std::max(1.0, std::ceil(range / 10));
     // Half a frame of room on each side, so that the first and last points are off the axes.
-    gp << "set xtics " << step << "\nset format x '%.0f'\nset xrange [" << std::floor(x_lo) - 0.5
-       << ":" << std::ceil(x_hi) + 0.5 << "]\n";
+    char range_text[96];
+    std::snprintf(range_text, sizeof range_text, "[%.17g:%.17g]", std::floor(x_lo) - 0.5,
+                  std::ceil(x_hi) + 0.5);
+    gp << "set xtics " << step << "\nset format x '%.0f'\nset xrange " << range_text << "\n";
   }
   if (spec.y_from_zero) gp << "set yrange [0:*]\nset y2range [0:*]\n";
   for (std::size_t k = 0; k < plotted.size(); ++k)
@@ -167,7 +169,7 @@ bool WritePlot(const PlotSpec& spec, const std::string& base, std::string* error
      << " font 'Sans,11' noenhanced; set output svg_out }\n";
   if (plotted.empty()) {
     gp << "  set label 1 'no data' at graph 0.5, 0.5 center\n"
-       << "  plot [0:1] [0:1] NaN notitle\n";
+       << "  plot " << (spec.log_x ? "[1:10]" : "[0:1]") << " [0:1] NaN notitle\n";
   } else {
     gp << "  plot ";
     for (std::size_t k = 0; k < plotted.size(); ++k) {

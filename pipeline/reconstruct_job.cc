@@ -84,12 +84,10 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
                                       HtmlEscape(out.exposure_source) + ")."};
     for (const auto& n : out.notes) facts.push_back(HtmlEscape(n));
     if (out.truth_error >= 0) {
-      char line[200];
-      std::snprintf(line, sizeof line,
-                    "Relative L2 error of the emission against the truth (<code>%s</code>): "
-                    "<b>%.4f</b>.",
-                    HtmlEscape(job.truth_path).c_str(), out.truth_error);
-      facts.push_back(line);
+      char error[32];
+      std::snprintf(error, sizeof error, "%.4f", out.truth_error);
+      facts.push_back("Relative L2 error of the emission against the truth (<code>" +
+                      HtmlEscape(job.truth_path) + "</code>): <b>" + error + "</b>.");
     }
     page.List(facts);
     page.Section("Views");

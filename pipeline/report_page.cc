@@ -32,6 +32,24 @@ constexpr const char* kStyle =
     ".warning{background:#fff3cd;border-left:4px solid #e0a800;padding:.4em .8em}"
     "code{background:#f2f2f2}";
 
+// A relative path as a URL: the characters a URL gives a meaning to (%, #, ?, space, quotes, <,
+// >) percent-encoded, so that a camera named "cam#1" still finds coverage_cam#1.png.
+std::string UrlPath(const std::string& path) {
+  static const char* kHex = "0123456789ABCDEF";
+  std::string out;
+  for (unsigned char c : path) {
+    if (c == '%' || c == '#' || c == '?' || c == ' ' || c == '"' || c == '\'' || c == '<' ||
+        c == '>' || c < 0x20) {
+      out += '%';
+      out += kHex[c >> 4];
+      out += kHex[c & 15];
+    } else {
+      out += static_cast<char>(c);
+    }
+  }
+  return out;
+}
+
 }  // namespace
 
 std::string HtmlEscape(const std::string& text) {
@@ -99,7 +117,7 @@ void ReportPage::Table(const std::vector<std::string>& header,
 }
 
 void ReportPage::Figure(const std::string& src, const std::string& caption) {
-  body_ << "<figure><img src=\"" << HtmlEscape(src) << "\" alt=\"" << HtmlEscape(caption)
+  body_ << "<figure><img src=\"" << HtmlEscape(UrlPath(src)) << "\" alt=\"" << HtmlEscape(caption)
         << "\"><figcaption>" << HtmlEscape(caption) << "</figcaption></figure>\n";
 }
 
@@ -110,7 +128,7 @@ void ReportPage::Warning(const std::string& text) {
 void ReportPage::Files(const std::vector<std::pair<std::string, std::string>>& files) {
   body_ << "<ul>\n";
   for (const auto& [path, what] : files)
-    body_ << "<li><a href=\"" << HtmlEscape(path) << "\"><code>" << HtmlEscape(path)
+    body_ << "<li><a href=\"" << HtmlEscape(UrlPath(path)) << "\"><code>" << HtmlEscape(path)
           << "</code></a>: " << HtmlEscape(what) << "</li>\n";
   body_ << "</ul>\n";
 }

@@ -29,7 +29,8 @@ class ReportPage {
   // A table of plain-text cells, numbers right-aligned.
   void Table(const std::vector<std::string>& header,
              const std::vector<std::vector<std::string>>& rows);
-  // A picture beside the page (a path relative to it) with its caption.
+  // A picture beside the page (a path relative to it, percent-encoded where a URL needs it) with
+  // its caption.
   void Figure(const std::string& src, const std::string& caption);
   // Something the reader must see: a missing picture, a warning.
   void Warning(const std::string& text);

@@ -10,7 +10,6 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <limits>
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <stdexcept>
@@ -141,46 +140,47 @@ std::string FrameSummary::Line() const {
   return s.str();
 }
 
-std::string FrameSummary::ToJson() const {
+namespace {
+
+// Every field of a summary, in one place (JSON and the state YAML are made from it).
+nlohmann::json SummaryJson(const FrameSummary& f) {
   nlohmann::json j;
-  j["frame"] = frame;
-  j["status"] = status;
-  j["notes"] = notes;
-  j["cameras_used"] = cameras_used;
-  j["read_ms"] = read_ms;
-  j["reconstruct_ms"] = reconstruct_ms;
-  j["fit_ms"] = fit_ms;
-  j["write_ms"] = write_ms;
-  j["total_ms"] = total_ms;
-  j["matrix_source"] = matrix_source;
-  j["hull_fraction"] = hull_fraction;
-  j["active_voxels"] = active_voxels;
-  j["fit_evaluations"] = fit_evaluations;
-  j["exposure"] = exposure;
-  j["exposure_from"] = exposure_from;
-  j["soot"] = soot;
-  j["energy"] = energy;
-  j["fit_termination"] = fit_termination;
-  j["fit_message"] = fit_message;
-  j["fit_iterations"] = fit_iterations;
-  j["initial_energy"] = initial_energy;
+  j["frame"] = f.frame;
+  j["status"] = f.status;
+  j["notes"] = f.notes;
+  j["cameras_used"] = f.cameras_used;
+  j["read_ms"] = f.read_ms;
+  j["reconstruct_ms"] = f.reconstruct_ms;
+  j["fit_ms"] = f.fit_ms;
+  j["write_ms"] = f.write_ms;
+  j["total_ms"] = f.total_ms;
+  j["matrix_source"] = f.matrix_source;
+  j["hull_fraction"] = f.hull_fraction;
+  j["active_voxels"] = f.active_voxels;
+  j["fit_evaluations"] = f.fit_evaluations;
+  j["exposure"] = f.exposure;
+  j["exposure_from"] = f.exposure_from;
+  j["soot"] = f.soot;
+  j["energy"] = f.energy;
+  j["fit_termination"] = f.fit_termination;
+  j["fit_message"] = f.fit_message;
+  j["fit_iterations"] = f.fit_iterations;
+  j["initial_energy"] = f.initial_energy;
   j["delta_e"] = nlohmann::json::array();
-  for (const auto& d : delta_e)
+  for (const auto& d : f.delta_e)
     j["delta_e"].push_back(
         {{"camera", d.camera}, {"held_out", d.held_out}, {"mean", d.mean}, {"fire", d.fire}});
-  j["truth_rms_k"] = truth_rms_k;
-  j["truth_bias_k"] = truth_bias_k;
-  j["truth_voxels"] = truth_voxels;
-  j["truth_visible"] = truth_visible;
-  j["truth_frame"] = truth_frame;
-  j["truth_soot"] = truth_soot;
-  j["truth_within_1_sigma"] = truth_within_1_sigma;
-  j["truth_within_2_sigma"] = truth_within_2_sigma;
-  j["truth_median_sigma_k"] = truth_median_sigma_k;
-  return j.dump(2) + "\n";
+  j["truth_rms_k"] = f.truth_rms_k;
+  j["truth_bias_k"] = f.truth_bias_k;
+  j["truth_voxels"] = f.truth_voxels;
+  j["truth_visible"] = f.truth_visible;
+  j["truth_frame"] = f.truth_frame;
+  j["truth_soot"] = f.truth_soot;
+  j["truth_within_1_sigma"] = f.truth_within_1_sigma;
+  j["truth_within_2_sigma"] = f.truth_within_2_sigma;
+  j["truth_median_sigma_k"] = f.truth_median_sigma_k;
+  return j;
 }
-
-namespace {
 
 // JSON as YAML (the state files' format), types kept: JSON's are explicit.
 void EmitYaml(YAML::Emitter& e, const nlohmann::json& j) {
@@ -204,16 +204,23 @@ void EmitYaml(YAML::Emitter& e, const nlohmann::json& j) {
   } else if (j.is_string()) {
     e << YAML::DoubleQuoted << j.get<std::string>();
   } else {
-    e << std::numeric_limits<double>::quiet_NaN();  // JSON writes a NaN as null
+    e << YAML::Null;
   }
 }
 
 }  // namespace
 
+std::string FrameSummary::ToJson() const {
+  // Text that is not UTF-8 (a path in another encoding in a note) is replaced, not thrown on;
+  // JSON has no NaN or infinity: they are written as null.
+  return SummaryJson(*this).dump(2, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
+}
+
 std::string FrameSummary::ToYaml() const {
+  // From the JSON value, not its text: NaN and infinities stay numbers (.nan, .inf).
   YAML::Emitter e;
   e.SetDoublePrecision(17);
-  EmitYaml(e, nlohmann::json::parse(ToJson()));
+  EmitYaml(e, SummaryJson(*this));
   return std::string(e.c_str()) + "\n";
 }
 

@@ -349,11 +349,13 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   page.List(results);
   page.Section("Error over the frames");
   for (const auto& e : plot_errors) page.Warning("A plot is missing: " + e);
-  page.Figure("errors.png",
-              "Mean Delta E of each view's fire pixels per frame (left axis)" +
-                  std::string(truth.x.empty() ? "."
-                                              : "; the temperature RMS error against the truth on "
-                                                "visible voxels, in kelvin (right axis)."));
+  if (fs::exists(dir / "errors.png"))
+    page.Figure(
+        "errors.png",
+        "Mean Delta E of each view's fire pixels per frame (left axis)" +
+            std::string(truth.x.empty() ? "."
+                                        : "; the temperature RMS error against the truth on "
+                                          "visible voxels, in kelvin (right axis)."));
   if (!shown.empty()) {
     page.Section("Input against rendered");
     page.Figure("contact.png",
@@ -373,12 +375,17 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     for (const auto& f : slice_files) page.Figure(f, "Slices of frame " + f.substr(7, 6) + ".");
   }
   page.Section("Run time");
-  page.Figure("timing.png", "Seconds per frame: tomography, fit and the whole frame.");
+  if (fs::exists(dir / "timing.png"))
+    page.Figure("timing.png", "Seconds per frame: tomography, fit and the whole frame.");
   page.Section("Data");
-  page.Files({{"../frames.csv", "every frame's numbers, one row per frame"},
-              {"frame_000000.json", "every number of one frame (one file per frame)"},
-              {"errors.dat", "the error plot's data; errors.gp redraws it with gnuplot"},
-              {"errors.svg", "the error plot, scalable"}});
+  std::vector<std::pair<std::string, std::string>> files = {
+      {"../frames.csv", "every frame's numbers, one row per frame"},
+      {"errors.dat", "the error plot's data; errors.gp redraws it with gnuplot"}};
+  if (!frames.empty())
+    files.emplace_back(FrameName(frames.front().frame) + ".json",
+                       "every number of one frame (one file per frame)");
+  if (fs::exists(dir / "errors.svg")) files.emplace_back("errors.svg", "the error plot, scalable");
+  page.Files(files);
   page.Html(
       "Volumes: <code>frame_NNNNNN.vdb</code> (temperature in K, density in m<sup>-3</sup>, "
       "sigma); Blender-ready: <code>blender/frame_NNNNNN.vdb</code>; as a table: "

@@ -243,12 +243,16 @@ void WriteHdf5(const std::string& path, const std::vector<Column>& columns,
     TextAttribute(h.id(), "grid_note", grid["note"].get<std::string>(), path);
     TextAttribute(h.id(), "source", meta["source"].get<std::string>(), path);
     TextAttribute(h.id(), "row_selection", meta["row_selection"].get<std::string>(), path);
+    // The volume's own metadata in a group of its own, so that no key of another program's
+    // .vdb can collide with the attributes above.
+    Handle group(H5Gcreate2(h.id(), "metadata", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Gclose,
+                 path + ": cannot create the group metadata");
     if (meta.contains("metadata"))
       for (const auto& [key, value] : meta["metadata"].items()) {
         if (value.is_number())
-          NumberAttribute(h.id(), key, {value.get<double>()}, path);
+          NumberAttribute(group.id(), key, {value.get<double>()}, path);
         else
-          TextAttribute(h.id(), key, value.get<std::string>(), path);
+          TextAttribute(group.id(), key, value.get<std::string>(), path);
       }
     Check(H5Fflush(h.id(), H5F_SCOPE_GLOBAL), "cannot flush " + path);
   }

@@ -19,11 +19,13 @@
 //   .csv  RFC 4180 with a header row of the column names above; with PATH.json beside it.
 //   .npy  NumPy's format 1.0, a structured array of the columns above (numpy.load(PATH)["x_m"]);
 //         with PATH.json beside it.
-//   .h5   HDF5: one 1-D dataset per column at the root, each with a "units" attribute, and the
-//         grid and the volume's metadata as attributes of the root (h5py, HDFView, MATLAB).
-// PATH.json (and the HDF5 root's attributes): the source file, the grid (dims, origin_m, the min
-// corner of the box, and voxel_size_m), the row selection, each column's units, and the volume's
-// metadata (exposure, absorption model, ...).
+//   .h5   HDF5: one 1-D dataset per column at the root, each with a "units" attribute; the grid
+//         (grid_dims, grid_origin_m, grid_voxel_size_m), source and row selection as attributes
+//         of the root, the volume's metadata as attributes of the group /metadata (h5py, HDFView,
+//         MATLAB).
+// PATH.json (the table's whole name and ".json": frame0.npy.json): the source file, the grid (dims,
+// origin_m, the min corner of the box, and voxel_size_m), the row selection, each column's units,
+// and the volume's metadata (exposure, absorption model, ...).
 //
 // Every file is written under a temporary name and renamed (core/atomic_file.h).
 #ifndef FLAMERIG_PIPELINE_VOLUME_EXPORT_H_

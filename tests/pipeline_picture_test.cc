@@ -116,6 +116,9 @@ TEST(Plot, WithoutGnuplotSaysWhatToInstallAndKeepsTheScript) {
   empty.title = "nothing yet";
   EXPECT_TRUE(WritePlot(empty, (dir / "empty").string(), &error)) << error;
   EXPECT_NE(Read(dir / "empty.svg").find("no data"), std::string::npos);
+  // ... on a log axis too, where [0:1] would be no range at all.
+  empty.log_x = true;
+  EXPECT_TRUE(WritePlot(empty, (dir / "empty_log").string(), &error)) << error;
   fs::remove_all(dir);
 }
 
@@ -149,6 +152,14 @@ TEST(Picture, GridPlacesEachTileInItsRowAndColumnWithItsBar) {
   };
   EXPECT_GT(luminance(bar_top), luminance(bar_bottom) + 200);
   EXPECT_GE(out.width, 8 + 3 * 86 + 124);
+  // A colour bar with no rows, or rows lower than a bar, still fits in the picture.
+  PictureGrid bars_only;
+  bars_only.bars = grid.bars;
+  bars_only.tile_height = 20;
+  const ImageU8 small = DrawPictureGrid(bars_only);
+  EXPECT_GE(small.height, 60);
+  bars_only.rows = {{ImageU8(4, 2, 3, 9)}};
+  EXPECT_GE(DrawPictureGrid(bars_only).height, 60);
 }
 
 TEST(Picture, ColourMapsAndScaleBars) {

@@ -13,8 +13,10 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <memory>
 #include <random>
 #include <sstream>
@@ -114,6 +116,65 @@ TEST(RunReport, SlicesShowFitTruthErrorAndSigmaWhenTheTruthIsFiner) {
   WriteRunReport((dir / "out").string(), {f}, RunReportInfo());
   EXPECT_EQ(ReadImageU8((dir / "out" / "report" / "slices_000000.png").string(), 3).height, row);
   fs::remove_all(dir);
+}
+
+// The state files and the report's JSON keep every field: doubles to the last bit, NaN and
+// infinities (as YAML's .nan and .inf), empty lists, strings that look like numbers or booleans,
+// and text that is not UTF-8 (replaced in JSON, not thrown on).
+TEST(FrameSummary, YamlAndJsonKeepEveryField) {
+  FrameSummary f;
+  f.frame = 123456789;
+  f.status = "true";
+  f.cameras_used = 3;
+  f.read_ms = 0.1;
+  f.reconstruct_ms = 1.0 / 3.0;
+  f.fit_ms = 2e-300;
+  f.total_ms = 1e300;
+  f.matrix_source = "1e5";
+  f.hull_fraction = 0.125;
+  f.active_voxels = 4000000000ull;
+  f.exposure = 1.5442877277419982;
+  f.exposure_from = "held from frame 0";
+  f.energy = std::nan("");
+  f.initial_energy = std::numeric_limits<double>::infinity();
+  f.fit_message = "a \"quoted\" message: with colons, and\nlines";
+  f.delta_e = {{"1e5", true, 0.5, 1.25}, {"null", false, -0.0, 3}};
+  f.truth_rms_k = -1;
+  f.truth_within_1_sigma = 0.68;
+  const FrameSummary back = FrameSummary::FromYaml(f.ToYaml(), "test");
+  EXPECT_EQ(back.frame, f.frame);
+  EXPECT_EQ(back.status, "true");
+  EXPECT_TRUE(back.notes.empty());
+  EXPECT_EQ(back.reconstruct_ms, f.reconstruct_ms);
+  EXPECT_EQ(back.fit_ms, f.fit_ms);
+  EXPECT_EQ(back.total_ms, f.total_ms);
+  EXPECT_EQ(back.matrix_source, "1e5");
+  EXPECT_EQ(back.active_voxels, f.active_voxels);
+  EXPECT_EQ(back.exposure, f.exposure);
+  EXPECT_TRUE(std::isnan(back.energy));
+  EXPECT_EQ(back.initial_energy, std::numeric_limits<double>::infinity());
+  EXPECT_EQ(back.fit_message, f.fit_message);
+  ASSERT_EQ(back.delta_e.size(), 2u);
+  EXPECT_EQ(back.delta_e[0].camera, "1e5");
+  EXPECT_TRUE(back.delta_e[0].held_out);
+  EXPECT_EQ(back.delta_e[0].fire, 1.25);
+  EXPECT_EQ(back.delta_e[1].camera, "null");
+  EXPECT_EQ(back.truth_within_1_sigma, 0.68);
+  EXPECT_EQ(back.truth_within_2_sigma, -1);
+  // Not UTF-8: the JSON replaces it and stays JSON (Python's json module reads it).
+  f.notes = {std::string("image \xff\xfe.png unreadable")};
+  const std::string json = f.ToJson();
+  EXPECT_NE(json.find("unreadable"), std::string::npos);
+  const fs::path file =
+      fs::temp_directory_path() / ("flamerig_summary_" + std::to_string(::getpid()) + ".json");
+  std::ofstream(file.string()) << json;
+  EXPECT_EQ(std::system(("/usr/bin/python3 -c \"import json,sys; j=json.load(open(sys.argv[1])); "
+                         "assert j['energy'] is None and j['frame'] == 123456789\" " +
+                         file.string())
+                            .c_str()),
+            0);
+  fs::remove(file);
+  EXPECT_EQ(FrameSummary::FromYaml(f.ToYaml(), "test").notes.size(), 1u);
 }
 
 TEST(TruthError, SameGridVoxelByVoxelOtherGridsByTheVoxelHoldingEachCentre) {
@@ -289,7 +350,7 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
     // The summary on disk is the one returned.
     const auto back = ReadFrameSummaries(o.out_dir, f.frame, f.frame + 1);
     ASSERT_EQ(back.size(), 1u);
-    EXPECT_EQ(back[0].Line(), f.Line());
+    EXPECT_EQ(back[0].ToJson(), f.ToJson());
   }
   // The brief report splits the computed frames' time between tomography and fit (sums of the
   // frames' own times, in seconds with one decimal).

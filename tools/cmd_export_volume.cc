@@ -21,8 +21,9 @@ Runner AddExportVolume(CLI::App* command) {
       "density_per_m3, temperature_sigma_k, density_sigma, determined and emission_r/g/b where\n"
       "the volume has them. The format follows --out's extension: .csv, .npy (a NumPy structured\n"
       "array: numpy.load(F)[\"temperature_k\"]) or .h5 (one dataset per column, with units; the\n"
-      "grid and metadata as attributes). CSV and NumPy get F.json beside them with the grid,\n"
-      "units and metadata. Rows: the voxels with medium, or with --dense every voxel (a column\n"
+      "grid and metadata as attributes). CSV and NumPy get F.json beside them (frame.npy.json)\n"
+      "with the grid, units and metadata. Rows: the voxels with medium, or with --dense every "
+      "voxel (a column\n"
       "then reshapes to (nz, ny, nx)).");
   command->add_option("--volume", o->volume, "The volume to export")
       ->required()
