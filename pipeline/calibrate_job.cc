@@ -1,5 +1,7 @@
 #include "pipeline/calibrate_job.h"
 
+#include <fmt/format.h>
+
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
@@ -260,11 +262,6 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
 
   // The report: the same tables as Markdown (report.md) and as a page (index.html).
   using Rows = std::vector<std::vector<std::string>>;
-  auto fmt = [](const char* format, auto... values) {
-    char cell[128];
-    std::snprintf(cell, sizeof cell, format, values...);
-    return std::string(cell);
-  };
   const std::vector<std::string> camera_header = {"camera",   "views",  "corners",
                                                   "outliers", "RMS px", "median px",
                                                   "p95 px",   "max px", "image covered"};
@@ -275,23 +272,23 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
     WritePng((fs::path(out_dir) / ("coverage_" + s.name + ".png")).string(),
              CoveragePicture(data, summary, static_cast<int>(c), &covered));
     camera_rows.push_back({s.name, std::to_string(s.views), std::to_string(s.points),
-                           std::to_string(s.outliers), fmt("%.3f", s.rms_px_per_point),
-                           fmt("%.3f", s.median_px), fmt("%.3f", s.p95_px), fmt("%.3f", s.max_px),
-                           fmt("%.0f%%", 100 * covered)});
+                           std::to_string(s.outliers), fmt::format("{:.3f}", s.rms_px_per_point),
+                           fmt::format("{:.3f}", s.median_px), fmt::format("{:.3f}", s.p95_px),
+                           fmt::format("{:.3f}", s.max_px), fmt::format("{:.0f}%", 100 * covered)});
   }
   const std::vector<std::string> worst_header = {"camera", "view", "corner", "error px"};
   Rows worst_rows;
   for (const auto& e : summary.worst)
     worst_rows.push_back({data.camera_names[e.camera], data.view_names[e.view],
-                          std::to_string(e.corner), fmt("%.3f", e.error_px)});
+                          std::to_string(e.corner), fmt::format("{:.3f}", e.error_px)});
   const std::vector<std::string> pose_header = {"camera", "centre m", "viewing direction"};
   Rows pose_rows;
   for (const auto& cam : summary.rig.cameras) {
     const Rigid3 rig_from_cam = cam.model.cam_from_rig().Inverse();
     const Eigen::Vector3d o = rig_from_cam.translation,
                           d = rig_from_cam.rotation * Eigen::Vector3d::UnitZ();
-    pose_rows.push_back({cam.name, fmt("(%.4f, %.4f, %.4f)", o.x(), o.y(), o.z()),
-                         fmt("(%.3f, %.3f, %.3f)", d.x(), d.y(), d.z())});
+    pose_rows.push_back({cam.name, fmt::format("({:.4f}, {:.4f}, {:.4f})", o.x(), o.y(), o.z()),
+                         fmt::format("({:.3f}, {:.3f}, {:.3f})", d.x(), d.y(), d.z())});
   }
   std::vector<std::string> notes = summary.notes;
   for (std::size_t c = 0; c < data.camera_names.size(); ++c)

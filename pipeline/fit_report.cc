@@ -1,8 +1,9 @@
 #include "pipeline/fit_report.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -97,11 +98,9 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
       s.p95_delta_e = fire[static_cast<std::size_t>(0.95 * (fire.size() - 1))];
     }
     scores.push_back(s);
-    char label[160];
-    std::snprintf(label, sizeof label, "%s (%s): mean Delta E %.2f over %zu fire pixels",
-                  view.name.c_str(), s.held_out ? "held out" : "fitted", s.fire_delta_e,
-                  s.fire_pixels);
-    views.row_labels.push_back(label);
+    views.row_labels.push_back(fmt::format("{} ({}): mean Delta E {:.2f} over {} fire pixels",
+                                           view.name, s.held_out ? "held out" : "fitted",
+                                           s.fire_delta_e, s.fire_pixels));
     views.rows.push_back({view.image, rendered, heat});
     if (rendered_out) rendered_out->push_back(rendered);
   }
@@ -148,16 +147,11 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
   ReportPage page(title);
   page.Section("Result");
   page.Text(result.BriefReport());
-  char cell[32];
-  auto number = [&](double x, const char* format) {
-    std::snprintf(cell, sizeof cell, format, x);
-    return std::string(cell);
-  };
   std::vector<std::vector<std::string>> rows;
   for (const auto& s : scores)
-    rows.push_back({s.name, s.held_out ? "held out" : "fitted", number(s.mean_delta_e, "%.3f"),
-                    number(s.fire_delta_e, "%.3f"), number(s.p95_delta_e, "%.2f"),
-                    std::to_string(s.fire_pixels)});
+    rows.push_back({s.name, s.held_out ? "held out" : "fitted",
+                    fmt::format("{:.3f}", s.mean_delta_e), fmt::format("{:.3f}", s.fire_delta_e),
+                    fmt::format("{:.2f}", s.p95_delta_e), std::to_string(s.fire_pixels)});
   page.Table({"view", "role", "mean Delta E (all pixels)", "mean Delta E (fire pixels)",
               "95th percentile (fire pixels)", "fire pixels"},
              rows);

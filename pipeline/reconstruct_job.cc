@@ -1,7 +1,8 @@
 #include "pipeline/reconstruct_job.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
-#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 
@@ -84,10 +85,9 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
                                       HtmlEscape(out.exposure_source) + ")."};
     for (const auto& n : out.notes) facts.push_back(HtmlEscape(n));
     if (out.truth_error >= 0) {
-      char error[32];
-      std::snprintf(error, sizeof error, "%.4f", out.truth_error);
-      facts.push_back("Relative L2 error of the emission against the truth (<code>" +
-                      HtmlEscape(job.truth_path) + "</code>): <b>" + error + "</b>.");
+      facts.push_back(fmt::format(
+          "Relative L2 error of the emission against the truth (<code>{}</code>): <b>{:.4f}</b>.",
+          HtmlEscape(job.truth_path), out.truth_error));
     }
     page.List(facts);
     page.Section("Views");

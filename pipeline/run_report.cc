@@ -1,5 +1,7 @@
 #include "pipeline/run_report.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <cmath>
 #include <ctime>
@@ -231,6 +233,7 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     total.y.push_back(f.total_ms / 1000);
   }
   std::vector<std::string> plot_errors;
+  bool errors_plotted = false, timing_plotted = false;
   {
     PlotSpec errors;
     errors.title = "Error over the frames";
@@ -243,14 +246,16 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
       errors.series.push_back(truth);
     }
     std::string why;
-    if (!WritePlot(errors, (dir / "errors").string(), &why)) plot_errors.push_back(why);
+    errors_plotted = WritePlot(errors, (dir / "errors").string(), &why);
+    if (!errors_plotted) plot_errors.push_back(why);
     PlotSpec timing;
     timing.title = "Run time per frame by stage";
     timing.x_label = "frame";
     timing.y_label = "time (s)";
     timing.integer_x = true;
     timing.series = {tomo, fit, total};
-    if (!WritePlot(timing, (dir / "timing").string(), &why)) plot_errors.push_back(why);
+    timing_plotted = WritePlot(timing, (dir / "timing").string(), &why);
+    if (!timing_plotted) plot_errors.push_back(why);
     for (const auto& e : plot_errors) Log().warn("run report: a plot is missing: {}", e);
   }
 
@@ -313,43 +318,32 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   if (info.ranks > 1) inputs.emplace_back("MPI ranks", std::to_string(info.ranks));
   ReportPage page(info.title, inputs);
   page.Section("Results");
-  char line[256];
-  std::vector<std::string> results;
-  std::snprintf(line, sizeof line,
-                "%zu frame%s: %zu computed, %zu unchanged (the previous result reused), %zu "
-                "failed.",
-                frames.size(), frames.size() == 1 ? "" : "s", computed, unchanged, failed);
-  results.push_back(line);
-  if (de_n) {
-    std::snprintf(line, sizeof line,
-                  "Mean Delta E of the fitted views' fire pixels: <b>%.3f</b> (CIELab; 1 is about "
-                  "the smallest difference a person sees).",
-                  de_sum / de_n);
-    results.push_back(line);
-  }
-  if (t_n) {
-    std::snprintf(line, sizeof line,
-                  "Temperature against the known truth on visible voxels: <b>%.1f K RMS</b> on "
-                  "average over the frames.",
-                  t_sum / t_n);
-    results.push_back(line);
-  }
-  if (sigma_n) {
-    std::snprintf(line, sizeof line,
-                  "Its sigma: %.0f%% of those voxels within one sigma, %.0f%% within two (a "
-                  "calibrated sigma: 68%%, 95%%); median sigma %.0f K.",
-                  100 * in1_sum / sigma_n, 100 * in2_sum / sigma_n, sigma_sum / sigma_n);
-    results.push_back(line);
-  }
-  if (info.wall_seconds > 0) {
-    std::snprintf(line, sizeof line, "%.1f s in all, %.1f computed frames per minute.",
-                  info.wall_seconds, computed ? 60.0 * computed / info.wall_seconds : 0.0);
-    results.push_back(line);
-  }
+  std::vector<std::string> results = {
+      fmt::format("{} frame{}: {} computed, {} unchanged (the previous result reused), {} failed.",
+                  frames.size(), frames.size() == 1 ? "" : "s", computed, unchanged, failed)};
+  if (de_n)
+    results.push_back(fmt::format(
+        "Mean Delta E of the fitted views' fire pixels: <b>{:.3f}</b> (CIELab; 1 is about the "
+        "smallest difference a person sees).",
+        de_sum / de_n));
+  if (t_n)
+    results.push_back(fmt::format(
+        "Temperature against the known truth on visible voxels: <b>{:.1f} K RMS</b> on average "
+        "over the frames.",
+        t_sum / t_n));
+  if (sigma_n)
+    results.push_back(fmt::format(
+        "Its sigma: {:.0f}% of those voxels within one sigma, {:.0f}% within two (a calibrated "
+        "sigma: 68%, 95%); median sigma {:.0f} K.",
+        100 * in1_sum / sigma_n, 100 * in2_sum / sigma_n, sigma_sum / sigma_n));
+  if (info.wall_seconds > 0)
+    results.push_back(fmt::format("{:.1f} s in all, {:.1f} computed frames per minute.",
+                                  info.wall_seconds,
+                                  computed ? 60.0 * computed / info.wall_seconds : 0.0));
   page.List(results);
   page.Section("Error over the frames");
   for (const auto& e : plot_errors) page.Warning("A plot is missing: " + e);
-  if (fs::exists(dir / "errors.png"))
+  if (errors_plotted)
     page.Figure(
         "errors.png",
         "Mean Delta E of each view's fire pixels per frame (left axis)" +
@@ -375,7 +369,7 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     for (const auto& f : slice_files) page.Figure(f, "Slices of frame " + f.substr(7, 6) + ".");
   }
   page.Section("Run time");
-  if (fs::exists(dir / "timing.png"))
+  if (timing_plotted)
     page.Figure("timing.png", "Seconds per frame: tomography, fit and the whole frame.");
   page.Section("Data");
   std::vector<std::pair<std::string, std::string>> files = {
@@ -384,7 +378,7 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   if (!frames.empty())
     files.emplace_back(FrameName(frames.front().frame) + ".json",
                        "every number of one frame (one file per frame)");
-  if (fs::exists(dir / "errors.svg")) files.emplace_back("errors.svg", "the error plot, scalable");
+  if (errors_plotted) files.emplace_back("errors.svg", "the error plot, scalable");
   page.Files(files);
   page.Html(
       "Volumes: <code>frame_NNNNNN.vdb</code> (temperature in K, density in m<sup>-3</sup>, "
