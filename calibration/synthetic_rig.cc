@@ -52,8 +52,8 @@ Rig MakeRingRig(const Box3& box, const RingOptions& options, const std::string& 
   const double radius = 0.5 * box.size().norm();
   if (options.distance_m <= radius * 1.05) {
     throw InputError("RingOptions.distance_m = " + std::to_string(options.distance_m) +
-                                " puts the cameras inside the box's bounding sphere (radius " +
-                                std::to_string(radius) + " m)");
+                     " puts the cameras inside the box's bounding sphere (radius " +
+                     std::to_string(radius) + " m)");
   }
   const double half_angle = std::asin(radius / options.distance_m);
   const double f = 0.5 * options.fill * options.height / std::tan(half_angle);
@@ -396,9 +396,9 @@ WrittenViews WriteCalibrationViews(const Rig& rig, const BoardSpec& board, std::
     fs::create_directories(fs::path(dir) / name);
     std::vector<std::string> names;
     for (int c : views[v].cameras) {
-      ImageU8 image = RenderBoard(rig.cameras[c].model, rays[c], board, views[v].rig_from_board,
-                                  noise_dn > 0 ? std::max(noise_dn, 1.0) : 0.0,
-                                  seed * 7919ULL + v * 31ULL + c);
+      ImageU8 image =
+          RenderBoard(rig.cameras[c].model, rays[c], board, views[v].rig_from_board,
+                      noise_dn > 0 ? std::max(noise_dn, 1.0) : 0.0, seed * 7919ULL + v * 31ULL + c);
       WritePng((fs::path(dir) / name / (rig.cameras[c].name + ".png")).string(), image);
       names.push_back(rig.cameras[c].name);
       ++written.images;

@@ -64,8 +64,8 @@ std::vector<BoardView> MakeCalibrationViews(const Rig& rig, const BoardSpec& boa
                                             int closeups_per_camera);
 
 struct WrittenViews {
-  int views = 0;                   // board poses
-  int images = 0;                  // images written (a view's cameras that see the whole board)
+  int views = 0;   // board poses
+  int images = 0;  // images written (a view's cameras that see the whole board)
   // The images of view 0 per camera, for a preview (empty for the cameras that do not see it).
   std::vector<ImageU8> first_view;
 };

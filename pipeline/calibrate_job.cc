@@ -93,8 +93,7 @@ CalibrateConfig CalibrateConfig::Load(const std::string& path) {
   else if (frame == "first-camera")
     c.options.frame = RigFrame::kFirstCamera;
   else
-    throw InputError(where + ": 'frame' must be ring or first-camera, not '" + frame +
-                                "'");
+    throw InputError(where + ": 'frame' must be ring or first-camera, not '" + frame + "'");
   c.options.rig_name = r.Get<std::string>("name", c.options.rig_name);
   if (const YAML::Node box = node["box"]) {
     ConfigReader br(box, where + ".box");

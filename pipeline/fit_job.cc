@@ -14,9 +14,12 @@ namespace fs = std::filesystem;
 
 const char* ToString(FitMethod method) {
   switch (method) {
-    case FitMethod::kFast: return "fast";
-    case FitMethod::kAlgorithm1: return "alg1";
-    case FitMethod::kAlgorithm2: return "alg2";
+    case FitMethod::kFast:
+      return "fast";
+    case FitMethod::kAlgorithm1:
+      return "alg1";
+    case FitMethod::kAlgorithm2:
+      return "alg2";
   }
   return "?";
 }
@@ -106,11 +109,10 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
   if (fs::path(job.out_path).has_parent_path())
     fs::create_directories(fs::path(job.out_path).parent_path());
   WriteVdb(job.out_path, out.result.volume);
-  out.report_dir =
-      !job.report_dir.empty()
-          ? job.report_dir
-          : (fs::path(job.out_path).parent_path() / (fs::path(job.out_path).stem().string() + "_report"))
-                .string();
+  out.report_dir = !job.report_dir.empty() ? job.report_dir
+                                           : (fs::path(job.out_path).parent_path() /
+                                              (fs::path(job.out_path).stem().string() + "_report"))
+                                                 .string();
   FireVolume truth;
   if (!job.truth_path.empty()) truth = ReadVdb(job.truth_path);
   out.scores = WriteFitReport(out.report_dir, out.result, views, held, absorption, job.fit.render,

@@ -14,10 +14,10 @@ namespace flamerig {
 struct ViewScore {
   std::string name;
   bool held_out = false;
-  double mean_delta_e = 0;  // over all pixels
-  double fire_delta_e = 0;  // over pixels where the input or the render is not black
+  double mean_delta_e = 0;      // over all pixels
+  double fire_delta_e = 0;      // over pixels where the input or the render is not black
   std::size_t fire_pixels = 0;  // how many
-  double p95_delta_e = 0;   // 95th percentile over those pixels
+  double p95_delta_e = 0;       // 95th percentile over those pixels
 };
 
 // Renders `result.volume` through each view at `result.exposure`, scores it and, when `dir` is

@@ -78,16 +78,14 @@ std::string RunPaths::StateYaml(std::size_t i) const { return In(out, "state", i
 std::string RunPaths::StateBin(std::size_t i) const { return In(out, "state", i, ".state"); }
 bool RunPaths::Complete(std::size_t i) const { return fs::exists(Summary(i)); }
 
-FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
-                         std::size_t begin)
+FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path, std::size_t begin)
     : options_(options),
       begin_(begin),
       rig_(Rig::Load(rig_path)),
       source_(options.source, rig_),
       paths_{options.out_dir},
-      absorption_(AbsorptionModel::FromName(options.absorption.empty()
-                                                ? DatasetAbsorption(rig_path)
-                                                : options.absorption)) {
+      absorption_(AbsorptionModel::FromName(options.absorption.empty() ? DatasetAbsorption(rig_path)
+                                                                       : options.absorption)) {
   options_.Validate();
   const ImagesExposure exposure = ResolveExposure(options_.exposure, rig_path);
   exposure_ = exposure.value;

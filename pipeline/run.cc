@@ -14,14 +14,14 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "core/error.h"
 #include "acquisition/recording.h"
+#include "core/error.h"
 #include "fitting/renderer.h"
-#include "tomography/vdb_io.h"
 #include "pipeline/blender_export.h"
 #include "pipeline/fit_report.h"
 #include "pipeline/frame_stages.h"
 #include "pipeline/simulate.h"
+#include "tomography/vdb_io.h"
 
 namespace flamerig {
 
@@ -293,8 +293,7 @@ std::string RunSummary::BriefReport() const {
   }
   s << "frames " << begin << ".." << (end ? end - 1 : 0) << ": " << computed << " computed, "
     << unchanged << " unchanged (reused), " << resumed << " already done, " << failed_here
-    << " failed" << (cancelled ? ", cancelled" : "") << "; "
-    << seconds << " s";
+    << " failed" << (cancelled ? ", cancelled" : "") << "; " << seconds << " s";
   if (computed > 0)
     s << " (" << 60.0 * computed / std::max(seconds, 1e-9) << " computed frames/min; tomography "
       << tomo_ms / 1000 << " s, fit " << fit_ms / 1000 << " s)";
@@ -317,8 +316,7 @@ void RunRange(const RunOptions& options, const FrameSource& source, std::size_t*
   const std::size_t n = source.num_sets();
   if (options.first >= n)
     throw InputError("run: --first " + std::to_string(options.first) + " but " +
-                                options.source.Describe() + " has " + std::to_string(n) +
-                                " frame sets");
+                     options.source.Describe() + " has " + std::to_string(n) + " frame sets");
   *begin = options.first;
   *end = options.first + std::min(options.count, n - options.first);
 }

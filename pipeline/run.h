@@ -50,11 +50,11 @@
 #include <string>
 #include <vector>
 
-#include "fitting/fit.h"
-#include "tomography/reconstruct.h"
 #include "core/progress.h"
+#include "fitting/fit.h"
 #include "pipeline/calibrate_job.h"
 #include "pipeline/frame_source.h"
+#include "tomography/reconstruct.h"
 
 namespace flamerig {
 
@@ -153,7 +153,7 @@ struct RunSummary {
   std::size_t failed = 0;
   bool cancelled = false;  // stopped by the progress callback; frames after the last are not done
   std::vector<FrameSummary> frames;  // every frame of [begin, end) done, in order
-  std::string rig_path;                                  // the rig used
+  std::string rig_path;              // the rig used
   double seconds = 0;
   std::string BriefReport() const;
 };

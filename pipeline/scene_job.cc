@@ -57,7 +57,7 @@ void ReadObj(const std::string& path, std::vector<Eigen::Vector3f>* vertices,
                               idx[f + 2].vertex_index);
       if ((t.array() < 0).any() || (t.array() >= static_cast<int>(vertices->size())).any())
         throw DataError(path + ": face " + std::to_string(f / 3) +
-                                 " refers to a vertex the file does not have");
+                        " refers to a vertex the file does not have");
       triangles->push_back(t);
     }
   }

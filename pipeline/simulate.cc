@@ -421,8 +421,7 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
   if (config.calibration) {
     auto written = synthetic::WriteCalibrationViews(
         rig, config.board, config.seed, config.shared_per_pair, config.closeups_per_camera,
-        config.noise_dn, (fs::path(out_dir) / "calibration").string(),
-        progress);
+        config.noise_dn, (fs::path(out_dir) / "calibration").string(), progress);
     for (auto& image : written.first_view) board_preview.push_back(std::move(image));
     summary.calibration_views = written.views;
     summary.calibration_images = written.images;

@@ -22,19 +22,19 @@
 #include <sstream>
 #include <thread>
 
-#include "core/error.h"
 #include "acquisition/recording.h"
+#include "core/error.h"
 #include "fitting/physics.h"
-#include "tests/run_test_util.h"
-#include "tomography/vdb_io.h"
 #include "pipeline/blender_export.h"
-#include "pipeline/fit_report.h"
-#include "pipeline/truth.h"
-#include "pipeline/run.h"
 #include "pipeline/distributed.h"
+#include "pipeline/fit_report.h"
 #include "pipeline/frame_stages.h"
+#include "pipeline/run.h"
 #include "pipeline/run_report.h"
 #include "pipeline/simulate.h"
+#include "pipeline/truth.h"
+#include "tests/run_test_util.h"
+#include "tomography/vdb_io.h"
 
 namespace flamerig {
 namespace {
@@ -310,14 +310,14 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
   const RunOptions o = SmallRun(dir / "sim", dir / "out");
   std::size_t calls = 0;
   const FrameSource source(o.source, Rig::Load(o.rig_path));
-  const RunSummary run = RunFrames(o, o.rig_path, 0, 4, Observe([&](const Progress& p) {
-                                     if (p.stage != "frames") return;  // the solves', the fits'
-                                     ++calls;
-                                     EXPECT_EQ(p.done, static_cast<std::int64_t>(calls));
-                                     EXPECT_EQ(p.total, 4);
-                                     EXPECT_NE(p.message.find(FrameName(calls - 1)),
-                                               std::string::npos);
-                                   }));
+  const RunSummary run =
+      RunFrames(o, o.rig_path, 0, 4, Observe([&](const Progress& p) {
+                  if (p.stage != "frames") return;  // the solves', the fits'
+                  ++calls;
+                  EXPECT_EQ(p.done, static_cast<std::int64_t>(calls));
+                  EXPECT_EQ(p.total, 4);
+                  EXPECT_NE(p.message.find(FrameName(calls - 1)), std::string::npos);
+                }));
   ASSERT_EQ(run.frames.size(), 4u);
   EXPECT_EQ(run.computed, 4u);
   EXPECT_EQ(calls, 4u);
@@ -513,8 +513,8 @@ TEST(RunFrames, ADamagedFrameFailsAloneWhateverTheSource) {
   for (const auto& c : rig.cameras) {
     std::vector<ImageU8> frames;
     for (int f = 0; f < 3; ++f)
-      frames.push_back(ReadImageU8(
-          (dir / "sim" / "frames" / FrameName(f) / (c.name + ".png")).string(), 3));
+      frames.push_back(
+          ReadImageU8((dir / "sim" / "frames" / FrameName(f) / (c.name + ".png")).string(), 3));
     seqs.push_back((dir / (c.name + ".seq")).string());
     WriteStreamPix(seqs.back(), frames);
   }
@@ -603,7 +603,7 @@ TEST(RunFrames, ACancelInsideAFrameCommitsNothingOfItAndTheRunResumes) {
   const RunSummary stopped = RunFrames(o, o.rig_path, 0, 3, [&](const Progress& p) {
     if (p.stage == "frames") ++frames_done;
     return frames_done == 1 && p.stage == "fit" ? ProgressAction::kCancel
-                                                 : ProgressAction::kContinue;
+                                                : ProgressAction::kContinue;
   });
   EXPECT_TRUE(stopped.cancelled);
   ASSERT_EQ(stopped.frames.size(), 1u);

@@ -7,8 +7,8 @@
 
 #include <algorithm>
 #include <array>
-#include <cmath>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -142,8 +142,8 @@ TEST(Cli, TheReadmeSynopsisMatchesTheHelp) {
     for (const auto& o : readme_options[c])
       EXPECT_TRUE(help.count(o)) << "the README gives " << c << " " << o << ", --help does not";
     for (const auto& o : help)
-      EXPECT_TRUE(readme_options[c].count(o)) << "--help lists " << c << " " << o
-                                              << ", the README does not";
+      EXPECT_TRUE(readme_options[c].count(o))
+          << "--help lists " << c << " " << o << ", the README does not";
   }
 }
 
@@ -515,11 +515,10 @@ TEST(Cli, FitStopsOnSigintAndWritesWhatItHas) {
   const pid_t child = ::fork();
   ASSERT_GE(child, 0);
   if (child == 0) {
-    const std::string command = std::string(FLAMERIG_BINARY) + " fit --rig " +
-                                (dir / "sim" / "rig.yaml").string() + " --images " +
-                                (dir / "sim" / "frames" / "frame_000000").string() + " --out " +
-                                out.string() + " --fit-iterations 100000 > " + log.string() +
-                                " 2>&1";
+    const std::string command =
+        std::string(FLAMERIG_BINARY) + " fit --rig " + (dir / "sim" / "rig.yaml").string() +
+        " --images " + (dir / "sim" / "frames" / "frame_000000").string() + " --out " +
+        out.string() + " --fit-iterations 100000 > " + log.string() + " 2>&1";
     ::execl("/bin/sh", "sh", "-c", ("exec " + command).c_str(), static_cast<char*>(nullptr));
     ::_exit(127);
   }
@@ -637,7 +636,8 @@ TEST(Cli, CaptureLogsEveryEventWithATimestamp) {
   std::ifstream in(dir / "stderr.txt");
   const std::string log((std::istreambuf_iterator<char>(in)), {});
   EXPECT_EQ(log.find('\r'), std::string::npos) << log;
-  const std::regex stamp(R"(^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d{3} (info|warning|error) +capture: )");
+  const std::regex stamp(
+      R"(^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d{3} (info|warning|error) +capture: )");
   auto line_with = [&](const std::string& words) {
     std::istringstream lines(log);
     std::string line;
@@ -645,9 +645,10 @@ TEST(Cli, CaptureLogsEveryEventWithATimestamp) {
       if (line.find(words) != std::string::npos) return std::regex_search(line, stamp);
     return false;
   };
-  for (const char* event : {"armed: 2 camera(s) streaming", "recording into", "camera b (SIM1) "
-                            "disconnected", "camera b (SIM1) reconnected", "frame sets recorded",
-                            "disarming"})
+  for (const char* event : {"armed: 2 camera(s) streaming", "recording into",
+                            "camera b (SIM1) "
+                            "disconnected",
+                            "camera b (SIM1) reconnected", "frame sets recorded", "disarming"})
     EXPECT_TRUE(line_with(event)) << "no timestamped line with '" << event << "' in\n" << log;
   // Without a terminal, the status is a plain line now and then, not redrawn in place.
   EXPECT_TRUE(line_with("sets ")) << log;

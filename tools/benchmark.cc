@@ -341,8 +341,7 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
         for (float x : held.radiance.pixels) sum += double(x) * x;
         const double held_rms = std::sqrt(sum / held.radiance.pixels.size());
         const SolveSummary& solve = s0.solves.back();
-        if (n == 128 && views == 8 && solver == "sart" && cached)
-          target_ms = cached_ms;
+        if (n == 128 && views == 8 && solver == "sart" && cached) target_ms = cached_ms;
         int iterations = 0;
         for (const auto& sv : s0.solves) iterations += sv.iterations;
         md << "| " << n << "^3 | " << views << " | " << Fixed(100 * s0.voxel_fraction_in_hull, 1)
@@ -364,8 +363,8 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
             h << "\n  held-out:";
             for (double r : sv.holdout_error) h << " " << r;
           }
-          log(std::to_string(n) + "^3, " + std::to_string(views) + " views, " + solver +
-              ": " + s0.BriefReport() + h.str() + later_log);
+          log(std::to_string(n) + "^3, " + std::to_string(views) + " views, " + solver + ": " +
+              s0.BriefReport() + h.str() + later_log);
         }
       }
     }
@@ -576,8 +575,8 @@ std::string RunFitBenchmark(const FitBenchmarkOptions& options,
         if (log) {
           std::ostringstream s;
           s.precision(4);
-          s << "  " << n << "^3 " << who << ": " << (stage->empty() ? "fit" : *stage) << ", " << seconds
-            << " s, mean Delta E " << delta_e;
+          s << "  " << n << "^3 " << who << ": " << (stage->empty() ? "fit" : *stage) << ", "
+            << seconds << " s, mean Delta E " << delta_e;
           log(s.str());
         }
       });

@@ -24,16 +24,18 @@ Runner AddReconstruct(CLI::App* command) {
   command->add_option("--exposure", job->exposure, "Exposure the images were taken with")
       ->type_name("S")
       ->check(kPositive);
-  command->add_option("--resolution", job->reconstruct.resolution,
-                      "Voxels along the box's longest side")
+  command
+      ->add_option("--resolution", job->reconstruct.resolution,
+                   "Voxels along the box's longest side")
       ->type_name("N")
       ->check(Whole(1, 1024));
   std::vector<std::string> solvers;
   for (const auto& s : TomographySolvers()) solvers.push_back(s.name);
   command->add_option("--solver", job->reconstruct.solve.solver, "Tomography solver")
       ->check(CLI::IsMember(solvers));
-  command->add_option("--solve-iterations", job->reconstruct.solve.max_iterations,
-                      "At most this many solver iterations (it stops earlier on its own rules)")
+  command
+      ->add_option("--solve-iterations", job->reconstruct.solve.max_iterations,
+                   "At most this many solver iterations (it stops earlier on its own rules)")
       ->type_name("N")
       ->check(Whole(1, 100000));
   command->add_option("--holdout", *holdout, "Camera to leave out of the solve and score on")
@@ -44,8 +46,9 @@ Runner AddReconstruct(CLI::App* command) {
                     "Solve a half-resolution grid first (default on)");
   command->add_option("--truth", job->truth_path, "Ground-truth volume with an emission grid")
       ->type_name("T.vdb");
-  command->add_option("--preview", job->preview_path,
-                      "Picture: input, reconstruction rendered back, 4x difference per camera")
+  command
+      ->add_option("--preview", job->preview_path,
+                   "Picture: input, reconstruction rendered back, 4x difference per camera")
       ->type_name("P.png");
   command
       ->add_option("--report", job->report_dir,
