@@ -93,6 +93,31 @@ void CheckTable(const SpectralSensitivity& s, const std::string& where) {
 
 }  // namespace
 
+void ParseTransferSpec(const std::string& spec, TransferFunction* transfer, double* gamma) {
+  const std::string forms = "; use linear, srgb or gamma=G (G in [0.1, 10])";
+  if (spec == "srgb") {
+    *transfer = TransferFunction::kSrgb;
+  } else if (spec == "linear") {
+    *transfer = TransferFunction::kLinear;
+  } else if (spec.rfind("gamma=", 0) == 0) {
+    const std::string number = spec.substr(6);
+    std::size_t used = 0;
+    double g = 0;
+    try {
+      g = std::stod(number, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used == 0 || used != number.size() || !(g >= 0.1 && g <= 10))
+      throw InputError("input transfer '" + spec + "': the gamma is not a number in [0.1, 10]" +
+                       forms);
+    *transfer = TransferFunction::kGamma;
+    *gamma = g;
+  } else {
+    throw InputError("input transfer '" + spec + "'" + forms);
+  }
+}
+
 const char* ToString(TransferFunction transfer) {
   switch (transfer) {
     case TransferFunction::kSrgb:

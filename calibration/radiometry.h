@@ -64,6 +64,9 @@ namespace flamerig {
 
 enum class TransferFunction { kSrgb, kLinear, kGamma, kCurve };
 const char* ToString(TransferFunction transfer);  // "srgb", "linear", "gamma", "curve"
+// A transfer function as a person writes it for a folder of images: "srgb", "linear" or
+// "gamma=G" (G in [0.1, 10]). Throws InputError quoting `spec` and the forms it takes.
+void ParseTransferSpec(const std::string& spec, TransferFunction* transfer, double* gamma);
 
 // A Gaussian band: a colour channel's sensitivity in the parametric family, or a band-pass filter.
 struct SpectralBand {

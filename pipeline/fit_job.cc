@@ -30,7 +30,7 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
        {std::pair{job.truth_path, "--truth"}, std::pair{job.tomography_path, "--tomography"}})
     if (!path.empty() && !fs::is_regular_file(path))
       throw InputError(path + " (" + option + "): no such file");
-  const Rig rig = Rig::Load(job.rig_path);
+  const Rig rig = WithInputTransfer(Rig::Load(job.rig_path), job.input_transfer);
   const ImagesExposure images_exposure = ResolveExposure(job.exposure, job.rig_path);
   const double exposure = images_exposure.value;
   // The fast fit holds a known exposure: checked before any work.
@@ -80,7 +80,7 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
   if (views.empty()) throw InputError("fit: no views to fit");
 
   FitJobResult out;
-  ReconstructOptions ro;
+  ReconstructOptions ro = job.reconstruct;
   ro.exposure = exposure;
   if (job.resolution > 0) ro.resolution = job.resolution;
   // The tomography: from a file, or reconstructed here from the fitted views only.

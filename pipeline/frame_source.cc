@@ -62,6 +62,11 @@ void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double 
   for (int c = 0; c < 3; ++c)
     unit[c] = 1.0 / (exposure * radiometry.gain[radiometry.channels() == 1 ? 0 : c]);
   linear->full_scale = std::max({unit[0], unit[1], unit[2]});
+  // The first code above black, in radiance: the frame's quantisation step where the background
+  // lies (the fire mask's noise floor, visual_hull.h).
+  const std::size_t first_step = std::min<std::size_t>(
+      table.size() - 1, static_cast<std::size_t>(std::floor(decoding.black)) + 1);
+  linear->quantum = table[first_step] * linear->full_scale;
   // What a person sees: the frame itself when it is 8-bit sRGB, else the signal encoded.
   const bool picture_is_frame = bits == 8 && decoding.transfer == TransferFunction::kSrgb &&
                                 decoding.black == 0 && decoding.saturation == 255;
@@ -83,6 +88,19 @@ void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double 
           picture_is_frame ? static_cast<std::uint8_t>(code) : QuantizeU8(SrgbEncode(v));
     }
   }
+}
+
+Rig WithInputTransfer(Rig rig, const std::string& spec) {
+  if (spec.empty()) return rig;
+  TransferFunction transfer = TransferFunction::kSrgb;
+  double gamma = 2.2;
+  ParseTransferSpec(spec, &transfer, &gamma);
+  for (RigCamera& camera : rig.cameras) {
+    camera.radiometry.transfer = transfer;
+    camera.radiometry.gamma = gamma;
+    camera.radiometry.curve.clear();
+  }
+  return rig;
 }
 
 SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double exposure) {

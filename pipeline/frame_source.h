@@ -93,6 +93,13 @@ void DecodeCameraImage(const ImageU8& u8, const ImageU16& u16, int bits, double 
                        const CameraRadiometry& radiometry, ImageU8* rgb8, LinearFrame* linear,
                        ImageF* signal);
 
+// `rig` with every camera's frames read through the transfer function `spec` (ParseTransferSpec:
+// "srgb", "linear", "gamma=G"), for folders of plain images whose rig says nothing (and a
+// command-line override when it says something else); "" returns the rig as it is. It sets the
+// transfer of frames in the camera's bit depth: 8-bit frames, and 16-bit ones when the rig gives a
+// bit depth (without one, 16-bit frames stay linear). Throws InputError for a bad spec.
+Rig WithInputTransfer(Rig rig, const std::string& spec);
+
 // One camera's view of the question "did this frame change beyond noise since that one?".
 struct ImageChange {
   double noise_dn = 0;          // robust noise of the difference, from pixels dark in both

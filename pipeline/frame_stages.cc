@@ -81,7 +81,7 @@ bool RunPaths::Complete(std::size_t i) const { return fs::exists(Summary(i)); }
 FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path, std::size_t begin)
     : options_(options),
       begin_(begin),
-      rig_(Rig::Load(rig_path)),
+      rig_(WithInputTransfer(Rig::Load(rig_path), options.input_transfer)),
       source_(options.source, rig_),
       paths_{options.out_dir},
       absorption_(AbsorptionModel::FromName(options.absorption.empty() ? DatasetAbsorption(rig_path)

@@ -1,13 +1,6 @@
 #include "pipeline/plot.h"
 
-#include <fcntl.h>
-#include <spawn.h>
-#include <sys/wait.h>
-#include <unistd.h>
-
 #include <algorithm>
-#include <atomic>
-#include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -17,8 +10,7 @@
 
 #include "core/atomic_file.h"
 #include "core/error.h"
-
-extern char** environ;
+#include "pipeline/subprocess.h"
 
 namespace flamerig {
 
@@ -46,46 +38,14 @@ bool Usable(const PlotSpec& spec, double x, double y) {
 // Runs `gnuplot -e VARS script` in `dir`; false with gnuplot's complaint in *error.
 bool RunGnuplot(const fs::path& dir, const std::string& script, const std::string& vars,
                 std::string* error) {
-  static std::atomic<int> counter{0};
-  const std::string log_name =
-      ".gnuplot-" + std::to_string(::getpid()) + "-" + std::to_string(counter++) + ".log";
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_addchdir_np(&actions, dir.c_str());
-  posix_spawn_file_actions_addopen(&actions, 1, "/dev/null", O_WRONLY, 0);
-  posix_spawn_file_actions_addopen(&actions, 2, log_name.c_str(), O_WRONLY | O_CREAT | O_TRUNC,
-                                   0644);
-  std::string arg0 = "gnuplot", arg1 = "-e";
-  std::string arg2 = vars, arg3 = script;
-  char* argv[] = {arg0.data(), arg1.data(), arg2.data(), arg3.data(), nullptr};
-  pid_t pid = -1;
-  const int spawned = posix_spawnp(&pid, "gnuplot", &actions, nullptr, argv, environ);
-  posix_spawn_file_actions_destroy(&actions);
-  if (spawned != 0) {
-    if (error)
-      *error = "cannot run gnuplot (" + std::string(std::strerror(spawned)) +
-               "): install gnuplot-nox (scripts/install-deps.sh)";
-    return false;
-  }
-  int status = 0;
-  while (::waitpid(pid, &status, 0) < 0 && errno == EINTR) {
-  }
-  std::string complaint;
-  {
-    std::ifstream in(dir / log_name);
-    std::ostringstream text;
-    text << in.rdbuf();
-    complaint = text.str();
-  }
-  std::error_code ignored;
-  fs::remove(dir / log_name, ignored);
-  if (WIFEXITED(status) && WEXITSTATUS(status) == 0) return true;
+  const ProgramResult r = RunProgram({"gnuplot", "-e", vars, script}, dir.string());
+  if (r.ok()) return true;
   if (error) {
-    if (WIFEXITED(status) && WEXITSTATUS(status) == 127)
-      *error = "cannot run gnuplot: install gnuplot-nox (scripts/install-deps.sh)";
+    if (!r.started)
+      *error = r.error + ": install gnuplot-nox (scripts/install-deps.sh)";
     else
       *error = "gnuplot failed on " + (dir / script).string() + ": " +
-               complaint.substr(0, std::min<std::size_t>(complaint.size(), 400));
+               r.error.substr(0, std::min<std::size_t>(r.error.size(), 400));
   }
   return false;
 }

@@ -19,6 +19,11 @@ struct ReconstructJob {
   // The exposure the images were taken with; 0 = dataset.yaml beside the rig, else 1.
   double exposure = 0;
   ReconstructOptions reconstruct;  // its exposure is the job's
+  std::string input_transfer;      // "" = the rig's; else srgb | linear | gamma=G (frame_source.h)
+  // "" = none: each camera's fire mask as DIR/<camera>.png (white: the pixels the solve uses, the
+  // dilated mask) and DIR/masks.png, a labelled picture of the masks, the specks removed and the
+  // hull's outline over each input.
+  std::string masks_dir;
   std::string preview_path;        // "" = none: per camera input, rendered back, 4x difference
   std::string truth_path;          // "" = none: a volume with an 'emission' grid
   // "" = none: a report folder, index.html (pipeline/report_page.h) with the tomography's summary,

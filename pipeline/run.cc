@@ -98,6 +98,11 @@ void RunOptions::Validate() const {
   ReconstructOptions r = reconstruct;
   r.exposure = 1;
   r.Validate();
+  if (!input_transfer.empty()) {
+    TransferFunction transfer;
+    double gamma;
+    ParseTransferSpec(input_transfer, &transfer, &gamma);
+  }
   fit.Validate();
   unchanged.Validate();
 }

@@ -82,6 +82,9 @@ struct RunOptions {
     r.resolution = 64;
     return r;
   }();
+  // How 8-bit frames encode light when the rig does not say (or to override it): "" = the rig's;
+  // srgb | linear | gamma=G (frame_source.h, WithInputTransfer).
+  std::string input_transfer;
   FitOptions fit;
   std::string holdout_camera;  // scored, not fitted; "" = none
   ChangeOptions unchanged;

@@ -17,6 +17,7 @@
 #include "pipeline/frame_source.h"
 #include "pipeline/picture.h"
 #include "pipeline/radiometric_calibration.h"
+#include "pipeline/video_codec.h"
 #include "tomography/vdb_io.h"
 
 namespace flamerig {
@@ -64,14 +65,42 @@ std::string FrameName(int f) {
 
 namespace {
 
+// One frame through the codec, as an intra-coded video frame; a mono frame as grey RGB, back to
+// one channel (the mean of the decoded three).
+ImageU8 ThroughCodec(const ImageU8& frame, const VideoCodecOptions& codec) {
+  if (frame.channels == 3) return ThroughVideoCodec({frame}, codec)[0];
+  ImageU8 rgb(frame.width, frame.height, 3);
+  for (std::size_t p = 0; p < frame.num_pixels(); ++p)
+    for (int c = 0; c < 3; ++c) rgb.pixels[3 * p + c] = frame.pixels[p];
+  const ImageU8 back = ThroughVideoCodec({rgb}, codec)[0];
+  ImageU8 out(frame.width, frame.height, 1);
+  for (std::size_t p = 0; p < out.num_pixels(); ++p)
+    out.pixels[p] = static_cast<std::uint8_t>(
+        (back.pixels[3 * p] + back.pixels[3 * p + 1] + back.pixels[3 * p + 2] + 1) / 3);
+  return out;
+}
+
 // The keys of the `simulate:` map `s` into `c` (SimulateConfig::Load).
 void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out) {
   SimulateConfig& c = *out;
   CheckKeys(s,
             {"seed", "frames", "frame_rate_hz", "absorption", "grid_resolution", "noise_dn",
              "exposure", "fire", "box", "rig", "calibration", "render", "radiometry",
-             "camera_gains", "radiometric_calibration"},
+             "camera_gains", "radiometric_calibration", "codec"},
             path + ": simulate");
+  if (YAML::Node v = s["codec"]) {
+    if (v.IsScalar() && v.as<std::string>() == "none") {
+      c.codec_enabled = false;
+    } else {
+      if (!v.IsMap()) Fail(path, "simulate.codec", "must be 'none' or a map");
+      CheckKeys(v, {"codec", "crf", "preset", "pixel_format"}, path + ": simulate.codec");
+      c.codec_enabled = true;
+      Read(v, "codec", &c.codec.codec, path, "simulate.codec.");
+      Read(v, "crf", &c.codec.crf, path, "simulate.codec.");
+      Read(v, "preset", &c.codec.preset, path, "simulate.codec.");
+      Read(v, "pixel_format", &c.codec.pixel_format, path, "simulate.codec.");
+    }
+  }
   if (YAML::Node r = s["radiometry"])
     c.radiometry = CameraRadiometry::FromYaml(r, fs::path(path).parent_path().string(),
                                               path + ": simulate.radiometry");
@@ -207,6 +236,16 @@ void SimulateConfig::Validate() const {
   if (!auto_exposure && (!(exposure >= 0.01) || !(exposure <= 1000)))
     fail("exposure must be 'auto' or in [0.01, 1000]");
   if (!(noise_dn >= 0) || !(noise_dn <= 50)) fail("noise_dn must be in [0, 50]");
+  if (codec_enabled) {
+    try {
+      codec.Validate();
+    } catch (const InputError& e) {
+      fail(std::string("codec: ") + e.what());
+    }
+    if (radiometry.bit_depth > 8)
+      fail("codec: a video codec records 8-bit frames; the radiometry has " +
+           std::to_string(radiometry.bit_depth) + " bits");
+  }
   if (!box.IsValid()) fail("box: max must exceed min on every axis");
   if (shared_per_pair < 0 || closeups_per_camera < 0) fail("calibration view counts must be >= 0");
   if (!camera_gains.empty() && int(camera_gains.size()) != ring.cameras)
@@ -335,6 +374,8 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
   yaml << YAML::Key << "voxel_size_m" << YAML::Value << grid.voxel_size_m.x();
   yaml << YAML::Key << "frame_rate_hz" << YAML::Value << config.frame_rate_hz;
   yaml << YAML::Key << "noise_dn" << YAML::Value << config.noise_dn;
+  yaml << YAML::Key << "codec" << YAML::Value
+       << (config.codec_enabled ? config.codec.Describe() + ", each frame intra-coded" : "none");
   yaml << YAML::Key << "render_step_voxels" << YAML::Value << config.render.step_voxels;
 
   double exposure = config.exposure;
@@ -391,6 +432,7 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
       const CameraRadiometry film = config.CameraFilm(c);
       const int bits = RecordCameraImage(linear[c], exposure, film, config.noise_dn,
                                          config.seed * 1000003ULL + f * 101ULL + c, &u8, &u16);
+      if (config.codec_enabled && bits == 8) u8 = ThroughCodec(u8, config.codec);
       const std::string file = (frame_dir / (rig.cameras[c].name + ".png")).string();
       if (bits == 16)
         WritePng16(file, u16);

@@ -23,6 +23,10 @@
 //   radiometry: {...}   every camera's radiometric model (calibration/radiometry.h) [the default
 //                        8-bit sRGB camera]; written into OUT/rig.yaml. Cameras of more than 8 bits
 //                        write 16-bit PNGs holding their codes (0..2^bits - 1), mono cameras grey.
+//   codec: none | {codec [libx264], crf [30], preset [medium], pixel_format [yuv420p]}
+//                        every 8-bit frame through a real video codec (video_codec.h, ffmpeg), as
+//                        an intra-coded frame: block artefacts, ringing, chroma subsampling and
+//                        specks on the black background [none]
 //   camera_gains: [[r, g, b], ...]   per camera, multiplying radiometry.gain (white balance and
 //                        sensor spread, what radiometric calibration recovers) [all 1]
 //   radiometric_calibration: {enabled [false], temperatures_k [1300, 1600, 1900],
@@ -42,6 +46,7 @@
 #include "fitting/renderer.h"
 #include "calibration/synthetic_rig.h"
 #include "fitting/synthetic_fire.h"
+#include "pipeline/video_codec.h"
 
 namespace flamerig {
 
@@ -63,6 +68,8 @@ struct SimulateConfig {
   int closeups_per_camera = 4;
   RenderOptions render;
   CameraRadiometry radiometry;  // of every camera
+  bool codec_enabled = false;   // 8-bit frames through `codec`
+  VideoCodecOptions codec;
   std::vector<Eigen::Vector3d>
       camera_gains;  // empty, or one per camera: multiplies radiometry.gain
   struct RadiometricShotsConfig {

@@ -17,6 +17,7 @@
 
 #include "core/atomic_file.h"
 #include "core/error.h"
+#include "core/memory.h"
 #include "core/srgb.h"
 #include "tomography/ray_march.h"
 
@@ -108,8 +109,11 @@ std::string ReconstructSummary::BriefReport() const {
   s.precision(3);
   s << "grid " << grid.dims.x() << "x" << grid.dims.y() << "x" << grid.dims.z() << ", hull "
     << voxel_fraction_in_hull * 100 << "% of voxels (fire pixels per camera:";
-  for (std::size_t c = 0; c < fire_pixel_fraction.size(); ++c) {
-    s << " " << fire_pixel_fraction[c] * 100 << "% (noise " << noise_sigma[c] << ")";
+  for (const CameraMaskSummary& m : masks) {
+    s << " " << m.camera << (m.held_out ? " (held out)" : "") << " " << m.fraction * 100
+      << "% (noise " << m.noise_sigma;
+    if (m.speck_regions) s << ", " << m.speck_regions << " specks of " << m.speck_pixels << " px removed";
+    s << ")";
   }
   s << "), matrix " << matrix_rows << "x" << matrix_cols << " (" << matrix_nnz << " non-zeros, "
     << matrix_bytes / 1048576.0 << " MB, " << matrix_source << ", " << matrix_build_ms << " ms)";
@@ -119,7 +123,9 @@ std::string ReconstructSummary::BriefReport() const {
   if (holdout_rms >= 0) s << "; held-out " << holdout_camera << " RMS " << holdout_rms;
   for (const auto& skipped : skipped_cameras) s << "; skipped " << skipped;
   s << "; total " << total_ms << " ms (decode " << decode_ms << ", hull " << hull_ms << ", matrix "
-    << matrix_ms << ", solve " << solve_ms << "), peak " << peak_bytes / 1048576.0 << " MB";
+    << matrix_ms << ", solve " << solve_ms << "), matrices and vectors "
+    << working_bytes / 1048576.0 << " MB, process peak " << process_peak_bytes / 1048576.0
+    << " MB";
   return s.str();
 }
 
@@ -260,8 +266,32 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     summary.hull_ms += Ms(t0);
     if (is_fine) {
       summary.voxel_fraction_in_hull = hull.voxel_fraction;
-      summary.fire_pixel_fraction = hull.fire_pixel_fraction;
-      summary.noise_sigma = hull.noise_sigma;
+      for (std::size_t c = 0; c < cams.size(); ++c) {
+        CameraMaskSummary m;
+        static_cast<FireMaskStats&>(m) = hull.masks[c];
+        m.camera = cams[c].name;
+        m.width = cams[c].model.width();
+        m.height = cams[c].model.height();
+        summary.masks.push_back(std::move(m));
+      }
+      std::vector<int> mask_cameras = solve_cameras;
+      std::vector<const LinearFrame*> mask_frames;
+      for (const LinearFrame& f : solve_frames) mask_frames.push_back(&f);
+      if (use_holdout) {
+        const RigCamera& held = rig_.cameras[holdout_index_];
+        CameraMaskSummary m;
+        static_cast<FireMaskStats&>(m) =
+            ComputeFireMask(g, held, frames[holdout_index_], options_.hull);
+        m.camera = held.name;
+        m.held_out = true;
+        m.width = held.model.width();
+        m.height = held.model.height();
+        summary.masks.push_back(std::move(m));
+        mask_cameras.push_back(holdout_index_);
+        mask_frames.push_back(&frames[holdout_index_]);
+      }
+      if (options_.keep_masks)
+        KeepMasks(g, level->projections, mask_cameras, mask_frames, hull, &summary.masks);
     }
     // Matrix: reuse while the hull fits the envelope it was built for.
     t0 = Clock::now();
@@ -363,7 +393,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
       std::size_t counted = 0;
       for (std::size_t r = 0; r < a.rows(); ++r) {
         if (problem.lower_bound_rows[r]) continue;
-        const double sigma = hull.noise_sigma[a.row_camera(r)];
+        const double sigma = hull.masks[a.row_camera(r)].noise_estimate;
         for (int ch = 0; ch < 3; ++ch) {
           const double v = problem.b[r * 3 + ch] * options_.exposure;  // linear camera signal
           const double encoded = SrgbEncode(v);
@@ -427,7 +457,8 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
       previous_grid = g;
     }
   }
-  summary.peak_bytes = peak;
+  summary.working_bytes = peak;
+  summary.process_peak_bytes = PeakResidentBytes();
   summary.total_ms = Ms(start);
   out.metadata_numbers["exposure"] = options_.exposure;
   out.metadata_numbers["hull_voxel_fraction"] = summary.voxel_fraction_in_hull;
@@ -631,6 +662,27 @@ void Reconstructor::MakeHoldoutMatrix(Level* level, std::vector<std::uint8_t> pi
                                        level->envelope_voxels, options_.matrix);
   level->holdout_pixels = std::move(pixels);
   level->has_holdout = true;
+}
+
+void Reconstructor::KeepMasks(const GridGeometry& g, const VoxelProjections& projections,
+                              const std::vector<int>& rig_cameras,
+                              const std::vector<const LinearFrame*>& frames,
+                              const VisualHull& hull,
+                              std::vector<CameraMaskSummary>* masks) const {
+  for (std::size_t i = 0; i < rig_cameras.size(); ++i) {
+    const RigCamera& cam = rig_.cameras[rig_cameras[i]];
+    const FireMask mask = ComputeFireMask(g, cam, *frames[i], options_.hull, /*keep_labels=*/true);
+    const int radius = static_cast<int>(std::ceil(0.5 * VoxelFootprintPx(g, cam)));
+    const std::vector<std::uint8_t> silhouette =
+        HullSilhouette(hull.voxel_inside, projections.pixel[rig_cameras[i]], cam.model.width(),
+                       cam.model.height(), radius);
+    std::vector<std::uint8_t>& labels = (*masks)[i].labels;
+    labels = mask.labels;
+    for (std::size_t p = 0; p < labels.size(); ++p) {
+      if (mask.mask[p]) labels[p] |= CameraMaskSummary::kMaskDilated;
+      if (silhouette[p]) labels[p] |= CameraMaskSummary::kMaskHull;
+    }
+  }
 }
 
 void Reconstructor::SaveState(const std::string& path) const {

@@ -47,14 +47,27 @@ struct ReconstructOptions {
   // rebuilt (those pixels are left out of that frame); [0, 0.1].
   double envelope_pixel_tolerance = 0.01;
   std::string cache_dir;  // on-disk matrix cache; "" = memory only
+  // Keep every camera's mask labels (ReconstructSummary::masks) for pictures and mask files.
+  bool keep_masks = false;
   void Validate() const;  // throws InputError naming the field
+};
+
+// One camera's fire mask on the full-resolution grid (visual_hull.h), as a person checks it.
+struct CameraMaskSummary : FireMaskStats {
+  std::string camera;
+  bool held_out = false;
+  int width = 0, height = 0;
+  // With ReconstructOptions::keep_masks, per pixel: kMaskFire, kMaskSpeck (visual_hull.h),
+  // kMaskDilated (inside the dilated mask, the rows the solve uses) and kMaskHull (a hull voxel's
+  // centre projects near it); else empty.
+  std::vector<std::uint8_t> labels;
+  static constexpr std::uint8_t kMaskDilated = 4, kMaskHull = 8;
 };
 
 struct ReconstructSummary {
   GridGeometry grid;
   double voxel_fraction_in_hull = 0;
-  std::vector<double> fire_pixel_fraction;  // per camera
-  std::vector<double> noise_sigma;          // per camera (radiance)
+  std::vector<CameraMaskSummary> masks;  // per camera with a frame (solve cameras, then held out)
   std::size_t matrix_rows = 0, matrix_cols = 0, matrix_nnz = 0, matrix_bytes = 0;
   std::string matrix_source;                     // "built", "reused (envelope)", "disk cache"
   std::size_t fire_pixels_outside_envelope = 0;  // left out of a frame that reused the matrix
@@ -64,7 +77,8 @@ struct ReconstructSummary {
   double holdout_rms = -1;  // RMS radiance error on the held-out camera, -1 if none
   std::vector<std::string> skipped_cameras;  // cameras without a usable frame, with the reason
   double decode_ms = 0, hull_ms = 0, matrix_ms = 0, solve_ms = 0, total_ms = 0;
-  std::size_t peak_bytes = 0;  // system matrix plus solver vectors
+  std::size_t working_bytes = 0;  // system matrices, projections and solver vectors
+  std::size_t process_peak_bytes = 0;  // the process's peak resident memory so far (VmHWM)
   std::string BriefReport() const;
 };
 
@@ -115,6 +129,10 @@ class Reconstructor {
                          std::vector<std::vector<std::uint8_t>> pixels,
                          std::vector<std::uint8_t> envelope);
   void MakeHoldoutMatrix(Level* level, std::vector<std::uint8_t> pixels);
+  // Fills the labels of masks[i] for rig camera rig_cameras[i] and its frame.
+  void KeepMasks(const GridGeometry& g, const VoxelProjections& projections,
+                 const std::vector<int>& rig_cameras, const std::vector<const LinearFrame*>& frames,
+                 const VisualHull& hull, std::vector<CameraMaskSummary>* masks) const;
   std::uint64_t StateKey() const;  // what a saved state must have been saved for
   std::uint64_t state_key_ = 0;    // StateKey(), computed once (it hashes every ray)
   std::unique_ptr<Level> fine_, coarse_;

@@ -1,5 +1,6 @@
 #include "tomography/visual_hull.h"
 
+#include <opencv2/imgproc.hpp>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
@@ -28,6 +29,7 @@ LinearFrame DecodeSrgb8(const ImageU8& image, double exposure) {
   f.radiance = ImageF(image.width, image.height, 3);
   f.saturated.assign(image.num_pixels(), 0);
   f.full_scale = 1.0 / exposure;
+  f.quantum = table[1] / exposure;
   for (std::size_t p = 0; p < image.num_pixels(); ++p) {
     for (int c = 0; c < 3; ++c) {
       std::uint8_t v = image.pixels[p * image.channels + (image.channels == 1 ? 0 : c)];
@@ -51,6 +53,7 @@ LinearFrame DecodeLinear16(const ImageU16& image, double exposure, double white)
   f.radiance = ImageF(image.width, image.height, 3);
   f.saturated.assign(image.num_pixels(), 0);
   f.full_scale = 1.0 / exposure;
+  f.quantum = std::min(1.0 / white, 1.0) / exposure;
   for (std::size_t p = 0; p < image.num_pixels(); ++p) {
     for (int c = 0; c < 3; ++c) {
       double v = image.pixels[p * image.channels + (image.channels == 1 ? 0 : c)];
@@ -71,6 +74,8 @@ void VisualHullOptions::Validate() const {
     fail("threshold_sigmas must be > 0");
   if (dilation_px < 0 || dilation_px > 64) fail("dilation_px must be in [0, 64]");
   if (min_views < 1) fail("min_views must be >= 1");
+  if (min_speck_px < -1 || min_speck_px > 1000000)
+    fail("min_speck_px must be in [-1, 1000000] (-1: from the voxel size)");
 }
 
 double EstimateNoiseSigma(const ImageF& radiance) {
@@ -124,8 +129,43 @@ std::vector<std::uint8_t> DilateMask(const std::vector<std::uint8_t>& mask, int 
   return out;
 }
 
+double VoxelFootprintPx(const GridGeometry& grid, const RigCamera& camera) {
+  const CameraModel& cam = camera.model;
+  const Eigen::Vector3d center_in_cam = cam.cam_from_rig() * grid.box().center();
+  const double focal =
+      cam.intrinsics().size() >= 2 ? std::max(cam.intrinsics()[0], cam.intrinsics()[1]) : 1.0;
+  return center_in_cam.z() > 0 ? focal * grid.voxel_size_m.maxCoeff() / center_in_cam.z() : 0.0;
+}
+
+std::pair<std::size_t, std::size_t> RemoveSpecks(std::vector<std::uint8_t>* mask, int width,
+                                                 int height, int min_pixels) {
+  if (min_pixels <= 1 || width <= 0 || height <= 0) return {0, 0};
+  if (mask->size() != static_cast<std::size_t>(width) * height)
+    throw InputError("RemoveSpecks: the mask is not width x height");
+  cv::Mat binary(height, width, CV_8U, mask->data());
+  cv::Mat labels, stats, centroids;
+  const int n = cv::connectedComponentsWithStats(binary, labels, stats, centroids, 8, CV_32S);
+  std::vector<std::uint8_t> speck(n, 0);
+  std::size_t regions = 0, pixels = 0;
+  for (int l = 1; l < n; ++l) {
+    const int area = stats.at<int>(l, cv::CC_STAT_AREA);
+    if (area < min_pixels) {
+      speck[l] = 1;
+      ++regions;
+      pixels += area;
+    }
+  }
+  if (regions == 0) return {0, 0};
+  for (int y = 0; y < height; ++y) {
+    const int* row = labels.ptr<int>(y);
+    for (int x = 0; x < width; ++x)
+      if (speck[row[x]]) (*mask)[static_cast<std::size_t>(y) * width + x] = 0;
+  }
+  return {regions, pixels};
+}
+
 FireMask ComputeFireMask(const GridGeometry& grid, const RigCamera& camera, const LinearFrame& f,
-                         const VisualHullOptions& options) {
+                         const VisualHullOptions& options, bool keep_labels) {
   const CameraModel& cam = camera.model;
   if (f.radiance.width != cam.width() || f.radiance.height != cam.height()) {
     throw DataError(
@@ -134,27 +174,55 @@ FireMask ComputeFireMask(const GridGeometry& grid, const RigCamera& camera, cons
         std::to_string(cam.width()) + "x" + std::to_string(cam.height()));
   }
   FireMask out;
-  out.noise_sigma = options.noise_sigma > 0 ? options.noise_sigma : EstimateNoiseSigma(f.radiance);
-  // At least one 8-bit step above black, wherever the sensor is noise-free.
-  const double one_step = SrgbDecode(1.0 / 255.0) * f.full_scale;
-  out.threshold = std::max(options.threshold_sigmas * out.noise_sigma, 0.99 * one_step);
+  out.noise_estimate =
+      options.noise_sigma > 0 ? options.noise_sigma : EstimateNoiseSigma(f.radiance);
+  // Never below one quantisation step at black: a background that reads exactly 0 says nothing
+  // about the noise, and compression leaves 1-2 code specks on it.
+  const double quantum = f.quantum > 0 ? f.quantum : SrgbDecode(1.0 / 255.0) * f.full_scale;
+  out.noise_sigma = std::max(out.noise_estimate, quantum);
+  out.threshold = options.threshold_sigmas * out.noise_sigma;
   std::vector<std::uint8_t> fire(f.radiance.num_pixels(), 0);
   for (std::size_t p = 0; p < fire.size(); ++p) {
     const float m = std::max(
         {f.radiance.pixels[3 * p], f.radiance.pixels[3 * p + 1], f.radiance.pixels[3 * p + 2]});
     fire[p] = m > out.threshold ? 1 : 0;
   }
-  // Dilate by the projected size of a voxel at the box centre, plus the margin asked for.
-  const Eigen::Vector3d center_in_cam = cam.cam_from_rig() * grid.box().center();
-  const double focal =
-      cam.intrinsics().size() >= 2 ? std::max(cam.intrinsics()[0], cam.intrinsics()[1]) : 1.0;
-  const double voxel_px =
-      center_in_cam.z() > 0 ? focal * 0.87 * grid.voxel_size_m.maxCoeff() / center_in_cam.z() : 0.0;
-  const int radius = options.dilation_px + static_cast<int>(std::ceil(std::min(voxel_px, 64.0)));
+  const double voxel_px = VoxelFootprintPx(grid, camera);
+  out.min_speck_px = options.min_speck_px >= 0
+                        ? options.min_speck_px
+                        : std::max(2, static_cast<int>(0.5 * std::min(voxel_px * voxel_px, 1e6)));
+  std::vector<std::uint8_t> before;
+  if (keep_labels) before = fire;
+  const auto [regions, pixels] = RemoveSpecks(&fire, cam.width(), cam.height(), out.min_speck_px);
+  out.speck_regions = regions;
+  out.speck_pixels = pixels;
+  out.fire_pixels = static_cast<std::size_t>(std::count(fire.begin(), fire.end(), 1));
+  if (keep_labels) {
+    out.labels.assign(fire.size(), 0);
+    for (std::size_t p = 0; p < fire.size(); ++p)
+      out.labels[p] = fire[p] ? kMaskFire : before[p] ? kMaskSpeck : 0;
+  }
+  // Dilate by the projected radius of a voxel at the box centre (half its diagonal), plus the
+  // margin asked for.
+  const int radius =
+      options.dilation_px + static_cast<int>(std::ceil(std::min(0.87 * voxel_px, 64.0)));
   out.mask = DilateMask(fire, cam.width(), cam.height(), radius);
   const std::size_t lit = std::count(out.mask.begin(), out.mask.end(), 1);
   out.fraction = double(lit) / std::max<std::size_t>(1, fire.size());
   return out;
+}
+
+std::vector<std::uint8_t> HullSilhouette(const std::vector<std::uint8_t>& voxel_inside,
+                                         const std::vector<std::int32_t>& projections, int width,
+                                         int height, int radius_px) {
+  if (voxel_inside.size() != projections.size())
+    throw InputError("HullSilhouette: projections do not match the hull");
+  std::vector<std::uint8_t> dots(static_cast<std::size_t>(width) * height, 0);
+  for (std::size_t v = 0; v < voxel_inside.size(); ++v) {
+    const std::int32_t p = projections[v];
+    if (voxel_inside[v] && p >= 0 && static_cast<std::size_t>(p) < dots.size()) dots[p] = 1;
+  }
+  return DilateMask(dots, width, height, std::clamp(radius_px, 0, 64));
 }
 
 std::size_t VoxelProjections::bytes() const {
@@ -220,16 +288,12 @@ VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCame
   const std::size_t ncam = cameras.size();
   VisualHull hull;
   hull.fire_mask.resize(ncam);
-  hull.noise_sigma.resize(ncam);
-  hull.threshold.resize(ncam);
-  hull.fire_pixel_fraction.resize(ncam);
+  hull.masks.resize(ncam);
   hull.cameras_seeing_box.assign(ncam, 0);
   for (std::size_t c = 0; c < ncam; ++c) {
     FireMask mask = ComputeFireMask(grid, cameras[c], frames[c], options);
     hull.fire_mask[c] = std::move(mask.mask);
-    hull.noise_sigma[c] = mask.noise_sigma;
-    hull.threshold[c] = mask.threshold;
-    hull.fire_pixel_fraction[c] = mask.fraction;
+    hull.masks[c] = mask;
   }
 
   hull.voxel_inside.assign(grid.num_voxels(), 0);

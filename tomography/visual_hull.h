@@ -5,17 +5,26 @@
 // the renderer's units (renderer.h: image = exposure * linear radiance). Pixels with any channel at
 // full scale are marked saturated: they only say "at least this bright".
 //
-// Hull: per camera, a pixel shows fire when its brightest channel exceeds threshold_sigmas times
-// the image noise (estimated from the darkest three quarters of the pixels unless given) and at
-// least one 8-bit step; the fire mask is dilated by dilation_px plus the projected radius of a
-// voxel. A voxel stays in the hull when no camera that sees it (its centre projects inside the
-// image) sees background there, and at least min(min_views, cameras that see it) cameras see fire
-// there. Conservative by construction: dilation only adds voxels.
+// Fire masks, per camera, as real footage needs them (an exactly black background, codec specks,
+// hot pixels):
+//  1. noise: estimated from the darkest three quarters of the pixels unless given, and never below
+//     one quantisation step of the frame at black (LinearFrame::quantum): on a background that
+//     reads exactly 0 the estimate is 0, and a threshold of "5 x 0" would take every 1 DN
+//     compression speck for fire;
+//  2. fire: a pixel whose brightest channel exceeds threshold_sigmas times that noise;
+//  3. specks removed: 8-connected regions of fire pixels smaller than min_speck_px (by default half
+//     the area a voxel at the box centre projects to: a region that small cannot be the image of
+//     anything the grid holds);
+//  4. dilated by dilation_px plus the projected radius of a voxel.
+// Hull: a voxel stays when no camera that sees it (its centre projects inside the image) sees
+// background there, and at least min(min_views, cameras that see it) cameras see fire there.
+// Conservative by construction: dilation only adds voxels.
 #ifndef FLAMERIG_TOMOGRAPHY_VISUAL_HULL_H_
 #define FLAMERIG_TOMOGRAPHY_VISUAL_HULL_H_
 
 #include <cstdint>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "core/image.h"
@@ -29,6 +38,10 @@ struct LinearFrame {
   std::vector<std::uint8_t> saturated;  // per pixel: some channel at full scale
   double full_scale = 1.0;  // the radiance a saturated channel stands for (1 / exposure; with
                             // gains, the largest over the channels)
+  // The radiance of the first code above black (the largest over the channels): the frame's
+  // quantisation step where the background lies, and the floor of its noise. 0 = unknown (taken
+  // as one 8-bit sRGB step of full_scale).
+  double quantum = 0.0;
 };
 
 // Throws InputError unless exposure is finite and > 0 and the image has 1 or 3 channels
@@ -42,15 +55,34 @@ struct VisualHullOptions {
   double threshold_sigmas = 5.0;  // fire when brighter than this many sigmas; > 0
   int dilation_px = 2;            // extra dilation of the fire masks, pixels; [0, 64]
   int min_views = 2;              // cameras that must see fire at a voxel; >= 1
-  void Validate() const;          // throws InputError naming the field
+  // Fire regions (8-connected, before dilation) of fewer pixels are specks and removed; -1 = half
+  // the projected area of a voxel at the box centre (at least 2), 0 = keep every region;
+  // [-1, 1000000].
+  int min_speck_px = -1;
+  void Validate() const;  // throws InputError naming the field
 };
+
+// What one camera's fire mask (steps 1 to 4 above) found.
+struct FireMaskStats {
+  double noise_estimate = 0;    // radiance units: estimated (or the given noise_sigma)
+  double noise_sigma = 0;       // after the floor of one quantisation step
+  double threshold = 0;         // radiance units
+  double fraction = 0;          // of the pixels, dilated mask
+  std::size_t fire_pixels = 0;  // above the threshold, specks removed, before dilation
+  std::size_t speck_regions = 0, speck_pixels = 0;  // removed as specks
+  int min_speck_px = 0;                              // the speck size used
+};
+struct FireMask : FireMaskStats {
+  std::vector<std::uint8_t> mask;  // per pixel: 1 inside the dilated mask
+  // Optional (ComputeFireMask's keep_labels): per pixel, kMaskFire | kMaskSpeck (before dilation).
+  std::vector<std::uint8_t> labels;
+};
+enum MaskLabel : std::uint8_t { kMaskFire = 1, kMaskSpeck = 2 };
 
 struct VisualHull {
   std::vector<std::uint8_t> voxel_inside;            // per voxel (volume.h order)
   std::vector<std::vector<std::uint8_t>> fire_mask;  // per camera, per pixel, dilated
-  std::vector<double> noise_sigma;                   // per camera, radiance units
-  std::vector<double> threshold;                     // per camera, radiance units
-  std::vector<double> fire_pixel_fraction;           // per camera, of the dilated mask
+  std::vector<FireMaskStats> masks;                  // per camera
   std::vector<int> cameras_seeing_box;  // per camera: 1 when any voxel centre projects inside
   std::size_t voxels_inside = 0;
   double voxel_fraction = 0;
@@ -80,14 +112,24 @@ VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCame
                              const VisualHullOptions& options, const VoxelProjections& projections,
                              const std::vector<int>& projection_index = {});
 
-// One camera's dilated fire mask, as the hull computes it. Throws InputError naming the
-// camera when the frame's size is not the camera's.
-struct FireMask {
-  std::vector<std::uint8_t> mask;
-  double noise_sigma = 0, threshold = 0, fraction = 0;
-};
+// One camera's dilated fire mask, as the hull computes it; `keep_labels` also fills its labels.
+// Throws DataError naming the camera when the frame's size is not the camera's.
 FireMask ComputeFireMask(const GridGeometry& grid, const RigCamera& camera,
-                         const LinearFrame& frame, const VisualHullOptions& options);
+                         const LinearFrame& frame, const VisualHullOptions& options,
+                         bool keep_labels = false);
+
+// Removes 8-connected regions of fewer than `min_pixels` set pixels from `mask` (width x height,
+// 0/1) in place; returns (regions removed, pixels removed). min_pixels <= 1 removes nothing.
+std::pair<std::size_t, std::size_t> RemoveSpecks(std::vector<std::uint8_t>* mask, int width,
+                                                 int height, int min_pixels);
+
+// Where the hull lies in a camera's image: per pixel 1 when a hull voxel's centre projects there,
+// dilated by `radius_px` (about half a voxel's projected size, so that the dots join).
+std::vector<std::uint8_t> HullSilhouette(const std::vector<std::uint8_t>& voxel_inside,
+                                         const std::vector<std::int32_t>& projections, int width,
+                                         int height, int radius_px);
+// The projected edge of one voxel at the box centre in a camera, pixels (0 behind the camera).
+double VoxelFootprintPx(const GridGeometry& grid, const RigCamera& camera);
 
 // Square (Chebyshev) dilation of a per-pixel mask by `radius` pixels.
 std::vector<std::uint8_t> DilateMask(const std::vector<std::uint8_t>& mask, int width, int height,

@@ -7,6 +7,9 @@
 #include <memory>
 #include <sstream>
 
+#include "calibration/radiometry.h"
+#include "pipeline/tomography_config.h"
+
 namespace flamerig::cli {
 
 namespace {
@@ -169,6 +172,103 @@ const CLI::Validator kNotAnOption(
       return "";
     },
     "");
+
+void AddTomographyFlags(CLI::App* command, TomographyFlags* f, bool solve_options) {
+  const std::string group = "Tomography";
+  command->add_option("--tomography-config", f->config, "Tomography settings (config/tomography.yaml)")
+      ->type_name("T.yaml")
+      ->group(group);
+  command->add_option("--resolution", f->resolution, "Voxels along the box's longest side")
+      ->type_name("N")
+      ->check(Whole(1, 1024))
+      ->group(group);
+  command
+      ->add_option("--input-transfer", f->input_transfer,
+                   "How 8-bit images encode light: srgb, linear (machine-vision raw) or gamma=G")
+      ->type_name("T")
+      ->group(group);
+  command
+      ->add_option("--mask-threshold", f->threshold_sigmas,
+                   "Fire where brighter than this many noise sigmas (default 5)")
+      ->type_name("SIGMAS")
+      ->check(kPositive)
+      ->group(group);
+  command
+      ->add_option("--mask-noise", f->noise,
+                   "Image noise sigma, radiance units (default: estimated, at least one step)")
+      ->type_name("SIGMA")
+      ->check(kNonNegative)
+      ->group(group);
+  command->add_option("--mask-dilation", f->dilation_px, "Extra dilation of fire masks (default 2)")
+      ->type_name("PX")
+      ->check(Whole(0, 64))
+      ->group(group);
+  command
+      ->add_option("--mask-min-views", f->min_views,
+                   "Cameras that must see fire at a voxel (default 2)")
+      ->type_name("N")
+      ->check(Whole(1, 1000))
+      ->group(group);
+  command
+      ->add_option("--mask-min-speck", f->min_speck_px,
+                   "Fire regions of fewer pixels are specks (default -1: half a voxel's image)")
+      ->type_name("PX")
+      ->check(Whole(-1, 1000000))
+      ->group(group);
+  if (!solve_options) return;
+  std::vector<std::string> solvers;
+  for (const auto& s : TomographySolvers()) solvers.push_back(s.name);
+  command->add_option("--solver", f->solver, "Tomography solver")
+      ->check(CLI::IsMember(solvers))
+      ->group(group);
+  command
+      ->add_option("--solve-iterations", f->max_iterations,
+                   "At most this many solver iterations (it stops earlier on its own rules)")
+      ->type_name("N")
+      ->check(Whole(1, 100000))
+      ->group(group);
+  command
+      ->add_option("--stagnation", f->stagnation,
+                   "Stop when an iteration improves the residual by less (default 0.005; 0 never)")
+      ->type_name("R")
+      ->check(CLI::Range(0.0, 1.0))
+      ->group(group);
+  command
+      ->add_flag_callback(
+          "--coarse-to-fine", [f] { f->coarse_to_fine = true; },
+          "Solve a half-resolution grid first (the default)")
+      ->group(group);
+  command
+      ->add_flag_callback(
+          "--no-coarse-to-fine", [f] { f->coarse_to_fine = false; },
+          "Solve the full grid only")
+      ->group(group);
+  command->add_option("--cache", f->cache, "Keep system matrices in DIR")
+      ->type_name("DIR")
+      ->group(group);
+}
+
+void ApplyTomographyFlags(const TomographyFlags& f, ReconstructOptions* o,
+                          std::string* input_transfer) {
+  if (!f.config.empty()) LoadTomographyConfig(f.config, o, input_transfer);
+  if (f.input_transfer) *input_transfer = *f.input_transfer;
+  if (f.resolution) o->resolution = *f.resolution;
+  if (f.solver) o->solve.solver = *f.solver;
+  if (f.max_iterations) o->solve.max_iterations = *f.max_iterations;
+  if (f.stagnation) o->solve.stagnation_tolerance = *f.stagnation;
+  if (f.coarse_to_fine) o->coarse_to_fine = *f.coarse_to_fine;
+  if (f.cache) o->cache_dir = *f.cache;
+  if (f.threshold_sigmas) o->hull.threshold_sigmas = *f.threshold_sigmas;
+  if (f.noise) o->hull.noise_sigma = *f.noise;
+  if (f.dilation_px) o->hull.dilation_px = *f.dilation_px;
+  if (f.min_views) o->hull.min_views = *f.min_views;
+  if (f.min_speck_px) o->hull.min_speck_px = *f.min_speck_px;
+  if (!input_transfer->empty()) {
+    TransferFunction transfer;
+    double gamma;
+    ParseTransferSpec(*input_transfer, &transfer, &gamma);
+  }
+}
 
 void Context::StopOnSignals() {
   struct sigaction action {};

@@ -16,11 +16,13 @@
 #include <chrono>
 #include <functional>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "core/log.h"
 #include "core/progress.h"
+#include "tomography/reconstruct.h"
 
 namespace flamerig::cli {
 
@@ -72,6 +74,24 @@ CLI::Validator Whole(std::int64_t min, std::int64_t max);
 // Put on every option that takes a value: a value that is itself an option ("--out --resolution")
 // is a forgotten value, not a file named "--resolution".
 extern const CLI::Validator kNotAnOption;
+
+// The tomography's options, shared by reconstruct, fit and run: --tomography-config T.yaml
+// (pipeline/tomography_config.h), then each option given on the command line over it.
+struct TomographyFlags {
+  std::string config;
+  std::optional<std::string> input_transfer, solver, cache;
+  std::optional<int> resolution, max_iterations, dilation_px, min_views, min_speck_px;
+  std::optional<double> threshold_sigmas, noise, stagnation;
+  std::optional<bool> coarse_to_fine;
+};
+// Declares --tomography, --resolution, --input-transfer and the --mask-* options; with
+// `solve_options` also --solver, --solve-iterations, --stagnation, --coarse-to-fine /
+// --no-coarse-to-fine and --cache.
+void AddTomographyFlags(CLI::App* command, TomographyFlags* flags, bool solve_options);
+// Loads the config into *options and *input_transfer (when one was given), then the options given
+// over it. Throws InputError naming the config file and key.
+void ApplyTomographyFlags(const TomographyFlags& flags, ReconstructOptions* options,
+                          std::string* input_transfer);
 
 // "a,b,,c" -> {"a", "b", "c"}.
 std::vector<std::string> SplitList(const std::string& text);

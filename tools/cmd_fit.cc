@@ -14,9 +14,11 @@ Runner AddFit(CLI::App* command) {
     std::string views, method = "fast";
     int iterations = -1;
     std::int64_t seed = -1;
+    TomographyFlags tomography;
   };
   auto o = std::make_shared<Options>();
   FitJob& job = o->job;
+  AddTomographyFlags(command, &o->tomography, /*solve_options=*/false);
   command->footer(
       "Fit temperature, density and exposure so that rendering reproduces the images: the fast\n"
       "fit (default) or the paper's Algorithm 1 or 2. The tomography is reconstructed from the\n"
@@ -35,9 +37,6 @@ Runner AddFit(CLI::App* command) {
       ->type_name("CAM,CAM");
   command->add_option("--holdout", job.holdout, "Camera to score but not fit")
       ->type_name("CAMERA");
-  command->add_option("--resolution", job.resolution, "Voxels along the box's longest side")
-      ->type_name("N")
-      ->check(Whole(1, 1024));
   command->add_option("--tomography", job.tomography_path,
                       "Emission volume to start from (default: reconstructed here)")
       ->type_name("E.vdb");
@@ -78,6 +77,7 @@ Runner AddFit(CLI::App* command) {
   return [o, w_sm](Context& context) {
     context.StopOnSignals();
     FitJob job = o->job;
+    ApplyTomographyFlags(o->tomography, &job.reconstruct, &job.input_transfer);
     job.views = SplitList(o->views);
     job.method = o->method == "alg1"   ? FitMethod::kAlgorithm1
                  : o->method == "alg2" ? FitMethod::kAlgorithm2

@@ -10,6 +10,7 @@ namespace flamerig::cli {
 Runner AddReconstruct(CLI::App* command) {
   auto job = std::make_shared<ReconstructJob>();
   auto holdout = std::make_shared<std::string>();
+  auto flags = std::make_shared<TomographyFlags>();
   command->footer(
       "Algebraic tomography of one frame set (DIR/<camera>.png for every rig camera) into an RGB\n"
       "emission volume. The exposure defaults to the one in dataset.yaml beside the rig, else 1.\n"
@@ -24,26 +25,13 @@ Runner AddReconstruct(CLI::App* command) {
   command->add_option("--exposure", job->exposure, "Exposure the images were taken with")
       ->type_name("S")
       ->check(kPositive);
-  command
-      ->add_option("--resolution", job->reconstruct.resolution,
-                   "Voxels along the box's longest side")
-      ->type_name("N")
-      ->check(Whole(1, 1024));
-  std::vector<std::string> solvers;
-  for (const auto& s : TomographySolvers()) solvers.push_back(s.name);
-  command->add_option("--solver", job->reconstruct.solve.solver, "Tomography solver")
-      ->check(CLI::IsMember(solvers));
-  command
-      ->add_option("--solve-iterations", job->reconstruct.solve.max_iterations,
-                   "At most this many solver iterations (it stops earlier on its own rules)")
-      ->type_name("N")
-      ->check(Whole(1, 100000));
   command->add_option("--holdout", *holdout, "Camera to leave out of the solve and score on")
       ->type_name("CAMERA");
-  command->add_option("--cache", job->reconstruct.cache_dir, "Keep system matrices in DIR")
+  command
+      ->add_option("--masks", job->masks_dir,
+                   "Write each camera's fire mask (CAMERA.png) and masks.png into DIR")
       ->type_name("DIR");
-  command->add_flag("--coarse-to-fine,!--no-coarse-to-fine", job->reconstruct.coarse_to_fine,
-                    "Solve a half-resolution grid first (default on)");
+  AddTomographyFlags(command, flags.get(), /*solve_options=*/true);
   command->add_option("--truth", job->truth_path, "Ground-truth volume with an emission grid")
       ->type_name("T.vdb");
   command
@@ -54,8 +42,9 @@ Runner AddReconstruct(CLI::App* command) {
       ->add_option("--report", job->report_dir,
                    "Report folder: index.html with the summary, the views and the score")
       ->type_name("DIR");
-  return [job, holdout](Context& context) {
+  return [job, holdout, flags](Context& context) {
     context.StopOnSignals();
+    ApplyTomographyFlags(*flags, &job->reconstruct, &job->input_transfer);
     job->reconstruct.holdout_camera = *holdout;
     const ReconstructJobResult r = RunReconstructJob(*job, context.Progress());
     for (const auto& note : r.notes) Log().warn("reconstruct: {}", note);
@@ -67,6 +56,8 @@ Runner AddReconstruct(CLI::App* command) {
     if (r.truth_error >= 0)
       std::printf("  volume error against %s: relative L2 %.4f\n", job->truth_path.c_str(),
                   r.truth_error);
+    if (!job->masks_dir.empty())
+      std::printf("  masks: %s (one PNG per camera, masks.png)\n", job->masks_dir.c_str());
     if (!job->report_dir.empty()) std::printf("  report: %s/index.html\n", job->report_dir.c_str());
     return kExitOk;
   };

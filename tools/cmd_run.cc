@@ -17,9 +17,11 @@ Runner AddRun(CLI::App* command) {
     int fit_iterations = -1;
     bool no_skip_unchanged = false, no_blender = false, cold = false, no_sigma = false;
     std::size_t threads = 0;
+    TomographyFlags tomography;
   };
   auto o = std::make_shared<Options>();
   RunOptions& run = o->run;
+  AddTomographyFlags(command, &o->tomography, /*solve_options=*/false);
   command->footer(
       "The daily job: every frame set of a recording through tomography and the fit (warm\n"
       "started from the previous frame) into OUT/frame_NNNNNN.vdb, a Blender-ready sequence in\n"
@@ -52,10 +54,6 @@ Runner AddRun(CLI::App* command) {
   command->add_option("--count", o->count, "How many frame sets")
       ->type_name("N")
       ->check(Whole(1, kMaxFrames));
-  command->add_option("--resolution", run.reconstruct.resolution,
-                      "Voxels along the box's longest side (default 64)")
-      ->type_name("N")
-      ->check(Whole(1, 1024));
   command->add_option("--exposure", run.exposure, "Exposure the images were taken with")
       ->type_name("S")
       ->check(kPositive);
@@ -82,6 +80,7 @@ Runner AddRun(CLI::App* command) {
       ->check(Whole(1, 4096));
   return [o](Context& context) {
     RunOptions run = o->run;
+    ApplyTomographyFlags(o->tomography, &run.reconstruct, &run.input_transfer);
     run.source.seq_files = SplitList(o->seq);
     run.source.seq_names = SplitList(o->names);
     if (!o->calibrate_config.empty()) run.calibrate = CalibrateConfig::Load(o->calibrate_config);

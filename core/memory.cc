@@ -1,0 +1,40 @@
+#include "core/memory.h"
+
+#include <sys/resource.h>
+
+#include <cstdio>
+#include <cstring>
+
+namespace flamerig {
+namespace {
+
+// A "Name:   1234 kB" line of /proc/self/status, in bytes; 0 when absent.
+std::size_t StatusKilobytes(const char* name) {
+  std::FILE* f = std::fopen("/proc/self/status", "r");
+  if (!f) return 0;
+  char line[256];
+  std::size_t bytes = 0;
+  const std::size_t n = std::strlen(name);
+  while (std::fgets(line, sizeof line, f)) {
+    if (std::strncmp(line, name, n) == 0 && line[n] == ':') {
+      unsigned long long kb = 0;
+      if (std::sscanf(line + n + 1, "%llu", &kb) == 1) bytes = static_cast<std::size_t>(kb) * 1024;
+      break;
+    }
+  }
+  std::fclose(f);
+  return bytes;
+}
+
+}  // namespace
+
+std::size_t PeakResidentBytes() {
+  if (const std::size_t b = StatusKilobytes("VmHWM")) return b;
+  struct rusage u {};
+  if (::getrusage(RUSAGE_SELF, &u) == 0) return static_cast<std::size_t>(u.ru_maxrss) * 1024;
+  return 0;
+}
+
+std::size_t ResidentBytes() { return StatusKilobytes("VmRSS"); }
+
+}  // namespace flamerig

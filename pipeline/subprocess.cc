@@ -1,0 +1,65 @@
+#include "pipeline/subprocess.h"
+
+#include <fcntl.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+namespace flamerig {
+
+namespace fs = std::filesystem;
+
+ProgramResult RunProgram(const std::vector<std::string>& args, const std::string& dir) {
+  ProgramResult result;
+  if (args.empty()) {
+    result.error = "no program given";
+    return result;
+  }
+  static std::atomic<int> counter{0};
+  const fs::path log = fs::temp_directory_path() / ("flamerig-" + std::to_string(::getpid()) +
+                                                    "-" + std::to_string(counter++) + ".stderr");
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  if (!dir.empty()) posix_spawn_file_actions_addchdir_np(&actions, dir.c_str());
+  posix_spawn_file_actions_addopen(&actions, 0, "/dev/null", O_RDONLY, 0);
+  posix_spawn_file_actions_addopen(&actions, 1, "/dev/null", O_WRONLY, 0);
+  posix_spawn_file_actions_addopen(&actions, 2, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0600);
+  std::vector<std::string> copies = args;
+  std::vector<char*> argv;
+  for (std::string& a : copies) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  pid_t pid = -1;
+  const int spawned = posix_spawnp(&pid, argv[0], &actions, nullptr, argv.data(), environ);
+  posix_spawn_file_actions_destroy(&actions);
+  std::error_code ignored;
+  if (spawned != 0) {
+    fs::remove(log, ignored);
+    result.error = "cannot run " + args[0] + " (" + std::strerror(spawned) + ")";
+    return result;
+  }
+  int status = 0;
+  while (::waitpid(pid, &status, 0) < 0 && errno == EINTR) {
+  }
+  {
+    std::ifstream in(log);
+    std::ostringstream text;
+    text << in.rdbuf();
+    result.error = text.str().substr(0, 2000);
+  }
+  fs::remove(log, ignored);
+  result.exit_status = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  // posix_spawnp reports a program missing from PATH as exit status 127 of the child.
+  result.started = result.exit_status != 127;
+  if (!result.started) result.error = "cannot run " + args[0] + " (not found)";
+  return result;
+}
+
+}  // namespace flamerig
