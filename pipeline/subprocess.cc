@@ -2,10 +2,12 @@
 
 #include <fcntl.h>
 #include <spawn.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <atomic>
+#include <chrono>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -37,6 +39,7 @@ ProgramResult RunProgram(const std::vector<std::string>& args, const std::string
   for (std::string& a : copies) argv.push_back(a.data());
   argv.push_back(nullptr);
   pid_t pid = -1;
+  const auto start = std::chrono::steady_clock::now();
   const int spawned = posix_spawnp(&pid, argv[0], &actions, nullptr, argv.data(), environ);
   posix_spawn_file_actions_destroy(&actions);
   std::error_code ignored;
@@ -46,8 +49,11 @@ ProgramResult RunProgram(const std::vector<std::string>& args, const std::string
     return result;
   }
   int status = 0;
-  while (::waitpid(pid, &status, 0) < 0 && errno == EINTR) {
+  struct rusage usage {};
+  while (::wait4(pid, &status, 0, &usage) < 0 && errno == EINTR) {
   }
+  result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  result.peak_resident_bytes = static_cast<std::size_t>(usage.ru_maxrss) * 1024;
   {
     std::ifstream in(log);
     std::ostringstream text;

@@ -3,6 +3,7 @@
 #ifndef FLAMERIG_PIPELINE_SUBPROCESS_H_
 #define FLAMERIG_PIPELINE_SUBPROCESS_H_
 
+#include <cstddef>
 #include <string>
 #include <vector>
 
@@ -12,6 +13,8 @@ struct ProgramResult {
   bool started = false;  // false: the program could not be run (not installed); see `error`
   int exit_status = -1;  // the exit status, or -1 when it was killed by a signal
   std::string error;     // why it did not start, or the first 2000 bytes of its standard error
+  std::size_t peak_resident_bytes = 0;  // the program's peak resident memory (wait4's ru_maxrss)
+  double seconds = 0;                   // wall time from start to exit
   bool ok() const { return started && exit_status == 0; }
 };
 

@@ -1,10 +1,12 @@
 #include "tomography/system_matrix.h"
 
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -158,77 +160,92 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
                         }
                       }
                     });
-  std::size_t total_rows = 0, total_nnz = 0;
+  // Rows, in candidate order (camera by camera).
+  std::size_t total_rows = 0;
+  for (const Block& b : blocks) total_rows += b.camera.size();
+  m.row_camera_.reserve(total_rows);
+  m.row_pixel_.reserve(total_rows);
   for (const Block& b : blocks) {
-    total_rows += b.camera.size();
-    total_nnz += b.cols.size();
+    m.row_camera_.insert(m.row_camera_.end(), b.camera.begin(), b.camera.end());
+    m.row_pixel_.insert(m.row_pixel_.end(), b.pixel.begin(), b.pixel.end());
   }
-  m.row_ptr_.reserve(total_rows + 1);
-  m.row_ptr_.push_back(0);
-  m.cols_.reserve(total_nnz);
-  m.values_.reserve(total_nnz);
-  for (Block& b : blocks) {
-    for (std::size_t r = 0; r < b.camera.size(); ++r) {
-      m.row_camera_.push_back(b.camera[r]);
-      m.row_pixel_.push_back(b.pixel[r]);
-      m.row_ptr_.push_back(m.row_ptr_.back() + b.lengths[r]);
+  // Subsets: one per camera's contiguous run of rows (one for all when cameras repeat).
+  for (std::size_t r = 0; r < total_rows; ++r) {
+    if (r == 0 || m.row_camera_[r] != m.row_camera_[r - 1]) {
+      if (r > 0 && m.row_camera_[r] < m.row_camera_[r - 1]) {
+        m.camera_ranges_.clear();
+        break;
+      }
+      m.camera_ranges_.emplace_back(r, r);
     }
-    m.cols_.insert(m.cols_.end(), b.cols.begin(), b.cols.end());
-    m.values_.insert(m.values_.end(), b.values.begin(), b.values.end());
-    b = Block();
+    m.camera_ranges_.back().second = r + 1;
   }
-  m.BuildTranspose();
+  m.subsets_ = m.camera_ranges_;
+  if (m.subsets_.empty()) m.subsets_.emplace_back(0, total_rows);
+  // Counting sort of the blocks' entries by (subset, column), straight into the column-major
+  // storage; rows ascend within each run because the blocks are visited in row order. Each block
+  // is freed once its entries are placed.
+  const std::size_t ns = m.subsets_.size(), stride = ncols + 1;
+  std::vector<std::size_t> subset_of_block(blocks.size(), 0);
+  {
+    std::size_t row = 0, s = 0;
+    for (std::size_t b = 0; b < blocks.size(); ++b) {
+      while (s + 1 < ns && row >= m.subsets_[s].second) ++s;
+      subset_of_block[b] = s;
+      row += blocks[b].camera.size();
+    }
+  }
+  auto for_each_entry = [&](std::size_t b, std::size_t first_row, auto&& visit) {
+    const Block& blk = blocks[b];
+    std::size_t e = 0, s = subset_of_block[b];
+    for (std::size_t r = 0; r < blk.camera.size(); ++r) {
+      const std::size_t row = first_row + r;
+      while (s + 1 < ns && row >= m.subsets_[s].second) ++s;
+      for (std::int64_t k = 0; k < blk.lengths[r]; ++k, ++e) visit(s, row, blk.cols[e], blk.values[e]);
+    }
+  };
+  m.t_ptr_.assign(ns * stride, 0);
+  std::size_t total_nnz = 0;
+  {
+    std::size_t first_row = 0;
+    for (std::size_t b = 0; b < blocks.size(); ++b) {
+      for_each_entry(b, first_row, [&](std::size_t s, std::size_t, std::uint32_t col, float) {
+        ++m.t_ptr_[s * stride + col + 1];
+      });
+      first_row += blocks[b].camera.size();
+      total_nnz += blocks[b].cols.size();
+    }
+  }
+  std::int64_t total = 0;
+  for (std::size_t s = 0; s < ns; ++s) {
+    m.t_ptr_[s * stride] = total;
+    for (std::size_t c = 0; c < ncols; ++c) {
+      total += m.t_ptr_[s * stride + c + 1];
+      m.t_ptr_[s * stride + c + 1] = total;
+    }
+  }
+  m.t_entries_.resize(total_nnz);
+  {
+    std::vector<std::int64_t> fill(m.t_ptr_.begin(), m.t_ptr_.end());
+    std::size_t first_row = 0;
+    for (std::size_t b = 0; b < blocks.size(); ++b) {
+      for_each_entry(b, first_row,
+                     [&](std::size_t s, std::size_t row, std::uint32_t col, float value) {
+                       m.t_entries_[fill[s * stride + col]++] =
+                           Entry{static_cast<std::uint32_t>(row), value};
+                     });
+      first_row += blocks[b].camera.size();
+      blocks[b] = Block();
+    }
+  }
+  m.ComputeSums();
   m.build_ms_ =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   return m;
 }
 
-void SystemMatrix::BuildTranspose() {
-  const std::size_t nrows = rows(), ncols = cols(), stride = ncols + 1;
-  row_sums_.assign(nrows, 0.0f);
-  for (std::size_t r = 0; r < nrows; ++r) {
-    double s = 0;
-    for (std::int64_t e = row_ptr_[r]; e < row_ptr_[r + 1]; ++e) s += values_[e];
-    row_sums_[r] = static_cast<float>(s);
-  }
-  // Camera row ranges (rows are built camera by camera; anything else gets no ranges).
-  camera_ranges_.clear();
-  for (std::size_t r = 0; r < nrows; ++r) {
-    if (r == 0 || row_camera_[r] != row_camera_[r - 1]) {
-      if (r > 0 && row_camera_[r] < row_camera_[r - 1]) {
-        camera_ranges_.clear();
-        break;
-      }
-      camera_ranges_.emplace_back(r, r);
-    }
-    camera_ranges_.back().second = r + 1;
-  }
-  subsets_ = camera_ranges_;
-  if (subsets_.empty()) subsets_.emplace_back(0, nrows);
-  // Counting sort by (subset, column); rows ascend within each run because they are visited in
-  // order.
-  const std::size_t ns = subsets_.size();
-  t_ptr_.assign(ns * stride, 0);
-  for (std::size_t s = 0; s < ns; ++s)
-    for (std::size_t r = subsets_[s].first; r < subsets_[s].second; ++r)
-      for (std::int64_t e = row_ptr_[r]; e < row_ptr_[r + 1]; ++e)
-        ++t_ptr_[s * stride + cols_[e] + 1];
-  std::int64_t total = 0;
-  for (std::size_t s = 0; s < ns; ++s) {
-    t_ptr_[s * stride] = total;
-    for (std::size_t c = 0; c < ncols; ++c) {
-      total += t_ptr_[s * stride + c + 1];
-      t_ptr_[s * stride + c + 1] = total;
-    }
-  }
-  t_entries_.resize(values_.size());
-  std::vector<std::int64_t> fill(stride);
-  for (std::size_t s = 0; s < ns; ++s) {
-    std::copy(t_ptr_.begin() + s * stride, t_ptr_.begin() + (s + 1) * stride, fill.begin());
-    for (std::size_t r = subsets_[s].first; r < subsets_[s].second; ++r)
-      for (std::int64_t e = row_ptr_[r]; e < row_ptr_[r + 1]; ++e)
-        t_entries_[fill[cols_[e]]++] = Entry{static_cast<std::uint32_t>(r), values_[e]};
-  }
+void SystemMatrix::ComputeSums() {
+  const std::size_t nrows = rows(), ncols = cols(), stride = ncols + 1, ns = subsets_.size();
   col_sums_.assign(ncols, 0.0f);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, ncols, 1024),
                     [&](const tbb::blocked_range<std::size_t>& range) {
@@ -241,6 +258,34 @@ void SystemMatrix::BuildTranspose() {
                         col_sums_[c] = static_cast<float>(sum);
                       }
                     });
+  std::vector<double> row_sums(nrows, 0.0);
+  for (const Entry& e : t_entries_) row_sums[e.row] += e.value;
+  row_sums_.assign(row_sums.begin(), row_sums.end());
+}
+
+bool SystemMatrix::Consistent() const {
+  const std::size_t nrows = row_camera_.size(), ncols = col_voxel_.size(), stride = ncols + 1;
+  if (row_pixel_.size() != nrows || subsets_.empty()) return false;
+  std::size_t expect = 0;
+  for (const auto& [first, last] : subsets_) {
+    if (first != expect || last < first || last > nrows) return false;
+    expect = last;
+  }
+  if (expect != nrows || t_ptr_.size() != subsets_.size() * stride) return false;
+  std::int64_t previous = 0;
+  for (std::size_t s = 0; s < subsets_.size(); ++s)
+    for (std::size_t c = 0; c <= ncols; ++c) {
+      const std::int64_t p = t_ptr_[s * stride + c];
+      if (p < previous || p > static_cast<std::int64_t>(t_entries_.size())) return false;
+      previous = p;
+    }
+  if (previous != static_cast<std::int64_t>(t_entries_.size())) return false;
+  for (std::size_t s = 0; s < subsets_.size(); ++s)
+    for (std::int64_t e = t_ptr_[s * stride]; e < t_ptr_[s * stride + ncols]; ++e)
+      if (t_entries_[e].row < subsets_[s].first || t_entries_[e].row >= subsets_[s].second ||
+          !std::isfinite(t_entries_[e].value))
+        return false;
+  return true;
 }
 
 void SystemMatrix::ParallelColumns(const std::function<void(std::size_t, std::size_t)>& fn) const {
@@ -248,43 +293,58 @@ void SystemMatrix::ParallelColumns(const std::function<void(std::size_t, std::si
                     [&](const tbb::blocked_range<std::size_t>& r) { fn(r.begin(), r.end()); });
 }
 
-namespace {
-
-template <int kC>
-void MultiplyRowsKernel(const std::int64_t* row_ptr, const std::uint32_t* cols, const float* values,
-                        std::size_t first, std::size_t last, const float* x, float* y,
-                        int channels) {
-  const int nc = kC > 0 ? kC : channels;
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(first, last, 256),
-                    [&](const tbb::blocked_range<std::size_t>& r) {
-                      for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                        float acc[4] = {0, 0, 0, 0};
-                        for (std::int64_t e = row_ptr[i]; e < row_ptr[i + 1]; ++e) {
-                          const float v = values[e];
-                          const float* xc = x + static_cast<std::size_t>(cols[e]) * nc;
-                          for (int ch = 0; ch < (kC > 0 ? kC : nc); ++ch) acc[ch] += v * xc[ch];
-                        }
-                        for (int ch = 0; ch < (kC > 0 ? kC : nc); ++ch) y[i * nc + ch] = acc[ch];
-                      }
-                    });
-}
-
-}  // namespace
-
 void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float* x, float* y,
                                 int channels) const {
   if (channels < 1 || channels > 4)
     throw InputError("SystemMatrix: 1 to 4 channels, not " + std::to_string(channels));
   last = std::min(last, rows());
   if (first >= last) return;
+  const std::size_t n = last - first, nc = static_cast<std::size_t>(channels);
+  const std::size_t ncols = cols(), stride = ncols + 1;
+  std::vector<std::size_t> parts;
+  for (std::size_t s = 0; s < subsets_.size(); ++s)
+    if (subsets_[s].first < last && subsets_[s].second > first) parts.push_back(s);
+  // Each thread scatters its columns into rows of its own; the buffers are summed after.
+  tbb::enumerable_thread_specific<std::vector<float>> partial(
+      [&] { return std::vector<float>(n * nc, 0.0f); });
+  auto run = [&](auto kChannels) {
+    constexpr int kC = decltype(kChannels)::value;
+    ParallelColumns([&](std::size_t j0, std::size_t j1) {
+      std::vector<float>& acc = partial.local();
+      for (std::size_t j = j0; j < j1; ++j) {
+        const float* xj = x + j * nc;
+        bool zero = true;
+        for (std::size_t ch = 0; ch < nc; ++ch) zero = zero && xj[ch] == 0.0f;
+        if (zero) continue;
+        for (std::size_t s : parts) {
+          const Entry* lo = t_entries_.data() + t_ptr_[s * stride + j];
+          const Entry* hi = t_entries_.data() + t_ptr_[s * stride + j + 1];
+          if (subsets_[s].first < first || subsets_[s].second > last) {
+            lo = std::lower_bound(lo, hi, first,
+                                  [](const Entry& e, std::size_t r) { return e.row < r; });
+            hi = std::lower_bound(lo, hi, last,
+                                  [](const Entry& e, std::size_t r) { return e.row < r; });
+          }
+          for (const Entry* e = lo; e < hi; ++e) {
+            float* yr = acc.data() + (static_cast<std::size_t>(e->row) - first) * nc;
+            for (std::size_t ch = 0; ch < (kC > 0 ? std::size_t(kC) : nc); ++ch)
+              yr[ch] += e->value * xj[ch];
+          }
+        }
+      }
+    });
+  };
   if (channels == 3) {
-    MultiplyRowsKernel<3>(row_ptr_.data(), cols_.data(), values_.data(), first, last, x, y, 3);
+    run(std::integral_constant<int, 3>());
   } else if (channels == 1) {
-    MultiplyRowsKernel<1>(row_ptr_.data(), cols_.data(), values_.data(), first, last, x, y, 1);
+    run(std::integral_constant<int, 1>());
   } else {
-    MultiplyRowsKernel<0>(row_ptr_.data(), cols_.data(), values_.data(), first, last, x, y,
-                          channels);
+    run(std::integral_constant<int, 0>());
   }
+  float* out = y + first * nc;
+  std::fill(out, out + n * nc, 0.0f);
+  for (const std::vector<float>& acc : partial)
+    for (std::size_t i = 0; i < n * nc; ++i) out[i] += acc[i];
 }
 
 void SystemMatrix::MultiplyTransposedRows(std::size_t first, std::size_t last, const float* y,
@@ -296,8 +356,7 @@ void SystemMatrix::MultiplyTransposedRows(std::size_t first, std::size_t last, c
 }
 
 std::size_t SystemMatrix::bytes() const {
-  return row_ptr_.size() * 8 + cols_.size() * 4 + values_.size() * 4 + t_ptr_.size() * 8 +
-         t_entries_.size() * sizeof(Entry) + row_camera_.size() * 8 + col_voxel_.size() * 4 +
+  return t_ptr_.size() * 8 + t_entries_.size() * sizeof(Entry) + row_camera_.size() * 8 + col_voxel_.size() * 4 +
          row_sums_.size() * 4 + col_sums_.size() * 4;
 }
 
@@ -313,7 +372,8 @@ void SystemMatrix::MultiplyTransposed(const float* y, float* x, int channels) co
 
 namespace {
 
-constexpr char kMagic[8] = {'F', 'L', 'R', 'G', 'S', 'M', '0', '1'};
+// 02: the column-major entries only (01 held rows and columns).
+constexpr char kMagic[8] = {'F', 'L', 'R', 'G', 'S', 'M', '0', '2'};
 
 template <typename T>
 void WriteVector(std::ofstream& out, const std::vector<T>& v) {
@@ -340,9 +400,14 @@ void SystemMatrix::Save(const std::string& path) const {
   if (!out) throw IoError(path + ": cannot write the system matrix cache");
   out.write(kMagic, sizeof(kMagic));
   out.write(reinterpret_cast<const char*>(&key_), sizeof(key_));
-  WriteVector(out, row_ptr_);
-  WriteVector(out, cols_);
-  WriteVector(out, values_);
+  std::vector<std::uint64_t> subsets;
+  for (const auto& [first, last] : subsets_) {
+    subsets.push_back(first);
+    subsets.push_back(last);
+  }
+  WriteVector(out, subsets);
+  WriteVector(out, t_ptr_);
+  WriteVector(out, t_entries_);
   WriteVector(out, row_camera_);
   WriteVector(out, row_pixel_);
   WriteVector(out, col_voxel_);
@@ -363,23 +428,23 @@ bool SystemMatrix::Load(const std::string& path, std::uint64_t expected_key) {
   if (!in.read(reinterpret_cast<char*>(&key), sizeof(key)) || key != expected_key) return false;
   SystemMatrix m;
   m.key_ = key;
-  if (!ReadVector(in, &m.row_ptr_, size) || !ReadVector(in, &m.cols_, size) ||
-      !ReadVector(in, &m.values_, size) || !ReadVector(in, &m.row_camera_, size) ||
-      !ReadVector(in, &m.row_pixel_, size) || !ReadVector(in, &m.col_voxel_, size)) {
+  std::vector<std::uint64_t> subsets;
+  if (!ReadVector(in, &subsets, size) || !ReadVector(in, &m.t_ptr_, size) ||
+      !ReadVector(in, &m.t_entries_, size) || !ReadVector(in, &m.row_camera_, size) ||
+      !ReadVector(in, &m.row_pixel_, size) || !ReadVector(in, &m.col_voxel_, size) ||
+      subsets.size() % 2 != 0) {
     return false;
   }
+  for (std::size_t i = 0; i < subsets.size(); i += 2) m.subsets_.emplace_back(subsets[i], subsets[i + 1]);
   // Structural checks, so a corrupt file can never cause out-of-range access.
-  const std::size_t nrows = m.row_camera_.size();
-  if (m.row_pixel_.size() != nrows || m.row_ptr_.size() != nrows + 1 || m.row_ptr_.front() != 0 ||
-      m.row_ptr_.back() != static_cast<std::int64_t>(m.cols_.size()) ||
-      m.cols_.size() != m.values_.size()) {
-    return false;
-  }
-  for (std::size_t r = 0; r < nrows; ++r)
-    if (m.row_ptr_[r + 1] < m.row_ptr_[r]) return false;
-  for (std::uint32_t c : m.cols_)
-    if (c >= m.col_voxel_.size()) return false;
-  m.BuildTranspose();
+  if (!m.Consistent()) return false;
+  // Camera ranges: the subsets when each is one camera's rows.
+  bool per_camera = true;
+  for (const auto& [first, last] : m.subsets_)
+    for (std::size_t r = first; r < last && per_camera; ++r)
+      per_camera = m.row_camera_[r] == m.row_camera_[first];
+  if (per_camera && !(m.subsets_.size() == 1 && m.rows() == 0)) m.camera_ranges_ = m.subsets_;
+  m.ComputeSums();
   *this = std::move(m);
   return true;
 }

@@ -43,6 +43,25 @@ struct TomographyBenchmarkOptions {
 std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
                                    const std::function<void(const std::string&)>& log);
 
+struct FootageBenchmarkOptions {
+  int width = 640, height = 360;  // four cameras and a held-out one
+  int resolution = 108;           // the tomography's grid (72x108x72 in the benchmark's box)
+  int truth_resolution = 162;     // the truth's, finer
+  bool hd = true;                 // also five cameras at 1920x1080
+  int hd_resolution = 128;
+  std::string binary;  // flamerig, run for the memory rows (a process of its own, as users run it)
+  bool quick = false;  // CI smoke mode: 192x108, a 36 grid, sRGB and H.264 only, no HD
+};
+
+// The tomography on frames as a real rig delivers them (issue 20): a fire and a faint grey plume on
+// an exactly black background, through 8-bit sRGB, H.264 (ffmpeg, libx264 crf 30), 12-bit and
+// 8-bit linear raw (read right and read as sRGB); flamerig's defaults against a baseline (a
+// thresholded visual hull and five LSQR iterations) on the same frames: held-out camera error,
+// volume error, emission outside the fire's support, time and peak memory; then five cameras at
+// 1920x1080. Returns the Markdown section.
+std::string RunFootageBenchmark(const FootageBenchmarkOptions& options,
+                                const std::function<void(const std::string&)>& log);
+
 struct FitBenchmarkOptions {
   std::vector<int> resolutions = {32, 64, 128};  // grid along the box's longest axis
   // Time given to the paper's Algorithm 2 at each resolution (it needs hours to finish its 12

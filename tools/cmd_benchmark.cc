@@ -19,7 +19,7 @@ Runner AddBenchmark(CLI::App* command) {
   };
   auto o = std::make_shared<Options>();
   command->footer(
-      "Time the forward renderer, the tomography or the fit (ours against the paper's\n"
+      "Time the forward renderer, the tomography (also on compressed footage) or the fit (ours against the paper's\n"
       "Algorithm 2) against its error, the fit's temperatures from cameras that are not the\n"
       "sRGB observer before and after radiometric calibration, sustained recording from\n"
       "simulated and Aravis fake cameras, the calibration of a simulated ring against\n"
@@ -27,8 +27,8 @@ Runner AddBenchmark(CLI::App* command) {
       "injected, and write the figures to BENCHMARKS.md (--quick: a small smoke run).");
   command->add_option("target", o->target, "What to measure")
       ->required()
-      ->check(CLI::IsMember({"render", "tomography", "fit", "accuracy", "cameras", "capture",
-                             "calibration", "run", "scene", "soak"}));
+      ->check(CLI::IsMember({"render", "tomography", "footage", "fit", "accuracy", "cameras",
+                             "capture", "calibration", "run", "scene", "soak"}));
   command->add_option("--out", o->out, "The Markdown file to write the section into")
       ->type_name("BENCHMARKS.md");
   command->add_flag("--quick", o->quick, "A small smoke run");
@@ -53,6 +53,11 @@ Runner AddBenchmark(CLI::App* command) {
       TomographyBenchmarkOptions options;
       options.quick = o->quick;
       md = RunTomographyBenchmark(options, log);
+    } else if (target == "footage") {
+      FootageBenchmarkOptions options;
+      options.quick = o->quick;
+      options.binary = std::filesystem::read_symlink("/proc/self/exe").string();
+      md = RunFootageBenchmark(options, log);
     } else if (target == "fit") {
       FitBenchmarkOptions options;
       options.quick = o->quick;

@@ -1,0 +1,191 @@
+// Fire masks and the visual hull on frames as real footage gives them: exactly black backgrounds,
+// specks of one or two codes, hot pixels (tomography/visual_hull.h).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+#include "calibration/synthetic_rig.h"
+#include "core/srgb.h"
+#include "fitting/renderer.h"
+#include "fitting/synthetic_fire.h"
+#include "tomography/reconstruct.h"
+#include "tomography/visual_hull.h"
+
+namespace flamerig {
+namespace {
+
+std::size_t Count(const std::vector<std::uint8_t>& mask) {
+  return static_cast<std::size_t>(std::count(mask.begin(), mask.end(), 1));
+}
+
+// Regions are 8-connected; those of fewer pixels than the minimum go, the others stay whole.
+TEST(RemoveSpecks, RemovesSmallRegionsOnly) {
+  const int w = 40, h = 30;
+  std::vector<std::uint8_t> mask(w * h, 0);
+  auto set = [&](int x, int y) { mask[y * w + x] = 1; };
+  for (int y = 5; y < 10; ++y)
+    for (int x = 5; x < 10; ++x) set(x, y);  // 25 px: kept
+  set(25, 22);                               // 1 px
+  set(30, 5), set(31, 5), set(30, 6), set(31, 6);  // 2x2: 4 px
+  set(2, 25), set(3, 26);                          // a diagonal pair: 2 px, one region
+  for (int i = 0; i < 5; ++i) set(15 + i, 15 + i);  // a diagonal line of 5: one region, kept
+  std::vector<std::uint8_t> cleaned = mask;
+  const auto [regions, pixels] = RemoveSpecks(&cleaned, w, h, 5);
+  EXPECT_EQ(regions, 3u);
+  EXPECT_EQ(pixels, 7u);
+  EXPECT_EQ(Count(cleaned), 25u + 5u);
+  EXPECT_EQ(cleaned[7 * w + 7], 1);
+  EXPECT_EQ(cleaned[17 * w + 17], 1);
+  // A minimum of 1 (or 0) keeps everything.
+  std::vector<std::uint8_t> kept = mask;
+  EXPECT_EQ(RemoveSpecks(&kept, w, h, 1).first, 0u);
+  EXPECT_EQ(kept, mask);
+}
+
+// One camera looking at a box, and a frame: an exactly black background with a bright block (the
+// fire), specks of 1 and 2 codes and a 2x2 hot blob of 60 codes.
+struct Scene {
+  Rig rig;
+  GridGeometry grid;
+  ImageU8 image;
+  const RigCamera& camera() const { return rig.cameras[0]; }
+};
+
+Scene MakeScene() {
+  Scene s;
+  const Box3 box{Eigen::Vector3d(-0.015, 0.0, -0.015), Eigen::Vector3d(0.015, 0.07, 0.015)};
+  synthetic::RingOptions ring;
+  ring.cameras = 1;
+  ring.azimuths_deg = {0};
+  ring.width = 96;
+  ring.height = 72;
+  s.rig = synthetic::MakeRingRig(box, ring);
+  s.grid = GridGeometry::FromBox(box, 32);
+  s.image = ImageU8(96, 72, 3, 0);
+  for (int y = 20; y < 50; ++y)
+    for (int x = 40; x < 56; ++x)
+      for (int c = 0; c < 3; ++c) s.image.at(x, y, c) = static_cast<std::uint8_t>(200 - 40 * c);
+  std::mt19937 rng(3);
+  for (int i = 0; i < 300; ++i) {
+    const int x = static_cast<int>(rng() % 96), y = static_cast<int>(rng() % 72);
+    if (x >= 36 && x < 60 && y >= 16 && y < 54) continue;  // away from the fire
+    s.image.at(x, y, static_cast<int>(rng() % 3)) = static_cast<std::uint8_t>(1 + rng() % 2);
+  }
+  for (int y = 60; y < 62; ++y)
+    for (int x = 10; x < 12; ++x) s.image.at(x, y, 0) = 60;
+  return s;
+}
+
+TEST(FireMask, AnExactlyBlackBackgroundGetsANoiseFloorOfOneCode) {
+  const Scene s = MakeScene();
+  const double exposure = 0.5;
+  const LinearFrame frame = DecodeSrgb8(s.image, exposure);
+  // One code above black in sRGB: 1 / 255 / 12.92 of full scale.
+  EXPECT_NEAR(frame.quantum, 1.0 / 255 / 12.92 / exposure, 1e-12);
+  VisualHullOptions options;
+  options.min_speck_px = 5;
+  options.dilation_px = 0;
+  const FireMask mask = ComputeFireMask(s.grid, s.camera(), frame, options, /*keep_labels=*/true);
+  // The darkest three quarters read 0 (the specks are fewer than a quarter of the pixels).
+  EXPECT_EQ(mask.noise_estimate, 0.0);
+  EXPECT_NEAR(mask.noise_sigma, frame.quantum, 1e-12);
+  EXPECT_NEAR(mask.threshold, 5 * frame.quantum, 1e-12);
+  // Fire: the block; the 1-2 code specks are below the threshold; the hot blob is a speck.
+  EXPECT_EQ(mask.fire_pixels, 30u * 16u);
+  EXPECT_EQ(mask.speck_regions, 1u);
+  EXPECT_EQ(mask.speck_pixels, 4u);
+  EXPECT_EQ(mask.labels[60 * 96 + 10], kMaskSpeck);
+  EXPECT_EQ(mask.labels[30 * 96 + 45], kMaskFire);
+  // The dilated mask reaches no background speck.
+  for (int y = 0; y < 72; ++y)
+    for (int x = 0; x < 96; ++x)
+      if (x < 30 || x >= 66 || y < 10 || y >= 60) {
+        EXPECT_EQ(mask.mask[y * 96 + x], 0) << x << "," << y;
+      }
+  // The rule it replaced (a threshold of one code, every region kept) takes specks for fire.
+  VisualHullOptions old = options;
+  old.threshold_sigmas = 0.99;
+  old.min_speck_px = 0;
+  const FireMask before = ComputeFireMask(s.grid, s.camera(), frame, old);
+  EXPECT_GT(before.fire_pixels, mask.fire_pixels + 100);
+}
+
+TEST(FireMask, SixteenBitLinearFramesStepByOneCode) {
+  ImageU16 image(8, 8, 1, 0);
+  image.at(3, 3) = 1000;
+  const LinearFrame frame = DecodeLinear16(image, 2.0);
+  EXPECT_DOUBLE_EQ(frame.quantum, 1.0 / 65535 / 2.0);
+  EXPECT_NEAR(frame.radiance.at(3, 3, 1), 1000.0 / 65535 / 2.0, 1e-9);
+}
+
+TEST(FireMask, AutomaticSpeckSizeIsHalfAVoxelsImage) {
+  const Scene s = MakeScene();
+  const LinearFrame frame = DecodeSrgb8(s.image, 1.0);
+  const double voxel = VoxelFootprintPx(s.grid, s.camera());
+  ASSERT_GT(voxel, 0);
+  // The footprint by hand: focal length times the voxel edge over the box centre's depth.
+  const Eigen::Vector3d centre = s.camera().model.cam_from_rig() * s.grid.box().center();
+  EXPECT_NEAR(voxel,
+              std::max(s.camera().model.intrinsics()[0], s.camera().model.intrinsics()[1]) *
+                  s.grid.voxel_size_m.maxCoeff() / centre.z(),
+              1e-9);
+  const FireMask mask = ComputeFireMask(s.grid, s.camera(), frame, VisualHullOptions());
+  EXPECT_EQ(mask.min_speck_px, std::max(2, static_cast<int>(0.5 * voxel * voxel)));
+}
+
+// The whole reconstruction on frames with specks: the hull and the result stay what they are on
+// clean frames, while the old rule grows the hull.
+TEST(VisualHull, SpecksOnABlackBackgroundDoNotGrowTheHull) {
+  const Box3 box{Eigen::Vector3d(-0.015, 0.0, -0.015), Eigen::Vector3d(0.015, 0.07, 0.015)};
+  synthetic::RingOptions ring;
+  ring.cameras = 4;
+  ring.azimuths_deg = {0, 45, 90, 135};
+  ring.width = 96;
+  ring.height = 72;
+  const Rig rig = synthetic::MakeRingRig(box, ring);
+  const GridGeometry grid = GridGeometry::FromBox(box, 24);
+  const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
+  synthetic::FireOptions fire;
+  fire.peak_soot_volume_fraction = 1e-7;
+  fire.region = Box3{Eigen::Vector3d(-0.006, 0.01, -0.006), Eigen::Vector3d(0.006, 0.04, 0.006)};
+  FireVolume truth = synthetic::MakeFire(grid, fire, grey);
+  FireRenderer renderer(grey);
+  renderer.SetVolume(grid, truth.temperature_k, truth.density_per_m3);
+  std::vector<ImageF> linear;
+  float peak = 0;
+  for (const auto& c : rig.cameras) {
+    linear.emplace_back();
+    renderer.Render(CameraRays(c.model), &linear.back());
+    for (float v : linear.back().pixels) peak = std::max(peak, v);
+  }
+  const double exposure = 0.9 / peak;
+  std::vector<ImageU8> clean, specked;
+  std::mt19937 rng(9);
+  for (const ImageF& l : linear) {
+    clean.push_back(ApplyCameraResponse(l, exposure));
+    ImageU8 s = clean.back();
+    for (std::size_t p = 0; p < s.num_pixels(); ++p) {
+      const bool black = !s.pixels[3 * p] && !s.pixels[3 * p + 1] && !s.pixels[3 * p + 2];
+      if (black && rng() % 10 == 0) s.pixels[3 * p + rng() % 3] = static_cast<std::uint8_t>(1 + rng() % 2);
+    }
+    specked.push_back(std::move(s));
+  }
+  ReconstructOptions options;
+  options.resolution = 24;
+  options.exposure = exposure;
+  ReconstructSummary a, b, c;
+  Reconstructor(rig, options).Reconstruct(clean, &a);
+  Reconstructor(rig, options).Reconstruct(specked, &b);
+  EXPECT_GT(a.voxel_fraction_in_hull, 0.01);
+  EXPECT_NEAR(b.voxel_fraction_in_hull, a.voxel_fraction_in_hull, 0.01 * a.voxel_fraction_in_hull);
+  ReconstructOptions old = options;
+  old.hull.threshold_sigmas = 0.99;  // a threshold of one code, every region kept
+  old.hull.min_speck_px = 0;
+  Reconstructor(rig, old).Reconstruct(specked, &c);
+  EXPECT_GT(c.voxel_fraction_in_hull, 1.5 * a.voxel_fraction_in_hull);
+}
+
+}  // namespace
+}  // namespace flamerig
