@@ -113,11 +113,13 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
   options.keep_masks = options.keep_masks || !job.masks_dir.empty() || !job.report_dir.empty();
   const SourceFrameSet set = ReadFrameFolder(rig, job.images_dir, options.exposure);
   out.notes = set.notes;
-  if (!options.holdout_camera.empty()) {
-    const int h = rig.FindCamera(options.holdout_camera);
+  for (const auto& [name, what] : {std::pair{options.holdout_camera, "held-out camera"},
+                                    std::pair{options.stop_camera, "stop camera"}}) {
+    if (name.empty()) continue;
+    const int h = rig.FindCamera(name);
     if (h >= 0 && set.images[h].empty())
-      throw InputError("held-out camera '" + options.holdout_camera + "' has no image in " +
-                       job.images_dir + ": nothing to score on");
+      throw InputError(std::string(what) + " '" + name + "' has no image in " + job.images_dir +
+                       ": nothing to score on");
   }
   Reconstructor reconstructor(rig, options);
   FireVolume volume = reconstructor.Reconstruct(set.linear, &out.summary, nullptr, progress);

@@ -36,7 +36,9 @@ void LoadTomographyConfig(const std::string& path, ReconstructOptions* options,
       static_cast<int>(r.Range("max_iterations", o.solve.max_iterations, 1, 100000));
   o.solve.relaxation = r.Range("relaxation", o.solve.relaxation, 1e-3, 1.999);
   o.solve.stagnation_tolerance =
-      r.Range("stagnation_tolerance", o.solve.stagnation_tolerance, 0, 1);
+      r.Range("stagnation_tolerance", o.solve.stagnation_tolerance, -1, 1);
+  if (o.solve.stagnation_tolerance < 0 && o.solve.stagnation_tolerance != -1)
+    throw InputError(r.where() + ": 'stagnation_tolerance' is -1 (the solver's own) or in [0, 1]");
   o.solve.holdout_patience =
       static_cast<int>(r.Range("holdout_patience", o.solve.holdout_patience, 1, 100000));
   o.coarse_to_fine = r.Get<bool>("coarse_to_fine", o.coarse_to_fine);

@@ -4,10 +4,11 @@
 //   tomography:
 //     resolution: 64            # voxels along the box's longest side
 //     input_transfer: srgb      # 8-bit images: srgb | linear | gamma=G (frame_source.h)
-//     solver: sart              # sart | cgls
+//     solver: osem              # osem | sart | cgls
 //     max_iterations: 100
 //     relaxation: 1.5           # SART's lambda
-//     stagnation_tolerance: 5e-3  # stop when an iteration improves the residual less; 0 = never
+//     stagnation_tolerance: -1  # stop when an iteration improves the residual less; 0 never;
+//                               # -1 the solver's own (osem 1e-3, sart and cgls 5e-3)
 //     holdout_patience: 10
 //     coarse_to_fine: true
 //     coarse_iterations: 30

@@ -1,5 +1,6 @@
 // The system matrix against the renderer's optically thin limit, its transpose, and its cache file.
 #include <gtest/gtest.h>
+#include <tbb/task_arena.h>
 
 #include <cmath>
 #include <filesystem>
@@ -115,6 +116,34 @@ TEST(SystemMatrix, TransposeIsTheAdjoint) {
     a.Multiply(e.data(), out.data(), 3);
     sum = out[r * 3];
     EXPECT_NEAR(sum, a.row_sums()[r], 1e-5 * sum);
+  }
+}
+
+// A x and a camera's rows of it do not depend on the number of threads (a resumed run must give
+// exactly what an uninterrupted one gives), and a row range equals the same rows of the whole.
+TEST(SystemMatrix, ProductsAreTheSameOnAnyNumberOfThreads) {
+  Scene s = MakeScene(3, 20, 1e-6);
+  std::vector<std::vector<std::uint8_t>> pixels;
+  for (const auto& r : s.rays) pixels.emplace_back(r->rays().size(), 1);
+  std::vector<std::uint8_t> voxels(s.grid.num_voxels(), 1);
+  SystemMatrix a = SystemMatrix::Build(s.grid, Pointers(s), pixels, voxels, SystemMatrixOptions());
+  ASSERT_EQ(a.camera_row_ranges().size(), 3u);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(0, 1);
+  std::vector<float> x(a.cols() * 3);
+  for (auto& v : x) v = u(rng);
+  std::vector<float> one(a.rows() * 3), two(a.rows() * 3), part(a.rows() * 3, -1.0f);
+  tbb::task_arena(1).execute([&] { a.Multiply(x.data(), one.data(), 3); });
+  tbb::task_arena(2).execute([&] { a.Multiply(x.data(), two.data(), 3); });
+  EXPECT_EQ(one, two);
+  const auto [first, last] = a.camera_row_ranges()[1];
+  a.MultiplyRows(first + 7, last - 5, x.data(), part.data(), 3);
+  for (std::size_t i = 0; i < a.rows() * 3; ++i) {
+    if (i >= (first + 7) * 3 && i < (last - 5) * 3) {
+      ASSERT_EQ(part[i], one[i]) << i;
+    } else {
+      ASSERT_EQ(part[i], -1.0f) << i;  // rows outside the range untouched
+    }
   }
 }
 

@@ -120,7 +120,10 @@ std::string ReconstructSummary::BriefReport() const {
   if (fire_pixels_outside_envelope > 0)
     s << ", " << fire_pixels_outside_envelope << " fire pixels outside its envelope left out";
   for (const auto& solve : solves) s << "; " << solve.BriefReport();
-  if (holdout_rms >= 0) s << "; held-out " << holdout_camera << " RMS " << holdout_rms;
+  if (!stop_camera.empty()) s << "; stopped on " << stop_camera;
+  if (holdout_rms >= 0)
+    s << "; held-out " << holdout_camera << " RMS " << holdout_rms << " (relative "
+      << holdout_relative << ")";
   for (const auto& skipped : skipped_cameras) s << "; skipped " << skipped;
   s << "; total " << total_ms << " ms (decode " << decode_ms << ", hull " << hull_ms << ", matrix "
     << matrix_ms << ", solve " << solve_ms << "), matrices and vectors "
@@ -136,9 +139,9 @@ struct Reconstructor::Level {
   std::vector<std::uint8_t> envelope_voxels;
   std::vector<std::vector<std::uint8_t>> envelope_pixels;  // per solve camera
   std::vector<int> cameras;  // the rig indices the matrix was built for
-  SystemMatrix holdout;
-  std::vector<std::uint8_t> holdout_pixels;  // the held-out camera's pixels it was built for
-  bool has_holdout = false;
+  SystemMatrix stop;
+  std::vector<std::uint8_t> stop_pixels;  // the stop camera's pixels it was built for
+  bool has_stop = false;
   VoxelProjections projections;  // every rig camera, computed on first use
 };
 
@@ -148,13 +151,19 @@ Reconstructor::Reconstructor(const Rig& rig, const ReconstructOptions& options)
   if (rig_.cameras.empty()) throw InputError("Reconstructor: the rig has no cameras");
   grid_ = GridGeometry::FromBox(rig_.box, options_.resolution);
   for (const auto& c : rig_.cameras) rays_.push_back(std::make_unique<CameraRays>(c.model));
-  if (!options_.holdout_camera.empty()) {
-    holdout_index_ = rig_.FindCamera(options_.holdout_camera);
-    if (holdout_index_ < 0) {
-      throw InputError("ReconstructOptions.holdout_camera: no camera named '" +
-                                  options_.holdout_camera + "' in rig '" + rig_.name + "'");
-    }
-  }
+  auto find = [&](const std::string& name, const char* field) {
+    if (name.empty()) return -1;
+    const int index = rig_.FindCamera(name);
+    if (index < 0)
+      throw InputError(std::string("ReconstructOptions.") + field + ": no camera named '" + name +
+                       "' in rig '" + rig_.name + "'");
+    return index;
+  };
+  holdout_index_ = find(options_.holdout_camera, "holdout_camera");
+  stop_index_ = find(options_.stop_camera, "stop_camera");
+  if (holdout_index_ >= 0 && holdout_index_ == stop_index_)
+    throw InputError("ReconstructOptions: camera '" + options_.holdout_camera +
+                     "' cannot both stop the solve and score it (give another stop camera)");
   fine_ = std::make_unique<Level>();
   fine_->grid = grid_;
   if (options_.coarse_to_fine && options_.resolution >= 16) {
@@ -221,7 +230,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
           std::to_string(frames[c].radiance.height) + ", its model's imager is " +
           std::to_string(cam.model.width()) + "x" + std::to_string(cam.model.height()));
     }
-    if (static_cast<int>(c) == holdout_index_) continue;
+    if (static_cast<int>(c) == holdout_index_ || static_cast<int>(c) == stop_index_) continue;
     solve_cameras.push_back(static_cast<int>(c));
   }
   if (solve_cameras.empty()) {
@@ -229,6 +238,8 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
   }
   const bool use_holdout = holdout_index_ >= 0 && !frames[holdout_index_].radiance.empty();
   if (use_holdout) summary.holdout_camera = rig_.cameras[holdout_index_].name;
+  const bool use_stop = stop_index_ >= 0 && !frames[stop_index_].radiance.empty();
+  if (use_stop) summary.stop_camera = rig_.cameras[stop_index_].name;
 
   std::vector<RigCamera> cams;
   std::vector<LinearFrame> solve_frames;
@@ -277,18 +288,18 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
       std::vector<int> mask_cameras = solve_cameras;
       std::vector<const LinearFrame*> mask_frames;
       for (const LinearFrame& f : solve_frames) mask_frames.push_back(&f);
-      if (use_holdout) {
-        const RigCamera& held = rig_.cameras[holdout_index_];
+      for (const int left_out : {stop_index_, holdout_index_}) {
+        if (left_out < 0 || frames[left_out].radiance.empty()) continue;
+        const RigCamera& held = rig_.cameras[left_out];
         CameraMaskSummary m;
-        static_cast<FireMaskStats&>(m) =
-            ComputeFireMask(g, held, frames[holdout_index_], options_.hull);
+        static_cast<FireMaskStats&>(m) = ComputeFireMask(g, held, frames[left_out], options_.hull);
         m.camera = held.name;
         m.held_out = true;
         m.width = held.model.width();
         m.height = held.model.height();
         summary.masks.push_back(std::move(m));
-        mask_cameras.push_back(holdout_index_);
-        mask_frames.push_back(&frames[holdout_index_]);
+        mask_cameras.push_back(left_out);
+        mask_frames.push_back(&frames[left_out]);
       }
       if (options_.keep_masks)
         KeepMasks(g, level->projections, mask_cameras, mask_frames, hull, &summary.masks);
@@ -329,12 +340,12 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
       source = MakeMatrix(level, solve_cameras, std::move(pixels), std::move(envelope));
     }
     const SystemMatrix& a = level->a;
-    if (use_holdout && !level->has_holdout) {
+    if (use_stop && !level->has_stop) {
       // The held-out camera is scored where it sees fire (its own mask, dilated like the others): the
       // rest of its image is background that the hull already keeps dark.
       FireMask mask =
-          ComputeFireMask(g, rig_.cameras[holdout_index_], frames[holdout_index_], options_.hull);
-      MakeHoldoutMatrix(level, std::move(mask.mask));
+          ComputeFireMask(g, rig_.cameras[stop_index_], frames[stop_index_], options_.hull);
+      MakeStopMatrix(level, std::move(mask.mask));
     }
     summary.matrix_ms += Ms(t0);
     if (is_fine) {
@@ -384,7 +395,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     if (!is_fine)
       solve_options.max_iterations =
           std::min(solve_options.max_iterations, options_.coarse_iterations);
-    if (solve_options.noise_sigma == 0 && !use_holdout) {
+    if (solve_options.noise_sigma == 0 && !use_stop) {
       // The discrepancy principle needs the noise of the data actually fitted: the sensor noise
       // seen in the background plus 8-bit quantisation, whose step in radiance grows with the
       // pixel's level (the sRGB curve): variance q^2 / 12 with q the radiance of one 8-bit step at
@@ -409,9 +420,9 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     HoldoutScorer scorer = nullptr;
     std::vector<float> hb;
     std::vector<std::uint8_t> hvalid;
-    if (use_holdout) {
-      const SystemMatrix& h = level->holdout;
-      const LinearFrame& f = frames[holdout_index_];
+    if (use_stop) {
+      const SystemMatrix& h = level->stop;
+      const LinearFrame& f = frames[stop_index_];
       hb.resize(h.rows() * 3);
       hvalid.resize(h.rows());
       for (std::size_t r = 0; r < h.rows(); ++r) {
@@ -440,9 +451,8 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     if (solve.stop == SolveStop::kCancelled) throw Cancelled("reconstruct: cancelled");
     summary.solve_ms += Ms(t0);
     summary.solves.push_back(solve);
-    if (use_holdout && is_fine) summary.holdout_rms = scorer(x);
     peak =
-        std::max(peak, a.bytes() + (level->has_holdout ? level->holdout.bytes() : 0) +
+        std::max(peak, a.bytes() + (level->has_stop ? level->stop.bytes() : 0) +
                            level->projections.bytes() + (problem.b.size() * 4 + x.size() * 4) * 4);
 
     // Back to the full grid.
@@ -456,6 +466,26 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
       previous_level_emission = std::move(emission);
       previous_grid = g;
     }
+  }
+  if (use_holdout) {
+    // The held-out camera scores the result on every pixel of its image (saturated ones left
+    // out); it took no part in the solve or its stopping.
+    const LinearFrame& f = frames[holdout_index_];
+    const ImageF image = RenderThinEmission(out.geometry, out.emission_rgb, *rays_[holdout_index_],
+                                            options_.matrix.step_voxels);
+    double error = 0, data = 0;
+    std::size_t n = 0;
+    for (std::size_t p = 0; p < f.saturated.size(); ++p) {
+      if (f.saturated[p]) continue;
+      for (int ch = 0; ch < 3; ++ch) {
+        const double d = image.pixels[3 * p + ch] - f.radiance.pixels[3 * p + ch];
+        error += d * d;
+        data += double(f.radiance.pixels[3 * p + ch]) * f.radiance.pixels[3 * p + ch];
+      }
+      n += 3;
+    }
+    summary.holdout_rms = n ? std::sqrt(error / n) : 0.0;
+    summary.holdout_relative = data > 0 ? std::sqrt(error / data) : 0.0;
   }
   summary.working_bytes = peak;
   summary.process_peak_bytes = PeakResidentBytes();
@@ -617,7 +647,7 @@ std::uint64_t Reconstructor::StateKey() const {
   }
   std::uint64_t key = SystemMatrix::Key(grid_, rays, pixels, {}, options_.matrix);
   const double numbers[] = {static_cast<double>(options_.envelope_margin_voxels),
-                            options_.envelope_pixel_tolerance, static_cast<double>(holdout_index_),
+                            options_.envelope_pixel_tolerance, static_cast<double>(stop_index_),
                             static_cast<double>(coarse_ != nullptr)};
   for (double v : numbers) {
     std::uint64_t bits;
@@ -652,16 +682,16 @@ std::string Reconstructor::MakeMatrix(Level* level, const std::vector<int>& came
   level->envelope_pixels = std::move(pixels);
   level->cameras = cameras;
   level->has_matrix = true;
-  level->has_holdout = false;
-  level->holdout_pixels.clear();
+  level->has_stop = false;
+  level->stop_pixels.clear();
   return source;
 }
 
-void Reconstructor::MakeHoldoutMatrix(Level* level, std::vector<std::uint8_t> pixels) {
-  level->holdout = SystemMatrix::Build(level->grid, {rays_[holdout_index_].get()}, {pixels},
+void Reconstructor::MakeStopMatrix(Level* level, std::vector<std::uint8_t> pixels) {
+  level->stop = SystemMatrix::Build(level->grid, {rays_[stop_index_].get()}, {pixels},
                                        level->envelope_voxels, options_.matrix);
-  level->holdout_pixels = std::move(pixels);
-  level->has_holdout = true;
+  level->stop_pixels = std::move(pixels);
+  level->has_stop = true;
 }
 
 void Reconstructor::KeepMasks(const GridGeometry& g, const VoxelProjections& projections,
@@ -700,8 +730,8 @@ void Reconstructor::SaveState(const std::string& path) const {
       w.Mask(level->envelope_pixels[c]);
     }
     w.Mask(level->envelope_voxels);
-    w.Value(static_cast<std::uint8_t>(level->has_holdout));
-    if (level->has_holdout) w.Mask(level->holdout_pixels);
+    w.Value(static_cast<std::uint8_t>(level->has_stop));
+    if (level->has_stop) w.Mask(level->stop_pixels);
   }
   std::string bytes = w.bytes();
   const std::uint32_t crc = static_cast<std::uint32_t>(
@@ -732,7 +762,7 @@ void Reconstructor::LoadState(const std::string& path) {
   for (Level* level : {fine_.get(), coarse_.get()}) {
     const bool has = r.Value<std::uint8_t>() != 0;
     if (!has) {
-      if (level) level->has_matrix = level->has_holdout = false;
+      if (level) level->has_matrix = level->has_stop = false;
       continue;
     }
     if (!level) r.Fail("a coarse level this reconstructor does not have");
@@ -752,12 +782,12 @@ void Reconstructor::LoadState(const std::string& path) {
     }
     std::vector<std::uint8_t> envelope = r.Mask(level->grid.num_voxels());
     if (envelope.size() != level->grid.num_voxels()) r.Fail("a voxel mask of the wrong size");
-    const bool has_holdout = r.Value<std::uint8_t>() != 0;
-    std::vector<std::uint8_t> holdout;
-    if (has_holdout) holdout = r.Mask(pixels_per_camera);
-    if (has_holdout && holdout_index_ < 0) r.Fail("a held-out camera this reconstructor lacks");
+    const bool has_stop = r.Value<std::uint8_t>() != 0;
+    std::vector<std::uint8_t> stop;
+    if (has_stop) stop = r.Mask(pixels_per_camera);
+    if (has_stop && stop_index_ < 0) r.Fail("a stop camera this reconstructor lacks");
     MakeMatrix(level, cameras, std::move(pixels), std::move(envelope));
-    if (has_holdout) MakeHoldoutMatrix(level, std::move(holdout));
+    if (has_stop) MakeStopMatrix(level, std::move(stop));
   }
 }
 

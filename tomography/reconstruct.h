@@ -41,7 +41,13 @@ struct ReconstructOptions {
   SolveOptions solve;
   bool coarse_to_fine = true;      // half-resolution solve first (when resolution >= 16)
   int coarse_iterations = 30;      // iterations of the coarse solve
-  std::string holdout_camera;      // camera left out of the solve and used to stop it; "" = none
+  // A camera left out of the solve and scored on every pixel of its image afterwards; it does not
+  // stop the solve (a score that also chose the iterate would flatter it). "" = none.
+  std::string holdout_camera;
+  // A camera left out of the solve whose error chooses the iterate and stops the solve (and keeps
+  // the coarse stage when the fine one does not improve on it); "" = none: the solve stops on its
+  // residual. Must not be the held-out camera.
+  std::string stop_camera;
   int envelope_margin_voxels = 4;  // dilation of the hull envelope that matrices are built for
   // Share of a camera's fire pixels that may fall outside the envelope before the matrix is
   // rebuilt (those pixels are left out of that frame); [0, 0.1].
@@ -73,8 +79,9 @@ struct ReconstructSummary {
   std::size_t fire_pixels_outside_envelope = 0;  // left out of a frame that reused the matrix
   double matrix_build_ms = 0;
   std::vector<SolveSummary> solves;  // coarse (if any), then full resolution
-  std::string holdout_camera;
-  double holdout_rms = -1;  // RMS radiance error on the held-out camera, -1 if none
+  std::string holdout_camera, stop_camera;
+  double holdout_rms = -1;       // RMS radiance error on the held-out camera, -1 if none
+  double holdout_relative = -1;  // the same over the RMS of its image
   std::vector<std::string> skipped_cameras;  // cameras without a usable frame, with the reason
   double decode_ms = 0, hull_ms = 0, matrix_ms = 0, solve_ms = 0, total_ms = 0;
   std::size_t working_bytes = 0;  // system matrices, projections and solver vectors
@@ -128,7 +135,7 @@ class Reconstructor {
   std::string MakeMatrix(Level* level, const std::vector<int>& cameras,
                          std::vector<std::vector<std::uint8_t>> pixels,
                          std::vector<std::uint8_t> envelope);
-  void MakeHoldoutMatrix(Level* level, std::vector<std::uint8_t> pixels);
+  void MakeStopMatrix(Level* level, std::vector<std::uint8_t> pixels);
   // Fills the labels of masks[i] for rig camera rig_cameras[i] and its frame.
   void KeepMasks(const GridGeometry& g, const VoxelProjections& projections,
                  const std::vector<int>& rig_cameras, const std::vector<const LinearFrame*>& frames,
@@ -136,7 +143,7 @@ class Reconstructor {
   std::uint64_t StateKey() const;  // what a saved state must have been saved for
   std::uint64_t state_key_ = 0;    // StateKey(), computed once (it hashes every ray)
   std::unique_ptr<Level> fine_, coarse_;
-  int holdout_index_ = -1;
+  int holdout_index_ = -1, stop_index_ = -1;
 };
 
 // The thin-limit image of an emission volume through `rays` (what A e computes, for all pixels):

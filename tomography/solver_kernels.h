@@ -22,6 +22,7 @@ void Pin(const SolveProblem& problem, std::vector<float>* v);
 
 std::unique_ptr<IterativeSolver> MakeSart();  // sart.cc
 std::unique_ptr<IterativeSolver> MakeCgls();  // cgls.cc
+std::unique_ptr<IterativeSolver> MakeOsem();  // osem.cc
 
 }  // namespace flamerig::solver_kernels
 

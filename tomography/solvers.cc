@@ -14,9 +14,12 @@ namespace flamerig {
 const std::vector<TomographySolverEntry>& TomographySolvers() {
   // The registry: add a solver here (and its file to CMakeLists.txt).
   static const std::vector<TomographySolverEntry> solvers = {
-      {"sart", "OS-SART: non-negative at every iterate, robust (default)", &solver_kernels::MakeSart},
+      {"osem",
+       "OS-EM: multiplicative, non-negative, drives the emission on dark rays to zero (default)",
+       &solver_kernels::MakeOsem, 1e-3},
+      {"sart", "OS-SART: additive, non-negative at every iterate", &solver_kernels::MakeSart, 5e-3},
       {"cgls", "conjugate gradients on the normal equations, clipped to >= 0 at the end",
-       &solver_kernels::MakeCgls},
+       &solver_kernels::MakeCgls, 5e-3},
   };
   return solvers;
 }
@@ -37,7 +40,7 @@ const char* ToString(SolveStop stop) {
     case SolveStop::kDiscrepancy:
       return "discrepancy principle (residual at the noise level)";
     case SolveStop::kHoldout:
-      return "held-out camera error stopped improving";
+      return "the stop camera's error stopped improving";
     case SolveStop::kStagnation:
       return "residual stagnated";
     case SolveStop::kNoData:
@@ -55,7 +58,8 @@ void SolveOptions::Validate() const {
   if (!(noise_sigma >= 0) || !std::isfinite(noise_sigma))
     fail("noise_sigma must be finite and >= 0");
   if (!(discrepancy_tau > 0)) fail("discrepancy_tau must be > 0");
-  if (!(stagnation_tolerance >= 0)) fail("stagnation_tolerance must be >= 0");
+  if (!(stagnation_tolerance >= 0) && stagnation_tolerance != -1)
+    fail("stagnation_tolerance must be >= 0, or -1 for the solver's own");
   if (holdout_patience < 1) fail("holdout_patience must be >= 1");
   FindTomographySolver(solver);
 }
@@ -68,7 +72,9 @@ std::string SolveSummary::BriefReport() const {
     << (data_rms > 0 ? 100 * final_residual_rms / data_rms : 0)
     << "% of the data RMS), best iterate " << best_iteration;
   if (!holdout_error.empty())
-    s << ", held-out error " << holdout_error[std::max(0, best_iteration - 1)];
+    s << ", stop camera's error "
+      << (best_iteration > 0 ? holdout_error[best_iteration - 1] : initial_holdout_error)
+      << (best_iteration == 0 ? " (the start was best)" : "");
   if (clipped_fraction > 0) s << ", " << clipped_fraction * 100 << "% of the mass clipped to >= 0";
   s << ", " << time_ms << " ms";
   return s.str();
@@ -138,15 +144,21 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
   }
   summary.data_rms = std::sqrt(data_sum / problem.b.size());
 
-  std::unique_ptr<IterativeSolver> solver = FindTomographySolver(options.solver).make();
+  const TomographySolverEntry& entry = FindTomographySolver(options.solver);
+  std::unique_ptr<IterativeSolver> solver = entry.make();
+  const double stagnation =
+      options.stagnation_tolerance >= 0 ? options.stagnation_tolerance : entry.stagnation_tolerance;
   summary.initial_residual_rms = solver->Start(problem, options, x);
   auto as_result = [&](const std::vector<float>& iterate) {
     std::vector<float> r = iterate;
     solver->Result(options, &r);
     return r;
   };
-  std::vector<float> best = holdout ? *x : std::vector<float>();
-  double best_holdout = holdout ? holdout(as_result(*x)) : 0.0;
+  // The start (a warm start, or the coarse stage's result upsampled) competes too: a fine stage
+  // that never beats it on the held-out data gives it back.
+  std::vector<float> best = holdout ? as_result(*x) : std::vector<float>();
+  double best_holdout = holdout ? holdout(best) : 0.0;
+  summary.initial_holdout_error = holdout ? best_holdout : -1.0;
   int since_best = 0;
   for (int it = 1; it <= options.max_iterations; ++it) {
     const double residual = solver->Iterate(problem, options, x);
@@ -158,7 +170,7 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
       std::vector<float> candidate = as_result(*x);
       const double e = holdout(candidate);
       summary.holdout_error.push_back(e);
-      if (e < best_holdout || it == 1) {
+      if (e < best_holdout) {
         best_holdout = e;
         best = std::move(candidate);
         summary.best_iteration = it;
@@ -184,8 +196,7 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
       summary.stop = SolveStop::kDiscrepancy;
       break;
     }
-    if (options.stagnation_tolerance > 0 && previous > 0 &&
-        std::abs(previous - residual) <= options.stagnation_tolerance * previous) {
+    if (stagnation > 0 && previous > 0 && std::abs(previous - residual) <= stagnation * previous) {
       summary.stop = SolveStop::kStagnation;
       break;
     }

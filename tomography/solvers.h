@@ -18,8 +18,10 @@
 // than the pixel (SART); CGLS, which needs a linear problem, leaves them out.
 //
 // Stopping rules (the driver's, for every solver; choose by what is available, all optional):
-//  - a held-out camera: a callback scores each iterate on images the solve did not use; the best
-//    iterate is kept and the solve stops after `holdout_patience` iterations without improvement;
+//  - a stop camera: a callback scores each iterate on images the solve did not use; the best
+//    iterate, the start included, is kept and the solve stops after `holdout_patience` iterations
+//    without improvement (a camera that also reports the result's error would flatter it: the
+//    reconstructor scores a held-out camera separately, reconstruct.h);
 //  - the discrepancy principle: stop once the RMS residual is below discrepancy_tau * noise_sigma;
 //  - stagnation: stop when an iteration improves the RMS residual by less than
 //    stagnation_tolerance;
@@ -42,7 +44,7 @@ enum class SolveStop { kMaxIterations, kDiscrepancy, kHoldout, kStagnation, kNoD
 const char* ToString(SolveStop stop);
 
 struct SolveOptions {
-  std::string solver = "sart";  // a name in TomographySolvers(): "sart" | "cgls"
+  std::string solver = "osem";  // a name in TomographySolvers(): "osem" | "sart" | "cgls"
   int max_iterations = 100;     // [1, 100000]
   double relaxation = 1.5;      // SART lambda, (0, 2); 1.5 reaches a given error in fewer passes
                                 // than 1 on our fires (BENCHMARKS.md)
@@ -50,7 +52,10 @@ struct SolveOptions {
   bool non_negative = true;
   double noise_sigma = 0.0;  // per-pixel noise, radiance units; > 0 enables the discrepancy stop
   double discrepancy_tau = 1.0;        // > 0
-  double stagnation_tolerance = 5e-3;  // relative improvement per iteration; 0 disables
+  // Relative improvement of the residual per iteration below which the solve stops; 0 never;
+  // -1 = the solver's own (TomographySolverEntry: osem 1e-3, whose tail improves slowly but
+  // steadily; sart and cgls 5e-3).
+  double stagnation_tolerance = -1;
   int holdout_patience = 10;           // >= 1
   void Validate() const;               // throws InputError naming the field (an unknown solver too)
 };
@@ -60,8 +65,9 @@ struct SolveSummary {
   int iterations = 0;
   SolveStop stop = SolveStop::kMaxIterations;
   std::vector<double> residual_rms;   // after each iteration (radiance units)
-  std::vector<double> holdout_error;  // after each iteration, when a held-out scorer was given
-  int best_iteration = 0;             // the iterate returned
+  std::vector<double> holdout_error;  // after each iteration, when a stop camera's scorer was given
+  double initial_holdout_error = -1;  // the start's, likewise
+  int best_iteration = 0;             // the iterate returned (0: the start)
   double data_rms = 0;                // RMS of b, for relative residuals
   double initial_residual_rms = 0;
   double final_residual_rms = 0;
@@ -103,6 +109,7 @@ struct TomographySolverEntry {
   std::string name;
   std::string description;
   std::unique_ptr<IterativeSolver> (*make)();
+  double stagnation_tolerance;  // its default stopping tolerance (SolveOptions)
 };
 // Every solver, in the order the CLI lists them.
 const std::vector<TomographySolverEntry>& TomographySolvers();

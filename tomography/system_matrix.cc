@@ -1,7 +1,7 @@
 #include "tomography/system_matrix.h"
 
 #include <tbb/blocked_range.h>
-#include <tbb/enumerable_thread_specific.h>
+#include <tbb/task_arena.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -301,34 +301,40 @@ void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float
   if (first >= last) return;
   const std::size_t n = last - first, nc = static_cast<std::size_t>(channels);
   const std::size_t ncols = cols(), stride = ncols + 1;
-  std::vector<std::size_t> parts;
-  for (std::size_t s = 0; s < subsets_.size(); ++s)
-    if (subsets_[s].first < last && subsets_[s].second > first) parts.push_back(s);
-  // Each thread scatters its columns into rows of its own; the buffers are summed after.
-  tbb::enumerable_thread_specific<std::vector<float>> partial(
-      [&] { return std::vector<float>(n * nc, 0.0f); });
+  // Blocks of rows in parallel, each written by one task only: a task walks every column and
+  // takes that column's entries in its rows (contiguous: sorted by row). Each row is summed in
+  // ascending column order whatever the blocks, so the result does not depend on the number of
+  // threads, and equals the row-major sum.
+  const std::size_t blocks = std::max<std::size_t>(
+      1, std::min<std::size_t>(n / 2048 + 1,
+                               4 * static_cast<std::size_t>(tbb::this_task_arena::max_concurrency())));
   auto run = [&](auto kChannels) {
     constexpr int kC = decltype(kChannels)::value;
-    ParallelColumns([&](std::size_t j0, std::size_t j1) {
-      std::vector<float>& acc = partial.local();
-      for (std::size_t j = j0; j < j1; ++j) {
-        const float* xj = x + j * nc;
+    const std::size_t nch = kC > 0 ? std::size_t(kC) : nc;
+    tbb::parallel_for(std::size_t(0), blocks, [&](std::size_t b) {
+      const std::size_t r0 = first + n * b / blocks, r1 = first + n * (b + 1) / blocks;
+      if (r0 >= r1) return;
+      std::fill(y + r0 * nch, y + r1 * nch, 0.0f);
+      std::vector<std::size_t> parts;
+      for (std::size_t s = 0; s < subsets_.size(); ++s)
+        if (subsets_[s].first < r1 && subsets_[s].second > r0) parts.push_back(s);
+      for (std::size_t j = 0; j < ncols; ++j) {
+        const float* xj = x + j * nch;
         bool zero = true;
-        for (std::size_t ch = 0; ch < nc; ++ch) zero = zero && xj[ch] == 0.0f;
+        for (std::size_t ch = 0; ch < nch; ++ch) zero = zero && xj[ch] == 0.0f;
         if (zero) continue;
         for (std::size_t s : parts) {
           const Entry* lo = t_entries_.data() + t_ptr_[s * stride + j];
           const Entry* hi = t_entries_.data() + t_ptr_[s * stride + j + 1];
-          if (subsets_[s].first < first || subsets_[s].second > last) {
-            lo = std::lower_bound(lo, hi, first,
+          if (subsets_[s].first < r0)
+            lo = std::lower_bound(lo, hi, r0,
                                   [](const Entry& e, std::size_t r) { return e.row < r; });
-            hi = std::lower_bound(lo, hi, last,
+          if (subsets_[s].second > r1)
+            hi = std::lower_bound(lo, hi, r1,
                                   [](const Entry& e, std::size_t r) { return e.row < r; });
-          }
           for (const Entry* e = lo; e < hi; ++e) {
-            float* yr = acc.data() + (static_cast<std::size_t>(e->row) - first) * nc;
-            for (std::size_t ch = 0; ch < (kC > 0 ? std::size_t(kC) : nc); ++ch)
-              yr[ch] += e->value * xj[ch];
+            float* yr = y + static_cast<std::size_t>(e->row) * nch;
+            for (std::size_t ch = 0; ch < nch; ++ch) yr[ch] += e->value * xj[ch];
           }
         }
       }
@@ -341,10 +347,6 @@ void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float
   } else {
     run(std::integral_constant<int, 0>());
   }
-  float* out = y + first * nc;
-  std::fill(out, out + n * nc, 0.0f);
-  for (const std::vector<float>& acc : partial)
-    for (std::size_t i = 0; i < n * nc; ++i) out[i] += acc[i];
 }
 
 void SystemMatrix::MultiplyTransposedRows(std::size_t first, std::size_t last, const float* y,

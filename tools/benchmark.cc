@@ -374,9 +374,9 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
        << Fixed(target_ms, 0)
        << " ms with OS-SART: " << (target_ms < 1000 ? "target met" : "target NOT met") << ".\n";
   }
-  md << "\nThe held-out camera stops the solve (the best iterate on it is kept); the volume error "
-        "counts "
-        "every voxel of the box. Opposite views of a thin fire carry the same information, so the "
+  md << "\nThe held-out camera only scores the result: since issue 20 it no longer stops the solve "
+        "(a score that also chose the iterate flattered it); the solves stop on their residual. "
+        "The volume error counts every voxel of the box. Opposite views of a thin fire carry the same information, so the "
         "cameras "
         "span 180 degrees.\n";
   return md.str();

@@ -229,7 +229,8 @@ void AddTomographyFlags(CLI::App* command, TomographyFlags* f, bool solve_option
       ->group(group);
   command
       ->add_option("--stagnation", f->stagnation,
-                   "Stop when an iteration improves the residual by less (default 0.005; 0 never)")
+                   "Stop when an iteration improves the residual by less (0 never; default: the "
+                   "solver's own, osem 0.001, sart and cgls 0.005)")
       ->type_name("R")
       ->check(CLI::Range(0.0, 1.0))
       ->group(group);

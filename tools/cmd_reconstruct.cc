@@ -25,7 +25,13 @@ Runner AddReconstruct(CLI::App* command) {
   command->add_option("--exposure", job->exposure, "Exposure the images were taken with")
       ->type_name("S")
       ->check(kPositive);
-  command->add_option("--holdout", *holdout, "Camera to leave out of the solve and score on")
+  command
+      ->add_option("--holdout", *holdout,
+                   "Camera to leave out and score the result on (it does not stop the solve)")
+      ->type_name("CAMERA");
+  command
+      ->add_option("--stop-camera", job->reconstruct.stop_camera,
+                   "Camera to leave out and stop the solve on (its best iterate is kept)")
       ->type_name("CAMERA");
   command
       ->add_option("--masks", job->masks_dir,
