@@ -22,13 +22,13 @@ const char* ToString(FitMethod method);  // "fast", "alg1", "alg2"
 struct FitJob {
   std::string rig_path;
   std::string images_dir;
-  std::string out_path;        // the .vdb (its folder is made)
+  std::string out_path;            // the .vdb (its folder is made)
   std::vector<std::string> views;  // cameras to fit; empty: every camera with an image but holdout
-  std::string holdout;         // scored, not fitted; "" = none
-  int resolution = 0;          // voxels along the box's longest side; 0 = reconstruct's
+  std::string holdout;             // scored, not fitted; "" = none
+  int resolution = 0;              // voxels along the box's longest side; 0 = reconstruct's
   ReconstructOptions reconstruct;  // the tomography's settings (its exposure is the job's)
   std::string input_transfer;      // "" = the rig's; else srgb | linear | gamma=G (frame_source.h)
-  std::string tomography_path;  // "" = reconstruct from the fitted views
+  std::string tomography_path;     // "" = reconstruct from the fitted views
   FitMethod method = FitMethod::kFast;
   std::string absorption;  // soot | grey; "" = the rig's dataset.yaml, else soot
   // Of the images; 0 = dataset.yaml beside the rig, else unknown (1 for the tomography). The

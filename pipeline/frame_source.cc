@@ -6,11 +6,11 @@
 #include <filesystem>
 #include <stdexcept>
 
-#include "core/error.h"
 #include "acquisition/frame.h"
 #include "acquisition/recording.h"
-#include "core/srgb.h"
 #include "acquisition/streampix.h"
+#include "core/error.h"
+#include "core/srgb.h"
 
 namespace flamerig {
 
@@ -143,9 +143,8 @@ void FrameSourceSpec::Validate() const {
     throw InputError(
         "frame source: give exactly one of a recording, StreamPix .seq files or an images folder");
   if (!seq_names.empty() && seq_names.size() != seq_files.size())
-    throw InputError("frame source: " + std::to_string(seq_names.size()) +
-                                " camera names for " + std::to_string(seq_files.size()) +
-                                " .seq files");
+    throw InputError("frame source: " + std::to_string(seq_names.size()) + " camera names for " +
+                     std::to_string(seq_files.size()) + " .seq files");
 }
 
 std::string FrameSourceSpec::Describe() const {
@@ -174,9 +173,9 @@ struct FrameSource::Impl {
     const CameraModel& m = rig.cameras[c].model;
     if (width != m.width() || height != m.height()) {
       throw DataError(spec.Describe() + ", set " + std::to_string(set) + ", camera '" +
-                                  rig.cameras[c].name + "': the frame is " + std::to_string(width) +
-                                  "x" + std::to_string(height) + ", its model's imager is " +
-                                  std::to_string(m.width()) + "x" + std::to_string(m.height()));
+                      rig.cameras[c].name + "': the frame is " + std::to_string(width) + "x" +
+                      std::to_string(height) + ", its model's imager is " +
+                      std::to_string(m.width()) + "x" + std::to_string(m.height()));
     }
   }
 
@@ -195,8 +194,8 @@ struct FrameSource::Impl {
       for (const auto& n : missing) m += (m.empty() ? "" : ", ") + n;
       for (const auto& n : names) have += (have.empty() ? "" : ", ") + n;
       throw InputError(spec.Describe() + ": no camera named " + m +
-                                  " (the rig's); the source has " +
-                                  (have.empty() ? std::string("none") : have));
+                       " (the rig's); the source has " +
+                       (have.empty() ? std::string("none") : have));
     }
   }
 };
@@ -235,7 +234,7 @@ FrameSource::FrameSource(const FrameSourceSpec& spec, const Rig& rig)
     while (fs::is_directory(fs::path(spec.images_dir) / SetName(impl_->sets))) ++impl_->sets;
     if (impl_->sets == 0)
       throw InputError(spec.images_dir + ": no frame_000000/ folder (the layout is " +
-                                  "DIR/frame_NNNNNN/<camera>.png)");
+                       "DIR/frame_NNNNNN/<camera>.png)");
     std::vector<std::string> names;
     for (const auto& c : rig.cameras)
       if (fs::exists(fs::path(spec.images_dir) / SetName(0) / (c.name + ".png")))
@@ -309,8 +308,8 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
       DecodeCameraImage(u8, u16, bits, exposure, impl_->rig.cameras[c].radiometry, &out.images[c],
                         &out.linear[c], &out.signal[c]);
     } catch (const InputError& e) {
-      throw DataError(impl_->spec.Describe() + ", set " + std::to_string(i) +
-                                  ", camera '" + name + "': " + e.what());
+      throw DataError(impl_->spec.Describe() + ", set " + std::to_string(i) + ", camera '" + name +
+                      "': " + e.what());
     }
   }
   return out;

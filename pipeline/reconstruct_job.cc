@@ -35,8 +35,8 @@ ImageU8 MaskOverlay(const CameraMaskSummary& m, const ImageU8& input) {
       const std::uint8_t l = m.labels[p];
       Rgb c;
       for (int ch = 0; ch < 3; ++ch)
-        c[ch] = static_cast<std::uint8_t>(input.empty() ? 0
-                                                        : std::min(255, 4 * input.pixels[3 * p + ch]));
+        c[ch] = static_cast<std::uint8_t>(
+            input.empty() ? 0 : std::min(255, 4 * input.pixels[3 * p + ch]));
       if (l & kMaskSpeck) {
         c = {255, 0, 255};
       } else if (!(l & kMaskFire) && (l & CameraMaskSummary::kMaskDilated)) {
@@ -55,11 +55,11 @@ ImageU8 MaskOverlay(const CameraMaskSummary& m, const ImageU8& input) {
 }
 
 std::string MaskLine(const CameraMaskSummary& m) {
-  return fmt::format("{}{}: fire {} px ({:.1f}% of the image once dilated), threshold {:.3g} "
-                     "(noise {:.3g}, estimated {:.3g}), {} speck(s) of {} px removed (< {} px)",
-                     m.camera, m.held_out ? " (held out)" : "", m.fire_pixels, 100 * m.fraction,
-                     m.threshold, m.noise_sigma, m.noise_estimate, m.speck_regions,
-                     m.speck_pixels, m.min_speck_px);
+  return fmt::format(
+      "{}{}: fire {} px ({:.1f}% of the image once dilated), threshold {:.3g} "
+      "(noise {:.3g}, estimated {:.3g}), {} speck(s) of {} px removed (< {} px)",
+      m.camera, m.held_out ? " (held out)" : "", m.fire_pixels, 100 * m.fraction, m.threshold,
+      m.noise_sigma, m.noise_estimate, m.speck_regions, m.speck_pixels, m.min_speck_px);
 }
 
 // DIR/<camera>.png (the dilated mask, white) for every camera, and DIR/masks.png; returns the
@@ -67,8 +67,9 @@ std::string MaskLine(const CameraMaskSummary& m) {
 ImageU8 WriteMasks(const std::string& dir, const Rig& rig, const SourceFrameSet& set,
                    const std::vector<CameraMaskSummary>& masks) {
   PictureGrid grid;
-  grid.title = "Fire masks: blue = the dilated margin, magenta = specks removed, green = the "
-               "visual hull's outline";
+  grid.title =
+      "Fire masks: blue = the dilated margin, magenta = specks removed, green = the "
+      "visual hull's outline";
   grid.column_labels = {"input (x4 brightness)", "masks and hull"};
   for (const CameraMaskSummary& m : masks) {
     if (m.labels.empty()) continue;
@@ -111,16 +112,19 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
   out.exposure = options.exposure;
   const Rig rig = WithInputTransfer(Rig::Load(job.rig_path), job.input_transfer);
   options.keep_masks = options.keep_masks || !job.masks_dir.empty() || !job.report_dir.empty();
-  const SourceFrameSet set = ReadFrameFolder(rig, job.images_dir, options.exposure);
+  options.keep_coarse_matrix = false;  // one frame
+  SourceFrameSet set = ReadFrameFolder(rig, job.images_dir, options.exposure);
   out.notes = set.notes;
   for (const auto& [name, what] : {std::pair{options.holdout_camera, "held-out camera"},
-                                    std::pair{options.stop_camera, "stop camera"}}) {
+                                   std::pair{options.stop_camera, "stop camera"}}) {
     if (name.empty()) continue;
     const int h = rig.FindCamera(name);
     if (h >= 0 && set.images[h].empty())
       throw InputError(std::string(what) + " '" + name + "' has no image in " + job.images_dir +
                        ": nothing to score on");
   }
+  set.signal.clear();  // the fit's input, not the tomography's
+  set.signal.shrink_to_fit();
   Reconstructor reconstructor(rig, options);
   FireVolume volume = reconstructor.Reconstruct(set.linear, &out.summary, nullptr, progress);
   volume.metadata_text["exposure_source"] = out.exposure_source;

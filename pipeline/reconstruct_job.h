@@ -24,8 +24,8 @@ struct ReconstructJob {
   // dilated mask) and DIR/masks.png, a labelled picture of the masks, the specks removed and the
   // hull's outline over each input.
   std::string masks_dir;
-  std::string preview_path;        // "" = none: per camera input, rendered back, 4x difference
-  std::string truth_path;          // "" = none: a volume with an 'emission' grid
+  std::string preview_path;  // "" = none: per camera input, rendered back, 4x difference
+  std::string truth_path;    // "" = none: a volume with an 'emission' grid
   // "" = none: a report folder, index.html (pipeline/report_page.h) with the tomography's summary,
   // the score against the truth and views.png (the preview's picture).
   std::string report_dir;

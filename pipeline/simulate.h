@@ -42,9 +42,9 @@
 #include <string>
 #include <vector>
 
+#include "calibration/synthetic_rig.h"
 #include "core/progress.h"
 #include "fitting/renderer.h"
-#include "calibration/synthetic_rig.h"
 #include "fitting/synthetic_fire.h"
 #include "pipeline/video_codec.h"
 

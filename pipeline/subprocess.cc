@@ -7,8 +7,8 @@
 #include <unistd.h>
 
 #include <atomic>
-#include <chrono>
 #include <cerrno>
+#include <chrono>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -26,8 +26,8 @@ ProgramResult RunProgram(const std::vector<std::string>& args, const std::string
     return result;
   }
   static std::atomic<int> counter{0};
-  const fs::path log = fs::temp_directory_path() / ("flamerig-" + std::to_string(::getpid()) +
-                                                    "-" + std::to_string(counter++) + ".stderr");
+  const fs::path log = fs::temp_directory_path() / ("flamerig-" + std::to_string(::getpid()) + "-" +
+                                                    std::to_string(counter++) + ".stderr");
   posix_spawn_file_actions_t actions;
   posix_spawn_file_actions_init(&actions);
   if (!dir.empty()) posix_spawn_file_actions_addchdir_np(&actions, dir.c_str());

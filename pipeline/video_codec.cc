@@ -57,8 +57,8 @@ void Run(const std::vector<std::string>& argv, const std::string& what) {
   const ProgramResult r = RunProgram(argv);
   if (!r.started) throw IoError(r.error + ": install ffmpeg (scripts/install-deps.sh)");
   if (!r.ok())
-    throw IoError("ffmpeg failed " + what + " (exit " + std::to_string(r.exit_status) + "): " +
-                  r.error.substr(0, 500));
+    throw IoError("ffmpeg failed " + what + " (exit " + std::to_string(r.exit_status) +
+                  "): " + r.error.substr(0, 500));
 }
 
 }  // namespace
@@ -89,14 +89,35 @@ std::vector<ImageU8> ThroughVideoCodec(const std::vector<ImageU8>& frames,
         const int sy = std::min(y, height - 1);
         for (int x = 0; x < pw; ++x)
           for (int c = 0; c < 3; ++c) row[3 * x + c] = f.at(std::min(x, width - 1), sy, c);
-        out.write(reinterpret_cast<const char*>(row.data()), static_cast<std::streamsize>(row.size()));
+        out.write(reinterpret_cast<const char*>(row.data()),
+                  static_cast<std::streamsize>(row.size()));
       }
     if (!out) throw IoError(raw_in.string() + ": cannot write the frames for ffmpeg");
   }
   const std::string size = std::to_string(pw) + "x" + std::to_string(ph);
-  Run({"ffmpeg", "-nostdin", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
-       "-s", size, "-r", "30", "-i", raw_in.string(), "-c:v", options.codec, "-crf",
-       std::to_string(options.crf), "-preset", options.preset, "-pix_fmt", options.pixel_format,
+  Run({"ffmpeg",
+       "-nostdin",
+       "-loglevel",
+       "error",
+       "-y",
+       "-f",
+       "rawvideo",
+       "-pix_fmt",
+       "rgb24",
+       "-s",
+       size,
+       "-r",
+       "30",
+       "-i",
+       raw_in.string(),
+       "-c:v",
+       options.codec,
+       "-crf",
+       std::to_string(options.crf),
+       "-preset",
+       options.preset,
+       "-pix_fmt",
+       options.pixel_format,
        video.string()},
       "encoding with " + options.Describe());
   Run({"ffmpeg", "-nostdin", "-loglevel", "error", "-y", "-i", video.string(), "-f", "rawvideo",

@@ -18,11 +18,11 @@
 namespace flamerig {
 
 struct VideoCodecOptions {
-  std::string codec = "libx264";   // an ffmpeg encoder: libx264, libx265, mpeg4, ...
-  int crf = 30;                    // constant rate factor (libx264: 0 lossless .. 51; 23 default)
-  std::string preset = "medium";   // libx264's speed preset
+  std::string codec = "libx264";  // an ffmpeg encoder: libx264, libx265, mpeg4, ...
+  int crf = 30;                   // constant rate factor (libx264: 0 lossless .. 51; 23 default)
+  std::string preset = "medium";  // libx264's speed preset
   std::string pixel_format = "yuv420p";
-  void Validate() const;  // throws InputError naming the field
+  void Validate() const;         // throws InputError naming the field
   std::string Describe() const;  // "libx264 crf 30 (medium, yuv420p)"
 };
 

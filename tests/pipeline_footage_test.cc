@@ -21,8 +21,8 @@ namespace {
 namespace fs = std::filesystem;
 
 fs::path TempDir(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() /
-                       ("flamerig_footage_" + name + "_" + std::to_string(::getpid()));
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_footage_" + name + "_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir;
@@ -80,8 +80,7 @@ TEST(InputTransfer, DecodesEightBitFramesAsTold) {
 TEST(TomographyConfig, TheShippedFileHoldsTheDefaults) {
   ReconstructOptions o;
   std::string transfer;
-  LoadTomographyConfig(std::string(FLAMERIG_SOURCE_DIR) + "/config/tomography.yaml", &o,
-                       &transfer);
+  LoadTomographyConfig(std::string(FLAMERIG_SOURCE_DIR) + "/config/tomography.yaml", &o, &transfer);
   const ReconstructOptions d;
   EXPECT_EQ(transfer, "srgb");
   EXPECT_EQ(o.resolution, d.resolution);
@@ -172,8 +171,8 @@ TEST(VideoCodec, Libx264KeepsTheFrameAndLeavesItsMarks) {
       if (r > 18 && (out[0].at(x, y, 0) || out[0].at(x, y, 1) || out[0].at(x, y, 2)))
         ++lit_background;
     }
-  EXPECT_LT(inside / n, 8.0);  // mean absolute error in codes, inside the disc (5.3 measured)
-  EXPECT_GT(inside / n, 0.0);  // lossy
+  EXPECT_LT(inside / n, 8.0);    // mean absolute error in codes, inside the disc (5.3 measured)
+  EXPECT_GT(inside / n, 0.0);    // lossy
   EXPECT_GT(lit_background, 0);  // ringing and chroma bleeding past the edge
   // A lossless encode gives the frame back to within the colour conversion's rounding.
   codec.crf = 0;

@@ -6,11 +6,11 @@
 #include <filesystem>
 #include <random>
 
+#include "calibration/synthetic_rig.h"
 #include "core/error.h"
 #include "fitting/renderer.h"
-#include "tomography/reconstruct.h"
-#include "calibration/synthetic_rig.h"
 #include "fitting/synthetic_fire.h"
+#include "tomography/reconstruct.h"
 
 namespace flamerig {
 namespace {
@@ -269,7 +269,8 @@ TEST(Reconstruct, TheHeldOutCameraScoresAndTheStopCameraStops) {
   const LinearFrame held = DecodeSrgb8(d.images.back(), d.exposure);
   double error = 0, data = 0;
   for (std::size_t i = 0; i < rendered.pixels.size(); ++i) {
-    error += (rendered.pixels[i] - held.radiance.pixels[i]) * (rendered.pixels[i] - held.radiance.pixels[i]);
+    error += (rendered.pixels[i] - held.radiance.pixels[i]) *
+             (rendered.pixels[i] - held.radiance.pixels[i]);
     data += held.radiance.pixels[i] * held.radiance.pixels[i];
   }
   EXPECT_NEAR(scored.holdout_relative, std::sqrt(error / data), 1e-6);
@@ -301,9 +302,8 @@ TEST(Solve, AStartNoIterateBeatsIsKept) {
     pixels.emplace_back(rays.back()->rays().size(), 1);
   }
   const GridGeometry grid = d.truth.geometry;
-  const SystemMatrix a = SystemMatrix::Build(grid, cams, pixels,
-                                             std::vector<std::uint8_t>(grid.num_voxels(), 1),
-                                             SystemMatrixOptions());
+  const SystemMatrix a = SystemMatrix::Build(
+      grid, cams, pixels, std::vector<std::uint8_t>(grid.num_voxels(), 1), SystemMatrixOptions());
   // The truth's emission, non-negative as every start is made (linear sRGB of a red fire has a
   // slightly negative blue).
   std::vector<float> truth = d.truth.emission_rgb;
@@ -480,8 +480,7 @@ TEST(Reconstruct, StressCasesGiveResultsOrClearErrors) {
     } catch (const DataError& e) {
       EXPECT_NE(std::string(e.what()).find("cam1"), std::string::npos) << e.what();
     }
-    EXPECT_THROW(Reconstructor(d.rig, o).Reconstruct(std::vector<ImageU8>(1), nullptr),
-                 InputError);
+    EXPECT_THROW(Reconstructor(d.rig, o).Reconstruct(std::vector<ImageU8>(1), nullptr), InputError);
     EXPECT_THROW(  // no camera with a frame: the frame's data, not the options
         Reconstructor(d.rig, o).Reconstruct(std::vector<ImageU8>(d.images.size()), nullptr),
         DataError);

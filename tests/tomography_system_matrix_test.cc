@@ -7,11 +7,11 @@
 #include <fstream>
 #include <random>
 
+#include "calibration/synthetic_rig.h"
 #include "fitting/renderer.h"
+#include "fitting/synthetic_fire.h"
 #include "tomography/reconstruct.h"
 #include "tomography/system_matrix.h"
-#include "calibration/synthetic_rig.h"
-#include "fitting/synthetic_fire.h"
 
 namespace flamerig {
 namespace {

@@ -26,10 +26,10 @@ TEST(RemoveSpecks, RemovesSmallRegionsOnly) {
   std::vector<std::uint8_t> mask(w * h, 0);
   auto set = [&](int x, int y) { mask[y * w + x] = 1; };
   for (int y = 5; y < 10; ++y)
-    for (int x = 5; x < 10; ++x) set(x, y);  // 25 px: kept
-  set(25, 22);                               // 1 px
-  set(30, 5), set(31, 5), set(30, 6), set(31, 6);  // 2x2: 4 px
-  set(2, 25), set(3, 26);                          // a diagonal pair: 2 px, one region
+    for (int x = 5; x < 10; ++x) set(x, y);         // 25 px: kept
+  set(25, 22);                                      // 1 px
+  set(30, 5), set(31, 5), set(30, 6), set(31, 6);   // 2x2: 4 px
+  set(2, 25), set(3, 26);                           // a diagonal pair: 2 px, one region
   for (int i = 0; i < 5; ++i) set(15 + i, 15 + i);  // a diagonal line of 5: one region, kept
   std::vector<std::uint8_t> cleaned = mask;
   const auto [regions, pixels] = RemoveSpecks(&cleaned, w, h, 5);
@@ -168,7 +168,8 @@ TEST(VisualHull, SpecksOnABlackBackgroundDoNotGrowTheHull) {
     ImageU8 s = clean.back();
     for (std::size_t p = 0; p < s.num_pixels(); ++p) {
       const bool black = !s.pixels[3 * p] && !s.pixels[3 * p + 1] && !s.pixels[3 * p + 2];
-      if (black && rng() % 10 == 0) s.pixels[3 * p + rng() % 3] = static_cast<std::uint8_t>(1 + rng() % 2);
+      if (black && rng() % 10 == 0)
+        s.pixels[3 * p + rng() % 3] = static_cast<std::uint8_t>(1 + rng() % 2);
     }
     specked.push_back(std::move(s));
   }

@@ -26,7 +26,8 @@ class Osem : public IterativeSolver {
     for (float s : a.row_sums()) row_sum += s;
     for (int c = 0; c < kChannels; ++c) {
       double data = 0;
-      for (std::size_t i = 0; i < a.rows(); ++i) data += std::max(0.0f, problem.b[i * kChannels + c]);
+      for (std::size_t i = 0; i < a.rows(); ++i)
+        data += std::max(0.0f, problem.b[i * kChannels + c]);
       level_[c] = row_sum > 0 ? static_cast<float>(data / row_sum) : 0.0f;
     }
     const std::vector<std::uint8_t>& active = problem.active_cols;
@@ -84,8 +85,8 @@ class Osem : public IterativeSolver {
   }
 
  private:
-  static constexpr float kFloor = 1e-3f;     // of the uniform level, for a warm start's zeros
-  static constexpr float kMaxRatio = 1e3f;   // one sweep multiplies a voxel by at most this
+  static constexpr float kFloor = 1e-3f;    // of the uniform level, for a warm start's zeros
+  static constexpr float kMaxRatio = 1e3f;  // one sweep multiplies a voxel by at most this
   float level_[kChannels] = {0, 0, 0};
   std::vector<float> ax_, r_;
 };

@@ -89,9 +89,7 @@ std::string HexKey(std::uint64_t key) {
 }  // namespace
 
 void ReconstructOptions::Validate() const {
-  auto fail = [](const std::string& what) {
-    throw InputError("ReconstructOptions." + what);
-  };
+  auto fail = [](const std::string& what) { throw InputError("ReconstructOptions." + what); };
   if (resolution < 1 || resolution > 1024) fail("resolution must be in [1, 1024]");
   if (!(exposure > 0) || !std::isfinite(exposure)) fail("exposure must be finite and > 0");
   if (coarse_iterations < 1) fail("coarse_iterations must be >= 1");
@@ -112,7 +110,8 @@ std::string ReconstructSummary::BriefReport() const {
   for (const CameraMaskSummary& m : masks) {
     s << " " << m.camera << (m.held_out ? " (held out)" : "") << " " << m.fraction * 100
       << "% (noise " << m.noise_sigma;
-    if (m.speck_regions) s << ", " << m.speck_regions << " specks of " << m.speck_pixels << " px removed";
+    if (m.speck_regions)
+      s << ", " << m.speck_regions << " specks of " << m.speck_pixels << " px removed";
     s << ")";
   }
   s << "), matrix " << matrix_rows << "x" << matrix_cols << " (" << matrix_nnz << " non-zeros, "
@@ -127,8 +126,7 @@ std::string ReconstructSummary::BriefReport() const {
   for (const auto& skipped : skipped_cameras) s << "; skipped " << skipped;
   s << "; total " << total_ms << " ms (decode " << decode_ms << ", hull " << hull_ms << ", matrix "
     << matrix_ms << ", solve " << solve_ms << "), matrices and vectors "
-    << working_bytes / 1048576.0 << " MB, process peak " << process_peak_bytes / 1048576.0
-    << " MB";
+    << working_bytes / 1048576.0 << " MB, process peak " << process_peak_bytes / 1048576.0 << " MB";
   return s.str();
 }
 
@@ -183,8 +181,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<ImageU8>& images,
   const auto start = Clock::now();
   if (images.size() != rig_.cameras.size()) {
     throw InputError("reconstruct: " + std::to_string(images.size()) + " images for " +
-                                std::to_string(rig_.cameras.size()) + " cameras of rig '" +
-                                rig_.name + "'");
+                     std::to_string(rig_.cameras.size()) + " cameras of rig '" + rig_.name + "'");
   }
   std::vector<LinearFrame> frames(images.size());
   for (std::size_t c = 0; c < images.size(); ++c) {
@@ -205,15 +202,14 @@ FireVolume Reconstructor::Reconstruct(const std::vector<ImageU8>& images,
 }
 
 FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
-                                      ReconstructSummary* summary_out,
-                                      const FireVolume* warm_start,
+                                      ReconstructSummary* summary_out, const FireVolume* warm_start,
                                       const ProgressCallback& progress) {
   const auto start = Clock::now();
   ReconstructSummary summary;
   summary.grid = grid_;
   if (frames.size() != rig_.cameras.size()) {
     throw InputError("reconstruct: " + std::to_string(frames.size()) + " frames for " +
-                                std::to_string(rig_.cameras.size()) + " cameras");
+                     std::to_string(rig_.cameras.size()) + " cameras");
   }
   // Cameras taking part in the solve.
   std::vector<int> solve_cameras;
@@ -225,10 +221,10 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     }
     if (frames[c].radiance.width != cam.model.width() ||
         frames[c].radiance.height != cam.model.height()) {
-      throw DataError(
-          "camera '" + cam.name + "': frame is " + std::to_string(frames[c].radiance.width) + "x" +
-          std::to_string(frames[c].radiance.height) + ", its model's imager is " +
-          std::to_string(cam.model.width()) + "x" + std::to_string(cam.model.height()));
+      throw DataError("camera '" + cam.name + "': frame is " +
+                      std::to_string(frames[c].radiance.width) + "x" +
+                      std::to_string(frames[c].radiance.height) + ", its model's imager is " +
+                      std::to_string(cam.model.width()) + "x" + std::to_string(cam.model.height()));
     }
     if (static_cast<int>(c) == holdout_index_ || static_cast<int>(c) == stop_index_) continue;
     solve_cameras.push_back(static_cast<int>(c));
@@ -370,6 +366,13 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
       const std::size_t p = static_cast<std::size_t>(a.row_pixel(r));
       for (int ch = 0; ch < 3; ++ch) problem.b[r * 3 + ch] = f.radiance.pixels[3 * p + ch];
       problem.lower_bound_rows[r] = f.saturated[p];
+      // The dilated margin's pixels that the mask calls background are black: what a codec or
+      // the noise left there is not light for the solve to explain.
+      if (options_.black_below_threshold) {
+        const float* v = &f.radiance.pixels[3 * p];
+        if (std::max({v[0], v[1], v[2]}) <= hull.masks[a.row_camera(r)].threshold)
+          for (int ch = 0; ch < 3; ++ch) problem.b[r * 3 + ch] = 0.0f;
+      }
     }
     problem.active_cols.resize(a.cols());
     for (std::size_t j = 0; j < a.cols(); ++j)
@@ -465,6 +468,12 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     } else {
       previous_level_emission = std::move(emission);
       previous_grid = g;
+      if (!options_.keep_coarse_matrix) {
+        level->a = SystemMatrix();
+        level->stop = SystemMatrix();
+        level->has_matrix = level->has_stop = false;
+        level->projections = VoxelProjections();
+      }
     }
   }
   if (use_holdout) {
@@ -539,8 +548,7 @@ std::vector<float> ResampleEmission(const GridGeometry& from,
                                     const std::vector<float>& emission_rgb,
                                     const GridGeometry& to) {
   if (emission_rgb.size() != from.num_voxels() * 3) {
-    throw InputError(
-        "ResampleEmission: emission needs 3 values per voxel of the source grid");
+    throw InputError("ResampleEmission: emission needs 3 values per voxel of the source grid");
   }
   std::vector<float> out(to.num_voxels() * 3, 0.0f);
   const std::size_t nx = from.dims.x(), nxy = nx * from.dims.y();
@@ -622,7 +630,7 @@ class StateReader {
   }
   [[noreturn]] void Fail(const std::string& what) const {
     throw DataError(path_ + ": reconstructor state is corrupt (" + what + " at byte " +
-                             std::to_string(at_) + ")");
+                    std::to_string(at_) + ")");
   }
 
  private:
@@ -689,15 +697,14 @@ std::string Reconstructor::MakeMatrix(Level* level, const std::vector<int>& came
 
 void Reconstructor::MakeStopMatrix(Level* level, std::vector<std::uint8_t> pixels) {
   level->stop = SystemMatrix::Build(level->grid, {rays_[stop_index_].get()}, {pixels},
-                                       level->envelope_voxels, options_.matrix);
+                                    level->envelope_voxels, options_.matrix);
   level->stop_pixels = std::move(pixels);
   level->has_stop = true;
 }
 
 void Reconstructor::KeepMasks(const GridGeometry& g, const VoxelProjections& projections,
                               const std::vector<int>& rig_cameras,
-                              const std::vector<const LinearFrame*>& frames,
-                              const VisualHull& hull,
+                              const std::vector<const LinearFrame*>& frames, const VisualHull& hull,
                               std::vector<CameraMaskSummary>* masks) const {
   for (std::size_t i = 0; i < rig_cameras.size(); ++i) {
     const RigCamera& cam = rig_.cameras[rig_cameras[i]];
@@ -744,8 +751,7 @@ void Reconstructor::LoadState(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw IoError(path + ": cannot read the reconstructor state");
   std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (bytes.size() < 4 + 4 + 8 + 4)
-    throw DataError(path + ": reconstructor state is truncated");
+  if (bytes.size() < 4 + 4 + 8 + 4) throw DataError(path + ": reconstructor state is truncated");
   std::uint32_t crc;
   std::memcpy(&crc, bytes.data() + bytes.size() - 4, 4);
   bytes.resize(bytes.size() - 4);
@@ -757,8 +763,7 @@ void Reconstructor::LoadState(const std::string& path) {
     if (r.Value<char>() != c) r.Fail("not a reconstructor state file");
   if (r.Value<std::uint32_t>() != kStateVersion) r.Fail("unknown version");
   if (r.Value<std::uint64_t>() != state_key_)
-    throw InputError(path +
-                             ": reconstructor state was saved for another rig, grid or options");
+    throw InputError(path + ": reconstructor state was saved for another rig, grid or options");
   for (Level* level : {fine_.get(), coarse_.get()}) {
     const bool has = r.Value<std::uint8_t>() != 0;
     if (!has) {

@@ -122,7 +122,8 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
   const std::size_t m = a.rows(), n = a.cols();
   if (!problem.active_cols.empty() && problem.active_cols.size() != n)
     throw InputError("SolveTomography: active_cols needs one value per column");
-  if (problem.b.size() != m * kChannels) throw InputError("SolveTomography: b needs rows * 3 values");
+  if (problem.b.size() != m * kChannels)
+    throw InputError("SolveTomography: b needs rows * 3 values");
   if (!problem.lower_bound_rows.empty() && problem.lower_bound_rows.size() != m)
     throw InputError("SolveTomography: lower_bound_rows needs one value per row");
   if (x->size() != n * kChannels) x->assign(n * kChannels, 0.0f);

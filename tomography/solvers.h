@@ -51,13 +51,13 @@ struct SolveOptions {
   bool ordered_subsets = true;  // SART: one subset of rows per camera (OS-SART)
   bool non_negative = true;
   double noise_sigma = 0.0;  // per-pixel noise, radiance units; > 0 enables the discrepancy stop
-  double discrepancy_tau = 1.0;        // > 0
+  double discrepancy_tau = 1.0;  // > 0
   // Relative improvement of the residual per iteration below which the solve stops; 0 never;
   // -1 = the solver's own (TomographySolverEntry: osem 1e-3, whose tail improves slowly but
   // steadily; sart and cgls 5e-3).
   double stagnation_tolerance = -1;
-  int holdout_patience = 10;           // >= 1
-  void Validate() const;               // throws InputError naming the field (an unknown solver too)
+  int holdout_patience = 10;  // >= 1
+  void Validate() const;      // throws InputError naming the field (an unknown solver too)
 };
 
 struct SolveSummary {
@@ -100,9 +100,7 @@ class IterativeSolver {
   virtual double Iterate(const SolveProblem& problem, const SolveOptions& options,
                          std::vector<float>* x) = 0;
   // The iterate as a result (e.g. clipped to >= 0); returns the share of the mass removed.
-  virtual double Result(const SolveOptions& options, std::vector<float>* x) const {
-    return 0.0;
-  }
+  virtual double Result(const SolveOptions& options, std::vector<float>* x) const { return 0.0; }
 };
 
 struct TomographySolverEntry {

@@ -1,8 +1,8 @@
 #include "tomography/system_matrix.h"
 
 #include <tbb/blocked_range.h>
-#include <tbb/task_arena.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <chrono>
@@ -21,8 +21,8 @@ namespace flamerig {
 void SystemMatrixOptions::Validate() const {
   if (!(step_voxels >= 0.01) || !(step_voxels <= 0.5)) {
     throw InputError("SystemMatrixOptions.step_voxels = " + std::to_string(step_voxels) +
-                                ": must be in [0.01, 0.5] (samples at most half a voxel apart, "
-                                "at most 100 per voxel)");
+                     ": must be in [0.01, 0.5] (samples at most half a voxel apart, "
+                     "at most 100 per voxel)");
   }
 }
 
@@ -84,8 +84,7 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
   grid.Validate();
   if (pixel_used.size() != cameras.size())
     throw InputError("SystemMatrix: one pixel mask per camera");
-  if (voxel_used.size() != grid.num_voxels())
-    throw InputError("SystemMatrix: voxel mask size");
+  if (voxel_used.size() != grid.num_voxels()) throw InputError("SystemMatrix: voxel mask size");
   SystemMatrix m;
   m.key_ = Key(grid, cameras, pixel_used, voxel_used, options);
 
@@ -201,7 +200,8 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
     for (std::size_t r = 0; r < blk.camera.size(); ++r) {
       const std::size_t row = first_row + r;
       while (s + 1 < ns && row >= m.subsets_[s].second) ++s;
-      for (std::int64_t k = 0; k < blk.lengths[r]; ++k, ++e) visit(s, row, blk.cols[e], blk.values[e]);
+      for (std::int64_t k = 0; k < blk.lengths[r]; ++k, ++e)
+        visit(s, row, blk.cols[e], blk.values[e]);
     }
   };
   m.t_ptr_.assign(ns * stride, 0);
@@ -229,11 +229,10 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
     std::vector<std::int64_t> fill(m.t_ptr_.begin(), m.t_ptr_.end());
     std::size_t first_row = 0;
     for (std::size_t b = 0; b < blocks.size(); ++b) {
-      for_each_entry(b, first_row,
-                     [&](std::size_t s, std::size_t row, std::uint32_t col, float value) {
-                       m.t_entries_[fill[s * stride + col]++] =
-                           Entry{static_cast<std::uint32_t>(row), value};
-                     });
+      for_each_entry(
+          b, first_row, [&](std::size_t s, std::size_t row, std::uint32_t col, float value) {
+            m.t_entries_[fill[s * stride + col]++] = Entry{static_cast<std::uint32_t>(row), value};
+          });
       first_row += blocks[b].camera.size();
       blocks[b] = Block();
     }
@@ -306,8 +305,8 @@ void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float
   // ascending column order whatever the blocks, so the result does not depend on the number of
   // threads, and equals the row-major sum.
   const std::size_t blocks = std::max<std::size_t>(
-      1, std::min<std::size_t>(n / 2048 + 1,
-                               4 * static_cast<std::size_t>(tbb::this_task_arena::max_concurrency())));
+      1, std::min<std::size_t>(
+             n / 2048 + 1, 4 * static_cast<std::size_t>(tbb::this_task_arena::max_concurrency())));
   auto run = [&](auto kChannels) {
     constexpr int kC = decltype(kChannels)::value;
     const std::size_t nch = kC > 0 ? std::size_t(kC) : nc;
@@ -358,8 +357,8 @@ void SystemMatrix::MultiplyTransposedRows(std::size_t first, std::size_t last, c
 }
 
 std::size_t SystemMatrix::bytes() const {
-  return t_ptr_.size() * 8 + t_entries_.size() * sizeof(Entry) + row_camera_.size() * 8 + col_voxel_.size() * 4 +
-         row_sums_.size() * 4 + col_sums_.size() * 4;
+  return t_ptr_.size() * 8 + t_entries_.size() * sizeof(Entry) + row_camera_.size() * 8 +
+         col_voxel_.size() * 4 + row_sums_.size() * 4 + col_sums_.size() * 4;
 }
 
 void SystemMatrix::Multiply(const float* x, float* y, int channels) const {
@@ -437,7 +436,8 @@ bool SystemMatrix::Load(const std::string& path, std::uint64_t expected_key) {
       subsets.size() % 2 != 0) {
     return false;
   }
-  for (std::size_t i = 0; i < subsets.size(); i += 2) m.subsets_.emplace_back(subsets[i], subsets[i + 1]);
+  for (std::size_t i = 0; i < subsets.size(); i += 2)
+    m.subsets_.emplace_back(subsets[i], subsets[i + 1]);
   // Structural checks, so a corrupt file can never cause out-of-range access.
   if (!m.Consistent()) return false;
   // Camera ranges: the subsets when each is one camera's rows.

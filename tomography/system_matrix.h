@@ -31,8 +31,8 @@
 #include <utility>
 #include <vector>
 
-#include "core/error.h"
 #include "calibration/camera_rays.h"
+#include "core/error.h"
 #include "tomography/volume.h"
 
 namespace flamerig {

@@ -1,8 +1,8 @@
 #include "tomography/visual_hull.h"
 
-#include <opencv2/imgproc.hpp>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <opencv2/imgproc.hpp>
 
 #include <algorithm>
 #include <atomic>
@@ -17,12 +17,11 @@ namespace flamerig {
 
 LinearFrame DecodeSrgb8(const ImageU8& image, double exposure) {
   if (!(exposure > 0) || !std::isfinite(exposure)) {
-    throw InputError("exposure = " + std::to_string(exposure) +
-                                " must be finite and > 0");
+    throw InputError("exposure = " + std::to_string(exposure) + " must be finite and > 0");
   }
   if (image.channels != 1 && image.channels != 3) {
     throw InputError("an 8-bit frame must have 1 or 3 channels, not " +
-                                std::to_string(image.channels));
+                     std::to_string(image.channels));
   }
   const auto& table = SrgbU8ToLinearTable();
   LinearFrame f;
@@ -42,8 +41,7 @@ LinearFrame DecodeSrgb8(const ImageU8& image, double exposure) {
 
 LinearFrame DecodeLinear16(const ImageU16& image, double exposure, double white) {
   if (!(exposure > 0) || !std::isfinite(exposure)) {
-    throw InputError("exposure = " + std::to_string(exposure) +
-                                " must be finite and > 0");
+    throw InputError("exposure = " + std::to_string(exposure) + " must be finite and > 0");
   }
   if (!(white > 0)) throw InputError("white level must be > 0");
   if (image.channels != 1 && image.channels != 3) {
@@ -65,9 +63,7 @@ LinearFrame DecodeLinear16(const ImageU16& image, double exposure, double white)
 }
 
 void VisualHullOptions::Validate() const {
-  auto fail = [](const std::string& what) {
-    throw InputError("VisualHullOptions." + what);
-  };
+  auto fail = [](const std::string& what) { throw InputError("VisualHullOptions." + what); };
   if (!(noise_sigma >= 0) || !std::isfinite(noise_sigma))
     fail("noise_sigma must be finite and >= 0");
   if (!(threshold_sigmas > 0) || !std::isfinite(threshold_sigmas))
@@ -168,10 +164,9 @@ FireMask ComputeFireMask(const GridGeometry& grid, const RigCamera& camera, cons
                          const VisualHullOptions& options, bool keep_labels) {
   const CameraModel& cam = camera.model;
   if (f.radiance.width != cam.width() || f.radiance.height != cam.height()) {
-    throw DataError(
-        "camera '" + camera.name + "': frame is " + std::to_string(f.radiance.width) + "x" +
-        std::to_string(f.radiance.height) + ", the camera model's imager is " +
-        std::to_string(cam.width()) + "x" + std::to_string(cam.height()));
+    throw DataError("camera '" + camera.name + "': frame is " + std::to_string(f.radiance.width) +
+                    "x" + std::to_string(f.radiance.height) + ", the camera model's imager is " +
+                    std::to_string(cam.width()) + "x" + std::to_string(cam.height()));
   }
   FireMask out;
   out.noise_estimate =
@@ -189,8 +184,8 @@ FireMask ComputeFireMask(const GridGeometry& grid, const RigCamera& camera, cons
   }
   const double voxel_px = VoxelFootprintPx(grid, camera);
   out.min_speck_px = options.min_speck_px >= 0
-                        ? options.min_speck_px
-                        : std::max(2, static_cast<int>(0.5 * std::min(voxel_px * voxel_px, 1e6)));
+                         ? options.min_speck_px
+                         : std::max(2, static_cast<int>(0.5 * std::min(voxel_px * voxel_px, 1e6)));
   std::vector<std::uint8_t> before;
   if (keep_labels) before = fire;
   const auto [regions, pixels] = RemoveSpecks(&fire, cam.width(), cam.height(), out.min_speck_px);
@@ -283,7 +278,7 @@ VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCame
   }
   if (cameras.size() != frames.size()) {
     throw InputError("visual hull: " + std::to_string(frames.size()) + " frames for " +
-                                std::to_string(cameras.size()) + " cameras");
+                     std::to_string(cameras.size()) + " cameras");
   }
   const std::size_t ncam = cameras.size();
   VisualHull hull;
@@ -302,7 +297,7 @@ VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCame
   for (std::size_t c = 0; c < ncam; ++c) {
     if (table[c]->size() != grid.num_voxels()) {
       throw InputError("visual hull: projections of camera '" + cameras[c].name +
-                                  "' do not match the grid");
+                       "' do not match the grid");
     }
   }
   // Each voxel is visited once; counts per voxel are independent, so the loop is parallel.

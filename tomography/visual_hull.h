@@ -27,8 +27,8 @@
 #include <utility>
 #include <vector>
 
-#include "core/image.h"
 #include "calibration/rig.h"
+#include "core/image.h"
 #include "tomography/volume.h"
 
 namespace flamerig {
@@ -70,7 +70,7 @@ struct FireMaskStats {
   double fraction = 0;          // of the pixels, dilated mask
   std::size_t fire_pixels = 0;  // above the threshold, specks removed, before dilation
   std::size_t speck_regions = 0, speck_pixels = 0;  // removed as specks
-  int min_speck_px = 0;                              // the speck size used
+  int min_speck_px = 0;                             // the speck size used
 };
 struct FireMask : FireMaskStats {
   std::vector<std::uint8_t> mask;  // per pixel: 1 inside the dilated mask

@@ -300,13 +300,13 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
         truth.push_back(std::move(t));
         frames.push_back(std::move(images));
       }
-      for (const std::string solver : {"sart", "cgls"}) {
+      for (const std::string solver : {"osem", "sart", "cgls"}) {
         ReconstructOptions ro;
         ro.resolution = n;
         ro.exposure = exposure;
         ro.holdout_camera = "holdout";
         ro.solve.solver = solver;
-        ro.solve.max_iterations = solver == "sart" ? 50 : 100;
+        ro.solve.max_iterations = solver == "cgls" ? 100 : 50;
         Reconstructor rec(rig, ro);
         ReconstructSummary s0;
         FireVolume v0 = rec.Reconstruct(frames[0], &s0);
@@ -341,7 +341,7 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
         for (float x : held.radiance.pixels) sum += double(x) * x;
         const double held_rms = std::sqrt(sum / held.radiance.pixels.size());
         const SolveSummary& solve = s0.solves.back();
-        if (n == 128 && views == 8 && solver == "sart" && cached) target_ms = cached_ms;
+        if (n == 128 && views == 8 && solver == "osem" && cached) target_ms = cached_ms;
         int iterations = 0;
         for (const auto& sv : s0.solves) iterations += sv.iterations;
         md << "| " << n << "^3 | " << views << " | " << Fixed(100 * s0.voxel_fraction_in_hull, 1)
@@ -372,11 +372,15 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
   if (target_ms >= 0) {
     md << "\nTarget check: a frame of 128^3 from 8 views with the matrix cached took "
        << Fixed(target_ms, 0)
-       << " ms with OS-SART: " << (target_ms < 1000 ? "target met" : "target NOT met") << ".\n";
+       << " ms with OS-EM (the default): " << (target_ms < 1000 ? "target met" : "target NOT met")
+       << ".\n";
   }
-  md << "\nThe held-out camera only scores the result: since issue 20 it no longer stops the solve "
-        "(a score that also chose the iterate flattered it); the solves stop on their residual. "
-        "The volume error counts every voxel of the box. Opposite views of a thin fire carry the same information, so the "
+  md << "\nThe held-out camera only scores the result, on every pixel of its image: since issue 20 "
+        "it no longer stops the solve, and its error is no longer counted over its fire mask only "
+        "(which inflated the figures before); "
+        "a score that also chose the iterate flattered it; the solves stop on their residual. "
+        "The volume error counts every voxel of the box. Opposite views of a thin fire carry the "
+        "same information, so the "
         "cameras "
         "span 180 degrees.\n";
   return md.str();

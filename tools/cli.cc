@@ -161,9 +161,9 @@ CLI::Validator Whole(std::int64_t min, std::int64_t max) {
                  std::to_string(max) + "]";
         return "";
       },
-      std::to_string(min) + ".." + (max >= (std::int64_t(1) << 40) ? "2^" + std::to_string(
-                                                                          int(std::log2(max)))
-                                                                    : std::to_string(max)));
+      std::to_string(min) + ".." +
+          (max >= (std::int64_t(1) << 40) ? "2^" + std::to_string(int(std::log2(max)))
+                                          : std::to_string(max)));
 }
 
 const CLI::Validator kNotAnOption(
@@ -175,7 +175,8 @@ const CLI::Validator kNotAnOption(
 
 void AddTomographyFlags(CLI::App* command, TomographyFlags* f, bool solve_options) {
   const std::string group = "Tomography";
-  command->add_option("--tomography-config", f->config, "Tomography settings (config/tomography.yaml)")
+  command
+      ->add_option("--tomography-config", f->config, "Tomography settings (config/tomography.yaml)")
       ->type_name("T.yaml")
       ->group(group);
   command->add_option("--resolution", f->resolution, "Voxels along the box's longest side")
@@ -241,8 +242,7 @@ void AddTomographyFlags(CLI::App* command, TomographyFlags* f, bool solve_option
       ->group(group);
   command
       ->add_flag_callback(
-          "--no-coarse-to-fine", [f] { f->coarse_to_fine = false; },
-          "Solve the full grid only")
+          "--no-coarse-to-fine", [f] { f->coarse_to_fine = false; }, "Solve the full grid only")
       ->group(group);
   command->add_option("--cache", f->cache, "Keep system matrices in DIR")
       ->type_name("DIR")

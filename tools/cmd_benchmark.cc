@@ -19,7 +19,8 @@ Runner AddBenchmark(CLI::App* command) {
   };
   auto o = std::make_shared<Options>();
   command->footer(
-      "Time the forward renderer, the tomography (also on compressed footage) or the fit (ours against the paper's\n"
+      "Time the forward renderer, the tomography (also on compressed footage) or the fit (ours "
+      "against the paper's\n"
       "Algorithm 2) against its error, the fit's temperatures from cameras that are not the\n"
       "sRGB observer before and after radiometric calibration, sustained recording from\n"
       "simulated and Aravis fake cameras, the calibration of a simulated ring against\n"
@@ -37,8 +38,9 @@ Runner AddBenchmark(CLI::App* command) {
   command->add_option("--seconds", o->seconds, "capture, soak: how long")
       ->type_name("S")
       ->check(kPositive);
-  command->add_option("--segment-seconds", o->segment_seconds,
-                      "soak: a new recording every S seconds (default 300)")
+  command
+      ->add_option("--segment-seconds", o->segment_seconds,
+                   "soak: a new recording every S seconds (default 300)")
       ->type_name("S")
       ->check(kPositive);
   return [o](Context&) {

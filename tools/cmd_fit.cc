@@ -35,10 +35,10 @@ Runner AddFit(CLI::App* command) {
       ->type_name("F.vdb");
   command->add_option("--views", o->views, "Cameras to fit (default: every camera with an image)")
       ->type_name("CAM,CAM");
-  command->add_option("--holdout", job.holdout, "Camera to score but not fit")
-      ->type_name("CAMERA");
-  command->add_option("--tomography", job.tomography_path,
-                      "Emission volume to start from (default: reconstructed here)")
+  command->add_option("--holdout", job.holdout, "Camera to score but not fit")->type_name("CAMERA");
+  command
+      ->add_option("--tomography", job.tomography_path,
+                   "Emission volume to start from (default: reconstructed here)")
       ->type_name("E.vdb");
   command->add_option("--method", o->method, "fast, or the paper's Algorithm 1 or 2")
       ->check(CLI::IsMember({"fast", "alg1", "alg2"}));
@@ -58,8 +58,9 @@ Runner AddFit(CLI::App* command) {
                        "Weight of the neighbour term (fast: 1; alg1/alg2: the paper's 10)")
           ->type_name("W")
           ->check(kNonNegative);
-  command->add_option("--fit-iterations", o->iterations,
-                      "Fast fit: L-BFGS iterations per grid level; alg1/alg2: sweeps")
+  command
+      ->add_option("--fit-iterations", o->iterations,
+                   "Fast fit: L-BFGS iterations per grid level; alg1/alg2: sweeps")
       ->type_name("N")
       ->check(Whole(0, 1000000));
   command->add_option("--time-limit", job.fit.time_limit_s, "Stop the fit after S seconds")

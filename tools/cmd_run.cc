@@ -38,11 +38,13 @@ Runner AddRun(CLI::App* command) {
   command->add_option("--images", run.source.images_dir, "Folders DIR/frame_NNNNNN/<camera>.png")
       ->type_name("DIR");
   command->add_option("--rig", run.rig_path, "Rig file")->type_name("RIG.yaml");
-  command->add_option("--calibration-recording", run.calibration.recording_dir,
-                      "Calibrate first from this recording of a board")
+  command
+      ->add_option("--calibration-recording", run.calibration.recording_dir,
+                   "Calibrate first from this recording of a board")
       ->type_name("DIR");
-  command->add_option("--calibration-images", run.calibration.images_dir,
-                      "Calibrate first from these board views")
+  command
+      ->add_option("--calibration-images", run.calibration.images_dir,
+                   "Calibrate first from these board views")
       ->type_name("DIR");
   command->add_option("--board", o->board, "The calibration board")->type_name("B.yaml");
   command->add_option("--calibrate-config", o->calibrate_config, "Calibration config")
@@ -59,7 +61,8 @@ Runner AddRun(CLI::App* command) {
       ->check(kPositive);
   command->add_option("--absorption", run.absorption, "Absorption model (default: dataset.yaml's)")
       ->check(CLI::IsMember({"soot", "grey"}));
-  command->add_option("--fit-iterations", o->fit_iterations, "L-BFGS iterations of each frame's fit")
+  command
+      ->add_option("--fit-iterations", o->fit_iterations, "L-BFGS iterations of each frame's fit")
       ->type_name("N")
       ->check(Whole(0, 1000000));
   command->add_option("--holdout", run.holdout_camera, "Camera to score but not fit")
@@ -74,8 +77,9 @@ Runner AddRun(CLI::App* command) {
                     "Do not write the per-voxel sigma grids (saves about a fifth of the fit)");
   command->add_flag("--fit-exposure", run.fit_exposure,
                     "Fit a free exposure on every frame (the paper's s), even a known one");
-  command->add_option("--threads", o->threads,
-                      "Threads per process (default: all cores, shared among a node's ranks)")
+  command
+      ->add_option("--threads", o->threads,
+                   "Threads per process (default: all cores, shared among a node's ranks)")
       ->type_name("N")
       ->check(Whole(1, 4096));
   return [o](Context& context) {

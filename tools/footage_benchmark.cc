@@ -4,8 +4,8 @@
 
 #include <algorithm>
 #include <chrono>
-#include <filesystem>
 #include <cmath>
+#include <filesystem>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -33,7 +33,7 @@ using Clock = std::chrono::steady_clock;
 // The scene: a fire of licks on the left of the box and a grey, optically thin plume of smoke-like
 // light beside it on the right, on an exactly black background.
 struct Scene {
-  Rig rig;             // the solve cameras, then "holdout"
+  Rig rig;  // the solve cameras, then "holdout"
   GridGeometry truth_grid;
   std::vector<float> truth_emission;  // thin-limit RGB emission on the truth grid
   std::vector<ImageF> linear;         // per camera, linear radiance (self-absorption included)
@@ -136,7 +136,8 @@ std::vector<InputPath> MakePaths(const Scene& s, bool quick,
     for (const ImageU8& i : srgb) {
       const ImageU8 coded = ThroughVideoCodec({i}, codec)[0];
       for (std::size_t q = 0; q < coded.num_pixels(); ++q) {
-        const bool black = i.pixels[3 * q] == 0 && i.pixels[3 * q + 1] == 0 && i.pixels[3 * q + 2] == 0;
+        const bool black =
+            i.pixels[3 * q] == 0 && i.pixels[3 * q + 1] == 0 && i.pixels[3 * q + 2] == 0;
         const bool lit = coded.pixels[3 * q] || coded.pixels[3 * q + 1] || coded.pixels[3 * q + 2];
         specks += black && lit;
         ++pixels;
@@ -242,7 +243,8 @@ Score Reconstruct(const Scene& s, const InputPath& path, const ReconstructOption
   score.volume = den > 0 ? std::sqrt(num / den) : 0;
   score.outside = total > 0 ? outside / total : 0;
   if (held_out) {
-    const ImageF got = RenderThinEmission(g, v.emission_rgb, CameraRays(s.rig.cameras.back().model));
+    const ImageF got =
+        RenderThinEmission(g, v.emission_rgb, CameraRays(s.rig.cameras.back().model));
     const ImageF& want = s.linear.back();
     const double full = 1.0 / s.exposure;
     double e = 0, w = 0;
@@ -261,7 +263,8 @@ Score Reconstruct(const Scene& s, const InputPath& path, const ReconstructOption
 // (ms).
 std::pair<double, double> ReconstructProcess(const Scene& s, bool held_out, int resolution,
                                              const std::string& binary) {
-  const fs::path dir = fs::temp_directory_path() / ("flamerig-footage-" + std::to_string(::getpid()));
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig-footage-" + std::to_string(::getpid()));
   fs::create_directories(dir / "images");
   Rig rig = s.rig;
   if (held_out) rig.cameras.pop_back();
@@ -331,7 +334,8 @@ std::string RunFootageBenchmark(const FootageBenchmarkOptions& options,
         "peak). Baseline: fire where brighter than 8-bit code 10, a hull every camera agrees on, "
         "five LSQR (CGLS) iterations from zero. Peak: the process's resident memory during the "
         "reconstruction (VmHWM, reset before each), and what the reconstruction added to it.\n\n";
-  if (log) log("footage: rendering the scene at " + std::to_string(width) + "x" + std::to_string(height));
+  if (log)
+    log("footage: rendering the scene at " + std::to_string(width) + "x" + std::to_string(height));
   const Scene scene = MakeScene(box, cameras, true, width, height, truth_resolution);
   const std::vector<InputPath> paths = MakePaths(scene, quick, log);
   md << "| input | method | hull | specks removed | iterations | matrix MB | build ms | solve ms "
@@ -343,9 +347,9 @@ std::string RunFootageBenchmark(const FootageBenchmarkOptions& options,
   std::vector<std::vector<Score>> scores(methods.size());
   for (const InputPath& path : paths) {
     for (std::size_t method = 0; method < methods.size(); ++method) {
-      ReconstructOptions o = method == 2 ? Baseline(resolution, scene.exposure,
-                                                    path.baseline_threshold, cameras)
-                                         : Flamerig(resolution, scene.exposure);
+      ReconstructOptions o =
+          method == 2 ? Baseline(resolution, scene.exposure, path.baseline_threshold, cameras)
+                      : Flamerig(resolution, scene.exposure);
       if (method == 1) o.solve.solver = "sart";
       const Score s = Reconstruct(scene, path, o, true);
       scores[method].push_back(s);
@@ -353,13 +357,13 @@ std::string RunFootageBenchmark(const FootageBenchmarkOptions& options,
          << "% | " << s.specks << " | " << s.iterations << " | " << Fixed(s.matrix_mb, 0) << " | "
          << Fixed(s.build_ms, 0) << " | " << Fixed(s.solve_ms, 0) << " | " << Fixed(s.ms, 0)
          << " | " << Fixed(s.peak_mb, 0) << " (" << Fixed(s.added_mb, 0) << ") | "
-         << Fixed(s.heldout, 3) << " | " << Fixed(s.volume, 3) << " | "
-         << Fixed(100 * s.outside, 2) << "% |\n";
+         << Fixed(s.heldout, 3) << " | " << Fixed(s.volume, 3) << " | " << Fixed(100 * s.outside, 2)
+         << "% |\n";
       if (log)
-        log("footage: " + path.name + ", " + methods[method] + ": held-out " +
-            Fixed(s.heldout, 3) + ", volume " + Fixed(s.volume, 3) + ", outside " +
-            Fixed(100 * s.outside, 2) + "%, " + std::to_string(s.iterations) + " iterations, " +
-            Fixed(s.ms, 0) + " ms, peak " + Fixed(s.peak_mb, 0) + " MB");
+        log("footage: " + path.name + ", " + methods[method] + ": held-out " + Fixed(s.heldout, 3) +
+            ", volume " + Fixed(s.volume, 3) + ", outside " + Fixed(100 * s.outside, 2) + "%, " +
+            std::to_string(s.iterations) + " iterations, " + Fixed(s.ms, 0) + " ms, peak " +
+            Fixed(s.peak_mb, 0) + " MB");
     }
   }
   const std::vector<Score>& ours = scores[0];
@@ -372,8 +376,8 @@ std::string RunFootageBenchmark(const FootageBenchmarkOptions& options,
   md << "\nTargets on the H.264 frames:\n\n";
   md << "- held-out error at least 20% below the baseline's: " << Fixed(coded.heldout, 3)
      << " against " << Fixed(coded_base.heldout, 3) << " ("
-     << Fixed(100 * (1 - coded.heldout / coded_base.heldout), 0) << "% below): "
-     << verdict(coded.heldout <= 0.8 * coded_base.heldout) << ";\n";
+     << Fixed(100 * (1 - coded.heldout / coded_base.heldout), 0)
+     << "% below): " << verdict(coded.heldout <= 0.8 * coded_base.heldout) << ";\n";
   md << "- within 10% of flamerig's own on the uncompressed frames: " << Fixed(coded.heldout, 3)
      << " against " << Fixed(clean.heldout, 3) << " ("
      << Fixed(100 * (coded.heldout / clean.heldout - 1), 0)
@@ -385,12 +389,12 @@ std::string RunFootageBenchmark(const FootageBenchmarkOptions& options,
     const auto [peak_mb, ms] = ReconstructProcess(scene, true, resolution, options.binary);
     md << "- " << cameras << " cameras at " << width << "x" << height << " and a "
        << fit_grid.dims.x() << "x" << fit_grid.dims.y() << "x" << fit_grid.dims.z()
-       << " grid (8-bit sRGB), `flamerig reconstruct` in its own process: peak " << Fixed(peak_mb, 0)
-       << " MB (at most 500: " << verdict(peak_mb <= 500) << "), " << Fixed(ms, 0)
-       << " ms in all; in the table's run, matrix build " << Fixed(clean.build_ms, 0)
-       << " ms (at most 1000: " << verdict(clean.build_ms <= 1000) << "), solve "
-       << Fixed(clean.solve_ms, 0) << " ms (at most 1000: " << verdict(clean.solve_ms <= 1000)
-       << ").\n";
+       << " grid (8-bit sRGB), `flamerig reconstruct` in its own process: peak "
+       << Fixed(peak_mb, 0) << " MB (at most 500: " << verdict(peak_mb <= 500) << "), "
+       << Fixed(ms, 0) << " ms in all; in the table's run, matrix build "
+       << Fixed(clean.build_ms, 0) << " ms (at most 1000: " << verdict(clean.build_ms <= 1000)
+       << "), solve " << Fixed(clean.solve_ms, 0)
+       << " ms (at most 1000: " << verdict(clean.solve_ms <= 1000) << ").\n";
     if (log) log("footage: flamerig reconstruct process: peak " + Fixed(peak_mb, 0) + " MB");
   }
   if (!quick && options.hd) {
