@@ -21,9 +21,9 @@ namespace fs = std::filesystem;
 
 namespace {
 
-// One camera's masks over its input: the input brightened 4x (faint specks show), the dilated
-// mask's margin tinted blue, specks magenta, and the hull's outline green.
-ImageU8 MaskOverlay(const CameraMaskSummary& m, const ImageU8& input) {
+// One camera's masks over its input brightened 4x (`bright`, so that faint specks show): the
+// dilated mask's margin tinted blue, specks magenta, and the hull's outline green.
+ImageU8 MaskOverlay(const CameraMaskSummary& m, const ImageU8& bright) {
   ImageU8 out(m.width, m.height, 3);
   auto has = [&](int x, int y, std::uint8_t bit) {
     return x >= 0 && y >= 0 && x < m.width && y < m.height &&
@@ -33,10 +33,7 @@ ImageU8 MaskOverlay(const CameraMaskSummary& m, const ImageU8& input) {
     for (int x = 0; x < m.width; ++x) {
       const std::size_t p = static_cast<std::size_t>(y) * m.width + x;
       const std::uint8_t l = m.labels[p];
-      Rgb c;
-      for (int ch = 0; ch < 3; ++ch)
-        c[ch] = static_cast<std::uint8_t>(
-            input.empty() ? 0 : std::min(255, 4 * input.pixels[3 * p + ch]));
+      Rgb c = {bright.pixels[3 * p], bright.pixels[3 * p + 1], bright.pixels[3 * p + 2]};
       if (l & kMaskSpeck) {
         c = {255, 0, 255};
       } else if (!(l & kMaskFire) && (l & CameraMaskSummary::kMaskDilated)) {
@@ -79,7 +76,7 @@ ImageU8 WriteMasks(const std::string& dir, const Rig& rig, const SourceFrameSet&
     for (std::size_t i = 0; i < bright.pixels.size() && !input.empty(); ++i)
       bright.pixels[i] = static_cast<std::uint8_t>(std::min(255, 4 * input.pixels[i]));
     grid.row_labels.push_back(m.camera + (m.held_out ? " (held out)" : ""));
-    grid.rows.push_back({bright, MaskOverlay(m, input)});
+    grid.rows.push_back({bright, MaskOverlay(m, bright)});
     if (!dir.empty()) {
       ImageU8 binary(m.width, m.height, 1);
       for (std::size_t p = 0; p < binary.pixels.size(); ++p)

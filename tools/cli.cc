@@ -7,7 +7,6 @@
 #include <memory>
 #include <sstream>
 
-#include "calibration/radiometry.h"
 #include "pipeline/tomography_config.h"
 
 namespace flamerig::cli {
@@ -264,11 +263,8 @@ void ApplyTomographyFlags(const TomographyFlags& f, ReconstructOptions* o,
   if (f.dilation_px) o->hull.dilation_px = *f.dilation_px;
   if (f.min_views) o->hull.min_views = *f.min_views;
   if (f.min_speck_px) o->hull.min_speck_px = *f.min_speck_px;
-  if (!input_transfer->empty()) {
-    TransferFunction transfer;
-    double gamma;
-    ParseTransferSpec(*input_transfer, &transfer, &gamma);
-  }
+  // A bad --input-transfer is refused by the job before any work (WithInputTransfer, run's
+  // Validate).
 }
 
 void Context::StopOnSignals() {

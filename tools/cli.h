@@ -89,7 +89,8 @@ struct TomographyFlags {
 // --no-coarse-to-fine and --cache.
 void AddTomographyFlags(CLI::App* command, TomographyFlags* flags, bool solve_options);
 // Loads the config into *options and *input_transfer (when one was given), then the options given
-// over it. Throws InputError naming the config file and key.
+// over it. Throws InputError naming the config file and key (a bad input transfer is the job's to
+// refuse).
 void ApplyTomographyFlags(const TomographyFlags& flags, ReconstructOptions* options,
                           std::string* input_transfer);
 
