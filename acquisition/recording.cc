@@ -10,13 +10,15 @@
 #include <cerrno>
 #include <chrono>
 #include <cstring>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
+#include <set>
 #include <sstream>
 
+#include "acquisition/thread_name.h"
 #include "core/atomic_file.h"
 #include "core/error.h"
-#include "acquisition/thread_name.h"
 
 namespace flamerig {
 
@@ -163,29 +165,139 @@ std::vector<char> SetRecordBytes(const FrameSet& h, std::uint64_t seq,
   return b;
 }
 
-std::vector<char> ReadWholeFile(const fs::path& path) {
+// The whole file, or nullopt when it cannot be opened.
+std::optional<std::vector<char>> ReadWholeFile(const fs::path& path) {
   std::ifstream in(path, std::ios::binary);
-  if (!in) throw RecordingError("recording: cannot open " + path.string());
+  if (!in) return std::nullopt;
   return std::vector<char>(std::istreambuf_iterator<char>(in), {});
 }
 
-void CheckFileHeader(const std::vector<char>& bytes, const char (&magic)[8],
-                     std::uint32_t expect_value, const fs::path& path) {
-  if (bytes.size() < kFileHeader || std::memcmp(bytes.data(), magic, 8) != 0) {
-    throw RecordingError("recording: " + path.string() +
-                         " is not a flamerig recording file (bad header)");
-  }
+// What is wrong with a file's header, or "" when it is right.
+std::string HeaderProblem(const std::vector<char>& bytes, const char (&magic)[8],
+                          std::uint32_t expect_value) {
+  if (bytes.size() < kFileHeader || std::memcmp(bytes.data(), magic, 8) != 0)
+    return "is not a flamerig recording file (bad header)";
   std::uint32_t version, value;
   std::memcpy(&version, bytes.data() + 8, 4);
   std::memcpy(&value, bytes.data() + 12, 4);
-  if (version != 1) {
-    throw RecordingError("recording: " + path.string() + " has format version " +
-                         std::to_string(version) + "; this flamerig reads version 1");
+  if (version != 1)
+    return "has format version " + std::to_string(version) + "; this flamerig reads version 1";
+  if (value != expect_value)
+    return "header says " + std::to_string(value) + ", metadata.yaml says " +
+           std::to_string(expect_value);
+  return "";
+}
+
+// A frame record whose fields agree with each other and with its camera.
+bool RecordSane(const FrameRecord& r, int camera) {
+  if (r.camera != static_cast<std::uint32_t>(camera) ||
+      r.pixel_format > static_cast<std::uint32_t>(PixelFormat::kBayerBg8) ||
+      r.status > static_cast<std::uint32_t>(FrameStatus::kError))
+    return false;
+  return r.payload_bytes == 0 ||
+         r.payload_bytes == std::uint64_t(r.width) * r.height *
+                                BytesPerPixel(static_cast<PixelFormat>(
+                                    std::min<std::uint32_t>(r.pixel_format, 6)));
+}
+
+// The record and its pixels lie inside a data file of `data_size` bytes.
+bool RecordFits(const FrameRecord& r, std::uint64_t data_size) {
+  return r.offset >= kFileHeader && r.payload_bytes <= data_size &&
+         r.offset <= data_size - r.payload_bytes &&
+         r.offset + r.payload_bytes + sizeof(FrameRecord) <= data_size;
+}
+
+std::uint64_t RecordEnd(const FrameRecord& r) {
+  return r.offset + sizeof(FrameRecord) + r.payload_bytes;
+}
+
+// Reads n bytes at `at`; false when the file is shorter.
+bool ReadAt(int fd, void* p, std::size_t n, std::uint64_t at) {
+  auto* b = static_cast<char*>(p);
+  while (n > 0) {
+    const ssize_t r = ::pread(fd, b, n, static_cast<off_t>(at));
+    if (r < 0 && errno == EINTR) continue;
+    if (r <= 0) return false;
+    b += r;
+    n -= static_cast<std::size_t>(r);
+    at += static_cast<std::uint64_t>(r);
   }
-  if (value != expect_value) {
-    throw RecordingError("recording: " + path.string() + " header says " + std::to_string(value) +
-                         ", metadata.yaml says " + std::to_string(expect_value));
+  return true;
+}
+
+// The first offset in [from, limit) where an intact record of `camera` starts (its own offset
+// field says so), or `limit`.
+std::uint64_t NextIntactRecord(int fd, int camera, std::uint64_t from, std::uint64_t limit,
+                               std::uint64_t data_size) {
+  constexpr std::size_t kChunk = 1 << 20;
+  std::vector<char> buf(kChunk + 3);
+  for (std::uint64_t at = from; at < limit; at += kChunk) {
+    const std::size_t n =
+        static_cast<std::size_t>(std::min<std::uint64_t>(kChunk + 3, data_size - at));
+    if (n < 4 || !ReadAt(fd, buf.data(), n, at)) break;
+    for (std::size_t i = 0; i + 4 <= n && at + i < limit; ++i) {
+      if (std::memcmp(buf.data() + i, "FRM1", 4) != 0) continue;
+      FrameRecord r;
+      if (ReadAt(fd, &r, sizeof r, at + i) && RecordCrcOk(r) && RecordSane(r, camera) &&
+          r.offset == at + i && RecordFits(r, data_size))
+        return at + i;
+    }
   }
+  return limit;
+}
+
+// A camera's frames found again by walking its data file record by record. A record header that
+// is damaged is taken from `copies` (the index's entries whose checksum holds) when one starts at
+// that offset; a damaged stretch is skipped up to the next intact record.
+std::vector<FrameRecord> WalkDataFile(const fs::path& path, int camera, std::uint64_t data_size,
+                                      const std::vector<FrameRecord>& copies,
+                                      RecoveryReport* report) {
+  std::map<std::uint64_t, FrameRecord> by_offset;
+  for (const FrameRecord& r : copies)
+    if (RecordFits(r, data_size)) by_offset.emplace(r.offset, r);
+  std::vector<FrameRecord> frames;
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return frames;
+  const std::string file = path.filename().string();
+  std::uint64_t pos = kFileHeader, from_copies = 0;
+  while (pos + sizeof(FrameRecord) <= data_size) {
+    FrameRecord r;
+    if (ReadAt(fd, &r, sizeof r, pos) && RecordCrcOk(r) && RecordSane(r, camera) &&
+        r.offset == pos && RecordFits(r, data_size)) {
+      frames.push_back(r);
+      pos = RecordEnd(r);
+      continue;
+    }
+    if (const auto it = by_offset.find(pos); it != by_offset.end()) {
+      frames.push_back(it->second);
+      ++from_copies;
+      pos = RecordEnd(it->second);
+      continue;
+    }
+    const auto later = by_offset.upper_bound(pos);
+    const std::uint64_t limit = later == by_offset.end() ? data_size : later->first;
+    const std::uint64_t next = NextIntactRecord(fd, camera, pos + 1, limit, data_size);
+    report->notes.push_back(file + ": bytes " + std::to_string(pos) + " to " +
+                            std::to_string(next) + " hold no intact frame record, skipped");
+    report->damaged_bytes += next - pos;
+    pos = next;
+  }
+  ::close(fd);
+  if (from_copies > 0)
+    report->notes.push_back(file + ": " + std::to_string(from_copies) +
+                            " damaged record header(s) read from the index's copy");
+  return frames;
+}
+
+// The position in `frames` (increasing sequence numbers) of the frame of set `seq`, or -1.
+std::int64_t FindBySeq(const std::vector<FrameRecord>& frames, std::uint64_t seq,
+                       std::int64_t hint) {
+  if (hint >= 0 && static_cast<std::size_t>(hint) < frames.size() &&
+      frames[static_cast<std::size_t>(hint)].set == seq)
+    return hint;
+  const auto it = std::lower_bound(frames.begin(), frames.end(), seq,
+                                   [](const FrameRecord& r, std::uint64_t q) { return r.set < q; });
+  return it != frames.end() && it->set == seq ? it - frames.begin() : -1;
 }
 
 }  // namespace
@@ -203,8 +315,7 @@ std::string CameraIndexFile(int camera) {
 
 void RecorderOptions::Validate() const {
   if (max_queued_bytes == 0) throw InputError("recorder: max_queued_bytes must be > 0");
-  if (!(sync_interval_s >= 0))
-    throw InputError("recorder: sync_interval_s must be >= 0");
+  if (!(sync_interval_s >= 0)) throw InputError("recorder: sync_interval_s must be >= 0");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -270,8 +381,8 @@ bool Recorder::Submit(const FrameSet& set) {
   ++status_.sets_submitted;
   if (set.frames.size() != cameras_.size()) {
     throw InputError("recorder: a frame set with " + std::to_string(set.frames.size()) +
-                                " camera slots for a recording of " +
-                                std::to_string(cameras_.size()) + " cameras");
+                     " camera slots for a recording of " + std::to_string(cameras_.size()) +
+                     " cameras");
   }
   if (closing_ || status_.stopped) {
     ++status_.sets_dropped;
@@ -284,11 +395,11 @@ bool Recorder::Submit(const FrameSet& set) {
     const std::uint64_t expect =
         std::uint64_t(f->info.width) * f->info.height * BytesPerPixel(f->info.pixel_format);
     if (f->bytes() != 0 && f->bytes() != expect) {
-      throw InputError(
-          "recorder: camera " + std::to_string(c) + " frame " + std::to_string(f->info.frame_id) +
-          ": " + std::to_string(f->bytes()) + " bytes for " + std::to_string(f->info.width) + "x" +
-          std::to_string(f->info.height) + " " + ToString(f->info.pixel_format) + " (expected " +
-          std::to_string(expect) + ")");
+      throw InputError("recorder: camera " + std::to_string(c) + " frame " +
+                       std::to_string(f->info.frame_id) + ": " + std::to_string(f->bytes()) +
+                       " bytes for " + std::to_string(f->info.width) + "x" +
+                       std::to_string(f->info.height) + " " + ToString(f->info.pixel_format) +
+                       " (expected " + std::to_string(expect) + ")");
     }
     bytes += f->bytes();
   }
@@ -584,119 +695,276 @@ Recording Recording::Open(const std::string& directory) {
   const int n = rec.num_cameras();
   RecoveryReport& report = rec.recovery_;
   rec.frames_.resize(n);
+  // ---- Each camera's frames: from its index, or found again in its data file.
+  std::vector<bool> have_data(n, false), walked(n, false);
+  std::vector<std::uint64_t> data_sizes(n, 0);
+  std::vector<std::vector<FrameRecord>> copies(n);  // index entries whose checksum holds
+  auto walk = [&](int c, const std::string& why) {
+    const fs::path data_path = dir / CameraDataFile(c);
+    report.notes.push_back(CameraIndexFile(c) + ": " + why + "; its frames found again in " +
+                           CameraDataFile(c));
+    rec.frames_[c] = WalkDataFile(data_path, c, data_sizes[c], copies[c], &report);
+    walked[c] = true;
+    report.rebuilt_indexes.push_back(c);
+  };
   for (int c = 0; c < n; ++c) {
     const fs::path index_path = dir / CameraIndexFile(c), data_path = dir / CameraDataFile(c);
-    const std::vector<char> index = ReadWholeFile(index_path);
-    CheckFileHeader(index, kIndexMagic, c, index_path);
+    const std::string& name = rec.metadata_.cameras[c].name;
     std::error_code ec;
-    const std::uint64_t data_size = fs::file_size(data_path, ec);
-    if (ec) throw RecordingError("recording: cannot open " + data_path.string());
-    const std::size_t entries = (index.size() - kFileHeader) / sizeof(FrameRecord);
-    const std::size_t tail = (index.size() - kFileHeader) % sizeof(FrameRecord);
-    std::uint64_t data_end = kFileHeader;
-    for (std::size_t e = 0; e < entries; ++e) {
-      FrameRecord r;
-      const std::size_t at = kFileHeader + e * sizeof(FrameRecord);
-      std::memcpy(&r, index.data() + at, sizeof r);
-      const bool last = e + 1 == entries;
-      const bool fits = r.offset >= kFileHeader && r.payload_bytes <= data_size &&
-                        r.offset + sizeof(FrameRecord) + r.payload_bytes <= data_size;
-      const bool sane = r.camera == static_cast<std::uint32_t>(c) &&
-                        r.pixel_format <= static_cast<std::uint32_t>(PixelFormat::kBayerBg8) &&
-                        r.status <= static_cast<std::uint32_t>(FrameStatus::kError) &&
-                        (r.payload_bytes == 0 ||
-                         r.payload_bytes == std::uint64_t(r.width) * r.height *
-                                                BytesPerPixel(static_cast<PixelFormat>(
-                                                    std::min<std::uint32_t>(r.pixel_format, 6))));
-      if (!RecordCrcOk(r) || !fits || !sane) {
-        if (last) {  // torn by an interrupted write: ignored
-          report.notes.push_back(index_path.filename().string() + ": last entry incomplete (" +
-                                 (fits ? "checksum" : "its frame is cut short") + "), ignored");
-          report.ignored_bytes += sizeof(FrameRecord);
-          break;
+    data_sizes[c] = fs::file_size(data_path, ec);
+    have_data[c] = !ec;
+    if (!have_data[c]) {
+      data_sizes[c] = 0;
+      report.notes.push_back(CameraDataFile(c) + " (camera " + name +
+                             ") is missing or unreadable: its frames are lost");
+      continue;
+    }
+    const std::optional<std::vector<char>> index = ReadWholeFile(index_path);
+    std::string problem = index ? HeaderProblem(*index, kIndexMagic, static_cast<std::uint32_t>(c))
+                                : std::string("is missing or unreadable");
+    std::vector<FrameRecord> entries;
+    std::string torn;
+    std::size_t tail = 0;
+    if (problem.empty()) {
+      const std::size_t count = (index->size() - kFileHeader) / sizeof(FrameRecord);
+      tail = (index->size() - kFileHeader) % sizeof(FrameRecord);
+      for (std::size_t e = 0; e < count; ++e) {
+        FrameRecord r;
+        const std::size_t at = kFileHeader + e * sizeof(FrameRecord);
+        std::memcpy(&r, index->data() + at, sizeof r);
+        const bool intact = RecordCrcOk(r) && RecordSane(r, c);
+        const bool fits = RecordFits(r, data_sizes[c]);
+        if (intact) copies[c].push_back(r);
+        if (intact && fits) {
+          if (problem.empty() && torn.empty()) entries.push_back(r);
+          continue;
         }
-        throw RecordingError(
-            "recording: " + index_path.string() + ": entry " + std::to_string(e) + " at byte " +
-            std::to_string(at) + " is corrupt (" +
-            (fits ? "checksum mismatch" : "points outside " + data_path.filename().string()) + ")");
+        const std::string what = intact ? "its frame lies past the end of " + CameraDataFile(c)
+                                        : std::string("checksum mismatch");
+        if (e + 1 == count && problem.empty()) {
+          torn = what;  // torn by an interrupted write: ignored
+        } else if (problem.empty()) {
+          problem = "entry " + std::to_string(e) + " at byte " + std::to_string(at) +
+                    " is corrupt (" + what + ")";
+        }
       }
-      rec.frames_[c].push_back(r);
-      data_end = r.offset + sizeof(FrameRecord) + r.payload_bytes;
+    }
+    if (!problem.empty()) {
+      walk(c, problem);
+      continue;
+    }
+    rec.frames_[c] = std::move(entries);
+    if (!torn.empty()) {
+      report.notes.push_back(CameraIndexFile(c) + ": last entry incomplete (" +
+                             (torn == "checksum mismatch" ? "checksum" : "its frame is cut short") +
+                             "), ignored");
+      report.ignored_bytes += sizeof(FrameRecord);
     }
     if (tail) {
-      report.notes.push_back(index_path.filename().string() + ": " + std::to_string(tail) +
+      report.notes.push_back(CameraIndexFile(c) + ": " + std::to_string(tail) +
                              " bytes of a torn entry at the end, ignored");
       report.ignored_bytes += tail;
     }
-    if (data_size > data_end) {
-      report.notes.push_back(data_path.filename().string() + ": " +
-                             std::to_string(data_size - data_end) +
-                             " bytes after the last indexed frame, ignored");
-      report.ignored_bytes += data_size - data_end;
+  }
+  // ---- The sets: their records, and those rebuilt from their frames.
+  const fs::path sets_path = dir / "sets.index";
+  const std::optional<std::vector<char>> sets = ReadWholeFile(sets_path);
+  std::string sets_problem = sets ? HeaderProblem(*sets, kSetsMagic, static_cast<std::uint32_t>(n))
+                                  : std::string("is missing or unreadable");
+  const std::size_t record = kSetFixed + 8 * static_cast<std::size_t>(n);
+  struct Parsed {
+    SetEntry entry;
+    bool rebuild = false;  // its record is damaged: made again from its frames
+  };
+  std::vector<Parsed> parsed;
+  if (sets_problem.empty()) {
+    const std::size_t count = (sets->size() - kFileHeader) / record;
+    for (std::size_t s = 0; s < count; ++s) {
+      const std::size_t at = kFileHeader + s * record;
+      const char* b = sets->data() + at;
+      std::uint32_t crc;
+      std::memcpy(&crc, b + 4, 4);
+      Parsed p;
+      p.entry.entries.resize(n);
+      std::memcpy(&p.entry.seq, b + 8, 8);
+      std::memcpy(p.entry.entries.data(), b + kSetFixed, 8 * n);
+      bool ok = std::memcmp(b, "SET1", 4) == 0 && crc == Crc(b + 8, record - 8);
+      for (int c = 0; ok && c < n; ++c) ok = p.entry.entries[c] >= -1;
+      if (ok && !parsed.empty()) ok = p.entry.seq > parsed.back().entry.seq;
+      if (!ok) {
+        if (s + 1 == count) {
+          report.notes.push_back("sets.index: last set record incomplete, ignored");
+          report.ignored_bytes += record;
+          break;
+        }
+        report.notes.push_back("sets.index: set record " + std::to_string(s) + " at byte " +
+                               std::to_string(at) + " is corrupt; rebuilt from its frames");
+        p.rebuild = true;
+        p.entry.seq = parsed.empty() ? 0 : parsed.back().entry.seq + 1;
+        parsed.push_back(std::move(p));
+        continue;
+      }
+      std::memcpy(&p.entry.header.index, b + 16, 8);
+      std::memcpy(&p.entry.header.trigger_id, b + 24, 8);
+      std::memcpy(&p.entry.header.reference_ns, b + 32, 8);
+      std::memcpy(&p.entry.header.spread_ns, b + 40, 8);
+      parsed.push_back(std::move(p));
+    }
+    if (const std::size_t sets_tail = (sets->size() - kFileHeader) % record) {
+      report.notes.push_back("sets.index: " + std::to_string(sets_tail) +
+                             " bytes of a torn record at the end, ignored");
+      report.ignored_bytes += sets_tail;
     }
   }
-  const fs::path sets_path = dir / "sets.index";
-  const std::vector<char> sets = ReadWholeFile(sets_path);
-  CheckFileHeader(sets, kSetsMagic, static_cast<std::uint32_t>(n), sets_path);
-  const std::size_t record = kSetFixed + 8 * static_cast<std::size_t>(n);
-  const std::size_t count = (sets.size() - kFileHeader) / record;
-  std::vector<std::size_t> used(n, 0);  // frames referenced by committed sets
-  for (std::size_t s = 0; s < count; ++s) {
-    const std::size_t at = kFileHeader + s * record;
-    const char* b = sets.data() + at;
-    std::uint32_t crc;
-    std::memcpy(&crc, b + 4, 4);
-    SetEntry entry;
-    entry.entries.resize(n);
-    std::memcpy(entry.entries.data(), b + kSetFixed, 8 * n);
-    bool ok = std::memcmp(b, "SET1", 4) == 0 && crc == Crc(b + 8, record - 8);
-    for (int c = 0; ok && c < n; ++c)
-      ok = entry.entries[c] >= -1 &&
-           entry.entries[c] < static_cast<std::int64_t>(rec.frames_[c].size());
-    if (!ok) {
-      if (s + 1 == count) {
-        report.notes.push_back("sets.index: last set record incomplete, ignored");
-        report.ignored_bytes += record;
-        break;
-      }
-      throw RecordingError("recording: " + sets_path.string() + ": set record " +
-                           std::to_string(s) + " at byte " + std::to_string(at) + " is corrupt");
+  // A frame a set record names but the index does not hold: that camera's index stops short
+  // (truncated) or lost it; walk its data file once before calling the frame lost.
+  for (const Parsed& p : parsed) {
+    if (p.rebuild) continue;
+    for (int c = 0; c < n; ++c) {
+      const std::int64_t e = p.entry.entries[c];
+      if (e < 0 || walked[c] || !have_data[c] || FindBySeq(rec.frames_[c], p.entry.seq, e) >= 0)
+        continue;
+      walk(c, "holds no entry for set " + std::to_string(p.entry.seq) +
+                  " that sets.index names (entry " + std::to_string(e) + ")");
     }
-    std::memcpy(&entry.header.index, b + 16, 8);
-    std::memcpy(&entry.header.trigger_id, b + 24, 8);
-    std::memcpy(&entry.header.reference_ns, b + 32, 8);
-    std::memcpy(&entry.header.spread_ns, b + 40, 8);
+  }
+  // Sets the recording had but whose records are gone: metadata.yaml's count says how many when
+  // the recorder closed it; otherwise every set whose frames are all on disk.
+  std::uint64_t next_seq = parsed.empty() ? 0 : parsed.back().entry.seq + 1;
+  std::uint64_t recorded = 0;
+  if (const auto it = rec.final_counters_.find("sets_recorded"); it != rec.final_counters_.end())
+    recorded = std::strtoull(it->second.c_str(), nullptr, 10);
+  const bool rebuild_tail = !sets_problem.empty() || next_seq < recorded;
+  if (!sets_problem.empty())
+    report.notes.push_back("sets.index " + sets_problem + "; the sets rebuilt from their frames");
+  else if (next_seq < recorded)
+    report.notes.push_back("sets.index holds " + std::to_string(next_seq) +
+                           " sets where metadata.yaml says " + std::to_string(recorded) +
+                           " were recorded; the rest rebuilt from their frames");
+  if (rebuild_tail) {
     for (int c = 0; c < n; ++c)
-      if (entry.entries[c] >= 0)
-        used[c] = std::max<std::size_t>(used[c], static_cast<std::size_t>(entry.entries[c]) + 1);
+      if (!walked[c] && have_data[c]) walk(c, "may stop short, as sets.index does");
+    std::set<std::uint64_t> seqs;  // of the sets to rebuild
+    if (recorded > 0) {  // the committed ones: each of which a frame survives
+      for (const auto& frames : rec.frames_)
+        for (const FrameRecord& r : frames)
+          if (r.set >= next_seq && r.set < recorded) seqs.insert(r.set);
+      if (seqs.size() < recorded - next_seq)
+        report.notes.push_back(std::to_string(recorded - next_seq - seqs.size()) +
+                               " set(s) metadata.yaml counts have no frame left on disk");
+    } else {
+      for (std::uint64_t q = next_seq; rec.WholeSet(q); ++q) seqs.insert(q);
+    }
+    for (const std::uint64_t q : seqs) {
+      Parsed p;
+      p.rebuild = true;
+      p.entry.seq = q;
+      p.entry.entries.assign(n, -1);
+      parsed.push_back(std::move(p));
+    }
+  }
+  // ---- Each set's frames, by the sequence number every frame record carries.
+  std::uint64_t previous_index = 0;
+  bool any = false;
+  for (Parsed& p : parsed) {
+    SetEntry& entry = p.entry;
+    const std::size_t i = rec.sets_.size();
+    for (int c = 0; c < n; ++c) {
+      const std::int64_t e = entry.entries[c];
+      if (!p.rebuild && e < 0) continue;  // the camera missed the set
+      const std::int64_t at = FindBySeq(rec.frames_[c], entry.seq, e);
+      if (at >= 0 || p.rebuild) {
+        entry.entries[c] = at;
+        continue;
+      }
+      entry.entries[c] = kLost;
+      ++report.lost_frames;
+      std::string why = have_data[c] ? CameraDataFile(c) + " holds no intact record of it"
+                                     : CameraDataFile(c) + " is missing";
+      for (const FrameRecord& r : copies[c])
+        if (r.set == entry.seq && have_data[c] && !RecordFits(r, data_sizes[c]))
+          why = CameraDataFile(c) + " ends at byte " + std::to_string(data_sizes[c]) +
+                ", before this frame (bytes " + std::to_string(r.offset) + " to " +
+                std::to_string(RecordEnd(r)) + ")";
+      rec.lost_[{i, c}] = why;
+    }
+    if (p.rebuild) {
+      entry.header = rec.HeaderFromFrames(entry, any ? previous_index + 1 : entry.seq);
+      ++report.rebuilt_sets;
+    }
+    previous_index = entry.header.index;
+    any = true;
     rec.sets_.push_back(std::move(entry));
   }
-  const std::size_t sets_tail = (sets.size() - kFileHeader) % record;
-  if (sets_tail) {
-    report.notes.push_back("sets.index: " + std::to_string(sets_tail) +
-                           " bytes of a torn record at the end, ignored");
-    report.ignored_bytes += sets_tail;
-  }
+  if (report.lost_frames > 0)
+    report.notes.push_back(std::to_string(report.lost_frames) +
+                           " frame(s) named by the sets are lost; their sets' other frames read");
+  const std::uint64_t last_seq = rec.sets_.empty() ? 0 : rec.sets_.back().seq;
   for (int c = 0; c < n; ++c) {
-    if (rec.frames_[c].size() > used[c]) {
-      report.notes.push_back(CameraIndexFile(c) + ": " +
-                             std::to_string(rec.frames_[c].size() - used[c]) +
+    std::size_t uncommitted = 0;
+    std::uint64_t end = kFileHeader;
+    for (const FrameRecord& r : rec.frames_[c]) {
+      if (rec.sets_.empty() || r.set > last_seq) ++uncommitted;
+      end = std::max(end, RecordEnd(r));
+    }
+    if (uncommitted > 0)
+      report.notes.push_back(CameraIndexFile(c) + ": " + std::to_string(uncommitted) +
                              " frames of sets that were never committed, ignored");
+    if (have_data[c] && !walked[c] && data_sizes[c] > end) {
+      report.notes.push_back(CameraDataFile(c) + ": " + std::to_string(data_sizes[c] - end) +
+                             " bytes after the last indexed frame, ignored");
+      report.ignored_bytes += data_sizes[c] - end;
     }
   }
   report.sets = rec.sets_.size();
   return rec;
 }
 
+bool Recording::WholeSet(std::uint64_t seq) const {
+  bool any = false;
+  for (const auto& frames : frames_) {
+    if (frames.empty() || frames.back().set < seq) return false;  // not written that far
+    any = any || FindBySeq(frames, seq, -1) >= 0;
+  }
+  return any;
+}
+
+FrameSet Recording::HeaderFromFrames(const SetEntry& entry, std::uint64_t index) const {
+  FrameSet h;
+  h.index = index;
+  bool first = true;
+  std::int64_t lo = 0, hi = 0;
+  for (std::size_t c = 0; c < frames_.size(); ++c) {
+    if (entry.entries[c] < 0) continue;
+    const FrameRecord& r = frames_[c][static_cast<std::size_t>(entry.entries[c])];
+    if (first) {
+      h.trigger_id = r.trigger_id;
+      lo = hi = r.device_timestamp_ns;
+    } else if (h.trigger_id != r.trigger_id) {
+      h.trigger_id = -1;
+    }
+    lo = std::min(lo, r.device_timestamp_ns);
+    hi = std::max(hi, r.device_timestamp_ns);
+    first = false;
+  }
+  h.reference_ns = lo;
+  h.spread_ns = hi - lo;
+  return h;
+}
+
 FrameSet Recording::ReadSet(std::size_t i) const {
+  FrameSet set = SetHeader(i);
+  set.frames.resize(num_cameras());
+  for (int c = 0; c < num_cameras(); ++c) set.frames[c] = ReadFrame(i, c);
+  return set;
+}
+
+FrameSet Recording::SetHeader(std::size_t i) const {
   if (i >= sets_.size()) {
     throw std::out_of_range("recording " + directory_ + ": frame set " + std::to_string(i) +
                             " of " + std::to_string(sets_.size()));
   }
-  FrameSet set = sets_[i].header;
-  set.frames.resize(num_cameras());
-  for (int c = 0; c < num_cameras(); ++c) set.frames[c] = ReadFrame(i, c);
-  return set;
+  return sets_[i].header;
 }
 
 std::optional<Frame> Recording::ReadFrame(std::size_t i, int c) const {
@@ -705,9 +973,14 @@ std::optional<Frame> Recording::ReadFrame(std::size_t i, int c) const {
                             " camera " + std::to_string(c) + " is not in the recording");
   }
   const SetEntry& e = sets_[i];
+  const fs::path path = fs::path(directory_) / CameraDataFile(c);
+  if (e.entries[c] == kLost) {
+    throw RecordingError("recording: " + path.string() + ": the frame of set " + std::to_string(i) +
+                         " (camera " + metadata_.cameras[c].name +
+                         ") is lost: " + lost_.at({i, c}));
+  }
   if (e.entries[c] < 0) return std::nullopt;
   const FrameRecord& r = frames_[c][static_cast<std::size_t>(e.entries[c])];
-  const fs::path path = fs::path(directory_) / CameraDataFile(c);
   std::ifstream in(path, std::ios::binary);
   FrameRecord on_disk;
   auto pixels = std::make_shared<std::vector<std::uint8_t>>(r.payload_bytes);
@@ -717,7 +990,9 @@ std::optional<Frame> Recording::ReadFrame(std::size_t i, int c) const {
   const std::string where = path.string() + ": frame " + std::to_string(r.frame_id) + " (set " +
                             std::to_string(i) + ") at byte " + std::to_string(r.offset);
   if (!in) throw RecordingError("recording: " + where + ": cut short");
-  if (std::memcmp(&on_disk, &r, sizeof r) != 0)
+  // A damaged copy of the header in the data file is no reason to lose the frame: the index's
+  // copy describes it. An intact one that differs means the two files disagree.
+  if (RecordCrcOk(on_disk) && std::memcmp(&on_disk, &r, sizeof r) != 0)
     throw RecordingError("recording: " + where + ": record header differs from the index");
   if (Crc(pixels->data(), pixels->size()) != r.payload_crc)
     throw RecordingError("recording: " + where + ": pixel checksum mismatch");
@@ -743,6 +1018,10 @@ bool Recording::HasFrame(std::size_t i, int c) const {
   return i < sets_.size() && c >= 0 && c < num_cameras() && sets_[i].entries[c] >= 0;
 }
 
+bool Recording::FrameLost(std::size_t i, int c) const {
+  return i < sets_.size() && c >= 0 && c < num_cameras() && sets_[i].entries[c] == kLost;
+}
+
 std::vector<std::uint64_t> Recording::MissingByFrameId() const {
   std::vector<std::uint64_t> missing(num_cameras(), 0);
   for (int c = 0; c < num_cameras(); ++c) {
@@ -752,6 +1031,79 @@ std::vector<std::uint64_t> Recording::MissingByFrameId() const {
         missing[c] += f[k].frame_id - f[k - 1].frame_id - 1;
   }
   return missing;
+}
+
+RecoveryReport RebuildIndexes(const std::string& directory) {
+  Recording rec = Recording::Open(directory);
+  RecoveryReport report = rec.recovery_;
+  const int n = rec.num_cameras();
+  // Sets the recorder never committed whose frames all reached the disk.
+  for (std::uint64_t seq = rec.sets_.empty() ? 0 : rec.sets_.back().seq + 1; rec.WholeSet(seq);
+       ++seq) {
+    Recording::SetEntry entry;
+    entry.seq = seq;
+    entry.entries.resize(n);
+    for (int c = 0; c < n; ++c) entry.entries[c] = FindBySeq(rec.frames_[c], seq, -1);
+    entry.header =
+        rec.HeaderFromFrames(entry, rec.sets_.empty() ? seq : rec.sets_.back().header.index + 1);
+    rec.sets_.push_back(std::move(entry));
+    ++report.added_sets;
+  }
+  if (report.added_sets > 0)
+    report.notes.push_back(std::to_string(report.added_sets) +
+                           " set(s) never committed but whole on disk, taken in");
+  // Every frame's pixels against their checksum: what the rebuilt recording holds is readable.
+  for (std::size_t i = 0; i < rec.sets_.size(); ++i) {
+    for (int c = 0; c < n; ++c) {
+      if (!rec.HasFrame(i, c)) continue;
+      try {
+        rec.ReadFrame(i, c);
+      } catch (const RecordingError& e) {
+        ++report.corrupt_frames;
+        report.notes.push_back(std::string(e.what()).substr(std::strlen("recording: ")));
+      }
+    }
+  }
+  // The new indexes: every intact frame of each data file, in data order.
+  std::vector<std::string> index_bytes(n);
+  for (int c = 0; c < n; ++c) {
+    const std::vector<char> header = FileHeader(kIndexMagic, static_cast<std::uint32_t>(c));
+    index_bytes[c].assign(header.begin(), header.end());
+    for (const FrameRecord& r : rec.frames_[c])
+      index_bytes[c].append(reinterpret_cast<const char*>(&r), sizeof r);
+  }
+  const std::vector<char> sets_header = FileHeader(kSetsMagic, static_cast<std::uint32_t>(n));
+  std::string sets_bytes(sets_header.begin(), sets_header.end());
+  for (const auto& s : rec.sets_) {
+    std::vector<std::int64_t> entries(n);
+    for (int c = 0; c < n; ++c) entries[c] = std::max<std::int64_t>(s.entries[c], -1);
+    const std::vector<char> b = SetRecordBytes(s.header, s.seq, entries);
+    sets_bytes.append(b.data(), b.size());
+  }
+  // The old indexes kept aside, then the new ones in place (each replaced atomically).
+  const fs::path dir(directory);
+  char stamp[32];
+  const std::time_t now = std::time(nullptr);
+  std::tm tm{};
+  ::gmtime_r(&now, &tm);
+  std::strftime(stamp, sizeof stamp, "%Y%m%dT%H%M%SZ", &tm);
+  const fs::path aside = dir / ("replaced_indexes_" + std::string(stamp));
+  try {
+    fs::create_directories(aside);
+    std::vector<std::string> names = {"sets.index"};
+    for (int c = 0; c < n; ++c) names.push_back(CameraIndexFile(c));
+    for (const auto& name : names)
+      if (fs::exists(dir / name))
+        CopyFileAtomically((dir / name).string(), (aside / name).string());
+    for (int c = 0; c < n; ++c)
+      WriteFileAtomically((dir / CameraIndexFile(c)).string(), index_bytes[c]);
+    WriteFileAtomically((dir / "sets.index").string(), sets_bytes);
+  } catch (const std::exception& e) {
+    throw RecordingError("recording: " + directory + ": writing the rebuilt indexes: " + e.what());
+  }
+  report.notes.push_back("the replaced index files are in " + aside.string());
+  report.sets = rec.sets_.size();
+  return report;
 }
 
 }  // namespace flamerig

@@ -28,9 +28,27 @@
 // at once: everything up to the last committed set stays readable. status() names the file and
 // the reason either way.
 //
-// Reading: Recording::Open() checks the headers and checksums of the indices (a corrupt entry before
-// the tail is an error naming the file and the byte offset), recovers an interrupted recording as
-// above, and ReadSet() returns the frames with their pixels checked against their CRC.
+// Reading: Recording::Open() checks the headers and checksums of the indices, recovers an
+// interrupted recording as above, and ReadSet() returns the frames with their pixels checked against
+// their CRC.
+//
+// Salvage: damage costs only the frames it touches. The data files are self-describing (every
+// frame's record header is also in camNN.data, with its set's sequence number), so Open() rebuilds
+// what a damaged file hid:
+//   - a camNN.index that is missing, has a bad header, a corrupt entry, or stops before the sets
+//     that name its frames: its frames are found again by walking camNN.data record by record (a
+//     damaged record header is read from the index's copy; a damaged stretch is skipped up to the
+//     next intact record);
+//   - a camNN.data that is missing or cut short: that camera's frames in it are lost, every other
+//     camera's frame of those sets reads;
+//   - a corrupt set record in sets.index: the set is rebuilt from its frames (which carry its
+//     sequence number), its header approximated from their timestamps; a sets.index missing or cut
+//     short while metadata.yaml says more sets were recorded: the missing sets are rebuilt likewise;
+//   - a flipped byte in a frame's pixels: ReadFrame() of that frame fails, naming it.
+// Each of these is a note in recovery(). A lost frame is still listed in its set (FrameLost()) and
+// ReadFrame() of it throws RecordingError saying why. Only a missing or unreadable metadata.yaml
+// makes a recording unreadable. RebuildIndexes() (`flamerig recover`) writes the salvaged indexes
+// back, so later reads are fast and clean.
 #ifndef FLAMERIG_ACQUISITION_RECORDING_H_
 #define FLAMERIG_ACQUISITION_RECORDING_H_
 
@@ -44,6 +62,7 @@
 #include <stdexcept>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "acquisition/camera.h"
@@ -176,7 +195,17 @@ struct RecoveryReport {
   bool closed_cleanly = false;      // metadata.yaml says the recorder closed it
   std::uint64_t sets = 0;           // readable frame sets
   std::uint64_t ignored_bytes = 0;  // past the last complete set (torn records, uncommitted frames)
-  std::vector<std::string> notes;   // what was ignored, file by file
+  std::uint64_t damaged_bytes = 0;  // stretches of a data file skipped as unreadable
+  std::uint64_t lost_frames = 0;    // frames named by a set but gone (a data file missing or cut)
+  std::uint64_t rebuilt_sets = 0;   // sets rebuilt from their frames (set records damaged or gone)
+  std::uint64_t added_sets = 0;     // RebuildIndexes: uncommitted sets whose frames are all there
+  std::uint64_t corrupt_frames = 0;  // RebuildIndexes: frames whose pixels fail their CRC
+  std::vector<int> rebuilt_indexes;  // cameras whose frames were found by walking camNN.data
+  std::vector<std::string> notes;    // what was ignored, damaged or rebuilt, file by file
+  bool damaged() const {
+    return damaged_bytes > 0 || lost_frames > 0 || rebuilt_sets > 0 || corrupt_frames > 0 ||
+           !rebuilt_indexes.empty();
+  }
 };
 
 class Recording {
@@ -194,7 +223,13 @@ class Recording {
   FrameSet ReadSet(std::size_t i) const;
   // One camera's frame of set i (nullopt when the camera missed the set); same checks and errors.
   std::optional<Frame> ReadFrame(std::size_t i, int camera) const;
+  // The set holds a readable frame of the camera (false when it missed the set or the frame is
+  // lost). Pixels are checked only when read.
   bool HasFrame(std::size_t i, int camera) const;
+  // The set held a frame of the camera that damage took (ReadFrame() throws saying why).
+  bool FrameLost(std::size_t i, int camera) const;
+  // The set's header (index, trigger, reference time, spread) without its frames.
+  FrameSet SetHeader(std::size_t i) const;
   // The frame records of one camera (no pixels): what the per-frame index says.
   const std::vector<FrameRecord>& frames(int camera) const { return frames_[camera]; }
   // Drops counted in the recording: frame-id gaps per camera (wrap-aware unwrapped ids).
@@ -203,17 +238,37 @@ class Recording {
   const std::map<std::string, std::string>& final_counters() const { return final_counters_; }
 
  private:
+  static constexpr std::int64_t kLost = -2;  // an entry whose frame damage took
   struct SetEntry {
     FrameSet header;
-    std::vector<std::int64_t> entries;
+    std::uint64_t seq = 0;              // the recorder's sequence number (FrameRecord::set)
+    std::vector<std::int64_t> entries;  // position in frames_[camera], -1 missed, kLost
   };
+  friend RecoveryReport RebuildIndexes(const std::string& directory);
+  // Every camera has written a frame of set `seq` or of a later one (so a camera without one
+  // missed it), and one at least has its frame.
+  bool WholeSet(std::uint64_t seq) const;
+  // A rebuilt set's header: the frames' common trigger id (else -1), their earliest device time
+  // and its spread.
+  FrameSet HeaderFromFrames(const SetEntry& entry, std::uint64_t index) const;
   std::string directory_;
+  std::map<std::pair<std::size_t, int>, std::string> lost_;  // (set, camera): why it is lost
   RecordingMetadata metadata_;
   RecoveryReport recovery_;
   std::vector<std::vector<FrameRecord>> frames_;
   std::vector<SetEntry> sets_;
   std::map<std::string, std::string> final_counters_;
 };
+
+// `flamerig recover`: opens the recording with every salvage above, then also takes in the sets the
+// recorder never committed whose frames are all on disk (a set is whole when every camera has its
+// frame, or has written a later one, so it missed this set), checks every frame's pixels against
+// their CRC, and writes the rebuilt camNN.index and sets.index in place. The data files and
+// metadata.yaml are never modified; the replaced index files are moved to
+// DIRECTORY/replaced_indexes_<UTC time>/ (nothing is deleted). The report counts what was found;
+// its notes list each damaged frame. Throws RecordingError when metadata.yaml cannot be read or
+// the new files cannot be written (the old ones then stay in place).
+RecoveryReport RebuildIndexes(const std::string& directory);
 
 // File names inside a recording.
 std::string CameraDataFile(int camera);   // "cam00.data"

@@ -335,7 +335,8 @@ CalibrationData DetectViewsInRecording(const std::string& recording_dir, const B
     const int view = static_cast<int>(data.view_names.size());
     data.view_names.push_back(name);
     for (int rc = 0; rc < recording->num_cameras(); ++rc) {
-      if (!recording->HasFrame(s, rc)) continue;
+      // A frame lost to a damaged file is tried too: its read fails and the reason is listed.
+      if (!recording->HasFrame(s, rc) && !recording->FrameLost(s, rc)) continue;
       auto it = index.find(recording->metadata().cameras[rc].name);
       if (it == index.end()) continue;
       const std::string source = recording_dir + " set " + std::to_string(s) + " camera " +

@@ -5,11 +5,11 @@
 #include <fstream>
 #include <sstream>
 
+#include "acquisition/recording.h"
+#include "acquisition/streampix.h"
 #include "core/atomic_file.h"
 #include "core/error.h"
 #include "core/image.h"
-#include "acquisition/recording.h"
-#include "acquisition/streampix.h"
 
 namespace flamerig {
 
@@ -51,8 +51,8 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   ExportSummary summary;
   if (options.first > 0 && options.first >= rec.num_sets())
     throw InputError("export: --first " + std::to_string(options.first) +
-                                " is past the recording's last frame set (" +
-                                std::to_string(rec.num_sets()) + " sets)");
+                     " is past the recording's last frame set (" + std::to_string(rec.num_sets()) +
+                     " sets)");
   fs::create_directories(out_dir);
   std::ostringstream csv;
   csv << "set,trigger_id,reference_ns,spread_ns";
@@ -62,39 +62,29 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   const std::size_t first = std::min(options.first, rec.num_sets());
   const std::size_t end = first + std::min(options.count, rec.num_sets() - first);
   for (std::size_t i = first; i < end; ++i) {
-    FrameSet set;
-    try {
-      set = rec.ReadSet(i);
-    } catch (const DataError& e) {
-      summary.failed.push_back("set " + std::to_string(i) + ": " + e.what());
-      csv << i << ",damaged,,";  // the set's columns, then each camera's, empty
-      for (int c = 0; c < rec.num_cameras(); ++c) csv << ",,";
-      csv << "\n";
-      if (SetDone(progress, i, first, end)) {
-        summary.cancelled = true;
-        break;
-      }
-      continue;
-    }
+    // Camera by camera: a damaged frame costs that frame, not its set.
+    const FrameSet set = rec.SetHeader(i);
     const fs::path dir = fs::path(out_dir) / SetName(i);
     fs::create_directories(dir);
     csv << i << "," << set.trigger_id << "," << set.reference_ns << "," << set.spread_ns;
     for (int c = 0; c < rec.num_cameras(); ++c) {
-      if (!set.frames[c]) {
+      const std::string& camera = rec.metadata().cameras[c].name;
+      if (!rec.HasFrame(i, c) && !rec.FrameLost(i, c)) {
         ++summary.missing_frames;
         csv << ",,";
         continue;
       }
-      const Frame& f = *set.frames[c];
-      const std::string& camera = rec.metadata().cameras[c].name;
+      std::string frame_id;
       try {
+        const Frame f = *rec.ReadFrame(i, c);
+        frame_id = std::to_string(f.info.frame_id);
         WriteFramePng(f, dir / (camera + ".png"));
-        csv << "," << f.info.frame_id << "," << ToString(f.info.status);
+        csv << "," << frame_id << "," << ToString(f.info.status);
         ++summary.images;
       } catch (const DataError& e) {
         summary.failed.push_back("set " + std::to_string(i) + ", camera " + camera + ": " +
                                  e.what());
-        csv << "," << f.info.frame_id << ",damaged";
+        csv << "," << frame_id << ",damaged";
       }
     }
     csv << "\n";
@@ -117,7 +107,7 @@ ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
     for (const auto& f : seq_files) names.push_back(fs::path(f).stem().string());
   if (names.size() != seq_files.size())
     throw InputError("export: " + std::to_string(names.size()) + " names for " +
-                                std::to_string(seq_files.size()) + " .seq files");
+                     std::to_string(seq_files.size()) + " .seq files");
   std::vector<StreamPixSequence> seqs;
   std::size_t n = ~std::size_t(0);
   for (const auto& f : seq_files) {
@@ -126,8 +116,7 @@ ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
   }
   if (options.first > 0 && options.first >= n)
     throw InputError("export: --first " + std::to_string(options.first) +
-                                " is past the sequences' last frame set (" + std::to_string(n) +
-                                " sets)");
+                     " is past the sequences' last frame set (" + std::to_string(n) + " sets)");
   fs::create_directories(out_dir);
   std::ostringstream csv;
   csv << "set";

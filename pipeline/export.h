@@ -21,16 +21,19 @@ struct ExportOptions {
 struct ExportSummary {
   std::size_t sets = 0, images = 0;
   std::size_t missing_frames = 0;  // cameras absent from a set (no file written for them)
-  // Damaged frames or sets (a DataError: a checksum, a frame cut short, a pixel format that cannot
-  // be decoded), each "set N[, camera C]: what", in order. They are left out and the export goes on.
+  // Damaged frames (a DataError: lost to a damaged file, a checksum, a frame cut short, a pixel
+  // format that cannot be decoded), each "set N, camera C: what", in order. They are left out and
+  // the export goes on.
   std::vector<std::string> failed;
   bool cancelled = false;  // the progress callback asked to stop (the sets before are whole)
 };
 
 // Writes OUT/frame_NNNNNN/<camera name>.png (8-bit, or 16-bit for Mono16; Bayer demosaiced to RGB)
 // and OUT/sets.csv (set, trigger id, reference time, spread, then per camera frame id and status,
-// empty when missing; a damaged set's row says "damaged"). Throws RecordingError for a recording
-// that cannot be opened, naming the file; a damaged set is reported in the summary and skipped.
+// empty when missing, "damaged" for a frame that is lost or fails its checksum). The recording is
+// opened with every salvage Recording::Open() does (acquisition/recording.h), so a damaged file
+// costs only the frames it touched: each is reported in the summary and skipped, and every intact
+// frame of its set is written. Throws RecordingError only when metadata.yaml cannot be read.
 // Progress: stage "export", unit "sets"; a cancel stops after the current set.
 ExportSummary ExportRecording(const std::string& recording_dir, const std::string& out_dir,
                               const ExportOptions& options,

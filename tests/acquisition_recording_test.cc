@@ -12,8 +12,8 @@
 #include <fstream>
 #include <thread>
 
-#include "core/error.h"
 #include "acquisition/recording.h"
+#include "core/error.h"
 
 namespace flamerig {
 namespace {
@@ -194,6 +194,15 @@ TEST(Recording, RefusesToOverwriteAndFramesOfTheWrongSize) {
 
 std::uint64_t FileSize(const fs::path& p) { return fs::file_size(p); }
 
+// metadata.yaml as a recorder killed mid-recording leaves it: `closed: false`, no counters.
+void AsIfKilled(const fs::path& dir) {
+  std::ifstream in(dir / "metadata.yaml");
+  const std::string text((std::istreambuf_iterator<char>(in)), {});
+  ASSERT_NE(text.find("closed: true"), std::string::npos);
+  std::ofstream(dir / "metadata.yaml", std::ios::trunc)
+      << text.substr(0, text.find("closed: true")) << "closed: false\n";
+}
+
 TEST(Recording, TruncatedFilesOpenWithEveryCompleteSet) {
   TempDir dir;
   {
@@ -203,6 +212,7 @@ TEST(Recording, TruncatedFilesOpenWithEveryCompleteSet) {
   }
   // As a kill mid-write leaves it: half a frame appended to a data file, a torn index entry and a
   // torn set record.
+  AsIfKilled(dir.path());
   {
     std::ofstream(dir.path() / "cam00.data", std::ios::app | std::ios::binary)
         << std::string(1000, 'x');
@@ -237,58 +247,231 @@ std::string OpenError(const std::string& dir) {
   return "";
 }
 
-TEST(Recording, CorruptionIsAClearErrorNamingTheFile) {
+// Every frame of set s but the camera `except`, as MakeSet made them (the header not compared).
+void ExpectFramesMatch(const Recording& r, std::uint64_t s, int except = -1) {
+  const FrameSet want = MakeSet(s);
+  for (int c = 0; c < 3; ++c) {
+    if (c == except) continue;
+    ASSERT_EQ(r.HasFrame(s, c), want.frames[c].has_value()) << "set " << s << " cam " << c;
+    const std::optional<Frame> got = r.ReadFrame(s, c);
+    ASSERT_EQ(got.has_value(), want.frames[c].has_value()) << "set " << s << " cam " << c;
+    if (!got) continue;
+    EXPECT_EQ(got->info.frame_id, want.frames[c]->info.frame_id);
+    EXPECT_EQ(got->info.device_timestamp_ns, want.frames[c]->info.device_timestamp_ns);
+    ASSERT_TRUE(*got->data == *want.frames[c]->data) << "set " << s << " cam " << c;
+  }
+}
+
+std::string Notes(const Recording& r) {
+  std::string all;
+  for (const auto& n : r.recovery().notes) all += n + "\n";
+  return all;
+}
+
+// The error ReadFrame gives, or "".
+std::string ReadError(const Recording& r, std::size_t s, int c) {
+  try {
+    r.ReadFrame(s, c);
+  } catch (const RecordingError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// A pristine 10-set recording, copied afresh for each kind of damage.
+class Damage : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    Recorder rec(pristine_.str(), Metadata());
+    for (std::uint64_t s = 0; s < 10; ++s) ASSERT_TRUE(rec.Submit(MakeSet(s)));
+    rec.Close();
+    fs::copy(pristine_.path(), dir_.path());
+    frames_ = Recording::Open(pristine_.str()).frames(1);
+  }
+  fs::path at(const std::string& name) const { return dir_.path() / name; }
+  TempDir pristine_, dir_;
+  std::vector<FrameRecord> frames_;  // camera 1's, undamaged
+};
+
+TEST_F(Damage, AFlippedPixelByteCostsThatFrameAlone) {
+  FlipByte(at("cam01.data"), frames_[4].offset + sizeof(FrameRecord) + 100);
+  const Recording r = Recording::Open(dir_.str());
+  EXPECT_FALSE(r.recovery().damaged()) << Notes(r);
+  const std::string m = ReadError(r, 4, 1);
+  EXPECT_NE(m.find("cam01.data"), std::string::npos) << m;
+  EXPECT_NE(m.find("pixel checksum"), std::string::npos) << m;
+  EXPECT_NE(m.find("set 4"), std::string::npos) << m;
+  ExpectFramesMatch(r, 4, /*except=*/1);
+  for (std::uint64_t s = 0; s < 10; ++s)
+    if (s != 4) ExpectSetMatches(r.ReadSet(s), s);
+}
+
+TEST_F(Damage, AFlippedIndexByteCostsNothing) {
+  FlipByte(at("cam01.index"), 16 + 3 * sizeof(FrameRecord) + 40);
+  const Recording r = Recording::Open(dir_.str());
+  EXPECT_EQ(r.recovery().rebuilt_indexes, std::vector<int>{1});
+  EXPECT_NE(Notes(r).find("cam01.index: entry 3 at byte 400 is corrupt"), std::string::npos)
+      << Notes(r);
+  ASSERT_EQ(r.num_sets(), 10u);
+  for (std::uint64_t s = 0; s < 10; ++s) ExpectSetMatches(r.ReadSet(s), s);
+}
+
+TEST_F(Damage, AFlippedRecordHeaderInTheDataFileIsReadFromTheIndex) {
+  FlipByte(at("cam01.data"), frames_[3].offset + 40);
+  const Recording r = Recording::Open(dir_.str());
+  for (std::uint64_t s = 0; s < 10; ++s) ExpectSetMatches(r.ReadSet(s), s);
+  // Both copies of the header damaged: that frame alone is lost, and says where it was.
+  FlipByte(at("cam01.index"), 16 + 3 * sizeof(FrameRecord) + 40);
+  const Recording both = Recording::Open(dir_.str());
+  EXPECT_EQ(both.recovery().lost_frames, 1u) << Notes(both);
+  EXPECT_EQ(both.recovery().damaged_bytes, frames_[4].offset - frames_[3].offset) << Notes(both);
+  EXPECT_TRUE(both.FrameLost(3, 1));
+  EXPECT_FALSE(both.HasFrame(3, 1));
+  EXPECT_NE(ReadError(both, 3, 1).find("is lost"), std::string::npos) << ReadError(both, 3, 1);
+  ExpectFramesMatch(both, 3, /*except=*/1);
+  for (std::uint64_t s = 0; s < 10; ++s)
+    if (s != 3) ExpectSetMatches(both.ReadSet(s), s);
+}
+
+TEST_F(Damage, ACorruptSetRecordIsRebuiltFromItsFrames) {
+  FlipByte(at("sets.index"), 16 + 2 * 72 + 20);
+  const Recording r = Recording::Open(dir_.str());
+  EXPECT_EQ(r.recovery().rebuilt_sets, 1u);
+  EXPECT_NE(Notes(r).find("sets.index: set record 2 at byte 160 is corrupt"), std::string::npos)
+      << Notes(r);
+  // Its header from its frames: trigger id, earliest device time and their spread are exact here.
+  for (std::uint64_t s = 0; s < 10; ++s) ExpectSetMatches(r.ReadSet(s), s);
+}
+
+TEST_F(Damage, ACutDataFileLosesOnlyTheFramesPastTheCut) {
+  fs::resize_file(at("cam01.data"), frames_[6].offset + 500);
+  const Recording r = Recording::Open(dir_.str());
+  ASSERT_EQ(r.num_sets(), 10u) << Notes(r);
+  EXPECT_EQ(r.recovery().lost_frames, 4u) << Notes(r);
+  for (std::uint64_t s = 0; s < 6; ++s) ExpectSetMatches(r.ReadSet(s), s);
+  for (std::uint64_t s = 6; s < 10; ++s) {
+    EXPECT_TRUE(r.FrameLost(s, 1));
+    const std::string m = ReadError(r, s, 1);
+    EXPECT_NE(m.find("cam01.data ends at byte " + std::to_string(frames_[6].offset + 500)),
+              std::string::npos)
+        << m;
+    ExpectFramesMatch(r, s, /*except=*/1);
+  }
+}
+
+TEST_F(Damage, AMissingDataFileLosesOnlyItsCamera) {
+  fs::remove(at("cam02.data"));
+  const Recording r = Recording::Open(dir_.str());
+  ASSERT_EQ(r.num_sets(), 10u) << Notes(r);
+  EXPECT_EQ(r.recovery().lost_frames, 8u) << Notes(r);  // camera 2 missed sets 4 and 9
+  EXPECT_NE(Notes(r).find("cam02.data (camera cam2) is missing"), std::string::npos) << Notes(r);
+  for (std::uint64_t s = 0; s < 10; ++s) {
+    EXPECT_EQ(r.FrameLost(s, 2), s % 5 != 4) << s;  // lost, not missed
+    ExpectFramesMatch(r, s, /*except=*/2);
+  }
+}
+
+TEST_F(Damage, ACutIndexIsReadFromTheDataFile) {
+  fs::resize_file(at("cam01.index"), 16 + 4 * sizeof(FrameRecord) + 50);
+  const Recording r = Recording::Open(dir_.str());
+  EXPECT_NE(Notes(r).find("cam01.index: holds no entry for set 4"), std::string::npos) << Notes(r);
+  ASSERT_EQ(r.num_sets(), 10u);
+  for (std::uint64_t s = 0; s < 10; ++s) ExpectSetMatches(r.ReadSet(s), s);
+  // A missing index and one with a bad header likewise.
+  fs::remove(at("cam01.index"));
+  FlipByte(at("cam02.index"), 2);
+  const Recording again = Recording::Open(dir_.str());
+  EXPECT_EQ(again.recovery().rebuilt_indexes, (std::vector<int>{1, 2})) << Notes(again);
+  EXPECT_NE(Notes(again).find("cam02.index: is not a flamerig recording file"), std::string::npos)
+      << Notes(again);
+  for (std::uint64_t s = 0; s < 10; ++s) ExpectSetMatches(again.ReadSet(s), s);
+}
+
+TEST_F(Damage, AMissingSetIndexIsRebuiltFromTheFrames) {
+  fs::remove(at("sets.index"));
+  const Recording r = Recording::Open(dir_.str());
+  ASSERT_EQ(r.num_sets(), 10u) << Notes(r);
+  EXPECT_EQ(r.recovery().rebuilt_sets, 10u);
+  for (std::uint64_t s = 0; s < 10; ++s) {
+    ExpectFramesMatch(r, s);
+    EXPECT_EQ(r.SetHeader(s).index, s);
+    EXPECT_EQ(r.SetHeader(s).trigger_id, static_cast<std::int64_t>(s));
+  }
+  // Cut to 7 sets, where metadata.yaml says 10 were recorded: the 3 after are rebuilt.
+  fs::copy_file(pristine_.path() / "sets.index", at("sets.index"));
+  fs::resize_file(at("sets.index"), 16 + 7 * 72);
+  const Recording cut = Recording::Open(dir_.str());
+  ASSERT_EQ(cut.num_sets(), 10u) << Notes(cut);
+  EXPECT_EQ(cut.recovery().rebuilt_sets, 3u);
+  for (std::uint64_t s = 0; s < 10; ++s) ExpectFramesMatch(cut, s);
+}
+
+TEST_F(Damage, OnlyMetadataIsIndispensable) {
+  std::ofstream(at("metadata.yaml")) << "flamerig_recording: [not, a, number";
+  std::string m = OpenError(dir_.str());
+  EXPECT_NE(m.find("metadata.yaml"), std::string::npos) << m;
+  fs::remove(at("metadata.yaml"));
+  m = OpenError(dir_.str());
+  EXPECT_NE(m.find("metadata.yaml"), std::string::npos) << m;
+  EXPECT_NE(OpenError((dir_.path() / "nothing").string()).find("not a directory"),
+            std::string::npos);
+}
+
+// `flamerig recover`: the damage salvaged, the sets an interrupted recorder left uncommitted taken
+// in when their frames are whole, the pixels checked, and the result opens clean.
+TEST_F(Damage, RebuildIndexesWritesACleanRecordingAndKeepsTheOldFiles) {
+  FlipByte(at("cam01.index"), 16 + 3 * sizeof(FrameRecord) + 40);  // recovered from the data
+  FlipByte(at("sets.index"), 16 + 2 * 72 + 20);                    // rebuilt from the frames
+  FlipByte(at("cam00.data"), Recording::Open(pristine_.str()).frames(0)[7].offset + 300);
+  // An interrupted recorder, the last two sets never committed.
+  AsIfKilled(dir_.path());
+  fs::resize_file(at("sets.index"), 16 + 8 * 72);
+  const std::uintmax_t data_size = fs::file_size(at("cam01.data"));
+  const RecoveryReport report = RebuildIndexes(dir_.str());
+  // Set 8 is whole; set 9 is not taken in: camera 2 never wrote that far (it missed set 9, but
+  // nothing on disk says so).
+  EXPECT_EQ(report.added_sets, 1u);
+  EXPECT_EQ(report.rebuilt_sets, 1u);
+  EXPECT_EQ(report.corrupt_frames, 1u);
+  EXPECT_EQ(report.sets, 9u);
+  EXPECT_EQ(fs::file_size(at("cam01.data")), data_size);  // data untouched
+  std::size_t aside = 0;
+  for (const auto& e : fs::directory_iterator(dir_.path()))
+    if (e.path().filename().string().rfind("replaced_indexes_", 0) == 0)
+      aside += fs::exists(e.path() / "sets.index") && fs::exists(e.path() / "cam01.index");
+  EXPECT_EQ(aside, 1u);
+  const Recording r = Recording::Open(dir_.str());
+  EXPECT_FALSE(r.recovery().damaged()) << Notes(r);
+  EXPECT_TRUE(r.recovery().rebuilt_indexes.empty()) << Notes(r);
+  ASSERT_EQ(r.num_sets(), 9u);
+  for (std::uint64_t s = 0; s < 9; ++s)
+    if (s != 7) ExpectSetMatches(r.ReadSet(s), s);
+  ExpectFramesMatch(r, 7, /*except=*/0);
+  EXPECT_NE(ReadError(r, 7, 0).find("pixel checksum"), std::string::npos);
+}
+
+TEST(Recording, AnUncommittedSetIsTakenInOnlyWhenEveryCameraWroteThatFar) {
   TempDir dir;
   {
     Recorder rec(dir.str(), Metadata());
-    for (std::uint64_t s = 0; s < 10; ++s) rec.Submit(MakeSet(s));
+    for (std::uint64_t s = 0; s < 6; ++s) ASSERT_TRUE(rec.Submit(MakeSet(s)));
     rec.Close();
   }
-  const fs::path index = dir.path() / "cam01.index";
-  // A flipped byte in the pixels of set 4, camera 0: the set's read names file and frame.
-  {
-    const Recording r = Recording::Open(dir.str());
-    const FrameRecord& f = r.frames(0)[4];
-    FlipByte(dir.path() / "cam00.data", f.offset + sizeof(FrameRecord) + 100);
-    try {
-      r.ReadSet(4);
-      FAIL() << "corrupt pixels were read";
-    } catch (const RecordingError& e) {
-      const std::string m = e.what();
-      EXPECT_NE(m.find("cam00.data"), std::string::npos) << m;
-      EXPECT_NE(m.find("pixel checksum"), std::string::npos) << m;
-    }
-    ExpectSetMatches(r.ReadSet(5), 5);  // the others still read
-  }
-  // A flipped byte in an index entry before the tail: the open fails and names it.
-  FlipByte(index, 16 + 3 * sizeof(FrameRecord) + 40);
-  std::string m = OpenError(dir.str());
-  EXPECT_NE(m.find("cam01.index"), std::string::npos) << m;
-  EXPECT_NE(m.find("entry 3"), std::string::npos) << m;
-  FlipByte(index, 16 + 3 * sizeof(FrameRecord) + 40);  // repaired
-  EXPECT_EQ(OpenError(dir.str()), "");
-  // A set record in the middle.
-  FlipByte(dir.path() / "sets.index", 16 + 2 * 72 + 20);
-  m = OpenError(dir.str());
-  EXPECT_NE(m.find("sets.index"), std::string::npos) << m;
-  EXPECT_NE(m.find("set record 2"), std::string::npos) << m;
-  FlipByte(dir.path() / "sets.index", 16 + 2 * 72 + 20);
-  // Not a recording file; a missing file; malformed metadata.
-  fs::copy_file(dir.path() / "metadata.yaml", dir.path() / "metadata.good");
-  std::ofstream(dir.path() / "metadata.yaml") << "flamerig_recording: [not, a, number";
-  m = OpenError(dir.str());
-  EXPECT_NE(m.find("metadata.yaml"), std::string::npos) << m;
-  fs::copy_file(dir.path() / "metadata.good", dir.path() / "metadata.yaml",
-                fs::copy_options::overwrite_existing);
-  fs::rename(dir.path() / "cam02.data", dir.path() / "moved");
-  m = OpenError(dir.str());
-  EXPECT_NE(m.find("cam02.data"), std::string::npos) << m;
-  fs::rename(dir.path() / "moved", dir.path() / "cam02.data");
-  FlipByte(dir.path() / "cam02.index", 2);
-  m = OpenError(dir.str());
-  EXPECT_NE(m.find("cam02.index is not a flamerig recording file"), std::string::npos) << m;
-  EXPECT_NE(OpenError((dir.path() / "nothing").string()).find("not a directory"),
-            std::string::npos);
+  // As if killed: sets.index stops after set 3, and camera 1's data file before set 5's frame.
+  // Camera 2 missed set 4 (s % 5 == 4) and wrote set 5.
+  const std::vector<FrameRecord> cam1 = Recording::Open(dir.str()).frames(1);
+  AsIfKilled(dir.path());
+  fs::resize_file(dir.path() / "sets.index", 16 + 4 * 72);
+  fs::resize_file(dir.path() / "cam01.data", cam1[5].offset);
+  fs::resize_file(dir.path() / "cam01.index", 16 + 5 * sizeof(FrameRecord));
+  const Recording before = Recording::Open(dir.str());
+  EXPECT_EQ(before.num_sets(), 4u) << Notes(before);  // uncommitted sets are not read
+  const RecoveryReport report = RebuildIndexes(dir.str());
+  EXPECT_EQ(report.added_sets, 1u);  // set 4 (camera 2 missed it: it wrote set 5); not set 5
+  const Recording r = Recording::Open(dir.str());
+  ASSERT_EQ(r.num_sets(), 5u);
+  for (std::uint64_t s = 0; s < 5; ++s) ExpectFramesMatch(r, s);
+  EXPECT_FALSE(r.HasFrame(4, 2));
 }
 
 // A child process records until it is killed with SIGKILL; the recording then opens with at least

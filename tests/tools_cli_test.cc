@@ -13,12 +13,14 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <regex>
 #include <set>
 #include <sstream>
 #include <thread>
 
+#include "acquisition/recording.h"
 #include "calibration/rig.h"
 #include "core/image.h"
 #include "core/srgb.h"
@@ -70,7 +72,8 @@ TEST(Cli, HelpAndUnknownCommands) {
 
 const std::vector<std::string> kCommands = {
     "simulate", "render",  "reconstruct", "fit",    "run",       "capture",
-    "ctl",      "cameras", "calibrate",   "export", "benchmark", "calibrate-radiometry"};
+    "ctl",      "cameras", "calibrate",   "export", "benchmark", "calibrate-radiometry",
+    "recover"};
 
 // The options a command's --help lists (the first column of its option lines), without -h/--help.
 std::set<std::string> HelpOptions(const std::string& help) {
@@ -617,6 +620,88 @@ TEST(Cli, CaptureCtlAndExport) {
 }  // namespace
 
 namespace {
+
+// PNG files under an export's folder.
+std::size_t CountPngs(const fs::path& dir) {
+  std::size_t n = 0;
+  for (const auto& e : fs::recursive_directory_iterator(dir)) n += e.path().extension() == ".png";
+  return n;
+}
+
+// A take from the capture daemon, damaged four ways (issue 21): each exports every intact frame,
+// names what it skipped and exits 1 when a frame was lost; `recover` then rebuilds the indexes and
+// the export is clean and quick (no walk of the data files).
+TEST(Cli, ADamagedTakeExportsEveryIntactFrame) {
+  const fs::path dir = TempDir();
+  std::ofstream(dir / "rig.yaml") << "data_dir: " << (dir / "rec").string()
+                                  << "\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
+                                     "  - {name: a, width: 64, height: 48}\n"
+                                     "  - {name: b, width: 64, height: 48}\n"
+                                     "  - {name: c, width: 64, height: 48}\n";
+  const Result capture =
+      Flamerig("capture --config " + (dir / "rig.yaml").string() + " --record take --duration 1");
+  ASSERT_EQ(capture.status, 0) << capture.output;
+  const fs::path take = dir / "rec" / "take";
+  const flamerig::Recording pristine = flamerig::Recording::Open(take.string());
+  ASSERT_GE(pristine.num_sets(), 10u);
+  std::size_t frames = 0;
+  std::array<std::size_t, 3> per_camera{};
+  for (std::size_t s = 0; s < pristine.num_sets(); ++s)
+    for (int c = 0; c < 3; ++c) {
+      frames += pristine.HasFrame(s, c);
+      per_camera[c] += pristine.HasFrame(s, c);
+    }
+  const std::vector<flamerig::FrameRecord> b = pristine.frames(1);
+  ASSERT_EQ(b.size(), per_camera[1]);       // closed cleanly: every frame of b is in a set
+  const std::size_t cut_at = b.size() / 2;  // camera b's data file cut in this frame
+
+  struct Case {
+    std::string name;
+    std::function<void(const fs::path&)> damage;
+    std::size_t lost;  // frames the damage takes
+    std::string says;  // in export's output
+  };
+  const std::vector<Case> cases = {
+      {"cut data file",
+       [&](const fs::path& d) { fs::resize_file(d / "cam01.data", b[cut_at].offset + 700); },
+       b.size() - cut_at, "cam01.data ends at byte"},
+      {"deleted data file", [](const fs::path& d) { fs::remove(d / "cam02.data"); }, per_camera[2],
+       "cam02.data (camera c) is missing"},
+      {"flipped pixel byte",
+       [&](const fs::path& d) {
+         std::fstream f(d / "cam01.data", std::ios::in | std::ios::out | std::ios::binary);
+         const auto at = static_cast<std::streamoff>(b[3].offset + 128 + 77);
+         f.seekg(at);
+         const char byte = static_cast<char>(f.get() ^ 0x5a);
+         f.seekp(at);
+         f.put(byte);
+       },
+       1, "pixel checksum mismatch"},
+      {"cut index",
+       [&](const fs::path& d) { fs::resize_file(d / "cam01.index", 16 + cut_at * 128 + 40); }, 0,
+       "its frames found again in cam01.data"},
+  };
+  for (const Case& k : cases) {
+    SCOPED_TRACE(k.name);
+    const fs::path copy = dir / ("damaged_" + std::to_string(&k - cases.data()));
+    fs::copy(take, copy);
+    k.damage(copy);
+    const fs::path out = copy.string() + "_png";
+    const Result ex = Flamerig("export --recording " + copy.string() + " --out " + out.string());
+    EXPECT_EQ(ex.status, k.lost > 0 ? 1 : 0) << ex.output;
+    EXPECT_NE(ex.output.find(k.says), std::string::npos) << ex.output;
+    EXPECT_EQ(CountPngs(out), frames - k.lost) << ex.output;
+    // recover: the indexes rebuilt; the export after it writes the same frames.
+    const Result rec = Flamerig("recover --recording " + copy.string());
+    EXPECT_EQ(rec.status, k.lost > 0 ? 1 : 0) << rec.output;
+    const flamerig::Recording after = flamerig::Recording::Open(copy.string());
+    EXPECT_TRUE(after.recovery().rebuilt_indexes.empty()) << rec.output;
+    fs::remove_all(out);
+    const Result again = Flamerig("export --recording " + copy.string() + " --out " + out.string());
+    EXPECT_EQ(CountPngs(out), frames - k.lost) << again.output;
+  }
+  fs::remove_all(dir);
+}
 
 // The daemon's log, with stderr to a file as under a service manager: timestamped lines for the
 // start, the recording's start and end, a camera that drops off and comes back; no "\r" (no

@@ -112,6 +112,7 @@ Runner AddCameras(CLI::App* command);
 Runner AddCalibrate(CLI::App* command);
 Runner AddCalibrateRadiometry(CLI::App* command);
 Runner AddExport(CLI::App* command);
+Runner AddRecover(CLI::App* command);
 Runner AddExportVolume(CLI::App* command);
 Runner AddBenchmark(CLI::App* command);
 

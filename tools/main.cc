@@ -35,6 +35,8 @@ const std::vector<cli::Command>& Commands() {
       {"calibrate-radiometry", "Calibrate the cameras' gains from images of a black body",
        &cli::AddCalibrateRadiometry},
       {"export", "Write a recording's frame sets as PNG images", &cli::AddExport},
+      {"recover", "Rebuild a damaged or interrupted recording's indexes from its data files",
+       &cli::AddRecover},
       {"export-volume", "Write a volume as a table: CSV, NumPy or HDF5, coordinates in metres",
        &cli::AddExportVolume},
       {"benchmark", "Measure run time against error; write BENCHMARKS.md", &cli::AddBenchmark},
