@@ -11,6 +11,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -130,6 +131,17 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     ConfigReader cr(cams[i], at);
     CaptureCameraConfig cc;
     cc.name = cr.Get<std::string>("name", "cam" + std::to_string(i));
+    // The name becomes a file name (export's <camera>.png, a rig's camera): one path component.
+    const bool safe_name =
+        !cc.name.empty() && cc.name.size() <= 64 && cc.name[0] != '.' && cc.name[0] != '-' &&
+        std::all_of(cc.name.begin(), cc.name.end(), [](char ch) {
+          return std::isalnum(static_cast<unsigned char>(ch)) || ch == '_' || ch == '-' ||
+                 ch == '.';
+        });
+    if (!safe_name)
+      throw InputError(at + ": name '" + cc.name.substr(0, 64) +
+                       "' must be 1 to 64 of A-Z a-z 0-9 _ - . (not starting with . or -): it "
+                       "names the camera's files");
     if (!names.insert(cc.name).second)
       throw InputError(at + ": camera name '" + cc.name + "' is used twice");
     cc.driver = cr.Get<std::string>("driver", "sim");
@@ -144,6 +156,10 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
         "id", driver.default_id ? driver.default_id(static_cast<int>(i)) : std::string());
     if (cc.id.empty())
       throw InputError(at + ": 'id' (serial, address or device) is required");
+    for (std::size_t j = 0; j < c.cameras.size(); ++j)
+      if (c.cameras[j].driver == cc.driver && c.cameras[j].id == cc.id)
+        throw InputError(at + ": id '" + cc.id + "' is also cameras[" + std::to_string(j) +
+                         "] ('" + c.cameras[j].name + "'): one camera cannot be opened twice");
     CameraSettings& s = cc.settings;
     s.width = static_cast<int>(cr.Range("width", s.width, 1, 65536));
     s.height = static_cast<int>(cr.Range("height", s.height, 1, 65536));
@@ -199,6 +215,16 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
                        "')");
     c.cameras.push_back(cc);
   }
+  // Relative paths are relative to the config file (as a sim camera's replay is), not to the
+  // directory the daemon or ctl happens to start in.
+  const fs::path base = fs::path(where).parent_path();
+  auto resolve = [&](const std::string& p) {
+    return p.empty() || base.empty() || fs::path(p).is_absolute()
+               ? p
+               : (base / p).lexically_normal().string();
+  };
+  c.data_dir = resolve(c.data_dir);
+  if (c.control.rfind("unix:", 0) == 0) c.control = "unix:" + resolve(c.control.substr(5));
   if (c.control.empty()) c.control = "unix:" + (fs::path(c.data_dir) / "control.sock").string();
   return c;
 }

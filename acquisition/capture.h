@@ -20,7 +20,9 @@
 // recording that begins with the ring's last `pretrigger_seconds` and goes on live until stopped.
 //
 // Configuration (YAML, `flamerig capture --config rig.yaml`), every key optional except cameras:
-//   data_dir: recordings          # where recordings are created
+//   data_dir: recordings          # where recordings are created (relative paths here, in
+//                                 # `control` and in a sim camera's `replay` are relative to
+//                                 # the config file)
 //   sync: software-trigger        # hardware-trigger | software-trigger | free-run | ptp
 //   trigger_rate_hz: 30
 //   match_tolerance_ms: 13        # timestamp matching; default 0.4 / trigger_rate_hz
@@ -40,9 +42,9 @@
 //     destination: 255.255.255.255   # the cameras' broadcast address (or one camera's)
 //     port: 3956
 //   cameras:
-//     - name: cam0
+//     - name: cam0                 # unique; A-Z a-z 0-9 _ - . (it names the camera's files)
 //       driver: sim                # sim | aravis | v4l2 (acquisition/camera_drivers.h)
-//       id: SIM0                   # serial, address or device path
+//       id: SIM0                   # serial, address or device path; one camera per id
 //       width: 640
 //       height: 480
 //       pixel_format: Mono8

@@ -33,6 +33,8 @@ constexpr char kIndexMagic[8] = {'F', 'L', 'M', 'R', 'I', 'D', 'X', '1'};
 constexpr char kSetsMagic[8] = {'F', 'L', 'M', 'R', 'S', 'E', 'T', '1'};
 constexpr std::size_t kFileHeader = 16;  // magic, u32 version, u32 camera (or camera count)
 constexpr std::size_t kSetFixed = 48;    // "SET1", crc, seq, index, trigger, reference, spread
+constexpr const char* kReserveFile = "closing.reserve";  // removed when the recording closes
+constexpr off_t kReserveBytes = 256 << 10;
 
 std::uint32_t Crc(const void* p, std::size_t n) {
   return static_cast<std::uint32_t>(crc32_z(0, static_cast<const Bytef*>(p), n));
@@ -341,8 +343,36 @@ Recorder::Recorder(const std::string& directory, const RecordingMetadata& metada
                          " already exists and is not empty; choose a new name (nothing was "
                          "overwritten)");
   }
+  // Below min_free_bytes a recording would stop at once: refuse it before creating anything.
+  if (options_.min_free_bytes > 0) {
+    fs::path probe = dir;
+    while (!probe.empty() && !fs::exists(probe, ec)) probe = probe.parent_path();
+    struct statvfs v;
+    if (::statvfs(probe.empty() ? "." : probe.c_str(), &v) == 0) {
+      const std::uint64_t free = static_cast<std::uint64_t>(v.f_bavail) * v.f_frsize;
+      if (free < options_.min_free_bytes)
+        throw RecordingError("recording: " + directory_ + ": only " +
+                             std::to_string(free >> 20) + " MiB free on its disk, below " +
+                             std::to_string(options_.min_free_bytes >> 20) +
+                             " MiB (min_free_mb); nothing was recorded");
+    }
+  }
+  const bool existed = fs::exists(dir, ec);
   fs::create_directories(dir, ec);
   if (ec) throw RecordingError("recording: cannot create " + directory_ + ": " + ec.message());
+  // Room kept for the closing metadata: released by Close() just before it writes it, so a disk
+  // that fills while recording still gets a metadata.yaml with `closed: true` and the counters.
+  reserve_path_ = (dir / kReserveFile).string();
+  const int reserve = ::open(reserve_path_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+  const int reserved = reserve < 0 ? errno : ::posix_fallocate(reserve, 0, kReserveBytes);
+  if (reserve >= 0) ::close(reserve);
+  if (reserved != 0) {
+    ::unlink(reserve_path_.c_str());
+    if (!existed) fs::remove(dir, ec);
+    throw RecordingError("recording: " + directory_ + ": cannot reserve " +
+                         std::to_string(kReserveBytes >> 10) + " KiB for its closing metadata: " +
+                         Errno(reserved) + "; nothing was recorded");
+  }
   WriteAtomically(dir, "metadata.yaml", MetadataYaml(metadata_, false, {}));
   const std::uint32_t n = static_cast<std::uint32_t>(metadata_.cameras.size());
   for (std::uint32_t c = 0; c < n; ++c) {
@@ -418,11 +448,12 @@ bool Recorder::Submit(const FrameSet& set) {
         static_cast<std::uint64_t>(v.f_bavail) * v.f_frsize <
             options_.min_free_bytes + status_.queued_bytes + on_disk) {
       limit = "recording " + directory_ + ": the disk is nearly full (less than " +
-              std::to_string(options_.min_free_bytes >> 20) + " MiB free, min_free_bytes)";
+              std::to_string(options_.min_free_bytes >> 20) + " MiB free, min_free_mb)";
     }
   }
   if (!limit.empty()) {
     status_.stopped = true;
+    status_.size_limit = limit.find("size limit") != std::string::npos;
     status_.error = limit + "; recording stopped (every frame set before it is readable)";
     ++status_.sets_dropped;
     return false;
@@ -632,6 +663,7 @@ RecorderStatus Recorder::Close() {
   }
   ::close(sets_fd_);
   closed_ = true;
+  ::unlink(reserve_path_.c_str());  // the room kept for what follows
   std::map<std::string, std::string> counters = {
       {"sets_submitted", std::to_string(status_.sets_submitted)},
       {"sets_recorded", std::to_string(status_.sets_recorded)},

@@ -26,7 +26,9 @@
 // `max_bytes`, or its filesystem below `min_free_bytes`, stops it cleanly: no more sets are
 // accepted, those already accepted are written. A write that fails (disk full, I/O error) stops it
 // at once: everything up to the last committed set stays readable. status() names the file and
-// the reason either way.
+// the reason either way. A recording is refused (RecordingError, nothing created) when its disk
+// has less than `min_free_bytes` free; while it records, a small file (closing.reserve) holds room
+// for the closing metadata.yaml, so a disk that fills still gets `closed: true` and the counters.
 //
 // Reading: Recording::Open() checks the headers and checksums of the indices, recovers an
 // interrupted recording as above, and ReadSet() returns the frames with their pixels checked against
@@ -128,6 +130,7 @@ struct RecorderStatus {
   std::uint64_t bytes_written = 0;  // data files, pixels and record headers
   std::uint64_t queued_bytes = 0, peak_queued_bytes = 0, max_queued_bytes = 0;
   bool stopped = false;  // no longer accepting sets: an error or a limit; `error` says which
+  bool size_limit = false;  // stopped by max_bytes, as configured (not a fault)
   std::string error;
 };
 
@@ -168,6 +171,7 @@ class Recorder {
   void SyncAll();
 
   std::string directory_;
+  std::string reserve_path_;  // space held for the closing metadata.yaml
   RecordingMetadata metadata_;
   RecorderOptions options_;
   std::vector<std::unique_ptr<CameraFiles>> cameras_;

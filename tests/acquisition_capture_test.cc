@@ -11,10 +11,10 @@
 #include <opencv2/imgcodecs.hpp>
 #include <thread>
 
-#include "core/error.h"
 #include "acquisition/camera_drivers.h"
 #include "acquisition/capture.h"
 #include "acquisition/control.h"
+#include "core/error.h"
 #include "core/image.h"
 
 namespace flamerig {
@@ -82,6 +82,26 @@ TEST(CaptureConfig, ParsesAndNamesTheKeyOfEveryMistake) {
   EXPECT_NE(ParseError("cameras: []").find("at least one camera"), std::string::npos);
   EXPECT_NE(ParseError("cameras: [{name: a}, {name: a}]").find("'a' is used twice"),
             std::string::npos);
+  // A name becomes a file name: one path component, never a way out of an export's folder.
+  for (const char* bad : {"../../escaped", "a/b", ".hidden", "''", "-rf", "caméra"})
+    EXPECT_NE(ParseError(std::string("cameras: [{name: ") + bad + "}]").find("cameras[0]: name '"),
+              std::string::npos)
+        << bad;
+  EXPECT_NO_THROW(CaptureConfig::Parse("cameras: [{name: Cam_0-left.1}]", "rig.yaml"));
+  // One camera cannot be two cameras of a rig.
+  EXPECT_NE(ParseError("cameras: [{name: a, id: S1}, {name: b, id: S2}, {name: c, id: S1}]")
+                .find("cameras[2]: id 'S1' is also cameras[0] ('a')"),
+            std::string::npos);
+  // Relative paths are relative to the config file, wherever the daemon starts.
+  const CaptureConfig rel = CaptureConfig::Parse("data_dir: ../takes\ncameras: [{name: a}]",
+                                                 "/home/op/rig/config/capture.yaml");
+  EXPECT_EQ(rel.data_dir, "/home/op/rig/takes");
+  EXPECT_EQ(rel.control, "unix:/home/op/rig/takes/control.sock");
+  EXPECT_EQ(
+      CaptureConfig::Parse("control: unix:ctl.sock\ncameras: [{name: a}]", "/etc/r.yaml").control,
+      "unix:/etc/ctl.sock");
+  EXPECT_EQ(CaptureConfig::Parse("data_dir: /abs\ncameras: [{name: a}]", "/etc/r.yaml").data_dir,
+            "/abs");
   EXPECT_NE(
       ParseError("cameras: [{name: a, width: wide}]").find("'width' has a value of the wrong type"),
       std::string::npos);
@@ -163,8 +183,8 @@ TEST(CameraDrivers, TheRegistryNamesTheDriversAndTheirCapabilities) {
   } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("use sim, aravis, v4l2"), std::string::npos) << e.what();
   }
-  const CaptureConfig sims = CaptureConfig::Parse(
-      "sync: hardware-trigger\ncameras: [{name: a}, {name: b}]", "rig.yaml");
+  const CaptureConfig sims =
+      CaptureConfig::Parse("sync: hardware-trigger\ncameras: [{name: a}, {name: b}]", "rig.yaml");
   EXPECT_EQ(sims.AssemblerOptions().match, MatchBy::kTriggerId);
   EXPECT_EQ(sims.cameras[1].id, "SIM1");
   EXPECT_EQ(sims.cameras[1].Options<SimCameraOptions>().camera_index, 1);

@@ -703,6 +703,76 @@ TEST(Cli, ADamagedTakeExportsEveryIntactFrame) {
   fs::remove_all(dir);
 }
 
+// Runs a shell command line; its status and what it printed.
+Result ShellLine(const std::string& line) {
+  std::array<char, 4096> buffer;
+  Result r{-1, ""};
+  FILE* pipe = popen((line + " 2>&1").c_str(), "r");
+  if (!pipe) return r;
+  while (fgets(buffer.data(), buffer.size(), pipe)) r.output += buffer.data();
+  const int status = pclose(pipe);
+  r.status = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return r;
+}
+
+// A disk that really fills: a 3 MiB tmpfs in a private mount namespace as data_dir. The recording
+// stops, `capture` exits 1 naming the full disk, metadata.yaml still closes with its counters (the
+// room reserved for it), no temporary file is left and every recorded set reads. Below min_free_mb
+// a recording is refused before anything is created.
+TEST(Cli, AFullDiskEndsTheTakeCleanlyAndTheExitStatusSaysSo) {
+  if (ShellLine("unshare -m true").status != 0)
+    GTEST_SKIP() << "no private mount namespace here (needs root)";
+  const fs::path dir = TempDir();
+  const fs::path disk = dir / "disk";
+  fs::create_directories(disk);
+  auto config = [&](int min_free_mb) {
+    const fs::path path = dir / ("rig" + std::to_string(min_free_mb) + ".yaml");
+    std::ofstream(path) << "data_dir: " << disk.string() << "\nmin_free_mb: " << min_free_mb
+                        << "\nsync: software-trigger\ntrigger_rate_hz: 30\ncameras:\n"
+                           "  - {name: a, width: 640, height: 480}\n"
+                           "  - {name: b, width: 640, height: 480}\n";
+    return path.string();
+  };
+  // Inside the namespace: mount, capture, then copy out what the disk holds before it vanishes.
+  auto on_small_disk = [&](const std::string& rig) {
+    const std::string script =
+        "mount -t tmpfs -o size=3m tmpfs " + disk.string() + " && " + FLAMERIG_BINARY +
+        " capture --config " + rig + " --record take --duration 2 > " +
+        (dir / "log.txt").string() + " 2>&1; echo $? > " + (dir / "status.txt").string() +
+        "; ls -a " + disk.string() + "/take > " + (dir / "files.txt").string() +
+        " 2>&1; cp -r " + disk.string() + "/take " + (dir / "copy").string() + " 2>/dev/null; true";
+    EXPECT_EQ(ShellLine("unshare -m sh -c '" + script + "'").status, 0);
+    auto read = [&](const char* name) {
+      std::ifstream in(dir / name);
+      return std::string((std::istreambuf_iterator<char>(in)), {});
+    };
+    return std::array<std::string, 3>{read("status.txt"), read("log.txt"), read("files.txt")};
+  };
+  {
+    const auto [status, log, files] = on_small_disk(config(0));
+    EXPECT_EQ(status, "1\n") << log;
+    EXPECT_NE(log.find("disk full"), std::string::npos) << log;
+    EXPECT_EQ(files.find(".tmp"), std::string::npos) << files;
+    EXPECT_EQ(files.find("closing.reserve"), std::string::npos) << files;
+    const flamerig::Recording r = flamerig::Recording::Open((dir / "copy").string());
+    EXPECT_TRUE(r.recovery().closed_cleanly) << log;
+    ASSERT_TRUE(r.final_counters().count("sets_recorded")) << log;
+    EXPECT_EQ(r.final_counters().at("sets_recorded"), std::to_string(r.num_sets()));
+    EXPECT_GE(r.num_sets(), 1u);
+    EXPECT_LE(r.num_sets(), 10u);  // 3 MiB hold 5 sets of two 300 KiB frames
+    for (std::size_t s = 0; s < r.num_sets(); ++s) EXPECT_EQ(r.ReadSet(s).present(), 2) << s;
+  }
+  fs::remove_all(dir / "copy");
+  {
+    const auto [status, log, files] = on_small_disk(config(64));
+    EXPECT_EQ(status, "1\n") << log;
+    EXPECT_NE(log.find("below 64 MiB (min_free_mb); nothing was recorded"), std::string::npos)
+        << log;
+    EXPECT_NE(files.find("No such file"), std::string::npos) << files;  // no empty take
+  }
+  fs::remove_all(dir);
+}
+
 // The daemon's log, with stderr to a file as under a service manager: timestamped lines for the
 // start, the recording's start and end, a camera that drops off and comes back; no "\r" (no
 // progress redrawn in place) and the same lines in data_dir/capture.log.

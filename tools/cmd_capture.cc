@@ -46,11 +46,14 @@ Runner AddCapture(CLI::App* command) {
       "stream, assemble frame sets and serve the control API (`flamerig ctl`). --record starts\n"
       "recording into data_dir/NAME at once; --event saves the pre-trigger ring first;\n"
       "--duration stops after S seconds (else: Ctrl-C or `flamerig ctl shutdown`). Every state\n"
-      "change and camera event is logged to stderr and to data_dir/capture.log.");
+      "change and camera event is logged to stderr and to data_dir/capture.log. Exit status 1\n"
+      "when a recording stopped before it was asked to (a full disk, a write error, min_free_mb;\n"
+      "not max_recording_mb) or could not start.");
   command->add_option("--config", o->config, "Capture config")->required()->type_name("RIG.yaml");
   command->add_option("--record", o->record, "Record into data_dir/NAME at once")
       ->type_name("NAME");
-  command->add_option("--event", o->event, "Save the pre-trigger ring into data_dir/NAME, then live")
+  command
+      ->add_option("--event", o->event, "Save the pre-trigger ring into data_dir/NAME, then live")
       ->type_name("NAME");
   command->add_option("--duration", o->duration, "Stop after S seconds")
       ->type_name("S")
@@ -80,6 +83,10 @@ Runner AddCapture(CLI::App* command) {
     const double period = context.terminal() ? 1.0 : 10.0;
     double last_line = context.terminal() ? 0 : 1 - period;  // the first plain line after 1 s
     bool drawn = false;
+    // A recording that stopped before it was asked to (a full disk, a write error, min_free_mb;
+    // not max_recording_mb) makes the exit status 1.
+    bool recording_failed = false;
+    auto failed = [](const RecorderStatus& r) { return !r.error.empty() && !r.size_limit; };
     while (!context.cancel().raised() && !server->shutdown_requested() &&
            (o->duration < 0 || elapsed() < o->duration)) {
       std::this_thread::sleep_for(std::chrono::milliseconds(100));
@@ -89,6 +96,7 @@ Runner AddCapture(CLI::App* command) {
         if (drawn) std::fputs("\n", stderr);
         drawn = false;
         Log().error("capture: recording stopped: {}", s.recorder.error);
+        recording_failed = recording_failed || failed(s.recorder);
         daemon.StopRecording();
       }
       if (elapsed() - last_line < period || context.verbosity() == Verbosity::kQuiet) continue;
@@ -104,7 +112,13 @@ Runner AddCapture(CLI::App* command) {
     if (drawn) std::fputs("\n", stderr);
     if (context.cancel().raised()) Log().info("capture: stopping (signal)");
     server.reset();  // no control request may log (or act) from here on
-    if (daemon.status().recording) daemon.StopRecording();
+    if (daemon.status().recording) {
+      const RecorderStatus last = daemon.StopRecording();
+      if (failed(last)) {
+        Log().error("capture: recording stopped: {}", last.error);
+        recording_failed = true;
+      }
+    }
     // Each camera's story, for the log (and the soak test, which reads the disconnects).
     for (const auto& c : daemon.status().cameras)
       Log().info(
@@ -114,7 +128,7 @@ Runner AddCapture(CLI::App* command) {
           c.reconnects, c.error.empty() ? "" : "; last error: ", c.error);
     daemon.Stop();
     RemoveLogFile(log_file);
-    return kExitOk;
+    return recording_failed ? kExitError : kExitOk;
   };
 }
 
