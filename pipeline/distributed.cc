@@ -6,9 +6,11 @@
 #include <chrono>
 #include <cstdlib>
 #include <filesystem>
+#include <optional>
 #include <thread>
 
 #include "core/error.h"
+#include "core/folder_lock.h"
 #include "core/log.h"
 #include "pipeline/run_report.h"
 
@@ -182,9 +184,14 @@ DistributedRun RunDistributed(const RunOptions& options, const DistributedOption
                                                   threads);
   const std::string who = ranks.size() > 1 ? "[rank " + std::to_string(ranks.rank()) + "] " : "";
   DistributedRun out;
-  // Rank 0 prepares the rig (it may calibrate) while the others wait.
+  // One job per output folder (its rank 0 holds the lock): two runs would overwrite each other's
+  // frames and state. Rank 0 prepares the rig (it may calibrate) while the others wait.
+  std::optional<FolderLock> lock;
   if (ranks.rank() == 0) {
-    fs::create_directories(options.out_dir);
+    lock.emplace(options.out_dir, "flamerig run" + (ranks.size() > 1
+                                                        ? " (" + std::to_string(ranks.size()) +
+                                                              " MPI ranks)"
+                                                        : std::string()));
     out.rig_path = PrepareRig(options, progress);
   }
   ranks.Barrier();

@@ -22,6 +22,7 @@
 
 #include "acquisition/recording.h"
 #include "calibration/rig.h"
+#include "core/folder_lock.h"
 #include "core/image.h"
 #include "core/srgb.h"
 #include "pipeline/run.h"
@@ -700,6 +701,27 @@ TEST(Cli, ADamagedTakeExportsEveryIntactFrame) {
     const Result again = Flamerig("export --recording " + copy.string() + " --out " + out.string());
     EXPECT_EQ(CountPngs(out), frames - k.lost) << again.output;
   }
+  fs::remove_all(dir);
+}
+
+// One job per folder: a capture daemon on a data_dir and a run on an output folder that another
+// flamerig holds are refused with the holder named, before anything is written.
+TEST(Cli, ABusyFolderIsRefusedNamingItsHolder) {
+  const fs::path dir = TempDir();
+  const flamerig::FolderLock held((dir / "busy").string(), "flamerig test holder");
+  std::ofstream(dir / "rig.yaml") << "data_dir: busy\ncameras: [{name: a}]\n";
+  const Result capture = Flamerig("capture --config " + (dir / "rig.yaml").string() +
+                                  " --record take --duration 1");
+  EXPECT_EQ(capture.status, 1) << capture.output;
+  EXPECT_NE(capture.output.find((dir / "busy").string() +
+                                " is in use by another flamerig: flamerig test holder, pid"),
+            std::string::npos)
+      << capture.output;
+  EXPECT_FALSE(fs::exists(dir / "busy" / "take"));
+  const Result run = Flamerig("run --images " + (dir / "frames").string() + " --rig " +
+                              (dir / "rig.yaml").string() + " --out " + (dir / "busy").string());
+  EXPECT_EQ(run.status, 1) << run.output;
+  EXPECT_NE(run.output.find("is in use by another flamerig"), std::string::npos) << run.output;
   fs::remove_all(dir);
 }
 

@@ -8,6 +8,7 @@
 #include "acquisition/capture.h"
 #include "acquisition/control.h"
 #include "core/error.h"
+#include "core/folder_lock.h"
 #include "tools/cli.h"
 
 namespace flamerig::cli {
@@ -61,7 +62,8 @@ Runner AddCapture(CLI::App* command) {
   return [o](Context& context) {
     if (!o->record.empty() && !o->event.empty()) throw UsageError("--record and --event: give one");
     const CaptureConfig config = CaptureConfig::Load(o->config);
-    std::filesystem::create_directories(config.data_dir);
+    // One daemon per data_dir: a second would mix recordings, sockets and logs.
+    const FolderLock lock(config.data_dir, "flamerig capture --config " + o->config);
     const std::string log_file = (std::filesystem::path(config.data_dir) / "capture.log").string();
     AddLogFile(log_file);
     SystemClock clock;
