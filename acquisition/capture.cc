@@ -1,14 +1,16 @@
 #include "acquisition/capture.h"
 
-#include "acquisition/camera_drivers.h"
-#include "core/error.h"
-#include "core/log.h"
 #include "acquisition/aravis_camera.h"
-#include "core/config_reader.h"
+#include "acquisition/camera_drivers.h"
 #include "acquisition/thread_name.h"
 #include "acquisition/v4l2_camera.h"
+#include "core/config_reader.h"
+#include "core/error.h"
+#include "core/log.h"
 
+#include <sys/statvfs.h>
 #include <yaml-cpp/yaml.h>
+#include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <cctype>
@@ -40,8 +42,7 @@ SyncMode SyncModeFromName(const std::string& name) {
   for (SyncMode m :
        {SyncMode::kHardwareTrigger, SyncMode::kSoftwareTrigger, SyncMode::kFreeRun, SyncMode::kPtp})
     if (name == ToString(m)) return m;
-  throw InputError("sync '" + name +
-                              "': use hardware-trigger, software-trigger, free-run or ptp");
+  throw InputError("sync '" + name + "': use hardware-trigger, software-trigger, free-run or ptp");
 }
 
 CaptureConfig CaptureConfig::Load(const std::string& path) {
@@ -87,8 +88,7 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
   r.Seen("action");
   if (const YAML::Node action = root["action"]) {
     if (c.sync != SyncMode::kPtp)
-      throw InputError(where +
-                                  ": 'action' (GigE Vision action commands) needs sync: ptp");
+      throw InputError(where + ": 'action' (GigE Vision action commands) needs sync: ptp");
     if (!action.IsMap()) throw InputError(where + ": 'action' must be a mapping");
     ConfigReader ar(action, where + ": action");
     ActionConfig& a = c.action;
@@ -106,7 +106,7 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
       }
       if (used != text.size() || v > 0xffffffffULL)
         throw InputError(where + ": action: '" + name + "' (" + text +
-                                    ") must be an integer in [0, 2^32), decimal or 0x hex");
+                         ") must be an integer in [0, 2^32), decimal or 0x hex");
       return static_cast<std::uint32_t>(v);
     };
     a.device_key = key("device_key", a.device_key);
@@ -132,12 +132,12 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     CaptureCameraConfig cc;
     cc.name = cr.Get<std::string>("name", "cam" + std::to_string(i));
     // The name becomes a file name (export's <camera>.png, a rig's camera): one path component.
-    const bool safe_name =
-        !cc.name.empty() && cc.name.size() <= 64 && cc.name[0] != '.' && cc.name[0] != '-' &&
-        std::all_of(cc.name.begin(), cc.name.end(), [](char ch) {
-          return std::isalnum(static_cast<unsigned char>(ch)) || ch == '_' || ch == '-' ||
-                 ch == '.';
-        });
+    const bool safe_name = !cc.name.empty() && cc.name.size() <= 64 && cc.name[0] != '.' &&
+                           cc.name[0] != '-' &&
+                           std::all_of(cc.name.begin(), cc.name.end(), [](char ch) {
+                             return std::isalnum(static_cast<unsigned char>(ch)) || ch == '_' ||
+                                    ch == '-' || ch == '.';
+                           });
     if (!safe_name)
       throw InputError(at + ": name '" + cc.name.substr(0, 64) +
                        "' must be 1 to 64 of A-Z a-z 0-9 _ - . (not starting with . or -): it "
@@ -154,12 +154,11 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     const CameraDriver& driver = *found;
     cc.id = cr.Get<std::string>(
         "id", driver.default_id ? driver.default_id(static_cast<int>(i)) : std::string());
-    if (cc.id.empty())
-      throw InputError(at + ": 'id' (serial, address or device) is required");
+    if (cc.id.empty()) throw InputError(at + ": 'id' (serial, address or device) is required");
     for (std::size_t j = 0; j < c.cameras.size(); ++j)
       if (c.cameras[j].driver == cc.driver && c.cameras[j].id == cc.id)
-        throw InputError(at + ": id '" + cc.id + "' is also cameras[" + std::to_string(j) +
-                         "] ('" + c.cameras[j].name + "'): one camera cannot be opened twice");
+        throw InputError(at + ": id '" + cc.id + "' is also cameras[" + std::to_string(j) + "] ('" +
+                         c.cameras[j].name + "'): one camera cannot be opened twice");
     CameraSettings& s = cc.settings;
     s.width = static_cast<int>(cr.Range("width", s.width, 1, 65536));
     s.height = static_cast<int>(cr.Range("height", s.height, 1, 65536));
@@ -176,8 +175,8 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
         cr.Range("frame_rate_hz", triggered ? 2 * c.trigger_rate_hz : c.trigger_rate_hz, 1e-3, 1e6);
     if (triggered && s.frame_rate_hz < 1.1 * c.trigger_rate_hz) {
       throw InputError(at + ": frame_rate_hz " + std::to_string(s.frame_rate_hz) +
-                                  " (the camera's maximum rate when triggered) must be at least "
-                                  "1.1 x trigger_rate_hz, or it will ignore triggers");
+                       " (the camera's maximum rate when triggered) must be at least "
+                       "1.1 x trigger_rate_hz, or it will ignore triggers");
     }
     s.exposure_us = cr.Range("exposure_us", s.exposure_us, 1e-3, 1e9);
     s.gain_db = cr.Range("gain_db", s.gain_db, -100, 100);
@@ -256,7 +255,8 @@ std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config,
   std::vector<std::unique_ptr<Camera>> cameras;
   for (const auto& c : config.cameras) {
     try {
-      cameras.push_back(FindCameraDriver(c.driver).open(c, static_cast<int>(cameras.size()), context));
+      cameras.push_back(
+          FindCameraDriver(c.driver).open(c, static_cast<int>(cameras.size()), context));
     } catch (const std::exception& e) {
       Rethrow(e, "camera '" + c.name + "': ", Error::Kind::kIo);
     }
@@ -317,8 +317,181 @@ std::string CaptureStatus::ToYaml() const {
   out << YAML::Key << "pretrigger_ring" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key
       << "sets" << YAML::Value << ring_sets << YAML::Key << "megabytes" << YAML::Value
       << ring_bytes / 1048576.0 << YAML::EndMap;
+  out << YAML::Key << "armed_s" << YAML::Value << armed_s;
+  out << YAML::Key << "recording_s" << YAML::Value << recording_s;
+  out << YAML::Key << "data_dir" << YAML::Value << data_dir;
+  out << YAML::Key << "disk_free_mb" << YAML::Value << disk_free_bytes / 1048576.0;
+  out << YAML::Key << "min_free_mb" << YAML::Value << min_free_bytes / 1048576.0;
+  out << YAML::Key << "seconds_left" << YAML::Value << SecondsLeft();
   out << YAML::EndMap;
   return std::string(out.c_str()) + "\n";
+}
+
+std::string CaptureStatus::ToJson() const {
+  nlohmann::json j;
+  j["running"] = running;
+  j["recording"] = recording;
+  j["recording_dir"] = recording_dir;
+  j["armed_s"] = armed_s;
+  j["recording_s"] = recording_s;
+  for (const auto& c : cameras) {
+    nlohmann::json k;
+    k["name"] = c.name;
+    k["id"] = c.id;
+    k["connected"] = c.connected;
+    k["fps"] = c.fps;
+    k["megabytes_per_s"] = c.megabytes_per_s;
+    k["frames"] = c.frames;
+    k["incomplete"] = c.stream.incomplete;
+    k["missing_by_frame_id"] = c.stream.missing_by_id;
+    k["missing_by_timestamp"] = c.stream.missing_by_time;
+    k["underruns"] = c.stream.underruns;
+    k["disconnects"] = c.disconnects;
+    k["reconnect_attempts"] = c.reconnect_attempts;
+    k["reconnects"] = c.reconnects;
+    k["last_frame_age_s"] = c.last_frame_age_s;
+    k["error"] = c.error;
+    j["cameras"].push_back(k);
+  }
+  j["frame_sets"] = {{"total", sets.sets},
+                     {"complete", sets.complete},
+                     {"incomplete", sets.incomplete},
+                     {"late_frames", sets.late_frames},
+                     {"max_spread_ms", sets.max_spread_ns / 1e6}};
+  j["recorder"] = {
+      {"sets_recorded", recorder.sets_recorded},
+      {"sets_dropped", recorder.sets_dropped},
+      {"megabytes_written", recorder.bytes_written / 1048576.0},
+      {"disk_backlog_mb", recorder.queued_bytes / 1048576.0},
+      {"queue_fill",
+       recorder.max_queued_bytes ? double(recorder.queued_bytes) / recorder.max_queued_bytes : 0.0},
+      {"stopped", recorder.stopped},
+      {"error", recorder.error}};
+  j["incoming_queue"] = {incoming_queued, incoming_capacity};
+  j["incoming_dropped"] = incoming_dropped;
+  j["trigger_overruns"] = trigger_overruns;
+  j["action_commands"] = action_commands;
+  j["rejected_sets"] = rejected_sets;
+  j["last_error"] = last_error;
+  j["pretrigger_ring"] = {{"sets", ring_sets}, {"megabytes", ring_bytes / 1048576.0}};
+  j["data_dir"] = data_dir;
+  j["disk_free_mb"] = disk_free_bytes / 1048576.0;
+  j["min_free_mb"] = min_free_bytes / 1048576.0;
+  j["seconds_left"] = SecondsLeft();
+  return j.dump(2) + "\n";
+}
+
+double CaptureStatus::SecondsLeft() const {
+  double rate = 0;  // bytes per second, all cameras
+  for (const auto& c : cameras) rate += c.megabytes_per_s * 1048576.0;
+  if (!(rate > 0)) return -1;
+  const double usable =
+      disk_free_bytes > min_free_bytes ? double(disk_free_bytes - min_free_bytes) : 0.0;
+  return usable / rate;
+}
+
+namespace {
+
+// 1:02:03, 2:03 or 4.2 s.
+std::string Elapsed(double s) {
+  char b[32];
+  const long t = static_cast<long>(s);
+  if (s >= 3600)
+    std::snprintf(b, sizeof b, "%ld:%02ld:%02ld", t / 3600, t / 60 % 60, t % 60);
+  else if (s >= 60)
+    std::snprintf(b, sizeof b, "%ld:%02ld", t / 60, t % 60);
+  else
+    std::snprintf(b, sizeof b, "%.1f s", s);
+  return b;
+}
+
+// 1.2 GB, 340 MB, 12 kB.
+std::string Bytes(double bytes) {
+  char b[32];
+  if (bytes >= 1e9)
+    std::snprintf(b, sizeof b, "%.1f GB", bytes / 1e9);
+  else if (bytes >= 1e6)
+    std::snprintf(b, sizeof b, "%.0f MB", bytes / 1e6);
+  else
+    std::snprintf(b, sizeof b, "%.0f kB", bytes / 1e3);
+  return b;
+}
+
+}  // namespace
+
+std::string CaptureStatus::ToTable() const {
+  std::string out;
+  char line[512];
+  auto add = [&](const char* label, const std::string& text) {
+    std::snprintf(line, sizeof line, "%-10s %s\n", label, text.c_str());
+    out += line;
+  };
+  add("state", !running ? std::string("disarmed")
+                        : "armed for " + Elapsed(armed_s) +
+                              (recording ? ", RECORDING " + Elapsed(recording_s) : ""));
+  if (recording || !recording_dir.empty()) {
+    std::snprintf(line, sizeof line,
+                  "%s%s: %llu sets, %s written, %llu dropped, backlog %s (%.0f%%)",
+                  recording ? "" : "last: ", recording_dir.c_str(),
+                  static_cast<unsigned long long>(recorder.sets_recorded),
+                  Bytes(double(recorder.bytes_written)).c_str(),
+                  static_cast<unsigned long long>(recorder.sets_dropped),
+                  Bytes(double(recorder.queued_bytes)).c_str(),
+                  recorder.max_queued_bytes
+                      ? 100.0 * double(recorder.queued_bytes) / recorder.max_queued_bytes
+                      : 0.0);
+    add("recording", line);
+    if (!recorder.error.empty()) add("", "stopped: " + recorder.error);
+  }
+  const double left = SecondsLeft();
+  add("disk",
+      Bytes(double(disk_free_bytes)) + " free in " + data_dir +
+          (left >= 0
+               ? ", " + Elapsed(left) + " of recording left at " +
+                     Bytes(left > 0 ? (double(disk_free_bytes) - min_free_bytes) / left : 0.0) +
+                     "/s"
+               : std::string()) +
+          " (stops at min_free_mb: " + std::to_string(min_free_bytes >> 20) + " MiB)");
+  std::snprintf(line, sizeof line,
+                "%llu (%llu complete, %llu incomplete, %llu late frames), max spread %.2f ms",
+                static_cast<unsigned long long>(sets.sets),
+                static_cast<unsigned long long>(sets.complete),
+                static_cast<unsigned long long>(sets.incomplete),
+                static_cast<unsigned long long>(sets.late_frames), sets.max_spread_ns / 1e6);
+  add("sets", line);
+  if (incoming_dropped || trigger_overruns || rejected_sets) {
+    std::snprintf(line, sizeof line,
+                  "%llu frames dropped before assembly, %llu trigger overruns, %llu sets refused",
+                  static_cast<unsigned long long>(incoming_dropped),
+                  static_cast<unsigned long long>(trigger_overruns),
+                  static_cast<unsigned long long>(rejected_sets));
+    add("faults", line);
+  }
+  if (!last_error.empty()) add("error", last_error);
+  std::snprintf(line, sizeof line, "\n%-12s %-16s %-20s %7s %7s %9s %10s %8s %11s\n", "camera",
+                "id", "state", "fps", "MB/s", "frames", "incomplete", "missing", "disconnects");
+  out += line;
+  const double stale_s = std::max(1.0, 3 * period_s);
+  for (const auto& c : cameras) {
+    std::string state = c.connected ? "streaming" : "disconnected";
+    if (running && c.last_frame_age_s < 0) state = "no frame yet";
+    if (running && c.last_frame_age_s > stale_s) {
+      char b[48];
+      std::snprintf(b, sizeof b, "no frames for %.1f s", c.last_frame_age_s);
+      state = b;
+    }
+    if (!running) state = c.connected ? "idle" : "disconnected";
+    std::snprintf(
+        line, sizeof line, "%-12s %-16s %-20s %7.2f %7.2f %9llu %10llu %8llu %11llu\n",
+        c.name.c_str(), c.id.c_str(), state.c_str(), c.fps, c.megabytes_per_s,
+        static_cast<unsigned long long>(c.frames),
+        static_cast<unsigned long long>(c.stream.incomplete),
+        static_cast<unsigned long long>(c.stream.missing_by_id + c.stream.missing_by_time),
+        static_cast<unsigned long long>(c.disconnects));
+    out += line;
+    if (!c.error.empty()) out += "             last error: " + c.error + "\n";
+  }
+  return out;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -327,6 +500,7 @@ struct CaptureDaemon::CameraState {
   mutable std::mutex mutex;
   CameraLiveStatus live;
   std::deque<std::pair<std::int64_t, std::uint64_t>> recent;  // (receive time, bytes), last 1 s
+  std::int64_t last_frame_ns = -1;                            // receive time of the last frame
 };
 
 CaptureDaemon::CaptureDaemon(const CaptureConfig& config,
@@ -338,9 +512,8 @@ CaptureDaemon::CaptureDaemon(const CaptureConfig& config,
       trigger_line_(trigger_line),
       assembler_(config.AssemblerOptions()) {
   if (cameras_.size() != config_.cameras.size())
-    throw InputError("capture: the config lists " +
-                                std::to_string(config_.cameras.size()) + " cameras, " +
-                                std::to_string(cameras_.size()) + " were given");
+    throw InputError("capture: the config lists " + std::to_string(config_.cameras.size()) +
+                     " cameras, " + std::to_string(cameras_.size()) + " were given");
   for (std::size_t c = 0; c < cameras_.size(); ++c) {
     auto s = std::make_unique<CameraState>();
     s->live.name = config_.cameras[c].name;
@@ -365,6 +538,7 @@ CaptureDaemon::~CaptureDaemon() {
 
 void CaptureDaemon::Start() {
   if (running_) return;
+  armed_ns_ = clock_->MonotonicNs();
   {
     // A fresh assembler at every arm.
     std::lock_guard<std::mutex> lock(state_mutex_);
@@ -399,7 +573,8 @@ void CaptureDaemon::Start() {
     for (auto& t : threads_) t.join();
     threads_.clear();
     for (std::size_t k = 0; k < c && k < cameras_.size(); ++k) cameras_[k]->Stop();
-    Rethrow(e, "capture: camera '" + config_.cameras[c].name + "' (" + config_.cameras[c].id + "): ",
+    Rethrow(e,
+            "capture: camera '" + config_.cameras[c].name + "' (" + config_.cameras[c].id + "): ",
             Error::Kind::kIo);
   }
   if (config_.sync == SyncMode::kPtp && config_.action.enabled) {
@@ -499,6 +674,7 @@ void CaptureDaemon::CameraLoop(int camera) {
       if (f) {
         ++st.live.frames;
         st.recent.emplace_back(now, f->bytes());
+        st.last_frame_ns = now;
       }
       while (!st.recent.empty() && st.recent.front().first < now - 1'000'000'000)
         st.recent.pop_front();
@@ -637,8 +813,8 @@ std::string CaptureDaemon::RecordingPath(const std::string& name) const {
       });
   if (!safe) {
     throw InputError("recording name '" + name.substr(0, 64) +
-                                "': use letters, digits, '_', '-' and '.' only (at most 128), not "
-                                "'.' or '..'");
+                     "': use letters, digits, '_', '-' and '.' only (at most 128), not "
+                     "'.' or '..'");
   }
   return (fs::path(config_.data_dir) / name).string();
 }
@@ -658,6 +834,7 @@ std::string CaptureDaemon::BeginRecording(const std::string& name, bool with_rin
   if (recorder_) throw InputError("capture: already recording into " + recording_dir_);
   recorder_ = std::make_unique<Recorder>(dir, Metadata(), config_.recorder);
   recording_dir_ = dir;
+  recording_started_ns_ = clock_->MonotonicNs();
   // The ring is bounded by pretrigger_max_bytes and the queue was sized to hold it.
   if (with_ring)
     for (const FrameSet& s : ring_) recorder_->Submit(s);
@@ -686,9 +863,18 @@ RecorderStatus CaptureDaemon::StopRecording() {
 CaptureStatus CaptureDaemon::status() const {
   CaptureStatus s;
   s.running = running_;
+  const std::int64_t now = clock_->MonotonicNs();
+  if (s.running) s.armed_s = (now - armed_ns_.load()) / 1e9;
+  s.data_dir = config_.data_dir;
+  s.min_free_bytes = config_.recorder.min_free_bytes;
+  s.period_s = config_.trigger_rate_hz > 0 ? 1.0 / config_.trigger_rate_hz : 0.0;
+  struct statvfs v;
+  if (::statvfs(config_.data_dir.c_str(), &v) == 0)
+    s.disk_free_bytes = static_cast<std::uint64_t>(v.f_bavail) * v.f_frsize;
   for (const auto& st : camera_state_) {
     std::lock_guard<std::mutex> lock(st->mutex);
     CameraLiveStatus live = st->live;
+    if (st->last_frame_ns >= 0) live.last_frame_age_s = (now - st->last_frame_ns) / 1e9;
     if (st->recent.size() >= 2) {
       const double span = (st->recent.back().first - st->recent.front().first) / 1e9;
       std::uint64_t bytes = 0;
@@ -710,6 +896,7 @@ CaptureStatus CaptureDaemon::status() const {
   s.sets = set_counters_;
   s.recording = recorder_ != nullptr;
   s.recording_dir = recording_dir_;
+  if (s.recording) s.recording_s = (now - recording_started_ns_) / 1e9;
   s.recorder = recorder_ ? recorder_->status() : last_recorder_status_;
   s.ring_sets = ring_.size();
   s.trigger_overruns = trigger_overruns_;

@@ -131,6 +131,7 @@ struct CameraLiveStatus {
                                                          // back by itself)
   std::string error;      // the last error of its driver or image source, if any
   StreamCounters stream;  // the driver's counters
+  double last_frame_age_s = -1;  // since its last frame arrived; -1: none yet
 };
 
 struct CaptureStatus {
@@ -148,7 +149,24 @@ struct CaptureStatus {
   std::string last_error;
   std::size_t ring_sets = 0;
   std::uint64_t ring_bytes = 0;
+  double armed_s = 0;      // since the cameras were armed (0 when not)
+  double recording_s = 0;  // since the current recording started (0 when not recording)
+  std::string data_dir;
+  std::uint64_t disk_free_bytes = 0;  // on data_dir's filesystem, for a user (f_bavail)
+  std::uint64_t min_free_bytes = 0;   // min_free_mb: a recording stops there
+  double period_s = 0;                // of the trigger (0 in free-run without a rate)
+
+  // Every field, for scripts: `ctl status yaml` (the old form) and `ctl --json status`.
   std::string ToYaml() const;
+  std::string ToJson() const;
+  // For people (`ctl status`): the state with its elapsed time, the disk with the time left at
+  // the cameras' current rate, the frame sets, and a table of cameras with units; a camera whose
+  // last frame is more than 3 periods (at least 1 s) old shows "no frames for N s" whatever its
+  // driver says of its connection.
+  std::string ToTable() const;
+  // Seconds of recording left at the cameras' current data rate before min_free_mb stops it;
+  // -1 when no camera is sending.
+  double SecondsLeft() const;
 };
 
 class CaptureDaemon {
@@ -203,6 +221,8 @@ class CaptureDaemon {
   static void LogClosed(const std::string& dir, const RecorderStatus& r);
   std::vector<std::unique_ptr<CameraState>> camera_state_;
   std::atomic<bool> running_{false};
+  std::atomic<std::int64_t> armed_ns_{0};  // clock_'s monotonic time of the last Start()
+  std::int64_t recording_started_ns_ = 0;  // guarded by state_mutex_
   std::atomic<std::uint64_t> trigger_overruns_{0};
   std::atomic<std::uint64_t> action_commands_{0};
   std::unique_ptr<ActionCommandSender> action_sender_;  // sync: ptp with action commands

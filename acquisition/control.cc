@@ -17,8 +17,8 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
-#include "core/error.h"
 #include "acquisition/thread_name.h"
+#include "core/error.h"
 
 namespace flamerig {
 
@@ -156,8 +156,7 @@ Endpoint ParseEndpoint(const std::string& endpoint) {
   if (endpoint.rfind("unix:", 0) == 0) {
     e.path = endpoint.substr(5);
     if (e.path.empty() || e.path.size() >= sizeof(sockaddr_un{}.sun_path))
-      throw InputError("control endpoint '" + endpoint +
-                               "': socket path empty or too long");
+      throw InputError("control endpoint '" + endpoint + "': socket path empty or too long");
     return e;
   }
   if (endpoint.rfind("tcp:", 0) == 0) {
@@ -190,12 +189,20 @@ ControlReply HandleControlRequest(CaptureDaemon& daemon, const std::string& line
     const std::string& cmd = w[0];
     auto arity = [&](std::size_t n) {
       if (w.size() != n)
-        throw InputError("'" + cmd + "' takes " + std::to_string(n - 1) +
-                                    " argument(s)");
+        throw InputError("'" + cmd + "' takes " + std::to_string(n - 1) + " argument(s)");
     };
     if (cmd == "status") {
-      arity(1);
-      r.body = daemon.status().ToYaml();
+      if (w.size() > 2) throw InputError("usage: status [yaml|json|table]");
+      const std::string form = w.size() == 2 ? w[1] : "yaml";
+      const CaptureStatus s = daemon.status();
+      if (form == "yaml")
+        r.body = s.ToYaml();
+      else if (form == "json")
+        r.body = s.ToJson();
+      else if (form == "table")
+        r.body = s.ToTable();
+      else
+        throw InputError("status " + form + ": use yaml, json or table");
     } else if (cmd == "cameras") {
       arity(1);
       r.body = CamerasYaml(daemon);
@@ -227,9 +234,10 @@ ControlReply HandleControlRequest(CaptureDaemon& daemon, const std::string& line
       if (shutdown_requested) *shutdown_requested = true;
       r.body = "shutting down\n";
     } else {
-      throw InputError("unknown request '" + cmd.substr(0, 32) +
-                                  "': status, cameras, arm, disarm, configure CAMERA KEY VALUE, "
-                                  "start NAME, stop, event NAME, preview CAMERA [K], shutdown");
+      throw InputError(
+          "unknown request '" + cmd.substr(0, 32) +
+          "': status [yaml|json|table], cameras, arm, disarm, configure CAMERA KEY VALUE, "
+          "start NAME, stop, event NAME, preview CAMERA [K], shutdown");
     }
     r.ok = true;
   } catch (const std::exception& e) {
@@ -280,8 +288,8 @@ ControlServer::ControlServer(CaptureDaemon* daemon, const std::string& endpoint,
     const bool loopback = (ntohl(host.s_addr) >> 24) == 127;
     if (!loopback && !allow_remote) {
       throw InputError("control endpoint " + endpoint +
-                               ": not a loopback address; set allow_remote: true to open the "
-                               "control API to the network");
+                       ": not a loopback address; set allow_remote: true to open the "
+                       "control API to the network");
     }
     listen_fd_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
     const int one = 1;
@@ -361,7 +369,7 @@ ControlReply ControlRequest(const std::string& endpoint, const std::string& line
     const std::string why = std::strerror(errno);
     ::close(fd);
     throw IoError("cannot reach the capture daemon at " + endpoint + " (" + why +
-                             "); is `flamerig capture` running?");
+                  "); is `flamerig capture` running?");
   }
   if (!SendAll(fd, line + "\n")) {
     ::close(fd);
@@ -383,8 +391,8 @@ ControlReply ControlRequest(const std::string& endpoint, const std::string& line
     pollfd p{fd, POLLIN, 0};
     if (left <= 0 || ::poll(&p, 1, static_cast<int>(left)) <= 0) {
       ::close(fd);
-      throw IoError("control " + endpoint + ": no reply within " +
-                               std::to_string(timeout_s) + " s");
+      throw IoError("control " + endpoint + ": no reply within " + std::to_string(timeout_s) +
+                    " s");
     }
     const ssize_t n = ::recv(fd, buf, sizeof buf, 0);
     if (n <= 0) {

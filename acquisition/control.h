@@ -6,8 +6,10 @@
 // Protocol: the client connects and sends one request line (at most 4096 bytes, ending in '\n',
 // within 2 s, or it is refused); the server answers "ok N\n" or "error N\n" followed by an N-byte
 // body, and closes. Requests:
-//   status                 the daemon's status (YAML: cameras, fps, drops, bandwidth, queue fill,
-//                          disk backlog, frame-set counters, pre-trigger ring)
+//   status [yaml|json|table]  the daemon's status (cameras, fps, drops, bandwidth, last frame's
+//                          age, queue fill, disk backlog, frame-set counters, pre-trigger ring,
+//                          elapsed times, disk free and time left): YAML (the default), JSON, or a
+//                          table for people (CaptureStatus::ToTable)
 //   cameras                the cameras with their drivers, ids and settings (YAML)
 //   arm | disarm           start or stop the cameras' streams (disarm closes a recording)
 //   configure CAM KEY VAL  set width, height, pixel_format, frame_rate_hz, exposure_us or gain_db

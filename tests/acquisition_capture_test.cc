@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <opencv2/imgcodecs.hpp>
+#include <regex>
 #include <thread>
 
 #include "acquisition/camera_drivers.h"
@@ -387,6 +388,47 @@ TEST(CaptureDaemon, RecordingNamesCannotLeaveTheDataDirectory) {
     EXPECT_THROW(daemon.StartRecording(bad), InputError) << bad;
   EXPECT_FALSE(fs::exists(dir.path / "escape"));
   EXPECT_THROW(daemon.StopRecording(), InputError);
+}
+
+// The status for people: a camera that has stopped sending shows it, whatever its driver says of
+// the connection (a killed GigE camera stays "connected" until its heartbeat times out); the time
+// left on the disk is what min_free_mb leaves at the cameras' current rate.
+TEST(CaptureStatus, TheTableShowsStalledCamerasAndTheTimeLeft) {
+  CaptureStatus s;
+  s.running = true;
+  s.armed_s = 125;
+  s.recording = true;
+  s.recording_s = 65;
+  s.recording_dir = "/data/take1";
+  s.data_dir = "/data";
+  s.period_s = 1.0 / 30;
+  s.disk_free_bytes = 64ull << 30;
+  s.min_free_bytes = 64ull << 20;
+  for (const char* name : {"cam0", "cam1"}) {
+    CameraLiveStatus c;
+    c.name = name;
+    c.id = std::string("SIM") + name[3];
+    c.connected = true;
+    c.fps = 30;
+    c.megabytes_per_s = 9;
+    c.frames = 1234;
+    c.last_frame_age_s = 0.02;
+    s.cameras.push_back(c);
+  }
+  s.cameras[1].last_frame_age_s = 4.25;  // killed 4 s ago, still "connected"
+  s.cameras[1].fps = 0;
+  s.cameras[1].megabytes_per_s = 0;
+  const std::string t = s.ToTable();
+  EXPECT_NE(t.find("armed for 2:05, RECORDING 1:05"), std::string::npos) << t;
+  EXPECT_TRUE(std::regex_search(t, std::regex("\\ncam0 +SIM0 +streaming +30\\.00 +9\\.00 +1234")))
+      << t;
+  EXPECT_TRUE(std::regex_search(t, std::regex("\\ncam1 +SIM1 +no frames for 4\\.2 s"))) << t;
+  // (64 GiB - 64 MiB) at 9 MiB/s: 7274.7 s.
+  EXPECT_NEAR(s.SecondsLeft(), ((64.0 * 1024) - 64) / 9, 1e-6);
+  EXPECT_NE(t.find("2:01:14 of recording left"), std::string::npos) << t;
+  EXPECT_NE(t.find("(stops at min_free_mb: 64 MiB)"), std::string::npos) << t;
+  s.cameras[0].megabytes_per_s = 0;
+  EXPECT_EQ(s.SecondsLeft(), -1);
 }
 
 TEST(ControlApi, StatusRecordingAndPreviewOverAUnixSocket) {

@@ -1,5 +1,6 @@
 // The flamerig binary end to end: help, errors, simulate, and render reproducing simulate's images.
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include <signal.h>
 #include <sys/wait.h>
@@ -565,17 +566,41 @@ TEST(Cli, CaptureCtlAndExport) {
                            .c_str(),
                        "r");
   ASSERT_NE(daemon, nullptr);
+  // Until both cameras stream (the daemon arms, then frames arrive).
   Result status{1, ""};
-  for (int tries = 0; tries < 50 && status.status != 0; ++tries) {
+  const std::regex streaming(R"(\nleft +SIM0 +streaming +[1-9][0-9]*\.[0-9]{2} )");
+  for (int tries = 0;
+       tries < 50 && (status.status != 0 || !std::regex_search(status.output, streaming));
+       ++tries) {
     usleep(50'000);
     status = Flamerig("ctl --config " + config + " status");
   }
+  // The same status for scripts: JSON, and the daemon's YAML.
+  const Result json = Flamerig("ctl --config " + config + " --json status");
+  const Result yaml = Flamerig("ctl --config " + config + " status yaml");
   std::string log;
   std::array<char, 4096> buffer;
   while (fgets(buffer.data(), buffer.size(), daemon)) log += buffer.data();
   EXPECT_EQ(pclose(daemon), 0) << log;
   EXPECT_EQ(status.status, 0) << status.output;
-  EXPECT_NE(status.output.find("recording: true"), std::string::npos) << status.output;
+  // For people: the state with its elapsed time, the disk, and one row per camera with units.
+  EXPECT_TRUE(
+      std::regex_search(status.output, std::regex(R"(state +armed for [0-9.]+ s, RECORDING)")))
+      << status.output;
+  EXPECT_TRUE(std::regex_search(status.output, std::regex(R"(disk +[0-9.]+ [kMG]B free in )")))
+      << status.output;
+  EXPECT_TRUE(std::regex_search(status.output, streaming)) << status.output;
+  EXPECT_NE(status.output.find("MB/s"), std::string::npos) << status.output;
+  ASSERT_EQ(json.status, 0) << json.output;
+  const nlohmann::json j = nlohmann::json::parse(json.output);
+  EXPECT_TRUE(j.at("recording").get<bool>()) << json.output;
+  ASSERT_EQ(j.at("cameras").size(), 2u);
+  EXPECT_EQ(j.at("cameras")[1].at("name"), "right");
+  EXPECT_GT(j.at("cameras")[0].at("fps").get<double>(), 5.0) << json.output;
+  EXPECT_GE(j.at("cameras")[0].at("last_frame_age_s").get<double>(), 0.0);
+  EXPECT_GT(j.at("disk_free_mb").get<double>(), 0.0);
+  EXPECT_NE(yaml.output.find("recording: true"), std::string::npos) << yaml.output;
+  EXPECT_EQ(Flamerig("ctl --config " + config + " --json cameras").status, 2);
   EXPECT_NE(log.find("frame sets recorded"), std::string::npos) << log;
 
   const Result ex = Flamerig("export --recording " + (dir / "rec" / "take").string() + " --out " +
@@ -710,8 +735,8 @@ TEST(Cli, ABusyFolderIsRefusedNamingItsHolder) {
   const fs::path dir = TempDir();
   const flamerig::FolderLock held((dir / "busy").string(), "flamerig test holder");
   std::ofstream(dir / "rig.yaml") << "data_dir: busy\ncameras: [{name: a}]\n";
-  const Result capture = Flamerig("capture --config " + (dir / "rig.yaml").string() +
-                                  " --record take --duration 1");
+  const Result capture =
+      Flamerig("capture --config " + (dir / "rig.yaml").string() + " --record take --duration 1");
   EXPECT_EQ(capture.status, 1) << capture.output;
   EXPECT_NE(capture.output.find((dir / "busy").string() +
                                 " is in use by another flamerig: flamerig test holder, pid"),
@@ -759,10 +784,10 @@ TEST(Cli, AFullDiskEndsTheTakeCleanlyAndTheExitStatusSaysSo) {
   auto on_small_disk = [&](const std::string& rig) {
     const std::string script =
         "mount -t tmpfs -o size=3m tmpfs " + disk.string() + " && " + FLAMERIG_BINARY +
-        " capture --config " + rig + " --record take --duration 2 > " +
-        (dir / "log.txt").string() + " 2>&1; echo $? > " + (dir / "status.txt").string() +
-        "; ls -a " + disk.string() + "/take > " + (dir / "files.txt").string() +
-        " 2>&1; cp -r " + disk.string() + "/take " + (dir / "copy").string() + " 2>/dev/null; true";
+        " capture --config " + rig + " --record take --duration 2 > " + (dir / "log.txt").string() +
+        " 2>&1; echo $? > " + (dir / "status.txt").string() + "; ls -a " + disk.string() +
+        "/take > " + (dir / "files.txt").string() + " 2>&1; cp -r " + disk.string() + "/take " +
+        (dir / "copy").string() + " 2>/dev/null; true";
     EXPECT_EQ(ShellLine("unshare -m sh -c '" + script + "'").status, 0);
     auto read = [&](const char* name) {
       std::ifstream in(dir / name);
