@@ -832,7 +832,14 @@ std::string CaptureDaemon::BeginRecording(const std::string& name, bool with_rin
   if (!running_) throw InputError("capture: arm the cameras before recording");
   std::lock_guard<std::mutex> lock(state_mutex_);
   if (recorder_) throw InputError("capture: already recording into " + recording_dir_);
-  recorder_ = std::make_unique<Recorder>(dir, Metadata(), config_.recorder);
+  RecordingMetadata metadata = Metadata();
+  if (with_ring) {  // the trigger's moment, and where the ring ends and live sets begin
+    metadata.event_name = name;
+    metadata.event_realtime_ns = clock_->RealtimeNs();
+    if (!ring_.empty())
+      metadata.event_last_ring_set = static_cast<std::int64_t>(ring_.back().index);
+  }
+  recorder_ = std::make_unique<Recorder>(dir, metadata, config_.recorder);
   recording_dir_ = dir;
   recording_started_ns_ = clock_->MonotonicNs();
   // The ring is bounded by pretrigger_max_bytes and the queue was sized to hold it.

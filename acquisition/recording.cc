@@ -123,6 +123,11 @@ std::string MetadataYaml(const RecordingMetadata& m, bool closed,
   root["flamerig_recording"] = 1;
   root["sync_mode"] = m.sync_mode;
   root["started_realtime_ns"] = m.started_realtime_ns;
+  if (!m.event_name.empty()) {
+    root["event"]["name"] = m.event_name;
+    root["event"]["realtime_ns"] = m.event_realtime_ns;
+    root["event"]["last_pretrigger_set"] = m.event_last_ring_set;
+  }
   for (const auto& c : m.cameras) {
     YAML::Node n;
     n["name"] = c.name;
@@ -698,6 +703,11 @@ Recording Recording::Open(const std::string& directory) {
     RecordingMetadata& m = rec.metadata_;
     m.sync_mode = root["sync_mode"].as<std::string>("");
     m.started_realtime_ns = root["started_realtime_ns"].as<std::int64_t>(0);
+    if (const YAML::Node e = root["event"]) {
+      m.event_name = e["name"].as<std::string>("");
+      m.event_realtime_ns = e["realtime_ns"].as<std::int64_t>(0);
+      m.event_last_ring_set = e["last_pretrigger_set"].as<std::int64_t>(-1);
+    }
     m.config_yaml = root["config"].as<std::string>("");
     if (!root["cameras"] || !root["cameras"].IsSequence() || root["cameras"].size() == 0)
       throw RecordingError("recording: " + meta_path.string() + " lists no cameras");

@@ -93,6 +93,11 @@ struct RecordingMetadata {
   std::vector<RecordingCamera> cameras;
   std::map<std::string, std::string> features;  // other device feature values worth keeping
   std::int64_t started_realtime_ns = 0;
+  // An event recording (`ctl event NAME`): the trigger's moment, and the FrameSet::index of the
+  // last set from the pre-trigger ring (sets after it are live); empty name: not an event.
+  std::string event_name;
+  std::int64_t event_realtime_ns = 0;
+  std::int64_t event_last_ring_set = -1;  // -1: the ring was empty
 };
 
 // On-disk records (version 1). FrameRecord is 128 bytes, SetRecord 48 + 8 * cameras bytes.

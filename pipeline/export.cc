@@ -55,10 +55,15 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
                      " sets)");
   fs::create_directories(out_dir);
   std::ostringstream csv;
+  // An event recording marks its sets: "pre-trigger" from the ring, "event" for the first live
+  // set after the trigger.
+  const RecordingMetadata& meta = rec.metadata();
+  const bool event = !meta.event_name.empty();
   csv << "set,trigger_id,reference_ns,spread_ns";
-  for (const auto& c : rec.metadata().cameras)
-    csv << "," << c.name << "_frame_id," << c.name << "_status";
+  for (const auto& c : meta.cameras) csv << "," << c.name << "_frame_id," << c.name << "_status";
+  if (event) csv << ",event";
   csv << "\n";
+  bool event_marked = false;
   const std::size_t first = std::min(options.first, rec.num_sets());
   const std::size_t end = first + std::min(options.count, rec.num_sets() - first);
   for (std::size_t i = first; i < end; ++i) {
@@ -86,6 +91,12 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
                                  e.what());
         csv << "," << frame_id << ",damaged";
       }
+    }
+    if (event) {
+      const bool ring = static_cast<std::int64_t>(set.index) <= meta.event_last_ring_set;
+      csv << "," << (ring ? "pre-trigger" : event_marked ? "" : meta.event_name);
+      if (!ring && !event_marked) summary.event_set = static_cast<std::int64_t>(i);
+      event_marked = event_marked || !ring;
     }
     csv << "\n";
     ++summary.sets;

@@ -26,11 +26,14 @@ struct ExportSummary {
   // the export goes on.
   std::vector<std::string> failed;
   bool cancelled = false;  // the progress callback asked to stop (the sets before are whole)
+  std::int64_t event_set = -1;  // an event recording: the first set after its trigger (else -1)
 };
 
 // Writes OUT/frame_NNNNNN/<camera name>.png (8-bit, or 16-bit for Mono16; Bayer demosaiced to RGB)
 // and OUT/sets.csv (set, trigger id, reference time, spread, then per camera frame id and status,
-// empty when missing, "damaged" for a frame that is lost or fails its checksum). The recording is
+// empty when missing, "damaged" for a frame that is lost or fails its checksum; for an event
+// recording a last column `event`: "pre-trigger" for the ring's sets, the event's name on the
+// first set after its trigger). The recording is
 // opened with every salvage Recording::Open() does (acquisition/recording.h), so a damaged file
 // costs only the frames it touched: each is reported in the summary and skipped, and every intact
 // frame of its set is written. Throws RecordingError only when metadata.yaml cannot be read.

@@ -313,7 +313,9 @@ TEST(CaptureDaemon, AnEventSavesThePreTriggerRing) {
   daemon.Start();
   Sleep(1.0);
   const std::int64_t event_ns = clock.MonotonicNs();
+  const std::int64_t event_wall_ns = clock.RealtimeNs();
   const std::string d = daemon.TriggerEvent("ignition");
+  const std::int64_t after_wall_ns = clock.RealtimeNs();
   Sleep(0.3);
   daemon.StopRecording();
   daemon.Stop();
@@ -324,6 +326,24 @@ TEST(CaptureDaemon, AnEventSavesThePreTriggerRing) {
   EXPECT_NEAR(r.num_sets(), 0.8 * 50, 6);  // and 0.3 s after it
   for (std::size_t i = 1; i < r.num_sets(); ++i)
     EXPECT_EQ(r.ReadSet(i).trigger_id, r.ReadSet(i - 1).trigger_id + 1);
+  // The trigger's moment is in the metadata, and where the ring ends: every ring set was received
+  // before it.
+  const RecordingMetadata& m = r.metadata();
+  EXPECT_EQ(m.event_name, "ignition");
+  EXPECT_GE(m.event_realtime_ns, event_wall_ns);
+  EXPECT_LE(m.event_realtime_ns, after_wall_ns);
+  std::size_t ring = 0;
+  for (std::size_t i = 0; i < r.num_sets(); ++i) {
+    const FrameSet s = r.ReadSet(i);
+    if (static_cast<std::int64_t>(s.index) > m.event_last_ring_set) continue;
+    ++ring;
+    for (const auto& f : s.frames) {
+      if (f) {
+        EXPECT_LE(f->info.host_monotonic_ns, event_ns + 2'000'000) << i;
+      }
+    }
+  }
+  EXPECT_NEAR(double(ring), 0.5 * 50, 5);
 }
 
 // Sim cameras replaying a `flamerig simulate` dataset: the recorded Mono8 frames are the luma of

@@ -750,6 +750,44 @@ TEST(Cli, ABusyFolderIsRefusedNamingItsHolder) {
   fs::remove_all(dir);
 }
 
+// An event take (`capture --event`): export marks the pre-trigger ring's sets and the first set
+// after the trigger in sets.csv and says where the trigger fell.
+TEST(Cli, AnEventTakeShowsItsTriggerMomentInTheExport) {
+  const fs::path dir = TempDir();
+  std::ofstream(dir / "rig.yaml") << "data_dir: rec\nsync: software-trigger\ntrigger_rate_hz: 20\n"
+                                     "pretrigger_seconds: 0.5\ncameras: [{name: a, width: 32, "
+                                     "height: 24}]\n";
+  const Result capture = Flamerig("capture --config " + (dir / "rig.yaml").string() +
+                                  " --event ignition --duration 0.6");
+  ASSERT_EQ(capture.status, 0) << capture.output;
+  const Result ex = Flamerig("export --recording " + (dir / "rec" / "ignition").string() +
+                             " --out " + (dir / "png").string());
+  ASSERT_EQ(ex.status, 0) << ex.output;
+  std::ifstream csv(dir / "png" / "sets.csv");
+  std::string line;
+  std::getline(csv, line);
+  EXPECT_EQ(line.substr(line.rfind(',') + 1), "event") << line;
+  std::size_t ring = 0, marked = 0, row = 0, event_row = 0;
+  while (std::getline(csv, line)) {
+    const std::string cell = line.substr(line.rfind(',') + 1);
+    if (cell == "pre-trigger") {
+      EXPECT_EQ(marked, 0u) << "a ring set after the trigger: " << line;
+      ++ring;
+    }
+    if (cell == "ignition") {
+      ++marked;
+      event_row = row;
+    }
+    ++row;
+  }
+  EXPECT_NEAR(double(ring), 0.5 * 20, 3);
+  EXPECT_EQ(marked, 1u);
+  EXPECT_NE(ex.output.find("the event's trigger falls before set " + std::to_string(event_row)),
+            std::string::npos)
+      << ex.output;
+  fs::remove_all(dir);
+}
+
 // Runs a shell command line; its status and what it printed.
 Result ShellLine(const std::string& line) {
   std::array<char, 4096> buffer;

@@ -48,6 +48,8 @@ Runner AddExport(CLI::App* command) {
       s = ExportRecording(o->recording, o->out, options, context.Progress());
     }
     for (const auto& f : s.failed) Log().error("export: skipped {}", f);
+    if (s.event_set >= 0)
+      Log().info("export: the event's trigger falls before set {}", s.event_set);
     Log().info("export: {} frame sets, {} images, {} camera frames missing, {} damaged", s.sets,
                s.images, s.missing_frames, s.failed.size());
     if (s.cancelled) return kExitCancelled;
