@@ -286,6 +286,8 @@ std::string CaptureStatus::ToYaml() const {
     out << YAML::Key << "disconnects" << YAML::Value << c.disconnects;
     out << YAML::Key << "reconnect_attempts" << YAML::Value << c.reconnect_attempts;
     out << YAML::Key << "reconnects" << YAML::Value << c.reconnects;
+    out << YAML::Key << "missed_triggers" << YAML::Value << c.missed_triggers;
+    out << YAML::Key << "last_frame_age_s" << YAML::Value << c.last_frame_age_s;
     if (!c.error.empty()) out << YAML::Key << "error" << YAML::Value << c.error;
     out << YAML::EndMap;
   }
@@ -350,6 +352,7 @@ std::string CaptureStatus::ToJson() const {
     k["reconnect_attempts"] = c.reconnect_attempts;
     k["reconnects"] = c.reconnects;
     k["last_frame_age_s"] = c.last_frame_age_s;
+    k["missed_triggers"] = c.missed_triggers;
     k["error"] = c.error;
     j["cameras"].push_back(k);
   }
@@ -481,13 +484,13 @@ std::string CaptureStatus::ToTable() const {
       state = b;
     }
     if (!running) state = c.connected ? "idle" : "disconnected";
-    std::snprintf(
-        line, sizeof line, "%-12s %-16s %-20s %7.2f %7.2f %9llu %10llu %8llu %11llu\n",
-        c.name.c_str(), c.id.c_str(), state.c_str(), c.fps, c.megabytes_per_s,
-        static_cast<unsigned long long>(c.frames),
-        static_cast<unsigned long long>(c.stream.incomplete),
-        static_cast<unsigned long long>(c.stream.missing_by_id + c.stream.missing_by_time),
-        static_cast<unsigned long long>(c.disconnects));
+    std::snprintf(line, sizeof line, "%-12s %-16s %-20s %7.2f %7.2f %9llu %10llu %8llu %11llu\n",
+                  c.name.c_str(), c.id.c_str(), state.c_str(), c.fps, c.megabytes_per_s,
+                  static_cast<unsigned long long>(c.frames),
+                  static_cast<unsigned long long>(c.stream.incomplete),
+                  static_cast<unsigned long long>(c.stream.missing_by_id +
+                                                  c.stream.missing_by_time + c.missed_triggers),
+                  static_cast<unsigned long long>(c.disconnects));
     out += line;
     if (!c.error.empty()) out += "             last error: " + c.error + "\n";
   }
@@ -501,6 +504,10 @@ struct CaptureDaemon::CameraState {
   CameraLiveStatus live;
   std::deque<std::pair<std::int64_t, std::uint64_t>> recent;  // (receive time, bytes), last 1 s
   std::int64_t last_frame_ns = -1;                            // receive time of the last frame
+  // Frames since the arm: receive times while they may still answer a recent trigger, then only
+  // counted (the missed-trigger count compares them with the triggers sent).
+  std::deque<std::int64_t> recent_frames;
+  std::uint64_t old_frames = 0;
 };
 
 CaptureDaemon::CaptureDaemon(const CaptureConfig& config,
@@ -539,6 +546,16 @@ CaptureDaemon::~CaptureDaemon() {
 void CaptureDaemon::Start() {
   if (running_) return;
   armed_ns_ = clock_->MonotonicNs();
+  for (auto& st : camera_state_) {
+    std::lock_guard<std::mutex> lock(st->mutex);
+    st->recent_frames.clear();
+    st->old_frames = 0;
+  }
+  {
+    std::lock_guard<std::mutex> lock(trigger_mutex_);
+    old_triggers_ = 0;
+    recent_triggers_.clear();
+  }
   {
     // A fresh assembler at every arm.
     std::lock_guard<std::mutex> lock(state_mutex_);
@@ -608,7 +625,7 @@ void CaptureDaemon::Stop() {
   assembler_.Flush(&ready);
   Deliver(&ready);
   if (recorder_) {
-    last_recorder_status_ = recorder_->Close();
+    last_recorder_status_ = recorder_->Close(RecordingCounters());
     recorder_.reset();
     LogClosed(recording_dir_, last_recorder_status_);
   }
@@ -675,6 +692,11 @@ void CaptureDaemon::CameraLoop(int camera) {
         ++st.live.frames;
         st.recent.emplace_back(now, f->bytes());
         st.last_frame_ns = now;
+        st.recent_frames.push_back(now);
+        while (st.recent_frames.front() < now - 2 * TriggerGraceNs()) {
+          st.recent_frames.pop_front();
+          ++st.old_frames;
+        }
       }
       while (!st.recent.empty() && st.recent.front().first < now - 1'000'000'000)
         st.recent.pop_front();
@@ -691,8 +713,45 @@ void CaptureDaemon::CameraLoop(int camera) {
   }
 }
 
+std::int64_t CaptureDaemon::TriggerGraceNs() const {
+  const auto period = static_cast<std::int64_t>(1e9 / config_.trigger_rate_hz);
+  return std::max<std::int64_t>(3 * period, config_.set_timeout_ns + 100'000'000);
+}
+
+std::vector<std::uint64_t> CaptureDaemon::MissedTriggers(std::int64_t now) const {
+  std::uint64_t due = 0;
+  {
+    std::lock_guard<std::mutex> lock(trigger_mutex_);
+    due = old_triggers_;
+    for (const std::int64_t t : recent_triggers_) due += t <= now - TriggerGraceNs();
+  }
+  // A trigger's frame comes after the exposure and the transfer: frames received up to that much
+  // after the last counted trigger answer counted triggers.
+  std::vector<std::uint64_t> missed;
+  for (std::size_t c = 0; c < camera_state_.size(); ++c) {
+    const CameraState& st = *camera_state_[c];
+    const std::int64_t latency = std::min<std::int64_t>(
+        TriggerGraceNs() / 2,
+        static_cast<std::int64_t>(config_.cameras[c].settings.exposure_us * 1e3) + 50'000'000);
+    std::lock_guard<std::mutex> lock(st.mutex);
+    std::uint64_t got = st.old_frames;
+    for (const std::int64_t t : st.recent_frames) got += t <= now - TriggerGraceNs() + latency;
+    missed.push_back(due > got ? due - got : 0);
+  }
+  return missed;
+}
+
 void CaptureDaemon::TriggerLoop() {
   const auto period = static_cast<std::int64_t>(1e9 / config_.trigger_rate_hz);
+  // A trigger sent at time t: kept timed while its frames may still come, then only counted.
+  auto CountTrigger = [this](std::int64_t t) {
+    std::lock_guard<std::mutex> lock(trigger_mutex_);
+    recent_triggers_.push_back(t);
+    while (!recent_triggers_.empty() && recent_triggers_.front() < t - 2 * TriggerGraceNs()) {
+      recent_triggers_.pop_front();
+      ++old_triggers_;
+    }
+  };
   std::int64_t next = clock_->MonotonicNs() + period;
   // Ids go on increasing across arms, so a frame left over from before can never match a new set.
   for (std::int64_t id = ++last_trigger_id_; running_; id = ++last_trigger_id_) {
@@ -722,11 +781,13 @@ void CaptureDaemon::TriggerLoop() {
       // late: a pulse carries its scheduled time even when this thread wakes late (the cameras
       // expose then and the frames wait in their buffers), and no slot is skipped.
       trigger_line_->Fire(id, next);
+      CountTrigger(next);
       next += period;
       continue;
     } else {
       for (auto& c : cameras_) c->SoftwareTrigger(id);
     }
+    CountTrigger(now);
     // Never two triggers closer than 3/4 of a period: after a late one (this thread was not
     // scheduled in time), the schedule restarts from it, and the lost slot is counted. A camera
     // would ignore a trigger that comes before it is ready, and its set would be lost.
@@ -790,11 +851,26 @@ void CaptureDaemon::Deliver(std::vector<FrameSet>* ready) {
   ready->clear();
 }
 
+std::map<std::string, std::string> CaptureDaemon::RecordingCounters() const {
+  std::map<std::string, std::string> out;
+  const std::vector<std::uint64_t> now = MissedTriggers(clock_->MonotonicNs());
+  for (std::size_t c = 0; c < now.size(); ++c) {
+    const std::uint64_t before =
+        c < missed_at_recording_start_.size() ? missed_at_recording_start_[c] : 0;
+    if (config_.sync == SyncMode::kSoftwareTrigger || config_.sync == SyncMode::kHardwareTrigger ||
+        action_sender_)
+      out["missed_triggers_" + config_.cameras[c].name] =
+          std::to_string(now[c] > before ? now[c] - before : 0);
+  }
+  return out;
+}
+
 RecordingMetadata CaptureDaemon::Metadata() const {
   RecordingMetadata m;
   m.sync_mode = ToString(config_.sync);
   m.config_yaml = config_.source_yaml;
   m.started_realtime_ns = clock_->RealtimeNs();
+  m.trigger_rate_hz = config_.sync == SyncMode::kFreeRun ? 0.0 : config_.trigger_rate_hz;
   for (std::size_t c = 0; c < cameras_.size(); ++c) {
     RecordingCamera rc;
     rc.name = config_.cameras[c].name;
@@ -840,6 +916,7 @@ std::string CaptureDaemon::BeginRecording(const std::string& name, bool with_rin
       metadata.event_last_ring_set = static_cast<std::int64_t>(ring_.back().index);
   }
   recorder_ = std::make_unique<Recorder>(dir, metadata, config_.recorder);
+  missed_at_recording_start_ = MissedTriggers(clock_->MonotonicNs());
   recording_dir_ = dir;
   recording_started_ns_ = clock_->MonotonicNs();
   // The ring is bounded by pretrigger_max_bytes and the queue was sized to hold it.
@@ -860,7 +937,7 @@ RecorderStatus CaptureDaemon::StopRecording() {
     if (!recorder_) throw InputError("capture: not recording");
     r = std::move(recorder_);
   }
-  const RecorderStatus st = r->Close();  // outside the lock: capture goes on meanwhile
+  const RecorderStatus st = r->Close(RecordingCounters());  // outside the lock: capture goes on
   std::lock_guard<std::mutex> lock(state_mutex_);
   last_recorder_status_ = st;
   LogClosed(recording_dir_, st);
@@ -878,10 +955,12 @@ CaptureStatus CaptureDaemon::status() const {
   struct statvfs v;
   if (::statvfs(config_.data_dir.c_str(), &v) == 0)
     s.disk_free_bytes = static_cast<std::uint64_t>(v.f_bavail) * v.f_frsize;
+  const std::vector<std::uint64_t> missed = MissedTriggers(now);
   for (const auto& st : camera_state_) {
     std::lock_guard<std::mutex> lock(st->mutex);
     CameraLiveStatus live = st->live;
     if (st->last_frame_ns >= 0) live.last_frame_age_s = (now - st->last_frame_ns) / 1e9;
+    if (s.running) live.missed_triggers = missed[s.cameras.size()];
     if (st->recent.size() >= 2) {
       const double span = (st->recent.back().first - st->recent.front().first) / 1e9;
       std::uint64_t bytes = 0;

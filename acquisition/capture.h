@@ -53,7 +53,8 @@
 //       gain_db: 0
 //       trigger_source: Line0
 //       packet_size: 0
-//       sim: {drop_probability: 0, jitter_us: 0, drift_ppm: 0, late_probability: 0,
+//       sim: {drop_probability: 0, miss_trigger_probability: 0, jitter_us: 0, drift_ppm: 0,
+//             late_probability: 0,
 //             incomplete_probability: 0, disconnect_at_s: -1, reconnect_at_s: -1, seed: 1,
 //             outages: [[12, 14.5], [30, -1]],  # more outages: [down_s, up_s], -1 = for good
 //             replay: DATASET,      # show a `flamerig simulate` dataset's images of this camera
@@ -132,6 +133,10 @@ struct CameraLiveStatus {
   std::string error;      // the last error of its driver or image source, if any
   StreamCounters stream;  // the driver's counters
   double last_frame_age_s = -1;  // since its last frame arrived; -1: none yet
+  // Triggers (software, the simulated line, action commands) sent since the arm whose frame has
+  // not come: triggers older than the grace time (3 periods, at least set_timeout_ms + 100 ms)
+  // minus frames received. A lower bound (frames of later triggers count too), and 0 in free-run.
+  std::uint64_t missed_triggers = 0;
 };
 
 struct CaptureStatus {
@@ -211,6 +216,8 @@ class CaptureDaemon {
   void AssemblerLoop();
   void Deliver(std::vector<FrameSet>* ready);  // holds state_mutex_
   RecordingMetadata Metadata() const;
+  // Written into a closing recording's metadata: each camera's missed triggers while it recorded.
+  std::map<std::string, std::string> RecordingCounters() const;
   std::string BeginRecording(const std::string& name, bool with_ring);
   std::string RecordingPath(const std::string& name) const;
 
@@ -227,6 +234,13 @@ class CaptureDaemon {
   std::atomic<std::uint64_t> action_commands_{0};
   std::unique_ptr<ActionCommandSender> action_sender_;  // sync: ptp with action commands
   std::int64_t last_trigger_id_ = 0;                    // used by the trigger thread only
+  // Triggers sent since the arm: those older than the grace time counted, the recent ones timed.
+  mutable std::mutex trigger_mutex_;
+  std::uint64_t old_triggers_ = 0;
+  std::deque<std::int64_t> recent_triggers_;
+  std::int64_t TriggerGraceNs() const;
+  std::vector<std::uint64_t> MissedTriggers(std::int64_t now) const;  // per camera
+  std::vector<std::uint64_t> missed_at_recording_start_;              // guarded by state_mutex_
 
   // camera threads -> assembler
   mutable std::mutex incoming_mutex_;

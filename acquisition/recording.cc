@@ -123,6 +123,7 @@ std::string MetadataYaml(const RecordingMetadata& m, bool closed,
   root["flamerig_recording"] = 1;
   root["sync_mode"] = m.sync_mode;
   root["started_realtime_ns"] = m.started_realtime_ns;
+  root["trigger_rate_hz"] = m.trigger_rate_hz;
   if (!m.event_name.empty()) {
     root["event"]["name"] = m.event_name;
     root["event"]["realtime_ns"] = m.event_realtime_ns;
@@ -645,7 +646,7 @@ RecorderStatus Recorder::status() const {
   return status_;
 }
 
-RecorderStatus Recorder::Close() {
+RecorderStatus Recorder::Close(const std::map<std::string, std::string>& extra) {
   {
     std::unique_lock<std::mutex> lock(mutex_);
     if (closed_) return status_;
@@ -677,6 +678,7 @@ RecorderStatus Recorder::Close() {
       {"bytes_written", std::to_string(status_.bytes_written)},
       {"peak_queued_bytes", std::to_string(status_.peak_queued_bytes)},
       {"error", status_.error}};
+  counters.insert(extra.begin(), extra.end());
   try {
     WriteAtomically(directory_, "metadata.yaml", MetadataYaml(metadata_, true, counters));
   } catch (const RecordingError& e) {
@@ -703,6 +705,7 @@ Recording Recording::Open(const std::string& directory) {
     RecordingMetadata& m = rec.metadata_;
     m.sync_mode = root["sync_mode"].as<std::string>("");
     m.started_realtime_ns = root["started_realtime_ns"].as<std::int64_t>(0);
+    m.trigger_rate_hz = root["trigger_rate_hz"].as<double>(0);
     if (const YAML::Node e = root["event"]) {
       m.event_name = e["name"].as<std::string>("");
       m.event_realtime_ns = e["realtime_ns"].as<std::int64_t>(0);

@@ -93,6 +93,7 @@ struct RecordingMetadata {
   std::vector<RecordingCamera> cameras;
   std::map<std::string, std::string> features;  // other device feature values worth keeping
   std::int64_t started_realtime_ns = 0;
+  double trigger_rate_hz = 0;  // the trigger's rate (0: free-run); cameras may allow more
   // An event recording (`ctl event NAME`): the trigger's moment, and the FrameSet::index of the
   // last set from the pre-trigger ring (sets after it are live); empty name: not an event.
   std::string event_name;
@@ -152,9 +153,9 @@ class Recorder {
   // Queues a frame set (its frames' bytes are shared, not copied); never waits for the disk. False
   // when the set was dropped: the queue was full, or the recording has stopped (status()).
   bool Submit(const FrameSet& set);
-  // Writes what is queued, syncs, rewrites metadata.yaml with the counters and `closed: true`, and
-  // stops the writers. Idempotent.
-  RecorderStatus Close();
+  // Writes what is queued, syncs, rewrites metadata.yaml with the counters (and `extra`, the
+  // caller's own: missed triggers, ...) and `closed: true`, and stops the writers. Idempotent.
+  RecorderStatus Close(const std::map<std::string, std::string>& extra = {});
   RecorderStatus status() const;
   const std::string& directory() const { return directory_; }
 

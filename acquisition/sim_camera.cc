@@ -36,14 +36,11 @@ TriggerMode TriggerModeFromName(const std::string& name) {
   for (TriggerMode m : {TriggerMode::kFreeRun, TriggerMode::kSoftware, TriggerMode::kHardware,
                         TriggerMode::kAction})
     if (name == ToString(m)) return m;
-  throw InputError("trigger mode '" + name +
-                              "': use free-run, software, hardware or action");
+  throw InputError("trigger mode '" + name + "': use free-run, software, hardware or action");
 }
 
 void CameraSettings::Validate() const {
-  auto fail = [](const std::string& what) {
-    throw InputError("camera settings: " + what);
-  };
+  auto fail = [](const std::string& what) { throw InputError("camera settings: " + what); };
   if (width < 1 || height < 1 || width > 16384 || height > 16384)
     fail("width and height must be in [1, 16384]");
   if (!(frame_rate_hz > 0) || !(frame_rate_hz <= 100000)) fail("frame_rate_hz must be in (0, 1e5]");
@@ -101,8 +98,7 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
       images->push_back(ReadImageU8(path.string(), 3));
     }
     if (images->empty()) {
-      throw InputError("replay of " + dataset_dir + ": no frames/frame_000000/" + camera +
-                               ".png");
+      throw InputError("replay of " + dataset_dir + ": no frames/frame_000000/" + camera + ".png");
     }
   } else {
     // One frame per board view; a view this camera did not see shows a dark frame (the board was
@@ -127,17 +123,16 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
       }
     }
     if (width == 0)
-      throw InputError("replay of " + dataset_dir + ": no calibration/*/" + camera +
-                               ".png");
+      throw InputError("replay of " + dataset_dir + ": no calibration/*/" + camera + ".png");
     for (int k : missing) (*images)[k] = ImageU8(width, height, 3, 8);
   }
   return [images, dataset_dir, camera](const FrameInfo& info, std::vector<std::uint8_t>* bytes) {
     const ImageU8& img = (*images)[info.frame_id % images->size()];
     if (img.width != info.width || img.height != info.height) {
       throw InputError("replay of " + dataset_dir + " camera " + camera + ": images are " +
-                               std::to_string(img.width) + "x" + std::to_string(img.height) +
-                               ", the camera is set to " + std::to_string(info.width) + "x" +
-                               std::to_string(info.height));
+                       std::to_string(img.width) + "x" + std::to_string(img.height) +
+                       ", the camera is set to " + std::to_string(info.width) + "x" +
+                       std::to_string(info.height));
     }
     const std::size_t n = img.num_pixels();
     bytes->resize(n * BytesPerPixel(info.pixel_format));
@@ -187,15 +182,14 @@ SimCamera::SimCamera(const SimCameraOptions& options, Clock* clock, SimTriggerBu
   for (double p :
        {options.drop_probability, options.late_probability, options.incomplete_probability}) {
     if (!(p >= 0 && p <= 1))
-      throw InputError("sim camera '" + options.id +
-                                  "': probabilities must be in [0, 1]");
+      throw InputError("sim camera '" + options.id + "': probabilities must be in [0, 1]");
   }
   if (options.jitter_ns < 0 || options.transfer_ns < 0 || options.trigger_latency_ns < 0 ||
       options.late_ns < 0)
     throw InputError("sim camera '" + options.id + "': times must be >= 0");
   if (const int i = FirstInvalidOutage(options.outages); i >= 0)
     throw InputError("sim camera '" + options.id + "': outage " + std::to_string(i + 1) +
-                                " must end after it starts and after the one before it");
+                     " must end after it starts and after the one before it");
 }
 
 int FirstInvalidOutage(const std::vector<SimOutage>& outages) {
@@ -213,8 +207,7 @@ CameraDescription SimCamera::description() const {
 }
 
 void SimCamera::Configure(const CameraSettings& settings) {
-  if (running_)
-    throw InputError("sim camera '" + options_.id + "': configure it while stopped");
+  if (running_) throw InputError("sim camera '" + options_.id + "': configure it while stopped");
   try {
     settings.Validate();
   } catch (const InputError& e) {
@@ -222,11 +215,11 @@ void SimCamera::Configure(const CameraSettings& settings) {
   }
   if (settings.trigger == TriggerMode::kAction)
     throw InputError("sim camera '" + options_.id +
-                                "': GigE Vision action commands reach real cameras only");
+                     "': GigE Vision action commands reach real cameras only");
   if (settings.trigger == TriggerMode::kHardware && !bus_) {
     throw InputError("sim camera '" + options_.id +
-                                "': hardware trigger needs a trigger bus (TriggerSource " +
-                                settings.trigger_source + " is not wired)");
+                     "': hardware trigger needs a trigger bus (TriggerSource " +
+                     settings.trigger_source + " is not wired)");
   }
   settings_ = settings;
 }
@@ -333,6 +326,10 @@ void SimCamera::Produce(std::int64_t until_ns) {
     // A trigger that comes before the sensor is ready (faster than the maximum rate) is ignored,
     // as real cameras do.
     if (produced_ > 0 && start - last_exposure_ns_ < min_gap) continue;
+    // A trigger lost on its way (a loose trigger cable, a dropped software trigger command).
+    if (options_.miss_trigger_probability > 0 &&
+        std::uniform_real_distribution<double>(0, 1)(rng_) < options_.miss_trigger_probability)
+      continue;
     last_exposure_ns_ = start;
     AddExposure(start, p.trigger_id);
   }
@@ -394,6 +391,7 @@ void ReadSimKeys(const YAML::Node& keys, const std::string& where, const std::st
     ConfigReader sr(keys, where);
     o.seed = static_cast<std::uint64_t>(sr.Range("seed", double(o.seed), 0, 9e15));
     o.drop_probability = sr.NonNegative("drop_probability", 0);
+    o.miss_trigger_probability = sr.NonNegative("miss_trigger_probability", 0);
     o.late_probability = sr.NonNegative("late_probability", 0);
     o.incomplete_probability = sr.NonNegative("incomplete_probability", 0);
     o.jitter_ns = static_cast<std::int64_t>(sr.Range("jitter_us", 0, 0, 1e9) * 1e3);
@@ -421,24 +419,23 @@ void ReadSimKeys(const YAML::Node& keys, const std::string& where, const std::st
                  re = sr.Range("reconnect_at_s", -1, -1, 1e9);
     auto ns = [](double s) { return s < 0 ? std::int64_t(-1) : std::llround(s * 1e9); };
     if (d >= 0) o.outages.push_back({ns(d), ns(re)});
-    if (re >= 0 && d < 0)
-      throw InputError(where + ": 'reconnect_at_s' needs 'disconnect_at_s'");
+    if (re >= 0 && d < 0) throw InputError(where + ": 'reconnect_at_s' needs 'disconnect_at_s'");
     const auto outages = sr.Get<std::vector<std::vector<double>>>("outages", {});
     for (std::size_t i = 0; i < outages.size(); ++i) {
       const auto& pair = outages[i];
       if (pair.size() != 2 || !(pair[0] >= 0 && pair[0] <= 1e9) ||
           !(pair[1] == -1 || (pair[1] > pair[0] && pair[1] <= 1e9)))
         throw InputError(where + ".outages[" + std::to_string(i) +
-                                    "]: must be [down_s, up_s] with 0 <= down_s < up_s, or "
-                                    "up_s = -1 (for good)");
+                         "]: must be [down_s, up_s] with 0 <= down_s < up_s, or "
+                         "up_s = -1 (for good)");
       o.outages.push_back({ns(pair[0]), ns(pair[1])});
     }
     if (FirstInvalidOutage(o.outages) >= 0)
       throw InputError(where +
-                                  ": outages must be in order and not overlap (the "
-                                  "disconnect_at_s one first)");
-    for (double p :
-         {o.drop_probability, o.late_probability, o.incomplete_probability})
+                       ": outages must be in order and not overlap (the "
+                       "disconnect_at_s one first)");
+    for (double p : {o.drop_probability, o.late_probability, o.incomplete_probability,
+                     o.miss_trigger_probability})
       if (p > 1) throw InputError(where + ": probabilities must be in [0, 1]");
     sr.CheckKnown();
   }

@@ -304,6 +304,39 @@ TEST(CaptureDaemon, FreeRunMatchesByTimestamp) {
   EXPECT_GE(complete, r.num_sets() * 85 / 100);
 }
 
+// A camera that misses triggers without a gap in its frame ids (a lost trigger, not a lost
+// packet): the daemon counts it against the triggers it sent, live and in the recording's
+// metadata. Oracle: the sets the assembler (matching by trigger id) emitted without that camera.
+TEST(CaptureDaemon, MissedTriggersAreCountedAgainstTheSchedule) {
+  TempDir dir;
+  const CaptureConfig config = CaptureConfig::Parse(
+      Config(dir.path, "software-trigger", 50, "    sim: {miss_trigger_probability: 0.2}\n"),
+      "test");
+  SystemClock clock;
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
+  daemon.Start();
+  const std::string take = daemon.StartRecording("take");
+  Sleep(2.5);
+  const CaptureStatus live = daemon.status();
+  daemon.StopRecording();
+  daemon.Stop();
+  ASSERT_EQ(live.cameras.size(), 3u);
+  EXPECT_LE(live.cameras[0].missed_triggers, 2u);
+  EXPECT_LE(live.cameras[1].missed_triggers, 2u);
+  EXPECT_EQ(live.cameras[2].stream.missing_by_id, 0u);  // the frame ids say nothing
+  const double oracle = double(live.sets.missing_per_camera.at(2));
+  EXPECT_GE(oracle, 10);  // about 0.2 x 125 triggers
+  EXPECT_NEAR(double(live.cameras[2].missed_triggers), oracle, 5) << live.ToTable();
+  // In the recording: its own count, against the sets recorded without camera 2.
+  const Recording r = Recording::Open(take);
+  std::size_t without = 0;
+  for (std::size_t i = 0; i < r.num_sets(); ++i) without += !r.HasFrame(i, 2);
+  ASSERT_TRUE(r.final_counters().count("missed_triggers_cam2"));
+  EXPECT_NEAR(std::stod(r.final_counters().at("missed_triggers_cam2")), double(without), 5);
+  EXPECT_EQ(r.final_counters().at("missed_triggers_cam0"), "0");
+  EXPECT_EQ(r.metadata().trigger_rate_hz, 50);
+}
+
 TEST(CaptureDaemon, AnEventSavesThePreTriggerRing) {
   TempDir dir;
   const CaptureConfig config = CaptureConfig::Parse(

@@ -788,6 +788,28 @@ TEST(Cli, AnEventTakeShowsItsTriggerMomentInTheExport) {
   fs::remove_all(dir);
 }
 
+// A camera that sends nothing (here gone from the start, as a camera behind a trigger line with no
+// pulses would be) is warned about live, named at the end, and the exit status says so.
+TEST(Cli, ASilentCameraIsWarnedAboutAndFailsTheCapture) {
+  const fs::path dir = TempDir();
+  std::ofstream(dir / "rig.yaml")
+      << "data_dir: rec\nsync: hardware-trigger\ntrigger_rate_hz: 20\n"
+         "cameras:\n  - {name: a, width: 32, height: 24}\n"
+         "  - {name: b, width: 32, height: 24, sim: {disconnect_at_s: 0}}\n";
+  const Result r = Flamerig("capture --config " + (dir / "rig.yaml").string() + " --duration 2.6");
+  EXPECT_EQ(r.status, 1) << r.output;
+  EXPECT_TRUE(std::regex_search(
+      r.output,
+      std::regex(R"(warning +capture: camera b: no frame in [0-9.]+ s since arming \(sync )"
+                 R"(hardware-trigger: is the trigger generator running and wired to )")))
+      << r.output;
+  EXPECT_EQ(r.output.find("camera a: no frame"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("camera b (SIM1) sent no frame at all (no trigger pulses?)"),
+            std::string::npos)
+      << r.output;
+  fs::remove_all(dir);
+}
+
 // Runs a shell command line; its status and what it printed.
 Result ShellLine(const std::string& line) {
   std::array<char, 4096> buffer;

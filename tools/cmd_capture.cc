@@ -49,7 +49,8 @@ Runner AddCapture(CLI::App* command) {
       "--duration stops after S seconds (else: Ctrl-C or `flamerig ctl shutdown`). Every state\n"
       "change and camera event is logged to stderr and to data_dir/capture.log. Exit status 1\n"
       "when a recording stopped before it was asked to (a full disk, a write error, min_free_mb;\n"
-      "not max_recording_mb) or could not start.");
+      "not max_recording_mb) or could not start, or a camera sent no frame at all; a camera\n"
+      "silent for 5 periods (at least 2 s) is warned about as it happens.");
   command->add_option("--config", o->config, "Capture config")->required()->type_name("RIG.yaml");
   command->add_option("--record", o->record, "Record into data_dir/NAME at once")
       ->type_name("NAME");
@@ -89,10 +90,39 @@ Runner AddCapture(CLI::App* command) {
     // not max_recording_mb) makes the exit status 1.
     bool recording_failed = false;
     auto failed = [](const RecorderStatus& r) { return !r.error.empty() && !r.size_limit; };
+    // A camera that sends nothing (a hardware trigger with no pulses, a dead camera that still
+    // reads as connected) is warned about after a few periods, once until it sends again; one
+    // that sent nothing in the whole run makes the exit status 1.
+    const double period_s = config.trigger_rate_hz > 0 ? 1 / config.trigger_rate_hz : 0.1;
+    const double stall_s = std::max(2.0, 5 * period_s);
+    std::vector<bool> warned(config.cameras.size(), false);
+    auto watch = [&](const CaptureStatus& s) {
+      for (std::size_t c = 0; c < s.cameras.size() && c < warned.size(); ++c) {
+        const CameraLiveStatus& cam = s.cameras[c];
+        const double silent_s = cam.last_frame_age_s < 0 ? s.armed_s : cam.last_frame_age_s;
+        if (!s.running || silent_s < stall_s) {
+          warned[c] = false;
+          continue;
+        }
+        if (warned[c]) continue;
+        warned[c] = true;
+        const std::string hint =
+            config.sync == SyncMode::kHardwareTrigger
+                ? " (sync hardware-trigger: is the trigger generator running and wired to " +
+                      config.cameras[c].settings.trigger_source + "?)"
+                : "";
+        if (cam.last_frame_age_s < 0)
+          Log().warn("capture: camera {}: no frame in {:.1f} s since arming{}", cam.name, silent_s,
+                     hint);
+        else
+          Log().warn("capture: camera {}: no frames for {:.1f} s{}", cam.name, silent_s, hint);
+      }
+    };
     while (!context.cancel().raised() && !server->shutdown_requested() &&
            (o->duration < 0 || elapsed() < o->duration)) {
       std::this_thread::sleep_for(std::chrono::milliseconds(100));
       const CaptureStatus s = daemon.status();
+      watch(s);
       if (s.recorder.stopped && s.recording) {
         // A full disk or a write error: the recording stops cleanly, the daemon goes on.
         if (drawn) std::fputs("\n", stderr);
@@ -122,15 +152,22 @@ Runner AddCapture(CLI::App* command) {
       }
     }
     // Each camera's story, for the log (and the soak test, which reads the disconnects).
-    for (const auto& c : daemon.status().cameras)
+    bool silent = false;
+    for (const auto& c : daemon.status().cameras) {
+      if (c.frames == 0) {
+        Log().error("capture: camera {} ({}) sent no frame at all{}", c.name, c.id,
+                    config.sync == SyncMode::kHardwareTrigger ? " (no trigger pulses?)" : "");
+        silent = true;
+      }
       Log().info(
-          "capture: {}: {} frames, {} missing by frame id, {} incomplete, {} disconnects, {} "
-          "reconnects{}{}",
-          c.name, c.frames, c.stream.missing_by_id, c.stream.incomplete, c.disconnects,
-          c.reconnects, c.error.empty() ? "" : "; last error: ", c.error);
+          "capture: {}: {} frames, {} missing by frame id, {} missed triggers, {} incomplete, {} "
+          "disconnects, {} reconnects{}{}",
+          c.name, c.frames, c.stream.missing_by_id, c.missed_triggers, c.stream.incomplete,
+          c.disconnects, c.reconnects, c.error.empty() ? "" : "; last error: ", c.error);
+    }
     daemon.Stop();
     RemoveLogFile(log_file);
-    return recording_failed ? kExitError : kExitOk;
+    return recording_failed || silent ? kExitError : kExitOk;
   };
 }
 
