@@ -33,6 +33,9 @@ struct CaptureCameraConfig {
   std::string driver = "sim";
   std::string id;  // serial, address or device path; what the driver opens
   CameraSettings settings;
+  // false: the rig starts without this camera when it cannot be opened, and takes it in when it
+  // can (MakeCameras tries again about once a second, as the daemon does for a lost camera).
+  bool required = true;
   // The driver's own options, read from the camera's map under the driver's name (`sim:` for the
   // sim driver: SimCameraOptions) by CameraDriver::read_keys; empty for drivers without any.
   std::any options;

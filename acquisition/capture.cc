@@ -17,6 +17,8 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
+#include <mutex>
 #include <set>
 #include <sstream>
 
@@ -145,6 +147,7 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     if (!names.insert(cc.name).second)
       throw InputError(at + ": camera name '" + cc.name + "' is used twice");
     cc.driver = cr.Get<std::string>("driver", "sim");
+    cc.required = cr.Get<bool>("required", true);
     const CameraDriver* found = nullptr;
     try {
       found = &FindCameraDriver(cc.driver);
@@ -250,15 +253,112 @@ FrameSetOptions CaptureConfig::AssemblerOptions() const {
   return o;
 }
 
+namespace {
+
+// An optional camera (required: false) that could not be opened: it reads as disconnected, and
+// each Reconnect() (the daemon calls it about once a second) tries to open it again; once open it
+// is configured and started as the daemon last asked, and everything passes through to it.
+class DeferredCamera : public Camera {
+ public:
+  using Opener = std::function<std::unique_ptr<Camera>()>;
+  DeferredCamera(Opener open, CameraDescription description, CameraSettings settings, Clock* clock)
+      : open_(std::move(open)),
+        description_(std::move(description)),
+        settings_(settings),
+        clock_(clock) {}
+
+  CameraDescription description() const override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return inner_ ? inner_->description() : description_;
+  }
+  void Configure(const CameraSettings& s) override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    settings_ = s;
+    if (inner_) inner_->Configure(s);
+  }
+  CameraSettings settings() const override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return inner_ ? inner_->settings() : settings_;
+  }
+  void Start(int buffers) override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    buffers_ = buffers;
+    started_ = true;
+    if (inner_) inner_->Start(buffers);
+  }
+  void Stop() override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    started_ = false;
+    if (inner_) inner_->Stop();
+  }
+  std::optional<Frame> Pop(std::int64_t timeout_ns) override {
+    std::shared_ptr<Camera> inner = Inner();
+    if (inner) return inner->Pop(timeout_ns);
+    clock_->SleepUntil(clock_->MonotonicNs() + std::min<std::int64_t>(timeout_ns, 100'000'000));
+    return std::nullopt;
+  }
+  void SoftwareTrigger(std::int64_t trigger_id) override {
+    if (std::shared_ptr<Camera> inner = Inner()) inner->SoftwareTrigger(trigger_id);
+  }
+  bool connected() const override {
+    std::shared_ptr<Camera> inner = Inner();
+    return inner && inner->connected();
+  }
+  bool Reconnect() override {
+    if (std::shared_ptr<Camera> inner = Inner()) return inner->Reconnect();
+    std::unique_ptr<Camera> opened;
+    try {
+      opened = open_();
+    } catch (const std::exception&) {
+      return false;  // still absent
+    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    opened->Configure(settings_);
+    if (started_) opened->Start(buffers_);
+    inner_ = std::move(opened);
+    Log().info("capture: camera {} ({}) is here now", description_.id, description_.driver);
+    return true;
+  }
+  StreamCounters counters() const override {
+    std::shared_ptr<Camera> inner = Inner();
+    return inner ? inner->counters() : StreamCounters{};
+  }
+
+ private:
+  std::shared_ptr<Camera> Inner() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return inner_;
+  }
+  Opener open_;
+  CameraDescription description_;
+  mutable std::mutex mutex_;
+  CameraSettings settings_;
+  int buffers_ = 0;
+  bool started_ = false;
+  std::shared_ptr<Camera> inner_;
+  Clock* clock_;
+};
+
+}  // namespace
+
 std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config,
                                                  const DriverContext& context) {
   std::vector<std::unique_ptr<Camera>> cameras;
   for (const auto& c : config.cameras) {
+    const int index = static_cast<int>(cameras.size());
+    const CameraDriver& driver = FindCameraDriver(c.driver);
     try {
-      cameras.push_back(
-          FindCameraDriver(c.driver).open(c, static_cast<int>(cameras.size()), context));
+      cameras.push_back(driver.open(c, index, context));
     } catch (const std::exception& e) {
-      Rethrow(e, "camera '" + c.name + "': ", Error::Kind::kIo);
+      if (c.required || context.clock == nullptr)
+        Rethrow(e, "camera '" + c.name + "': ", Error::Kind::kIo);
+      Log().warn(
+          "capture: camera '{}' ({}) is not here ({}); starting without it (required: "
+          "false) and trying again every second",
+          c.name, c.id, e.what());
+      cameras.push_back(std::make_unique<DeferredCamera>(
+          [&driver, c, index, context] { return driver.open(c, index, context); },
+          CameraDescription{c.driver, c.id, "", "", ""}, c.settings, context.clock));
     }
   }
   return cameras;

@@ -45,6 +45,8 @@
 //     - name: cam0                 # unique; A-Z a-z 0-9 _ - . (it names the camera's files)
 //       driver: sim                # sim | aravis | v4l2 (acquisition/camera_drivers.h)
 //       id: SIM0                   # serial, address or device path; one camera per id
+//       required: true             # false: start without it when it cannot be opened, and take
+//                                  # it in when it can (tried about once a second)
 //       width: 640
 //       height: 480
 //       pixel_format: Mono8

@@ -392,6 +392,9 @@ void ReadSimKeys(const YAML::Node& keys, const std::string& where, const std::st
     o.seed = static_cast<std::uint64_t>(sr.Range("seed", double(o.seed), 0, 9e15));
     o.drop_probability = sr.NonNegative("drop_probability", 0);
     o.miss_trigger_probability = sr.NonNegative("miss_trigger_probability", 0);
+    o.plugged = sr.Get<std::string>("plugged", "");
+    if (!o.plugged.empty() && !fs::path(o.plugged).is_absolute())
+      o.plugged = (fs::path(config_path).parent_path() / o.plugged).string();
     o.late_probability = sr.NonNegative("late_probability", 0);
     o.incomplete_probability = sr.NonNegative("incomplete_probability", 0);
     o.jitter_ns = static_cast<std::int64_t>(sr.Range("jitter_us", 0, 0, 1e9) * 1e3);
@@ -455,6 +458,8 @@ CameraDriver SimCameraDriver() {
               const DriverContext& context) -> std::unique_ptr<Camera> {
     // The config's outage times count from now.
     SimCameraOptions o = camera.Options<SimCameraOptions>();
+    if (!o.plugged.empty() && !std::filesystem::exists(o.plugged))
+      throw IoError("sim camera " + camera.id + " is not plugged in (no " + o.plugged + ")");
     const std::int64_t now = context.clock->MonotonicNs();
     for (SimOutage& outage : o.outages) {
       outage.down_ns += now;

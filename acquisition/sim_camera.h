@@ -86,6 +86,7 @@ struct SimCameraOptions {
   std::int64_t transfer_ns = 2'000'000;      // from exposure end to host receive
   double drop_probability = 0;               // frame produced but never delivered
   double miss_trigger_probability = 0;       // a trigger ignored: no exposure, no frame id
+  std::string plugged;  // a file standing for the cable: the camera opens only while it exists
   double late_probability = 0;               // delivered `late_ns` later than normal
   std::int64_t late_ns = 100'000'000;
   double incomplete_probability = 0;  // delivered with status incomplete

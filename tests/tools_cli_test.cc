@@ -810,6 +810,39 @@ TEST(Cli, ASilentCameraIsWarnedAboutAndFailsTheCapture) {
   fs::remove_all(dir);
 }
 
+// An optional camera (required: false) that is not there when the daemon starts: the others record
+// without it, and it is taken in when it appears (here: its "cable", a file, is plugged in).
+TEST(Cli, AnOptionalCameraJoinsWhenItAppears) {
+  const fs::path dir = TempDir();
+  std::ofstream(dir / "rig.yaml")
+      << "data_dir: rec\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
+         "  - {name: a, width: 32, height: 24}\n"
+         "  - {name: b, width: 32, height: 24, required: false, sim: {plugged: cable}}\n";
+  FILE* daemon = popen((std::string(FLAMERIG_BINARY) + " capture --config " +
+                        (dir / "rig.yaml").string() + " --record take --duration 4 2>&1")
+                           .c_str(),
+                       "r");
+  ASSERT_NE(daemon, nullptr);
+  usleep(1'200'000);
+  std::ofstream(dir / "cable") << "plugged\n";
+  std::string log;
+  std::array<char, 4096> buffer;
+  while (fgets(buffer.data(), buffer.size(), daemon)) log += buffer.data();
+  const int status = pclose(daemon);
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << log;
+  EXPECT_NE(log.find("camera 'b' (SIM1) is not here"), std::string::npos) << log;
+  EXPECT_NE(log.find("camera SIM1 (sim) is here now"), std::string::npos) << log;
+  const flamerig::Recording r = flamerig::Recording::Open((dir / "rec" / "take").string());
+  ASSERT_GE(r.num_sets(), 60u);
+  std::size_t first_b = r.num_sets();
+  for (std::size_t i = 0; i < r.num_sets() && first_b == r.num_sets(); ++i)
+    if (r.HasFrame(i, 1)) first_b = i;
+  EXPECT_GE(first_b, 10u);                // absent for the first second or so
+  EXPECT_LE(first_b, r.num_sets() - 15);  // then here for the rest (tried every second)
+  for (std::size_t i = 0; i < r.num_sets(); ++i) EXPECT_TRUE(r.HasFrame(i, 0)) << i;
+  fs::remove_all(dir);
+}
+
 // Runs a shell command line; its status and what it printed.
 Result ShellLine(const std::string& line) {
   std::array<char, 4096> buffer;
