@@ -87,6 +87,9 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
       static_cast<std::uint64_t>(r.Range("max_recording_mb", 0, 0, 1e12) * (1 << 20));
   c.control = r.Get<std::string>("control", "");
   c.allow_remote = r.Get<bool>("allow_remote", false);
+  c.live_view = r.Get<std::string>("live_view", "");
+  c.live_view_allow_remote = r.Get<bool>("live_view_allow_remote", false);
+  c.live_view_token = r.Get<std::string>("live_view_token", "");
   r.Seen("action");
   if (const YAML::Node action = root["action"]) {
     if (c.sync != SyncMode::kPtp)

@@ -34,6 +34,8 @@
 //   min_free_mb: 64
 //   sync_interval_s: 1
 //   control: unix:recordings/control.sock   # or tcp:127.0.0.1:PORT (loopback unless `allow_remote`)
+//   live_view: 127.0.0.1:8420     # the browser live view (acquisition/live_view.h); off when absent
+//   live_view_allow_remote: false # true: any address, with a token (live_view_token, or random)
 //   action:                       # sync: ptp only: trigger aravis cameras by scheduled GigE Vision
 //     device_key: 0               # action commands, trigger_rate_hz times a second, each to fire
 //     group_key: 1                # lead_ms ahead on the PTP clock (acquisition/gige_action.h);
@@ -107,6 +109,9 @@ struct CaptureConfig {
   RecorderOptions recorder;
   std::string control;  // empty: unix:<data_dir>/control.sock
   bool allow_remote = false;
+  std::string live_view;  // HOST:PORT of the browser live view (acquisition/live_view.h); empty: off
+  bool live_view_allow_remote = false;
+  std::string live_view_token;  // required when remote (made at random when empty)
   ActionConfig action;
   std::vector<CaptureCameraConfig> cameras;
   std::string source_yaml;  // the text it was parsed from (kept in every recording)

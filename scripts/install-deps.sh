@@ -17,7 +17,7 @@ PACKAGES=(
   blender
   libembree-dev libtinyobjloader-dev
   clang-14 libclang-rt-14-dev
-  libhdf5-dev python3-h5py nlohmann-json3-dev gnuplot-nox ffmpeg
+  libhdf5-dev python3-h5py nlohmann-json3-dev libcpp-httplib-dev gnuplot-nox ffmpeg
   chromium
 )
 

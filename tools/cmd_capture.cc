@@ -7,6 +7,7 @@
 
 #include "acquisition/capture.h"
 #include "acquisition/control.h"
+#include "acquisition/live_view.h"
 #include "core/error.h"
 #include "core/folder_lock.h"
 #include "tools/cli.h"
@@ -38,7 +39,7 @@ std::string StatusLine(const CaptureStatus& s, double elapsed_s) {
 
 Runner AddCapture(CLI::App* command) {
   struct Options {
-    std::string config, record, event;
+    std::string config, record, event, live_view;
     double duration = -1;
   };
   auto o = std::make_shared<Options>();
@@ -57,6 +58,10 @@ Runner AddCapture(CLI::App* command) {
   command
       ->add_option("--event", o->event, "Save the pre-trigger ring into data_dir/NAME, then live")
       ->type_name("NAME");
+  command
+      ->add_option("--live-view", o->live_view,
+                   "Serve the live view in a browser here (0: any free port; the URL is logged)")
+      ->type_name("HOST:PORT");
   command->add_option("--duration", o->duration, "Stop after S seconds")
       ->type_name("S")
       ->check(kPositive);
@@ -73,6 +78,16 @@ Runner AddCapture(CLI::App* command) {
     daemon.Start();
     auto server = std::make_unique<ControlServer>(&daemon, config.control, config.allow_remote);
     Log().info("capture: control at {}; log in {}", config.control, log_file);
+    std::unique_ptr<LiveViewServer> live;
+    const std::string listen = o->live_view.empty() ? config.live_view : o->live_view;
+    if (!listen.empty()) {
+      LiveViewOptions lv = LiveViewOptions::Parse(
+          listen, o->live_view.empty() ? o->config + ": live_view" : "--live-view");
+      lv.allow_remote = config.live_view_allow_remote;
+      lv.token = config.live_view_token;
+      live = std::make_unique<LiveViewServer>(&daemon, lv);
+      Log().info("capture: live view at {}", live->url());
+    }
     if (!o->event.empty() && config.pretrigger_seconds > 0)
       std::this_thread::sleep_for(std::chrono::duration<double>(config.pretrigger_seconds));
     if (!o->record.empty()) daemon.StartRecording(o->record);
@@ -143,6 +158,7 @@ Runner AddCapture(CLI::App* command) {
     }
     if (drawn) std::fputs("\n", stderr);
     if (context.cancel().raised()) Log().info("capture: stopping (signal)");
+    live.reset();
     server.reset();  // no control request may log (or act) from here on
     if (daemon.status().recording) {
       const RecorderStatus last = daemon.StopRecording();

@@ -1,0 +1,129 @@
+// The live view's server without a browser: histograms against counts made by hand, the API's
+// answers against the daemon's own state, the token, and refusals (tools_live_view_test opens the
+// page in Chromium).
+#include <gtest/gtest.h>
+#include <httplib.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstring>
+#include <filesystem>
+#include <thread>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "acquisition/capture.h"
+#include "acquisition/live_view.h"
+#include "core/error.h"
+
+namespace flamerig {
+namespace {
+
+namespace fs = std::filesystem;
+
+Frame MakeFrame(PixelFormat format, int width, int height, const std::vector<std::uint8_t>& bytes) {
+  Frame f;
+  f.info.pixel_format = format;
+  f.info.width = width;
+  f.info.height = height;
+  f.data = std::make_shared<std::vector<std::uint8_t>>(bytes);
+  return f;
+}
+
+TEST(LiveView, HistogramsCountWhatTheyShould) {
+  // Mono8 4x2, every pixel: 0, 10, 10, 255 / 255, 255, 7, 10.
+  const FrameHistogram m =
+      HistogramOf(MakeFrame(PixelFormat::kMono8, 4, 2, {0, 10, 10, 255, 255, 255, 7, 10}), 1);
+  EXPECT_EQ(m.sampled, 8u);
+  EXPECT_EQ(m.bins[10], 3u);
+  EXPECT_EQ(m.bins[255], 3u);
+  EXPECT_EQ(m.clipped, 3u);
+  EXPECT_DOUBLE_EQ(m.saturated_share(), 3.0 / 8);
+  // Every second pixel of every second row: (0,0) and (2,0).
+  const FrameHistogram sub =
+      HistogramOf(MakeFrame(PixelFormat::kMono8, 4, 2, {0, 10, 10, 255, 255, 255, 7, 10}), 2);
+  EXPECT_EQ(sub.sampled, 2u);
+  EXPECT_EQ(sub.bins[0] + sub.bins[10], 2u);
+  // Mono16: the top 8 bits; only 65535 is clipped (65280 is not).
+  std::vector<std::uint8_t> wide(2 * 3);
+  const std::uint16_t v[3] = {0x0102, 0xff00, 0xffff};
+  std::memcpy(wide.data(), v, sizeof v);
+  const FrameHistogram w = HistogramOf(MakeFrame(PixelFormat::kMono16, 3, 1, wide), 1);
+  EXPECT_EQ(w.bins[1], 1u);
+  EXPECT_EQ(w.bins[255], 2u);
+  EXPECT_EQ(w.clipped, 1u);
+  // RGB: every channel.
+  const FrameHistogram rgb = HistogramOf(MakeFrame(PixelFormat::kRgb8, 1, 1, {255, 3, 3}), 1);
+  EXPECT_EQ(rgb.sampled, 3u);
+  EXPECT_EQ(rgb.bins[3], 2u);
+  EXPECT_EQ(rgb.clipped, 1u);
+}
+
+std::string Config(const fs::path& dir) {
+  return "data_dir: " + dir.string() +
+         "\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
+         "  - {name: a, width: 64, height: 48}\n"
+         "  - {name: b, width: 64, height: 48, pixel_format: Mono16}\n";
+}
+
+TEST(LiveView, TheApiAnswersFromTheDaemonAndATokenGuardsIt) {
+  const fs::path dir = fs::temp_directory_path() / ("flamerig_lv_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const CaptureConfig config = CaptureConfig::Parse(Config(dir), "test");
+  SystemClock clock;
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
+  daemon.Start();
+  LiveViewOptions o;
+  o.allow_remote = true;  // on loopback still: the token is what is tested
+  o.token = "s3cret";
+  LiveViewServer server(&daemon, o);
+  EXPECT_EQ(server.url(), "http://127.0.0.1:" + std::to_string(server.port()) + "/?token=s3cret");
+  httplib::Client client("127.0.0.1", server.port());
+  std::this_thread::sleep_for(std::chrono::milliseconds(400));
+  EXPECT_EQ(client.Get("/api/status")->status, 403);
+  EXPECT_EQ(client.Get("/api/status?token=wrong")->status, 403);
+  auto status = client.Get("/api/status?token=s3cret");
+  ASSERT_TRUE(status);
+  ASSERT_EQ(status->status, 200);
+  const nlohmann::json j = nlohmann::json::parse(status->body);
+  EXPECT_TRUE(j.at("running").get<bool>());
+  EXPECT_EQ(j.at("cameras")[1].at("name"), "b");
+  // The preview is the camera's image at 1/k size, a PNG.
+  auto png = client.Get("/api/preview?camera=b&k=2&token=s3cret");
+  ASSERT_EQ(png->status, 200) << png->body;
+  const cv::Mat image =
+      cv::imdecode(std::vector<std::uint8_t>(png->body.begin(), png->body.end()), cv::IMREAD_COLOR);
+  EXPECT_EQ(image.cols, 32);
+  EXPECT_EQ(image.rows, 24);
+  auto hist = client.Get("/api/histogram?camera=0&token=s3cret");
+  ASSERT_EQ(hist->status, 200);
+  const nlohmann::json h = nlohmann::json::parse(hist->body);
+  EXPECT_EQ(h.at("bins").size(), 256u);
+  EXPECT_EQ(h.at("sampled").get<std::uint64_t>(), 32u * 24u);
+  // Controls: a recording started and stopped from the page; shutdown is not offered.
+  httplib::Headers token = {{"X-Flamerig-Token", "s3cret"}};
+  auto start = client.Post("/api/control", token, "start web", "text/plain");
+  ASSERT_EQ(start->status, 200) << start->body;
+  EXPECT_TRUE(daemon.status().recording);
+  EXPECT_EQ(client.Post("/api/control", token, "apply a exposure_us 500", "text/plain")->status,
+            400);  // not while recording
+  EXPECT_EQ(client.Post("/api/control", token, "stop", "text/plain")->status, 200);
+  auto apply = client.Post("/api/control", token, "apply a exposure_us 500", "text/plain");
+  EXPECT_EQ(apply->status, 200) << apply->body;
+  EXPECT_TRUE(daemon.running());  // re-armed
+  EXPECT_EQ(daemon.config().cameras.size(), 2u);
+  EXPECT_EQ(client.Post("/api/control", token, "shutdown", "text/plain")->status, 400);
+  EXPECT_EQ(client.Get("/api/preview?camera=z&token=s3cret")->status, 400);
+  EXPECT_TRUE(fs::exists(dir / "web"));
+  // A public address without allow_remote is refused.
+  LiveViewOptions open;
+  open.host = "0.0.0.0";
+  EXPECT_THROW(LiveViewServer(&daemon, open), InputError);
+  daemon.Stop();
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace flamerig
