@@ -5,9 +5,13 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
+#include <map>
+#include <set>
 #include <stdexcept>
 #include <thread>
+#include <vector>
 
 #include "acquisition/camera_drivers.h"
 #include "core/error.h"
@@ -81,6 +85,34 @@ FrameStatus StatusOf(ArvBufferStatus s) {
 
 void EnableAravisFakeInterface() { arv_enable_interface("Fake"); }
 
+// The Aravis device id of the camera whose serial number, or user id (DeviceUserID, read by
+// opening each camera), is `wanted`; empty when none.
+static std::string FindDeviceBySerialOrUserId(const std::string& wanted) {
+  arv_update_device_list();
+  const unsigned n = arv_get_n_devices();
+  for (unsigned i = 0; i < n; ++i) {
+    const char* serial = arv_get_device_serial_nbr(i);
+    if (serial && wanted == serial) return arv_get_device_id(i);
+  }
+  for (unsigned i = 0; i < n; ++i) {
+    GError* e = nullptr;
+    const char* device = arv_get_device_id(i);
+    if (!device) continue;
+    ArvCamera* camera = arv_camera_new(device, &e);
+    if (e || !camera) {
+      g_clear_error(&e);
+      continue;
+    }
+    const char* user =
+        arv_device_get_string_feature_value(arv_camera_get_device(camera), "DeviceUserID", &e);
+    const bool match = !e && user && wanted == user;
+    g_clear_error(&e);
+    g_object_unref(camera);
+    if (match) return device;
+  }
+  return "";
+}
+
 std::vector<CameraDescription> DiscoverAravisCameras() {
   arv_update_device_list();
   std::vector<CameraDescription> out;
@@ -88,8 +120,8 @@ std::vector<CameraDescription> DiscoverAravisCameras() {
     CameraDescription d;
     d.driver = "aravis";
     auto s = [](const char* p) { return std::string(p ? p : ""); };
-    d.id = s(arv_get_device_serial_nbr(i));
-    if (d.id.empty()) d.id = s(arv_get_device_id(i));
+    d.serial = s(arv_get_device_serial_nbr(i));
+    d.id = d.serial.empty() ? s(arv_get_device_id(i)) : d.serial;
     d.vendor = s(arv_get_device_vendor(i));
     d.model = s(arv_get_device_model(i));
     d.address = s(arv_get_device_address(i));
@@ -146,6 +178,16 @@ void AravisCamera::Open() {
     g_object_unref(device);  // the camera holds its own reference
   } else {
     impl_->camera = arv_camera_new(id.c_str(), &error);
+    if (error) {
+      // Not an Aravis device id: a serial number, or a user id (DeviceUserID) set on the camera.
+      g_clear_error(&error);
+      const std::string device = FindDeviceBySerialOrUserId(id);
+      if (device.empty())
+        throw IoError("aravis camera '" + id +
+                      "': no camera with this device id, serial number, user id or address "
+                      "(flamerig cameras lists them)");
+      impl_->camera = arv_camera_new(device.c_str(), &error);
+    }
   }
   Check(error, id, "cannot open");
   if (!impl_->camera) throw IoError("aravis camera '" + id + "': cannot open");
@@ -156,9 +198,19 @@ void AravisCamera::Open() {
   g_clear_error(&error);
   impl_->description.model = s(arv_camera_get_model_name(impl_->camera, &error));
   g_clear_error(&error);
-  const std::string serial = s(arv_camera_get_device_serial_number(impl_->camera, &error));
+  impl_->description.serial = s(arv_camera_get_device_serial_number(impl_->camera, &error));
   g_clear_error(&error);
-  impl_->description.address = IsIpv4(id) ? id : serial;
+  impl_->description.address = id;
+  if (ARV_IS_GV_DEVICE(impl_->device())) {
+    // Owned by the device (transfer none).
+    GSocketAddress* a = arv_gv_device_get_device_address(ARV_GV_DEVICE(impl_->device()));
+    if (a && G_IS_INET_SOCKET_ADDRESS(a)) {
+      gchar* text =
+          g_inet_address_to_string(g_inet_socket_address_get_address(G_INET_SOCKET_ADDRESS(a)));
+      impl_->description.address = text;
+      g_free(text);
+    }
+  }
   // Out-of-range feature values are errors, not silently written (Aravis' default is no check).
   arv_camera_set_range_check_policy(impl_->camera, ARV_RANGE_CHECK_POLICY_ENABLE);
   connected_ = true;
@@ -212,23 +264,61 @@ void AravisCamera::Configure(const CameraSettings& s) {
   GError* e = nullptr;
   arv_camera_set_pixel_format(cam, ToArv(s.pixel_format), &e);
   Check(e, impl_->id, std::string("PixelFormat ") + ToString(s.pixel_format));
-  const std::string size = std::to_string(s.width) + "x" + std::to_string(s.height);
-  arv_camera_set_region(cam, 0, 0, s.width, s.height, &e);
-  Check(e, impl_->id, "Width/Height " + size);
+  // The region: width/height 0 take the whole sensor less the offset. The offsets go to 0 first
+  // so that a larger width fits, then the size, then the offsets.
+  CameraSettings taken = s;
+  gint wmin = 0, wmax = 0, hmin = 0, hmax = 0;
+  arv_camera_get_width_bounds(cam, &wmin, &wmax, &e);
+  g_clear_error(&e);
+  arv_camera_get_height_bounds(cam, &hmin, &hmax, &e);
+  g_clear_error(&e);
+  if (impl_->Has("SensorWidth") && impl_->Has("SensorHeight")) {
+    const gint64 sw = arv_device_get_integer_feature_value(impl_->device(), "SensorWidth", &e);
+    g_clear_error(&e);
+    const gint64 sh = arv_device_get_integer_feature_value(impl_->device(), "SensorHeight", &e);
+    g_clear_error(&e);
+    if (sw > 0 && (wmax <= 0 || sw < wmax)) wmax = static_cast<gint>(sw);
+    if (sh > 0 && (hmax <= 0 || sh < hmax)) hmax = static_cast<gint>(sh);
+  }
+  if (taken.width == 0) taken.width = wmax - s.offset_x;
+  if (taken.height == 0) taken.height = hmax - s.offset_y;
+  const std::string size = std::to_string(taken.width) + "x" + std::to_string(taken.height) + "+" +
+                           std::to_string(s.offset_x) + "+" + std::to_string(s.offset_y);
+  if (taken.width < 1 || taken.height < 1 || (wmax > 0 && s.offset_x + taken.width > wmax) ||
+      (hmax > 0 && s.offset_y + taken.height > hmax))
+    throw InputError("aravis camera '" + impl_->id + "': region " + size +
+                     " (Width/Height + OffsetX/OffsetY) does not fit the sensor, " +
+                     std::to_string(wmax) + "x" + std::to_string(hmax));
+  auto set_int = [&](const char* feature, gint64 value) {
+    if (!impl_->Has(feature)) {
+      if (value != 0) throw InputError("aravis camera '" + impl_->id + "': has no " + feature);
+      return;
+    }
+    arv_device_set_integer_feature_value(impl_->device(), feature, value, &e);
+    Check(e, impl_->id,
+          std::string(feature) + " " + std::to_string(value) + " (region " + size + ", sensor " +
+              std::to_string(wmax) + "x" + std::to_string(hmax) + ")");
+  };
+  set_int("OffsetX", 0);
+  set_int("OffsetY", 0);
+  set_int("Width", taken.width);
+  set_int("Height", taken.height);
+  set_int("OffsetX", s.offset_x);
+  set_int("OffsetY", s.offset_y);
   // Aravis clamps out-of-range values to the nearest the camera allows: read back what it took.
   gint x = 0, y = 0, w = 0, h = 0;
   arv_camera_get_region(cam, &x, &y, &w, &h, &e);
   Check(e, impl_->id, "reading Width/Height");
-  if (w != s.width || h != s.height) {
-    throw InputError("aravis camera '" + impl_->id + "': Width/Height " + size +
-                             " refused (the camera set " + std::to_string(w) + "x" +
-                             std::to_string(h) + ")");
+  if (w != taken.width || h != taken.height || x != s.offset_x || y != s.offset_y) {
+    throw InputError("aravis camera '" + impl_->id + "': region " + size +
+                     " refused (the camera set " + std::to_string(w) + "x" + std::to_string(h) +
+                     "+" + std::to_string(x) + "+" + std::to_string(y) + ")");
   }
   const ArvPixelFormat applied = arv_camera_get_pixel_format(cam, &e);
   Check(e, impl_->id, "reading PixelFormat");
   if (applied != ToArv(s.pixel_format)) {
-    throw InputError("aravis camera '" + impl_->id + "': PixelFormat " +
-                             ToString(s.pixel_format) + " refused");
+    throw InputError("aravis camera '" + impl_->id + "': PixelFormat " + ToString(s.pixel_format) +
+                     " refused");
   }
   // Exposure: SFNC ExposureTime, or ExposureTimeAbs on older GigE Vision cameras (and the fake).
   const char* exposure = impl_->Has("ExposureTime") ? "ExposureTime" : "ExposureTimeAbs";
@@ -260,7 +350,7 @@ void AravisCamera::Configure(const CameraSettings& s) {
       auto set_int = [&](const char* feature, std::int64_t value) {
         if (!impl_->Has(feature))
           throw InputError("aravis camera '" + impl_->id + "': has no " + feature +
-                                      " (it cannot take action commands)");
+                           " (it cannot take action commands)");
         arv_device_set_integer_feature_value(impl_->device(), feature, value, &e);
         Check(e, impl_->id, std::string(feature) + " " + std::to_string(value));
       };
@@ -273,8 +363,8 @@ void AravisCamera::Configure(const CameraSettings& s) {
                                                     : nullptr;
       if (!ptp)
         throw InputError("aravis camera '" + impl_->id +
-                                    "': has no PtpEnable or GevIEEE1588 (no PTP clock for "
-                                    "scheduled action commands)");
+                         "': has no PtpEnable or GevIEEE1588 (no PTP clock for "
+                         "scheduled action commands)");
       arv_device_set_boolean_feature_value(impl_->device(), ptp, TRUE, &e);
       Check(e, impl_->id, std::string(ptp) + " on");
       arv_camera_set_trigger(cam, "Action1", &e);
@@ -304,14 +394,31 @@ void AravisCamera::Configure(const CameraSettings& s) {
     arv_camera_gv_set_packet_size(cam, s.packet_size, &e);
     Check(e, impl_->id, "GevSCPSPacketSize " + std::to_string(s.packet_size));
   }
-  settings_ = s;
+  // Any other feature by name, in the config's order; a value the camera changes is a refusal.
+  for (const auto& [name, value] : s.features) {
+    ArvGcNode* node = arv_device_get_feature(impl_->device(), name.c_str());
+    if (!node || !ARV_IS_GC_FEATURE_NODE(node))
+      throw InputError("aravis camera '" + impl_->id + "': has no feature '" + name + "'");
+    arv_gc_feature_node_set_value_from_string(ARV_GC_FEATURE_NODE(node), value.c_str(), &e);
+    Check(e, impl_->id, "feature " + name + " = " + value);
+    const std::string now = FeatureAsString(name);
+    if (!now.empty() && now != value) {
+      // Numbers may come back formatted differently: compare them as numbers.
+      char* end1 = nullptr;
+      char* end2 = nullptr;
+      const double a = std::strtod(now.c_str(), &end1), b = std::strtod(value.c_str(), &end2);
+      if (*end1 != '\0' || *end2 != '\0' || std::abs(a - b) > 1e-9 * std::max(1.0, std::abs(b)))
+        throw InputError("aravis camera '" + impl_->id + "': feature " + name + " = " + value +
+                         " refused (the camera set " + now + ")");
+    }
+  }
+  settings_ = taken;
   impl_->configured = true;
 }
 
 void AravisCamera::Start(int buffers) {
   if (impl_->stream) return;
-  if (buffers < 2)
-    throw InputError("aravis camera '" + impl_->id + "': at least 2 buffers");
+  if (buffers < 2) throw InputError("aravis camera '" + impl_->id + "': at least 2 buffers");
   impl_->buffers = buffers;
   impl_->streaming = true;
   ArvCamera* cam = impl_->camera;
@@ -429,6 +536,51 @@ void AravisCamera::SoftwareTrigger(std::int64_t) {
 
 StreamCounters AravisCamera::counters() const { return impl_->counters; }
 
+std::map<std::string, std::string> AravisCamera::FeatureState() const {
+  std::map<std::string, std::string> out;
+  if (!impl_->camera || !connected_) return out;
+  ArvGc* gc = arv_device_get_genicam(impl_->device());
+  if (!gc) return out;
+  // Every category from Root down; every readable feature that is not a command. Bounded, so a
+  // malformed description with cycles cannot hang the arm.
+  std::vector<std::string> pending = {"Root"};
+  std::set<std::string> seen;
+  while (!pending.empty() && seen.size() < 4096) {
+    const std::string name = pending.back();
+    pending.pop_back();
+    if (!seen.insert(name).second) continue;
+    ArvGcNode* node = arv_gc_get_node(gc, name.c_str());
+    if (!node) continue;
+    if (ARV_IS_GC_CATEGORY(node)) {
+      for (const GSList* f = arv_gc_category_get_features(ARV_GC_CATEGORY(node)); f; f = f->next)
+        pending.emplace_back(static_cast<const char*>(f->data));
+      continue;
+    }
+    if (!ARV_IS_GC_FEATURE_NODE(node) || ARV_IS_GC_COMMAND(node)) continue;
+    GError* e = nullptr;
+    const bool available = arv_gc_feature_node_is_available(ARV_GC_FEATURE_NODE(node), &e) &&
+                           arv_gc_feature_node_is_implemented(ARV_GC_FEATURE_NODE(node), &e);
+    g_clear_error(&e);
+    if (!available) continue;
+    const std::string value = FeatureAsString(name);
+    if (!value.empty()) out[name] = value;
+  }
+  return out;
+}
+
+std::string AravisCamera::AvailableValues(const std::string& name) const {
+  if (!impl_->camera) return "";
+  GError* e = nullptr;
+  guint n = 0;
+  const char** values = arv_device_dup_available_enumeration_feature_values_as_strings(
+      impl_->device(), name.c_str(), &n, &e);
+  g_clear_error(&e);
+  std::string out;
+  for (guint i = 0; values && i < n; ++i) out += (out.empty() ? "" : ", ") + std::string(values[i]);
+  g_free(values);
+  return out;
+}
+
 std::string AravisCamera::FeatureAsString(const std::string& name) const {
   if (!impl_->camera) return "";
   ArvGcNode* node = arv_device_get_feature(impl_->device(), name.c_str());
@@ -440,6 +592,31 @@ std::string AravisCamera::FeatureAsString(const std::string& name) const {
   return out;
 }
 
+namespace {
+
+std::vector<std::pair<std::string, std::string>> AravisDetails(const CameraDescription& d) {
+  AravisCamera camera(d.id, 0);
+  std::vector<std::pair<std::string, std::string>> out;
+  auto add = [&](const std::string& label, const std::string& value) {
+    if (!value.empty()) out.emplace_back(label, value);
+  };
+  const std::string sw = camera.FeatureAsString("SensorWidth"),
+                    sh = camera.FeatureAsString("SensorHeight");
+  if (!sw.empty() && !sh.empty()) add("sensor", sw + "x" + sh);
+  add("region", camera.FeatureAsString("Width") + "x" + camera.FeatureAsString("Height") + "+" +
+                    camera.FeatureAsString("OffsetX") + "+" + camera.FeatureAsString("OffsetY"));
+  add("pixel format", camera.FeatureAsString("PixelFormat"));
+  add("formats", camera.AvailableValues("PixelFormat"));
+  for (const char* f :
+       {"ExposureTime", "ExposureTimeAbs", "ExposureAuto", "Gain", "GainRaw", "GainAuto", "Gamma",
+        "BlackLevel", "BalanceWhiteAuto", "TriggerMode", "TriggerSource", "AcquisitionFrameRate",
+        "DeviceUserID", "DeviceFirmwareVersion"})
+    add(f, camera.FeatureAsString(f));
+  return out;
+}
+
+}  // namespace
+
 CameraDriver AravisCameraDriver() {
   CameraDriver d;
   d.name = "aravis";
@@ -450,6 +627,7 @@ CameraDriver AravisCameraDriver() {
     return std::make_unique<AravisCamera>(camera.id, index);
   };
   d.discover = &DiscoverAravisCameras;
+  d.details = &AravisDetails;
   return d;
 }
 

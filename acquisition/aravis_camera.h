@@ -2,12 +2,15 @@
 // ../shared/notes/aravis.md).
 //
 // Discovery lists what Aravis sees. A camera is opened by its Aravis device id, its serial number,
-// or, for GigE Vision, by its IPv4 address (opened directly with arv_gv_device_new, so that a host
+// its user id (DeviceUserID), or, for GigE Vision, by its IPv4 address (opened directly with arv_gv_device_new, so that a host
 // with several interfaces never picks the wrong one). Configure() writes the standard features:
-// Width/Height, PixelFormat, AcquisitionFrameRate (free-run), exposure (ExposureTime, or
+// the region (OffsetX/OffsetY, Width/Height; a width or height of 0 takes the whole sensor less the
+// offset), PixelFormat, AcquisitionFrameRate (free-run), exposure (ExposureTime, or
 // ExposureTimeAbs on older GigE cameras), gain (Gain, or GainRaw), trigger (FrameStart trigger
 // on the given line for hardware trigger, Software for software trigger, off for free-run) and the
-// GigE packet size; a refusal names the camera and the feature. Start() creates the stream with a
+// GigE packet size, then any feature the config names (`features: {Name: value}`); a refusal
+// names the camera and the feature. FeatureState() reads every feature of the device's GenICam
+// tree, for the recording's metadata. Start() creates the stream with a
 // fixed 4 MiB socket buffer and packet resend off (GigE), pushes the buffers and starts
 // acquisition. Pop() returns a frame whose bytes are copied out of the Aravis buffer, which goes
 // straight back to the stream; buffer statuses map to FrameStatus; the 16-bit GigE frame counter
@@ -54,9 +57,12 @@ class AravisCamera : public Camera {
   // Reopens the camera by its id, reapplies the settings and restarts the stream.
   bool Reconnect() override;
   StreamCounters counters() const override;
+  std::map<std::string, std::string> FeatureState() const override;
 
   // Reads a feature as text (for the recording's metadata); empty when the camera lacks it.
   std::string FeatureAsString(const std::string& name) const;
+  // An enumeration feature's available values, ", "-separated; empty when it has none.
+  std::string AvailableValues(const std::string& name) const;
 
  private:
   void Open();   // opens impl_->id; throws IoError

@@ -12,6 +12,8 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <utility>
+#include <map>
 #include <vector>
 
 #include "acquisition/frame.h"
@@ -22,6 +24,7 @@ struct CameraDescription {
   std::string driver;  // "sim", "aravis", "v4l2"
   std::string id;      // serial number or device path: what a config names the camera by
   std::string vendor, model, address;
+  std::string serial;  // the device's serial number, when it has one
 };
 
 // kAction: a GigE Vision action command (acquisition/gige_action.h), scheduled on the PTP clock.
@@ -31,7 +34,10 @@ const char* ToString(TriggerMode mode);
 TriggerMode TriggerModeFromName(const std::string& name);
 
 struct CameraSettings {
+  // 0: the sensor's full size less the offset (aravis), the device's current size (v4l2), 640x480
+  // (sim). Configure() turns 0 into the size the camera took; settings() reports that.
   int width = 640, height = 480;
+  int offset_x = 0, offset_y = 0;  // the region of interest's corner on the sensor
   PixelFormat pixel_format = PixelFormat::kMono8;
   double frame_rate_hz = 30;  // free-run rate; the maximum rate when triggered
   double exposure_us = 10000;
@@ -42,6 +48,9 @@ struct CameraSettings {
   // kAction: the camera fires on action commands carrying these (SFNC ActionDeviceKey,
   // ActionGroupKey, ActionGroupMask).
   std::uint32_t action_device_key = 0, action_group_key = 1, action_group_mask = 0xffffffff;
+  // Any other camera feature by its GenICam name, written in this order after the ones above
+  // (aravis; `features: {Name: value}` in a capture config). Other drivers refuse them.
+  std::vector<std::pair<std::string, std::string>> features;
   void Validate() const;  // throws InputError naming the field
 };
 
@@ -73,6 +82,9 @@ class Camera {
   // and stream; true when it is back. The daemon calls it about once a second.
   virtual bool Reconnect() { return connected(); }
   virtual StreamCounters counters() const = 0;
+  // Every readable feature of the device and its value as text (GenICam cameras), for the
+  // recording's metadata; empty for cameras without such a tree.
+  virtual std::map<std::string, std::string> FeatureState() const { return {}; }
 };
 
 // A trigger generator that the daemon drives in hardware-trigger mode: a pulse on the line wired

@@ -89,6 +89,10 @@ struct CameraDriver {
                                   const DriverContext& context) = nullptr;
   // The devices this driver sees now (`flamerig cameras`); null: it finds none by itself.
   std::vector<CameraDescription> (*discover)() = nullptr;
+  // What `flamerig cameras --details` shows of one discovered device, read by opening it: sensor
+  // size, pixel formats, the current settings (name, value pairs in a reading order). Throws
+  // IoError when it cannot be opened. Null: no details.
+  std::vector<std::pair<std::string, std::string>> (*details)(const CameraDescription&) = nullptr;
 };
 
 // Every driver, in the order they are listed.

@@ -166,8 +166,22 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
         throw InputError(at + ": id '" + cc.id + "' is also cameras[" + std::to_string(j) + "] ('" +
                          c.cameras[j].name + "'): one camera cannot be opened twice");
     CameraSettings& s = cc.settings;
-    s.width = static_cast<int>(cr.Range("width", s.width, 1, 65536));
-    s.height = static_cast<int>(cr.Range("height", s.height, 1, 65536));
+    // Absent: the camera's own size (aravis: its whole sensor; v4l2: its current format).
+    const int own = cc.driver == "sim" ? 0 : -1;
+    s.width = static_cast<int>(cr.Range("width", own < 0 ? 0 : s.width, 0, 16384));
+    s.height = static_cast<int>(cr.Range("height", own < 0 ? 0 : s.height, 0, 16384));
+    s.offset_x = static_cast<int>(cr.Range("offset_x", 0, 0, 16384));
+    s.offset_y = static_cast<int>(cr.Range("offset_y", 0, 0, 16384));
+    cr.Seen("features");
+    if (const YAML::Node f = cams[i]["features"]) {
+      if (!f.IsMap())
+        throw InputError(at + ".features: a mapping of GenICam feature names to values");
+      for (const auto& kv : f) {
+        if (!kv.second.IsScalar())
+          throw InputError(at + ".features." + kv.first.as<std::string>() + ": a single value");
+        s.features.emplace_back(kv.first.as<std::string>(), kv.second.as<std::string>());
+      }
+    }
     try {
       s.pixel_format = PixelFormatFromName(cr.Get<std::string>("pixel_format", "Mono8"));
     } catch (const InputError& e) {
@@ -361,7 +375,7 @@ std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config,
           c.name, c.id, e.what());
       cameras.push_back(std::make_unique<DeferredCamera>(
           [&driver, c, index, context] { return driver.open(c, index, context); },
-          CameraDescription{c.driver, c.id, "", "", ""}, c.settings, context.clock));
+          CameraDescription{c.driver, c.id, "", "", "", ""}, c.settings, context.clock));
     }
   }
   return cameras;
@@ -611,6 +625,7 @@ struct CaptureDaemon::CameraState {
   // counted (the missed-trigger count compares them with the triggers sent).
   std::deque<std::int64_t> recent_frames;
   std::uint64_t old_frames = 0;
+  std::map<std::string, std::string> features;  // the camera's feature state at the last arm
 };
 
 CaptureDaemon::CaptureDaemon(const CaptureConfig& config,
@@ -674,7 +689,14 @@ void CaptureDaemon::Start() {
   // drops frames (measured: 21 frames lost by the first of four Aravis cameras).
   std::size_t c = 0;
   try {
-    for (c = 0; c < cameras_.size(); ++c) cameras_[c]->Configure(config_.cameras[c].settings);
+    for (c = 0; c < cameras_.size(); ++c) {
+      cameras_[c]->Configure(config_.cameras[c].settings);
+      // The whole feature state, read now (it takes a register read per feature), kept for the
+      // metadata of every recording of this arm.
+      std::map<std::string, std::string> state = cameras_[c]->FeatureState();
+      std::lock_guard<std::mutex> lock(camera_state_[c]->mutex);
+      camera_state_[c]->features = std::move(state);
+    }
     running_ = true;
     threads_.emplace_back([this] {
       NameThisThread("fr-assemble");
@@ -980,6 +1002,9 @@ RecordingMetadata CaptureDaemon::Metadata() const {
     rc.description = cameras_[c]->description();
     rc.settings = cameras_[c]->settings();
     m.cameras.push_back(rc);
+    std::lock_guard<std::mutex> lock(camera_state_[c]->mutex);
+    for (const auto& [name, value] : camera_state_[c]->features)
+      m.features[rc.name + "." + name] = value;
   }
   return m;
 }

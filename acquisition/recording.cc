@@ -100,6 +100,9 @@ YAML::Node SettingsNode(const CameraSettings& s) {
   n["trigger"] = ToString(s.trigger);
   n["trigger_source"] = s.trigger_source;
   n["packet_size"] = s.packet_size;
+  n["offset_x"] = s.offset_x;
+  n["offset_y"] = s.offset_y;
+  for (const auto& [name, value] : s.features) n["features"][name] = value;
   return n;
 }
 
@@ -114,6 +117,11 @@ CameraSettings SettingsFrom(const YAML::Node& n) {
   s.trigger = TriggerModeFromName(n["trigger"].as<std::string>());
   s.trigger_source = n["trigger_source"].as<std::string>();
   s.packet_size = n["packet_size"].as<int>();
+  s.offset_x = n["offset_x"].as<int>(0);
+  s.offset_y = n["offset_y"].as<int>(0);
+  if (n["features"])
+    for (const auto& kv : n["features"])
+      s.features.emplace_back(kv.first.as<std::string>(), kv.second.as<std::string>());
   return s;
 }
 
@@ -137,6 +145,7 @@ std::string MetadataYaml(const RecordingMetadata& m, bool closed,
     n["vendor"] = c.description.vendor;
     n["model"] = c.description.model;
     n["address"] = c.description.address;
+    n["serial"] = c.description.serial;
     n["settings"] = SettingsNode(c.settings);
     root["cameras"].push_back(n);
   }
@@ -722,6 +731,7 @@ Recording Recording::Open(const std::string& directory) {
       c.description.vendor = n["vendor"].as<std::string>("");
       c.description.model = n["model"].as<std::string>("");
       c.description.address = n["address"].as<std::string>("");
+      c.description.serial = n["serial"].as<std::string>("");
       c.settings = SettingsFrom(n["settings"]);
       m.cameras.push_back(c);
     }

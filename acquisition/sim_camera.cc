@@ -41,8 +41,10 @@ TriggerMode TriggerModeFromName(const std::string& name) {
 
 void CameraSettings::Validate() const {
   auto fail = [](const std::string& what) { throw InputError("camera settings: " + what); };
-  if (width < 1 || height < 1 || width > 16384 || height > 16384)
-    fail("width and height must be in [1, 16384]");
+  if (width < 0 || height < 0 || width > 16384 || height > 16384)
+    fail("width and height must be in [0, 16384] (0: the sensor's size)");
+  if (offset_x < 0 || offset_y < 0 || offset_x > 16384 || offset_y > 16384)
+    fail("offset_x and offset_y must be in [0, 16384]");
   if (!(frame_rate_hz > 0) || !(frame_rate_hz <= 100000)) fail("frame_rate_hz must be in (0, 1e5]");
   if (!(exposure_us > 0) || !std::isfinite(exposure_us)) fail("exposure_us must be > 0");
   if (!(exposure_us <= 1e6 / frame_rate_hz))
@@ -203,7 +205,7 @@ int FirstInvalidOutage(const std::vector<SimOutage>& outages) {
 
 CameraDescription SimCamera::description() const {
   return CameraDescription{"sim", options_.id, "flamerig", "simulated camera",
-                           "sim://" + options_.id};
+                           "sim://" + options_.id, options_.id};
 }
 
 void SimCamera::Configure(const CameraSettings& settings) {
@@ -216,12 +218,17 @@ void SimCamera::Configure(const CameraSettings& settings) {
   if (settings.trigger == TriggerMode::kAction)
     throw InputError("sim camera '" + options_.id +
                      "': GigE Vision action commands reach real cameras only");
+  if (!settings.features.empty())
+    throw InputError("sim camera '" + options_.id + "': feature '" + settings.features[0].first +
+                     "': sim cameras have no GenICam features");
   if (settings.trigger == TriggerMode::kHardware && !bus_) {
     throw InputError("sim camera '" + options_.id +
                      "': hardware trigger needs a trigger bus (TriggerSource " +
                      settings.trigger_source + " is not wired)");
   }
   settings_ = settings;
+  if (settings_.width == 0) settings_.width = 640;  // the simulated sensor
+  if (settings_.height == 0) settings_.height = 480;
 }
 
 void SimCamera::Start(int buffers) {

@@ -134,20 +134,31 @@ void V4l2Camera::Configure(const CameraSettings& s) {
         "v4l2 camera " + path_ +
         ": V4L2 has no trigger input; use sync: free-run (timestamp matching)");
   }
+  if (!s.features.empty())
+    throw InputError("v4l2 camera " + path_ + ": feature '" + s.features[0].first +
+                     "': V4L2 devices have no GenICam features");
   v4l2_format fmt{};
   fmt.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
-  fmt.fmt.pix.width = static_cast<std::uint32_t>(s.width);
-  fmt.fmt.pix.height = static_cast<std::uint32_t>(s.height);
+  CameraSettings asked = s;
+  if (s.width == 0 || s.height == 0) {  // the device's current size
+    if (Xioctl(*device_, VIDIOC_G_FMT, &fmt) != 0) Fail("VIDIOC_G_FMT", errno);
+    if (asked.width == 0) asked.width = static_cast<int>(fmt.fmt.pix.width);
+    if (asked.height == 0) asked.height = static_cast<int>(fmt.fmt.pix.height);
+    fmt = v4l2_format{};
+    fmt.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+  }
+  fmt.fmt.pix.width = static_cast<std::uint32_t>(asked.width);
+  fmt.fmt.pix.height = static_cast<std::uint32_t>(asked.height);
   fmt.fmt.pix.pixelformat = FourccOf(s.pixel_format);
   fmt.fmt.pix.field = V4L2_FIELD_NONE;
   if (Xioctl(*device_, VIDIOC_S_FMT, &fmt) != 0) Fail("VIDIOC_S_FMT", errno);
   // The driver may adjust what it cannot do: that is a refusal here, not a silent change.
-  if (fmt.fmt.pix.width != std::uint32_t(s.width) ||
-      fmt.fmt.pix.height != std::uint32_t(s.height) ||
+  if (fmt.fmt.pix.width != std::uint32_t(asked.width) ||
+      fmt.fmt.pix.height != std::uint32_t(asked.height) ||
       fmt.fmt.pix.pixelformat != FourccOf(s.pixel_format)) {
     throw InputError(
-        "v4l2 camera " + path_ + ": asked for " + std::to_string(s.width) + "x" +
-        std::to_string(s.height) + " " + FourccName(FourccOf(s.pixel_format)) +
+        "v4l2 camera " + path_ + ": asked for " + std::to_string(asked.width) + "x" +
+        std::to_string(asked.height) + " " + FourccName(FourccOf(s.pixel_format)) +
         ", the driver offers " + std::to_string(fmt.fmt.pix.width) + "x" +
         std::to_string(fmt.fmt.pix.height) + " " + FourccName(fmt.fmt.pix.pixelformat));
   }
@@ -171,7 +182,7 @@ void V4l2Camera::Configure(const CameraSettings& s) {
     v4l2_control gain{V4L2_CID_GAIN, static_cast<std::int32_t>(std::llround(s.gain_db))};
     if (Xioctl(*device_, VIDIOC_S_CTRL, &gain) != 0) Fail("V4L2_CID_GAIN", errno);
   }
-  settings_ = s;
+  settings_ = asked;
 }
 
 void V4l2Camera::Start(int buffers) {

@@ -14,12 +14,15 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <map>
 #include <thread>
 #include <vector>
 
 #include "acquisition/aravis_camera.h"
+#include "acquisition/camera_drivers.h"
 #include "acquisition/capture.h"
 #include "acquisition/netns.h"
+#include "core/error.h"
 
 namespace flamerig {
 namespace {
@@ -157,6 +160,91 @@ TEST(AravisCamera, RefusedFeaturesAndMissingCamerasNameThemselves) {
 }
 
 // Two in-process fakes in the capture daemon, software-triggered: sets matched by receive time.
+// The region of interest, the sensor-size default, features by name and the feature state saved
+// with a take, and a camera opened by its serial number; against the fake's own GenICam values
+// (SensorWidth 2048, read back with Aravis' feature reads).
+TEST(AravisCamera, RegionFeaturesAndSerial) {
+  REQUIRE_LOOPBACK_ADDRESSES();
+  InProcessFake fake("127.0.0.8", "FLAMERIG-F");
+  AravisCamera cam("127.0.0.8", 0);
+  EXPECT_EQ(cam.description().serial, "FLAMERIG-F");
+  EXPECT_EQ(cam.description().address, "127.0.0.8");
+  const int sensor = std::stoi(cam.FeatureAsString("SensorWidth"));
+  // No size given: the whole sensor, less the offset.
+  CameraSettings s = Settings(TriggerMode::kFreeRun, 20);
+  s.width = 0;
+  s.height = 0;
+  s.offset_x = 64;
+  cam.Configure(s);
+  EXPECT_EQ(cam.settings().width, sensor - 64);
+  EXPECT_EQ(cam.settings().height, std::stoi(cam.FeatureAsString("SensorHeight")));
+  EXPECT_EQ(cam.FeatureAsString("OffsetX"), "64");
+  // A region, and a feature by name (the fake's TestRegister), read back from the camera.
+  s.width = 128;
+  s.height = 96;
+  s.offset_x = 32;
+  s.offset_y = 16;
+  s.features = {{"TestRegister", "4242"}};
+  cam.Configure(s);
+  EXPECT_EQ(cam.FeatureAsString("Width"), "128");
+  EXPECT_EQ(cam.FeatureAsString("OffsetY"), "16");
+  EXPECT_EQ(cam.FeatureAsString("TestRegister"), "4242");
+  cam.Start(4);
+  std::optional<Frame> f;
+  for (int i = 0; i < 50 && !f; ++i) f = cam.Pop(100'000'000);
+  cam.Stop();
+  ASSERT_TRUE(f);
+  EXPECT_EQ(f->info.width, 128);
+  EXPECT_EQ(f->info.height, 96);
+  // The whole feature state, as a take saves it.
+  const std::map<std::string, std::string> state = cam.FeatureState();
+  EXPECT_EQ(state.at("Width"), "128");
+  EXPECT_EQ(state.at("TestRegister"), "4242");
+  EXPECT_EQ(state.at("PixelFormat"), "Mono8");
+  EXPECT_EQ(state.count("AcquisitionStart"), 0u);  // commands are not state
+  // Refusals name the camera and the feature: an unknown feature, a region off the sensor.
+  s.features = {{"NoSuchFeature", "1"}};
+  try {
+    cam.Configure(s);
+    FAIL() << "an unknown feature was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("has no feature 'NoSuchFeature'"), std::string::npos)
+        << e.what();
+  }
+  s.features.clear();
+  s.offset_x = sensor - 64;
+  try {
+    cam.Configure(s);
+    FAIL() << "a region off the sensor was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("does not fit the sensor, " + std::to_string(sensor)),
+              std::string::npos)
+        << e.what();
+  }
+  // By serial number, as a config names it.
+  {
+    AravisCamera by_serial("FLAMERIG-F", 1);
+    EXPECT_EQ(by_serial.description().serial, "FLAMERIG-F");
+  }
+  // What `flamerig cameras --details` shows: discovered (in this network namespace) with its
+  // serial and address, then opened for its sensor, formats and current region.
+  const CameraDriver& driver = FindCameraDriver("aravis");
+  bool listed = false;
+  for (const CameraDescription& d : driver.discover()) {
+    if (d.serial != "FLAMERIG-F") continue;
+    listed = true;
+    EXPECT_EQ(d.address, "127.0.0.8");
+    std::map<std::string, std::string> details;
+    for (const auto& [label, value] : driver.details(d)) details[label] = value;
+    EXPECT_EQ(details["sensor"],
+              std::to_string(sensor) + "x" + cam.FeatureAsString("SensorHeight"));
+    EXPECT_EQ(details["region"], "128x96+32+16");  // the refused region was never written
+    EXPECT_NE(details["formats"].find("Mono16"), std::string::npos) << details["formats"];
+    EXPECT_EQ(details["pixel format"], "Mono8");
+  }
+  EXPECT_TRUE(listed);
+}
+
 TEST(AravisCamera, TheDaemonRecordsTwoFakeCameras) {
   REQUIRE_LOOPBACK_ADDRESSES();
   InProcessFake a("127.0.0.5", "FLAMERIG-D"), b("127.0.0.6", "FLAMERIG-E");
@@ -194,6 +282,11 @@ TEST(AravisCamera, TheDaemonRecordsTwoFakeCameras) {
   EXPECT_GE(r.frames(0).size(), 25u);
   EXPECT_GE(r.frames(1).size(), 25u);
   EXPECT_EQ(r.metadata().cameras[0].description.driver, "aravis");
+  // The cameras' whole feature state went into the take, read back from each device.
+  EXPECT_EQ(r.metadata().cameras[1].description.serial, "FLAMERIG-E");
+  EXPECT_EQ(r.metadata().features.at("a.Width"), "320");
+  EXPECT_EQ(r.metadata().features.at("b.DeviceID"), "FLAMERIG-E");
+  EXPECT_EQ(r.metadata().features.count("a.AcquisitionStart"), 0u);
   EXPECT_NEAR(st.cameras[0].fps, 20, 4);
   fs::remove_all(dir);
 }
