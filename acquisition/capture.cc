@@ -167,9 +167,9 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
                          c.cameras[j].name + "'): one camera cannot be opened twice");
     CameraSettings& s = cc.settings;
     // Absent: the camera's own size (aravis: its whole sensor; v4l2: its current format).
-    const int own = cc.driver == "sim" ? 0 : -1;
-    s.width = static_cast<int>(cr.Range("width", own < 0 ? 0 : s.width, 0, 16384));
-    s.height = static_cast<int>(cr.Range("height", own < 0 ? 0 : s.height, 0, 16384));
+    const bool sim = cc.driver == "sim";
+    s.width = static_cast<int>(cr.Range("width", sim ? s.width : 0, 0, 16384));
+    s.height = static_cast<int>(cr.Range("height", sim ? s.height : 0, 0, 16384));
     s.offset_x = static_cast<int>(cr.Range("offset_x", 0, 0, 16384));
     s.offset_y = static_cast<int>(cr.Range("offset_y", 0, 0, 16384));
     cr.Seen("features");

@@ -106,7 +106,7 @@ TEST(CaptureConfig, ParsesAndNamesTheKeyOfEveryMistake) {
   EXPECT_NE(
       ParseError("cameras: [{name: a, width: wide}]").find("'width' has a value of the wrong type"),
       std::string::npos);
-  EXPECT_NE(ParseError("cameras: [{name: a, width: -4}]").find("'width' must be in [1, 65536]"),
+  EXPECT_NE(ParseError("cameras: [{name: a, width: -4}]").find("'width' must be in [0, 16384]"),
             std::string::npos);
   // Found by fuzzing: numbers far out of range were converted to int (undefined behaviour).
   EXPECT_NE(ParseError("buffers: 6666666666666668\ncameras: [{name: a}]")
