@@ -413,6 +413,8 @@ void AravisCamera::Configure(const CameraSettings& s) {
     }
   }
   settings_ = taken;
+  live_exposure_us_ = taken.exposure_us;
+  live_gain_db_ = taken.gain_db;
   impl_->configured = true;
 }
 
@@ -481,8 +483,8 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
   f.info.device_frame_id = arv_buffer_get_frame_id(buffer);
   f.info.frame_id = impl_->unwrapper.Next(f.info.device_frame_id);
   f.info.device_timestamp_ns = static_cast<std::int64_t>(arv_buffer_get_timestamp(buffer));
-  f.info.exposure_us = settings_.exposure_us;
-  f.info.gain_db = settings_.gain_db;
+  f.info.exposure_us = live_exposure_us_;
+  f.info.gain_db = live_gain_db_;
   f.info.width = settings_.width;
   f.info.height = settings_.height;
   f.info.pixel_format = settings_.pixel_format;
@@ -535,6 +537,37 @@ void AravisCamera::SoftwareTrigger(std::int64_t) {
 }
 
 StreamCounters AravisCamera::counters() const { return impl_->counters; }
+
+CameraSettings AravisCamera::settings() const {
+  CameraSettings s = settings_;
+  s.exposure_us = live_exposure_us_;
+  s.gain_db = live_gain_db_;
+  return s;
+}
+
+bool AravisCamera::SetExposureGainLive(double exposure_us, double gain_db) {
+  if (!impl_->camera || !connected_) return false;
+  GError* e = nullptr;
+  const char* exposure = impl_->Has("ExposureTime") ? "ExposureTime" : "ExposureTimeAbs";
+  arv_device_set_float_feature_value(impl_->device(), exposure, exposure_us, &e);
+  if (e) {
+    g_clear_error(&e);
+    return false;  // this camera locks it while streaming
+  }
+  if (impl_->Has("Gain")) {
+    arv_device_set_float_feature_value(impl_->device(), "Gain", gain_db, &e);
+  } else if (impl_->Has("GainRaw")) {
+    arv_device_set_integer_feature_value(impl_->device(), "GainRaw", std::llround(gain_db), &e);
+  }
+  if (e) {
+    g_clear_error(&e);
+    live_exposure_us_ = exposure_us;  // the exposure took
+    return false;
+  }
+  live_exposure_us_ = exposure_us;
+  live_gain_db_ = gain_db;
+  return true;
+}
 
 std::map<std::string, std::string> AravisCamera::FeatureState() const {
   std::map<std::string, std::string> out;

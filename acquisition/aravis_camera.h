@@ -48,7 +48,11 @@ class AravisCamera : public Camera {
 
   CameraDescription description() const override;
   void Configure(const CameraSettings& settings) override;
-  CameraSettings settings() const override { return settings_; }
+  CameraSettings settings() const override;
+  // Writes ExposureTime(Abs) and Gain(Raw) while streaming; the frames popped after the write
+  // returned carry the new values (without chunk data the exact frame is not known: a frame
+  // exposed before the write but popped after it is labelled with the new values).
+  bool SetExposureGainLive(double exposure_us, double gain_db) override;
   void Start(int buffers) override;
   void Stop() override;
   std::optional<Frame> Pop(std::int64_t timeout_ns) override;
@@ -72,6 +76,7 @@ class AravisCamera : public Camera {
   CameraSettings settings_;
   int camera_index_;
   std::atomic<bool> connected_{true};
+  std::atomic<double> live_exposure_us_{0}, live_gain_db_{0};
 };
 
 }  // namespace flamerig

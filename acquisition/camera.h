@@ -10,10 +10,10 @@
 #define FLAMERIG_ACQUISITION_CAMERA_H_
 
 #include <cstdint>
+#include <map>
 #include <optional>
 #include <string>
 #include <utility>
-#include <map>
 #include <vector>
 
 #include "acquisition/frame.h"
@@ -82,6 +82,10 @@ class Camera {
   // and stream; true when it is back. The daemon calls it about once a second.
   virtual bool Reconnect() { return connected(); }
   virtual StreamCounters counters() const = 0;
+  // Changes exposure and gain while streaming, from the next frame the camera exposes (each
+  // frame's FrameInfo carries the values it was taken with); callable from any thread. False when
+  // this camera cannot (then it must be stopped to be configured).
+  virtual bool SetExposureGainLive(double exposure_us, double gain_db) { return false; }
   // Every readable feature of the device and its value as text (GenICam cameras), for the
   // recording's metadata; empty for cameras without such a tree.
   virtual std::map<std::string, std::string> FeatureState() const { return {}; }

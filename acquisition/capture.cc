@@ -626,6 +626,7 @@ struct CaptureDaemon::CameraState {
   std::deque<std::int64_t> recent_frames;
   std::uint64_t old_frames = 0;
   std::map<std::string, std::string> features;  // the camera's feature state at the last arm
+  double exposure_us = 0;                       // what it exposes now (for the trigger grace)
 };
 
 CaptureDaemon::CaptureDaemon(const CaptureConfig& config,
@@ -696,6 +697,7 @@ void CaptureDaemon::Start() {
       std::map<std::string, std::string> state = cameras_[c]->FeatureState();
       std::lock_guard<std::mutex> lock(camera_state_[c]->mutex);
       camera_state_[c]->features = std::move(state);
+      camera_state_[c]->exposure_us = config_.cameras[c].settings.exposure_us;
     }
     running_ = true;
     threads_.emplace_back([this] {
@@ -855,10 +857,9 @@ std::vector<std::uint64_t> CaptureDaemon::MissedTriggers(std::int64_t now) const
   std::vector<std::uint64_t> missed;
   for (std::size_t c = 0; c < camera_state_.size(); ++c) {
     const CameraState& st = *camera_state_[c];
-    const std::int64_t latency = std::min<std::int64_t>(
-        TriggerGraceNs() / 2,
-        static_cast<std::int64_t>(config_.cameras[c].settings.exposure_us * 1e3) + 50'000'000);
     std::lock_guard<std::mutex> lock(st.mutex);
+    const std::int64_t latency = std::min<std::int64_t>(
+        TriggerGraceNs() / 2, static_cast<std::int64_t>(st.exposure_us * 1e3) + 50'000'000);
     std::uint64_t got = st.old_frames;
     for (const std::int64_t t : st.recent_frames) got += t <= now - TriggerGraceNs() + latency;
     missed.push_back(due > got ? due - got : 0);
@@ -1123,7 +1124,11 @@ CaptureStatus CaptureDaemon::status() const {
 
 void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::string& key,
                                      const std::string& value) {
-  if (running_) throw InputError("capture: disarm before configuring cameras");
+  std::lock_guard<std::mutex> config_lock(config_mutex_);
+  const bool live = running_;
+  if (live && key != "exposure_us" && key != "gain_db")
+    throw InputError("capture: disarm before changing " + key +
+                     " (exposure_us and gain_db change while streaming)");
   int index = -1;
   for (std::size_t c = 0; c < config_.cameras.size(); ++c)
     if (config_.cameras[c].name == camera || std::to_string(c) == camera)
@@ -1166,6 +1171,20 @@ void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::strin
   } catch (const InputError& e) {
     const std::string m = e.what();
     throw InputError(m.rfind(where, 0) == 0 ? m : where + ": " + m);
+  }
+  if (live) {
+    // While streaming: from the next frame the camera exposes; each frame records its own values.
+    if (!cameras_[index]->SetExposureGainLive(s.exposure_us, s.gain_db))
+      throw InputError(where + ": this camera does not take it while streaming; disarm first");
+    {
+      std::lock_guard<std::mutex> lock(camera_state_[index]->mutex);
+      camera_state_[index]->exposure_us = s.exposure_us;
+    }
+    config_.cameras[index].settings.exposure_us = s.exposure_us;
+    config_.cameras[index].settings.gain_db = s.gain_db;
+    Log().info("capture: camera {}: {} = {} (live, from the next frame; recorded per frame)",
+               config_.cameras[index].name, key, value);
+    return;
   }
   config_.cameras[index].settings = s;
   Log().info("capture: camera {}: {} = {} (applied when armed)", config_.cameras[index].name, key,

@@ -109,7 +109,8 @@ struct CaptureConfig {
   RecorderOptions recorder;
   std::string control;  // empty: unix:<data_dir>/control.sock
   bool allow_remote = false;
-  std::string live_view;  // HOST:PORT of the browser live view (acquisition/live_view.h); empty: off
+  std::string
+      live_view;  // HOST:PORT of the browser live view (acquisition/live_view.h); empty: off
   bool live_view_allow_remote = false;
   std::string live_view_token;  // required when remote (made at random when empty)
   ActionConfig action;
@@ -137,8 +138,8 @@ struct CameraLiveStatus {
   std::uint64_t disconnects = 0;  // times it was seen gone after being connected
   std::uint64_t reconnect_attempts = 0, reconnects = 0;  // by the daemon (a camera may also come
                                                          // back by itself)
-  std::string error;      // the last error of its driver or image source, if any
-  StreamCounters stream;  // the driver's counters
+  std::string error;             // the last error of its driver or image source, if any
+  StreamCounters stream;         // the driver's counters
   double last_frame_age_s = -1;  // since its last frame arrived; -1: none yet
   // Triggers (software, the simulated line, action commands) sent since the arm whose frame has
   // not come: triggers older than the grace time (3 periods, at least set_timeout_ms + 100 ms)
@@ -205,9 +206,11 @@ class CaptureDaemon {
   std::string TriggerEvent(const std::string& name);
 
   bool running() const { return running_; }
-  // Changes one setting of one camera (by name or index) while the daemon is stopped (disarmed);
-  // applied at the next Start. Keys: width, height, pixel_format, frame_rate_hz, exposure_us,
-  // gain_db. Throws InputError naming the camera, key and value, or while running.
+  // Changes one setting of one camera (by name or index). Disarmed: any of width, height,
+  // pixel_format, frame_rate_hz, exposure_us, gain_db, applied at the next Start. Armed (even
+  // recording): exposure_us and gain_db, from the next frame the camera exposes, when its driver
+  // can (Camera::SetExposureGainLive; every frame records the values it was taken with). Throws
+  // InputError naming the camera, key and value.
   void SetCameraSetting(const std::string& camera, const std::string& key,
                         const std::string& value);
 
@@ -243,6 +246,7 @@ class CaptureDaemon {
   std::int64_t last_trigger_id_ = 0;                    // used by the trigger thread only
   // Triggers sent since the arm: those older than the grace time counted, the recent ones timed.
   mutable std::mutex trigger_mutex_;
+  std::mutex config_mutex_;  // SetCameraSetting's writes to config_
   std::uint64_t old_triggers_ = 0;
   std::deque<std::int64_t> recent_triggers_;
   std::int64_t TriggerGraceNs() const;

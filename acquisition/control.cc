@@ -228,7 +228,8 @@ ControlReply HandleControlRequest(CaptureDaemon& daemon, const std::string& line
     } else if (cmd == "configure") {
       arity(4);
       daemon.SetCameraSetting(w[1], w[2], w[3]);
-      r.body = "camera " + w[1] + ": " + w[2] + " = " + w[3] + " (applied when armed)\n";
+      r.body = "camera " + w[1] + ": " + w[2] + " = " + w[3] +
+               (daemon.running() ? " (live, from the next frame)\n" : " (applied when armed)\n");
     } else if (cmd == "shutdown") {
       arity(1);
       if (shutdown_requested) *shutdown_requested = true;

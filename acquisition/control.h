@@ -13,7 +13,8 @@
 //   cameras                the cameras with their drivers, ids and settings (YAML)
 //   arm | disarm           start or stop the cameras' streams (disarm closes a recording)
 //   configure CAM KEY VAL  set width, height, pixel_format, frame_rate_hz, exposure_us or gain_db
-//                          of a camera while disarmed; applied at the next arm
+//                          of a camera while disarmed (applied at the next arm); exposure_us and
+//                          gain_db also while armed, live (CaptureDaemon::SetCameraSetting)
 //   start NAME             start recording into data_dir/NAME; the body is the directory
 //   stop                   stop recording; the body is the recorder's final counters (YAML)
 //   event NAME             record the pre-trigger ring and go on recording into data_dir/NAME

@@ -342,16 +342,20 @@ LiveViewServer::LiveViewServer(CaptureDaemon* daemon, const LiveViewOptions& opt
            if (line.rfind("shutdown", 0) == 0) {
              r.body = "shutdown is not offered to the browser; use flamerig ctl\n";
            } else if (line.rfind("apply ", 0) == 0) {
-             // Exposure or gain from the page: re-arm around the change, never mid-recording.
-             const std::string rest = line.substr(6);
-             if (daemon_->status().recording) {
-               r.body = "apply: not while recording (stop first; the take would lose frames)\n";
-             } else {
-               const bool armed = daemon_->running();
-               if (armed) daemon_->Stop();
-               r = HandleControlRequest(*daemon_, "configure " + rest, nullptr);
-               if (armed) daemon_->Start();
-               if (r.ok) r.body += armed ? "(re-armed)\n" : "";
+             // Exposure or gain from the page: live when the camera can (even while recording:
+             // each frame records its values); otherwise re-armed around the change, never
+             // mid-recording.
+             const std::string configure = "configure " + line.substr(6);
+             r = HandleControlRequest(*daemon_, configure, nullptr);
+             if (!r.ok && daemon_->running()) {
+               if (daemon_->status().recording) {
+                 r.body += "(not re-armed while recording: the take would lose frames)\n";
+               } else {
+                 daemon_->Stop();
+                 r = HandleControlRequest(*daemon_, configure, nullptr);
+                 daemon_->Start();
+                 if (r.ok) r.body += "(re-armed)\n";
+               }
              }
            } else {
              r = HandleControlRequest(*daemon_, line, nullptr);

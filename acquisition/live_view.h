@@ -14,9 +14,10 @@
 //   POST /api/control            body: one control request (acquisition/control.h) except
 //                                `shutdown`; answers its reply, status 200 or 400
 //
-// Exposure and gain from the page: a camera is configured while disarmed, so the page's Apply
-// sends "apply CAMERA KEY VALUE", which the server runs as disarm, configure, arm when the rig is
-// armed and not recording (and refuses while recording: the take would lose frames).
+// Exposure and gain from the page: its Apply sends "apply CAMERA KEY VALUE", which changes them
+// live when the camera can (every frame records the values it was taken with; recording goes on),
+// and otherwise runs disarm, configure, arm when the rig is armed and not recording (refused while
+// recording: the take would lose frames).
 //
 // Access: bound to loopback unless `allow_remote`; with allow_remote a token is required on every
 // request (`?token=` or the X-Flamerig-Token header); without one in the options a random token is

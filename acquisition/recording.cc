@@ -366,8 +366,8 @@ Recorder::Recorder(const std::string& directory, const RecordingMetadata& metada
     if (::statvfs(probe.empty() ? "." : probe.c_str(), &v) == 0) {
       const std::uint64_t free = static_cast<std::uint64_t>(v.f_bavail) * v.f_frsize;
       if (free < options_.min_free_bytes)
-        throw RecordingError("recording: " + directory_ + ": only " +
-                             std::to_string(free >> 20) + " MiB free on its disk, below " +
+        throw RecordingError("recording: " + directory_ + ": only " + std::to_string(free >> 20) +
+                             " MiB free on its disk, below " +
                              std::to_string(options_.min_free_bytes >> 20) +
                              " MiB (min_free_mb); nothing was recorded");
     }
@@ -384,9 +384,9 @@ Recorder::Recorder(const std::string& directory, const RecordingMetadata& metada
   if (reserved != 0) {
     ::unlink(reserve_path_.c_str());
     if (!existed) fs::remove(dir, ec);
-    throw RecordingError("recording: " + directory_ + ": cannot reserve " +
-                         std::to_string(kReserveBytes >> 10) + " KiB for its closing metadata: " +
-                         Errno(reserved) + "; nothing was recorded");
+    throw RecordingError(
+        "recording: " + directory_ + ": cannot reserve " + std::to_string(kReserveBytes >> 10) +
+        " KiB for its closing metadata: " + Errno(reserved) + "; nothing was recorded");
   }
   WriteAtomically(dir, "metadata.yaml", MetadataYaml(metadata_, false, {}));
   const std::uint32_t n = static_cast<std::uint32_t>(metadata_.cameras.size());
@@ -900,7 +900,7 @@ Recording Recording::Open(const std::string& directory) {
     for (int c = 0; c < n; ++c)
       if (!walked[c] && have_data[c]) walk(c, "may stop short, as sets.index does");
     std::set<std::uint64_t> seqs;  // of the sets to rebuild
-    if (recorded > 0) {  // the committed ones: each of which a frame survives
+    if (recorded > 0) {            // the committed ones: each of which a frame survives
       for (const auto& frames : rec.frames_)
         for (const FrameRecord& r : frames)
           if (r.set >= next_seq && r.set < recorded) seqs.insert(r.set);

@@ -135,7 +135,7 @@ struct RecorderStatus {
   std::uint64_t frames_recorded = 0;
   std::uint64_t bytes_written = 0;  // data files, pixels and record headers
   std::uint64_t queued_bytes = 0, peak_queued_bytes = 0, max_queued_bytes = 0;
-  bool stopped = false;  // no longer accepting sets: an error or a limit; `error` says which
+  bool stopped = false;     // no longer accepting sets: an error or a limit; `error` says which
   bool size_limit = false;  // stopped by max_bytes, as configured (not a fault)
   std::string error;
 };

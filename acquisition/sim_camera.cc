@@ -204,8 +204,8 @@ int FirstInvalidOutage(const std::vector<SimOutage>& outages) {
 }
 
 CameraDescription SimCamera::description() const {
-  return CameraDescription{"sim", options_.id, "flamerig", "simulated camera",
-                           "sim://" + options_.id, options_.id};
+  return CameraDescription{
+      "sim", options_.id, "flamerig", "simulated camera", "sim://" + options_.id, options_.id};
 }
 
 void SimCamera::Configure(const CameraSettings& settings) {
@@ -229,6 +229,21 @@ void SimCamera::Configure(const CameraSettings& settings) {
   settings_ = settings;
   if (settings_.width == 0) settings_.width = 640;  // the simulated sensor
   if (settings_.height == 0) settings_.height = 480;
+  live_exposure_us_ = settings_.exposure_us;
+  live_gain_db_ = settings_.gain_db;
+}
+
+CameraSettings SimCamera::settings() const {
+  CameraSettings s = settings_;
+  s.exposure_us = live_exposure_us_;
+  s.gain_db = live_gain_db_;
+  return s;
+}
+
+bool SimCamera::SetExposureGainLive(double exposure_us, double gain_db) {
+  live_exposure_us_ = exposure_us;
+  live_gain_db_ = gain_db;
+  return true;
 }
 
 void SimCamera::Start(int buffers) {
@@ -280,8 +295,8 @@ void SimCamera::AddExposure(std::int64_t start_ns, std::int64_t trigger_id) {
       options_.device_offset_ns + start_ns +
       static_cast<std::int64_t>(std::llround(double(start_ns) * options_.drift_ppm * 1e-6));
   p.info.trigger_id = trigger_id;
-  p.info.exposure_us = settings_.exposure_us;
-  p.info.gain_db = settings_.gain_db;
+  p.info.exposure_us = live_exposure_us_;
+  p.info.gain_db = live_gain_db_;
   p.info.pixel_format = settings_.pixel_format;
   p.info.width = settings_.width;
   p.info.height = settings_.height;
@@ -289,7 +304,7 @@ void SimCamera::AddExposure(std::int64_t start_ns, std::int64_t trigger_id) {
   const bool late = u(rng_) < options_.late_probability;
   p.info.status =
       u(rng_) < options_.incomplete_probability ? FrameStatus::kIncomplete : FrameStatus::kOk;
-  p.deliver_ns = start_ns + static_cast<std::int64_t>(settings_.exposure_us * 1e3) +
+  p.deliver_ns = start_ns + static_cast<std::int64_t>(p.info.exposure_us * 1e3) +
                  options_.transfer_ns + (late ? options_.late_ns : 0);
   auto it = std::upper_bound(pending_.begin(), pending_.end(), p.deliver_ns,
                              [](std::int64_t t, const Pending& q) { return t < q.deliver_ns; });

@@ -87,7 +87,7 @@ struct SimCameraOptions {
   double drop_probability = 0;               // frame produced but never delivered
   double miss_trigger_probability = 0;       // a trigger ignored: no exposure, no frame id
   std::string plugged;  // a file standing for the cable: the camera opens only while it exists
-  double late_probability = 0;               // delivered `late_ns` later than normal
+  double late_probability = 0;  // delivered `late_ns` later than normal
   std::int64_t late_ns = 100'000'000;
   double incomplete_probability = 0;  // delivered with status incomplete
   std::vector<SimOutage> outages;     // monotonic times, in order, not overlapping
@@ -103,7 +103,8 @@ class SimCamera : public Camera {
 
   CameraDescription description() const override;
   void Configure(const CameraSettings& settings) override;
-  CameraSettings settings() const override { return settings_; }
+  CameraSettings settings() const override;
+  bool SetExposureGainLive(double exposure_us, double gain_db) override;
   void Start(int buffers) override;
   void Stop() override;
   std::optional<Frame> Pop(std::int64_t timeout_ns) override;
@@ -126,6 +127,7 @@ class SimCamera : public Camera {
   Clock* clock_;
   SimTriggerBus* bus_;
   CameraSettings settings_;
+  std::atomic<double> live_exposure_us_{0}, live_gain_db_{0};  // what the next exposure uses
   bool running_ = false;
   std::mt19937_64 rng_;
   std::int64_t started_ns_ = 0;

@@ -337,6 +337,50 @@ TEST(CaptureDaemon, MissedTriggersAreCountedAgainstTheSchedule) {
   EXPECT_EQ(r.metadata().trigger_rate_hz, 50);
 }
 
+// Exposure and gain change while streaming and recording: no disarm, no set lost, and every
+// recorded frame carries the exposure it was taken with (the old value, then the new one from one
+// frame on). Other settings still need a disarm.
+TEST(CaptureDaemon, ExposureChangesWhileRecording) {
+  TempDir dir;
+  const CaptureConfig config = CaptureConfig::Parse(
+      Config(dir.path, "software-trigger", 50, "", ""), "test");
+  SystemClock clock;
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
+  daemon.Start();
+  const std::string take = daemon.StartRecording("take");
+  Sleep(0.5);
+  daemon.SetCameraSetting("cam0", "exposure_us", "500");
+  daemon.SetCameraSetting("cam0", "gain_db", "6");
+  Sleep(0.5);
+  EXPECT_THROW(daemon.SetCameraSetting("cam0", "width", "32"), InputError);
+  EXPECT_TRUE(daemon.running());
+  daemon.StopRecording();
+  daemon.Stop();
+  const Recording r = Recording::Open(take);
+  ASSERT_GE(r.num_sets(), 30u);
+  std::size_t before = 0, after = 0;
+  for (std::size_t i = 0; i < r.num_sets(); ++i) {
+    const FrameSet s = r.ReadSet(i);
+    if (i > 0) {
+      EXPECT_EQ(s.trigger_id, r.SetHeader(i - 1).trigger_id + 1) << i;  // none lost
+    }
+    ASSERT_TRUE(s.frames[0] && s.frames[1]);
+    const double e = s.frames[0]->info.exposure_us;
+    if (e == 500) {
+      ++after;
+      EXPECT_EQ(s.frames[0]->info.gain_db, 6) << i;
+    } else {
+      EXPECT_EQ(after, 0u) << "the old exposure after the new one, set " << i;
+      EXPECT_EQ(e, config.cameras[0].settings.exposure_us);
+      ++before;
+    }
+    EXPECT_EQ(s.frames[1]->info.exposure_us, config.cameras[1].settings.exposure_us);
+  }
+  EXPECT_GE(before, 15u);
+  EXPECT_GE(after, 15u);
+  EXPECT_EQ(r.metadata().cameras[0].settings.exposure_us, config.cameras[0].settings.exposure_us);
+}
+
 TEST(CaptureDaemon, AnEventSavesThePreTriggerRing) {
   TempDir dir;
   const CaptureConfig config = CaptureConfig::Parse(
@@ -534,8 +578,11 @@ TEST(ControlApi, StatusRecordingAndPreviewOverAUnixSocket) {
   const std::uint64_t before = daemon.status().sets.sets;
   Sleep(0.2);
   EXPECT_GT(daemon.status().sets.sets, before);
-  // Disarm, configure, arm again.
-  r = ControlRequest(config.control, "configure cam1 exposure_us 2000");
+  // Exposure changes live; a size needs a disarm, configure, arm again.
+  r = ControlRequest(config.control, "configure cam1 exposure_us 1500");
+  EXPECT_TRUE(r.ok) << r.body;
+  EXPECT_NE(r.body.find("live"), std::string::npos) << r.body;
+  r = ControlRequest(config.control, "configure cam1 width 64");
   EXPECT_FALSE(r.ok);
   EXPECT_NE(r.body.find("disarm"), std::string::npos) << r.body;
   ASSERT_TRUE(ControlRequest(config.control, "disarm").ok);

@@ -107,13 +107,21 @@ TEST(LiveView, TheApiAnswersFromTheDaemonAndATokenGuardsIt) {
   auto start = client.Post("/api/control", token, "start web", "text/plain");
   ASSERT_EQ(start->status, 200) << start->body;
   EXPECT_TRUE(daemon.status().recording);
-  EXPECT_EQ(client.Post("/api/control", token, "apply a exposure_us 500", "text/plain")->status,
-            400);  // not while recording
+  // Exposure changes live, the recording going on; a size needs a re-arm, refused mid-take.
+  auto live = client.Post("/api/control", token, "apply a exposure_us 500", "text/plain");
+  EXPECT_EQ(live->status, 200) << live->body;
+  EXPECT_NE(live->body.find("live"), std::string::npos) << live->body;
+  EXPECT_TRUE(daemon.status().recording);
+  auto size = client.Post("/api/control", token, "apply a width 32", "text/plain");
+  EXPECT_EQ(size->status, 400) << size->body;
+  EXPECT_NE(size->body.find("not re-armed while recording"), std::string::npos) << size->body;
   EXPECT_EQ(client.Post("/api/control", token, "stop", "text/plain")->status, 200);
-  auto apply = client.Post("/api/control", token, "apply a exposure_us 500", "text/plain");
+  auto apply = client.Post("/api/control", token, "apply a width 32", "text/plain");
   EXPECT_EQ(apply->status, 200) << apply->body;
-  EXPECT_TRUE(daemon.running());  // re-armed
-  EXPECT_EQ(daemon.config().cameras.size(), 2u);
+  EXPECT_NE(apply->body.find("re-armed"), std::string::npos) << apply->body;
+  EXPECT_TRUE(daemon.running());
+  EXPECT_EQ(daemon.config().cameras[0].settings.width, 32);
+  EXPECT_EQ(daemon.config().cameras[0].settings.exposure_us, 500);
   EXPECT_EQ(client.Post("/api/control", token, "shutdown", "text/plain")->status, 400);
   EXPECT_EQ(client.Get("/api/preview?camera=z&token=s3cret")->status, 400);
   EXPECT_TRUE(fs::exists(dir / "web"));
