@@ -260,6 +260,7 @@ void AravisCamera::Configure(const CameraSettings& s) {
   if (!impl_->camera) throw IoError("aravis camera '" + impl_->id + "': not connected");
   if (impl_->stream)
     throw std::logic_error("aravis camera '" + impl_->id + "': Configure while streaming");
+  if (s.ptp) CheckPtp();  // first: a camera that cannot take part is refused before any change
   ArvCamera* cam = impl_->camera;
   GError* e = nullptr;
   arv_camera_set_pixel_format(cam, ToArv(s.pixel_format), &e);
@@ -543,6 +544,35 @@ CameraSettings AravisCamera::settings() const {
   s.exposure_us = live_exposure_us_;
   s.gain_db = live_gain_db_;
   return s;
+}
+
+void AravisCamera::CheckPtp() {
+  // SFNC PtpEnable/PtpStatus, or the older GevIEEE1588/GevIEEE1588Status.
+  const bool sfnc = impl_->Has("PtpEnable");
+  const char* enable = sfnc ? "PtpEnable" : impl_->Has("GevIEEE1588") ? "GevIEEE1588" : nullptr;
+  if (!enable)
+    throw InputError("aravis camera '" + impl_->id +
+                     "': sync: ptp, but it has no PTP clock (no PtpEnable or GevIEEE1588); use "
+                     "another sync mode or a camera with IEEE 1588");
+  GError* e = nullptr;
+  arv_device_set_boolean_feature_value(impl_->device(), enable, TRUE, &e);
+  Check(e, impl_->id, std::string(enable) + " on");
+  const char* status_feature = sfnc ? "PtpStatus" : "GevIEEE1588Status";
+  if (!impl_->Has(status_feature)) return;  // on, but its lock cannot be read
+  // A clock takes a few seconds to settle on its master: wait up to 10 s for Slave or Master.
+  std::string status;
+  for (int i = 0; i < 100; ++i) {
+    if (sfnc && impl_->Has("PtpDataSetLatch")) {
+      arv_device_execute_command(impl_->device(), "PtpDataSetLatch", &e);
+      g_clear_error(&e);
+    }
+    status = FeatureAsString(status_feature);
+    if (status == "Slave" || status == "Master") return;
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  throw IoError("aravis camera '" + impl_->id + "': sync: ptp, but its PTP clock is " +
+                (status.empty() ? std::string("unreadable") : status) +
+                " after 10 s (not Slave or Master): is a PTP master on its network?");
 }
 
 bool AravisCamera::SetExposureGainLive(double exposure_us, double gain_db) {

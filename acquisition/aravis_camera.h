@@ -9,7 +9,8 @@
 // ExposureTimeAbs on older GigE cameras), gain (Gain, or GainRaw), trigger (FrameStart trigger
 // on the given line for hardware trigger, Software for software trigger, off for free-run) and the
 // GigE packet size, then any feature the config names (`features: {Name: value}`); a refusal
-// names the camera and the feature. FeatureState() reads every feature of the device's GenICam
+// names the camera and the feature. With sync: ptp the camera's PTP clock is switched on and must
+// report Slave or Master within 10 s. FeatureState() reads every feature of the device's GenICam
 // tree, for the recording's metadata. Start() creates the stream with a
 // fixed 4 MiB socket buffer and packet resend off (GigE), pushes the buffers and starts
 // acquisition. Pop() returns a frame whose bytes are copied out of the Aravis buffer, which goes
@@ -70,6 +71,7 @@ class AravisCamera : public Camera {
 
  private:
   void Open();   // opens impl_->id; throws IoError
+  void CheckPtp();  // sync: ptp: the clock on and locked, or an error naming the camera
   void Close();  // drops the stream and the device without talking to it
   struct Impl;
   std::unique_ptr<Impl> impl_;

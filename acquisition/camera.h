@@ -48,6 +48,10 @@ struct CameraSettings {
   // kAction: the camera fires on action commands carrying these (SFNC ActionDeviceKey,
   // ActionGroupKey, ActionGroupMask).
   std::uint32_t action_device_key = 0, action_group_key = 1, action_group_mask = 0xffffffff;
+  // sync: ptp. The camera's PTP clock must be on and locked (slave or master) before it streams:
+  // its timestamps are what frame sets are matched by. Drivers without PTP refuse it, except the
+  // sim driver, whose cameras share one clock.
+  bool ptp = false;
   // Any other camera feature by its GenICam name, written in this order after the ones above
   // (aravis; `features: {Name: value}` in a capture config). Other drivers refuse them.
   std::vector<std::pair<std::string, std::string>> features;

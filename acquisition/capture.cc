@@ -202,6 +202,7 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     s.gain_db = cr.Range("gain_db", s.gain_db, -100, 100);
     s.trigger_source = cr.Get<std::string>("trigger_source", s.trigger_source);
     s.packet_size = static_cast<int>(cr.Range("packet_size", 0, 0, 65535));
+    s.ptp = c.sync == SyncMode::kPtp;
     s.trigger = c.sync == SyncMode::kHardwareTrigger   ? TriggerMode::kHardware
                 : c.sync == SyncMode::kSoftwareTrigger ? TriggerMode::kSoftware
                                                        : TriggerMode::kFreeRun;

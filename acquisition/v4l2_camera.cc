@@ -134,6 +134,9 @@ void V4l2Camera::Configure(const CameraSettings& s) {
         "v4l2 camera " + path_ +
         ": V4L2 has no trigger input; use sync: free-run (timestamp matching)");
   }
+  if (s.ptp)
+    throw InputError("v4l2 camera " + path_ +
+                     ": V4L2 devices have no PTP clock; use sync: free-run");
   if (!s.features.empty())
     throw InputError("v4l2 camera " + path_ + ": feature '" + s.features[0].first +
                      "': V4L2 devices have no GenICam features");

@@ -221,6 +221,16 @@ TEST(AravisCamera, RegionFeaturesAndSerial) {
               std::string::npos)
         << e.what();
   }
+  // sync: ptp with a camera that has no PTP clock (the fake has none) is refused, naming it.
+  s.offset_x = 0;
+  s.ptp = true;
+  try {
+    cam.Configure(s);
+    FAIL() << "a camera without PTP was accepted for sync: ptp";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("sync: ptp, but it has no PTP clock"), std::string::npos)
+        << e.what();
+  }
   // By serial number, as a config names it.
   {
     AravisCamera by_serial("FLAMERIG-F", 1);
