@@ -6,6 +6,7 @@
 #include "acquisition/v4l2_camera.h"
 #include "core/config_reader.h"
 #include "core/error.h"
+#include "core/json_yaml.h"
 #include "core/log.h"
 
 #include <sys/statvfs.h>
@@ -382,79 +383,17 @@ std::vector<std::unique_ptr<Camera>> MakeCameras(const CaptureConfig& config,
   return cameras;
 }
 
-std::string CaptureStatus::ToYaml() const {
-  YAML::Emitter out;
-  out << YAML::BeginMap;
-  out << YAML::Key << "running" << YAML::Value << running;
-  out << YAML::Key << "recording" << YAML::Value << recording;
-  out << YAML::Key << "recording_dir" << YAML::Value << recording_dir;
-  out << YAML::Key << "cameras" << YAML::Value << YAML::BeginSeq;
-  for (const auto& c : cameras) {
-    out << YAML::BeginMap;
-    out << YAML::Key << "name" << YAML::Value << c.name;
-    out << YAML::Key << "id" << YAML::Value << c.id;
-    out << YAML::Key << "connected" << YAML::Value << c.connected;
-    out << YAML::Key << "fps" << YAML::Value << c.fps;
-    out << YAML::Key << "megabytes_per_s" << YAML::Value << c.megabytes_per_s;
-    out << YAML::Key << "frames" << YAML::Value << c.frames;
-    out << YAML::Key << "incomplete" << YAML::Value << c.stream.incomplete;
-    out << YAML::Key << "missing_by_frame_id" << YAML::Value << c.stream.missing_by_id;
-    out << YAML::Key << "missing_by_timestamp" << YAML::Value << c.stream.missing_by_time;
-    out << YAML::Key << "underruns" << YAML::Value << c.stream.underruns;
-    out << YAML::Key << "disconnects" << YAML::Value << c.disconnects;
-    out << YAML::Key << "reconnect_attempts" << YAML::Value << c.reconnect_attempts;
-    out << YAML::Key << "reconnects" << YAML::Value << c.reconnects;
-    out << YAML::Key << "missed_triggers" << YAML::Value << c.missed_triggers;
-    out << YAML::Key << "last_frame_age_s" << YAML::Value << c.last_frame_age_s;
-    if (!c.error.empty()) out << YAML::Key << "error" << YAML::Value << c.error;
-    out << YAML::EndMap;
-  }
-  out << YAML::EndSeq;
-  out << YAML::Key << "frame_sets" << YAML::Value << YAML::BeginMap;
-  out << YAML::Key << "total" << YAML::Value << sets.sets;
-  out << YAML::Key << "complete" << YAML::Value << sets.complete;
-  out << YAML::Key << "incomplete" << YAML::Value << sets.incomplete;
-  out << YAML::Key << "late_frames" << YAML::Value << sets.late_frames;
-  out << YAML::Key << "max_spread_ms" << YAML::Value << sets.max_spread_ns / 1e6;
-  out << YAML::EndMap;
-  out << YAML::Key << "recorder" << YAML::Value << YAML::BeginMap;
-  out << YAML::Key << "sets_recorded" << YAML::Value << recorder.sets_recorded;
-  out << YAML::Key << "sets_dropped" << YAML::Value << recorder.sets_dropped;
-  out << YAML::Key << "megabytes_written" << YAML::Value << recorder.bytes_written / 1048576.0;
-  out << YAML::Key << "disk_backlog_mb" << YAML::Value << recorder.queued_bytes / 1048576.0;
-  out << YAML::Key << "queue_fill" << YAML::Value
-      << (recorder.max_queued_bytes ? double(recorder.queued_bytes) / recorder.max_queued_bytes
-                                    : 0.0);
-  out << YAML::Key << "error" << YAML::Value << recorder.error;
-  out << YAML::EndMap;
-  out << YAML::Key << "incoming_queue" << YAML::Value << YAML::Flow << YAML::BeginSeq
-      << incoming_queued << incoming_capacity << YAML::EndSeq;
-  out << YAML::Key << "incoming_dropped" << YAML::Value << incoming_dropped;
-  out << YAML::Key << "trigger_overruns" << YAML::Value << trigger_overruns;
-  out << YAML::Key << "action_commands" << YAML::Value << action_commands;
-  out << YAML::Key << "rejected_sets" << YAML::Value << rejected_sets;
-  if (!last_error.empty()) out << YAML::Key << "last_error" << YAML::Value << last_error;
-  out << YAML::Key << "pretrigger_ring" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key
-      << "sets" << YAML::Value << ring_sets << YAML::Key << "megabytes" << YAML::Value
-      << ring_bytes / 1048576.0 << YAML::EndMap;
-  out << YAML::Key << "armed_s" << YAML::Value << armed_s;
-  out << YAML::Key << "recording_s" << YAML::Value << recording_s;
-  out << YAML::Key << "data_dir" << YAML::Value << data_dir;
-  out << YAML::Key << "disk_free_mb" << YAML::Value << disk_free_bytes / 1048576.0;
-  out << YAML::Key << "min_free_mb" << YAML::Value << min_free_bytes / 1048576.0;
-  out << YAML::Key << "seconds_left" << YAML::Value << SecondsLeft();
-  out << YAML::EndMap;
-  return std::string(out.c_str()) + "\n";
-}
+namespace {
 
-std::string CaptureStatus::ToJson() const {
+// Every field of the status, once: the JSON and the YAML are made from it.
+nlohmann::json StatusJson(const CaptureStatus& s) {
   nlohmann::json j;
-  j["running"] = running;
-  j["recording"] = recording;
-  j["recording_dir"] = recording_dir;
-  j["armed_s"] = armed_s;
-  j["recording_s"] = recording_s;
-  for (const auto& c : cameras) {
+  j["running"] = s.running;
+  j["recording"] = s.recording;
+  j["recording_dir"] = s.recording_dir;
+  j["armed_s"] = s.armed_s;
+  j["recording_s"] = s.recording_s;
+  for (const auto& c : s.cameras) {
     nlohmann::json k;
     k["name"] = c.name;
     k["id"] = c.id;
@@ -474,33 +413,42 @@ std::string CaptureStatus::ToJson() const {
     k["error"] = c.error;
     j["cameras"].push_back(k);
   }
-  j["frame_sets"] = {{"total", sets.sets},
-                     {"complete", sets.complete},
-                     {"incomplete", sets.incomplete},
-                     {"late_frames", sets.late_frames},
-                     {"max_spread_ms", sets.max_spread_ns / 1e6}};
-  j["recorder"] = {
-      {"sets_recorded", recorder.sets_recorded},
-      {"sets_dropped", recorder.sets_dropped},
-      {"megabytes_written", recorder.bytes_written / 1048576.0},
-      {"disk_backlog_mb", recorder.queued_bytes / 1048576.0},
-      {"queue_fill",
-       recorder.max_queued_bytes ? double(recorder.queued_bytes) / recorder.max_queued_bytes : 0.0},
-      {"stopped", recorder.stopped},
-      {"error", recorder.error}};
-  j["incoming_queue"] = {incoming_queued, incoming_capacity};
-  j["incoming_dropped"] = incoming_dropped;
-  j["trigger_overruns"] = trigger_overruns;
-  j["action_commands"] = action_commands;
-  j["rejected_sets"] = rejected_sets;
-  j["last_error"] = last_error;
-  j["pretrigger_ring"] = {{"sets", ring_sets}, {"megabytes", ring_bytes / 1048576.0}};
-  j["data_dir"] = data_dir;
-  j["disk_free_mb"] = disk_free_bytes / 1048576.0;
-  j["min_free_mb"] = min_free_bytes / 1048576.0;
-  j["seconds_left"] = SecondsLeft();
-  return j.dump(2) + "\n";
+  j["frame_sets"] = {{"total", s.sets.sets},
+                     {"complete", s.sets.complete},
+                     {"incomplete", s.sets.incomplete},
+                     {"late_frames", s.sets.late_frames},
+                     {"max_spread_ms", s.sets.max_spread_ns / 1e6}};
+  j["recorder"] = {{"sets_recorded", s.recorder.sets_recorded},
+                   {"sets_dropped", s.recorder.sets_dropped},
+                   {"megabytes_written", s.recorder.bytes_written / 1048576.0},
+                   {"disk_backlog_mb", s.recorder.queued_bytes / 1048576.0},
+                   {"queue_fill", s.recorder.max_queued_bytes ? double(s.recorder.queued_bytes) /
+                                                                    s.recorder.max_queued_bytes
+                                                              : 0.0},
+                   {"stopped", s.recorder.stopped},
+                   {"error", s.recorder.error}};
+  j["incoming_queue"] = {s.incoming_queued, s.incoming_capacity};
+  j["incoming_dropped"] = s.incoming_dropped;
+  j["trigger_overruns"] = s.trigger_overruns;
+  j["action_commands"] = s.action_commands;
+  j["rejected_sets"] = s.rejected_sets;
+  j["last_error"] = s.last_error;
+  j["pretrigger_ring"] = {{"sets", s.ring_sets}, {"megabytes", s.ring_bytes / 1048576.0}};
+  j["data_dir"] = s.data_dir;
+  j["disk_free_mb"] = s.disk_free_bytes / 1048576.0;
+  j["min_free_mb"] = s.min_free_bytes / 1048576.0;
+  j["seconds_left"] = s.SecondsLeft();
+  return j;
 }
+
+}  // namespace
+
+std::string CaptureStatus::ToJson() const {
+  // Text that is not UTF-8 (a driver's error in another encoding) is replaced, not thrown on.
+  return StatusJson(*this).dump(2, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
+}
+
+std::string CaptureStatus::ToYaml() const { return JsonAsYaml(StatusJson(*this)); }
 
 double CaptureStatus::SecondsLeft() const {
   double rate = 0;  // bytes per second, all cameras

@@ -16,6 +16,7 @@
 
 #include "acquisition/recording.h"
 #include "core/error.h"
+#include "core/json_yaml.h"
 #include "fitting/renderer.h"
 #include "pipeline/blender_export.h"
 #include "pipeline/fit_report.h"
@@ -187,32 +188,6 @@ nlohmann::json SummaryJson(const FrameSummary& f) {
   return j;
 }
 
-// JSON as YAML (the state files' format), types kept: JSON's are explicit.
-void EmitYaml(YAML::Emitter& e, const nlohmann::json& j) {
-  if (j.is_object()) {
-    e << YAML::BeginMap;
-    for (const auto& [key, value] : j.items()) {
-      e << YAML::Key << key << YAML::Value;
-      EmitYaml(e, value);
-    }
-    e << YAML::EndMap;
-  } else if (j.is_array()) {
-    e << YAML::BeginSeq;
-    for (const auto& value : j) EmitYaml(e, value);
-    e << YAML::EndSeq;
-  } else if (j.is_boolean()) {
-    e << j.get<bool>();
-  } else if (j.is_number_integer()) {
-    e << j.get<long long>();
-  } else if (j.is_number()) {
-    e << j.get<double>();
-  } else if (j.is_string()) {
-    e << YAML::DoubleQuoted << j.get<std::string>();
-  } else {
-    e << YAML::Null;
-  }
-}
-
 }  // namespace
 
 std::string FrameSummary::ToJson() const {
@@ -223,10 +198,7 @@ std::string FrameSummary::ToJson() const {
 
 std::string FrameSummary::ToYaml() const {
   // From the JSON value, not its text: NaN and infinities stay numbers (.nan, .inf).
-  YAML::Emitter e;
-  e.SetDoublePrecision(17);
-  EmitYaml(e, SummaryJson(*this));
-  return std::string(e.c_str()) + "\n";
+  return JsonAsYaml(SummaryJson(*this));
 }
 
 FrameSummary FrameSummary::FromYaml(const std::string& text, const std::string& where) {

@@ -545,7 +545,7 @@ TEST(ControlApi, StatusRecordingAndPreviewOverAUnixSocket) {
   ControlReply r = ControlRequest(config.control, "status");
   ASSERT_TRUE(r.ok) << r.body;
   EXPECT_NE(r.body.find("running: true"), std::string::npos) << r.body;
-  EXPECT_NE(r.body.find("name: cam2"), std::string::npos) << r.body;
+  EXPECT_NE(r.body.find("name: \"cam2\""), std::string::npos) << r.body;
   r = ControlRequest(config.control, "start run1");
   ASSERT_TRUE(r.ok) << r.body;
   EXPECT_EQ(r.body, (dir.path / "run1").string() + "\n");

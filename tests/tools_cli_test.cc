@@ -38,16 +38,20 @@ struct Result {
   std::string output;
 };
 
-Result Flamerig(const std::string& args) {
-  std::string command = std::string(FLAMERIG_BINARY) + " " + args + " 2>&1";
+// Runs a shell command line; its status and what it printed (stderr too).
+Result ShellLine(const std::string& line) {
   std::array<char, 4096> buffer;
   Result r{-1, ""};
-  FILE* pipe = popen(command.c_str(), "r");
+  FILE* pipe = popen((line + " 2>&1").c_str(), "r");
   if (!pipe) return r;
   while (fgets(buffer.data(), buffer.size(), pipe)) r.output += buffer.data();
-  int status = pclose(pipe);
+  const int status = pclose(pipe);
   r.status = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   return r;
+}
+
+Result Flamerig(const std::string& args) {
+  return ShellLine(std::string(FLAMERIG_BINARY) + " " + args);
 }
 
 fs::path TempDir() {
@@ -841,18 +845,6 @@ TEST(Cli, AnOptionalCameraJoinsWhenItAppears) {
   EXPECT_LE(first_b, r.num_sets() - 15);  // then here for the rest (tried every second)
   for (std::size_t i = 0; i < r.num_sets(); ++i) EXPECT_TRUE(r.HasFrame(i, 0)) << i;
   fs::remove_all(dir);
-}
-
-// Runs a shell command line; its status and what it printed.
-Result ShellLine(const std::string& line) {
-  std::array<char, 4096> buffer;
-  Result r{-1, ""};
-  FILE* pipe = popen((line + " 2>&1").c_str(), "r");
-  if (!pipe) return r;
-  while (fgets(buffer.data(), buffer.size(), pipe)) r.output += buffer.data();
-  const int status = pclose(pipe);
-  r.status = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
 }
 
 // A disk that really fills: a 3 MiB tmpfs in a private mount namespace as data_dir. The recording
