@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <map>
+#include <mutex>
 #include <set>
 #include <stdexcept>
 #include <thread>
@@ -132,6 +133,10 @@ std::vector<CameraDescription> DiscoverAravisCameras() {
 
 struct AravisCamera::Impl {
   std::string id;
+  std::string resolved;  // the Aravis device id a serial or user id led to (reconnects use it)
+  // Guards `camera` against Close/Open on the camera thread while another thread (a live
+  // exposure change, a software trigger) talks to the device.
+  mutable std::mutex device_mutex;
   ArvCamera* camera = nullptr;
   ArvStream* stream = nullptr;
   gulong control_lost_handler = 0;
@@ -166,6 +171,7 @@ AravisCamera::AravisCamera(const std::string& id, int camera_index)
 }
 
 void AravisCamera::Open() {
+  std::lock_guard<std::mutex> lock(impl_->device_mutex);
   const std::string& id = impl_->id;
   GError* error = nullptr;
   if (IsIpv4(id)) {
@@ -181,7 +187,10 @@ void AravisCamera::Open() {
     if (error) {
       // Not an Aravis device id: a serial number, or a user id (DeviceUserID) set on the camera.
       g_clear_error(&error);
-      const std::string device = FindDeviceBySerialOrUserId(id);
+      // Found once; a reconnect opens the same device id without opening every camera again.
+      const std::string device =
+          impl_->resolved.empty() ? FindDeviceBySerialOrUserId(id) : impl_->resolved;
+      impl_->resolved = device;
       if (device.empty())
         throw IoError("aravis camera '" + id +
                       "': no camera with this device id, serial number, user id or address "
@@ -219,6 +228,7 @@ void AravisCamera::Open() {
 }
 
 void AravisCamera::Close() {
+  std::lock_guard<std::mutex> lock(impl_->device_mutex);
   if (impl_->stream) {
     g_object_unref(impl_->stream);
     impl_->stream = nullptr;
@@ -237,7 +247,7 @@ bool AravisCamera::Reconnect() {
   Close();  // no AcquisitionStop: every register access to a dead device blocks for seconds
   try {
     Open();
-    if (impl_->configured) Configure(settings_);
+    if (impl_->configured) Configure(settings());  // with the exposure and gain changed live
     if (impl_->streaming) Start(impl_->buffers);
     impl_->last_timestamp_ns = -1;
     return true;
@@ -528,6 +538,7 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
 }
 
 void AravisCamera::SoftwareTrigger(std::int64_t) {
+  std::lock_guard<std::mutex> lock(impl_->device_mutex);
   if (!impl_->camera || !connected_) return;
   GError* e = nullptr;
   arv_camera_software_trigger(impl_->camera, &e);
@@ -576,6 +587,7 @@ void AravisCamera::CheckPtp() {
 }
 
 bool AravisCamera::SetExposureGainLive(double exposure_us, double gain_db) {
+  std::lock_guard<std::mutex> lock(impl_->device_mutex);
   if (!impl_->camera || !connected_) return false;
   GError* e = nullptr;
   const char* exposure = impl_->Has("ExposureTime") ? "ExposureTime" : "ExposureTimeAbs";

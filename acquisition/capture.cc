@@ -332,11 +332,32 @@ class DeferredCamera : public Camera {
       return false;  // still absent
     }
     std::lock_guard<std::mutex> lock(mutex_);
-    opened->Configure(settings_);
-    if (started_) opened->Start(buffers_);
+    try {
+      opened->Configure(settings_);
+      if (started_) opened->Start(buffers_);
+    } catch (const std::exception& e) {
+      // Here but refusing its settings: said once, and it stays out of the rig.
+      if (refusal_ != e.what())
+        Log().error("capture: camera {} ({}) is here but refuses its settings: {}", description_.id,
+                    description_.driver, e.what());
+      refusal_ = e.what();
+      return false;
+    }
     inner_ = std::move(opened);
     Log().info("capture: camera {} ({}) is here now", description_.id, description_.driver);
     return true;
+  }
+  bool SetExposureGainLive(double exposure_us, double gain_db) override {
+    std::shared_ptr<Camera> inner = Inner();
+    if (inner) return inner->SetExposureGainLive(exposure_us, gain_db);
+    std::lock_guard<std::mutex> lock(mutex_);  // absent: taken when it arrives
+    settings_.exposure_us = exposure_us;
+    settings_.gain_db = gain_db;
+    return true;
+  }
+  std::map<std::string, std::string> FeatureState() const override {
+    std::shared_ptr<Camera> inner = Inner();
+    return inner ? inner->FeatureState() : std::map<std::string, std::string>{};
   }
   StreamCounters counters() const override {
     std::shared_ptr<Camera> inner = Inner();
@@ -354,6 +375,7 @@ class DeferredCamera : public Camera {
   CameraSettings settings_;
   int buffers_ = 0;
   bool started_ = false;
+  std::string refusal_;
   std::shared_ptr<Camera> inner_;
   Clock* clock_;
 };
@@ -612,6 +634,7 @@ CaptureDaemon::~CaptureDaemon() {
 }
 
 void CaptureDaemon::Start() {
+  std::lock_guard<std::recursive_mutex> command(command_mutex_);
   if (running_) return;
   armed_ns_ = clock_->MonotonicNs();
   for (auto& st : camera_state_) {
@@ -690,6 +713,7 @@ void CaptureDaemon::Start() {
 }
 
 void CaptureDaemon::Stop() {
+  std::lock_guard<std::recursive_mutex> command(command_mutex_);
   if (!running_.exchange(false)) return;
   Log().info("capture: disarming: cameras stop");
   incoming_cv_.notify_all();
@@ -701,7 +725,7 @@ void CaptureDaemon::Stop() {
   assembler_.Flush(&ready);
   Deliver(&ready);
   if (recorder_) {
-    last_recorder_status_ = recorder_->Close(RecordingCounters());
+    last_recorder_status_ = recorder_->Close(RecordingCounters(missed_at_recording_start_));
     recorder_.reset();
     LogClosed(recording_dir_, last_recorder_status_);
   }
@@ -737,7 +761,13 @@ void CaptureDaemon::CameraLoop(int camera) {
       const std::int64_t t = clock_->MonotonicNs();
       if (t - last_attempt >= 1'000'000'000) {
         last_attempt = t;
-        const bool back = cam.Reconnect();
+        bool back = false;
+        try {
+          back = cam.Reconnect();
+        } catch (const std::exception& e) {  // never out of this thread: the rig goes on
+          Log().warn("capture: camera {} ({}): reconnecting: {}", st.live.name, st.live.id,
+                     e.what());
+        }
         std::lock_guard<std::mutex> lock(st.mutex);
         ++st.live.reconnect_attempts;
         if (back) ++st.live.reconnects;
@@ -926,12 +956,12 @@ void CaptureDaemon::Deliver(std::vector<FrameSet>* ready) {
   ready->clear();
 }
 
-std::map<std::string, std::string> CaptureDaemon::RecordingCounters() const {
+std::map<std::string, std::string> CaptureDaemon::RecordingCounters(
+    const std::vector<std::uint64_t>& baseline) const {
   std::map<std::string, std::string> out;
   const std::vector<std::uint64_t> now = MissedTriggers(clock_->MonotonicNs());
   for (std::size_t c = 0; c < now.size(); ++c) {
-    const std::uint64_t before =
-        c < missed_at_recording_start_.size() ? missed_at_recording_start_[c] : 0;
+    const std::uint64_t before = c < baseline.size() ? baseline[c] : 0;
     if (config_.sync == SyncMode::kSoftwareTrigger || config_.sync == SyncMode::kHardwareTrigger ||
         action_sender_)
       out["missed_triggers_" + config_.cameras[c].name] =
@@ -982,6 +1012,7 @@ std::string CaptureDaemon::TriggerEvent(const std::string& name) {
 }
 
 std::string CaptureDaemon::BeginRecording(const std::string& name, bool with_ring) {
+  std::lock_guard<std::recursive_mutex> command(command_mutex_);
   const std::string dir = RecordingPath(name);
   if (!running_) throw InputError("capture: arm the cameras before recording");
   std::lock_guard<std::mutex> lock(state_mutex_);
@@ -1009,13 +1040,16 @@ std::string CaptureDaemon::BeginRecording(const std::string& name, bool with_rin
 }
 
 RecorderStatus CaptureDaemon::StopRecording() {
+  std::lock_guard<std::recursive_mutex> command(command_mutex_);
   std::unique_ptr<Recorder> r;
+  std::vector<std::uint64_t> baseline;
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
     if (!recorder_) throw InputError("capture: not recording");
     r = std::move(recorder_);
+    baseline = missed_at_recording_start_;
   }
-  const RecorderStatus st = r->Close(RecordingCounters());  // outside the lock: capture goes on
+  const RecorderStatus st = r->Close(RecordingCounters(baseline));  // capture goes on meanwhile
   std::lock_guard<std::mutex> lock(state_mutex_);
   last_recorder_status_ = st;
   LogClosed(recording_dir_, st);
@@ -1073,6 +1107,7 @@ CaptureStatus CaptureDaemon::status() const {
 
 void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::string& key,
                                      const std::string& value) {
+  std::lock_guard<std::recursive_mutex> command(command_mutex_);
   std::lock_guard<std::mutex> config_lock(config_mutex_);
   const bool live = running_;
   if (live && key != "exposure_us" && key != "gain_db")
@@ -1138,6 +1173,30 @@ void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::strin
   config_.cameras[index].settings = s;
   Log().info("capture: camera {}: {} = {} (applied when armed)", config_.cameras[index].name, key,
              value);
+}
+
+std::string CaptureDaemon::ApplyCameraSetting(const std::string& camera, const std::string& key,
+                                              const std::string& value) {
+  std::lock_guard<std::recursive_mutex> command(command_mutex_);
+  try {
+    SetCameraSetting(camera, key, value);
+    return running_ ? "live, from the next frame" : "applied when armed";
+  } catch (const InputError&) {
+    if (!running_) throw;
+    if (status().recording)
+      throw InputError("capture: camera '" + camera + "': " + key +
+                       " needs a re-arm, not done while recording (the take would lose frames)");
+  }
+  Stop();
+  std::string outcome = "re-armed";
+  try {
+    SetCameraSetting(camera, key, value);
+  } catch (...) {
+    Start();
+    throw;
+  }
+  Start();
+  return outcome;
 }
 
 std::shared_ptr<const FrameSet> CaptureDaemon::LatestSet() const {

@@ -214,6 +214,12 @@ class CaptureDaemon {
   void SetCameraSetting(const std::string& camera, const std::string& key,
                         const std::string& value);
 
+  // What the live view's Apply does: SetCameraSetting, live when it can; otherwise, armed and not
+  // recording, disarm, configure and arm again as one command. Returns what happened ("live, from
+  // the next frame", "applied when armed", "re-armed"); InputError when refused.
+  std::string ApplyCameraSetting(const std::string& camera, const std::string& key,
+                                 const std::string& value);
+
   CaptureStatus status() const;
   // The latest frame set (shared pixels, no copy); empty before the first.
   std::shared_ptr<const FrameSet> LatestSet() const;
@@ -227,7 +233,8 @@ class CaptureDaemon {
   void Deliver(std::vector<FrameSet>* ready);  // holds state_mutex_
   RecordingMetadata Metadata() const;
   // Written into a closing recording's metadata: each camera's missed triggers while it recorded.
-  std::map<std::string, std::string> RecordingCounters() const;
+  std::map<std::string, std::string> RecordingCounters(
+      const std::vector<std::uint64_t>& baseline) const;
   std::string BeginRecording(const std::string& name, bool with_ring);
   std::string RecordingPath(const std::string& name) const;
 
@@ -247,6 +254,9 @@ class CaptureDaemon {
   // Triggers sent since the arm: those older than the grace time counted, the recent ones timed.
   mutable std::mutex trigger_mutex_;
   std::mutex config_mutex_;  // SetCameraSetting's writes to config_
+  // Commands (arm, disarm, start, stop, event, configure) one at a time: the control socket and
+  // the live view's server threads may send them at once.
+  std::recursive_mutex command_mutex_;
   std::uint64_t old_triggers_ = 0;
   std::deque<std::int64_t> recent_triggers_;
   std::int64_t TriggerGraceNs() const;

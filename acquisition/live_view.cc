@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstring>
 #include <random>
+#include <sstream>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -342,21 +343,16 @@ LiveViewServer::LiveViewServer(CaptureDaemon* daemon, const LiveViewOptions& opt
            if (line.rfind("shutdown", 0) == 0) {
              r.body = "shutdown is not offered to the browser; use flamerig ctl\n";
            } else if (line.rfind("apply ", 0) == 0) {
-             // Exposure or gain from the page: live when the camera can (even while recording:
-             // each frame records its values); otherwise re-armed around the change, never
-             // mid-recording.
-             const std::string configure = "configure " + line.substr(6);
-             r = HandleControlRequest(*daemon_, configure, nullptr);
-             if (!r.ok && daemon_->running()) {
-               if (daemon_->status().recording) {
-                 r.body += "(not re-armed while recording: the take would lose frames)\n";
-               } else {
-                 daemon_->Stop();
-                 r = HandleControlRequest(*daemon_, configure, nullptr);
-                 daemon_->Start();
-                 if (r.ok) r.body += "(re-armed)\n";
-               }
-             }
+             // Exposure or gain from the page: live when the camera can, else a re-arm as one
+             // command (never mid-recording).
+             std::istringstream words(line.substr(6));
+             std::string camera, key, value, extra;
+             words >> camera >> key >> value;
+             if (value.empty() || (words >> extra))
+               throw InputError("usage: apply CAMERA KEY VALUE");
+             r.ok = true;
+             r.body = "camera " + camera + ": " + key + " = " + value + " (" +
+                      daemon_->ApplyCameraSetting(camera, key, value) + ")\n";
            } else {
              r = HandleControlRequest(*daemon_, line, nullptr);
            }

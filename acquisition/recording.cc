@@ -379,13 +379,16 @@ Recorder::Recorder(const std::string& directory, const RecordingMetadata& metada
   // that fills while recording still gets a metadata.yaml with `closed: true` and the counters.
   reserve_path_ = (dir / kReserveFile).string();
   const int reserve = ::open(reserve_path_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
-  const int reserved = reserve < 0 ? errno : ::posix_fallocate(reserve, 0, kReserveBytes);
+  // Twice the metadata as it starts (the closing one adds counters), at least 256 KiB.
+  const off_t reserve_bytes = std::max<off_t>(
+      kReserveBytes, 2 * static_cast<off_t>(MetadataYaml(metadata_, false, {}).size()) + 65536);
+  const int reserved = reserve < 0 ? errno : ::posix_fallocate(reserve, 0, reserve_bytes);
   if (reserve >= 0) ::close(reserve);
   if (reserved != 0) {
     ::unlink(reserve_path_.c_str());
     if (!existed) fs::remove(dir, ec);
     throw RecordingError(
-        "recording: " + directory_ + ": cannot reserve " + std::to_string(kReserveBytes >> 10) +
+        "recording: " + directory_ + ": cannot reserve " + std::to_string(reserve_bytes >> 10) +
         " KiB for its closing metadata: " + Errno(reserved) + "; nothing was recorded");
   }
   WriteAtomically(dir, "metadata.yaml", MetadataYaml(metadata_, false, {}));
@@ -790,12 +793,14 @@ Recording Recording::Open(const std::string& directory) {
         const bool intact = RecordCrcOk(r) && RecordSane(r, c);
         const bool fits = RecordFits(r, data_sizes[c]);
         if (intact) copies[c].push_back(r);
-        if (intact && fits) {
+        if (intact && fits && (entries.empty() || r.set > entries.back().set)) {
           if (problem.empty() && torn.empty()) entries.push_back(r);
           continue;
         }
-        const std::string what = intact ? "its frame lies past the end of " + CameraDataFile(c)
-                                        : std::string("checksum mismatch");
+        const std::string what = !intact ? std::string("checksum mismatch")
+                                 : !fits
+                                     ? "its frame lies past the end of " + CameraDataFile(c)
+                                     : std::string("out of order (its set number does not rise)");
         if (e + 1 == count && problem.empty()) {
           torn = what;  // torn by an interrupted write: ignored
         } else if (problem.empty()) {
@@ -889,6 +894,10 @@ Recording Recording::Open(const std::string& directory) {
   std::uint64_t recorded = 0;
   if (const auto it = rec.final_counters_.find("sets_recorded"); it != rec.final_counters_.end())
     recorded = std::strtoull(it->second.c_str(), nullptr, 10);
+  if (!parsed.empty() && next_seq == 0) {  // the last set's number is the largest there is
+    recorded = 0;
+    next_seq = ~std::uint64_t(0);
+  }
   const bool rebuild_tail = !sets_problem.empty() || next_seq < recorded;
   if (!sets_problem.empty())
     report.notes.push_back("sets.index " + sets_problem + "; the sets rebuilt from their frames");
@@ -918,6 +927,10 @@ Recording Recording::Open(const std::string& directory) {
       parsed.push_back(std::move(p));
     }
   }
+  // The index's intact copies by set (a lost frame's reason says where it was).
+  std::vector<std::map<std::uint64_t, const FrameRecord*>> copy_by_set(n);
+  for (int c = 0; c < n; ++c)
+    for (const FrameRecord& r : copies[c]) copy_by_set[c].emplace(r.set, &r);
   // ---- Each set's frames, by the sequence number every frame record carries.
   std::uint64_t previous_index = 0;
   bool any = false;
@@ -936,11 +949,11 @@ Recording Recording::Open(const std::string& directory) {
       ++report.lost_frames;
       std::string why = have_data[c] ? CameraDataFile(c) + " holds no intact record of it"
                                      : CameraDataFile(c) + " is missing";
-      for (const FrameRecord& r : copies[c])
-        if (r.set == entry.seq && have_data[c] && !RecordFits(r, data_sizes[c]))
-          why = CameraDataFile(c) + " ends at byte " + std::to_string(data_sizes[c]) +
-                ", before this frame (bytes " + std::to_string(r.offset) + " to " +
-                std::to_string(RecordEnd(r)) + ")";
+      if (const auto it = copy_by_set[c].find(entry.seq);
+          it != copy_by_set[c].end() && have_data[c] && !RecordFits(*it->second, data_sizes[c]))
+        why = CameraDataFile(c) + " ends at byte " + std::to_string(data_sizes[c]) +
+              ", before this frame (bytes " + std::to_string(it->second->offset) + " to " +
+              std::to_string(RecordEnd(*it->second)) + ")";
       rec.lost_[{i, c}] = why;
     }
     if (p.rebuild) {
@@ -976,6 +989,7 @@ Recording Recording::Open(const std::string& directory) {
 }
 
 bool Recording::WholeSet(std::uint64_t seq) const {
+  if (seq == ~std::uint64_t(0)) return false;  // the numbering's end: nothing follows it
   bool any = false;
   for (const auto& frames : frames_) {
     if (frames.empty() || frames.back().set < seq) return false;  // not written that far
@@ -1093,8 +1107,9 @@ RecoveryReport RebuildIndexes(const std::string& directory) {
   RecoveryReport report = rec.recovery_;
   const int n = rec.num_cameras();
   // Sets the recorder never committed whose frames all reached the disk.
-  for (std::uint64_t seq = rec.sets_.empty() ? 0 : rec.sets_.back().seq + 1; rec.WholeSet(seq);
-       ++seq) {
+  const bool at_end = !rec.sets_.empty() && rec.sets_.back().seq == ~std::uint64_t(0);
+  for (std::uint64_t seq = rec.sets_.empty() ? 0 : rec.sets_.back().seq + 1;
+       !at_end && rec.WholeSet(seq); ++seq) {
     Recording::SetEntry entry;
     entry.seq = seq;
     entry.entries.resize(n);
@@ -1142,9 +1157,11 @@ RecoveryReport RebuildIndexes(const std::string& directory) {
   std::tm tm{};
   ::gmtime_r(&now, &tm);
   std::strftime(stamp, sizeof stamp, "%Y%m%dT%H%M%SZ", &tm);
-  const fs::path aside = dir / ("replaced_indexes_" + std::string(stamp));
+  fs::path aside = dir / ("replaced_indexes_" + std::string(stamp));
   try {
-    fs::create_directories(aside);
+    // A folder of its own, never one an earlier recover filled (twice in one second: _2, _3...).
+    for (int k = 2; !fs::create_directory(aside); ++k)
+      aside = dir / ("replaced_indexes_" + std::string(stamp) + "_" + std::to_string(k));
     std::vector<std::string> names = {"sets.index"};
     for (int c = 0; c < n; ++c) names.push_back(CameraIndexFile(c));
     for (const auto& name : names)
@@ -1153,6 +1170,18 @@ RecoveryReport RebuildIndexes(const std::string& directory) {
     for (int c = 0; c < n; ++c)
       WriteFileAtomically((dir / CameraIndexFile(c)).string(), index_bytes[c]);
     WriteFileAtomically((dir / "sets.index").string(), sets_bytes);
+    // The new indexes cannot mark a lost frame (its set reads as without that camera): they are
+    // listed here, as the damaged ones are in the notes.
+    if (!rec.lost_.empty()) {
+      std::string csv = "set,camera,reason\n";
+      for (const auto& [where, why] : rec.lost_)
+        csv += std::to_string(where.first) + "," + rec.metadata_.cameras[where.second].name +
+               ",\"" + why + "\"\n";
+      WriteFileAtomically((dir / "lost_frames.csv").string(), csv);
+      report.notes.push_back(std::to_string(rec.lost_.size()) +
+                             " lost frame(s) listed in lost_frames.csv; after this recover their "
+                             "sets read as without those cameras");
+    }
   } catch (const std::exception& e) {
     throw RecordingError("recording: " + directory + ": writing the rebuilt indexes: " + e.what());
   }

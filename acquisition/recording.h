@@ -274,10 +274,12 @@ class Recording {
 // recorder never committed whose frames are all on disk (a set is whole when every camera has its
 // frame, or has written a later one, so it missed this set), checks every frame's pixels against
 // their CRC, and writes the rebuilt camNN.index and sets.index in place. The data files and
-// metadata.yaml are never modified; the replaced index files are moved to
-// DIRECTORY/replaced_indexes_<UTC time>/ (nothing is deleted). The report counts what was found;
-// its notes list each damaged frame. Throws RecordingError when metadata.yaml cannot be read or
-// the new files cannot be written (the old ones then stay in place).
+// metadata.yaml are never modified; the replaced index files are copied first to a folder of
+// their own, DIRECTORY/replaced_indexes_<UTC time>[_N]/ (nothing is deleted). The new indexes
+// cannot mark a lost frame (its set then reads as without that camera): lost frames are listed in
+// DIRECTORY/lost_frames.csv. The report counts what was found; its notes list each damaged frame.
+// Throws RecordingError when metadata.yaml cannot be read or a new file cannot be written (each
+// file is replaced atomically, and the copies of the old ones are already in their folder).
 RecoveryReport RebuildIndexes(const std::string& directory);
 
 // File names inside a recording.

@@ -63,7 +63,12 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   for (const auto& c : meta.cameras) csv << "," << c.name << "_frame_id," << c.name << "_status";
   if (event) csv << ",event";
   csv << "\n";
-  bool event_marked = false;
+  // The first set after the trigger, over the whole take (an export may start past it).
+  std::int64_t first_live = -1;
+  for (std::size_t i = 0; event && i < rec.num_sets() && first_live < 0; ++i)
+    if (static_cast<std::int64_t>(rec.SetHeader(i).index) > meta.event_last_ring_set)
+      first_live = static_cast<std::int64_t>(i);
+  summary.event_set = first_live;
   const std::size_t first = std::min(options.first, rec.num_sets());
   const std::size_t end = first + std::min(options.count, rec.num_sets() - first);
   for (std::size_t i = first; i < end; ++i) {
@@ -94,9 +99,10 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
     }
     if (event) {
       const bool ring = static_cast<std::int64_t>(set.index) <= meta.event_last_ring_set;
-      csv << "," << (ring ? "pre-trigger" : event_marked ? "" : meta.event_name);
-      if (!ring && !event_marked) summary.event_set = static_cast<std::int64_t>(i);
-      event_marked = event_marked || !ring;
+      csv << ","
+          << (ring                                         ? "pre-trigger"
+              : static_cast<std::int64_t>(i) == first_live ? meta.event_name
+                                                           : std::string());
     }
     csv << "\n";
     ++summary.sets;

@@ -342,15 +342,15 @@ TEST(CaptureDaemon, MissedTriggersAreCountedAgainstTheSchedule) {
 // frame on). Other settings still need a disarm.
 TEST(CaptureDaemon, ExposureChangesWhileRecording) {
   TempDir dir;
-  const CaptureConfig config = CaptureConfig::Parse(
-      Config(dir.path, "software-trigger", 50, "", ""), "test");
+  const CaptureConfig config =
+      CaptureConfig::Parse(Config(dir.path, "software-trigger", 50, "", ""), "test");
   SystemClock clock;
   CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
   daemon.Start();
   const std::string take = daemon.StartRecording("take");
   Sleep(0.5);
+  daemon.SetCameraSetting("cam0", "gain_db", "6");  // first: a frame at 500 us has gain 6
   daemon.SetCameraSetting("cam0", "exposure_us", "500");
-  daemon.SetCameraSetting("cam0", "gain_db", "6");
   Sleep(0.5);
   EXPECT_THROW(daemon.SetCameraSetting("cam0", "width", "32"), InputError);
   EXPECT_TRUE(daemon.running());

@@ -114,7 +114,7 @@ TEST(LiveView, TheApiAnswersFromTheDaemonAndATokenGuardsIt) {
   EXPECT_TRUE(daemon.status().recording);
   auto size = client.Post("/api/control", token, "apply a width 32", "text/plain");
   EXPECT_EQ(size->status, 400) << size->body;
-  EXPECT_NE(size->body.find("not re-armed while recording"), std::string::npos) << size->body;
+  EXPECT_NE(size->body.find("not done while recording"), std::string::npos) << size->body;
   EXPECT_EQ(client.Post("/api/control", token, "stop", "text/plain")->status, 200);
   auto apply = client.Post("/api/control", token, "apply a width 32", "text/plain");
   EXPECT_EQ(apply->status, 200) << apply->body;

@@ -890,6 +890,7 @@ TEST(Cli, AFullDiskEndsTheTakeCleanlyAndTheExitStatusSaysSo) {
     EXPECT_TRUE(r.recovery().closed_cleanly) << log;
     ASSERT_TRUE(r.final_counters().count("sets_recorded")) << log;
     EXPECT_EQ(r.final_counters().at("sets_recorded"), std::to_string(r.num_sets()));
+    EXPECT_FALSE(r.recovery().damaged()) << log;  // every set from sets.index, none rebuilt
     EXPECT_GE(r.num_sets(), 1u);
     EXPECT_LE(r.num_sets(), 10u);  // 3 MiB hold 5 sets of two 300 KiB frames
     for (std::size_t s = 0; s < r.num_sets(); ++s) EXPECT_EQ(r.ReadSet(s).present(), 2) << s;

@@ -161,16 +161,28 @@ Runner AddCapture(CLI::App* command) {
     live.reset();
     server.reset();  // no control request may log (or act) from here on
     if (daemon.status().recording) {
-      const RecorderStatus last = daemon.StopRecording();
-      if (failed(last)) {
-        Log().error("capture: recording stopped: {}", last.error);
-        recording_failed = true;
+      try {
+        const RecorderStatus last = daemon.StopRecording();
+        if (failed(last)) {
+          Log().error("capture: recording stopped: {}", last.error);
+          recording_failed = true;
+        }
+      } catch (const InputError&) {  // stopped meanwhile by a control request
       }
     }
+    // A recording that a control request closed after it had failed counts too.
+    if (failed(daemon.status().recorder)) recording_failed = true;
     // Each camera's story, for the log (and the soak test, which reads the disconnects).
     bool silent = false;
     for (const auto& c : daemon.status().cameras) {
-      if (c.frames == 0) {
+      const bool optional = [&] {
+        for (const auto& cc : config.cameras)
+          if (cc.name == c.name) return !cc.required;
+        return false;
+      }();
+      if (c.frames == 0 && optional) {
+        Log().warn("capture: optional camera {} ({}) sent no frame", c.name, c.id);
+      } else if (c.frames == 0) {
         Log().error("capture: camera {} ({}) sent no frame at all{}", c.name, c.id,
                     config.sync == SyncMode::kHardwareTrigger ? " (no trigger pulses?)" : "");
         silent = true;
