@@ -230,6 +230,10 @@ ControlReply HandleControlRequest(CaptureDaemon& daemon, const std::string& line
       daemon.SetCameraSetting(w[1], w[2], w[3]);
       r.body = "camera " + w[1] + ": " + w[2] + " = " + w[3] +
                (daemon.running() ? " (live, from the next frame)\n" : " (applied when armed)\n");
+    } else if (cmd == "apply") {
+      arity(4);
+      r.body = "camera " + w[1] + ": " + w[2] + " = " + w[3] + " (" +
+               daemon.ApplyCameraSetting(w[1], w[2], w[3]) + ")\n";
     } else if (cmd == "shutdown") {
       arity(1);
       if (shutdown_requested) *shutdown_requested = true;
@@ -238,7 +242,7 @@ ControlReply HandleControlRequest(CaptureDaemon& daemon, const std::string& line
       throw InputError(
           "unknown request '" + cmd.substr(0, 32) +
           "': status [yaml|json|table], cameras, arm, disarm, configure CAMERA KEY VALUE, "
-          "start NAME, stop, event NAME, preview CAMERA [K], shutdown");
+          "apply CAMERA KEY VALUE, start NAME, stop, event NAME, preview CAMERA [K], shutdown");
     }
     r.ok = true;
   } catch (const std::exception& e) {

@@ -15,6 +15,8 @@
 //   configure CAM KEY VAL  set width, height, pixel_format, frame_rate_hz, exposure_us or gain_db
 //                          of a camera while disarmed (applied at the next arm); exposure_us and
 //                          gain_db also while armed, live (CaptureDaemon::SetCameraSetting)
+//   apply CAM KEY VAL      configure, live when it can, else disarm-configure-arm as one command
+//                          unless recording (CaptureDaemon::ApplyCameraSetting; the live view's)
 //   start NAME             start recording into data_dir/NAME; the body is the directory
 //   stop                   stop recording; the body is the recorder's final counters (YAML)
 //   event NAME             record the pre-trigger ring and go on recording into data_dir/NAME

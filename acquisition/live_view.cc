@@ -6,7 +6,6 @@
 #include <chrono>
 #include <cstring>
 #include <random>
-#include <sstream>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -342,17 +341,6 @@ LiveViewServer::LiveViewServer(CaptureDaemon* daemon, const LiveViewOptions& opt
            ControlReply r;
            if (line.rfind("shutdown", 0) == 0) {
              r.body = "shutdown is not offered to the browser; use flamerig ctl\n";
-           } else if (line.rfind("apply ", 0) == 0) {
-             // Exposure or gain from the page: live when the camera can, else a re-arm as one
-             // command (never mid-recording).
-             std::istringstream words(line.substr(6));
-             std::string camera, key, value, extra;
-             words >> camera >> key >> value;
-             if (value.empty() || (words >> extra))
-               throw InputError("usage: apply CAMERA KEY VALUE");
-             r.ok = true;
-             r.body = "camera " + camera + ": " + key + " = " + value + " (" +
-                      daemon_->ApplyCameraSetting(camera, key, value) + ")\n";
            } else {
              r = HandleControlRequest(*daemon_, line, nullptr);
            }

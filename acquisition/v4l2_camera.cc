@@ -159,11 +159,11 @@ void V4l2Camera::Configure(const CameraSettings& s) {
   if (fmt.fmt.pix.width != std::uint32_t(asked.width) ||
       fmt.fmt.pix.height != std::uint32_t(asked.height) ||
       fmt.fmt.pix.pixelformat != FourccOf(s.pixel_format)) {
-    throw InputError(
-        "v4l2 camera " + path_ + ": asked for " + std::to_string(asked.width) + "x" +
-        std::to_string(asked.height) + " " + FourccName(FourccOf(s.pixel_format)) +
-        ", the driver offers " + std::to_string(fmt.fmt.pix.width) + "x" +
-        std::to_string(fmt.fmt.pix.height) + " " + FourccName(fmt.fmt.pix.pixelformat));
+    throw InputError("v4l2 camera " + path_ + ": asked for " + std::to_string(asked.width) + "x" +
+                     std::to_string(asked.height) + " " + FourccName(FourccOf(s.pixel_format)) +
+                     ", the driver offers " + std::to_string(fmt.fmt.pix.width) + "x" +
+                     std::to_string(fmt.fmt.pix.height) + " " +
+                     FourccName(fmt.fmt.pix.pixelformat));
   }
   bytes_per_line_ = fmt.fmt.pix.bytesperline;
   v4l2_streamparm parm{};

@@ -188,10 +188,10 @@ DistributedRun RunDistributed(const RunOptions& options, const DistributedOption
   // frames and state. Rank 0 prepares the rig (it may calibrate) while the others wait.
   std::optional<FolderLock> lock;
   if (ranks.rank() == 0) {
-    lock.emplace(options.out_dir, "flamerig run" + (ranks.size() > 1
-                                                        ? " (" + std::to_string(ranks.size()) +
-                                                              " MPI ranks)"
-                                                        : std::string()));
+    lock.emplace(
+        options.out_dir,
+        "flamerig run" + (ranks.size() > 1 ? " (" + std::to_string(ranks.size()) + " MPI ranks)"
+                                           : std::string()));
     out.rig_path = PrepareRig(options, progress);
   }
   ranks.Barrier();

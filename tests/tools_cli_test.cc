@@ -27,32 +27,16 @@
 #include "core/image.h"
 #include "core/srgb.h"
 #include "pipeline/run.h"
+#include "tests/shell_util.h"
 #include "tomography/vdb_io.h"
 
 namespace {
 
 namespace fs = std::filesystem;
 
-struct Result {
-  int status;
-  std::string output;
-};
-
-// Runs a shell command line; its status and what it printed (stderr too).
-Result ShellLine(const std::string& line) {
-  std::array<char, 4096> buffer;
-  Result r{-1, ""};
-  FILE* pipe = popen((line + " 2>&1").c_str(), "r");
-  if (!pipe) return r;
-  while (fgets(buffer.data(), buffer.size(), pipe)) r.output += buffer.data();
-  const int status = pclose(pipe);
-  r.status = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
-}
-
-Result Flamerig(const std::string& args) {
-  return ShellLine(std::string(FLAMERIG_BINARY) + " " + args);
-}
+using flamerig_test::Flamerig;
+using flamerig_test::Result;
+using flamerig_test::Shell;
 
 fs::path TempDir() {
   fs::path dir =
@@ -852,7 +836,7 @@ TEST(Cli, AnOptionalCameraJoinsWhenItAppears) {
 // room reserved for it), no temporary file is left and every recorded set reads. Below min_free_mb
 // a recording is refused before anything is created.
 TEST(Cli, AFullDiskEndsTheTakeCleanlyAndTheExitStatusSaysSo) {
-  if (ShellLine("unshare -m true").status != 0)
+  if (Shell("unshare -m true").status != 0)
     GTEST_SKIP() << "no private mount namespace here (needs root)";
   const fs::path dir = TempDir();
   const fs::path disk = dir / "disk";
@@ -873,7 +857,7 @@ TEST(Cli, AFullDiskEndsTheTakeCleanlyAndTheExitStatusSaysSo) {
         " 2>&1; echo $? > " + (dir / "status.txt").string() + "; ls -a " + disk.string() +
         "/take > " + (dir / "files.txt").string() + " 2>&1; cp -r " + disk.string() + "/take " +
         (dir / "copy").string() + " 2>/dev/null; true";
-    EXPECT_EQ(ShellLine("unshare -m sh -c '" + script + "'").status, 0);
+    EXPECT_EQ(Shell("unshare -m sh -c '" + script + "'").status, 0);
     auto read = [&](const char* name) {
       std::ifstream in(dir / name);
       return std::string((std::istreambuf_iterator<char>(in)), {});

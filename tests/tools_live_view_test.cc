@@ -13,26 +13,14 @@
 #include <string>
 
 #include "core/image.h"
+#include "tests/shell_util.h"
 
 namespace {
 
 namespace fs = std::filesystem;
 
-struct Result {
-  int status;
-  std::string output;
-};
-
-Result Shell(const std::string& command) {
-  std::array<char, 4096> buffer;
-  Result r{-1, ""};
-  FILE* pipe = popen((command + " 2>&1").c_str(), "r");
-  if (!pipe) return r;
-  while (fgets(buffer.data(), buffer.size(), pipe)) r.output += buffer.data();
-  const int status = pclose(pipe);
-  r.status = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
-}
+using flamerig_test::Result;
+using flamerig_test::Shell;
 
 // Chromium, headless, with its own profile; `what` is --dump-dom or --screenshot=FILE.
 Result Chromium(const std::string& what, const std::string& url, const fs::path& profile) {

@@ -18,28 +18,15 @@
 #include <string>
 
 #include "core/image.h"
+#include "tests/shell_util.h"
 
 namespace {
 
 namespace fs = std::filesystem;
 
-struct Result {
-  int status;
-  std::string output;
-};
-
-Result Run(const std::string& command) {
-  std::array<char, 4096> buffer;
-  Result r{-1, ""};
-  FILE* pipe = popen((command + " 2>&1").c_str(), "r");
-  if (!pipe) return r;
-  while (fgets(buffer.data(), buffer.size(), pipe)) r.output += buffer.data();
-  const int status = pclose(pipe);
-  r.status = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
-}
-
-Result Flamerig(const std::string& args) { return Run(std::string(FLAMERIG_BINARY) + " " + args); }
+using flamerig_test::Flamerig;
+using flamerig_test::Result;
+using flamerig_test::Shell;
 
 // What a screenshot shows: the share of pixels that are not page white, that look like fire
 // (orange), that are dark (black camera backgrounds, the slices' grey; text too), and that have
@@ -87,7 +74,7 @@ flamerig::ImageU8 Screenshot(const fs::path& page, const std::string& name) {
   fs::remove(shot);
   const fs::path profile = fs::temp_directory_path() / ("flamerig_chromium_" + name);
   fs::remove_all(profile);
-  const Result r = Run(
+  const Result r = Shell(
       "timeout 180 chromium --headless --no-sandbox --disable-gpu --disable-quic --no-first-run "
       "--disable-background-networking --disable-component-update --disable-sync "
       "--hide-scrollbars --window-size=1280,2400 --user-data-dir=" +

@@ -14,29 +14,17 @@
 #include <thread>
 
 #include "core/image.h"
-#include "tests/run_test_util.h"
 #include "pipeline/distributed.h"
+#include "tests/run_test_util.h"
+#include "tests/shell_util.h"
 
 namespace flamerig {
 namespace {
 
 using namespace testing_run;
 
-struct Result {
-  int status = -1;
-  std::string output;
-};
-
-Result Shell(const std::string& command) {
-  Result r;
-  FILE* pipe = popen((command + " 2>&1").c_str(), "r");
-  if (!pipe) return r;
-  std::array<char, 4096> buffer;
-  while (fgets(buffer.data(), buffer.size(), pipe)) r.output += buffer.data();
-  const int status = pclose(pipe);
-  r.status = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
-}
+using flamerig_test::Result;
+using flamerig_test::Shell;
 
 std::string RunCommand(const fs::path& sim, const fs::path& out, const std::string& extra = "") {
   return std::string(FLAMERIG_BINARY) + " run --images " + (sim / "frames").string() + " --rig " +
