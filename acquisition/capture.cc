@@ -725,7 +725,7 @@ void CaptureDaemon::Stop() {
   assembler_.Flush(&ready);
   Deliver(&ready);
   if (recorder_) {
-    last_recorder_status_ = recorder_->Close(RecordingCounters(missed_at_recording_start_));
+    last_recorder_status_ = recorder_->Close(RecordingCounters(totals_at_recording_start_));
     recorder_.reset();
     LogClosed(recording_dir_, last_recorder_status_);
   }
@@ -956,16 +956,31 @@ void CaptureDaemon::Deliver(std::vector<FrameSet>* ready) {
   ready->clear();
 }
 
+CaptureDaemon::TriggerTotals CaptureDaemon::CountTotals() const {
+  TriggerTotals t;
+  {
+    std::lock_guard<std::mutex> lock(trigger_mutex_);
+    t.triggers = old_triggers_ + recent_triggers_.size();
+  }
+  for (const auto& st : camera_state_) {
+    std::lock_guard<std::mutex> lock(st->mutex);
+    t.frames.push_back(st->old_frames + st->recent_frames.size());
+  }
+  return t;
+}
+
 std::map<std::string, std::string> CaptureDaemon::RecordingCounters(
-    const std::vector<std::uint64_t>& baseline) const {
+    const TriggerTotals& at_start) const {
   std::map<std::string, std::string> out;
-  const std::vector<std::uint64_t> now = MissedTriggers(clock_->MonotonicNs());
-  for (std::size_t c = 0; c < now.size(); ++c) {
-    const std::uint64_t before = c < baseline.size() ? baseline[c] : 0;
-    if (config_.sync == SyncMode::kSoftwareTrigger || config_.sync == SyncMode::kHardwareTrigger ||
-        action_sender_)
-      out["missed_triggers_" + config_.cameras[c].name] =
-          std::to_string(now[c] > before ? now[c] - before : 0);
+  if (config_.sync != SyncMode::kSoftwareTrigger && config_.sync != SyncMode::kHardwareTrigger &&
+      !action_sender_)
+    return out;
+  const TriggerTotals now = CountTotals();
+  const std::uint64_t sent = now.triggers - std::min(now.triggers, at_start.triggers);
+  for (std::size_t c = 0; c < now.frames.size(); ++c) {
+    const std::uint64_t before = c < at_start.frames.size() ? at_start.frames[c] : 0;
+    const std::uint64_t got = now.frames[c] - std::min(now.frames[c], before);
+    out["missed_triggers_" + config_.cameras[c].name] = std::to_string(sent > got ? sent - got : 0);
   }
   return out;
 }
@@ -1025,7 +1040,7 @@ std::string CaptureDaemon::BeginRecording(const std::string& name, bool with_rin
       metadata.event_last_ring_set = static_cast<std::int64_t>(ring_.back().index);
   }
   recorder_ = std::make_unique<Recorder>(dir, metadata, config_.recorder);
-  missed_at_recording_start_ = MissedTriggers(clock_->MonotonicNs());
+  totals_at_recording_start_ = CountTotals();
   recording_dir_ = dir;
   recording_started_ns_ = clock_->MonotonicNs();
   // The ring is bounded by pretrigger_max_bytes and the queue was sized to hold it.
@@ -1042,12 +1057,12 @@ std::string CaptureDaemon::BeginRecording(const std::string& name, bool with_rin
 RecorderStatus CaptureDaemon::StopRecording() {
   std::lock_guard<std::recursive_mutex> command(command_mutex_);
   std::unique_ptr<Recorder> r;
-  std::vector<std::uint64_t> baseline;
+  TriggerTotals baseline;
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
     if (!recorder_) throw InputError("capture: not recording");
     r = std::move(recorder_);
-    baseline = missed_at_recording_start_;
+    baseline = totals_at_recording_start_;
   }
   const RecorderStatus st = r->Close(RecordingCounters(baseline));  // capture goes on meanwhile
   std::lock_guard<std::mutex> lock(state_mutex_);

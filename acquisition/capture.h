@@ -232,9 +232,17 @@ class CaptureDaemon {
   void AssemblerLoop();
   void Deliver(std::vector<FrameSet>* ready);  // holds state_mutex_
   RecordingMetadata Metadata() const;
-  // Written into a closing recording's metadata: each camera's missed triggers while it recorded.
-  std::map<std::string, std::string> RecordingCounters(
-      const std::vector<std::uint64_t>& baseline) const;
+  // Triggers sent and each camera's frames received since the arm, exact running totals.
+  struct TriggerTotals {
+    std::uint64_t triggers = 0;
+    std::vector<std::uint64_t> frames;  // per camera
+  };
+  TriggerTotals CountTotals() const;
+  // Written into a closing recording's metadata: each camera's missed triggers while it recorded,
+  // the triggers sent minus the frames received between the start and now. Frames on their way
+  // at the start (answering earlier triggers) and at the stop (not counted) cancel, so the count
+  // is off by at most the frames in flight at one moment, with no lag.
+  std::map<std::string, std::string> RecordingCounters(const TriggerTotals& at_start) const;
   std::string BeginRecording(const std::string& name, bool with_ring);
   std::string RecordingPath(const std::string& name) const;
 
@@ -261,7 +269,7 @@ class CaptureDaemon {
   std::deque<std::int64_t> recent_triggers_;
   std::int64_t TriggerGraceNs() const;
   std::vector<std::uint64_t> MissedTriggers(std::int64_t now) const;  // per camera
-  std::vector<std::uint64_t> missed_at_recording_start_;              // guarded by state_mutex_
+  TriggerTotals totals_at_recording_start_;                           // guarded by state_mutex_
 
   // camera threads -> assembler
   mutable std::mutex incoming_mutex_;

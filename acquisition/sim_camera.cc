@@ -347,11 +347,16 @@ void SimCamera::Produce(std::int64_t until_ns) {
     const std::int64_t start = jittered(p.monotonic_ns + options_.trigger_latency_ns);
     // A trigger that comes before the sensor is ready (faster than the maximum rate) is ignored,
     // as real cameras do.
-    if (produced_ > 0 && start - last_exposure_ns_ < min_gap) continue;
+    if (produced_ > 0 && start - last_exposure_ns_ < min_gap) {
+      ++triggers_ignored_;
+      continue;
+    }
     // A trigger lost on its way (a loose trigger cable, a dropped software trigger command).
     if (options_.miss_trigger_probability > 0 &&
-        std::uniform_real_distribution<double>(0, 1)(rng_) < options_.miss_trigger_probability)
+        std::uniform_real_distribution<double>(0, 1)(rng_) < options_.miss_trigger_probability) {
+      ++triggers_ignored_;
       continue;
+    }
     last_exposure_ns_ = start;
     AddExposure(start, p.trigger_id);
   }

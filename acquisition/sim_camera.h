@@ -111,6 +111,10 @@ class SimCamera : public Camera {
   void SoftwareTrigger(std::int64_t trigger_id) override;
   bool connected() const override;
   StreamCounters counters() const override { return counters_; }
+  // Ground truth for tests: triggers this camera took no exposure for (lost on the way, or before
+  // the sensor was ready), since it was made. Counted when the camera looks at its triggers (in
+  // Pop), so it lags a pulse by at most one Pop timeout.
+  std::uint64_t triggers_ignored() const { return triggers_ignored_; }
 
  private:
   struct Pending {
@@ -132,6 +136,7 @@ class SimCamera : public Camera {
   std::mt19937_64 rng_;
   std::int64_t started_ns_ = 0;
   std::uint64_t produced_ = 0;  // exposures so far
+  std::atomic<std::uint64_t> triggers_ignored_{0};
   std::size_t bus_position_ = 0;
   std::uint64_t device_counter_ = 0;
   std::int64_t last_exposure_ns_ = 0;

@@ -15,6 +15,7 @@
 #include "acquisition/camera_drivers.h"
 #include "acquisition/capture.h"
 #include "acquisition/control.h"
+#include "acquisition/sim_camera.h"
 #include "core/error.h"
 #include "core/image.h"
 
@@ -313,27 +314,50 @@ TEST(CaptureDaemon, MissedTriggersAreCountedAgainstTheSchedule) {
       Config(dir.path, "software-trigger", 50, "    sim: {miss_trigger_probability: 0.2}\n"),
       "test");
   SystemClock clock;
-  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
+  std::vector<std::unique_ptr<Camera>> cameras = MakeCameras(config, {&clock, nullptr});
+  // The oracle: the triggers each simulated camera itself chose to ignore (cam2 loses 20% on the
+  // way; all three ignore a trigger that comes too early, after a late trigger thread).
+  std::vector<const SimCamera*> sims;
+  for (const auto& c : cameras) sims.push_back(dynamic_cast<const SimCamera*>(c.get()));
+  ASSERT_TRUE(sims[0] && sims[1] && sims[2]);
+  const auto Ignored = [&] {
+    std::vector<double> n;
+    for (const SimCamera* s : sims) n.push_back(double(s->triggers_ignored()));
+    return n;
+  };
+  CaptureDaemon daemon(config, std::move(cameras), &clock, nullptr);
   daemon.Start();
+  Sleep(0.3);
+  const std::vector<double> at_start = Ignored();
   const std::string take = daemon.StartRecording("take");
   Sleep(2.5);
-  const CaptureStatus live = daemon.status();
   daemon.StopRecording();
+  const std::vector<double> at_stop = Ignored();
+  // The live count leaves out the triggers of the last grace time (300 ms here): wait it out.
+  Sleep(0.5);
+  const CaptureStatus live = daemon.status();
+  const std::vector<double> at_status = Ignored();
   daemon.Stop();
   ASSERT_EQ(live.cameras.size(), 3u);
-  EXPECT_LE(live.cameras[0].missed_triggers, 2u);
-  EXPECT_LE(live.cameras[1].missed_triggers, 2u);
+  EXPECT_GE(at_stop[2] - at_start[2], 10);              // about 0.2 x 125 triggers
   EXPECT_EQ(live.cameras[2].stream.missing_by_id, 0u);  // the frame ids say nothing
-  const double oracle = double(live.sets.missing_per_camera.at(2));
-  EXPECT_GE(oracle, 10);  // about 0.2 x 125 triggers
-  EXPECT_NEAR(double(live.cameras[2].missed_triggers), oracle, 5) << live.ToTable();
-  // In the recording: its own count, against the sets recorded without camera 2.
+  // The live count: at least every trigger ignored up to 500 ms ago (its cut-off is 300 ms ago),
+  // less the frames of up to 4 later triggers (received within the latency allowance, 10 ms
+  // exposure + 50 ms); at most those ignored until now, plus 2 frames a loaded machine may hold up
+  // for more than 50 ms.
+  for (std::size_t c = 0; c < 3; ++c) {
+    const double counted = double(live.cameras[c].missed_triggers);
+    EXPECT_GE(counted, at_stop[c] - 4) << c << "\n" << live.ToTable();
+    EXPECT_LE(counted, at_status[c] + 2) << c << "\n" << live.ToTable();
+  }
+  // In the recording: the take's own count, triggers sent minus frames received while it
+  // recorded, off only by a frame in flight at its start or stop.
   const Recording r = Recording::Open(take);
-  std::size_t without = 0;
-  for (std::size_t i = 0; i < r.num_sets(); ++i) without += !r.HasFrame(i, 2);
-  ASSERT_TRUE(r.final_counters().count("missed_triggers_cam2"));
-  EXPECT_NEAR(std::stod(r.final_counters().at("missed_triggers_cam2")), double(without), 5);
-  EXPECT_EQ(r.final_counters().at("missed_triggers_cam0"), "0");
+  for (std::size_t c = 0; c < 3; ++c) {
+    const std::string key = "missed_triggers_cam" + std::to_string(c);
+    ASSERT_TRUE(r.final_counters().count(key)) << key;
+    EXPECT_NEAR(std::stod(r.final_counters().at(key)), at_stop[c] - at_start[c], 1) << key;
+  }
   EXPECT_EQ(r.metadata().trigger_rate_hz, 50);
 }
 
