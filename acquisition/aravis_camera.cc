@@ -273,8 +273,15 @@ void AravisCamera::Configure(const CameraSettings& s) {
   if (s.ptp) CheckPtp();  // first: a camera that cannot take part is refused before any change
   ArvCamera* cam = impl_->camera;
   GError* e = nullptr;
-  arv_camera_set_pixel_format(cam, ToArv(s.pixel_format), &e);
-  Check(e, impl_->id, std::string("PixelFormat ") + ToString(s.pixel_format));
+  // A wire format (Mono12p, ...) by its GenICam name: the camera must list it.
+  const WireFormat* wire = s.wire_format.empty() ? nullptr : WireFormatFromName(s.wire_format);
+  const ArvPixelFormat wanted =
+      wire ? static_cast<ArvPixelFormat>(wire->pfnc) : ToArv(s.pixel_format);
+  if (wire)
+    arv_camera_set_pixel_format_from_string(cam, wire->name, &e);
+  else
+    arv_camera_set_pixel_format(cam, wanted, &e);
+  Check(e, impl_->id, "PixelFormat " + s.pixel_format_name());
   // The region: width/height 0 take the whole sensor less the offset. The offsets go to 0 first
   // so that a larger width fits, then the size, then the offsets.
   CameraSettings taken = s;
@@ -327,8 +334,8 @@ void AravisCamera::Configure(const CameraSettings& s) {
   }
   const ArvPixelFormat applied = arv_camera_get_pixel_format(cam, &e);
   Check(e, impl_->id, "reading PixelFormat");
-  if (applied != ToArv(s.pixel_format)) {
-    throw InputError("aravis camera '" + impl_->id + "': PixelFormat " + ToString(s.pixel_format) +
+  if (applied != wanted) {
+    throw InputError("aravis camera '" + impl_->id + "': PixelFormat " + s.pixel_format_name() +
                      " refused");
   }
   // Exposure: SFNC ExposureTime, or ExposureTimeAbs on older GigE Vision cameras (and the fake).
@@ -499,22 +506,36 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
   f.info.width = settings_.width;
   f.info.height = settings_.height;
   f.info.pixel_format = settings_.pixel_format;
+  const WireFormat* wire =
+      settings_.wire_format.empty() ? nullptr : WireFormatFromName(settings_.wire_format);
   if (arv_buffer_get_payload_type(buffer) == ARV_BUFFER_PAYLOAD_TYPE_IMAGE) {
+    wire = nullptr;  // the buffer says which
     f.info.width = arv_buffer_get_image_width(buffer);
     f.info.height = arv_buffer_get_image_height(buffer);
     PixelFormat p;
-    if (FromArv(arv_buffer_get_image_pixel_format(buffer), &p))
+    if (const WireFormat* w = WireFormatFromCode(arv_buffer_get_image_pixel_format(buffer)))
+      wire = w;
+    else if (FromArv(arv_buffer_get_image_pixel_format(buffer), &p))
       f.info.pixel_format = p;
     else
       f.info.status = FrameStatus::kError;
   }
   // The bytes of the image (the in-process fakes report a size of 0 though the bytes are there).
+  // A wire format is unpacked into Mono16 here, before the frame is queued.
+  if (wire) f.info.pixel_format = PixelFormat::kMono16;
   size_t size = 0;
   const auto* data = static_cast<const std::uint8_t*>(arv_buffer_get_data(buffer, &size));
   const std::size_t image_bytes =
-      std::size_t(f.info.width) * f.info.height * BytesPerPixel(f.info.pixel_format);
+      wire ? WireBytes(*wire, f.info.width, f.info.height)
+           : std::size_t(f.info.width) * f.info.height * BytesPerPixel(f.info.pixel_format);
   if (data && image_bytes <= impl_->payload && (size == 0 || size >= image_bytes)) {
-    f.data = std::make_shared<const std::vector<std::uint8_t>>(data, data + image_bytes);
+    f.data = wire ? std::make_shared<const std::vector<std::uint8_t>>(
+                        UnpackToMono16(*wire, data, image_bytes, f.info.width, f.info.height))
+                  : std::make_shared<const std::vector<std::uint8_t>>(data, data + image_bytes);
+  } else if (wire) {
+    f.data = std::make_shared<const std::vector<std::uint8_t>>(
+        std::size_t(f.info.width) * f.info.height * 2, 0);
+    if (f.info.status == FrameStatus::kOk) f.info.status = FrameStatus::kIncomplete;
   } else {
     f.data = std::make_shared<const std::vector<std::uint8_t>>(image_bytes, 0);
     if (f.info.status == FrameStatus::kOk) f.info.status = FrameStatus::kIncomplete;

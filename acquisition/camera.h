@@ -38,7 +38,10 @@ struct CameraSettings {
   // (sim). Configure() turns 0 into the size the camera took; settings() reports that.
   int width = 640, height = 480;
   int offset_x = 0, offset_y = 0;  // the region of interest's corner on the sensor
-  PixelFormat pixel_format = PixelFormat::kMono8;
+  PixelFormat pixel_format = PixelFormat::kMono8;  // as stored
+  // The camera's own format when it sends one of the WireFormats (frame.h): then pixel_format is
+  // Mono16 and the driver unpacks every frame. "" = it sends pixel_format. Aravis only.
+  std::string wire_format;
   double frame_rate_hz = 30;  // free-run rate; the maximum rate when triggered
   double exposure_us = 10000;
   double gain_db = 0;
@@ -56,6 +59,10 @@ struct CameraSettings {
   // (aravis; `features: {Name: value}` in a capture config). Other drivers refuse them.
   std::vector<std::pair<std::string, std::string>> features;
   void Validate() const;  // throws InputError naming the field
+  // A `pixel_format` from a config: a stored format, or a wire format (stored as Mono16). Throws
+  // InputError listing both.
+  void SetPixelFormat(const std::string& name);
+  std::string pixel_format_name() const;  // the wire format if any, else the stored one
 };
 
 struct StreamCounters {

@@ -184,7 +184,7 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
       }
     }
     try {
-      s.pixel_format = PixelFormatFromName(cr.Get<std::string>("pixel_format", "Mono8"));
+      s.SetPixelFormat(cr.Get<std::string>("pixel_format", "Mono8"));
     } catch (const InputError& e) {
       throw InputError(at + ": " + e.what());
     }
@@ -1155,7 +1155,7 @@ void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::strin
     else if (key == "height")
       s.height = size();
     else if (key == "pixel_format")
-      s.pixel_format = PixelFormatFromName(value);
+      s.SetPixelFormat(value);
     else if (key == "frame_rate_hz")
       s.frame_rate_hz = std::clamp(number(), 0.0, 2e6);  // Validate() below names the range
     else if (key == "exposure_us")

@@ -45,7 +45,7 @@ std::string CamerasYaml(const CaptureDaemon& daemon) {
     out << YAML::Key << "id" << YAML::Value << cc.id;
     out << YAML::Key << "width" << YAML::Value << cc.settings.width;
     out << YAML::Key << "height" << YAML::Value << cc.settings.height;
-    out << YAML::Key << "pixel_format" << YAML::Value << ToString(cc.settings.pixel_format);
+    out << YAML::Key << "pixel_format" << YAML::Value << cc.settings.pixel_format_name();
     out << YAML::Key << "trigger" << YAML::Value << ToString(cc.settings.trigger);
     out << YAML::Key << "exposure_us" << YAML::Value << cc.settings.exposure_us;
     out << YAML::Key << "gain_db" << YAML::Value << cc.settings.gain_db;

@@ -53,6 +53,86 @@ int BytesPerPixel(PixelFormat format) {
   }
 }
 
+namespace {
+constexpr WireFormat kWireFormats[] = {
+    {"Mono10", 0x01100003u, 10, WirePacking::kWords16},
+    {"Mono12", 0x01100005u, 12, WirePacking::kWords16},
+    {"Mono14", 0x01100025u, 14, WirePacking::kWords16},
+    {"Mono10Packed", 0x010C0004u, 10, WirePacking::kGigEPacked},
+    {"Mono12Packed", 0x010C0006u, 12, WirePacking::kGigEPacked},
+    {"Mono10p", 0x010A0046u, 10, WirePacking::kLsbBitStream},
+    {"Mono12p", 0x010C0047u, 12, WirePacking::kLsbBitStream},
+};
+}  // namespace
+
+const WireFormat* WireFormatFromName(const std::string& name) {
+  for (const WireFormat& f : kWireFormats)
+    if (name == f.name) return &f;
+  return nullptr;
+}
+
+const WireFormat* WireFormatFromCode(std::uint32_t pfnc) {
+  for (const WireFormat& f : kWireFormats)
+    if (pfnc == f.pfnc) return &f;
+  return nullptr;
+}
+
+std::size_t WireBytes(const WireFormat& format, int width, int height) {
+  const std::size_t n = std::size_t(std::max(width, 0)) * std::size_t(std::max(height, 0));
+  switch (format.packing) {
+    case WirePacking::kWords16:
+      return 2 * n;
+    case WirePacking::kGigEPacked:
+      return 3 * ((n + 1) / 2);
+    case WirePacking::kLsbBitStream:
+      return (n * std::size_t(format.bits) + 7) / 8;
+  }
+  return 0;
+}
+
+std::vector<std::uint8_t> UnpackToMono16(const WireFormat& format, const std::uint8_t* data,
+                                         std::size_t bytes, int width, int height) {
+  const std::size_t need = WireBytes(format, width, height);
+  if (bytes != need || (need > 0 && !data)) {
+    throw DataError(std::string(format.name) + " frame " + std::to_string(width) + "x" +
+                    std::to_string(height) + ": " + std::to_string(bytes) + " bytes, expected " +
+                    std::to_string(need));
+  }
+  const std::size_t n = std::size_t(width) * std::size_t(height);
+  const int shift = 16 - format.bits;
+  const std::uint32_t mask = (1u << format.bits) - 1;
+  std::vector<std::uint8_t> out(2 * n);
+  auto put = [&](std::size_t k, std::uint32_t v) {
+    v = (v & mask) << shift;
+    out[2 * k] = static_cast<std::uint8_t>(v);
+    out[2 * k + 1] = static_cast<std::uint8_t>(v >> 8);
+  };
+  switch (format.packing) {
+    case WirePacking::kWords16:
+      for (std::size_t k = 0; k < n; ++k) put(k, data[2 * k] | std::uint32_t(data[2 * k + 1]) << 8);
+      break;
+    case WirePacking::kGigEPacked: {
+      const int low = format.bits - 8;  // low bits of each pixel in the middle byte
+      for (std::size_t k = 0; k < n; ++k) {
+        const std::uint8_t* t = data + 3 * (k / 2);
+        const std::uint32_t lows = (k % 2 == 0) ? t[1] : t[1] >> 4;
+        put(k, std::uint32_t(t[k % 2 == 0 ? 0 : 2]) << low | (lows & ((1u << low) - 1)));
+      }
+      break;
+    }
+    case WirePacking::kLsbBitStream:
+      for (std::size_t k = 0; k < n; ++k) {
+        const std::size_t bit = k * std::size_t(format.bits);
+        std::uint32_t window = 0;  // up to 3 bytes hold any 10- or 12-bit pixel
+        for (std::size_t b = 0; b < 3 && bit / 8 + b < bytes; ++b)
+          window |= std::uint32_t(data[bit / 8 + b]) << (8 * b);
+        put(k, window >> (bit % 8));
+      }
+      break;
+  }
+  return out;
+}
+
 const char* ToString(FrameStatus status) {
   switch (status) {
     case FrameStatus::kOk:

@@ -22,6 +22,34 @@ const char* ToString(PixelFormat format);
 PixelFormat PixelFormatFromName(const std::string& name);  // "Mono8", ...; throws
 int BytesPerPixel(PixelFormat format);
 
+// A camera's pixel format on the wire when it is not one flamerig stores: mono at 10, 12 or 14 bits,
+// in 16-bit words (Mono10, Mono12, Mono14: little-endian, the value in the low bits) or packed
+// (Mono10Packed and Mono12Packed, GigE Vision's 2 pixels in 3 bytes; Mono10p and Mono12p, PFNC's
+// LSB-first bit stream). Frames are unpacked as they arrive into Mono16 with the value in the high
+// bits (v << (16 - bits)): black stays 0, the scale stays linear, and a value never clips. The
+// recording's camera settings keep the wire format's name (`wire_format`).
+enum class WirePacking {
+  kWords16,      // one little-endian 16-bit word per pixel, the value in its low bits
+  kGigEPacked,   // 2 pixels in 3 bytes: byte 0 and 2 hold the high 8 bits of pixel 0 and 1; byte
+                 // 1 holds the low bits of pixel 0 from bit 0 and of pixel 1 from bit 4
+  kLsbBitStream  // pixel k is bits [k * bits, (k + 1) * bits) of the frame, least significant first
+};
+struct WireFormat {
+  const char* name;    // GenICam PixelFormat name, e.g. "Mono12p"
+  std::uint32_t pfnc;  // its PFNC / GigE Vision code
+  int bits;            // significant bits per pixel
+  WirePacking packing;
+};
+// The wire formats above by name; nullptr for any other name (including the stored formats).
+const WireFormat* WireFormatFromName(const std::string& name);
+const WireFormat* WireFormatFromCode(std::uint32_t pfnc);
+// Bytes of one width x height frame in `format` (whole frames; no line padding).
+std::size_t WireBytes(const WireFormat& format, int width, int height);
+// Unpacks one frame of `bytes` bytes into width * height Mono16 pixels (little-endian). Throws
+// DataError when `bytes` is not WireBytes.
+std::vector<std::uint8_t> UnpackToMono16(const WireFormat& format, const std::uint8_t* data,
+                                         std::size_t bytes, int width, int height);
+
 enum class FrameStatus {
   kOk,
   kIncomplete,  // packets or lines missing: the bytes are there but some are not the camera's

@@ -94,6 +94,7 @@ YAML::Node SettingsNode(const CameraSettings& s) {
   n["width"] = s.width;
   n["height"] = s.height;
   n["pixel_format"] = ToString(s.pixel_format);
+  if (!s.wire_format.empty()) n["wire_format"] = s.wire_format;  // what the camera sent
   n["frame_rate_hz"] = s.frame_rate_hz;
   n["exposure_us"] = s.exposure_us;
   n["gain_db"] = s.gain_db;
@@ -111,6 +112,7 @@ CameraSettings SettingsFrom(const YAML::Node& n) {
   s.width = n["width"].as<int>();
   s.height = n["height"].as<int>();
   s.pixel_format = PixelFormatFromName(n["pixel_format"].as<std::string>());
+  if (n["wire_format"]) s.wire_format = n["wire_format"].as<std::string>();
   s.frame_rate_hz = n["frame_rate_hz"].as<double>();
   s.exposure_us = n["exposure_us"].as<double>();
   s.gain_db = n["gain_db"].as<double>();

@@ -52,6 +52,29 @@ void CameraSettings::Validate() const {
          " us)");
   if (!std::isfinite(gain_db)) fail("gain_db must be finite");
   if (packet_size < 0) fail("packet_size must be >= 0");
+  if (!wire_format.empty() &&
+      (!WireFormatFromName(wire_format) || pixel_format != PixelFormat::kMono16))
+    fail("wire format '" + wire_format + "' is not one unpacked into Mono16");
+}
+
+void CameraSettings::SetPixelFormat(const std::string& name) {
+  if (const WireFormat* w = WireFormatFromName(name)) {
+    pixel_format = PixelFormat::kMono16;
+    wire_format = w->name;
+    return;
+  }
+  try {
+    pixel_format = PixelFormatFromName(name);
+    wire_format.clear();
+  } catch (const InputError& e) {
+    throw InputError(std::string(e.what()) +
+                     "; or, from an aravis camera, Mono10, Mono12, Mono14, Mono10Packed, "
+                     "Mono12Packed, Mono10p or Mono12p (unpacked into Mono16)");
+  }
+}
+
+std::string CameraSettings::pixel_format_name() const {
+  return wire_format.empty() ? ToString(pixel_format) : wire_format;
 }
 
 void SimTriggerBus::Fire(std::int64_t trigger_id, std::int64_t monotonic_ns) {
@@ -212,6 +235,8 @@ void SimCamera::Configure(const CameraSettings& settings) {
   if (running_) throw InputError("sim camera '" + options_.id + "': configure it while stopped");
   try {
     settings.Validate();
+    if (!settings.wire_format.empty())
+      throw InputError("pixel_format " + settings.wire_format + " is for aravis cameras only");
   } catch (const InputError& e) {
     throw InputError("sim camera '" + options_.id + "': " + e.what());
   }

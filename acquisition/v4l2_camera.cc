@@ -129,6 +129,9 @@ void V4l2Camera::Fail(const std::string& what, int error) const {
 void V4l2Camera::Configure(const CameraSettings& s) {
   s.Validate();
   if (streaming_) throw std::logic_error("v4l2 camera " + path_ + ": Configure while streaming");
+  if (!s.wire_format.empty())
+    throw InputError("v4l2 camera " + path_ + ": pixel_format " + s.wire_format +
+                     " is for aravis cameras only");
   if (s.trigger != TriggerMode::kFreeRun) {
     throw InputError(
         "v4l2 camera " + path_ +
