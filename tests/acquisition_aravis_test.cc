@@ -161,7 +161,6 @@ TEST(AravisCamera, RefusedFeaturesAndMissingCamerasNameThemselves) {
   }
 }
 
-// Two in-process fakes in the capture daemon, software-triggered: sets matched by receive time.
 // Wire formats. Pixel k of every frame holds WireValue(k, bits); the encoders below write the
 // layouts from the GenICam PFNC and GigE Vision texts, bit by bit, independently of the driver's
 // unpacking.
@@ -274,6 +273,48 @@ TEST(AravisCamera, TenAndTwelveBitFormatsAreUnpackedIntoMono16) {
   fs::remove_all(dir);
 }
 
+// Exposure changed while streaming: the fake fills each frame with the exposure it took it with
+// (its first 4 bytes), the camera's own record. Every frame must carry the exposure it was taken
+// with, the old one until the change and the new one from the frame where it took effect.
+void FillExposure(ArvBuffer* buffer, void*, guint32 exposure_us, guint32, ArvPixelFormat) {
+  size_t size = 0;
+  auto* data = static_cast<std::uint8_t*>(const_cast<void*>(arv_buffer_get_data(buffer, &size)));
+  std::memcpy(data, &exposure_us, 4);
+}
+
+TEST(AravisCamera, ExposureChangedWhileStreamingIsRecordedFromTheFrameItTookEffect) {
+  REQUIRE_LOOPBACK_ADDRESSES();
+  ArvGvFakeCamera* fake = arv_gv_fake_camera_new("127.0.0.9", "FLAMERIG-E");
+  ArvFakeCamera* fc = arv_gv_fake_camera_get_fake_camera(fake);
+  arv_fake_camera_set_fill_pattern(fc, FillExposure, nullptr);
+  arv_fake_camera_set_trigger_frequency(fc, 1000);
+  {
+    // Software-triggered, as a flame rig runs: no frame is on its way when the change is made, so
+    // the label is exact. (Free-running, a frame in flight during the change would carry the new
+    // value: camera.h.)
+    AravisCamera cam("127.0.0.9", 0);
+    cam.Configure(Settings(TriggerMode::kSoftware, 200));  // 1000 us
+    cam.Start(8);
+    std::vector<Frame> frames;
+    for (int k = 0; k < 20; ++k) {
+      if (k == 10) {
+        ASSERT_TRUE(cam.SetExposureGainLive(3000, 0));  // the fake allows it
+      }
+      cam.SoftwareTrigger(k);
+      if (auto f = cam.Pop(500'000'000)) frames.push_back(*f);
+    }
+    cam.Stop();
+    ASSERT_EQ(frames.size(), 20u);
+    for (std::size_t k = 0; k < frames.size(); ++k) {
+      std::uint32_t taken = 0;
+      std::memcpy(&taken, frames[k].data->data(), 4);
+      EXPECT_EQ(taken, k < 10 ? 1000u : 3000u) << "frame " << k;  // the fake's own record
+      EXPECT_EQ(frames[k].info.exposure_us, double(taken)) << "frame " << k;
+    }
+  }
+  g_object_unref(fake);
+}
+
 // The region of interest, the sensor-size default, features by name and the feature state saved
 // with a take, and a camera opened by its serial number; against the fake's own GenICam values
 // (SensorWidth 2048, read back with Aravis' feature reads).
@@ -369,6 +410,7 @@ TEST(AravisCamera, RegionFeaturesAndSerial) {
   EXPECT_TRUE(listed);
 }
 
+// Two in-process fakes in the capture daemon, software-triggered: sets matched by receive time.
 TEST(AravisCamera, TheDaemonRecordsTwoFakeCameras) {
   REQUIRE_LOOPBACK_ADDRESSES();
   InProcessFake a("127.0.0.5", "FLAMERIG-D"), b("127.0.0.6", "FLAMERIG-E");
