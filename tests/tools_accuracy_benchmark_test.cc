@@ -102,5 +102,40 @@ TEST(CameraBenchmark, QuickRunCalibratedBiasIsThatOfTheTrueModel) {
   EXPECT_FALSE(std::filesystem::exists(o.work_dir));
 }
 
+// `flamerig benchmark capture --quick` (tools/capture_benchmark.cc), sim rigs only: both rigs record
+// with and without the live view open, and the page's client got every answer. (Drops depend on
+// the disk and the load of the machine: the benchmark reports them, a test cannot promise none.)
+TEST(CaptureBenchmark, QuickRunRecordsEverySetWithTheLiveViewOpen) {
+  CaptureBenchmarkOptions o;
+  o.quick = true;
+  o.aravis = false;
+  o.directory = (std::filesystem::temp_directory_path() /
+                 ("flamerig_capture_benchmark_" + std::to_string(::getpid())))
+                    .string();
+  const std::string md = RunCaptureBenchmark(o, nullptr);
+  int live_rows = 0;
+  std::istringstream lines(md);
+  for (std::string line; std::getline(lines, line);) {
+    if (line.rfind("| 2 sim", 0) != 0) continue;
+    // | scenario | data rate | seconds | sets | complete | dropped | ...
+    std::vector<std::string> cells;
+    std::istringstream row(line.substr(1));
+    for (std::string cell; std::getline(row, cell, '|');) cells.push_back(cell);
+    ASSERT_GE(cells.size(), 6u) << line;
+    EXPECT_GT(std::stoi(cells[3]), 0) << line;
+    live_rows += line.find("live view open") != std::string::npos;
+  }
+  EXPECT_EQ(live_rows, 2) << md;
+  const std::regex page("live view open: ([0-9]+) requests, ([0-9]+) failed");
+  int pages = 0;
+  for (auto it = std::sregex_iterator(md.begin(), md.end(), page); it != std::sregex_iterator();
+       ++it, ++pages) {
+    EXPECT_GE(std::stoi((*it)[1]), 5) << md;  // status + 2 previews + 2 histograms a second
+    EXPECT_EQ(std::stoi((*it)[2]), 0) << md;
+  }
+  EXPECT_EQ(pages, 2) << md;
+  EXPECT_FALSE(std::filesystem::exists(o.directory));
+}
+
 }  // namespace
 }  // namespace flamerig

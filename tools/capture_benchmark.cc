@@ -5,15 +5,19 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <httplib.h>
+#include <atomic>
 #include <chrono>
 #include <cstring>
 #include <filesystem>
+#include <mutex>
 #include <sstream>
 #include <thread>
 
-#include "core/error.h"
 #include "acquisition/capture.h"
+#include "acquisition/live_view.h"
 #include "acquisition/netns.h"
+#include "core/error.h"
 #include "tools/benchmark.h"
 
 namespace flamerig {
@@ -74,10 +78,63 @@ struct Outcome {
   std::uint64_t frames_missing = 0;
   std::uint64_t camera_skipped = 0;  // slots the cameras never produced (timestamp gaps)
   double seconds = 0, cpu = 0, megabytes_per_s = 0, max_spread_ms = 0, backlog_peak_mb = 0;
+  std::uint64_t page_requests = 0, page_failures = 0;  // with the live view open
+  std::string page_first_failure;
+};
+
+// The live view's page, open in a browser, as an HTTP client that asks what the page asks once a
+// second (acquisition/live_view.cc): the status, then each camera's half-size preview PNG and its
+// histogram. Its own work (a few requests a second) is in the process' CPU with the server's.
+class PagePoller {
+ public:
+  PagePoller(int port, int cameras) : cameras_(cameras), client_("127.0.0.1", port) {
+    thread_ = std::thread([this] { Loop(); });
+  }
+  ~PagePoller() {
+    stop_ = true;
+    thread_.join();
+  }
+  std::uint64_t requests() const { return requests_; }
+  std::uint64_t failures() const { return failures_; }
+  std::string first_failure() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return first_failure_;
+  }
+
+ private:
+  void Get(const std::string& path) {
+    ++requests_;
+    const auto r = client_.Get(path);
+    if (r && r->status == 200) return;
+    ++failures_;
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (first_failure_.empty())
+      first_failure_ = path + ": " + (r ? std::to_string(r->status) + " " + r->body : "no answer");
+    while (!first_failure_.empty() && first_failure_.back() == '\n') first_failure_.pop_back();
+  }
+  void Loop() {
+    while (!stop_) {
+      const auto next = std::chrono::steady_clock::now() + std::chrono::seconds(1);
+      Get("/api/status");
+      for (int c = 0; c < cameras_; ++c) {
+        Get("/api/preview?camera=" + std::to_string(c) + "&k=2");
+        Get("/api/histogram?camera=" + std::to_string(c));
+      }
+      while (!stop_ && std::chrono::steady_clock::now() < next)
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+  }
+  int cameras_;
+  httplib::Client client_;
+  std::atomic<bool> stop_{false};
+  std::atomic<std::uint64_t> requests_{0}, failures_{0};
+  mutable std::mutex mutex_;
+  std::string first_failure_;
+  std::thread thread_;
 };
 
 Outcome Run(const std::string& yaml, double seconds, const fs::path& dir, bool sim_copy_source,
-            std::size_t frame_bytes) {
+            std::size_t frame_bytes, bool live_view) {
   CaptureConfig config = CaptureConfig::Parse(yaml, "benchmark");
   config.data_dir = dir.string();
   if (sim_copy_source)
@@ -86,7 +143,21 @@ Outcome Run(const std::string& yaml, double seconds, const fs::path& dir, bool s
   SimTriggerBus bus;
   CaptureDaemon daemon(config, MakeCameras(config, {&clock, &bus}), &clock, &bus);
   daemon.Start();
+  std::unique_ptr<LiveViewServer> server;
+  if (live_view) server = std::make_unique<LiveViewServer>(&daemon, LiveViewOptions{});
   std::this_thread::sleep_for(std::chrono::milliseconds(300));  // streams settle
+  // Opened once every camera has a frame, as the page asks for a camera's image only then.
+  std::unique_ptr<PagePoller> page;
+  if (server) {
+    const double until = Now() + 10;
+    auto all_seen = [&] {
+      for (const auto& c : daemon.status().cameras)
+        if (c.frames == 0) return false;
+      return true;
+    };
+    while (!all_seen() && Now() < until) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    page = std::make_unique<PagePoller>(server->port(), int(config.cameras.size()));
+  }
   const double cpu0 = CpuSeconds(), t0 = Now();
   daemon.StartRecording("take");
   double peak_backlog = 0;
@@ -98,6 +169,13 @@ Outcome Run(const std::string& yaml, double seconds, const fs::path& dir, bool s
   Outcome o;
   o.seconds = Now() - t0;
   o.cpu = (CpuSeconds() - cpu0) / o.seconds;
+  if (page) {
+    o.page_requests = page->requests();
+    o.page_failures = page->failures();
+    o.page_first_failure = page->first_failure();
+  }
+  page.reset();
+  server.reset();
   const CaptureStatus s = daemon.status();
   daemon.Stop();
   o.recorded = r.sets_recorded;
@@ -212,6 +290,7 @@ std::string RunCaptureBenchmark(const CaptureBenchmarkOptions& options,
     bool sim;
     std::size_t bytes;
     double data_rate;
+    bool live_view = false;
   };
   std::vector<S> scenarios;
   const int n8 = options.quick ? 2 : 8, n4 = options.quick ? 2 : 4;
@@ -221,6 +300,13 @@ std::string RunCaptureBenchmark(const CaptureBenchmarkOptions& options,
   scenarios.push_back({std::to_string(n4) + " sim x 1920x1080 Mono8 at 30 fps, hardware trigger",
                        Rig("hardware-trigger", 30, n4, 1920, 1080, "sim"), true, 1920 * 1080,
                        n4 * 1920 * 1080 * 30 / 1048576.0});
+  // The same two with the live view open (issue 21): it must not cost a set.
+  for (std::size_t k = 0; k < 2; ++k) {
+    S open = scenarios[k];
+    open.name += ", live view open";
+    open.live_view = true;
+    scenarios.push_back(open);
+  }
   const bool have_addresses = InLoopbackNamespace();
   if (options.aravis && have_addresses) {
     // The fakes stamp frames with the host's wall clock, a clock they share as PTP cameras do:
@@ -242,6 +328,7 @@ std::string RunCaptureBenchmark(const CaptureBenchmarkOptions& options,
   }
   std::vector<ArvGvFakeCamera*> fakes;
   std::unique_ptr<FakeCameraProcesses> processes;
+  std::ostringstream page_notes;
   for (const S& sc : scenarios) {
     if (sc.name.find("separate processes") != std::string::npos) {
       for (auto* f : fakes) g_object_unref(f);  // the in-process ones are done
@@ -259,7 +346,14 @@ std::string RunCaptureBenchmark(const CaptureBenchmarkOptions& options,
                                                ("BENCH" + std::to_string(c)).c_str()));
     }
     if (log) log("capture: " + sc.name + " ...");
-    const Outcome o = Run(sc.yaml, seconds, dir, sc.sim, sc.bytes);
+    const Outcome o = Run(sc.yaml, seconds, dir, sc.sim, sc.bytes, sc.live_view);
+    if (sc.live_view) {
+      page_notes << "- " << sc.name << ": " << o.page_requests << " requests, " << o.page_failures
+                 << " failed"
+                 << (o.page_first_failure.empty() ? ""
+                                                  : " (the first: " + o.page_first_failure + ")")
+                 << ".\n";
+    }
     const std::uint64_t dropped = o.dropped + o.incoming_dropped + o.frames_missing;
     md << "| " << sc.name << " | " << Fixed(sc.data_rate, 0) << " | " << Fixed(o.seconds, 1)
        << " | " << o.sets << " | " << o.complete << " | " << dropped << " | " << o.camera_skipped
@@ -273,6 +367,12 @@ std::string RunCaptureBenchmark(const CaptureBenchmarkOptions& options,
   }
   for (auto* f : fakes) g_object_unref(f);
   processes.reset();
+  md << "\n'Live view open': the daemon serves its live view (`capture --live-view`) and a client "
+        "asks "
+        "what the page in a browser asks once a second: the status, every camera's half-size "
+        "preview PNG and its histogram. Compare each with the same rig's row without it: the CPU "
+        "column's difference is the page's cost (server and client, both in this process).\n"
+     << page_notes.str();
   if (options.aravis && have_addresses) {
     md << "\nThe Aravis fakes share the machine's two cores with the daemon (in its process, or as "
           "processes of their own, whose CPU is not in the CPU column); when starved they skip "
