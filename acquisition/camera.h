@@ -55,8 +55,9 @@ struct CameraSettings {
   // its timestamps are what frame sets are matched by. Drivers without PTP refuse it, except the
   // sim driver, whose cameras share one clock.
   bool ptp = false;
-  // Any other camera feature by its GenICam name, written in this order after the ones above
-  // (aravis; `features: {Name: value}` in a capture config). Other drivers refuse them.
+  // Any other camera feature by name, written in this order after the ones above (`features:
+  // {Name: value}` in a capture config): a GenICam feature (aravis) or a V4L2 control by v4l2-ctl's
+  // name (v4l2, e.g. gamma, white_balance_automatic). The sim driver refuses them.
   std::vector<std::pair<std::string, std::string>> features;
   void Validate() const;  // throws InputError naming the field
   // A `pixel_format` from a config: a stored format, or a wire format (stored as Mono16). Throws

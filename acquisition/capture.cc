@@ -176,7 +176,9 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     cr.Seen("features");
     if (const YAML::Node f = cams[i]["features"]) {
       if (!f.IsMap())
-        throw InputError(at + ".features: a mapping of GenICam feature names to values");
+        throw InputError(at +
+                         ".features: a mapping of feature names (GenICam for aravis, v4l2-ctl's "
+                         "control names for v4l2) to values");
       for (const auto& kv : f) {
         if (!kv.second.IsScalar())
           throw InputError(at + ".features." + kv.first.as<std::string>() + ": a single value");

@@ -7,6 +7,8 @@
 #include <sys/mman.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cctype>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -140,9 +142,6 @@ void V4l2Camera::Configure(const CameraSettings& s) {
   if (s.ptp)
     throw InputError("v4l2 camera " + path_ +
                      ": V4L2 devices have no PTP clock; use sync: free-run");
-  if (!s.features.empty())
-    throw InputError("v4l2 camera " + path_ + ": feature '" + s.features[0].first +
-                     "': V4L2 devices have no GenICam features");
   v4l2_format fmt{};
   fmt.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
   CameraSettings asked = s;
@@ -188,7 +187,98 @@ void V4l2Camera::Configure(const CameraSettings& s) {
     v4l2_control gain{V4L2_CID_GAIN, static_cast<std::int32_t>(std::llround(s.gain_db))};
     if (Xioctl(*device_, VIDIOC_S_CTRL, &gain) != 0) Fail("V4L2_CID_GAIN", errno);
   }
+  for (const auto& [name, value] : s.features) SetControl(name, value);
   settings_ = asked;
+  live_exposure_us_ = asked.exposure_us;
+  live_gain_db_ = asked.gain_db;
+}
+
+std::string V4l2Camera::ControlName(const std::string& name) {
+  std::string out;
+  bool gap = false;
+  for (const char c : name) {
+    if (std::isalnum(static_cast<unsigned char>(c))) {
+      if (gap) out += '_';
+      gap = false;
+      out += static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    } else if (!out.empty()) {
+      gap = true;
+    }
+  }
+  return out;
+}
+
+std::vector<V4l2Camera::Control> V4l2Camera::Controls() const {
+  std::vector<Control> out;
+  v4l2_queryctrl q{};
+  q.id = V4L2_CTRL_FLAG_NEXT_CTRL;
+  for (int guard = 0; guard < 4096 && Xioctl(*device_, VIDIOC_QUERYCTRL, &q) == 0; ++guard) {
+    const bool value = q.type == V4L2_CTRL_TYPE_INTEGER || q.type == V4L2_CTRL_TYPE_BOOLEAN ||
+                       q.type == V4L2_CTRL_TYPE_MENU || q.type == V4L2_CTRL_TYPE_INTEGER_MENU;
+    if (value && !(q.flags & V4L2_CTRL_FLAG_DISABLED)) {
+      const std::string name(reinterpret_cast<const char*>(q.name),
+                             strnlen(reinterpret_cast<const char*>(q.name), sizeof q.name));
+      out.push_back({q.id, ControlName(name), q.type, q.minimum, q.maximum});
+    }
+    q.id |= V4L2_CTRL_FLAG_NEXT_CTRL;
+  }
+  return out;
+}
+
+void V4l2Camera::SetControl(const std::string& name, const std::string& value) {
+  const std::vector<Control> controls = Controls();
+  const auto c = std::find_if(controls.begin(), controls.end(),
+                              [&](const Control& k) { return k.name == name; });
+  if (c == controls.end()) {
+    std::string names;
+    for (const Control& k : controls) names += (names.empty() ? "" : ", ") + k.name;
+    throw InputError("v4l2 camera " + path_ + ": feature '" + name +
+                     "': no such control (it has: " + (names.empty() ? "none" : names) + ")");
+  }
+  long long v = 0;
+  if (c->type == V4L2_CTRL_TYPE_BOOLEAN && (value == "true" || value == "false")) {
+    v = value == "true";
+  } else {
+    std::size_t used = 0;
+    try {
+      v = std::stoll(value, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used == 0 || used != value.size())
+      throw InputError("v4l2 camera " + path_ + ": feature '" + name + "': '" + value +
+                       "' is not an integer" +
+                       (c->type == V4L2_CTRL_TYPE_BOOLEAN ? " or true/false" : ""));
+  }
+  if (v < c->minimum || v > c->maximum)
+    throw InputError("v4l2 camera " + path_ + ": feature '" + name + "': " + value +
+                     " is outside [" + std::to_string(c->minimum) + ", " +
+                     std::to_string(c->maximum) + "]");
+  v4l2_control k{c->id, static_cast<std::int32_t>(v)};
+  if (Xioctl(*device_, VIDIOC_S_CTRL, &k) != 0) Fail("feature '" + name + "' " + value, errno);
+}
+
+std::map<std::string, std::string> V4l2Camera::FeatureState() const {
+  std::map<std::string, std::string> out;
+  if (!connected_) return out;
+  for (const Control& c : Controls()) {
+    v4l2_control k{c.id, 0};
+    if (Xioctl(*device_, VIDIOC_G_CTRL, &k) == 0) out[c.name] = std::to_string(k.value);
+  }
+  return out;
+}
+
+bool V4l2Camera::SetExposureGainLive(double exposure_us, double gain_db) {
+  std::lock_guard<std::mutex> lock(control_mutex_);
+  if (!connected_) return false;
+  v4l2_control exposure{V4L2_CID_EXPOSURE_ABSOLUTE,
+                        static_cast<std::int32_t>(std::llround(exposure_us / 100.0))};
+  if (Xioctl(*device_, VIDIOC_S_CTRL, &exposure) != 0) return false;  // busy while streaming
+  live_exposure_us_ = exposure.value * 100.0;  // what the device took, in its 100 us units
+  v4l2_control gain{V4L2_CID_GAIN, static_cast<std::int32_t>(std::llround(gain_db))};
+  if (Xioctl(*device_, VIDIOC_S_CTRL, &gain) != 0) return false;
+  live_gain_db_ = gain.value;
+  return true;
 }
 
 void V4l2Camera::Start(int buffers) {
@@ -262,8 +352,8 @@ std::optional<Frame> V4l2Camera::Pop(std::int64_t timeout_ns) {
   f.info.frame_id = unwrapper_.Next(b.sequence);
   f.info.device_timestamp_ns =
       std::int64_t(b.timestamp.tv_sec) * 1'000'000'000 + std::int64_t(b.timestamp.tv_usec) * 1000;
-  f.info.exposure_us = settings_.exposure_us;
-  f.info.gain_db = settings_.gain_db;
+  f.info.exposure_us = live_exposure_us_;
+  f.info.gain_db = live_gain_db_;
   f.info.pixel_format = settings_.pixel_format;
   f.info.width = settings_.width;
   f.info.height = settings_.height;

@@ -7,7 +7,13 @@
 //     Mono16, RGB3 -> RGB8, RGGB/GRBG/GBRG/BA81 -> Bayer 8-bit; a driver that adjusts the size or
 //     format is an error naming both), VIDIOC_S_PARM (frame interval), exposure (V4L2_CID_EXPOSURE_
 //     AUTO manual, V4L2_CID_EXPOSURE_ABSOLUTE in 100 us units) and gain (V4L2_CID_GAIN) when
-//     exposure_us / gain_db are set (> 0). V4L2 has no trigger: trigger modes are refused.
+//     exposure_us / gain_db are set (> 0), then `features` as V4L2 controls by v4l2-ctl's names
+//     (VIDIOC_QUERYCTRL's name in lower case, every run of other characters one '_': "White
+//     Balance, Automatic" is white_balance_automatic; integers, booleans as 0/1/true/false, menus
+//     by index; outside the control's range is refused naming it). V4L2 has no trigger: trigger
+//     modes are refused. No region of interest (width/height are the driver's formats).
+//   FeatureState: every enabled control's value (VIDIOC_G_CTRL) by that name, saved with a take.
+//   SetExposureGainLive: VIDIOC_S_CTRL while streaming; frames from then on carry the new values.
 //   Start: VIDIOC_REQBUFS (the driver may grant fewer, at least 2), VIDIOC_QUERYBUF + mmap each,
 //     VIDIOC_QBUF all, VIDIOC_STREAMON.
 //   Pop: poll, VIDIOC_DQBUF, copy `bytesused`, VIDIOC_QBUF the buffer straight back. Frame ids are
@@ -19,7 +25,10 @@
 
 #include <sys/types.h>
 
+#include <atomic>
+#include <map>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -74,8 +83,22 @@ class V4l2Camera : public Camera {
   void SoftwareTrigger(std::int64_t) override {}  // never configured: Configure refuses triggers
   bool connected() const override { return connected_; }
   StreamCounters counters() const override { return counters_; }
+  bool SetExposureGainLive(double exposure_us, double gain_db) override;
+  std::map<std::string, std::string> FeatureState() const override;
+
+  struct Control {
+    std::uint32_t id = 0;
+    std::string name;  // v4l2-ctl's
+    std::uint32_t type = 0;
+    std::int32_t minimum = 0, maximum = 0;
+  };
+  std::vector<Control> Controls() const;  // VIDIOC_QUERYCTRL, enabled value controls only
+  // v4l2-ctl's variable name of a control's name: "White Balance, Automatic" ->
+  // "white_balance_automatic".
+  static std::string ControlName(const std::string& name);
 
  private:
+  void SetControl(const std::string& name, const std::string& value);
   [[noreturn]] void Fail(const std::string& what, int error) const;
   struct Mapped {
     void* address = nullptr;
@@ -89,6 +112,8 @@ class V4l2Camera : public Camera {
   std::vector<Mapped> buffers_;
   bool streaming_ = false;
   bool connected_ = true;
+  std::atomic<double> live_exposure_us_{0}, live_gain_db_{0};  // what frames carry
+  std::mutex control_mutex_;                                   // live changes one at a time
   std::uint32_t bytes_per_line_ = 0;
   FrameIdUnwrapper unwrapper_{32, 0};
   StreamCounters counters_;

@@ -9,11 +9,23 @@
 #include <cerrno>
 #include <cstring>
 #include <deque>
+#include <map>
+#include <optional>
+#include <vector>
 
 #include "acquisition/v4l2_camera.h"
+#include "core/error.h"
 
 namespace flamerig {
 namespace {
+
+struct Ctrl {
+  std::uint32_t id;
+  const char* name;
+  std::uint32_t type;
+  std::int32_t min, max, value;
+  std::uint32_t flags;
+};
 
 class FakeV4l2 : public V4l2Device {
  public:
@@ -26,6 +38,21 @@ class FakeV4l2 : public V4l2Device {
     bool next_frame_error = false;
     int double_queue_errors = 0;
     std::uint32_t exposure = 0, gain = 0;
+    // Controls as uvcvideo names them, in id order: a class, a disabled one, an inactive one.
+    std::vector<Ctrl> controls = {
+        {V4L2_CID_USER_CLASS, "User Controls", V4L2_CTRL_TYPE_CTRL_CLASS, 0, 0, 0, 0},
+        {V4L2_CID_BRIGHTNESS, "Brightness", V4L2_CTRL_TYPE_INTEGER, -64, 64, 0, 0},
+        {V4L2_CID_HUE, "Hue", V4L2_CTRL_TYPE_INTEGER, -40, 40, 0, V4L2_CTRL_FLAG_DISABLED},
+        {V4L2_CID_AUTO_WHITE_BALANCE, "White Balance, Automatic", V4L2_CTRL_TYPE_BOOLEAN, 0, 1, 1,
+         0},
+        {V4L2_CID_GAMMA, "Gamma", V4L2_CTRL_TYPE_INTEGER, 72, 500, 100, 0},
+        {V4L2_CID_GAIN, "Gain", V4L2_CTRL_TYPE_INTEGER, 0, 100, 0, 0},
+        {V4L2_CID_WHITE_BALANCE_TEMPERATURE, "White Balance Temperature", V4L2_CTRL_TYPE_INTEGER,
+         2800, 6500, 4600, V4L2_CTRL_FLAG_INACTIVE},
+        {V4L2_CID_EXPOSURE_AUTO, "Auto Exposure", V4L2_CTRL_TYPE_MENU, 0, 3, 3, 0},
+        {V4L2_CID_EXPOSURE_ABSOLUTE, "Exposure Time, Absolute", V4L2_CTRL_TYPE_INTEGER, 1, 10000,
+         156, 0},
+    };
   };
   explicit FakeV4l2(Shared* shared) : s_(shared) {}
 
@@ -82,16 +109,41 @@ class FakeV4l2 : public V4l2Device {
       }
       case VIDIOC_S_PARM:
         return 0;
-      case VIDIOC_S_CTRL: {
-        auto* c = static_cast<v4l2_control*>(arg);
-        if (c->id == V4L2_CID_EXPOSURE_AUTO) return 0;
-        if (c->id == V4L2_CID_EXPOSURE_ABSOLUTE) {
-          if (c->value < 1 || c->value > 10000) return Err(ERANGE);
-          s_->exposure = static_cast<std::uint32_t>(c->value);
+      case VIDIOC_QUERYCTRL: {  // with V4L2_CTRL_FLAG_NEXT_CTRL: the next id up
+        auto* q = static_cast<v4l2_queryctrl*>(arg);
+        const std::uint32_t after =
+            q->id & ~(V4L2_CTRL_FLAG_NEXT_CTRL | V4L2_CTRL_FLAG_NEXT_COMPOUND);
+        const bool next = q->id & V4L2_CTRL_FLAG_NEXT_CTRL;
+        for (const Ctrl& c : s_->controls) {  // in id order
+          if (next ? c.id <= after : c.id != after) continue;
+          std::memset(q, 0, sizeof *q);
+          q->id = c.id;
+          q->type = c.type;
+          std::strncpy(reinterpret_cast<char*>(q->name), c.name, sizeof q->name - 1);
+          q->minimum = c.min;
+          q->maximum = c.max;
+          q->step = 1;
+          q->flags = c.flags;
           return 0;
         }
-        if (c->id == V4L2_CID_GAIN) {
-          s_->gain = static_cast<std::uint32_t>(c->value);
+        return Err(EINVAL);
+      }
+      case VIDIOC_G_CTRL:
+      case VIDIOC_S_CTRL: {
+        auto* k = static_cast<v4l2_control*>(arg);
+        for (Ctrl& c : s_->controls) {
+          if (c.id != k->id || c.type == V4L2_CTRL_TYPE_CTRL_CLASS ||
+              (c.flags & V4L2_CTRL_FLAG_DISABLED))
+            continue;
+          if (request == VIDIOC_G_CTRL) {
+            k->value = c.value;
+            return 0;
+          }
+          if (k->value < c.min || k->value > c.max) return Err(ERANGE);
+          c.value = k->value;
+          if (c.id == V4L2_CID_EXPOSURE_ABSOLUTE)
+            s_->exposure = static_cast<std::uint32_t>(k->value);
+          if (c.id == V4L2_CID_GAIN) s_->gain = static_cast<std::uint32_t>(k->value);
           return 0;
         }
         return Err(EINVAL);
@@ -284,6 +336,78 @@ TEST(V4l2Camera, RefusalsNameWhatAndWhere) {
   shared.max_buffers = 1;
   cam.Configure(Mono(64, 48));
   EXPECT_THROW(cam.Start(4), std::runtime_error);  // granted 1 buffer
+}
+
+// v4l2-ctl's names for the kernel's control names (v4l2-ctl -l lists them so).
+TEST(V4l2Camera, ControlNamesAreV4l2CtlsNames) {
+  EXPECT_EQ(V4l2Camera::ControlName("White Balance, Automatic"), "white_balance_automatic");
+  EXPECT_EQ(V4l2Camera::ControlName("  Exposure Time, Absolute "), "exposure_time_absolute");
+  EXPECT_EQ(V4l2Camera::ControlName("Gain (dB)"), "gain_db");
+  EXPECT_EQ(V4l2Camera::ControlName("Power Line Frequency"), "power_line_frequency");
+}
+
+// `features` are V4L2 controls by those names: set, range-checked, and every enabled control's
+// value is the feature state saved with a take; exposure and gain change while streaming.
+TEST(V4l2Camera, ControlsByNameFeatureStateAndLiveExposure) {
+  FakeV4l2::Shared shared;
+  V4l2Camera cam("/dev/fake0", 0, std::make_unique<FakeV4l2>(&shared));
+  auto value = [&](std::uint32_t id) {
+    for (const Ctrl& c : shared.controls)
+      if (c.id == id) return c.value;
+    return -999;
+  };
+  CameraSettings s = Mono(64, 48);
+  s.features = {{"gamma", "220"}, {"white_balance_automatic", "false"}, {"brightness", "-10"}};
+  cam.Configure(s);
+  EXPECT_EQ(value(V4L2_CID_GAMMA), 220);
+  EXPECT_EQ(value(V4L2_CID_AUTO_WHITE_BALANCE), 0);
+  EXPECT_EQ(value(V4L2_CID_BRIGHTNESS), -10);
+  EXPECT_EQ(value(V4L2_CID_EXPOSURE_AUTO), V4L2_EXPOSURE_MANUAL);  // exposure_us is set
+  const std::map<std::string, std::string> state = cam.FeatureState();
+  EXPECT_EQ(state.at("gamma"), "220");
+  EXPECT_EQ(state.at("white_balance_automatic"), "0");
+  EXPECT_EQ(state.at("brightness"), "-10");
+  EXPECT_EQ(state.at("auto_exposure"), "1");
+  EXPECT_EQ(state.at("exposure_time_absolute"), std::to_string(shared.exposure));
+  EXPECT_EQ(state.at("white_balance_temperature"), "4600");  // inactive, but its value is there
+  EXPECT_EQ(state.count("hue"), 0u);                         // disabled
+  EXPECT_EQ(state.count("user_controls"), 0u);               // a class, not a value
+  EXPECT_EQ(state.size(), 7u);
+  auto refused = [&](const std::string& name, const std::string& v) -> std::string {
+    CameraSettings bad = Mono(64, 48);
+    bad.features = {{name, v}};
+    try {
+      cam.Configure(bad);
+    } catch (const InputError& e) {
+      return e.what();
+    }
+    return "accepted";
+  };
+  const std::string unknown = refused("gama", "100");
+  EXPECT_NE(unknown.find("/dev/fake0: feature 'gama': no such control (it has: brightness, "
+                         "white_balance_automatic, gamma, gain"),
+            std::string::npos)
+      << unknown;
+  EXPECT_NE(refused("gamma", "9999").find("9999 is outside [72, 500]"), std::string::npos);
+  EXPECT_NE(refused("gamma", "1.5").find("'1.5' is not an integer"), std::string::npos);
+  EXPECT_NE(refused("white_balance_automatic", "maybe").find("or true/false"), std::string::npos);
+  EXPECT_EQ(value(V4L2_CID_GAMMA), 220);  // nothing refused was written
+
+  // Live: the next frames carry what the device took (exposure in its 100 us units).
+  cam.Configure(Mono(64, 48));
+  cam.Start(4);
+  ASSERT_TRUE(cam.Pop(100'000'000));
+  EXPECT_EQ(cam.Pop(100'000'000)->info.exposure_us, Mono(64, 48).exposure_us);
+  ASSERT_TRUE(cam.SetExposureGainLive(2540, 7));
+  EXPECT_EQ(shared.exposure, 25u);
+  EXPECT_EQ(shared.gain, 7u);
+  const std::optional<Frame> f = cam.Pop(100'000'000);
+  ASSERT_TRUE(f);
+  EXPECT_EQ(f->info.exposure_us, 2500);
+  EXPECT_EQ(f->info.gain_db, 7);
+  EXPECT_FALSE(cam.SetExposureGainLive(5e6, 0));  // beyond the control's range: refused
+  EXPECT_EQ(cam.Pop(100'000'000)->info.exposure_us, 2500);
+  cam.Stop();
 }
 
 TEST(V4l2Camera, UnpluggedMeansDisconnected) {
