@@ -34,7 +34,9 @@ namespace fs = std::filesystem;
 // Image content: byte i of a frame is (i * 7 + 3) mod 251, except the first 8 bytes, which hold the
 // fill call's sequence number.
 std::atomic<std::uint64_t> g_fills{0};
-void Fill(ArvBuffer* buffer, void*, guint32, guint32, ArvPixelFormat) {
+// `frames`: the fake's own count of the frames it made (an std::atomic<std::uint64_t>), or null.
+void Fill(ArvBuffer* buffer, void* frames, guint32, guint32, ArvPixelFormat) {
+  if (frames) ++*static_cast<std::atomic<std::uint64_t>*>(frames);
   size_t size = 0;
   auto* data = static_cast<std::uint8_t*>(const_cast<void*>(arv_buffer_get_data(buffer, &size)));
   const std::size_t n = std::size_t(arv_buffer_get_image_width(buffer)) *
@@ -50,17 +52,22 @@ void Fill(ArvBuffer* buffer, void*, guint32, guint32, ArvPixelFormat) {
 
 class InProcessFake {
  public:
-  InProcessFake(const std::string& address, const std::string& serial) {
+  // The fake looks for a software trigger `trigger_hz` times a second and makes one frame for
+  // all it found (1000: a latency of 1..9 ms; below the trigger rate, it misses triggers as a
+  // camera that is not ready does).
+  InProcessFake(const std::string& address, const std::string& serial, double trigger_hz = 1000) {
     fake_ = arv_gv_fake_camera_new(address.c_str(), serial.c_str());
     ArvFakeCamera* fc = arv_gv_fake_camera_get_fake_camera(fake_);
-    arv_fake_camera_set_fill_pattern(fc, Fill, nullptr);
-    arv_fake_camera_set_trigger_frequency(fc, 1000);  // software trigger latency 1..9 ms
+    arv_fake_camera_set_fill_pattern(fc, Fill, &frames_);
+    arv_fake_camera_set_trigger_frequency(fc, trigger_hz);
   }
   ~InProcessFake() { g_object_unref(fake_); }
   bool running() const { return arv_gv_fake_camera_is_running(fake_); }
+  std::uint64_t frames() const { return frames_; }  // made so far
 
  private:
   ArvGvFakeCamera* fake_;
+  std::atomic<std::uint64_t> frames_{0};
 };
 
 CameraSettings Settings(TriggerMode trigger, double rate) {
@@ -454,6 +461,42 @@ TEST(AravisCamera, TheDaemonRecordsTwoFakeCameras) {
   EXPECT_EQ(r.metadata().features.at("b.DeviceID"), "FLAMERIG-E");
   EXPECT_EQ(r.metadata().features.count("a.AcquisitionStart"), 0u);
   EXPECT_NEAR(st.cameras[0].fps, 20, 4);
+  fs::remove_all(dir);
+}
+
+// Missed software triggers: fake b looks for a trigger only 8 times a second while the daemon
+// triggers at 20 Hz, so it misses about 12 a second, and a answers every one. The oracle is the
+// fakes' own frame counts: b missed what a made and b did not.
+TEST(AravisCamera, MissedSoftwareTriggersAreCounted) {
+  REQUIRE_LOOPBACK_ADDRESSES();
+  InProcessFake a("127.0.0.7", "FLAMERIG-M1"), b("127.0.0.8", "FLAMERIG-M2", 8);
+  const fs::path dir = fs::temp_directory_path() / ("flamerig_arvm_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  const CaptureConfig config =
+      CaptureConfig::Parse("data_dir: " + dir.string() +
+                               "\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
+                               "  - {name: a, driver: aravis, id: 127.0.0.7, width: 320, height: "
+                               "240, exposure_us: 1000}\n"
+                               "  - {name: b, driver: aravis, id: 127.0.0.8, width: 320, height: "
+                               "240, exposure_us: 1000}\n",
+                           "test");
+  SystemClock clock;
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
+  daemon.Start();
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  const double a0 = double(a.frames()), b0 = double(b.frames());
+  const std::string rec_dir = daemon.StartRecording("take");
+  std::this_thread::sleep_for(std::chrono::milliseconds(2500));
+  daemon.StopRecording();
+  const double made_a = double(a.frames()) - a0, made_b = double(b.frames()) - b0;
+  daemon.Stop();
+  const Recording r = Recording::Open(rec_dir);
+  const double missed_a = std::stod(r.final_counters().at("missed_triggers_a"));
+  const double missed_b = std::stod(r.final_counters().at("missed_triggers_b"));
+  EXPECT_GE(made_a, 40);  // 20 Hz for 2.5 s
+  EXPECT_LE(made_b, 0.7 * made_a);
+  EXPECT_LE(missed_a, 2);
+  EXPECT_NEAR(missed_b, made_a - made_b, 4) << "a made " << made_a << ", b " << made_b;
   fs::remove_all(dir);
 }
 
