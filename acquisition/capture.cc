@@ -598,7 +598,7 @@ struct CaptureDaemon::CameraState {
   // counted (the missed-trigger count compares them with the triggers sent).
   std::deque<std::int64_t> recent_frames;
   std::uint64_t old_frames = 0;
-  std::map<std::string, std::string> features;  // the camera's feature state at the last arm
+  std::map<std::string, std::string> features;  // its feature state at the last arm or reconnect
   double exposure_us = 0;                       // what it exposes now (for the trigger grace)
 };
 
@@ -770,9 +770,20 @@ void CaptureDaemon::CameraLoop(int camera) {
           Log().warn("capture: camera {} ({}): reconnecting: {}", st.live.name, st.live.id,
                      e.what());
         }
+        // Back (or an optional camera here for the first time): its feature state, for the
+        // metadata of the recordings from now on.
+        std::map<std::string, std::string> state;
+        if (back) {
+          try {
+            state = cam.FeatureState();
+          } catch (const std::exception& e) {
+            Log().warn("capture: camera {}: reading its features: {}", st.live.name, e.what());
+          }
+        }
         std::lock_guard<std::mutex> lock(st.mutex);
         ++st.live.reconnect_attempts;
         if (back) ++st.live.reconnects;
+        if (!state.empty()) st.features = std::move(state);
       }
     }
     std::optional<Frame> f;

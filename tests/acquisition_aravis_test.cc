@@ -500,6 +500,52 @@ TEST(AravisCamera, MissedSoftwareTriggersAreCounted) {
   fs::remove_all(dir);
 }
 
+// An optional camera (required: false) that is not on the network when the daemon arms: the rig
+// records without it, and takes it in when it appears (looked for about once a second).
+TEST(AravisCamera, AnOptionalCameraIsTakenInWhenItAppears) {
+  REQUIRE_LOOPBACK_ADDRESSES();
+  InProcessFake a("127.0.0.2", "FLAMERIG-O1");
+  const fs::path dir = fs::temp_directory_path() / ("flamerig_arvo_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  const CaptureConfig config =
+      CaptureConfig::Parse("data_dir: " + dir.string() +
+                               "\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
+                               "  - {name: a, driver: aravis, id: 127.0.0.2, width: 320, height: "
+                               "240, exposure_us: 1000}\n"
+                               "  - {name: b, driver: aravis, id: 127.0.0.3, width: 320, height: "
+                               "240, exposure_us: 1000, required: false}\n",
+                           "test");
+  SystemClock clock;
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
+  daemon.Start();
+  const std::string without = daemon.StartRecording("without");
+  std::this_thread::sleep_for(std::chrono::milliseconds(1000));
+  daemon.StopRecording();
+  EXPECT_FALSE(daemon.status().cameras[1].connected);
+  {
+    InProcessFake b("127.0.0.3", "FLAMERIG-O2");
+    const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+    while (daemon.status().cameras[1].frames == 0 && std::chrono::steady_clock::now() < until)
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    ASSERT_GT(daemon.status().cameras[1].frames, 0u) << daemon.status().ToTable();
+    const std::string with = daemon.StartRecording("with");
+    std::this_thread::sleep_for(std::chrono::milliseconds(1000));
+    daemon.StopRecording();
+    daemon.Stop();
+    const Recording r1 = Recording::Open(without), r2 = Recording::Open(with);
+    EXPECT_GE(r1.frames(0).size(), 10u);
+    EXPECT_EQ(r1.frames(1).size(), 0u);
+    EXPECT_GE(r2.frames(0).size(), 10u);
+    EXPECT_GE(r2.frames(1).size(), 10u);
+    for (std::size_t i = 0; i < r2.num_sets(); ++i) {
+      const FrameSet s = r2.ReadSet(i);
+      if (s.frames[1]) ExpectPattern(*s.frames[1]);
+    }
+    EXPECT_EQ(r2.metadata().features.at("b.DeviceID"), "FLAMERIG-O2");
+  }
+  fs::remove_all(dir);
+}
+
 // A child process running the external fake on `address`; killed when the guard goes, whatever
 // the test's outcome (a fake left running would hold the test's output pipe open).
 class FakeProcess {
