@@ -126,7 +126,8 @@ TEST(CaptureBenchmark, QuickRunRecordsEverySetWithTheLiveViewOpen) {
     live_rows += line.find("live view open") != std::string::npos;
   }
   EXPECT_EQ(live_rows, 2) << md;
-  const std::regex page("live view open: ([0-9]+) requests, ([0-9]+) failed");
+  const std::regex page(
+      "live view open: the page cost -?[0-9.]+ cores; ([0-9]+) requests, ([0-9]+) failed");
   int pages = 0;
   for (auto it = std::sregex_iterator(md.begin(), md.end(), page); it != std::sregex_iterator();
        ++it, ++pages) {
