@@ -528,13 +528,14 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
   const std::size_t image_bytes =
       wire ? WireBytes(*wire, f.info.width, f.info.height)
            : std::size_t(f.info.width) * f.info.height * BytesPerPixel(f.info.pixel_format);
-  if (data && image_bytes <= impl_->payload && (size == 0 || size >= image_bytes)) {
+  if (data && f.info.width > 0 && f.info.height > 0 && image_bytes <= impl_->payload &&
+      (size == 0 || size >= image_bytes)) {
     f.data = wire ? std::make_shared<const std::vector<std::uint8_t>>(
                         UnpackToMono16(*wire, data, image_bytes, f.info.width, f.info.height))
                   : std::make_shared<const std::vector<std::uint8_t>>(data, data + image_bytes);
   } else if (wire) {
     f.data = std::make_shared<const std::vector<std::uint8_t>>(
-        std::size_t(f.info.width) * f.info.height * 2, 0);
+        std::size_t(std::max(f.info.width, 0)) * std::max(f.info.height, 0) * 2, 0);
     if (f.info.status == FrameStatus::kOk) f.info.status = FrameStatus::kIncomplete;
   } else {
     f.data = std::make_shared<const std::vector<std::uint8_t>>(image_bytes, 0);
@@ -633,6 +634,8 @@ bool AravisCamera::SetExposureGainLive(double exposure_us, double gain_db) {
 }
 
 std::map<std::string, std::string> AravisCamera::FeatureState() const {
+  // Held against a trigger or a live change from other threads, and a reconnect.
+  std::lock_guard<std::mutex> lock(impl_->device_mutex);
   std::map<std::string, std::string> out;
   if (!impl_->camera || !connected_) return out;
   ArvGc* gc = arv_device_get_genicam(impl_->device());

@@ -96,9 +96,10 @@ class Camera {
   virtual StreamCounters counters() const = 0;
   // Changes exposure and gain while streaming, from the next frame the camera exposes (each
   // frame's FrameInfo carries the values it was taken with); callable from any thread. False when
-  // this camera cannot (then it must be stopped to be configured). Aravis labels frames by when
-  // they are received: exact when triggered (no frame in flight at the change), but a free-running
-  // frame on its way during the change carries the new values (no chunk data yet).
+  // this camera cannot (then it must be stopped to be configured). Aravis and V4L2 label frames by
+  // when they are received: exact when triggered (no frame in flight at the change), but a
+  // free-running frame on its way or already in a buffer during the change carries the new values
+  // (no chunk data yet).
   virtual bool SetExposureGainLive(double exposure_us, double gain_db) { return false; }
   // Every readable feature of the device and its value as text (GenICam cameras), for the
   // recording's metadata; empty for cameras without such a tree.

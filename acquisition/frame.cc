@@ -93,7 +93,7 @@ std::size_t WireBytes(const WireFormat& format, int width, int height) {
 std::vector<std::uint8_t> UnpackToMono16(const WireFormat& format, const std::uint8_t* data,
                                          std::size_t bytes, int width, int height) {
   const std::size_t need = WireBytes(format, width, height);
-  if (bytes != need || (need > 0 && !data)) {
+  if (width < 0 || height < 0 || bytes != need || (need > 0 && !data)) {
     throw DataError(std::string(format.name) + " frame " + std::to_string(width) + "x" +
                     std::to_string(height) + ": " + std::to_string(bytes) + " bytes, expected " +
                     std::to_string(need));

@@ -177,11 +177,16 @@ void V4l2Camera::Configure(const CameraSettings& s) {
   if (s.exposure_us > 0) {
     v4l2_control manual{V4L2_CID_EXPOSURE_AUTO, V4L2_EXPOSURE_MANUAL};
     if (Xioctl(*device_, VIDIOC_S_CTRL, &manual) != 0) Fail("V4L2_CID_EXPOSURE_AUTO manual", errno);
-    v4l2_control exposure{V4L2_CID_EXPOSURE_ABSOLUTE,
-                          static_cast<std::int32_t>(std::llround(s.exposure_us / 100.0))};
+    const auto units = static_cast<std::int32_t>(std::llround(s.exposure_us / 100.0));
+    v4l2_control exposure{V4L2_CID_EXPOSURE_ABSOLUTE, units};
     if (Xioctl(*device_, VIDIOC_S_CTRL, &exposure) != 0)
-      Fail("V4L2_CID_EXPOSURE_ABSOLUTE " + std::to_string(exposure.value) + " (100 us units)",
-           errno);
+      Fail("V4L2_CID_EXPOSURE_ABSOLUTE " + std::to_string(units) + " (100 us units)", errno);
+    if (exposure.value != units)  // the control framework clamps to the range and says so
+      throw InputError("v4l2 camera " + path_ + ": V4L2_CID_EXPOSURE_ABSOLUTE " +
+                       std::to_string(units) +
+                       " (100 us units) is outside its range (the device "
+                       "took " +
+                       std::to_string(exposure.value) + ")");
   }
   if (s.gain_db > 0) {
     v4l2_control gain{V4L2_CID_GAIN, static_cast<std::int32_t>(std::llround(s.gain_db))};
@@ -189,8 +194,20 @@ void V4l2Camera::Configure(const CameraSettings& s) {
   }
   for (const auto& [name, value] : s.features) SetControl(name, value);
   settings_ = asked;
+  // Frames carry what the device exposes: its 100 us units, read back after the features (which
+  // may name the exposure control themselves).
   live_exposure_us_ = asked.exposure_us;
+  v4l2_control taken{V4L2_CID_EXPOSURE_ABSOLUTE, 0};
+  if (s.exposure_us > 0 && Xioctl(*device_, VIDIOC_G_CTRL, &taken) == 0)
+    live_exposure_us_ = taken.value * 100.0;
   live_gain_db_ = asked.gain_db;
+}
+
+CameraSettings V4l2Camera::settings() const {
+  CameraSettings s = settings_;
+  s.exposure_us = live_exposure_us_;
+  s.gain_db = live_gain_db_;
+  return s;
 }
 
 std::string V4l2Camera::ControlName(const std::string& name) {
@@ -275,6 +292,8 @@ bool V4l2Camera::SetExposureGainLive(double exposure_us, double gain_db) {
                         static_cast<std::int32_t>(std::llround(exposure_us / 100.0))};
   if (Xioctl(*device_, VIDIOC_S_CTRL, &exposure) != 0) return false;  // busy while streaming
   live_exposure_us_ = exposure.value * 100.0;  // what the device took, in its 100 us units
+  if (std::llround(gain_db) == std::llround(live_gain_db_.load())) return true;
+  // A gain change (a camera without a gain control can still change its exposure live).
   v4l2_control gain{V4L2_CID_GAIN, static_cast<std::int32_t>(std::llround(gain_db))};
   if (Xioctl(*device_, VIDIOC_S_CTRL, &gain) != 0) return false;
   live_gain_db_ = gain.value;

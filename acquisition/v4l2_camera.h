@@ -12,8 +12,11 @@
 //     Balance, Automatic" is white_balance_automatic; integers, booleans as 0/1/true/false, menus
 //     by index; outside the control's range is refused naming it). V4L2 has no trigger: trigger
 //     modes are refused. No region of interest (width/height are the driver's formats).
-//   FeatureState: every enabled control's value (VIDIOC_G_CTRL) by that name, saved with a take.
-//   SetExposureGainLive: VIDIOC_S_CTRL while streaming; frames from then on carry the new values.
+//   FeatureState: every enabled integer, boolean and menu control's value (VIDIOC_G_CTRL) by that
+//     name, saved with a take (64-bit, string and bitmask controls are left out).
+//   SetExposureGainLive: VIDIOC_S_CTRL while streaming (gain only when it changes); frames
+//     dequeued from then on carry the values the device took (it clamps to the control's range),
+//     so buffers already filled before the change carry the new values too.
 //   Start: VIDIOC_REQBUFS (the driver may grant fewer, at least 2), VIDIOC_QUERYBUF + mmap each,
 //     VIDIOC_QBUF all, VIDIOC_STREAMON.
 //   Pop: poll, VIDIOC_DQBUF, copy `bytesused`, VIDIOC_QBUF the buffer straight back. Frame ids are
@@ -76,7 +79,7 @@ class V4l2Camera : public Camera {
 
   CameraDescription description() const override { return description_; }
   void Configure(const CameraSettings& settings) override;
-  CameraSettings settings() const override { return settings_; }
+  CameraSettings settings() const override;  // with exposure and gain as changed live
   void Start(int buffers) override;
   void Stop() override;
   std::optional<Frame> Pop(std::int64_t timeout_ns) override;
@@ -111,7 +114,7 @@ class V4l2Camera : public Camera {
   CameraSettings settings_;
   std::vector<Mapped> buffers_;
   bool streaming_ = false;
-  bool connected_ = true;
+  std::atomic<bool> connected_{true};                          // written by Pop, read by any thread
   std::atomic<double> live_exposure_us_{0}, live_gain_db_{0};  // what frames carry
   std::mutex control_mutex_;                                   // live changes one at a time
   std::uint32_t bytes_per_line_ = 0;

@@ -243,6 +243,15 @@ TEST(AravisCamera, TenAndTwelveBitFormatsAreUnpackedIntoMono16) {
   {
     AravisCamera cam("127.0.0.9", 0);
     EXPECT_NE(cam.AvailableValues("PixelFormat").find("Mono12p"), std::string::npos);
+    // The codes, against Aravis' own constants and (Mono10p, Mono12p, which Aravis 0.8 lacks)
+    // the GenICam PFNC's table.
+    EXPECT_EQ(WireFormatFromName("Mono10")->pfnc, ARV_PIXEL_FORMAT_MONO_10);
+    EXPECT_EQ(WireFormatFromName("Mono12")->pfnc, ARV_PIXEL_FORMAT_MONO_12);
+    EXPECT_EQ(WireFormatFromName("Mono14")->pfnc, ARV_PIXEL_FORMAT_MONO_14);
+    EXPECT_EQ(WireFormatFromName("Mono10Packed")->pfnc, ARV_PIXEL_FORMAT_MONO_10_PACKED);
+    EXPECT_EQ(WireFormatFromName("Mono12Packed")->pfnc, ARV_PIXEL_FORMAT_MONO_12_PACKED);
+    EXPECT_EQ(WireFormatFromName("Mono10p")->pfnc, 0x010A0046u);
+    EXPECT_EQ(WireFormatFromName("Mono12p")->pfnc, 0x010C0047u);
     for (const char* name :
          {"Mono12", "Mono10", "Mono12Packed", "Mono10Packed", "Mono12p", "Mono10p"}) {
       SCOPED_TRACE(name);

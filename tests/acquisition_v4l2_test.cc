@@ -6,6 +6,7 @@
 #include <linux/videodev2.h>
 #include <sys/mman.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 #include <deque>
@@ -139,7 +140,12 @@ class FakeV4l2 : public V4l2Device {
             k->value = c.value;
             return 0;
           }
-          if (k->value < c.min || k->value > c.max) return Err(ERANGE);
+          // The control framework clamps integers to the range and writes back what it took;
+          // booleans and menus out of range are ERANGE.
+          if (c.type == V4L2_CTRL_TYPE_INTEGER)
+            k->value = std::clamp(k->value, c.min, c.max);
+          else if (k->value < c.min || k->value > c.max)
+            return Err(ERANGE);
           c.value = k->value;
           if (c.id == V4L2_CID_EXPOSURE_ABSOLUTE)
             s_->exposure = static_cast<std::uint32_t>(k->value);
@@ -405,8 +411,20 @@ TEST(V4l2Camera, ControlsByNameFeatureStateAndLiveExposure) {
   ASSERT_TRUE(f);
   EXPECT_EQ(f->info.exposure_us, 2500);
   EXPECT_EQ(f->info.gain_db, 7);
-  EXPECT_FALSE(cam.SetExposureGainLive(5e6, 0));  // beyond the control's range: refused
-  EXPECT_EQ(cam.Pop(100'000'000)->info.exposure_us, 2500);
+  EXPECT_EQ(cam.settings().exposure_us, 2500);  // what a take's metadata says from now on
+  EXPECT_EQ(cam.settings().gain_db, 7);
+  // Beyond the control's range: the device clamps, and frames carry what it took.
+  ASSERT_TRUE(cam.SetExposureGainLive(5e6, 7));
+  EXPECT_EQ(shared.exposure, 10000u);
+  EXPECT_EQ(cam.Pop(100'000'000)->info.exposure_us, 1e6);
+  cam.Stop();
+  // Configure labels frames with what the device took (a value it would clamp is refused:
+  // RefusalsNameWhatAndWhere).
+  CameraSettings odd = Mono(64, 48);
+  odd.exposure_us = 5050;  // 50.5 units: the device takes 51 (rounded here) = 5100 us
+  cam.Configure(odd);
+  cam.Start(4);
+  EXPECT_EQ(cam.Pop(100'000'000)->info.exposure_us, 5100);
   cam.Stop();
 }
 

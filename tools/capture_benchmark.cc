@@ -89,6 +89,8 @@ struct Outcome {
 class PagePoller {
  public:
   PagePoller(int port, int cameras) : cameras_(cameras), client_("127.0.0.1", port) {
+    client_.set_connection_timeout(2);  // a server that hangs fails a request, not the run
+    client_.set_read_timeout(5);
     thread_ = std::thread([this] { Loop(); });
   }
   ~PagePoller() {
