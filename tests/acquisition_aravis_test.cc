@@ -331,6 +331,21 @@ TEST(AravisCamera, ExposureChangedWhileStreamingIsRecordedFromTheFrameItTookEffe
   g_object_unref(fake);
 }
 
+// Two Aravis cameras a and b at 320x240, software-triggered at 20 Hz, recording into `dir`; `b_extra`
+// is appended to b's entry.
+CaptureConfig TwoFakeRig(const fs::path& dir, const std::string& a, const std::string& b,
+                         const std::string& b_extra = "") {
+  return CaptureConfig::Parse("data_dir: " + dir.string() +
+                                  "\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
+                                  "  - {name: a, driver: aravis, id: " +
+                                  a +
+                                  ", width: 320, height: 240, exposure_us: 1000}\n"
+                                  "  - {name: b, driver: aravis, id: " +
+                                  b + ", width: 320, height: 240, exposure_us: 1000" + b_extra +
+                                  "}\n",
+                              "test");
+}
+
 // The region of interest, the sensor-size default, features by name and the feature state saved
 // with a take, and a camera opened by its serial number; against the fake's own GenICam values
 // (SensorWidth 2048, read back with Aravis' feature reads).
@@ -432,14 +447,7 @@ TEST(AravisCamera, TheDaemonRecordsTwoFakeCameras) {
   InProcessFake a("127.0.0.5", "FLAMERIG-D"), b("127.0.0.6", "FLAMERIG-E");
   const fs::path dir = fs::temp_directory_path() / ("flamerig_arv_" + std::to_string(::getpid()));
   fs::remove_all(dir);
-  const CaptureConfig config =
-      CaptureConfig::Parse("data_dir: " + dir.string() +
-                               "\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
-                               "  - {name: a, driver: aravis, id: 127.0.0.5, width: 320, height: "
-                               "240, exposure_us: 1000}\n"
-                               "  - {name: b, driver: aravis, id: 127.0.0.6, width: 320, height: "
-                               "240, exposure_us: 1000}\n",
-                           "test");
+  const CaptureConfig config = TwoFakeRig(dir, "127.0.0.5", "127.0.0.6");
   EXPECT_EQ(config.AssemblerOptions().match, MatchBy::kTimestamp);
   SystemClock clock;
   CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
@@ -481,14 +489,7 @@ TEST(AravisCamera, MissedSoftwareTriggersAreCounted) {
   InProcessFake a("127.0.0.7", "FLAMERIG-M1"), b("127.0.0.8", "FLAMERIG-M2", 8);
   const fs::path dir = fs::temp_directory_path() / ("flamerig_arvm_" + std::to_string(::getpid()));
   fs::remove_all(dir);
-  const CaptureConfig config =
-      CaptureConfig::Parse("data_dir: " + dir.string() +
-                               "\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
-                               "  - {name: a, driver: aravis, id: 127.0.0.7, width: 320, height: "
-                               "240, exposure_us: 1000}\n"
-                               "  - {name: b, driver: aravis, id: 127.0.0.8, width: 320, height: "
-                               "240, exposure_us: 1000}\n",
-                           "test");
+  const CaptureConfig config = TwoFakeRig(dir, "127.0.0.7", "127.0.0.8");
   SystemClock clock;
   CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
   daemon.Start();
@@ -516,14 +517,7 @@ TEST(AravisCamera, AnOptionalCameraIsTakenInWhenItAppears) {
   InProcessFake a("127.0.0.2", "FLAMERIG-O1");
   const fs::path dir = fs::temp_directory_path() / ("flamerig_arvo_" + std::to_string(::getpid()));
   fs::remove_all(dir);
-  const CaptureConfig config =
-      CaptureConfig::Parse("data_dir: " + dir.string() +
-                               "\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
-                               "  - {name: a, driver: aravis, id: 127.0.0.2, width: 320, height: "
-                               "240, exposure_us: 1000}\n"
-                               "  - {name: b, driver: aravis, id: 127.0.0.3, width: 320, height: "
-                               "240, exposure_us: 1000, required: false}\n",
-                           "test");
+  const CaptureConfig config = TwoFakeRig(dir, "127.0.0.2", "127.0.0.3", ", required: false");
   SystemClock clock;
   CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
   daemon.Start();
