@@ -7,6 +7,7 @@
 #include <opencv2/aruco/charuco.hpp>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 
@@ -91,13 +92,68 @@ BoardSpec ParseBoardSpec(const YAML::Node& node, const std::string& where) {
   return b;
 }
 
+void DetectOptions::Validate() const {
+  auto fail = [](const std::string& what) { throw InputError("board detection: " + what); };
+  if (min_corners < 4) fail("min_corners must be >= 4");
+  if (!(min_span_fraction >= 0 && min_span_fraction <= 1))
+    fail("min_span_fraction must be in [0, 1]");
+  if (!(max_misfit_squares > 0) || !std::isfinite(max_misfit_squares))
+    fail("max_misfit_squares must be > 0");
+  if (subpix_half_window < 0 || subpix_half_window > 50)
+    fail("subpix_half_window must be in [0, 50] px (0: from the board's size in the image)");
+  if (subpix_iterations < 1 || subpix_iterations > 1000)
+    fail("subpix_iterations must be in [1, 1000]");
+  if (!(subpix_epsilon > 0) || !std::isfinite(subpix_epsilon))
+    fail("subpix_epsilon must be > 0 px");
+}
+
+std::string DetectOptions::Describe() const {
+  std::ostringstream s;
+  s.precision(17);
+  s << "detector " << ChessboardDetectorName(detector) << ", min_corners " << min_corners
+    << ", min_span " << min_span_fraction << ", misfit " << max_misfit_squares << " squares";
+  if (detector != ChessboardDetector::kClassic) s << ", sb accuracy " << accurate_chessboard;
+  if (detector != ChessboardDetector::kSb)
+    s << ", subpix " << subpix_half_window << " px " << subpix_iterations << " iterations "
+      << subpix_epsilon << " px";
+  return s.str();
+}
+
+ChessboardDetector ChessboardDetectorFromName(const std::string& name) {
+  if (name == "auto") return ChessboardDetector::kAuto;
+  if (name == "sb") return ChessboardDetector::kSb;
+  if (name == "classic") return ChessboardDetector::kClassic;
+  throw InputError("board detection: detector must be auto, sb or classic, not '" + name + "'");
+}
+
+const char* ChessboardDetectorName(ChessboardDetector detector) {
+  switch (detector) {
+    case ChessboardDetector::kSb:
+      return "sb";
+    case ChessboardDetector::kClassic:
+      return "classic";
+    case ChessboardDetector::kAuto:
+      break;
+  }
+  return "auto";
+}
+
 namespace {
 
-// Mean grey level in a 3x3 patch around (x, y), or -1 outside the image.
-double PatchMean(const cv::Mat& grey, const Eigen::Vector2d& p) {
-  const int x = static_cast<int>(std::lround(p.x())), y = static_cast<int>(std::lround(p.y()));
-  if (x < 1 || y < 1 || x >= grey.cols - 1 || y >= grey.rows - 1) return -1;
-  return cv::mean(grey(cv::Rect(x - 1, y - 1, 3, 3)))[0];
+// Mean grey level over nine points spread across the middle half of the quadrilateral square with
+// corners a (top-left), b (top-right), c (bottom-left), d (bottom-right); -1 when a point falls
+// outside the image.
+double SquareLevel(const cv::Mat& grey, const Eigen::Vector2d& a, const Eigen::Vector2d& b,
+                   const Eigen::Vector2d& c, const Eigen::Vector2d& d) {
+  double sum = 0;
+  for (double v : {0.25, 0.5, 0.75})
+    for (double u : {0.25, 0.5, 0.75}) {
+      const Eigen::Vector2d p = (1 - v) * ((1 - u) * a + u * b) + v * ((1 - u) * c + u * d);
+      const long x = std::lround(p.x()), y = std::lround(p.y());
+      if (!p.allFinite() || x < 0 || y < 0 || x >= grey.cols || y >= grey.rows) return -1;
+      sum += grey.at<std::uint8_t>(static_cast<int>(y), static_cast<int>(x));
+    }
+  return sum / 9;
 }
 
 BoardDetection Failure(std::string why) {
@@ -106,15 +162,57 @@ BoardDetection Failure(std::string why) {
   return d;
 }
 
-BoardDetection DetectChessboard(const cv::Mat& grey, const BoardSpec& board,
+// findChessboardCornersSB; empty when it finds nothing.
+std::vector<cv::Point2f> FindSb(const cv::Mat& grey, const cv::Size& size,
                                 const DetectOptions& options) {
-  const int nx = board.corners_x(), ny = board.corners_y();
   std::vector<cv::Point2f> found;
   const int flags = cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_EXHAUSTIVE |
                     (options.accurate_chessboard ? cv::CALIB_CB_ACCURACY : 0);
-  if (!cv::findChessboardCornersSB(grey, cv::Size(nx, ny), found, flags) ||
-      static_cast<int>(found.size()) != nx * ny)
-    return Failure("no complete chessboard found");
+  if (!cv::findChessboardCornersSB(grey, size, found, flags)) found.clear();
+  return found;
+}
+
+// findChessboardCorners, refined by cornerSubPix; empty when it finds nothing.
+std::vector<cv::Point2f> FindClassic(const cv::Mat& grey, const cv::Size& size,
+                                     const DetectOptions& options) {
+  std::vector<cv::Point2f> found;
+  if (!cv::findChessboardCorners(grey, size, found,
+                                 cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE))
+    return {};
+  int half = options.subpix_half_window;
+  if (half == 0) {
+    // OpenCV's usual 11x11 window, or a quarter of the smallest square when that is smaller, so
+    // that the window never reaches the next corner; a larger window takes in more of a shadow's
+    // edge, which pulls the corner (measured: 8 px at a quarter of a 45 px square).
+    double smallest = 1e30;
+    for (int r = 0; r < size.height; ++r)
+      for (int c = 0; c < size.width; ++c) {
+        const cv::Point2f& p = found[r * size.width + c];
+        if (c + 1 < size.width)
+          smallest = std::min(smallest, cv::norm(found[r * size.width + c + 1] - p));
+        if (r + 1 < size.height)
+          smallest = std::min(smallest, cv::norm(found[(r + 1) * size.width + c] - p));
+      }
+    half = std::clamp(static_cast<int>(smallest / 4), 2, 5);
+  }
+  cv::cornerSubPix(grey, found, cv::Size(half, half), cv::Size(-1, -1),
+                   cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT,
+                                    options.subpix_iterations, options.subpix_epsilon));
+  return found;
+}
+
+BoardDetection DetectChessboard(const cv::Mat& grey, const BoardSpec& board,
+                                const DetectOptions& options) {
+  const int nx = board.corners_x(), ny = board.corners_y();
+  const cv::Size size(nx, ny);
+  std::vector<cv::Point2f> found;
+  const char* detector = "sb";
+  if (options.detector != ChessboardDetector::kClassic) found = FindSb(grey, size, options);
+  if (found.empty() && options.detector != ChessboardDetector::kSb) {
+    found = FindClassic(grey, size, options);
+    detector = "classic";
+  }
+  if (static_cast<int>(found.size()) != nx * ny) return Failure("no complete chessboard found");
   std::vector<Eigen::Vector2d> c(found.size());
   for (std::size_t i = 0; i < found.size(); ++i) c[i] = Eigen::Vector2d(found[i].x, found[i].y);
   // Handedness: seen from its printed side, board x runs right of board y in the image (x right, y
@@ -125,22 +223,41 @@ BoardDetection DetectChessboard(const cv::Mat& grey, const BoardSpec& board,
   };
   if (cross() < 0)
     for (int r = 0; r < ny; ++r) std::reverse(c.begin() + r * nx, c.begin() + (r + 1) * nx);
-  // 180-degree turn: the first square (at the board origin) is black, its neighbour along x
-  // white. With one odd and one even side a turned board has a white first square.
-  const Eigen::Vector2d ex = c[1] - c[0], ey = c[nx] - c[0];
-  const double first = PatchMean(grey, c[0] - 0.5 * ex - 0.5 * ey);
-  const double next = PatchMean(grey, c[0] + 0.5 * ex - 0.5 * ey);
-  const double last = PatchMean(grey, c.back() + 0.5 * ex + 0.5 * ey);
-  if (first < 0 || next < 0 || last < 0)
-    return Failure("board orientation unknown: its outer squares are outside the image");
-  if (first > next) {
-    std::reverse(c.begin(), c.end());
-  }
-  if (std::abs(first - next) < 20 || std::abs(first - last) < 20)
-    return Failure("board orientation unknown: too little contrast between squares");
+  // 180-degree turn: the square between corners (r, k) and (r + 1, k + 1) is board square
+  // (k + 1, r + 1), black when r + k is even. Turned by 180 degrees (one odd and one even side),
+  // every square between the corners changes colour. Each pair of neighbouring squares votes on
+  // which of the two is darker: a shadow edge or a gradient can make a white square in the shade
+  // darker than a black one in the light, but only for the pairs the edge crosses.
+  std::vector<double> level((nx - 1) * (ny - 1));
+  for (int r = 0; r + 1 < ny; ++r)
+    for (int k = 0; k + 1 < nx; ++k)
+      level[r * (nx - 1) + k] = SquareLevel(grey, c[r * nx + k], c[r * nx + k + 1],
+                                            c[(r + 1) * nx + k], c[(r + 1) * nx + k + 1]);
+  const double min_contrast = 5;  // grey levels: below this a pair does not vote
+  int agree = 0, disagree = 0;
+  auto vote = [&](int r0, int k0, int r1, int k1) {
+    const double a = level[r0 * (nx - 1) + k0], b = level[r1 * (nx - 1) + k1];
+    if (a < 0 || b < 0) return;
+    const double white_minus_black = (r0 + k0) % 2 == 0 ? b - a : a - b;
+    if (white_minus_black > min_contrast) ++agree;
+    if (white_minus_black < -min_contrast) ++disagree;
+  };
+  for (int r = 0; r + 1 < ny; ++r)
+    for (int k = 0; k + 1 < nx; ++k) {
+      if (k + 2 < nx) vote(r, k, r, k + 1);
+      if (r + 2 < ny) vote(r, k, r + 1, k);
+    }
+  const int votes = agree + disagree;
+  if (votes == 0) return Failure("board orientation unknown: too little contrast between squares");
+  if (std::max(agree, disagree) < 0.8 * votes)
+    return Failure("board orientation unknown: of " + std::to_string(votes) +
+                   " pairs of neighbouring squares, " + std::to_string(agree) +
+                   " say one way and " + std::to_string(disagree) + " the other");
+  if (disagree > agree) std::reverse(c.begin(), c.end());
   BoardDetection d;
   for (int i = 0; i < nx * ny; ++i) d.corner_ids.push_back(i);
   d.corners_px = std::move(c);
+  d.detector = detector;
   return d;
 }
 
@@ -191,49 +308,94 @@ BoardDetection DetectCharuco(const cv::Mat& grey, const BoardSpec& board) {
     d.corner_ids.push_back(id);
     d.corners_px.push_back(px);
   }
+  d.detector = "charuco";
   return d;
 }
 
-// The corners must sit where one plane seen through a lens puts them: a homography from the board
-// plane fits them to a fraction of a square (lens distortion bends a board by far less). Corners
-// that do not fit are dropped; when too many do not fit, the view is refused: a wrong board size or
-// dictionary gives corners at the wrong places, and they must never reach a solve.
+// The corners must sit where one plane seen through a lens puts them. Over a few squares any lens
+// is close to a homography, so each corner is predicted from its neighbours on the board (the
+// smallest block around it, 3x3 up to 7x7, that holds at least six of them on two rows and two
+// columns; all the others when no block does), fitted robustly so that one bad neighbour does not
+// spoil it. Corners far from their prediction are rejected and listed; when too many are, the view
+// is refused: a wrong board size or dictionary gives corners at the wrong places, and they must
+// never reach a solve.
 BoardDetection CheckGeometry(BoardDetection d, const BoardSpec& board,
                              const DetectOptions& options) {
-  const auto corners = board.InnerCornersInBoard();
-  std::vector<cv::Point2f> plane, image;
-  for (std::size_t i = 0; i < d.corner_ids.size(); ++i) {
-    const auto& c = corners[d.corner_ids[i]];
-    plane.emplace_back(static_cast<float>(c.x() / board.square_m),
-                       static_cast<float>(c.y() / board.square_m));
-    image.emplace_back(static_cast<float>(d.corners_px[i].x()),
-                       static_cast<float>(d.corners_px[i].y()));
+  const int nx = board.corners_x();
+  const std::size_t n = d.corner_ids.size();
+  std::vector<cv::Point2f> plane(n), image(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    plane[i] = cv::Point2f(static_cast<float>(d.corner_ids[i] % nx),
+                           static_cast<float>(d.corner_ids[i] / nx));
+    image[i] = cv::Point2f(static_cast<float>(d.corners_px[i].x()),
+                           static_cast<float>(d.corners_px[i].y()));
   }
-  // Square size in pixels around the middle of the found corners, from a first fit.
-  cv::Mat h = cv::findHomography(plane, image, cv::LMEDS);
-  if (h.empty()) return Failure("corners do not fit any view of a plane");
-  cv::Point2f mid(0, 0);
-  for (const auto& p : plane) mid += p;
-  mid *= 1.0f / plane.size();
-  std::vector<cv::Point2f> probe{mid, mid + cv::Point2f(1, 0), mid + cv::Point2f(0, 1)}, seen;
-  cv::perspectiveTransform(probe, seen, h);
-  const double square_px = 0.5 * (cv::norm(seen[1] - seen[0]) + cv::norm(seen[2] - seen[0]));
-  const double tolerance_px = std::max(1.0, options.max_misfit_squares * square_px);
-  std::vector<cv::Point2f> fitted;
-  cv::perspectiveTransform(plane, fitted, h);
   BoardDetection kept;
-  for (std::size_t i = 0; i < fitted.size(); ++i)
-    if (cv::norm(fitted[i] - image[i]) <= tolerance_px) {
+  kept.detector = d.detector;
+  for (std::size_t i = 0; i < n; ++i) {
+    std::vector<cv::Point2f> from, to;
+    for (int radius = 1; radius <= 4; ++radius) {
+      from.clear();
+      to.clear();
+      std::set<int> rows, cols;
+      for (std::size_t j = 0; j < n; ++j) {
+        if (j == i) continue;
+        const float dx = std::abs(plane[j].x - plane[i].x), dy = std::abs(plane[j].y - plane[i].y);
+        if (radius < 4 && (dx > radius || dy > radius)) continue;  // 4: every other corner
+        from.push_back(plane[j]);
+        to.push_back(image[j]);
+        rows.insert(static_cast<int>(plane[j].y));
+        cols.insert(static_cast<int>(plane[j].x));
+      }
+      if (from.size() >= 6 && rows.size() >= 2 && cols.size() >= 2) break;
+    }
+    double error_px = 1e30, tolerance_px = 1;
+    if (from.size() >= 4) {
+      // RANSAC finds the neighbours consistent with each other, at half the tolerance for the
+      // size of a square here (the median distance between neighbours next to each other on the
+      // board; the corner itself may be wrong); the fit is then refined on them.
+      std::vector<double> px_per_square{1.0};
+      for (std::size_t j = 0; j < from.size(); ++j)
+        for (std::size_t k = j + 1; k < from.size(); ++k)
+          if (std::abs(cv::norm(from[j] - from[k]) - 1.0) < 1e-3)
+            px_per_square.push_back(cv::norm(to[j] - to[k]));
+      std::nth_element(px_per_square.begin(), px_per_square.begin() + px_per_square.size() / 2,
+                       px_per_square.end());
+      const double threshold_px =
+          std::max(1.0, 0.5 * options.max_misfit_squares * px_per_square[px_per_square.size() / 2]);
+      const cv::Mat h = cv::findHomography(from, to, cv::RANSAC, threshold_px);
+      if (!h.empty()) {
+        std::vector<cv::Point2f> probe{plane[i], plane[i] + cv::Point2f(1, 0),
+                                       plane[i] + cv::Point2f(0, 1)},
+            seen;
+        cv::perspectiveTransform(probe, seen, h);
+        const double square_px = 0.5 * (cv::norm(seen[1] - seen[0]) + cv::norm(seen[2] - seen[0]));
+        tolerance_px = std::max(1.0, options.max_misfit_squares * square_px);
+        error_px = cv::norm(seen[0] - image[i]);
+        if (!std::isfinite(error_px)) error_px = 1e30;
+      }
+    }
+    if (error_px <= tolerance_px) {
       kept.corner_ids.push_back(d.corner_ids[i]);
       kept.corners_px.push_back(d.corners_px[i]);
+    } else {
+      char why[160];
+      if (error_px >= 1e30)
+        std::snprintf(why, sizeof(why), "its %zu neighbours fit no view of a plane", from.size());
+      else
+        std::snprintf(why, sizeof(why),
+                      "%.1f px from where its %zu neighbours put it (tolerance %.1f px)", error_px,
+                      from.size(), tolerance_px);
+      kept.rejected.push_back(RejectedCorner{d.corner_ids[i], d.corners_px[i], why});
     }
-  const std::size_t dropped = d.corner_ids.size() - kept.corner_ids.size();
-  if (dropped > 0.2 * d.corner_ids.size() ||
-      static_cast<int>(kept.corner_ids.size()) < options.min_corners)
+  }
+  const std::size_t dropped = kept.rejected.size();
+  if (dropped > 0.2 * n || static_cast<int>(kept.corner_ids.size()) < options.min_corners)
     return Failure("corners do not fit the board's geometry (" + std::to_string(dropped) + " of " +
-                   std::to_string(d.corner_ids.size()) + " off by more than " +
+                   std::to_string(n) + " off by more than " +
                    std::to_string(options.max_misfit_squares) +
-                   " square): wrong board size or dictionary?");
+                   " square from where their neighbours put them): wrong board size or "
+                   "dictionary?");
   return kept;
 }
 
@@ -242,6 +404,7 @@ BoardDetection CheckGeometry(BoardDetection d, const BoardSpec& board,
 BoardDetection DetectBoard(const ImageU8& image, const BoardSpec& board,
                            const DetectOptions& options) {
   board.Validate();
+  options.Validate();
   if (image.channels != 1 || image.empty())
     throw InputError("DetectBoard: need a non-empty 8-bit grey image, got " +
                                 std::to_string(image.channels) + " channels");
@@ -267,6 +430,19 @@ BoardDetection DetectBoard(const ImageU8& image, const BoardSpec& board,
   for (const auto& p : d.corners_px)
     if (!p.allFinite()) return Failure("a corner came back not finite");
   return CheckGeometry(std::move(d), board, options);
+}
+
+BoardDetection CheckBoardGeometry(BoardDetection detection, const BoardSpec& board,
+                                  const DetectOptions& options) {
+  board.Validate();
+  options.Validate();
+  for (int id : detection.corner_ids)
+    if (id < 0 || id >= board.num_corners())
+      throw InputError("CheckBoardGeometry: corner id " + std::to_string(id) +
+                       " is not on the board");
+  if (detection.corner_ids.size() != detection.corners_px.size())
+    throw InputError("CheckBoardGeometry: one position per corner id needed");
+  return CheckGeometry(std::move(detection), board, options);
 }
 
 }  // namespace flamerig

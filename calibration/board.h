@@ -6,7 +6,8 @@
 //    identified by the markers around it, so partial views are fine.
 //  - chessboard: plain squares, squares_x != squares_y. The grid's mirror image is rejected by the
 //    handedness of the found grid (the printed side faces the camera), and its 180-degree turn by
-//    the colour of the pattern's first square (black at the board origin).
+//    the colours of its squares (black at the board origin: square (x, y) is black when x + y is
+//    even).
 //
 // Board frame: origin at the top-left corner of the pattern (the outer corner of its first
 // square), x along squares_x, y along squares_y, z = x cross y pointing into the board; the printed
@@ -64,12 +65,28 @@ BoardSpec LoadBoardSpec(const std::string& yaml_path);
 // (InputError) start with `where`.
 BoardSpec ParseBoardSpec(const YAML::Node& node, const std::string& where);
 
+// A corner a detector reported and DetectBoard left out, with the reason (for the report).
+struct RejectedCorner {
+  int corner_id = 0;   // index into InnerCornersInBoard()
+  Eigen::Vector2d px;  // where the detector put it
+  std::string reason;  // "12.3 px from where its 8 neighbours put it (tolerance 5.0 px)"
+};
+
 // Corners of one board found in one image.
 struct BoardDetection {
   std::vector<int> corner_ids;              // indices into InnerCornersInBoard(), ascending
   std::vector<Eigen::Vector2d> corners_px;  // same order
+  std::vector<RejectedCorner> rejected;     // corners found but left out, ascending id
+  std::string detector;  // which detector found them ("sb", "classic", "charuco")
   std::string failure;                      // why nothing was found; empty when found
   bool found() const { return !corner_ids.empty(); }
+};
+
+// Which OpenCV detector finds a plain chessboard (ChArUco boards always use the ArUco markers).
+enum class ChessboardDetector {
+  kAuto,     // findChessboardCornersSB, then the classic detector where it finds nothing
+  kSb,       // findChessboardCornersSB only (sector-based; sub-pixel by its own fit)
+  kClassic,  // findChessboardCorners + cornerSubPix with the settings below
 };
 
 struct DetectOptions {
@@ -78,19 +95,48 @@ struct DetectOptions {
   // The corners must span at least this fraction of the board's extent in both directions, so
   // that they are not all on one line.
   double min_span_fraction = 0.3;
-  // Corners further than this (in squares) from a homography fitted to all of them are dropped;
-  // when more than a fifth are, the view is refused (a wrong board description).
-  double max_misfit_squares = 0.2;
-  // Chessboards are searched with OpenCV's findChessboardCornersSB; this flag makes it slower but
-  // sub-pixel accurate (CALIB_CB_ACCURACY).
+  // Consistency: each corner is predicted by a homography fitted to its nearest neighbours on the
+  // board (the 3x3 or, at the board's edges, 5x5 block around it). A lens bends a board across its
+  // whole extent, but over two squares any lens is close to a homography, so the most distorted
+  // corners at the edge of a wide lens are kept (a global homography threw them out at 0.2 square).
+  // A corner further than this (in squares, at least 1 px) from its neighbours' prediction is
+  // rejected and listed with its distance; when more than a fifth are, the view is refused (a
+  // wrong board description).
+  double max_misfit_squares = 0.1;
+  ChessboardDetector detector = ChessboardDetector::kAuto;
+  // findChessboardCornersSB: CALIB_CB_ACCURACY (slower, sub-pixel accurate).
   bool accurate_chessboard = true;
+  // Classic detector: cornerSubPix's half window (px; 0: 5 px, OpenCV's usual 11x11 window, or a
+  // quarter of the board's smallest square in the image when that is smaller, at least 2 px), its
+  // iteration cap and its stopping step (px).
+  int subpix_half_window = 0;
+  int subpix_iterations = 40;
+  double subpix_epsilon = 0.001;
+  // Throws InputError naming the field.
+  void Validate() const;
+  // A one-line description, part of the detection cache's key: changing a setting detects again.
+  std::string Describe() const;
 };
+
+// "auto", "sb", "classic"; throws InputError for another name.
+ChessboardDetector ChessboardDetectorFromName(const std::string& name);
+const char* ChessboardDetectorName(ChessboardDetector detector);
 
 // Finds the board in an 8-bit grey image. Never throws for an image without a board: the reason
 // is in `failure` ("no markers", "too few corners (4 < 6)", "corners on a line", ...). Throws
-// InputError for an image that is not 1-channel 8-bit or an invalid spec.
+// InputError for an image that is not 1-channel 8-bit, an invalid spec or invalid options.
+//
+// A chessboard's 180-degree turn is told by a vote of every pair of neighbouring squares between
+// the found corners (which of the two is darker), so a shadow or a light gradient across the board,
+// which changes the squares' levels but not which of two neighbours is darker, does not flip it.
 BoardDetection DetectBoard(const ImageU8& grey, const BoardSpec& board,
                            const DetectOptions& options = {});
+
+// The consistency check DetectBoard applies (see DetectOptions::max_misfit_squares), on its own
+// for tests and for corners from elsewhere: the corners kept, the others in `rejected`, or a
+// failure when too many do not fit.
+BoardDetection CheckBoardGeometry(BoardDetection detection, const BoardSpec& board,
+                                  const DetectOptions& options = {});
 
 }  // namespace flamerig
 

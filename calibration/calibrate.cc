@@ -53,18 +53,48 @@ void CalibrationOptions::Validate() const {
 // ----------------------------------------------------------------------------------
 
 int ParseDetectionCache(const std::string& text, const BoardSpec& board,
+                        const DetectOptions& detect,
                         std::map<std::string, BoardDetection>* entries) {
   std::istringstream in(text);
   std::string line;
-  if (!std::getline(in, line) || line != "# flamerig board detections v1") return 0;
+  if (!std::getline(in, line) || line != "# flamerig board detections v2") return 0;
   if (!std::getline(in, line) || line != "board " + board.Describe()) return 0;  // another board
+  if (!std::getline(in, line) || line != "detect " + detect.Describe()) return 0;
   const int corners = board.num_corners();
-  int kept = 0;
+  std::map<std::string, BoardDetection> read;
+  std::set<std::string> bad;
   while (std::getline(in, line)) {
     std::istringstream s(line);
-    std::string key;
+    std::string key, second;
+    if (!(s >> key >> second)) continue;
+    if (second == "detector" || second == "reject") {
+      auto it = read.find(key);
+      if (it == read.end()) continue;
+      if (second == "detector") {
+        s >> it->second.detector;
+        continue;
+      }
+      RejectedCorner r;
+      const bool good = static_cast<bool>(s >> r.corner_id >> r.px.x() >> r.px.y()) &&
+                        r.corner_id >= 0 && r.corner_id < corners && r.px.allFinite();
+      if (!good) {
+        bad.insert(key);
+        continue;
+      }
+      s >> std::ws;
+      std::getline(s, r.reason);
+      it->second.rejected.push_back(std::move(r));
+      continue;
+    }
     long long n = 0;
-    if (!(s >> key >> n) || n < 0 || n > corners) continue;
+    try {
+      std::size_t used = 0;
+      n = std::stoll(second, &used);
+      if (used != second.size()) continue;
+    } catch (const std::exception&) {
+      continue;
+    }
+    if (n < 0 || n > corners) continue;
     BoardDetection d;
     if (n == 0) {
       s >> std::ws;
@@ -84,6 +114,12 @@ int ParseDetectionCache(const std::string& text, const BoardSpec& board,
       }
     }
     if (!good) continue;
+    read[key] = std::move(d);
+    bad.erase(key);
+  }
+  int kept = 0;
+  for (auto& [key, d] : read) {
+    if (bad.count(key)) continue;
     (*entries)[key] = std::move(d);
     ++kept;
   }
@@ -95,14 +131,14 @@ namespace {
 // Cached detections, keyed by "<crc32 of the pixels>_<width>x<height>".
 class DetectionCache {
  public:
-  DetectionCache(std::string path, const BoardSpec& board)
-      : path_(std::move(path)), board_(board.Describe()) {
+  DetectionCache(std::string path, const BoardSpec& board, const DetectOptions& detect)
+      : path_(std::move(path)), board_(board.Describe()), detect_(detect.Describe()) {
     if (path_.empty()) return;
     std::ifstream in(path_);
     if (!in) return;
     std::stringstream text;
     text << in.rdbuf();
-    ParseDetectionCache(text.str(), board, &entries_);
+    ParseDetectionCache(text.str(), board, detect, &entries_);
   }
 
   bool Find(const std::string& key, BoardDetection* d) const {
@@ -121,7 +157,7 @@ class DetectionCache {
   void Save() const {
     if (path_.empty() || !dirty_) return;
     std::ostringstream out;
-    out << "# flamerig board detections v1\nboard " << board_ << "\n";
+    out << "# flamerig board detections v2\nboard " << board_ << "\ndetect " << detect_ << "\n";
     char buf[64];
     for (const auto& [key, d] : entries_) {
       out << key << " " << d.corner_ids.size();
@@ -132,12 +168,17 @@ class DetectionCache {
         out << buf;
       }
       out << "\n";
+      if (!d.detector.empty()) out << key << " detector " << d.detector << "\n";
+      for (const auto& r : d.rejected) {
+        std::snprintf(buf, sizeof(buf), " %d %.9g %.9g ", r.corner_id, r.px.x(), r.px.y());
+        out << key << " reject" << buf << r.reason << "\n";
+      }
     }
     WriteFileAtomically(path_, out.str());
   }
 
  private:
-  std::string path_, board_;
+  std::string path_, board_, detect_;
   std::map<std::string, BoardDetection> entries_;
   mutable std::mutex mutex_;
   bool dirty_ = false;
@@ -169,7 +210,7 @@ CalibrationData RunDetection(CalibrationData data, std::vector<DetectJob> jobs,
                              const CalibrationProgress& progress) {
   const auto start = std::chrono::steady_clock::now();
   data.board.Validate();
-  DetectionCache cache(cache_path, data.board);
+  DetectionCache cache(cache_path, data.board, detect);
   std::vector<DetectResult> results(jobs.size());
   std::vector<std::string> errors(jobs.size());
   std::atomic<int> done{0};
@@ -236,7 +277,7 @@ CalibrationData RunDetection(CalibrationData data, std::vector<DetectJob> jobs,
     if (r.detection.found()) {
       data.observations.push_back(
           BoardObservation{c, job.view, job.source, std::move(r.detection)});
-    } else if (data.failures_per_camera[c].size() < 5) {
+    } else {
       data.failures_per_camera[c].push_back(job.source + ": " + r.detection.failure);
     }
   }
@@ -259,6 +300,16 @@ std::vector<std::string> OrderCameras(const std::set<std::string>& found,
     if (!found.count(name))
       throw CalibrationError(where + ": camera " + name + " has no images there");
   return requested;
+}
+
+// An image file by its extension, in any case (.png, .JPG, .jpeg, ...).
+bool IsImageFile(const fs::path& path) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
+  for (const char* known : {".png", ".pgm", ".ppm", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp"})
+    if (ext == known) return true;
+  return false;
 }
 
 ImageU8 ToGrey(const ImageU8& image) {
@@ -287,10 +338,7 @@ CalibrationData DetectViewsInFolder(const std::string& dir, const BoardSpec& boa
   std::vector<std::vector<fs::path>> images(view_dirs.size());
   for (std::size_t v = 0; v < view_dirs.size(); ++v) {
     for (const auto& e : fs::directory_iterator(view_dirs[v])) {
-      const std::string ext = e.path().extension().string();
-      if (!e.is_regular_file() || (ext != ".png" && ext != ".pgm" && ext != ".tif" &&
-                                   ext != ".tiff" && ext != ".jpg" && ext != ".bmp"))
-        continue;
+      if (!e.is_regular_file() || !IsImageFile(e.path())) continue;
       images[v].push_back(e.path());
       found.insert(e.path().stem().string());
     }
@@ -432,6 +480,18 @@ Rigid3 RingFrame(const std::vector<Rigid3>& cam_from_ref) {
   r.row(1) = up;
   r.row(2) = z;
   return Rigid3(Eigen::Quaterniond(r), -(r * origin));
+}
+
+// A board corner bowed by mrcal's calobject_warp: mrcal moves each corner of its object (first
+// corner at its origin, spacing s, W x H corners) along z by x2 * (1 - xr^2) + y2 * (1 - yr^2),
+// with xr, yr its position scaled to [-1, 1] across the corners (mrcal's board_reference_points).
+// Our board frame has the first corner one square in, on the same axes.
+Eigen::Vector3d WarpedCorner(const Eigen::Vector3d& corner, const BoardSpec& board,
+                             const mrcal_calobject_warp_t& warp) {
+  const int w = board.corners_x(), h = board.corners_y();
+  const double i = corner.x() / board.square_m - 1, j = corner.y() / board.square_m - 1;
+  const double xr = w > 1 ? 2 * i / (w - 1) - 1 : 0, yr = h > 1 ? 2 * j / (h - 1) - 1 : 0;
+  return corner + Eigen::Vector3d(0, 0, warp.x2 * (1 - xr * xr) + warp.y2 * (1 - yr * yr));
 }
 
 }  // namespace
@@ -640,18 +700,19 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
     imagersizes.push_back(data.heights[c]);
   }
   const mrcal_problem_constants_t constants = {.point_min_range = 1e-3, .point_max_range = 1e6};
+  mrcal_calobject_warp_t warp{};  // flat until the last solve, as in mrcal-calibrate-cameras
   auto solve = [&](bool distortions, bool outliers) {
     mrcal_problem_selections_t s{};
     s.do_optimize_intrinsics_core = true;
     s.do_optimize_intrinsics_distortions = distortions;
     s.do_optimize_extrinsics = num_cameras > 1;
     s.do_optimize_frames = true;
-    s.do_optimize_calobject_warp = false;
+    s.do_optimize_calobject_warp = options.board_warp && distortions;
     s.do_apply_regularization = options.regularization;
     s.do_apply_outlier_rejection = outliers;
     return mrcal_optimize(nullptr, 0, nullptr, 0, intrinsics.data(),
                           extrinsics.empty() ? nullptr : extrinsics.data(), frames.data(), nullptr,
-                          nullptr, num_cameras, num_cameras - 1, static_cast<int>(frames.size()), 0,
+                          &warp, num_cameras, num_cameras - 1, static_cast<int>(frames.size()), 0,
                           0, observations.data(), nullptr, static_cast<int>(num_obs), 0,
                           pool.data(), &lensmodel, imagersizes.data(), s, &constants,
                           board.square_m, W, H, false, false);
@@ -720,6 +781,9 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
   }
   summary.views_used = static_cast<int>(frames.size());
   summary.mrcal_rms_px = stats.rms_reproj_error__pixels;
+  summary.mrcal_outliers = stats.Noutliers;
+  summary.board_warp_x_m = warp.x2;
+  summary.board_warp_y_m = warp.y2;
 
   // Residuals, recomputed through our own camera models (an independent check of mrcal's numbers).
   summary.cameras.resize(num_cameras);
@@ -730,9 +794,13 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
     const CameraModel& cam = rig.cameras[o.camera].model;
     const Rigid3& rig_from_board = summary.rig_from_board[o.view];
     ++summary.cameras[o.camera].views;
+    summary.missing_corners += W * H - static_cast<int>(o.detection.corner_ids.size());
+    summary.rejected_in_detection += static_cast<int>(o.detection.rejected.size());
     for (std::size_t k = 0; k < o.detection.corner_ids.size(); ++k) {
       const int id = o.detection.corner_ids[k];
-      const Eigen::Vector2d q = cam.Project(rig_from_board * corners_in_board[id]);
+      // Where the solved model puts the corner, on the board as solved (bowed when warp is on).
+      const Eigen::Vector3d p = WarpedCorner(corners_in_board[id], board, warp);
+      const Eigen::Vector2d q = cam.Project(rig_from_board * p);
       ObservationError e{o.camera, o.view, id, (q - o.detection.corners_px[k]).norm(),
                          pool[i * W * H + id].z < 0};
       if (!std::isfinite(e.error_px)) e.error_px = 1e30;
@@ -786,14 +854,27 @@ std::string CalibrationSummary::BriefReport() const {
   s.precision(3);
   s << "calibrated " << rig.cameras.size() << " cameras from " << views_used << " views, " << points
     << " corners (" << outliers << " outliers) in " << solve_time_s << " s\n";
+  s << "mrcal counts " << mrcal_outliers << " outliers: the " << outliers
+    << " its rejection threw out and the " << missing_corners
+    << " board corners not detected in the views used (" << rejected_in_detection
+    << " of them found but left out by the detection's consistency check)\n";
+  if (board_warp_x_m != 0 || board_warp_y_m != 0)
+    s << "board warp (mrcal calobject_warp): " << board_warp_x_m * 1e3 << " mm along x, "
+      << board_warp_y_m * 1e3 << " mm along y\n";
   s << "RMS reprojection error " << rms_px_per_point << " px per point (" << rms_px_per_coordinate
-    << " px per coordinate, as mrcal prints it; mrcal_optimize reports " << mrcal_rms_px
-    << "); seed " << seed_rms_px_per_point << " px per point\n";
+    << " px per coordinate; mrcal reports " << mrcal_rms_px
+    << ", over every board corner, outliers and corners not detected included); seed "
+    << seed_rms_px_per_point << " px per point\n";
   for (const auto& c : cameras)
     s << "  " << c.name << ": " << c.views << " views, " << c.points << " corners, " << c.outliers
       << " outliers, RMS " << c.rms_px_per_point << " px, median " << c.median_px << ", p95 "
       << c.p95_px << ", max " << c.max_px << "\n";
   return s.str();
+}
+
+std::string MrcalImageExtension(const std::string& source) {
+  const fs::path p(source);
+  return IsImageFile(p) ? p.extension().string() : ".png";
 }
 
 void WriteMrcalCorners(const CalibrationData& data, const std::string& path,
@@ -803,8 +884,8 @@ void WriteMrcalCorners(const CalibrationData& data, const std::string& path,
   const int n = data.board.num_corners();
   char buf[128];
   for (const auto& o : data.observations) {
-    const std::string name =
-        dir_prefix + "/" + data.view_names[o.view] + "/" + data.camera_names[o.camera] + ".png";
+    const std::string name = dir_prefix + "/" + data.view_names[o.view] + "/" +
+                             data.camera_names[o.camera] + MrcalImageExtension(o.source);
     std::vector<const Eigen::Vector2d*> at(n, nullptr);
     for (std::size_t k = 0; k < o.detection.corner_ids.size(); ++k)
       at[o.detection.corner_ids[k]] = &o.detection.corners_px[k];

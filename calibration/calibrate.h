@@ -16,8 +16,10 @@
 //
 // Residuals: a corner's reprojection error is the distance in pixels between where it was detected
 // and where the solved model projects it. RMS "per point" is sqrt(mean(dx^2 + dy^2)); RMS "per
-// coordinate" (what mrcal-calibrate-cameras prints) is sqrt(mean over dx and dy separately), smaller
-// by sqrt(2). Both are reported, with their names.
+// coordinate" (mrcal's convention) is sqrt(mean over dx and dy separately), smaller by sqrt(2). Both
+// are over the inliers and reported with their names. mrcal-calibrate-cameras's figure is per
+// coordinate but divides by every board corner, outliers and corners not detected included
+// (CalibrationSummary::mrcal_rms_px).
 //
 // Errors: bad input (a camera that never sees the board, too few views, a disconnected camera
 // graph, images of different sizes for one camera) throws CalibrationError with a message naming
@@ -58,9 +60,9 @@ struct CalibrationData {
   std::vector<int> widths, heights;            // imager size per camera, pixels
   std::vector<std::string> view_names;         // one per instant (a folder, a frame set)
   std::vector<BoardObservation> observations;  // found boards only, sorted by view then camera
-  // Per camera: images looked at, and why the board was not found in the others (a few examples).
+  // Per camera: images looked at, and why the board was not found in the others.
   std::vector<int> images_per_camera;
-  std::vector<std::vector<std::string>> failures_per_camera;
+  std::vector<std::vector<std::string>> failures_per_camera;  // every one, "<source>: <reason>"
   // Detection work: images detected now, and images whose detection came from the cache.
   int detected = 0;
   int from_cache = 0;
@@ -105,6 +107,10 @@ struct CalibrationOptions {
   double focal_px = 0;            // seed focal length; 0: estimated from the board homographies
   bool outlier_rejection = true;  // mrcal's; turn off only for exact synthetic corners
   bool regularization = true;     // mrcal's light pull of the distortion towards zero
+  // Solve for the board's flatness as mrcal does (calobject_warp: a parabolic bow along each of
+  // its axes, in metres at the board's centre), as mrcal-calibrate-cameras does by default: a
+  // printed board is never quite flat, and an unmodelled bow biases the intrinsics.
+  bool board_warp = true;
   int min_views_per_camera = 3;   // fewer views give weak intrinsics: an error
   RigFrame frame = RigFrame::kRing;
   // kRing only: where the rig origin sits in the ring frame, metres. (0, -0.035, 0) puts it 35 mm
@@ -133,11 +139,22 @@ struct CalibrationSummary {
   Rig rig;
   std::vector<Rigid3> rig_from_board;  // per view (identity where no camera saw it)
   std::vector<bool> view_used;
-  double rms_px_per_coordinate = 0;  // inliers; what mrcal-calibrate-cameras prints
+  double rms_px_per_coordinate = 0;  // inliers; mrcal's per-coordinate convention
   double rms_px_per_point = 0;       // inliers
   double seed_rms_px_per_point = 0;  // before the joint solve (pinhole seed)
-  double mrcal_rms_px = 0;           // mrcal_optimize's own figure (mrcal_stats_t)
+  // mrcal_optimize's own figure (mrcal_stats_t, what mrcal-calibrate-cameras prints): per
+  // coordinate, but divided by every corner of every board observation, outliers and corners not
+  // detected included, so smaller than rms_px_per_coordinate by sqrt(inliers / all corners).
+  double mrcal_rms_px = 0;
+  // Corners detected and used (`points`), and of those the ones mrcal's outlier rejection threw
+  // out (`outliers`).
   int points = 0, outliers = 0, views_used = 0;
+  // Board corners in the observations that were not detected (outside the image, hidden, or left
+  // out by the detection's consistency check: `rejected_in_detection` of them). mrcal counts them
+  // as outliers too: mrcal_outliers (its Noutliers) = outliers + missing_corners.
+  int missing_corners = 0, rejected_in_detection = 0, mrcal_outliers = 0;
+  // The board's bow solved with board_warp (mrcal's calobject_warp x2, y2), metres; 0 without.
+  double board_warp_x_m = 0, board_warp_y_m = 0;
   std::vector<CameraResidualStats> cameras;
   std::vector<ObservationError> errors;  // every corner, observation order
   std::vector<ObservationError> worst;   // the largest inlier errors, largest first (up to 12)
@@ -152,17 +169,25 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
                              const CalibrationProgress& progress = nullptr);
 
 // Reads the text of a detection cache (the file DetectViews keeps): a first line
-// "# flamerig board detections v1", then "board <BoardSpec::Describe()>" (a cache made for another
-// board is ignored), then one line per image: "<key> <n> <failure reason>" for n = 0, else
-// "<key> <n>" and n triples "<corner id> <x px> <y px>" in ascending id order. A line that is
-// malformed, names a corner the board does not have, is out of order or gives a non-finite
-// position is dropped (the image is
-// then detected again). Adds the entries to *entries and returns how many; never throws.
+// "# flamerig board detections v2", then "board <BoardSpec::Describe()>" and
+// "detect <DetectOptions::Describe()>" (a cache made for another board or other detector settings
+// is ignored), then per image: "<key> <n> <failure reason>" for n = 0, else "<key> <n>" and n
+// triples "<corner id> <x px> <y px>" in ascending id order; after it, optionally,
+// "<key> detector <name>" and one "<key> reject <corner id> <x px> <y px> <reason>" per corner
+// left out. A line that is malformed, names a corner the board does not have, is out of order or
+// gives a non-finite position is dropped (the image is then detected again; a bad reject line
+// drops its image's entry). Adds the entries to *entries and returns how many; never throws.
 int ParseDetectionCache(const std::string& text, const BoardSpec& board,
+                        const DetectOptions& detect,
                         std::map<std::string, BoardDetection>* entries);
 
+// The extension an observation's image has in mrcal's corners file: the image file's own (".jpg",
+// ".JPG", ...) or ".png" for frames from a recording.
+std::string MrcalImageExtension(const std::string& source);
+
 // Writes our detections as mrcal's corners cache (vnlog "# filename x y level"; a missing corner
-// has level "-"), with file names <dir_prefix>/<view>/<camera>.png, so that
+// has level "-"), with file names <dir_prefix>/<view>/<camera><ext> (ext: MrcalImageExtension of
+// the image the corners came from), so that
 // `mrcal-calibrate-cameras --corners-cache F --object-width-n W --object-height-n H
 // 'prefix/*/cam0.png' ...` solves the same problem.
 void WriteMrcalCorners(const CalibrationData& data, const std::string& path,

@@ -137,16 +137,28 @@ cv::Mat BoardTexture(const BoardSpec& board, int px_per_square) {
 
 }  // namespace
 
+void BoardLighting::Validate() const {
+  auto fail = [](const std::string& what) { throw InputError("board lighting: " + what); };
+  if (!(shadow >= 0 && shadow <= 1)) fail("shadow must be in [0, 1]");
+  if (!std::isfinite(shadow_angle_deg) || !std::isfinite(shadow_offset_m))
+    fail("the shadow's angle and offset must be finite");
+  if (!(penumbra_m >= 0) || !std::isfinite(penumbra_m)) fail("penumbra_m must be >= 0");
+  if (!(gradient >= 0 && gradient < 1)) fail("gradient must be in [0, 1)");
+  if (!(blur_px >= 0 && blur_px <= 20)) fail("blur_px must be in [0, 20]");
+}
+
 ImageU8 RenderBoard(const CameraModel& camera, const BoardSpec& board, const Rigid3& rig_from_board,
-                    double noise_dn, std::uint64_t seed, int supersample) {
+                    double noise_dn, std::uint64_t seed, int supersample,
+                    const BoardLighting& lighting) {
   return RenderBoard(camera, camera.UnprojectAllPixels(), board, rig_from_board, noise_dn, seed,
-                     supersample);
+                     supersample, lighting);
 }
 
 ImageU8 RenderBoard(const CameraModel& camera, const std::vector<Ray>& rays, const BoardSpec& board,
                     const Rigid3& rig_from_board, double noise_dn, std::uint64_t seed,
-                    int supersample) {
+                    int supersample, const BoardLighting& lighting) {
   board.Validate();
+  lighting.Validate();
   if (rays.size() != static_cast<std::size_t>(camera.width()) * camera.height()) {
     throw InputError("RenderBoard: need one ray per pixel of the camera");
   }
@@ -159,6 +171,20 @@ ImageU8 RenderBoard(const CameraModel& camera, const std::vector<Ray>& rays, con
   const int width = camera.width(), height = camera.height();
   ImageU8 image(width, height, 1);
 
+  const double pattern_w = board.squares_x * board.square_m,
+               pattern_h = board.squares_y * board.square_m;
+  const double angle = lighting.shadow_angle_deg * kPi / 180;
+  auto light = [&](double x, double y) {
+    double l = 1.0 - lighting.gradient * std::clamp(x / pattern_w, 0.0, 1.0);
+    if (lighting.shadow < 1) {
+      const double s = (x - 0.5 * pattern_w) * std::cos(angle) +
+                       (y - 0.5 * pattern_h) * std::sin(angle) - lighting.shadow_offset_m;
+      const double t =
+          lighting.penumbra_m > 0 ? std::clamp(0.5 + s / lighting.penumbra_m, 0.0, 1.0) : s > 0;
+      l *= 1.0 - (1.0 - lighting.shadow) * t;
+    }
+    return l;
+  };
   auto shade = [&](const Eigen::Vector3d& origin, const Eigen::Vector3d& direction) -> double {
     const double background = 40.0;
     Eigen::Vector3d o = board_from_rig * origin;
@@ -180,7 +206,8 @@ ImageU8 RenderBoard(const CameraModel& camera, const std::vector<Ray>& rays, con
     };
     double value = (1 - fv) * ((1 - fu) * texel(u0, v0) + fu * texel(u0 + 1, v0)) +
                    fv * ((1 - fu) * texel(u0, v0 + 1) + fu * texel(u0 + 1, v0 + 1));
-    return 25.0 + value * (210.0 / 255.0);  // print contrast: black ink ~25, white paper ~235
+    // print contrast: black ink ~25, white paper ~235, in the light that falls there
+    return (25.0 + value * (210.0 / 255.0)) * light(hit.x(), hit.y());
   };
 
   tbb::parallel_for(tbb::blocked_range<int>(0, height), [&](const tbb::blocked_range<int>& r) {
@@ -211,6 +238,10 @@ ImageU8 RenderBoard(const CameraModel& camera, const std::vector<Ray>& rays, con
             static_cast<std::uint8_t>(std::clamp(std::lround(n ? sum / n : 0.0), 0L, 255L));
       }
   });
+  if (lighting.blur_px > 0) {
+    cv::Mat mat(height, width, CV_8UC1, image.pixels.data());
+    cv::GaussianBlur(mat, mat, cv::Size(0, 0), lighting.blur_px);
+  }
   if (noise_dn > 0) {
     std::mt19937_64 rng(seed);
     std::normal_distribution<double> noise(0.0, noise_dn);

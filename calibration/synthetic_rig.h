@@ -39,15 +39,36 @@ Rig MakeRingRig(const Box3& box, const RingOptions& options, const std::string& 
 using flamerig::BoardSpec;
 using flamerig::BoardType;
 
+// How the board is lit and seen, beyond the lens: what real photographs of a board have.
+struct BoardLighting {
+  // A shadow across the board: the light left in it (1: no shadow). Its edge is a line through the
+  // pattern's centre turned by `shadow_angle_deg` from board y and moved by `shadow_offset_m` along
+  // its normal (n = (cos a, sin a) in board x, y); the side n . (p - centre) > offset is in shadow,
+  // with a soft edge `penumbra_m` wide.
+  double shadow = 1.0;
+  double shadow_angle_deg = 0;
+  double shadow_offset_m = 0;
+  double penumbra_m = 0.002;
+  // The light falls linearly along board x by this fraction from one end of the pattern to the
+  // other (a lamp to one side).
+  double gradient = 0;
+  // Gaussian blur (defocus, motion), sigma in pixels, before the noise.
+  double blur_px = 0;
+  // Throws InputError naming the field.
+  void Validate() const;
+};
+
 // Renders the board seen by `camera` (8-bit grey), anti-aliased with `supersample`^2 rays per
 // pixel, on a dark background, plus Gaussian noise of `noise_dn` (8-bit units) drawn from `seed`.
+// Any mrcal lens model projects: the rays come from the camera model's own unprojection.
 ImageU8 RenderBoard(const CameraModel& camera, const BoardSpec& board, const Rigid3& rig_from_board,
-                    double noise_dn, std::uint64_t seed, int supersample = 3);
+                    double noise_dn, std::uint64_t seed, int supersample = 3,
+                    const BoardLighting& lighting = {});
 // The same with the camera's pixel rays already unprojected (camera.UnprojectAllPixels()), which
 // saves the unprojection when rendering many views.
 ImageU8 RenderBoard(const CameraModel& camera, const std::vector<Ray>& pixel_rays,
                     const BoardSpec& board, const Rigid3& rig_from_board, double noise_dn,
-                    std::uint64_t seed, int supersample = 3);
+                    std::uint64_t seed, int supersample = 3, const BoardLighting& lighting = {});
 
 struct BoardView {
   Rigid3 rig_from_board;

@@ -87,6 +87,32 @@ CalibrateConfig CalibrateConfig::Load(const std::string& path) {
   c.options.focal_px = r.Get<double>("focal_px", 0.0);
   c.options.outlier_rejection = r.Get<bool>("outlier_rejection", true);
   c.options.min_views_per_camera = r.Get<int>("min_views_per_camera", 3);
+  c.options.board_warp = r.Get<bool>("board_warp", c.options.board_warp);
+  c.options.regularization = r.Get<bool>("regularization", c.options.regularization);
+  if (const YAML::Node detect = node["detect"]) {
+    r.Seen("detect");
+    if (!detect.IsMap()) throw InputError(where + ".detect: must be a map");
+    ConfigReader dr(detect, where + ".detect");
+    DetectOptions& d = c.detect;
+    try {
+      d.detector = ChessboardDetectorFromName(
+          dr.Get<std::string>("detector", ChessboardDetectorName(d.detector)));
+    } catch (const InputError& e) {
+      throw InputError(where + ".detect: " + e.what());
+    }
+    d.min_corners = dr.Get<int>("min_corners", d.min_corners);
+    d.max_misfit_squares = dr.Get<double>("max_misfit_squares", d.max_misfit_squares);
+    d.accurate_chessboard = dr.Get<bool>("sb_accuracy", d.accurate_chessboard);
+    d.subpix_half_window = dr.Get<int>("subpix_half_window", d.subpix_half_window);
+    d.subpix_iterations = dr.Get<int>("subpix_iterations", d.subpix_iterations);
+    d.subpix_epsilon = dr.Get<double>("subpix_epsilon", d.subpix_epsilon);
+    dr.CheckKnown();
+    try {
+      d.Validate();
+    } catch (const InputError& e) {
+      throw InputError(where + ".detect: " + e.what());
+    }
+  }
   const std::string frame = r.Get<std::string>("frame", "ring");
   if (frame == "ring")
     c.options.frame = RigFrame::kRing;
@@ -290,22 +316,45 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
                          fmt::format("({:.3f}, {:.3f}, {:.3f})", d.x(), d.y(), d.z())});
   }
   std::vector<std::string> notes = summary.notes;
+  // Every image without a board and every corner found but left out, with the reason.
+  const std::vector<std::string> refused_header = {"camera", "image", "why no board"};
+  Rows refused_rows;
   for (std::size_t c = 0; c < data.camera_names.size(); ++c)
-    for (const auto& f : data.failures_per_camera[c]) notes.push_back("board not found: " + f);
+    for (const auto& f : data.failures_per_camera[c]) {
+      const std::size_t colon = f.find(": ");
+      refused_rows.push_back({data.camera_names[c], f.substr(0, colon),
+                              colon == std::string::npos ? "" : f.substr(colon + 2)});
+    }
+  const std::vector<std::string> dropped_header = {"camera", "image", "corner", "at px", "why"};
+  Rows dropped_rows;
+  for (const auto& o : data.observations)
+    for (const auto& r : o.detection.rejected)
+      dropped_rows.push_back({data.camera_names[o.camera], o.source, std::to_string(r.corner_id),
+                              fmt::format("({:.1f}, {:.1f})", r.px.x(), r.px.y()), r.reason});
   WritePng((fs::path(out_dir) / "rig_top.png").string(), RigFromAbove(summary));
   std::ostringstream mrcal;
   mrcal << "mrcal-calibrate-cameras --corners-cache corners.vnl --lensmodel "
         << config.options.lensmodel << " --focal F --object-spacing " << board.square_m
         << " --object-width-n " << board.corners_x() << " --object-height-n " << board.corners_y();
-  for (const auto& name : data.camera_names) mrcal << " 'views/*/" << name << ".png'";
+  for (std::size_t c = 0; c < data.camera_names.size(); ++c) {
+    std::string ext = ".png";
+    for (const auto& o : data.observations)
+      if (o.camera == static_cast<int>(c)) {
+        ext = MrcalImageExtension(o.source);
+        break;
+      }
+    mrcal << " 'views/*/" << data.camera_names[c] << ext << "'";
+  }
   std::ostringstream header;
   header << "Board: " << board.Describe() << ". Lens model: " << config.options.lensmodel
          << ". Detection: " << data.detected << " images detected, " << data.from_cache
          << " from the cache, in " << data.detect_time_s << " s. Solve: " << summary.solve_time_s
          << " s.";
   const char* rms_note =
-      "The RMS per point is sqrt(mean(dx^2 + dy^2)) over inlier corners; per coordinate (what "
-      "mrcal-calibrate-cameras prints) it is smaller by sqrt(2).";
+      "The RMS per point is sqrt(mean(dx^2 + dy^2)) over inlier corners; per coordinate "
+      "(mrcal's convention) it is smaller by sqrt(2). mrcal-calibrate-cameras prints a smaller "
+      "figure still: it divides by every board corner, the outliers and the corners not detected "
+      "included.";
 
   std::ostringstream md;
   auto md_table = [&md](const std::vector<std::string>& head, const Rows& rows) {
@@ -327,6 +376,11 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   md_table(worst_header, worst_rows);
   md << "\n## Camera poses (rig frame)\n\n";
   md_table(pose_header, pose_rows);
+  md << "\n## Images without a board (" << refused_rows.size() << ")\n\n";
+  if (!refused_rows.empty()) md_table(refused_header, refused_rows);
+  md << "\n## Corners found but left out by the consistency check (" << dropped_rows.size()
+     << ")\n\n";
+  if (!dropped_rows.empty()) md_table(dropped_header, dropped_rows);
   md << "\n## Notes\n\n";
   for (const auto& n : notes) md << "- " << n << "\n";
   md << "\n![rig from above](rig_top.png)\n\n";
@@ -354,6 +408,11 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
               "box and the boards.");
   page.Section("Worst corners (inliers)");
   page.Table(worst_header, worst_rows);
+  page.Section("Images without a board (" + std::to_string(refused_rows.size()) + ")");
+  if (!refused_rows.empty()) page.Table(refused_header, refused_rows);
+  page.Section("Corners found but left out by the consistency check (" +
+               std::to_string(dropped_rows.size()) + ")");
+  if (!dropped_rows.empty()) page.Table(dropped_header, dropped_rows);
   if (!notes.empty()) {
     page.Section("Notes");
     page.List([&] {

@@ -10,6 +10,16 @@
 //     lensmodel: LENSMODEL_OPENCV8
 //     focal_px: 0                    # seed; 0 = estimate from the board
 //     outlier_rejection: true
+//     board_warp: true               # solve the board's bow (mrcal's calobject_warp)
+//     regularization: true           # mrcal's light pull of the distortion towards zero
+//     detect:                        # calibration/board.h DetectOptions
+//       detector: auto               # chessboards: auto (sb, then classic) | sb | classic
+//       min_corners: 6
+//       max_misfit_squares: 0.1      # consistency with the neighbouring corners
+//       sb_accuracy: true
+//       subpix_half_window: 0        # classic: cornerSubPix half window, px (0: 5 or less)
+//       subpix_iterations: 40
+//       subpix_epsilon: 0.001
 //     min_views_per_camera: 3
 //     frame: ring                    # ring | first-camera (calibration/calibrate.h)
 //     ring_origin: [0, 0, 0]         # the rig origin in the ring frame, metres
@@ -20,7 +30,9 @@
 //   rig.yaml, cameras/<camera>.cameramodel   the rig (reconstruct and fit read it; mrcal's tools
 //                                            read the models)
 //   report.md                                RMS (per point and per coordinate), per-camera
-//                                            residuals, worst corners, notes, pictures:
+//                                            residuals, worst corners, every image without a
+//                                            board and every corner left out (with the reason),
+//                                            notes, pictures:
 //   coverage_<camera>.png                    the image area covered by corners, coloured by error
 //   rig_top.png                              the rig from above: cameras, box, board positions
 //   corners.vnl                              the detections in mrcal's corners format (re-solve

@@ -34,6 +34,9 @@ TEST_F(Ring, WritesARigThatLoadsAndAReport) {
   std::string text((std::istreambuf_iterator<char>(report)), std::istreambuf_iterator<char>());
   EXPECT_NE(text.find("per coordinate"), std::string::npos);
   EXPECT_NE(text.find("Worst corners"), std::string::npos);
+  EXPECT_NE(text.find("## Images without a board"), std::string::npos);
+  EXPECT_NE(text.find("## Corners found but left out"), std::string::npos);
+  EXPECT_NE(text.find("mrcal counts"), std::string::npos);
   fs::remove_all(out);
 }
 
@@ -49,6 +52,21 @@ TEST(CalibrateConfig, ErrorsNameTheFileAndKey) {
   EXPECT_NE(write("calibrate: {bogus: 1}\n").find("unknown key 'bogus'"), std::string::npos);
   EXPECT_NE(write("calibrate: {box: {min: [0, 0, 0], max: [1, -1, 1]}}\n").find("box"),
             std::string::npos);
+  std::string d = write("calibrate: {detect: {detector: mrgingham}}\n");
+  EXPECT_NE(d.find("calibrate.detect"), std::string::npos) << d;
+  EXPECT_NE(d.find("mrgingham"), std::string::npos) << d;
+  d = write("calibrate: {detect: {subpix_iterations: 0}}\n");
+  EXPECT_NE(d.find("subpix_iterations"), std::string::npos) << d;
+  d = write("calibrate: {detect: {windows: 3}}\n");
+  EXPECT_NE(d.find("unknown key 'windows'"), std::string::npos) << d;
+  const CalibrateConfig classic = [&] {
+    std::ofstream((dir / "ok.yaml").string())
+        << "calibrate: {board_warp: false, detect: {detector: classic, subpix_half_window: 4}}\n";
+    return CalibrateConfig::Load((dir / "ok.yaml").string());
+  }();
+  EXPECT_FALSE(classic.options.board_warp);
+  EXPECT_EQ(classic.detect.detector, ChessboardDetector::kClassic);
+  EXPECT_EQ(classic.detect.subpix_half_window, 4);
   const std::string e = write("calibrate: {board: {type: chessboard, squares: [8, 6]}}\n");
   EXPECT_NE(e.find("c.yaml"), std::string::npos) << e;
   EXPECT_NE(e.find("one odd and one even"), std::string::npos) << e;

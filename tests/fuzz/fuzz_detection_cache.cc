@@ -11,11 +11,14 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   }();
   std::map<std::string, flamerig::BoardDetection> entries;
   flamerig::ParseDetectionCache(std::string(reinterpret_cast<const char*>(data), size), board,
-                                &entries);
+                                flamerig::DetectOptions(), &entries);
   for (const auto& [key, d] : entries) {
     if (d.corner_ids.size() != d.corners_px.size()) __builtin_trap();
     for (int id : d.corner_ids)
       if (id < 0 || id >= board.num_corners()) __builtin_trap();
+    for (const auto& r : d.rejected)
+      if (r.corner_id < 0 || r.corner_id >= board.num_corners() || !r.px.allFinite())
+        __builtin_trap();
   }
   return 0;
 }

@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "acquisition/recording.h"
+#include "calibration/board.h"
 #include "calibration/camera_model.h"
 #include "tests/fuzz/small_fire.h"
 #include "tomography/vdb_io.h"
@@ -136,10 +137,15 @@ int main(int argc, char** argv) {
 
   // detection_cache (the default board: ChArUco 7x5, 24 inner corners)
   Write(out / "detection_cache" / "cache.txt",
-        "# flamerig board detections v1\n"
+        "# flamerig board detections v2\n"
         "board charuco 7x5 squares of 0.012 m, markers 0.009 m, dictionary 0\n"
-        "0a1b2c3d_320x240 3 0 10.5 20.25 1 30.5 20.5 7 11 40\n"
-        "deadbeef_320x240 0 no board: blurred\n");
+        "detect " +
+            flamerig::DetectOptions().Describe() +
+            "\n"
+            "0a1b2c3d_320x240 3 0 10.5 20.25 1 30.5 20.5 7 11 40\n"
+            "0a1b2c3d_320x240 detector charuco\n"
+            "0a1b2c3d_320x240 reject 2 19.5 20.5 6.1 px from where its 8 neighbours put it\n"
+            "deadbeef_320x240 0 no board: blurred\n");
 
   // control
   int k = 0;
