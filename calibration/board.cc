@@ -206,11 +206,11 @@ BoardDetection DetectChessboard(const cv::Mat& grey, const BoardSpec& board,
   const int nx = board.corners_x(), ny = board.corners_y();
   const cv::Size size(nx, ny);
   std::vector<cv::Point2f> found;
-  const char* detector = "sb";
-  if (options.detector != ChessboardDetector::kClassic) found = FindSb(grey, size, options);
-  if (found.empty() && options.detector != ChessboardDetector::kSb) {
-    found = FindClassic(grey, size, options);
-    detector = "classic";
+  const char* detector = "classic";
+  if (options.detector != ChessboardDetector::kSb) found = FindClassic(grey, size, options);
+  if (found.empty() && options.detector != ChessboardDetector::kClassic) {
+    found = FindSb(grey, size, options);
+    detector = "sb";
   }
   if (static_cast<int>(found.size()) != nx * ny) return Failure("no complete chessboard found");
   std::vector<Eigen::Vector2d> c(found.size());

@@ -43,10 +43,7 @@ void CalibrationOptions::Validate() const {
     throw InputError("calibration: focal_px must be >= 0 (0: estimate)");
   if (min_views_per_camera < 1)
     throw InputError("calibration: min_views_per_camera must be >= 1");
-  if (!ring_origin_m.allFinite())
-    throw InputError("calibration: ring_origin must be finite");
-  if (frame == RigFrame::kFirstCamera && !box.IsValid())
-    throw InputError("calibration: with frame first-camera a box must be given");
+  if (!ring_origin_m.allFinite()) throw InputError("calibration: ring_origin must be finite");
 }
 
 // ---- Detection
@@ -462,7 +459,7 @@ Rigid3 RingFrame(const std::vector<Rigid3>& cam_from_ref) {
   if (n < 2 || eig.eigenvalues()(0) < 1e-3 * n)
     throw CalibrationError(
         "rig frame 'ring': the cameras' optical axes do not meet (fewer than two cameras, or "
-        "parallel axes); use frame: first-camera and give the box in that frame");
+        "parallel axes); use frame: first-camera (the default)");
   const Eigen::Vector3d origin = a.ldlt().solve(b);
   if (down.norm() < 1e-9)
     throw CalibrationError("rig frame 'ring': the cameras' image-down directions cancel out");
@@ -648,6 +645,10 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
                              linked + "); record views that neighbouring cameras see together");
   }
 
+  // The ring frame's precondition, on these first poses: a rig whose axes do not meet is refused
+  // now rather than after the solve.
+  if (options.frame == RigFrame::kRing) RingFrame(cam_from_ref);
+
   // mrcal's calibration object has its first corner at its origin; ours sits one square in.
   const Rigid3 board_from_mrcal_object(Eigen::Quaterniond::Identity(),
                                        Eigen::Vector3d(board.square_m, board.square_m, 0));
@@ -762,22 +763,32 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
                     data.widths[c], data.heights[c]),
         {}});
   }
-  rig.box = options.box;
-  if (!rig.box.IsValid()) {
-    double d = 0;
-    for (const auto& cam : rig.cameras) d += cam.model.center_in_rig().norm();
-    const double half = 0.15 * d / num_cameras;
-    rig.box.min_in_rig = Eigen::Vector3d::Constant(-half);
-    rig.box.max_in_rig = Eigen::Vector3d::Constant(half);
-    summary.notes.push_back("no box given: a cube of side " + std::to_string(2 * half) +
-                            " m around the rig origin (set box in the config)");
-  }
   summary.rig_from_board.assign(num_views, Rigid3());
   summary.view_used.assign(num_views, false);
   for (std::size_t f = 0; f < frames.size(); ++f) {
     summary.rig_from_board[view_of_frame[f]] =
         rig_from_ref * FromMrcal(frames[f]) * board_from_mrcal_object.Inverse();
     summary.view_used[view_of_frame[f]] = true;
+  }
+  rig.box = options.box;
+  if (!rig.box.IsValid()) {
+    // The ring's origin, or the middle of the boards seen.
+    Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+    std::string where = "the rig origin";
+    if (options.frame == RigFrame::kFirstCamera) {
+      const Eigen::Vector3d board_middle(0.5 * board.squares_x * board.square_m,
+                                         0.5 * board.squares_y * board.square_m, 0);
+      for (int f : view_of_frame) centre += summary.rig_from_board[f] * board_middle;
+      centre /= std::max<std::size_t>(1, view_of_frame.size());
+      where = "the middle of the boards seen";
+    }
+    double d = 0;
+    for (const auto& cam : rig.cameras) d += (cam.model.center_in_rig() - centre).norm();
+    const double half = 0.15 * d / num_cameras;
+    rig.box.min_in_rig = centre - Eigen::Vector3d::Constant(half);
+    rig.box.max_in_rig = centre + Eigen::Vector3d::Constant(half);
+    summary.notes.push_back("no box given: a cube of side " + std::to_string(2 * half) +
+                            " m around " + where + " (set box in the config)");
   }
   summary.views_used = static_cast<int>(frames.size());
   summary.mrcal_rms_px = stats.rms_reproj_error__pixels;

@@ -11,7 +11,7 @@
 //      that frame, and a CalibrationSummary with the residuals.
 //
 // Gauge: mrcal's reference frame is the first camera's. The rig frame is then chosen by
-// RigFrame::kRing (default) or kFirstCamera; changing frame moves every camera by the same rigid
+// RigFrame::kFirstCamera (default) or kRing; changing frame moves every camera by the same rigid
 // transform and changes no residual.
 //
 // Residuals: a corner's reprojection error is the distance in pixels between where it was detected
@@ -112,12 +112,17 @@ struct CalibrationOptions {
   // printed board is never quite flat, and an unmodelled bow biases the intrinsics.
   bool board_warp = true;
   int min_views_per_camera = 3;   // fewer views give weak intrinsics: an error
-  RigFrame frame = RigFrame::kRing;
+  // The first camera's frame fits any rig (a stereo pair, a row, a ring). The ring frame only when
+  // asked: it needs at least two cameras whose optical axes meet, which is checked on the first
+  // estimate of the camera poses, before the solve.
+  RigFrame frame = RigFrame::kFirstCamera;
   // kRing only: where the rig origin sits in the ring frame, metres. (0, -0.035, 0) puts it 35 mm
   // below the point where the optical axes meet (the burner under a flame, say).
   Eigen::Vector3d ring_origin_m = Eigen::Vector3d::Zero();
-  Box3 box;  // reconstruction box in the rig frame; invalid: a cube of side 0.3
-             // times the mean camera distance around the origin (kRing only)
+  // Reconstruction box in the rig frame. Invalid (the default): a cube of side 0.3 times the mean
+  // camera distance, around the origin for kRing, around the middle of the boards seen (where
+  // the calibration was done, which is where the cameras look) for kFirstCamera.
+  Box3 box;
   std::string rig_name = "calibrated";
   // Throws InputError naming the field and the rule.
   void Validate() const;

@@ -15,6 +15,10 @@
 #include "core/atomic_file.h"
 #include "core/error.h"
 
+extern "C" {
+#include <mrcal/mrcal.h>
+}
+
 namespace flamerig::synthetic {
 namespace {
 
@@ -33,10 +37,40 @@ void RingOptions::Validate() const {
   if (width < 8 || height < 8 || width > 16384 || height > 16384)
     fail("width and height must be in [8, 16384]");
   if (!(fill > 0) || !(fill <= 2)) fail("fill must be in (0, 2]");
-  if (lensmodel != "LENSMODEL_OPENCV8" && lensmodel != "LENSMODEL_PINHOLE") {
-    fail("lensmodel must be LENSMODEL_OPENCV8 or LENSMODEL_PINHOLE");
-  }
+  mrcal_lensmodel_t lm;
+  if (!mrcal_lensmodel_from_name(&lm, lensmodel.c_str()) || !mrcal_lensmodel_type_is_valid(lm.type))
+    fail("lensmodel '" + lensmodel + "' is not an mrcal lens model name");
+  if (!mrcal_lensmodel_metadata(&lm).has_core)
+    fail("lensmodel '" + lensmodel + "' has no fx fy cx cy core");
+  const int extra = mrcal_lensmodel_num_params(&lm) - 4;
+  if (!distortion.empty() && static_cast<int>(distortion.size()) != extra)
+    fail("distortion must have " + std::to_string(extra) + " values for " + lensmodel + ", got " +
+         std::to_string(distortion.size()));
+  for (double v : distortion)
+    if (!std::isfinite(v)) fail("distortion must be finite");
 }
+
+namespace {
+
+// Camera i's intrinsics: the core, then the options' distortion or the default (see RingOptions).
+std::vector<double> LensIntrinsics(const RingOptions& options, int i, double f) {
+  const double cx = 0.5 * (options.width - 1), cy = 0.5 * (options.height - 1);
+  std::vector<double> intrinsics = {f, f, cx, cy};
+  if (!options.distortion.empty()) {
+    intrinsics.insert(intrinsics.end(), options.distortion.begin(), options.distortion.end());
+  } else if (options.lensmodel == "LENSMODEL_OPENCV8") {
+    // k1 k2 p1 p2 k3 k4 k5 k6: a mild barrel distortion, slightly different per camera.
+    const double k1 = -0.06 + 0.01 * i / std::max(1, options.cameras - 1);
+    intrinsics.insert(intrinsics.end(), {k1, 0.02, 4e-4, -3e-4, 0.0, 0.0, 0.0, 0.0});
+  } else {
+    mrcal_lensmodel_t lm;
+    mrcal_lensmodel_from_name(&lm, options.lensmodel.c_str());
+    intrinsics.resize(static_cast<std::size_t>(mrcal_lensmodel_num_params(&lm)), 0.0);
+  }
+  return intrinsics;
+}
+
+}  // namespace
 
 Rig MakeRingRig(const Box3& box, const RingOptions& options, const std::string& name) {
   options.Validate();
@@ -67,19 +101,43 @@ Rig MakeRingRig(const Box3& box, const RingOptions& options, const std::string& 
         box.center() + options.distance_m * Eigen::Vector3d(std::sin(a) * std::cos(e), std::sin(e),
                                                             std::cos(a) * std::cos(e));
     Rigid3 cam_from_rig = LookAt(eye, box.center(), rig.up_in_rig);
-    double cx = 0.5 * (options.width - 1), cy = 0.5 * (options.height - 1);
-    std::vector<double> intrinsics = {f, f, cx, cy};
-    if (options.lensmodel == "LENSMODEL_OPENCV8") {
-      // k1 k2 p1 p2 k3 k4 k5 k6: a mild barrel distortion, slightly different per camera.
-      double k1 = -0.06 + 0.01 * i / std::max(1, options.cameras - 1);
-      intrinsics.insert(intrinsics.end(), {k1, 0.02, 4e-4, -3e-4, 0.0, 0.0, 0.0, 0.0});
-    }
     std::string cam_name = "cam" + std::to_string(i);
-    rig.cameras.push_back(RigCamera{
-        cam_name,
-        "cameras/" + cam_name + ".cameramodel",
-        CameraModel(options.lensmodel, intrinsics, cam_from_rig, options.width, options.height),
-        {}});
+    rig.cameras.push_back(RigCamera{cam_name,
+                                    "cameras/" + cam_name + ".cameramodel",
+                                    CameraModel(options.lensmodel, LensIntrinsics(options, i, f),
+                                                cam_from_rig, options.width, options.height),
+                                    {}});
+  }
+  return rig;
+}
+
+Rig MakeRowRig(const Box3& box, const RingOptions& options, double spacing_m,
+               const std::string& name) {
+  options.Validate();
+  if (!box.IsValid()) throw InputError("MakeRowRig: invalid box");
+  if (!(spacing_m > 0) || !std::isfinite(spacing_m))
+    throw InputError("MakeRowRig: spacing_m must be finite and > 0");
+  const double radius = 0.5 * box.size().norm();
+  if (options.distance_m <= radius * 1.05)
+    throw InputError("RingOptions.distance_m = " + std::to_string(options.distance_m) +
+                     " puts the cameras inside the box's bounding sphere (radius " +
+                     std::to_string(radius) + " m)");
+  const double f =
+      0.5 * options.fill * options.height / std::tan(std::asin(radius / options.distance_m));
+  Rig rig;
+  rig.name = name;
+  rig.box = box;
+  for (int i = 0; i < options.cameras; ++i) {
+    const Eigen::Vector3d eye =
+        box.center() +
+        Eigen::Vector3d((i - 0.5 * (options.cameras - 1)) * spacing_m, 0, options.distance_m);
+    const Rigid3 cam_from_rig = LookAt(eye, eye - Eigen::Vector3d::UnitZ(), rig.up_in_rig);
+    const std::string cam_name = "cam" + std::to_string(i);
+    rig.cameras.push_back(RigCamera{cam_name,
+                                    "cameras/" + cam_name + ".cameramodel",
+                                    CameraModel(options.lensmodel, LensIntrinsics(options, i, f),
+                                                cam_from_rig, options.width, options.height),
+                                    {}});
   }
   return rig;
 }
@@ -391,8 +449,12 @@ std::vector<BoardView> MakeCalibrationViews(const Rig& rig, const BoardSpec& boa
 
 WrittenViews WriteCalibrationViews(const Rig& rig, const BoardSpec& board, std::uint64_t seed,
                                    int shared_per_pair, int closeups_per_camera, double noise_dn,
-                                   const std::string& dir, const ProgressCallback& progress) {
+                                   const std::string& dir, const ProgressCallback& progress,
+                                   const BoardLighting& lighting) {
   namespace fs = std::filesystem;
+  lighting.Validate();
+  std::mt19937_64 shadow_rng(seed * 104729ULL + 17);
+  std::uniform_real_distribution<double> shadow_angle(0.0, 360.0);
   const std::vector<BoardView> views =
       MakeCalibrationViews(rig, board, seed + 1, shared_per_pair, closeups_per_camera);
   fs::create_directories(dir);
@@ -426,10 +488,12 @@ WrittenViews WriteCalibrationViews(const Rig& rig, const BoardSpec& board, std::
     std::snprintf(name, sizeof(name), "view_%03zu", v);
     fs::create_directories(fs::path(dir) / name);
     std::vector<std::string> names;
+    BoardLighting light = lighting;
+    if (light.shadow < 1) light.shadow_angle_deg = shadow_angle(shadow_rng);
     for (int c : views[v].cameras) {
-      ImageU8 image =
-          RenderBoard(rig.cameras[c].model, rays[c], board, views[v].rig_from_board,
-                      noise_dn > 0 ? std::max(noise_dn, 1.0) : 0.0, seed * 7919ULL + v * 31ULL + c);
+      ImageU8 image = RenderBoard(rig.cameras[c].model, rays[c], board, views[v].rig_from_board,
+                                  noise_dn > 0 ? std::max(noise_dn, 1.0) : 0.0,
+                                  seed * 7919ULL + v * 31ULL + c, 3, light);
       WritePng((fs::path(dir) / name / (rig.cameras[c].name + ".png")).string(), image);
       names.push_back(rig.cameras[c].name);
       ++written.images;

@@ -26,14 +26,25 @@ struct RingOptions {
   int width = 320;
   int height = 240;
   double fill = 0.85;  // fraction of the image height the box's bounding sphere spans
-  std::string lensmodel = "LENSMODEL_OPENCV8";  // or LENSMODEL_PINHOLE
+  // Any mrcal lens model with an fx fy cx cy core ("LENSMODEL_OPENCV8", "LENSMODEL_PINHOLE",
+  // "LENSMODEL_SPLINED_STEREOGRAPHIC_...", ...).
+  std::string lensmodel = "LENSMODEL_OPENCV8";
+  // The model's parameters after the core, the same for every camera. Empty: OPENCV8 cameras get
+  // a mild barrel distortion (k1 about -0.06, slightly different per camera), other models zeros.
+  // A strong lens: LENSMODEL_OPENCV8 with {-0.3, 0.08, 0, 0, 0, 0, 0, 0}.
+  std::vector<double> distortion;
   void Validate() const;
 };
 
 // A ring of cameras around the box, all looking at its centre, y up. Camera i sits at azimuth a_i:
-// position = centre + distance * (sin a cos e, sin e, cos a cos e). OPENCV8 cameras get a mild,
-// realistic distortion.
+// position = centre + distance * (sin a cos e, sin e, cos a cos e).
 Rig MakeRingRig(const Box3& box, const RingOptions& options, const std::string& name = "sim");
+
+// A row of cameras side by side, `spacing_m` apart along rig x and centred on the box, at
+// `options.distance_m` from the box centre along +z and all looking along -z: parallel optical
+// axes, a stereo pair for two cameras. Azimuths and elevation are not used.
+Rig MakeRowRig(const Box3& box, const RingOptions& options, double spacing_m,
+               const std::string& name = "sim");
 
 // Boards are described in calibration/board.h.
 using flamerig::BoardSpec;
@@ -95,11 +106,14 @@ struct WrittenViews {
 // max(noise_dn, 1) DN when noise_dn > 0, seeded per view and camera from `seed`) and writes them as
 // `dir`/view_NNN/<camera>.png (8-bit grey), with `dir`/board.yaml: the board and every view's true
 // pose (rt_rig_from_board) and cameras. Progress: stage "calibration views", unit "views";
-// cancellation throws Cancelled. Throws IoError naming a file that cannot be written.
+// cancellation throws Cancelled. Throws IoError naming a file that cannot be written. With a
+// shadow in `lighting`, each view's shadow edge is turned to its own seeded random angle (a shadow
+// across a different half of every board); its offset, penumbra, gradient and blur are as given.
 WrittenViews WriteCalibrationViews(const Rig& rig, const BoardSpec& board, std::uint64_t seed,
                                    int shared_per_pair, int closeups_per_camera, double noise_dn,
                                    const std::string& dir,
-                                   const ProgressCallback& progress = nullptr);
+                                   const ProgressCallback& progress = nullptr,
+                                   const BoardLighting& lighting = {});
 
 }  // namespace flamerig::synthetic
 

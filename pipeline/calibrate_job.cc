@@ -113,7 +113,7 @@ CalibrateConfig CalibrateConfig::Load(const std::string& path) {
       throw InputError(where + ".detect: " + e.what());
     }
   }
-  const std::string frame = r.Get<std::string>("frame", "ring");
+  const std::string frame = r.Get<std::string>("frame", "first-camera");
   if (frame == "ring")
     c.options.frame = RigFrame::kRing;
   else if (frame == "first-camera")

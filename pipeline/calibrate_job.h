@@ -13,7 +13,7 @@
 //     board_warp: true               # solve the board's bow (mrcal's calobject_warp)
 //     regularization: true           # mrcal's light pull of the distortion towards zero
 //     detect:                        # calibration/board.h DetectOptions
-//       detector: auto               # chessboards: auto (sb, then classic) | sb | classic
+//       detector: auto               # chessboards: auto (classic, then sb) | classic | sb
 //       min_corners: 6
 //       max_misfit_squares: 0.1      # consistency with the neighbouring corners
 //       sb_accuracy: true
@@ -21,9 +21,11 @@
 //       subpix_iterations: 40
 //       subpix_epsilon: 0.001
 //     min_views_per_camera: 3
-//     frame: ring                    # ring | first-camera (calibration/calibrate.h)
+//     frame: first-camera            # first-camera | ring (calibration/calibrate.h)
 //     ring_origin: [0, 0, 0]         # the rig origin in the ring frame, metres
 //     box: {min: [x, y, z], max: [x, y, z]}   # reconstruction box in that frame, metres
+//                                    # (default: a cube around the boards seen, or the ring's
+//                                    # origin)
 //     name: calibrated
 //
 // Outputs in OUT:

@@ -73,6 +73,7 @@ TEST_F(Ring, RecoversTheRingFromRenderedImages) {
   EXPECT_LE(most, 2);
 
   CalibrationOptions options;
+  options.frame = RigFrame::kRing;
   options.ring_origin_m = -Eigen::Vector3d(0, 0.035, 0);  // the simulated box centre
   const CalibrationSummary s = Calibrate(data, options);
   // Rendered boards with sensor noise: corners to about a tenth of a pixel.
@@ -144,6 +145,7 @@ TEST_F(Ring, ExactCornersGiveTheTruthBack) {
   CalibrationOptions options;
   options.outlier_rejection = false;  // notes/mrcal.md: it misfires on exact corners
   options.regularization = false;     // it pulls the (true, non-zero) distortion towards zero
+  options.frame = RigFrame::kRing;
   options.ring_origin_m = -Eigen::Vector3d(0, 0.035, 0);
   const CalibrationSummary s = Calibrate(data, options);
   EXPECT_LT(s.rms_px_per_point, 1e-4);
@@ -176,6 +178,7 @@ TEST_F(Ring, ExactCornersGiveTheTruthBack) {
 TEST_F(Ring, IntrinsicsAreWithinTheirExpectedNoise) {
   const CalibrationData rendered = Detect();
   CalibrationOptions options;
+  options.frame = RigFrame::kRing;
   options.ring_origin_m = -Eigen::Vector3d(0, 0.035, 0);
   const CalibrationSummary s = Calibrate(rendered, options);
   const double sigma_px = s.rms_px_per_coordinate;

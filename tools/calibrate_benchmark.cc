@@ -106,8 +106,8 @@ std::string RunCalibrationBenchmark(const CalibrationBenchmarkOptions& options,
       cmd << "cd " << work << " && mrcal-calibrate-cameras --corners-cache corners.vnl --lensmodel "
           << copt.lensmodel << " --focal " << factor * f_true << " --imagersize " << options.width
           << " " << options.height << " --object-spacing " << board.square_m << " --object-width-n "
-          << board.corners_x() << " --object-height-n " << board.corners_y()
-          << " --skip-calobject-warp-solve --outdir " << work;
+          << board.corners_x() << " --object-height-n " << board.corners_y() << " --outdir "
+          << work;
       for (const auto& name : data.camera_names) cmd << " 'views/*/" << name << ".png'";
       cmd << " > tool.log 2>&1";
       t0 = std::chrono::steady_clock::now();
