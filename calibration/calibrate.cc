@@ -15,6 +15,7 @@
 #include <numeric>
 #include <opencv2/calib3d.hpp>
 #include <queue>
+#include <random>
 #include <set>
 #include <sstream>
 
@@ -857,6 +858,114 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
   summary.solve_time_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return summary;
+}
+
+ProjectionUncertainty EstimateProjectionUncertainty(const CalibrationData& data,
+                                                    const CalibrationSummary& summary,
+                                                    const CalibrationOptions& options, int trials,
+                                                    double voxel_m, std::uint64_t seed) {
+  if (trials < 2) throw InputError("projection uncertainty: need at least 2 trials");
+  if (!(voxel_m > 0) || !std::isfinite(voxel_m))
+    throw InputError("projection uncertainty: the voxel size must be > 0");
+  const auto start = std::chrono::steady_clock::now();
+  const Rig& rig = summary.rig;
+  const int num_cameras = static_cast<int>(rig.cameras.size());
+  if (static_cast<int>(data.camera_names.size()) != num_cameras)
+    throw CalibrationError("projection uncertainty: the summary is not of this data");
+  const std::vector<Eigen::Vector3d> corners = data.board.InnerCornersInBoard();
+  mrcal_calobject_warp_t warp;
+  warp.x2 = summary.board_warp_x_m;
+  warp.y2 = summary.board_warp_y_m;
+  // The solved corners, exactly where the solved rig puts them.
+  CalibrationData exact = data;
+  for (auto& o : exact.observations) {
+    const CameraModel& cam = rig.cameras[o.camera].model;
+    for (std::size_t k = 0; k < o.detection.corner_ids.size(); ++k)
+      o.detection.corners_px[k] =
+          cam.Project(summary.rig_from_board[o.view] *
+                      WarpedCorner(corners[o.detection.corner_ids[k]], data.board, warp));
+  }
+  std::vector<Eigen::Vector3d> points;
+  for (int i = 0; i < 5; ++i)
+    for (int j = 0; j < 5; ++j)
+      for (int k = 0; k < 5; ++k)
+        points.push_back(rig.box.min_in_rig +
+                         rig.box.size().cwiseProduct(Eigen::Vector3d(i, j, k) / 4.0));
+  ProjectionUncertainty u;
+  u.trials = trials;
+  u.noise_px = summary.rms_px_per_coordinate;
+  u.voxel_m = voxel_m;
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> noise(0.0, u.noise_px);
+  // Per camera and point: the sum and sum of squares of the projections' offsets from the solved.
+  const std::size_t n = points.size();
+  std::vector<std::vector<Eigen::Vector2d>> sum(
+      num_cameras, std::vector<Eigen::Vector2d>(n, Eigen::Vector2d::Zero()));
+  std::vector<std::vector<Eigen::Matrix2d>> sum_outer(
+      num_cameras, std::vector<Eigen::Matrix2d>(n, Eigen::Matrix2d::Zero()));
+  std::vector<std::vector<Eigen::Vector2d>> solved(num_cameras);
+  for (int c = 0; c < num_cameras; ++c) solved[c] = rig.cameras[c].model.Project(points);
+  CalibrationOptions trial_options = options;
+  trial_options.box = rig.box;  // the same box; no note about it
+  for (int t = 0; t < trials; ++t) {
+    CalibrationData noisy = exact;
+    for (auto& o : noisy.observations)
+      for (auto& p : o.detection.corners_px) p += Eigen::Vector2d(noise(rng), noise(rng));
+    const CalibrationSummary trial = Calibrate(noisy, trial_options);
+    // mrcal's "mean-frames": a point is held fixed in the world the boards define, not in the
+    // first camera's frame (which moves with its own intrinsics): it is carried into the trial's
+    // frame through every board pose both solves have, and the results averaged.
+    std::vector<Eigen::Vector3d> moved(n, Eigen::Vector3d::Zero());
+    int frames = 0;
+    for (std::size_t v = 0; v < summary.rig_from_board.size(); ++v) {
+      if (!summary.view_used[v] || v >= trial.view_used.size() || !trial.view_used[v]) continue;
+      const Rigid3 trial_from_solved =
+          trial.rig_from_board[v] * summary.rig_from_board[v].Inverse();
+      for (std::size_t i = 0; i < n; ++i) moved[i] += trial_from_solved * points[i];
+      ++frames;
+    }
+    if (frames == 0) throw CalibrationError("projection uncertainty: a trial kept no board view");
+    for (auto& p : moved) p /= frames;
+    for (int c = 0; c < num_cameras; ++c) {
+      const std::vector<Eigen::Vector2d> q = trial.rig.cameras[c].model.Project(moved);
+      for (std::size_t i = 0; i < n; ++i) {
+        const Eigen::Vector2d d = q[i] - solved[c][i];
+        if (!d.allFinite()) continue;
+        sum[c][i] += d;
+        sum_outer[c][i] += d * d.transpose();
+      }
+    }
+  }
+  for (int c = 0; c < num_cameras; ++c) {
+    const CameraModel& cam = rig.cameras[c].model;
+    CameraUncertainty cu;
+    cu.name = rig.cameras[c].name;
+    const double f = 0.5 * (cam.intrinsics()[0] + cam.intrinsics()[1]);
+    for (std::size_t i = 0; i < n; ++i) {
+      const Eigen::Vector2d mean = sum[c][i] / trials;
+      // 1 sigma in the worst direction (mrcal's default 'worstdirection-stdev'): the square root
+      // of the largest eigenvalue of the projection's 2x2 covariance (Bessel-corrected).
+      const Eigen::Matrix2d cov =
+          (sum_outer[c][i] / trials - mean * mean.transpose()) * trials / (trials - 1.0);
+      const double sigma = std::sqrt(std::max(
+          0.0, Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d>(cov).eigenvalues().maxCoeff()));
+      cu.max_px = std::max(cu.max_px, sigma);
+      cu.mean_px += sigma / n;
+      const double depth = (cam.cam_from_rig() * points[i]).z();
+      if (depth > 0 && f > 0) cu.max_voxels = std::max(cu.max_voxels, sigma * depth / f / voxel_m);
+    }
+    if (cu.max_voxels > 0.5) {
+      char buf[200];
+      std::snprintf(buf, sizeof(buf),
+                    "%s: projection uncertainty %.2f voxel (%.3f px, 1 sigma) over the box, more "
+                    "than half a voxel",
+                    cu.name.c_str(), cu.max_voxels, cu.max_px);
+      u.warnings.push_back(buf);
+    }
+    u.cameras.push_back(cu);
+  }
+  u.time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return u;
 }
 
 std::string CalibrationSummary::BriefReport() const {

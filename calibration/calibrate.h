@@ -173,6 +173,41 @@ struct CalibrationSummary {
 CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptions& options,
                              const CalibrationProgress& progress = nullptr);
 
+// The projection uncertainty of each calibrated camera over the reconstruction box: how far, in
+// pixels (1 sigma), the camera's projection of a point of the box moves when the corners carry
+// the noise the solve found in them. mrcal computes this by linearising its solve (in its Python
+// tools only, notes/mrcal.md); here it is computed as mrcal's own tests check that linearisation:
+// by Monte Carlo. The solved rig and board poses are taken as the truth, their corners re-made
+// exactly, Gaussian noise at the solve's RMS per coordinate added, and the calibration solved
+// again `trials` times with the same options; the spread of each box point's projection is the
+// uncertainty. As in mrcal ("mean-frames"), a point is held fixed in the world the boards define
+// (carried through every board pose and averaged), not in the first camera's frame: near where
+// the boards were, a shift of the principal point and a turn of the camera cancel.
+struct CameraUncertainty {
+  std::string name;
+  // 1 sigma in the worst direction (mrcal's 'worstdirection-stdev'), over a 5x5x5 grid of the
+  // box's points.
+  double max_px = 0, mean_px = 0;
+  // max_px as a distance at the point's depth, in voxels of `voxel_m` (the default grid's).
+  double max_voxels = 0;
+};
+struct ProjectionUncertainty {
+  std::vector<CameraUncertainty> cameras;
+  int trials = 0;
+  double noise_px = 0;  // the noise added, per coordinate
+  double voxel_m = 0;
+  double time_s = 0;
+  // "cam1: 0.62 voxel (1 sigma) over the box, more than half a voxel" for each camera over half a
+  // voxel; empty when none is.
+  std::vector<std::string> warnings;
+};
+// Throws CalibrationError when a trial's solve fails; InputError for trials < 2 or a voxel size
+// that is not positive.
+ProjectionUncertainty EstimateProjectionUncertainty(const CalibrationData& data,
+                                                    const CalibrationSummary& summary,
+                                                    const CalibrationOptions& options, int trials,
+                                                    double voxel_m, std::uint64_t seed = 1);
+
 // Reads the text of a detection cache (the file DetectViews keeps): a first line
 // "# flamerig board detections v2", then "board <BoardSpec::Describe()>" and
 // "detect <DetectOptions::Describe()>" (a cache made for another board or other detector settings

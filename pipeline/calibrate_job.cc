@@ -17,6 +17,7 @@
 #include "core/error.h"
 #include "pipeline/picture.h"
 #include "pipeline/report_page.h"
+#include "tomography/reconstruct.h"
 
 namespace flamerig {
 
@@ -88,6 +89,9 @@ CalibrateConfig CalibrateConfig::Load(const std::string& path) {
   c.options.outlier_rejection = r.Get<bool>("outlier_rejection", true);
   c.options.min_views_per_camera = r.Get<int>("min_views_per_camera", 3);
   c.options.board_warp = r.Get<bool>("board_warp", c.options.board_warp);
+  c.uncertainty_trials = r.Get<int>("uncertainty_trials", c.uncertainty_trials);
+  if (c.uncertainty_trials != 0 && (c.uncertainty_trials < 2 || c.uncertainty_trials > 1000))
+    throw InputError(where + ": 'uncertainty_trials' must be 0 (off) or in [2, 1000]");
   c.options.regularization = r.Get<bool>("regularization", c.options.regularization);
   if (const YAML::Node detect = node["detect"]) {
     r.Seen("detect");
@@ -256,6 +260,8 @@ ImageU8 RigFromAbove(const CalibrationSummary& summary, int size) {
   return FromBgr(img);
 }
 
+using Rows = std::vector<std::vector<std::string>>;
+
 CalibrationSummary RunCalibration(const CalibrateConfig& config, const CalibrateInput& input,
                                   const std::string& out_dir, const CalibrationProgress& progress,
                                   CalibrationData* data_out) {
@@ -284,9 +290,37 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   WriteMrcalCorners(data, (fs::path(out_dir) / "corners.vnl").string(), "views");
   CalibrationSummary summary = Calibrate(data, config.options, progress);
   summary.rig.Save((fs::path(out_dir) / "rig.yaml").string());
+  // Projection uncertainty over the box, in voxels of the grid `flamerig reconstruct` makes of it
+  // by default.
+  ProjectionUncertainty uncertainty;
+  if (config.uncertainty_trials > 0) {
+    const double voxel_m = summary.rig.box.size().maxCoeff() / ReconstructOptions{}.resolution;
+    uncertainty = EstimateProjectionUncertainty(data, summary, config.options,
+                                                config.uncertainty_trials, voxel_m);
+    for (const auto& w : uncertainty.warnings) summary.notes.push_back("WARNING: " + w);
+  }
+  const std::vector<std::string> uncertainty_header = {"camera", "max px (1 sigma)", "mean px",
+                                                       "max voxels"};
+  Rows uncertainty_rows;
+  for (const auto& cu : uncertainty.cameras)
+    uncertainty_rows.push_back({cu.name, fmt::format("{:.3f}", cu.max_px),
+                                fmt::format("{:.3f}", cu.mean_px),
+                                fmt::format("{:.3f}", cu.max_voxels)});
+  const std::string uncertainty_text =
+      uncertainty.trials == 0
+          ? "Not computed (uncertainty_trials: 0)."
+          : fmt::format(
+                "How far each camera's projection of the reconstruction box's points moves (1 "
+                "sigma in the worst direction, a point held fixed relative to the boards, as "
+                "mrcal-show-projection-uncertainty shows it) when the corners carry the noise the "
+                "solve found in them ({:.3f} px per coordinate): {} solves by Monte Carlo, which "
+                "agree with mrcal's linearised figure to about 15% (tested), in {:.1f} s. Voxels: "
+                "of the default {}-voxel grid ({:.2f} mm). "
+                "Over half a voxel, the reconstruction is limited by the calibration.",
+                uncertainty.noise_px, uncertainty.trials, uncertainty.time_s,
+                ReconstructOptions{}.resolution, uncertainty.voxel_m * 1e3);
 
   // The report: the same tables as Markdown (report.md) and as a page (index.html).
-  using Rows = std::vector<std::vector<std::string>>;
   const std::vector<std::string> camera_header = {"camera",   "views",  "corners",
                                                   "outliers", "RMS px", "median px",
                                                   "p95 px",   "max px", "image covered"};
@@ -372,6 +406,8 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
      << summary.BriefReport() << "```\n\n"
      << rms_note << "\n\n";
   md_table(camera_header, camera_rows);
+  md << "\n## Projection uncertainty over the box\n\n" << uncertainty_text << "\n\n";
+  if (!uncertainty_rows.empty()) md_table(uncertainty_header, uncertainty_rows);
   md << "\n## Worst corners (inliers)\n\n";
   md_table(worst_header, worst_rows);
   md << "\n## Camera poses (rig frame)\n\n";
@@ -401,6 +437,9 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
                 s.name +
                     ": where its corners fell on the image, each coloured by its "
                     "reprojection error; magenta crosses are outliers.");
+  page.Section("Projection uncertainty over the box");
+  page.Text(uncertainty_text);
+  if (!uncertainty_rows.empty()) page.Table(uncertainty_header, uncertainty_rows);
   page.Section("The rig");
   page.Table(pose_header, pose_rows);
   page.Figure("rig_top.png",

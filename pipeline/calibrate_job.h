@@ -11,6 +11,7 @@
 //     focal_px: 0                    # seed; 0 = estimate from the board
 //     outlier_rejection: true
 //     board_warp: true               # solve the board's bow (mrcal's calobject_warp)
+//     uncertainty_trials: 20         # Monte Carlo solves for the projection uncertainty; 0: off
 //     regularization: true           # mrcal's light pull of the distortion towards zero
 //     detect:                        # calibration/board.h DetectOptions
 //       detector: auto               # chessboards: auto (classic, then sb) | classic | sb
@@ -32,7 +33,10 @@
 //   rig.yaml, cameras/<camera>.cameramodel   the rig (reconstruct and fit read it; mrcal's tools
 //                                            read the models)
 //   report.md                                RMS (per point and per coordinate), per-camera
-//                                            residuals, worst corners, every image without a
+//                                            residuals, projection uncertainty over the box (in
+//                                            pixels and voxels of the default grid, a warning
+//                                            over half a voxel), worst corners, every image
+//                                            without a
 //                                            board and every corner left out (with the reason),
 //                                            notes, pictures:
 //   coverage_<camera>.png                    the image area covered by corners, coloured by error
@@ -56,6 +60,8 @@ struct CalibrateConfig {
   std::vector<std::string> cameras;
   CalibrationOptions options;
   DetectOptions detect;
+  // Monte Carlo solves for the projection uncertainty (calibration/calibrate.h); 0: none.
+  int uncertainty_trials = 20;
   // Reads the `calibrate:` map of a YAML file; errors (InputError) name the file and
   // key. Relative board_file paths are relative to the config file.
   static CalibrateConfig Load(const std::string& path);

@@ -37,6 +37,8 @@ TEST_F(Ring, WritesARigThatLoadsAndAReport) {
   EXPECT_NE(text.find("## Images without a board"), std::string::npos);
   EXPECT_NE(text.find("## Corners found but left out"), std::string::npos);
   EXPECT_NE(text.find("mrcal counts"), std::string::npos);
+  EXPECT_NE(text.find("## Projection uncertainty over the box"), std::string::npos);
+  EXPECT_NE(text.find("| cam3 |"), std::string::npos);
   fs::remove_all(out);
 }
 

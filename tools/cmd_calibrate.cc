@@ -33,6 +33,8 @@ Runner AddCalibrate(CLI::App* command) {
     const CalibrationSummary s =
         RunCalibration(config, CalibrateInput{o->images, o->recording}, o->out, context.Progress());
     std::fprintf(stderr, "%s", s.BriefReport().c_str());
+    for (const auto& note : s.notes)
+      if (note.rfind("WARNING: ", 0) == 0) Log().warn("calibrate: {}", note.substr(9));
     Log().info("calibrate: wrote {}/rig.yaml, {}/report.md", o->out, o->out);
     return kExitOk;
   };
