@@ -813,9 +813,16 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
       // Where the solved model puts the corner, on the board as solved (bowed when warp is on).
       const Eigen::Vector3d p = WarpedCorner(corners_in_board[id], board, warp);
       const Eigen::Vector2d q = cam.Project(rig_from_board * p);
-      ObservationError e{o.camera, o.view, id, (q - o.detection.corners_px[k]).norm(),
-                         pool[i * W * H + id].z < 0};
-      if (!std::isfinite(e.error_px)) e.error_px = 1e30;
+      ObservationError e{o.camera,
+                         o.view,
+                         id,
+                         (q - o.detection.corners_px[k]).norm(),
+                         pool[i * W * H + id].z < 0,
+                         q - o.detection.corners_px[k]};
+      if (!std::isfinite(e.error_px)) {
+        e.error_px = 1e30;
+        e.residual_px.setZero();
+      }
       summary.errors.push_back(e);
       ++summary.cameras[o.camera].points;
       if (e.outlier) {

@@ -132,6 +132,8 @@ struct ObservationError {
   int camera = 0, view = 0, corner = 0;
   double error_px = 0;  // distance between detected and projected corner
   bool outlier = false;
+  Eigen::Vector2d residual_px =
+      Eigen::Vector2d::Zero();  // projected minus detected (0 if not finite)
 };
 
 struct CameraResidualStats {

@@ -196,6 +196,103 @@ ImageU8 CoveragePicture(const CalibrationData& data, const CalibrationSummary& s
   return Labelled(FromBgr(img), text);
 }
 
+ImageU8 ResidualVectorsPicture(const CalibrationData& data, const CalibrationSummary& summary,
+                               int camera) {
+  const int w = data.widths.at(camera), h = data.heights.at(camera);
+  const double scale = std::min(1.0, 800.0 / w);
+  const int W = std::max(1, static_cast<int>(w * scale)),
+            H = std::max(1, static_cast<int>(h * scale));
+  cv::Mat img(H, W, CV_8UC3, cv::Scalar(255, 255, 255));
+  cv::rectangle(img, cv::Point(0, 0), cv::Point(W - 1, H - 1), cv::Scalar(0, 0, 0), 1);
+  double p95 = 0;
+  for (const auto& c : summary.cameras)
+    if (c.name == data.camera_names[camera]) p95 = c.p95_px;
+  const double magnify = p95 > 0 ? 25.0 / (p95 * scale) : 1.0;
+  std::size_t k = 0;
+  for (const auto& o : data.observations)
+    for (std::size_t i = 0; i < o.detection.corner_ids.size(); ++i, ++k) {
+      if (o.camera != camera || k >= summary.errors.size()) continue;
+      const ObservationError& e = summary.errors[k];
+      const Eigen::Vector2d from = o.detection.corners_px[i] * scale;
+      const cv::Point a(static_cast<int>(std::lround(from.x())),
+                        static_cast<int>(std::lround(from.y())));
+      if (e.outlier) {
+        cv::drawMarker(img, a, cv::Scalar(255, 0, 255), cv::MARKER_TILTED_CROSS, 7, 1);
+        continue;
+      }
+      const Eigen::Vector2d to = from + magnify * scale * e.residual_px;
+      cv::arrowedLine(
+          img, a,
+          cv::Point(static_cast<int>(std::lround(to.x())), static_cast<int>(std::lround(to.y()))),
+          cv::Scalar(160, 60, 0), 1, cv::LINE_AA, 0, 0.25);
+    }
+  char text[240];
+  std::snprintf(text, sizeof(text),
+                "%s: each corner's residual (projected minus detected), magnified %.0fx "
+                "(an arrow of 25 px is the 95th percentile, %.3f px); magenta x: outlier",
+                data.camera_names[camera].c_str(), magnify, p95);
+  return Labelled(FromBgr(img), text);
+}
+
+ImageU8 ResidualsPerImagePicture(const CalibrationData& data, const CalibrationSummary& summary,
+                                 int camera) {
+  // RMS per observation of this camera, in observation (view) order.
+  std::vector<double> rms;
+  std::vector<std::string> names;
+  std::size_t k = 0;
+  for (const auto& o : data.observations) {
+    double sq = 0;
+    int n = 0;
+    for (std::size_t i = 0; i < o.detection.corner_ids.size(); ++i, ++k) {
+      if (o.camera != camera || k >= summary.errors.size() || summary.errors[k].outlier) continue;
+      sq += summary.errors[k].error_px * summary.errors[k].error_px;
+      ++n;
+    }
+    if (o.camera != camera) continue;
+    rms.push_back(n ? std::sqrt(sq / n) : 0.0);
+    names.push_back(data.view_names[o.view]);
+  }
+  const int width = 800, height = 300, left = 60, bottom = 40, top = 20;
+  cv::Mat img(height, width, CV_8UC3, cv::Scalar(255, 255, 255));
+  const double top_value =
+      std::max(1e-6, rms.empty() ? 1.0 : *std::max_element(rms.begin(), rms.end()));
+  const int plot_w = width - left - 10, plot_h = height - bottom - top;
+  cv::line(img, cv::Point(left, top), cv::Point(left, top + plot_h), cv::Scalar(0, 0, 0), 1);
+  cv::line(img, cv::Point(left, top + plot_h), cv::Point(left + plot_w, top + plot_h),
+           cv::Scalar(0, 0, 0), 1);
+  const double bar = rms.empty() ? 1.0 : static_cast<double>(plot_w) / rms.size();
+  for (std::size_t i = 0; i < rms.size(); ++i) {
+    const int x0 = left + static_cast<int>(i * bar),
+              x1 = left + static_cast<int>((i + 1) * bar) - 1;
+    const int y = top + plot_h - static_cast<int>(plot_h * rms[i] / top_value);
+    cv::rectangle(img, cv::Point(x0, y), cv::Point(std::max(x0, x1), top + plot_h - 1),
+                  cv::Scalar(160, 60, 0), cv::FILLED);
+  }
+  std::vector<double> sorted = rms;
+  std::sort(sorted.begin(), sorted.end());
+  const double median = sorted.empty() ? 0 : sorted[sorted.size() / 2];
+  const int ym = top + plot_h - static_cast<int>(plot_h * median / top_value);
+  cv::line(img, cv::Point(left, ym), cv::Point(left + plot_w, ym), cv::Scalar(0, 140, 255), 1);
+  char label[64];
+  std::snprintf(label, sizeof(label), "%.3f", top_value);
+  cv::putText(img, label, cv::Point(4, top + 10), cv::FONT_HERSHEY_SIMPLEX, 0.4,
+              cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  cv::putText(img, "0", cv::Point(40, top + plot_h), cv::FONT_HERSHEY_SIMPLEX, 0.4,
+              cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  if (!names.empty()) {
+    cv::putText(img, names.front(), cv::Point(left, height - 22), cv::FONT_HERSHEY_SIMPLEX, 0.4,
+                cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+    cv::putText(img, names.back(), cv::Point(std::max(left, left + plot_w - 80), height - 22),
+                cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  }
+  char text[200];
+  std::snprintf(text, sizeof(text),
+                "%s: RMS residual (px, inliers) of each of its %zu images, in view order; "
+                "orange: the median, %.3f px",
+                data.camera_names[camera].c_str(), rms.size(), median);
+  return Labelled(FromBgr(img), text);
+}
+
 ImageU8 RigFromAbove(const CalibrationSummary& summary, int size) {
   const Rig& rig = summary.rig;
   // Top view: looking down the rig's up axis. Horizontal axes: the two rig axes most orthogonal to
@@ -330,6 +427,10 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
     double covered = 0;
     WritePng((fs::path(out_dir) / ("coverage_" + s.name + ".png")).string(),
              CoveragePicture(data, summary, static_cast<int>(c), &covered));
+    WritePng((fs::path(out_dir) / ("residuals_" + s.name + ".png")).string(),
+             ResidualVectorsPicture(data, summary, static_cast<int>(c)));
+    WritePng((fs::path(out_dir) / ("per_image_" + s.name + ".png")).string(),
+             ResidualsPerImagePicture(data, summary, static_cast<int>(c)));
     camera_rows.push_back({s.name, std::to_string(s.views), std::to_string(s.points),
                            std::to_string(s.outliers), fmt::format("{:.3f}", s.rms_px_per_point),
                            fmt::format("{:.3f}", s.median_px), fmt::format("{:.3f}", s.p95_px),
@@ -421,7 +522,9 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   for (const auto& n : notes) md << "- " << n << "\n";
   md << "\n![rig from above](rig_top.png)\n\n";
   for (const auto& s : summary.cameras)
-    md << "![coverage " << s.name << "](coverage_" << s.name << ".png)\n";
+    md << "![coverage " << s.name << "](coverage_" << s.name << ".png)\n"
+       << "![residuals " << s.name << "](residuals_" << s.name << ".png)\n"
+       << "![residuals per image " << s.name << "](per_image_" << s.name << ".png)\n";
   md << "\nTo solve the same detections with mrcal's own tool: `" << mrcal.str()
      << "` (with `--imagersize W H` since the paths are virtual).\n";
 
@@ -432,11 +535,18 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   page.Section("Residuals per camera");
   page.Text(rms_note);
   page.Table(camera_header, camera_rows);
-  for (const auto& s : summary.cameras)
+  for (const auto& s : summary.cameras) {
     page.Figure("coverage_" + s.name + ".png",
                 s.name +
                     ": where its corners fell on the image, each coloured by its "
                     "reprojection error; magenta crosses are outliers.");
+    page.Figure("residuals_" + s.name + ".png",
+                s.name +
+                    ": each corner's residual as an arrow, magnified; arrows that turn together "
+                    "over the image mean a lens model that does not fit.");
+    page.Figure("per_image_" + s.name + ".png",
+                s.name + ": the RMS residual of each image; a bad image stands out.");
+  }
   page.Section("Projection uncertainty over the box");
   page.Text(uncertainty_text);
   if (!uncertainty_rows.empty()) page.Table(uncertainty_header, uncertainty_rows);

@@ -40,6 +40,8 @@
 //                                            board and every corner left out (with the reason),
 //                                            notes, pictures:
 //   coverage_<camera>.png                    the image area covered by corners, coloured by error
+//   residuals_<camera>.png                   each corner's residual as an arrow over the image
+//   per_image_<camera>.png                   the RMS residual of each of its images
 //   rig_top.png                              the rig from above: cameras, box, board positions
 //   corners.vnl                              the detections in mrcal's corners format (re-solve
 //                                            with mrcal-calibrate-cameras)
@@ -84,6 +86,15 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
 ImageU8 CoveragePicture(const CalibrationData& data, const CalibrationSummary& summary, int camera,
                         double* covered_fraction);
 ImageU8 RigFromAbove(const CalibrationSummary& summary, int size = 700);
+// Each inlier corner's residual as an arrow over the image area (magnified so that the 95th
+// percentile is 25 picture pixels long; the factor is in the label): a calibrator reads a lens
+// model that does not fit from arrows that turn together. RGB, at most 800 px wide.
+ImageU8 ResidualVectorsPicture(const CalibrationData& data, const CalibrationSummary& summary,
+                               int camera);
+// The RMS residual of each board observation of one camera, in view order, with the camera's
+// median, so that a bad image stands out. RGB.
+ImageU8 ResidualsPerImagePicture(const CalibrationData& data, const CalibrationSummary& summary,
+                                 int camera);
 
 }  // namespace flamerig
 

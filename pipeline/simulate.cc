@@ -161,7 +161,7 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
   if (YAML::Node r = s["rig"]) {
     CheckKeys(r,
               {"cameras", "azimuths_deg", "distance_m", "elevation_deg", "width", "height", "fill",
-               "lensmodel"},
+               "lensmodel", "distortion"},
               path + ": simulate.rig");
     Read(r, "cameras", &c.ring.cameras, path, "simulate.rig.");
     Read(r, "azimuths_deg", &c.ring.azimuths_deg, path, "simulate.rig.");
@@ -171,11 +171,12 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
     Read(r, "height", &c.ring.height, path, "simulate.rig.");
     Read(r, "fill", &c.ring.fill, path, "simulate.rig.");
     Read(r, "lensmodel", &c.ring.lensmodel, path, "simulate.rig.");
+    Read(r, "distortion", &c.ring.distortion, path, "simulate.rig.");
   }
   if (YAML::Node cal = s["calibration"]) {
     CheckKeys(cal,
               {"enabled", "board", "squares", "square_m", "marker_m", "shared_per_pair",
-               "closeups_per_camera"},
+               "closeups_per_camera", "shadow", "gradient", "blur_px"},
               path + ": simulate.calibration");
     Read(cal, "enabled", &c.calibration, path, "simulate.calibration.");
     std::string board = "charuco";
@@ -196,6 +197,14 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
     Read(cal, "marker_m", &c.board.marker_m, path, "simulate.calibration.");
     Read(cal, "shared_per_pair", &c.shared_per_pair, path, "simulate.calibration.");
     Read(cal, "closeups_per_camera", &c.closeups_per_camera, path, "simulate.calibration.");
+    Read(cal, "shadow", &c.board_lighting.shadow, path, "simulate.calibration.");
+    Read(cal, "gradient", &c.board_lighting.gradient, path, "simulate.calibration.");
+    Read(cal, "blur_px", &c.board_lighting.blur_px, path, "simulate.calibration.");
+    try {
+      c.board_lighting.Validate();
+    } catch (const InputError& e) {
+      Fail(path, "simulate.calibration", e.what());
+    }
   }
   if (YAML::Node r = s["render"]) {
     CheckKeys(r, {"step_voxels"}, path + ": simulate.render");
@@ -463,7 +472,8 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
   if (config.calibration) {
     auto written = synthetic::WriteCalibrationViews(
         rig, config.board, config.seed, config.shared_per_pair, config.closeups_per_camera,
-        config.noise_dn, (fs::path(out_dir) / "calibration").string(), progress);
+        config.noise_dn, (fs::path(out_dir) / "calibration").string(), progress,
+        config.board_lighting);
     for (auto& image : written.first_view) board_preview.push_back(std::move(image));
     summary.calibration_views = written.views;
     summary.calibration_images = written.images;

@@ -16,9 +16,13 @@
 //   noise_dn [0.5], box: {min, max}
 //   rig: {cameras [2], azimuths_deg, distance_m [0.3], elevation_deg [0], width [320], height
 //   [240],
-//         fill [0.85], lensmodel [LENSMODEL_OPENCV8]}
+//         fill [0.85], lensmodel [LENSMODEL_OPENCV8; any mrcal model with a core],
+//         distortion [the model's parameters after fx fy cx cy; default: a mild barrel for
+//         OPENCV8, zeros otherwise; a strong lens: [-0.3, 0.08, 0, 0, 0, 0, 0, 0]]}
 //   calibration: {enabled [true], board [charuco|chessboard], squares [7, 5], square_m [0.012],
-//                 marker_m [0.009], shared_per_pair [6], closeups_per_camera [4]}
+//                 marker_m [0.009], shared_per_pair [6], closeups_per_camera [4],
+//                 shadow [1: none; the light left in a shadow across half of each board],
+//                 gradient [0], blur_px [0]}
 //   render: {step_voxels [0.5]}
 //   radiometry: {...}   every camera's radiometric model (calibration/radiometry.h) [the default
 //                        8-bit sRGB camera]; written into OUT/rig.yaml. Cameras of more than 8 bits
@@ -66,6 +70,7 @@ struct SimulateConfig {
   synthetic::BoardSpec board;
   int shared_per_pair = 6;
   int closeups_per_camera = 4;
+  synthetic::BoardLighting board_lighting;  // shadows, gradient and blur on the boards
   RenderOptions render;
   CameraRadiometry radiometry;  // of every camera
   bool codec_enabled = false;   // 8-bit frames through `codec`

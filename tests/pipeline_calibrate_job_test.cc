@@ -27,8 +27,9 @@ TEST_F(Ring, WritesARigThatLoadsAndAReport) {
   for (std::size_t c = 0; c < 4; ++c)
     for (std::size_t i = 0; i < rig.cameras[c].model.intrinsics().size(); ++i)
       EXPECT_EQ(rig.cameras[c].model.intrinsics()[i], s.rig.cameras[c].model.intrinsics()[i]);
-  for (const char* f : {"report.md", "rig_top.png", "coverage_cam0.png", "coverage_cam3.png",
-                        "corners.vnl", "detections.cache"})
+  for (const char* f :
+       {"report.md", "rig_top.png", "coverage_cam0.png", "coverage_cam3.png", "residuals_cam0.png",
+        "per_image_cam3.png", "corners.vnl", "detections.cache"})
     EXPECT_TRUE(fs::exists(out / f)) << f;
   std::ifstream report(out / "report.md");
   std::string text((std::istreambuf_iterator<char>(report)), std::istreambuf_iterator<char>());

@@ -17,6 +17,7 @@
 
 #include "calibration/synthetic_rig.h"
 #include "pipeline/calibrate_job.h"
+#include "pipeline/simulate.h"
 #include "tests/calibration_ring.h"
 
 namespace flamerig {
@@ -154,6 +155,35 @@ TEST(CalibrateAnyRig, TheRingFrameOnParallelAxesIsRefusedBeforeTheSolve) {
   EXPECT_NE(e.find("first-camera"), std::string::npos) << e;
   EXPECT_TRUE(fs::exists(work / "out" / "corners.vnl"));
   EXPECT_TRUE(fs::exists(work / "out" / "detections.cache"));
+  fs::remove_all(work);
+}
+
+// `flamerig simulate` renders boards through a lens from its config (any mrcal model and
+// distortion) with shadows, and `flamerig calibrate` with no config calibrates them.
+TEST(CalibrateAnyRig, SimulateRendersAStrongLensAndShadowsFromItsConfig) {
+  const fs::path work = TempDir("simulate_wide");
+  std::ofstream(work / "sim.yaml")
+      << "simulate:\n  frames: 1\n  grid_resolution: 12\n"
+         "  rig: {cameras: 2, width: 320, height: 240, fill: 0.3,\n"
+         "        distortion: [-0.3, 0.08, 0, 0, 0, 0, 0, 0]}\n"
+         "  calibration: {board: chessboard, squares: [10, 7], square_m: 0.012,\n"
+         "                shared_per_pair: 8, closeups_per_camera: 8, shadow: 0.35}\n";
+  const SimulateConfig config = SimulateConfig::Load((work / "sim.yaml").string());
+  EXPECT_EQ(config.ring.distortion.size(), 8u);
+  EXPECT_EQ(config.board_lighting.shadow, 0.35);
+  Simulate(config, (work / "out").string());
+  const Rig truth = Rig::Load((work / "out" / "rig.yaml").string());
+  EXPECT_EQ(truth.cameras[0].model.intrinsics()[4], -0.3);
+  const CalibrationSummary s =
+      RunCalibration(CalibrateConfig{}, CalibrateInput{(work / "out" / "calibration").string(), ""},
+                     (work / "cal").string());
+  EXPECT_LT(RelativePoseError(s.rig, truth).first, 0.5);
+  // A distortion of the wrong length is named with the count the model needs.
+  std::ofstream(work / "bad.yaml") << "simulate:\n  rig: {distortion: [-0.3, 0.08]}\n";
+  const std::string e = ErrorOf([&] {
+    Simulate(SimulateConfig::Load((work / "bad.yaml").string()), (work / "bad").string());
+  });
+  EXPECT_NE(e.find("distortion must have 8 values"), std::string::npos) << e;
   fs::remove_all(work);
 }
 
