@@ -94,7 +94,8 @@ BoardSpec ParseBoardSpec(const YAML::Node& node, const std::string& where) {
 
 void DetectOptions::Validate() const {
   auto fail = [](const std::string& what) { throw InputError("board detection: " + what); };
-  if (min_corners < 4) fail("min_corners must be >= 4");
+  // Each corner is checked against a homography of the others: four points fit one exactly.
+  if (min_corners < 5) fail("min_corners must be >= 5");
   if (!(min_span_fraction >= 0 && min_span_fraction <= 1))
     fail("min_span_fraction must be in [0, 1]");
   if (!(max_misfit_squares > 0) || !std::isfinite(max_misfit_squares))
@@ -195,6 +196,9 @@ std::vector<cv::Point2f> FindClassic(const cv::Mat& grey, const cv::Size& size,
       }
     half = std::clamp(static_cast<int>(smallest / 4), 2, 5);
   }
+  // cornerSubPix needs the window (plus a margin) inside the image.
+  half = std::min(half, (std::min(grey.rows, grey.cols) - 5) / 2);
+  if (half < 1) return {};
   cv::cornerSubPix(grey, found, cv::Size(half, half), cv::Size(-1, -1),
                    cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT,
                                     options.subpix_iterations, options.subpix_epsilon));

@@ -98,14 +98,17 @@ enum class ChessboardDetector {
 };
 
 struct DetectOptions {
-  // A detection with fewer corners than this is discarded (a pose from a few corners is weak).
+  // A detection with fewer corners than this is discarded (a pose from a few corners is weak);
+  // at least 5.
   int min_corners = 6;
   // The corners must span at least this fraction of the board's extent in both directions, so
   // that they are not all on one line.
   double min_span_fraction = 0.3;
-  // Consistency: each corner is predicted by a homography fitted to its nearest neighbours on the
-  // board (the 3x3 or, at the board's edges, 5x5 block around it). A lens bends a board across its
-  // whole extent, but over two squares any lens is close to a homography, so the most distorted
+  // Consistency: each corner is predicted by a homography fitted (robustly, RANSAC at half the
+  // tolerance) to its nearest neighbours on the board: the smallest block around it, 3x3 up to
+  // 7x7, holding six of them on two rows and two columns (5x5 at the board's corners), else all
+  // the others. A lens bends a board across its whole extent, but over two squares any lens is
+  // close to a homography, so the most distorted
   // corners at the edge of a wide lens are kept (a global homography threw them out at 0.2 square).
   // A corner further than this (in squares, at least 1 px) from its neighbours' prediction is
   // rejected and listed with its distance; when more than a fifth are, the view is refused (a

@@ -69,12 +69,23 @@ int ParseDetectionCache(const std::string& text, const BoardSpec& board,
       auto it = read.find(key);
       if (it == read.end()) continue;
       if (second == "detector") {
-        s >> it->second.detector;
+        std::string name;
+        s >> name;
+        if (name == "sb" || name == "classic" || name == "charuco")
+          it->second.detector = name;
+        else
+          bad.insert(key);
         continue;
       }
       RejectedCorner r;
-      const bool good = static_cast<bool>(s >> r.corner_id >> r.px.x() >> r.px.y()) &&
-                        r.corner_id >= 0 && r.corner_id < corners && r.px.allFinite();
+      const std::vector<int>& kept_ids = it->second.corner_ids;
+      const auto& rejected = it->second.rejected;
+      // A corner of this board, found, not also kept, in ascending order.
+      const bool good = it->second.found() &&
+                        static_cast<bool>(s >> r.corner_id >> r.px.x() >> r.px.y()) &&
+                        r.corner_id >= 0 && r.corner_id < corners && r.px.allFinite() &&
+                        !std::binary_search(kept_ids.begin(), kept_ids.end(), r.corner_id) &&
+                        (rejected.empty() || r.corner_id > rejected.back().corner_id);
       if (!good) {
         bad.insert(key);
         continue;
@@ -88,11 +99,16 @@ int ParseDetectionCache(const std::string& text, const BoardSpec& board,
     try {
       std::size_t used = 0;
       n = std::stoll(second, &used);
-      if (used != second.size()) continue;
+      if (used != second.size()) n = -1;
     } catch (const std::exception&) {
+      n = -1;
+    }
+    // A detection DetectBoard would not have kept (fewer corners than it asks for) is as bad as a
+    // malformed line: the image is detected again.
+    if (n < 0 || n > corners || (n > 0 && n < detect.min_corners)) {
+      bad.insert(key);
       continue;
     }
-    if (n < 0 || n > corners) continue;
     BoardDetection d;
     if (n == 0) {
       s >> std::ws;
@@ -111,7 +127,14 @@ int ParseDetectionCache(const std::string& text, const BoardSpec& board,
         d.corners_px.emplace_back(x, y);
       }
     }
-    if (!good) continue;
+    if (good && n > 0) {  // nothing may follow the corners
+      s >> std::ws;
+      good = s.eof();
+    }
+    if (!good) {
+      bad.insert(key);
+      continue;
+    }
     read[key] = std::move(d);
     bad.erase(key);
   }
@@ -703,13 +726,13 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
   }
   const mrcal_problem_constants_t constants = {.point_min_range = 1e-3, .point_max_range = 1e6};
   mrcal_calobject_warp_t warp{};  // flat until the last solve, as in mrcal-calibrate-cameras
-  auto solve = [&](bool distortions, bool outliers) {
+  auto solve = [&](bool final_stage, bool distortions, bool outliers) {
     mrcal_problem_selections_t s{};
     s.do_optimize_intrinsics_core = true;
     s.do_optimize_intrinsics_distortions = distortions;
     s.do_optimize_extrinsics = num_cameras > 1;
     s.do_optimize_frames = true;
-    s.do_optimize_calobject_warp = options.board_warp && distortions;
+    s.do_optimize_calobject_warp = options.board_warp && final_stage;
     s.do_apply_regularization = options.regularization;
     s.do_apply_outlier_rejection = outliers;
     return mrcal_optimize(nullptr, 0, nullptr, 0, intrinsics.data(),
@@ -729,9 +752,9 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
       throw Cancelled("calibration: cancelled before the solve");
   };
   report(0);
-  mrcal_stats_t stats = solve(false, false);
+  mrcal_stats_t stats = solve(false, false, false);
   report(1);
-  stats = solve(mrcal_lensmodel_num_params(&lensmodel) > 4, options.outlier_rejection);
+  stats = solve(true, mrcal_lensmodel_num_params(&lensmodel) > 4, options.outlier_rejection);
   report(2);
   if (!std::isfinite(stats.rms_reproj_error__pixels) || stats.rms_reproj_error__pixels < 0)
     throw CalibrationError("calibration: mrcal's solve failed (RMS " +
@@ -877,7 +900,9 @@ ProjectionUncertainty EstimateProjectionUncertainty(const CalibrationData& data,
   const auto start = std::chrono::steady_clock::now();
   const Rig& rig = summary.rig;
   const int num_cameras = static_cast<int>(rig.cameras.size());
-  if (static_cast<int>(data.camera_names.size()) != num_cameras)
+  if (static_cast<int>(data.camera_names.size()) != num_cameras ||
+      summary.rig_from_board.size() != data.view_names.size() ||
+      summary.view_used.size() != data.view_names.size())
     throw CalibrationError("projection uncertainty: the summary is not of this data");
   const std::vector<Eigen::Vector3d> corners = data.board.InnerCornersInBoard();
   mrcal_calobject_warp_t warp;
@@ -902,6 +927,11 @@ ProjectionUncertainty EstimateProjectionUncertainty(const CalibrationData& data,
   u.trials = trials;
   u.noise_px = summary.rms_px_per_coordinate;
   u.voxel_m = voxel_m;
+  if (!(u.noise_px > 0) || !std::isfinite(u.noise_px)) {
+    // Corners the solve fits exactly carry no noise to propagate: no uncertainty.
+    for (const auto& cam : rig.cameras) u.cameras.push_back(CameraUncertainty{cam.name, 0, 0, 0});
+    return u;
+  }
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> noise(0.0, u.noise_px);
   // Per camera and point: the sum and sum of squares of the projections' offsets from the solved.
@@ -910,6 +940,7 @@ ProjectionUncertainty EstimateProjectionUncertainty(const CalibrationData& data,
       num_cameras, std::vector<Eigen::Vector2d>(n, Eigen::Vector2d::Zero()));
   std::vector<std::vector<Eigen::Matrix2d>> sum_outer(
       num_cameras, std::vector<Eigen::Matrix2d>(n, Eigen::Matrix2d::Zero()));
+  std::vector<std::vector<int>> count(num_cameras, std::vector<int>(n, 0));
   std::vector<std::vector<Eigen::Vector2d>> solved(num_cameras);
   for (int c = 0; c < num_cameras; ++c) solved[c] = rig.cameras[c].model.Project(points);
   CalibrationOptions trial_options = options;
@@ -940,6 +971,7 @@ ProjectionUncertainty EstimateProjectionUncertainty(const CalibrationData& data,
         if (!d.allFinite()) continue;
         sum[c][i] += d;
         sum_outer[c][i] += d * d.transpose();
+        ++count[c][i];
       }
     }
   }
@@ -948,19 +980,23 @@ ProjectionUncertainty EstimateProjectionUncertainty(const CalibrationData& data,
     CameraUncertainty cu;
     cu.name = rig.cameras[c].name;
     const double f = 0.5 * (cam.intrinsics()[0] + cam.intrinsics()[1]);
+    int used = 0;
     for (std::size_t i = 0; i < n; ++i) {
-      const Eigen::Vector2d mean = sum[c][i] / trials;
+      const int m = count[c][i];  // a point behind the camera projects nowhere
+      if (m < 2) continue;
+      ++used;
+      const Eigen::Vector2d mean = sum[c][i] / m;
       // 1 sigma in the worst direction (mrcal's default 'worstdirection-stdev'): the square root
       // of the largest eigenvalue of the projection's 2x2 covariance (Bessel-corrected).
-      const Eigen::Matrix2d cov =
-          (sum_outer[c][i] / trials - mean * mean.transpose()) * trials / (trials - 1.0);
+      const Eigen::Matrix2d cov = (sum_outer[c][i] / m - mean * mean.transpose()) * m / (m - 1.0);
       const double sigma = std::sqrt(std::max(
           0.0, Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d>(cov).eigenvalues().maxCoeff()));
       cu.max_px = std::max(cu.max_px, sigma);
-      cu.mean_px += sigma / n;
+      cu.mean_px += sigma;
       const double depth = (cam.cam_from_rig() * points[i]).z();
       if (depth > 0 && f > 0) cu.max_voxels = std::max(cu.max_voxels, sigma * depth / f / voxel_m);
     }
+    cu.mean_px /= std::max(1, used);
     if (cu.max_voxels > 0.5) {
       char buf[200];
       std::snprintf(buf, sizeof(buf),

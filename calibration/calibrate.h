@@ -8,7 +8,8 @@
 //      mrcal_optimize over all intrinsics, extrinsics and board poses: first with the lens
 //      distortion held at zero, then everything, with mrcal's outlier rejection when asked
 //   -> a Rig in a frame the user can rely on (see RigFrame), with the reconstruction box given in
-//      that frame, and a CalibrationSummary with the residuals.
+//      that frame (or a default one around the boards seen), and a CalibrationSummary with the
+//      residuals; EstimateProjectionUncertainty() then says how well it projects over the box.
 //
 // Gauge: mrcal's reference frame is the first camera's. The rig frame is then chosen by
 // RigFrame::kFirstCamera (default) or kRing; changing frame moves every camera by the same rigid

@@ -392,8 +392,14 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   ProjectionUncertainty uncertainty;
   if (config.uncertainty_trials > 0) {
     const double voxel_m = summary.rig.box.size().maxCoeff() / ReconstructOptions{}.resolution;
-    uncertainty = EstimateProjectionUncertainty(data, summary, config.options,
-                                                config.uncertainty_trials, voxel_m);
+    try {
+      uncertainty = EstimateProjectionUncertainty(data, summary, config.options,
+                                                  config.uncertainty_trials, voxel_m);
+    } catch (const CalibrationError& e) {
+      // The rig is written; the report says why its uncertainty is missing.
+      summary.notes.push_back(std::string("WARNING: projection uncertainty not computed: ") +
+                              e.what());
+    }
     for (const auto& w : uncertainty.warnings) summary.notes.push_back("WARNING: " + w);
   }
   const std::vector<std::string> uncertainty_header = {"camera", "max px (1 sigma)", "mean px",
@@ -404,8 +410,8 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
                                 fmt::format("{:.3f}", cu.mean_px),
                                 fmt::format("{:.3f}", cu.max_voxels)});
   const std::string uncertainty_text =
-      uncertainty.trials == 0
-          ? "Not computed (uncertainty_trials: 0)."
+      uncertainty.cameras.empty()
+          ? "Not computed (uncertainty_trials: 0, or see the notes)."
           : fmt::format(
                 "How far each camera's projection of the reconstruction box's points moves (1 "
                 "sigma in the worst direction, a point held fixed relative to the boards, as "

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <functional>
 #include <opencv2/calib3d.hpp>
 
 #include "core/error.h"
@@ -205,12 +206,33 @@ TEST(DetectBoard, ChessboardThroughAStrongLensInShadowKeepsEveryCornerAndItsLabe
 }
 
 TEST(DetectOptions, DescribeChangesWithEverySettingAndBadValuesAreNamed) {
-  DetectOptions a, b;
+  // Every setting, changed alone from the classic detector's (which describes them all), changes
+  // the description.
+  DetectOptions b;
   b.detector = ChessboardDetector::kClassic;
-  EXPECT_NE(a.Describe(), b.Describe());
+  EXPECT_NE(DetectOptions().Describe(), b.Describe());
+  const std::vector<std::function<void(DetectOptions&)>> changes = {
+      [](DetectOptions& o) { o.min_corners = 9; },
+      [](DetectOptions& o) { o.min_span_fraction = 0.5; },
+      [](DetectOptions& o) { o.max_misfit_squares = 0.15; },
+      [](DetectOptions& o) { o.subpix_half_window = 7; },
+      [](DetectOptions& o) { o.subpix_iterations = 10; },
+      [](DetectOptions& o) { o.subpix_epsilon = 0.01; },
+      [](DetectOptions& o) { o.detector = ChessboardDetector::kAuto; }};
+  for (std::size_t i = 0; i < changes.size(); ++i) {
+    DetectOptions o = b;
+    changes[i](o);
+    EXPECT_NE(o.Describe(), b.Describe()) << "setting " << i;
+  }
+  DetectOptions sb;
+  sb.detector = ChessboardDetector::kSb;
+  DetectOptions sb_fast = sb;
+  sb_fast.accurate_chessboard = false;
+  EXPECT_NE(sb.Describe(), sb_fast.Describe());
   DetectOptions c = b;
-  c.subpix_half_window = 7;
-  EXPECT_NE(b.Describe(), c.Describe());
+  c.min_corners = 4;  // four corners fit a homography exactly: nothing to check them against
+  EXPECT_THROW(c.Validate(), InputError);
+  c = b;
   EXPECT_EQ(ChessboardDetectorFromName("classic"), ChessboardDetector::kClassic);
   EXPECT_THROW(ChessboardDetectorFromName("mrgingham"), InputError);
   c.subpix_iterations = 0;

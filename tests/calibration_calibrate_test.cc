@@ -364,13 +364,11 @@ TEST(DetectionCache, KeepsRejectedCornersAndDropsBadLines) {
   const std::string head = "# flamerig board detections v2\nboard " + board.Describe() +
                            "\ndetect " + detect.Describe() + "\n";
   std::map<std::string, BoardDetection> entries;
-  EXPECT_EQ(ParseDetectionCache(head + "a_1x1 2 0 1 2 5 3 4\n"
-                                       "a_1x1 detector charuco\n"
-                                       "a_1x1 reject 3 7.5 8.5 6.1 px from where its 8 neighbours\n"
-                                       "b_1x1 2 0 1 2 5 3 4\n"
-                                       "b_1x1 reject 99 7.5 8.5 not on the board\n"
-                                       "c_1x1 2 0 1 2 5 3 4\n"
-                                       "c_1x1 reject 3 nan 8.5 not finite\n",
+  const std::string six = " 6 0 1 1 1 2 1 2 3 1 4 4 1 5 5 1 6 6 1\n";  // corners 0, 1, 2, 4, 5, 6
+  EXPECT_EQ(ParseDetectionCache(head + "a_1x1" + six + "a_1x1 detector charuco\n" +
+                                    "a_1x1 reject 3 7.5 8.5 6.1 px from where its 8 neighbours\n" +
+                                    "b_1x1" + six + "b_1x1 reject 99 7.5 8.5 not on the board\n" +
+                                    "c_1x1" + six + "c_1x1 reject 3 nan 8.5 not finite\n",
                                 board, detect, &entries),
             1);
   ASSERT_EQ(entries.count("a_1x1"), 1u);
@@ -380,11 +378,24 @@ TEST(DetectionCache, KeepsRejectedCornersAndDropsBadLines) {
   EXPECT_EQ(a.rejected[0].corner_id, 3);
   EXPECT_EQ(a.rejected[0].px, Eigen::Vector2d(7.5, 8.5));
   EXPECT_EQ(a.rejected[0].reason, "6.1 px from where its 8 neighbours");
+  // Lines DetectBoard could not have written are dropped with their image: fewer corners than it
+  // keeps, anything after the corners, a corner both kept and rejected, an unknown detector.
+  entries.clear();
+  EXPECT_EQ(ParseDetectionCache(head + "short_1x1 2 0 1 2 5 3 4\n"
+                                       "d_1x1 6 0 1 1 1 2 1 2 3 1 4 4 1 5 5 1 6 6 1\n"
+                                       "junk_1x1 6 0 1 1 1 2 1 2 3 1 4 4 1 5 5 1 6 6 1 x 9\n"
+                                       "both_1x1 6 0 1 1 1 2 1 2 3 1 4 4 1 5 5 1 6 6 1\n"
+                                       "both_1x1 reject 2 1 1 kept and rejected\n"
+                                       "who_1x1 6 0 1 1 1 2 1 2 3 1 4 4 1 5 5 1 6 6 1\n"
+                                       "who_1x1 detector mrgingham\n",
+                                board, detect, &entries),
+            1);
+  EXPECT_EQ(entries.count("d_1x1"), 1u);
   // Another detector setting: nothing is read.
   DetectOptions other;
   other.detector = ChessboardDetector::kClassic;
   entries.clear();
-  EXPECT_EQ(ParseDetectionCache(head + "a_1x1 2 0 1 2 5 3 4\n", board, other, &entries), 0);
+  EXPECT_EQ(ParseDetectionCache(head + "a_1x1" + six, board, other, &entries), 0);
 }
 
 // A calibration recording (frame sets with a camera missing where it did not see the board) gives

@@ -142,9 +142,9 @@ int main(int argc, char** argv) {
         "detect " +
             flamerig::DetectOptions().Describe() +
             "\n"
-            "0a1b2c3d_320x240 3 0 10.5 20.25 1 30.5 20.5 7 11 40\n"
+            "0a1b2c3d_320x240 6 0 10.5 20.25 1 30.5 20.5 2 50 20 6 11 40 7 31 40 8 50 40\n"
             "0a1b2c3d_320x240 detector charuco\n"
-            "0a1b2c3d_320x240 reject 2 19.5 20.5 6.1 px from where its 8 neighbours put it\n"
+            "0a1b2c3d_320x240 reject 3 69.5 20.5 6.1 px from where its 8 neighbours put it\n"
             "deadbeef_320x240 0 no board: blurred\n");
 
   // control
