@@ -11,8 +11,8 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "core/error.h"
 #include "core/config_reader.h"
+#include "core/error.h"
 
 namespace flamerig {
 
@@ -411,7 +411,7 @@ BoardDetection DetectBoard(const ImageU8& image, const BoardSpec& board,
   options.Validate();
   if (image.channels != 1 || image.empty())
     throw InputError("DetectBoard: need a non-empty 8-bit grey image, got " +
-                                std::to_string(image.channels) + " channels");
+                     std::to_string(image.channels) + " channels");
   cv::Mat grey(image.height, image.width, CV_8UC1, const_cast<std::uint8_t*>(image.pixels.data()));
   BoardDetection d = board.type == BoardType::kCharuco ? DetectCharuco(grey, board)
                                                        : DetectChessboard(grey, board, options);

@@ -78,7 +78,7 @@ struct BoardDetection {
   std::vector<Eigen::Vector2d> corners_px;  // same order
   std::vector<RejectedCorner> rejected;     // corners found but left out, ascending id
   std::string detector;  // which detector found them ("sb", "classic", "charuco")
-  std::string failure;                      // why nothing was found; empty when found
+  std::string failure;   // why nothing was found; empty when found
   bool found() const { return !corner_ids.empty(); }
 };
 

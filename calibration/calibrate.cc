@@ -19,10 +19,10 @@
 #include <set>
 #include <sstream>
 
-#include "core/atomic_file.h"
-#include "core/error.h"
 #include "acquisition/frame.h"
 #include "acquisition/recording.h"
+#include "core/atomic_file.h"
+#include "core/error.h"
 
 extern "C" {
 #include <mrcal/mrcal.h>
@@ -35,15 +35,13 @@ namespace fs = std::filesystem;
 void CalibrationOptions::Validate() const {
   mrcal_lensmodel_t lm;
   if (!mrcal_lensmodel_from_name(&lm, lensmodel.c_str()) || !mrcal_lensmodel_type_is_valid(lm.type))
-    throw InputError("calibration: lensmodel '" + lensmodel +
-                                "' is not an mrcal lens model name");
+    throw InputError("calibration: lensmodel '" + lensmodel + "' is not an mrcal lens model name");
   if (!mrcal_lensmodel_metadata(&lm).has_core)
     throw InputError("calibration: lensmodel '" + lensmodel +
-                                "' has no fx fy cx cy core; use a PINHOLE or OPENCV model");
+                     "' has no fx fy cx cy core; use a PINHOLE or OPENCV model");
   if (!(focal_px >= 0) || !std::isfinite(focal_px))
     throw InputError("calibration: focal_px must be >= 0 (0: estimate)");
-  if (min_views_per_camera < 1)
-    throw InputError("calibration: min_views_per_camera must be >= 1");
+  if (min_views_per_camera < 1) throw InputError("calibration: min_views_per_camera must be >= 1");
   if (!ring_origin_m.allFinite()) throw InputError("calibration: ring_origin must be finite");
 }
 

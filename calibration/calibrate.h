@@ -35,9 +35,9 @@
 #include <vector>
 
 #include "calibration/board.h"
+#include "calibration/rig.h"
 #include "core/error.h"
 #include "core/progress.h"
-#include "calibration/rig.h"
 
 namespace flamerig {
 
@@ -112,7 +112,7 @@ struct CalibrationOptions {
   // its axes, in metres at the board's centre), as mrcal-calibrate-cameras does by default: a
   // printed board is never quite flat, and an unmodelled bow biases the intrinsics.
   bool board_warp = true;
-  int min_views_per_camera = 3;   // fewer views give weak intrinsics: an error
+  int min_views_per_camera = 3;  // fewer views give weak intrinsics: an error
   // The first camera's frame fits any rig (a stereo pair, a row, a ring). The ring frame only when
   // asked: it needs at least two cameras whose optical axes meet, which is checked on the first
   // estimate of the camera poses, before the solve.

@@ -6,9 +6,9 @@
 #include <functional>
 #include <opencv2/calib3d.hpp>
 
-#include "core/error.h"
 #include "calibration/board.h"
 #include "calibration/synthetic_rig.h"
+#include "core/error.h"
 
 namespace flamerig {
 namespace {

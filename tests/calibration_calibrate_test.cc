@@ -114,27 +114,8 @@ TEST_F(Ring, RecoversTheRingFromRenderedImages) {
 
 // With exact corners (projected through the true models) the solve must give back the truth to
 // solver precision: a check of the whole mrcal plumbing (board layout, frames, gauge).
-// The detections, with every corner moved to the exact projection of the board's true pose.
-CalibrationData ExactCorners(CalibrationData data, const fs::path& dataset, const Rig& truth) {
-  const auto corners = data.board.InnerCornersInBoard();
-  YAML::Node views = YAML::LoadFile((dataset / "calibration" / "board.yaml").string())["views"];
-  std::map<std::string, Rigid3> pose;
-  for (const auto& v : views) {
-    std::array<double, 6> rt;
-    for (int i = 0; i < 6; ++i) rt[i] = v["rt_rig_from_board"][i].as<double>();
-    pose[v["name"].as<std::string>()] = Rigid3::FromRt(rt);
-  }
-  for (auto& o : data.observations) {
-    const CameraModel& cam = truth.cameras[truth.FindCamera(data.camera_names[o.camera])].model;
-    for (std::size_t k = 0; k < o.detection.corner_ids.size(); ++k)
-      o.detection.corners_px[k] =
-          cam.Project(pose.at(data.view_names[o.view]) * corners[o.detection.corner_ids[k]]);
-  }
-  return data;
-}
-
 TEST_F(Ring, ExactCornersGiveTheTruthBack) {
-  const CalibrationData data = ExactCorners(Detect(), *dir_, *truth_);
+  const CalibrationData data = ExactCorners(Detect(), *dir_ / "calibration", *truth_);
   YAML::Node views = YAML::LoadFile((*dir_ / "calibration" / "board.yaml").string())["views"];
   std::map<std::string, Rigid3> pose;
   for (const auto& v : views) {
@@ -182,7 +163,7 @@ TEST_F(Ring, IntrinsicsAreWithinTheirExpectedNoise) {
   options.ring_origin_m = -Eigen::Vector3d(0, 0.035, 0);
   const CalibrationSummary s = Calibrate(rendered, options);
   const double sigma_px = s.rms_px_per_coordinate;
-  const CalibrationData exact = ExactCorners(rendered, *dir_, *truth_);
+  const CalibrationData exact = ExactCorners(rendered, *dir_ / "calibration", *truth_);
   std::mt19937_64 rng(99);
   std::normal_distribution<double> noise(0.0, sigma_px);
   const int trials = 40;

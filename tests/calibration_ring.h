@@ -8,12 +8,15 @@
 #include <gtest/gtest.h>
 #include <sys/file.h>
 #include <unistd.h>
+#include <yaml-cpp/yaml.h>
 
+#include <array>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <map>
 #include <string>
 
 #include "calibration/calibrate.h"
@@ -66,8 +69,7 @@ class Ring : public ::testing::Test {
       BoardSpec board;
       board.square_m = 0.012;
       board.marker_m = 0.009;
-      synthetic::WriteCalibrationViews(rig, board, 21, 24, 24, 0.5,
-                                       (tmp / "calibration").string());
+      synthetic::WriteCalibrationViews(rig, board, 21, 24, 24, 0.5, (tmp / "calibration").string());
       std::ofstream(tmp / "done") << "complete\n";
       fs::remove_all(*dir_);
       fs::rename(tmp, *dir_);
@@ -89,6 +91,25 @@ class Ring : public ::testing::Test {
 };
 fs::path* Ring::dir_ = nullptr;
 Rig* Ring::truth_ = nullptr;
+
+// The corners of each observation where the truth projects them (the views' true poses are in
+// the board.yaml beside the images, `views`).
+inline CalibrationData ExactCorners(CalibrationData data, const fs::path& views, const Rig& truth) {
+  const auto corners = data.board.InnerCornersInBoard();
+  std::map<std::string, Rigid3> pose;
+  for (const auto& v : YAML::LoadFile((views / "board.yaml").string())["views"]) {
+    std::array<double, 6> rt;
+    for (int i = 0; i < 6; ++i) rt[i] = v["rt_rig_from_board"][i].as<double>();
+    pose[v["name"].as<std::string>()] = Rigid3::FromRt(rt);
+  }
+  for (auto& o : data.observations) {
+    const CameraModel& cam = truth.cameras[truth.FindCamera(data.camera_names[o.camera])].model;
+    for (std::size_t k = 0; k < o.detection.corner_ids.size(); ++k)
+      o.detection.corners_px[k] =
+          cam.Project(pose.at(data.view_names[o.view]) * corners[o.detection.corner_ids[k]]);
+  }
+  return data;
+}
 
 // ---- Bad input: each error names the camera (or file) and the reason.
 

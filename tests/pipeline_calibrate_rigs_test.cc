@@ -187,25 +187,6 @@ TEST(CalibrateAnyRig, SimulateRendersAStrongLensAndShadowsFromItsConfig) {
   fs::remove_all(work);
 }
 
-// The corners of each observation where the truth projects them (the views' true poses are in
-// the board.yaml beside the images).
-CalibrationData ExactCorners(CalibrationData data, const fs::path& views, const Rig& truth) {
-  const auto corners = data.board.InnerCornersInBoard();
-  std::map<std::string, Rigid3> pose;
-  for (const auto& v : YAML::LoadFile((views / "board.yaml").string())["views"]) {
-    std::array<double, 6> rt;
-    for (int i = 0; i < 6; ++i) rt[i] = v["rt_rig_from_board"][i].as<double>();
-    pose[v["name"].as<std::string>()] = Rigid3::FromRt(rt);
-  }
-  for (auto& o : data.observations) {
-    const CameraModel& cam = truth.cameras[truth.FindCamera(data.camera_names[o.camera])].model;
-    for (std::size_t k = 0; k < o.detection.corner_ids.size(); ++k)
-      o.detection.corners_px[k] =
-          cam.Project(pose.at(data.view_names[o.view]) * corners[o.detection.corner_ids[k]]);
-  }
-  return data;
-}
-
 // Issue 22's case: a stereo pair with a strongly distorting lens (k1 = -0.3, about 75 degrees
 // across), a 10x7 chessboard (9x6 corners) with a shadow across half of every board, a light
 // gradient and a little blur. Every corner of every image is kept, or its rejection is listed, or

@@ -22,8 +22,10 @@ Runner AddCalibrate(CLI::App* command) {
   command->add_option("--recording", o->recording, "A recording of the board")->type_name("DIR");
   command->add_option("--out", o->out, "Output folder")->required()->type_name("DIR");
   command->add_option("--config", o->config, "Calibration config")->type_name("C.yaml");
-  command->add_option("--board", o->board, "The board (default: the config's, or board.yaml "
-                                            "beside the images)")
+  command
+      ->add_option("--board", o->board,
+                   "The board (default: the config's, or board.yaml "
+                   "beside the images)")
       ->type_name("B.yaml");
   return [o](Context& context) {
     context.StopOnSignals();
