@@ -41,6 +41,11 @@ void LoadTomographyConfig(const std::string& path, ReconstructOptions* options,
     throw InputError(r.where() + ": 'stagnation_tolerance' is -1 (the solver's own) or in [0, 1]");
   o.solve.holdout_patience =
       static_cast<int>(r.Range("holdout_patience", o.solve.holdout_patience, 1, 100000));
+  o.solve.prior = r.Get<std::string>("prior", o.solve.prior);
+  o.solve.prior_weight = r.Range("prior_weight", o.solve.prior_weight, -1, 10);
+  if (o.solve.prior_weight < 0 && o.solve.prior_weight != -1)
+    throw InputError(r.where() + ": 'prior_weight' is -1 (the prior's own) or in [0, 10]");
+  o.solve.prior_edge = r.Range("prior_edge", o.solve.prior_edge, 1e-6, 1e6);
   o.coarse_to_fine = r.Get<bool>("coarse_to_fine", o.coarse_to_fine);
   o.coarse_iterations =
       static_cast<int>(r.Range("coarse_iterations", o.coarse_iterations, 1, 100000));

@@ -10,6 +10,9 @@
 //     stagnation_tolerance: -1  # stop when an iteration improves the residual less; 0 never;
 //                               # -1 the solver's own (osem 1e-3, sart and cgls 5e-3)
 //     holdout_patience: 10
+//     prior: none               # osem's smoothness prior: none | quadratic | tv (prior.h)
+//     prior_weight: -1          # unit-free; -1 the prior's own (tv 3e-4, quadratic 1e-5)
+//     prior_edge: 1             # TV: gradient below which it smooths quadratically
 //     coarse_to_fine: true
 //     coarse_iterations: 30
 //     envelope_margin_voxels: 4

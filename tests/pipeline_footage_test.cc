@@ -89,6 +89,9 @@ TEST(TomographyConfig, TheShippedFileHoldsTheDefaults) {
   EXPECT_DOUBLE_EQ(o.solve.relaxation, d.solve.relaxation);
   EXPECT_DOUBLE_EQ(o.solve.stagnation_tolerance, d.solve.stagnation_tolerance);
   EXPECT_EQ(o.solve.holdout_patience, d.solve.holdout_patience);
+  EXPECT_EQ(o.solve.prior, d.solve.prior);
+  EXPECT_DOUBLE_EQ(o.solve.prior_weight, d.solve.prior_weight);
+  EXPECT_DOUBLE_EQ(o.solve.prior_edge, d.solve.prior_edge);
   EXPECT_EQ(o.coarse_to_fine, d.coarse_to_fine);
   EXPECT_EQ(o.coarse_iterations, d.coarse_iterations);
   EXPECT_EQ(o.envelope_margin_voxels, d.envelope_margin_voxels);
@@ -109,12 +112,15 @@ TEST(TomographyConfig, ReadsKeysAndNamesTheFileAndKeyOfAnError) {
   ReconstructOptions o;
   std::string transfer;
   LoadTomographyConfig(write("tomography:\n  resolution: 48\n  input_transfer: gamma=2.2\n"
-                             "  cache: m\n  mask: {min_speck_px: 7, threshold_sigmas: 3}\n"),
+                             "  cache: m\n  mask: {min_speck_px: 7, threshold_sigmas: 3}\n"
+                             "  prior: tv\n  prior_weight: 0.5\n"),
                        &o, &transfer);
   EXPECT_EQ(o.resolution, 48);
   EXPECT_EQ(transfer, "gamma=2.2");
   EXPECT_EQ(o.hull.min_speck_px, 7);
   EXPECT_DOUBLE_EQ(o.hull.threshold_sigmas, 3);
+  EXPECT_EQ(o.solve.prior, "tv");
+  EXPECT_DOUBLE_EQ(o.solve.prior_weight, 0.5);
   EXPECT_EQ(fs::path(o.cache_dir), dir / "m");  // relative to the file
   const std::vector<std::pair<std::string, std::string>> bad = {
       {"tomography:\n  resolutoin: 48\n", "unknown key 'resolutoin'"},
@@ -123,6 +129,9 @@ TEST(TomographyConfig, ReadsKeysAndNamesTheFileAndKeyOfAnError) {
       {"tomography:\n  mask: {min_views: 0}\n", "'min_views'"},
       {"tomography:\n  input_transfer: log\n", "'input_transfer'"},
       {"tomography:\n  solver: lsqr\n", "solver 'lsqr' is unknown"},
+      {"tomography:\n  prior: laplace\n", "prior 'laplace' is unknown"},
+      {"tomography:\n  solver: sart\n  prior: tv\n", "needs solver osem"},
+      {"tomography:\n  prior_weight: -0.5\n", "'prior_weight'"},
       {"resolution: 48\n", "a 'tomography:' map"},
       {"tomography: [1, 2]\n", "a 'tomography:' map"}};
   for (const auto& [text, message] : bad) {

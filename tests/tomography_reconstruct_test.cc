@@ -141,6 +141,85 @@ TEST(SheppLogan, SartAndEmReconstructThePhantom) {
   }
 }
 
+// What a prior is for: the same phantom from 60 views, the data with 10% Gaussian noise (of the
+// data's RMS), solved by OS-EM (a subset per view) for 30 iterations, by which it fits the noise.
+// With the TV prior (tomography/prior.h) at weight 1e-3 the result is nearer the phantom than the
+// plain solve's, and nearer than the plain solve's best iterate (chosen with the truth, which a
+// user does not have); the default weights (TV 3e-4, chosen on the fires of `benchmark footage`;
+// quadratic 1e-5) help too, less. A weight of zero is the plain solve exactly. Measured: 0.400
+// plain (best iterate 0.312), TV 0.265 (1e-3) and 0.335 (3e-4), quadratic 0.313.
+TEST(SheppLogan, ATvPriorBringsANoisySolveNearerThePhantom) {
+  const int n = 48, views = 60, detectors = 72;
+  auto beams = ParallelBeams(views, detectors);
+  std::vector<const CameraRays*> cams;
+  for (const auto& b : beams) cams.push_back(b.get());
+  std::vector<std::vector<std::uint8_t>> all(views, std::vector<std::uint8_t>(detectors, 1));
+  GridGeometry grid = Slice(n);
+  std::vector<float> phantom(grid.num_voxels() * 3);
+  for (int k = 0; k < n; ++k)
+    for (int i = 0; i < n; ++i) {
+      const Eigen::Vector3d p =
+          grid.origin_in_rig +
+          Eigen::Vector3d(i + 0.5, 0.5, k + 0.5).cwiseProduct(grid.voxel_size_m);
+      for (int c = 0; c < 3; ++c) phantom[grid.Flat(i, 0, k) * 3 + c] = Phantom(p.x(), p.z());
+    }
+  SystemMatrix a = SystemMatrix::Build(
+      grid, cams, all, std::vector<std::uint8_t>(grid.num_voxels(), 1), SystemMatrixOptions());
+  SolveProblem problem;
+  problem.a = &a;
+  problem.grid = &grid;
+  problem.b.resize(a.rows() * 3);
+  a.Multiply(phantom.data(), problem.b.data(), 3);
+  double rms = 0;
+  for (float v : problem.b) rms += double(v) * v;
+  rms = std::sqrt(rms / problem.b.size());
+  std::mt19937 rng(7);
+  std::normal_distribution<float> gauss(0, 1);
+  for (float& v : problem.b) v = std::max(0.0f, v + static_cast<float>(0.1 * rms) * gauss(rng));
+  auto error = [&](const std::vector<float>& x) {
+    double num = 0, den = 0;
+    for (std::size_t v = 0; v < grid.num_voxels(); ++v) {
+      num += (x[3 * v] - phantom[3 * v]) * (x[3 * v] - phantom[3 * v]);
+      den += phantom[3 * v] * phantom[3 * v];
+    }
+    return std::sqrt(num / den);
+  };
+  auto solve = [&](const std::string& prior, double weight, double* best) {
+    SolveOptions options;
+    options.max_iterations = 30;
+    options.stagnation_tolerance = 0;
+    options.ordered_subsets = true;  // a subset per view: OS-EM, which soon fits the noise
+    options.prior = prior;
+    options.prior_weight = weight;
+    std::vector<float> x;
+    *best = 1e9;
+    // Records each iterate's error; every iterate "improves", so the last one is returned.
+    int scored = 0;
+    HoldoutScorer truth_score = [&](const std::vector<float>& iterate) {
+      *best = std::min(*best, error(iterate));
+      return -double(++scored);
+    };
+    SolveTomography(problem, &x, options, truth_score);
+    for (float v : x) EXPECT_TRUE(std::isfinite(v) && v >= 0);
+    return x;
+  };
+  double plain_best, tv_best, default_best, quad_best, zero_best;
+  const double plain = error(solve("none", 0, &plain_best));
+  const double tv = error(solve("tv", 1e-3, &tv_best));
+  const double tv_default = error(solve("tv", -1, &default_best));
+  const double quad = error(solve("quadratic", -1, &quad_best));
+  const std::vector<float> zero = solve("tv", 0, &zero_best);
+  std::printf(
+      "Shepp-Logan 48x48, 60 views, 10%% noise, OS-EM 30 iterations: relative L2 error %.4f "
+      "(best iterate %.4f), with TV %.4f (weight 1e-3), %.4f (the default 3e-4), quadratic %.4f\n",
+      plain, plain_best, tv, tv_default, quad);
+  EXPECT_LT(tv, 0.8 * plain);
+  EXPECT_LT(tv, plain_best);
+  EXPECT_LT(tv_default, 0.9 * plain);
+  EXPECT_LT(quad, 0.9 * plain);
+  EXPECT_EQ(error(zero), plain);
+}
+
 // ---- 3D: the synthetic rig
 // ---------------------------------------------------------------------------
 

@@ -6,8 +6,17 @@
 // additive solvers leave in a loose visual hull decays instead of being spread evenly. A voxel at
 // exactly zero can never grow again, so the start lifts every active voxel to at least a small
 // share of the data's level (a warm start keeps its shape above that floor).
+//
+// With a prior (prior.h), one step late (Green 1990): subset s of S divides by its column sums
+// plus the weight * B * dU/dx_j / S at the iterate before the sweep, B the sum of the channel's
+// data; the divisor is kept at or above a twentieth of the column sum, where a strong
+// quadratic prior would otherwise make it small or negative and the update unstable.
 #include <algorithm>
 #include <cmath>
+#include <memory>
+
+#include "core/error.h"
+#include "tomography/prior.h"
 
 #include "tomography/solver_kernels.h"
 
@@ -40,6 +49,21 @@ class Osem : public IterativeSolver {
         v = empty ? level_[c] : std::max(v, kFloor * level_[c]);
       }
     }
+    const PriorKind kind = ParsePriorKind(options.prior);
+    weight_ = PriorWeight(options);
+    if (kind != PriorKind::kNone && weight_ > 0) {
+      if (problem.grid == nullptr) throw InputError("SolveTomography: a prior needs the grid");
+      prior_ = std::make_unique<GridPrior>(kind, *problem.grid, a.col_voxels(), options.prior_edge);
+      // The prior is weighed against the data term, whose size is the data's sum per channel.
+      for (int c = 0; c < kChannels; ++c) {
+        double data = 0;
+        for (std::size_t i = 0; i < a.rows(); ++i)
+          data += std::max(0.0f, problem.b[i * kChannels + c]);
+        data_sum_[c] = data;
+      }
+      for (int c = 0; c < kChannels; ++c) scale_[c] = level_[c] > 0 ? level_[c] : 1.0f;
+      gradient_.assign(a.cols() * kChannels, 0.0f);
+    }
     return Residual(problem, *x, &ax_, &r_, false);
   }
 
@@ -52,6 +76,14 @@ class Osem : public IterativeSolver {
     const std::vector<std::uint8_t>& lower = problem.lower_bound_rows;
     const std::vector<std::uint8_t>& active = problem.active_cols;
     double sum = 0;
+    // The prior's share per subset, per channel: weight * the data's sum / subsets.
+    float prior_share[kChannels] = {0, 0, 0};
+    if (prior_)
+      for (int c = 0; c < kChannels; ++c)
+        prior_share[c] = static_cast<float>(weight_ * data_sum_[c] / subsets.size());
+    // The prior's gradient at the iterate before this sweep (once per sweep, not per subset: it
+    // costs about a subset's backprojection on a large hull, and changes little in one subset).
+    if (prior_) prior_->Gradient(x->data(), scale_, gradient_.data());
     for (const auto& [first, last] : subsets) {
       a.MultiplyRows(first, last, x->data(), ax_.data(), kChannels);
       for (std::size_t i = first; i < last; ++i) {
@@ -77,8 +109,17 @@ class Osem : public IterativeSolver {
                             for (int c = 0; c < kChannels; ++c) xs[j * kChannels + c] = 0.0f;
                             return;
                           }
-                          for (int c = 0; c < kChannels; ++c)
-                            xs[j * kChannels + c] *= gj[c] / col_sum;
+                          if (!prior_) {
+                            for (int c = 0; c < kChannels; ++c)
+                              xs[j * kChannels + c] *= gj[c] / col_sum;
+                            return;
+                          }
+                          for (int c = 0; c < kChannels; ++c) {
+                            const float divisor =
+                                std::max(col_sum + prior_share[c] * gradient_[j * kChannels + c],
+                                         kMinDivisor * col_sum);
+                            xs[j * kChannels + c] *= gj[c] / divisor;
+                          }
                         });
     }
     return std::sqrt(sum / std::max<std::size_t>(1, a.rows() * kChannels));
@@ -87,8 +128,14 @@ class Osem : public IterativeSolver {
  private:
   static constexpr float kFloor = 1e-3f;    // of the uniform level, for a warm start's zeros
   static constexpr float kMaxRatio = 1e3f;  // one sweep multiplies a voxel by at most this
+  static constexpr float kMinDivisor = 0.05f;  // of the column sum, with a prior
   float level_[kChannels] = {0, 0, 0};
   std::vector<float> ax_, r_;
+  std::unique_ptr<GridPrior> prior_;
+  double weight_ = 0;                       // the prior's (PriorWeight)
+  double data_sum_[kChannels] = {0, 0, 0};  // the sum of the data, per channel
+  float scale_[kChannels] = {1, 1, 1};
+  std::vector<float> gradient_;  // dU/dx at the iterate before the current sweep
 };
 
 }  // namespace

@@ -356,6 +356,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
     // The data.
     SolveProblem problem;
     problem.a = &a;
+    problem.grid = &g;
     problem.b.resize(a.rows() * 3);
     problem.lower_bound_rows.resize(a.rows());
     std::vector<int> camera_slot(rig_.cameras.size(), -1);
@@ -504,6 +505,10 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
   out.metadata_numbers["iterations"] =
       summary.solves.empty() ? 0 : summary.solves.back().iterations;
   out.metadata_text["solver"] = options_.solve.solver;
+  if (const double w = PriorWeight(options_.solve); w > 0) {
+    out.metadata_text["prior"] = options_.solve.prior;
+    out.metadata_numbers["prior_weight"] = w;
+  }
   out.metadata_text["emission_units"] =
       "linear sRGB radiance per metre (W m^-2 sr^-1 nm^-1 m^-1, luminance-normalised)";
   if (summary_out) *summary_out = summary;

@@ -7,6 +7,7 @@
 #include <stdexcept>
 
 #include "core/error.h"
+#include "tomography/prior.h"
 #include "tomography/solver_kernels.h"
 
 namespace flamerig {
@@ -62,13 +63,26 @@ void SolveOptions::Validate() const {
     fail("stagnation_tolerance must be >= 0, or -1 for the solver's own");
   if (holdout_patience < 1) fail("holdout_patience must be >= 1");
   FindTomographySolver(solver);
+  PriorKind kind;
+  try {
+    kind = ParsePriorKind(prior);
+  } catch (const InputError& e) {
+    fail(e.what());
+  }
+  if (kind != PriorKind::kNone && solver != "osem")
+    fail("prior '" + prior + "' needs solver osem, not " + solver);
+  if (!(prior_weight >= 0 && prior_weight <= 10) && prior_weight != -1)
+    fail("prior_weight must be in [0, 10], or -1 for the prior's own");
+  if (!(prior_edge > 0) || !std::isfinite(prior_edge)) fail("prior_edge must be finite and > 0");
 }
 
 std::string SolveSummary::BriefReport() const {
   std::ostringstream s;
   s.precision(4);
-  s << solver << ": " << iterations << " iterations, stopped by " << ToString(stop)
-    << ", residual RMS " << initial_residual_rms << " -> " << final_residual_rms << " ("
+  s << solver;
+  if (!prior.empty()) s << " with the " << prior << " prior (weight " << prior_weight << ")";
+  s << ": " << iterations << " iterations, stopped by " << ToString(stop) << ", residual RMS "
+    << initial_residual_rms << " -> " << final_residual_rms << " ("
     << (data_rms > 0 ? 100 * final_residual_rms / data_rms : 0)
     << "% of the data RMS), best iterate " << best_iteration;
   if (!holdout_error.empty())
@@ -78,6 +92,12 @@ std::string SolveSummary::BriefReport() const {
   if (clipped_fraction > 0) s << ", " << clipped_fraction * 100 << "% of the mass clipped to >= 0";
   s << ", " << time_ms << " ms";
   return s.str();
+}
+
+double PriorWeight(const SolveOptions& options) {
+  const PriorKind kind = ParsePriorKind(options.prior);
+  if (kind == PriorKind::kNone) return 0.0;
+  return options.prior_weight >= 0 ? options.prior_weight : DefaultPriorWeight(kind);
 }
 
 namespace solver_kernels {
@@ -134,6 +154,10 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
   solver_kernels::Pin(problem, x);
   SolveSummary summary;
   summary.solver = options.solver;
+  if (const double w = PriorWeight(options); w > 0) {
+    summary.prior = options.prior;
+    summary.prior_weight = w;
+  }
   if (m == 0 || n == 0) {
     summary.stop = SolveStop::kNoData;
     return summary;

@@ -14,6 +14,16 @@
 //  - "cgls" (conjugate gradients on the normal equations): converges faster on well-posed problems;
 //    non-negativity is applied to the result only (the amount clipped is reported).
 //
+//
+// A smoothness prior (prior.h: "quadratic" or "tv"), for OS-EM only, turns the solve into a
+// maximum a posteriori estimate: it maximises the Poisson log-likelihood of the data minus
+// prior_weight * B * U(x), B the sum of the channel's data (the size of the likelihood) and U
+// unit-free and independent of the grid's resolution (prior.h), so that one weight suits any
+// exposure, image size or grid. It is applied one step late (Green's OSL-EM): each subset's update
+// divides by its column sums plus its share of the weighted prior's
+// gradient at the iterate before the sweep. Codec noise and blocks then leave less ghost emission and grain
+// (BENCHMARKS.md, "Tomography on real footage").
+//
 // Saturated pixels constrain only from below: their residual counts only where the model is darker
 // than the pixel (SART); CGLS, which needs a linear problem, leaves them out.
 //
@@ -57,11 +67,18 @@ struct SolveOptions {
   // steadily; sart and cgls 5e-3).
   double stagnation_tolerance = -1;
   int holdout_patience = 10;  // >= 1
+  std::string prior = "none";  // "none" | "quadratic" | "tv" (prior.h); needs solver "osem"
+  // The prior's weight (above), [0, 10]; 0 = none; -1 = the prior's own (DefaultPriorWeight: tv
+  // 3e-4, quadratic 1e-5, chosen on `benchmark footage` and a noisy Shepp-Logan phantom).
+  double prior_weight = -1;
+  double prior_edge = 1;  // TV: gradients below this (prior.h's g) are smoothed quadratically; > 0
   void Validate() const;      // throws InputError naming the field (an unknown solver too)
 };
 
 struct SolveSummary {
   std::string solver;
+  std::string prior;        // "" without one (SolveOptions::prior)
+  double prior_weight = 0;  // the weight in effect
   int iterations = 0;
   SolveStop stop = SolveStop::kMaxIterations;
   std::vector<double> residual_rms;   // after each iteration (radiance units)
@@ -85,6 +102,7 @@ struct SolveProblem {
   std::vector<float> b;                        // rows * 3 values (radiance)
   std::vector<std::uint8_t> lower_bound_rows;  // optional, per row: saturated pixel
   std::vector<std::uint8_t> active_cols;       // optional, per column: 0 pins the column at zero
+  const GridGeometry* grid = nullptr;          // the grid of a's columns; needed by a prior only
 };
 
 // One solver's iteration. The driver calls Start once with the cleaned, pinned initial guess, then
@@ -109,6 +127,9 @@ struct TomographySolverEntry {
   std::unique_ptr<IterativeSolver> (*make)();
   double stagnation_tolerance;  // its default stopping tolerance (SolveOptions)
 };
+// The weight of options.prior in effect (0 without one): prior_weight, or the prior's own default.
+double PriorWeight(const SolveOptions& options);
+
 // Every solver, in the order the CLI lists them.
 const std::vector<TomographySolverEntry>& TomographySolvers();
 // The entry named `name`; throws InputError listing the names when there is none.

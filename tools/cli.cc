@@ -235,6 +235,25 @@ void AddTomographyFlags(CLI::App* command, TomographyFlags* f, bool solve_option
       ->check(CLI::Range(0.0, 1.0))
       ->group(group);
   command
+      ->add_option("--prior", f->prior,
+                   "Smoothness prior of the osem solve: none (default), quadratic or tv (total "
+                   "variation: smooths codec blocks and noise, keeps edges)")
+      ->check(CLI::IsMember({"none", "quadratic", "tv"}))
+      ->group(group);
+  command
+      ->add_option("--prior-weight", f->prior_weight,
+                   "The prior's weight, unit-free (default: tv 3e-4, quadratic 1e-5)")
+      ->type_name("W")
+      ->check(CLI::Range(0.0, 10.0))
+      ->group(group);
+  command
+      ->add_option("--prior-edge", f->prior_edge,
+                   "TV: gradients below this (the mean emission's change across the grid) are "
+                   "smoothed quadratically (default 1)")
+      ->type_name("E")
+      ->check(CLI::PositiveNumber)
+      ->group(group);
+  command
       ->add_flag_callback(
           "--coarse-to-fine", [f] { f->coarse_to_fine = true; },
           "Solve a half-resolution grid first (the default)")
@@ -256,6 +275,9 @@ void ApplyTomographyFlags(const TomographyFlags& f, ReconstructOptions* o,
   if (f.solver) o->solve.solver = *f.solver;
   if (f.max_iterations) o->solve.max_iterations = *f.max_iterations;
   if (f.stagnation) o->solve.stagnation_tolerance = *f.stagnation;
+  if (f.prior) o->solve.prior = *f.prior;
+  if (f.prior_weight) o->solve.prior_weight = *f.prior_weight;
+  if (f.prior_edge) o->solve.prior_edge = *f.prior_edge;
   if (f.coarse_to_fine) o->coarse_to_fine = *f.coarse_to_fine;
   if (f.cache) o->cache_dir = *f.cache;
   if (f.threshold_sigmas) o->hull.threshold_sigmas = *f.threshold_sigmas;

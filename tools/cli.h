@@ -79,14 +79,14 @@ extern const CLI::Validator kNotAnOption;
 // (pipeline/tomography_config.h), then each option given on the command line over it.
 struct TomographyFlags {
   std::string config;
-  std::optional<std::string> input_transfer, solver, cache;
+  std::optional<std::string> input_transfer, solver, cache, prior;
   std::optional<int> resolution, max_iterations, dilation_px, min_views, min_speck_px;
-  std::optional<double> threshold_sigmas, noise, stagnation;
+  std::optional<double> threshold_sigmas, noise, stagnation, prior_weight, prior_edge;
   std::optional<bool> coarse_to_fine;
 };
 // Declares --tomography, --resolution, --input-transfer and the --mask-* options; with
-// `solve_options` also --solver, --solve-iterations, --stagnation, --coarse-to-fine /
-// --no-coarse-to-fine and --cache.
+// `solve_options` also --solver, --solve-iterations, --stagnation, --prior, --prior-weight,
+// --prior-edge, --coarse-to-fine / --no-coarse-to-fine and --cache.
 void AddTomographyFlags(CLI::App* command, TomographyFlags* flags, bool solve_options);
 // Loads the config into *options and *input_transfer (when one was given), then the options given
 // over it. Throws InputError naming the config file and key (a bad input transfer is the job's to

@@ -1,0 +1,67 @@
+// Smoothness priors for the tomography's solve (solvers.h, SolveOptions::prior): an energy U(x)
+// over the six face neighbours of the solve's columns, for each of the three colour channels. With
+// N the grid's voxels along its longest side and L > 0 the channel's scale (the solve's uniform
+// emission level), a neighbour pair's difference is read as a gradient across the grid,
+// g = N (x_j - x_k) / L, and U is a mean over the N^3 voxels of a cube of that side:
+//
+//  - "quadratic" (a Laplacian, or Gaussian Markov random field): U = sum over pairs g^2 / 2 / N^3,
+//  - "tv" (total variation, anisotropic, smoothed so that it has a gradient everywhere):
+//        U = sum over pairs sqrt(g^2 + edge^2) / N^3.
+//
+// So U is unit-free and does not change with the grid's resolution for a given smooth field (the
+// discrete sums approximate the integrals of |grad x|^2 and |grad x|), and one weight suits any
+// exposure, voxel size, unit of radiance or grid. The quadratic prior smooths everything; TV
+// smooths gradients below `edge` (the level's change across the grid) quadratically and larger
+// ones (edges) by a bounded force: |dU/dx_j| <= 6 / (N^2 L).
+//
+// A pair counts only where both voxels are columns of the solve: voxels outside the visual hull
+// are not unknowns (they are taken as empty by the data term already), and their edge with the
+// hull is not penalised.
+#ifndef FLAMERIG_TOMOGRAPHY_PRIOR_H_
+#define FLAMERIG_TOMOGRAPHY_PRIOR_H_
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "tomography/volume.h"
+
+namespace flamerig {
+
+enum class PriorKind { kNone, kQuadratic, kTotalVariation };
+// "none" | "quadratic" | "tv"; throws InputError listing the names.
+PriorKind ParsePriorKind(const std::string& name);
+const char* ToString(PriorKind kind);
+
+// The weight a prior has by default (SolveOptions::prior_weight -1): tv 3e-4, quadratic 1e-5.
+double DefaultPriorWeight(PriorKind kind);
+
+class GridPrior {
+ public:
+  // The columns' voxels (flat indices on `grid`, SystemMatrix::col_voxels()); `edge` > 0 is TV's
+  // smoothing (a gradient, as g above).
+  GridPrior(PriorKind kind, const GridGeometry& grid, const std::vector<std::uint32_t>& col_voxels,
+            double edge);
+
+  PriorKind kind() const { return kind_; }
+  std::size_t cols() const { return cols_; }
+  // The number of a column's neighbours that are columns too (0..6).
+  int NeighbourCount(std::size_t col) const;
+
+  // U(x) for x of cols * 3 values (interleaved channels) and a scale per channel (> 0).
+  double Energy(const float* x, const float scale[3]) const;
+  // dU/dx into g (cols * 3 values). Multithreaded over columns; each g_j is written once.
+  void Gradient(const float* x, const float scale[3], float* g) const;
+
+ private:
+  PriorKind kind_;
+  std::size_t cols_ = 0;
+  double edge_ = 0;
+  double n_ = 1;  // voxels along the grid's longest side
+  // Per column, its six neighbours' columns (-x, +x, -y, +y, -z, +z); -1 where there is none.
+  std::vector<std::int32_t> neighbours_;
+};
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_TOMOGRAPHY_PRIOR_H_
