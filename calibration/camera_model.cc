@@ -1,5 +1,6 @@
 #include "calibration/camera_model.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -62,6 +63,22 @@ CameraModel::CameraModel(const std::string& lensmodel, std::vector<double> intri
     if (!std::isfinite(v)) throw InputError("camera pose is not finite");
   }
   mrcal_lensmodel_ = parsed;
+}
+
+CameraModel CameraModel::Binned(int factor) const {
+  if (factor < 1 || factor > width_ || factor > height_)
+    throw InputError("binning " + std::to_string(factor) + "x" + std::to_string(factor) +
+                     " needs a factor from 1 to the imager's smaller side (" +
+                     std::to_string(std::min(width_, height_)) + " px)");
+  if (!mrcal_lensmodel_metadata(&Lens(mrcal_lensmodel_)).has_core)
+    throw InputError("lens model " + lensmodel_ + " has no core (fx, fy, cx, cy) to bin");
+  std::vector<double> intrinsics = intrinsics_;
+  intrinsics[0] /= factor;
+  intrinsics[1] /= factor;
+  intrinsics[2] = (intrinsics[2] + 0.5) / factor - 0.5;
+  intrinsics[3] = (intrinsics[3] + 0.5) / factor - 0.5;
+  return CameraModel(lensmodel_, std::move(intrinsics), cam_from_rig_, width_ / factor,
+                     height_ / factor);
 }
 
 CameraModel CameraModel::Pinhole(double fx, double fy, double cx, double cy,

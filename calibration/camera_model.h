@@ -53,6 +53,14 @@ class CameraModel {
   // failure. `comment` lines (optional) are written as '#' comments at the top.
   void Save(const std::string& path, const std::string& comment = "") const;
 
+  // The same camera with its pixels binned `factor` x `factor` (a pixel of the result averages a
+  // block of the original's; the imager is width / factor by height / factor, rounded down): the
+  // core's fx and fy scale by 1 / factor and cx, cy move with the pixel centres, (c + 0.5) / factor
+  // - 0.5. Exact for every mrcal model with a core (PINHOLE, OPENCV*, splined, ...), whose lens
+  // acts before the core. Throws InputError for a model without a core, or a factor below 1 or
+  // larger than the imager.
+  CameraModel Binned(int factor) const;
+
   // Projects a point in the rig frame to pixel coordinates. Points behind a pinhole-like camera
   // give undefined (but finite or NaN) pixels: check InFront() first.
   Eigen::Vector2d Project(const Eigen::Vector3d& point_in_rig) const;

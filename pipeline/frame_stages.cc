@@ -98,6 +98,10 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
                        rig_path);
   }
   ReconstructOptions ro = options_.reconstruct;
+  if (!ro.stop_camera.empty() && ro.stop_camera == options_.holdout_camera)
+    throw InputError("run: camera '" + ro.stop_camera +
+                     "' cannot both stop the tomography and be held out (give another stop "
+                     "camera)");
   ro.exposure = exposure_;
   ro.holdout_camera.clear();  // the held-out camera stays out of the tomography too
   if (ro.cache_dir.empty()) ro.cache_dir = (fs::path(options_.out_dir) / "cache").string();
@@ -221,6 +225,12 @@ void FrameStages::Reconstruct(FrameWork* w, const ProgressCallback& progress) {
   s.reconstruct_ms = Ms(t0);
   s.matrix_source = rs.matrix_source;
   s.hull_fraction = rs.voxel_fraction_in_hull;
+  if (!rs.stop_camera.empty() && !rs.solves.empty()) {
+    const SolveSummary& fine = rs.solves.back();
+    s.notes.push_back("tomography stopped on " + rs.stop_camera + " (best iterate " +
+                      std::to_string(fine.best_iteration) + " of " +
+                      std::to_string(fine.iterations) + ")");
+  }
   if (rs.fire_pixels_outside_envelope)
     s.notes.push_back(std::to_string(rs.fire_pixels_outside_envelope) +
                       " fire pixels outside the matrix's envelope left out");

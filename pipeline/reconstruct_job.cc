@@ -72,9 +72,22 @@ ImageU8 WriteMasks(const std::string& dir, const Rig& rig, const SourceFrameSet&
     if (m.labels.empty()) continue;
     const int c = rig.FindCamera(m.camera);
     const ImageU8& input = c >= 0 ? set.images[c] : ImageU8();
+    // The masks are on the tomography's pixels: binned ones (ReconstructOptions::bin) show the
+    // input pixel at each block's centre.
     ImageU8 bright(m.width, m.height, 3);
-    for (std::size_t i = 0; i < bright.pixels.size() && !input.empty(); ++i)
-      bright.pixels[i] = static_cast<std::uint8_t>(std::min(255, 4 * input.pixels[i]));
+    if (!input.empty() && input.channels == 3) {
+      const int k = std::max(1, input.width / std::max(1, m.width));
+      for (int y = 0; y < m.height; ++y)
+        for (int x = 0; x < m.width; ++x) {
+          const int sx = std::min(input.width - 1, x * k + k / 2),
+                    sy = std::min(input.height - 1, y * k + k / 2);
+          for (int c = 0; c < 3; ++c)
+            bright.pixels[(static_cast<std::size_t>(y) * m.width + x) * 3 + c] =
+                static_cast<std::uint8_t>(std::min(
+                    255,
+                    4 * input.pixels[(static_cast<std::size_t>(sy) * input.width + sx) * 3 + c]));
+        }
+    }
     grid.row_labels.push_back(m.camera + (m.held_out ? " (held out)" : ""));
     grid.rows.push_back({bright, MaskOverlay(m, bright)});
     if (!dir.empty()) {

@@ -20,6 +20,7 @@ void LoadTomographyConfig(const std::string& path, ReconstructOptions* options,
   ConfigReader r(node, path + ": tomography");
   ReconstructOptions& o = *options;
   o.resolution = static_cast<int>(r.Range("resolution", o.resolution, 1, 1024));
+  o.bin = static_cast<int>(r.Range("bin", o.bin, 1, 16));
   const std::string transfer = r.Get<std::string>("input_transfer", *input_transfer);
   if (!transfer.empty()) {
     TransferFunction t;

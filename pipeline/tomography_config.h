@@ -3,6 +3,7 @@
 //
 //   tomography:
 //     resolution: 64            # voxels along the box's longest side
+//     bin: 1                    # pixels binned bin x bin before the tomography
 //     input_transfer: srgb      # 8-bit images: srgb | linear | gamma=G (frame_source.h)
 //     solver: osem              # osem | sart | cgls
 //     max_iterations: 100

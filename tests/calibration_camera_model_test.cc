@@ -103,6 +103,36 @@ TEST(CameraModel, UnprojectInvertsProject) {
   EXPECT_NEAR((all[33 * 640 + 17].direction_in_rig - single.direction_in_rig).norm(), 0.0, 1e-12);
 }
 
+// A binned camera sees a point where the original's pixel block holding it is: pixel q of the
+// original lies at (q + 0.5) / k - 0.5 of the k x k binned imager. Checked through mrcal for a
+// polynomial lens and a splined one (whose spline acts before the core, so scaling the core is
+// exact for it too).
+TEST(CameraModel, BinnedProjectsToTheBlockThatHoldsThePixel) {
+  const CameraModel opencv = Opencv8Camera();
+  const std::string splined = "LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=8_Ny=6_fov_x_deg=100";
+  std::vector<double> spline = {500, 505, 319.5, 239.5};
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> u(-0.02, 0.02);
+  for (int i = 0; i < 2 * 8 * 6; ++i) spline.push_back(u(rng));
+  const CameraModel spline_camera(splined, spline, opencv.cam_from_rig(), 640, 480);
+  for (const CameraModel* camera : {&opencv, &spline_camera}) {
+    SCOPED_TRACE(camera->lensmodel());
+    for (int k : {2, 3}) {
+      const CameraModel binned = camera->Binned(k);
+      EXPECT_EQ(binned.width(), 640 / k);
+      EXPECT_EQ(binned.height(), 480 / k);
+      EXPECT_EQ(binned.lensmodel(), camera->lensmodel());
+      for (const Eigen::Vector3d& p : TestPoints(*camera)) {
+        const Eigen::Vector2d want = (camera->Project(p).array() + 0.5) / k - 0.5;
+        EXPECT_NEAR((binned.Project(p) - want).norm(), 0.0, 1e-9);
+      }
+    }
+  }
+  EXPECT_EQ(opencv.Binned(1).intrinsics(), opencv.intrinsics());
+  EXPECT_THROW(opencv.Binned(0), InputError);
+  EXPECT_THROW(opencv.Binned(481), InputError);
+}
+
 TEST(CameraModel, SaveLoadIsExact) {
   fs::path dir = TempDir();
   CameraModel cam = Opencv8Camera();

@@ -84,6 +84,7 @@ TEST(TomographyConfig, TheShippedFileHoldsTheDefaults) {
   const ReconstructOptions d;
   EXPECT_EQ(transfer, "srgb");
   EXPECT_EQ(o.resolution, d.resolution);
+  EXPECT_EQ(o.bin, d.bin);
   EXPECT_EQ(o.solve.solver, d.solve.solver);
   EXPECT_EQ(o.solve.max_iterations, d.solve.max_iterations);
   EXPECT_DOUBLE_EQ(o.solve.relaxation, d.solve.relaxation);
@@ -113,13 +114,14 @@ TEST(TomographyConfig, ReadsKeysAndNamesTheFileAndKeyOfAnError) {
   std::string transfer;
   LoadTomographyConfig(write("tomography:\n  resolution: 48\n  input_transfer: gamma=2.2\n"
                              "  cache: m\n  mask: {min_speck_px: 7, threshold_sigmas: 3}\n"
-                             "  prior: tv\n  prior_weight: 0.5\n"),
+                             "  prior: tv\n  prior_weight: 0.5\n  bin: 3\n"),
                        &o, &transfer);
   EXPECT_EQ(o.resolution, 48);
   EXPECT_EQ(transfer, "gamma=2.2");
   EXPECT_EQ(o.hull.min_speck_px, 7);
   EXPECT_DOUBLE_EQ(o.hull.threshold_sigmas, 3);
   EXPECT_EQ(o.solve.prior, "tv");
+  EXPECT_EQ(o.bin, 3);
   EXPECT_DOUBLE_EQ(o.solve.prior_weight, 0.5);
   EXPECT_EQ(fs::path(o.cache_dir), dir / "m");  // relative to the file
   const std::vector<std::pair<std::string, std::string>> bad = {
@@ -132,6 +134,7 @@ TEST(TomographyConfig, ReadsKeysAndNamesTheFileAndKeyOfAnError) {
       {"tomography:\n  prior: laplace\n", "prior 'laplace' is unknown"},
       {"tomography:\n  solver: sart\n  prior: tv\n", "needs solver osem"},
       {"tomography:\n  prior_weight: -0.5\n", "'prior_weight'"},
+      {"tomography:\n  bin: 0\n", "'bin'"},
       {"resolution: 48\n", "a 'tomography:' map"},
       {"tomography: [1, 2]\n", "a 'tomography:' map"}};
   for (const auto& [text, message] : bad) {

@@ -471,6 +471,39 @@ TEST(RunFrames, AKnownExposureIsHeldAndAnUnknownOneIsFittedOncePerTake) {
   fs::remove_all(dir);
 }
 
+// run --stop-camera: the tomography leaves the camera out and stops on it (said in the frame's
+// notes), the fit still uses it; a stop camera that is the held-out one or not in the rig is an
+// error before any work.
+TEST(RunFrames, AStopCameraStopsTheTomographyAndTheFitStillUsesIt) {
+  const fs::path dir = TempDir("stop");
+  SimulateDataset(dir / "sim", 1);
+  RunOptions o = SmallRun(dir / "sim", dir / "out");
+  const std::string stop = Rig::Load(o.rig_path).cameras[1].name;
+  o.reconstruct.stop_camera = stop;
+  const RunSummary run = RunAll(o);
+  ASSERT_EQ(run.frames.size(), 1u);
+  const FrameSummary& f = run.frames[0];
+  EXPECT_EQ(f.status, "computed") << f.Line();
+  EXPECT_EQ(f.cameras_used, 3);
+  bool said = false;
+  for (const std::string& n : f.notes) said = said || n.find("tomography stopped on " + stop) == 0;
+  EXPECT_TRUE(said) << f.Line();
+  RunOptions both = o;
+  both.out_dir = (dir / "both").string();
+  both.holdout_camera = stop;
+  EXPECT_THROW(RunAll(both), InputError);
+  RunOptions unknown = o;
+  unknown.out_dir = (dir / "unknown").string();
+  unknown.reconstruct.stop_camera = "nobody";
+  try {
+    RunAll(unknown);
+    ADD_FAILURE() << "an unknown stop camera was taken";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("'nobody'"), std::string::npos) << e.what();
+  }
+  fs::remove_all(dir);
+}
+
 // A frame whose images did not change beyond noise reuses the previous result.
 TEST(RunFrames, UnchangedFramesReuseThePreviousResult) {
   const fs::path dir = TempDir("unchanged");

@@ -236,12 +236,12 @@ const Box3 kBox{Eigen::Vector3d(-0.015, 0.0, -0.015), Eigen::Vector3d(0.015, 0.0
 // same information) plus a held-out one between the first two, 96x72 pixels, a thin grey candle,
 // 8-bit images.
 Dataset MakeDataset(int views, int resolution, const Box3& box = kBox, double noise_fraction = 0,
-                    double time_s = 0) {
+                    double time_s = 0, int image_scale = 1) {
   Dataset d;
   synthetic::RingOptions ring;
   ring.cameras = views + 1;
-  ring.width = 96;
-  ring.height = 72;
+  ring.width = 96 * image_scale;
+  ring.height = 72 * image_scale;
   for (int v = 0; v < views; ++v) ring.azimuths_deg.push_back(180.0 * v / views);
   ring.azimuths_deg.push_back(90.0 / views);
   ring.distance_m = 0.3 * std::max(1.0, box.size().maxCoeff() / kBox.size().maxCoeff());
@@ -289,6 +289,81 @@ double VolumeError(const FireVolume& got, const FireVolume& truth) {
 
 void ExpectFinite(const FireVolume& v) {
   for (float x : v.emission_rgb) ASSERT_TRUE(std::isfinite(x) && x >= 0);
+}
+
+TEST(BinFrame, AveragesBlocksAndKeepsSaturation) {
+  LinearFrame f;
+  f.radiance = ImageF(5, 4, 3);  // the fifth column does not fill a 2x2 block and is dropped
+  for (std::size_t i = 0; i < f.radiance.pixels.size(); ++i) f.radiance.pixels[i] = float(i);
+  f.saturated.assign(20, 0);
+  f.saturated[2 * 5 + 3] = 1;  // pixel (3, 2): block (1, 1)
+  f.full_scale = 2;
+  f.quantum = 0.01;
+  const LinearFrame b = BinFrame(f, 2);
+  ASSERT_EQ(b.radiance.width, 2);
+  ASSERT_EQ(b.radiance.height, 2);
+  for (int by = 0; by < 2; ++by)
+    for (int bx = 0; bx < 2; ++bx)
+      for (int c = 0; c < 3; ++c) {
+        double want = 0;
+        for (int y = 2 * by; y < 2 * by + 2; ++y)
+          for (int x = 2 * bx; x < 2 * bx + 2; ++x) want += ((y * 5 + x) * 3 + c) / 4.0;
+        EXPECT_NEAR(b.radiance.at(bx, by, c), want, 1e-4);
+      }
+  EXPECT_EQ(b.saturated, (std::vector<std::uint8_t>{0, 0, 0, 1}));
+  EXPECT_EQ(b.full_scale, 2);
+  EXPECT_EQ(b.quantum, 0.01);
+  EXPECT_THROW(BinFrame(f, 0), InputError);
+  EXPECT_THROW(BinFrame(f, 5), InputError);
+}
+
+// Binned 2x2, the cameras give a quarter of the rows and a volume nearly as good while a block is
+// smaller than a voxel's image (384x288, a voxel about 4 px: measured 0.0391 against 0.0374
+// relative L2). At 96x72, where a voxel is about a pixel, the same binning costs: 0.131 against
+// 0.036.
+TEST(Reconstruct, BinnedPixelsGiveFewerRowsAndNearlyTheSameVolume) {
+  Dataset d = MakeDataset(4, 24, kBox, 0, 0, /*image_scale=*/4);  // 384x288
+  d.rig.cameras.pop_back();                                       // no held-out camera
+  d.images.pop_back();
+  double errors[2];
+  std::size_t rows[2];
+  for (int bin : {1, 2}) {
+    ReconstructOptions options;
+    options.resolution = 24;
+    options.exposure = d.exposure;
+    options.bin = bin;
+    options.keep_masks = true;
+    Reconstructor rec(d.rig, options);
+    EXPECT_EQ(rec.rig().cameras[0].model.width(), 384 / bin);
+    ReconstructSummary summary;
+    FireVolume v = rec.Reconstruct(d.images, &summary);
+    ExpectFinite(v);
+    errors[bin - 1] = VolumeError(v, d.truth);
+    rows[bin - 1] = summary.matrix_rows;
+    EXPECT_EQ(summary.bin, bin);
+    EXPECT_EQ(summary.masks[0].width, 384 / bin);
+    if (bin == 2) {
+      EXPECT_NE(summary.BriefReport().find("pixels binned 2x2"), std::string::npos);
+    }
+  }
+  std::printf("4 views 384x288, 24 grid: relative L2 %.4f, binned 2x2 %.4f; rows %zu, %zu\n",
+              errors[0], errors[1], rows[0], rows[1]);
+  EXPECT_LT(errors[1], 1.25 * errors[0]);
+  EXPECT_NEAR(double(rows[1]) / rows[0], 0.25, 0.06);
+  // A frame of the wrong size is named with the imager's size before binning.
+  ReconstructOptions options;
+  options.resolution = 24;
+  options.exposure = d.exposure;
+  options.bin = 2;
+  Reconstructor rec(d.rig, options);
+  std::vector<ImageU8> wrong = d.images;
+  wrong[1] = ImageU8(192, 144, 3);
+  try {
+    rec.Reconstruct(wrong, nullptr);
+    ADD_FAILURE() << "a 192x144 frame was taken";
+  } catch (const DataError& e) {
+    EXPECT_NE(std::string(e.what()).find("imager is 384x288"), std::string::npos) << e.what();
+  }
 }
 
 TEST(Reconstruct, MoreViewsGiveLowerErrors) {

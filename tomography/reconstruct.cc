@@ -93,6 +93,7 @@ void ReconstructOptions::Validate() const {
   if (resolution < 1 || resolution > 1024) fail("resolution must be in [1, 1024]");
   if (!(exposure > 0) || !std::isfinite(exposure)) fail("exposure must be finite and > 0");
   if (coarse_iterations < 1) fail("coarse_iterations must be >= 1");
+  if (bin < 1 || bin > 16) fail("bin must be in [1, 16]");
   if (envelope_margin_voxels < 0 || envelope_margin_voxels > 16)
     fail("envelope_margin_voxels must be in [0, 16]");
   if (!(envelope_pixel_tolerance >= 0) || !(envelope_pixel_tolerance <= 0.1))
@@ -105,8 +106,9 @@ void ReconstructOptions::Validate() const {
 std::string ReconstructSummary::BriefReport() const {
   std::ostringstream s;
   s.precision(3);
-  s << "grid " << grid.dims.x() << "x" << grid.dims.y() << "x" << grid.dims.z() << ", hull "
-    << voxel_fraction_in_hull * 100 << "% of voxels (fire pixels per camera:";
+  s << "grid " << grid.dims.x() << "x" << grid.dims.y() << "x" << grid.dims.z();
+  if (bin > 1) s << ", pixels binned " << bin << "x" << bin;
+  s << ", hull " << voxel_fraction_in_hull * 100 << "% of voxels (fire pixels per camera:";
   for (const CameraMaskSummary& m : masks) {
     s << " " << m.camera << (m.held_out ? " (held out)" : "") << " " << m.fraction * 100
       << "% (noise " << m.noise_sigma;
@@ -148,7 +150,17 @@ Reconstructor::Reconstructor(const Rig& rig, const ReconstructOptions& options)
   options_.Validate();
   if (rig_.cameras.empty()) throw InputError("Reconstructor: the rig has no cameras");
   grid_ = GridGeometry::FromBox(rig_.box, options_.resolution);
-  for (const auto& c : rig_.cameras) rays_.push_back(std::make_unique<CameraRays>(c.model));
+  for (auto& c : rig_.cameras) {
+    frame_sizes_.emplace_back(c.model.width(), c.model.height());
+    if (options_.bin > 1) {
+      try {
+        c.model = c.model.Binned(options_.bin);
+      } catch (const InputError& e) {
+        throw InputError("ReconstructOptions.bin: camera '" + c.name + "': " + e.what());
+      }
+    }
+    rays_.push_back(std::make_unique<CameraRays>(c.model));
+  }
   auto find = [&](const std::string& name, const char* field) {
     if (name.empty()) return -1;
     const int index = rig_.FindCamera(name);
@@ -201,16 +213,32 @@ FireVolume Reconstructor::Reconstruct(const std::vector<ImageU8>& images,
   return v;
 }
 
-FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& frames,
+FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_frames,
                                       ReconstructSummary* summary_out, const FireVolume* warm_start,
                                       const ProgressCallback& progress) {
   const auto start = Clock::now();
   ReconstructSummary summary;
   summary.grid = grid_;
-  if (frames.size() != rig_.cameras.size()) {
-    throw InputError("reconstruct: " + std::to_string(frames.size()) + " frames for " +
+  summary.bin = options_.bin;
+  if (input_frames.size() != rig_.cameras.size()) {
+    throw InputError("reconstruct: " + std::to_string(input_frames.size()) + " frames for " +
                      std::to_string(rig_.cameras.size()) + " cameras");
   }
+  std::vector<LinearFrame> binned;
+  if (options_.bin > 1) {
+    binned.resize(input_frames.size());
+    for (std::size_t c = 0; c < input_frames.size(); ++c) {
+      const LinearFrame& f = input_frames[c];
+      if (f.radiance.empty()) continue;
+      if (f.radiance.width != frame_sizes_[c].first || f.radiance.height != frame_sizes_[c].second)
+        throw DataError("camera '" + rig_.cameras[c].name + "': frame is " +
+                        std::to_string(f.radiance.width) + "x" + std::to_string(f.radiance.height) +
+                        ", its model's imager is " + std::to_string(frame_sizes_[c].first) + "x" +
+                        std::to_string(frame_sizes_[c].second));
+      binned[c] = BinFrame(f, options_.bin);
+    }
+  }
+  const std::vector<LinearFrame>& frames = options_.bin > 1 ? binned : input_frames;
   // Cameras taking part in the solve.
   std::vector<int> solve_cameras;
   for (std::size_t c = 0; c < frames.size(); ++c) {

@@ -39,6 +39,11 @@ struct ReconstructOptions {
   VisualHullOptions hull;
   SystemMatrixOptions matrix;
   SolveOptions solve;
+  // Pixel binning, [1, 16]: each camera's images are averaged over blocks of bin x bin pixels and
+  // its model binned to match (CameraModel::Binned) before the masks and the solve: bin^2 times
+  // fewer rays, so less memory and time, for detail finer than a block (`benchmark footage`
+  // measures the error it costs).
+  int bin = 1;
   bool coarse_to_fine = true;  // half-resolution solve first (when resolution >= 16)
   int coarse_iterations = 30;  // iterations of the coarse solve
   // A camera left out of the solve and scored on every pixel of its image afterwards; it does not
@@ -81,6 +86,7 @@ struct CameraMaskSummary : FireMaskStats {
 
 struct ReconstructSummary {
   GridGeometry grid;
+  int bin = 1;  // pixels binned bin x bin (ReconstructOptions::bin)
   double voxel_fraction_in_hull = 0;
   std::vector<CameraMaskSummary> masks;  // per camera with a frame (solve cameras, then held out)
   std::size_t matrix_rows = 0, matrix_cols = 0, matrix_nnz = 0, matrix_bytes = 0;
@@ -131,14 +137,15 @@ class Reconstructor {
   void LoadState(const std::string& path);
 
   const GridGeometry& grid() const { return grid_; }
-  const Rig& rig() const { return rig_; }
+  const Rig& rig() const { return rig_; }  // with its cameras binned (ReconstructOptions::bin)
 
  private:
   struct Level;
   Rig rig_;
   ReconstructOptions options_;
   GridGeometry grid_;
-  std::vector<std::unique_ptr<CameraRays>> rays_;
+  std::vector<std::unique_ptr<CameraRays>> rays_;  // of the cameras as binned
+  std::vector<std::pair<int, int>> frame_sizes_;   // each camera's frames, before binning
   // The matrix of `level` for `envelope` and the cameras' `pixels`: from the disk cache when it
   // is there, else built (and cached). Returns "disk cache" or "built".
   std::string MakeMatrix(Level* level, const std::vector<int>& cameras,

@@ -39,6 +39,33 @@ LinearFrame DecodeSrgb8(const ImageU8& image, double exposure) {
   return f;
 }
 
+LinearFrame BinFrame(const LinearFrame& frame, int factor) {
+  const int w = frame.radiance.width, h = frame.radiance.height;
+  if (factor < 1 || factor > w || factor > h)
+    throw InputError("binning " + std::to_string(factor) + "x" + std::to_string(factor) + " of a " +
+                     std::to_string(w) + "x" + std::to_string(h) + " frame");
+  if (factor == 1) return frame;
+  const int bw = w / factor, bh = h / factor, nc = frame.radiance.channels;
+  LinearFrame out;
+  out.radiance = ImageF(bw, bh, nc);
+  out.saturated.assign(static_cast<std::size_t>(bw) * bh, 0);
+  out.full_scale = frame.full_scale;
+  out.quantum = frame.quantum;
+  const float share = 1.0f / (factor * factor);
+  for (int by = 0; by < bh; ++by)
+    for (int bx = 0; bx < bw; ++bx) {
+      const std::size_t q = static_cast<std::size_t>(by) * bw + bx;
+      for (int y = by * factor; y < (by + 1) * factor; ++y)
+        for (int x = bx * factor; x < (bx + 1) * factor; ++x) {
+          const std::size_t p = static_cast<std::size_t>(y) * w + x;
+          for (int c = 0; c < nc; ++c)
+            out.radiance.pixels[q * nc + c] += share * frame.radiance.pixels[p * nc + c];
+          if (!frame.saturated.empty() && frame.saturated[p]) out.saturated[q] = 1;
+        }
+    }
+  return out;
+}
+
 LinearFrame DecodeLinear16(const ImageU16& image, double exposure, double white) {
   if (!(exposure > 0) || !std::isfinite(exposure)) {
     throw InputError("exposure = " + std::to_string(exposure) + " must be finite and > 0");

@@ -44,6 +44,13 @@ struct LinearFrame {
   double quantum = 0.0;
 };
 
+// The frame with its pixels binned factor x factor (as CameraModel::Binned): each pixel the mean
+// of its block's radiance, saturated when any of them is; the rows and columns that do not fill a
+// block are dropped. The quantum stays the original's: a lone code above black is a speck, and
+// its block's mean falls under the noise floor. Throws InputError for a factor below 1 or larger
+// than the image.
+LinearFrame BinFrame(const LinearFrame& frame, int factor);
+
 // Throws InputError unless exposure is finite and > 0 and the image has 1 or 3 channels
 // (grey is replicated to RGB).
 LinearFrame DecodeSrgb8(const ImageU8& image, double exposure);

@@ -183,6 +183,13 @@ void AddTomographyFlags(CLI::App* command, TomographyFlags* f, bool solve_option
       ->check(Whole(1, 1024))
       ->group(group);
   command
+      ->add_option("--bin", f->bin,
+                   "Average the images over N x N pixel blocks before the tomography (default 1: "
+                   "N^2 times fewer rays, less memory and time, for detail finer than a block)")
+      ->type_name("N")
+      ->check(Whole(1, 16))
+      ->group(group);
+  command
       ->add_option("--input-transfer", f->input_transfer,
                    "How 8-bit images encode light: srgb, linear (machine-vision raw) or gamma=G")
       ->type_name("T")
@@ -272,6 +279,7 @@ void ApplyTomographyFlags(const TomographyFlags& f, ReconstructOptions* o,
   if (!f.config.empty()) LoadTomographyConfig(f.config, o, input_transfer);
   if (f.input_transfer) *input_transfer = *f.input_transfer;
   if (f.resolution) o->resolution = *f.resolution;
+  if (f.bin) o->bin = *f.bin;
   if (f.solver) o->solve.solver = *f.solver;
   if (f.max_iterations) o->solve.max_iterations = *f.max_iterations;
   if (f.stagnation) o->solve.stagnation_tolerance = *f.stagnation;

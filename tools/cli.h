@@ -80,11 +80,11 @@ extern const CLI::Validator kNotAnOption;
 struct TomographyFlags {
   std::string config;
   std::optional<std::string> input_transfer, solver, cache, prior;
-  std::optional<int> resolution, max_iterations, dilation_px, min_views, min_speck_px;
+  std::optional<int> resolution, max_iterations, dilation_px, min_views, min_speck_px, bin;
   std::optional<double> threshold_sigmas, noise, stagnation, prior_weight, prior_edge;
   std::optional<bool> coarse_to_fine;
 };
-// Declares --tomography, --resolution, --input-transfer and the --mask-* options; with
+// Declares --tomography, --resolution, --bin, --input-transfer and the --mask-* options; with
 // `solve_options` also --solver, --solve-iterations, --stagnation, --prior, --prior-weight,
 // --prior-edge, --coarse-to-fine / --no-coarse-to-fine and --cache.
 void AddTomographyFlags(CLI::App* command, TomographyFlags* flags, bool solve_options);

@@ -67,6 +67,11 @@ Runner AddRun(CLI::App* command) {
       ->check(Whole(0, 1000000));
   command->add_option("--holdout", run.holdout_camera, "Camera to score but not fit")
       ->type_name("CAMERA");
+  command
+      ->add_option("--stop-camera", run.reconstruct.stop_camera,
+                   "Camera the tomography leaves out and stops its solve on (its best iterate is "
+                   "kept; the fit still uses the camera)")
+      ->type_name("CAMERA");
   command->add_option("--truth", run.truth_dir, "Ground-truth volumes DIR/frame_NNNNNN.vdb")
       ->type_name("DIR");
   command->add_flag("--no-skip-unchanged", o->no_skip_unchanged,
