@@ -4,13 +4,14 @@
 
 #include <cstdio>
 #include <cstring>
+#include <string>
 
 namespace flamerig {
 namespace {
 
-// A "Name:   1234 kB" line of /proc/self/status, in bytes; 0 when absent.
-std::size_t StatusKilobytes(const char* name) {
-  std::FILE* f = std::fopen("/proc/self/status", "r");
+// A "Name:   1234 kB" line of a process's status file, in bytes; 0 when absent.
+std::size_t StatusKilobytes(const char* name, const char* status = "/proc/self/status") {
+  std::FILE* f = std::fopen(status, "r");
   if (!f) return 0;
   char line[256];
   std::size_t bytes = 0;
@@ -33,6 +34,11 @@ std::size_t PeakResidentBytes() {
   struct rusage u {};
   if (::getrusage(RUSAGE_SELF, &u) == 0) return static_cast<std::size_t>(u.ru_maxrss) * 1024;
   return 0;
+}
+
+std::size_t PeakResidentBytesOf(int pid) {
+  const std::string status = "/proc/" + std::to_string(pid) + "/status";
+  return StatusKilobytes("VmHWM", status.c_str());
 }
 
 bool ResetPeakResident() {

@@ -10,6 +10,9 @@ namespace flamerig {
 // The peak resident set size of this process so far, bytes: VmHWM from /proc/self/status, else
 // getrusage's ru_maxrss; 0 when neither is available.
 std::size_t PeakResidentBytes();
+// The peak resident set size of another running process (VmHWM of /proc/PID/status), bytes; 0
+// when unavailable (it has exited, or is not ours to read).
+std::size_t PeakResidentBytesOf(int pid);
 // Starts the peak over: the next PeakResidentBytes() is the peak since this call (Linux's
 // /proc/self/clear_refs); false when the kernel does not allow it.
 bool ResetPeakResident();

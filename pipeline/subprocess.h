@@ -13,7 +13,9 @@ struct ProgramResult {
   bool started = false;  // false: the program could not be run (not installed); see `error`
   int exit_status = -1;  // the exit status, or -1 when it was killed by a signal
   std::string error;     // why it did not start, or the first 2000 bytes of its standard error
-  std::size_t peak_resident_bytes = 0;  // the program's peak resident memory (wait4's ru_maxrss)
+  // The program's own peak resident memory: its VmHWM read while it runs (wait4's ru_maxrss when
+  // it could not be read, which counts this process's peak at the spawn too).
+  std::size_t peak_resident_bytes = 0;
   double seconds = 0;                   // wall time from start to exit
   bool ok() const { return started && exit_status == 0; }
 };

@@ -12,6 +12,7 @@
 #include "core/error.h"
 #include "core/srgb.h"
 #include "pipeline/frame_source.h"
+#include "pipeline/subprocess.h"
 #include "pipeline/tomography_config.h"
 #include "pipeline/video_codec.h"
 
@@ -26,6 +27,24 @@ fs::path TempDir(const std::string& name) {
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir;
+}
+
+// A child's peak memory is its own: a small child of a parent holding 300 MB reports a few MB (wait4's
+// ru_maxrss said 300+, the parent's peak at the spawn), and a child that holds 200 MB reports at
+// least that.
+TEST(RunProgram, ReportsTheChildsOwnPeakNotTheParents) {
+  std::vector<char> held(300u << 20);
+  for (std::size_t i = 0; i < held.size(); i += 4096) held[i] = static_cast<char>(i);
+  const ProgramResult small = RunProgram({"sh", "-c", "sleep 0.3"});
+  ASSERT_TRUE(small.ok()) << small.error;
+  EXPECT_GT(small.peak_resident_bytes, 0u);
+  EXPECT_LT(small.peak_resident_bytes, 50u << 20);
+  const ProgramResult big = RunProgram(
+      {"python3", "-c", "import time; x = bytearray(200 * 1024 * 1024); time.sleep(0.3)"});
+  ASSERT_TRUE(big.ok()) << big.error;
+  EXPECT_GE(big.peak_resident_bytes, 200u << 20);
+  EXPECT_LT(big.peak_resident_bytes, 290u << 20);
+  EXPECT_EQ(held[4096], static_cast<char>(4096));
 }
 
 TEST(InputTransfer, SpecsParseOrNameTheForms) {

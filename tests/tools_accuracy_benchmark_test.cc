@@ -140,3 +140,56 @@ TEST(CaptureBenchmark, QuickRunRecordsEverySetWithTheLiveViewOpen) {
 
 }  // namespace
 }  // namespace flamerig
+
+namespace flamerig {
+namespace {
+
+// The rows of the footage table: input, method, then the figures.
+std::vector<std::vector<std::string>> FootageRows(const std::string& md) {
+  std::vector<std::vector<std::string>> rows;
+  std::stringstream lines(md);
+  for (std::string line; std::getline(lines, line);) {
+    if (line.rfind("| ", 0) != 0 || line.find("| input |") == 0) continue;
+    std::vector<std::string> cells;
+    std::stringstream s(line.substr(2));
+    for (std::string cell; std::getline(s, cell, '|');) {
+      const auto b = cell.find_first_not_of(' '), e = cell.find_last_not_of(' ');
+      if (b != std::string::npos) cells.push_back(cell.substr(b, e - b + 1));
+    }
+    rows.push_back(cells);
+  }
+  return rows;
+}
+
+// `flamerig benchmark footage --quick` (tools/footage_benchmark.cc): two inputs (8-bit sRGB and
+// H.264 through libx264) by five methods, every row whole; flamerig beats the baseline on the
+// held-out camera on both (the baseline is the oracle of what a plain hull and LSQR give); binned
+// 2x2 the matrix is smaller; the targets and the options' lines are written.
+TEST(FootageBenchmark, QuickRunFillsEveryRowAndBeatsTheBaseline) {
+  FootageBenchmarkOptions o;
+  o.quick = true;
+  const std::string md = RunFootageBenchmark(o, nullptr);
+  const auto rows = FootageRows(md);
+  ASSERT_EQ(rows.size(), 10u) << md;
+  for (const auto& r : rows) ASSERT_EQ(r.size(), 13u) << md;
+  for (std::size_t input = 0; input < 2; ++input) {
+    const auto& ours = rows[5 * input];
+    const auto& tv = rows[5 * input + 1];
+    const auto& binned = rows[5 * input + 2];
+    const auto& baseline = rows[5 * input + 4];
+    SCOPED_TRACE(ours[0]);
+    EXPECT_EQ(ours[1], "flamerig (osem)");
+    EXPECT_EQ(tv[1], "flamerig, osem + tv prior");
+    EXPECT_EQ(baseline[1], "baseline");
+    const double held = std::stod(ours[10]), base = std::stod(baseline[10]);
+    EXPECT_GT(held, 0);
+    EXPECT_LT(held, base);
+    EXPECT_LT(std::stod(binned[5]), std::stod(ours[5]));  // matrix MB
+  }
+  EXPECT_NE(md.find("held-out error at least 20% below the baseline's"), std::string::npos);
+  EXPECT_NE(md.find("the same with `--mask-threshold 20`"), std::string::npos);
+  EXPECT_NE(md.find("Options, on the same frames: the TV prior"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace flamerig
