@@ -60,9 +60,9 @@ std::string MaskLine(const CameraMaskSummary& m) {
 }
 
 // DIR/<camera>.png (the dilated mask, white) for every camera, and DIR/masks.png; returns the
-// picture.
+// picture. Masks are on the tomography's pixels: binned bin x bin (ReconstructOptions::bin).
 ImageU8 WriteMasks(const std::string& dir, const Rig& rig, const SourceFrameSet& set,
-                   const std::vector<CameraMaskSummary>& masks) {
+                   const std::vector<CameraMaskSummary>& masks, int bin) {
   PictureGrid grid;
   grid.title =
       "Fire masks: blue = the dilated margin, magenta = specks removed, green = the "
@@ -76,7 +76,7 @@ ImageU8 WriteMasks(const std::string& dir, const Rig& rig, const SourceFrameSet&
     // input pixel at each block's centre.
     ImageU8 bright(m.width, m.height, 3);
     if (!input.empty() && input.channels == 3) {
-      const int k = std::max(1, input.width / std::max(1, m.width));
+      const int k = std::max(1, bin);
       for (int y = 0; y < m.height; ++y)
         for (int x = 0; x < m.width; ++x) {
           const int sx = std::min(input.width - 1, x * k + k / 2),
@@ -168,7 +168,7 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
   if (!job.masks_dir.empty()) fs::create_directories(job.masks_dir);
   ImageU8 masks;
   if (!job.masks_dir.empty() || !job.report_dir.empty())
-    masks = WriteMasks(job.masks_dir, rig, set, out.summary.masks);
+    masks = WriteMasks(job.masks_dir, rig, set, out.summary.masks, out.summary.bin);
   if (!job.report_dir.empty()) {
     fs::create_directories(job.report_dir);
     WritePng((fs::path(job.report_dir) / "views.png").string(), views);

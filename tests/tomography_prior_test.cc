@@ -18,29 +18,62 @@ GridGeometry Cube(int n) {
                                       Eigen::Vector3i(n, n, n));
 }
 
-TEST(GridPrior, EnergyIsTheClosedFormOverPairsOfColumns) {
+// The oracle: every pair of face neighbours of the dense grid, each voxel valued by its column
+// or 0, counted when at least one of the two is a column.
+double DenseEnergy(PriorKind kind, const GridGeometry& g, const std::vector<std::uint32_t>& cols,
+                   const std::vector<float>& x, const float scale[3], double edge) {
+  std::vector<double> dense(g.num_voxels() * 3, 0.0);
+  std::vector<bool> is_col(g.num_voxels(), false);
+  for (std::size_t c = 0; c < cols.size(); ++c) {
+    is_col[cols[c]] = true;
+    for (int ch = 0; ch < 3; ++ch) dense[cols[c] * 3 + ch] = x[c * 3 + ch];
+  }
+  const double n = g.dims.maxCoeff();
+  double u = 0;
+  for (int k = 0; k < g.dims.z(); ++k)
+    for (int j = 0; j < g.dims.y(); ++j)
+      for (int i = 0; i < g.dims.x(); ++i)
+        for (int axis = 0; axis < 3; ++axis) {
+          const int a = i + (axis == 0), b = j + (axis == 1), d = k + (axis == 2);
+          if (a >= g.dims.x() || b >= g.dims.y() || d >= g.dims.z()) continue;
+          const std::size_t p = g.Flat(i, j, k), q = g.Flat(a, b, d);
+          if (!is_col[p] && !is_col[q]) continue;
+          for (int ch = 0; ch < 3; ++ch) {
+            const double v = n * (dense[p * 3 + ch] - dense[q * 3 + ch]) / scale[ch];
+            u += kind == PriorKind::kQuadratic ? 0.5 * v * v : std::sqrt(v * v + edge * edge);
+          }
+        }
+  return u / (n * n * n);
+}
+
+TEST(GridPrior, EnergyCountsColumnPairsAndTheHullsEdgeAgainstEmptySpace) {
   const GridGeometry g = Cube(3);
-  // Three columns in a row along x (0,0,0), (1,0,0), (2,0,0), and (0,1,0) above the first; the
-  // voxel (1,1,0) is not a column, so the pair it would make with (0,1,0) does not count.
+  // Three columns in a row along x and one above the first; every other voxel is empty.
   const std::vector<std::uint32_t> cols = {
       std::uint32_t(g.Flat(0, 0, 0)), std::uint32_t(g.Flat(1, 0, 0)),
       std::uint32_t(g.Flat(2, 0, 0)), std::uint32_t(g.Flat(0, 1, 0))};
   const float scale[3] = {2, 1, 0.5f};
-  // Channel values: x = 1, 3, 3, 0 in channel 0; zero elsewhere.
   std::vector<float> x(cols.size() * 3, 0.0f);
-  x[0] = 1, x[3] = 3, x[6] = 3, x[9] = 0;
+  x[0] = 1, x[3] = 3, x[6] = 3, x[9] = 0, x[4] = 0.5f, x[11] = 2;
   const GridPrior q(PriorKind::kQuadratic, g, cols, 0.1);
-  EXPECT_EQ(q.NeighbourCount(0), 2);
-  EXPECT_EQ(q.NeighbourCount(1), 2);
-  EXPECT_EQ(q.NeighbourCount(3), 1);
-  // N = 3; g = N dx / L: pairs (0,1): 3 * -2 / 2 = -3, (1,2): 0, (0,3): 3 * 1 / 2 = 1.5; U is the
-  // sum over N^3 = 27.
-  EXPECT_NEAR(q.Energy(x.data(), scale), 0.5 * (9 + 2.25) / 27, 1e-12);
-  const double e = 0.3;
-  const GridPrior tv(PriorKind::kTotalVariation, g, cols, e);
-  // Three pairs per channel; channels 1 and 2 have d = 0 and give e each.
-  const double want = (std::sqrt(9 + e * e) + e + std::sqrt(2.25 + e * e) + 6 * e) / 27;
-  EXPECT_NEAR(tv.Energy(x.data(), scale), want, 1e-12);
+  EXPECT_EQ(q.NeighbourCount(0), 3);  // (1,0,0), (0,1,0), (0,0,1): the corner of the grid
+  EXPECT_EQ(q.NeighbourCount(1), 4);
+  // A case by hand, quadratic, channel 0 only (x = 1, 3, 3, 0; N = 3, L = 2, g = 1.5 dx): the
+  // pairs (0,1) -3, (1,2) 0, (0,3) 1.5 and, against empty voxels, the first column once (1.5, to
+  // (0,0,1)), the second and the third twice each (4.5, above and behind them).
+  std::vector<float> x0(cols.size() * 3, 0.0f);
+  x0[0] = 1, x0[3] = 3, x0[6] = 3;
+  const double by_hand = 0.5 * (9 + 0 + 2.25 + 2.25 + 4 * 20.25) / 27;
+  EXPECT_NEAR(q.Energy(x0.data(), scale), by_hand, 1e-12);
+  EXPECT_NEAR(q.Energy(x0.data(), scale),
+              DenseEnergy(PriorKind::kQuadratic, g, cols, x0, scale, 0.1), 1e-12);
+  for (double e : {0.1, 0.3, 2.0}) {
+    const GridPrior tv(PriorKind::kTotalVariation, g, cols, e);
+    EXPECT_NEAR(tv.Energy(x.data(), scale),
+                DenseEnergy(PriorKind::kTotalVariation, g, cols, x, scale, e), 1e-12);
+  }
+  EXPECT_NEAR(q.Energy(x.data(), scale), DenseEnergy(PriorKind::kQuadratic, g, cols, x, scale, 0.1),
+              1e-12);
   EXPECT_EQ(GridPrior(PriorKind::kNone, g, cols, 0.1).Energy(x.data(), scale), 0.0);
 }
 

@@ -115,10 +115,14 @@ class Osem : public IterativeSolver {
                             return;
                           }
                           for (int c = 0; c < kChannels; ++c) {
-                            const float divisor =
-                                std::max(col_sum + prior_share[c] * gradient_[j * kChannels + c],
-                                         kMinDivisor * col_sum);
-                            xs[j * kChannels + c] *= gj[c] / divisor;
+                            // In double, and a prior term that is not finite (a quadratic prior
+                            // on an absurd iterate) is taken as none.
+                            const double term =
+                                double(prior_share[c]) * gradient_[j * kChannels + c];
+                            const double divisor =
+                                std::max(col_sum + (std::isfinite(term) ? term : 0.0),
+                                         double(kMinDivisor) * col_sum);
+                            xs[j * kChannels + c] *= static_cast<float>(gj[c] / divisor);
                           }
                         });
     }

@@ -54,7 +54,7 @@ GridPrior::GridPrior(PriorKind kind, const GridGeometry& grid,
   }
   const int nx = grid.dims.x(), ny = grid.dims.y(), nz = grid.dims.z();
   n_ = std::max(1, grid.dims.maxCoeff());
-  neighbours_.assign(cols_ * 6, -1);
+  neighbours_.assign(cols_ * 6, kOffGrid);
   for (std::size_t c = 0; c < cols_; ++c) {
     const std::size_t v = col_voxels[c];
     const int i = static_cast<int>(v % nx), j = static_cast<int>((v / nx) % ny),
@@ -64,14 +64,15 @@ GridPrior::GridPrior(PriorKind kind, const GridGeometry& grid,
     for (int n = 0; n < 6; ++n) {
       const int a = at[n][0], b = at[n][1], d = at[n][2];
       if (a < 0 || b < 0 || d < 0 || a >= nx || b >= ny || d >= nz) continue;
-      neighbours_[c * 6 + n] = column_of[grid.Flat(a, b, d)];
+      const std::int32_t k = column_of[grid.Flat(a, b, d)];
+      neighbours_[c * 6 + n] = k >= 0 ? k : kEmpty;
     }
   }
 }
 
 int GridPrior::NeighbourCount(std::size_t col) const {
   int n = 0;
-  for (int q = 0; q < 6; ++q) n += neighbours_[col * 6 + q] >= 0;
+  for (int q = 0; q < 6; ++q) n += neighbours_[col * 6 + q] != kOffGrid;
   return n;
 }
 
@@ -79,11 +80,14 @@ double GridPrior::Energy(const float* x, const float scale[3]) const {
   if (kind_ == PriorKind::kNone) return 0.0;
   double u = 0;
   for (std::size_t c = 0; c < cols_; ++c)
-    for (int q = 1; q < 6; q += 2) {  // the +x, +y, +z neighbour: each pair once
+    for (int q = 0; q < 6; ++q) {
+      // Each pair once: a pair of columns from its -x, -y or -z side; an empty voxel's pair from
+      // the column's.
       const std::int32_t k = neighbours_[c * 6 + q];
-      if (k < 0) continue;
+      if (k == kOffGrid || (k >= 0 && q % 2 == 0)) continue;
       for (int ch = 0; ch < 3; ++ch) {
-        const double d = n_ * (double(x[c * 3 + ch]) - x[std::size_t(k) * 3 + ch]) / scale[ch];
+        const double other = k >= 0 ? x[std::size_t(k) * 3 + ch] : 0.0;
+        const double d = n_ * (double(x[c * 3 + ch]) - other) / scale[ch];
         u += kind_ == PriorKind::kQuadratic ? 0.5 * d * d : std::sqrt(d * d + edge_ * edge_);
       }
     }
@@ -100,9 +104,9 @@ void GridPrior::Gradient(const float* x, const float scale[3], float* g) const {
             if (kind_ != PriorKind::kNone)
               for (int q = 0; q < 6; ++q) {
                 const std::int32_t k = neighbours_[c * 6 + q];
-                if (k < 0) continue;
-                const double d =
-                    n_ * (double(x[c * 3 + ch]) - x[std::size_t(k) * 3 + ch]) / scale[ch];
+                if (k == kOffGrid) continue;
+                const double other = k >= 0 ? x[std::size_t(k) * 3 + ch] : 0.0;
+                const double d = n_ * (double(x[c * 3 + ch]) - other) / scale[ch];
                 sum += kind_ == PriorKind::kQuadratic ? d : d / std::sqrt(d * d + edge_ * edge_);
               }
             // dg/dx_j = N / L, over N^3.

@@ -14,9 +14,11 @@
 // smooths gradients below `edge` (the level's change across the grid) quadratically and larger
 // ones (edges) by a bounded force: |dU/dx_j| <= 6 / (N^2 L).
 //
-// A pair counts only where both voxels are columns of the solve: voxels outside the visual hull
-// are not unknowns (they are taken as empty by the data term already), and their edge with the
-// hull is not penalised.
+// Pairs are counted between columns of the solve, and between a column and a voxel of the grid
+// that is not one (outside the envelope the matrix was built for), valued 0: space outside the
+// hull is empty. Columns the solve pins at zero (outside this frame's hull, inside the envelope)
+// are zero too, so the hull's edge is drawn towards empty space the same way whatever the
+// envelope's margin. Pairs off the grid do not count.
 #ifndef FLAMERIG_TOMOGRAPHY_PRIOR_H_
 #define FLAMERIG_TOMOGRAPHY_PRIOR_H_
 
@@ -58,7 +60,9 @@ class GridPrior {
   std::size_t cols_ = 0;
   double edge_ = 0;
   double n_ = 1;  // voxels along the grid's longest side
-  // Per column, its six neighbours' columns (-x, +x, -y, +y, -z, +z); -1 where there is none.
+  // Per column, its six neighbours' columns (-x, +x, -y, +y, -z, +z); kOffGrid where there is no
+  // voxel, kEmpty where the voxel is not a column (valued 0).
+  static constexpr std::int32_t kOffGrid = -1, kEmpty = -2;
   std::vector<std::int32_t> neighbours_;
 };
 

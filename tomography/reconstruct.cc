@@ -533,6 +533,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
   out.metadata_numbers["iterations"] =
       summary.solves.empty() ? 0 : summary.solves.back().iterations;
   out.metadata_text["solver"] = options_.solve.solver;
+  if (options_.bin > 1) out.metadata_numbers["pixel_bin"] = options_.bin;
   if (const double w = PriorWeight(options_.solve); w > 0) {
     out.metadata_text["prior"] = options_.solve.prior;
     out.metadata_numbers["prior_weight"] = w;

@@ -42,12 +42,14 @@ struct ReconstructOptions {
   // Pixel binning, [1, 16]: each camera's images are averaged over blocks of bin x bin pixels and
   // its model binned to match (CameraModel::Binned) before the masks and the solve: bin^2 times
   // fewer rays, so less memory and time, for detail finer than a block (`benchmark footage`
-  // measures the error it costs).
+  // measures the error it costs). Everything in pixels is then in binned pixels: the masks, their
+  // dilation (hull.dilation_px), the speck size, the held-out camera's score.
   int bin = 1;
   bool coarse_to_fine = true;  // half-resolution solve first (when resolution >= 16)
   int coarse_iterations = 30;  // iterations of the coarse solve
-  // A camera left out of the solve and scored on every pixel of its image afterwards; it does not
-  // stop the solve (a score that also chose the iterate would flatter it). "" = none.
+  // A camera left out of the solve and scored on every pixel of its image afterwards (binned like
+  // the others with `bin`); it does not stop the solve (a score that also chose the iterate would
+  // flatter it). "" = none.
   std::string holdout_camera;
   // A camera left out of the solve whose error chooses the iterate and stops the solve (and keeps
   // the coarse stage when the fine one does not improve on it); "" = none: the solve stops on its
