@@ -102,36 +102,33 @@ class Osem : public IterativeSolver {
         }
       }
       float* xs = x->data();
-      a.BackprojectRows(first, last, r_.data(), kChannels,
-                        [&](std::size_t j, const float* gj, float col_sum) {
-                          if (!(col_sum > 0)) return;
-                          if (!active.empty() && !active[j]) {
-                            for (int c = 0; c < kChannels; ++c) xs[j * kChannels + c] = 0.0f;
-                            return;
-                          }
-                          if (!prior_) {
-                            for (int c = 0; c < kChannels; ++c)
-                              xs[j * kChannels + c] *= gj[c] / col_sum;
-                            return;
-                          }
-                          for (int c = 0; c < kChannels; ++c) {
-                            // In double, and a prior term that is not finite (a quadratic prior
-                            // on an absurd iterate) is taken as none.
-                            const double term =
-                                double(prior_share[c]) * gradient_[j * kChannels + c];
-                            const double divisor =
-                                std::max(col_sum + (std::isfinite(term) ? term : 0.0),
-                                         double(kMinDivisor) * col_sum);
-                            xs[j * kChannels + c] *= static_cast<float>(gj[c] / divisor);
-                          }
-                        });
+      a.BackprojectRows(
+          first, last, r_.data(), kChannels, [&](std::size_t j, const float* gj, float col_sum) {
+            if (!(col_sum > 0)) return;
+            if (!active.empty() && !active[j]) {
+              for (int c = 0; c < kChannels; ++c) xs[j * kChannels + c] = 0.0f;
+              return;
+            }
+            if (!prior_) {
+              for (int c = 0; c < kChannels; ++c) xs[j * kChannels + c] *= gj[c] / col_sum;
+              return;
+            }
+            for (int c = 0; c < kChannels; ++c) {
+              // In double, and a prior term that is not finite (a quadratic prior
+              // on an absurd iterate) is taken as none.
+              const double term = double(prior_share[c]) * gradient_[j * kChannels + c];
+              const double divisor = std::max(col_sum + (std::isfinite(term) ? term : 0.0),
+                                              double(kMinDivisor) * col_sum);
+              xs[j * kChannels + c] *= static_cast<float>(gj[c] / divisor);
+            }
+          });
     }
     return std::sqrt(sum / std::max<std::size_t>(1, a.rows() * kChannels));
   }
 
  private:
-  static constexpr float kFloor = 1e-3f;    // of the uniform level, for a warm start's zeros
-  static constexpr float kMaxRatio = 1e3f;  // one sweep multiplies a voxel by at most this
+  static constexpr float kFloor = 1e-3f;       // of the uniform level, for a warm start's zeros
+  static constexpr float kMaxRatio = 1e3f;     // one sweep multiplies a voxel by at most this
   static constexpr float kMinDivisor = 0.05f;  // of the column sum, with a prior
   float level_[kChannels] = {0, 0, 0};
   std::vector<float> ax_, r_;
