@@ -37,6 +37,7 @@ class Osem : public IterativeSolver {
       double data = 0;
       for (std::size_t i = 0; i < a.rows(); ++i)
         data += std::max(0.0f, problem.b[i * kChannels + c]);
+      data_sum_[c] = data;  // also the prior's measure of the data term's size
       level_[c] = row_sum > 0 ? static_cast<float>(data / row_sum) : 0.0f;
     }
     const std::vector<std::uint8_t>& active = problem.active_cols;
@@ -54,13 +55,7 @@ class Osem : public IterativeSolver {
     if (kind != PriorKind::kNone && weight_ > 0) {
       if (problem.grid == nullptr) throw InputError("SolveTomography: a prior needs the grid");
       prior_ = std::make_unique<GridPrior>(kind, *problem.grid, a.col_voxels(), options.prior_edge);
-      // The prior is weighed against the data term, whose size is the data's sum per channel.
-      for (int c = 0; c < kChannels; ++c) {
-        double data = 0;
-        for (std::size_t i = 0; i < a.rows(); ++i)
-          data += std::max(0.0f, problem.b[i * kChannels + c]);
-        data_sum_[c] = data;
-      }
+      // The prior is weighed against the data term, whose size is data_sum_ per channel.
       for (int c = 0; c < kChannels; ++c) scale_[c] = level_[c] > 0 ? level_[c] : 1.0f;
       gradient_.assign(a.cols() * kChannels, 0.0f);
     }
