@@ -40,23 +40,21 @@ CameraModel::CameraModel(const std::string& lensmodel, std::vector<double> intri
   auto parsed = std::make_shared<mrcal_lensmodel_t>();
   if (!mrcal_lensmodel_from_name(parsed.get(), lensmodel.c_str()) ||
       !mrcal_lensmodel_type_is_valid(parsed->type)) {
-    throw InputError("lens model '" + lensmodel +
-                                "' is not a valid mrcal lens model name");
+    throw InputError("lens model '" + lensmodel + "' is not a valid mrcal lens model name");
   }
   int expected = mrcal_lensmodel_num_params(parsed.get());
   if (static_cast<int>(intrinsics_.size()) != expected) {
     throw InputError("lens model " + lensmodel + " needs " + std::to_string(expected) +
-                                " intrinsics, got " + std::to_string(intrinsics_.size()));
+                     " intrinsics, got " + std::to_string(intrinsics_.size()));
   }
   for (std::size_t i = 0; i < intrinsics_.size(); ++i) {
     if (!std::isfinite(intrinsics_[i])) {
-      throw InputError("intrinsics[" + std::to_string(i) + "] of " + lensmodel +
-                                  " is not finite");
+      throw InputError("intrinsics[" + std::to_string(i) + "] of " + lensmodel + " is not finite");
     }
   }
   if (width_px <= 0 || height_px <= 0) {
-    throw InputError("imager size " + std::to_string(width_px) + "x" +
-                                std::to_string(height_px) + " must be positive");
+    throw InputError("imager size " + std::to_string(width_px) + "x" + std::to_string(height_px) +
+                     " must be positive");
   }
   auto rt = cam_from_rig.ToRt();
   for (double v : rt) {

@@ -16,7 +16,7 @@ struct ProgramResult {
   // The program's own peak resident memory: its VmHWM read while it runs (wait4's ru_maxrss when
   // it could not be read, which counts this process's peak at the spawn too).
   std::size_t peak_resident_bytes = 0;
-  double seconds = 0;                   // wall time from start to exit
+  double seconds = 0;  // wall time from start to exit
   bool ok() const { return started && exit_status == 0; }
 };
 

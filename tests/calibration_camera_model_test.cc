@@ -10,8 +10,8 @@
 #include <random>
 #include <sstream>
 
-#include "core/error.h"
 #include "calibration/camera_model.h"
+#include "core/error.h"
 
 namespace flamerig {
 namespace {
@@ -209,14 +209,10 @@ TEST(CameraModel, WeReadMrcalPythonFiles) {
 
 TEST(CameraModel, BadInputGivesClearErrors) {
   Rigid3 identity;
-  EXPECT_THROW(CameraModel("LENSMODEL_NONSENSE", {1, 2, 3, 4}, identity, 10, 10),
-               InputError);
-  EXPECT_THROW(CameraModel("LENSMODEL_OPENCV8", {1, 2, 3, 4}, identity, 10, 10),
-               InputError);
-  EXPECT_THROW(CameraModel("LENSMODEL_PINHOLE", {1, 2, NAN, 4}, identity, 10, 10),
-               InputError);
-  EXPECT_THROW(CameraModel("LENSMODEL_PINHOLE", {1, 2, 3, 4}, identity, 0, 10),
-               InputError);
+  EXPECT_THROW(CameraModel("LENSMODEL_NONSENSE", {1, 2, 3, 4}, identity, 10, 10), InputError);
+  EXPECT_THROW(CameraModel("LENSMODEL_OPENCV8", {1, 2, 3, 4}, identity, 10, 10), InputError);
+  EXPECT_THROW(CameraModel("LENSMODEL_PINHOLE", {1, 2, NAN, 4}, identity, 10, 10), InputError);
+  EXPECT_THROW(CameraModel("LENSMODEL_PINHOLE", {1, 2, 3, 4}, identity, 0, 10), InputError);
   fs::path dir = TempDir();
   try {
     CameraModel::Load((dir / "missing.cameramodel").string());

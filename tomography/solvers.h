@@ -66,13 +66,13 @@ struct SolveOptions {
   // -1 = the solver's own (TomographySolverEntry: osem 1e-3, whose tail improves slowly but
   // steadily; sart and cgls 5e-3).
   double stagnation_tolerance = -1;
-  int holdout_patience = 10;  // >= 1
+  int holdout_patience = 10;   // >= 1
   std::string prior = "none";  // "none" | "quadratic" | "tv" (prior.h); needs solver "osem"
   // The prior's weight (above), [0, 10]; 0 = none; -1 = the prior's own (DefaultPriorWeight: tv
   // 3e-4, quadratic 1e-5, chosen on `benchmark footage` and a noisy Shepp-Logan phantom).
   double prior_weight = -1;
   double prior_edge = 1;  // TV: gradients below this (prior.h's g) are smoothed quadratically; > 0
-  void Validate() const;      // throws InputError naming the field (an unknown solver too)
+  void Validate() const;  // throws InputError naming the field (an unknown solver too)
 };
 
 struct SolveSummary {
