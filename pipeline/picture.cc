@@ -4,6 +4,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 
@@ -31,13 +32,24 @@ ImageU8 FromMat(const cv::Mat& m) {
 
 cv::Scalar Bgr(const Rgb& c) { return cv::Scalar(c[2], c[1], c[0]); }
 
-Rgb MapColour(double u, cv::ColormapTypes map) {
-  const int level = static_cast<int>(std::lround(255 * std::clamp(u, 0.0, 1.0)));
-  cv::Mat one(1, 1, CV_8UC1, cv::Scalar(level));
+// OpenCV's colour map as a 256-entry table, made once: applyColorMap builds the map's whole table
+// on every call, which per pixel cost the run's pictures 20 s a frame.
+std::array<Rgb, 256> ColourTable(cv::ColormapTypes map) {
+  cv::Mat levels(1, 256, CV_8UC1);
+  for (int i = 0; i < 256; ++i) levels.at<std::uint8_t>(0, i) = static_cast<std::uint8_t>(i);
   cv::Mat coloured;
-  cv::applyColorMap(one, coloured, map);
-  const cv::Vec3b bgr = coloured.at<cv::Vec3b>(0, 0);
-  return {bgr[2], bgr[1], bgr[0]};
+  cv::applyColorMap(levels, coloured, map);
+  std::array<Rgb, 256> table;
+  for (int i = 0; i < 256; ++i) {
+    const cv::Vec3b bgr = coloured.at<cv::Vec3b>(0, i);
+    table[i] = {bgr[2], bgr[1], bgr[0]};
+  }
+  return table;
+}
+
+Rgb MapColour(double u, const std::array<Rgb, 256>& table) {
+  const double v = std::isnan(u) ? 0.0 : std::clamp(u, 0.0, 1.0);
+  return table[static_cast<std::size_t>(std::lround(255 * v))];
 }
 
 const cv::Scalar kBlack(0, 0, 0), kWhite(255, 255, 255);
@@ -76,8 +88,14 @@ std::string Number(double v, int decimals, bool signed_ticks) {
 
 }  // namespace
 
-Rgb InfernoColour(double u) { return MapColour(u, cv::COLORMAP_INFERNO); }
-Rgb ViridisColour(double u) { return MapColour(u, cv::COLORMAP_VIRIDIS); }
+Rgb InfernoColour(double u) {
+  static const std::array<Rgb, 256> table = ColourTable(cv::COLORMAP_INFERNO);
+  return MapColour(u, table);
+}
+Rgb ViridisColour(double u) {
+  static const std::array<Rgb, 256> table = ColourTable(cv::COLORMAP_VIRIDIS);
+  return MapColour(u, table);
+}
 
 Rgb DivergingColour(double e, double range) {
   const double u = std::clamp(e / std::max(1e-9, range), -1.0, 1.0);

@@ -170,6 +170,18 @@ TEST(Picture, ColourMapsAndScaleBars) {
   auto sum = [](const Rgb& c) { return c[0] + c[1] + c[2]; };
   EXPECT_LT(sum(ViridisColour(0)), sum(ViridisColour(1)));
   EXPECT_LT(sum(InfernoColour(0)), 30);
+  // The ends of the published maps (matplotlib's viridis and inferno, 8-bit, to one level), a
+  // value outside [0, 1] clamped, and a NaN drawn as the low end rather than undefined.
+  auto near = [](const Rgb& c, int r, int g, int b) {
+    return std::abs(c[0] - r) <= 1 && std::abs(c[1] - g) <= 1 && std::abs(c[2] - b) <= 1;
+  };
+  EXPECT_TRUE(near(ViridisColour(0), 68, 1, 84));
+  EXPECT_TRUE(near(ViridisColour(1), 253, 231, 37));
+  EXPECT_TRUE(near(InfernoColour(0), 0, 0, 4));
+  EXPECT_TRUE(near(InfernoColour(1), 252, 255, 164));
+  EXPECT_EQ(ViridisColour(7), ViridisColour(1));
+  EXPECT_EQ(InfernoColour(-3), InfernoColour(0));
+  EXPECT_EQ(InfernoColour(std::nan("")), InfernoColour(0));
   // A scale bar is 1, 2 or 5 times a power of ten metres, 40 to 100 pixels long.
   for (double ppm : {800.0, 3000.0, 9142.0, 20000.0, 1e5, 3.3e6}) {
     const double m = ScaleBarLength(ppm);
