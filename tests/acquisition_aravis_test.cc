@@ -441,6 +441,20 @@ TEST(AravisCamera, RegionFeaturesAndSerial) {
   EXPECT_TRUE(listed);
 }
 
+// Records for a second, and on until `frames` frames are on disk (at most 20 s): a loaded host
+// (CI runs two tests at a time) may deliver fewer than a second's worth in the first second, and
+// a test that counts frames must not depend on that. Returns the recording's folder.
+std::string RecordAtLeast(CaptureDaemon& daemon, const std::string& name, std::uint64_t frames) {
+  const std::string dir = daemon.StartRecording(name);
+  const auto start = std::chrono::steady_clock::now();
+  std::this_thread::sleep_for(std::chrono::milliseconds(1000));
+  while (daemon.status().recorder.frames_recorded < frames &&
+         std::chrono::steady_clock::now() - start < std::chrono::seconds(20))
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  daemon.StopRecording();
+  return dir;
+}
+
 // Two in-process fakes in the capture daemon, software-triggered: sets matched by receive time.
 TEST(AravisCamera, TheDaemonRecordsTwoFakeCameras) {
   REQUIRE_LOOPBACK_ADDRESSES();
@@ -452,9 +466,7 @@ TEST(AravisCamera, TheDaemonRecordsTwoFakeCameras) {
   SystemClock clock;
   CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
   daemon.Start();
-  const std::string rec_dir = daemon.StartRecording("take");
-  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
-  daemon.StopRecording();
+  const std::string rec_dir = RecordAtLeast(daemon, "take", 2 * 30);
   const CaptureStatus st = daemon.status();
   daemon.Stop();
   const Recording r = Recording::Open(rec_dir);
@@ -508,20 +520,6 @@ TEST(AravisCamera, MissedSoftwareTriggersAreCounted) {
   EXPECT_LE(missed_a, 2);
   EXPECT_NEAR(missed_b, made_a - made_b, 4) << "a made " << made_a << ", b " << made_b;
   fs::remove_all(dir);
-}
-
-// Records for a second, and on until `frames` frames are on disk (at most 20 s): a loaded host
-// (CI runs two tests at a time) may deliver fewer than a second's worth in the first second, and
-// a test that counts frames must not depend on that. Returns the recording's folder.
-std::string RecordAtLeast(CaptureDaemon& daemon, const std::string& name, std::uint64_t frames) {
-  const std::string dir = daemon.StartRecording(name);
-  const auto start = std::chrono::steady_clock::now();
-  std::this_thread::sleep_for(std::chrono::milliseconds(1000));
-  while (daemon.status().recorder.frames_recorded < frames &&
-         std::chrono::steady_clock::now() - start < std::chrono::seconds(20))
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  daemon.StopRecording();
-  return dir;
 }
 
 // An optional camera (required: false) that is not on the network when the daemon arms: the rig
