@@ -71,11 +71,13 @@ class Osem : public IterativeSolver {
     const std::vector<std::uint8_t>& lower = problem.lower_bound_rows;
     const std::vector<std::uint8_t>& active = problem.active_cols;
     double sum = 0;
-    // The prior's share per subset, per channel: weight * the data's sum / subsets.
-    float prior_share[kChannels] = {0, 0, 0};
+    // The prior's weight per channel: weight * the data's sum. A subset takes the share of it
+    // that its rows hold of the voxel's column sum (below), so that a sweep adds up to the
+    // full-data OSL step whatever the number of cameras that see the voxel.
+    double prior_scale[kChannels] = {0, 0, 0};
     if (prior_)
-      for (int c = 0; c < kChannels; ++c)
-        prior_share[c] = static_cast<float>(weight_ * data_sum_[c] / subsets.size());
+      for (int c = 0; c < kChannels; ++c) prior_scale[c] = weight_ * data_sum_[c];
+    const std::vector<float>& col_sums = a.col_sums();
     // The prior's gradient at the iterate before this sweep (once per sweep, not per subset: it
     // costs about a subset's backprojection on a large hull, and changes little in one subset).
     if (prior_) prior_->Gradient(x->data(), scale_, gradient_.data());
@@ -108,10 +110,13 @@ class Osem : public IterativeSolver {
               for (int c = 0; c < kChannels; ++c) xs[j * kChannels + c] *= gj[c] / col_sum;
               return;
             }
+            // The full-data OSL divisor is C_j + w B dU/dx_j; this subset's part of it is
+            // col_sum / C_j of that: col_sum * (1 + w B dU/dx_j / C_j).
+            const double share = double(col_sum) / std::max(col_sums[j], col_sum);
             for (int c = 0; c < kChannels; ++c) {
               // In double, and a prior term that is not finite (a quadratic prior
               // on an absurd iterate) is taken as none.
-              const double term = double(prior_share[c]) * gradient_[j * kChannels + c];
+              const double term = share * prior_scale[c] * gradient_[j * kChannels + c];
               const double divisor = std::max(col_sum + (std::isfinite(term) ? term : 0.0),
                                               double(kMinDivisor) * col_sum);
               xs[j * kChannels + c] *= static_cast<float>(gj[c] / divisor);
