@@ -64,17 +64,17 @@ TEST(GridPrior, EnergyCountsColumnPairsAndTheHullsEdgeAgainstEmptySpace) {
   std::vector<float> x0(cols.size() * 3, 0.0f);
   x0[0] = 1, x0[3] = 3, x0[6] = 3;
   const double by_hand = 0.5 * (9 + 0 + 2.25 + 2.25 + 4 * 20.25) / 27;
-  EXPECT_NEAR(q.Energy(x0.data(), scale), by_hand, 1e-12);
-  EXPECT_NEAR(q.Energy(x0.data(), scale),
+  EXPECT_NEAR(q.Energy(x0.data(), 3, scale), by_hand, 1e-12);
+  EXPECT_NEAR(q.Energy(x0.data(), 3, scale),
               DenseEnergy(PriorKind::kQuadratic, g, cols, x0, scale, 0.1), 1e-12);
   for (double e : {0.1, 0.3, 2.0}) {
     const GridPrior tv(PriorKind::kTotalVariation, g, cols, e);
-    EXPECT_NEAR(tv.Energy(x.data(), scale),
+    EXPECT_NEAR(tv.Energy(x.data(), 3, scale),
                 DenseEnergy(PriorKind::kTotalVariation, g, cols, x, scale, e), 1e-12);
   }
-  EXPECT_NEAR(q.Energy(x.data(), scale), DenseEnergy(PriorKind::kQuadratic, g, cols, x, scale, 0.1),
-              1e-12);
-  EXPECT_EQ(GridPrior(PriorKind::kNone, g, cols, 0.1).Energy(x.data(), scale), 0.0);
+  EXPECT_NEAR(q.Energy(x.data(), 3, scale),
+              DenseEnergy(PriorKind::kQuadratic, g, cols, x, scale, 0.1), 1e-12);
+  EXPECT_EQ(GridPrior(PriorKind::kNone, g, cols, 0.1).Energy(x.data(), 3, scale), 0.0);
 }
 
 TEST(GridPrior, GradientMatchesFiniteDifferences) {
@@ -91,14 +91,15 @@ TEST(GridPrior, GradientMatchesFiniteDifferences) {
     SCOPED_TRACE(ToString(kind));
     const GridPrior prior(kind, g, cols, 2.0);  // g here is about 4 per unit of x
     std::vector<float> grad(x.size());
-    prior.Gradient(x.data(), scale, grad.data());
+    prior.Gradient(x.data(), 3, scale, grad.data());
     double worst = 0, largest = 0;
     for (std::size_t k = 0; k < x.size(); k += 7) {
       std::vector<float> p = x, m = x;
       const float h = 1e-2f;
       p[k] += h;
       m[k] -= h;
-      const double fd = (prior.Energy(p.data(), scale) - prior.Energy(m.data(), scale)) / (2 * h);
+      const double fd =
+          (prior.Energy(p.data(), 3, scale) - prior.Energy(m.data(), 3, scale)) / (2 * h);
       worst = std::max(worst, std::abs(fd - grad[k]));
       largest = std::max(largest, std::abs(fd));
     }

@@ -8,6 +8,7 @@
 namespace flamerig::solver_kernels {
 namespace {
 
+template <int kChannels>
 class Cgls : public IterativeSolver {
  public:
   double Start(const SolveProblem& problem, const SolveOptions& options,
@@ -41,7 +42,7 @@ class Cgls : public IterativeSolver {
         if (problem.lower_bound_rows[i])
           for (int c = 0; c < kChannels; ++c) q_[i * kChannels + c] = 0;
     }
-    double qq[kChannels] = {0, 0, 0};
+    double qq[kChannels] = {};
     for (std::size_t i = 0; i < m; ++i)
       for (int c = 0; c < kChannels; ++c)
         qq[c] += double(q_[i * kChannels + c]) * q_[i * kChannels + c];
@@ -59,7 +60,7 @@ class Cgls : public IterativeSolver {
       }
     a.MultiplyTransposed(r_.data(), g_.data(), kChannels);
     Pin(problem, &g_);
-    double gamma_new[kChannels] = {0, 0, 0};
+    double gamma_new[kChannels] = {};
     for (std::size_t j = 0; j < n; ++j)
       for (int c = 0; c < kChannels; ++c)
         gamma_new[c] += double(g_[j * kChannels + c]) * g_[j * kChannels + c];
@@ -88,11 +89,14 @@ class Cgls : public IterativeSolver {
 
  private:
   std::vector<float> ax_, r_, g_, p_, q_;
-  double gamma_[kChannels] = {0, 0, 0};
+  double gamma_[kChannels] = {};
 };
 
 }  // namespace
 
-std::unique_ptr<IterativeSolver> MakeCgls() { return std::make_unique<Cgls>(); }
+std::unique_ptr<IterativeSolver> MakeCgls(int channels) {
+  if (channels == 1) return std::make_unique<Cgls<1>>();
+  return std::make_unique<Cgls<3>>();
+}
 
 }  // namespace flamerig::solver_kernels

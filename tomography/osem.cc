@@ -7,9 +7,9 @@
 // exactly zero can never grow again, so the start lifts every active voxel to at least a small
 // share of the data's level (a warm start keeps its shape above that floor).
 //
-// With a prior (prior.h), one step late (Green 1990): subset s of S divides by its column sums
-// plus the weight * B * dU/dx_j / S at the iterate before the sweep, B the sum of the channel's
-// data; the divisor is kept at or above a twentieth of the column sum, where a strong
+// With a prior (prior.h), one step late (Green 1990): a subset divides by its column sums plus
+// its part of weight * B * dU/dx_j at the iterate before the sweep (B the sum of the channel's
+// data; the part is the subset's column sum over the voxel's whole column sum); the divisor is kept at or above a twentieth of the column sum, where a strong
 // quadratic prior would otherwise make it small or negative and the update unstable.
 #include <algorithm>
 #include <cmath>
@@ -23,6 +23,7 @@
 namespace flamerig::solver_kernels {
 namespace {
 
+template <int kChannels>
 class Osem : public IterativeSolver {
  public:
   double Start(const SolveProblem& problem, const SolveOptions& options,
@@ -74,13 +75,13 @@ class Osem : public IterativeSolver {
     // The prior's weight per channel: weight * the data's sum. A subset takes the share of it
     // that its rows hold of the voxel's column sum (below), so that a sweep adds up to the
     // full-data OSL step whatever the number of cameras that see the voxel.
-    double prior_scale[kChannels] = {0, 0, 0};
+    double prior_scale[kChannels] = {};
     if (prior_)
       for (int c = 0; c < kChannels; ++c) prior_scale[c] = weight_ * data_sum_[c];
     const std::vector<float>& col_sums = a.col_sums();
     // The prior's gradient at the iterate before this sweep (once per sweep, not per subset: it
     // costs about a subset's backprojection on a large hull, and changes little in one subset).
-    if (prior_) prior_->Gradient(x->data(), scale_, gradient_.data());
+    if (prior_) prior_->Gradient(x->data(), kChannels, scale_, gradient_.data());
     for (const auto& [first, last] : subsets) {
       a.MultiplyRows(first, last, x->data(), ax_.data(), kChannels);
       for (std::size_t i = first; i < last; ++i) {
@@ -130,17 +131,20 @@ class Osem : public IterativeSolver {
   static constexpr float kFloor = 1e-3f;       // of the uniform level, for a warm start's zeros
   static constexpr float kMaxRatio = 1e3f;     // one sweep multiplies a voxel by at most this
   static constexpr float kMinDivisor = 0.05f;  // of the column sum, with a prior
-  float level_[kChannels] = {0, 0, 0};
+  float level_[kChannels] = {};
   std::vector<float> ax_, r_;
   std::unique_ptr<GridPrior> prior_;
-  double weight_ = 0;                       // the prior's (PriorWeight)
-  double data_sum_[kChannels] = {0, 0, 0};  // the sum of the data, per channel
-  float scale_[kChannels] = {1, 1, 1};
+  double weight_ = 0;                // the prior's (PriorWeight)
+  double data_sum_[kChannels] = {};  // the sum of the data, per channel
+  float scale_[kChannels] = {};
   std::vector<float> gradient_;  // dU/dx at the iterate before the current sweep
 };
 
 }  // namespace
 
-std::unique_ptr<IterativeSolver> MakeOsem() { return std::make_unique<Osem>(); }
+std::unique_ptr<IterativeSolver> MakeOsem(int channels) {
+  if (channels == 1) return std::make_unique<Osem<1>>();
+  return std::make_unique<Osem<3>>();
+}
 
 }  // namespace flamerig::solver_kernels

@@ -76,7 +76,7 @@ int GridPrior::NeighbourCount(std::size_t col) const {
   return n;
 }
 
-double GridPrior::Energy(const float* x, const float scale[3]) const {
+double GridPrior::Energy(const float* x, int channels, const float* scale) const {
   if (kind_ == PriorKind::kNone) return 0.0;
   double u = 0;
   for (std::size_t c = 0; c < cols_; ++c)
@@ -85,32 +85,32 @@ double GridPrior::Energy(const float* x, const float scale[3]) const {
       // the column's.
       const std::int32_t k = neighbours_[c * 6 + q];
       if (k == kOffGrid || (k >= 0 && q % 2 == 0)) continue;
-      for (int ch = 0; ch < 3; ++ch) {
-        const double other = k >= 0 ? x[std::size_t(k) * 3 + ch] : 0.0;
-        const double d = n_ * (double(x[c * 3 + ch]) - other) / scale[ch];
+      for (int ch = 0; ch < channels; ++ch) {
+        const double other = k >= 0 ? x[std::size_t(k) * channels + ch] : 0.0;
+        const double d = n_ * (double(x[c * channels + ch]) - other) / scale[ch];
         u += kind_ == PriorKind::kQuadratic ? 0.5 * d * d : std::sqrt(d * d + edge_ * edge_);
       }
     }
   return u / (n_ * n_ * n_);
 }
 
-void GridPrior::Gradient(const float* x, const float scale[3], float* g) const {
+void GridPrior::Gradient(const float* x, int channels, const float* scale, float* g) const {
   tbb::parallel_for(
       tbb::blocked_range<std::size_t>(0, cols_, 4096),
       [&](const tbb::blocked_range<std::size_t>& range) {
         for (std::size_t c = range.begin(); c < range.end(); ++c)
-          for (int ch = 0; ch < 3; ++ch) {
+          for (int ch = 0; ch < channels; ++ch) {
             double sum = 0;
             if (kind_ != PriorKind::kNone)
               for (int q = 0; q < 6; ++q) {
                 const std::int32_t k = neighbours_[c * 6 + q];
                 if (k == kOffGrid) continue;
-                const double other = k >= 0 ? x[std::size_t(k) * 3 + ch] : 0.0;
-                const double d = n_ * (double(x[c * 3 + ch]) - other) / scale[ch];
+                const double other = k >= 0 ? x[std::size_t(k) * channels + ch] : 0.0;
+                const double d = n_ * (double(x[c * channels + ch]) - other) / scale[ch];
                 sum += kind_ == PriorKind::kQuadratic ? d : d / std::sqrt(d * d + edge_ * edge_);
               }
             // dg/dx_j = N / L, over N^3.
-            g[c * 3 + ch] = static_cast<float>(sum / (n_ * n_ * scale[ch]));
+            g[c * channels + ch] = static_cast<float>(sum / (n_ * n_ * scale[ch]));
           }
       });
 }

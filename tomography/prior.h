@@ -50,10 +50,11 @@ class GridPrior {
   // The number of a column's neighbours that are columns too (0..6).
   int NeighbourCount(std::size_t col) const;
 
-  // U(x) for x of cols * 3 values (interleaved channels) and a scale per channel (> 0).
-  double Energy(const float* x, const float scale[3]) const;
-  // dU/dx into g (cols * 3 values). Multithreaded over columns; each g_j is written once.
-  void Gradient(const float* x, const float scale[3], float* g) const;
+  // U(x) for x of cols * channels values (interleaved channels, 1 to 3) and a scale per channel
+  // (> 0).
+  double Energy(const float* x, int channels, const float* scale) const;
+  // dU/dx into g (cols * channels values). Multithreaded over columns; each g_j is written once.
+  void Gradient(const float* x, int channels, const float* scale, float* g) const;
 
  private:
   PriorKind kind_;

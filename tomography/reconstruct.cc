@@ -406,9 +406,20 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
     problem.active_cols.resize(a.cols());
     for (std::size_t j = 0; j < a.cols(); ++j)
       problem.active_cols[j] = hull.voxel_inside[a.col_voxel(j)];
+    // Grey data (mono cameras: every pixel's channels equal) are solved as one channel, a third
+    // of the work, and the result copied to the three.
+    bool grey = true;
+    for (std::size_t r = 0; r < a.rows() && grey; ++r)
+      grey = problem.b[r * 3] == problem.b[r * 3 + 1] && problem.b[r * 3] == problem.b[r * 3 + 2];
+    if (grey) {
+      for (std::size_t r = 0; r < a.rows(); ++r) problem.b[r] = problem.b[r * 3];
+      problem.b.resize(a.rows());
+      problem.channels = 1;
+    }
+    const int nc = problem.channels;
 
-    // Initial guess.
-    std::vector<float> x(a.cols() * 3, 0.0f);
+    // Initial guess (from colour emission to grey: the channels' mean).
+    std::vector<float> x(a.cols() * nc, 0.0f);
     const std::vector<float>* full = nullptr;
     std::vector<float> resampled;
     if (is_fine && have_start) {
@@ -418,8 +429,13 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
       full = &resampled;
     }
     if (full) {
-      for (std::size_t j = 0; j < a.cols(); ++j)
-        for (int ch = 0; ch < 3; ++ch) x[j * 3 + ch] = (*full)[a.col_voxel(j) * 3 + ch];
+      for (std::size_t j = 0; j < a.cols(); ++j) {
+        const float* e = &(*full)[a.col_voxel(j) * 3];
+        if (grey)
+          x[j] = (e[0] + e[1] + e[2]) / 3.0f;
+        else
+          for (int ch = 0; ch < 3; ++ch) x[j * 3 + ch] = e[ch];
+      }
     }
 
     // Early stopping.
@@ -437,8 +453,8 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
       for (std::size_t r = 0; r < a.rows(); ++r) {
         if (problem.lower_bound_rows[r]) continue;
         const double sigma = hull.masks[a.row_camera(r)].noise_estimate;
-        for (int ch = 0; ch < 3; ++ch) {
-          const double v = problem.b[r * 3 + ch] * options_.exposure;  // linear camera signal
+        for (int ch = 0; ch < nc; ++ch) {
+          const double v = problem.b[r * nc + ch] * options_.exposure;  // linear camera signal
           const double encoded = SrgbEncode(v);
           const double q = (SrgbDecode(std::min(1.0, encoded + 0.5 / 255)) -
                             SrgbDecode(std::max(0.0, encoded - 0.5 / 255))) /
@@ -455,25 +471,31 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
     if (use_stop) {
       const SystemMatrix& h = level->stop;
       const LinearFrame& f = frames[stop_index_];
-      hb.resize(h.rows() * 3);
+      // Its images in the solve's channels (a grey solve scores the stop camera's mean: its
+      // frames are grey too when the rig is mono).
+      hb.resize(h.rows() * nc);
       hvalid.resize(h.rows());
       for (std::size_t r = 0; r < h.rows(); ++r) {
         const std::size_t p = static_cast<std::size_t>(h.row_pixel(r));
-        for (int ch = 0; ch < 3; ++ch) hb[r * 3 + ch] = f.radiance.pixels[3 * p + ch];
+        const float* v = &f.radiance.pixels[3 * p];
+        if (nc == 1)
+          hb[r] = (v[0] + v[1] + v[2]) / 3.0f;
+        else
+          for (int ch = 0; ch < 3; ++ch) hb[r * 3 + ch] = v[ch];
         hvalid[r] = !f.saturated[p];
       }
-      scorer = [&h, &hb, &hvalid](const std::vector<float>& xs) {
-        std::vector<float> y(h.rows() * 3);
-        h.Multiply(xs.data(), y.data(), 3);
+      scorer = [&h, &hb, &hvalid, nc](const std::vector<float>& xs) {
+        std::vector<float> y(h.rows() * nc);
+        h.Multiply(xs.data(), y.data(), nc);
         double sum = 0;
         std::size_t n = 0;
         for (std::size_t r = 0; r < h.rows(); ++r) {
           if (!hvalid[r]) continue;
-          for (int ch = 0; ch < 3; ++ch) {
-            const double d = y[r * 3 + ch] - hb[r * 3 + ch];
+          for (int ch = 0; ch < nc; ++ch) {
+            const double d = y[r * nc + ch] - hb[r * nc + ch];
             sum += d * d;
           }
-          n += 3;
+          n += nc;
         }
         return n ? std::sqrt(sum / n) : 0.0;
       };
@@ -490,7 +512,8 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
     // Back to the full grid.
     std::vector<float> emission(g.num_voxels() * 3, 0.0f);
     for (std::size_t j = 0; j < a.cols(); ++j)
-      for (int ch = 0; ch < 3; ++ch) emission[a.col_voxel(j) * 3 + ch] = x[j * 3 + ch];
+      for (int ch = 0; ch < 3; ++ch)
+        emission[a.col_voxel(j) * 3 + ch] = x[j * nc + (grey ? 0 : ch)];
     if (is_fine) {
       out.geometry = g;
       out.emission_rgb = std::move(emission);

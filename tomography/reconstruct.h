@@ -14,6 +14,10 @@
 // grows and the matrix is rebuilt. Matrices are also cached on disk (cache_dir) under a hash of everything they
 // depend on, so a second run skips the build.
 //
+// Grey data (mono cameras, whose frames carry one value in all three channels) are solved as one
+// channel, a third of the arithmetic and of the solve's vectors, and the result copied to the three
+// (SolveSummary::channels; BENCHMARKS.md, "Tomography", the mono rows).
+//
 // Output: FireVolume with `emission_rgb` (linear RGB radiance per metre, the renderer's units: an
 // image is exposure times the line integral) and metadata (exposure, solver, iterations, hull
 // fraction).

@@ -6,6 +6,7 @@
 namespace flamerig::solver_kernels {
 namespace {
 
+template <int kChannels>
 class Sart : public IterativeSolver {
  public:
   double Start(const SolveProblem& problem, const SolveOptions& options,
@@ -93,6 +94,9 @@ class Sart : public IterativeSolver {
 
 }  // namespace
 
-std::unique_ptr<IterativeSolver> MakeSart() { return std::make_unique<Sart>(); }
+std::unique_ptr<IterativeSolver> MakeSart(int channels) {
+  if (channels == 1) return std::make_unique<Sart<1>>();
+  return std::make_unique<Sart<3>>();
+}
 
 }  // namespace flamerig::solver_kernels

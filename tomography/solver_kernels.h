@@ -10,9 +10,7 @@
 
 namespace flamerig::solver_kernels {
 
-constexpr int kChannels = 3;
-
-// r = b - A x with the lower-bound rule (a saturated row's residual counts only where the model is
+// r = b - A x (problem.channels interleaved channels) with the lower-bound rule (a saturated row's residual counts only where the model is
 // darker; `drop_lower`: not at all); *ax = A x. Returns the RMS of r.
 double Residual(const SolveProblem& problem, const std::vector<float>& x, std::vector<float>* ax,
                 std::vector<float>* r, bool drop_lower);
@@ -20,9 +18,10 @@ double Residual(const SolveProblem& problem, const std::vector<float>& x, std::v
 // Sets the channels of the columns that problem.active_cols pins to zero.
 void Pin(const SolveProblem& problem, std::vector<float>* v);
 
-std::unique_ptr<IterativeSolver> MakeSart();  // sart.cc
-std::unique_ptr<IterativeSolver> MakeCgls();  // cgls.cc
-std::unique_ptr<IterativeSolver> MakeOsem();  // osem.cc
+// Each for 1 or 3 interleaved channels (SolveProblem::channels).
+std::unique_ptr<IterativeSolver> MakeSart(int channels);  // sart.cc
+std::unique_ptr<IterativeSolver> MakeCgls(int channels);  // cgls.cc
+std::unique_ptr<IterativeSolver> MakeOsem(int channels);  // osem.cc
 
 }  // namespace flamerig::solver_kernels
 

@@ -81,6 +81,7 @@ std::string SolveSummary::BriefReport() const {
   s.precision(4);
   s << solver;
   if (!prior.empty()) s << " with the " << prior << " prior (weight " << prior_weight << ")";
+  if (channels == 1) s << ", one channel (grey data)";
   s << ": " << iterations << " iterations, stopped by " << ToString(stop) << ", residual RMS "
     << initial_residual_rms << " -> " << final_residual_rms << " ("
     << (data_rms > 0 ? 100 * final_residual_rms / data_rms : 0)
@@ -105,32 +106,32 @@ namespace solver_kernels {
 double Residual(const SolveProblem& problem, const std::vector<float>& x, std::vector<float>* ax,
                 std::vector<float>* r, bool drop_lower) {
   const SystemMatrix& a = *problem.a;
+  const int channels = problem.channels;
   const std::vector<std::uint8_t>& lower = problem.lower_bound_rows;
-  a.Multiply(x.data(), ax->data(), kChannels);
+  a.Multiply(x.data(), ax->data(), channels);
   double sum = 0;
   for (std::size_t i = 0; i < a.rows(); ++i) {
     const bool is_lower = !lower.empty() && lower[i];
-    for (int c = 0; c < kChannels; ++c) {
-      const std::size_t k = i * kChannels + c;
+    for (int c = 0; c < channels; ++c) {
+      const std::size_t k = i * channels + c;
       float v = problem.b[k] - (*ax)[k];
       if (is_lower && (drop_lower || v < 0)) v = 0;
       (*r)[k] = v;
       sum += double(v) * v;
     }
   }
-  return a.rows() ? std::sqrt(sum / (a.rows() * kChannels)) : 0.0;
+  return a.rows() ? std::sqrt(sum / (a.rows() * channels)) : 0.0;
 }
 
 void Pin(const SolveProblem& problem, std::vector<float>* v) {
   const std::vector<std::uint8_t>& active = problem.active_cols;
+  const int channels = problem.channels;
   for (std::size_t j = 0; j < active.size(); ++j)
     if (!active[j])
-      for (int c = 0; c < kChannels; ++c) (*v)[j * kChannels + c] = 0.0f;
+      for (int c = 0; c < channels; ++c) (*v)[j * channels + c] = 0.0f;
 }
 
 }  // namespace solver_kernels
-
-using solver_kernels::kChannels;
 
 SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
                              const SolveOptions& options, const HoldoutScorer& holdout,
@@ -142,11 +143,14 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
   const std::size_t m = a.rows(), n = a.cols();
   if (!problem.active_cols.empty() && problem.active_cols.size() != n)
     throw InputError("SolveTomography: active_cols needs one value per column");
-  if (problem.b.size() != m * kChannels)
-    throw InputError("SolveTomography: b needs rows * 3 values");
+  const int channels = problem.channels;
+  if (channels != 1 && channels != 3)
+    throw InputError("SolveTomography: channels must be 1 or 3, not " + std::to_string(channels));
+  if (problem.b.size() != m * channels)
+    throw InputError("SolveTomography: b needs rows * channels values");
   if (!problem.lower_bound_rows.empty() && problem.lower_bound_rows.size() != m)
     throw InputError("SolveTomography: lower_bound_rows needs one value per row");
-  if (x->size() != n * kChannels) x->assign(n * kChannels, 0.0f);
+  if (x->size() != n * channels) x->assign(n * channels, 0.0f);
   for (float& v : *x) {
     if (!std::isfinite(v)) v = 0.0f;  // a broken warm start never poisons the solve
     if (options.non_negative && v < 0) v = 0.0f;
@@ -154,6 +158,7 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
   solver_kernels::Pin(problem, x);
   SolveSummary summary;
   summary.solver = options.solver;
+  summary.channels = channels;
   if (const double w = PriorWeight(options); w > 0) {
     summary.prior = options.prior;
     summary.prior_weight = w;
@@ -170,7 +175,7 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
   summary.data_rms = std::sqrt(data_sum / problem.b.size());
 
   const TomographySolverEntry& entry = FindTomographySolver(options.solver);
-  std::unique_ptr<IterativeSolver> solver = entry.make();
+  std::unique_ptr<IterativeSolver> solver = entry.make(channels);
   const double stagnation =
       options.stagnation_tolerance >= 0 ? options.stagnation_tolerance : entry.stagnation_tolerance;
   summary.initial_residual_rms = solver->Start(problem, options, x);
@@ -228,7 +233,7 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
   }
   if (holdout) *x = best;
   summary.clipped_fraction = solver->Result(options, x);
-  std::vector<float> ax(m * kChannels), r(m * kChannels);
+  std::vector<float> ax(m * channels), r(m * channels);
   summary.final_residual_rms = solver_kernels::Residual(problem, *x, &ax, &r, false);
   summary.time_ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();

@@ -1,4 +1,5 @@
-// Solvers for the tomography's A e = b (system_matrix.h), three colour channels at once.
+// Solvers for the tomography's A e = b (system_matrix.h), three colour channels at once, or one
+// when the data are grey (a mono camera's frames: SolveProblem::channels).
 //
 // Each solver is one iteration behind one interface (IterativeSolver), found by name in a
 // registry (TomographySolvers()); the driver, SolveTomography, owns everything else: validation,
@@ -79,6 +80,7 @@ struct SolveOptions {
 struct SolveSummary {
   std::string solver;
   std::string prior;        // "" without one (SolveOptions::prior)
+  int channels = 3;         // solved: 3, or 1 for grey data (SolveProblem::channels)
   double prior_weight = 0;  // the weight in effect
   int iterations = 0;
   SolveStop stop = SolveStop::kMaxIterations;
@@ -94,13 +96,16 @@ struct SolveSummary {
   std::string BriefReport() const;
 };
 
-// Scores an iterate (cols * 3 values) on data the solve does not use; lower is better.
+// Scores an iterate (cols * channels values) on data the solve does not use; lower is better.
 using HoldoutScorer = std::function<double(const std::vector<float>& x)>;
 
 // What a solve works on besides A: the data and which rows and columns take part.
 struct SolveProblem {
   const SystemMatrix* a = nullptr;
-  std::vector<float> b;                        // rows * 3 values (radiance)
+  // Interleaved channels of b and x: 3 (RGB), or 1 for grey data (every channel equal), which
+  // then costs a third of the arithmetic and memory of the vectors.
+  int channels = 3;
+  std::vector<float> b;                        // rows * channels values (radiance)
   std::vector<std::uint8_t> lower_bound_rows;  // optional, per row: saturated pixel
   std::vector<std::uint8_t> active_cols;       // optional, per column: 0 pins the column at zero
   const GridGeometry* grid = nullptr;          // the grid of a's columns; needed by a prior only
@@ -125,7 +130,7 @@ class IterativeSolver {
 struct TomographySolverEntry {
   std::string name;
   std::string description;
-  std::unique_ptr<IterativeSolver> (*make)();
+  std::unique_ptr<IterativeSolver> (*make)(int channels);  // 1 or 3
   double stagnation_tolerance;  // its default stopping tolerance (SolveOptions)
 };
 // The weight of options.prior in effect (0 without one): prior_weight, or the prior's own default.
@@ -136,7 +141,7 @@ const std::vector<TomographySolverEntry>& TomographySolvers();
 // The entry named `name`; throws InputError listing the names when there is none.
 const TomographySolverEntry& FindTomographySolver(const std::string& name);
 
-// Solves for x (cols * 3, interleaved RGB; its input is the initial guess, e.g. a warm start).
+// Solves for x (cols * channels, interleaved; its input is the initial guess, e.g. a warm start).
 // Progress: stage "solve", unit "iterations", value "residual_rms" after each iteration; a cancel
 // stops at that iteration with SolveStop::kCancelled (the best iterate so far is returned).
 // Throws InputError for mis-sized inputs or non-finite data.
