@@ -65,6 +65,13 @@ TEST(GridPrior, EnergyCountsColumnPairsAndTheHullsEdgeAgainstEmptySpace) {
   x0[0] = 1, x0[3] = 3, x0[6] = 3;
   const double by_hand = 0.5 * (9 + 0 + 2.25 + 2.25 + 4 * 20.25) / 27;
   EXPECT_NEAR(q.Energy(x0.data(), 3, scale), by_hand, 1e-12);
+  // The same field as one channel (grey data): the same energy, and the gradient of channel 0.
+  const std::vector<float> x1 = {1, 3, 3, 0};
+  EXPECT_NEAR(q.Energy(x1.data(), 1, scale), by_hand, 1e-12);
+  std::vector<float> g1(cols.size()), g3(cols.size() * 3);
+  q.Gradient(x1.data(), 1, scale, g1.data());
+  q.Gradient(x0.data(), 3, scale, g3.data());
+  for (std::size_t c = 0; c < cols.size(); ++c) EXPECT_EQ(g1[c], g3[c * 3]) << c;
   EXPECT_NEAR(q.Energy(x0.data(), 3, scale),
               DenseEnergy(PriorKind::kQuadratic, g, cols, x0, scale, 0.1), 1e-12);
   for (double e : {0.1, 0.3, 2.0}) {

@@ -595,6 +595,20 @@ TEST(Reconstruct, MonoFramesAreSolvedInOneChannel) {
     total += grey.emission_rgb[v * 3];
   }
   EXPECT_GT(total, 0);
+  // Warm-started from the grey volume, and with a stop camera: one channel still, and near the
+  // cold solve.
+  ReconstructSummary warm_summary;
+  const FireVolume warm = rec.Reconstruct(mono, &warm_summary, &grey);
+  EXPECT_EQ(warm_summary.solves.back().channels, 1);
+  EXPECT_LT(VolumeError(warm, grey), 0.05);
+  ReconstructOptions stop_options = options;
+  stop_options.stop_camera = d.rig.cameras[3].name;
+  Reconstructor rec_stop(d.rig, stop_options);
+  ReconstructSummary stop_summary;
+  const FireVolume stopped = rec_stop.Reconstruct(mono, &stop_summary);
+  EXPECT_EQ(stop_summary.solves.back().channels, 1);
+  EXPECT_FALSE(stop_summary.solves.back().holdout_error.empty());
+  EXPECT_LT(VolumeError(stopped, grey), 0.3);
   // One level more red in camera 0's brightest pixel: colour data.
   std::vector<ImageU8> tinted = mono;
   int bx = 0, by = 0;

@@ -2,7 +2,9 @@
 // left out (a linear problem); non-negativity applied to the result only.
 #include <algorithm>
 #include <cmath>
+#include <string>
 
+#include "core/error.h"
 #include "tomography/solver_kernels.h"
 
 namespace flamerig::solver_kernels {
@@ -96,7 +98,8 @@ class Cgls : public IterativeSolver {
 
 std::unique_ptr<IterativeSolver> MakeCgls(int channels) {
   if (channels == 1) return std::make_unique<Cgls<1>>();
-  return std::make_unique<Cgls<3>>();
+  if (channels == 3) return std::make_unique<Cgls<3>>();
+  throw InputError("cgls: 1 or 3 channels, not " + std::to_string(channels));
 }
 
 }  // namespace flamerig::solver_kernels

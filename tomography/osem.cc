@@ -9,11 +9,13 @@
 //
 // With a prior (prior.h), one step late (Green 1990): a subset divides by its column sums plus
 // its part of weight * B * dU/dx_j at the iterate before the sweep (B the sum of the channel's
-// data; the part is the subset's column sum over the voxel's whole column sum); the divisor is kept at or above a twentieth of the column sum, where a strong
-// quadratic prior would otherwise make it small or negative and the update unstable.
+// data; the part is the subset's column sum over the voxel's whole column sum); the divisor is
+// kept at or above a twentieth of the column sum, where a strong quadratic prior would otherwise
+// make it small or negative and the update unstable.
 #include <algorithm>
 #include <cmath>
 #include <memory>
+#include <string>
 
 #include "core/error.h"
 #include "tomography/prior.h"
@@ -144,7 +146,8 @@ class Osem : public IterativeSolver {
 
 std::unique_ptr<IterativeSolver> MakeOsem(int channels) {
   if (channels == 1) return std::make_unique<Osem<1>>();
-  return std::make_unique<Osem<3>>();
+  if (channels == 3) return std::make_unique<Osem<3>>();
+  throw InputError("osem: 1 or 3 channels, not " + std::to_string(channels));
 }
 
 }  // namespace flamerig::solver_kernels

@@ -1,5 +1,6 @@
 // Smoothness priors for the tomography's solve (solvers.h, SolveOptions::prior): an energy U(x)
-// over the six face neighbours of the solve's columns, for each of the three colour channels. With
+// over the six face neighbours of the solve's columns, for each of its channels (three, or one for
+// grey data). With
 // N the grid's voxels along its longest side and L > 0 the channel's scale (the solve's uniform
 // emission level), a neighbour pair's difference is read as a gradient across the grid,
 // g = N (x_j - x_k) / L, and U is a mean over the N^3 voxels of a cube of that side:

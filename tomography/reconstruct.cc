@@ -412,8 +412,9 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
     for (std::size_t r = 0; r < a.rows() && grey; ++r)
       grey = problem.b[r * 3] == problem.b[r * 3 + 1] && problem.b[r * 3] == problem.b[r * 3 + 2];
     if (grey) {
-      for (std::size_t r = 0; r < a.rows(); ++r) problem.b[r] = problem.b[r * 3];
-      problem.b.resize(a.rows());
+      std::vector<float> one(a.rows());
+      for (std::size_t r = 0; r < a.rows(); ++r) one[r] = problem.b[r * 3];
+      problem.b = std::move(one);  // the three channels' memory goes
       problem.channels = 1;
     }
     const int nc = problem.channels;

@@ -16,7 +16,8 @@
 //
 // Grey data (mono cameras, whose frames carry one value in all three channels) are solved as one
 // channel, a third of the arithmetic and of the solve's vectors, and the result copied to the three
-// (SolveSummary::channels; BENCHMARKS.md, "Tomography", the mono rows).
+// (SolveSummary::channels). The matrix is read once per product whatever the channels, so the
+// solve takes 0.4 to 0.7 of the colour solve's time (BENCHMARKS.md, "Tomography", mono rows).
 //
 // Output: FireVolume with `emission_rgb` (linear RGB radiance per metre, the renderer's units: an
 // image is exposure times the line integral) and metadata (exposure, solver, iterations, hull

@@ -1,6 +1,8 @@
 // SART and OS-SART (solvers.h): e += lambda * C^-1 A^T R^-1 (b - A e), projected onto e >= 0.
 #include <cmath>
+#include <string>
 
+#include "core/error.h"
 #include "tomography/solver_kernels.h"
 
 namespace flamerig::solver_kernels {
@@ -96,7 +98,8 @@ class Sart : public IterativeSolver {
 
 std::unique_ptr<IterativeSolver> MakeSart(int channels) {
   if (channels == 1) return std::make_unique<Sart<1>>();
-  return std::make_unique<Sart<3>>();
+  if (channels == 3) return std::make_unique<Sart<3>>();
+  throw InputError("sart: 1 or 3 channels, not " + std::to_string(channels));
 }
 
 }  // namespace flamerig::solver_kernels

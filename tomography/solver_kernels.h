@@ -10,8 +10,9 @@
 
 namespace flamerig::solver_kernels {
 
-// r = b - A x (problem.channels interleaved channels) with the lower-bound rule (a saturated row's residual counts only where the model is
-// darker; `drop_lower`: not at all); *ax = A x. Returns the RMS of r.
+// r = b - A x (problem.channels interleaved channels) with the lower-bound rule (a saturated row's
+// residual counts only where the model is darker; `drop_lower`: not at all); *ax = A x. Returns
+// the RMS of r.
 double Residual(const SolveProblem& problem, const std::vector<float>& x, std::vector<float>* ax,
                 std::vector<float>* r, bool drop_lower);
 
