@@ -85,12 +85,13 @@ class ChannelResponse {
       return;
     }
     if (temperature_k >= Real(kMaxTableK)) {
-      // Above the table the curve is smooth and flat in T: a central difference over 1 K.
+      // Above the table the curve is smooth and flat in T: a central difference over 1 K, taken
+      // in double (in float the two values' difference kept three digits at 25000 K).
       LookupExact(double(temperature_k), out);
-      Real lo[3], hi[3];
+      double lo[3], hi[3];
       LookupExact(double(temperature_k) - 1.0, lo);
       LookupExact(double(temperature_k) + 1.0, hi);
-      for (int c = 0; c < 3; ++c) d_out[c] = Real(0.5) * (hi[c] - lo[c]);
+      for (int c = 0; c < 3; ++c) d_out[c] = Real(0.5 * (hi[c] - lo[c]));
       return;
     }
     InterpolateKelvinRows<Real>(rows_, temperature_k, out, d_out);

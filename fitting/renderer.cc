@@ -9,13 +9,21 @@
 #include <bit>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <sstream>
 #include <stdexcept>
+#include <type_traits>
 
+#include "core/cpu.h"
 #include "core/error.h"
 #include "fitting/colour.h"
 #include "tomography/ray_march.h"
+
+// The spectral kernels pass GCC vector types between inline functions of this file only; GCC's
+// note that their ABI differs with and without AVX concerns calls across files, which there are
+// none of.
+#pragma GCC diagnostic ignored "-Wpsabi"
 
 namespace flamerig {
 
@@ -55,8 +63,8 @@ std::string RenderSummary::BriefReport() const {
   s << ToString(path_used) << " path (" << path_reason << "), " << rays << " rays, " << rays_hit_box
     << " hit the box, " << steps_evaluated << " samples, " << steps_skipped_empty
     << " steps skipped in empty bricks (" << occupied_brick_fraction * 100
-    << "% of bricks occupied), " << rays_terminated_early << " rays terminated early, " << time_ms
-    << " ms";
+    << "% of bricks occupied), " << rays_terminated_early << " rays terminated early, "
+    << (wide_kernels ? "AVX2 + FMA kernels, " : "baseline kernels, ") << time_ms << " ms";
   return s.str();
 }
 
@@ -104,8 +112,7 @@ void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<flo
   const std::size_t nvox = geometry.num_voxels();
   temperature_ = temperature_k;
   density_ = density_per_m3;
-  // Voxels with density > 0 (the medium) get a slot: their index in the gradient buffers and, on
-  // the spectral path, in spectra_.
+  // Voxels with density > 0 (the medium) get a slot: their index in the gradient buffers.
   slot_.assign(nvox, -1);
   active_voxels_.clear();
   for (std::size_t v = 0; v < nvox; ++v) {
@@ -126,13 +133,51 @@ void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<flo
       for (int c = 0; c < 3; ++c) fast_[i + 1 + c] = static_cast<float>(xyz[c]);
     }
   } else {
-    // Per voxel with soot: B_b(T) for every bin (kappa_b = sigma_b * n is formed per sample).
+    // The spectra: SpectralBins' kelvin rows over the volume's temperatures, and each voxel's
+    // record (spectral_voxels_ in renderer.h): 16 bytes a voxel instead of a row of its own, and
+    // the rows it shares with voxels of nearly the same temperature stay in cache.
     const int nbins = bins_->count();
-    spectra_.assign(active_voxels_.size() * nbins, 0.0f);
-    std::vector<double> planck(nbins);
+    const int nbp = padded_bins_ = (nbins + kLanes - 1) / kLanes * kLanes;
+    int lo = SpectralBins::kMaxTableK, hi = 0;
+    std::size_t beyond = 0;
+    for (std::uint32_t v : active_voxels_) {
+      const float t = temperature_k[v];
+      if (t >= float(SpectralBins::kMaxTableK)) {
+        ++beyond;
+        continue;
+      }
+      const int k = t > 0 ? static_cast<int>(t) : 0;
+      lo = std::min(lo, k);
+      hi = std::max(hi, k);
+    }
+    const std::size_t kelvin_rows = hi >= lo ? static_cast<std::size_t>(hi - lo + 2) : 0;
+    constexpr std::size_t kZeroRows = 2;
+    spectral_table_.assign((kZeroRows + kelvin_rows + 2 * beyond) * nbp, 0.0f);
+    for (std::size_t r = 0; r < kelvin_rows; ++r)
+      std::copy_n(bins_->PlanckRow(lo + static_cast<int>(r)), nbins,
+                  &spectral_table_[(kZeroRows + r) * nbp]);
+    spectral_voxels_.assign(nvox, SpectralVoxel());
+    std::size_t next = kZeroRows + kelvin_rows;
+    std::vector<double> b(nbins), d(nbins);
     for (std::size_t a = 0; a < active_voxels_.size(); ++a) {
-      bins_->PlanckAll(double(temperature_k[active_voxels_[a]]), planck.data());
-      for (int b = 0; b < nbins; ++b) spectra_[a * nbins + b] = static_cast<float>(planck[b]);
+      const std::uint32_t v = active_voxels_[a];
+      const float t = temperature_k[v];
+      SpectralVoxel& record = spectral_voxels_[v];
+      record.density = density_per_m3[v];
+      record.slot = static_cast<std::int32_t>(a);
+      if (t >= float(SpectralBins::kMaxTableK)) {
+        bins_->PlanckAllWithDerivative(double(t), b.data(), d.data());
+        for (int i = 0; i < nbins; ++i) {
+          spectral_table_[next * nbp + i] = static_cast<float>(b[i]);
+          spectral_table_[(next + 1) * nbp + i] = static_cast<float>(b[i] + d[i]);
+        }
+        record.offset = static_cast<std::uint32_t>(next * nbp);
+        next += 2;
+      } else if (t > 0) {
+        const int k = static_cast<int>(t);
+        record.offset = static_cast<std::uint32_t>((kZeroRows + k - lo) * nbp);
+        record.fraction = t - float(k);
+      }  // T = 0: the zero rows
     }
   }
 
@@ -183,11 +228,13 @@ inline float VectorExp(float x) {
 }
 inline double VectorExp(double x) { return std::exp(x); }
 
-// 1 - exp(-tau) for tau >= 0 without cancellation at small tau (series below 1e-2).
-template <typename Real>
+// 1 - exp(-tau) for tau >= 0 without cancellation at small tau (series below 1e-2). kThin: the
+// caller knows tau < 1e-2 (the series alone, the same value without the exponential).
+template <bool kThin = false, typename Real>
 inline Real OneMinusExpNeg(Real tau) {
   const Real series =
       tau * (Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24))));
+  if constexpr (kThin) return series;
   const Real direct = Real(1) - VectorExp(-tau);  // both computed: a select, not a branch
   return tau < Real(1e-2) ? series : direct;
 }
@@ -204,6 +251,33 @@ inline void PhiAndTauDPhi(Real tau, Real* phi, Real* tau_dphi) {
        tau * (Real(1) / 3 + tau * (Real(-1) / 8 + tau * (Real(1) / 30 - tau * (Real(1) / 144)))));
   const Real direct = VectorExp(-tau) - *phi;
   *tau_dphi = tau < Real(0.1) ? series : direct;
+}
+
+// The three terms of a step of optical depth tau >= 0 that the adjoint needs, from one
+// exponential: 1 - exp(-tau), phi(tau) and tau * phi'(tau) (as OneMinusExpNeg and PhiAndTauDPhi).
+// kThin: the caller knows tau < 1e-2, where all three are their series (the same values, without
+// the exponential).
+template <bool kThin = false, typename Real>
+inline void StepTerms(Real tau, Real* absorbed, Real* phi, Real* tau_dphi) {
+  if constexpr (kThin) {
+    *absorbed = tau * (Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24))));
+    *phi = Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24)));
+    *tau_dphi = tau * (Real(-0.5) + tau * (Real(1) / 3 +
+                                           tau * (Real(-1) / 8 +
+                                                  tau * (Real(1) / 30 - tau * (Real(1) / 144)))));
+    return;
+  }
+  const Real e = VectorExp(-tau);
+  const Real absorbed_series =
+      tau * (Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24))));
+  *absorbed = tau < Real(1e-2) ? absorbed_series : Real(1) - e;
+  const Real phi_series = Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24)));
+  *phi = tau < Real(1e-2) ? phi_series : *absorbed / tau;
+  const Real series =
+      tau *
+      (Real(-0.5) +
+       tau * (Real(1) / 3 + tau * (Real(-1) / 8 + tau * (Real(1) / 30 - tau * (Real(1) / 144)))));
+  *tau_dphi = tau < Real(0.1) ? series : e - *phi;
 }
 
 }  // namespace
@@ -241,33 +315,38 @@ void FireRenderer::MarchRay(const RayMarch& march, MarchCounters* c, Visit&& vis
   const Eigen::Vector3d& d = march.direction_index;
   const std::int64_t n_steps = march.n_steps;
   std::int64_t k = 0;
+  // Steps before this one are known to lie in an occupied brick: a ray stays in a brick (convex)
+  // from the step that found it until the brick's far side, so its bricks are looked up once
+  // each, not once per step.
+  std::int64_t occupied_until = 0;
   while (k < n_steps) {
     double step_length;
     Eigen::Vector3d p;
     march.Step(k, &step_length, &p);
-    if (skip) {
+    if (skip && k >= occupied_until) {
       const int bi =
           std::clamp(static_cast<int>(std::floor((p.x() + 0.5) / brick)), 0, brick_dims_.x() - 1);
       const int bj =
           std::clamp(static_cast<int>(std::floor((p.y() + 0.5) / brick)), 0, brick_dims_.y() - 1);
       const int bk =
           std::clamp(static_cast<int>(std::floor((p.z() + 0.5) / brick)), 0, brick_dims_.z() - 1);
+      // The first step whose midpoint lies beyond this brick.
+      double t_leave = std::numeric_limits<double>::infinity();
+      const int bidx[3] = {bi, bj, bk};
+      for (int a = 0; a < 3; ++a) {
+        if (d[a] > 0)
+          t_leave = std::min(t_leave, ((bidx[a] + 1) * brick - 0.5 - o[a]) / d[a]);
+        else if (d[a] < 0)
+          t_leave = std::min(t_leave, (bidx[a] * brick - 0.5 - o[a]) / d[a]);
+      }
+      const std::int64_t next = std::max(k + 1, march.FirstStepAfter(t_leave));
       if (!brick_occupied_[bi + brick_dims_.x() *
                                     (bj + static_cast<std::size_t>(brick_dims_.y()) * bk)]) {
-        // Jump to the first step whose midpoint lies beyond this brick.
-        double t_leave = std::numeric_limits<double>::infinity();
-        const int bidx[3] = {bi, bj, bk};
-        for (int a = 0; a < 3; ++a) {
-          if (d[a] > 0)
-            t_leave = std::min(t_leave, ((bidx[a] + 1) * brick - 0.5 - o[a]) / d[a]);
-          else if (d[a] < 0)
-            t_leave = std::min(t_leave, (bidx[a] * brick - 0.5 - o[a]) / d[a]);
-        }
-        const std::int64_t next = std::max(k + 1, march.FirstStepAfter(t_leave));
         c->skipped += next - k;
         k = next;
         continue;
       }
+      occupied_until = next;
     }
     const TrilinearStencil<Real> s(g.dims, Real(p.x()), Real(p.y()), Real(p.z()));
     std::size_t corner[8];
@@ -283,6 +362,242 @@ void FireRenderer::MarchRay(const RayMarch& march, MarchCounters* c, Visit&& vis
   }
 }
 
+// Source per bin at a sample: emission / kappa = sum w n B_b(T) / sum w n, an average of the
+// corners' Planck spectra weighted by w * n (no overflow whatever the density), each spectrum
+// interpolated in the kelvin table (SetVolume). GatherCorners reads the eight corners' records
+// and returns the sample's density n_sample = sum w n; when it is > 0, it gives each corner's
+// row, its weight u = w n / n_sample and the weight of the slope to the next row uf = u *
+// fraction (all eight: a corner without medium has u = 0 and the zero rows), from which
+// SourceLanes below forms the source eight bins at a time, in registers.
+template <typename Real>
+inline Real FireRenderer::GatherCorners(const std::size_t* corner, const Real* weight,
+                                        std::int32_t* slot, const float** rows, Real* u,
+                                        Real* uf) const {
+  Real n_sample = 0;
+  for (int n = 0; n < 8; ++n) {
+    const SpectralVoxel& v = spectral_voxels_[corner[n]];
+    slot[n] = v.slot;
+    rows[n] = &spectral_table_[v.offset];
+    u[n] = weight[n] * Real(v.density);  // w n; divided by n_sample below
+    uf[n] = Real(v.fraction);
+    n_sample += u[n];
+  }
+  if (!(n_sample > Real(0))) return n_sample;
+  const Real inverse = Real(1) / n_sample;
+  for (int n = 0; n < 8; ++n) {
+    u[n] *= inverse;
+    uf[n] *= u[n];
+  }
+  return n_sample;
+}
+
+namespace {
+
+// Eight bins at a time, as GCC vector types (lanes.h's role, kept here: the spectral kernels are
+// their only user). Explicit vectors rather than loops left to the auto-vectoriser, which kept or
+// dropped these loops depending on how they were inlined. The AVX2 build (RenderRowsWide) puts
+// one in a register; the baseline build uses two SSE registers.
+template <typename Real>
+struct LaneType;
+template <>
+struct LaneType<float> {
+  typedef float type __attribute__((vector_size(32)));
+  typedef std::int32_t mask __attribute__((vector_size(32)));
+};
+template <>
+struct LaneType<double> {
+  typedef double type __attribute__((vector_size(64)));
+  typedef std::int64_t mask __attribute__((vector_size(64)));
+};
+template <typename Real>
+using Lanes = typename LaneType<Real>::type;
+constexpr int kVectorLanes = 8;
+
+template <typename Real>
+inline Lanes<Real> LoadLanes(const Real* p) {
+  Lanes<Real> v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+template <typename Real>
+inline Lanes<Real> LoadFloatLanes(const float* p) {
+  if constexpr (std::is_same_v<Real, float>) {
+    return LoadLanes(p);
+  } else {
+    return __builtin_convertvector(LoadLanes(p), Lanes<Real>);
+  }
+}
+template <typename Real>
+inline void StoreLanes(Real* p, const Lanes<Real>& v) {
+  std::memcpy(p, &v, sizeof v);
+}
+template <typename Real>
+inline Lanes<Real> Broadcast(Real x) {
+  return Lanes<Real>{} + x;
+}
+template <typename Real>
+inline Real MaxOf(const Lanes<Real>& v) {
+  Real m = v[0];
+  for (int l = 1; l < kVectorLanes; ++l) m = std::max(m, Real(v[l]));
+  return m;
+}
+template <typename Real>
+inline Real SumOf(const Lanes<Real>& v) {
+  Real m = v[0];
+  for (int l = 1; l < kVectorLanes; ++l) m += v[l];
+  return m;
+}
+
+// exp(x) lane by lane: VectorExp's polynomial for float (the same operations in the same order,
+// so the same values), std::exp for double.
+inline Lanes<float> ExpLanes(Lanes<float> x) {
+  typedef LaneType<float>::mask Int;
+  x = x < -87.0f ? Broadcast(-87.0f) : x;
+  x = x > 88.0f ? Broadcast(88.0f) : x;
+  const Lanes<float> k = (x * 1.44269504088896341f + 12582912.0f) - 12582912.0f;
+  const Lanes<float> r = x - k * 0.693359375f + k * 2.12194440e-4f;
+  Lanes<float> p = Broadcast(1.9875691500e-4f);
+  p = p * r + 1.3981999507e-3f;
+  p = p * r + 8.3334519073e-3f;
+  p = p * r + 4.1665795894e-2f;
+  p = p * r + 1.6666665459e-1f;
+  p = p * r + 5.0000001201e-1f;
+  p = p * r * r + r + 1.0f;
+  const Int bits = (__builtin_convertvector(k, Int) + 127) << 23;
+  Lanes<float> scale;
+  std::memcpy(&scale, &bits, sizeof scale);
+  return p * scale;
+}
+inline Lanes<double> ExpLanes(Lanes<double> x) {
+  for (int l = 0; l < kVectorLanes; ++l) x[l] = std::exp(x[l]);
+  return x;
+}
+
+// OneMinusExpNeg and StepTerms lane by lane (the same series and thresholds).
+template <bool kThin, typename Real>
+inline Lanes<Real> OneMinusExpNegLanes(const Lanes<Real>& tau) {
+  const Lanes<Real> series =
+      tau * (Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24))));
+  if constexpr (kThin) {
+    return series;
+  } else {
+    const Lanes<Real> direct = Real(1) - ExpLanes(-tau);
+    return tau < Real(1e-2) ? series : direct;
+  }
+}
+template <bool kThin, typename Real>
+inline void StepTermsLanes(const Lanes<Real>& tau, Lanes<Real>* absorbed, Lanes<Real>* phi,
+                           Lanes<Real>* tau_dphi) {
+  const Lanes<Real> absorbed_series =
+      tau * (Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24))));
+  const Lanes<Real> phi_series =
+      Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24)));
+  const Lanes<Real> dphi_series =
+      tau *
+      (Real(-0.5) +
+       tau * (Real(1) / 3 + tau * (Real(-1) / 8 + tau * (Real(1) / 30 - tau * (Real(1) / 144)))));
+  if constexpr (kThin) {
+    *absorbed = absorbed_series;
+    *phi = phi_series;
+    *tau_dphi = dphi_series;
+  } else {
+    const Lanes<Real> e = ExpLanes(-tau);
+    const auto thin = tau < Real(1e-2);
+    *absorbed = thin ? absorbed_series : Real(1) - e;
+    *phi = thin ? phi_series : *absorbed / tau;
+    *tau_dphi = tau < Real(0.1) ? dphi_series : e - *phi;
+  }
+}
+
+// The sample's source S_b = sum over corners of u B_b(T) for bins [b0, b0 + 8), from the corners'
+// kelvin-table rows (GatherCorners).
+template <typename Real>
+inline Lanes<Real> SourceLanes(const float* const* rows, const Real* u, const Real* uf, int b0,
+                               int row_length) {
+  Lanes<Real> acc{};
+  for (int i = 0; i < 8; ++i) {
+    const Lanes<Real> r0 = LoadFloatLanes<Real>(rows[i] + b0);
+    const Lanes<Real> r1 = LoadFloatLanes<Real>(rows[i] + b0 + row_length);
+    acc += u[i] * r0 + uf[i] * (r1 - r0);
+  }
+  return acc;
+}
+
+// One step of a spectral ray, every bin: L_b += Tr_b (1 - exp(-sigma_b n ds)) S_b, Tr_b likewise
+// reduced; returns the largest transmittance. kThin: sigma_b n ds < 1e-2 in every bin, where
+// 1 - exp is its series (the same value, no exponential).
+template <bool kThin, typename Real>
+inline Real SpectralStep(int nbp, const float* const* rows, const Real* u,
+                         const Real* uf, const Real* sigma, Real n_sample, Real ds,
+                         Real* radiance, Real* transmittance) {
+  Lanes<Real> max_tr{};
+  for (int b0 = 0; b0 < nbp; b0 += kVectorLanes) {
+    const Lanes<Real> source = SourceLanes<Real>(rows, u, uf, b0, nbp);
+    const Lanes<Real> absorbed =
+        OneMinusExpNegLanes<kThin, Real>(LoadLanes(sigma + b0) * n_sample * ds);
+    Lanes<Real> tr = LoadLanes(transmittance + b0);
+    const Lanes<Real> w = tr * absorbed;
+    StoreLanes(radiance + b0, LoadLanes(radiance + b0) + w * source);
+    tr -= w;
+    StoreLanes(transmittance + b0, tr);
+    max_tr = tr > max_tr ? tr : max_tr;
+  }
+  return MaxOf<Real>(max_tr);
+}
+
+// The adjoint's step on a spectral ray (GradientRows, pass 2): every bin's transmittance and
+// cumulative radiance advanced, d_emission[b] = sigma_b dLoss/dE_b, and the absorption's part of
+// dLoss/dn summed over bins into *d_n; returns the largest transmittance.
+template <bool kThin, typename Real>
+inline Real SpectralAdjointStep(int nbp, const float* const* rows, const Real* u,
+                                const Real* uf, const Real* sigma, const Real* adjoint,
+                                const Real* total, Real n_sample, Real ds, Real* cumulative,
+                                Real* transmittance, Real* d_emission, Real* d_n) {
+  Lanes<Real> dn{}, max_tr{};
+  for (int b0 = 0; b0 < nbp; b0 += kVectorLanes) {
+    const Lanes<Real> source = SourceLanes<Real>(rows, u, uf, b0, nbp);
+    const Lanes<Real> sig = LoadLanes(sigma + b0);
+    Lanes<Real> absorbed, phi, tau_dphi;
+    StepTermsLanes<kThin, Real>(sig * n_sample * ds, &absorbed, &phi, &tau_dphi);
+    Lanes<Real> tr = LoadLanes(transmittance + b0);
+    const Lanes<Real> w = tr * absorbed;
+    const Lanes<Real> cum = LoadLanes(cumulative + b0) + w * source;
+    StoreLanes(cumulative + b0, cum);
+    const Lanes<Real> behind = LoadLanes(total + b0) - cum;
+    const Lanes<Real> sig_adj = sig * LoadLanes(adjoint + b0);
+    StoreLanes(d_emission + b0, sig_adj * tr * ds * phi);
+    dn += sig_adj * ds * (tr * tau_dphi * source - behind);
+    tr -= w;
+    StoreLanes(transmittance + b0, tr);
+    max_tr = tr > max_tr ? tr : max_tr;
+  }
+  *d_n = SumOf<Real>(dn);
+  return MaxOf<Real>(max_tr);
+}
+
+// de[b] += weight * d_emission[b] over the padded bins.
+template <typename Real>
+inline void AddScaledLanes(int nbp, Real weight, const Real* d_emission, Real* de) {
+  for (int b0 = 0; b0 < nbp; b0 += kVectorLanes)
+    StoreLanes(de + b0, LoadLanes(de + b0) + weight * LoadLanes(d_emission + b0));
+}
+
+}  // namespace
+
+// What every row of one render shares (RenderImpl -> RenderRows).
+struct FireRenderer::RenderJob {
+  const CameraRays* rays = nullptr;
+  ImageF* linear_rgb = nullptr;
+  const std::vector<float>* max_distance_m = nullptr;
+  ImageF* transmittance_rgb = nullptr;
+  Eigen::Vector3d weight_sum = Eigen::Vector3d::Zero();  // spectral: the bins' weights per channel
+  double step_m = 0;
+  double min_transmittance = 0;
+  bool spectral = false;
+  int nbins = 3;
+  Eigen::Matrix3d to_rgb = Eigen::Matrix3d::Identity();
+};
+
 template <typename Real>
 RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* linear_rgb,
                                        const std::vector<float>* max_distance_m,
@@ -291,30 +606,84 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
   const int width = camera_rays.width(), height = camera_rays.height();
   *linear_rgb = ImageF(width, height, 3, 0.0f);
   if (transmittance_rgb) *transmittance_rgb = ImageF(width, height, 3, 1.0f);
+  RenderJob job;
+  job.rays = &camera_rays;
+  job.linear_rgb = linear_rgb;
+  job.max_distance_m = max_distance_m;
+  job.transmittance_rgb = transmittance_rgb;
+  job.spectral = path_ == SpectralPath::kSpectral;
+  job.nbins = job.spectral ? bins_->count() : 3;
   // Per channel, the colour matching weights of the bins (spectral transmittance to RGB).
-  Eigen::Vector3d weight_sum = Eigen::Vector3d::Zero();
-  if (path_ == SpectralPath::kSpectral)
-    for (int b = 0; b < bins_->count(); ++b) weight_sum += bins_->weight(b);
-
-  const GridGeometry& g = geometry_;
-  const double step_m = options_.step_voxels * g.voxel_size_m.minCoeff();
-  const Real min_tr = Real(options_.min_transmittance);
-  const bool spectral = path_ == SpectralPath::kSpectral;
-  const int nbins = spectral ? bins_->count() : 3;
-  const Eigen::Matrix3d& to_rgb = response_->output_from_basis();
+  if (job.spectral)
+    for (int b = 0; b < bins_->count(); ++b) job.weight_sum += bins_->weight(b);
+  job.step_m = options_.step_voxels * geometry_.voxel_size_m.minCoeff();
+  job.min_transmittance = options_.min_transmittance;
+  job.to_rgb = response_->output_from_basis();
+  const bool wide = std::is_same_v<Real, float> && options_.wide_kernels && UseWideKernels();
 
   std::atomic<std::int64_t> hit{0}, early{0}, evaluated{0}, skipped{0}, after{0};
-
   tbb::parallel_for(tbb::blocked_range<int>(0, height), [&](const tbb::blocked_range<int>& rows) {
     MarchCounters c;
-    Real radiance[SpectralBins::kMaxBins];
-    Real transmittance[SpectralBins::kMaxBins];
-    Real sigma[SpectralBins::kMaxBins];
-    Real planck[SpectralBins::kMaxBins];
-    if (spectral) {
-      for (int b = 0; b < nbins; ++b) sigma[b] = Real(bin_cross_section_m2_[b]);
+    if constexpr (std::is_same_v<Real, float>) {
+      if (wide)
+        RenderRowsWide(job, rows.begin(), rows.end(), &c);
+      else
+        RenderRows<float>(job, rows.begin(), rows.end(), &c);
+    } else {
+      RenderRows<Real>(job, rows.begin(), rows.end(), &c);
     }
-    for (int y = rows.begin(); y < rows.end(); ++y) {
+    hit += c.hit;
+    early += c.early;
+    evaluated += c.evaluated;
+    skipped += c.skipped;
+    after += c.after;
+  });
+
+  RenderSummary summary = Summarise(start, static_cast<std::int64_t>(width) * height, job.nbins,
+                                    MarchCounters{hit, early, evaluated, skipped, after});
+  summary.wide_kernels = wide;
+  return summary;
+}
+
+// The AVX2 + FMA build of the float kernel: everything RenderRows calls is inlined into it
+// (flatten), so the whole ray march is compiled for the wider instructions.
+__attribute__((target("avx2,fma"), flatten)) void FireRenderer::RenderRowsWide(
+    const RenderJob& job, int y0, int y1, MarchCounters* c) const {
+  RenderRows<float>(job, y0, y1, c);
+}
+
+template <typename Real>
+void FireRenderer::RenderRows(const RenderJob& job, int y0, int y1, MarchCounters* counters) const {
+  const CameraRays& camera_rays = *job.rays;
+  ImageF* linear_rgb = job.linear_rgb;
+  const std::vector<float>* max_distance_m = job.max_distance_m;
+  ImageF* transmittance_rgb = job.transmittance_rgb;
+  const GridGeometry& g = geometry_;
+  const int width = camera_rays.width();
+  const double step_m = job.step_m;
+  const Real min_tr = Real(job.min_transmittance);
+  const bool spectral = job.spectral;
+  const int nbins = job.nbins;
+  const Eigen::Matrix3d& to_rgb = job.to_rgb;
+  const Eigen::Vector3d& weight_sum = job.weight_sum;
+  MarchCounters& c = *counters;
+  {
+    // Spectral arrays run over the bins padded to a multiple of kLanes: the padding has no
+    // absorption, no emission and zero transmittance, so it changes nothing, and every loop over
+    // bins is whole vectors (lane-wise maxima and sums instead of reductions GCC will not
+    // vectorise without reassociating).
+    const int nbp = spectral ? padded_bins_ : 3;
+    alignas(64) Real radiance[SpectralBins::kMaxBins];
+    alignas(64) Real transmittance[SpectralBins::kMaxBins];
+    alignas(64) Real sigma[SpectralBins::kMaxBins];
+    Real sigma_max = 0;  // the largest cross-section: a step is thin when it is
+    if (spectral) {
+      for (int b = 0; b < nbp; ++b) {
+        sigma[b] = b < nbins ? Real(bin_cross_section_m2_[b]) : Real(0);
+        sigma_max = std::max(sigma_max, sigma[b]);
+      }
+    }
+    for (int y = y0; y < y1; ++y) {
       for (int x = 0; x < width; ++x) {
         RayMarch march;
         if (!RayMarch::Make(g, camera_rays.at(x, y), step_m, &march)) continue;
@@ -330,9 +699,9 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
           }
         }
         ++c.hit;
-        for (int b = 0; b < nbins; ++b) {
+        for (int b = 0; b < nbp; ++b) {
           radiance[b] = Real(0);
-          transmittance[b] = Real(1);
+          transmittance[b] = b < nbins ? Real(1) : Real(0);
         }
         if (!spectral) {
           MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* weight) {
@@ -357,27 +726,18 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
           });
         } else {
           MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* weight) {
-            Real n_sample = 0;
-            for (int n = 0; n < 8; ++n) n_sample += weight[n] * Real(density_[corner[n]]);
+            std::int32_t slots[8];
+            const float* rows[8];
+            Real u[8], uf[8];
+            const Real n_sample = GatherCorners(corner, weight, slots, rows, u, uf);
             if (!(n_sample > Real(0))) return true;
-            // Source per bin: emission / kappa = sum w n B_b(T) / sum w n, an average of the
-            // corners' Planck spectra weighted by w * n (no overflow whatever the density).
-            for (int b = 0; b < nbins; ++b) planck[b] = Real(0);
-            for (int n = 0; n < 8; ++n) {
-              const std::int32_t slot = slot_[corner[n]];
-              if (slot < 0 || weight[n] == Real(0)) continue;
-              const float* row = &spectra_[static_cast<std::size_t>(slot) * nbins];
-              const Real u = weight[n] * Real(density_[corner[n]]) / n_sample;
-              for (int b = 0; b < nbins; ++b) planck[b] += u * Real(row[b]);  // vectorised
-            }
-            for (int b = 0; b < nbins; ++b) {  // vectorised
-              const Real absorbed = OneMinusExpNeg(sigma[b] * n_sample * ds);
-              const Real w = transmittance[b] * absorbed;
-              radiance[b] += w * planck[b];
-              transmittance[b] -= w;
-            }
-            Real max_tr = Real(0);
-            for (int b = 0; b < nbins; ++b) max_tr = std::max(max_tr, transmittance[b]);
+            // A step thin in every bin (a candle's, mostly) needs no exponential.
+            const Real max_tr =
+                sigma_max * n_sample * ds < Real(1e-2)
+                    ? SpectralStep<true, Real>(nbp, rows, u, uf, sigma, n_sample, ds, radiance,
+                                               transmittance)
+                    : SpectralStep<false, Real>(nbp, rows, u, uf, sigma, n_sample, ds, radiance,
+                                                transmittance);
             return !(max_tr < min_tr);
           });
         }
@@ -402,16 +762,28 @@ RenderSummary FireRenderer::RenderImpl(const CameraRays& camera_rays, ImageF* li
         }
       }
     }
-    hit += c.hit;
-    early += c.early;
-    evaluated += c.evaluated;
-    skipped += c.skipped;
-    after += c.after;
-  });
-
-  return Summarise(start, static_cast<std::int64_t>(width) * height, nbins,
-                   MarchCounters{hit, early, evaluated, skipped, after});
+  }
 }
+
+// What every row of one gradient pass shares (GradientImpl -> GradientRows), and each thread's
+// private accumulators.
+struct FireRenderer::GradientJob {
+  const CameraRays* rays = nullptr;
+  const ImageF* d_loss_d_rgb = nullptr;
+  double step_m = 0;
+  double min_transmittance = 0;
+  bool spectral = false;
+  int nbins = 3;
+  Eigen::Matrix3d to_rgb_t = Eigen::Matrix3d::Identity();  // rgb = M xyz: dLoss/dxyz = M^T dLoss/drgb
+  double grey_sigma = 0;
+};
+template <typename Real>
+struct FireRenderer::GradientBuffers {
+  std::vector<double> dt, dn;  // per slot
+  // Spectral path: dLoss/d(emission) per slot and (padded) bin, sigma_b included; turned into dT
+  // and dn once per voxel at the end (cheaper than a dot product per corner and step).
+  std::vector<Real> de;
+};
 
 template <typename Real>
 RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays, const ImageF& d_loss_d_rgb,
@@ -419,23 +791,21 @@ RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays, const Im
                                          std::vector<double>* d_density) const {
   const auto start = std::chrono::steady_clock::now();
   const int width = camera_rays.width(), height = camera_rays.height();
-  const GridGeometry& g = geometry_;
-  const double step_m = options_.step_voxels * g.voxel_size_m.minCoeff();
-  const Real min_tr = Real(options_.min_transmittance);
-  const bool spectral = path_ == SpectralPath::kSpectral;
-  const int nbins = spectral ? bins_->count() : 3;
-  // rgb = M xyz, so dLoss/dxyz = M^T dLoss/drgb.
-  const Eigen::Matrix3d to_rgb_t = response_->output_from_basis().transpose();
-  const double grey_sigma = spectral ? 0.0 : absorption_.CrossSectionM2(550.0);
-  const ChannelResponse& table = *response_;
+  GradientJob job;
+  job.rays = &camera_rays;
+  job.d_loss_d_rgb = &d_loss_d_rgb;
+  job.step_m = options_.step_voxels * geometry_.voxel_size_m.minCoeff();
+  job.min_transmittance = options_.min_transmittance;
+  job.spectral = path_ == SpectralPath::kSpectral;
+  job.nbins = job.spectral ? bins_->count() : 3;
+  job.to_rgb_t = response_->output_from_basis().transpose();
+  job.grey_sigma = job.spectral ? 0.0 : absorption_.CrossSectionM2(550.0);
+  const bool spectral = job.spectral;
+  const int nbins = job.nbins;
   const std::size_t nactive = active_voxels_.size();
+  const bool wide = std::is_same_v<Real, float> && options_.wide_kernels && UseWideKernels();
 
-  struct Buffers {
-    std::vector<double> dt, dn;
-    // Spectral path: dLoss/d(emission) per slot and bin, sigma_b included; turned into dT and dn
-    // once per voxel at the end (cheaper than a dot product per corner and step).
-    std::vector<Real> de;
-  };
+  using Buffers = GradientBuffers<Real>;
   tbb::enumerable_thread_specific<Buffers> buffers;
   std::atomic<std::int64_t> hit{0}, early{0}, evaluated{0}, skipped{0}, after{0};
 
@@ -444,17 +814,99 @@ RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays, const Im
     if (buf.dt.empty()) {
       buf.dt.assign(nactive, 0.0);
       buf.dn.assign(nactive, 0.0);
-      if (spectral) buf.de.assign(nactive * nbins, Real(0));
+      if (spectral) buf.de.assign(nactive * padded_bins_, Real(0));
     }
     MarchCounters c;
-    Real total[SpectralBins::kMaxBins], transmittance[SpectralBins::kMaxBins];
-    Real cumulative[SpectralBins::kMaxBins], adjoint[SpectralBins::kMaxBins];
-    Real sigma[SpectralBins::kMaxBins], planck[SpectralBins::kMaxBins];
-    Real d_emission[SpectralBins::kMaxBins];
-    if (spectral) {
-      for (int b = 0; b < nbins; ++b) sigma[b] = Real(bin_cross_section_m2_[b]);
+    if constexpr (std::is_same_v<Real, float>) {
+      if (wide)
+        GradientRowsWide(job, rows.begin(), rows.end(), &buf, &c);
+      else
+        GradientRows<float>(job, rows.begin(), rows.end(), &buf, &c);
+    } else {
+      GradientRows<Real>(job, rows.begin(), rows.end(), &buf, &c);
     }
-    for (int y = rows.begin(); y < rows.end(); ++y) {
+    hit += c.hit;
+    early += c.early;
+    evaluated += c.evaluated;
+    skipped += c.skipped;
+    after += c.after;
+  });
+
+  for (Buffers& buf : buffers) {
+    if (buf.dt.empty()) continue;
+    if (spectral) {
+      // E_b of a voxel is sigma_b n B_b(T): dLoss/dn += sum_b de_b B_b(T), dLoss/dT += n sum_b
+      // de_b B_b'(T), with B and B' (per kelvin) from the voxel's rows of the kelvin table.
+      const int nbp = padded_bins_;
+      tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nactive, 256),
+                        [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t a = r.begin(); a < r.end(); ++a) {
+                            const SpectralVoxel& row = spectral_voxels_[active_voxels_[a]];
+                            const float* r0 = &spectral_table_[row.offset];
+                            const float* r1 = r0 + nbp;
+                            const Real* de = &buf.de[a * nbp];
+                            double dot_b = 0, dot_d = 0;
+                            for (int b = 0; b < nbp; ++b) {
+                              const double slope = double(r1[b]) - double(r0[b]);
+                              dot_b += double(de[b]) * (double(r0[b]) + row.fraction * slope);
+                              dot_d += double(de[b]) * slope;
+                            }
+                            buf.dn[a] += dot_b;
+                            buf.dt[a] += dot_d * density_[active_voxels_[a]];
+                          }
+                        });
+    }
+    for (std::size_t a = 0; a < nactive; ++a) {
+      (*d_temperature)[active_voxels_[a]] += buf.dt[a];
+      (*d_density)[active_voxels_[a]] += buf.dn[a];
+    }
+  }
+
+  RenderSummary summary = Summarise(start, static_cast<std::int64_t>(width) * height, nbins,
+                                    MarchCounters{hit, early, evaluated, skipped, after});
+  summary.wide_kernels = wide;
+  return summary;
+}
+
+
+// The AVX2 + FMA build of the float adjoint (see RenderRowsWide).
+__attribute__((target("avx2,fma"), flatten)) void FireRenderer::GradientRowsWide(
+    const GradientJob& job, int y0, int y1, GradientBuffers<float>* buffers,
+    MarchCounters* c) const {
+  GradientRows<float>(job, y0, y1, buffers, c);
+}
+
+template <typename Real>
+void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
+                                GradientBuffers<Real>* buffers, MarchCounters* counters) const {
+  const CameraRays& camera_rays = *job.rays;
+  const ImageF& d_loss_d_rgb = *job.d_loss_d_rgb;
+  const GridGeometry& g = geometry_;
+  const int width = camera_rays.width();
+  const double step_m = job.step_m;
+  const Real min_tr = Real(job.min_transmittance);
+  const bool spectral = job.spectral;
+  const int nbins = job.nbins;
+  const Eigen::Matrix3d& to_rgb_t = job.to_rgb_t;
+  const double grey_sigma = job.grey_sigma;
+  const ChannelResponse& table = *response_;
+  GradientBuffers<Real>& buf = *buffers;
+  MarchCounters& c = *counters;
+  {
+    // Spectral arrays are padded as in RenderRows.
+    const int nbp = spectral ? padded_bins_ : 3;
+    alignas(64) Real total[SpectralBins::kMaxBins], transmittance[SpectralBins::kMaxBins];
+    alignas(64) Real cumulative[SpectralBins::kMaxBins], adjoint[SpectralBins::kMaxBins];
+    alignas(64) Real sigma[SpectralBins::kMaxBins];
+    alignas(64) Real d_emission[SpectralBins::kMaxBins];
+    Real sigma_max = 0;  // as in RenderRows
+    if (spectral) {
+      for (int b = 0; b < nbp; ++b) {
+        sigma[b] = b < nbins ? Real(bin_cross_section_m2_[b]) : Real(0);
+        sigma_max = std::max(sigma_max, sigma[b]);
+      }
+    }
+    for (int y = y0; y < y1; ++y) {
       for (int x = 0; x < width; ++x) {
         const Eigen::Vector3d g_rgb(d_loss_d_rgb.at(x, y, 0), d_loss_d_rgb.at(x, y, 1),
                                     d_loss_d_rgb.at(x, y, 2));
@@ -463,10 +915,11 @@ RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays, const Im
         if (!RayMarch::Make(g, camera_rays.at(x, y), step_m, &march)) continue;
         ++c.hit;
         const Eigen::Vector3d g_xyz = to_rgb_t * g_rgb;
-        for (int b = 0; b < nbins; ++b) {
-          adjoint[b] = spectral ? Real(g_xyz.dot(bins_->weight(b))) : Real(g_xyz[b]);
+        for (int b = 0; b < nbp; ++b) {
+          const bool bin = b < nbins;
+          adjoint[b] = !bin ? Real(0) : spectral ? Real(g_xyz.dot(bins_->weight(b))) : Real(g_xyz[b]);
           total[b] = cumulative[b] = Real(0);
-          transmittance[b] = Real(1);
+          transmittance[b] = bin ? Real(1) : Real(0);
         }
         MarchCounters ignored;
         if (!spectral) {
@@ -499,11 +952,10 @@ RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays, const Im
           MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* weight) {
             Real kappa, source[3];
             if (!sample(corner, weight, &kappa, source)) return true;
-            const Real tau = kappa * ds;
-            Real phi, tau_dphi;
-            PhiAndTauDPhi(tau, &phi, &tau_dphi);
+            Real absorbed, phi, tau_dphi;
+            StepTerms(kappa * ds, &absorbed, &phi, &tau_dphi);
             const Real tr = transmittance[0];
-            const Real w = tr * OneMinusExpNeg(tau);
+            const Real w = tr * absorbed;
             Real d_kappa = 0;
             for (int ch = 0; ch < 3; ++ch) {
               cumulative[ch] += w * source[ch];
@@ -528,104 +980,55 @@ RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays, const Im
             return !(transmittance[0] < min_tr);
           });
         } else {
+          std::int32_t slots[8];
+          const float* rows[8];
+          Real u[8], uf[8];
           auto sample = [&](const std::size_t* corner, const Real* weight, Real* n_sample) {
-            *n_sample = 0;
-            for (int n = 0; n < 8; ++n) *n_sample += weight[n] * Real(density_[corner[n]]);
-            if (!(*n_sample > Real(0))) return false;
-            for (int b = 0; b < nbins; ++b) planck[b] = Real(0);
-            for (int n = 0; n < 8; ++n) {
-              const std::int32_t slot = slot_[corner[n]];
-              if (slot < 0 || weight[n] == Real(0)) continue;
-              const float* row = &spectra_[static_cast<std::size_t>(slot) * nbins];
-              const Real u = weight[n] * Real(density_[corner[n]]) / *n_sample;
-              for (int b = 0; b < nbins; ++b) planck[b] += u * Real(row[b]);
-            }
-            return true;
+            *n_sample = GatherCorners(corner, weight, slots, rows, u, uf);
+            return *n_sample > Real(0);
           };
-          auto keep_going = [&]() {
-            Real max_tr = Real(0);
-            for (int b = 0; b < nbins; ++b) max_tr = std::max(max_tr, transmittance[b]);
-            return !(max_tr < min_tr);
-          };
+          // Pass 1: the ray's radiance per bin.
           MarchRay<Real>(
               march, &ignored, [&](Real ds, const std::size_t* corner, const Real* weight) {
                 Real n_sample;
                 if (!sample(corner, weight, &n_sample)) return true;
-                for (int b = 0; b < nbins; ++b) {
-                  const Real w = transmittance[b] * OneMinusExpNeg(sigma[b] * n_sample * ds);
-                  total[b] += w * planck[b];
-                  transmittance[b] -= w;
-                }
-                return keep_going();
+                const Real max_tr =
+                    sigma_max * n_sample * ds < Real(1e-2)
+                        ? SpectralStep<true, Real>(nbp, rows, u, uf, sigma, n_sample, ds, total,
+                                                   transmittance)
+                        : SpectralStep<false, Real>(nbp, rows, u, uf, sigma, n_sample, ds, total,
+                                                    transmittance);
+                return !(max_tr < min_tr);
               });
-          for (int b = 0; b < nbins; ++b) transmittance[b] = Real(1);
+          for (int b = 0; b < nbp; ++b) transmittance[b] = b < nbins ? Real(1) : Real(0);
+          // Pass 2: the adjoint. The emission's part is accumulated per slot and bin (buf.de) and
+          // contracted with each voxel's spectrum once, at the end.
           MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* weight) {
             Real n_sample;
             if (!sample(corner, weight, &n_sample)) return true;
             // d_emission[b] holds sigma_b dLoss/dE_b; d_n the kappa part, summed over bins.
-            Real d_n = 0;
-            for (int b = 0; b < nbins; ++b) {
-              const Real tau = sigma[b] * n_sample * ds;
-              Real phi, tau_dphi;
-              PhiAndTauDPhi(tau, &phi, &tau_dphi);
-              const Real tr = transmittance[b];
-              const Real w = tr * OneMinusExpNeg(tau);
-              cumulative[b] += w * planck[b];
-              const Real behind = total[b] - cumulative[b];
-              d_emission[b] = sigma[b] * adjoint[b] * tr * ds * phi;
-              d_n += sigma[b] * adjoint[b] * ds * (tr * tau_dphi * planck[b] - behind);
-              transmittance[b] -= w;
-            }
+            Real d_n;
+            const Real max_tr =
+                sigma_max * n_sample * ds < Real(1e-2)
+                    ? SpectralAdjointStep<true, Real>(nbp, rows, u, uf, sigma, adjoint, total,
+                                                      n_sample, ds, cumulative, transmittance,
+                                                      d_emission, &d_n)
+                    : SpectralAdjointStep<false, Real>(nbp, rows, u, uf, sigma, adjoint, total,
+                                                       n_sample, ds, cumulative, transmittance,
+                                                       d_emission, &d_n);
             for (int n = 0; n < 8; ++n) {
-              const std::int32_t slot = slot_[corner[n]];
+              const std::int32_t slot = slots[n];
               if (slot < 0 || weight[n] == Real(0)) continue;
               buf.dn[slot] += double(weight[n] * d_n);
-              Real* de = &buf.de[static_cast<std::size_t>(slot) * nbins];
-              for (int b = 0; b < nbins; ++b) de[b] += weight[n] * d_emission[b];  // vectorised
+              Real* de = &buf.de[static_cast<std::size_t>(slot) * nbp];
+              AddScaledLanes(nbp, weight[n], d_emission, de);
             }
-            return keep_going();
+            return !(max_tr < min_tr);
           });
         }
       }
     }
-    hit += c.hit;
-    early += c.early;
-    evaluated += c.evaluated;
-    skipped += c.skipped;
-    after += c.after;
-  });
-
-  for (Buffers& buf : buffers) {
-    if (buf.dt.empty()) continue;
-    if (spectral) {
-      // E_b of a voxel is sigma_b n B_b(T): dLoss/dn += sum_b de_b B_b(T), dLoss/dT += n sum_b
-      // de_b B_b'(T).
-      tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nactive, 256),
-                        [&](const tbb::blocked_range<std::size_t>& r) {
-                          std::vector<Real> row_b(nbins), row_d(nbins);
-                          for (std::size_t a = r.begin(); a < r.end(); ++a) {
-                            const std::uint32_t v = active_voxels_[a];
-                            bins_->PlanckAllWithDerivative(Real(temperature_[v]), row_b.data(),
-                                                           row_d.data());
-                            const Real* de = &buf.de[a * nbins];
-                            double dot_b = 0, dot_d = 0;
-                            for (int b = 0; b < nbins; ++b) {
-                              dot_b += double(de[b]) * row_b[b];
-                              dot_d += double(de[b]) * row_d[b];
-                            }
-                            buf.dn[a] += dot_b;
-                            buf.dt[a] += dot_d * density_[v];
-                          }
-                        });
-    }
-    for (std::size_t a = 0; a < nactive; ++a) {
-      (*d_temperature)[active_voxels_[a]] += buf.dt[a];
-      (*d_density)[active_voxels_[a]] += buf.dn[a];
-    }
   }
-
-  return Summarise(start, static_cast<std::int64_t>(width) * height, nbins,
-                   MarchCounters{hit, early, evaluated, skipped, after});
 }
 
 RenderSummary FireRenderer::RenderGradient(const CameraRays& rays, const ImageF& d_loss_d_rgb,

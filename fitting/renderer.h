@@ -22,7 +22,11 @@
 //  - fast (grey absorption): the spectrum collapses into a per-kelvin XYZ table; each ray carries
 //    3 channels and one transmittance.
 //  - spectral (wavelength-dependent absorption, e.g. soot): each ray carries one radiance and one
-//    transmittance per wavelength bin; XYZ from the bins' colour matching weights.
+//    transmittance per wavelength bin; XYZ from the bins' colour matching weights. Each voxel
+//    points into a per-kelvin table of the bins' Planck radiance (16 bytes a voxel, the table
+//    shared and in cache), the bins are processed eight at a time as vectors, and a step whose
+//    optical depth is below 1e-2 in every bin takes 1 - exp(-tau) from its series without an
+//    exponential (the value the exact form gives there too).
 // Skipped work, also reported: empty space (bricks of brick_size^3 voxels whose density, dilated by
 // one voxel for the trilinear stencil, is zero; skipping is exact) and rays whose transmittance
 // fell below min_transmittance (early termination; the error is at most that fraction of what lies
@@ -44,9 +48,13 @@
 //     dLoss/dkappa_step = g Tr ds tau phi'(tau) S - g ds R_after,   S = E / kappa
 // spread to the voxels with the trilinear weights, then through E_j = sigma n_j B(T_j) and
 // kappa_j = sigma n_j (on the spectral path the per-bin emission adjoint is accumulated per voxel
-// and contracted with B(T) and B'(T) once at the end). Each thread accumulates into private buffers (atomics were 7 to 14 times
-// slower, DESIGN section 8). Only voxels with density > 0 receive gradients: the others are outside
-// the medium (and their bricks may be skipped).
+// and contracted with B(T) and B'(T) once at the end). Each thread accumulates into private
+// buffers (atomics were 7 to 14 times slower, DESIGN section 8). Only voxels with density > 0
+// receive gradients: the others are outside the medium (and their bricks may be skipped).
+//
+// Speed: the float kernels have a second build for AVX2 with FMA, chosen at run time when the CPU
+// has both (core/cpu.h; RenderOptions::wide_kernels = false keeps the baseline), and a ray looks
+// up each brick it crosses once. `flamerig benchmark render` measures both builds side by side.
 //
 // Thread safety: Render() is const and may be called concurrently on one FireRenderer; it runs its
 // own TBB parallel loop over image rows. SetVolume() must not run concurrently with Render().
@@ -90,6 +98,9 @@ struct RenderOptions {
   double spectral_step_nm = 10.0;
   // March in double instead of float precision (slower; for reference renders and tests).
   bool double_precision = false;
+  // The float kernels' AVX2 + FMA build when the CPU has it (core/cpu.h); false: the baseline
+  // (SSE2) build, for benchmarks and tests that compare the two. Same results up to rounding.
+  bool wide_kernels = true;
   // The camera's spectral response (camera_response.h): what the output channels are. Null: the
   // sRGB observer, linear sRGB out. The spectral path sees only its bins' range (360..830 nm at
   // most); the fast path integrates the response's whole range.
@@ -110,6 +121,7 @@ struct RenderSummary {
   std::int64_t steps_skipped_empty = 0;      // steps jumped over in empty bricks
   std::int64_t steps_after_termination = 0;  // steps not taken after early termination
   double occupied_brick_fraction = 1.0;
+  bool wide_kernels = false;  // the AVX2 + FMA build ran (RenderOptions::wide_kernels)
   double time_ms = 0.0;
 
   std::string BriefReport() const;
@@ -168,6 +180,23 @@ class FireRenderer {
                           const MarchCounters& totals) const;
   template <typename Real, typename Visit>
   void MarchRay(const RayMarch& march, MarchCounters* counters, Visit&& visit) const;
+  // The per-row kernels behind RenderImpl and GradientImpl; the *Wide ones are the same float
+  // kernels compiled for AVX2 and FMA, used when the CPU has them (UseWideKernels, renderer.cc).
+  struct RenderJob;
+  struct GradientJob;
+  template <typename Real>
+  struct GradientBuffers;
+  template <typename Real>
+  Real GatherCorners(const std::size_t* corner, const Real* weight, std::int32_t* slot,
+                     const float** rows, Real* u, Real* uf) const;
+  template <typename Real>
+  void RenderRows(const RenderJob& job, int y0, int y1, MarchCounters* counters) const;
+  void RenderRowsWide(const RenderJob& job, int y0, int y1, MarchCounters* counters) const;
+  template <typename Real>
+  void GradientRows(const GradientJob& job, int y0, int y1, GradientBuffers<Real>* buffers,
+                    MarchCounters* counters) const;
+  void GradientRowsWide(const GradientJob& job, int y0, int y1, GradientBuffers<float>* buffers,
+                        MarchCounters* counters) const;
 
   AbsorptionModel absorption_;
   RenderOptions options_;
@@ -186,8 +215,23 @@ class FireRenderer {
   std::vector<float> density_;
   std::vector<std::int32_t> slot_;
   std::vector<std::uint32_t> active_voxels_;
-  // Spectral path: B_b(T) per bin for each slot.
-  std::vector<float> spectra_;
+  // Spectral path: the Planck radiance of every bin per kelvin over the volume's temperatures
+  // (SpectralBins' 1 K table, copied so that it stays in cache; rows padded to a multiple of
+  // kLanes bins, the first two all zero), and per voxel, in one 16-byte record as the fast path's
+  // fast_, its density, its slot and where its spectrum lies in the table: B_b(T) = row[b] +
+  // fraction * (next_row[b] - row[b]), the difference being dB_b/dT per kelvin. A temperature
+  // beyond the table gets two rows of its own, B(T) and B(T) + B'(T), with fraction 0; a voxel
+  // without medium points at the zero rows.
+  static constexpr int kLanes = 8;
+  struct SpectralVoxel {
+    float density = 0;
+    std::int32_t slot = -1;
+    std::uint32_t offset = 0;  // into spectral_table_
+    float fraction = 0;
+  };
+  int padded_bins_ = 0;  // the bin count rounded up to kLanes
+  std::vector<float> spectral_table_;
+  std::vector<SpectralVoxel> spectral_voxels_;  // per voxel
   Eigen::Vector3i brick_dims_ = Eigen::Vector3i::Zero();
   std::vector<std::uint8_t> brick_occupied_;
   double occupied_brick_fraction_ = 0;

@@ -128,6 +128,11 @@ class SpectralBins {
     for (int b = 0; b < n; ++b) out[b] = Real(row0[b]) + f * (Real(row1[b]) - Real(row0[b]));
   }
 
+  // The table's row at `kelvin` (0 <= kelvin <= kMaxTableK + 1): count() values, the Planck
+  // radiance of each bin at that temperature, which Planck() interpolates.
+  const float* PlanckRow(int kelvin) const {
+    return &planck_[static_cast<std::size_t>(kelvin) * count()];
+  }
   // All bins and their derivatives in T (the table segment's slope; exact above kMaxTableK).
   template <typename Real>
   void PlanckAllWithDerivative(Real temperature_k, Real* out, Real* d_out) const {

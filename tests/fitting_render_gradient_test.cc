@@ -164,6 +164,63 @@ TEST(RenderGradient, FloatAgreesWithDoubleAndCountsOnlyMarchedPixels) {
   for (std::size_t v = 0; v < dt_d.size(); ++v) EXPECT_NEAR(dt_d[v], 2 * dt1[v], 1e-12 * scale);
 }
 
+// The float kernels, in their AVX2 + FMA build (where the CPU has it: core/cpu.h) and their
+// baseline build, against the double-precision kernel: images and gradients on both paths, in a
+// medium thin in every bin (the spectral path's series-only step) and one that is not, with a few
+// voxels hotter than the renderer's kelvin tables reach.
+TEST(RenderGradient, FloatKernelsOfBothBuildsAgreeWithDouble) {
+  for (bool soot : {false, true}) {
+    const AbsorptionModel absorption =
+        soot ? AbsorptionModel::DefaultSoot() : AbsorptionModel::DefaultGrey();
+    for (double depth : {0.002, 1.0}) {
+      Scene s = MakeScene(absorption, depth, 13);
+      for (std::size_t v = 0; v < s.temperature.size(); v += 17) s.temperature[v] = 25000.5f;
+      CameraRays rays(s.camera);
+      ImageF c(s.camera.width(), s.camera.height(), 3, 0.0f);
+      std::mt19937 rng(5);
+      std::normal_distribution<double> normal(0, 1);
+      for (float& v : c.pixels) v = static_cast<float>(normal(rng));
+      auto run = [&](bool use_double, bool wide, ImageF* image, std::vector<double>* dt,
+                     std::vector<double>* dn) {
+        RenderOptions o;
+        o.spectral_step_nm = 20;  // 21 bins: padded to 24, a partial last vector
+        o.double_precision = use_double;
+        o.wide_kernels = wide;
+        o.min_transmittance = 0;
+        FireRenderer r(absorption, o);
+        r.SetVolume(s.grid, s.temperature, s.density);
+        r.Render(rays, image);
+        r.RenderGradient(rays, c, dt, dn);
+      };
+      ImageF ref;
+      std::vector<double> dt_ref, dn_ref;
+      run(true, false, &ref, &dt_ref, &dn_ref);
+      double image_scale = 0, dt_scale = 0, dn_scale = 0;
+      for (float v : ref.pixels) image_scale = std::max(image_scale, double(std::abs(v)));
+      for (std::size_t v = 0; v < dt_ref.size(); ++v) {
+        dt_scale = std::max(dt_scale, std::abs(dt_ref[v]));
+        dn_scale = std::max(dn_scale, std::abs(dn_ref[v] * s.density[v]));
+      }
+      ASSERT_GT(image_scale, 0);
+      ASSERT_GT(dt_scale, 0);
+      for (bool wide : {true, false}) {
+        ImageF image;
+        std::vector<double> dt, dn;
+        run(false, wide, &image, &dt, &dn);
+        const std::string what = std::string(soot ? "soot" : "grey") + ", depth " +
+                                 std::to_string(depth) + (wide ? ", wide" : ", baseline");
+        for (std::size_t i = 0; i < image.pixels.size(); ++i)
+          ASSERT_NEAR(image.pixels[i], ref.pixels[i], 2e-5 * image_scale) << what << " pixel " << i;
+        for (std::size_t v = 0; v < dt.size(); ++v) {
+          ASSERT_NEAR(dt[v], dt_ref[v], 2e-4 * dt_scale) << what << " voxel " << v;
+          ASSERT_NEAR(dn[v] * s.density[v], dn_ref[v] * s.density[v], 2e-4 * dn_scale)
+              << what << " voxel " << v;
+        }
+      }
+    }
+  }
+}
+
 TEST(RenderGradient, ExtremeVolumesGiveFiniteGradients) {
   const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
   for (auto [t, n] : {std::pair{1.0f, 1e30f}, std::pair{1e5f, 1e30f}, std::pair{2000.0f, 1e-30f},
