@@ -54,6 +54,8 @@ void FitOptions::Validate() const {
     fail("need 0 < exposure_min < exposure_max, finite");
   if (coarsest_resolution < 4) fail("coarsest_resolution must be >= 4");
   if (iterations_per_level < 0 || iterations_finest < 0) fail("iterations must be >= 0");
+  if (stall_window < 0) fail("stall_window must be >= 0");
+  if (!(stall_decrease >= 0) || !(stall_decrease < 1)) fail("stall_decrease must be in [0, 1)");
   if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0)) fail("smoothing must be >= 0");
   if (!(time_limit_s >= 0)) fail("time_limit_s must be >= 0");
   if (!(known_exposure >= 0) || !std::isfinite(known_exposure) ||
@@ -63,11 +65,16 @@ void FitOptions::Validate() const {
 
 const char* ToString(FitTermination termination) {
   switch (termination) {
-    case FitTermination::kConverged: return "converged";
-    case FitTermination::kIterationLimit: return "iteration limit";
-    case FitTermination::kTimeLimit: return "time limit";
-    case FitTermination::kCancelled: return "cancelled";
-    case FitTermination::kFailed: return "failed";
+    case FitTermination::kConverged:
+      return "converged";
+    case FitTermination::kIterationLimit:
+      return "iteration limit";
+    case FitTermination::kTimeLimit:
+      return "time limit";
+    case FitTermination::kCancelled:
+      return "cancelled";
+    case FitTermination::kFailed:
+      return "failed";
   }
   return "?";
 }
@@ -78,9 +85,8 @@ std::string FitResult::BriefReport() const {
   s << method << ": " << ToString(termination) << " after " << iterations << " iterations ("
     << message << "), " << active_voxels << " active voxels, " << evaluations << " evaluations, "
     << seconds << " s; energy " << initial_energy << " -> " << final_terms.exact_energy()
-    << " (data " << final_terms.data_exact
-    << ", pairwise " << final_terms.smooth_exact << "), mean Delta E " << final_terms.mean_delta_e
-    << " (per view:";
+    << " (data " << final_terms.data_exact << ", pairwise " << final_terms.smooth_exact
+    << "), mean Delta E " << final_terms.mean_delta_e << " (per view:";
   for (double d : final_terms.view_mean_delta_e) s << " " << d;
   s << "), exposure " << exposure;
   if (density_scale != 1) s << ", density scale " << density_scale;
@@ -157,8 +163,7 @@ std::vector<std::uint32_t> ActiveVoxels(const GridGeometry& grid, const FireVolu
   for (std::size_t v = 0; v < grid.num_voxels(); ++v) {
     const double y = Luminance(&e[3 * v]);
     if (!std::isfinite(y))
-      throw InputError("fit: the tomography emission is not finite at voxel " +
-                                  std::to_string(v));
+      throw InputError("fit: the tomography emission is not finite at voxel " + std::to_string(v));
     peak = std::max(peak, y);
   }
   std::vector<std::uint32_t> active;
@@ -375,8 +380,10 @@ class TraceCallback : public ceres::IterationCallback {
   TraceCallback(Clock::time_point start, int level, const std::string& stage,
                 std::deque<std::pair<double, EnergyTerms>>* seen, std::vector<FitTracePoint>* trace,
                 const ProgressCallback& progress, double time_limit_s, int max_iterations,
-                bool announce)
-      : start_(start),
+                bool announce, int stall_window = 0, double stall_decrease = 0)
+      : stall_window_(stall_window),
+        stall_decrease_(stall_decrease),
+        start_(start),
         level_(level),
         stage_(stage),
         seen_(seen),
@@ -388,7 +395,11 @@ class TraceCallback : public ceres::IterationCallback {
   // Why the callback stopped the solver, if it did (Ceres reports USER_SUCCESS for both).
   bool cancelled() const { return cancelled_; }
   bool out_of_time() const { return out_of_time_; }
+  // The energy stalled (FitOptions::stall_window, stall_decrease): the words for FitResult.
+  bool stalled() const { return !stalled_.empty(); }
+  const std::string& stalled_message() const { return stalled_; }
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override {
+    costs_.push_back(summary.cost);
     auto it = std::find_if(seen_->rbegin(), seen_->rend(),
                            [&](const auto& e) { return e.first == summary.cost; });
     if (it != seen_->rend()) {
@@ -422,10 +433,25 @@ class TraceCallback : public ceres::IterationCallback {
       out_of_time_ = true;
       return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
     }
+    // The minimised (smooth) energy over the last stall_window iterations.
+    const int k = static_cast<int>(costs_.size()) - 1;
+    if (stall_window_ > 0 && k >= stall_window_) {
+      const double before = costs_[k - stall_window_], now = costs_[k];
+      if (std::isfinite(before) && std::isfinite(now) && now > 0 &&
+          before - now < stall_decrease_ * now) {
+        std::ostringstream m;
+        m << "the energy fell by " << 100 * (before - now) / now << "% over the last "
+          << stall_window_ << " iterations (stall_decrease " << 100 * stall_decrease_ << "%)";
+        stalled_ = m.str();
+        return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
+      }
+    }
     return ceres::SOLVER_CONTINUE;
   }
 
  private:
+  int stall_window_;
+  double stall_decrease_;
   Clock::time_point start_;
   int level_;
   std::string stage_;
@@ -436,6 +462,8 @@ class TraceCallback : public ceres::IterationCallback {
   int max_iterations_;
   bool announce_;
   bool cancelled_ = false, out_of_time_ = false;
+  std::vector<double> costs_;  // per iteration, from iteration 0
+  std::string stalled_;
 };
 
 // Voxels outside the medium get the ambient (lowest) temperature: they hold no soot, so they
@@ -559,7 +587,8 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     solver.gradient_tolerance = 1e-12;
     solver.logging_type = ceres::SILENT;
     TraceCallback callback(start, static_cast<int>(level), stage, &seen, &result.trace, progress,
-                           options.time_limit_s, solver.max_num_iterations, levels.size() > 1);
+                           options.time_limit_s, solver.max_num_iterations, levels.size() > 1,
+                           options.stall_window, options.stall_decrease);
     solver.callbacks.push_back(&callback);
     ceres::GradientProblemSolver::Summary summary;
     const std::size_t trace_start = result.trace.size();
@@ -576,6 +605,9 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
       } else if (callback.out_of_time()) {
         result.termination = FitTermination::kTimeLimit;
         result.message = "time limit of " + std::to_string(options.time_limit_s) + " s reached";
+      } else if (callback.stalled()) {
+        result.termination = FitTermination::kConverged;
+        result.message = callback.stalled_message();
       } else if (summary.termination_type == ceres::CONVERGENCE) {
         result.termination = FitTermination::kConverged;
       } else if (summary.termination_type == ceres::NO_CONVERGENCE) {

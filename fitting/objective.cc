@@ -15,9 +15,7 @@
 namespace flamerig {
 
 void ObjectiveOptions::Validate() const {
-  auto fail = [](const std::string& what) {
-    throw InputError("objective options: " + what);
-  };
+  auto fail = [](const std::string& what) { throw InputError("objective options: " + what); };
   if (!(w_am >= 0) || !std::isfinite(w_am)) fail("w_am must be finite and >= 0");
   if (!(w_sm >= 0) || !std::isfinite(w_sm)) fail("w_sm must be finite and >= 0");
   if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0)) fail("smoothing epsilons must be >= 0");
@@ -90,6 +88,7 @@ class DataTerm : public EnergyTerm {
 
   TermValue Evaluate(const FitParameters& x, const FitGradient& gradient,
                      EnergyTerms* stats) const override {
+    if (gradient.d_t || gradient.d_n) return EvaluateFused(x, gradient, stats);
     const bool want_gradient = gradient.wanted();
     const double s = x.s;
     const FitObjective::Renders renders = objective_.Render(x.t, x.n);
@@ -156,6 +155,65 @@ class DataTerm : public EnergyTerm {
   }
 
  private:
+  // The same with the voxels' gradient, each view rendered and marched back in one pass
+  // (FireRenderer::RenderAndGradient): every pixel's distance and its derivatives are worked out
+  // as the renderer finishes the pixel, into per-pixel arrays summed afterwards in pixel order.
+  TermValue EvaluateFused(const FitParameters& x, const FitGradient& gradient,
+                          EnergyTerms* stats) const {
+    const double s = x.s;
+    objective_.UploadVolume(x.t, x.n);
+    TermValue value{name(), weight_, 0, 0};
+    double ds_total = 0;
+    std::vector<double> grad_t, grad_n;
+    const auto& views = objective_.views();
+    for (std::size_t v = 0; v < views.size(); ++v) {
+      const auto& target = objective_.target_lab()[v];
+      const int width = views[v].rays->width();
+      std::vector<double> exact(target.size(), 0.0), smooth(target.size(), 0.0),
+          ds(target.size(), 0.0);
+      auto pixel_gradient = [&](int px, int py, const Eigen::Vector3d& linear) {
+        const std::size_t p = static_cast<std::size_t>(py) * width + px;
+        Eigen::Matrix3d jac;
+        const Eigen::Vector3d lab = CameraLab(linear, s, &jac);
+        const Eigen::Vector3d diff = lab - target[p].cast<double>();
+        const double de = diff.norm();
+        exact[p] = de;
+        smooth[p] = Charbonnier(de, eps_);
+        if (!(de > 0)) return Eigen::Vector3d::Zero().eval();
+        // d/dLab of the (smoothed) distance, then through the camera to the radiance.
+        const Eigen::Vector3d g_lab = diff * (CharbonnierDerivative(de, eps_) / de);
+        const Eigen::Vector3d g_lin = jac.transpose() * g_lab * weight_;
+        // The radiance as stored (float), as the unfused path reads it back from the image.
+        Eigen::Vector3f g_float = g_lin.cast<float>();
+        // c = s I, so dE/ds = sum over channels of dE/dc * I = (dE/dI * I) / s.
+        ds[p] = g_lin.dot(linear) / s;
+        return g_float.cast<double>().eval();
+      };
+      ImageF image;
+      objective_.renderer(v).RenderAndGradient(*views[v].rays, pixel_gradient, &image, &grad_t,
+                                               &grad_n);
+      double view_exact = 0;
+      for (std::size_t p = 0; p < target.size(); ++p) {
+        view_exact += exact[p];
+        value.smooth += smooth[p];
+        ds_total += ds[p];
+      }
+      value.exact += view_exact;
+      if (stats) {
+        stats->view_mean_delta_e.push_back(target.empty() ? 0.0 : view_exact / target.size());
+        stats->pixels += static_cast<std::int64_t>(target.size());
+      }
+    }
+    const auto& active = objective_.active();
+    for (std::size_t a = 0; a < active.size(); ++a) {
+      if (gradient.d_t && !grad_t.empty()) (*gradient.d_t)[a] += grad_t[active[a]];
+      if (gradient.d_n && !grad_n.empty()) (*gradient.d_n)[a] += grad_n[active[a]];
+    }
+    if (gradient.d_s) *gradient.d_s += ds_total;
+    if (stats) stats->data_exact += value.exact;
+    return value;
+  }
+
   const FitObjective& objective_;
   double weight_, eps_;
 };
@@ -243,8 +301,7 @@ FitObjective::FitObjective(const GridGeometry& grid, std::vector<std::uint32_t> 
   std::vector<std::int32_t> index(nvox, -1);
   for (std::size_t a = 0; a < active_.size(); ++a) {
     if (active_[a] >= nvox)
-      throw InputError("fit: active voxel " + std::to_string(active_[a]) +
-                                  " outside the grid");
+      throw InputError("fit: active voxel " + std::to_string(active_[a]) + " outside the grid");
     if (index[active_[a]] >= 0)
       throw InputError("fit: active voxel " + std::to_string(active_[a]) + " repeated");
     index[active_[a]] = static_cast<std::int32_t>(a);
@@ -253,11 +310,11 @@ FitObjective::FitObjective(const GridGeometry& grid, std::vector<std::uint32_t> 
     if (!v.rays) throw InputError("fit: view '" + v.name + "' has no camera rays");
     if (v.image.width != v.rays->width() || v.image.height != v.rays->height() ||
         v.image.channels != 3) {
-      throw InputError(
-          "fit: view '" + v.name + "': image is " + std::to_string(v.image.width) + "x" +
-          std::to_string(v.image.height) + "x" + std::to_string(v.image.channels) +
-          ", the camera is " + std::to_string(v.rays->width()) + "x" +
-          std::to_string(v.rays->height()) + "x3");
+      throw InputError("fit: view '" + v.name + "': image is " + std::to_string(v.image.width) +
+                       "x" + std::to_string(v.image.height) + "x" +
+                       std::to_string(v.image.channels) + ", the camera is " +
+                       std::to_string(v.rays->width()) + "x" + std::to_string(v.rays->height()) +
+                       "x3");
     }
     if (!v.signal.empty() && (v.signal.width != v.image.width ||
                               v.signal.height != v.image.height || v.signal.channels != 3)) {
@@ -375,21 +432,25 @@ double FitObjective::LocalEnergy(const FitParameters& x, std::uint32_t a) const 
 
 FitObjective::Renders FitObjective::Render(const std::vector<double>& t,
                                            const std::vector<double>& n) const {
+  UploadVolume(t, n);
+  Renders r;
+  r.linear.resize(views_.size());
+  for (std::size_t v = 0; v < views_.size(); ++v) renderer(v).Render(*views_[v].rays, &r.linear[v]);
+  return r;
+}
+
+void FitObjective::UploadVolume(const std::vector<double>& t, const std::vector<double>& n) const {
   if (t.size() != active_.size() || n.size() != active_.size())
     throw InputError("fit: temperature and density need one value per active voxel");
   std::vector<float> tt(grid_.num_voxels(), 0.0f), nn(grid_.num_voxels(), 0.0f);
   for (std::size_t a = 0; a < active_.size(); ++a) {
     if (!std::isfinite(t[a]) || !std::isfinite(n[a]))
       throw InputError("fit: non-finite temperature or density at active voxel " +
-                                  std::to_string(a));
+                       std::to_string(a));
     tt[active_[a]] = static_cast<float>(std::max(0.0, t[a]));
     nn[active_[a]] = static_cast<float>(std::max(0.0, n[a]));
   }
   for (auto& renderer : renderers_) renderer->SetVolume(grid_, tt, nn);
-  Renders r;
-  r.linear.resize(views_.size());
-  for (std::size_t v = 0; v < views_.size(); ++v) renderer(v).Render(*views_[v].rays, &r.linear[v]);
-  return r;
 }
 
 FitObjective::Curvature FitObjective::DataCurvature(const std::vector<double>& t,

@@ -38,8 +38,8 @@
 #include <string>
 #include <vector>
 
-#include "core/image.h"
 #include "calibration/camera_rays.h"
+#include "core/image.h"
 #include "fitting/absorption.h"
 #include "fitting/renderer.h"
 #include "tomography/volume.h"
@@ -175,6 +175,9 @@ class FitObjective {
     std::vector<ImageF> linear;  // per view
   };
   Renders Render(const std::vector<double>& t, const std::vector<double>& n) const;
+  // Puts the volume at `t`, `n` into every view's renderer (what Render does before rendering);
+  // throws InputError for a wrong count or a non-finite value.
+  void UploadVolume(const std::vector<double>& t, const std::vector<double>& n) const;
   // Sum of Delta E over all views at exposure s for renders made by Render().
   double DataTermAt(const Renders& renders, double s) const;
 

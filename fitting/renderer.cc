@@ -74,7 +74,7 @@ FireRenderer::FireRenderer(const AbsorptionModel& absorption, const RenderOption
   response_ = options_.response ? options_.response : ChannelResponse::SrgbObserver();
   if (options_.path == SpectralPath::kFast && !absorption_.is_grey()) {
     throw InputError("RenderOptions.path = fast needs grey absorption; the model is " +
-                                absorption_.name());
+                     absorption_.name());
   }
   if (options_.path == SpectralPath::kSpectral) {
     path_ = SpectralPath::kSpectral;
@@ -103,9 +103,9 @@ void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<flo
   if (temperature_k.size() != geometry.num_voxels() ||
       density_per_m3.size() != geometry.num_voxels()) {
     throw InputError("SetVolume: temperature and density need " +
-                                std::to_string(geometry.num_voxels()) + " values each, got " +
-                                std::to_string(temperature_k.size()) + " and " +
-                                std::to_string(density_per_m3.size()));
+                     std::to_string(geometry.num_voxels()) + " values each, got " +
+                     std::to_string(temperature_k.size()) + " and " +
+                     std::to_string(density_per_m3.size()));
   }
   check.Validate();
   geometry_ = geometry;
@@ -262,9 +262,10 @@ inline void StepTerms(Real tau, Real* absorbed, Real* phi, Real* tau_dphi) {
   if constexpr (kThin) {
     *absorbed = tau * (Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24))));
     *phi = Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24)));
-    *tau_dphi = tau * (Real(-0.5) + tau * (Real(1) / 3 +
-                                           tau * (Real(-1) / 8 +
-                                                  tau * (Real(1) / 30 - tau * (Real(1) / 144)))));
+    *tau_dphi =
+        tau *
+        (Real(-0.5) +
+         tau * (Real(1) / 3 + tau * (Real(-1) / 8 + tau * (Real(1) / 30 - tau * (Real(1) / 144)))));
     return;
   }
   const Real e = VectorExp(-tau);
@@ -527,9 +528,9 @@ inline Lanes<Real> SourceLanes(const float* const* rows, const Real* u, const Re
 // reduced; returns the largest transmittance. kThin: sigma_b n ds < 1e-2 in every bin, where
 // 1 - exp is its series (the same value, no exponential).
 template <bool kThin, typename Real>
-inline Real SpectralStep(int nbp, const float* const* rows, const Real* u,
-                         const Real* uf, const Real* sigma, Real n_sample, Real ds,
-                         Real* radiance, Real* transmittance) {
+inline Real SpectralStep(int nbp, const float* const* rows, const Real* u, const Real* uf,
+                         const Real* sigma, Real n_sample, Real ds, Real* radiance,
+                         Real* transmittance) {
   Lanes<Real> max_tr{};
   for (int b0 = 0; b0 < nbp; b0 += kVectorLanes) {
     const Lanes<Real> source = SourceLanes<Real>(rows, u, uf, b0, nbp);
@@ -549,10 +550,10 @@ inline Real SpectralStep(int nbp, const float* const* rows, const Real* u,
 // cumulative radiance advanced, d_emission[b] = sigma_b dLoss/dE_b, and the absorption's part of
 // dLoss/dn summed over bins into *d_n; returns the largest transmittance.
 template <bool kThin, typename Real>
-inline Real SpectralAdjointStep(int nbp, const float* const* rows, const Real* u,
-                                const Real* uf, const Real* sigma, const Real* adjoint,
-                                const Real* total, Real n_sample, Real ds, Real* cumulative,
-                                Real* transmittance, Real* d_emission, Real* d_n) {
+inline Real SpectralAdjointStep(int nbp, const float* const* rows, const Real* u, const Real* uf,
+                                const Real* sigma, const Real* adjoint, const Real* total,
+                                Real n_sample, Real ds, Real* cumulative, Real* transmittance,
+                                Real* d_emission, Real* d_n) {
   Lanes<Real> dn{}, max_tr{};
   for (int b0 = 0; b0 < nbp; b0 += kVectorLanes) {
     const Lanes<Real> source = SourceLanes<Real>(rows, u, uf, b0, nbp);
@@ -732,12 +733,11 @@ void FireRenderer::RenderRows(const RenderJob& job, int y0, int y1, MarchCounter
             const Real n_sample = GatherCorners(corner, weight, slots, rows, u, uf);
             if (!(n_sample > Real(0))) return true;
             // A step thin in every bin (a candle's, mostly) needs no exponential.
-            const Real max_tr =
-                sigma_max * n_sample * ds < Real(1e-2)
-                    ? SpectralStep<true, Real>(nbp, rows, u, uf, sigma, n_sample, ds, radiance,
-                                               transmittance)
-                    : SpectralStep<false, Real>(nbp, rows, u, uf, sigma, n_sample, ds, radiance,
-                                                transmittance);
+            const Real max_tr = sigma_max * n_sample * ds < Real(1e-2)
+                                    ? SpectralStep<true, Real>(nbp, rows, u, uf, sigma, n_sample,
+                                                               ds, radiance, transmittance)
+                                    : SpectralStep<false, Real>(nbp, rows, u, uf, sigma, n_sample,
+                                                                ds, radiance, transmittance);
             return !(max_tr < min_tr);
           });
         }
@@ -770,11 +770,16 @@ void FireRenderer::RenderRows(const RenderJob& job, int y0, int y1, MarchCounter
 struct FireRenderer::GradientJob {
   const CameraRays* rays = nullptr;
   const ImageF* d_loss_d_rgb = nullptr;
+  // RenderAndGradient: the pixels' gradients come from here, and the radiance goes there.
+  const PixelGradient* pixel_gradient = nullptr;
+  ImageF* linear_rgb = nullptr;
+  Eigen::Matrix3d to_rgb = Eigen::Matrix3d::Identity();
   double step_m = 0;
   double min_transmittance = 0;
   bool spectral = false;
   int nbins = 3;
-  Eigen::Matrix3d to_rgb_t = Eigen::Matrix3d::Identity();  // rgb = M xyz: dLoss/dxyz = M^T dLoss/drgb
+  Eigen::Matrix3d to_rgb_t =
+      Eigen::Matrix3d::Identity();  // rgb = M xyz: dLoss/dxyz = M^T dLoss/drgb
   double grey_sigma = 0;
 };
 template <typename Real>
@@ -786,14 +791,19 @@ struct FireRenderer::GradientBuffers {
 };
 
 template <typename Real>
-RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays, const ImageF& d_loss_d_rgb,
+RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays, const ImageF* d_loss_d_rgb,
+                                         const PixelGradient* pixel_gradient, ImageF* linear_rgb,
                                          std::vector<double>* d_temperature,
                                          std::vector<double>* d_density) const {
   const auto start = std::chrono::steady_clock::now();
   const int width = camera_rays.width(), height = camera_rays.height();
   GradientJob job;
   job.rays = &camera_rays;
-  job.d_loss_d_rgb = &d_loss_d_rgb;
+  job.d_loss_d_rgb = d_loss_d_rgb;
+  job.pixel_gradient = pixel_gradient;
+  job.linear_rgb = linear_rgb;
+  if (linear_rgb) *linear_rgb = ImageF(width, height, 3, 0.0f);
+  job.to_rgb = response_->output_from_basis();
   job.step_m = options_.step_voxels * geometry_.voxel_size_m.minCoeff();
   job.min_transmittance = options_.min_transmittance;
   job.spectral = path_ == SpectralPath::kSpectral;
@@ -868,7 +878,6 @@ RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays, const Im
   return summary;
 }
 
-
 // The AVX2 + FMA build of the float adjoint (see RenderRowsWide).
 __attribute__((target("avx2,fma"), flatten)) void FireRenderer::GradientRowsWide(
     const GradientJob& job, int y0, int y1, GradientBuffers<float>* buffers,
@@ -880,7 +889,7 @@ template <typename Real>
 void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
                                 GradientBuffers<Real>* buffers, MarchCounters* counters) const {
   const CameraRays& camera_rays = *job.rays;
-  const ImageF& d_loss_d_rgb = *job.d_loss_d_rgb;
+  const bool fused = job.pixel_gradient != nullptr;
   const GridGeometry& g = geometry_;
   const int width = camera_rays.width();
   const double step_m = job.step_m;
@@ -908,19 +917,52 @@ void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
     }
     for (int y = y0; y < y1; ++y) {
       for (int x = 0; x < width; ++x) {
-        const Eigen::Vector3d g_rgb(d_loss_d_rgb.at(x, y, 0), d_loss_d_rgb.at(x, y, 1),
-                                    d_loss_d_rgb.at(x, y, 2));
-        if (g_rgb.isZero()) continue;
-        RayMarch march;
-        if (!RayMarch::Make(g, camera_rays.at(x, y), step_m, &march)) continue;
-        ++c.hit;
-        const Eigen::Vector3d g_xyz = to_rgb_t * g_rgb;
-        for (int b = 0; b < nbp; ++b) {
-          const bool bin = b < nbins;
-          adjoint[b] = !bin ? Real(0) : spectral ? Real(g_xyz.dot(bins_->weight(b))) : Real(g_xyz[b]);
-          total[b] = cumulative[b] = Real(0);
-          transmittance[b] = bin ? Real(1) : Real(0);
+        Eigen::Vector3d g_rgb = Eigen::Vector3d::Zero();
+        if (!fused) {
+          const ImageF& d_loss_d_rgb = *job.d_loss_d_rgb;
+          g_rgb = Eigen::Vector3d(d_loss_d_rgb.at(x, y, 0), d_loss_d_rgb.at(x, y, 1),
+                                  d_loss_d_rgb.at(x, y, 2));
+          if (g_rgb.isZero()) continue;
         }
+        RayMarch march;
+        if (!RayMarch::Make(g, camera_rays.at(x, y), step_m, &march)) {
+          if (fused) (*job.pixel_gradient)(x, y, Eigen::Vector3d::Zero());
+          continue;
+        }
+        ++c.hit;
+        for (int b = 0; b < nbp; ++b) {
+          total[b] = cumulative[b] = Real(0);
+          transmittance[b] = b < nbins ? Real(1) : Real(0);
+        }
+        // Pass 2's adjoint per channel or bin, from dLoss/dRGB; false: nothing to march back.
+        auto set_adjoint = [&](const Eigen::Vector3d& d_rgb) {
+          if (d_rgb.isZero()) return false;
+          const Eigen::Vector3d g_xyz = to_rgb_t * d_rgb;
+          for (int b = 0; b < nbp; ++b) {
+            adjoint[b] = b >= nbins ? Real(0)
+                         : spectral ? Real(g_xyz.dot(bins_->weight(b)))
+                                    : Real(g_xyz[b]);
+          }
+          return true;
+        };
+        // Fused (RenderAndGradient): after pass 1 the pixel is rendered as Render() renders it,
+        // and its gradient asked for.
+        auto render_pixel = [&]() {
+          if (!fused) return true;
+          Eigen::Vector3d xyz = Eigen::Vector3d::Zero();
+          if (!spectral) {
+            xyz = Eigen::Vector3d(total[0], total[1], total[2]);
+          } else {
+            for (int b = 0; b < nbins; ++b) xyz += double(total[b]) * bins_->weight(b);
+          }
+          const Eigen::Vector3d rgb = job.to_rgb * xyz;
+          for (int ch = 0; ch < 3; ++ch) job.linear_rgb->at(x, y, ch) = static_cast<float>(rgb[ch]);
+          // The image holds float radiance: the gradient is of that value, as after Render().
+          const Eigen::Vector3d stored(job.linear_rgb->at(x, y, 0), job.linear_rgb->at(x, y, 1),
+                                       job.linear_rgb->at(x, y, 2));
+          return set_adjoint((*job.pixel_gradient)(x, y, stored));
+        };
+        if (!fused) set_adjoint(g_rgb);
         MarchCounters ignored;
         if (!spectral) {
           // The per-step source S and absorption of the fast path (see RenderImpl).
@@ -947,6 +989,7 @@ void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
                            transmittance[0] -= w;
                            return !(transmittance[0] < min_tr);
                          });
+          if (!render_pixel()) continue;
           transmittance[0] = Real(1);
           // Pass 2: the adjoint.
           MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* weight) {
@@ -988,18 +1031,19 @@ void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
             return *n_sample > Real(0);
           };
           // Pass 1: the ray's radiance per bin.
-          MarchRay<Real>(
-              march, &ignored, [&](Real ds, const std::size_t* corner, const Real* weight) {
-                Real n_sample;
-                if (!sample(corner, weight, &n_sample)) return true;
-                const Real max_tr =
-                    sigma_max * n_sample * ds < Real(1e-2)
-                        ? SpectralStep<true, Real>(nbp, rows, u, uf, sigma, n_sample, ds, total,
-                                                   transmittance)
-                        : SpectralStep<false, Real>(nbp, rows, u, uf, sigma, n_sample, ds, total,
-                                                    transmittance);
-                return !(max_tr < min_tr);
-              });
+          MarchRay<Real>(march, &ignored,
+                         [&](Real ds, const std::size_t* corner, const Real* weight) {
+                           Real n_sample;
+                           if (!sample(corner, weight, &n_sample)) return true;
+                           const Real max_tr =
+                               sigma_max * n_sample * ds < Real(1e-2)
+                                   ? SpectralStep<true, Real>(nbp, rows, u, uf, sigma, n_sample, ds,
+                                                              total, transmittance)
+                                   : SpectralStep<false, Real>(nbp, rows, u, uf, sigma, n_sample,
+                                                               ds, total, transmittance);
+                           return !(max_tr < min_tr);
+                         });
+          if (!render_pixel()) continue;
           for (int b = 0; b < nbp; ++b) transmittance[b] = b < nbins ? Real(1) : Real(0);
           // Pass 2: the adjoint. The emission's part is accumulated per slot and bin (buf.de) and
           // contracted with each voxel's spectrum once, at the end.
@@ -1008,14 +1052,13 @@ void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
             if (!sample(corner, weight, &n_sample)) return true;
             // d_emission[b] holds sigma_b dLoss/dE_b; d_n the kappa part, summed over bins.
             Real d_n;
-            const Real max_tr =
-                sigma_max * n_sample * ds < Real(1e-2)
-                    ? SpectralAdjointStep<true, Real>(nbp, rows, u, uf, sigma, adjoint, total,
-                                                      n_sample, ds, cumulative, transmittance,
-                                                      d_emission, &d_n)
-                    : SpectralAdjointStep<false, Real>(nbp, rows, u, uf, sigma, adjoint, total,
-                                                       n_sample, ds, cumulative, transmittance,
-                                                       d_emission, &d_n);
+            const Real max_tr = sigma_max * n_sample * ds < Real(1e-2)
+                                    ? SpectralAdjointStep<true, Real>(
+                                          nbp, rows, u, uf, sigma, adjoint, total, n_sample, ds,
+                                          cumulative, transmittance, d_emission, &d_n)
+                                    : SpectralAdjointStep<false, Real>(
+                                          nbp, rows, u, uf, sigma, adjoint, total, n_sample, ds,
+                                          cumulative, transmittance, d_emission, &d_n);
             for (int n = 0; n < 8; ++n) {
               const std::int32_t slot = slots[n];
               if (slot < 0 || weight[n] == Real(0)) continue;
@@ -1031,29 +1074,48 @@ void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
   }
 }
 
+void FireRenderer::PrepareGradientArrays(std::vector<double>* d_temperature,
+                                         std::vector<double>* d_density) const {
+  const std::size_t nvox = geometry_.num_voxels();
+  for (std::vector<double>* v : {d_temperature, d_density}) {
+    if (v->empty()) v->assign(nvox, 0.0);
+    if (v->size() != nvox) {
+      throw InputError("RenderGradient: gradient arrays need " + std::to_string(nvox) +
+                       " values, got " + std::to_string(v->size()));
+    }
+  }
+}
+
 RenderSummary FireRenderer::RenderGradient(const CameraRays& rays, const ImageF& d_loss_d_rgb,
                                            std::vector<double>* d_temperature,
                                            std::vector<double>* d_density) const {
   if (!has_volume_) throw std::logic_error("FireRenderer::RenderGradient called before SetVolume");
   if (d_loss_d_rgb.width != rays.width() || d_loss_d_rgb.height != rays.height() ||
       d_loss_d_rgb.channels != 3) {
-    throw InputError(
-        "RenderGradient: d_loss_d_rgb is " + std::to_string(d_loss_d_rgb.width) + "x" +
-        std::to_string(d_loss_d_rgb.height) + "x" + std::to_string(d_loss_d_rgb.channels) +
-        ", the camera is " + std::to_string(rays.width()) + "x" + std::to_string(rays.height()) +
-        "x3");
+    throw InputError("RenderGradient: d_loss_d_rgb is " + std::to_string(d_loss_d_rgb.width) + "x" +
+                     std::to_string(d_loss_d_rgb.height) + "x" +
+                     std::to_string(d_loss_d_rgb.channels) + ", the camera is " +
+                     std::to_string(rays.width()) + "x" + std::to_string(rays.height()) + "x3");
   }
-  const std::size_t nvox = geometry_.num_voxels();
-  for (std::vector<double>* v : {d_temperature, d_density}) {
-    if (v->empty()) v->assign(nvox, 0.0);
-    if (v->size() != nvox) {
-      throw InputError("RenderGradient: gradient arrays need " + std::to_string(nvox) +
-                                  " values, got " + std::to_string(v->size()));
-    }
-  }
+  PrepareGradientArrays(d_temperature, d_density);
   if (options_.double_precision)
-    return GradientImpl<double>(rays, d_loss_d_rgb, d_temperature, d_density);
-  return GradientImpl<float>(rays, d_loss_d_rgb, d_temperature, d_density);
+    return GradientImpl<double>(rays, &d_loss_d_rgb, nullptr, nullptr, d_temperature, d_density);
+  return GradientImpl<float>(rays, &d_loss_d_rgb, nullptr, nullptr, d_temperature, d_density);
+}
+
+RenderSummary FireRenderer::RenderAndGradient(const CameraRays& rays,
+                                              const PixelGradient& pixel_gradient,
+                                              ImageF* linear_rgb,
+                                              std::vector<double>* d_temperature,
+                                              std::vector<double>* d_density) const {
+  if (!has_volume_)
+    throw std::logic_error("FireRenderer::RenderAndGradient called before SetVolume");
+  if (!pixel_gradient) throw InputError("RenderAndGradient: no pixel gradient function");
+  PrepareGradientArrays(d_temperature, d_density);
+  if (options_.double_precision)
+    return GradientImpl<double>(rays, nullptr, &pixel_gradient, linear_rgb, d_temperature,
+                                d_density);
+  return GradientImpl<float>(rays, nullptr, &pixel_gradient, linear_rgb, d_temperature, d_density);
 }
 
 RenderSummary FireRenderer::Render(const CameraRays& rays, ImageF* linear_rgb) const {
@@ -1074,11 +1136,9 @@ RenderSummary FireRenderer::Render(const CameraRays& rays, const std::vector<flo
 
 ImageU8 ApplyCameraResponse(const ImageF& linear_rgb, double exposure) {
   if (!(exposure > 0) || !std::isfinite(exposure)) {
-    throw InputError("exposure = " + std::to_string(exposure) +
-                                " must be finite and > 0");
+    throw InputError("exposure = " + std::to_string(exposure) + " must be finite and > 0");
   }
-  if (linear_rgb.channels != 3)
-    throw InputError("ApplyCameraResponse needs a 3-channel image");
+  if (linear_rgb.channels != 3) throw InputError("ApplyCameraResponse needs a 3-channel image");
   ImageU8 out(linear_rgb.width, linear_rgb.height, 3);
   for (std::size_t i = 0; i < linear_rgb.pixels.size(); ++i) {
     out.pixels[i] = colour::QuantizeU8(colour::SrgbEncode(exposure * double(linear_rgb.pixels[i])));

@@ -63,6 +63,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -159,6 +160,19 @@ class FireRenderer {
                                std::vector<double>* d_temperature,
                                std::vector<double>* d_density) const;
 
+  // dLoss/d(linear RGB) of pixel (x, y) given what the renderer made of it (RenderAndGradient).
+  using PixelGradient = std::function<Eigen::Vector3d(int x, int y, const Eigen::Vector3d& rgb)>;
+
+  // Render() and RenderGradient() in one pass over the rays: each ray is marched for its radiance
+  // (written into `linear_rgb` as Render() writes it), `pixel_gradient` then gives dLoss/dRGB for
+  // that pixel, and a non-zero one is marched back through the adjoint into the two arrays as
+  // RenderGradient() does (two marches a ray instead of Render's one and RenderGradient's two).
+  // `pixel_gradient` is called exactly once for every pixel (with zero radiance for rays that
+  // miss the box), from several threads at once for different pixels. Requires SetVolume().
+  RenderSummary RenderAndGradient(const CameraRays& rays, const PixelGradient& pixel_gradient,
+                                  ImageF* linear_rgb, std::vector<double>* d_temperature,
+                                  std::vector<double>* d_density) const;
+
   const AbsorptionModel& absorption() const { return absorption_; }
   const RenderOptions& options() const { return options_; }
   SpectralPath path() const { return path_; }
@@ -168,9 +182,14 @@ class FireRenderer {
   RenderSummary RenderImpl(const CameraRays& rays, ImageF* linear_rgb,
                            const std::vector<float>* max_distance_m = nullptr,
                            ImageF* transmittance_rgb = nullptr) const;
+  // d_loss_d_rgb, or pixel_gradient and linear_rgb (RenderAndGradient).
   template <typename Real>
-  RenderSummary GradientImpl(const CameraRays& rays, const ImageF& d_loss_d_rgb,
+  RenderSummary GradientImpl(const CameraRays& rays, const ImageF* d_loss_d_rgb,
+                             const PixelGradient* pixel_gradient, ImageF* linear_rgb,
                              std::vector<double>* d_temperature,
+                             std::vector<double>* d_density) const;
+  // Resizes and zeroes (when empty) or checks the gradient arrays.
+  void PrepareGradientArrays(std::vector<double>* d_temperature,
                              std::vector<double>* d_density) const;
   // Marches one ray over the occupied bricks: visit(k, ds, corner[8], weight[8]) for every step
   // evaluated, until it returns false (early termination). Counts into the counters.

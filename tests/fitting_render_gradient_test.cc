@@ -221,6 +221,67 @@ TEST(RenderGradient, FloatKernelsOfBothBuildsAgreeWithDouble) {
   }
 }
 
+// RenderAndGradient (one pass) against Render then RenderGradient, with a gradient that depends
+// on the rendered pixel as the fit's does, on both paths and both builds: the same image, the same
+// gradients, every pixel asked once, and pixels given a zero gradient not marched back.
+TEST(RenderGradient, RenderAndGradientEqualsRenderThenGradient) {
+  for (bool soot : {false, true}) {
+    const AbsorptionModel absorption =
+        soot ? AbsorptionModel::DefaultSoot() : AbsorptionModel::DefaultGrey();
+    Scene s = MakeScene(absorption, 0.7, 17);
+    CameraRays rays(s.camera);
+    const int w = s.camera.width(), h = s.camera.height();
+    // dLoss/dRGB = (rgb - 1)^2 style: a function of the pixel, zero on the left third.
+    auto gradient_of = [&](int x, int y, const Eigen::Vector3d& rgb) -> Eigen::Vector3d {
+      if (x < w / 3) return Eigen::Vector3d::Zero();
+      return Eigen::Vector3d(2 * (rgb[0] - 0.3), rgb[1] + 0.1 * y, -rgb[2]);
+    };
+    for (bool wide : {true, false}) {
+      RenderOptions o;
+      o.spectral_step_nm = 20;
+      o.wide_kernels = wide;
+      FireRenderer r(absorption, o);
+      r.SetVolume(s.grid, s.temperature, s.density);
+      ImageF image;
+      r.Render(rays, &image);
+      ImageF d(w, h, 3, 0.0f);
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) {
+          const Eigen::Vector3d g = gradient_of(
+              x, y, Eigen::Vector3d(image.at(x, y, 0), image.at(x, y, 1), image.at(x, y, 2)));
+          for (int c = 0; c < 3; ++c) d.at(x, y, c) = static_cast<float>(g[c]);
+        }
+      std::vector<double> dt, dn;
+      r.RenderGradient(rays, d, &dt, &dn);
+
+      std::vector<int> asked(static_cast<std::size_t>(w) * h, 0);
+      auto fn = [&](int x, int y, const Eigen::Vector3d& rgb) -> Eigen::Vector3d {
+        ++asked[static_cast<std::size_t>(y) * w + x];  // distinct pixels: no race
+        return gradient_of(x, y, rgb).cast<float>().cast<double>();
+      };
+      ImageF fused_image;
+      std::vector<double> fdt, fdn;
+      const RenderSummary summary = r.RenderAndGradient(rays, fn, &fused_image, &fdt, &fdn);
+      const std::string what = std::string(soot ? "soot" : "grey") + (wide ? ", wide" : "");
+      for (int count : asked) ASSERT_EQ(count, 1) << what;
+      EXPECT_GT(summary.rays_hit_box, 0);
+      for (std::size_t i = 0; i < image.pixels.size(); ++i)
+        ASSERT_EQ(fused_image.pixels[i], image.pixels[i]) << what << " pixel value " << i;
+      // The threads' buffers are summed in whatever order the threads ran: equal to rounding.
+      double scale = 0, dn_scale = 0;
+      for (std::size_t v = 0; v < dt.size(); ++v) {
+        scale = std::max(scale, std::abs(dt[v]));
+        dn_scale = std::max(dn_scale, std::abs(dn[v]));
+      }
+      ASSERT_GT(scale, 0) << what;
+      for (std::size_t v = 0; v < dt.size(); ++v) {
+        ASSERT_NEAR(fdt[v], dt[v], 1e-7 * scale) << what << " voxel " << v;
+        ASSERT_NEAR(fdn[v], dn[v], 1e-7 * dn_scale) << what << " voxel " << v;
+      }
+    }
+  }
+}
+
 TEST(RenderGradient, ExtremeVolumesGiveFiniteGradients) {
   const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
   for (auto [t, n] : {std::pair{1.0f, 1e30f}, std::pair{1e5f, 1e30f}, std::pair{2000.0f, 1e-30f},

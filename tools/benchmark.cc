@@ -142,7 +142,8 @@ std::string RunRenderBenchmark(const RenderBenchmarkOptions& options,
         "on every pixel that shows fire). Error is CIE76 Delta E of the 8-bit image against a "
         "reference render of the same volume (double precision, step 0.1 voxel, 81 bins of 5 nm, "
         "no skipping), mean and max over the pixels where the reference shows fire. Build: the "
-        "kernels' baseline (SSE2) build or their AVX2 + FMA build, chosen at run time (core/cpu.h). "
+        "kernels' baseline (SSE2) build or their AVX2 + FMA build, chosen at run time "
+        "(core/cpu.h). "
         "Targets (issue 24): the 128^3 view on the fast path in at most 25 ms on one core, the "
         "soot spectral path at most 1.5 times the fast path.\n\n";
   md << "| grid | configuration | build | threads | ms / view | adjoint ms | mean dE | max dE | "
@@ -226,9 +227,9 @@ std::string RunRenderBenchmark(const RenderBenchmarkOptions& options,
         figures.push_back({n, config.label, summary.wide_kernels, config.threads, ms});
         md << "| " << n << "^3 (" << Fixed(100 * burning_fraction, 1) << "% burning) | "
            << config.label << " | " << build << " | " << config.threads << " | " << Fixed(ms, 1)
-           << " | " << Fixed(adjoint_ms, 1) << " | " << Fixed(e.mean, 3) << " | "
-           << Fixed(e.max, 2) << " | " << summary.steps_evaluated << " | "
-           << summary.steps_skipped_empty << " | " << summary.rays_terminated_early << " |\n";
+           << " | " << Fixed(adjoint_ms, 1) << " | " << Fixed(e.mean, 3) << " | " << Fixed(e.max, 2)
+           << " | " << summary.steps_evaluated << " | " << summary.steps_skipped_empty << " | "
+           << summary.rays_terminated_early << " |\n";
         if (log)
           log(std::to_string(n) + "^3 " + config.label + ", " + build + ", " +
               std::to_string(config.threads) + " thread(s): " + Fixed(ms, 1) + " ms (adjoint " +
@@ -241,8 +242,7 @@ std::string RunRenderBenchmark(const RenderBenchmarkOptions& options,
     const int n = resolutions.back();
     auto find = [&](const std::string& label) {
       for (const Figure& f : figures)
-        if (f.n == n && f.label == label && f.threads == 1 && f.wide == wide_available)
-          return f.ms;
+        if (f.n == n && f.label == label && f.threads == 1 && f.wide == wide_available) return f.ms;
       return 0.0;
     };
     const double fast = find("grey, fast path"), s41 = find("soot, spectral path (41 bins)"),
@@ -251,9 +251,9 @@ std::string RunRenderBenchmark(const RenderBenchmarkOptions& options,
       md << "\nTarget check (" << n << "^3, one thread): the fast path " << Fixed(fast, 1)
          << " ms (at most 25: " << (fast <= 25 ? "met" : "NOT met")
          << "); the soot spectral path with the fit's 21 bins " << Fixed(s21, 1) << " ms, "
-         << Fixed(s21 / fast, 2) << " times the fast path (at most 1.5: "
-         << (s21 <= 1.5 * fast ? "met" : "NOT met") << "), with 41 bins " << Fixed(s41, 1)
-         << " ms, " << Fixed(s41 / fast, 2) << " times.\n";
+         << Fixed(s21 / fast, 2)
+         << " times the fast path (at most 1.5: " << (s21 <= 1.5 * fast ? "met" : "NOT met")
+         << "), with 41 bins " << Fixed(s41, 1) << " ms, " << Fixed(s41 / fast, 2) << " times.\n";
     }
   }
   md << "\nSkipping is exact (bricks of 8^3 voxels whose density, dilated by one voxel, is zero), "

@@ -60,7 +60,8 @@ Runner AddFit(CLI::App* command) {
           ->check(kNonNegative);
   command
       ->add_option("--fit-iterations", o->iterations,
-                   "Fast fit: L-BFGS iterations per grid level; alg1/alg2: sweeps")
+                   "Fast fit: cap on the L-BFGS iterations per grid level (it stops earlier once "
+                   "its energy falls by less than 0.5% in 5 iterations); alg1/alg2: sweeps")
       ->type_name("N")
       ->check(Whole(0, 1000000));
   command->add_option("--time-limit", job.fit.time_limit_s, "Stop the fit after S seconds")

@@ -62,7 +62,9 @@ Runner AddRun(CLI::App* command) {
   command->add_option("--absorption", run.absorption, "Absorption model (default: dataset.yaml's)")
       ->check(CLI::IsMember({"soot", "grey"}));
   command
-      ->add_option("--fit-iterations", o->fit_iterations, "L-BFGS iterations of each frame's fit")
+      ->add_option("--fit-iterations", o->fit_iterations,
+                   "Cap on the L-BFGS iterations of each frame's fit (it stops earlier once its "
+                   "energy falls by less than 0.5% in 5 iterations)")
       ->type_name("N")
       ->check(Whole(0, 1000000));
   command->add_option("--holdout", run.holdout_camera, "Camera to score but not fit")
