@@ -110,7 +110,8 @@ class Osem : public IterativeSolver {
               return;
             }
             if (!prior_) {
-              for (int c = 0; c < kChannels; ++c) xs[j * kChannels + c] *= gj[c] / col_sum;
+              const float inverse = 1.0f / col_sum;
+              for (int c = 0; c < kChannels; ++c) xs[j * kChannels + c] *= gj[c] * inverse;
               return;
             }
             // The full-data OSL divisor is C_j + w B dU/dx_j; this subset's part of it is

@@ -300,27 +300,30 @@ void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float
   if (first >= last) return;
   const std::size_t n = last - first, nc = static_cast<std::size_t>(channels);
   const std::size_t ncols = cols(), stride = ncols + 1;
-  // Blocks of rows in parallel, each written by one task only: a task walks every column and
-  // takes that column's entries in its rows (contiguous: sorted by row). Each row is summed in
-  // ascending column order whatever the blocks, so the result does not depend on the number of
-  // threads, and equals the row-major sum. One block per thread: every block walks all the
-  // columns and finds its rows in each by two binary searches, so more blocks than threads cost
-  // more searches than they balance (four per thread made the 640x360 solve of `benchmark
-  // footage` 25% slower, 964 against 722 ms).
-  const std::size_t blocks = std::max<std::size_t>(
-      1, std::min<std::size_t>(n / 2048 + 1,
-                               static_cast<std::size_t>(tbb::this_task_arena::max_concurrency())));
+  // The columns in a fixed number of blocks (set by the column count alone), each scattering its
+  // columns' entries in rows [first, last) into a buffer of its own, in ascending column order;
+  // the rows are then the blocks' sums in block order. No block searches for its rows (a subset
+  // wholly inside the range is taken whole), and the result depends neither on the number of
+  // threads nor on the range: a row is the same in a camera's rows as in the whole product. (Row
+  // blocks that each walked every column and found their rows by binary search cost as much in
+  // searches as in arithmetic: a column holds about four entries of one camera's rows.)
+  const std::size_t blocks = ncols >= 4 * 4096 ? 4 : 1;
+  std::vector<std::size_t> parts;
+  for (std::size_t s = 0; s < subsets_.size(); ++s)
+    if (subsets_[s].first < last && subsets_[s].second > first &&
+        subsets_[s].first < subsets_[s].second)
+      parts.push_back(s);
   auto run = [&](auto kChannels) {
     constexpr int kC = decltype(kChannels)::value;
     const std::size_t nch = kC > 0 ? std::size_t(kC) : nc;
+    std::vector<float> partial(blocks == 1 ? 0 : blocks * n * nch);
     tbb::parallel_for(std::size_t(0), blocks, [&](std::size_t b) {
-      const std::size_t r0 = first + n * b / blocks, r1 = first + n * (b + 1) / blocks;
-      if (r0 >= r1) return;
-      std::fill(y + r0 * nch, y + r1 * nch, 0.0f);
-      std::vector<std::size_t> parts;
-      for (std::size_t s = 0; s < subsets_.size(); ++s)
-        if (subsets_[s].first < r1 && subsets_[s].second > r0) parts.push_back(s);
-      for (std::size_t j = 0; j < ncols; ++j) {
+      // One block writes y itself (blocks == 1), or its own part of `partial`, indexed from
+      // row `first`.
+      float* out = blocks == 1 ? y + first * nch : partial.data() + b * n * nch;
+      std::fill(out, out + n * nch, 0.0f);
+      const std::size_t j0 = ncols * b / blocks, j1 = ncols * (b + 1) / blocks;
+      for (std::size_t j = j0; j < j1; ++j) {
         const float* xj = x + j * nch;
         bool zero = true;
         for (std::size_t ch = 0; ch < nch; ++ch) zero = zero && xj[ch] == 0.0f;
@@ -328,19 +331,28 @@ void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float
         for (std::size_t s : parts) {
           const Entry* lo = t_entries_.data() + t_ptr_[s * stride + j];
           const Entry* hi = t_entries_.data() + t_ptr_[s * stride + j + 1];
-          if (subsets_[s].first < r0)
-            lo = std::lower_bound(lo, hi, r0,
+          if (subsets_[s].first < first)
+            lo = std::lower_bound(lo, hi, first,
                                   [](const Entry& e, std::size_t r) { return e.row < r; });
-          if (subsets_[s].second > r1)
-            hi = std::lower_bound(lo, hi, r1,
+          if (subsets_[s].second > last)
+            hi = std::lower_bound(lo, hi, last,
                                   [](const Entry& e, std::size_t r) { return e.row < r; });
           for (const Entry* e = lo; e < hi; ++e) {
-            float* yr = y + static_cast<std::size_t>(e->row) * nch;
+            float* yr = out + (static_cast<std::size_t>(e->row) - first) * nch;
             for (std::size_t ch = 0; ch < nch; ++ch) yr[ch] += e->value * xj[ch];
           }
         }
       }
     });
+    if (blocks == 1) return;
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n * nch, 16384),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                        for (std::size_t k = r.begin(); k < r.end(); ++k) {
+                          float sum = partial[k];
+                          for (std::size_t b = 1; b < blocks; ++b) sum += partial[b * n * nch + k];
+                          y[first * nch + k] = sum;
+                        }
+                      });
   };
   if (channels == 3) {
     run(std::integral_constant<int, 3>());
