@@ -79,6 +79,23 @@ double CharbonnierDerivative(double x, double eps) {
 
 // E_am: CIE76 Delta E between what the camera records of each rendered pixel and the recorded
 // pixel, over every pixel of every view; the gradient through the renderer's adjoint.
+// CameraLab of a pixel, taken from `black` when the radiance is exactly zero: most pixels of a
+// fire's views are black, and Lab (with its cube roots) and its Jacobian at zero are the same
+// for all of them at one exposure. The same values as CameraLab, computed once.
+struct BlackPixel {
+  explicit BlackPixel(double s) : lab(CameraLab(Eigen::Vector3d::Zero(), s, &jacobian)) {}
+  Eigen::Matrix3d jacobian;
+  Eigen::Vector3d lab;
+};
+inline Eigen::Vector3d LabOf(const Eigen::Vector3d& linear, double s, const BlackPixel& black,
+                             Eigen::Matrix3d* jacobian) {
+  if (linear.isZero()) {
+    if (jacobian) *jacobian = black.jacobian;
+    return black.lab;
+  }
+  return CameraLab(linear, s, jacobian);
+}
+
 class DataTerm : public EnergyTerm {
  public:
   DataTerm(const FitObjective& objective, double weight, double eps)
@@ -91,6 +108,7 @@ class DataTerm : public EnergyTerm {
     if (gradient.d_t || gradient.d_n) return EvaluateFused(x, gradient, stats);
     const bool want_gradient = gradient.wanted();
     const double s = x.s;
+    const BlackPixel zero(s);
     const FitObjective::Renders renders = objective_.Render(x.t, x.n);
     TermValue value{name(), weight_, 0, 0};
     double ds_total = 0;
@@ -111,7 +129,7 @@ class DataTerm : public EnergyTerm {
               const Eigen::Vector3d linear(img.pixels[3 * p], img.pixels[3 * p + 1],
                                            img.pixels[3 * p + 2]);
               Eigen::Matrix3d jac;
-              const Eigen::Vector3d lab = CameraLab(linear, s, want_gradient ? &jac : nullptr);
+              const Eigen::Vector3d lab = LabOf(linear, s, zero, want_gradient ? &jac : nullptr);
               const Eigen::Vector3d diff = lab - target[p].cast<double>();
               const double de = diff.norm();
               acc.exact += de;
@@ -161,6 +179,7 @@ class DataTerm : public EnergyTerm {
   TermValue EvaluateFused(const FitParameters& x, const FitGradient& gradient,
                           EnergyTerms* stats) const {
     const double s = x.s;
+    const BlackPixel zero(s);
     objective_.UploadVolume(x.t, x.n);
     TermValue value{name(), weight_, 0, 0};
     double ds_total = 0;
@@ -174,7 +193,7 @@ class DataTerm : public EnergyTerm {
       auto pixel_gradient = [&](int px, int py, const Eigen::Vector3d& linear) {
         const std::size_t p = static_cast<std::size_t>(py) * width + px;
         Eigen::Matrix3d jac;
-        const Eigen::Vector3d lab = CameraLab(linear, s, &jac);
+        const Eigen::Vector3d lab = LabOf(linear, s, zero, &jac);
         const Eigen::Vector3d diff = lab - target[p].cast<double>();
         const double de = diff.norm();
         exact[p] = de;
@@ -497,6 +516,11 @@ FitObjective::Curvature FitObjective::DataCurvature(const std::vector<double>& t
       tbb::parallel_for(tbb::blocked_range<std::size_t>(0, jacobians[v].size(), 4096),
                         [&](const tbb::blocked_range<std::size_t>& r) {
                           for (std::size_t p = r.begin(); p < r.end(); ++p) {
+                            // A black pixel's ray crosses no emitting medium: its probe would
+                            // reach no voxel, and its ray is not marched.
+                            if (img.pixels[3 * p] == 0 && img.pixels[3 * p + 1] == 0 &&
+                                img.pixels[3 * p + 2] == 0)
+                              continue;
                             const std::uint64_t bits = sign_bits(k, v, p);
                             const Eigen::Vector3f sign(bits & 1 ? 1.f : -1.f, bits & 2 ? 1.f : -1.f,
                                                        bits & 4 ? 1.f : -1.f);
