@@ -43,25 +43,29 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
     SCOPED_TRACE(scene);
     // Column 4 is exposure / true, column 7 the temperature RMS.
     const auto before = Row(md, scene, "before: exposure fitted");
-    const auto known = Row(md, scene, "exposure known, w_sm = 1: `run` and `fit` now");
+    const auto known = Row(md, scene, "exposure known, w_sm = 1, until the energy stalls");
+    const auto equivalent = Row(md, scene, "the image-equivalent truth on the fit's grid");
     const auto alone = Row(md, scene, "the start alone");
     ASSERT_EQ(before.size(), 13u) << md;
     ASSERT_EQ(known.size(), 13u) << md;
     ASSERT_EQ(alone.size(), 13u) << md;
+    ASSERT_EQ(equivalent.size(), 13u) << md;
+    EXPECT_EQ(equivalent[2], "0");  // a start, not a fit
     EXPECT_EQ(known[4], "1.000");
     EXPECT_NE(before[4], "1.000");
     EXPECT_EQ(alone[2], "0");  // no iteration
-    for (const auto* row : {&before, &known, &alone}) {
+    for (const auto* row : {&before, &known, &alone, &equivalent}) {
       const double rms = std::stod((*row)[7]);
       EXPECT_GT(rms, 0);
       EXPECT_LT(rms, 2000);  // the search range
     }
   }
-  // Eleven oracle rows per scene: ten variants and the noise-free one (the header is "| oracle").
+  // Fifteen oracle rows per scene: fourteen variants and the noise-free one (the header is
+  // "| oracle").
   const std::regex row("\\n\\| (?!oracle)[a-z.`]");
   const auto rows =
       std::distance(std::sregex_iterator(md.begin(), md.end(), row), std::sregex_iterator());
-  EXPECT_EQ(rows, 2 * 11) << md;
+  EXPECT_EQ(rows, 2 * 15) << md;
 }
 
 }  // namespace
