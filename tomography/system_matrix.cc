@@ -298,61 +298,83 @@ void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float
     throw InputError("SystemMatrix: 1 to 4 channels, not " + std::to_string(channels));
   last = std::min(last, rows());
   if (first >= last) return;
-  const std::size_t n = last - first, nc = static_cast<std::size_t>(channels);
+  const std::size_t nc = static_cast<std::size_t>(channels);
   const std::size_t ncols = cols(), stride = ncols + 1;
-  // The columns in a fixed number of blocks (set by the column count alone), each scattering its
-  // columns' entries in rows [first, last) into a buffer of its own, in ascending column order;
-  // the rows are then the blocks' sums in block order. No block searches for its rows (a subset
-  // wholly inside the range is taken whole), and the result depends neither on the number of
-  // threads nor on the range: a row is the same in a camera's rows as in the whole product. (Row
-  // blocks that each walked every column and found their rows by binary search cost as much in
-  // searches as in arithmetic: a column holds about four entries of one camera's rows.)
+  // Each subset's rows in [first, last) are summed the same way whatever the range and the
+  // threads: the columns fall in a fixed number of blocks (set by the column count alone), each
+  // block's entries are summed into a buffer of the subset's rows in ascending column order, and
+  // a row is the blocks' sums in block order. So a row is the same in a camera's rows (one
+  // subset: its blocks run in parallel) as in the whole product (several subsets: they run in
+  // parallel, each block after block in a buffer that stays in cache). Nothing searches for its
+  // rows but at the ends of a range that cuts a subset (row blocks that each walked every column
+  // and found their rows by binary search cost as much in searches as in arithmetic: a column
+  // holds about four entries of one camera's rows).
   const std::size_t blocks = ncols >= 4 * 4096 ? 4 : 1;
-  std::vector<std::size_t> parts;
-  for (std::size_t s = 0; s < subsets_.size(); ++s)
-    if (subsets_[s].first < last && subsets_[s].second > first &&
-        subsets_[s].first < subsets_[s].second)
-      parts.push_back(s);
+  struct Part {
+    std::size_t subset, r0, r1;
+  };
+  std::vector<Part> parts;
+  for (std::size_t s = 0; s < subsets_.size(); ++s) {
+    const std::size_t r0 = std::max(first, subsets_[s].first);
+    const std::size_t r1 = std::min(last, subsets_[s].second);
+    if (r0 < r1) parts.push_back({s, r0, r1});
+  }
   auto run = [&](auto kChannels) {
     constexpr int kC = decltype(kChannels)::value;
     const std::size_t nch = kC > 0 ? std::size_t(kC) : nc;
-    std::vector<float> partial(blocks == 1 ? 0 : blocks * n * nch);
-    tbb::parallel_for(std::size_t(0), blocks, [&](std::size_t b) {
-      // One block writes y itself (blocks == 1), or its own part of `partial`, indexed from
-      // row `first`.
-      float* out = blocks == 1 ? y + first * nch : partial.data() + b * n * nch;
-      std::fill(out, out + n * nch, 0.0f);
+    // Block b of part p's sums into `out` (indexed from the part's first row), zeroed first.
+    auto block_sums = [&](const Part& p, std::size_t b, float* out) {
+      std::fill(out, out + (p.r1 - p.r0) * nch, 0.0f);
+      const std::size_t s = p.subset;
+      const bool cut_front = subsets_[s].first<p.r0, cut_back = subsets_[s].second> p.r1;
       const std::size_t j0 = ncols * b / blocks, j1 = ncols * (b + 1) / blocks;
       for (std::size_t j = j0; j < j1; ++j) {
         const float* xj = x + j * nch;
         bool zero = true;
         for (std::size_t ch = 0; ch < nch; ++ch) zero = zero && xj[ch] == 0.0f;
         if (zero) continue;
-        for (std::size_t s : parts) {
-          const Entry* lo = t_entries_.data() + t_ptr_[s * stride + j];
-          const Entry* hi = t_entries_.data() + t_ptr_[s * stride + j + 1];
-          if (subsets_[s].first < first)
-            lo = std::lower_bound(lo, hi, first,
-                                  [](const Entry& e, std::size_t r) { return e.row < r; });
-          if (subsets_[s].second > last)
-            hi = std::lower_bound(lo, hi, last,
-                                  [](const Entry& e, std::size_t r) { return e.row < r; });
-          for (const Entry* e = lo; e < hi; ++e) {
-            float* yr = out + (static_cast<std::size_t>(e->row) - first) * nch;
-            for (std::size_t ch = 0; ch < nch; ++ch) yr[ch] += e->value * xj[ch];
-          }
+        const Entry* lo = t_entries_.data() + t_ptr_[s * stride + j];
+        const Entry* hi = t_entries_.data() + t_ptr_[s * stride + j + 1];
+        if (cut_front)
+          lo = std::lower_bound(lo, hi, p.r0,
+                                [](const Entry& e, std::size_t r) { return e.row < r; });
+        if (cut_back)
+          hi = std::lower_bound(lo, hi, p.r1,
+                                [](const Entry& e, std::size_t r) { return e.row < r; });
+        for (const Entry* e = lo; e < hi; ++e) {
+          float* yr = out + (static_cast<std::size_t>(e->row) - p.r0) * nch;
+          for (std::size_t ch = 0; ch < nch; ++ch) yr[ch] += e->value * xj[ch];
         }
       }
+    };
+    // y over the part's rows: the blocks' buffers summed in block order.
+    auto combine = [&](const Part& p, const float* buffers, std::size_t k0, std::size_t k1) {
+      const std::size_t n = (p.r1 - p.r0) * nch;
+      for (std::size_t k = k0; k < k1; ++k) {
+        float sum = buffers[k];
+        for (std::size_t b = 1; b < blocks; ++b) sum += buffers[b * n + k];
+        y[p.r0 * nch + k] = sum;
+      }
+    };
+    if (parts.size() == 1) {
+      const Part& p = parts[0];
+      const std::size_t n = (p.r1 - p.r0) * nch;
+      std::vector<float> buffers(blocks * n);
+      tbb::parallel_for(std::size_t(0), blocks,
+                        [&](std::size_t b) { block_sums(p, b, buffers.data() + b * n); });
+      tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16384),
+                        [&](const tbb::blocked_range<std::size_t>& r) {
+                          combine(p, buffers.data(), r.begin(), r.end());
+                        });
+      return;
+    }
+    tbb::parallel_for(std::size_t(0), parts.size(), [&](std::size_t i) {
+      const Part& p = parts[i];
+      const std::size_t n = (p.r1 - p.r0) * nch;
+      std::vector<float> buffers(blocks * n);
+      for (std::size_t b = 0; b < blocks; ++b) block_sums(p, b, buffers.data() + b * n);
+      combine(p, buffers.data(), 0, n);
     });
-    if (blocks == 1) return;
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n * nch, 16384),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-                        for (std::size_t k = r.begin(); k < r.end(); ++k) {
-                          float sum = partial[k];
-                          for (std::size_t b = 1; b < blocks; ++b) sum += partial[b * n * nch + k];
-                          y[first * nch + k] = sum;
-                        }
-                      });
   };
   if (channels == 3) {
     run(std::integral_constant<int, 3>());
