@@ -40,6 +40,11 @@ void LoadTomographyConfig(const std::string& path, ReconstructOptions* options,
       r.Range("stagnation_tolerance", o.solve.stagnation_tolerance, -1, 1);
   if (o.solve.stagnation_tolerance < 0 && o.solve.stagnation_tolerance != -1)
     throw InputError(r.where() + ": 'stagnation_tolerance' is -1 (the solver's own) or in [0, 1]");
+  o.warm_stagnation_tolerance =
+      r.Range("warm_stagnation_tolerance", o.warm_stagnation_tolerance, -1, 1);
+  if (o.warm_stagnation_tolerance < 0 && o.warm_stagnation_tolerance != -1)
+    throw InputError(r.where() +
+                     ": 'warm_stagnation_tolerance' is -1 (as a cold solve) or in [0, 1]");
   o.solve.holdout_patience =
       static_cast<int>(r.Range("holdout_patience", o.solve.holdout_patience, 1, 100000));
   o.solve.prior = r.Get<std::string>("prior", o.solve.prior);

@@ -694,6 +694,47 @@ TEST(Reconstruct, MatrixIsReusedAcrossFramesAndCachedOnDisk) {
   fs::remove_all(cache);
 }
 
+// A warm-started frame stops on its own, looser stagnation rule (ReconstructOptions::
+// warm_stagnation_tolerance) in fewer iterations than a cold rule allows, and its volume is no
+// further from the truth (the oracle: the synthetic fire's own emission); an explicit
+// stagnation_tolerance is obeyed as given.
+TEST(Reconstruct, AWarmStartStopsSoonerAndNoWorse) {
+  Dataset d0 = MakeDataset(4, 20), d1 = MakeDataset(4, 20, kBox, 0, 1.0 / 30);
+  for (Dataset* d : {&d0, &d1}) {
+    d->images.pop_back();
+    d->rig.cameras.pop_back();
+  }
+  ReconstructOptions options;
+  options.resolution = 20;
+  options.exposure = d0.exposure;
+  options.solve.max_iterations = 100;
+  Reconstructor rec(d0.rig, options);
+  const FireVolume v0 = rec.Reconstruct(d0.images, nullptr);
+  auto warm_solve = [&](double warm_tolerance, double tolerance, ReconstructSummary* summary) {
+    ReconstructOptions o = options;
+    o.warm_stagnation_tolerance = warm_tolerance;
+    o.solve.stagnation_tolerance = tolerance;
+    Reconstructor r(d1.rig, o);
+    return r.Reconstruct(d1.images, summary, &v0);
+  };
+  ReconstructSummary loose, cold_rule, explicit_rule;
+  const FireVolume soon = warm_solve(0.02, -1, &loose);
+  const FireVolume late = warm_solve(-1, -1, &cold_rule);
+  warm_solve(0.02, 0, &explicit_rule);
+  std::printf(
+      "warm start: %d iterations (%s), volume error %.4f; with the cold rule %d (%s), %.4f\n",
+      loose.solves.back().iterations, ToString(loose.solves.back().stop),
+      VolumeError(soon, d1.truth), cold_rule.solves.back().iterations,
+      ToString(cold_rule.solves.back().stop), VolumeError(late, d1.truth));
+  EXPECT_EQ(loose.solves.back().stop, SolveStop::kStagnation);
+  EXPECT_LT(loose.solves.back().iterations, cold_rule.solves.back().iterations);
+  EXPECT_LT(VolumeError(soon, d1.truth), VolumeError(late, d1.truth) * 1.02);
+  EXPECT_EQ(explicit_rule.solves.back().iterations, 100);  // tolerance 0: never stagnates
+  ReconstructOptions bad = options;
+  bad.warm_stagnation_tolerance = 2;
+  EXPECT_THROW(Reconstructor(d0.rig, bad), InputError);
+}
+
 TEST(Reconstruct, StressCasesGiveResultsOrClearErrors) {
   // 5% noise.
   {

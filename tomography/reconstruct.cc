@@ -94,6 +94,9 @@ void ReconstructOptions::Validate() const {
   if (!(exposure > 0) || !std::isfinite(exposure)) fail("exposure must be finite and > 0");
   if (coarse_iterations < 1) fail("coarse_iterations must be >= 1");
   if (bin < 1 || bin > 16) fail("bin must be in [1, 16]");
+  if (!(warm_stagnation_tolerance >= 0 && warm_stagnation_tolerance <= 1) &&
+      warm_stagnation_tolerance != -1)
+    fail("warm_stagnation_tolerance must be in [0, 1], or -1 for the solve's own");
   if (envelope_margin_voxels < 0 || envelope_margin_voxels > 16)
     fail("envelope_margin_voxels must be in [0, 16]");
   if (!(envelope_pixel_tolerance >= 0) || !(envelope_pixel_tolerance <= 0.1))
@@ -127,8 +130,10 @@ std::string ReconstructSummary::BriefReport() const {
       << holdout_relative << ")";
   for (const auto& skipped : skipped_cameras) s << "; skipped " << skipped;
   s << "; total " << total_ms << " ms (decode " << decode_ms << ", hull " << hull_ms << ", matrix "
-    << matrix_ms << ", solve " << solve_ms << "), matrices and vectors "
-    << working_bytes / 1048576.0 << " MB, process peak " << process_peak_bytes / 1048576.0 << " MB";
+    << matrix_ms << ", solve " << solve_ms;
+  if (holdout_ms > 0) s << ", scoring the held-out camera " << holdout_ms;
+  s << "), matrices and vectors " << working_bytes / 1048576.0 << " MB, process peak "
+    << process_peak_bytes / 1048576.0 << " MB";
   return s.str();
 }
 
@@ -441,6 +446,11 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
 
     // Early stopping.
     SolveOptions solve_options = options_.solve;
+    // A warm start from the previous frame is near its answer: OS-EM's later iterations fit noise
+    // (ReconstructOptions::warm_stagnation_tolerance).
+    if (is_fine && have_start && solve_options.stagnation_tolerance < 0 &&
+        options_.warm_stagnation_tolerance >= 0)
+      solve_options.stagnation_tolerance = options_.warm_stagnation_tolerance;
     if (!is_fine)
       solve_options.max_iterations =
           std::min(solve_options.max_iterations, options_.coarse_iterations);
@@ -532,6 +542,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
   if (use_holdout) {
     // The held-out camera scores the result on every pixel of its image (saturated ones left
     // out); it took no part in the solve or its stopping.
+    const auto holdout_start = Clock::now();
     const LinearFrame& f = frames[holdout_index_];
     const ImageF image = RenderThinEmission(out.geometry, out.emission_rgb, *rays_[holdout_index_],
                                             options_.matrix.step_voxels);
@@ -548,6 +559,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
     }
     summary.holdout_rms = n ? std::sqrt(error / n) : 0.0;
     summary.holdout_relative = data > 0 ? std::sqrt(error / data) : 0.0;
+    summary.holdout_ms = Ms(holdout_start);
   }
   summary.working_bytes = peak;
   summary.process_peak_bytes = PeakResidentBytes();

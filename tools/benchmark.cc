@@ -304,7 +304,7 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
         "envelope is the union of the hulls seen so far, so rebuilds stop once the fire's range is "
         "covered). Target: 128^3 from 8 views in under one second per frame once the matrix is "
         "cached.\n\n";
-  double target_ms = -1;
+  double target_ms = -1, target_holdout_ms = 0;
   md << "| grid | views | hull | matrix (nnz, MB) | build ms | solver | iterations (stop) | solve "
         "ms | volume error "
         "| held-out error | next frames, cached: ms (n) | next frames, rebuilt: ms (n) | next "
@@ -383,7 +383,7 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
         // The following frames, each warm-started from the one before: mean time of those that
         // reused the cached matrix, and of those that had to rebuild it (the fire left the
         // envelope).
-        double cached_ms = 0, cached_error = 0, rebuilt_ms = 0;
+        double cached_ms = 0, cached_error = 0, rebuilt_ms = 0, cached_holdout_ms = 0;
         int cached = 0, rebuilt = 0;
         std::string later_log;
         FireVolume previous = v0;
@@ -395,6 +395,7 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
             ++rebuilt;
           } else {
             cached_ms += s1.total_ms;
+            cached_holdout_ms += s1.holdout_ms;
             cached_error += RelativeL2(v1.emission_rgb, truth_in[f].emission_rgb);
             ++cached;
           }
@@ -411,7 +412,10 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
         for (float x : held.radiance.pixels) sum += double(x) * x;
         const double held_rms = std::sqrt(sum / held.radiance.pixels.size());
         const SolveSummary& solve = s0.solves.back();
-        if (n == 128 && views == 8 && solver == "osem" && !mono && cached) target_ms = cached_ms;
+        if (n == 128 && views == 8 && solver == "osem" && !mono && cached) {
+          target_ms = cached_ms;
+          target_holdout_ms = cached_holdout_ms / cached;
+        }
         if (solver == "osem" && !mono) colour_solve_ms = s0.solve_ms;
         int iterations = 0;
         for (const auto& sv : s0.solves) iterations += sv.iterations;
@@ -445,10 +449,17 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
     }
   }
   if (target_ms >= 0) {
+    const double tomography_ms = target_ms - target_holdout_ms;
     md << "\nTarget check: a frame of 128^3 from 8 views with the matrix cached took "
-       << Fixed(target_ms, 0)
-       << " ms with OS-EM (the default): " << (target_ms < 1000 ? "target met" : "target NOT met")
-       << ".\n";
+       << Fixed(target_ms, 0) << " ms with OS-EM (the default), of which "
+       << Fixed(target_holdout_ms, 0)
+       << " ms scored the held-out camera (the benchmark's measurement, which a reconstruction "
+          "without one does not make): the tomography "
+       << Fixed(tomography_ms, 0)
+       << " ms (issue 3's target, under 1000 ms: " << (tomography_ms < 1000 ? "met" : "NOT met")
+       << "; issue 24's, at most 300 ms: " << (tomography_ms <= 300 ? "met" : "NOT met")
+       << "; 614 ms in this benchmark on 2026-11-25 04:39, before issue 24's changes to the "
+          "products and the warm start's stopping rule, with a volume error of 0.172).\n";
   }
   md << "\nThe held-out camera only scores the result, on every pixel of its image: since issue 20 "
         "it no longer stops the solve, and its error is no longer counted over its fire mask only "
