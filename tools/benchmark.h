@@ -108,6 +108,17 @@ std::string Fixed(double v, int digits);
 // "CPU model, N cores, date" for the report header.
 std::string MachineDescription();
 
+// The machine's limits, measured in the run that reports against them (a roofline's two roofs):
+// the memory bandwidth of a streaming read of 256 MB on one and on all hardware threads, and the
+// arithmetic peak of one core in float multiply-adds (independent AVX2 FMAs where the CPU has
+// them, else SSE multiply and add).
+struct MachineLimits {
+  double read_gb_s_one = 0, read_gb_s_all = 0;
+  double gflops_one = 0;
+  std::string arithmetic;  // what the peak was measured with
+};
+MachineLimits MeasureMachineLimits();
+
 struct CalibrationBenchmarkOptions {
   int cameras = 4;
   int width = 640;
