@@ -440,6 +440,9 @@ void AravisCamera::Start(int buffers) {
   if (impl_->stream) return;
   if (buffers < 2) throw InputError("aravis camera '" + impl_->id + "': at least 2 buffers");
   impl_->buffers = buffers;
+  pool_.Reserve(static_cast<std::size_t>(buffers), std::size_t(std::max(settings_.width, 0)) *
+                                                       std::max(settings_.height, 0) *
+                                                       BytesPerPixel(settings_.pixel_format));
   impl_->streaming = true;
   ArvCamera* cam = impl_->camera;
   GError* e = nullptr;
@@ -488,6 +491,7 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
   guint64 completed = 0, failures = 0, underruns = 0;
   arv_stream_get_statistics(impl_->stream, &completed, &failures, &underruns);
   impl_->counters.underruns = underruns;
+  impl_->counters.buffers_allocated = pool_.stats().allocated;
   if (!buffer) {
     ++impl_->counters.timeouts;
     return std::nullopt;
@@ -530,9 +534,15 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
            : std::size_t(f.info.width) * f.info.height * BytesPerPixel(f.info.pixel_format);
   if (data && f.info.width > 0 && f.info.height > 0 && image_bytes <= impl_->payload &&
       (size == 0 || size >= image_bytes)) {
-    f.data = wire ? std::make_shared<const std::vector<std::uint8_t>>(
-                        UnpackToMono16(*wire, data, image_bytes, f.info.width, f.info.height))
-                  : std::make_shared<const std::vector<std::uint8_t>>(data, data + image_bytes);
+    if (wire) {
+      f.data = std::make_shared<const std::vector<std::uint8_t>>(
+          UnpackToMono16(*wire, data, image_bytes, f.info.width, f.info.height));
+    } else {
+      // Out of Aravis' buffer into a pooled one (frame_pool.h): no allocation per frame.
+      auto bytes = pool_.Acquire(image_bytes);
+      std::memcpy(bytes->data(), data, image_bytes);
+      f.data = std::move(bytes);
+    }
   } else if (wire) {
     f.data = std::make_shared<const std::vector<std::uint8_t>>(
         std::size_t(std::max(f.info.width, 0)) * std::max(f.info.height, 0) * 2, 0);
@@ -545,15 +555,21 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
 
   // Drops: frame-id gaps (wrap-aware) and, in free-run, timestamp gaps (the fake skips a slot it
   // overran without a frame-id gap).
+  // A buffer without a timestamp (0: a failed one, seen from the in-process fakes) neither counts
+  // nor becomes the reference: measured from it, the next frame's gap was 1.8e11 frames. A gap
+  // longer than a minute is the device's clock jumping (a reset, a PTP step), not frames missed:
+  // an outage that long is a disconnect, counted as one.
   impl_->counters.missing_by_id = impl_->unwrapper.missing();
-  if (settings_.trigger == TriggerMode::kFreeRun && impl_->last_timestamp_ns >= 0 &&
-      f.info.device_timestamp_ns > impl_->last_timestamp_ns) {
-    const double gap = double(f.info.device_timestamp_ns - impl_->last_timestamp_ns) *
-                       settings_.frame_rate_hz / 1e9;
-    if (gap > 1.5)
-      impl_->counters.missing_by_time += static_cast<std::uint64_t>(std::llround(gap)) - 1;
+  if (f.info.device_timestamp_ns > 0) {
+    if (settings_.trigger == TriggerMode::kFreeRun && impl_->last_timestamp_ns > 0 &&
+        f.info.device_timestamp_ns > impl_->last_timestamp_ns) {
+      const double seconds = double(f.info.device_timestamp_ns - impl_->last_timestamp_ns) / 1e9;
+      const double gap = seconds * settings_.frame_rate_hz;
+      if (gap > 1.5 && seconds < 60)
+        impl_->counters.missing_by_time += static_cast<std::uint64_t>(std::llround(gap)) - 1;
+    }
+    impl_->last_timestamp_ns = f.info.device_timestamp_ns;
   }
-  impl_->last_timestamp_ns = f.info.device_timestamp_ns;
   ++impl_->counters.delivered;
   if (f.info.status != FrameStatus::kOk) ++impl_->counters.incomplete;
   return f;

@@ -30,6 +30,7 @@
 
 #include "acquisition/camera.h"
 #include "acquisition/clock.h"
+#include "acquisition/frame_pool.h"
 
 namespace flamerig {
 
@@ -70,15 +71,16 @@ class AravisCamera : public Camera {
   std::string AvailableValues(const std::string& name) const;
 
  private:
-  void Open();   // opens impl_->id; throws IoError
+  void Open();      // opens impl_->id; throws IoError
   void CheckPtp();  // sync: ptp: the clock on and locked, or an error naming the camera
-  void Close();  // drops the stream and the device without talking to it
+  void Close();     // drops the stream and the device without talking to it
   struct Impl;
   std::unique_ptr<Impl> impl_;
   CameraSettings settings_;
   int camera_index_;
   std::atomic<bool> connected_{true};
   std::atomic<double> live_exposure_us_{0}, live_gain_db_{0};
+  FrameBufferPool pool_{0, 0};  // the frames' pixels (frame_pool.h)
 };
 
 }  // namespace flamerig

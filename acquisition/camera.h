@@ -37,7 +37,7 @@ struct CameraSettings {
   // 0: the sensor's full size less the offset (aravis), the device's current size (v4l2), 640x480
   // (sim). Configure() turns 0 into the size the camera took; settings() reports that.
   int width = 640, height = 480;
-  int offset_x = 0, offset_y = 0;  // the region of interest's corner on the sensor
+  int offset_x = 0, offset_y = 0;                  // the region of interest's corner on the sensor
   PixelFormat pixel_format = PixelFormat::kMono8;  // as stored
   // The camera's own format when it sends one of the WireFormats (frame.h): then pixel_format is
   // Mono16 and the driver unpacks every frame. "" = it sends pixel_format. Aravis only.
@@ -73,6 +73,9 @@ struct StreamCounters {
   std::uint64_t missing_by_time = 0;  // gaps of more than 1.5 periods between timestamps (free-run)
   std::uint64_t underruns = 0;        // frames the device had no free buffer for
   std::uint64_t timeouts = 0;         // Pop calls that returned nothing
+  // Pixel buffers the driver had to allocate for frames (frame_pool.h): its buffers at the start,
+  // then none while its frames come back to it as fast as they arrive.
+  std::uint64_t buffers_allocated = 0;
 };
 
 class Camera {

@@ -429,6 +429,7 @@ nlohmann::json StatusJson(const CaptureStatus& s) {
     k["missing_by_frame_id"] = c.stream.missing_by_id;
     k["missing_by_timestamp"] = c.stream.missing_by_time;
     k["underruns"] = c.stream.underruns;
+    k["buffers_allocated"] = c.stream.buffers_allocated;
     k["disconnects"] = c.disconnects;
     k["reconnect_attempts"] = c.reconnect_attempts;
     k["reconnects"] = c.reconnects;

@@ -1,10 +1,10 @@
 #include "acquisition/recording.h"
 
 #include <fcntl.h>
+#include <libdeflate.h>
 #include <sys/statvfs.h>
 #include <unistd.h>
 #include <yaml-cpp/yaml.h>
-#include <zlib.h>
 
 #include <algorithm>
 #include <cerrno>
@@ -36,8 +36,11 @@ constexpr std::size_t kSetFixed = 48;    // "SET1", crc, seq, index, trigger, re
 constexpr const char* kReserveFile = "closing.reserve";  // removed when the recording closes
 constexpr off_t kReserveBytes = 256 << 10;
 
+// CRC-32 (the polynomial of zlib and gzip: the file format's), by libdeflate, which folds with
+// carry-less multiplies where the CPU has them: 11 GB/s against zlib's 3 here, so 8 x 640x480 x
+// 100 fps costs 0.02 of a core instead of 0.08 (issue 24). Its values are zlib's (a test checks).
 std::uint32_t Crc(const void* p, std::size_t n) {
-  return static_cast<std::uint32_t>(crc32_z(0, static_cast<const Bytef*>(p), n));
+  return static_cast<std::uint32_t>(libdeflate_crc32(0, p, n));
 }
 
 std::string Errno(int e) {

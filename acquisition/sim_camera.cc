@@ -273,6 +273,7 @@ bool SimCamera::SetExposureGainLive(double exposure_us, double gain_db) {
 
 void SimCamera::Start(int buffers) {
   if (buffers < 1) throw InputError("sim camera '" + options_.id + "': buffers >= 1");
+  pool_.Reserve(static_cast<std::size_t>(buffers), FrameBytes());
   running_ = true;
   started_ns_ = clock_->MonotonicNs();
   produced_ = 0;
@@ -411,10 +412,12 @@ std::optional<Frame> SimCamera::Pop(std::int64_t timeout_ns) {
     f.info.frame_id = unwrapper_.Next(p.info.device_frame_id);
     f.info.host_monotonic_ns = clock_->MonotonicNs();
     f.info.host_realtime_ns = clock_->RealtimeNs();
-    auto bytes = std::make_shared<std::vector<std::uint8_t>>();
+    // A pooled buffer (frame_pool.h), filled as a driver copies out of its DMA buffer.
+    auto bytes = pool_.Acquire(FrameBytes());
     source_(f.info, bytes.get());
     f.data = std::move(bytes);
     counters_.missing_by_id = unwrapper_.missing();
+    counters_.buffers_allocated = pool_.stats().allocated;
     if (settings_.trigger == TriggerMode::kFreeRun && last_timestamp_ns_ >= 0) {
       const double period = 1e9 / settings_.frame_rate_hz;
       const double gap = double(f.info.device_timestamp_ns - last_timestamp_ns_) / period;

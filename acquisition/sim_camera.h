@@ -15,6 +15,7 @@
 #ifndef FLAMERIG_ACQUISITION_SIM_CAMERA_H_
 #define FLAMERIG_ACQUISITION_SIM_CAMERA_H_
 
+#include <algorithm>
 #include <atomic>
 #include <cstdint>
 #include <deque>
@@ -27,6 +28,7 @@
 
 #include "acquisition/camera.h"
 #include "acquisition/clock.h"
+#include "acquisition/frame_pool.h"
 
 namespace flamerig {
 
@@ -47,7 +49,8 @@ class SimTriggerBus : public TriggerLine {
   std::vector<Pulse> pulses_;
 };
 
-// Fills a frame's bytes from its description.
+// Fills a frame's bytes from its description: sets their size and every byte (the vector is a
+// pooled buffer that may hold an earlier frame, frame_pool.h).
 using ImageSource = std::function<void(const FrameInfo& info, std::vector<std::uint8_t>* bytes)>;
 // A moving gradient with the camera index and frame id encoded in the first bytes (so a test can
 // tell frames apart and check them bit-exact after recording).
@@ -130,6 +133,11 @@ class SimCamera : public Camera {
   SimCameraOptions options_;
   Clock* clock_;
   SimTriggerBus* bus_;
+  // The bytes of one frame at the configured size and format.
+  std::size_t FrameBytes() const {
+    return std::size_t(std::max(settings_.width, 0)) * std::max(settings_.height, 0) *
+           BytesPerPixel(settings_.pixel_format);
+  }
   CameraSettings settings_;
   std::atomic<double> live_exposure_us_{0}, live_gain_db_{0};  // what the next exposure uses
   bool running_ = false;
@@ -147,6 +155,7 @@ class SimCamera : public Camera {
   std::int64_t last_timestamp_ns_ = -1;
   StreamCounters counters_;
   ImageSource source_;
+  FrameBufferPool pool_{0, 0};
 };
 
 }  // namespace flamerig

@@ -135,9 +135,8 @@ void V4l2Camera::Configure(const CameraSettings& s) {
     throw InputError("v4l2 camera " + path_ + ": pixel_format " + s.wire_format +
                      " is for aravis cameras only");
   if (s.trigger != TriggerMode::kFreeRun) {
-    throw InputError(
-        "v4l2 camera " + path_ +
-        ": V4L2 has no trigger input; use sync: free-run (timestamp matching)");
+    throw InputError("v4l2 camera " + path_ +
+                     ": V4L2 has no trigger input; use sync: free-run (timestamp matching)");
   }
   if (s.ptp)
     throw InputError("v4l2 camera " + path_ +
@@ -309,8 +308,8 @@ void V4l2Camera::Start(int buffers) {
   req.memory = V4L2_MEMORY_MMAP;
   if (Xioctl(*device_, VIDIOC_REQBUFS, &req) != 0) Fail("VIDIOC_REQBUFS", errno);
   if (req.count < 2) {
-    throw IoError("v4l2 camera " + path_ + ": the driver granted " +
-                             std::to_string(req.count) + " buffers, at least 2 are needed");
+    throw IoError("v4l2 camera " + path_ + ": the driver granted " + std::to_string(req.count) +
+                  " buffers, at least 2 are needed");
   }
   for (std::uint32_t i = 0; i < req.count; ++i) {
     v4l2_buffer b{};
@@ -379,13 +378,15 @@ std::optional<Frame> V4l2Camera::Pop(std::int64_t timeout_ns) {
   const std::size_t row = std::size_t(settings_.width) * BytesPerPixel(settings_.pixel_format);
   const std::size_t image = row * settings_.height;
   const std::size_t stride = std::max<std::size_t>(bytes_per_line_, row);
-  auto bytes = std::make_shared<std::vector<std::uint8_t>>(image, 0);
+  auto bytes = pool_.Acquire(image);  // frame_pool.h: no allocation per frame
   const auto* src = static_cast<const std::uint8_t*>(buffers_[b.index].address);
   const bool whole = b.bytesused >= stride * (settings_.height - 1) + row &&
                      stride * (settings_.height - 1) + row <= buffers_[b.index].length;
   if (whole) {
     for (int y = 0; y < settings_.height; ++y)  // drop any row padding
       std::memcpy(bytes->data() + y * row, src + y * stride, row);
+  } else {
+    std::fill(bytes->begin(), bytes->end(), 0);  // a pooled buffer holds an older frame
   }
   f.info.status =
       (b.flags & V4L2_BUF_FLAG_ERROR) || !whole ? FrameStatus::kIncomplete : FrameStatus::kOk;
@@ -394,6 +395,7 @@ std::optional<Frame> V4l2Camera::Pop(std::int64_t timeout_ns) {
     if (errno == ENODEV) connected_ = false;
   }
   counters_.missing_by_id = unwrapper_.missing();
+  counters_.buffers_allocated = pool_.stats().allocated;
   ++counters_.delivered;
   if (f.info.status != FrameStatus::kOk) ++counters_.incomplete;
   return f;

@@ -37,6 +37,7 @@
 
 #include "acquisition/camera.h"
 #include "acquisition/clock.h"
+#include "acquisition/frame_pool.h"
 
 namespace flamerig {
 
@@ -113,6 +114,7 @@ class V4l2Camera : public Camera {
   CameraDescription description_;
   CameraSettings settings_;
   std::vector<Mapped> buffers_;
+  FrameBufferPool pool_{0, 0};  // the frames' pixels (frame_pool.h)
   bool streaming_ = false;
   std::atomic<bool> connected_{true};                          // written by Pop, read by any thread
   std::atomic<double> live_exposure_us_{0}, live_gain_db_{0};  // what frames carry

@@ -6,7 +6,7 @@ set -euo pipefail
 PACKAGES=(
   build-essential cmake ninja-build pkg-config git python3
   libgtest-dev libgmock-dev
-  libeigen3-dev libtbb-dev libyaml-cpp-dev zlib1g-dev libspdlog-dev libcli11-dev
+  libeigen3-dev libtbb-dev libyaml-cpp-dev zlib1g-dev libdeflate-dev libspdlog-dev libcli11-dev
   libopencv-dev libopencv-contrib-dev
   libmrcal-dev mrcal python3-mrcal python3-numpy
   libopenvdb-dev libopenvdb-tools libblosc-dev libboost-iostreams-dev libimath-dev libopenexr-dev

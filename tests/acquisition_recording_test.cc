@@ -7,10 +7,15 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <zlib.h>
+
 #include <chrono>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <thread>
+#include <vector>
 
 #include "acquisition/recording.h"
 #include "core/error.h"
@@ -160,6 +165,34 @@ TEST(Recording, FrameSetsReadBackBitExactWithTheirMetadata) {
   EXPECT_EQ(missing[0], 0u);
   EXPECT_EQ(missing[2], 7u);
   EXPECT_THROW(r.ReadSet(40), std::out_of_range);
+}
+
+// The file format's CRC-32 is zlib's (the oracle: zlib's own crc32 over the bytes on disk),
+// whatever library computes it: a record's CRC of itself and of its pixels in camNN.data.
+TEST(Recording, ChecksumsOnDiskAreZlibsCrc32) {
+  TempDir dir;
+  {
+    Recorder rec(dir.str(), Metadata());
+    for (std::uint64_t s = 0; s < 3; ++s) ASSERT_TRUE(rec.Submit(MakeSet(s)));
+    rec.Close();
+  }
+  std::ifstream data(dir.path() / "cam01.data", std::ios::binary);
+  std::vector<char> bytes((std::istreambuf_iterator<char>(data)), std::istreambuf_iterator<char>());
+  std::size_t at = 16;  // the file header
+  int records = 0;
+  while (at + sizeof(FrameRecord) <= bytes.size()) {
+    FrameRecord r;
+    std::memcpy(&r, bytes.data() + at, sizeof r);
+    ASSERT_EQ(std::string(r.magic, 4), "FRM1") << "at byte " << at;
+    const auto* p = reinterpret_cast<const Bytef*>(bytes.data() + at);
+    EXPECT_EQ(r.record_crc, crc32_z(0, p + 8, sizeof(FrameRecord) - 8));
+    ASSERT_LE(at + sizeof r + r.payload_bytes, bytes.size());
+    EXPECT_GT(r.payload_bytes, 0u);
+    EXPECT_EQ(r.payload_crc, crc32_z(0, p + sizeof r, r.payload_bytes));
+    at += sizeof r + r.payload_bytes;
+    ++records;
+  }
+  EXPECT_EQ(records, 3);
 }
 
 TEST(Recording, RefusesToOverwriteAndFramesOfTheWrongSize) {

@@ -5,9 +5,10 @@
 #include <cmath>
 #include <memory>
 
-#include "core/error.h"
+#include "acquisition/frame_pool.h"
 #include "acquisition/frame_set.h"
 #include "acquisition/sim_camera.h"
+#include "core/error.h"
 
 namespace flamerig {
 namespace {
@@ -237,6 +238,67 @@ TEST(SimCamera, FreeRunsAtItsRateWithDriftJitterAndAWrappingCounter) {
   for (int i = 0; i < 8; ++i) id |= std::uint64_t((*frames[3].data)[8 + i]) << (8 * i);
   EXPECT_EQ(id, frames[3].info.frame_id);
   EXPECT_EQ(cam.counters().missing_by_id, 0u);
+}
+
+// Frame buffers come back to their pool (frame_pool.h): released frames are reused without a new
+// allocation, a buffer outlives its pool, the pool keeps no more idle buffers than asked, and a
+// camera that delivers frames as they are released allocates nothing after its start (the counter
+// the daemon reports), and no more than the frames held at once beyond its buffers when they pile
+// up; a reused buffer shows the new frame, not the old.
+TEST(FrameBufferPool, BuffersComeBackAndOutliveThePool) {
+  {
+    FrameBufferPool pool(2, 100, 3);
+    auto a = pool.Acquire(100), b = pool.Acquire(100), c = pool.Acquire(80);
+    EXPECT_EQ(pool.stats().allocated, 1u);  // two were made up front
+    EXPECT_EQ(c->size(), 80u);
+    const auto* kept = a.get();
+    a.reset();
+    EXPECT_EQ(pool.stats().idle, 1u);
+    auto d = pool.Acquire(100);
+    EXPECT_EQ(d.get(), kept);  // the same buffer, no allocation
+    EXPECT_EQ(pool.stats().allocated, 1u);
+    auto e = pool.Acquire(1000);  // larger than any idle buffer: a new one
+    EXPECT_EQ(pool.stats().allocated, 2u);
+    b.reset();
+    c.reset();
+    d.reset();
+    e.reset();
+    EXPECT_EQ(pool.stats().idle, 3u);  // `keep`: the fourth was freed
+    EXPECT_EQ(pool.stats().acquired, 5u);
+  }
+  std::shared_ptr<std::vector<std::uint8_t>> survivor;
+  {
+    FrameBufferPool pool(1, 10);
+    survivor = pool.Acquire(10);
+  }
+  (*survivor)[0] = 1;  // still valid after its pool is gone; freed when dropped
+  survivor.reset();
+}
+
+TEST(SimCamera, DeliversFramesInPooledBuffers) {
+  ManualClock clock(0);
+  SimCameraOptions o;
+  SimCamera cam(o, &clock, nullptr);
+  cam.Configure(Settings(100));
+  cam.Start(4);
+  int popped = 0;
+  while (popped < 50) {
+    auto f = cam.Pop(50'000'000);
+    if (!f) continue;
+    ++popped;
+    std::uint64_t id = 0;  // the test pattern's frame id: this frame's, not a reused buffer's
+    for (int i = 0; i < 8; ++i) id |= std::uint64_t((*f->data)[8 + i]) << (8 * i);
+    EXPECT_EQ(id, f->info.frame_id);
+  }
+  EXPECT_EQ(cam.counters().buffers_allocated, 0u);
+  std::vector<Frame> held;  // ten frames held at once: six beyond the camera's four buffers
+  while (held.size() < 10)
+    if (auto f = cam.Pop(50'000'000)) held.push_back(*f);
+  EXPECT_EQ(cam.counters().buffers_allocated, 6u);
+  held.clear();
+  for (int n = 0; n < 30;)
+    if (cam.Pop(50'000'000)) ++n;
+  EXPECT_EQ(cam.counters().buffers_allocated, 6u);
 }
 
 TEST(SimCamera, RepeatedOutagesComeAndGoAtTheirTimes) {
