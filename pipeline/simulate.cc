@@ -86,7 +86,7 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
   CheckKeys(s,
             {"seed", "frames", "frame_rate_hz", "absorption", "grid_resolution", "noise_dn",
              "exposure", "fire", "box", "rig", "calibration", "render", "radiometry",
-             "camera_gains", "radiometric_calibration", "codec"},
+             "camera_gains", "camera_filters", "radiometric_calibration", "codec"},
             path + ": simulate");
   if (YAML::Node v = s["codec"]) {
     if (v.IsScalar() && v.as<std::string>() == "none") {
@@ -109,6 +109,22 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
     for (std::size_t i = 0; i < g.size(); ++i)
       c.camera_gains.push_back(
           ReadVec3(g[i], path, "simulate.camera_gains[" + std::to_string(i) + "]"));
+  }
+  if (YAML::Node f = s["camera_filters"]) {
+    if (!f.IsSequence())
+      Fail(path, "simulate.camera_filters", "a list of [centre_nm, fwhm_nm], one per camera");
+    for (std::size_t i = 0; i < f.size(); ++i) {
+      const std::string where = "simulate.camera_filters[" + std::to_string(i) + "]";
+      if (!f[i].IsSequence() || f[i].size() != 2) Fail(path, where, "[centre_nm, fwhm_nm]");
+      SpectralBand band;
+      try {
+        band.centre_nm = f[i][0].as<double>();
+        band.fwhm_nm = f[i][1].as<double>();
+      } catch (const YAML::Exception&) {
+        Fail(path, where, "two numbers, [centre_nm, fwhm_nm]");
+      }
+      c.camera_filters.push_back(band);
+    }
   }
   if (YAML::Node r = s["radiometric_calibration"]) {
     CheckKeys(r, {"enabled", "temperatures_k", "levels", "emissivity"},
@@ -262,6 +278,14 @@ void SimulateConfig::Validate() const {
          std::to_string(camera_gains.size()));
   for (const Eigen::Vector3d& g : camera_gains)
     if (!(g.minCoeff() > 0) || !g.allFinite()) fail("camera_gains: every gain must be > 0");
+  if (!camera_filters.empty() && int(camera_filters.size()) != ring.cameras)
+    fail("camera_filters: one [centre_nm, fwhm_nm] per camera (" + std::to_string(ring.cameras) +
+         "), got " + std::to_string(camera_filters.size()));
+  for (std::size_t c = 0; c < camera_filters.size(); ++c) {
+    const SpectralBand& b = camera_filters[c];
+    if (!(b.fwhm_nm >= 0) || !(b.centre_nm > 0) || !std::isfinite(b.centre_nm + b.fwhm_nm))
+      fail("camera_filters[" + std::to_string(c) + "]: a centre > 0 nm and a width >= 0 nm");
+  }
   radiometry.Validate("simulate");
   if (radiometric_calibration.enabled) {
     const auto& rc = radiometric_calibration;
@@ -283,6 +307,7 @@ void SimulateConfig::Validate() const {
 CameraRadiometry SimulateConfig::CameraFilm(std::size_t c) const {
   CameraRadiometry film = radiometry;
   if (c < camera_gains.size()) film.gain = film.gain.cwiseProduct(camera_gains[c]);
+  if (c < camera_filters.size()) film.spectral.filter = camera_filters[c];
   return film;
 }
 
@@ -367,6 +392,16 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
   RenderOptions render = config.render;
   render.response = ChannelResponse::ForCamera(config.radiometry);
   FireRenderer renderer(absorption, render);
+  // Cameras behind their own filters (camera_filters) see their own spectra: a renderer each, in
+  // its camera's channels (its gains still multiply the output below, as for the others).
+  std::vector<std::unique_ptr<FireRenderer>> filtered(rig.cameras.size());
+  for (std::size_t c = 0; c < config.camera_filters.size() && c < rig.cameras.size(); ++c) {
+    CameraRadiometry spectral = config.radiometry;
+    spectral.spectral.filter = config.camera_filters[c];
+    RenderOptions own = config.render;
+    own.response = ChannelResponse::ForCamera(spectral);
+    filtered[c] = std::make_unique<FireRenderer>(absorption, own);
+  }
   std::vector<CameraRays> rays;
   for (const auto& c : rig.cameras) rays.emplace_back(c.model);
 
@@ -398,9 +433,11 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
     FireVolume fire = synthetic::MakeFire(grid, fire_options, absorption);
     fire.emission_rgb = synthetic::ThinEmissionRgb(fire, absorption);
     renderer.SetVolume(grid, fire.temperature_k, fire.density_per_m3);
+    for (auto& r : filtered)
+      if (r) r->SetVolume(grid, fire.temperature_k, fire.density_per_m3);
     std::vector<ImageF> linear(rig.cameras.size());
     for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
-      summary.last_render = renderer.Render(rays[c], &linear[c]);
+      summary.last_render = (filtered[c] ? *filtered[c] : renderer).Render(rays[c], &linear[c]);
       // A camera's own gains scale its output channels (camera_response.h).
       if (c < config.camera_gains.size())
         for (std::size_t p = 0; p < linear[c].num_pixels(); ++p)

@@ -33,6 +33,9 @@
 //                        specks on the black background [none]
 //   camera_gains: [[r, g, b], ...]   per camera, multiplying radiometry.gain (white balance and
 //                        sensor spread, what radiometric calibration recovers) [all 1]
+//   camera_filters: [[centre_nm, fwhm_nm], ...]   per camera, the band-pass filter in front of it
+//                        (replacing radiometry.spectral.filter; [0, 0] = none): two-colour
+//                        pyrometry with mono cameras behind different filters [radiometry's]
 //   radiometric_calibration: {enabled [false], temperatures_k [1300, 1600, 1900],
 //                        levels [0.05, 0.15, 0.35, 0.6, 0.85, 1.3], emissivity [0.98]}
 //                        images of a black-body calibrator per camera (FilmCalibrationSource in
@@ -77,6 +80,10 @@ struct SimulateConfig {
   VideoCodecOptions codec;
   std::vector<Eigen::Vector3d>
       camera_gains;  // empty, or one per camera: multiplies radiometry.gain
+  // Empty, or one per camera: the band-pass filter in front of that camera (replacing
+  // radiometry's; fwhm 0 = none). Mono cameras behind two or more filters are two-colour
+  // pyrometry's set-up.
+  std::vector<SpectralBand> camera_filters;
   struct RadiometricShotsConfig {
     bool enabled = false;
     std::vector<double> temperatures_k{1300, 1600, 1900};

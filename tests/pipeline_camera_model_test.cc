@@ -11,7 +11,9 @@
 #include <filesystem>
 
 #include "core/error.h"
+#include "fitting/absorption.h"
 #include "fitting/camera_response.h"
+#include "fitting/physics.h"
 #include "pipeline/fit_job.h"
 #include "pipeline/frame_source.h"
 #include "pipeline/simulate.h"
@@ -140,6 +142,67 @@ double Bias(const fs::path& dir, const CameraRadiometry& film, const CameraRadio
   *rms_k = r.truth.rms_k;
   if (fire_delta_e && !r.scores.empty()) *fire_delta_e = r.scores.front().fire_delta_e;
   return r.truth.mean_k;
+}
+
+// Two-colour pyrometry's rig (issue 19, item 6): simulate puts each mono camera behind its own
+// band-pass filter (camera_filters), writes each camera's model with its filter into the rig, and
+// films through it: of a fire near 2000 K a camera behind a 550 nm filter records less than one
+// behind 650 nm (the oracle: the ratio of the two bands' soot emission through the sensor, which
+// the frames' sums must follow to within the flame's own temperatures).
+// A wrong count of filters is refused naming the key.
+TEST(CameraModel, SimulatePutsEachMonoCameraBehindItsOwnFilter) {
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_filters_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  CameraRadiometry mono = Linear12();
+  mono.spectral.kind = SpectralSensitivity::Kind::kBands;
+  mono.spectral.bands = {{600, 250}};
+  SimulateConfig config;
+  config.grid_resolution = 32;
+  config.ring.width = 80;
+  config.ring.height = 60;
+  config.calibration = false;
+  config.radiometry = mono;
+  config.camera_filters = {SpectralBand{650, 40}, SpectralBand{550, 40}};
+  Simulate(config, (dir / "data").string());
+  const Rig rig = Rig::Load((dir / "data" / "rig.yaml").string());
+  ASSERT_EQ(rig.cameras.size(), 2u);
+  EXPECT_EQ(rig.cameras[0].radiometry.spectral.filter.centre_nm, 650);
+  EXPECT_EQ(rig.cameras[1].radiometry.spectral.filter.centre_nm, 550);
+  double sums[2] = {0, 0};
+  for (int c = 0; c < 2; ++c) {
+    ImageU8 u8;
+    ImageU16 u16;
+    const std::string path =
+        (dir / "data" / "frames" / "frame_000000" / ("cam" + std::to_string(c) + ".png")).string();
+    ASSERT_EQ(ReadImage(path, &u8, &u16), 16);
+    for (std::uint16_t v : u16.pixels) sums[c] += std::max(0, int(v) - 64);  // above black
+  }
+  // The ratio of the two bands' soot emission (absorption cross-section times Planck, Kirchhoff)
+  // through the sensor at 1500 and 2000 K brackets the frames' ratio: the flame's visible voxels
+  // lie between.
+  const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
+  auto band = [&](double centre, double t) {
+    const SpectralBand filter{centre, 40}, sensor{600, 250};
+    double sum = 0;
+    for (int nm = 380; nm <= 780; ++nm)
+      sum += filter.At(nm) * sensor.At(nm) * soot.CrossSectionM2(nm) *
+             physics::PlanckRadiancePerNm(nm, t);
+    return sum;
+  };
+  const double ratio = sums[1] / sums[0];
+  std::printf("green / red frame sum %.4f; soot emission at 1500 K %.4f, at 2000 K %.4f\n", ratio,
+              band(550, 1500) / band(650, 1500), band(550, 2000) / band(650, 2000));
+  EXPECT_GT(ratio, band(550, 1500) / band(650, 1500));
+  EXPECT_LT(ratio, band(550, 2000) / band(650, 2000));
+  config.camera_filters.pop_back();
+  try {
+    config.Validate();
+    ADD_FAILURE() << "one filter for two cameras was taken";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("camera_filters"), std::string::npos) << e.what();
+  }
+  fs::remove_all(dir);
 }
 
 TEST(CameraModel, ANonSrgbCameraFittedWithItsResponseLosesTheBiasThatAssumingSrgbLeaves) {
