@@ -440,9 +440,10 @@ void AravisCamera::Start(int buffers) {
   if (impl_->stream) return;
   if (buffers < 2) throw InputError("aravis camera '" + impl_->id + "': at least 2 buffers");
   impl_->buffers = buffers;
-  pool_.Reserve(static_cast<std::size_t>(buffers), std::size_t(std::max(settings_.width, 0)) *
-                                                       std::max(settings_.height, 0) *
-                                                       BytesPerPixel(settings_.pixel_format));
+  if (settings_.wire_format.empty())  // a wire format is unpacked into a buffer of its own
+    pool_.Reserve(static_cast<std::size_t>(buffers), std::size_t(std::max(settings_.width, 0)) *
+                                                         std::max(settings_.height, 0) *
+                                                         BytesPerPixel(settings_.pixel_format));
   impl_->streaming = true;
   ArvCamera* cam = impl_->camera;
   GError* e = nullptr;

@@ -302,6 +302,9 @@ bool V4l2Camera::SetExposureGainLive(double exposure_us, double gain_db) {
 void V4l2Camera::Start(int buffers) {
   if (streaming_) return;
   if (buffers < 2) throw InputError("v4l2 camera " + path_ + ": at least 2 buffers");
+  pool_.Reserve(static_cast<std::size_t>(buffers), std::size_t(std::max(settings_.width, 0)) *
+                                                       std::max(settings_.height, 0) *
+                                                       BytesPerPixel(settings_.pixel_format));
   v4l2_requestbuffers req{};
   req.count = static_cast<std::uint32_t>(buffers);
   req.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;

@@ -1,5 +1,6 @@
 // What the CPU running flamerig can do, for the kernels that have a build for wider vector
-// instructions (the renderer's ray march and its adjoint, the tomography's matrix products).
+// instructions (the renderer's ray march and its adjoint; the tomography's matrix products were
+// measured with one and gained nothing: they are bound by the work per column).
 //
 // Those kernels are compiled twice in one binary: for the baseline x86-64 (SSE2) that Debian's
 // packages target, and for AVX2 with FMA (a function with GCC's target attribute into which the

@@ -89,7 +89,7 @@ struct BlackPixel {
 };
 inline Eigen::Vector3d LabOf(const Eigen::Vector3d& linear, double s, const BlackPixel& black,
                              Eigen::Matrix3d* jacobian) {
-  if (linear.isZero()) {
+  if ((linear.array() == 0.0).all()) {  // exactly black (isZero() would take 1e-12 for 0)
     if (jacobian) *jacobian = black.jacobian;
     return black.lab;
   }

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <map>
 #include <sstream>
 #include <stdexcept>
 #include <type_traits>
@@ -20,9 +21,10 @@
 #include "fitting/colour.h"
 #include "tomography/ray_march.h"
 
-// The spectral kernels pass GCC vector types between inline functions of this file only; GCC's
-// note that their ABI differs with and without AVX concerns calls across files, which there are
-// none of.
+// The spectral kernels pass GCC vector types between inline functions of this file, which the
+// AVX2 build's flatten inlines into its kernels. GCC's note is that such a value is passed
+// differently with and without AVX: a call the compiler makes between the two builds still agrees
+// with itself (it knows both ends), it is only slower; nothing outside this file sees these types.
 #pragma GCC diagnostic ignored "-Wpsabi"
 
 namespace flamerig {
@@ -139,11 +141,13 @@ void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<flo
     const int nbins = bins_->count();
     const int nbp = padded_bins_ = (nbins + kLanes - 1) / kLanes * kLanes;
     int lo = SpectralBins::kMaxTableK, hi = 0;
-    std::size_t beyond = 0;
+    // Temperatures beyond SpectralBins' table: two rows for each distinct value, B(T) and the
+    // exact dB/dT per kelvin (a uniform stress volume at 1e5 K needs one pair, not one a voxel).
+    std::map<float, std::uint32_t> hot;
     for (std::uint32_t v : active_voxels_) {
       const float t = temperature_k[v];
       if (t >= float(SpectralBins::kMaxTableK)) {
-        ++beyond;
+        hot.emplace(t, 0);
         continue;
       }
       const int k = t > 0 ? static_cast<int>(t) : 0;
@@ -152,13 +156,29 @@ void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<flo
     }
     const std::size_t kelvin_rows = hi >= lo ? static_cast<std::size_t>(hi - lo + 2) : 0;
     constexpr std::size_t kZeroRows = 2;
-    spectral_table_.assign((kZeroRows + kelvin_rows + 2 * beyond) * nbp, 0.0f);
+    const std::size_t rows = kZeroRows + kelvin_rows + 2 * hot.size();
+    if (rows * nbp >= (std::size_t(1) << 32)) {
+      throw InputError("SetVolume: " + std::to_string(hot.size()) +
+                       " distinct temperatures above " + std::to_string(SpectralBins::kMaxTableK) +
+                       " K make the spectral table too large for the renderer");
+    }
+    spectral_table_.assign(rows * nbp, 0.0f);
     for (std::size_t r = 0; r < kelvin_rows; ++r)
       std::copy_n(bins_->PlanckRow(lo + static_cast<int>(r)), nbins,
                   &spectral_table_[(kZeroRows + r) * nbp]);
-    spectral_voxels_.assign(nvox, SpectralVoxel());
+    hot_rows_offset_ = (kZeroRows + kelvin_rows) * nbp;
     std::size_t next = kZeroRows + kelvin_rows;
     std::vector<double> b(nbins), d(nbins);
+    for (auto& [t, offset] : hot) {
+      bins_->PlanckAllWithDerivative(double(t), b.data(), d.data());
+      for (int i = 0; i < nbins; ++i) {
+        spectral_table_[next * nbp + i] = static_cast<float>(b[i]);
+        spectral_table_[(next + 1) * nbp + i] = static_cast<float>(d[i]);
+      }
+      offset = static_cast<std::uint32_t>(next * nbp);
+      next += 2;
+    }
+    spectral_voxels_.assign(nvox, SpectralVoxel());
     for (std::size_t a = 0; a < active_voxels_.size(); ++a) {
       const std::uint32_t v = active_voxels_[a];
       const float t = temperature_k[v];
@@ -166,13 +186,7 @@ void FireRenderer::SetVolume(const GridGeometry& geometry, const std::vector<flo
       record.density = density_per_m3[v];
       record.slot = static_cast<std::int32_t>(a);
       if (t >= float(SpectralBins::kMaxTableK)) {
-        bins_->PlanckAllWithDerivative(double(t), b.data(), d.data());
-        for (int i = 0; i < nbins; ++i) {
-          spectral_table_[next * nbp + i] = static_cast<float>(b[i]);
-          spectral_table_[(next + 1) * nbp + i] = static_cast<float>(b[i] + d[i]);
-        }
-        record.offset = static_cast<std::uint32_t>(next * nbp);
-        next += 2;
+        record.offset = hot.at(t);  // fraction 0: the source is the first row, B(T)
       } else if (t > 0) {
         const int k = static_cast<int>(t);
         record.offset = static_cast<std::uint32_t>((kZeroRows + k - lo) * nbp);
@@ -854,10 +868,13 @@ RenderSummary FireRenderer::GradientImpl(const CameraRays& camera_rays, const Im
                             const SpectralVoxel& row = spectral_voxels_[active_voxels_[a]];
                             const float* r0 = &spectral_table_[row.offset];
                             const float* r1 = r0 + nbp;
+                            // Beyond the kelvin table the second row is dB/dT itself.
+                            const bool hot_row = row.offset >= hot_rows_offset_;
                             const Real* de = &buf.de[a * nbp];
                             double dot_b = 0, dot_d = 0;
                             for (int b = 0; b < nbp; ++b) {
-                              const double slope = double(r1[b]) - double(r0[b]);
+                              const double slope =
+                                  hot_row ? double(r1[b]) : double(r1[b]) - double(r0[b]);
                               dot_b += double(de[b]) * (double(r0[b]) + row.fraction * slope);
                               dot_d += double(de[b]) * slope;
                             }
@@ -1111,6 +1128,7 @@ RenderSummary FireRenderer::RenderAndGradient(const CameraRays& rays,
   if (!has_volume_)
     throw std::logic_error("FireRenderer::RenderAndGradient called before SetVolume");
   if (!pixel_gradient) throw InputError("RenderAndGradient: no pixel gradient function");
+  if (!linear_rgb) throw InputError("RenderAndGradient: no image to render into");
   PrepareGradientArrays(d_temperature, d_density);
   if (options_.double_precision)
     return GradientImpl<double>(rays, nullptr, &pixel_gradient, linear_rgb, d_temperature,

@@ -238,9 +238,9 @@ class FireRenderer {
   // (SpectralBins' 1 K table, copied so that it stays in cache; rows padded to a multiple of
   // kLanes bins, the first two all zero), and per voxel, in one 16-byte record as the fast path's
   // fast_, its density, its slot and where its spectrum lies in the table: B_b(T) = row[b] +
-  // fraction * (next_row[b] - row[b]), the difference being dB_b/dT per kelvin. A temperature
-  // beyond the table gets two rows of its own, B(T) and B(T) + B'(T), with fraction 0; a voxel
-  // without medium points at the zero rows.
+  // fraction * (next_row[b] - row[b]), the difference being dB_b/dT per kelvin. Each distinct
+  // temperature beyond the table gets two rows, B(T) and dB/dT itself (exact), with fraction 0;
+  // a voxel without medium points at the zero rows.
   static constexpr int kLanes = 8;
   struct SpectralVoxel {
     float density = 0;
@@ -248,7 +248,8 @@ class FireRenderer {
     std::uint32_t offset = 0;  // into spectral_table_
     float fraction = 0;
   };
-  int padded_bins_ = 0;  // the bin count rounded up to kLanes
+  int padded_bins_ = 0;              // the bin count rounded up to kLanes
+  std::size_t hot_rows_offset_ = 0;  // where the rows of temperatures beyond the table begin
   std::vector<float> spectral_table_;
   std::vector<SpectralVoxel> spectral_voxels_;  // per voxel
   Eigen::Vector3i brick_dims_ = Eigen::Vector3i::Zero();

@@ -283,8 +283,11 @@ void SimulateConfig::Validate() const {
          "), got " + std::to_string(camera_filters.size()));
   for (std::size_t c = 0; c < camera_filters.size(); ++c) {
     const SpectralBand& b = camera_filters[c];
-    if (!(b.fwhm_nm >= 0) || !(b.centre_nm > 0) || !std::isfinite(b.centre_nm + b.fwhm_nm))
-      fail("camera_filters[" + std::to_string(c) + "]: a centre > 0 nm and a width >= 0 nm");
+    const bool none = b.fwhm_nm == 0;  // [0, 0] (or any centre with no width): no filter
+    if (!std::isfinite(b.centre_nm + b.fwhm_nm) || !(b.fwhm_nm >= 0) ||
+        (!none && !(b.centre_nm > 0)))
+      fail("camera_filters[" + std::to_string(c) +
+           "]: a centre > 0 nm and a width > 0 nm, or [0, 0] for none");
   }
   radiometry.Validate("simulate");
   if (radiometric_calibration.enabled) {

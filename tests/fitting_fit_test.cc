@@ -485,6 +485,31 @@ TEST(FastFit, SaysWhyItStopped) {
   const FitResult timed = FastFit(r.grid, r.tomography, r.views, soot, options);
   EXPECT_EQ(timed.termination, FitTermination::kTimeLimit) << timed.message;
 
+  // The convergence criterion: the energy that stalls (fell by less than stall_decrease over
+  // stall_window iterations) stops the fit, converged, and says so; with the criterion off the
+  // cap stops it; a bad criterion is refused.
+  FitOptions stalling;
+  stalling.iterations_finest = 200;
+  stalling.stall_window = 4;
+  stalling.stall_decrease = 0.02;
+  const FitResult stalled = FastFit(r.grid, r.tomography, r.views, soot, stalling);
+  EXPECT_EQ(stalled.termination, FitTermination::kConverged) << stalled.message;
+  EXPECT_NE(stalled.message.find("over the last 4 iterations"), std::string::npos)
+      << stalled.message;
+  EXPECT_GE(stalled.iterations, 4);
+  EXPECT_LT(stalled.iterations, 200);
+  FitOptions uncapped = stalling;
+  uncapped.stall_window = 0;
+  uncapped.iterations_finest = stalled.iterations + 3;
+  const FitResult longer = FastFit(r.grid, r.tomography, r.views, soot, uncapped);
+  EXPECT_GT(longer.iterations, stalled.iterations) << longer.message;
+  for (auto [window, decrease] : {std::pair{-1, 0.01}, std::pair{5, 1.0}, std::pair{5, -0.1}}) {
+    FitOptions bad;
+    bad.stall_window = window;
+    bad.stall_decrease = decrease;
+    EXPECT_THROW(bad.Validate(), InputError) << window << " " << decrease;
+  }
+
   // The paper's algorithm: all its sweeps, or cancelled.
   PaperFitOptions paper;
   paper.iterations = 2;

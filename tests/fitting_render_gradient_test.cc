@@ -5,6 +5,7 @@
 #include <cmath>
 #include <random>
 
+#include "core/cpu.h"
 #include "core/error.h"
 #include "fitting/renderer.h"
 
@@ -189,8 +190,10 @@ TEST(RenderGradient, FloatKernelsOfBothBuildsAgreeWithDouble) {
         o.min_transmittance = 0;
         FireRenderer r(absorption, o);
         r.SetVolume(s.grid, s.temperature, s.density);
-        r.Render(rays, image);
+        const RenderSummary rendered = r.Render(rays, image);
         r.RenderGradient(rays, c, dt, dn);
+        // The build asked for is the build that ran (the wide one only where the CPU has it).
+        EXPECT_EQ(rendered.wide_kernels, !use_double && wide && UseWideKernels());
       };
       ImageF ref;
       std::vector<double> dt_ref, dn_ref;

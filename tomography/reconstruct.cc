@@ -447,9 +447,10 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
     // Early stopping.
     SolveOptions solve_options = options_.solve;
     // A warm start from the previous frame is near its answer: OS-EM's later iterations fit noise
-    // (ReconstructOptions::warm_stagnation_tolerance).
+    // (ReconstructOptions::warm_stagnation_tolerance, with four cameras or more).
     if (is_fine && have_start && solve_options.stagnation_tolerance < 0 &&
-        options_.warm_stagnation_tolerance >= 0)
+        options_.warm_stagnation_tolerance >= 0 && solve_options.solver == "osem" &&
+        solve_cameras.size() >= 4)
       solve_options.stagnation_tolerance = options_.warm_stagnation_tolerance;
     if (!is_fine)
       solve_options.max_iterations =

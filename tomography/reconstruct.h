@@ -52,12 +52,15 @@ struct ReconstructOptions {
   int bin = 1;
   bool coarse_to_fine = true;  // half-resolution solve first (when resolution >= 16)
   int coarse_iterations = 30;  // iterations of the coarse solve
-  // A solve warm-started from the previous frame stops when an iteration improves the residual by
-  // less than this (while solve.stagnation_tolerance is -1, the solver's own); -1 = the same as a
-  // cold solve. OS-EM's tail fits noise, and a warm start is near the answer: on the 8-view licks
-  // at 128^3 (frames 2 to 5) 0.02 stops after 6 or 7 iterations instead of 18 to 21, with the
-  // volume error lower (0.151, 0.166, 0.184, 0.199 against 0.152, 0.169, 0.192, 0.215; 0.01
-  // stops after 8, 0.04 after 5 or 6, both in between) (issue 24).
+  // An OS-EM solve warm-started from the previous frame, with four cameras or more, stops when an
+  // iteration improves the residual by less than this (while solve.stagnation_tolerance is -1,
+  // the solver's own); -1 = as a cold solve. OS-EM's tail fits noise, and a warm start is near the
+  // answer: on the 8-view licks at 128^3 (frames 2 to 5) 0.02 stops after 6 or 7 iterations
+  // instead of 18 to 21, with the volume error lower (0.151, 0.166, 0.184, 0.199 against 0.152,
+  // 0.169, 0.192, 0.215; 0.01 stops after 8, 0.04 after 5 or 6, both in between) (issue 24). Not
+  // with fewer cameras: from two (the main job) the shorter warm solves left 29 voxels (0.005: 10)
+  // at the fit's upper temperature bound, where full solves leave none; two views hold a volume
+  // less, and the fit starts from its colours.
   double warm_stagnation_tolerance = 0.02;
   // A camera left out of the solve and scored on every pixel of its image afterwards (binned like
   // the others with `bin`); it does not stop the solve (a score that also chose the iterate would

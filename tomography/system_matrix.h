@@ -12,9 +12,9 @@
 // Storage: one copy of A, column-major within each camera's rows (a "subset"): for subset s and
 // column j, the entries (row, value) sorted by row, 8 bytes per non-zero (32-bit row, float value).
 // A^T y runs over columns in parallel without atomics, and the backprojection of one camera's rows
-// (ordered-subset solvers) streams through one contiguous block; A x runs over blocks of rows, each
-// walking the columns (a row's sum in ascending column order, as a row-major product: the same
-// result whatever the number of threads). A matrix held twice (rows and columns) needed twice
+// (ordered-subset solvers) streams through one contiguous block; A x scatters each subset's entries
+// column block by column block into a buffer of that subset's rows and sums the blocks in order
+// (the same result whatever the number of threads and whichever rows are asked for). A matrix held twice (rows and columns) needed twice
 // the memory: 16 bytes per non-zero, 1.6 GB for a 72x108x72 grid seen by four 640x360 cameras
 // (issue 20). Three colour channels have specialised kernels. A matrix can be saved to and loaded
 // from a binary cache file; the file starts with a key (a hash of everything the matrix depends
