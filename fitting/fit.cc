@@ -9,6 +9,7 @@
 #include <cmath>
 #include <deque>
 #include <limits>
+#include <memory>
 #include <random>
 #include <sstream>
 #include <stdexcept>
@@ -52,6 +53,10 @@ void FitOptions::Validate() const {
     fail("activity_threshold must be in [0, 1)");
   if (!(exposure_min > 0) || !(exposure_max > exposure_min) || !std::isfinite(exposure_max))
     fail("need 0 < exposure_min < exposure_max, finite");
+  if (init_colour_radius_voxels < 0 || init_colour_radius_voxels > 8)
+    fail("init_colour_radius_voxels must be in [0, 8]");
+  if (init_band_radius_voxels < -1 || init_band_radius_voxels > 8)
+    fail("init_band_radius_voxels must be -1 (automatic) or in [0, 8]");
   if (coarsest_resolution < 4) fail("coarsest_resolution must be >= 4");
   if (iterations_per_level < 0 || iterations_finest < 0) fail("iterations must be >= 0");
   if (stall_window < 0) fail("stall_window must be >= 0");
@@ -185,16 +190,108 @@ struct State {
   double s = 1;
 };
 
-// Per-voxel start from the emission (step 1 of the fast fit).
+// The bands of a two-colour start on one level's grid (BandTomography).
+class BandStart {
+ public:
+  BandStart(const std::vector<BandTomography>& bands, const GridGeometry& grid,
+            const AbsorptionModel& absorption, const FitOptions& options)
+      : t_min_(options.objective.t_min_k) {
+    const double t_min_k = options.objective.t_min_k, t_max_k = options.objective.t_max_k;
+    int fewest_views = std::numeric_limits<int>::max();
+    for (const BandTomography& band : bands)
+      if (band.views > 0) fewest_views = std::min(fewest_views, band.views);
+    radius_ = options.init_band_radius_voxels >= 0 ? options.init_band_radius_voxels
+              : fewest_views < 4                   ? 3
+                                                   : options.init_colour_radius_voxels;
+    for (std::size_t b = 0; b < bands.size(); ++b) {
+      const BandTomography& band = bands[b];
+      const std::string where = "fit: band " + std::to_string(b);
+      if (!band.response || band.response->channels() != 1)
+        throw InputError(where + ": a two-colour start needs each band's mono camera response");
+      const FireVolume& v = band.tomography;
+      if (v.emission_rgb.size() != v.geometry.num_voxels() * 3)
+        throw InputError(where + " (" + band.response->name() +
+                         "): its tomography has no emission");
+      emission_.push_back(v.geometry.SameVoxels(grid)
+                              ? v.emission_rgb
+                              : ResampleEmission(v.geometry, v.emission_rgb, grid));
+      const ThinEmissionTable table(absorption, t_min_k, t_max_k, band.response);
+      std::vector<double> k;
+      for (double t = t_min_k; t <= t_max_k; t += 1)
+        k.push_back(std::max(table.RgbPerDensity(t)[0], 1e-300));
+      k_.push_back(std::move(k));
+    }
+  }
+  std::size_t bands() const { return emission_.size(); }
+  int radius() const { return radius_; }  // of the neighbourhood whose emission gives T
+  // Band b's emission at a voxel (channel 0: the bands are grey).
+  double Emission(std::size_t b, std::size_t voxel) const { return emission_[b][3 * voxel]; }
+
+  // The temperature whose band ratios match `e` (per band) best: least squares over the bands with
+  // positive emission of log e_b - log K_b(T) - mean over b; NaN when fewer than two have any.
+  double Temperature(const std::vector<double>& e) const {
+    std::vector<std::size_t> used;
+    std::vector<double> log_e;
+    for (std::size_t b = 0; b < e.size(); ++b)
+      if (e[b] > 0 && std::isfinite(e[b])) {
+        used.push_back(b);
+        log_e.push_back(std::log(e[b]));
+      }
+    if (used.size() < 2) return std::numeric_limits<double>::quiet_NaN();
+    const std::size_t n = k_.front().size();
+    auto cost = [&](std::size_t i) {
+      double mean = 0;
+      for (std::size_t u = 0; u < used.size(); ++u) mean += log_e[u] - std::log(k_[used[u]][i]);
+      mean /= double(used.size());
+      double c = 0;
+      for (std::size_t u = 0; u < used.size(); ++u) {
+        const double r = log_e[u] - std::log(k_[used[u]][i]) - mean;
+        c += r * r;
+      }
+      return c;
+    };
+    // Every 10 K, then each kelvin around the best (the ratio is smooth in T).
+    std::size_t best = 0;
+    double best_cost = cost(0);
+    for (std::size_t i = 10; i < n; i += 10)
+      if (const double c = cost(i); c < best_cost) best = i, best_cost = c;
+    const std::size_t lo = best >= 10 ? best - 10 : 0, hi = std::min(n - 1, best + 10);
+    for (std::size_t i = lo; i <= hi; ++i)
+      if (const double c = cost(i); c < best_cost) best = i, best_cost = c;
+    return t_min_ + double(best);
+  }
+  // Density times exposure at a voxel at temperature t (in the tomography's units, as the colour
+  // start's brightness): the bands' emission over their emission per density.
+  double Brightness(std::size_t voxel, double t) const {
+    const std::size_t i = std::min(k_.front().size() - 1,
+                                   static_cast<std::size_t>(std::max(0.0, std::round(t - t_min_))));
+    double e = 0, k = 0;
+    for (std::size_t b = 0; b < bands(); ++b) {
+      e += std::max(0.0, Emission(b, voxel));
+      k += k_[b][i];
+    }
+    return k > 0 ? e / k : 0.0;
+  }
+
+ private:
+  double t_min_;
+  int radius_ = 1;
+  std::vector<std::vector<float>> emission_;  // per band, 3 per voxel of the grid
+  std::vector<std::vector<double>> k_;        // per band, K_b per kelvin from t_min
+};
+
+// Per-voxel start from the emission (step 1 of the fast fit); from the bands' ratios when `bands`
+// is given (a voxel with light in fewer than two bands starts from its colour).
 void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissionTable& table,
                             double exposure_tomography, double n_min, double n_max,
-                            const FitOptions& options, State* st) {
+                            const FitOptions& options, State* st,
+                            const BandStart* bands = nullptr) {
   const std::size_t m = st->active.size();
   st->t.assign(m, table.t_min());
   st->n.assign(m, n_min);
   std::vector<double> brightness(m, 0.0);
   const Eigen::Vector3i& dims = st->grid.dims;
-  const int radius = options.init_colour_radius_voxels;
+  const int radius = bands ? bands->radius() : options.init_colour_radius_voxels;
   for (std::size_t a = 0; a < m; ++a) {
     const std::size_t f = st->active[a];
     const float* e = &emission[3 * f];
@@ -203,6 +300,7 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
     // that brightness implies depends steeply on the temperature (Y grows 3650x from 1300 to
     // 2300 K), so noise in one would become speckle in the other.
     Eigen::Vector3d rgb = Eigen::Vector3d::Zero();
+    std::vector<double> band_sum(bands ? bands->bands() : 0, 0.0);
     const int i = static_cast<int>(f % dims.x()), j = static_cast<int>((f / dims.x()) % dims.y()),
               k = static_cast<int>(f / (static_cast<std::size_t>(dims.x()) * dims.y()));
     for (int dk = -radius; dk <= radius; ++dk)
@@ -211,9 +309,19 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
           const int ii = i + di, jj = j + dj, kk = k + dk;
           if (ii < 0 || jj < 0 || kk < 0 || ii >= dims.x() || jj >= dims.y() || kk >= dims.z())
             continue;
-          const float* q = &emission[3 * st->grid.Flat(ii, jj, kk)];
+          const std::size_t q_voxel = st->grid.Flat(ii, jj, kk);
+          const float* q = &emission[3 * q_voxel];
           rgb += Eigen::Vector3d(q[0], q[1], q[2]);
+          for (std::size_t b = 0; b < band_sum.size(); ++b)
+            band_sum[b] += bands->Emission(b, q_voxel);
         }
+    const double from_bands =
+        bands ? bands->Temperature(band_sum) : std::numeric_limits<double>::quiet_NaN();
+    if (std::isfinite(from_bands)) {
+      st->t[a] = from_bands;
+      brightness[a] = bands->Brightness(f, from_bands);
+      continue;
+    }
     st->t[a] = table.TemperatureOf(rgb);
     const double per_density =
         table.RgbPerDensity(st->t[a]).dot(Eigen::Vector3d(0.2126, 0.7152, 0.0722));
@@ -241,7 +349,7 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
 // cover start from the emission.
 void Resample(const State& from, const std::vector<float>& emission, const ThinEmissionTable& table,
               double exposure_tomography, double n_min, double n_max, const FitOptions& options,
-              State* to, bool density_from_emission = false) {
+              State* to, bool density_from_emission = false, const BandStart* bands = nullptr) {
   // Pack (T, ln n, 1) per voxel so that the emission resampler carries them, then normalise by
   // the coverage channel.
   std::vector<float> packed(from.grid.num_voxels() * 3, 0.0f);
@@ -258,7 +366,8 @@ void Resample(const State& from, const std::vector<float>& emission, const ThinE
   State fresh;
   fresh.grid = to->grid;
   fresh.active = to->active;
-  InitialiseFromEmission(emission, table, exposure_tomography, n_min, n_max, options, &fresh);
+  InitialiseFromEmission(emission, table, exposure_tomography, n_min, n_max, options, &fresh,
+                         bands);
   to->t = fresh.t;
   to->n = fresh.n;
   // The density of an emission-initialised voxel is in units of its own exposure: rescale to the
@@ -277,7 +386,8 @@ void Resample(const State& from, const std::vector<float>& emission, const ThinE
         // This frame's brightness at the carried temperature, in units of the carried exposure.
         const double per_density =
             table.RgbPerDensity(to->t[a]).dot(Eigen::Vector3d(0.2126, 0.7152, 0.0722));
-        const double b = per_density > 0
+        const double b = bands ? bands->Brightness(to->active[a], to->t[a])
+                         : per_density > 0
                              ? std::max(0.0, Luminance(&emission[3 * to->active[a]])) / per_density
                              : 0.0;
         to->n[a] = std::clamp(b * exposure_tomography / from.s, n_min, n_max);
@@ -512,8 +622,10 @@ double TomographyExposure(const FireVolume& tomography) {
 FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
                   const std::vector<FitView>& views, const AbsorptionModel& absorption,
                   const FitOptions& options_in, const FitResult* warm_start,
-                  const ProgressCallback& progress) {
+                  const ProgressCallback& progress, const std::vector<BandTomography>& bands) {
   const auto start = Clock::now();
+  if (bands.size() == 1)
+    throw InputError("fit: a two-colour start needs two bands or more, got one");
   FitOptions options = options_in;
   options.Validate();
   options.objective.smooth_delta_e = options.smooth_delta_e;
@@ -561,14 +673,18 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     }
     FitObjective objective(st.grid, st.active, views, absorption, options.render,
                            options.objective);
+    std::unique_ptr<BandStart> band_start;
+    if (!bands.empty())
+      band_start = std::make_unique<BandStart>(bands, st.grid, absorption, options);
     if (have_previous) {
       // From another frame (level 0 of a warm start): the temperatures carry over, the densities
       // follow this frame's brightness (options.warm_start_density_from_emission).
       Resample(previous, emission, table, s_tomo, objective.n_min(), objective.n_max(), options,
-               &st, warm_start && level == 0 && options.warm_start_density_from_emission);
+               &st, warm_start && level == 0 && options.warm_start_density_from_emission,
+               band_start.get());
     } else {
       InitialiseFromEmission(emission, table, s_tomo, objective.n_min(), objective.n_max(), options,
-                             &st);
+                             &st, band_start.get());
     }
     const std::string stage =
         "level " + std::to_string(level + 1) + "/" + std::to_string(levels.size()) + " (" +
@@ -649,8 +765,11 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
         fine.active = ActiveVoxels(grid, tomography, options.activity_threshold, &e);
         FitObjective fine_objective(grid, fine.active, views, absorption, options.render,
                                     options.objective);
+        std::unique_ptr<BandStart> fine_bands;
+        if (!bands.empty())
+          fine_bands = std::make_unique<BandStart>(bands, grid, absorption, options);
         Resample(st, e, table, s_tomo, fine_objective.n_min(), fine_objective.n_max(), options,
-                 &fine);
+                 &fine, false, fine_bands.get());
         st = fine;
         result.active_voxels = st.active.size();
         result.final_terms = fine_objective.Evaluate(st.t, st.n, st.s);

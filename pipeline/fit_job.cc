@@ -4,6 +4,7 @@
 #include <memory>
 
 #include "core/error.h"
+#include "pipeline/band_tomography.h"
 #include "pipeline/frame_source.h"
 #include "pipeline/run.h"
 #include "tomography/vdb_io.h"
@@ -85,6 +86,7 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
   if (job.resolution > 0) ro.resolution = job.resolution;
   // The tomography: from a file, or reconstructed here from the fitted views only.
   FireVolume tomography;
+  std::vector<BandTomography> bands;
   if (!job.tomography_path.empty()) {
     tomography = ReadVdb(job.tomography_path);
     out.tomography = "file " + job.tomography_path;
@@ -96,9 +98,18 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
     tomography = reconstructor.Reconstruct(used, &rs, nullptr, progress);
     out.tomography = "from " + std::to_string(views.size()) + " view(s): " + rs.BriefReport();
   }
+  // A mono rig in several bands: one tomography per band for the two-colour start (also beside a
+  // tomography from a file, which holds no bands).
+  if (job.method == FitMethod::kFast && !GroupViewsByBand(views).empty()) {
+    std::vector<int> rig_index;
+    for (const auto& v : views) rig_index.push_back(camera_index(v.name));
+    std::string report;
+    bands = BandReconstructor(rig, ro).Reconstruct(views, rig_index, set.linear, &report, progress);
+    out.tomography += "\n" + report;
+  }
   const GridGeometry grid = GridGeometry::FromBox(rig.box, ro.resolution);
   if (job.method == FitMethod::kFast) {
-    out.result = FastFit(grid, tomography, views, absorption, fit, nullptr, progress);
+    out.result = FastFit(grid, tomography, views, absorption, fit, nullptr, progress, bands);
   } else {
     PaperFitOptions paper = job.paper;
     paper.algorithm = job.method == FitMethod::kAlgorithm1 ? PaperAlgorithm::kPerVoxelDensity

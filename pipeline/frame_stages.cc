@@ -110,6 +110,15 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
     rays_.push_back(std::make_unique<CameraRays>(c.model));
     responses_.push_back(ChannelResponse::ForCamera(c.radiometry));
   }
+  // Mono cameras in several bands (two-colour pyrometry): a tomography per band as well.
+  std::vector<FitView> fitted;
+  for (std::size_t c = 0; c < rig_.cameras.size(); ++c)
+    if (static_cast<int>(c) != holdout_) {
+      fitted.emplace_back();
+      fitted.back().response = responses_[c];
+    }
+  if (!GroupViewsByBand(fitted).empty())
+    band_reconstructor_ = std::make_unique<BandReconstructor>(rig_, ro);
   truth_count_ = CountTruth(options_.truth_dir);
   for (const char* sub : {"frames", "tomography", "state", "blender"})
     fs::create_directories(fs::path(options_.out_dir) / sub);
@@ -222,6 +231,27 @@ void FrameStages::Reconstruct(FrameWork* w, const ProgressCallback& progress) {
     s.reconstruct_ms = Ms(t0);
     throw DataError(std::string("tomography: ") + e.what());
   }
+  if (band_reconstructor_) {
+    std::vector<FitView> views;
+    std::vector<int> rig_index;
+    for (std::size_t c = 0; c < rig_.cameras.size(); ++c)
+      if (!linear[c].radiance.empty()) {
+        views.emplace_back();
+        views.back().name = rig_.cameras[c].name;
+        views.back().response = responses_[c];
+        rig_index.push_back(static_cast<int>(c));
+      }
+    std::string report;
+    try {
+      w->bands = band_reconstructor_->Reconstruct(views, rig_index, linear, &report, progress);
+    } catch (const DataError& e) {
+      s.reconstruct_ms = Ms(t0);
+      throw DataError(std::string("tomography of a band: ") + e.what());
+    }
+    if (!w->bands.empty())
+      s.notes.push_back("two-colour start from " + std::to_string(w->bands.size()) +
+                        " bands' tomographies");
+  }
   s.reconstruct_ms = Ms(t0);
   s.matrix_source = rs.matrix_source;
   s.hull_fraction = rs.voxel_fraction_in_hull;
@@ -266,7 +296,7 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
   try {
     w->result = FastFit(reconstructor_->grid(), w->tomography, w->views, absorption_, fit,
                         chain_.previous_result >= 0 && options_.warm_start ? &previous_ : nullptr,
-                        progress);
+                        progress, w->bands);
   } catch (const DataError& e) {
     w->summary.fit_ms = Ms(t0);
     throw DataError(std::string("fit: ") + e.what());

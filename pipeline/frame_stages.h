@@ -24,6 +24,7 @@
 
 #include "core/progress.h"
 #include "fitting/fit.h"
+#include "pipeline/band_tomography.h"
 #include "pipeline/frame_source.h"
 #include "pipeline/run.h"
 #include "tomography/reconstruct.h"
@@ -35,12 +36,14 @@ struct FrameWork {
   std::size_t index = 0;
   SourceFrameSet set;
   FrameSummary summary;
-  bool unchanged = false;         // SkipUnchanged said so: Reuse replaced Reconstruct..Write
-  FireVolume tomography;          // Reconstruct's result
-  FitResult result;               // Fit's result (its volume is what Write writes)
-  std::vector<FitView> views;     // the fitted views
-  std::vector<FitView> held;      // the held-out view, if any
-  bool have_output = false;       // a volume was written (computed or reused)
+  bool unchanged = false;  // SkipUnchanged said so: Reuse replaced Reconstruct..Write
+  FireVolume tomography;   // Reconstruct's result
+  std::vector<BandTomography>
+      bands;                   // a mono rig in several bands: one per band (band_tomography.h)
+  FitResult result;            // Fit's result (its volume is what Write writes)
+  std::vector<FitView> views;  // the fitted views
+  std::vector<FitView> held;   // the held-out view, if any
+  bool have_output = false;    // a volume was written (computed or reused)
   std::chrono::steady_clock::time_point start;
 };
 
@@ -110,6 +113,7 @@ class FrameStages {
   int holdout_ = -1;
   std::size_t truth_count_ = 0;
   std::unique_ptr<Reconstructor> reconstructor_;
+  std::unique_ptr<BandReconstructor> band_reconstructor_;  // null unless the rig has bands
   std::vector<std::unique_ptr<CameraRays>> rays_;
   std::vector<std::shared_ptr<const ChannelResponse>> responses_;  // per rig camera
   Chain chain_;

@@ -7,10 +7,13 @@
 #include <cmath>
 #include <random>
 
+#include "calibration/radiometry.h"
 #include "calibration/synthetic_rig.h"
 #include "core/error.h"
+#include "fitting/camera_response.h"
 #include "fitting/colour.h"
 #include "fitting/fit.h"
+#include "fitting/physics.h"
 #include "fitting/synthetic_fire.h"
 #include "pipeline/simulate.h"
 #include "tomography/reconstruct.h"
@@ -717,6 +720,96 @@ TEST(FastFit, StressBlackSaturatedAndExtremeBounds) {
   FitOptions bad;
   bad.exposure_min = -1;
   EXPECT_THROW(FastFit(r.grid, r.tomography, r.views, grey, bad), InputError);
+}
+
+}  // namespace
+}  // namespace flamerig
+
+namespace flamerig {
+namespace {
+
+// Two-colour pyrometry's start (BandTomography): each voxel's temperature is the one whose ratio
+// of emission in the two bands is the measured one. Oracle: the bands' soot emission integrated
+// here from the responses' own sensitivities, absorption cross-section and Planck's law, and the
+// temperatures of the synthetic volume that made the band emissions (iterations 0: the start).
+TEST(FastFit, TwoColourStartReadsEachVoxelsTemperatureFromItsBandRatio) {
+  const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
+  SmallScene s = MakeSmallScene(soot);
+  auto band_response = [](double centre_nm) {
+    CameraRadiometry r;
+    r.transfer = TransferFunction::kLinear;
+    r.bit_depth = 12;
+    r.spectral.kind = SpectralSensitivity::Kind::kBands;
+    r.spectral.bands = {{600, 250}};
+    r.spectral.filter = SpectralBand{centre_nm, 40};
+    return ChannelResponse::ForCamera(r);
+  };
+  const auto red = band_response(650), green = band_response(550);
+  // Per unit density at T, in the band's unit-gain output.
+  auto per_density = [&](const ChannelResponse& r, double t) {
+    Eigen::Vector3d basis = Eigen::Vector3d::Zero();
+    for (int nm = ChannelResponse::kFirstNm; nm <= ChannelResponse::kLastNm; ++nm)
+      basis += soot.CrossSectionM2(nm) * physics::PlanckRadiancePerNm(nm, t) * r.BasisAt(nm);
+    return (r.output_from_basis() * basis)[0] / r.gain()[0];
+  };
+  FireVolume joint;
+  joint.geometry = s.grid;
+  joint.emission_rgb.assign(3 * s.grid.num_voxels(), 0.0f);
+  std::vector<BandTomography> bands(2);
+  bands[0].response = red;
+  bands[1].response = green;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(0, 1);
+  std::vector<double> true_t(s.grid.num_voxels(), 0), true_n(s.grid.num_voxels(), 0);
+  for (auto& b : bands) {
+    b.tomography.geometry = s.grid;
+    b.tomography.emission_rgb.assign(3 * s.grid.num_voxels(), 0.0f);
+  }
+  for (std::uint32_t v : s.active) {
+    true_t[v] = 1300 + 900 * u(rng);
+    true_n[v] = 0.3 / (soot.CrossSectionM2(550) * s.grid.voxel_size_m.x()) * (0.3 + u(rng));
+    for (int b = 0; b < 2; ++b) {
+      const float e = static_cast<float>(true_n[v] * per_density(*bands[b].response, true_t[v]));
+      std::fill_n(&bands[b].tomography.emission_rgb[3 * v], 3, e);
+      joint.emission_rgb[3 * v + b] = e;
+    }
+  }
+  joint.metadata_numbers["exposure"] = 1.0;
+  FitOptions options;
+  options.iterations_finest = 0;
+  options.known_exposure = 1.0;
+  options.init_band_radius_voxels = 0;  // each voxel's own ratio
+  options.activity_threshold = 0;       // every voxel with light
+  const FitResult start = FastFit(s.grid, joint, s.views, soot, options, nullptr, nullptr, bands);
+  ASSERT_EQ(start.active_voxels, s.active.size());
+  double worst_t = 0, worst_n = 0;
+  for (std::uint32_t v : s.active) {
+    worst_t = std::max(worst_t, std::abs(start.volume.temperature_k[v] - true_t[v]));
+    worst_n = std::max(worst_n, std::abs(start.volume.density_per_m3[v] / true_n[v] - 1));
+  }
+  std::printf("two-colour start on %zu voxels: worst temperature error %.2f K, density %.3f%%\n",
+              s.active.size(), worst_t, 100 * worst_n);
+  EXPECT_LT(worst_t, 1.5);  // the start's 1 K steps
+  EXPECT_LT(worst_n, 0.01);
+
+  // Without the bands a mono rig's start has no colour to read: the temperatures are far off.
+  FitOptions colour = options;
+  const FitResult from_colour = FastFit(s.grid, joint, s.views, soot, colour);
+  double colour_error = 0;
+  for (std::uint32_t v : s.active)
+    colour_error =
+        std::max(colour_error, std::abs(from_colour.volume.temperature_k[v] - true_t[v]));
+  EXPECT_GT(colour_error, 50 * worst_t + 50);
+
+  // A band alone, or a band without a mono response, is refused.
+  std::vector<BandTomography> one(bands.begin(), bands.begin() + 1);
+  EXPECT_THROW(FastFit(s.grid, joint, s.views, soot, options, nullptr, nullptr, one), InputError);
+  std::vector<BandTomography> colour_band = bands;
+  colour_band[1].response = ChannelResponse::SrgbObserver();
+  EXPECT_THROW(FastFit(s.grid, joint, s.views, soot, options, nullptr, nullptr, colour_band),
+               InputError);
+  options.init_band_radius_voxels = 9;
+  EXPECT_THROW(options.Validate(), InputError);
 }
 
 }  // namespace

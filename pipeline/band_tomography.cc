@@ -1,0 +1,71 @@
+#include "pipeline/band_tomography.h"
+
+#include "core/error.h"
+
+namespace flamerig {
+
+std::vector<std::vector<std::size_t>> GroupViewsByBand(const std::vector<FitView>& views) {
+  std::vector<std::string> names;
+  std::vector<std::vector<std::size_t>> groups;
+  bool colour = false;
+  for (std::size_t v = 0; v < views.size(); ++v) {
+    const auto& r = views[v].response;
+    if (!r || r->channels() != 1) {
+      colour = true;
+      continue;
+    }
+    std::size_t g = 0;
+    while (g < names.size() && names[g] != r->name()) ++g;
+    if (g == names.size()) {
+      names.push_back(r->name());
+      groups.emplace_back();
+    }
+    groups[g].push_back(v);
+  }
+  if (groups.size() < 2) return {};
+  if (colour)
+    throw InputError(
+        "fit: colour and mono cameras in several bands are fitted together; a two-colour start "
+        "needs every fitted camera mono (leave the colour ones out with --views)");
+  return groups;
+}
+
+BandReconstructor::BandReconstructor(const Rig& rig, ReconstructOptions options)
+    : rig_(rig), options_(std::move(options)) {
+  options_.holdout_camera.clear();
+  options_.stop_camera.clear();
+}
+
+std::vector<BandTomography> BandReconstructor::Reconstruct(const std::vector<FitView>& views,
+                                                           const std::vector<int>& rig_index,
+                                                           const std::vector<LinearFrame>& frames,
+                                                           std::string* report,
+                                                           const ProgressCallback& progress) {
+  if (rig_index.size() != views.size())
+    throw std::logic_error("BandReconstructor: one rig index per view");
+  std::vector<BandTomography> out;
+  for (const auto& group : GroupViewsByBand(views)) {
+    const auto& response = views[group.front()].response;
+    std::vector<LinearFrame> used(frames.size());
+    for (std::size_t v : group)
+      used.at(static_cast<std::size_t>(rig_index[v])) =
+          frames.at(static_cast<std::size_t>(rig_index[v]));
+    std::size_t r = 0;
+    while (r < reconstructors_.size() && reconstructors_[r].first != response->name()) ++r;
+    if (r == reconstructors_.size())
+      reconstructors_.emplace_back(response->name(),
+                                   std::make_unique<Reconstructor>(rig_, options_));
+    ReconstructSummary summary;
+    BandTomography band;
+    band.response = response;
+    band.views = static_cast<int>(group.size());
+    band.tomography = reconstructors_[r].second->Reconstruct(used, &summary, nullptr, progress);
+    if (report)
+      *report += "band " + response->name() + " from " + std::to_string(group.size()) +
+                 " view(s): " + summary.BriefReport() + "\n";
+    out.push_back(std::move(band));
+  }
+  return out;
+}
+
+}  // namespace flamerig

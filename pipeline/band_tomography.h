@@ -1,0 +1,47 @@
+// Two-colour pyrometry's tomographies (fitting/fit.h, BandTomography; issue 19, item 6): a rig of
+// mono cameras behind different band-pass filters has one tomography per band, each solved from
+// that band's cameras alone, so that the fit starts each voxel's temperature from the ratio of its
+// emission in the bands. The jobs that reconstruct and then fit (`fit` without --tomography,
+// `run`) call this; a colour rig, or a mono rig in one band, has no bands.
+#ifndef FLAMERIG_PIPELINE_BAND_TOMOGRAPHY_H_
+#define FLAMERIG_PIPELINE_BAND_TOMOGRAPHY_H_
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "core/progress.h"
+#include "fitting/fit.h"
+#include "tomography/reconstruct.h"
+
+namespace flamerig {
+
+// The fitted views grouped by band: views of mono cameras whose spectral responses differ (by
+// ChannelResponse::name(): the sensitivity and filter, not the gains) form one group per
+// response, in the order the views first name them. Empty unless there are two groups or more; a
+// view with a colour response (or none) among mono ones is an InputError, since its colour and
+// the bands' ratios would start the fit in two different ways.
+std::vector<std::vector<std::size_t>> GroupViewsByBand(const std::vector<FitView>& views);
+
+// Per band, a tomography from that band's views only (`frames` in rig order, `rig_index` of each
+// view), with `options` (its held-out and stop cameras dropped: they belong to the joint solve).
+// Empty when GroupViewsByBand is. `report` (optional) gets one line per band.
+class BandReconstructor {
+ public:
+  BandReconstructor(const Rig& rig, ReconstructOptions options);
+  std::vector<BandTomography> Reconstruct(const std::vector<FitView>& views,
+                                          const std::vector<int>& rig_index,
+                                          const std::vector<LinearFrame>& frames,
+                                          std::string* report = nullptr,
+                                          const ProgressCallback& progress = nullptr);
+
+ private:
+  Rig rig_;
+  ReconstructOptions options_;
+  // One per band, kept across frames (each reuses its matrix), keyed by the band's response name.
+  std::vector<std::pair<std::string, std::unique_ptr<Reconstructor>>> reconstructors_;
+};
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_PIPELINE_BAND_TOMOGRAPHY_H_
