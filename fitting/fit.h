@@ -132,12 +132,13 @@ struct FitOptions {
   double exposure_min = 0.01, exposure_max = 1000;  // the paper's range
   // Fast fit.
   int init_colour_radius_voxels = 1;  // temperature from the colour of (2r+1)^3 voxels; [0, 8]
-  // The same for a two-colour start (BandTomography), [0, 8], or -1: 3 when a band was solved
-  // from fewer than four views, else init_colour_radius_voxels. A band's tomography from two views
-  // is noisy voxel by voxel, and the temperature follows the log of the bands' ratio: four mono
-  // cameras in two bands (650/40 and 550/40 nm; candle, truth 48, fit 32) start from radius
-  // 0/1/2/3/4 with temperature RMS 537/209/157/146/145 K after the fit (the truth's spread
-  // 139 K; sRGB cameras there 140 K); eight in two bands 126 K from radius 1, 148 K from 3.
+  // The same for a two-colour start (BandTomography), [0, 8], or -1: chosen on a cold start
+  // among 1, 2, 3, 5 and 8 by the data term of each start (3 for a warm start's new voxels). A
+  // band's tomography is noisy voxel by voxel and the temperature follows the log of the bands'
+  // ratio, and the best pooling depends on the scene: four mono cameras in two bands (650/40 and
+  // 550/40 nm; candle, truth 48, fit 32) from radius 0/1/2/3/4 gave temperature RMS
+  // 537/209/157/146/145 K after the fit (the truth's spread 139 K), eight there 126 K from 1 and
+  // 148 K from 3; eight around licks (fit 64) 347 K from 1, 192 K from 3, 136 K from 5.
   int init_band_radius_voxels = -1;
   int coarsest_resolution = 32;   // coarse-to-fine stops halving here; >= 4
   bool coarse_to_fine = false;    // see step 2 above
@@ -198,6 +199,7 @@ struct FitResult {
   FitTermination termination = FitTermination::kIterationLimit;
   std::string message;
   double initial_energy = 0;     // exact energy at the start (the initialisation or warm start)
+  int band_radius_voxels = -1;   // a two-colour start's neighbourhood radius (-1: none)
   VoxelUncertainty uncertainty;  // FitOptions::estimate_uncertainty; empty otherwise
   double seconds = 0;
   std::string method;
@@ -224,8 +226,9 @@ struct BandTomography {
 // volume (tomography/reconstruct.h: `emission_rgb`, metadata "exposure" optional) on any grid;
 // the fit runs on `grid`. `warm_start` (optional): a previous FitResult on any grid. `bands`
 // (optional, two or more, each on any grid): the start's temperatures from the bands' ratios
-// instead of the tomography's colour (BandTomography); `tomography` still chooses the active
-// voxels. Throws InputError for a band without a one-channel response or emission.
+// instead of the tomography's colour (BandTomography), and the active voxels where any band has
+// light (each band's emission over its peak, summed); `tomography` then gives only its exposure.
+// Throws InputError for a band without a one-channel response or emission.
 FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
                   const std::vector<FitView>& views, const AbsorptionModel& absorption,
                   const FitOptions& options, const FitResult* warm_start = nullptr,

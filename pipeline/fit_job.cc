@@ -84,13 +84,17 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
   ReconstructOptions ro = job.reconstruct;
   ro.exposure = exposure;
   if (job.resolution > 0) ro.resolution = job.resolution;
-  // The tomography: from a file, or reconstructed here from the fitted views only.
+  // The tomography: from a file, or reconstructed here from the fitted views only. A mono rig in
+  // several bands has one per band for the two-colour start instead (reconstructed also beside a
+  // tomography from a file, which holds no bands): the fit reads the bands, and of a tomography
+  // of all its cameras together, which mixes bands, only the exposure.
   FireVolume tomography;
   std::vector<BandTomography> bands;
+  const bool band_rig = job.method == FitMethod::kFast && !GroupViewsByBand(views).empty();
   if (!job.tomography_path.empty()) {
     tomography = ReadVdb(job.tomography_path);
     out.tomography = "file " + job.tomography_path;
-  } else {
+  } else if (!band_rig) {
     std::vector<LinearFrame> used(rig.cameras.size());
     for (const auto& v : views) used[camera_index(v.name)] = set.linear[camera_index(v.name)];
     Reconstructor reconstructor(rig, ro);
@@ -98,14 +102,13 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
     tomography = reconstructor.Reconstruct(used, &rs, nullptr, progress);
     out.tomography = "from " + std::to_string(views.size()) + " view(s): " + rs.BriefReport();
   }
-  // A mono rig in several bands: one tomography per band for the two-colour start (also beside a
-  // tomography from a file, which holds no bands).
-  if (job.method == FitMethod::kFast && !GroupViewsByBand(views).empty()) {
+  if (band_rig) {
     std::vector<int> rig_index;
     for (const auto& v : views) rig_index.push_back(camera_index(v.name));
     std::string report;
     bands = BandReconstructor(rig, ro).Reconstruct(views, rig_index, set.linear, &report, progress);
-    out.tomography += "\n" + report;
+    if (job.tomography_path.empty()) tomography = bands.front().tomography;
+    out.tomography += (out.tomography.empty() ? "" : "\n") + report;
   }
   const GridGeometry grid = GridGeometry::FromBox(rig.box, ro.resolution);
   if (job.method == FitMethod::kFast) {

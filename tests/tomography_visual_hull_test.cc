@@ -112,6 +112,34 @@ TEST(FireMask, AnExactlyBlackBackgroundGetsANoiseFloorOfOneCode) {
   EXPECT_GT(before.fire_pixels, mask.fire_pixels + 100);
 }
 
+// A mono machine-vision camera's frame: 12-bit linear, its black level subtracted, Gaussian
+// noise of 4 DN clipped at black (half the background reads 0), a block of fire. The estimate is
+// the noise's deviation (the oracle: the generator's), and the mask is the block: with the colour
+// rule (a third of the deviation) the threshold was 1.5 sigma and noise covered the image.
+TEST(FireMask, AMonoCamerasClippedNoiseIsEstimatedAtItsDeviation) {
+  const Scene s = MakeScene();
+  const double sigma = 4.0 / 4095;
+  std::mt19937 rng(3);
+  std::normal_distribution<double> noise(0.0, sigma);
+  LinearFrame frame;
+  frame.radiance = ImageF(96, 72, 3, 0.0f);
+  frame.quantum = 1.0 / 4095;
+  for (int y = 0; y < 72; ++y)
+    for (int x = 0; x < 96; ++x) {
+      const bool fire = x >= 30 && x < 66 && y >= 10 && y < 26;
+      const float v = static_cast<float>(std::max(0.0, (fire ? 0.3 : 0.0) + noise(rng)));
+      for (int c = 0; c < 3; ++c) frame.radiance.at(x, y, c) = v;
+    }
+  const double estimate = EstimateNoiseSigma(frame.radiance);
+  std::printf("noise %.3g, estimated %.3g\n", sigma, estimate);
+  EXPECT_NEAR(estimate, sigma, 0.1 * sigma);
+  VisualHullOptions options;
+  options.dilation_px = 0;
+  const FireMask mask = ComputeFireMask(s.grid, s.camera(), frame, options);
+  EXPECT_EQ(mask.fire_pixels, 36u * 16u);
+  EXPECT_LE(mask.speck_pixels, 3u);  // 5 sigma: about one background pixel in 3.5 million
+}
+
 TEST(FireMask, SixteenBitLinearFramesStepByOneCode) {
   ImageU16 image(8, 8, 1, 0);
   image.at(3, 3) = 1000;

@@ -105,9 +105,24 @@ double EstimateNoiseSigma(const ImageF& radiance) {
   const std::size_t n = radiance.num_pixels();
   if (n == 0) return 0;
   std::vector<float> v(n);
+  bool grey = true;
   for (std::size_t p = 0; p < n; ++p) {
-    v[p] =
-        std::max({radiance.pixels[3 * p], radiance.pixels[3 * p + 1], radiance.pixels[3 * p + 2]});
+    const float* c = &radiance.pixels[3 * p];
+    v[p] = std::max({c[0], c[1], c[2]});
+    grey = grey && c[0] == c[1] && c[1] == c[2];
+  }
+  if (grey) {
+    // A zero-mean Gaussian clipped at 0: its 75th percentile is 0.6745 sigma. Of all the pixels
+    // the fire lifts it (a tenth of the frame on fire: 1.35 sigma), so it is taken again over the
+    // pixels below five of the first estimate, the background.
+    auto q75 = [](std::vector<float>* w) {
+      const std::size_t q = std::min(w->size() - 1, 3 * w->size() / 4);
+      std::nth_element(w->begin(), w->begin() + q, w->end());
+      return std::max(0.0, double((*w)[q]) / 0.6745);
+    };
+    const double first = q75(&v);
+    v.erase(std::remove_if(v.begin(), v.end(), [&](float x) { return x > 5 * first; }), v.end());
+    return v.empty() ? first : q75(&v);
   }
   // The darkest three quarters are background (the rig frames the fire to cover less than a quarter
   // of each image). Their RMS about zero, not their spread about the median: a dark sensor's noise
