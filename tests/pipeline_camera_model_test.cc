@@ -31,6 +31,14 @@ CameraRadiometry Linear12() {
   return r;
 }
 
+// A mono machine-vision sensor (one broad band), 12-bit linear, for filters to go in front of.
+CameraRadiometry MonoSensor() {
+  CameraRadiometry r = Linear12();
+  r.spectral.kind = SpectralSensitivity::Kind::kBands;
+  r.spectral.bands = {{600, 250}};
+  return r;
+}
+
 CameraRadiometry BandCamera() {
   CameraRadiometry r = Linear12();
   r.spectral.kind = SpectralSensitivity::Kind::kBands;
@@ -154,9 +162,7 @@ TEST(CameraModel, SimulatePutsEachMonoCameraBehindItsOwnFilter) {
   const fs::path dir =
       fs::temp_directory_path() / ("flamerig_filters_" + std::to_string(::getpid()));
   fs::remove_all(dir);
-  CameraRadiometry mono = Linear12();
-  mono.spectral.kind = SpectralSensitivity::Kind::kBands;
-  mono.spectral.bands = {{600, 250}};
+  const CameraRadiometry mono = MonoSensor();
   SimulateConfig config;
   config.grid_resolution = 32;
   config.ring.width = 80;
@@ -262,9 +268,6 @@ TEST(CameraModel, TwoColourPyrometryMeasuresTheTemperatureOneBandCannot) {
       fs::temp_directory_path() / ("flamerig_two_colour_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   auto fit = [&](const std::string& name, const std::vector<SpectralBand>& filters) {
-    CameraRadiometry mono = Linear12();
-    mono.spectral.kind = SpectralSensitivity::Kind::kBands;
-    mono.spectral.bands = {{600, 250}};
     SimulateConfig config;
     config.grid_resolution = 48;
     config.ring.cameras = 4;
@@ -272,7 +275,7 @@ TEST(CameraModel, TwoColourPyrometryMeasuresTheTemperatureOneBandCannot) {
     config.ring.width = 160;
     config.ring.height = 120;
     config.calibration = false;
-    config.radiometry = mono;
+    config.radiometry = MonoSensor();
     config.camera_filters = filters;
     const SimulateSummary s = Simulate(config, (dir / name / "data").string());
     FitJob job;

@@ -74,6 +74,19 @@ Row Fit(const fs::path& data, const std::string& rig, double exposure, int resol
   return row;
 }
 
+// The rows as a Markdown table, then a blank line.
+std::string Table(const std::vector<Row>& rows) {
+  std::ostringstream md;
+  md << "| cameras | fitted with | bias (K) | RMS (K) | emission-weighted RMS (K) | Delta E | "
+        "iterations | time (s) |\n|---|---|---|---|---|---|---|---|\n";
+  for (const Row& r : rows)
+    md << "| " << r.cameras << " | " << r.model << " | " << Fixed(r.truth.mean_k, 1) << " | "
+       << Fixed(r.truth.rms_k, 1) << " | " << Fixed(r.truth.weighted_rms_k, 1) << " | "
+       << Fixed(r.delta_e, 2) << " | " << r.iterations << " | " << Fixed(r.seconds, 1) << " |\n";
+  md << "\n";
+  return md.str();
+}
+
 // The rig of `data` with every camera's model replaced by `model`, saved under `dir`.
 std::string RigWith(const fs::path& data, const CameraRadiometry& model, const fs::path& dir) {
   Rig rig = Rig::Load((data / "rig.yaml").string());
@@ -200,13 +213,7 @@ std::string RunCameraBenchmark(const CameraBenchmarkOptions& options,
        << Fixed(worst_black, 2) << " DN, spectral check at most " << Fixed(100 * worst_check, 2)
        << "%. The truth's spread (the best constant's RMS) on the visible voxels: "
        << Fixed(rows.back().truth.truth_spread_k, 0) << " K.\n\n";
-    md << "| cameras | fitted with | bias (K) | RMS (K) | emission-weighted RMS (K) | Delta E | "
-          "iterations | time (s) |\n|---|---|---|---|---|---|---|---|\n";
-    for (const Row& r : rows)
-      md << "| " << r.cameras << " | " << r.model << " | " << Fixed(r.truth.mean_k, 1) << " | "
-         << Fixed(r.truth.rms_k, 1) << " | " << Fixed(r.truth.weighted_rms_k, 1) << " | "
-         << Fixed(r.delta_e, 2) << " | " << r.iterations << " | " << Fixed(r.seconds, 1) << " |\n";
-    md << "\n";
+    md << Table(rows);
 
     // Two-colour pyrometry (issue 19, item 6): mono cameras behind 650/40 and 550/40 nm filters in
     // turn, each pair of neighbours one of each band; the candle's two views become two pairs 6
@@ -241,13 +248,7 @@ std::string RunCameraBenchmark(const CameraBenchmarkOptions& options,
                                           : "the same ring")
        << "). The truth's spread: " << Fixed(pyrometry.front().truth.truth_spread_k, 0)
        << " K.\n\n";
-    md << "| cameras | fitted with | bias (K) | RMS (K) | emission-weighted RMS (K) | Delta E | "
-          "iterations | time (s) |\n|---|---|---|---|---|---|---|---|\n";
-    for (const Row& r : pyrometry)
-      md << "| " << r.cameras << " | " << r.model << " | " << Fixed(r.truth.mean_k, 1) << " | "
-         << Fixed(r.truth.rms_k, 1) << " | " << Fixed(r.truth.weighted_rms_k, 1) << " | "
-         << Fixed(r.delta_e, 2) << " | " << r.iterations << " | " << Fixed(r.seconds, 1) << " |\n";
-    md << "\n";
+    md << Table(pyrometry);
   }
   fs::remove_all(work);
   return md.str();
