@@ -247,8 +247,13 @@ class BandStart {
   double Temperature(const std::vector<double>& e) const {
     std::vector<std::size_t> used;
     std::vector<double> log_e;
+    // A band without light sums to zero up to the summed-volume table's rounding: below 1e-9 of
+    // the brightest band it counts as none (its log would pin T to an end of the range).
+    double largest = 0;
+    for (double x : e)
+      if (std::isfinite(x)) largest = std::max(largest, x);
     for (std::size_t b = 0; b < e.size(); ++b)
-      if (e[b] > 0 && std::isfinite(e[b])) {
+      if (e[b] > 1e-9 * largest && std::isfinite(e[b])) {
         used.push_back(b);
         log_e.push_back(std::log(e[b]));
       }
@@ -341,7 +346,8 @@ FireVolume BandActivity(const std::vector<BandTomography>& bands) {
 }
 
 // Per-voxel start from the emission (step 1 of the fast fit); from the bands' ratios when `bands`
-// is given (a voxel with light in fewer than two bands starts from its colour).
+// is given (a voxel with light in fewer than two bands takes the temperature its colour gives,
+// for a mono rig the middle of the range, and its density from the bands at that temperature).
 void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissionTable& table,
                             double exposure_tomography, double n_min, double n_max,
                             const FitOptions& options, State* st,
@@ -382,6 +388,10 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
           rgb += Eigen::Vector3d(q[0], q[1], q[2]);
         }
     st->t[a] = table.TemperatureOf(rgb);
+    if (bands) {  // `emission` is then the bands' activity, without units: the bands' own
+      brightness[a] = bands->Brightness(f, st->t[a]);
+      continue;
+    }
     const double per_density =
         table.RgbPerDensity(st->t[a]).dot(Eigen::Vector3d(0.2126, 0.7152, 0.0722));
     brightness[a] = per_density > 0 ? std::max(0.0, Luminance(e)) / per_density : 0.0;
@@ -693,7 +703,22 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   const ThinEmissionTable table(
       absorption, options.objective.t_min_k, options.objective.t_max_k,
       !views.empty() && views.front().response ? views.front().response : options.render.response);
-  const double s_tomo = TomographyExposure(tomography);
+  // The bands' emission is in the units of their own exposure (a tomography from a file may have
+  // another).
+  const double s_tomo = TomographyExposure(bands.empty() ? tomography : bands.front().tomography);
+  // A two-colour start's pooling radius, once chosen on a cold start's first level, in the voxels
+  // of a grid `chosen_extent` voxels long: the later levels pool over the same distance.
+  int chosen_radius = -1, chosen_extent = 0;
+  auto make_band_start = [&](const GridGeometry& g) {
+    std::unique_ptr<BandStart> b;
+    if (bands.empty()) return b;
+    b = std::make_unique<BandStart>(bands, g, absorption, options);
+    if (chosen_radius >= 0)
+      b->set_radius(std::clamp(
+          static_cast<int>(std::lround(double(chosen_radius) * g.dims.maxCoeff() / chosen_extent)),
+          0, 8));
+    return b;
+  };
   FitResult result;
   result.method = "fast fit (L-BFGS, adjoint gradient" +
                   std::string(options.coarse_to_fine ? ", coarse to fine)" : ")");
@@ -737,21 +762,20 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     }
     FitObjective objective(st.grid, st.active, views, absorption, options.render,
                            options.objective);
-    std::unique_ptr<BandStart> band_start;
-    if (!bands.empty())
-      band_start = std::make_unique<BandStart>(bands, st.grid, absorption, options);
+    std::unique_ptr<BandStart> band_start = make_band_start(st.grid);
     if (have_previous) {
       // From another frame (level 0 of a warm start): the temperatures carry over, the densities
       // follow this frame's brightness (options.warm_start_density_from_emission).
       Resample(previous, emission, table, s_tomo, objective.n_min(), objective.n_max(), options,
                &st, warm_start && level == 0 && options.warm_start_density_from_emission,
                band_start.get());
+      if (band_start) result.band_radius_voxels = band_start->radius();
     } else if (band_start && options.init_band_radius_voxels < 0) {
       // The bands' ratio voxel by voxel is as noisy as the two tomographies it divides, and how
       // far to pool it depends on the scene and the views: of the starts from several radii, the
       // one whose images match the views best (its data term). Measured on eight mono cameras in
       // two bands (licks, fit 64): radius 1/2/3/5/7 start with Delta E 1.14/0.87/0.63/0.53/0.53
-      // and temperature RMS 276/227/201/156/144 K.
+      // and temperature RMS 276/227/201/156/144 K (8, the largest tried, was then chosen).
       double best = std::numeric_limits<double>::infinity();
       State chosen;
       for (int r : {1, 2, 3, 5, 8}) {
@@ -760,7 +784,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
         InitialiseFromEmission(emission, table, s_tomo, objective.n_min(), objective.n_max(),
                                options, &trial, band_start.get());
         const double data = objective.Evaluate(trial.t, trial.n, trial.s).data_exact;
-        if (data < best) {
+        if (chosen.t.empty() || data < best) {
           best = data;
           chosen = std::move(trial);
           result.band_radius_voxels = r;
@@ -768,6 +792,8 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
       }
       st = std::move(chosen);
       band_start->set_radius(result.band_radius_voxels);
+      chosen_radius = result.band_radius_voxels;
+      chosen_extent = st.grid.dims.maxCoeff();
     } else {
       InitialiseFromEmission(emission, table, s_tomo, objective.n_min(), objective.n_max(), options,
                              &st, band_start.get());
@@ -852,9 +878,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
         fine.active = ActiveVoxels(grid, activity, options.activity_threshold, &e);
         FitObjective fine_objective(grid, fine.active, views, absorption, options.render,
                                     options.objective);
-        std::unique_ptr<BandStart> fine_bands;
-        if (!bands.empty())
-          fine_bands = std::make_unique<BandStart>(bands, grid, absorption, options);
+        std::unique_ptr<BandStart> fine_bands = make_band_start(grid);
         Resample(st, e, table, s_tomo, fine_objective.n_min(), fine_objective.n_max(), options,
                  &fine, false, fine_bands.get());
         st = fine;

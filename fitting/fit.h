@@ -133,7 +133,8 @@ struct FitOptions {
   // Fast fit.
   int init_colour_radius_voxels = 1;  // temperature from the colour of (2r+1)^3 voxels; [0, 8]
   // The same for a two-colour start (BandTomography), [0, 8], or -1: chosen on a cold start
-  // among 1, 2, 3, 5 and 8 by the data term of each start (3 for a warm start's new voxels). A
+  // among 1, 2, 3, 5 and 8 by the data term of each start (at its first level; finer levels pool
+  // over the same distance; 3 for a warm start's new voxels). A
   // band's tomography is noisy voxel by voxel and the temperature follows the log of the bands'
   // ratio, and the best pooling depends on the scene: four mono cameras in two bands (650/40 and
   // 550/40 nm; candle, truth 48, fit 32) from radius 0/1/2/3/4 gave temperature RMS
@@ -213,13 +214,12 @@ struct FitResult {
 // voxel the band's emission e_b = n K_b(T) (K_b: the band's ThinEmissionTable, soot absorption
 // times Planck through the filtered sensor). The start's temperature is the one whose band ratios
 // match the measured ones (least squares on log e_b - log K_b(T) over the bands, each e_b summed
-// over the neighbourhood the colour start uses), its density the bands' summed emission over their
-// summed K_b(T). This is what a two-colour pyrometer does per pixel, here per voxel. The fit then
+// over a cube around the voxel: FitOptions::init_band_radius_voxels), its density the bands'
+// summed emission over their summed K_b(T). This is what a two-colour pyrometer does per pixel, here per voxel. The fit then
 // refines every voxel against each view in its own band as before.
 struct BandTomography {
   std::shared_ptr<const ChannelResponse> response;  // the band's cameras' (one channel)
   FireVolume tomography;  // emission_rgb from this band's cameras only (grey: channel 0 is read)
-  int views = 0;          // how many cameras it was solved from (0: unknown)
 };
 
 // The views to match at full resolution: shared by every level. `tomography` is an emission
@@ -227,7 +227,8 @@ struct BandTomography {
 // the fit runs on `grid`. `warm_start` (optional): a previous FitResult on any grid. `bands`
 // (optional, two or more, each on any grid): the start's temperatures from the bands' ratios
 // instead of the tomography's colour (BandTomography), and the active voxels where any band has
-// light (each band's emission over its peak, summed); `tomography` then gives only its exposure.
+// light (each band's emission over its peak, summed); `tomography` is then not read (the first
+// band's exposure is the start's).
 // Throws InputError for a band without a one-channel response or emission.
 FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
                   const std::vector<FitView>& views, const AbsorptionModel& absorption,

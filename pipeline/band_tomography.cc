@@ -1,5 +1,7 @@
 #include "pipeline/band_tomography.h"
 
+#include <stdexcept>
+
 #include "core/error.h"
 
 namespace flamerig {
@@ -22,11 +24,9 @@ std::vector<std::vector<std::size_t>> GroupViewsByBand(const std::vector<FitView
     }
     groups[g].push_back(v);
   }
-  if (groups.size() < 2) return {};
-  if (colour)
-    throw InputError(
-        "fit: colour and mono cameras in several bands are fitted together; a two-colour start "
-        "needs every fitted camera mono (leave the colour ones out with --views)");
+  // With colour cameras among them the fit starts from the colour cameras' tomography, as it did
+  // before bands: the two starts would disagree.
+  if (groups.size() < 2 || colour) return {};
   return groups;
 }
 
@@ -58,7 +58,6 @@ std::vector<BandTomography> BandReconstructor::Reconstruct(const std::vector<Fit
     ReconstructSummary summary;
     BandTomography band;
     band.response = response;
-    band.views = static_cast<int>(group.size());
     band.tomography = reconstructors_[r].second->Reconstruct(used, &summary, nullptr, progress);
     if (report)
       *report += "band " + response->name() + " from " + std::to_string(group.size()) +

@@ -1,8 +1,9 @@
 // Two-colour pyrometry's tomographies (fitting/fit.h, BandTomography; issue 19, item 6): a rig of
 // mono cameras behind different band-pass filters has one tomography per band, each solved from
 // that band's cameras alone, so that the fit starts each voxel's temperature from the ratio of its
-// emission in the bands. The jobs that reconstruct and then fit (`fit` without --tomography,
-// `run`) call this; a colour rig, or a mono rig in one band, has no bands.
+// emission in the bands. The jobs that fit (`fit`, also beside a tomography from a file, and
+// `run`) call this; a colour rig, a mono rig in one band, or a rig with colour cameras among its
+// fitted ones has no bands.
 #ifndef FLAMERIG_PIPELINE_BAND_TOMOGRAPHY_H_
 #define FLAMERIG_PIPELINE_BAND_TOMOGRAPHY_H_
 
@@ -18,9 +19,9 @@ namespace flamerig {
 
 // The fitted views grouped by band: views of mono cameras whose spectral responses differ (by
 // ChannelResponse::name(): the sensitivity and filter, not the gains) form one group per
-// response, in the order the views first name them. Empty unless there are two groups or more; a
-// view with a colour response (or none) among mono ones is an InputError, since its colour and
-// the bands' ratios would start the fit in two different ways.
+// response, in the order the views first name them. Empty unless there are two groups or more
+// and every view is mono: with a colour camera (or one without a response) among them the fit
+// starts from the colour, as for any colour rig.
 std::vector<std::vector<std::size_t>> GroupViewsByBand(const std::vector<FitView>& views);
 
 // Per band, a tomography from that band's views only (`frames` in rig order, `rig_index` of each

@@ -505,6 +505,10 @@ TEST(RunFrames, ATwoColourRigStartsEveryFrameFromItsBands) {
     bool said = false;
     for (const auto& n : f.notes) said = said || n.find("two-colour start from 2 bands") == 0;
     EXPECT_TRUE(said);
+    // The fit used the bands (the warm-started frame for its new voxels).
+    const FireVolume v = ReadVdb((dir / "out" / (FrameName(f.frame) + ".vdb")).string());
+    EXPECT_NE(v.metadata_text.at("method").find("two-colour start from 2 bands"), std::string::npos)
+        << v.metadata_text.at("method");
     std::printf("frame %zu: temperature bias %.1f K, RMS %.1f K\n", f.frame, f.truth_bias_k,
                 f.truth_rms_k);
     EXPECT_LT(std::abs(f.truth_bias_k), 150.0);
