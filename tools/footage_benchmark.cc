@@ -117,6 +117,29 @@ LinearFrame DecodeWith(const ImageU8& u8, const ImageU16& u16, int bits, double 
   return linear;
 }
 
+// The scene's 8-bit sRGB frames through a video codec (each camera's frame a video of its own).
+InputPath CodecPath(const Scene& s, const VideoCodecOptions& codec, const std::string& name,
+                    const std::function<void(const std::string&)>& log) {
+  InputPath p{name, {}, SrgbDecode(10.0 / 255) / s.exposure};
+  std::size_t specks = 0, pixels = 0;
+  for (const ImageF& l : s.linear) {
+    const ImageU8 i = ApplyCameraResponse(l, s.exposure);
+    const ImageU8 coded = ThroughVideoCodec({i}, codec)[0];
+    for (std::size_t q = 0; q < coded.num_pixels(); ++q) {
+      const bool black =
+          i.pixels[3 * q] == 0 && i.pixels[3 * q + 1] == 0 && i.pixels[3 * q + 2] == 0;
+      const bool lit = coded.pixels[3 * q] || coded.pixels[3 * q + 1] || coded.pixels[3 * q + 2];
+      specks += black && lit;
+      ++pixels;
+    }
+    p.frames.push_back(DecodeSrgb8(coded, s.exposure));
+  }
+  if (log)
+    log("footage: " + name + " lit " + Fixed(100.0 * specks / std::max<std::size_t>(1, pixels), 2) +
+        "% of the pixels that were exactly black");
+  return p;
+}
+
 std::vector<InputPath> MakePaths(const Scene& s, bool quick,
                                  const std::function<void(const std::string&)>& log) {
   std::vector<InputPath> paths;
@@ -129,26 +152,7 @@ std::vector<InputPath> MakePaths(const Scene& s, bool quick,
     for (const ImageU8& i : srgb) p.frames.push_back(DecodeSrgb8(i, exposure));
     paths.push_back(std::move(p));
   }
-  {
-    VideoCodecOptions codec;  // libx264, crf 30, 4:2:0
-    InputPath p{"H.264 (libx264 crf 30, 4:2:0)", {}, srgb10};
-    std::size_t specks = 0, pixels = 0;
-    for (const ImageU8& i : srgb) {
-      const ImageU8 coded = ThroughVideoCodec({i}, codec)[0];
-      for (std::size_t q = 0; q < coded.num_pixels(); ++q) {
-        const bool black =
-            i.pixels[3 * q] == 0 && i.pixels[3 * q + 1] == 0 && i.pixels[3 * q + 2] == 0;
-        const bool lit = coded.pixels[3 * q] || coded.pixels[3 * q + 1] || coded.pixels[3 * q + 2];
-        specks += black && lit;
-        ++pixels;
-      }
-      p.frames.push_back(DecodeSrgb8(coded, exposure));
-    }
-    if (log)
-      log("footage: H.264 lit " + Fixed(100.0 * specks / std::max<std::size_t>(1, pixels), 2) +
-          "% of the pixels that were exactly black");
-    paths.push_back(std::move(p));
-  }
+  paths.push_back(CodecPath(s, VideoCodecOptions(), "H.264 (libx264 crf 30, 4:2:0)", log));
   if (quick) return paths;
   // Machine-vision raw: linear codes. 12 bits in 16-bit frames, and 8 bits read as they are
   // (--input-transfer linear) or, as flamerig once did, as sRGB.
@@ -408,6 +412,31 @@ std::string RunFootageBenchmark(const FootageBenchmarkOptions& options,
     log("footage: --mask-threshold 20: H.264 outside " + Fixed(100 * coded_strict.outside, 2) +
         "%, held-out " + Fixed(coded_strict.heldout, 3) + " (clean " +
         Fixed(clean_strict.heldout, 3) + ")");
+  // What limits the codec frames: the same fire through libx264 at its own default quality
+  // (crf 23), at crf 18, and at crf 30 with full-resolution chroma (4:4:4).
+  md << "\nThe codec's quality against the same clean frames (flamerig's defaults; the target "
+        "within 10%):\n\n";
+  struct Variant {
+    int crf;
+    const char* format;
+  };
+  for (const Variant& v :
+       {Variant{23, "yuv420p"}, Variant{18, "yuv420p"}, Variant{30, "yuv444p"}}) {
+    VideoCodecOptions codec;
+    codec.crf = v.crf;
+    codec.pixel_format = v.format;
+    const InputPath path = CodecPath(scene, codec, codec.Describe(), log);
+    const Score sc = Reconstruct(scene, path, Flamerig(resolution, scene.exposure), true);
+    md << "- " << codec.Describe() << (v.crf == 23 ? " (libx264's default quality)" : "")
+       << ": held-out " << Fixed(sc.heldout, 3) << " against " << Fixed(clean.heldout, 3) << " ("
+       << Fixed(100 * (sc.heldout / clean.heldout - 1), 0)
+       << "% above): " << verdict(sc.heldout <= 1.1 * clean.heldout) << "; outside "
+       << Fixed(100 * sc.outside, 2) << "%: " << verdict(sc.outside <= 0.005) << ".\n";
+    if (log)
+      log("footage: " + codec.Describe() + ": held-out " + Fixed(sc.heldout, 3) + ", outside " +
+          Fixed(100 * sc.outside, 2) + "%");
+  }
+
   // The options: what the prior and binning give and cost on the same frames.
   const Score &tv_clean = scores[1][0], &tv_coded = scores[1][1];
   const Score &bin_clean = scores[2][0], &bin_coded = scores[2][1];
