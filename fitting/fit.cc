@@ -208,22 +208,28 @@ class BandStart {
       if (v.emission_rgb.size() != v.geometry.num_voxels() * 3)
         throw InputError(where + " (" + band.response->name() +
                          "): its tomography has no emission");
-      emission_.push_back(v.geometry.SameVoxels(grid)
-                              ? v.emission_rgb
-                              : ResampleEmission(v.geometry, v.emission_rgb, grid));
-      integral_.push_back(IntegralVolume(emission_.back(), grid.dims));
+      const std::vector<float> rgb = v.geometry.SameVoxels(grid)
+                                         ? v.emission_rgb
+                                         : ResampleEmission(v.geometry, v.emission_rgb, grid);
+      std::vector<float> grey(rgb.size() / 3);
+      for (std::size_t i = 0; i < grey.size(); ++i) grey[i] = rgb[3 * i];
+      integral_.push_back(IntegralVolume(grey, grid.dims));
+      emission_.push_back(std::move(grey));
       const ThinEmissionTable table(absorption, t_min_k, t_max_k, band.response);
-      std::vector<double> k;
-      for (double t = t_min_k; t <= t_max_k; t += 1)
+      std::vector<double> k, log_k;
+      for (double t = t_min_k; t <= t_max_k; t += 1) {
         k.push_back(std::max(table.RgbPerDensity(t)[0], 1e-300));
+        log_k.push_back(std::log(k.back()));
+      }
       k_.push_back(std::move(k));
+      log_k_.push_back(std::move(log_k));
     }
   }
   std::size_t bands() const { return emission_.size(); }
   int radius() const { return radius_; }  // of the neighbourhood whose emission gives T
   void set_radius(int r) { radius_ = r; }
   // Band b's emission at a voxel (channel 0: the bands are grey).
-  double Emission(std::size_t b, std::size_t voxel) const { return emission_[b][3 * voxel]; }
+  double Emission(std::size_t b, std::size_t voxel) const { return emission_[b][voxel]; }
   // Each band's emission summed over the cube of radius() around voxel (i, j, k), clipped to the
   // grid: eight look-ups in the band's summed-volume table, whatever the radius.
   void BoxSums(int i, int j, int k, std::vector<double>* sums) const {
@@ -261,11 +267,11 @@ class BandStart {
     const std::size_t n = k_.front().size();
     auto cost = [&](std::size_t i) {
       double mean = 0;
-      for (std::size_t u = 0; u < used.size(); ++u) mean += log_e[u] - std::log(k_[used[u]][i]);
+      for (std::size_t u = 0; u < used.size(); ++u) mean += log_e[u] - log_k_[used[u]][i];
       mean /= double(used.size());
       double c = 0;
       for (std::size_t u = 0; u < used.size(); ++u) {
-        const double r = log_e[u] - std::log(k_[used[u]][i]) - mean;
+        const double r = log_e[u] - log_k_[used[u]][i] - mean;
         c += r * r;
       }
       return c;
@@ -294,7 +300,7 @@ class BandStart {
   }
 
  private:
-  // S(x, y, z) = the sum of channel 0 over voxels [0, x) x [0, y) x [0, z), (nx+1)(ny+1)(nz+1).
+  // S(x, y, z) = the sum of e over voxels [0, x) x [0, y) x [0, z), (nx+1)(ny+1)(nz+1).
   static std::vector<double> IntegralVolume(const std::vector<float>& e, const Eigen::Vector3i& d) {
     const std::size_t sx = d.x() + 1, sy = d.y() + 1;
     std::vector<double> s(sx * sy * (d.z() + 1), 0.0);
@@ -304,8 +310,8 @@ class BandStart {
           const std::size_t v =
               (static_cast<std::size_t>(z - 1) * d.y() + (y - 1)) * d.x() + (x - 1);
           const auto at = [&](int a, int b, int c) { return s[(c * sy + b) * sx + a]; };
-          s[(z * sy + y) * sx + x] = e[3 * v] + at(x - 1, y, z) + at(x, y - 1, z) +
-                                     at(x, y, z - 1) - at(x - 1, y - 1, z) - at(x - 1, y, z - 1) -
+          s[(z * sy + y) * sx + x] = e[v] + at(x - 1, y, z) + at(x, y - 1, z) + at(x, y, z - 1) -
+                                     at(x - 1, y - 1, z) - at(x - 1, y, z - 1) -
                                      at(x, y - 1, z - 1) + at(x - 1, y - 1, z - 1);
         }
     return s;
@@ -314,9 +320,9 @@ class BandStart {
   double t_min_;
   int radius_ = 1;
   Eigen::Vector3i dims_;
-  std::vector<std::vector<double>> integral_;  // per band
-  std::vector<std::vector<float>> emission_;   // per band, 3 per voxel of the grid
-  std::vector<std::vector<double>> k_;         // per band, K_b per kelvin from t_min
+  std::vector<std::vector<double>> integral_;   // per band
+  std::vector<std::vector<float>> emission_;    // per band, per voxel of the grid (channel 0)
+  std::vector<std::vector<double>> k_, log_k_;  // per band, K_b and its log per kelvin from t_min
 };
 
 // Where any band has light: the bands' emission, each over its own peak, summed on the first

@@ -6,12 +6,18 @@
 
 namespace flamerig {
 
-std::vector<std::vector<std::size_t>> GroupViewsByBand(const std::vector<FitView>& views) {
+Responses ResponsesOf(const std::vector<FitView>& views) {
+  Responses out;
+  for (const FitView& v : views) out.push_back(v.response);
+  return out;
+}
+
+std::vector<std::vector<std::size_t>> GroupByBand(const Responses& responses) {
   std::vector<std::string> names;
   std::vector<std::vector<std::size_t>> groups;
   bool colour = false;
-  for (std::size_t v = 0; v < views.size(); ++v) {
-    const auto& r = views[v].response;
+  for (std::size_t v = 0; v < responses.size(); ++v) {
+    const auto& r = responses[v];
     if (!r || r->channels() != 1) {
       colour = true;
       continue;
@@ -36,16 +42,16 @@ BandReconstructor::BandReconstructor(const Rig& rig, ReconstructOptions options)
   options_.stop_camera.clear();
 }
 
-std::vector<BandTomography> BandReconstructor::Reconstruct(const std::vector<FitView>& views,
+std::vector<BandTomography> BandReconstructor::Reconstruct(const Responses& responses,
                                                            const std::vector<int>& rig_index,
                                                            const std::vector<LinearFrame>& frames,
                                                            std::string* report,
                                                            const ProgressCallback& progress) {
-  if (rig_index.size() != views.size())
-    throw std::logic_error("BandReconstructor: one rig index per view");
+  if (rig_index.size() != responses.size())
+    throw std::logic_error("BandReconstructor: one rig index per camera");
   std::vector<BandTomography> out;
-  for (const auto& group : GroupViewsByBand(views)) {
-    const auto& response = views[group.front()].response;
+  for (const auto& group : GroupByBand(responses)) {
+    const auto& response = responses[group.front()];
     std::vector<LinearFrame> used(frames.size());
     for (std::size_t v : group)
       used.at(static_cast<std::size_t>(rig_index[v])) =

@@ -17,20 +17,24 @@
 
 namespace flamerig {
 
-// The fitted views grouped by band: views of mono cameras whose spectral responses differ (by
-// ChannelResponse::name(): the sensitivity and filter, not the gains) form one group per
-// response, in the order the views first name them. Empty unless there are two groups or more
-// and every view is mono: with a colour camera (or one without a response) among them the fit
-// starts from the colour, as for any colour rig.
-std::vector<std::vector<std::size_t>> GroupViewsByBand(const std::vector<FitView>& views);
+// The fitted cameras grouped by band, given each one's response: mono cameras whose spectral
+// responses differ (by ChannelResponse::name(): the sensitivity and filter, not the gains) form
+// one group per response, of indices into `responses`, in the order they first appear. Empty
+// unless there are two groups or more and every camera is mono: with a colour camera (or one
+// without a response) among them the fit starts from the colour, as for any colour rig.
+using Responses = std::vector<std::shared_ptr<const ChannelResponse>>;
+std::vector<std::vector<std::size_t>> GroupByBand(const Responses& responses);
+// The same for fitted views (their responses).
+Responses ResponsesOf(const std::vector<FitView>& views);
 
-// Per band, a tomography from that band's views only (`frames` in rig order, `rig_index` of each
-// view), with `options` (its held-out and stop cameras dropped: they belong to the joint solve).
-// Empty when GroupViewsByBand is. `report` (optional) gets one line per band.
+// Per band, a tomography from that band's cameras only (`frames` in rig order; `rig_index` and
+// `responses` per fitted camera), with `options` (its held-out and stop cameras dropped: they
+// belong to the joint solve). Empty when GroupByBand is. `report` (optional) gets one line per
+// band.
 class BandReconstructor {
  public:
   BandReconstructor(const Rig& rig, ReconstructOptions options);
-  std::vector<BandTomography> Reconstruct(const std::vector<FitView>& views,
+  std::vector<BandTomography> Reconstruct(const Responses& responses,
                                           const std::vector<int>& rig_index,
                                           const std::vector<LinearFrame>& frames,
                                           std::string* report = nullptr,

@@ -90,7 +90,8 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
   // of all its cameras together, which mixes bands, only the exposure.
   FireVolume tomography;
   std::vector<BandTomography> bands;
-  const bool band_rig = job.method == FitMethod::kFast && !GroupViewsByBand(views).empty();
+  const Responses responses = ResponsesOf(views);
+  const bool band_rig = job.method == FitMethod::kFast && !GroupByBand(responses).empty();
   if (!job.tomography_path.empty()) {
     tomography = ReadVdb(job.tomography_path);
     out.tomography = "file " + job.tomography_path;
@@ -106,7 +107,8 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
     std::vector<int> rig_index;
     for (const auto& v : views) rig_index.push_back(camera_index(v.name));
     std::string report;
-    bands = BandReconstructor(rig, ro).Reconstruct(views, rig_index, set.linear, &report, progress);
+    bands =
+        BandReconstructor(rig, ro).Reconstruct(responses, rig_index, set.linear, &report, progress);
     if (job.tomography_path.empty()) tomography = bands.front().tomography;
     out.tomography += (out.tomography.empty() ? "" : "\n") + report;
   }

@@ -111,13 +111,10 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
     responses_.push_back(ChannelResponse::ForCamera(c.radiometry));
   }
   // Mono cameras in several bands (two-colour pyrometry): a tomography per band as well.
-  std::vector<FitView> fitted;
+  Responses fitted;
   for (std::size_t c = 0; c < rig_.cameras.size(); ++c)
-    if (static_cast<int>(c) != holdout_) {
-      fitted.emplace_back();
-      fitted.back().response = responses_[c];
-    }
-  if (!GroupViewsByBand(fitted).empty())
+    if (static_cast<int>(c) != holdout_) fitted.push_back(responses_[c]);
+  if (!GroupByBand(fitted).empty())
     band_reconstructor_ = std::make_unique<BandReconstructor>(rig_, ro);
   truth_count_ = CountTruth(options_.truth_dir);
   for (const char* sub : {"frames", "tomography", "state", "blender"})
@@ -232,18 +229,16 @@ void FrameStages::Reconstruct(FrameWork* w, const ProgressCallback& progress) {
     throw DataError(std::string("tomography: ") + e.what());
   }
   if (band_reconstructor_) {
-    std::vector<FitView> views;
+    Responses responses;
     std::vector<int> rig_index;
     for (std::size_t c = 0; c < rig_.cameras.size(); ++c)
       if (!linear[c].radiance.empty()) {
-        views.emplace_back();
-        views.back().name = rig_.cameras[c].name;
-        views.back().response = responses_[c];
+        responses.push_back(responses_[c]);
         rig_index.push_back(static_cast<int>(c));
       }
     std::string report;
     try {
-      w->bands = band_reconstructor_->Reconstruct(views, rig_index, linear, &report, progress);
+      w->bands = band_reconstructor_->Reconstruct(responses, rig_index, linear, &report, progress);
     } catch (const DataError& e) {
       s.reconstruct_ms = Ms(t0);
       throw DataError(std::string("tomography of a band: ") + e.what());

@@ -392,18 +392,25 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
 
   const AbsorptionModel absorption = AbsorptionModel::FromName(config.absorption);
   const GridGeometry grid = GridGeometry::FromBox(config.box, config.grid_resolution);
-  RenderOptions render = config.render;
-  render.response = ChannelResponse::ForCamera(config.radiometry);
-  FireRenderer renderer(absorption, render);
-  // Cameras behind their own filters (camera_filters) see their own spectra: a renderer each, in
-  // its camera's channels (its gains still multiply the output below, as for the others).
-  std::vector<std::unique_ptr<FireRenderer>> filtered(rig.cameras.size());
-  for (std::size_t c = 0; c < config.camera_filters.size() && c < rig.cameras.size(); ++c) {
-    CameraRadiometry spectral = config.radiometry;
-    spectral.spectral.filter = config.camera_filters[c];
-    RenderOptions own = config.render;
-    own.response = ChannelResponse::ForCamera(spectral);
-    filtered[c] = std::make_unique<FireRenderer>(absorption, own);
+  // One renderer per distinct spectral response: a camera behind its own filter
+  // (camera_filters) sees its own spectrum; cameras sharing a filter share a renderer. A camera's
+  // own gains still multiply the output below.
+  std::vector<std::unique_ptr<FireRenderer>> renderers;
+  std::vector<std::size_t> renderer_of(rig.cameras.size(), 0);
+  {
+    std::vector<const ChannelResponse*> seen;
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+      CameraRadiometry spectral = config.radiometry;
+      if (c < config.camera_filters.size()) spectral.spectral.filter = config.camera_filters[c];
+      RenderOptions own = config.render;
+      own.response = ChannelResponse::ForCamera(spectral);
+      const auto at = std::find(seen.begin(), seen.end(), own.response.get());
+      renderer_of[c] = static_cast<std::size_t>(at - seen.begin());
+      if (at == seen.end()) {
+        seen.push_back(own.response.get());
+        renderers.push_back(std::make_unique<FireRenderer>(absorption, own));
+      }
+    }
   }
   std::vector<CameraRays> rays;
   for (const auto& c : rig.cameras) rays.emplace_back(c.model);
@@ -435,12 +442,10 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
     fire_options.time_s = f / config.frame_rate_hz;
     FireVolume fire = synthetic::MakeFire(grid, fire_options, absorption);
     fire.emission_rgb = synthetic::ThinEmissionRgb(fire, absorption);
-    renderer.SetVolume(grid, fire.temperature_k, fire.density_per_m3);
-    for (auto& r : filtered)
-      if (r) r->SetVolume(grid, fire.temperature_k, fire.density_per_m3);
+    for (auto& r : renderers) r->SetVolume(grid, fire.temperature_k, fire.density_per_m3);
     std::vector<ImageF> linear(rig.cameras.size());
     for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
-      summary.last_render = (filtered[c] ? *filtered[c] : renderer).Render(rays[c], &linear[c]);
+      summary.last_render = renderers[renderer_of[c]]->Render(rays[c], &linear[c]);
       // A camera's own gains scale its output channels (camera_response.h).
       if (c < config.camera_gains.size())
         for (std::size_t p = 0; p < linear[c].num_pixels(); ++p)
