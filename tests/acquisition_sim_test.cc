@@ -426,5 +426,36 @@ TEST(SimCamera, SoftwareTriggerAndBadSettings) {
   EXPECT_THROW(SimCamera(wrong, &clock, nullptr), InputError);
 }
 
+// The pattern is the formula its header states, byte by byte (a test decodes frames with it), in
+// a pooled buffer that held a larger frame of another format before.
+TEST(SimCamera, TestPatternIsTheStatedGradientWithItsStamp) {
+  const ImageSource pattern = TestPatternSource();
+  std::vector<std::uint8_t> bytes(5000000, 0xAB);
+  for (PixelFormat format : {PixelFormat::kRgb8, PixelFormat::kMono8, PixelFormat::kMono16}) {
+    FrameInfo info;
+    info.pixel_format = format;
+    info.width = 601;  // longer than the 256-step period, and odd
+    info.height = 37;
+    info.camera = 5;
+    info.frame_id = 1234567;
+    pattern(info, &bytes);
+    const int bpp = BytesPerPixel(format);
+    ASSERT_EQ(bytes.size(), std::size_t(601) * 37 * bpp);
+    int wrong = 0;
+    for (int y = 0; y < 37; ++y)
+      for (int x = 0; x < 601; ++x)
+        for (int b = 0; b < bpp; ++b) {
+          const std::size_t i = (std::size_t(y) * 601 + x) * bpp + b;
+          if (i < 16) continue;
+          const long long v = x + 2LL * y + 3LL * 1234567 + 50 * 5 + 7 * b;
+          wrong += bytes[i] != static_cast<std::uint8_t>(v % 256);
+        }
+    EXPECT_EQ(wrong, 0) << ToString(format);
+    EXPECT_EQ(bytes[0], 5);
+    EXPECT_EQ(bytes[8], 1234567 & 0xFF);
+    EXPECT_EQ(bytes[9], (1234567 >> 8) & 0xFF);
+  }
+}
+
 }  // namespace
 }  // namespace flamerig
