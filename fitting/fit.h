@@ -176,7 +176,7 @@ struct FitOptions {
   // selections). The accuracy benchmark's oracle runs hold the truth's densities, say.
   FitSelection vary;
   // Per-voxel confidence (uncertainty.h) at the finest level's result: the sigma and determined
-  // grids in the volume. Off by default (it costs `uncertainty.probes` adjoint passes per view);
+  // grids in the volume. Off by default (it costs a render and a curvature pass per view);
   // `fit` and `run` turn it on.
   bool estimate_uncertainty = false;
   UncertaintyOptions uncertainty;

@@ -473,76 +473,39 @@ void FitObjective::UploadVolume(const std::vector<double>& t, const std::vector<
 }
 
 FitObjective::Curvature FitObjective::DataCurvature(const std::vector<double>& t,
-                                                    const std::vector<double>& n, double s,
-                                                    int probes, std::uint64_t seed) const {
-  if (probes < 1) throw InputError("fit: the curvature needs at least one probe");
+                                                    const std::vector<double>& n,
+                                                    double s) const {
   const Renders renders = Render(t, n);
   Curvature out;
   const std::size_t na = active_.size();
   out.tt.assign(na, 0.0);
   out.tn.assign(na, 0.0);
   out.nn.assign(na, 0.0);
-  // Per view and pixel: d(Lab)/d(linear) at the fit (zero where clamped), and the residuals.
-  std::vector<std::vector<Eigen::Matrix3f>> jacobians(views_.size());
+  std::vector<double> tt, tn, nn;
   for (std::size_t v = 0; v < views_.size(); ++v) {
+    // Per pixel: d(Lab)/d(linear) at the fit (zero where clamped, or where the render is black),
+    // and the residuals over fire pixels.
     const ImageF& img = renders.linear[v];
     const auto& target = target_lab_[v];
-    jacobians[v].resize(target.size());
+    std::vector<Eigen::Matrix3f> jacobians(target.size(), Eigen::Matrix3f::Zero());
     for (std::size_t p = 0; p < target.size(); ++p) {
       const Eigen::Vector3d linear(img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]);
       Eigen::Matrix3d jac;
       const Eigen::Vector3d lab = CameraLab(linear, s, &jac);
-      jacobians[v][p] = jac.cast<float>();
+      if (!linear.isZero()) jacobians[p] = jac.cast<float>();
       if (lab[0] > 1 || target[p][0] > 1) {
         out.residual_sq += (lab - target[p].cast<double>()).squaredNorm();
         out.residuals += 3;
       }
     }
+    renderer(v).RenderCurvature(*views_[v].rays, jacobians, &tt, &tn, &nn);
   }
-  // A sign per residual from a hash of (seed, probe, view, pixel): the same for any thread count.
-  auto sign_bits = [seed](std::uint64_t k, std::uint64_t v, std::uint64_t p) {
-    std::uint64_t z = seed + 0x9E3779B97F4A7C15ULL * (1 + ((k << 40) ^ (v << 32) ^ p));
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
-    return z ^ (z >> 31);
-  };
-  std::vector<double> grad_t, grad_n;
-  for (int k = 0; k < probes; ++k) {
-    grad_t.clear();
-    grad_n.clear();
-    for (std::size_t v = 0; v < views_.size(); ++v) {
-      const ImageF& img = renders.linear[v];
-      ImageF d_img(img.width, img.height, 3, 0.0f);
-      tbb::parallel_for(tbb::blocked_range<std::size_t>(0, jacobians[v].size(), 4096),
-                        [&](const tbb::blocked_range<std::size_t>& r) {
-                          for (std::size_t p = r.begin(); p < r.end(); ++p) {
-                            // A black pixel's ray crosses no emitting medium: its probe would
-                            // reach no voxel, and its ray is not marched.
-                            if (img.pixels[3 * p] == 0 && img.pixels[3 * p + 1] == 0 &&
-                                img.pixels[3 * p + 2] == 0)
-                              continue;
-                            const std::uint64_t bits = sign_bits(k, v, p);
-                            const Eigen::Vector3f sign(bits & 1 ? 1.f : -1.f, bits & 2 ? 1.f : -1.f,
-                                                       bits & 4 ? 1.f : -1.f);
-                            const Eigen::Vector3f g = jacobians[v][p].transpose() * sign;
-                            for (int ch = 0; ch < 3; ++ch) d_img.pixels[3 * p + ch] = g[ch];
-                          }
-                        });
-      renderer(v).RenderGradient(*views_[v].rays, d_img, &grad_t, &grad_n);
-    }
-    if (grad_t.empty()) continue;  // no voxel in view
-    for (std::size_t a = 0; a < na; ++a) {
-      const double gt = grad_t[active_[a]];
-      const double gn = grad_n[active_[a]] * std::max(0.0, n[a]);  // d/d ln n = n d/dn
-      out.tt[a] += gt * gt;
-      out.tn[a] += gt * gn;
-      out.nn[a] += gn * gn;
-    }
-  }
+  if (tt.empty()) return out;  // no view
   for (std::size_t a = 0; a < na; ++a) {
-    out.tt[a] /= probes;
-    out.tn[a] /= probes;
-    out.nn[a] /= probes;
+    const double dn_dlog = std::max(0.0, n[a]);  // d/d ln n = n d/dn
+    out.tt[a] = tt[active_[a]];
+    out.tn[a] = tn[active_[a]] * dn_dlog;
+    out.nn[a] = nn[active_[a]] * dn_dlog * dn_dlog;
   }
   return out;
 }

@@ -183,10 +183,11 @@ class FitObjective {
 
   // The data's Gauss-Newton curvature per active voxel (fitting/uncertainty.h uses it). J is the
   // derivative of every pixel's CIELab value (the data term's residuals, 3 per pixel of every view)
-  // with respect to each active voxel's temperature (K) and natural-log density. With `probes`
-  // random sign vectors v over the residuals, (J^T v)_i (J^T v)_j averaged over the probes is an
-  // unbiased estimate of (J^T J)_ij (Hutchinson); here for the three pairs of each voxel: (T, T),
-  // (T, ln n), (ln n, ln n). One adjoint pass per view per probe; deterministic in `seed`.
+  // with respect to each active voxel's temperature (K) and natural-log density; the result is the
+  // voxel's diagonal block of J^T J, its three pairs (T, T), (T, ln n), (ln n, ln n), exact
+  // (FireRenderer::RenderCurvature: one render and one curvature pass per view; until 2026-11-26 a
+  // Hutchinson estimate from 16 random probes, one adjoint pass per view each, with a relative
+  // error of about 35%). Black rendered pixels (their rays cross no medium) are not marched.
   // Also the residuals' sum of squares and their count over fire pixels (rendered or recorded
   // with L* above 1), from which a noise level follows.
   struct Curvature {
@@ -194,8 +195,8 @@ class FitObjective {
     double residual_sq = 0;
     std::int64_t residuals = 0;
   };
-  Curvature DataCurvature(const std::vector<double>& t, const std::vector<double>& n, double s,
-                          int probes, std::uint64_t seed) const;
+  Curvature DataCurvature(const std::vector<double>& t, const std::vector<double>& n,
+                          double s) const;
 
   // Coordinate descent (the paper's algorithms), which render once per move and score exposures
   // on that render (DataTermAt):

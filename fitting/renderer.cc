@@ -590,6 +590,35 @@ inline Real SpectralAdjointStep(int nbp, const float* const* rows, const Real* u
   return MaxOf<Real>(max_tr);
 }
 
+// The adjoint's step without its adjoint (RenderCurvature): what SpectralAdjointStep multiplies by
+// the adjoint, per bin: e_factor[b] = sigma_b Tr ds phi (d_emission = adjoint * e_factor) and
+// n_factor[b] = sigma_b ds (Tr tau phi' S_b - behind_b) (d_n = sum_b adjoint_b n_factor[b]); the
+// transmittance and cumulative radiance advanced as there; returns the largest transmittance.
+template <bool kThin, typename Real>
+inline Real SpectralFactorStep(int nbp, const float* const* rows, const Real* u, const Real* uf,
+                               const Real* sigma, const Real* total, Real n_sample, Real ds,
+                               Real* cumulative, Real* transmittance, Real* e_factor,
+                               Real* n_factor) {
+  Lanes<Real> max_tr{};
+  for (int b0 = 0; b0 < nbp; b0 += kVectorLanes) {
+    const Lanes<Real> source = SourceLanes<Real>(rows, u, uf, b0, nbp);
+    const Lanes<Real> sig = LoadLanes(sigma + b0);
+    Lanes<Real> absorbed, phi, tau_dphi;
+    StepTermsLanes<kThin, Real>(sig * n_sample * ds, &absorbed, &phi, &tau_dphi);
+    Lanes<Real> tr = LoadLanes(transmittance + b0);
+    const Lanes<Real> w = tr * absorbed;
+    const Lanes<Real> cum = LoadLanes(cumulative + b0) + w * source;
+    StoreLanes(cumulative + b0, cum);
+    const Lanes<Real> behind = LoadLanes(total + b0) - cum;
+    StoreLanes(e_factor + b0, sig * tr * ds * phi);
+    StoreLanes(n_factor + b0, sig * ds * (tr * tau_dphi * source - behind));
+    tr -= w;
+    StoreLanes(transmittance + b0, tr);
+    max_tr = tr > max_tr ? tr : max_tr;
+  }
+  return MaxOf<Real>(max_tr);
+}
+
 // de[b] += weight * d_emission[b] over the padded bins.
 template <typename Real>
 inline void AddScaledLanes(int nbp, Real weight, const Real* d_emission, Real* de) {
@@ -1089,6 +1118,286 @@ void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
       }
     }
   }
+}
+
+// Each thread's accumulators for RenderCurvature: the 2x2 blocks per slot, and for the ray being
+// marched, per voxel it crosses, the per-bin sums of the adjoint's factors (emission part e,
+// absorption part n); `local` maps a slot to its place in the ray's lists (-1: not crossed yet).
+template <typename Real>
+struct FireRenderer::CurvatureBuffers {
+  std::vector<double> tt, tn, nn;    // per slot
+  std::vector<std::int32_t> local;   // per slot
+  std::vector<std::int32_t> touched;  // the ray's slots, in the order first crossed
+  std::vector<Real> e, n;            // per touched slot, padded bins
+};
+
+template <typename Real>
+RenderSummary FireRenderer::CurvatureImpl(const CameraRays& camera_rays,
+                                          const std::vector<Eigen::Matrix3f>& pixel_jacobians,
+                                          std::vector<double>* tt, std::vector<double>* tn,
+                                          std::vector<double>* nn) const {
+  const auto start = std::chrono::steady_clock::now();
+  const int width = camera_rays.width(), height = camera_rays.height();
+  GradientJob job;
+  job.rays = &camera_rays;
+  job.to_rgb = response_->output_from_basis();
+  job.step_m = options_.step_voxels * geometry_.voxel_size_m.minCoeff();
+  job.min_transmittance = options_.min_transmittance;
+  job.spectral = path_ == SpectralPath::kSpectral;
+  job.nbins = job.spectral ? bins_->count() : 3;
+  job.to_rgb_t = response_->output_from_basis().transpose();
+  job.grey_sigma = job.spectral ? 0.0 : absorption_.CrossSectionM2(550.0);
+  const std::size_t nactive = active_voxels_.size();
+  const bool wide = std::is_same_v<Real, float> && options_.wide_kernels && UseWideKernels();
+
+  tbb::enumerable_thread_specific<CurvatureBuffers<Real>> buffers;
+  std::atomic<std::int64_t> hit{0}, early{0}, evaluated{0}, skipped{0}, after{0};
+  tbb::parallel_for(tbb::blocked_range<int>(0, height), [&](const tbb::blocked_range<int>& rows) {
+    CurvatureBuffers<Real>& buf = buffers.local();
+    if (buf.local.empty()) {
+      buf.tt.assign(nactive, 0.0);
+      buf.tn.assign(nactive, 0.0);
+      buf.nn.assign(nactive, 0.0);
+      buf.local.assign(nactive, -1);
+    }
+    MarchCounters c;
+    if constexpr (std::is_same_v<Real, float>) {
+      if (wide)
+        CurvatureRowsWide(job, pixel_jacobians, rows.begin(), rows.end(), &buf, &c);
+      else
+        CurvatureRows<float>(job, pixel_jacobians, rows.begin(), rows.end(), &buf, &c);
+    } else {
+      CurvatureRows<Real>(job, pixel_jacobians, rows.begin(), rows.end(), &buf, &c);
+    }
+    hit += c.hit;
+    early += c.early;
+    evaluated += c.evaluated;
+    skipped += c.skipped;
+    after += c.after;
+  });
+  for (const CurvatureBuffers<Real>& buf : buffers) {
+    if (buf.local.empty()) continue;
+    for (std::size_t a = 0; a < nactive; ++a) {
+      const std::uint32_t v = active_voxels_[a];
+      (*tt)[v] += buf.tt[a];
+      (*tn)[v] += buf.tn[a];
+      (*nn)[v] += buf.nn[a];
+    }
+  }
+  RenderSummary summary = Summarise(start, static_cast<std::int64_t>(width) * height, job.nbins,
+                                    MarchCounters{hit, early, evaluated, skipped, after});
+  summary.wide_kernels = wide;
+  return summary;
+}
+
+// The AVX2 + FMA build of the float curvature (see RenderRowsWide).
+__attribute__((target("avx2,fma"), flatten)) void FireRenderer::CurvatureRowsWide(
+    const GradientJob& job, const std::vector<Eigen::Matrix3f>& jacobians, int y0, int y1,
+    CurvatureBuffers<float>* buffers, MarchCounters* c) const {
+  CurvatureRows<float>(job, jacobians, y0, y1, buffers, c);
+}
+
+template <typename Real>
+void FireRenderer::CurvatureRows(const GradientJob& job,
+                                 const std::vector<Eigen::Matrix3f>& jacobians, int y0, int y1,
+                                 CurvatureBuffers<Real>* buffers, MarchCounters* counters) const {
+  const CameraRays& camera_rays = *job.rays;
+  const int width = camera_rays.width();
+  const Real min_tr = Real(job.min_transmittance);
+  const bool spectral = job.spectral;
+  const int nbins = job.nbins;
+  const int nbp = spectral ? padded_bins_ : 3;
+  const ChannelResponse& table = *response_;
+  CurvatureBuffers<Real>& buf = *buffers;
+  MarchCounters& c = *counters;
+  alignas(64) Real total[SpectralBins::kMaxBins], transmittance[SpectralBins::kMaxBins];
+  alignas(64) Real cumulative[SpectralBins::kMaxBins], sigma[SpectralBins::kMaxBins];
+  alignas(64) Real e_factor[SpectralBins::kMaxBins], n_factor[SpectralBins::kMaxBins];
+  double adjoint[3][SpectralBins::kMaxBins];  // per residual and bin (or XYZ channel)
+  Real sigma_max = 0;
+  if (spectral) {
+    for (int b = 0; b < nbp; ++b) {
+      sigma[b] = b < nbins ? Real(bin_cross_section_m2_[b]) : Real(0);
+      sigma_max = std::max(sigma_max, sigma[b]);
+    }
+  }
+  // The ray's list entry of a slot, made (zeroed) when the ray first crosses it.
+  auto local_of = [&](std::int32_t slot) {
+    std::int32_t& l = buf.local[slot];
+    if (l < 0) {
+      l = static_cast<std::int32_t>(buf.touched.size());
+      buf.touched.push_back(slot);
+      const std::size_t need = buf.touched.size() * nbp;
+      if (buf.e.size() < need) {
+        buf.e.resize(2 * need);
+        buf.n.resize(2 * need);
+      }
+      std::fill_n(&buf.e[static_cast<std::size_t>(l) * nbp], nbp, Real(0));
+      std::fill_n(&buf.n[static_cast<std::size_t>(l) * nbp], nbp, Real(0));
+    }
+    return static_cast<std::size_t>(l) * nbp;
+  };
+  for (int y = y0; y < y1; ++y) {
+    for (int x = 0; x < width; ++x) {
+      const Eigen::Matrix3f& jac = jacobians[static_cast<std::size_t>(y) * width + x];
+      if (jac.isZero()) continue;
+      RayMarch march;
+      if (!RayMarch::Make(geometry_, camera_rays.at(x, y), job.step_m, &march)) continue;
+      ++c.hit;
+      for (int k = 0; k < 3; ++k) {
+        const Eigen::Vector3d g_xyz = job.to_rgb_t * jac.row(k).transpose().cast<double>();
+        for (int b = 0; b < nbp; ++b)
+          adjoint[k][b] = b >= nbins ? 0.0 : spectral ? g_xyz.dot(bins_->weight(b)) : g_xyz[b];
+      }
+      for (int b = 0; b < nbp; ++b) {
+        total[b] = cumulative[b] = Real(0);
+        transmittance[b] = b < nbins ? Real(1) : Real(0);
+      }
+      MarchCounters ignored;
+      if (spectral) {
+        std::int32_t slots[8];
+        const float* rows[8];
+        Real u[8], uf[8];
+        // Pass 1: the ray's radiance per bin (as GradientRows).
+        MarchRay<Real>(march, &ignored, [&](Real ds, const std::size_t* corner, const Real* w) {
+          const Real n_sample = GatherCorners(corner, w, slots, rows, u, uf);
+          if (!(n_sample > Real(0))) return true;
+          const Real max_tr =
+              sigma_max * n_sample * ds < Real(1e-2)
+                  ? SpectralStep<true, Real>(nbp, rows, u, uf, sigma, n_sample, ds, total,
+                                             transmittance)
+                  : SpectralStep<false, Real>(nbp, rows, u, uf, sigma, n_sample, ds, total,
+                                              transmittance);
+          return !(max_tr < min_tr);
+        });
+        for (int b = 0; b < nbp; ++b) transmittance[b] = b < nbins ? Real(1) : Real(0);
+        // Pass 2: the adjoint's factors, summed per voxel crossed.
+        MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* w) {
+          const Real n_sample = GatherCorners(corner, w, slots, rows, u, uf);
+          if (!(n_sample > Real(0))) return true;
+          const Real max_tr =
+              sigma_max * n_sample * ds < Real(1e-2)
+                  ? SpectralFactorStep<true, Real>(nbp, rows, u, uf, sigma, total, n_sample, ds,
+                                                   cumulative, transmittance, e_factor, n_factor)
+                  : SpectralFactorStep<false, Real>(nbp, rows, u, uf, sigma, total, n_sample, ds,
+                                                    cumulative, transmittance, e_factor, n_factor);
+          for (int k = 0; k < 8; ++k) {
+            if (slots[k] < 0 || w[k] == Real(0)) continue;
+            const std::size_t l = local_of(slots[k]);
+            AddScaledLanes(nbp, w[k], e_factor, &buf.e[l]);
+            AddScaledLanes(nbp, w[k], n_factor, &buf.n[l]);
+          }
+          return !(max_tr < min_tr);
+        });
+      } else {
+        auto sample = [&](const std::size_t* corner, const Real* weight, Real* kappa,
+                          Real* source) {
+          *kappa = 0;
+          for (int k = 0; k < 8; ++k) *kappa += weight[k] * Real(fast_[4 * corner[k]]);
+          if (!(*kappa > Real(0))) return false;
+          source[0] = source[1] = source[2] = Real(0);
+          for (int k = 0; k < 8; ++k) {
+            const float* v = &fast_[4 * corner[k]];
+            const Real share = weight[k] * Real(v[0]) / *kappa;
+            for (int ch = 0; ch < 3; ++ch) source[ch] += share * Real(v[ch + 1]);
+          }
+          return true;
+        };
+        MarchRay<Real>(march, &ignored, [&](Real ds, const std::size_t* corner, const Real* w) {
+          Real kappa, source[3];
+          if (!sample(corner, w, &kappa, source)) return true;
+          const Real absorbed = transmittance[0] * OneMinusExpNeg(kappa * ds);
+          for (int ch = 0; ch < 3; ++ch) total[ch] += absorbed * source[ch];
+          transmittance[0] -= absorbed;
+          return !(transmittance[0] < min_tr);
+        });
+        transmittance[0] = Real(1);
+        MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* w) {
+          Real kappa, source[3];
+          if (!sample(corner, w, &kappa, source)) return true;
+          Real absorbed, phi, tau_dphi;
+          StepTerms(kappa * ds, &absorbed, &phi, &tau_dphi);
+          const Real tr = transmittance[0];
+          const Real e = tr * ds * phi;
+          Real nf[3];
+          for (int ch = 0; ch < 3; ++ch) {
+            cumulative[ch] += tr * absorbed * source[ch];
+            nf[ch] = ds * (tr * tau_dphi * source[ch] - (total[ch] - cumulative[ch]));
+          }
+          for (int k = 0; k < 8; ++k) {
+            const std::int32_t slot = slot_[corner[k]];
+            if (slot < 0 || w[k] == Real(0)) continue;
+            const std::size_t l = local_of(slot);
+            for (int ch = 0; ch < 3; ++ch) {
+              buf.e[l + ch] += w[k] * e;
+              buf.n[l + ch] += w[k] * nf[ch];
+            }
+          }
+          transmittance[0] -= tr * absorbed;
+          return !(transmittance[0] < min_tr);
+        });
+      }
+      // The ray's Jacobian per voxel crossed, three residuals by (T, n), into the blocks.
+      for (std::size_t i = 0; i < buf.touched.size(); ++i) {
+        const std::int32_t slot = buf.touched[i];
+        const std::uint32_t voxel = active_voxels_[slot];
+        const Real* e = &buf.e[i * nbp];
+        const Real* n = &buf.n[i * nbp];
+        double d_n[3] = {0, 0, 0}, d_t[3] = {0, 0, 0};
+        if (spectral) {
+          const SpectralVoxel& row = spectral_voxels_[voxel];
+          const float* r0 = &spectral_table_[row.offset];
+          const float* r1 = r0 + nbp;
+          const bool hot_row = row.offset >= hot_rows_offset_;
+          const double density = density_[voxel];
+          for (int b = 0; b < nbins; ++b) {
+            const double slope = hot_row ? double(r1[b]) : double(r1[b]) - double(r0[b]);
+            const double part_n = double(e[b]) * (double(r0[b]) + row.fraction * slope) + n[b];
+            const double part_t = double(e[b]) * slope * density;
+            for (int k = 0; k < 3; ++k) {
+              d_n[k] += adjoint[k][b] * part_n;
+              d_t[k] += adjoint[k][b] * part_t;
+            }
+          }
+        } else {
+          Real xyz[3], d_xyz[3];
+          table.LookupWithDerivative(Real(temperature_[voxel]), xyz, d_xyz);
+          const double kappa = fast_[4 * static_cast<std::size_t>(voxel)];
+          for (int ch = 0; ch < 3; ++ch) {
+            const double part_n = job.grey_sigma * (double(n[ch]) + double(e[ch]) * xyz[ch]);
+            const double part_t = kappa * double(e[ch]) * d_xyz[ch];
+            for (int k = 0; k < 3; ++k) {
+              d_n[k] += adjoint[k][ch] * part_n;
+              d_t[k] += adjoint[k][ch] * part_t;
+            }
+          }
+        }
+        for (int k = 0; k < 3; ++k) {
+          buf.tt[slot] += d_t[k] * d_t[k];
+          buf.tn[slot] += d_t[k] * d_n[k];
+          buf.nn[slot] += d_n[k] * d_n[k];
+        }
+        buf.local[slot] = -1;
+      }
+      buf.touched.clear();
+    }
+  }
+}
+
+RenderSummary FireRenderer::RenderCurvature(const CameraRays& rays,
+                                            const std::vector<Eigen::Matrix3f>& pixel_jacobians,
+                                            std::vector<double>* tt, std::vector<double>* tn,
+                                            std::vector<double>* nn) const {
+  if (!has_volume_) throw std::logic_error("FireRenderer::RenderCurvature called before SetVolume");
+  const std::size_t pixels = static_cast<std::size_t>(rays.width()) * rays.height();
+  if (pixel_jacobians.size() != pixels) {
+    throw InputError("RenderCurvature: " + std::to_string(pixel_jacobians.size()) +
+                     " pixel Jacobians for a camera of " + std::to_string(pixels) + " pixels");
+  }
+  PrepareGradientArrays(tt, tn);
+  PrepareGradientArrays(nn, tn);
+  if (options_.double_precision) return CurvatureImpl<double>(rays, pixel_jacobians, tt, tn, nn);
+  return CurvatureImpl<float>(rays, pixel_jacobians, tt, tn, nn);
 }
 
 void FireRenderer::PrepareGradientArrays(std::vector<double>* d_temperature,

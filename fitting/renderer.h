@@ -173,6 +173,25 @@ class FireRenderer {
                                   ImageF* linear_rgb, std::vector<double>* d_temperature,
                                   std::vector<double>* d_density) const;
 
+  // The Gauss-Newton curvature of a least-squares data term, per voxel and exact (no random
+  // probes). `pixel_jacobians` holds, for every pixel (index y * width + x), the 3x3 Jacobian J_p
+  // of its three residuals with respect to its linear RGB as rendered from this volume (row k:
+  // dr_k/dRGB); a pixel whose J_p is all zero does not count and is not marched. Adds to every
+  // voxel with medium its diagonal block of J^T J over (T in kelvin, n per m^3):
+  //   tt += sum_p sum_k (dr_pk/dT)^2,  tn += sum_p sum_k (dr_pk/dT)(dr_pk/dn),
+  //   nn += sum_p sum_k (dr_pk/dn)^2.
+  // Arrays as RenderGradient's (resized to the grid and zeroed when empty). How: the adjoint's
+  // per-step factors (see above) do not depend on which residual is differentiated, and each
+  // ray's three residuals have constant adjoints along it; so a ray is marched as for
+  // RenderGradient, keeping for each voxel it crosses two per-bin sums (emission and absorption
+  // parts), and when the ray ends they are contracted with the voxel's spectrum and the three
+  // residuals' adjoints into the voxel's 3x2 Jacobian, whose outer product is added. About the
+  // cost of one gradient pass, where a Hutchinson estimate needs one per probe.
+  RenderSummary RenderCurvature(const CameraRays& rays,
+                                const std::vector<Eigen::Matrix3f>& pixel_jacobians,
+                                std::vector<double>* tt, std::vector<double>* tn,
+                                std::vector<double>* nn) const;
+
   const AbsorptionModel& absorption() const { return absorption_; }
   const RenderOptions& options() const { return options_; }
   SpectralPath path() const { return path_; }
@@ -188,6 +207,11 @@ class FireRenderer {
                              const PixelGradient* pixel_gradient, ImageF* linear_rgb,
                              std::vector<double>* d_temperature,
                              std::vector<double>* d_density) const;
+  template <typename Real>
+  RenderSummary CurvatureImpl(const CameraRays& rays,
+                              const std::vector<Eigen::Matrix3f>& pixel_jacobians,
+                              std::vector<double>* tt, std::vector<double>* tn,
+                              std::vector<double>* nn) const;
   // Resizes and zeroes (when empty) or checks the gradient arrays.
   void PrepareGradientArrays(std::vector<double>* d_temperature,
                              std::vector<double>* d_density) const;
@@ -216,6 +240,14 @@ class FireRenderer {
                     MarchCounters* counters) const;
   void GradientRowsWide(const GradientJob& job, int y0, int y1, GradientBuffers<float>* buffers,
                         MarchCounters* counters) const;
+  template <typename Real>
+  struct CurvatureBuffers;
+  template <typename Real>
+  void CurvatureRows(const GradientJob& job, const std::vector<Eigen::Matrix3f>& jacobians, int y0,
+                     int y1, CurvatureBuffers<Real>* buffers, MarchCounters* counters) const;
+  void CurvatureRowsWide(const GradientJob& job, const std::vector<Eigen::Matrix3f>& jacobians,
+                         int y0, int y1, CurvatureBuffers<float>* buffers,
+                         MarchCounters* counters) const;
 
   AbsorptionModel absorption_;
   RenderOptions options_;

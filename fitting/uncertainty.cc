@@ -8,7 +8,6 @@
 namespace flamerig {
 
 void UncertaintyOptions::Validate() const {
-  if (probes < 1 || probes > 4096) throw InputError("uncertainty: probes must be in 1..4096");
   if (!(determined_fraction > 0 && determined_fraction <= 1))
     throw InputError("uncertainty: determined_fraction must be in (0, 1]");
 }
@@ -18,10 +17,9 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
                                      const UncertaintyOptions& options) {
   options.Validate();
   const auto start = std::chrono::steady_clock::now();
-  const FitObjective::Curvature c = objective.DataCurvature(t, n, s, options.probes, options.seed);
+  const FitObjective::Curvature c = objective.DataCurvature(t, n, s);
   const std::size_t na = objective.num_active();
   VoxelUncertainty u;
-  u.probes = options.probes;
   // The noise per residual from the fit's own residuals (degrees of freedom: less two per voxel,
   // at least half the residuals).
   const double dof = std::max(0.5 * double(c.residuals), double(c.residuals) - 2.0 * double(na));
@@ -40,7 +38,8 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
     const double htt = c.tt[a] / noise2 + 1.0 / (u.prior_sigma_k * u.prior_sigma_k);
     const double hnn = c.nn[a] / noise2 + 1.0 / (prior_ln * prior_ln);
     double htn = c.tn[a] / noise2;
-    // The probes' estimate of the cross term may break positive definiteness: shrink it.
+    // Rounding may leave an all but singular block just short of positive definite: shrink the
+    // cross term.
     const double limit = 0.99 * std::sqrt(htt * hnn);
     htn = std::clamp(htn, -limit, limit);
     const double det = htt * hnn - htn * htn;
@@ -70,7 +69,6 @@ void StoreUncertainty(const GridGeometry& grid, const std::vector<std::uint32_t>
   }
   volume->metadata_numbers["sigma_lab"] = u.sigma_lab;
   volume->metadata_numbers["determined_voxels"] = double(u.determined_count);
-  volume->metadata_numbers["uncertainty_probes"] = u.probes;
 }
 
 }  // namespace flamerig

@@ -7,16 +7,15 @@
 // view) is the rendered one plus independent Gaussian noise of one deviation sigma_lab, estimated
 // from the fit's own residuals over fire pixels (sum of squares over the residuals' count less two
 // per active voxel): model error counts as noise, so the sigma is not flattered by a model that
-// cannot match. Per voxel, the 2x2 precision over (T, ln n) is J^T J / sigma_lab^2 (J from
-// FitObjective::DataCurvature, estimated with random probes) plus a weak prior: the search range as
+// cannot match. Per voxel, the 2x2 precision over (T, ln n) is J^T J / sigma_lab^2 (the voxel's
+// exact diagonal block, FitObjective::DataCurvature) plus a weak prior: the search range as
 // a uniform distribution (deviation (t_max - t_min) / sqrt(12) for T, likewise for ln n between the
 // density bounds), so that a voxel the images do not see keeps the prior's deviation instead of an
 // infinite one. Its inverse gives the two deviations.
 //
 // What it leaves out, and so how to read it: each voxel's deviation holds the others at the fit
 // (the block diagonal of the precision), so trade-offs between voxels along one ray, which two
-// views cannot separate, are not in it, nor is the neighbour prior; the Hutchinson estimate of
-// the curvature has a relative error of about sqrt(2 / probes). Its calibration against a
+// views cannot separate, are not in it, nor is the neighbour prior. Its calibration against a
 // synthetic truth (the share of visible voxels within one and two sigma) is measured in
 // BENCHMARKS.md and by pipeline_uncertainty_test.
 //
@@ -34,8 +33,6 @@
 namespace flamerig {
 
 struct UncertaintyOptions {
-  int probes = 16;  // random probes of the curvature (one adjoint pass per view each)
-  std::uint64_t seed = 1;
   double determined_fraction = 0.5;  // of the prior's temperature deviation
   void Validate() const;             // throws InputError naming the field
 };
@@ -47,7 +44,6 @@ struct VoxelUncertainty {
   double sigma_lab = 0;                    // the noise per Lab residual
   double prior_sigma_k = 0;                // the search range's deviation
   std::size_t determined_count = 0;
-  int probes = 0;
   double seconds = 0;
 };
 

@@ -195,8 +195,9 @@ std::string RunRunBenchmark(const RunBenchmarkOptions& options,
      << " (front and side, as in the paper), grid " << c.grid_resolution
      << " along the box's longest axis, read from its PNG frame sets; tomography (OS-SART) and the "
         "fast fit per frame (until its energy falls by less than 0.5% in 5 iterations, issue "
-        "24; 30 iterations before) with its per-voxel sigma (16 probes, about 0.2 s of each "
-        "frame's fit; `--no-sigma` leaves it out), volumes, Blender volumes and per-frame "
+        "24; 30 iterations before) with its per-voxel sigma (each voxel's exact curvature "
+        "block, about 50 ms of a frame; 16 random probes and 0.3 s until 2026-11-26; `--no-sigma` "
+        "leaves it out), volumes, Blender volumes and per-frame "
         "pictures written, as "
         "`run` does by default (until 2026-11-25 the pictures were left out here, and in `run` "
         "they cost 20 s a frame: the colour map's table was rebuilt for every pixel). Delta E is "
