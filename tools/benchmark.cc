@@ -194,6 +194,8 @@ std::string RunRenderBenchmark(const RenderBenchmarkOptions& options,
        20, false},
       {"soot, spectral path (21 bins: the fit's)", "soot", SpectralPath::kSpectral, 1, true, 0.5,
        20},
+      {"soot, spectral path (21 bins: the fit's), step 1 voxel (the fit's step)", "soot",
+       SpectralPath::kSpectral, 1, true, 1.0, 20},
       {"soot, spectral path (41 bins)", "soot", SpectralPath::kSpectral, 2, true, 0.5},
   };
   if (!wide_available) {
