@@ -492,7 +492,7 @@ FitObjective::Curvature FitObjective::DataCurvature(const std::vector<double>& t
       const Eigen::Vector3d linear(img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]);
       Eigen::Matrix3d jac;
       const Eigen::Vector3d lab = CameraLab(linear, s, &jac);
-      if (!linear.isZero()) jacobians[p] = jac.cast<float>();
+      if (!(linear.array() == 0.0).all()) jacobians[p] = jac.cast<float>();
       if (lab[0] > 1 || target[p][0] > 1) {
         out.residual_sq += (lab - target[p].cast<double>()).squaredNorm();
         out.residuals += 3;

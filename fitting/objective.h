@@ -187,7 +187,7 @@ class FitObjective {
   // voxel's diagonal block of J^T J, its three pairs (T, T), (T, ln n), (ln n, ln n), exact
   // (FireRenderer::RenderCurvature: one render and one curvature pass per view; until 2026-11-26 a
   // Hutchinson estimate from 16 random probes, one adjoint pass per view each, with a relative
-  // error of about 35%). Black rendered pixels (their rays cross no medium) are not marched.
+  // error of about 35%). Black rendered pixels (their rays cross no emitting medium) are not marched.
   // Also the residuals' sum of squares and their count over fire pixels (rendered or recorded
   // with L* above 1), from which a noise level follows.
   struct Curvature {

@@ -1240,7 +1240,7 @@ void FireRenderer::CurvatureRows(const GradientJob& job,
   for (int y = y0; y < y1; ++y) {
     for (int x = 0; x < width; ++x) {
       const Eigen::Matrix3f& jac = jacobians[static_cast<std::size_t>(y) * width + x];
-      if (jac.isZero()) continue;
+      if ((jac.array() == 0.0f).all()) continue;  // exactly zero: Eigen's isZero() is fuzzy
       RayMarch march;
       if (!RayMarch::Make(geometry_, camera_rays.at(x, y), job.step_m, &march)) continue;
       ++c.hit;
@@ -1406,7 +1406,7 @@ void FireRenderer::PrepareGradientArrays(std::vector<double>* d_temperature,
   for (std::vector<double>* v : {d_temperature, d_density}) {
     if (v->empty()) v->assign(nvox, 0.0);
     if (v->size() != nvox) {
-      throw InputError("RenderGradient: gradient arrays need " + std::to_string(nvox) +
+      throw InputError("renderer: gradient and curvature arrays need " + std::to_string(nvox) +
                        " values, got " + std::to_string(v->size()));
     }
   }

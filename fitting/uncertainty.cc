@@ -1,5 +1,6 @@
 #include "fitting/uncertainty.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 
@@ -37,12 +38,13 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
   for (std::size_t a = 0; a < na; ++a) {
     const double htt = c.tt[a] / noise2 + 1.0 / (u.prior_sigma_k * u.prior_sigma_k);
     const double hnn = c.nn[a] / noise2 + 1.0 / (prior_ln * prior_ln);
-    double htn = c.tn[a] / noise2;
-    // Rounding may leave an all but singular block just short of positive definite: shrink the
-    // cross term.
-    const double limit = 0.99 * std::sqrt(htt * hnn);
-    htn = std::clamp(htn, -limit, limit);
-    const double det = htt * hnn - htn * htn;
+    const double htn = c.tn[a] / noise2;
+    // An exact block has tn^2 <= tt nn and the prior's terms make the sum positive definite; a
+    // voxel whose temperature and density columns are all but parallel (its brightness could
+    // come from either) loses that to rounding only: keep the determinant at a relative 1e-12
+    // there. (Until the blocks were exact the cross term was clamped at 0.99 of its bound,
+    // which narrowed exactly these voxels' sigma.)
+    const double det = std::max(htt * hnn - htn * htn, 1e-12 * htt * hnn);
     const double var_t = hnn / det, var_n = htt / det;
     const double sigma_t = std::isfinite(var_t) ? std::sqrt(var_t) : u.prior_sigma_k;
     const double sigma_n = std::isfinite(var_n) ? std::sqrt(var_n) : prior_ln;

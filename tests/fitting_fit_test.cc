@@ -222,6 +222,7 @@ void CheckDataCurvature(const AbsorptionModel& absorption) {
   for (std::size_t a = 0; a < s.active.size(); ++a) {
     EXPECT_NEAR(f.tt[a], d.tt[a], 1e-3 * max_tt) << "voxel " << a;
     EXPECT_NEAR(f.nn[a], d.nn[a], 1e-3 * max_nn) << "voxel " << a;
+    EXPECT_NEAR(f.tn[a], d.tn[a], 1e-3 * std::sqrt(max_tt * max_nn)) << "voxel " << a;
   }
 }
 
