@@ -473,8 +473,7 @@ void FitObjective::UploadVolume(const std::vector<double>& t, const std::vector<
 }
 
 FitObjective::Curvature FitObjective::DataCurvature(const std::vector<double>& t,
-                                                    const std::vector<double>& n,
-                                                    double s) const {
+                                                    const std::vector<double>& n, double s) const {
   const Renders renders = Render(t, n);
   Curvature out;
   const std::size_t na = active_.size();

@@ -1125,10 +1125,10 @@ void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
 // absorption part n); `local` maps a slot to its place in the ray's lists (-1: not crossed yet).
 template <typename Real>
 struct FireRenderer::CurvatureBuffers {
-  std::vector<double> tt, tn, nn;    // per slot
-  std::vector<std::int32_t> local;   // per slot
+  std::vector<double> tt, tn, nn;     // per slot
+  std::vector<std::int32_t> local;    // per slot
   std::vector<std::int32_t> touched;  // the ray's slots, in the order first crossed
-  std::vector<Real> e, n;            // per touched slot, padded bins
+  std::vector<Real> e, n;             // per touched slot, padded bins
 };
 
 template <typename Real>
@@ -1262,12 +1262,11 @@ void FireRenderer::CurvatureRows(const GradientJob& job,
         MarchRay<Real>(march, &ignored, [&](Real ds, const std::size_t* corner, const Real* w) {
           const Real n_sample = GatherCorners(corner, w, slots, rows, u, uf);
           if (!(n_sample > Real(0))) return true;
-          const Real max_tr =
-              sigma_max * n_sample * ds < Real(1e-2)
-                  ? SpectralStep<true, Real>(nbp, rows, u, uf, sigma, n_sample, ds, total,
-                                             transmittance)
-                  : SpectralStep<false, Real>(nbp, rows, u, uf, sigma, n_sample, ds, total,
-                                              transmittance);
+          const Real max_tr = sigma_max * n_sample * ds < Real(1e-2)
+                                  ? SpectralStep<true, Real>(nbp, rows, u, uf, sigma, n_sample, ds,
+                                                             total, transmittance)
+                                  : SpectralStep<false, Real>(nbp, rows, u, uf, sigma, n_sample, ds,
+                                                              total, transmittance);
           return !(max_tr < min_tr);
         });
         for (int b = 0; b < nbp; ++b) transmittance[b] = b < nbins ? Real(1) : Real(0);
