@@ -932,6 +932,52 @@ __attribute__((target("avx2,fma"), flatten)) void FireRenderer::GradientRowsWide
 }
 
 template <typename Real>
+inline bool FireRenderer::FastSample(const std::size_t* corner, const Real* weight, Real* kappa,
+                                     Real* source) const {
+  *kappa = 0;
+  for (int n = 0; n < 8; ++n) *kappa += weight[n] * Real(fast_[4 * corner[n]]);
+  if (!(*kappa > Real(0))) return false;
+  source[0] = source[1] = source[2] = Real(0);
+  for (int n = 0; n < 8; ++n) {
+    const float* v = &fast_[4 * corner[n]];
+    const Real u = weight[n] * Real(v[0]) / *kappa;
+    for (int ch = 0; ch < 3; ++ch) source[ch] += u * Real(v[ch + 1]);
+  }
+  return true;
+}
+
+template <typename Real>
+inline void FireRenderer::MarchRadiance(const RayMarch& march, bool spectral, int nbp,
+                                        const Real* sigma, Real sigma_max, Real min_tr, Real* total,
+                                        Real* transmittance) const {
+  MarchCounters ignored;
+  if (!spectral) {
+    MarchRay<Real>(march, &ignored, [&](Real ds, const std::size_t* corner, const Real* weight) {
+      Real kappa, source[3];
+      if (!FastSample(corner, weight, &kappa, source)) return true;
+      const Real w = transmittance[0] * OneMinusExpNeg(kappa * ds);
+      for (int ch = 0; ch < 3; ++ch) total[ch] += w * source[ch];
+      transmittance[0] -= w;
+      return !(transmittance[0] < min_tr);
+    });
+    return;
+  }
+  std::int32_t slots[8];
+  const float* rows[8];
+  Real u[8], uf[8];
+  MarchRay<Real>(march, &ignored, [&](Real ds, const std::size_t* corner, const Real* weight) {
+    const Real n_sample = GatherCorners(corner, weight, slots, rows, u, uf);
+    if (!(n_sample > Real(0))) return true;
+    const Real max_tr =
+        sigma_max * n_sample * ds < Real(1e-2)
+            ? SpectralStep<true, Real>(nbp, rows, u, uf, sigma, n_sample, ds, total, transmittance)
+            : SpectralStep<false, Real>(nbp, rows, u, uf, sigma, n_sample, ds, total,
+                                        transmittance);
+    return !(max_tr < min_tr);
+  });
+}
+
+template <typename Real>
 void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
                                 GradientBuffers<Real>* buffers, MarchCounters* counters) const {
   const CameraRays& camera_rays = *job.rays;
@@ -1009,38 +1055,15 @@ void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
           return set_adjoint((*job.pixel_gradient)(x, y, stored));
         };
         if (!fused) set_adjoint(g_rgb);
-        MarchCounters ignored;
         if (!spectral) {
-          // The per-step source S and absorption of the fast path (see RenderImpl).
-          auto sample = [&](const std::size_t* corner, const Real* weight, Real* kappa,
-                            Real* source) {
-            *kappa = 0;
-            for (int n = 0; n < 8; ++n) *kappa += weight[n] * Real(fast_[4 * corner[n]]);
-            if (!(*kappa > Real(0))) return false;
-            source[0] = source[1] = source[2] = Real(0);
-            for (int n = 0; n < 8; ++n) {
-              const float* v = &fast_[4 * corner[n]];
-              const Real u = weight[n] * Real(v[0]) / *kappa;
-              for (int ch = 0; ch < 3; ++ch) source[ch] += u * Real(v[ch + 1]);
-            }
-            return true;
-          };
           // Pass 1: the ray's radiance.
-          MarchRay<Real>(march, &ignored,
-                         [&](Real ds, const std::size_t* corner, const Real* weight) {
-                           Real kappa, source[3];
-                           if (!sample(corner, weight, &kappa, source)) return true;
-                           const Real w = transmittance[0] * OneMinusExpNeg(kappa * ds);
-                           for (int ch = 0; ch < 3; ++ch) total[ch] += w * source[ch];
-                           transmittance[0] -= w;
-                           return !(transmittance[0] < min_tr);
-                         });
+          MarchRadiance(march, false, nbp, sigma, sigma_max, min_tr, total, transmittance);
           if (!render_pixel()) continue;
           transmittance[0] = Real(1);
           // Pass 2: the adjoint.
           MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* weight) {
             Real kappa, source[3];
-            if (!sample(corner, weight, &kappa, source)) return true;
+            if (!FastSample(corner, weight, &kappa, source)) return true;
             Real absorbed, phi, tau_dphi;
             StepTerms(kappa * ds, &absorbed, &phi, &tau_dphi);
             const Real tr = transmittance[0];
@@ -1077,18 +1100,7 @@ void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
             return *n_sample > Real(0);
           };
           // Pass 1: the ray's radiance per bin.
-          MarchRay<Real>(march, &ignored,
-                         [&](Real ds, const std::size_t* corner, const Real* weight) {
-                           Real n_sample;
-                           if (!sample(corner, weight, &n_sample)) return true;
-                           const Real max_tr =
-                               sigma_max * n_sample * ds < Real(1e-2)
-                                   ? SpectralStep<true, Real>(nbp, rows, u, uf, sigma, n_sample, ds,
-                                                              total, transmittance)
-                                   : SpectralStep<false, Real>(nbp, rows, u, uf, sigma, n_sample,
-                                                               ds, total, transmittance);
-                           return !(max_tr < min_tr);
-                         });
+          MarchRadiance(march, true, nbp, sigma, sigma_max, min_tr, total, transmittance);
           if (!render_pixel()) continue;
           for (int b = 0; b < nbp; ++b) transmittance[b] = b < nbins ? Real(1) : Real(0);
           // Pass 2: the adjoint. The emission's part is accumulated per slot and bin (buf.de) and
@@ -1253,22 +1265,12 @@ void FireRenderer::CurvatureRows(const GradientJob& job,
         total[b] = cumulative[b] = Real(0);
         transmittance[b] = b < nbins ? Real(1) : Real(0);
       }
-      MarchCounters ignored;
       if (spectral) {
         std::int32_t slots[8];
         const float* rows[8];
         Real u[8], uf[8];
         // Pass 1: the ray's radiance per bin (as GradientRows).
-        MarchRay<Real>(march, &ignored, [&](Real ds, const std::size_t* corner, const Real* w) {
-          const Real n_sample = GatherCorners(corner, w, slots, rows, u, uf);
-          if (!(n_sample > Real(0))) return true;
-          const Real max_tr = sigma_max * n_sample * ds < Real(1e-2)
-                                  ? SpectralStep<true, Real>(nbp, rows, u, uf, sigma, n_sample, ds,
-                                                             total, transmittance)
-                                  : SpectralStep<false, Real>(nbp, rows, u, uf, sigma, n_sample, ds,
-                                                              total, transmittance);
-          return !(max_tr < min_tr);
-        });
+        MarchRadiance(march, true, nbp, sigma, sigma_max, min_tr, total, transmittance);
         for (int b = 0; b < nbp; ++b) transmittance[b] = b < nbins ? Real(1) : Real(0);
         // Pass 2: the adjoint's factors, summed per voxel crossed.
         MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* w) {
@@ -1289,31 +1291,11 @@ void FireRenderer::CurvatureRows(const GradientJob& job,
           return !(max_tr < min_tr);
         });
       } else {
-        auto sample = [&](const std::size_t* corner, const Real* weight, Real* kappa,
-                          Real* source) {
-          *kappa = 0;
-          for (int k = 0; k < 8; ++k) *kappa += weight[k] * Real(fast_[4 * corner[k]]);
-          if (!(*kappa > Real(0))) return false;
-          source[0] = source[1] = source[2] = Real(0);
-          for (int k = 0; k < 8; ++k) {
-            const float* v = &fast_[4 * corner[k]];
-            const Real share = weight[k] * Real(v[0]) / *kappa;
-            for (int ch = 0; ch < 3; ++ch) source[ch] += share * Real(v[ch + 1]);
-          }
-          return true;
-        };
-        MarchRay<Real>(march, &ignored, [&](Real ds, const std::size_t* corner, const Real* w) {
-          Real kappa, source[3];
-          if (!sample(corner, w, &kappa, source)) return true;
-          const Real absorbed = transmittance[0] * OneMinusExpNeg(kappa * ds);
-          for (int ch = 0; ch < 3; ++ch) total[ch] += absorbed * source[ch];
-          transmittance[0] -= absorbed;
-          return !(transmittance[0] < min_tr);
-        });
+        MarchRadiance(march, false, nbp, sigma, sigma_max, min_tr, total, transmittance);
         transmittance[0] = Real(1);
         MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* w) {
           Real kappa, source[3];
-          if (!sample(corner, w, &kappa, source)) return true;
+          if (!FastSample(corner, w, &kappa, source)) return true;
           Real absorbed, phi, tau_dphi;
           StepTerms(kappa * ds, &absorbed, &phi, &tau_dphi);
           const Real tr = transmittance[0];

@@ -232,6 +232,17 @@ class FireRenderer {
   template <typename Real>
   Real GatherCorners(const std::size_t* corner, const Real* weight, std::int32_t* slot,
                      const float** rows, Real* u, Real* uf) const;
+  // The fast path's sample: absorption kappa = sum w kappa_corner and source S = emission /
+  // kappa per XYZ channel; false where kappa is 0 (RenderImpl's model).
+  template <typename Real>
+  bool FastSample(const std::size_t* corner, const Real* weight, Real* kappa, Real* source) const;
+  // The first pass of an adjoint (GradientRows, CurvatureRows): marches the ray for its radiance
+  // into `total` and its transmittance (per bin on the spectral path, else XYZ and one
+  // transmittance), both set by the caller; `sigma` per padded bin, `sigma_max` their largest.
+  template <typename Real>
+  void MarchRadiance(const RayMarch& march, bool spectral, int nbp, const Real* sigma,
+                     Real sigma_max, Real min_transmittance, Real* total,
+                     Real* transmittance) const;
   template <typename Real>
   void RenderRows(const RenderJob& job, int y0, int y1, MarchCounters* counters) const;
   void RenderRowsWide(const RenderJob& job, int y0, int y1, MarchCounters* counters) const;
