@@ -1,8 +1,10 @@
 #include "core/memory.h"
 
+#include <sys/mman.h>
 #include <sys/resource.h>
 
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <string>
 
@@ -49,5 +51,23 @@ bool ResetPeakResident() {
 }
 
 std::size_t ResidentBytes() { return StatusKilobytes("VmRSS"); }
+
+}  // namespace flamerig
+
+namespace flamerig {
+
+void* AllocateHugePageBacked(std::size_t bytes) {
+  constexpr std::size_t kHugePage = std::size_t(2) << 20;
+  if (bytes < kHugePage) return std::malloc(bytes == 0 ? 1 : bytes);
+  const std::size_t rounded = (bytes + kHugePage - 1) / kHugePage * kHugePage;
+  void* p = std::aligned_alloc(kHugePage, rounded);
+  if (!p) return nullptr;
+#ifdef MADV_HUGEPAGE
+  madvise(p, rounded, MADV_HUGEPAGE);  // advice only: ordinary pages when refused
+#endif
+  return p;
+}
+
+void FreeHugePageBacked(void* p) noexcept { std::free(p); }
 
 }  // namespace flamerig

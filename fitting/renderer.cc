@@ -324,56 +324,120 @@ template <typename Real, typename Visit>
 void FireRenderer::MarchRay(const RayMarch& march, MarchCounters* c, Visit&& visit) const {
   const GridGeometry& g = geometry_;
   const std::size_t nx = g.dims.x(), nxy = nx * g.dims.y();
-  const int brick = options_.brick_size_voxels;
-  const bool skip = options_.skip_empty_space;
+  const std::int64_t n_steps = march.n_steps;
   const Eigen::Vector3d& o = march.origin_index;
   const Eigen::Vector3d& d = march.direction_index;
-  const std::int64_t n_steps = march.n_steps;
-  std::int64_t k = 0;
-  // Steps before this one are known to lie in an occupied brick: a ray stays in a brick (convex)
-  // from the step that found it until the brick's far side, so its bricks are looked up once
-  // each, not once per step.
-  std::int64_t occupied_until = 0;
-  while (k < n_steps) {
-    double step_length;
-    Eigen::Vector3d p;
-    march.Step(k, &step_length, &p);
-    if (skip && k >= occupied_until) {
-      const int bi =
-          std::clamp(static_cast<int>(std::floor((p.x() + 0.5) / brick)), 0, brick_dims_.x() - 1);
-      const int bj =
-          std::clamp(static_cast<int>(std::floor((p.y() + 0.5) / brick)), 0, brick_dims_.y() - 1);
-      const int bk =
-          std::clamp(static_cast<int>(std::floor((p.z() + 0.5) / brick)), 0, brick_dims_.z() - 1);
-      // The first step whose midpoint lies beyond this brick.
-      double t_leave = std::numeric_limits<double>::infinity();
-      const int bidx[3] = {bi, bj, bk};
-      for (int a = 0; a < 3; ++a) {
-        if (d[a] > 0)
-          t_leave = std::min(t_leave, ((bidx[a] + 1) * brick - 0.5 - o[a]) / d[a]);
-        else if (d[a] < 0)
-          t_leave = std::min(t_leave, (bidx[a] * brick - 0.5 - o[a]) / d[a]);
+  // Both paths' voxel records are 16 bytes (fast_, spectral_voxels_). The corner loads' latency
+  // bounds the fast path (perf: the first corner's load stalled it most), so the four cache lines
+  // of the cell four steps ahead are prefetched while this step is evaluated (a prefetch never
+  // faults; the cell is clamped to the grid).
+  static_assert(sizeof(SpectralVoxel) == 4 * sizeof(float));
+  const char* records = path_ == SpectralPath::kFast
+                            ? reinterpret_cast<const char*>(fast_.data())
+                            : reinterpret_cast<const char*>(spectral_voxels_.data());
+  const int last[3] = {g.dims.x() - 1, g.dims.y() - 1, g.dims.z() - 1};
+  auto prefetch = [&](const Eigen::Vector3d& p) {
+    const int i = std::clamp(static_cast<int>(p.x()), 0, last[0]);
+    const int j = std::clamp(static_cast<int>(p.y()), 0, last[1]);
+    const int kk = std::clamp(static_cast<int>(p.z()), 0, last[2]);
+    const char* base = records + 16 * (i + nx * j + nxy * kk);
+    __builtin_prefetch(base);
+    __builtin_prefetch(base + 16 * nx);
+    __builtin_prefetch(base + 16 * nxy);
+    __builtin_prefetch(base + 16 * (nx + nxy));
+  };
+  // Evaluates steps [k, end); false when the visitor stopped the ray.
+  auto evaluate = [&](std::int64_t k, std::int64_t end) {
+    for (; k < end; ++k) {
+      double step_length;
+      Eigen::Vector3d p;
+      march.Step(k, &step_length, &p);
+      prefetch(p + (4 * march.step_m) * d);
+      const TrilinearStencil<Real> s(g.dims, Real(p.x()), Real(p.y()), Real(p.z()));
+      std::size_t corner[8];
+      Real weight[8];
+      s.Corners(nx, nxy, corner, weight);
+      ++c->evaluated;
+      if (!visit(Real(step_length), corner, weight)) {
+        ++c->early;
+        c->after += n_steps - k - 1;
+        return false;
       }
-      const std::int64_t next = std::max(k + 1, march.FirstStepAfter(t_leave));
-      if (!brick_occupied_[bi + brick_dims_.x() *
-                                    (bj + static_cast<std::size_t>(brick_dims_.y()) * bk)]) {
-        c->skipped += next - k;
-        k = next;
-        continue;
-      }
-      occupied_until = next;
     }
-    const TrilinearStencil<Real> s(g.dims, Real(p.x()), Real(p.y()), Real(p.z()));
-    std::size_t corner[8];
-    Real weight[8];
-    s.Corners(nx, nxy, corner, weight);
-    ++c->evaluated;
-    if (!visit(Real(step_length), corner, weight)) {
-      ++c->early;
-      c->after += n_steps - k - 1;
+    return true;
+  };
+  if (!options_.skip_empty_space) {
+    evaluate(0, n_steps);
+    return;
+  }
+  // The bricks along the ray, in order, by a 3D DDA (Amanatides and Woo): from the brick of the
+  // first step's midpoint, each next brick is the neighbour across the face the ray leaves by,
+  // found by comparing the distances to the three next faces, which each grow by a constant. A
+  // brick's steps are those whose midpoints lie before its exit face. Rounding may move a step
+  // across a face by a hair; the bricks' one-voxel dilation (SetVolume) covers that, so skipping
+  // stays exact.
+  const int brick = options_.brick_size_voxels;
+  const double inv_step = 1.0 / march.step_m;
+  int b[3], b_step[3];
+  double t_face[3], t_delta[3];
+  {
+    double length;
+    Eigen::Vector3d p;
+    march.Step(0, &length, &p);
+    for (int a = 0; a < 3; ++a) {
+      b[a] = std::clamp(static_cast<int>(std::floor((p[a] + 0.5) / brick)), 0, brick_dims_[a] - 1);
+      if (d[a] > 0) {
+        b_step[a] = 1;
+        t_face[a] = ((b[a] + 1) * brick - 0.5 - o[a]) / d[a];
+        t_delta[a] = brick / d[a];
+      } else if (d[a] < 0) {
+        b_step[a] = -1;
+        t_face[a] = (b[a] * brick - 0.5 - o[a]) / d[a];
+        t_delta[a] = -brick / d[a];
+      } else {
+        b_step[a] = 0;
+        t_face[a] = std::numeric_limits<double>::infinity();
+        t_delta[a] = 0;
+      }
+    }
+  }
+  const std::size_t bx = brick_dims_.x(), bxy = bx * brick_dims_.y();
+  std::size_t flat = b[0] + bx * b[1] + bxy * b[2];
+  const std::ptrdiff_t flat_step[3] = {b_step[0], b_step[1] * std::ptrdiff_t(bx),
+                                       b_step[2] * std::ptrdiff_t(bxy)};
+  std::int64_t k = 0;
+  while (k < n_steps) {
+    const int a =
+        t_face[0] < t_face[1] ? (t_face[0] < t_face[2] ? 0 : 2) : (t_face[1] < t_face[2] ? 1 : 2);
+    // The first step whose midpoint lies at or beyond the exit face.
+    const double after = std::ceil((t_face[a] - march.t_enter) * inv_step - 0.5);
+    const std::int64_t end = after >= double(n_steps) ? n_steps
+                             : after > double(k)      ? static_cast<std::int64_t>(after)
+                                                      : k;
+    if (end > k) {
+      if (brick_occupied_[flat]) {
+        if (!evaluate(k, end)) return;
+      } else {
+        c->skipped += end - k;
+      }
+      k = end;
+    }
+    // The next brick; past the grid's last brick (a step within rounding of the box's face),
+    // the last brick serves for the steps left.
+    const int nb = b[a] + b_step[a];
+    if (nb < 0 || nb >= brick_dims_[a]) {
+      if (k < n_steps) {
+        if (brick_occupied_[flat]) {
+          evaluate(k, n_steps);
+        } else {
+          c->skipped += n_steps - k;
+        }
+      }
       return;
     }
-    ++k;
+    b[a] = nb;
+    flat += flat_step[a];
+    t_face[a] += t_delta[a];
   }
 }
 
@@ -404,6 +468,38 @@ inline Real FireRenderer::GatherCorners(const std::size_t* corner, const Real* w
     uf[n] *= u[n];
   }
   return n_sample;
+}
+
+template <typename Real>
+inline bool FireRenderer::FastSample(const std::size_t* corner, const Real* weight, Real* kappa,
+                                     Real* source) const {
+  // u = w kappa_corner; the source is sum u XYZ / sum u, an average that never overflows. One
+  // division a sample, not one a corner, unless sum u is so small that its reciprocal overflows.
+  Real u[8];
+  const float* v[8];
+  *kappa = 0;
+  for (int n = 0; n < 8; ++n) {
+    v[n] = &fast_[4 * corner[n]];
+    u[n] = weight[n] * Real(v[n][0]);
+    *kappa += u[n];
+  }
+  if (!(*kappa > Real(0))) return false;
+  const Real inverse = Real(1) / *kappa;
+  if (inverse <= std::numeric_limits<Real>::max()) {
+    for (int n = 0; n < 8; ++n) u[n] *= inverse;
+  } else {
+    for (int n = 0; n < 8; ++n) u[n] /= *kappa;
+  }
+  Real s0 = 0, s1 = 0, s2 = 0;
+  for (int n = 0; n < 8; ++n) {
+    s0 += u[n] * Real(v[n][1]);
+    s1 += u[n] * Real(v[n][2]);
+    s2 += u[n] * Real(v[n][3]);
+  }
+  source[0] = s0;
+  source[1] = s1;
+  source[2] = s2;
+  return true;
 }
 
 namespace {
@@ -749,18 +845,9 @@ void FireRenderer::RenderRows(const RenderJob& job, int y0, int y1, MarchCounter
         }
         if (!spectral) {
           MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* weight) {
-            // Interpolate the voxels' absorption kappa and emission kappa * XYZ(T). The source
-            // emission / kappa is formed as an average of XYZ(T) weighted by w * kappa, which never
-            // overflows whatever the density.
-            Real kappa = 0;
-            for (int n = 0; n < 8; ++n) kappa += weight[n] * Real(fast_[4 * corner[n]]);
-            if (!(kappa > Real(0))) return true;
-            Real source[3] = {0, 0, 0};
-            for (int n = 0; n < 8; ++n) {
-              const float* v = &fast_[4 * corner[n]];
-              const Real u = weight[n] * Real(v[0]) / kappa;
-              for (int ch = 0; ch < 3; ++ch) source[ch] += u * Real(v[ch + 1]);
-            }
+            // Interpolate the voxels' absorption kappa and emission kappa * XYZ(T).
+            Real kappa, source[3];
+            if (!FastSample(corner, weight, &kappa, source)) return true;
             // Constant source over the step: L += Tr * source * (1 - exp(-tau)).
             const Real absorbed = OneMinusExpNeg(kappa * ds);
             const Real w = transmittance[0] * absorbed;
@@ -929,21 +1016,6 @@ __attribute__((target("avx2,fma"), flatten)) void FireRenderer::GradientRowsWide
     const GradientJob& job, int y0, int y1, GradientBuffers<float>* buffers,
     MarchCounters* c) const {
   GradientRows<float>(job, y0, y1, buffers, c);
-}
-
-template <typename Real>
-inline bool FireRenderer::FastSample(const std::size_t* corner, const Real* weight, Real* kappa,
-                                     Real* source) const {
-  *kappa = 0;
-  for (int n = 0; n < 8; ++n) *kappa += weight[n] * Real(fast_[4 * corner[n]]);
-  if (!(*kappa > Real(0))) return false;
-  source[0] = source[1] = source[2] = Real(0);
-  for (int n = 0; n < 8; ++n) {
-    const float* v = &fast_[4 * corner[n]];
-    const Real u = weight[n] * Real(v[0]) / *kappa;
-    for (int ch = 0; ch < 3; ++ch) source[ch] += u * Real(v[ch + 1]);
-  }
-  return true;
 }
 
 template <typename Real>

@@ -70,6 +70,7 @@
 
 #include "calibration/camera_rays.h"
 #include "core/image.h"
+#include "core/memory.h"
 #include "fitting/absorption.h"
 #include "fitting/camera_response.h"
 #include "fitting/spectral_tables.h"
@@ -270,12 +271,13 @@ class FireRenderer {
 
   GridGeometry geometry_;
   // Fast path: per voxel {kappa, X, Y, Z}: absorption (1/m) and the XYZ of B(T).
-  std::vector<float> fast_;
+  // The voxel arrays that rays read at random are backed by huge pages (core/memory.h).
+  std::vector<float, HugePageAllocator<float>> fast_;
   // Per voxel: temperature (for the gradient's table derivatives).
   std::vector<float> temperature_;
   // Per voxel density; per voxel with density > 0 a slot (-1 elsewhere) and the slot's voxel.
   std::vector<float> density_;
-  std::vector<std::int32_t> slot_;
+  std::vector<std::int32_t, HugePageAllocator<std::int32_t>> slot_;
   std::vector<std::uint32_t> active_voxels_;
   // Spectral path: the Planck radiance of every bin per kelvin over the volume's temperatures
   // (SpectralBins' 1 K table, copied so that it stays in cache; rows padded to a multiple of
@@ -294,7 +296,7 @@ class FireRenderer {
   int padded_bins_ = 0;              // the bin count rounded up to kLanes
   std::size_t hot_rows_offset_ = 0;  // where the rows of temperatures beyond the table begin
   std::vector<float> spectral_table_;
-  std::vector<SpectralVoxel> spectral_voxels_;  // per voxel
+  std::vector<SpectralVoxel, HugePageAllocator<SpectralVoxel>> spectral_voxels_;  // per voxel
   Eigen::Vector3i brick_dims_ = Eigen::Vector3i::Zero();
   std::vector<std::uint8_t> brick_occupied_;
   double occupied_brick_fraction_ = 0;
