@@ -349,9 +349,11 @@ std::string RunRenderBenchmark(const RenderBenchmarkOptions& options,
          << " GFLOP/s, " << Fixed(100 * soot_gflops / limits.gflops_one, 0)
          << "% (operations per sample counted in the kernels: 140 and 1380). Neither is near the "
             "memory roof: a ray's samples read the 8 corners' 16-byte records, which neighbouring "
-            "rays share in cache. The fast path is bound by latency (each step's transmittance "
-            "waits for the one before, a scalar chain with an exponential in it); the soot path "
-            "fills vectors with its bins and gets furthest.\n";
+            "rays share in cache. The fast path is bound by latency: perf (2026-11-26) puts its "
+            "largest stall on the load of a sample's first corner (the cell's records come from "
+            "L2 or L3; they are prefetched four steps ahead), and each step's transmittance "
+            "waits for the one before; the soot path fills vectors with its bins and gets "
+            "furthest.\n";
     }
     if (fast > 0) {
       md << "\nTarget check (" << n << "^3, one thread): the fast path " << Fixed(fast, 1)
