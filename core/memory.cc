@@ -59,6 +59,7 @@ namespace flamerig {
 void* AllocateHugePageBacked(std::size_t bytes) {
   constexpr std::size_t kHugePage = std::size_t(2) << 20;
   if (bytes < kHugePage) return std::malloc(bytes == 0 ? 1 : bytes);
+  if (bytes > std::size_t(-1) - kHugePage) return nullptr;
   const std::size_t rounded = (bytes + kHugePage - 1) / kHugePage * kHugePage;
   void* p = std::aligned_alloc(kHugePage, rounded);
   if (!p) return nullptr;

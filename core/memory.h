@@ -22,7 +22,7 @@ std::size_t ResidentBytes();
 
 // Memory for a large array read at random (a voxel grid that rays cross in every direction),
 // backed by 2 MiB pages where the kernel allows it: a 128^3 grid of 16-byte records is 34 MB,
-// 8,400 pages of 4 kB, more than a core's TLB holds, so that a ray along z, whose every step
+// 8,192 pages of 4 KiB, more than a core's TLB holds, so that a ray along z, whose every step
 // reads a new slice, missed the TLB at nearly every step. Blocks of at least 2 MiB are aligned
 // to 2 MiB and advised MADV_HUGEPAGE before their first use (transparent huge pages in the
 // "madvise" mode, Debian's default); smaller blocks, and kernels that refuse, get ordinary pages.
@@ -33,6 +33,8 @@ void FreeHugePageBacked(void* p) noexcept;
 // A std::allocator for AllocateHugePageBacked: std::vector<float, HugePageAllocator<float>>.
 template <typename T>
 struct HugePageAllocator {
+  // Blocks under 2 MiB come from malloc, aligned for any fundamental type only.
+  static_assert(alignof(T) <= alignof(std::max_align_t));
   using value_type = T;
   HugePageAllocator() = default;
   template <typename U>

@@ -335,16 +335,20 @@ void FireRenderer::MarchRay(const RayMarch& march, MarchCounters* c, Visit&& vis
   const char* records = path_ == SpectralPath::kFast
                             ? reinterpret_cast<const char*>(fast_.data())
                             : reinterpret_cast<const char*>(spectral_voxels_.data());
-  const int last[3] = {g.dims.x() - 1, g.dims.y() - 1, g.dims.z() - 1};
+  // The cell's lower corner is clamped as TrilinearStencil clamps it, and its upper rows exist
+  // only where the grid has them, so no address lies outside the records.
+  const int low_max[3] = {std::max(g.dims.x() - 2, 0), std::max(g.dims.y() - 2, 0),
+                          std::max(g.dims.z() - 2, 0)};
+  const std::size_t up_j = g.dims.y() > 1 ? nx : 0, up_k = g.dims.z() > 1 ? nxy : 0;
   auto prefetch = [&](const Eigen::Vector3d& p) {
-    const int i = std::clamp(static_cast<int>(p.x()), 0, last[0]);
-    const int j = std::clamp(static_cast<int>(p.y()), 0, last[1]);
-    const int kk = std::clamp(static_cast<int>(p.z()), 0, last[2]);
+    const int i = std::clamp(static_cast<int>(p.x()), 0, low_max[0]);
+    const int j = std::clamp(static_cast<int>(p.y()), 0, low_max[1]);
+    const int kk = std::clamp(static_cast<int>(p.z()), 0, low_max[2]);
     const char* base = records + 16 * (i + nx * j + nxy * kk);
     __builtin_prefetch(base);
-    __builtin_prefetch(base + 16 * nx);
-    __builtin_prefetch(base + 16 * nxy);
-    __builtin_prefetch(base + 16 * (nx + nxy));
+    __builtin_prefetch(base + 16 * up_j);
+    __builtin_prefetch(base + 16 * up_k);
+    __builtin_prefetch(base + 16 * (up_j + up_k));
   };
   // Evaluates steps [k, end); false when the visitor stopped the ray.
   auto evaluate = [&](std::int64_t k, std::int64_t end) {
@@ -373,9 +377,13 @@ void FireRenderer::MarchRay(const RayMarch& march, MarchCounters* c, Visit&& vis
   // The bricks along the ray, in order, by a 3D DDA (Amanatides and Woo): from the brick of the
   // first step's midpoint, each next brick is the neighbour across the face the ray leaves by,
   // found by comparing the distances to the three next faces, which each grow by a constant. A
-  // brick's steps are those whose midpoints lie before its exit face. Rounding may move a step
-  // across a face by a hair; the bricks' one-voxel dilation (SetVolume) covers that, so skipping
-  // stays exact.
+  // brick's steps are those whose midpoints lie before its exit face: every step but the last is
+  // full, its midpoint at t_enter + (k + 1/2) step_m; the last, shortened to end at t_exit, has its
+  // own midpoint, up to half a step earlier (more than the dilation covers when steps exceed a
+  // voxel), so it is placed by that. Rounding may move a step across a face by a hair; the bricks'
+  // one-voxel dilation (SetVolume) covers that, so skipping stays exact. Past the grid's last brick
+  // along an axis (the ray leaving the box by that face, or rounding), samples are clamped to the
+  // border layer, which the last brick holds: that axis stops moving and the others go on.
   const int brick = options_.brick_size_voxels;
   const double inv_step = 1.0 / march.step_m;
   int b[3], b_step[3];
@@ -405,15 +413,23 @@ void FireRenderer::MarchRay(const RayMarch& march, MarchCounters* c, Visit&& vis
   std::size_t flat = b[0] + bx * b[1] + bxy * b[2];
   const std::ptrdiff_t flat_step[3] = {b_step[0], b_step[1] * std::ptrdiff_t(bx),
                                        b_step[2] * std::ptrdiff_t(bxy)};
+  double last_midpoint;  // the last step's, along the ray
+  {
+    double length;
+    Eigen::Vector3d p;
+    march.Step(n_steps - 1, &length, &p);
+    last_midpoint = march.t_exit - 0.5 * length;
+  }
   std::int64_t k = 0;
   while (k < n_steps) {
     const int a =
         t_face[0] < t_face[1] ? (t_face[0] < t_face[2] ? 0 : 2) : (t_face[1] < t_face[2] ? 1 : 2);
     // The first step whose midpoint lies at or beyond the exit face.
     const double after = std::ceil((t_face[a] - march.t_enter) * inv_step - 0.5);
-    const std::int64_t end = after >= double(n_steps) ? n_steps
-                             : after > double(k)      ? static_cast<std::int64_t>(after)
-                                                      : k;
+    std::int64_t end = after >= double(n_steps) ? n_steps
+                       : after > double(k)      ? static_cast<std::int64_t>(after)
+                                                : k;
+    if (end == n_steps - 1 && last_midpoint < t_face[a]) end = n_steps;
     if (end > k) {
       if (brick_occupied_[flat]) {
         if (!evaluate(k, end)) return;
@@ -422,18 +438,11 @@ void FireRenderer::MarchRay(const RayMarch& march, MarchCounters* c, Visit&& vis
       }
       k = end;
     }
-    // The next brick; past the grid's last brick (a step within rounding of the box's face),
-    // the last brick serves for the steps left.
+    if (k >= n_steps) return;
     const int nb = b[a] + b_step[a];
     if (nb < 0 || nb >= brick_dims_[a]) {
-      if (k < n_steps) {
-        if (brick_occupied_[flat]) {
-          evaluate(k, n_steps);
-        } else {
-          c->skipped += n_steps - k;
-        }
-      }
-      return;
+      t_face[a] = std::numeric_limits<double>::infinity();  // clamped: this axis stays
+      continue;
     }
     b[a] = nb;
     flat += flat_step[a];

@@ -216,7 +216,7 @@ class FireRenderer {
   // Resizes and zeroes (when empty) or checks the gradient arrays.
   void PrepareGradientArrays(std::vector<double>* d_temperature,
                              std::vector<double>* d_density) const;
-  // Marches one ray over the occupied bricks: visit(k, ds, corner[8], weight[8]) for every step
+  // Marches one ray over the occupied bricks: visit(ds, corner[8], weight[8]) for every step
   // evaluated, until it returns false (early termination). Counts into the counters.
   struct MarchCounters;
   // The summary of a render or gradient pass that started at `start`.

@@ -225,80 +225,99 @@ TEST(Renderer, EmptySpaceSkippingIsExact) {
 
 // The bricks a ray crosses are walked by a DDA (renderer.cc, MarchRay): a brick it missed or took
 // out of turn would drop or add samples. Oblique and grazing rays, rays from inside the box, a
-// grid whose sides are not whole bricks, steps that do not divide a brick, and a medium of small
-// separate blobs (most bricks empty): every image and gradient must be bit-identical to the march
-// that evaluates every step.
+// grid whose sides are not whole bricks, steps that do not divide a brick or are longer than a
+// voxel, and two media: small separate blobs (most bricks empty), and a checkerboard of bricks
+// whose medium stays a voxel clear of their faces, so that the neighbours across every face are
+// unoccupied even after their one-voxel dilation (a sample put in the wrong brick is dropped, not
+// saved by the dilation). Every image and gradient must equal the march that evaluates every step.
 TEST(Renderer, EmptySpaceSkippingIsExactAlongObliqueRays) {
   Box3 box{Eigen::Vector3d(-0.05, -0.04, -0.06), Eigen::Vector3d(0.05, 0.04, 0.06)};
-  Uniform u = UniformVolume(box, {37, 29, 45}, 300.0f, 0.0f);
+  const Eigen::Vector3i dims(37, 29, 45);  // 4 x 8 + 5, 3 x 8 + 5, 5 x 8 + 5: partial last bricks
   const double n0 = 60.0 / AbsorptionModel::DefaultGrey().CrossSectionM2(550);
-  const Eigen::Vector3d blobs[3] = {Eigen::Vector3d(0.03, 0.02, -0.04),
-                                    Eigen::Vector3d(-0.035, -0.025, 0.01),
-                                    Eigen::Vector3d(0.0, 0.0, 0.045)};
-  for (int k = 0; k < 45; ++k)
-    for (int j = 0; j < 29; ++j)
-      for (int i = 0; i < 37; ++i) {
-        const Eigen::Vector3d p = u.grid.VoxelCenter(i, j, k);
-        for (const Eigen::Vector3d& c : blobs) {
+  Uniform blobs = UniformVolume(box, dims, 300.0f, 0.0f);
+  Uniform checkerboard = blobs;
+  const Eigen::Vector3d centres[5] = {
+      Eigen::Vector3d(0.03, 0.02, -0.04), Eigen::Vector3d(-0.035, -0.025, 0.01),
+      Eigen::Vector3d(0.0, 0.0, 0.045), Eigen::Vector3d(0.046, 0.036, 0.0),
+      Eigen::Vector3d(0.046, -0.02, 0.056)};
+  for (int k = 0; k < dims.z(); ++k)
+    for (int j = 0; j < dims.y(); ++j)
+      for (int i = 0; i < dims.x(); ++i) {
+        const std::size_t f = blobs.grid.Flat(i, j, k);
+        const Eigen::Vector3d p = blobs.grid.VoxelCenter(i, j, k);
+        for (const Eigen::Vector3d& c : centres) {
           if ((p - c).norm() < 0.008) {
-            u.temperature[u.grid.Flat(i, j, k)] = 1900.0f;
-            u.density[u.grid.Flat(i, j, k)] = static_cast<float>(n0);
+            blobs.temperature[f] = 1900.0f;
+            blobs.density[f] = static_cast<float>(n0);
           }
+        }
+        const bool even_brick = (i / 8 + j / 8 + k / 8) % 2 == 0;
+        const bool inner =
+            i % 8 >= 1 && i % 8 <= 6 && j % 8 >= 1 && j % 8 <= 6 && k % 8 >= 1 && k % 8 <= 6;
+        if (even_brick && inner) {
+          checkerboard.temperature[f] = 1700.0f;
+          checkerboard.density[f] = static_cast<float>(0.2 * n0);
         }
       }
   struct View {
     Eigen::Vector3d eye, target;
   };
   const View views[] = {
-      {Eigen::Vector3d(0.21, 0.13, 0.17), Eigen::Vector3d(0, 0, 0)},            // oblique
+      {Eigen::Vector3d(0.21, 0.13, 0.17), Eigen::Vector3d(0, 0, 0)},  // oblique
+      {Eigen::Vector3d(-0.23, -0.17, -0.19),
+       Eigen::Vector3d(0.02, 0.01, 0.03)},  // out by the far faces
       {Eigen::Vector3d(-0.3, 0.0401, 0.0), Eigen::Vector3d(0.0, 0.0401, 0.0)},  // grazing a face
       {Eigen::Vector3d(0.001, -0.002, 0.003), Eigen::Vector3d(1, 0.7, -0.4)},   // from inside
   };
-  for (bool soot : {false, true}) {
-    AbsorptionModel absorption =
-        soot ? AbsorptionModel::DefaultSoot() : AbsorptionModel::DefaultGrey();
-    for (double step : {0.5, 1.0, 0.37}) {
-      RenderOptions with, without;
-      with.step_voxels = without.step_voxels = step;
-      without.skip_empty_space = false;
-      FireRenderer a(absorption, with), b(absorption, without);
-      a.SetVolume(u.grid, u.temperature, u.density);
-      b.SetVolume(u.grid, u.temperature, u.density);
-      for (const View& view : views) {
-        CameraRays rays(
-            CameraModel::Pinhole(70, 70, 40, 30, LookAt(view.eye, view.target), 81, 61));
-        ImageF ia, ib;
-        RenderSummary sa = a.Render(rays, &ia), sb = b.Render(rays, &ib);
-        EXPECT_GT(sa.steps_skipped_empty, 0);
-        EXPECT_LT(sa.steps_evaluated, sb.steps_evaluated);
-        EXPECT_EQ(sa.steps_evaluated + sa.steps_skipped_empty + sa.steps_after_termination,
-                  sb.steps_evaluated + sb.steps_after_termination)
-            << "every step is either evaluated or skipped";
-        double peak = 0;
-        for (float v : ib.pixels) peak = std::max(peak, double(v));
-        EXPECT_GT(peak, 0) << "the view sees the blobs";
-        EXPECT_EQ(ia.pixels, ib.pixels) << (soot ? "soot" : "grey") << ", step " << step;
-        ImageF ones(ia.width, ia.height, 3, 1.0f);
-        std::vector<double> dta, dna, dtb, dnb;
-        a.RenderGradient(rays, ones, &dta, &dna);
-        b.RenderGradient(rays, ones, &dtb, &dnb);
-        // The gradients are summed in float per thread, in an order that varies from run to run:
-        // equal to float rounding, and zero where the other is.
-        ASSERT_EQ(dta.size(), dtb.size());
-        double t_scale = 0, n_scale = 0;
-        for (std::size_t v = 0; v < dtb.size(); ++v) {
-          t_scale = std::max(t_scale, std::abs(dtb[v]));
-          n_scale = std::max(n_scale, std::abs(dnb[v]));
-        }
-        EXPECT_GT(t_scale, 0);
-        for (std::size_t v = 0; v < dtb.size(); ++v) {
-          ASSERT_NEAR(dta[v], dtb[v], 1e-6 * t_scale) << v;
-          ASSERT_NEAR(dna[v], dnb[v], 1e-6 * n_scale) << v;
-          ASSERT_EQ(dta[v] == 0, dtb[v] == 0) << v;
+  for (const Uniform* u : {&blobs, &checkerboard})
+    for (bool soot : {false, true}) {
+      AbsorptionModel absorption =
+          soot ? AbsorptionModel::DefaultSoot() : AbsorptionModel::DefaultGrey();
+      // Steps longer than a voxel (RenderOptions allows up to 4) shift a short last step's midpoint
+      // by more than the bricks' one-voxel dilation covers.
+      for (double step : {0.5, 1.0, 0.37, 2.0, 3.3, 4.0}) {
+        RenderOptions with, without;
+        with.step_voxels = without.step_voxels = step;
+        without.skip_empty_space = false;
+        FireRenderer a(absorption, with), b(absorption, without);
+        a.SetVolume(u->grid, u->temperature, u->density);
+        b.SetVolume(u->grid, u->temperature, u->density);
+        for (const View& view : views) {
+          CameraRays rays(
+              CameraModel::Pinhole(70, 70, 40, 30, LookAt(view.eye, view.target), 81, 61));
+          ImageF ia, ib;
+          RenderSummary sa = a.Render(rays, &ia), sb = b.Render(rays, &ib);
+          EXPECT_GT(sa.steps_skipped_empty, 0);
+          EXPECT_LT(sa.steps_evaluated, sb.steps_evaluated);
+          EXPECT_EQ(sa.steps_evaluated + sa.steps_skipped_empty + sa.steps_after_termination,
+                    sb.steps_evaluated + sb.steps_after_termination)
+              << "every step is either evaluated or skipped";
+          double peak = 0;
+          for (float v : ib.pixels) peak = std::max(peak, double(v));
+          EXPECT_GT(peak, 0) << "the view sees the blobs";
+          EXPECT_EQ(ia.pixels, ib.pixels) << (u == &blobs ? "blobs, " : "checkerboard, ")
+                                          << (soot ? "soot" : "grey") << ", step " << step;
+          ImageF ones(ia.width, ia.height, 3, 1.0f);
+          std::vector<double> dta, dna, dtb, dnb;
+          a.RenderGradient(rays, ones, &dta, &dna);
+          b.RenderGradient(rays, ones, &dtb, &dnb);
+          // The gradients are summed in float per thread, in an order that varies from run to run:
+          // equal to float rounding, and zero where the other is.
+          ASSERT_EQ(dta.size(), dtb.size());
+          double t_scale = 0, n_scale = 0;
+          for (std::size_t v = 0; v < dtb.size(); ++v) {
+            t_scale = std::max(t_scale, std::abs(dtb[v]));
+            n_scale = std::max(n_scale, std::abs(dnb[v]));
+          }
+          EXPECT_GT(t_scale, 0);
+          for (std::size_t v = 0; v < dtb.size(); ++v) {
+            ASSERT_NEAR(dta[v], dtb[v], 1e-6 * t_scale) << v;
+            ASSERT_NEAR(dna[v], dnb[v], 1e-6 * n_scale) << v;
+            ASSERT_EQ(dta[v] == 0, dtb[v] == 0) << v;
+          }
         }
       }
     }
-  }
 }
 
 TEST(Renderer, EarlyTerminationErrorIsBounded) {
