@@ -528,7 +528,9 @@ TEST(AravisCamera, MissedSoftwareTriggersAreCounted) {
   const double missed_b = std::stod(r.final_counters().at("missed_triggers_b"));
   EXPECT_GE(made_a, 40);  // 20 Hz for 2.5 s
   EXPECT_LE(made_b, 0.7 * made_a);
-  EXPECT_LE(missed_a, 2);
+  // The healthy camera misses a trigger only when the host falls behind (3 of about 50 once on two
+  // loaded cores under ASan): a tenth of its frames, well below b's share of at least 0.3.
+  EXPECT_LE(missed_a, 0.1 * made_a);
   EXPECT_NEAR(missed_b, made_a - made_b, 4) << "a made " << made_a << ", b " << made_b;
   fs::remove_all(dir);
 }
