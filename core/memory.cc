@@ -52,10 +52,6 @@ bool ResetPeakResident() {
 
 std::size_t ResidentBytes() { return StatusKilobytes("VmRSS"); }
 
-}  // namespace flamerig
-
-namespace flamerig {
-
 void* AllocateHugePageBacked(std::size_t bytes) {
   constexpr std::size_t kHugePage = std::size_t(2) << 20;
   if (bytes < kHugePage) return std::malloc(bytes == 0 ? 1 : bytes);

@@ -385,7 +385,6 @@ void FireRenderer::MarchRay(const RayMarch& march, MarchCounters* c, Visit&& vis
   // along an axis (the ray leaving the box by that face, or rounding), samples are clamped to the
   // border layer, which the last brick holds: that axis stops moving and the others go on.
   const int brick = options_.brick_size_voxels;
-  const double inv_step = 1.0 / march.step_m;
   int b[3], b_step[3];
   double t_face[3], t_delta[3];
   {
@@ -425,10 +424,7 @@ void FireRenderer::MarchRay(const RayMarch& march, MarchCounters* c, Visit&& vis
     const int a =
         t_face[0] < t_face[1] ? (t_face[0] < t_face[2] ? 0 : 2) : (t_face[1] < t_face[2] ? 1 : 2);
     // The first step whose midpoint lies at or beyond the exit face.
-    const double after = std::ceil((t_face[a] - march.t_enter) * inv_step - 0.5);
-    std::int64_t end = after >= double(n_steps) ? n_steps
-                       : after > double(k)      ? static_cast<std::int64_t>(after)
-                                                : k;
+    std::int64_t end = std::max(k, march.FirstStepAfter(t_face[a]));
     if (end == n_steps - 1 && last_midpoint < t_face[a]) end = n_steps;
     if (end > k) {
       if (brick_occupied_[flat]) {
