@@ -450,27 +450,31 @@ void FireRenderer::MarchRay(const RayMarch& march, MarchCounters* c, Visit&& vis
 // corners' Planck spectra weighted by w * n (no overflow whatever the density), each spectrum
 // interpolated in the kelvin table (SetVolume). GatherCorners reads the eight corners' records
 // and returns the sample's density n_sample = sum w n; when it is > 0, it gives each corner's
-// row, its weight u = w n / n_sample and the weight of the slope to the next row uf = u *
-// fraction (all eight: a corner without medium has u = 0 and the zero rows), from which
-// SourceLanes below forms the source eight bins at a time, in registers.
+// row and, with u = w n / n_sample, the weights of that row, u0 = u (1 - fraction), and of the
+// next, u1 = u fraction (all eight: a corner without medium has u = 0 and the zero rows), from
+// which SourceLanes below forms the source eight bins at a time, in registers: two multiply-adds
+// a corner, u0 row + u1 next_row, the table's linear interpolation as a sum of two non-negative
+// terms.
 template <typename Real>
 inline Real FireRenderer::GatherCorners(const std::size_t* corner, const Real* weight,
-                                        std::int32_t* slot, const float** rows, Real* u,
-                                        Real* uf) const {
+                                        std::int32_t* slot, const float** rows, Real* u0,
+                                        Real* u1) const {
   Real n_sample = 0;
+  Real fraction[8];
   for (int n = 0; n < 8; ++n) {
     const SpectralVoxel& v = spectral_voxels_[corner[n]];
     slot[n] = v.slot;
     rows[n] = &spectral_table_[v.offset];
-    u[n] = weight[n] * Real(v.density);  // w n; divided by n_sample below
-    uf[n] = Real(v.fraction);
-    n_sample += u[n];
+    u0[n] = weight[n] * Real(v.density);  // w n; divided by n_sample below
+    fraction[n] = Real(v.fraction);
+    n_sample += u0[n];
   }
   if (!(n_sample > Real(0))) return n_sample;
   const Real inverse = Real(1) / n_sample;
   for (int n = 0; n < 8; ++n) {
-    u[n] *= inverse;
-    uf[n] *= u[n];
+    const Real u = u0[n] * inverse;
+    u1[n] = u * fraction[n];
+    u0[n] = u - u1[n];
   }
   return n_sample;
 }
@@ -642,13 +646,12 @@ inline void StepTermsLanes(const Lanes<Real>& tau, Lanes<Real>* absorbed, Lanes<
 // The sample's source S_b = sum over corners of u B_b(T) for bins [b0, b0 + 8), from the corners'
 // kelvin-table rows (GatherCorners).
 template <typename Real>
-inline Lanes<Real> SourceLanes(const float* const* rows, const Real* u, const Real* uf, int b0,
+inline Lanes<Real> SourceLanes(const float* const* rows, const Real* u0, const Real* u1, int b0,
                                int row_length) {
   Lanes<Real> acc{};
   for (int i = 0; i < 8; ++i) {
-    const Lanes<Real> r0 = LoadFloatLanes<Real>(rows[i] + b0);
-    const Lanes<Real> r1 = LoadFloatLanes<Real>(rows[i] + b0 + row_length);
-    acc += u[i] * r0 + uf[i] * (r1 - r0);
+    acc += u0[i] * LoadFloatLanes<Real>(rows[i] + b0);
+    acc += u1[i] * LoadFloatLanes<Real>(rows[i] + b0 + row_length);
   }
   return acc;
 }
@@ -657,12 +660,12 @@ inline Lanes<Real> SourceLanes(const float* const* rows, const Real* u, const Re
 // reduced; returns the largest transmittance. kThin: sigma_b n ds < 1e-2 in every bin, where
 // 1 - exp is its series (the same value, no exponential).
 template <bool kThin, typename Real>
-inline Real SpectralStep(int nbp, const float* const* rows, const Real* u, const Real* uf,
+inline Real SpectralStep(int nbp, const float* const* rows, const Real* u0, const Real* u1,
                          const Real* sigma, Real n_sample, Real ds, Real* radiance,
                          Real* transmittance) {
   Lanes<Real> max_tr{};
   for (int b0 = 0; b0 < nbp; b0 += kVectorLanes) {
-    const Lanes<Real> source = SourceLanes<Real>(rows, u, uf, b0, nbp);
+    const Lanes<Real> source = SourceLanes<Real>(rows, u0, u1, b0, nbp);
     const Lanes<Real> absorbed =
         OneMinusExpNegLanes<kThin, Real>(LoadLanes(sigma + b0) * n_sample * ds);
     Lanes<Real> tr = LoadLanes(transmittance + b0);
@@ -679,13 +682,13 @@ inline Real SpectralStep(int nbp, const float* const* rows, const Real* u, const
 // cumulative radiance advanced, d_emission[b] = sigma_b dLoss/dE_b, and the absorption's part of
 // dLoss/dn summed over bins into *d_n; returns the largest transmittance.
 template <bool kThin, typename Real>
-inline Real SpectralAdjointStep(int nbp, const float* const* rows, const Real* u, const Real* uf,
+inline Real SpectralAdjointStep(int nbp, const float* const* rows, const Real* u0, const Real* u1,
                                 const Real* sigma, const Real* adjoint, const Real* total,
                                 Real n_sample, Real ds, Real* cumulative, Real* transmittance,
                                 Real* d_emission, Real* d_n) {
   Lanes<Real> dn{}, max_tr{};
   for (int b0 = 0; b0 < nbp; b0 += kVectorLanes) {
-    const Lanes<Real> source = SourceLanes<Real>(rows, u, uf, b0, nbp);
+    const Lanes<Real> source = SourceLanes<Real>(rows, u0, u1, b0, nbp);
     const Lanes<Real> sig = LoadLanes(sigma + b0);
     Lanes<Real> absorbed, phi, tau_dphi;
     StepTermsLanes<kThin, Real>(sig * n_sample * ds, &absorbed, &phi, &tau_dphi);
@@ -710,13 +713,13 @@ inline Real SpectralAdjointStep(int nbp, const float* const* rows, const Real* u
 // n_factor[b] = sigma_b ds (Tr tau phi' S_b - behind_b) (d_n = sum_b adjoint_b n_factor[b]); the
 // transmittance and cumulative radiance advanced as there; returns the largest transmittance.
 template <bool kThin, typename Real>
-inline Real SpectralFactorStep(int nbp, const float* const* rows, const Real* u, const Real* uf,
+inline Real SpectralFactorStep(int nbp, const float* const* rows, const Real* u0, const Real* u1,
                                const Real* sigma, const Real* total, Real n_sample, Real ds,
                                Real* cumulative, Real* transmittance, Real* e_factor,
                                Real* n_factor) {
   Lanes<Real> max_tr{};
   for (int b0 = 0; b0 < nbp; b0 += kVectorLanes) {
-    const Lanes<Real> source = SourceLanes<Real>(rows, u, uf, b0, nbp);
+    const Lanes<Real> source = SourceLanes<Real>(rows, u0, u1, b0, nbp);
     const Lanes<Real> sig = LoadLanes(sigma + b0);
     Lanes<Real> absorbed, phi, tau_dphi;
     StepTermsLanes<kThin, Real>(sig * n_sample * ds, &absorbed, &phi, &tau_dphi);
@@ -881,14 +884,14 @@ void FireRenderer::RenderRows(const RenderJob& job, int y0, int y1, MarchCounter
           MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* weight) {
             std::int32_t slots[8];
             const float* rows[8];
-            Real u[8], uf[8];
-            const Real n_sample = GatherCorners(corner, weight, slots, rows, u, uf);
+            Real u0[8], u1[8];
+            const Real n_sample = GatherCorners(corner, weight, slots, rows, u0, u1);
             if (!(n_sample > Real(0))) return true;
             // A step thin in every bin (a candle's, mostly) needs no exponential.
             const Real max_tr = sigma_max * n_sample * ds < Real(1e-2)
-                                    ? SpectralStep<true, Real>(nbp, rows, u, uf, sigma, n_sample,
+                                    ? SpectralStep<true, Real>(nbp, rows, u0, u1, sigma, n_sample,
                                                                ds, radiance, transmittance)
-                                    : SpectralStep<false, Real>(nbp, rows, u, uf, sigma, n_sample,
+                                    : SpectralStep<false, Real>(nbp, rows, u0, u1, sigma, n_sample,
                                                                 ds, radiance, transmittance);
             return !(max_tr < min_tr);
           });
@@ -1058,14 +1061,14 @@ inline void FireRenderer::MarchRadiance(const RayMarch& march, bool spectral, in
   }
   std::int32_t slots[8];
   const float* rows[8];
-  Real u[8], uf[8];
+  Real u0[8], u1[8];
   MarchRay<Real>(march, &ignored, [&](Real ds, const std::size_t* corner, const Real* weight) {
-    const Real n_sample = GatherCorners(corner, weight, slots, rows, u, uf);
+    const Real n_sample = GatherCorners(corner, weight, slots, rows, u0, u1);
     if (!(n_sample > Real(0))) return true;
     const Real max_tr =
         sigma_max * n_sample * ds < Real(1e-2)
-            ? SpectralStep<true, Real>(nbp, rows, u, uf, sigma, n_sample, ds, total, transmittance)
-            : SpectralStep<false, Real>(nbp, rows, u, uf, sigma, n_sample, ds, total,
+            ? SpectralStep<true, Real>(nbp, rows, u0, u1, sigma, n_sample, ds, total, transmittance)
+            : SpectralStep<false, Real>(nbp, rows, u0, u1, sigma, n_sample, ds, total,
                                         transmittance);
     return !(max_tr < min_tr);
   });
@@ -1188,9 +1191,9 @@ void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
         } else {
           std::int32_t slots[8];
           const float* rows[8];
-          Real u[8], uf[8];
+          Real u0[8], u1[8];
           auto sample = [&](const std::size_t* corner, const Real* weight, Real* n_sample) {
-            *n_sample = GatherCorners(corner, weight, slots, rows, u, uf);
+            *n_sample = GatherCorners(corner, weight, slots, rows, u0, u1);
             return *n_sample > Real(0);
           };
           // Pass 1: the ray's radiance per bin.
@@ -1206,10 +1209,10 @@ void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
             Real d_n;
             const Real max_tr = sigma_max * n_sample * ds < Real(1e-2)
                                     ? SpectralAdjointStep<true, Real>(
-                                          nbp, rows, u, uf, sigma, adjoint, total, n_sample, ds,
+                                          nbp, rows, u0, u1, sigma, adjoint, total, n_sample, ds,
                                           cumulative, transmittance, d_emission, &d_n)
                                     : SpectralAdjointStep<false, Real>(
-                                          nbp, rows, u, uf, sigma, adjoint, total, n_sample, ds,
+                                          nbp, rows, u0, u1, sigma, adjoint, total, n_sample, ds,
                                           cumulative, transmittance, d_emission, &d_n);
             for (int n = 0; n < 8; ++n) {
               const std::int32_t slot = slots[n];
@@ -1362,19 +1365,19 @@ void FireRenderer::CurvatureRows(const GradientJob& job,
       if (spectral) {
         std::int32_t slots[8];
         const float* rows[8];
-        Real u[8], uf[8];
+        Real u0[8], u1[8];
         // Pass 1: the ray's radiance per bin (as GradientRows).
         MarchRadiance(march, true, nbp, sigma, sigma_max, min_tr, total, transmittance);
         for (int b = 0; b < nbp; ++b) transmittance[b] = b < nbins ? Real(1) : Real(0);
         // Pass 2: the adjoint's factors, summed per voxel crossed.
         MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* w) {
-          const Real n_sample = GatherCorners(corner, w, slots, rows, u, uf);
+          const Real n_sample = GatherCorners(corner, w, slots, rows, u0, u1);
           if (!(n_sample > Real(0))) return true;
           const Real max_tr =
               sigma_max * n_sample * ds < Real(1e-2)
-                  ? SpectralFactorStep<true, Real>(nbp, rows, u, uf, sigma, total, n_sample, ds,
+                  ? SpectralFactorStep<true, Real>(nbp, rows, u0, u1, sigma, total, n_sample, ds,
                                                    cumulative, transmittance, e_factor, n_factor)
-                  : SpectralFactorStep<false, Real>(nbp, rows, u, uf, sigma, total, n_sample, ds,
+                  : SpectralFactorStep<false, Real>(nbp, rows, u0, u1, sigma, total, n_sample, ds,
                                                     cumulative, transmittance, e_factor, n_factor);
           for (int k = 0; k < 8; ++k) {
             if (slots[k] < 0 || w[k] == Real(0)) continue;

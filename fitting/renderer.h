@@ -232,7 +232,7 @@ class FireRenderer {
   struct GradientBuffers;
   template <typename Real>
   Real GatherCorners(const std::size_t* corner, const Real* weight, std::int32_t* slot,
-                     const float** rows, Real* u, Real* uf) const;
+                     const float** rows, Real* u0, Real* u1) const;
   // The fast path's sample: absorption kappa = sum w kappa_corner and source S = emission /
   // kappa per XYZ channel; false where kappa is 0 (RenderImpl's model).
   template <typename Real>
