@@ -60,12 +60,39 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
       EXPECT_LT(rms, 2000);  // the search range
     }
   }
-  // Fifteen oracle rows per scene: fourteen variants and the noise-free one (the header is
-  // "| oracle").
-  const std::regex row("\\n\\| (?!oracle)[a-z.`]");
+  // Fifteen oracle rows per scene: fourteen variants and the noise-free one (the headers are
+  // "| oracle" and the finer grids' "| fit grid").
+  const std::regex row("\\n\\| (?!oracle|fit grid)[a-z.`]");
   const auto rows =
       std::distance(std::sregex_iterator(md.begin(), md.end(), row), std::sregex_iterator());
   EXPECT_EQ(rows, 2 * 15) << md;
+
+  // The finer grids (quick: the licks' fit at 16, so 16, 24 and 32, and 32 from images twice as
+  // large), each with the neighbour weight scaled by (16 / resolution)^2, the fit's default 1 at
+  // 16, and the grid's own limit.
+  const std::string finer = "### Finer fit grids";
+  ASSERT_NE(md.find(finer), std::string::npos) << md;
+  struct Expected {
+    const char* first;
+    const char* images;
+    double w_sm;
+  };
+  const Expected expected[] = {{"16 |", "96x72", 1.0},
+                               {"24 |", "96x72", 16.0 * 16 / (24 * 24)},
+                               {"32 | 96x72", "96x72", 0.25},
+                               {"32 | 192x144", "192x144", 0.25}};
+  for (const Expected& e : expected) {
+    SCOPED_TRACE(e.first);
+    const auto cells = Row(md, finer, e.first);
+    ASSERT_EQ(cells.size(), 14u) << md;
+    EXPECT_EQ(cells[1], e.images);
+    EXPECT_NEAR(std::stod(cells[2]), e.w_sm, 5e-4);
+    const double rms = std::stod(cells[8]), limit = std::stod(cells[12]);
+    EXPECT_GT(rms, 0);
+    EXPECT_LT(rms, 2000);
+    EXPECT_GT(limit, 0);
+    EXPECT_LT(limit, 2000);
+  }
 }
 
 }  // namespace
