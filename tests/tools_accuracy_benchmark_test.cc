@@ -72,19 +72,22 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
   // 16, and the grid's own limit.
   const std::string finer = "### Finer fit grids";
   ASSERT_NE(md.find(finer), std::string::npos) << md;
+  EXPECT_NE(md.find(finer + ": licks, 8 views, truth 48"), std::string::npos) << md;
   struct Expected {
     const char* first;
     const char* images;
     double w_sm;
   };
-  const Expected expected[] = {{"16 |", "96x72", 1.0},
-                               {"24 |", "96x72", 16.0 * 16 / (24 * 24)},
+  const Expected expected[] = {{"16 | 96x72", "96x72", 1.0},
+                               {"24 | 96x72", "96x72", 16.0 * 16 / (24 * 24)},
                                {"32 | 96x72", "96x72", 0.25},
                                {"32 | 192x144", "192x144", 0.25}};
+  std::vector<std::string> limits;
   for (const Expected& e : expected) {
     SCOPED_TRACE(e.first);
     const auto cells = Row(md, finer, e.first);
-    ASSERT_EQ(cells.size(), 14u) << md;
+    ASSERT_EQ(cells.size(), 15u) << md;
+    limits.push_back(cells[12]);
     EXPECT_EQ(cells[1], e.images);
     EXPECT_NEAR(std::stod(cells[2]), e.w_sm, 5e-4);
     const double rms = std::stod(cells[8]), limit = std::stod(cells[12]);
@@ -93,6 +96,9 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
     EXPECT_GT(limit, 0);
     EXPECT_LT(limit, 2000);
   }
+  // The two 32 rows share the truth and the grid, so the grid's limit is the same.
+  ASSERT_EQ(limits.size(), 4u);
+  EXPECT_EQ(limits[2], limits[3]);
 }
 
 }  // namespace
