@@ -382,8 +382,10 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
     // The colour of the neighbourhood (emission summed over a cube of voxels, so a brightness-
     // weighted chromaticity): a single voxel's colour from a few views is noisy, and the density
     // that brightness implies depends steeply on the temperature (Y grows 3650x from 1300 to
-    // 2300 K), so noise in one would become speckle in the other.
+    // 2300 K), so noise in one would become speckle in the other. Neighbours brighter than the
+    // voxel count at its brightness (FitOptions::init_colour_cap_brightness).
     Eigen::Vector3d rgb = Eigen::Vector3d::Zero();
+    const double own = std::max(0.0, double(e[0]) + e[1] + e[2]);
     for (int dk = -radius; dk <= radius; ++dk)
       for (int dj = -radius; dj <= radius; ++dj)
         for (int di = -radius; di <= radius; ++di) {
@@ -391,7 +393,10 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
           if (ii < 0 || jj < 0 || kk < 0 || ii >= dims.x() || jj >= dims.y() || kk >= dims.z())
             continue;
           const float* q = &emission[3 * st->grid.Flat(ii, jj, kk)];
-          rgb += Eigen::Vector3d(q[0], q[1], q[2]);
+          const double sum = double(q[0]) + q[1] + q[2];
+          const double weight =
+              options.init_colour_cap_brightness && own > 0 && sum > own ? own / sum : 1.0;
+          rgb += weight * Eigen::Vector3d(q[0], q[1], q[2]);
         }
     st->t[a] = table.TemperatureOf(rgb);
     if (bands) {  // `emission` is then the bands' activity, without units: the bands' own

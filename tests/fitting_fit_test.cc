@@ -754,6 +754,48 @@ namespace {
 // of emission in the two bands is the measured one. Oracle: the bands' soot emission integrated
 // here from the responses' own sensitivities, absorption cross-section and Planck's law, and the
 // temperatures of the synthetic volume that made the band emissions (iterations 0: the start).
+// The start's colour pooling (FitOptions::init_colour_cap_brightness): a dim voxel beside a hot,
+// bright one. Summed plainly over the cube, the pair's colour is the hot voxel's (its emission
+// outweighs the dim one's a hundredfold), so the dim voxel starts at the core's temperature; with
+// the brighter neighbour counted at the dim voxel's brightness, it starts between the two. The
+// hot voxel is the same either way (its neighbours are dimmer), and a voxel alone keeps its own.
+TEST(FastFit, TheColourStartDoesNotGiveADimVoxelItsBrightNeighboursTemperature) {
+  const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
+  SmallScene s = MakeSmallScene(soot);
+  const FitOptions defaults;
+  ASSERT_TRUE(defaults.init_colour_cap_brightness);
+  ASSERT_EQ(defaults.init_colour_radius_voxels, 1);
+  const ThinEmissionTable table(soot, defaults.objective.t_min_k, defaults.objective.t_max_k);
+  FireVolume tomography;
+  tomography.geometry = s.grid;
+  tomography.emission_rgb.assign(3 * s.grid.num_voxels(), 0.0f);
+  tomography.metadata_numbers["exposure"] = 1.0;
+  const double n = 0.3 / (soot.CrossSectionM2(550) * s.grid.voxel_size_m.x());
+  auto put = [&](int i, int j, int k, double t) {
+    const Eigen::Vector3d e = n * table.RgbPerDensity(t);
+    for (int c = 0; c < 3; ++c)
+      tomography.emission_rgb[3 * s.grid.Flat(i, j, k) + c] = static_cast<float>(e[c]);
+    return s.grid.Flat(i, j, k);
+  };
+  const std::size_t hot = put(3, 3, 3, 2200), dim = put(4, 3, 3, 1500), alone = put(0, 7, 0, 1500);
+  ASSERT_LT(table.RgbPerDensity(1500).sum(), 0.05 * table.RgbPerDensity(2200).sum());
+  FitOptions options;
+  options.iterations_finest = 0;
+  options.known_exposure = 1.0;
+  options.activity_threshold = 0;
+  const FitResult capped = FastFit(s.grid, tomography, s.views, soot, options);
+  options.init_colour_cap_brightness = false;
+  const FitResult plain = FastFit(s.grid, tomography, s.views, soot, options);
+  ASSERT_EQ(capped.active_voxels, 3u);
+  for (const FitResult* r : {&capped, &plain}) {
+    EXPECT_NEAR(r->volume.temperature_k[hot], 2200, 15);
+    EXPECT_NEAR(r->volume.temperature_k[alone], 1500, 1.5);
+  }
+  EXPECT_GT(plain.volume.temperature_k[dim], 2150);
+  EXPECT_GT(capped.volume.temperature_k[dim], 1520);
+  EXPECT_LT(capped.volume.temperature_k[dim], 1950);
+}
+
 TEST(FastFit, TwoColourStartReadsEachVoxelsTemperatureFromItsBandRatio) {
   const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
   SmallScene s = MakeSmallScene(soot);
