@@ -145,7 +145,12 @@ struct FitOptions {
   // plain: fit 64: 66 / +5 / 38 K against 76 / +12 / 43 K; fit 128: 61 / +5 / 32 K against
   // 66 / +7 / 34 K. From the truth's own emission box-filtered onto the 128 grid (a perfect
   // tomography): 50 K capped, 66 K plain, 40 K from each voxel's colour alone (radius 0, which
-  // from the real tomography's noisier colour gives 79 K). false: the plain sum.
+  // from the real tomography's noisier colour gives 79 K). The benchmark's own tables (truth 96,
+  // fit 64): licks 83 -> 71 K; the 2-view candle's RMS unchanged (147 K), its bias +71 -> +66 K,
+  // but its emission-weighted RMS worse (79 -> 88 K). Other pools measured at 128 (fitted): the
+  // six face neighbours 61 K, 18 neighbours 60 K, neighbours at half weight 62 K, every neighbour
+  // at the voxel's brightness 72 K, the colour of a 64 or 96 tomography resampled 69 / 63 K.
+  // false: the plain sum.
   bool init_colour_cap_brightness = true;
   // The same for a two-colour start (BandTomography), [0, 8], or -1: chosen on a cold start
   // among 1, 2, 3, 5 and 8 by the data term of each start (at its first level; finer levels pool
