@@ -383,8 +383,9 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
     // weighted chromaticity): a single voxel's colour from a few views is noisy, and the density
     // that brightness implies depends steeply on the temperature (Y grows 3650x from 1300 to
     // 2300 K), so noise in one would become speckle in the other. Neighbours brighter than the
-    // voxel count at its brightness (FitOptions::init_colour_cap_brightness).
-    Eigen::Vector3d rgb = Eigen::Vector3d::Zero();
+    // voxel count at its brightness (FitOptions::init_colour_cap_brightness), and the cooler of
+    // that colour's temperature and the plain sum's is taken.
+    Eigen::Vector3d rgb = Eigen::Vector3d::Zero(), plain = Eigen::Vector3d::Zero();
     const double own = std::max(0.0, double(e[0]) + e[1] + e[2]);
     for (int dk = -radius; dk <= radius; ++dk)
       for (int dj = -radius; dj <= radius; ++dj)
@@ -397,8 +398,11 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
           const double weight =
               options.init_colour_cap_brightness && own > 0 && sum > own ? own / sum : 1.0;
           rgb += weight * Eigen::Vector3d(q[0], q[1], q[2]);
+          plain += Eigen::Vector3d(q[0], q[1], q[2]);
         }
     st->t[a] = table.TemperatureOf(rgb);
+    if (options.init_colour_cap_brightness)
+      st->t[a] = std::min(st->t[a], table.TemperatureOf(plain));
     if (bands) {  // `emission` is then the bands' activity, without units: the bands' own
       brightness[a] = bands->Brightness(f, st->t[a]);
       continue;

@@ -794,6 +794,25 @@ TEST(FastFit, TheColourStartDoesNotGiveADimVoxelItsBrightNeighboursTemperature) 
   EXPECT_GT(plain.volume.temperature_k[dim], 2150);
   EXPECT_GT(capped.volume.temperature_k[dim], 1520);
   EXPECT_LT(capped.volume.temperature_k[dim], 1950);
+
+  // Noise that capping would leave in charge: a dim 1500 K voxel between a brighter 1600 K one and
+  // a dim speck of pure blue (a solver's noise; no black body is bluer than it is green). Capped,
+  // the pool turns violet, off the black-body colours at their hot end; the start takes the
+  // cooler of that and the plain pool, which the bright 1600 K neighbour keeps near 1600 K.
+  std::fill(tomography.emission_rgb.begin(), tomography.emission_rgb.end(), 0.0f);
+  const std::size_t red = put(3, 3, 3, 1500);
+  const Eigen::Vector3d warm = 10 * n * table.RgbPerDensity(1600);
+  for (int c = 0; c < 3; ++c)
+    tomography.emission_rgb[3 * s.grid.Flat(4, 3, 3) + c] = static_cast<float>(warm[c]);
+  tomography.emission_rgb[3 * s.grid.Flat(2, 3, 3) + 2] =
+      static_cast<float>(n * table.RgbPerDensity(1500).sum());
+  options.init_colour_cap_brightness = true;
+  const FitResult noisy = FastFit(s.grid, tomography, s.views, soot, options);
+  options.init_colour_cap_brightness = false;
+  const FitResult noisy_plain = FastFit(s.grid, tomography, s.views, soot, options);
+  EXPECT_LT(noisy_plain.volume.temperature_k[red], 1750);
+  EXPECT_LE(noisy.volume.temperature_k[red], noisy_plain.volume.temperature_k[red]);
+  EXPECT_GT(noisy.volume.temperature_k[red], 1450);
 }
 
 TEST(FastFit, TwoColourStartReadsEachVoxelsTemperatureFromItsBandRatio) {
