@@ -150,8 +150,9 @@ struct FitOptions {
   // 2026-11-27), temperature RMS / bias / emission-weighted RMS after the fit, capped against
   // plain: fit 64: 66 / +5 / 38 K against 76 / +12 / 43 K; fit 128: 61 / +5 / 32 K against
   // 66 / +7 / 34 K (the cooler of the two, as now: 66 / +5 / 39 K and 60 / +5 / 31 K). From the
-  // truth's own emission box-filtered onto the 128 grid (a perfect tomography): 50 K capped, 66 K plain, 40 K from each voxel's colour alone (radius 0, which
-  // from the real tomography's noisier colour gives 79 K). The benchmark's own tables (truth 96,
+  // truth's own emission box-filtered onto the 128 grid (a perfect tomography): 50 K capped,
+  // 66 K plain, 40 K from each voxel's colour alone (radius 0, which from the real tomography's
+  // noisier colour gives 79 K). The benchmark's own tables (truth 96,
   // fit 64): licks 83 -> 71 K; the 2-view candle's RMS unchanged (147 K), its bias +71 -> +66 K,
   // but its emission-weighted RMS worse (79 -> 88 K). Other pools measured at 128 (fitted): the
   // six face neighbours 61 K, 18 neighbours 60 K, neighbours at half weight 62 K, every neighbour
