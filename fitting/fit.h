@@ -138,7 +138,7 @@ struct FitOptions {
   // Fast fit.
   int init_colour_radius_voxels = 1;  // temperature from the colour of (2r+1)^3 voxels; [0, 8]
   // In that cube, a neighbour brighter than the voxel counts at the voxel's own brightness (its
-  // emission scaled down to the voxel's luminance sum, its colour kept): a plain sum is weighted
+  // emission scaled down to the voxel's R + G + B, its colour kept): a plain sum is weighted
   // by brightness, so a dim voxel next to a hot core took the core's temperature. The start is
   // the cooler of that colour's temperature and the plain sum's: where brightness grows steeply
   // with temperature, capping the bright neighbours should cool a voxel, and where it heats one,
@@ -149,8 +149,9 @@ struct FitOptions {
   // `flamerig benchmark accuracy`'s finer-grid scene (licks, 8 views, truth 192, exposure known,
   // 2026-11-27), temperature RMS / bias / emission-weighted RMS after the fit, capped against
   // plain: fit 64: 66 / +5 / 38 K against 76 / +12 / 43 K; fit 128: 61 / +5 / 32 K against
-  // 66 / +7 / 34 K (the cooler of the two, as now: 66 / +5 / 39 K and 60 / +5 / 31 K). From the
-  // truth's own emission box-filtered onto the 128 grid (a perfect tomography): 50 K capped,
+  // 66 / +7 / 34 K (the cooler of the two, as now: 66 / +5 / 39 K and 60 / +5 / 31 K). The rest
+  // with the cap alone, before the minimum: from the truth's own emission box-filtered onto the
+  // 128 grid (a perfect tomography): 50 K capped,
   // 66 K plain, 40 K from each voxel's colour alone (radius 0, which from the real tomography's
   // noisier colour gives 79 K). The benchmark's own tables (truth 96,
   // fit 64): licks 83 -> 71 K; the 2-view candle's RMS unchanged (147 K), its bias +71 -> +66 K,

@@ -750,13 +750,9 @@ TEST(FastFit, StressBlackSaturatedAndExtremeBounds) {
 namespace flamerig {
 namespace {
 
-// Two-colour pyrometry's start (BandTomography): each voxel's temperature is the one whose ratio
-// of emission in the two bands is the measured one. Oracle: the bands' soot emission integrated
-// here from the responses' own sensitivities, absorption cross-section and Planck's law, and the
-// temperatures of the synthetic volume that made the band emissions (iterations 0: the start).
 // The start's colour pooling (FitOptions::init_colour_cap_brightness): a dim voxel beside a hot,
 // bright one. Summed plainly over the cube, the pair's colour is the hot voxel's (its emission
-// outweighs the dim one's a hundredfold), so the dim voxel starts at the core's temperature; with
+// outweighs the dim one's more than twentyfold), so the dim voxel starts at the core's temperature; with
 // the brighter neighbour counted at the dim voxel's brightness, it starts between the two. The
 // hot voxel is the same either way (its neighbours are dimmer), and a voxel alone keeps its own.
 TEST(FastFit, TheColourStartDoesNotGiveADimVoxelItsBrightNeighboursTemperature) {
@@ -797,8 +793,9 @@ TEST(FastFit, TheColourStartDoesNotGiveADimVoxelItsBrightNeighboursTemperature) 
 
   // Noise that capping would leave in charge: a dim 1500 K voxel between a brighter 1600 K one and
   // a dim speck of pure blue (a solver's noise; no black body is bluer than it is green). Capped,
-  // the pool turns violet, off the black-body colours at their hot end; the start takes the
-  // cooler of that and the plain pool, which the bright 1600 K neighbour keeps near 1600 K.
+  // the pool turns violet, off the black-body colours at their hot end (2280 K measured with the
+  // minimum taken out by hand); the start takes the cooler of that and the plain pool, which the
+  // bright 1600 K neighbour keeps near 1600 K: here exactly the plain pool's temperature.
   std::fill(tomography.emission_rgb.begin(), tomography.emission_rgb.end(), 0.0f);
   const std::size_t red = put(3, 3, 3, 1500);
   const Eigen::Vector3d warm = 10 * n * table.RgbPerDensity(1600);
@@ -811,10 +808,13 @@ TEST(FastFit, TheColourStartDoesNotGiveADimVoxelItsBrightNeighboursTemperature) 
   options.init_colour_cap_brightness = false;
   const FitResult noisy_plain = FastFit(s.grid, tomography, s.views, soot, options);
   EXPECT_LT(noisy_plain.volume.temperature_k[red], 1750);
-  EXPECT_LE(noisy.volume.temperature_k[red], noisy_plain.volume.temperature_k[red]);
-  EXPECT_GT(noisy.volume.temperature_k[red], 1450);
+  EXPECT_EQ(noisy.volume.temperature_k[red], noisy_plain.volume.temperature_k[red]);
 }
 
+// Two-colour pyrometry's start (BandTomography): each voxel's temperature is the one whose ratio
+// of emission in the two bands is the measured one. Oracle: the bands' soot emission integrated
+// here from the responses' own sensitivities, absorption cross-section and Planck's law, and the
+// temperatures of the synthetic volume that made the band emissions (iterations 0: the start).
 TEST(FastFit, TwoColourStartReadsEachVoxelsTemperatureFromItsBandRatio) {
   const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
   SmallScene s = MakeSmallScene(soot);
