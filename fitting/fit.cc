@@ -387,6 +387,7 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
     // that colour's temperature and the plain sum's is taken.
     Eigen::Vector3d rgb = Eigen::Vector3d::Zero(), plain = Eigen::Vector3d::Zero();
     const double own = std::max(0.0, double(e[0]) + e[1] + e[2]);
+    bool capped = false;
     for (int dk = -radius; dk <= radius; ++dk)
       for (int dj = -radius; dj <= radius; ++dj)
         for (int di = -radius; di <= radius; ++di) {
@@ -395,14 +396,18 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
             continue;
           const float* q = &emission[3 * st->grid.Flat(ii, jj, kk)];
           const double sum = double(q[0]) + q[1] + q[2];
-          const double weight =
-              options.init_colour_cap_brightness && own > 0 && sum > own ? own / sum : 1.0;
-          rgb += weight * Eigen::Vector3d(q[0], q[1], q[2]);
-          plain += Eigen::Vector3d(q[0], q[1], q[2]);
+          const Eigen::Vector3d value(q[0], q[1], q[2]);
+          plain += value;
+          if (options.init_colour_cap_brightness && own > 0 && sum > own) {
+            rgb += (own / sum) * value;
+            capped = true;
+          } else {
+            rgb += value;
+          }
         }
+    // Where no neighbour was capped the two pools are one: a single colour look-up.
     st->t[a] = table.TemperatureOf(rgb);
-    if (options.init_colour_cap_brightness)
-      st->t[a] = std::min(st->t[a], table.TemperatureOf(plain));
+    if (capped) st->t[a] = std::min(st->t[a], table.TemperatureOf(plain));
     if (bands) {  // `emission` is then the bands' activity, without units: the bands' own
       brightness[a] = bands->Brightness(f, st->t[a]);
       continue;

@@ -138,26 +138,25 @@ struct FitOptions {
   // Fast fit.
   int init_colour_radius_voxels = 1;  // temperature from the colour of (2r+1)^3 voxels; [0, 8]
   // In that cube, a neighbour brighter than the voxel counts at the voxel's own brightness (its
-  // emission scaled down to the voxel's R + G + B, its colour kept): a plain sum is weighted
-  // by brightness, so a dim voxel next to a hot core took the core's temperature. The start is
-  // the cooler of that colour's temperature and the plain sum's: where brightness grows steeply
-  // with temperature, capping the bright neighbours should cool a voxel, and where it heats one,
-  // the dim neighbours' noise left in the pool is the likelier cause (two views' OS-SART: a dim
-  // red voxel whose pool turned magenta started at the 2300 K bound, and five such voxels over
+  // emission scaled down to the voxel's R + G + B, its colour kept): a plain sum is weighted by
+  // brightness, so a dim voxel next to a hot core took the core's temperature. The start is the
+  // cooler of that colour's temperature and the plain sum's: where brightness grows steeply with
+  // temperature, capping the bright neighbours should cool a voxel, and where it heats one, the
+  // dim neighbours' noise left in the pool is the likelier cause (two views' OS-SART: a dim red
+  // voxel whose pool turned magenta started at the 2300 K bound, and five such voxels over
   // `benchmark run`'s take stayed there; a thin hot voxel beside a dense cooler one keeps the
-  // plain pool's temperature, the cost of this rule). Measured with
-  // `flamerig benchmark accuracy`'s finer-grid scene (licks, 8 views, truth 192, exposure known,
-  // 2026-11-27), temperature RMS / bias / emission-weighted RMS after the fit, capped against
-  // plain: fit 64: 66 / +5 / 38 K against 76 / +12 / 43 K; fit 128: 61 / +5 / 32 K against
-  // 66 / +7 / 34 K (the cooler of the two, as now: 66 / +5 / 39 K and 60 / +5 / 31 K). The rest
-  // with the cap alone, before the minimum: from the truth's own emission box-filtered onto the
-  // 128 grid (a perfect tomography): 50 K capped,
-  // 66 K plain, 40 K from each voxel's colour alone (radius 0, which from the real tomography's
-  // noisier colour gives 79 K). The benchmark's own tables (truth 96,
-  // fit 64): licks 83 -> 71 K; the 2-view candle's RMS unchanged (147 K), its bias +71 -> +66 K,
-  // but its emission-weighted RMS worse (79 -> 88 K). Other pools measured at 128 (fitted): the
-  // six face neighbours 61 K, 18 neighbours 60 K, neighbours at half weight 62 K, every neighbour
-  // at the voxel's brightness 72 K, the colour of a 64 or 96 tomography resampled 69 / 63 K.
+  // plain pool's temperature, the cost of this rule). Measured with `flamerig benchmark
+  // accuracy`'s finer-grid scene (licks, 8 views, truth 192, exposure known, 2026-11-27),
+  // temperature RMS / bias / emission-weighted RMS after the fit, capped against plain: fit 64:
+  // 66 / +5 / 38 K against 76 / +12 / 43 K; fit 128: 61 / +5 / 32 K against 66 / +7 / 34 K (the
+  // cooler of the two, as now: 66 / +5 / 39 K and 60 / +5 / 31 K). The rest with the cap alone,
+  // before the minimum: from the truth's own emission box-filtered onto the 128 grid (a perfect
+  // tomography) 50 K capped, 66 K plain, 40 K from each voxel's colour alone (radius 0, which from
+  // the real tomography's noisier colour gives 79 K). The benchmark's own tables (truth 96, fit
+  // 64): licks 83 -> 71 K; the 2-view candle's RMS unchanged (147 K), its bias +71 -> +66 K, but
+  // its emission-weighted RMS worse (79 -> 88 K). Other pools measured at 128 (fitted): the six
+  // face neighbours 61 K, 18 neighbours 60 K, neighbours at half weight 62 K, every neighbour at
+  // the voxel's brightness 72 K, the colour of a 64 or 96 tomography resampled 69 / 63 K.
   // false: the plain sum.
   bool init_colour_cap_brightness = true;
   // The same for a two-colour start (BandTomography), [0, 8], or -1: chosen on a cold start

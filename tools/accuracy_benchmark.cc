@@ -214,12 +214,13 @@ std::pair<double, double> FireDeltaE(const FitResult& r, const std::vector<FitVi
 }
 
 // Finer fit grids (issue 19's eight-view target): the licks filmed (once per image size) from a
-// truth of 1.5 times the finest fit's resolution, fitted as `run` fits (exposure known, until the energy stalls) on
-// grids of 1, 1.5 and 2 times the scene's fit resolution, with the neighbour weight scaled by
-// (resolution / scene's)^-2 (the pairwise sum of |v_j - v_i| over a field grows as the
-// resolution squared while the data term, a sum over pixels, does not), the finest grid also from
-// images of twice the size (four times the pixels: a prior four times weaker relative to the
-// data, not compensated). Each row against the grid's own limit (the image-equivalent truth).
+// truth of 1.5 times the finest fit's resolution, fitted as `run` fits (exposure known, until the
+// energy stalls) on grids of 1, 1.5 and 2 times the scene's fit resolution, with the neighbour
+// weight scaled by (resolution / scene's)^-2 (the pairwise sum of |v_j - v_i| over a field grows
+// as the resolution squared while the data term, a sum over pixels, does not), the finest grid
+// also from images of twice the size (four times the pixels: a prior four times weaker relative
+// to the data, not compensated). Each row against the grid's own limit (the image-equivalent
+// truth).
 std::string FinerGridSection(const SceneSpec& base,
                              const std::function<void(const std::string&)>& log) {
   std::ostringstream md;
