@@ -25,13 +25,14 @@ struct Scene {
   std::vector<std::unique_ptr<CameraRays>> rays;
 };
 
-Scene MakeScene(int cameras, int resolution, double soot_fraction) {
+Scene MakeScene(int cameras, int resolution, double soot_fraction, int width = 96,
+                int height = 72) {
   Scene s;
   const Box3 box{Eigen::Vector3d(-0.015, 0.0, -0.015), Eigen::Vector3d(0.015, 0.07, 0.015)};
   synthetic::RingOptions ring;
   ring.cameras = cameras;
-  ring.width = 96;
-  ring.height = 72;
+  ring.width = width;
+  ring.height = height;
   s.rig = synthetic::MakeRingRig(box, ring);
   s.grid = GridGeometry::FromBox(box, resolution);
   synthetic::FireOptions fire;
@@ -145,6 +146,50 @@ TEST(SystemMatrix, ProductsAreTheSameOnAnyNumberOfThreads) {
       ASSERT_EQ(part[i], -1.0f) << i;  // rows outside the range untouched
     }
   }
+}
+
+// A camera whose fire covers more than 65536 pixels has its rows stored in several blocks (16-bit
+// row offsets): its products are still the renderer's thin limit, the adjoint holds, its rows are
+// still one camera range for the ordered-subset solvers, and a row range across two blocks equals
+// the same rows of the whole product.
+TEST(SystemMatrix, ACameraOfMoreThan65536RowsIsStillTheThinLimit) {
+  Scene s = MakeScene(2, 12, 1e-9, 960, 720);  // the box covers about 117000 pixels
+  std::vector<std::vector<std::uint8_t>> pixels;
+  for (const auto& r : s.rays) pixels.emplace_back(r->rays().size(), 1);
+  std::vector<std::uint8_t> voxels(s.grid.num_voxels(), 1);
+  SystemMatrix a = SystemMatrix::Build(s.grid, Pointers(s), pixels, voxels, SystemMatrixOptions());
+  ASSERT_EQ(a.camera_row_ranges().size(), 2u);
+  const auto [first, last] = a.camera_row_ranges()[0];
+  ASSERT_GT(last - first, 65536u) << "the test needs a camera of more than 65536 rows";
+  std::vector<float> y(a.rows() * 3);
+  a.Multiply(s.fire.emission_rgb.data(), y.data(), 3);
+  ImageF thin = RenderThinEmission(s.grid, s.fire.emission_rgb, *s.rays[0]);
+  double peak = 0;
+  for (float v : thin.pixels) peak = std::max(peak, double(v));
+  ASSERT_GT(peak, 0);
+  for (std::size_t r = first; r < last; ++r)
+    for (int c = 0; c < 3; ++c)
+      ASSERT_NEAR(y[r * 3 + c], thin.pixels[3 * a.row_pixel(r) + c], 2e-4 * peak) << "row " << r;
+  // Rows 65000 to 66000 of the camera cross from its first block to its second.
+  std::vector<float> part(a.rows() * 3, -1.0f);
+  a.MultiplyRows(first + 65000, first + 66000, s.fire.emission_rgb.data(), part.data(), 3);
+  for (std::size_t i = (first + 65000) * 3; i < (first + 66000) * 3; ++i)
+    ASSERT_EQ(part[i], y[i]) << i;
+  // The adjoint over the camera's rows, and its column sums against A's.
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(0, 1);
+  std::vector<float> w(a.rows() * 3), x(a.cols() * 3), col_sums(a.cols());
+  for (auto& v : w) v = u(rng);
+  a.MultiplyTransposedRows(first, last, w.data(), x.data(), col_sums.data(), 3);
+  std::vector<float> ones(a.cols() * 3, 1.0f), a_ones(a.rows() * 3);
+  a.Multiply(ones.data(), a_ones.data(), 3);
+  double lhs = 0, rhs = 0, sum_rows = 0, sum_cols = 0;
+  for (std::size_t i = first * 3; i < last * 3; ++i) lhs += double(a_ones[i]) * w[i];
+  for (float v : x) rhs += v;
+  for (std::size_t r = first; r < last; ++r) sum_rows += a.row_sums()[r];
+  for (float v : col_sums) sum_cols += v;
+  EXPECT_NEAR(lhs, rhs, 1e-4 * lhs);
+  EXPECT_NEAR(sum_rows, sum_cols, 1e-4 * sum_rows);
 }
 
 TEST(SystemMatrix, CacheRoundTripAndCorruptFiles) {

@@ -381,6 +381,7 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
       summary.matrix_rows = a.rows();
       summary.matrix_cols = a.cols();
       summary.matrix_nnz = a.nnz();
+      summary.matrix_stored_entries = a.stored_entries();
       summary.matrix_bytes = a.bytes();
       summary.matrix_source = source;
       summary.matrix_build_ms = a.build_ms();

@@ -10,6 +10,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <stdexcept>
 
 #include "core/atomic_file.h"
@@ -168,19 +169,8 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
     m.row_camera_.insert(m.row_camera_.end(), b.camera.begin(), b.camera.end());
     m.row_pixel_.insert(m.row_pixel_.end(), b.pixel.begin(), b.pixel.end());
   }
-  // Subsets: one per camera's contiguous run of rows (one for all when cameras repeat).
-  for (std::size_t r = 0; r < total_rows; ++r) {
-    if (r == 0 || m.row_camera_[r] != m.row_camera_[r - 1]) {
-      if (r > 0 && m.row_camera_[r] < m.row_camera_[r - 1]) {
-        m.camera_ranges_.clear();
-        break;
-      }
-      m.camera_ranges_.emplace_back(r, r);
-    }
-    m.camera_ranges_.back().second = r + 1;
-  }
-  m.subsets_ = m.camera_ranges_;
-  if (m.subsets_.empty()) m.subsets_.emplace_back(0, total_rows);
+  m.camera_ranges_ = CameraRanges(m.row_camera_);
+  m.subsets_ = SplitRows(m.camera_ranges_, total_rows);
   // Counting sort of the blocks' entries by (subset, column), straight into the column-major
   // storage; rows ascend within each run because the blocks are visited in row order. Each block
   // is freed once its entries are placed.
@@ -204,38 +194,71 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
         visit(s, row, blk.cols[e], blk.values[e]);
     }
   };
-  m.t_ptr_.assign(ns * stride, 0);
+  // Counts per (subset, column) and each column's largest value (its 16-bit scale); the runs are
+  // padded to a multiple of kRunMultiple.
+  std::vector<std::uint64_t> counts(ns * stride, 0);
+  std::vector<float> col_max(ncols, 0.0f);
   std::size_t total_nnz = 0;
   {
     std::size_t first_row = 0;
     for (std::size_t b = 0; b < blocks.size(); ++b) {
-      for_each_entry(b, first_row, [&](std::size_t s, std::size_t, std::uint32_t col, float) {
-        ++m.t_ptr_[s * stride + col + 1];
-      });
+      for_each_entry(b, first_row,
+                     [&](std::size_t s, std::size_t, std::uint32_t col, float value) {
+                       ++counts[s * stride + col + 1];
+                       col_max[col] = std::max(col_max[col], value);
+                     });
       first_row += blocks[b].camera.size();
       total_nnz += blocks[b].cols.size();
     }
   }
-  std::int64_t total = 0;
+  m.t_ptr_.assign(ns * stride, 0);
+  m.subset_entries_.assign(ns + 1, 0);
   for (std::size_t s = 0; s < ns; ++s) {
-    m.t_ptr_[s * stride] = total;
+    std::uint64_t total = 0;
     for (std::size_t c = 0; c < ncols; ++c) {
-      total += m.t_ptr_[s * stride + c + 1];
-      m.t_ptr_[s * stride + c + 1] = total;
+      total += (counts[s * stride + c + 1] + kRunMultiple - 1) / kRunMultiple * kRunMultiple;
+      if (total > std::numeric_limits<std::uint32_t>::max())
+        throw InputError("SystemMatrix: more than 2^32 non-zeros in the rows " +
+                         std::to_string(m.subsets_[s].first) + " to " +
+                         std::to_string(m.subsets_[s].second) +
+                         " of one camera; use a coarser grid or fewer pixels");
+      m.t_ptr_[s * stride + c + 1] = static_cast<std::uint32_t>(total);
     }
+    m.subset_entries_[s + 1] = m.subset_entries_[s] + total;
   }
-  m.t_entries_.resize(total_nnz);
+  counts = std::vector<std::uint64_t>();
+  m.col_scale_.resize(ncols);
+  std::vector<double> inverse(ncols);
+  for (std::size_t c = 0; c < ncols; ++c) {
+    m.col_scale_[c] = col_max[c] / 65535.0f;
+    inverse[c] = col_max[c] > 0 ? 65535.0 / col_max[c] : 0.0;
+  }
+  m.t_entries_.resize(m.subset_entries_[ns]);
+  m.nonzeros_ = total_nnz;
   {
-    std::vector<std::int64_t> fill(m.t_ptr_.begin(), m.t_ptr_.end());
+    std::vector<std::uint64_t> fill(ns * stride);
+    for (std::size_t s = 0; s < ns; ++s)
+      for (std::size_t c = 0; c < ncols; ++c)
+        fill[s * stride + c] = m.subset_entries_[s] + m.t_ptr_[s * stride + c];
     std::size_t first_row = 0;
     for (std::size_t b = 0; b < blocks.size(); ++b) {
       for_each_entry(
           b, first_row, [&](std::size_t s, std::size_t row, std::uint32_t col, float value) {
-            m.t_entries_[fill[s * stride + col]++] = Entry{static_cast<std::uint32_t>(row), value};
+            const double q = std::min(65535.0, std::nearbyint(value * inverse[col]));
+            m.t_entries_[fill[s * stride + col]++] =
+                Entry{static_cast<std::uint16_t>(row - m.subsets_[s].first),
+                      static_cast<std::uint16_t>(q)};
           });
       first_row += blocks[b].camera.size();
       blocks[b] = Block();
     }
+    for (std::size_t s = 0; s < ns; ++s)
+      for (std::size_t c = 0; c < ncols; ++c) {
+        const std::uint64_t end = m.subset_entries_[s] + m.t_ptr_[s * stride + c + 1];
+        // Padding: the run's last row again (the run stays sorted), with a value of zero.
+        for (std::uint64_t& f = fill[s * stride + c]; f < end; ++f)
+          m.t_entries_[f] = Entry{m.t_entries_[f - 1].row, 0};
+      }
   }
   m.ComputeSums();
   m.build_ms_ =
@@ -244,46 +267,84 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
 }
 
 void SystemMatrix::ComputeSums() {
-  const std::size_t nrows = rows(), ncols = cols(), stride = ncols + 1, ns = subsets_.size();
+  const std::size_t nrows = rows(), ncols = cols(), ns = subsets_.size();
   col_sums_.assign(ncols, 0.0f);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, ncols, 1024),
                     [&](const tbb::blocked_range<std::size_t>& range) {
                       for (std::size_t c = range.begin(); c < range.end(); ++c) {
                         double sum = 0;
                         for (std::size_t s = 0; s < ns; ++s)
-                          for (std::int64_t e = t_ptr_[s * stride + c];
-                               e < t_ptr_[s * stride + c + 1]; ++e)
-                            sum += t_entries_[e].value;
-                        col_sums_[c] = static_cast<float>(sum);
+                          for (const Entry* e = ColumnBegin(s, c); e < ColumnEnd(s, c); ++e)
+                            sum += e->q;
+                        col_sums_[c] = static_cast<float>(sum * col_scale_[c]);
                       }
                     });
+  // Row sums: subsets hold disjoint rows, so they run in parallel.
   std::vector<double> row_sums(nrows, 0.0);
-  for (const Entry& e : t_entries_) row_sums[e.row] += e.value;
+  tbb::parallel_for(std::size_t(0), ns, [&](std::size_t s) {
+    double* out = row_sums.data() + subsets_[s].first;
+    for (std::size_t c = 0; c < ncols; ++c)
+      for (const Entry* e = ColumnBegin(s, c); e < ColumnEnd(s, c); ++e)
+        out[e->row] += double(e->q) * col_scale_[c];
+  });
   row_sums_.assign(row_sums.begin(), row_sums.end());
+}
+
+std::vector<std::pair<std::size_t, std::size_t>> SystemMatrix::CameraRanges(
+    const std::vector<std::int32_t>& row_camera) {
+  std::vector<std::pair<std::size_t, std::size_t>> ranges;
+  for (std::size_t r = 0; r < row_camera.size(); ++r) {
+    if (r == 0 || row_camera[r] != row_camera[r - 1]) {
+      if (r > 0 && row_camera[r] < row_camera[r - 1]) return {};
+      ranges.emplace_back(r, r);
+    }
+    ranges.back().second = r + 1;
+  }
+  return ranges;
+}
+
+std::vector<std::pair<std::size_t, std::size_t>> SystemMatrix::SplitRows(
+    const std::vector<std::pair<std::size_t, std::size_t>>& ranges, std::size_t rows) {
+  std::vector<std::pair<std::size_t, std::size_t>> subsets;
+  auto split = [&](std::size_t first, std::size_t last) {
+    for (std::size_t r = first; r < last; r += kSubsetRows)
+      subsets.emplace_back(r, std::min(last, r + kSubsetRows));
+  };
+  if (ranges.empty()) {
+    split(0, rows);
+  } else {
+    for (const auto& [first, last] : ranges) split(first, last);
+  }
+  if (subsets.empty()) subsets.emplace_back(0, 0);
+  return subsets;
 }
 
 bool SystemMatrix::Consistent() const {
   const std::size_t nrows = row_camera_.size(), ncols = col_voxel_.size(), stride = ncols + 1;
+  const std::size_t ns = subsets_.size();
   if (row_pixel_.size() != nrows || subsets_.empty()) return false;
   std::size_t expect = 0;
   for (const auto& [first, last] : subsets_) {
-    if (first != expect || last < first || last > nrows) return false;
+    if (first != expect || last < first || last > nrows || last - first > kSubsetRows)
+      return false;
     expect = last;
   }
-  if (expect != nrows || t_ptr_.size() != subsets_.size() * stride) return false;
-  std::int64_t previous = 0;
-  for (std::size_t s = 0; s < subsets_.size(); ++s)
-    for (std::size_t c = 0; c <= ncols; ++c) {
-      const std::int64_t p = t_ptr_[s * stride + c];
-      if (p < previous || p > static_cast<std::int64_t>(t_entries_.size())) return false;
-      previous = p;
-    }
-  if (previous != static_cast<std::int64_t>(t_entries_.size())) return false;
-  for (std::size_t s = 0; s < subsets_.size(); ++s)
-    for (std::int64_t e = t_ptr_[s * stride]; e < t_ptr_[s * stride + ncols]; ++e)
-      if (t_entries_[e].row < subsets_[s].first || t_entries_[e].row >= subsets_[s].second ||
-          !std::isfinite(t_entries_[e].value))
-        return false;
+  if (expect != nrows || t_ptr_.size() != ns * stride || subset_entries_.size() != ns + 1 ||
+      col_scale_.size() != ncols || subset_entries_[0] != 0 ||
+      subset_entries_[ns] != t_entries_.size())
+    return false;
+  for (float scale : col_scale_)
+    if (!std::isfinite(scale) || scale < 0) return false;
+  for (std::size_t s = 0; s < ns; ++s) {
+    if (subset_entries_[s + 1] < subset_entries_[s] || t_ptr_[s * stride] != 0 ||
+        t_ptr_[s * stride + ncols] != subset_entries_[s + 1] - subset_entries_[s])
+      return false;
+    for (std::size_t c = 0; c < ncols; ++c)
+      if (t_ptr_[s * stride + c + 1] < t_ptr_[s * stride + c]) return false;
+    const std::size_t size = subsets_[s].second - subsets_[s].first;
+    for (std::uint64_t e = subset_entries_[s]; e < subset_entries_[s + 1]; ++e)
+      if (t_entries_[e].row >= size) return false;
+  }
   return true;
 }
 
@@ -299,7 +360,7 @@ void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float
   last = std::min(last, rows());
   if (first >= last) return;
   const std::size_t nc = static_cast<std::size_t>(channels);
-  const std::size_t ncols = cols(), stride = ncols + 1;
+  const std::size_t ncols = cols();
   // Each subset's rows in [first, last) are summed the same way whatever the range and the
   // threads: the columns fall in a fixed number of blocks (set by the column count alone), each
   // block's entries are summed into a buffer of the subset's rows in ascending column order, and
@@ -328,22 +389,36 @@ void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float
       const std::size_t s = p.subset;
       const bool cut_front = subsets_[s].first<p.r0, cut_back = subsets_[s].second> p.r1;
       const std::size_t j0 = ncols * b / blocks, j1 = ncols * (b + 1) / blocks;
+      // Offsets within the subset of the part's rows; `out` is indexed from the part's first row.
+      const std::size_t o0 = p.r0 - subsets_[s].first, o1 = p.r1 - subsets_[s].first;
+      float* outs = out - o0 * nch;
       for (std::size_t j = j0; j < j1; ++j) {
         const float* xj = x + j * nch;
         bool zero = true;
         for (std::size_t ch = 0; ch < nch; ++ch) zero = zero && xj[ch] == 0.0f;
         if (zero) continue;
-        const Entry* lo = t_entries_.data() + t_ptr_[s * stride + j];
-        const Entry* hi = t_entries_.data() + t_ptr_[s * stride + j + 1];
+        float xs[4];
+        for (std::size_t ch = 0; ch < nch; ++ch) xs[ch] = xj[ch] * col_scale_[j];
+        const Entry* lo = ColumnBegin(s, j);
+        const Entry* hi = ColumnEnd(s, j);
         if (cut_front)
-          lo = std::lower_bound(lo, hi, p.r0,
+          lo = std::lower_bound(lo, hi, o0,
                                 [](const Entry& e, std::size_t r) { return e.row < r; });
         if (cut_back)
-          hi = std::lower_bound(lo, hi, p.r1,
+          hi = std::lower_bound(lo, hi, o1,
                                 [](const Entry& e, std::size_t r) { return e.row < r; });
-        for (const Entry* e = lo; e < hi; ++e) {
-          float* yr = out + (static_cast<std::size_t>(e->row) - p.r0) * nch;
-          for (std::size_t ch = 0; ch < nch; ++ch) yr[ch] += e->value * xj[ch];
+        const Entry* e = lo;
+        for (; e + 4 <= hi; e += 4) {
+          for (int k = 0; k < 4; ++k) {
+            const float q = e[k].q;
+            float* yr = outs + static_cast<std::size_t>(e[k].row) * nch;
+            for (std::size_t ch = 0; ch < nch; ++ch) yr[ch] += q * xs[ch];
+          }
+        }
+        for (; e < hi; ++e) {
+          const float q = e->q;
+          float* yr = outs + static_cast<std::size_t>(e->row) * nch;
+          for (std::size_t ch = 0; ch < nch; ++ch) yr[ch] += q * xs[ch];
         }
       }
     };
@@ -394,8 +469,9 @@ void SystemMatrix::MultiplyTransposedRows(std::size_t first, std::size_t last, c
 }
 
 std::size_t SystemMatrix::bytes() const {
-  return t_ptr_.size() * 8 + t_entries_.size() * sizeof(Entry) + row_camera_.size() * 8 +
-         col_voxel_.size() * 4 + row_sums_.size() * 4 + col_sums_.size() * 4;
+  return t_ptr_.size() * sizeof(std::uint32_t) + subset_entries_.size() * 8 +
+         t_entries_.size() * sizeof(Entry) + row_camera_.size() * 8 + col_voxel_.size() * 4 +
+         col_scale_.size() * 4 + row_sums_.size() * 4 + col_sums_.size() * 4;
 }
 
 void SystemMatrix::Multiply(const float* x, float* y, int channels) const {
@@ -410,8 +486,9 @@ void SystemMatrix::MultiplyTransposed(const float* y, float* x, int channels) co
 
 namespace {
 
-// 02: the column-major entries only (01 held rows and columns).
-constexpr char kMagic[8] = {'F', 'L', 'R', 'G', 'S', 'M', '0', '2'};
+// 03: 16-bit entries in subsets of at most 65536 rows (02: 32-bit row and float value; 01 held
+// rows and columns).
+constexpr char kMagic[8] = {'F', 'L', 'R', 'G', 'S', 'M', '0', '3'};
 
 template <typename T>
 void WriteVector(std::ofstream& out, const std::vector<T>& v) {
@@ -445,7 +522,10 @@ void SystemMatrix::Save(const std::string& path) const {
   }
   WriteVector(out, subsets);
   WriteVector(out, t_ptr_);
+  WriteVector(out, subset_entries_);
   WriteVector(out, t_entries_);
+  WriteVector(out, col_scale_);
+  WriteVector(out, std::vector<std::uint64_t>{nonzeros_});
   WriteVector(out, row_camera_);
   WriteVector(out, row_pixel_);
   WriteVector(out, col_voxel_);
@@ -466,23 +546,24 @@ bool SystemMatrix::Load(const std::string& path, std::uint64_t expected_key) {
   if (!in.read(reinterpret_cast<char*>(&key), sizeof(key)) || key != expected_key) return false;
   SystemMatrix m;
   m.key_ = key;
-  std::vector<std::uint64_t> subsets;
+  std::vector<std::uint64_t> subsets, nonzeros;
   if (!ReadVector(in, &subsets, size) || !ReadVector(in, &m.t_ptr_, size) ||
-      !ReadVector(in, &m.t_entries_, size) || !ReadVector(in, &m.row_camera_, size) ||
+      !ReadVector(in, &m.subset_entries_, size) || !ReadVector(in, &m.t_entries_, size) ||
+      !ReadVector(in, &m.col_scale_, size) || !ReadVector(in, &nonzeros, size) ||
+      nonzeros.size() != 1 || nonzeros[0] > m.t_entries_.size() ||
+      !ReadVector(in, &m.row_camera_, size) ||
       !ReadVector(in, &m.row_pixel_, size) || !ReadVector(in, &m.col_voxel_, size) ||
       subsets.size() % 2 != 0) {
     return false;
   }
+  m.nonzeros_ = nonzeros[0];
   for (std::size_t i = 0; i < subsets.size(); i += 2)
     m.subsets_.emplace_back(subsets[i], subsets[i + 1]);
   // Structural checks, so a corrupt file can never cause out-of-range access.
   if (!m.Consistent()) return false;
-  // Camera ranges: the subsets when each is one camera's rows.
-  bool per_camera = true;
-  for (const auto& [first, last] : m.subsets_)
-    for (std::size_t r = first; r < last && per_camera; ++r)
-      per_camera = m.row_camera_[r] == m.row_camera_[first];
-  if (per_camera && !(m.subsets_.size() == 1 && m.rows() == 0)) m.camera_ranges_ = m.subsets_;
+  // Camera ranges from the rows; the subsets must be those ranges split as Build splits them.
+  m.camera_ranges_ = CameraRanges(m.row_camera_);
+  if (m.subsets_ != SplitRows(m.camera_ranges_, m.rows())) return false;
   m.ComputeSums();
   *this = std::move(m);
   return true;
