@@ -586,8 +586,8 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
        << " GB/s this machine reads on all its cores: a column holds about four entries of one "
           "camera's rows, so the products are bound by the work per column (pointers, a "
           "scatter into the subset's rows) more than by bandwidth: halving the matrix's bytes "
-          "(issue 24, 2026-11-27) alone did not speed them up; padding each column's run to a "
-          "multiple of four entries, so that the inner loops stop mispredicting their ends, did.\n";
+          "(issue 24, 2026-11-27) gained about a tenth; padding each column's run to a multiple "
+          "of four entries, so that the inner loops stop mispredicting their ends, gained more.\n";
   }
   md << "\nThe held-out camera only scores the result, on every pixel of its image: since issue 20 "
         "it no longer stops the solve, and its error is no longer counted over its fire mask only "
