@@ -335,8 +335,11 @@ bool SystemMatrix::Consistent() const {
     return false;
   for (float scale : col_scale_)
     if (!std::isfinite(scale) || scale < 0) return false;
+  // Every subset's entries within the array before any is read.
+  for (std::size_t s = 0; s < ns; ++s)
+    if (subset_entries_[s + 1] < subset_entries_[s]) return false;
   for (std::size_t s = 0; s < ns; ++s) {
-    if (subset_entries_[s + 1] < subset_entries_[s] || t_ptr_[s * stride] != 0 ||
+    if (t_ptr_[s * stride] != 0 ||
         t_ptr_[s * stride + ncols] != subset_entries_[s + 1] - subset_entries_[s])
       return false;
     for (std::size_t c = 0; c < ncols; ++c)
@@ -391,7 +394,6 @@ void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float
       const std::size_t j0 = ncols * b / blocks, j1 = ncols * (b + 1) / blocks;
       // Offsets within the subset of the part's rows; `out` is indexed from the part's first row.
       const std::size_t o0 = p.r0 - subsets_[s].first, o1 = p.r1 - subsets_[s].first;
-      float* outs = out - o0 * nch;
       for (std::size_t j = j0; j < j1; ++j) {
         const float* xj = x + j * nch;
         bool zero = true;
@@ -411,13 +413,13 @@ void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float
         for (; e + 4 <= hi; e += 4) {
           for (int k = 0; k < 4; ++k) {
             const float q = e[k].q;
-            float* yr = outs + static_cast<std::size_t>(e[k].row) * nch;
+            float* yr = out + (static_cast<std::size_t>(e[k].row) - o0) * nch;
             for (std::size_t ch = 0; ch < nch; ++ch) yr[ch] += q * xs[ch];
           }
         }
         for (; e < hi; ++e) {
           const float q = e->q;
-          float* yr = outs + static_cast<std::size_t>(e->row) * nch;
+          float* yr = out + (static_cast<std::size_t>(e->row) - o0) * nch;
           for (std::size_t ch = 0; ch < nch; ++ch) yr[ch] += q * xs[ch];
         }
       }
