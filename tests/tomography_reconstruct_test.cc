@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <random>
 
 #include "calibration/synthetic_rig.h"
@@ -691,6 +692,36 @@ TEST(Reconstruct, MatrixIsReusedAcrossFramesAndCachedOnDisk) {
   again.Reconstruct(d0.images, &again_summary);
   EXPECT_EQ(again_summary.matrix_source, "disk cache");
   EXPECT_EQ(again_summary.matrix_nnz, first.matrix_nnz);
+  // A cache file of the right key whose last row names a pixel outside its camera's image (the
+  // matrix's own structure intact) is rebuilt, not used to index the image.
+  std::vector<fs::path> files;
+  for (const auto& entry : fs::directory_iterator(cache)) files.push_back(entry.path());
+  ASSERT_FALSE(files.empty());
+  int corrupted = 0;
+  for (const fs::path& file : files) {
+    std::fstream f(file, std::ios::in | std::ios::out | std::ios::binary);
+    // The file ends with the rows' pixels (int32) and the columns' voxels (a 64-bit length and
+    // uint32 each); the last row's pixel is just before that length.
+    std::uint64_t cols = 0;
+    f.seekg(0, std::ios::end);
+    const std::streamoff size = f.tellg();
+    for (std::uint64_t c : {std::uint64_t(first.matrix_cols), std::uint64_t(warm.matrix_cols)}) {
+      f.seekg(size - std::streamoff(4 * c + 8));
+      std::uint64_t length = 0;
+      f.read(reinterpret_cast<char*>(&length), 8);
+      if (length == c) cols = c;
+    }
+    if (cols == 0) continue;
+    const std::int32_t outside = 1 << 30;
+    f.seekp(size - std::streamoff(4 * cols + 8 + 4));
+    f.write(reinterpret_cast<const char*>(&outside), 4);
+    ++corrupted;
+  }
+  ASSERT_GT(corrupted, 0);
+  ReconstructSummary corrupt_summary;
+  Reconstructor third(d0.rig, options);
+  third.Reconstruct(d0.images, &corrupt_summary);
+  EXPECT_EQ(corrupt_summary.matrix_source, "built");
   fs::remove_all(cache);
 }
 

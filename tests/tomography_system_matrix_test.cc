@@ -175,9 +175,10 @@ TEST(SystemMatrix, ACameraOfMoreThan65536RowsIsStillTheThinLimit) {
   a.MultiplyRows(first + 65000, first + 66000, s.fire.emission_rgb.data(), part.data(), 3);
   for (std::size_t i = (first + 65000) * 3; i < (first + 66000) * 3; ++i)
     ASSERT_EQ(part[i], y[i]) << i;
-  // The adjoint over the camera's rows, and its column sums against A's.
+  // The adjoint over the camera's rows, and its column sums against A's (weights of both signs,
+  // so that a backprojection reading the wrong rows is off by about as much as the sum).
   std::mt19937 rng(3);
-  std::uniform_real_distribution<float> u(0, 1);
+  std::uniform_real_distribution<float> u(-1, 1);
   std::vector<float> w(a.rows() * 3), x(a.cols() * 3), col_sums(a.cols());
   for (auto& v : w) v = u(rng);
   a.MultiplyTransposedRows(first, last, w.data(), x.data(), col_sums.data(), 3);
@@ -188,8 +189,20 @@ TEST(SystemMatrix, ACameraOfMoreThan65536RowsIsStillTheThinLimit) {
   for (float v : x) rhs += v;
   for (std::size_t r = first; r < last; ++r) sum_rows += a.row_sums()[r];
   for (float v : col_sums) sum_cols += v;
-  EXPECT_NEAR(lhs, rhs, 1e-4 * lhs);
+  EXPECT_NEAR(lhs, rhs, 1e-4 * std::abs(lhs));
   EXPECT_NEAR(sum_rows, sum_cols, 1e-4 * sum_rows);
+  // The backprojection of rows 65000 to 66000 (cutting both blocks) is the whole backprojection
+  // of weights that are zero outside them, exactly.
+  std::vector<float> cut(a.cols() * 3), cut_sums(a.cols()), whole(a.cols() * 3);
+  a.MultiplyTransposedRows(first + 65000, first + 66000, w.data(), cut.data(), cut_sums.data(), 3);
+  std::vector<float> w_cut(w.size(), 0.0f);
+  std::copy(w.begin() + (first + 65000) * 3, w.begin() + (first + 66000) * 3,
+            w_cut.begin() + (first + 65000) * 3);
+  a.MultiplyTransposed(w_cut.data(), whole.data(), 3);
+  EXPECT_EQ(cut, whole);
+  double cut_total = 0;
+  for (float v : cut) cut_total += std::abs(v);
+  EXPECT_GT(cut_total, 0);
 }
 
 TEST(SystemMatrix, CacheRoundTripAndCorruptFiles) {
@@ -239,10 +252,33 @@ TEST(SystemMatrix, CacheRoundTripAndCorruptFiles) {
       continue;
     }
     std::vector<float> xd(d.cols() * 3, 1.0f), yd(d.rows() * 3), back(d.cols() * 3);
+    std::vector<float> sums(d.cols());
     d.Multiply(xd.data(), yd.data(), 3);
     d.MultiplyTransposed(yd.data(), back.data(), 3);
+    // Ranges that cut a camera's rows (the searches in its runs).
+    for (const auto& [r0, r1] : d.camera_row_ranges()) {
+      if (r1 - r0 < 20) continue;
+      d.MultiplyRows(r0 + 7, r1 - 5, xd.data(), yd.data(), 3);
+      d.MultiplyTransposedRows(r0 + 7, r1 - 5, yd.data(), back.data(), sums.data(), 3);
+    }
   }
   EXPECT_GT(rejected, 0);
+  // A row offset past its block's rows (the first stored entry's, set to 65535) is rejected. The
+  // file: magic and key, then length-prefixed arrays: the blocks' row ranges (two per camera
+  // here), the column pointers (32-bit, a block's columns + 1), the blocks' first entries, the
+  // entries (16-bit row offset, 16-bit value).
+  ASSERT_EQ(a.camera_row_ranges().size(), 2u);
+  ASSERT_LT(a.rows(), 65535u);
+  const std::size_t entries_at = 16 + (8 + 2 * 2 * 8) + (8 + 2 * (a.cols() + 1) * 4) +
+                                 (8 + 3 * 8) + 8;
+  std::string bad_row = bytes;
+  bad_row[entries_at] = bad_row[entries_at + 1] = static_cast<char>(0xff);
+  std::ofstream(path, std::ios::binary | std::ios::trunc) << bad_row;
+  SystemMatrix e;
+  EXPECT_FALSE(e.Load(path, a.key()));
+  // The same file unchanged loads (the offset above is the entries' start).
+  std::ofstream(path, std::ios::binary | std::ios::trunc) << bytes;
+  EXPECT_TRUE(e.Load(path, a.key()));
   // A different mask gives a different key.
   voxels[5] = 0;
   EXPECT_NE(a.key(), SystemMatrix::Key(s.grid, Pointers(s), pixels, voxels, SystemMatrixOptions()));

@@ -750,7 +750,8 @@ std::string Reconstructor::MakeMatrix(Level* level, const std::vector<int>& came
     std::filesystem::create_directories(options_.cache_dir);
     path = (std::filesystem::path(options_.cache_dir) / ("system_matrix_" + HexKey(key) + ".bin"))
                .string();
-    loaded = level->a.Load(path, key);
+    // A file whose indices do not fit this rig and grid (corrupt, with the right key) is rebuilt.
+    loaded = level->a.Load(path, key) && level->a.IndicesFit(rays, g.num_voxels());
   }
   std::string source = "disk cache";
   if (!loaded) {

@@ -344,10 +344,27 @@ bool SystemMatrix::Consistent() const {
       return false;
     for (std::size_t c = 0; c < ncols; ++c)
       if (t_ptr_[s * stride + c + 1] < t_ptr_[s * stride + c]) return false;
+    // Rows inside the subset and ascending within each run (the products' range cuts search
+    // them, and an unsorted run would place an entry outside a cut range's buffer).
     const std::size_t size = subsets_[s].second - subsets_[s].first;
-    for (std::uint64_t e = subset_entries_[s]; e < subset_entries_[s + 1]; ++e)
-      if (t_entries_[e].row >= size) return false;
+    for (std::size_t c = 0; c < ncols; ++c)
+      for (const Entry* e = ColumnBegin(s, c); e < ColumnEnd(s, c); ++e)
+        if (e->row >= size || (e > ColumnBegin(s, c) && e->row < e[-1].row)) return false;
   }
+  return true;
+}
+
+bool SystemMatrix::IndicesFit(const std::vector<const CameraRays*>& cameras,
+                              std::size_t num_voxels) const {
+  for (std::size_t r = 0; r < rows(); ++r) {
+    const std::int32_t c = row_camera_[r];
+    if (c < 0 || static_cast<std::size_t>(c) >= cameras.size()) return false;
+    const std::size_t pixels =
+        static_cast<std::size_t>(cameras[c]->width()) * static_cast<std::size_t>(cameras[c]->height());
+    if (row_pixel_[r] < 0 || static_cast<std::size_t>(row_pixel_[r]) >= pixels) return false;
+  }
+  for (std::size_t j = 0; j < cols(); ++j)
+    if (col_voxel_[j] >= num_voxels || (j > 0 && col_voxel_[j] <= col_voxel_[j - 1])) return false;
   return true;
 }
 

@@ -117,6 +117,10 @@ class SystemMatrix {
   // missing, truncated, corrupt or made for another key; it never throws for a bad cache file.
   void Save(const std::string& path) const;
   bool Load(const std::string& path, std::uint64_t expected_key);
+  // Whether every row's camera and pixel and every column's voxel lie in these cameras' images
+  // and a grid of num_voxels (columns ascending, as Build makes them). Load checks the matrix's
+  // own structure; a caller that indexes images and grids with a loaded matrix checks this too.
+  bool IndicesFit(const std::vector<const CameraRays*>& cameras, std::size_t num_voxels) const;
 
  private:
   // Row and column sums from the entries (after building or loading).
