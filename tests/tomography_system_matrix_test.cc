@@ -269,8 +269,8 @@ TEST(SystemMatrix, CacheRoundTripAndCorruptFiles) {
   // entries (16-bit row offset, 16-bit value).
   ASSERT_EQ(a.camera_row_ranges().size(), 2u);
   ASSERT_LT(a.rows(), 65535u);
-  const std::size_t entries_at = 16 + (8 + 2 * 2 * 8) + (8 + 2 * (a.cols() + 1) * 4) +
-                                 (8 + 3 * 8) + 8;
+  const std::size_t entries_at =
+      16 + (8 + 2 * 2 * 8) + (8 + 2 * (a.cols() + 1) * 4) + (8 + 3 * 8) + 8;
   std::string bad_row = bytes;
   bad_row[entries_at] = bad_row[entries_at + 1] = static_cast<char>(0xff);
   std::ofstream(path, std::ios::binary | std::ios::trunc) << bad_row;

@@ -108,7 +108,7 @@ struct ReconstructSummary {
   std::vector<CameraMaskSummary> masks;  // per camera with a frame (solve cameras, then held out)
   std::size_t matrix_rows = 0, matrix_cols = 0, matrix_nnz = 0, matrix_bytes = 0;
   std::size_t matrix_stored_entries = 0;  // the non-zeros and the padding of the products' runs
-  std::string matrix_source;                     // "built", "reused (envelope)", "disk cache"
+  std::string matrix_source;              // "built", "reused (envelope)", "disk cache"
   std::size_t fire_pixels_outside_envelope = 0;  // left out of a frame that reused the matrix
   double matrix_build_ms = 0;
   std::vector<SolveSummary> solves;  // coarse (if any), then full resolution

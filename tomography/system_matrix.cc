@@ -202,11 +202,10 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
   {
     std::size_t first_row = 0;
     for (std::size_t b = 0; b < blocks.size(); ++b) {
-      for_each_entry(b, first_row,
-                     [&](std::size_t s, std::size_t, std::uint32_t col, float value) {
-                       ++counts[s * stride + col + 1];
-                       col_max[col] = std::max(col_max[col], value);
-                     });
+      for_each_entry(b, first_row, [&](std::size_t s, std::size_t, std::uint32_t col, float value) {
+        ++counts[s * stride + col + 1];
+        col_max[col] = std::max(col_max[col], value);
+      });
       first_row += blocks[b].camera.size();
       total_nnz += blocks[b].cols.size();
     }
@@ -242,13 +241,13 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
         fill[s * stride + c] = m.subset_entries_[s] + m.t_ptr_[s * stride + c];
     std::size_t first_row = 0;
     for (std::size_t b = 0; b < blocks.size(); ++b) {
-      for_each_entry(
-          b, first_row, [&](std::size_t s, std::size_t row, std::uint32_t col, float value) {
-            const double q = std::min(65535.0, std::nearbyint(value * inverse[col]));
-            m.t_entries_[fill[s * stride + col]++] =
-                Entry{static_cast<std::uint16_t>(row - m.subsets_[s].first),
-                      static_cast<std::uint16_t>(q)};
-          });
+      for_each_entry(b, first_row,
+                     [&](std::size_t s, std::size_t row, std::uint32_t col, float value) {
+                       const double q = std::min(65535.0, std::nearbyint(value * inverse[col]));
+                       m.t_entries_[fill[s * stride + col]++] =
+                           Entry{static_cast<std::uint16_t>(row - m.subsets_[s].first),
+                                 static_cast<std::uint16_t>(q)};
+                     });
       first_row += blocks[b].camera.size();
       blocks[b] = Block();
     }
@@ -325,8 +324,7 @@ bool SystemMatrix::Consistent() const {
   if (row_pixel_.size() != nrows || subsets_.empty()) return false;
   std::size_t expect = 0;
   for (const auto& [first, last] : subsets_) {
-    if (first != expect || last < first || last > nrows || last - first > kSubsetRows)
-      return false;
+    if (first != expect || last < first || last > nrows || last - first > kSubsetRows) return false;
     expect = last;
   }
   if (expect != nrows || t_ptr_.size() != ns * stride || subset_entries_.size() != ns + 1 ||
@@ -359,8 +357,8 @@ bool SystemMatrix::IndicesFit(const std::vector<const CameraRays*>& cameras,
   for (std::size_t r = 0; r < rows(); ++r) {
     const std::int32_t c = row_camera_[r];
     if (c < 0 || static_cast<std::size_t>(c) >= cameras.size()) return false;
-    const std::size_t pixels =
-        static_cast<std::size_t>(cameras[c]->width()) * static_cast<std::size_t>(cameras[c]->height());
+    const std::size_t pixels = static_cast<std::size_t>(cameras[c]->width()) *
+                               static_cast<std::size_t>(cameras[c]->height());
     if (row_pixel_[r] < 0 || static_cast<std::size_t>(row_pixel_[r]) >= pixels) return false;
   }
   for (std::size_t j = 0; j < cols(); ++j)
@@ -421,11 +419,11 @@ void SystemMatrix::MultiplyRows(std::size_t first, std::size_t last, const float
         const Entry* lo = ColumnBegin(s, j);
         const Entry* hi = ColumnEnd(s, j);
         if (cut_front)
-          lo = std::lower_bound(lo, hi, o0,
-                                [](const Entry& e, std::size_t r) { return e.row < r; });
+          lo =
+              std::lower_bound(lo, hi, o0, [](const Entry& e, std::size_t r) { return e.row < r; });
         if (cut_back)
-          hi = std::lower_bound(lo, hi, o1,
-                                [](const Entry& e, std::size_t r) { return e.row < r; });
+          hi =
+              std::lower_bound(lo, hi, o1, [](const Entry& e, std::size_t r) { return e.row < r; });
         const Entry* e = lo;
         for (; e + 4 <= hi; e += 4) {
           for (int k = 0; k < 4; ++k) {
@@ -570,9 +568,8 @@ bool SystemMatrix::Load(const std::string& path, std::uint64_t expected_key) {
       !ReadVector(in, &m.subset_entries_, size) || !ReadVector(in, &m.t_entries_, size) ||
       !ReadVector(in, &m.col_scale_, size) || !ReadVector(in, &nonzeros, size) ||
       nonzeros.size() != 1 || nonzeros[0] > m.t_entries_.size() ||
-      !ReadVector(in, &m.row_camera_, size) ||
-      !ReadVector(in, &m.row_pixel_, size) || !ReadVector(in, &m.col_voxel_, size) ||
-      subsets.size() % 2 != 0) {
+      !ReadVector(in, &m.row_camera_, size) || !ReadVector(in, &m.row_pixel_, size) ||
+      !ReadVector(in, &m.col_voxel_, size) || subsets.size() % 2 != 0) {
     return false;
   }
   m.nonzeros_ = nonzeros[0];

@@ -581,8 +581,9 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
     md << "\nRoofline (measured in this run): its OS-EM iterations stream the matrix at about "
        << Fixed(target_gb_s, 1) << " GB/s (every stored entry's 4 bytes, a 16-bit row "
        << "offset and a 16-bit value, and each camera's 32-bit column pointers, forward and "
-          "back), " << Fixed(100 * target_gb_s / limits.read_gb_s_all, 0)
-       << "% of the " << Fixed(limits.read_gb_s_all, 1)
+          "back), "
+       << Fixed(100 * target_gb_s / limits.read_gb_s_all, 0) << "% of the "
+       << Fixed(limits.read_gb_s_all, 1)
        << " GB/s this machine reads on all its cores: a column holds about four entries of one "
           "camera's rows, so the products are bound by the work per column (pointers, a "
           "scatter into the subset's rows) more than by bandwidth: halving the matrix's bytes "
