@@ -687,6 +687,15 @@ TEST(Reconstruct, MatrixIsReusedAcrossFramesAndCachedOnDisk) {
   ReconstructSummary repeat;
   rec.Reconstruct(d1.images, &repeat, &v1);
   EXPECT_EQ(repeat.matrix_source, "reused (envelope)");
+  // A warm start whose emission does not cover its grid is refused by name, not read past its end.
+  FireVolume short_start = v1;
+  short_start.emission_rgb.resize(short_start.emission_rgb.size() - 3);
+  try {
+    rec.Reconstruct(d1.images, nullptr, &short_start);
+    ADD_FAILURE() << "a short warm start was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("warm start"), std::string::npos) << e.what();
+  }
   // A new reconstructor (a second run) finds the first frame's matrix on disk.
   Reconstructor again(d0.rig, options);
   again.Reconstruct(d0.images, &again_summary);

@@ -216,5 +216,88 @@ TEST(VisualHull, SpecksOnABlackBackgroundDoNotGrowTheHull) {
   EXPECT_GT(c.voxel_fraction_in_hull, 1.5 * a.voxel_fraction_in_hull);
 }
 
+// The hull against its definition, evaluated here voxel by voxel from each camera's own mask: a
+// voxel is inside when no camera that sees it sees background there and at least min(min_views,
+// cameras that see it) see fire. The hull's masks are each camera's ComputeFireMask (the hull
+// computes them in parallel and rules a voxel out at its first background camera). With frames of
+// the wrong size for two cameras, the error names the first of them in the rig's order, however
+// the threads ran.
+TEST(VisualHull, IsItsDefinitionAndNamesTheFirstCameraInError) {
+  const Box3 box{Eigen::Vector3d(-0.015, 0.0, -0.015), Eigen::Vector3d(0.015, 0.07, 0.015)};
+  synthetic::RingOptions ring;
+  ring.cameras = 6;
+  ring.azimuths_deg = {0, 30, 60, 90, 120, 150};
+  ring.width = 96;
+  ring.height = 72;
+  const Rig rig = synthetic::MakeRingRig(box, ring);
+  const GridGeometry grid = GridGeometry::FromBox(box, 24);
+  const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
+  synthetic::FireOptions fire;
+  fire.region = Box3{Eigen::Vector3d(-0.006, 0.01, -0.006), Eigen::Vector3d(0.006, 0.04, 0.006)};
+  const FireVolume truth = synthetic::MakeFire(grid, fire, grey);
+  FireRenderer renderer(grey);
+  renderer.SetVolume(grid, truth.temperature_k, truth.density_per_m3);
+  std::vector<LinearFrame> frames;
+  for (const auto& c : rig.cameras) {
+    ImageF linear;
+    renderer.Render(CameraRays(c.model), &linear);
+    float peak = 0;
+    for (float v : linear.pixels) peak = std::max(peak, v);
+    frames.push_back(DecodeSrgb8(ApplyCameraResponse(linear, 0.9 / peak), 1.0));
+  }
+  for (const int min_views : {1, 2, 4}) {
+    VisualHullOptions options;
+    options.min_views = min_views;
+    const VoxelProjections projections = ComputeVoxelProjections(grid, rig.cameras);
+    const VisualHull hull = ComputeVisualHull(grid, rig.cameras, frames, options, projections);
+    std::vector<std::vector<std::uint8_t>> masks;
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+      const FireMask mask = ComputeFireMask(grid, rig.cameras[c], frames[c], options);
+      EXPECT_EQ(hull.fire_mask[c], mask.mask) << "camera " << c;
+      EXPECT_EQ(hull.masks[c].fire_pixels, mask.fire_pixels) << "camera " << c;
+      EXPECT_EQ(hull.masks[c].threshold, mask.threshold) << "camera " << c;
+      masks.push_back(mask.mask);
+    }
+    std::size_t inside = 0, mismatched = 0;
+    for (std::size_t v = 0; v < grid.num_voxels(); ++v) {
+      int visible = 0, fire_views = 0;
+      bool background = false;
+      for (std::size_t c = 0; c < masks.size(); ++c) {
+        const std::int32_t p = projections.pixel[c][v];
+        if (p < 0) continue;
+        ++visible;
+        if (masks[c][p])
+          ++fire_views;
+        else
+          background = true;
+      }
+      const bool expected =
+          visible > 0 && !background && fire_views >= std::min(min_views, visible);
+      inside += expected;
+      mismatched += expected != (hull.voxel_inside[v] != 0);
+    }
+    EXPECT_GT(inside, grid.num_voxels() / 100) << "min_views " << min_views;
+    EXPECT_LT(inside, grid.num_voxels() / 2) << "min_views " << min_views;
+    EXPECT_EQ(mismatched, 0u) << "min_views " << min_views;
+    EXPECT_EQ(hull.voxels_inside, inside) << "min_views " << min_views;
+  }
+  std::vector<LinearFrame> wrong = frames;
+  for (const int c : {2, 4}) {
+    LinearFrame small;
+    small.radiance = ImageF(48, 36, 3, 0.0f);
+    small.saturated.assign(48 * 36, 0);
+    wrong[c] = small;
+  }
+  for (int run = 0; run < 20; ++run) {
+    try {
+      ComputeVisualHull(grid, rig.cameras, wrong, VisualHullOptions());
+      ADD_FAILURE() << "frames of the wrong size were accepted";
+    } catch (const DataError& e) {
+      EXPECT_NE(std::string(e.what()).find("'" + rig.cameras[2].name + "'"), std::string::npos)
+          << e.what();
+    }
+  }
+}
+
 }  // namespace
 }  // namespace flamerig

@@ -8,6 +8,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <exception>
 #include <stdexcept>
 
 #include "core/error.h"
@@ -327,11 +328,20 @@ VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCame
   hull.fire_mask.resize(ncam);
   hull.masks.resize(ncam);
   hull.cameras_seeing_box.assign(ncam, 0);
-  for (std::size_t c = 0; c < ncam; ++c) {
-    FireMask mask = ComputeFireMask(grid, cameras[c], frames[c], options);
-    hull.fire_mask[c] = std::move(mask.mask);
-    hull.masks[c] = mask;
-  }
+  // The cameras' masks are independent: computed in parallel, and the first camera's error (in
+  // the rig's order, whatever the threads did) is the one reported.
+  std::vector<std::exception_ptr> failed(ncam);
+  tbb::parallel_for(std::size_t(0), ncam, [&](std::size_t c) {
+    try {
+      FireMask mask = ComputeFireMask(grid, cameras[c], frames[c], options);
+      hull.fire_mask[c] = std::move(mask.mask);
+      hull.masks[c] = std::move(mask);
+    } catch (...) {
+      failed[c] = std::current_exception();
+    }
+  });
+  for (const std::exception_ptr& e : failed)
+    if (e) std::rethrow_exception(e);
 
   hull.voxel_inside.assign(grid.num_voxels(), 0);
   std::vector<int> sees(ncam, 0);
@@ -348,8 +358,11 @@ VisualHull ComputeVisualHull(const GridGeometry& grid, const std::vector<RigCame
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, grid.num_voxels(), 4096),
                     [&](const tbb::blocked_range<std::size_t>& r) {
                       for (std::size_t v = r.begin(); v < r.end(); ++v) {
+                        // The first camera that sees background there rules the voxel out:
+                        // most of the box is outside the hull, and most of it is ruled out by
+                        // the first camera, so the others' tables are not read there.
                         int visible = 0, fire = 0, background = 0;
-                        for (std::size_t c = 0; c < ncam; ++c) {
+                        for (std::size_t c = 0; c < ncam && background == 0; ++c) {
                           const std::int32_t p = (*table[c])[v];
                           if (p < 0) continue;
                           ++visible;
