@@ -205,6 +205,47 @@ TEST(SystemMatrix, ACameraOfMoreThan65536RowsIsStillTheThinLimit) {
   EXPECT_GT(cut_total, 0);
 }
 
+// A backprojection told which columns to compute visits those only, once each, with the same
+// values as the whole backprojection (the solvers skip the columns outside the hull this way).
+TEST(SystemMatrix, BackprojectionOfFlaggedColumnsVisitsThoseOnly) {
+  Scene s = MakeScene(3, 16, 1e-9);
+  std::vector<std::vector<std::uint8_t>> pixels;
+  for (const auto& r : s.rays) pixels.emplace_back(r->rays().size(), 1);
+  std::vector<std::uint8_t> voxels(s.grid.num_voxels(), 1);
+  SystemMatrix a = SystemMatrix::Build(s.grid, Pointers(s), pixels, voxels, SystemMatrixOptions());
+  ASSERT_EQ(a.camera_row_ranges().size(), 3u);
+  const auto [first, last] = a.camera_row_ranges()[1];
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-1, 1);
+  std::vector<float> w(a.rows() * 3);
+  for (auto& v : w) v = u(rng);
+  std::vector<float> whole(a.cols() * 3), whole_sums(a.cols());
+  a.MultiplyTransposedRows(first, last, w.data(), whole.data(), whole_sums.data(), 3);
+  std::vector<std::uint8_t> flags(a.cols());
+  for (auto& f : flags) f = rng() % 3 == 0;
+  std::vector<int> visits(a.cols(), 0);
+  std::vector<float> g(a.cols() * 3, 0.0f), sums(a.cols(), 0.0f);
+  a.BackprojectRows(
+      first, last, w.data(), 3,
+      [&](std::size_t j, const float* gj, float sum) {
+        ++visits[j];
+        for (int c = 0; c < 3; ++c) g[j * 3 + c] = gj[c];
+        sums[j] = sum;
+      },
+      flags.data());
+  std::size_t flagged = 0, nonzero = 0;
+  for (std::size_t j = 0; j < a.cols(); ++j) {
+    ASSERT_EQ(visits[j], flags[j] ? 1 : 0) << "column " << j;
+    if (!flags[j]) continue;
+    ++flagged;
+    nonzero += whole_sums[j] > 0;
+    EXPECT_EQ(sums[j], whole_sums[j]) << "column " << j;
+    for (int c = 0; c < 3; ++c) EXPECT_EQ(g[j * 3 + c], whole[j * 3 + c]) << "column " << j;
+  }
+  EXPECT_GT(flagged, a.cols() / 5);
+  EXPECT_GT(nonzero, flagged / 5);
+}
+
 TEST(SystemMatrix, CacheRoundTripAndCorruptFiles) {
   Scene s = MakeScene(2, 16, 1e-6);
   std::vector<std::vector<std::uint8_t>> pixels;

@@ -103,12 +103,9 @@ class Osem : public IterativeSolver {
       }
       float* xs = x->data();
       a.BackprojectRows(
-          first, last, r_.data(), kChannels, [&](std::size_t j, const float* gj, float col_sum) {
+          first, last, r_.data(), kChannels,
+          [&](std::size_t j, const float* gj, float col_sum) {
             if (!(col_sum > 0)) return;
-            if (!active.empty() && !active[j]) {
-              for (int c = 0; c < kChannels; ++c) xs[j * kChannels + c] = 0.0f;
-              return;
-            }
             if (!prior_) {
               const float inverse = 1.0f / col_sum;
               for (int c = 0; c < kChannels; ++c) xs[j * kChannels + c] *= gj[c] * inverse;
@@ -125,7 +122,9 @@ class Osem : public IterativeSolver {
                                               double(kMinDivisor) * col_sum);
               xs[j * kChannels + c] *= static_cast<float>(gj[c] / divisor);
             }
-          });
+          },
+          // Columns outside the hull stay at zero (Pin, Start): their work is skipped.
+          active.empty() ? nullptr : active.data());
     }
     return std::sqrt(sum / std::max<std::size_t>(1, a.rows() * kChannels));
   }

@@ -74,19 +74,18 @@ class Sart : public IterativeSolver {
       // Backprojection, update, non-negativity and pinning in one pass over the columns.
       float* xs = x->data();
       const bool non_negative = options.non_negative;
-      a.BackprojectRows(first, last, r_.data(), kChannels,
-                        [&](std::size_t j, const float* gj, float col_sum) {
-                          if (!(col_sum > 0)) return;
-                          if (!active.empty() && !active[j]) {
-                            for (int c = 0; c < kChannels; ++c) xs[j * kChannels + c] = 0.0f;
-                            return;
-                          }
-                          const float w = lambda / col_sum;
-                          for (int c = 0; c < kChannels; ++c) {
-                            const float v = xs[j * kChannels + c] + w * gj[c];
-                            xs[j * kChannels + c] = non_negative && v < 0 ? 0.0f : v;
-                          }
-                        });
+      a.BackprojectRows(
+          first, last, r_.data(), kChannels,
+          [&](std::size_t j, const float* gj, float col_sum) {
+            if (!(col_sum > 0)) return;
+            const float w = lambda / col_sum;
+            for (int c = 0; c < kChannels; ++c) {
+              const float v = xs[j * kChannels + c] + w * gj[c];
+              xs[j * kChannels + c] = non_negative && v < 0 ? 0.0f : v;
+            }
+          },
+          // Columns outside the hull stay at zero (Pin): their work is skipped.
+          active.empty() ? nullptr : active.data());
     }
     return std::sqrt(sum / (a.rows() * kChannels));
   }

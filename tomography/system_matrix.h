@@ -94,10 +94,13 @@ class SystemMatrix {
                               float* col_sums, int channels) const;
   // The same backprojection handed column by column to `visit(j, g_j, col_sum_j)` (g_j: `channels`
   // values), so that a solver can update x_j in the same pass over memory. Columns are visited in
-  // parallel, each exactly once; `visit` must only touch data of column j.
+  // parallel, each exactly once; `visit` must only touch data of column j. With `columns` (one flag
+  // per column), only the flagged columns are computed and visited: a solver whose other columns
+  // stay at zero (outside this frame's hull, inside the envelope the matrix was built for) skips
+  // their work.
   template <typename Visit>
   void BackprojectRows(std::size_t first, std::size_t last, const float* y, int channels,
-                       Visit&& visit) const;
+                       Visit&& visit, const std::uint8_t* columns = nullptr) const;
   // Forward projection of the rows [first, last) only (y indexed by global row).
   void MultiplyRows(std::size_t first, std::size_t last, const float* x, float* y,
                     int channels) const;
@@ -171,7 +174,7 @@ class SystemMatrix {
 
 template <typename Visit>
 void SystemMatrix::BackprojectRows(std::size_t first, std::size_t last, const float* y,
-                                   int channels, Visit&& visit) const {
+                                   int channels, Visit&& visit, const std::uint8_t* columns) const {
   if (channels < 1 || channels > 4)
     throw InputError("SystemMatrix: 1 to 4 channels, not " + std::to_string(channels));
   // Subsets overlapping [first, last); a subset wholly inside needs no row filtering.
@@ -185,6 +188,7 @@ void SystemMatrix::BackprojectRows(std::size_t first, std::size_t last, const fl
     const int nc = kC > 0 ? kC : channels;
     ParallelColumns([&](std::size_t j0, std::size_t j1) {
       for (std::size_t j = j0; j < j1; ++j) {
+        if (columns && !columns[j]) continue;
         float acc[4] = {0, 0, 0, 0};
         float sum = 0;
         for (std::size_t s : parts) {
