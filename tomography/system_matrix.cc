@@ -108,6 +108,35 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
   }
   const double step_m = options.step_voxels * grid.voxel_size_m.minCoeff();
   const std::size_t nx = grid.dims.x(), nxy = nx * grid.dims.y();
+  // Bricks of 4^3 stencil cells (a cell: the 2^3 voxels of a trilinear stencil, named by its lowest
+  // corner), flagged when some cell in them has a used corner: a step whose cell lies in an
+  // unflagged brick adds nothing, and is passed over without reading its 8 corners' columns (most
+  // of a ray lies outside the hull). A cell's corners lie in [4B, 4B + 4] along an axis for brick B,
+  // so a used voxel at index i flags bricks i / 4 and, when i is a positive multiple of 4, i / 4 - 1.
+  constexpr int kBrickShift = 2;
+  const Eigen::Vector3i bricks_dims((grid.dims.array() + 3) / 4);
+  std::vector<std::uint8_t> brick_used(
+      static_cast<std::size_t>(bricks_dims.x()) * bricks_dims.y() * bricks_dims.z(), 0);
+  for (int k = 0; k < grid.dims.z(); ++k)
+    for (int j = 0; j < grid.dims.y(); ++j)
+      for (int i = 0; i < grid.dims.x(); ++i) {
+        if (!voxel_used[i + nx * j + nxy * k]) continue;
+        const int bi[2] = {i >> kBrickShift, (i & 3) == 0 && i > 0 ? (i >> kBrickShift) - 1 : -1};
+        const int bj[2] = {j >> kBrickShift, (j & 3) == 0 && j > 0 ? (j >> kBrickShift) - 1 : -1};
+        const int bk[2] = {k >> kBrickShift, (k & 3) == 0 && k > 0 ? (k >> kBrickShift) - 1 : -1};
+        for (int c : bk)
+          for (int b : bj)
+            for (int a : bi)
+              if (a >= 0 && b >= 0 && c >= 0)
+                brick_used[a + static_cast<std::size_t>(bricks_dims.x()) *
+                                   (b + static_cast<std::size_t>(bricks_dims.y()) * c)] = 1;
+      }
+  auto cell_may_be_used = [&](const TrilinearStencil<double>& s) {
+    return brick_used[(s.i0 >> kBrickShift) +
+                      static_cast<std::size_t>(bricks_dims.x()) *
+                          ((s.j0 >> kBrickShift) +
+                           static_cast<std::size_t>(bricks_dims.y()) * (s.k0 >> kBrickShift))] != 0;
+  };
   const std::size_t block = 512;
   const std::size_t nblocks = (candidates.size() + block - 1) / block;
   struct Block {
@@ -136,6 +165,7 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
                             Eigen::Vector3d p;
                             march.Step(k, &length, &p);
                             TrilinearStencil<double> s(grid.dims, p.x(), p.y(), p.z());
+                            if (!cell_may_be_used(s)) continue;
                             std::size_t flat[8];
                             double weight[8];
                             s.Corners(nx, nxy, flat, weight);
