@@ -774,7 +774,7 @@ std::string Reconstructor::MakeMatrix(Level* level, const std::vector<int>& came
   }
   std::string source = "disk cache";
   if (!loaded) {
-    level->a = SystemMatrix::Build(g, rays, pixels, envelope, options_.matrix);
+    level->a = SystemMatrix::Build(g, rays, pixels, envelope, options_.matrix, key);
     source = "built";
     if (!path.empty()) level->a.Save(path);
   }

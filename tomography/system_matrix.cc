@@ -79,7 +79,8 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
                                  const std::vector<const CameraRays*>& cameras,
                                  const std::vector<std::vector<std::uint8_t>>& pixel_used,
                                  const std::vector<std::uint8_t>& voxel_used,
-                                 const SystemMatrixOptions& options) {
+                                 const SystemMatrixOptions& options,
+                                 std::optional<std::uint64_t> key) {
   const auto start = std::chrono::steady_clock::now();
   options.Validate();
   grid.Validate();
@@ -87,7 +88,7 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
     throw InputError("SystemMatrix: one pixel mask per camera");
   if (voxel_used.size() != grid.num_voxels()) throw InputError("SystemMatrix: voxel mask size");
   SystemMatrix m;
-  m.key_ = Key(grid, cameras, pixel_used, voxel_used, options);
+  m.key_ = key ? *key : Key(grid, cameras, pixel_used, voxel_used, options);
 
   std::vector<std::int32_t> voxel_to_col(grid.num_voxels(), -1);
   for (std::size_t v = 0; v < voxel_used.size(); ++v) {
