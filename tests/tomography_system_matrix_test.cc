@@ -7,6 +7,7 @@
 #include <fstream>
 #include <map>
 #include <random>
+#include <set>
 
 #include "calibration/synthetic_rig.h"
 #include "fitting/renderer.h"
@@ -297,6 +298,30 @@ TEST(SystemMatrix, BuiltOverSomeVoxelsIsTheWholeMatrixRestricted) {
   }
   for (const auto& [pixel, v] : y_some) EXPECT_EQ(y_all.count(pixel), 1u);
   EXPECT_GT(lit, y_all.size() / 10);
+}
+
+// The cache key changes with any byte of what it hashes: each voxel of the mask flipped in turn
+// (at every offset within the hash's 8-byte words and in the tail), and a ray moved by one ulp.
+TEST(SystemMatrix, TheKeyChangesWithEveryByte) {
+  Scene s = MakeScene(2, 12, 1e-9);
+  std::vector<std::vector<std::uint8_t>> pixels;
+  for (const auto& r : s.rays) pixels.emplace_back(r->rays().size(), 1);
+  std::vector<std::uint8_t> voxels(s.grid.num_voxels(), 1);
+  ASSERT_NE(voxels.size() % 8, 0u) << "the test needs a tail shorter than a word";
+  const SystemMatrixOptions options;
+  const std::uint64_t key = SystemMatrix::Key(s.grid, Pointers(s), pixels, voxels, options);
+  std::set<std::uint64_t> keys = {key};
+  for (std::size_t v = 0; v < voxels.size(); ++v) {
+    voxels[v] = 0;
+    keys.insert(SystemMatrix::Key(s.grid, Pointers(s), pixels, voxels, options));
+    voxels[v] = 1;
+  }
+  EXPECT_EQ(keys.size(), voxels.size() + 1);
+  CameraRays moved = *s.rays[1];
+  Ray& ray = const_cast<Ray&>(moved.rays()[moved.rays().size() / 2]);
+  ray.direction_in_rig.x() = std::nextafter(ray.direction_in_rig.x(), 2.0);
+  std::vector<const CameraRays*> rays = {s.rays[0].get(), &moved};
+  EXPECT_NE(SystemMatrix::Key(s.grid, rays, pixels, voxels, options), key);
 }
 
 TEST(SystemMatrix, CacheRoundTripAndCorruptFiles) {
