@@ -52,15 +52,25 @@ std::vector<const CameraRays*> Pointers(const Scene& s) {
   return p;
 }
 
+// Every pixel of every camera of the scene.
+std::vector<std::vector<std::uint8_t>> AllPixels(const Scene& s) {
+  std::vector<std::vector<std::uint8_t>> pixels;
+  for (const auto& r : s.rays) pixels.emplace_back(r->rays().size(), 1);
+  return pixels;
+}
+
+// The matrix over every pixel and every voxel.
+SystemMatrix BuildWhole(const Scene& s) {
+  return SystemMatrix::Build(s.grid, Pointers(s), AllPixels(s),
+                             std::vector<std::uint8_t>(s.grid.num_voxels(), 1),
+                             SystemMatrixOptions());
+}
+
 // A e equals the renderer's image of an optically thin fire, pixel for pixel: the tomography model
 // is the renderer's thin limit.
 TEST(SystemMatrix, IsTheRenderersThinLimit) {
   Scene s = MakeScene(2, 24, 1e-9);  // optical depth ~1e-5: thin
-  std::vector<std::vector<std::uint8_t>> all_pixels;
-  for (const auto& r : s.rays) all_pixels.emplace_back(r->rays().size(), 1);
-  std::vector<std::uint8_t> all_voxels(s.grid.num_voxels(), 1);
-  SystemMatrix a =
-      SystemMatrix::Build(s.grid, Pointers(s), all_pixels, all_voxels, SystemMatrixOptions());
+  SystemMatrix a = BuildWhole(s);
   ASSERT_EQ(a.cols(), s.grid.num_voxels());
   std::vector<float> y(a.rows() * 3);
   a.Multiply(s.fire.emission_rgb.data(), y.data(), 3);
@@ -126,10 +136,7 @@ TEST(SystemMatrix, TransposeIsTheAdjoint) {
 // exactly what an uninterrupted one gives), and a row range equals the same rows of the whole.
 TEST(SystemMatrix, ProductsAreTheSameOnAnyNumberOfThreads) {
   Scene s = MakeScene(3, 20, 1e-6);
-  std::vector<std::vector<std::uint8_t>> pixels;
-  for (const auto& r : s.rays) pixels.emplace_back(r->rays().size(), 1);
-  std::vector<std::uint8_t> voxels(s.grid.num_voxels(), 1);
-  SystemMatrix a = SystemMatrix::Build(s.grid, Pointers(s), pixels, voxels, SystemMatrixOptions());
+  SystemMatrix a = BuildWhole(s);
   ASSERT_EQ(a.camera_row_ranges().size(), 3u);
   std::mt19937 rng(5);
   std::uniform_real_distribution<float> u(0, 1);
@@ -156,10 +163,7 @@ TEST(SystemMatrix, ProductsAreTheSameOnAnyNumberOfThreads) {
 // the same rows of the whole product.
 TEST(SystemMatrix, ACameraOfMoreThan65536RowsIsStillTheThinLimit) {
   Scene s = MakeScene(2, 12, 1e-9, 960, 720);  // the box covers about 117000 pixels
-  std::vector<std::vector<std::uint8_t>> pixels;
-  for (const auto& r : s.rays) pixels.emplace_back(r->rays().size(), 1);
-  std::vector<std::uint8_t> voxels(s.grid.num_voxels(), 1);
-  SystemMatrix a = SystemMatrix::Build(s.grid, Pointers(s), pixels, voxels, SystemMatrixOptions());
+  SystemMatrix a = BuildWhole(s);
   ASSERT_EQ(a.camera_row_ranges().size(), 2u);
   const auto [first, last] = a.camera_row_ranges()[0];
   ASSERT_GT(last - first, 65536u) << "the test needs a camera of more than 65536 rows";
@@ -211,10 +215,7 @@ TEST(SystemMatrix, ACameraOfMoreThan65536RowsIsStillTheThinLimit) {
 // values as the whole backprojection (the solvers skip the columns outside the hull this way).
 TEST(SystemMatrix, BackprojectionOfFlaggedColumnsVisitsThoseOnly) {
   Scene s = MakeScene(3, 16, 1e-9);
-  std::vector<std::vector<std::uint8_t>> pixels;
-  for (const auto& r : s.rays) pixels.emplace_back(r->rays().size(), 1);
-  std::vector<std::uint8_t> voxels(s.grid.num_voxels(), 1);
-  SystemMatrix a = SystemMatrix::Build(s.grid, Pointers(s), pixels, voxels, SystemMatrixOptions());
+  SystemMatrix a = BuildWhole(s);
   ASSERT_EQ(a.camera_row_ranges().size(), 3u);
   const auto [first, last] = a.camera_row_ranges()[1];
   std::mt19937 rng(5);
@@ -255,8 +256,7 @@ TEST(SystemMatrix, BackprojectionOfFlaggedColumnsVisitsThoseOnly) {
 // loses that corner's weight).
 TEST(SystemMatrix, BuiltOverSomeVoxelsIsTheWholeMatrixRestricted) {
   Scene s = MakeScene(3, 24, 1e-9);
-  std::vector<std::vector<std::uint8_t>> pixels;
-  for (const auto& r : s.rays) pixels.emplace_back(r->rays().size(), 1);
+  const std::vector<std::vector<std::uint8_t>> pixels = AllPixels(s);
   const std::size_t nv = s.grid.num_voxels();
   std::vector<std::uint8_t> all(nv, 1), some(nv, 0);
   std::mt19937 rng(17);
@@ -304,8 +304,7 @@ TEST(SystemMatrix, BuiltOverSomeVoxelsIsTheWholeMatrixRestricted) {
 // (at every offset within the hash's 8-byte words and in the tail), and a ray moved by one ulp.
 TEST(SystemMatrix, TheKeyChangesWithEveryByte) {
   Scene s = MakeScene(2, 12, 1e-9);
-  std::vector<std::vector<std::uint8_t>> pixels;
-  for (const auto& r : s.rays) pixels.emplace_back(r->rays().size(), 1);
+  const std::vector<std::vector<std::uint8_t>> pixels = AllPixels(s);
   std::vector<std::uint8_t> voxels(s.grid.num_voxels(), 1);
   ASSERT_NE(voxels.size() % 8, 0u) << "the test needs a tail shorter than a word";
   const SystemMatrixOptions options;
@@ -326,8 +325,7 @@ TEST(SystemMatrix, TheKeyChangesWithEveryByte) {
 
 TEST(SystemMatrix, CacheRoundTripAndCorruptFiles) {
   Scene s = MakeScene(2, 16, 1e-6);
-  std::vector<std::vector<std::uint8_t>> pixels;
-  for (const auto& r : s.rays) pixels.emplace_back(r->rays().size(), 1);
+  const std::vector<std::vector<std::uint8_t>> pixels = AllPixels(s);
   std::vector<std::uint8_t> voxels(s.grid.num_voxels(), 1);
   SystemMatrix a = SystemMatrix::Build(s.grid, Pointers(s), pixels, voxels, SystemMatrixOptions());
   EXPECT_EQ(a.key(), SystemMatrix::Key(s.grid, Pointers(s), pixels, voxels, SystemMatrixOptions()));

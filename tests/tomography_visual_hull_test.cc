@@ -163,31 +163,47 @@ TEST(FireMask, AutomaticSpeckSizeIsHalfAVoxelsImage) {
   EXPECT_EQ(mask.min_speck_px, std::max(2, static_cast<int>(0.5 * voxel * voxel)));
 }
 
+// A ring of 96x72 cameras at these azimuths around a 3 x 7 x 3 cm box, a grid of 24 over it, and
+// the linear images of a grey fire in the middle of the box (the generator's soot unless given).
+struct RingScene {
+  Rig rig;
+  GridGeometry grid;
+  std::vector<ImageF> linear;
+};
+
+RingScene MakeRingScene(const std::vector<double>& azimuths_deg, double soot_fraction = -1) {
+  const Box3 box{Eigen::Vector3d(-0.015, 0.0, -0.015), Eigen::Vector3d(0.015, 0.07, 0.015)};
+  synthetic::RingOptions ring;
+  ring.cameras = static_cast<int>(azimuths_deg.size());
+  ring.azimuths_deg = azimuths_deg;
+  ring.width = 96;
+  ring.height = 72;
+  RingScene s;
+  s.rig = synthetic::MakeRingRig(box, ring);
+  s.grid = GridGeometry::FromBox(box, 24);
+  const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
+  synthetic::FireOptions fire;
+  if (soot_fraction >= 0) fire.peak_soot_volume_fraction = soot_fraction;
+  fire.region = Box3{Eigen::Vector3d(-0.006, 0.01, -0.006), Eigen::Vector3d(0.006, 0.04, 0.006)};
+  const FireVolume truth = synthetic::MakeFire(s.grid, fire, grey);
+  FireRenderer renderer(grey);
+  renderer.SetVolume(s.grid, truth.temperature_k, truth.density_per_m3);
+  for (const auto& c : s.rig.cameras) {
+    s.linear.emplace_back();
+    renderer.Render(CameraRays(c.model), &s.linear.back());
+  }
+  return s;
+}
+
 // The whole reconstruction on frames with specks: the hull and the result stay what they are on
 // clean frames, while the old rule grows the hull.
 TEST(VisualHull, SpecksOnABlackBackgroundDoNotGrowTheHull) {
-  const Box3 box{Eigen::Vector3d(-0.015, 0.0, -0.015), Eigen::Vector3d(0.015, 0.07, 0.015)};
-  synthetic::RingOptions ring;
-  ring.cameras = 4;
-  ring.azimuths_deg = {0, 45, 90, 135};
-  ring.width = 96;
-  ring.height = 72;
-  const Rig rig = synthetic::MakeRingRig(box, ring);
-  const GridGeometry grid = GridGeometry::FromBox(box, 24);
-  const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
-  synthetic::FireOptions fire;
-  fire.peak_soot_volume_fraction = 1e-7;
-  fire.region = Box3{Eigen::Vector3d(-0.006, 0.01, -0.006), Eigen::Vector3d(0.006, 0.04, 0.006)};
-  FireVolume truth = synthetic::MakeFire(grid, fire, grey);
-  FireRenderer renderer(grey);
-  renderer.SetVolume(grid, truth.temperature_k, truth.density_per_m3);
-  std::vector<ImageF> linear;
+  const RingScene scene = MakeRingScene({0, 45, 90, 135}, 1e-7);
+  const Rig& rig = scene.rig;
+  const std::vector<ImageF>& linear = scene.linear;
   float peak = 0;
-  for (const auto& c : rig.cameras) {
-    linear.emplace_back();
-    renderer.Render(CameraRays(c.model), &linear.back());
-    for (float v : linear.back().pixels) peak = std::max(peak, v);
-  }
+  for (const ImageF& l : linear)
+    for (float v : l.pixels) peak = std::max(peak, v);
   const double exposure = 0.9 / peak;
   std::vector<ImageU8> clean, specked;
   std::mt19937 rng(9);
@@ -223,24 +239,11 @@ TEST(VisualHull, SpecksOnABlackBackgroundDoNotGrowTheHull) {
 // the wrong size for two cameras, the error names the first of them in the rig's order, however
 // the threads ran.
 TEST(VisualHull, IsItsDefinitionAndNamesTheFirstCameraInError) {
-  const Box3 box{Eigen::Vector3d(-0.015, 0.0, -0.015), Eigen::Vector3d(0.015, 0.07, 0.015)};
-  synthetic::RingOptions ring;
-  ring.cameras = 6;
-  ring.azimuths_deg = {0, 30, 60, 90, 120, 150};
-  ring.width = 96;
-  ring.height = 72;
-  const Rig rig = synthetic::MakeRingRig(box, ring);
-  const GridGeometry grid = GridGeometry::FromBox(box, 24);
-  const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
-  synthetic::FireOptions fire;
-  fire.region = Box3{Eigen::Vector3d(-0.006, 0.01, -0.006), Eigen::Vector3d(0.006, 0.04, 0.006)};
-  const FireVolume truth = synthetic::MakeFire(grid, fire, grey);
-  FireRenderer renderer(grey);
-  renderer.SetVolume(grid, truth.temperature_k, truth.density_per_m3);
+  const RingScene scene = MakeRingScene({0, 30, 60, 90, 120, 150});
+  const Rig& rig = scene.rig;
+  const GridGeometry& grid = scene.grid;
   std::vector<LinearFrame> frames;
-  for (const auto& c : rig.cameras) {
-    ImageF linear;
-    renderer.Render(CameraRays(c.model), &linear);
+  for (const ImageF& linear : scene.linear) {
     float peak = 0;
     for (float v : linear.pixels) peak = std::max(peak, v);
     frames.push_back(DecodeSrgb8(ApplyCameraResponse(linear, 0.9 / peak), 1.0));
