@@ -1,10 +1,12 @@
 #include "tomography/system_matrix.h"
 
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -160,10 +162,19 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
   };
   std::vector<Block> blocks(nblocks);
   const std::size_t ncols = m.col_voxel_.size();
+  // Each thread's sums over a ray's steps, one per column (zero between rays), and the columns a
+  // ray touched, in the order it touched them: the order of a row's entries does not matter, since
+  // the counting sort below places each by its column.
+  struct Scratch {
+    std::vector<double> accumulator;
+    std::vector<std::uint32_t> touched;
+  };
+  tbb::enumerable_thread_specific<Scratch> scratch([&] {
+    return Scratch{std::vector<double>(ncols, 0.0), {}};
+  });
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nblocks, 1),
                     [&](const tbb::blocked_range<std::size_t>& r) {
-                      std::vector<double> accumulator(ncols, 0.0);
-                      std::vector<std::uint32_t> touched;
+                      auto& [accumulator, touched] = scratch.local();
                       for (std::size_t b = r.begin(); b < r.end(); ++b) {
                         Block& out = blocks[b];
                         for (std::size_t i = b * block;
@@ -191,7 +202,6 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
                             }
                           }
                           if (touched.empty()) continue;
-                          std::sort(touched.begin(), touched.end());
                           for (std::uint32_t col : touched) {
                             out.cols.push_back(col);
                             out.values.push_back(static_cast<float>(accumulator[col]));
@@ -215,60 +225,80 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
   m.camera_ranges_ = CameraRanges(m.row_camera_);
   m.subsets_ = SplitRows(m.camera_ranges_, total_rows);
   // Counting sort of the blocks' entries by (subset, column), straight into the column-major
-  // storage; rows ascend within each run because the blocks are visited in row order. Each block
-  // is freed once its entries are placed.
+  // storage, the subsets in parallel (each writes only its own counts and entries); rows ascend
+  // within each run because a subset visits its blocks in row order. A block is freed once every
+  // subset holding some of its rows has placed them.
   const std::size_t ns = m.subsets_.size(), stride = ncols + 1;
-  std::vector<std::size_t> subset_of_block(blocks.size(), 0);
-  {
-    std::size_t row = 0, s = 0;
-    for (std::size_t b = 0; b < blocks.size(); ++b) {
-      while (s + 1 < ns && row >= m.subsets_[s].second) ++s;
-      subset_of_block[b] = s;
-      row += blocks[b].camera.size();
-    }
+  std::vector<std::size_t> block_first_row(blocks.size() + 1, 0);
+  for (std::size_t b = 0; b < blocks.size(); ++b)
+    block_first_row[b + 1] = block_first_row[b] + blocks[b].camera.size();
+  // The blocks holding subset s's rows: [subset_blocks[s].first, subset_blocks[s].second).
+  std::vector<std::pair<std::size_t, std::size_t>> subset_blocks(ns);
+  std::vector<std::atomic<int>> block_users(blocks.size());
+  for (std::size_t s = 0, b = 0; s < ns; ++s) {
+    const auto [r0, r1] = m.subsets_[s];
+    while (b < blocks.size() && block_first_row[b + 1] <= r0) ++b;
+    std::size_t e = b;
+    while (e < blocks.size() && block_first_row[e] < r1) ++e;
+    subset_blocks[s] = {b, e};
+    for (std::size_t i = b; i < e; ++i) block_users[i].fetch_add(1, std::memory_order_relaxed);
   }
-  auto for_each_entry = [&](std::size_t b, std::size_t first_row, auto&& visit) {
-    const Block& blk = blocks[b];
-    std::size_t e = 0, s = subset_of_block[b];
-    for (std::size_t r = 0; r < blk.camera.size(); ++r) {
-      const std::size_t row = first_row + r;
-      while (s + 1 < ns && row >= m.subsets_[s].second) ++s;
-      for (std::int64_t k = 0; k < blk.lengths[r]; ++k, ++e)
-        visit(s, row, blk.cols[e], blk.values[e]);
+  // Visits subset s's entries in row order, then column order within a row.
+  auto for_each_entry = [&](std::size_t s, bool release, auto&& visit) {
+    const auto [r0, r1] = m.subsets_[s];
+    for (std::size_t b = subset_blocks[s].first; b < subset_blocks[s].second; ++b) {
+      const Block& blk = blocks[b];
+      std::size_t e = 0;
+      for (std::size_t r = 0; r < blk.camera.size(); ++r) {
+        const std::size_t row = block_first_row[b] + r;
+        const std::size_t end = e + static_cast<std::size_t>(blk.lengths[r]);
+        if (row >= r0 && row < r1)
+          for (; e < end; ++e) visit(row, blk.cols[e], blk.values[e]);
+        e = end;
+      }
+      if (release && block_users[b].fetch_sub(1, std::memory_order_acq_rel) == 1)
+        blocks[b] = Block();
     }
   };
-  // Counts per (subset, column) and each column's largest value (its 16-bit scale); the runs are
-  // padded to a multiple of kRunMultiple.
-  std::vector<std::uint64_t> counts(ns * stride, 0);
-  std::vector<float> col_max(ncols, 0.0f);
-  std::size_t total_nnz = 0;
-  {
-    std::size_t first_row = 0;
-    for (std::size_t b = 0; b < blocks.size(); ++b) {
-      for_each_entry(b, first_row, [&](std::size_t s, std::size_t, std::uint32_t col, float value) {
-        ++counts[s * stride + col + 1];
-        col_max[col] = std::max(col_max[col], value);
-      });
-      first_row += blocks[b].camera.size();
-      total_nnz += blocks[b].cols.size();
-    }
-  }
+  // Counts per (subset, column), kept in t_ptr_ and turned into run offsets in place, and each
+  // column's largest value (its 16-bit scale); the runs are padded to a multiple of kRunMultiple.
   m.t_ptr_.assign(ns * stride, 0);
   m.subset_entries_.assign(ns + 1, 0);
-  for (std::size_t s = 0; s < ns; ++s) {
+  tbb::enumerable_thread_specific<std::vector<float>> thread_col_max(
+      [&] { return std::vector<float>(ncols, 0.0f); });
+  std::vector<std::uint64_t> subset_total(ns, 0);
+  tbb::parallel_for(std::size_t(0), ns, [&](std::size_t s) {
+    std::vector<float>& col_max = thread_col_max.local();
+    std::uint32_t* ptr = m.t_ptr_.data() + s * stride;
+    for_each_entry(s, false, [&](std::size_t, std::uint32_t col, float value) {
+      ++ptr[col + 1];
+      col_max[col] = std::max(col_max[col], value);
+    });
     std::uint64_t total = 0;
     for (std::size_t c = 0; c < ncols; ++c) {
-      total += (counts[s * stride + c + 1] + kRunMultiple - 1) / kRunMultiple * kRunMultiple;
-      if (total > std::numeric_limits<std::uint32_t>::max())
-        throw InputError("SystemMatrix: more than 2^32 non-zeros in the rows " +
-                         std::to_string(m.subsets_[s].first) + " to " +
-                         std::to_string(m.subsets_[s].second) +
-                         " of one camera; use a coarser grid or fewer pixels");
-      m.t_ptr_[s * stride + c + 1] = static_cast<std::uint32_t>(total);
+      total += (ptr[c + 1] + kRunMultiple - 1) / kRunMultiple * kRunMultiple;
+      if (total > std::numeric_limits<std::uint32_t>::max()) {
+        subset_total[s] = total;
+        return;
+      }
+      ptr[c + 1] = static_cast<std::uint32_t>(total);
     }
-    m.subset_entries_[s + 1] = m.subset_entries_[s] + total;
+    subset_total[s] = total;
+  });
+  std::size_t total_nnz = 0;
+  for (const Block& b : blocks) total_nnz += b.cols.size();
+  for (std::size_t s = 0; s < ns; ++s) {
+    if (subset_total[s] > std::numeric_limits<std::uint32_t>::max())
+      throw InputError("SystemMatrix: more than 2^32 non-zeros in the rows " +
+                       std::to_string(m.subsets_[s].first) + " to " +
+                       std::to_string(m.subsets_[s].second) +
+                       " of one camera; use a coarser grid or fewer pixels");
+    m.subset_entries_[s + 1] = m.subset_entries_[s] + subset_total[s];
   }
-  counts = std::vector<std::uint64_t>();
+  std::vector<float> col_max(ncols, 0.0f);
+  for (const std::vector<float>& local : thread_col_max)
+    for (std::size_t c = 0; c < ncols; ++c) col_max[c] = std::max(col_max[c], local[c]);
+  thread_col_max.clear();
   m.col_scale_.resize(ncols);
   std::vector<double> inverse(ncols);
   for (std::size_t c = 0; c < ncols; ++c) {
@@ -277,31 +307,21 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
   }
   m.t_entries_.resize(m.subset_entries_[ns]);
   m.nonzeros_ = total_nnz;
-  {
-    std::vector<std::uint64_t> fill(ns * stride);
-    for (std::size_t s = 0; s < ns; ++s)
-      for (std::size_t c = 0; c < ncols; ++c)
-        fill[s * stride + c] = m.subset_entries_[s] + m.t_ptr_[s * stride + c];
-    std::size_t first_row = 0;
-    for (std::size_t b = 0; b < blocks.size(); ++b) {
-      for_each_entry(b, first_row,
-                     [&](std::size_t s, std::size_t row, std::uint32_t col, float value) {
-                       const double q = std::min(65535.0, std::nearbyint(value * inverse[col]));
-                       m.t_entries_[fill[s * stride + col]++] =
-                           Entry{static_cast<std::uint16_t>(row - m.subsets_[s].first),
-                                 static_cast<std::uint16_t>(q)};
-                     });
-      first_row += blocks[b].camera.size();
-      blocks[b] = Block();
-    }
-    for (std::size_t s = 0; s < ns; ++s)
-      for (std::size_t c = 0; c < ncols; ++c) {
-        const std::uint64_t end = m.subset_entries_[s] + m.t_ptr_[s * stride + c + 1];
-        // Padding: the run's last row again (the run stays sorted), with a value of zero.
-        for (std::uint64_t& f = fill[s * stride + c]; f < end; ++f)
-          m.t_entries_[f] = Entry{m.t_entries_[f - 1].row, 0};
-      }
-  }
+  tbb::parallel_for(std::size_t(0), ns, [&](std::size_t s) {
+    const std::uint32_t* ptr = m.t_ptr_.data() + s * stride;
+    Entry* entries = m.t_entries_.data() + m.subset_entries_[s];
+    std::vector<std::uint32_t> fill(ptr, ptr + ncols);
+    const std::size_t r0 = m.subsets_[s].first;
+    for_each_entry(s, true, [&](std::size_t row, std::uint32_t col, float value) {
+      const double q = std::min(65535.0, std::nearbyint(value * inverse[col]));
+      entries[fill[col]++] =
+          Entry{static_cast<std::uint16_t>(row - r0), static_cast<std::uint16_t>(q)};
+    });
+    // Padding: the run's last row again (the run stays sorted), with a value of zero.
+    for (std::size_t c = 0; c < ncols; ++c)
+      for (std::uint32_t f = fill[c]; f < ptr[c + 1]; ++f)
+        entries[f] = Entry{entries[f - 1].row, 0};
+  });
   m.ComputeSums();
   m.build_ms_ =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
