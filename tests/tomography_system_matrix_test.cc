@@ -258,7 +258,7 @@ TEST(SystemMatrix, BuiltOverSomeVoxelsIsTheWholeMatrixRestricted) {
   Scene s = MakeScene(3, 24, 1e-9);
   const std::vector<std::vector<std::uint8_t>> pixels = AllPixels(s);
   const std::size_t nv = s.grid.num_voxels();
-  std::vector<std::uint8_t> all(nv, 1), some(nv, 0);
+  std::vector<std::uint8_t> all(nv, 1), ball(nv, 0), some(nv, 0);
   std::mt19937 rng(17);
   for (auto& v : some) v = rng() % 40 == 0;
   const Eigen::Vector3i d = s.grid.dims;
@@ -266,38 +266,42 @@ TEST(SystemMatrix, BuiltOverSomeVoxelsIsTheWholeMatrixRestricted) {
     for (int j = 0; j < d.y(); ++j)
       for (int i = 0; i < d.x(); ++i) {
         const Eigen::Vector3d q(i - 0.5 * d.x(), j - 0.4 * d.y(), k - 0.5 * d.z());
-        if (q.norm() < 4.5) some[s.grid.Flat(i, j, k)] = 1;
+        if (q.norm() < 4.5) ball[s.grid.Flat(i, j, k)] = some[s.grid.Flat(i, j, k)] = 1;
       }
   const SystemMatrix a_all =
       SystemMatrix::Build(s.grid, Pointers(s), pixels, all, SystemMatrixOptions());
-  const SystemMatrix a_some =
-      SystemMatrix::Build(s.grid, Pointers(s), pixels, some, SystemMatrixOptions());
-  ASSERT_LT(a_some.cols(), a_all.cols() / 4);
   std::uniform_real_distribution<float> u(0.5f, 1.5f);
-  std::vector<float> x_voxel(nv, 0.0f);
-  for (std::size_t v = 0; v < nv; ++v)
-    if (some[v]) x_voxel[v] = u(rng);
-  auto product = [&](const SystemMatrix& a) {
-    std::vector<float> x(a.cols()), y(a.rows());
-    for (std::size_t j = 0; j < a.cols(); ++j) x[j] = x_voxel[a.col_voxel(j)];
-    a.Multiply(x.data(), y.data(), 1);
-    std::map<std::pair<int, int>, float> by_pixel;
-    for (std::size_t r = 0; r < a.rows(); ++r) by_pixel[{a.row_camera(r), a.row_pixel(r)}] = y[r];
-    return by_pixel;
-  };
-  const auto y_all = product(a_all), y_some = product(a_some);
-  double peak = 0;
-  for (const auto& [pixel, v] : y_all) peak = std::max(peak, double(v));
-  ASSERT_GT(peak, 0);
-  std::size_t lit = 0;
-  for (const auto& [pixel, v] : y_all) {
-    const auto it = y_some.find(pixel);
-    const double w = it == y_some.end() ? 0.0 : it->second;
-    ASSERT_NEAR(w, v, 1e-5 * peak) << "camera " << pixel.first << ", pixel " << pixel.second;
-    lit += v > 0;
+  // Scattered voxels reach every face of the grid; the ball alone is bounded away from them.
+  for (const std::vector<std::uint8_t>* mask : {&some, &ball}) {
+    SCOPED_TRACE(mask == &ball ? "ball" : "scattered voxels and a ball");
+    const SystemMatrix a_some =
+        SystemMatrix::Build(s.grid, Pointers(s), pixels, *mask, SystemMatrixOptions());
+    ASSERT_LT(a_some.cols(), a_all.cols() / 4);
+    std::vector<float> x_voxel(nv, 0.0f);
+    for (std::size_t v = 0; v < nv; ++v)
+      if ((*mask)[v]) x_voxel[v] = u(rng);
+    auto product = [&](const SystemMatrix& a) {
+      std::vector<float> x(a.cols()), y(a.rows());
+      for (std::size_t j = 0; j < a.cols(); ++j) x[j] = x_voxel[a.col_voxel(j)];
+      a.Multiply(x.data(), y.data(), 1);
+      std::map<std::pair<int, int>, float> by_pixel;
+      for (std::size_t r = 0; r < a.rows(); ++r) by_pixel[{a.row_camera(r), a.row_pixel(r)}] = y[r];
+      return by_pixel;
+    };
+    const auto y_all = product(a_all), y_some = product(a_some);
+    double peak = 0;
+    for (const auto& [pixel, v] : y_all) peak = std::max(peak, double(v));
+    ASSERT_GT(peak, 0);
+    std::size_t lit = 0;
+    for (const auto& [pixel, v] : y_all) {
+      const auto it = y_some.find(pixel);
+      const double w = it == y_some.end() ? 0.0 : it->second;
+      ASSERT_NEAR(w, v, 1e-5 * peak) << "camera " << pixel.first << ", pixel " << pixel.second;
+      lit += v > 0;
+    }
+    for (const auto& [pixel, v] : y_some) EXPECT_EQ(y_all.count(pixel), 1u);
+    EXPECT_GT(lit, y_all.size() / 10);
   }
-  for (const auto& [pixel, v] : y_some) EXPECT_EQ(y_all.count(pixel), 1u);
-  EXPECT_GT(lit, y_all.size() / 10);
 }
 
 // The cache key changes with any byte of what it hashes: each voxel of the mask flipped in turn

@@ -146,6 +146,45 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
                 brick_used[a + static_cast<std::size_t>(bricks_dims.x()) *
                                    (b + static_cast<std::size_t>(bricks_dims.y()) * c)] = 1;
       }
+  // The used voxels' bounds along each axis, widened by a voxel: a step whose clamped midpoint lies
+  // outside the open interval (lo - 1, hi + 1) on some axis has no used corner. An axis whose used
+  // voxels reach the grid's edge is unbounded there (midpoints beyond it clamp onto the edge).
+  Eigen::Vector3i used_lo = grid.dims, used_hi(-1, -1, -1);
+  for (int k = 0; k < grid.dims.z(); ++k)
+    for (int j = 0; j < grid.dims.y(); ++j)
+      for (int i = 0; i < grid.dims.x(); ++i)
+        if (voxel_used[i + nx * j + nxy * k]) {
+          used_lo = used_lo.cwiseMin(Eigen::Vector3i(i, j, k));
+          used_hi = used_hi.cwiseMax(Eigen::Vector3i(i, j, k));
+        }
+  Eigen::Vector3d bound_lo, bound_hi;
+  for (int a = 0; a < 3; ++a) {
+    const double inf = std::numeric_limits<double>::infinity();
+    bound_lo[a] = used_lo[a] == 0 ? -inf : used_lo[a] - 1.0;
+    bound_hi[a] = used_hi[a] == grid.dims[a] - 1 ? inf : used_hi[a] + 1.0;
+  }
+  // The steps [*first, *end) of a march that may have a used corner: those whose midpoint lies in
+  // the bounds, give or take a step (the last step's midpoint is nearer than the others').
+  auto used_steps = [&](const RayMarch& march, std::int64_t* first, std::int64_t* end) {
+    double t0 = -std::numeric_limits<double>::infinity(), t1 = -t0;
+    for (int a = 0; a < 3; ++a) {
+      const double o = march.origin_index[a], d = march.direction_index[a];
+      if (std::abs(d) < 1e-300) {
+        if (!(o > bound_lo[a] && o < bound_hi[a])) t1 = t0;
+        continue;
+      }
+      double ta = (bound_lo[a] - o) / d, tb = (bound_hi[a] - o) / d;
+      if (ta > tb) std::swap(ta, tb);
+      t0 = std::max(t0, ta);
+      t1 = std::min(t1, tb);
+    }
+    if (!(t1 > t0)) {
+      *first = *end = 0;
+      return;
+    }
+    *first = std::max<std::int64_t>(0, march.FirstStepAfter(t0) - 1);
+    *end = std::min<std::int64_t>(march.n_steps, march.FirstStepAfter(t1) + 1);
+  };
   auto cell_may_be_used = [&](const TrilinearStencil<double>& s) {
     return brick_used[(s.i0 >> kBrickShift) +
                       static_cast<std::size_t>(bricks_dims.x()) *
@@ -184,7 +223,9 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
                           if (!RayMarch::Make(grid, cameras[cam]->rays()[pix], step_m, &march))
                             continue;
                           touched.clear();
-                          for (std::int64_t k = 0; k < march.n_steps; ++k) {
+                          std::int64_t first, end;
+                          used_steps(march, &first, &end);
+                          for (std::int64_t k = first; k < end; ++k) {
                             double length;
                             Eigen::Vector3d p;
                             march.Step(k, &length, &p);
