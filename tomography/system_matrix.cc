@@ -167,10 +167,11 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
   // the bounds, give or take a step (the last step's midpoint is nearer than the others').
   auto used_steps = [&](const RayMarch& march, std::int64_t* first, std::int64_t* end) {
     double t0 = -std::numeric_limits<double>::infinity(), t1 = -t0;
+    bool miss = false;
     for (int a = 0; a < 3; ++a) {
       const double o = march.origin_index[a], d = march.direction_index[a];
       if (std::abs(d) < 1e-300) {
-        if (!(o > bound_lo[a] && o < bound_hi[a])) t1 = t0;
+        miss = miss || !(o > bound_lo[a] && o < bound_hi[a]);
         continue;
       }
       double ta = (bound_lo[a] - o) / d, tb = (bound_hi[a] - o) / d;
@@ -178,7 +179,9 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
       t0 = std::max(t0, ta);
       t1 = std::min(t1, tb);
     }
-    if (!(t1 > t0)) {
+    // A ray that misses the bounds by less than a step (a corner grazed, or rounding) keeps the
+    // steps around the near miss: the window below is a step wider on each side anyway.
+    if (miss || !(t1 > t0 - march.step_m)) {
       *first = *end = 0;
       return;
     }
@@ -254,6 +257,7 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
                         }
                       }
                     });
+  scratch.clear();  // the accumulators' memory goes before the sort's
   // Rows, in candidate order (camera by camera).
   std::size_t total_rows = 0;
   for (const Block& b : blocks) total_rows += b.camera.size();
