@@ -288,7 +288,7 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
     subset_blocks[s] = {b, e};
     for (std::size_t i = b; i < e; ++i) block_users[i].fetch_add(1, std::memory_order_relaxed);
   }
-  // Visits subset s's entries in row order, then column order within a row.
+  // Visits subset s's entries in row order (a row's in the order its ray touched their columns).
   auto for_each_entry = [&](std::size_t s, bool release, auto&& visit) {
     const auto [r0, r1] = m.subsets_[s];
     for (std::size_t b = subset_blocks[s].first; b < subset_blocks[s].second; ++b) {
