@@ -126,8 +126,9 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
   // Bricks of 4^3 stencil cells (a cell: the 2^3 voxels of a trilinear stencil, named by its lowest
   // corner), flagged when some cell in them has a used corner: a step whose cell lies in an
   // unflagged brick adds nothing, and is passed over without reading its 8 corners' columns (most
-  // of a ray lies outside the hull). A cell's corners lie in [4B, 4B + 4] along an axis for brick B,
-  // so a used voxel at index i flags bricks i / 4 and, when i is a positive multiple of 4, i / 4 - 1.
+  // of a ray lies outside the hull). A cell's corners lie in [4B, 4B + 4] along an axis for brick
+  // B, so a used voxel at index i flags bricks i / 4 and, when i is a positive multiple of 4,
+  // i / 4 - 1.
   constexpr int kBrickShift = 2;
   const Eigen::Vector3i bricks_dims((grid.dims.array() + 3) / 4);
   std::vector<std::uint8_t> brick_used(
