@@ -329,6 +329,130 @@ TEST(SystemMatrix, BuiltOverSomeVoxelsIsTheWholeMatrixRestricted) {
   }
 }
 
+// The build marches a ray only where it passes within a voxel of the used voxels' bounding box:
+// rays parallel to an axis at offsets on both sides of each bound, rays that start inside the used
+// voxels and inside the grid, and oblique rays that graze the box's widened faces and corners, all
+// give the rows of the whole matrix restricted to the used voxels.
+TEST(SystemMatrix, TheStepWindowMissesNoUsedVoxel) {
+  const Scene s = MakeScene(1, 32, 1e-9);
+  const GridGeometry& g = s.grid;
+  // The used voxels: a box well inside the grid, and one a voxel from every face (its widened
+  // bounds then lie within a step of where rays enter and leave the grid).
+  const Eigen::Vector3i one = Eigen::Vector3i::Ones();
+  // The third spans x whole (unbounded there) and stops short of y's far face: a ray that
+  // crosses its bound on y and leaves the grid through the x face within half a step has a last,
+  // shortened step whose midpoint lies before the bound although the step's nominal one does not.
+  const std::pair<Eigen::Vector3i, Eigen::Vector3i> boxes[] = {
+      {Eigen::Vector3i(4, 9, 5), Eigen::Vector3i(9, 20, 8)},
+      {one, g.dims - 2 * one},
+      {Eigen::Vector3i(0, 2, 1), Eigen::Vector3i(g.dims.x() - 1, g.dims.y() - 4, g.dims.z() - 2)}};
+  for (const auto& [lo, hi] : boxes) {
+    SCOPED_TRACE("used voxels from (" + std::to_string(lo.x()) + ", " + std::to_string(lo.y()) +
+                 ", " + std::to_string(lo.z()) + ")");
+    std::vector<std::uint8_t> used(g.num_voxels(), 0);
+    for (int k = lo.z(); k <= hi.z(); ++k)
+      for (int j = lo.y(); j <= hi.y(); ++j)
+        for (int i = lo.x(); i <= hi.x(); ++i) used[g.Flat(i, j, k)] = 1;
+    auto rig_from_index = [&](const Eigen::Vector3d& index) {
+      return Eigen::Vector3d(g.VoxelCenter(0, 0, 0) + index.cwiseProduct(g.voxel_size_m));
+    };
+    std::vector<Ray> rays;
+    auto add = [&](const Eigen::Vector3d& origin_index, const Eigen::Vector3d& direction) {
+      Ray r;
+      r.origin_in_rig = rig_from_index(origin_index);
+      r.direction_in_rig = direction.cwiseProduct(g.voxel_size_m).normalized();
+      r.valid = true;
+      rays.push_back(r);
+    };
+    // Parallel to each axis, from outside the grid, at offsets around the bounds on the other two.
+    const double offsets[] = {-1.2, -1.0, -0.9, -0.5, 0.0, 0.3};
+    for (int axis = 0; axis < 3; ++axis) {
+      const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+      for (double du : offsets)
+        for (double dv : offsets)
+          for (int side = 0; side < 2; ++side) {
+            Eigen::Vector3d o = 0.5 * (lo + hi).cast<double>();
+            o[u] = side ? hi[u] - du : lo[u] + du;
+            o[v] = side ? hi[v] - dv : lo[v] + dv;
+            o[axis] = -3.0;
+            Eigen::Vector3d d = Eigen::Vector3d::Zero();
+            d[axis] = 1.0;
+            add(o, d);
+            o[axis] = g.dims[axis] + 2.0;
+            add(o, -d);
+          }
+    }
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<double> unit(-1, 1);
+    auto random_direction = [&] {
+      Eigen::Vector3d d;
+      do d = Eigen::Vector3d(unit(rng), unit(rng), unit(rng));
+      while (d.norm() < 0.1);
+      return d;
+    };
+    // Starting inside the used voxels, and inside the grid beside them.
+    for (int n = 0; n < 40; ++n) {
+      const Eigen::Vector3d inside = lo.cast<double>() + 0.5 * (hi - lo).cast<double>() +
+                                     Eigen::Vector3d(unit(rng), unit(rng), unit(rng)) * 2.0;
+      add(inside, random_direction());
+      add(Eigen::Vector3d(2.0, 3.0, 2.5) + Eigen::Vector3d(unit(rng), unit(rng), 0),
+          random_direction());
+    }
+    // Rays at 45 degrees in x and y that cross y's far bound just before the x face where they
+    // leave, at 200 phases of their steps.
+    for (int n = 0; n < 200; ++n) {
+      const double e = 0.3 * (n + 0.5) / 200;  // how far before the x face (index units)
+      const Eigen::Vector3d d = Eigen::Vector3d(1, 1, 0).normalized();
+      const Eigen::Vector3d p(g.dims.x() - 0.5 - e, hi.y() + 1.0, 0.5 * (lo.z() + hi.z()));
+      add(p - (40.0 + 0.01 * n) * d, d);
+    }
+    // Oblique rays through points on the widened box's faces, edges and corners (within a voxel
+    // of the used ones, or just beyond), from outside the grid.
+    for (int n = 0; n < 400; ++n) {
+      Eigen::Vector3d p;
+      for (int a = 0; a < 3; ++a) {
+        const double r = unit(rng);
+        p[a] = r < -0.3  ? lo[a] - 1.0 + 0.2 * unit(rng)
+               : r > 0.3 ? hi[a] + 1.0 + 0.2 * unit(rng)
+                         : lo[a] + (hi[a] - lo[a]) * 0.5;
+      }
+      const Eigen::Vector3d d = random_direction().normalized();
+      add(p - 40.0 * d, d);
+    }
+    const int width = static_cast<int>(rays.size());
+    const CameraRays camera(width, 1, rays);
+    const std::vector<std::vector<std::uint8_t>> pixels = {std::vector<std::uint8_t>(width, 1)};
+    const SystemMatrix whole = SystemMatrix::Build(
+        g, {&camera}, pixels, std::vector<std::uint8_t>(g.num_voxels(), 1), SystemMatrixOptions());
+    const SystemMatrix some =
+        SystemMatrix::Build(g, {&camera}, pixels, used, SystemMatrixOptions());
+    std::uniform_real_distribution<float> value(0.5f, 1.5f);
+    std::vector<float> x_voxel(g.num_voxels(), 0.0f);
+    for (std::size_t v = 0; v < used.size(); ++v)
+      if (used[v]) x_voxel[v] = value(rng);
+    auto product = [&](const SystemMatrix& a) {
+      std::vector<float> x(a.cols()), y(a.rows());
+      for (std::size_t j = 0; j < a.cols(); ++j) x[j] = x_voxel[a.col_voxel(j)];
+      a.Multiply(x.data(), y.data(), 1);
+      std::vector<double> by_pixel(width, 0.0);
+      for (std::size_t r = 0; r < a.rows(); ++r) by_pixel[a.row_pixel(r)] = y[r];
+      return by_pixel;
+    };
+    const std::vector<double> y_whole = product(whole), y_some = product(some);
+    const double peak = *std::max_element(y_whole.begin(), y_whole.end());
+    ASSERT_GT(peak, 0);
+    int lit = 0, faint = 0;
+    for (int p = 0; p < width; ++p) {
+      ASSERT_NEAR(y_some[p], y_whole[p], 1e-5 * peak) << "ray " << p;
+      lit += y_whole[p] > 0;
+      faint += y_whole[p] > 0 && y_whole[p] < 0.05 * peak;
+    }
+    // Most rays see the used voxels, and some only faintly (a corner's weight at their edge).
+    EXPECT_GT(lit, width / 2);
+    EXPECT_GT(faint, 10);
+  }
+}
+
 // The cache key changes with any byte of what it hashes: each voxel of the mask flipped in turn
 // (at every offset within the hash's 8-byte words and in the tail), and a ray moved by one ulp.
 TEST(SystemMatrix, TheKeyChangesWithEveryByte) {
