@@ -22,12 +22,14 @@
 
 namespace flamerig {
 
-// Entry and exit distances (t >= 0) of a ray with the axis-aligned box [lo, hi]; false when it
-// misses or only touches it.
-inline bool IntersectBox(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
-                         const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double* t_enter,
-                         double* t_exit) {
-  double t0 = 0.0, t1 = std::numeric_limits<double>::infinity();
+// The slabs of the axis-aligned box [lo, hi] (bounds may be infinite) along a whole line: the
+// line lies between them for t in [*t0, *t1], which is empty (*t1 <= *t0) when it passes beside
+// the box; false only when the line is parallel to an axis and outside that axis's slab.
+inline bool SlabInterval(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                         const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double* t0,
+                         double* t1) {
+  *t0 = -std::numeric_limits<double>::infinity();
+  *t1 = std::numeric_limits<double>::infinity();
   for (int a = 0; a < 3; ++a) {
     if (std::abs(direction[a]) < 1e-300) {
       if (origin[a] < lo[a] || origin[a] > hi[a]) return false;
@@ -36,9 +38,20 @@ inline bool IntersectBox(const Eigen::Vector3d& origin, const Eigen::Vector3d& d
     const double inv = 1.0 / direction[a];
     double ta = (lo[a] - origin[a]) * inv, tb = (hi[a] - origin[a]) * inv;
     if (ta > tb) std::swap(ta, tb);
-    t0 = std::max(t0, ta);
-    t1 = std::min(t1, tb);
+    *t0 = std::max(*t0, ta);
+    *t1 = std::min(*t1, tb);
   }
+  return true;
+}
+
+// Entry and exit distances (t >= 0) of a ray with the axis-aligned box [lo, hi]; false when it
+// misses or only touches it.
+inline bool IntersectBox(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                         const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double* t_enter,
+                         double* t_exit) {
+  double t0, t1;
+  if (!SlabInterval(origin, direction, lo, hi, &t0, &t1)) return false;
+  t0 = std::max(t0, 0.0);
   if (!(t1 > t0)) return false;
   *t_enter = t0;
   *t_exit = t1;

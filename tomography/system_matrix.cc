@@ -130,6 +130,7 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
   // B, so a used voxel at index i flags bricks i / 4 and, when i is a positive multiple of 4,
   // i / 4 - 1.
   constexpr int kBrickShift = 2;
+  Eigen::Vector3i used_lo = grid.dims, used_hi(-1, -1, -1);
   const Eigen::Vector3i bricks_dims((grid.dims.array() + 3) / 4);
   std::vector<std::uint8_t> brick_used(
       static_cast<std::size_t>(bricks_dims.x()) * bricks_dims.y() * bricks_dims.z(), 0);
@@ -137,6 +138,8 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
     for (int j = 0; j < grid.dims.y(); ++j)
       for (int i = 0; i < grid.dims.x(); ++i) {
         if (!voxel_used[i + nx * j + nxy * k]) continue;
+        used_lo = used_lo.cwiseMin(Eigen::Vector3i(i, j, k));
+        used_hi = used_hi.cwiseMax(Eigen::Vector3i(i, j, k));
         const int bi[2] = {i >> kBrickShift, (i & 3) == 0 && i > 0 ? (i >> kBrickShift) - 1 : -1};
         const int bj[2] = {j >> kBrickShift, (j & 3) == 0 && j > 0 ? (j >> kBrickShift) - 1 : -1};
         const int bk[2] = {k >> kBrickShift, (k & 3) == 0 && k > 0 ? (k >> kBrickShift) - 1 : -1};
@@ -147,17 +150,10 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
                 brick_used[a + static_cast<std::size_t>(bricks_dims.x()) *
                                    (b + static_cast<std::size_t>(bricks_dims.y()) * c)] = 1;
       }
-  // The used voxels' bounds along each axis, widened by a voxel: a step whose clamped midpoint lies
-  // outside the open interval (lo - 1, hi + 1) on some axis has no used corner. An axis whose used
-  // voxels reach the grid's edge is unbounded there (midpoints beyond it clamp onto the edge).
-  Eigen::Vector3i used_lo = grid.dims, used_hi(-1, -1, -1);
-  for (int k = 0; k < grid.dims.z(); ++k)
-    for (int j = 0; j < grid.dims.y(); ++j)
-      for (int i = 0; i < grid.dims.x(); ++i)
-        if (voxel_used[i + nx * j + nxy * k]) {
-          used_lo = used_lo.cwiseMin(Eigen::Vector3i(i, j, k));
-          used_hi = used_hi.cwiseMax(Eigen::Vector3i(i, j, k));
-        }
+  // The used voxels' bounds along each axis (found with the bricks above), widened by a voxel: a
+  // step whose clamped midpoint lies outside the open interval (lo - 1, hi + 1) on some axis has no
+  // used corner. An axis whose used voxels reach the grid's edge is unbounded there (midpoints
+  // beyond it clamp onto the edge).
   Eigen::Vector3d bound_lo, bound_hi;
   for (int a = 0; a < 3; ++a) {
     const double inf = std::numeric_limits<double>::infinity();
@@ -167,22 +163,12 @@ SystemMatrix SystemMatrix::Build(const GridGeometry& grid,
   // The steps [*first, *end) of a march that may have a used corner: those whose midpoint lies in
   // the bounds, give or take a step (the last step's midpoint is nearer than the others').
   auto used_steps = [&](const RayMarch& march, std::int64_t* first, std::int64_t* end) {
-    double t0 = -std::numeric_limits<double>::infinity(), t1 = -t0;
-    bool miss = false;
-    for (int a = 0; a < 3; ++a) {
-      const double o = march.origin_index[a], d = march.direction_index[a];
-      if (std::abs(d) < 1e-300) {
-        miss = miss || !(o > bound_lo[a] && o < bound_hi[a]);
-        continue;
-      }
-      double ta = (bound_lo[a] - o) / d, tb = (bound_hi[a] - o) / d;
-      if (ta > tb) std::swap(ta, tb);
-      t0 = std::max(t0, ta);
-      t1 = std::min(t1, tb);
-    }
+    double t0, t1;
+    const bool beside =
+        !SlabInterval(march.origin_index, march.direction_index, bound_lo, bound_hi, &t0, &t1);
     // A ray that misses the bounds by less than a step (a corner grazed, or rounding) keeps the
     // steps around the near miss: the window below is a step wider on each side anyway.
-    if (miss || !(t1 > t0 - march.step_m)) {
+    if (beside || !(t1 > t0 - march.step_m)) {
       *first = *end = 0;
       return;
     }
