@@ -60,6 +60,17 @@ std::vector<std::vector<std::uint8_t>> AllPixels(const Scene& s) {
   return pixels;
 }
 
+// A x for a field given per voxel (x_voxel, one channel), by (camera, pixel) of each row.
+std::map<std::pair<int, int>, float> ProductByPixel(const SystemMatrix& a,
+                                                    const std::vector<float>& x_voxel) {
+  std::vector<float> x(a.cols()), y(a.rows());
+  for (std::size_t j = 0; j < a.cols(); ++j) x[j] = x_voxel[a.col_voxel(j)];
+  a.Multiply(x.data(), y.data(), 1);
+  std::map<std::pair<int, int>, float> by_pixel;
+  for (std::size_t r = 0; r < a.rows(); ++r) by_pixel[{a.row_camera(r), a.row_pixel(r)}] = y[r];
+  return by_pixel;
+}
+
 // The matrix over every pixel and every voxel.
 SystemMatrix BuildWhole(const Scene& s) {
   return SystemMatrix::Build(s.grid, Pointers(s), AllPixels(s),
@@ -305,15 +316,7 @@ TEST(SystemMatrix, BuiltOverSomeVoxelsIsTheWholeMatrixRestricted) {
     std::vector<float> x_voxel(nv, 0.0f);
     for (std::size_t v = 0; v < nv; ++v)
       if ((*mask)[v]) x_voxel[v] = u(rng);
-    auto product = [&](const SystemMatrix& a) {
-      std::vector<float> x(a.cols()), y(a.rows());
-      for (std::size_t j = 0; j < a.cols(); ++j) x[j] = x_voxel[a.col_voxel(j)];
-      a.Multiply(x.data(), y.data(), 1);
-      std::map<std::pair<int, int>, float> by_pixel;
-      for (std::size_t r = 0; r < a.rows(); ++r) by_pixel[{a.row_camera(r), a.row_pixel(r)}] = y[r];
-      return by_pixel;
-    };
-    const auto y_all = product(a_all), y_some = product(a_some);
+    const auto y_all = ProductByPixel(a_all, x_voxel), y_some = ProductByPixel(a_some, x_voxel);
     double peak = 0;
     for (const auto& [pixel, v] : y_all) peak = std::max(peak, double(v));
     ASSERT_GT(peak, 0);
@@ -430,15 +433,13 @@ TEST(SystemMatrix, TheStepWindowMissesNoUsedVoxel) {
     std::vector<float> x_voxel(g.num_voxels(), 0.0f);
     for (std::size_t v = 0; v < used.size(); ++v)
       if (used[v]) x_voxel[v] = value(rng);
-    auto product = [&](const SystemMatrix& a) {
-      std::vector<float> x(a.cols()), y(a.rows());
-      for (std::size_t j = 0; j < a.cols(); ++j) x[j] = x_voxel[a.col_voxel(j)];
-      a.Multiply(x.data(), y.data(), 1);
-      std::vector<double> by_pixel(width, 0.0);
-      for (std::size_t r = 0; r < a.rows(); ++r) by_pixel[a.row_pixel(r)] = y[r];
-      return by_pixel;
+    // Per ray (a pixel of the one camera); a ray with no row sees nothing.
+    auto by_ray = [&](const SystemMatrix& a) {
+      std::vector<double> y(width, 0.0);
+      for (const auto& [pixel, v] : ProductByPixel(a, x_voxel)) y[pixel.second] = v;
+      return y;
     };
-    const std::vector<double> y_whole = product(whole), y_some = product(some);
+    const std::vector<double> y_whole = by_ray(whole), y_some = by_ray(some);
     const double peak = *std::max_element(y_whole.begin(), y_whole.end());
     ASSERT_GT(peak, 0);
     int lit = 0, faint = 0;
