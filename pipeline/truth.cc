@@ -8,6 +8,38 @@
 
 namespace flamerig {
 
+namespace {
+
+// Calls visit(v, f, relative) for each visible truth voxel v (>= 1300 K with soot, and at least
+// 1% of the peak emission when the truth has an emission grid) paired with the fitted voxel f
+// that holds its centre (v itself on the same grid) where the fit has medium; `relative` is v's
+// emission over the truth's peak (1 without an emission grid). Counts the visible voxels.
+template <typename Visit>
+void ForEachScoredVoxel(const FireVolume& truth, const FireVolume& fitted, std::size_t* visible,
+                        Visit&& visit) {
+  const GridGeometry& tg = truth.geometry;
+  const GridGeometry& fg = fitted.geometry;
+  const bool same_grid = tg.SameVoxels(fg);
+  const std::vector<float>& e = truth.emission_rgb;
+  double peak = 0;
+  for (std::size_t v = 0; !e.empty() && v < tg.num_voxels(); ++v)
+    peak = std::max(peak, double(e[3 * v + 1]));
+  for (int k = 0; k < tg.dims.z(); ++k)
+    for (int j = 0; j < tg.dims.y(); ++j)
+      for (int i = 0; i < tg.dims.x(); ++i) {
+        const std::size_t v = tg.Flat(i, j, k);
+        if (truth.temperature_k[v] < 1300 || !(truth.density_per_m3[v] > 0)) continue;
+        if (!e.empty() && e[3 * v + 1] < 0.01 * peak) continue;
+        ++*visible;
+        std::size_t f = v;
+        if (!same_grid && !fg.VoxelHolding(tg.VoxelCenter(i, j, k), &f)) continue;
+        if (!(fitted.density_per_m3[f] > 0)) continue;
+        visit(v, f, e.empty() ? 1.0 : e[3 * v + 1] / peak);
+      }
+}
+
+}  // namespace
+
 TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
   TruthError out;
   if (truth.temperature_k.empty() || truth.density_per_m3.empty() || fitted.temperature_k.empty() ||
@@ -15,53 +47,40 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
     out.why_not = "a volume lacks temperature or density";
     return out;
   }
-  const GridGeometry& tg = truth.geometry;
   const GridGeometry& fg = fitted.geometry;
-  out.same_grid = tg.SameVoxels(fg);
+  out.same_grid = truth.geometry.SameVoxels(fg);
   const std::vector<float>& e = truth.emission_rgb;
-  double peak = 0;
-  for (std::size_t v = 0; !e.empty() && v < tg.num_voxels(); ++v)
-    peak = std::max(peak, double(e[3 * v + 1]));
   // Sums over the counted voxels, plain and emission-weighted.
   double n = 0, sd = 0, sdd = 0, sf = 0, st = 0, sff = 0, stt = 0, sft = 0;
   double w = 0, wd = 0, wdd = 0, wt = 0, wtt = 0;
   const bool have_sigma = fitted.temperature_sigma_k.size() == fg.num_voxels();
   double within1 = 0, within2 = 0, determined = 0;
   std::vector<double> sigmas;
-  for (int k = 0; k < tg.dims.z(); ++k)
-    for (int j = 0; j < tg.dims.y(); ++j)
-      for (int i = 0; i < tg.dims.x(); ++i) {
-        const std::size_t v = tg.Flat(i, j, k);
-        if (truth.temperature_k[v] < 1300 || !(truth.density_per_m3[v] > 0)) continue;
-        if (!e.empty() && e[3 * v + 1] < 0.01 * peak) continue;
-        ++out.visible;
-        std::size_t f = v;
-        if (!out.same_grid && !fg.VoxelHolding(tg.VoxelCenter(i, j, k), &f)) continue;
-        if (!(fitted.density_per_m3[f] > 0)) continue;
-        const double x = fitted.temperature_k[f], t = truth.temperature_k[v];
-        n += 1;
-        sd += x - t;
-        sdd += (x - t) * (x - t);
-        sf += x;
-        st += t;
-        sff += x * x;
-        stt += t * t;
-        sft += x * t;
-        const double weight = e.empty() ? 1.0 : std::max(0.0, double(e[3 * v + 1]));
-        w += weight;
-        wd += weight * (x - t);
-        wdd += weight * (x - t) * (x - t);
-        wt += weight * t;
-        wtt += weight * t * t;
-        ++out.counted;
-        if (have_sigma) {
-          const double sigma = fitted.temperature_sigma_k[f];
-          sigmas.push_back(sigma);
-          if (std::abs(x - t) <= sigma) within1 += 1;
-          if (std::abs(x - t) <= 2 * sigma) within2 += 1;
-          if (!fitted.determined.empty() && fitted.determined[f] > 0.5) determined += 1;
-        }
-      }
+  ForEachScoredVoxel(truth, fitted, &out.visible, [&](std::size_t v, std::size_t f, double) {
+    const double x = fitted.temperature_k[f], t = truth.temperature_k[v];
+    n += 1;
+    sd += x - t;
+    sdd += (x - t) * (x - t);
+    sf += x;
+    st += t;
+    sff += x * x;
+    stt += t * t;
+    sft += x * t;
+    const double weight = e.empty() ? 1.0 : std::max(0.0, double(e[3 * v + 1]));
+    w += weight;
+    wd += weight * (x - t);
+    wdd += weight * (x - t) * (x - t);
+    wt += weight * t;
+    wtt += weight * t * t;
+    ++out.counted;
+    if (have_sigma) {
+      const double sigma = fitted.temperature_sigma_k[f];
+      sigmas.push_back(sigma);
+      if (std::abs(x - t) <= sigma) within1 += 1;
+      if (std::abs(x - t) <= 2 * sigma) within2 += 1;
+      if (!fitted.determined.empty() && fitted.determined[f] > 0.5) determined += 1;
+    }
+  });
   out.compared = true;
   out.truth_soot = TotalSoot(truth);
   out.fit_soot = TotalSoot(fitted);
@@ -90,6 +109,45 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
     out.weighted_truth_spread_k = std::sqrt(std::max(0.0, wtt / w - mt * mt));
   }
   return out;
+}
+
+std::vector<EmissionBandError> TemperatureErrorByEmission(const FireVolume& truth,
+                                                          const FireVolume& fitted,
+                                                          const std::vector<double>& edges) {
+  if (truth.temperature_k.empty() || truth.density_per_m3.empty() || fitted.temperature_k.empty() ||
+      fitted.density_per_m3.empty())
+    throw InputError("temperature error by emission: a volume lacks temperature or density");
+  if (truth.emission_rgb.size() != 3 * truth.geometry.num_voxels())
+    throw InputError("temperature error by emission: the truth has no emission grid");
+  if (edges.size() < 2 || !std::is_sorted(edges.begin(), edges.end()) ||
+      std::adjacent_find(edges.begin(), edges.end()) != edges.end())
+    throw InputError("temperature error by emission: the bands' edges must rise");
+  std::vector<EmissionBandError> bands(edges.size() - 1);
+  std::vector<double> sum(bands.size(), 0.0), sum_sq(bands.size(), 0.0);
+  std::size_t visible = 0;
+  ForEachScoredVoxel(truth, fitted, &visible, [&](std::size_t v, std::size_t f, double relative) {
+    if (relative < edges.front() || relative > edges.back()) return;
+    // The band [edges[b], edges[b + 1]) holding `relative`; the last one holds its top edge.
+    const std::size_t b = std::min<std::size_t>(
+        bands.size() - 1,
+        std::upper_bound(edges.begin(), edges.end(), relative) - edges.begin() - 1);
+    const double d = double(fitted.temperature_k[f]) - truth.temperature_k[v];
+    ++bands[b].counted;
+    sum[b] += d;
+    sum_sq[b] += d * d;
+  });
+  double total = 0;
+  for (double x : sum_sq) total += x;
+  for (std::size_t b = 0; b < bands.size(); ++b) {
+    bands[b].lo = edges[b];
+    bands[b].hi = edges[b + 1];
+    if (bands[b].counted) {
+      bands[b].rms_k = std::sqrt(sum_sq[b] / bands[b].counted);
+      bands[b].mean_k = sum[b] / bands[b].counted;
+    }
+    bands[b].share = total > 0 ? sum_sq[b] / total : 0.0;
+  }
+  return bands;
 }
 
 FireVolume SampleOnGrid(const FireVolume& volume, const GridGeometry& grid) {

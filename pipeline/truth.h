@@ -4,6 +4,7 @@
 #define FLAMERIG_PIPELINE_TRUTH_H_
 
 #include <string>
+#include <vector>
 
 #include "tomography/volume.h"
 
@@ -46,6 +47,23 @@ FireVolume SampleOnGrid(const FireVolume& volume, const GridGeometry& grid);
 // Sum of density x voxel volume: the number of particles in the volume.
 double TotalSoot(const FireVolume& volume);
 TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted);
+
+// The temperature error of CompareWithTruth (the same voxels, paired the same way) in bands of the
+// truth's emission: where in the fire the error lies. A truth voxel falls in the band [lo, hi) that
+// holds its emission (green channel) as a share of the truth's brightest voxel's; the last band
+// also holds its upper edge. `share` is the band's part of the summed squared error over all
+// bands. Throws InputError when the truth has no emission grid or either volume lacks temperature
+// or density, or when the edges do not rise; voxels outside every band are not counted.
+struct EmissionBandError {
+  double lo = 0, hi = 0;  // shares of the truth's peak emission
+  std::size_t counted = 0;
+  double rms_k = 0, mean_k = 0;  // fit - truth; 0 where nothing is counted
+  double share = 0;              // of the squared error summed over the bands
+};
+std::vector<EmissionBandError> TemperatureErrorByEmission(const FireVolume& truth,
+                                                          const FireVolume& fitted,
+                                                          const std::vector<double>& edges = {
+                                                              0.01, 0.03, 0.1, 0.3, 1.0});
 
 // The relative L2 error of a reconstruction's emission against a truth's emission grid (resampled
 // onto the reconstruction's grid when they differ): |e - e_truth| / |e_truth|. Throws DataError

@@ -207,6 +207,65 @@ TEST(TruthError, SameGridVoxelByVoxelOtherGridsByTheVoxelHoldingEachCentre) {
   EXPECT_NEAR(part.rms_k, 10, 1e-4);
 }
 
+// The same voxels as CompareWithTruth, split by the truth's emission over its peak: bands whose
+// errors are set by hand (the oracle), one voxel the fit left empty, and voxels too faint or too
+// cool to be visible.
+TEST(TruthError, ByEmissionSplitsTheScoredVoxelsByTheTruthsBrightness) {
+  FireVolume truth = Cube(4, 1500);
+  FireVolume fitted = Cube(4, 1500);
+  truth.emission_rgb.assign(3 * 64, 0.0f);
+  for (int v = 0; v < 64; ++v) {
+    // 0..15 at the peak, 16..31 at 0.2, 32..47 at 0.05, 48..55 at 0.02, 56..59 at 0.005 (not
+    // visible), 60..63 at 0.2 but 1200 K (not visible).
+    const float e = v < 16   ? 1.0f
+                    : v < 32 ? 0.2f
+                    : v < 48 ? 0.05f
+                    : v < 56 ? 0.02f
+                    : v < 60 ? 0.005f
+                             : 0.2f;
+    truth.emission_rgb[3 * v + 1] = e;
+    if (v >= 60) truth.temperature_k[v] = 1200;
+    const float error = v < 16   ? 10.0f
+                        : v < 32 ? -20.0f
+                        : v < 48 ? 40.0f
+                                 : (v % 2 ? 30.0f : -30.0f);
+    fitted.temperature_k[v] = truth.temperature_k[v] + error;
+  }
+  fitted.density_per_m3[5] = 0;  // no medium in the fit: not counted
+  const std::vector<EmissionBandError> bands = TemperatureErrorByEmission(truth, fitted);
+  ASSERT_EQ(bands.size(), 4u);
+  const std::size_t counted[] = {8, 16, 16, 15};
+  const double rms[] = {30, 40, 20, 10}, mean[] = {0, 40, -20, 10};
+  const double squares[] = {8 * 900.0, 16 * 1600.0, 16 * 400.0, 15 * 100.0};
+  const double total = squares[0] + squares[1] + squares[2] + squares[3];
+  const double edges[] = {0.01, 0.03, 0.1, 0.3, 1.0};
+  for (int b = 0; b < 4; ++b) {
+    SCOPED_TRACE(b);
+    EXPECT_EQ(bands[b].lo, edges[b]);
+    EXPECT_EQ(bands[b].hi, edges[b + 1]);
+    EXPECT_EQ(bands[b].counted, counted[b]);
+    EXPECT_NEAR(bands[b].rms_k, rms[b], 1e-3);
+    EXPECT_NEAR(bands[b].mean_k, mean[b], 1e-3);
+    EXPECT_NEAR(bands[b].share, squares[b] / total, 1e-6);
+  }
+  // The bands hold exactly the voxels CompareWithTruth scores, and its RMS.
+  const TruthError all = CompareWithTruth(truth, fitted);
+  EXPECT_EQ(all.counted, 55u);
+  EXPECT_NEAR(all.rms_k, std::sqrt(total / 55), 1e-3);
+  // Bands of one's own; a voxel outside them is left out.
+  const std::vector<EmissionBandError> upper = TemperatureErrorByEmission(truth, fitted, {0.1, 1});
+  ASSERT_EQ(upper.size(), 1u);
+  EXPECT_EQ(upper[0].counted, 31u);
+  EXPECT_NEAR(upper[0].mean_k, (15 * 10.0 - 16 * 20.0) / 31, 1e-3);
+  EXPECT_DOUBLE_EQ(upper[0].share, 1.0);
+  // Errors name what is wrong.
+  EXPECT_THROW(TemperatureErrorByEmission(truth, fitted, {0.1, 0.1, 1}), InputError);
+  EXPECT_THROW(TemperatureErrorByEmission(truth, fitted, {0.5}), InputError);
+  FireVolume dark = truth;
+  dark.emission_rgb.clear();
+  EXPECT_THROW(TemperatureErrorByEmission(dark, fitted), InputError);
+}
+
 TEST(RunFrames, SplitsContiguouslyAcrossRanks) {
   for (int size = 1; size <= 5; ++size) {
     std::size_t expect = 3;

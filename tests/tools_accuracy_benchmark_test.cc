@@ -60,12 +60,13 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
       EXPECT_LT(rms, 2000);  // the search range
     }
   }
-  // Fifteen oracle rows per scene: fourteen variants and the noise-free one (the headers are
-  // "| oracle" and the finer grids' "| fit grid").
-  const std::regex row("\\n\\| (?!oracle|fit grid)[a-z.`]");
+  // Fifteen oracle rows per scene: fourteen variants and the noise-free one, and five rows of
+  // where the error lies (the headers are "| oracle", the finer grids' "| fit grid" and the
+  // latter's "| fit |").
+  const std::regex row("\\n\\| (?!oracle|fit grid|fit \\|)[a-z.`]");
   const auto rows =
       std::distance(std::sregex_iterator(md.begin(), md.end(), row), std::sregex_iterator());
-  EXPECT_EQ(rows, 2 * 15) << md;
+  EXPECT_EQ(rows, 2 * 15 + 5) << md;
 
   // The finer grids (quick: the licks' fit at 16, so 16, 24 and 32, and 32 from images twice as
   // large), each with the neighbour weight scaled by (16 / resolution)^2, the fit's default 1 at
@@ -99,6 +100,38 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
   // The two 32 rows share the truth and the grid, so the grid's limit is the same.
   ASSERT_EQ(limits.size(), 4u);
   EXPECT_EQ(limits[2], limits[3]);
+
+  // Where the error lies, on the finest grid from the smaller images: each row's four emission
+  // bands as "RMS / bias (share%)", the shares summing to 100%, every RMS within the search range;
+  // the run's row is the finer grids' 32 row (the same fit, scored by the same scorer).
+  const std::string where = "Where the error lies (fit 32 from 96x72)";
+  ASSERT_NE(md.find(where), std::string::npos) << md;
+  const std::regex band("([0-9]+) / (-?[0-9]+) \\(([0-9]+)%\\)");
+  for (const char* name : {"the fit as `run` fits", "its start", "the grid's limit",
+                           "started at the image-equivalent", "started as `run` starts"}) {
+    SCOPED_TRACE(name);
+    const auto cells = Row(md, where, name);
+    ASSERT_EQ(cells.size(), 11u) << md;
+    const double rms = std::stod(cells[5]);
+    EXPECT_GT(rms, 0);
+    EXPECT_LT(rms, 2000);
+    int shares = 0;
+    for (int b = 7; b < 11; ++b) {
+      std::smatch m;
+      ASSERT_TRUE(std::regex_match(cells[b], m, band)) << cells[b];
+      EXPECT_LT(std::stod(m[1]), 2000);
+      shares += std::stoi(m[3]);
+    }
+    EXPECT_NEAR(shares, 100, 2);  // each rounded to a percent
+  }
+  const auto run = Row(md, where, "the fit as `run` fits");
+  const auto finest = Row(md, finer, "32 | 96x72");
+  ASSERT_EQ(run.size(), 11u);
+  ASSERT_EQ(finest.size(), 15u);
+  EXPECT_EQ(run[5], finest[8]);  // T RMS
+  EXPECT_EQ(run[6], finest[9]);  // bias
+  EXPECT_EQ(run[2], finest[4]);  // iterations
+  EXPECT_EQ(Row(md, where, "its start")[2], "0");
 }
 
 }  // namespace
