@@ -260,9 +260,11 @@ std::string ErrorByEmissionRows(const Scene& scene, const std::vector<FitView>& 
   cases.push_back({"its start (the tomography's colour), no iteration", start, 0});
   {
     const FitResult w = warm(equivalent);
-    cases.push_back(
-        {"the grid's limit: the image-equivalent truth, no iteration",
-         FastFit(scene.fit_grid, scene.tomography, fitted, scene.absorption, frozen, &w), 0});
+    FitOptions kept = frozen;  // its densities too, not the tomography's brightness at its T
+    kept.warm_start_density_from_emission = false;
+    cases.push_back({"the grid's limit: the image-equivalent truth, no iteration",
+                     FastFit(scene.fit_grid, scene.tomography, fitted, scene.absorption, kept, &w),
+                     0});
   }
   for (const auto& [name, volume] :
        {std::pair<std::string, const FireVolume*>{"started at the image-equivalent truth",
