@@ -5,6 +5,7 @@
 #include <cmath>
 #include <memory>
 #include <sstream>
+#include <stdexcept>
 #include <utility>
 
 #include "calibration/synthetic_rig.h"
@@ -240,6 +241,11 @@ std::string ErrorByEmissionRows(const Scene& scene, const std::vector<FitView>& 
   FireVolume faint_from_truth = start.volume;
   {
     const std::vector<float>& e = scene.tomography.emission_rgb;
+    if (e.size() != 3 * faint_from_truth.geometry.num_voxels() ||
+        !faint_from_truth.geometry.SameVoxels(equivalent.geometry))
+      throw std::logic_error(
+          "accuracy benchmark: the start, the tomography and the truth on the "
+          "fit's grid must share its voxels");
     float peak = 0;
     for (std::size_t v = 0; v < e.size() / 3; ++v) peak = std::max(peak, e[3 * v + 1]);
     for (std::size_t v = 0; v < e.size() / 3; ++v) {
@@ -391,9 +397,8 @@ std::string FinerGridSection(const SceneSpec& base,
         "the image-equivalent truth, and `run`'s start with only its faint voxels (where the "
         "tomography is below 10% of its brightest) taken from it. Delta E held out is the "
         "held-out camera's.\n\n";
-  md << "| fit | seconds | iterations | Delta E fitted | Delta E held out | T RMS K | bias K | "
-        "1-3% "
-        "of the peak | 3-10% | 10-30% | 30-100% |\n";
+  md << "| fit | seconds | iterations | Delta E fitted | Delta E held out | T RMS K | bias K "
+        "| 1-3% of the peak | 3-10% | 10-30% | 30-100% |\n";
   md << "|---|---|---|---|---|---|---|---|---|---|---|\n";
   md << by_emission << "\n";
   return md.str();
