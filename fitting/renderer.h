@@ -239,10 +239,11 @@ class FireRenderer {
   bool FastSample(const std::size_t* corner, const Real* weight, Real* kappa, Real* source) const;
   // The first pass of an adjoint (GradientRows, CurvatureRows): marches the ray for its radiance
   // into `total` and its transmittance (per bin on the spectral path, else XYZ and one
-  // transmittance), both set by the caller; `sigma` per padded bin, `sigma_max` their largest.
+  // transmittance), both set by the caller; `sigma` per padded bin, `sigma_max` their largest,
+  // `clearest` the bin of the smallest (renderer.cc's ClearestBin).
   template <typename Real>
   void MarchRadiance(const RayMarch& march, bool spectral, int nbp, const Real* sigma,
-                     Real sigma_max, Real min_transmittance, Real* total,
+                     Real sigma_max, int clearest, Real min_transmittance, Real* total,
                      Real* transmittance) const;
   template <typename Real>
   void RenderRows(const RenderJob& job, int y0, int y1, MarchCounters* counters) const;
