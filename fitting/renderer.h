@@ -230,7 +230,7 @@ class FireRenderer {
   struct GradientJob;
   template <typename Real>
   struct GradientBuffers;
-  template <typename Real>
+  template <bool kNormalised, typename Real>
   Real GatherCorners(const std::size_t* corner, const Real* weight, std::int32_t* slot,
                      const float** rows, Real* u0, Real* u1) const;
   // The fast path's sample: absorption kappa = sum w kappa_corner and source S = emission /
@@ -289,11 +289,12 @@ class FireRenderer {
   // a voxel without medium points at the zero rows.
   static constexpr int kLanes = 8;
   struct SpectralVoxel {
-    float density = 0;
+    float density = 0;  // the voxel's over density_unit_: at most 1
     std::int32_t slot = -1;
     std::uint32_t offset = 0;  // into spectral_table_
     float fraction = 0;
   };
+  float density_unit_ = 1;           // the largest density of the volume (1 for none)
   int padded_bins_ = 0;              // the bin count rounded up to kLanes
   std::size_t hot_rows_offset_ = 0;  // where the rows of temperatures beyond the table begin
   std::vector<float> spectral_table_;
