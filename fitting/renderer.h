@@ -294,7 +294,10 @@ class FireRenderer {
     std::uint32_t offset = 0;  // into spectral_table_
     float fraction = 0;
   };
-  float density_unit_ = 1;           // the largest density of the volume (1 for none)
+  // The largest density of the volume (1 for none). A density below about 1e-38 of it (float's
+  // range) counts as none on the spectral path: its light and absorption are as far below the
+  // densest voxel's.
+  float density_unit_ = 1;
   int padded_bins_ = 0;              // the bin count rounded up to kLanes
   std::size_t hot_rows_offset_ = 0;  // where the rows of temperatures beyond the table begin
   std::vector<float> spectral_table_;
