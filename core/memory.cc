@@ -54,7 +54,11 @@ std::size_t ResidentBytes() { return StatusKilobytes("VmRSS"); }
 
 void* AllocateHugePageBacked(std::size_t bytes) {
   constexpr std::size_t kHugePage = std::size_t(2) << 20;
-  if (bytes < kHugePage) return std::malloc(bytes == 0 ? 1 : bytes);
+  constexpr std::size_t kCacheLine = 64;
+  if (bytes < kHugePage) {
+    // A whole number of cache lines, as aligned_alloc wants.
+    return std::aligned_alloc(kCacheLine, (bytes + kCacheLine) / kCacheLine * kCacheLine);
+  }
   if (bytes > std::size_t(-1) - kHugePage) return nullptr;
   const std::size_t rounded = (bytes + kHugePage - 1) / kHugePage * kHugePage;
   void* p = std::aligned_alloc(kHugePage, rounded);

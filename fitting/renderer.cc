@@ -453,35 +453,27 @@ void FireRenderer::MarchRay(const RayMarch& march, MarchCounters* c, Visit&& vis
 // Source per bin at a sample: emission / kappa = sum w n B_b(T) / sum w n, an average of the
 // corners' Planck spectra weighted by w * n, each spectrum interpolated in the kelvin table
 // (SetVolume). GatherCorners reads the eight corners' records and returns the sample's density
-// n_sample = sum w n; when it is > 0, it gives each corner's row and the weights of that row,
-// u0 = u (1 - fraction), and of the next, u1 = u fraction (all eight: a corner without medium has
-// u = 0 and the zero rows), from which SourceGroups below forms the source 24 bins at a time, in
-// registers: two multiply-adds a corner, u0 row + u1 next_row, the table's linear interpolation as
-// a sum of two non-negative terms. kNormalised: u = w n / n_sample, and the source is S_b itself;
-// otherwise u = w n / density_unit_ (the records' densities, at most 1 each), and the source is
-// S_b n_sample / density_unit_, with no division on the way: the forward steps (SpectralStep) fold
-// the factor into sigma_b ds. Either way the sums stay below eight times the table's largest
-// value whatever the densities.
-template <bool kNormalised, typename Real>
+// n_sample = sum w n; when it is > 0, it gives each corner's row and, with u = w n / unit (unit =
+// density_unit_: the records' densities are at most 1, so the sums stay below eight times the
+// table's largest value whatever the densities), the weights of that row, u0 = u (1 - fraction),
+// and of the next, u1 = u fraction (all eight: a corner without medium has u = 0 and the zero
+// rows), from which SourceGroups below forms S_b n_sample / unit 24 bins at a time, in registers:
+// two multiply-adds a corner, u0 row + u1 next_row, the table's linear interpolation as a sum of
+// two non-negative terms. The steps (AdvanceLanes) fold the factor unit / n_sample into the
+// step's sigma_b ds, with no division where the step is thin.
+template <typename Real>
 inline Real FireRenderer::GatherCorners(const std::size_t* corner, const Real* weight,
                                         std::int32_t* slot, const float** rows, Real* u0,
                                         Real* u1) const {
   Real n_scaled = 0;
-  Real fraction[8];
   for (int n = 0; n < 8; ++n) {
     const SpectralVoxel& v = spectral_voxels_[corner[n]];
     slot[n] = v.slot;
     rows[n] = &spectral_table_[v.offset];
-    u0[n] = weight[n] * Real(v.density);  // w n / density_unit_
-    fraction[n] = Real(v.fraction);
-    n_scaled += u0[n];
-  }
-  if (!(n_scaled > Real(0))) return n_scaled;
-  const Real inverse = kNormalised ? Real(1) / n_scaled : Real(1);
-  for (int n = 0; n < 8; ++n) {
-    const Real u = kNormalised ? u0[n] * inverse : u0[n];
-    u1[n] = u * fraction[n];
+    const Real u = weight[n] * Real(v.density);  // w n / unit
+    u1[n] = u * Real(v.fraction);
     u0[n] = u - u1[n];
+    n_scaled += u;
   }
   return n_scaled * Real(density_unit_);
 }
@@ -701,68 +693,78 @@ inline int ClearestBin(const Real* sigma, int nbins) {
   return clearest;
 }
 
-// One step of a spectral ray, every bin: L_b += Tr_b (1 - exp(-tau_b)) S_b with tau_b = sigma_b n
-// ds, Tr_b likewise reduced; returns the largest transmittance, the `clearest` bin's
-// (ClearestBin). From GatherCorners<false>'s weights (u0, u1: the source S_b n / unit, unit =
-// density_unit_). kThin: tau_b < 1e-2 in every bin, where 1 - exp(-tau) = tau phi(tau) with phi
-// its series 1 - tau / 2 + tau^2 / 6 - tau^3 / 24, and the step adds Tr_b phi (sigma_b ds unit)
-// (S_b n / unit): no exponential and no division (a division a sample took 3% of the soot view's
-// time). Otherwise 1 - exp(-tau) itself times S_b, the factor unit / n divided once.
+// One group of eight bins' step from GatherCorners<false>'s source (S_b n / unit, unit =
+// density_unit_): the radiance it adds, Tr_b (1 - exp(-tau_b)) S_b with tau_b = sigma_b n ds, and
+// the transmittance after it. The render and the adjoints' second passes all step through here, so
+// that the latter retrace the former's radiance and transmittance to the bit (what is left behind
+// a sample, the total less the radiance so far, is then exactly zero at the ray's end). kThin:
+// tau_b < 1e-2 in every bin, where 1 - exp(-tau) = tau phi(tau) with phi its series 1 - tau / 2 +
+// tau^2 / 6 - tau^3 / 24, and the step adds Tr_b phi (sigma_b ds unit) (S_b n / unit): no
+// exponential and no division (a division a sample took 3% of the soot view's time). Otherwise
+// 1 - exp(-tau) itself times S_b, `per_source` = unit / n.
+template <bool kThin, typename Real>
+inline void AdvanceLanes(const Lanes<Real>& sig, const Lanes<Real>& tau, const Lanes<Real>& tr,
+                         const Lanes<Real>& source, Real ds_unit, Real per_source,
+                         Lanes<Real>* added, Lanes<Real>* tr_after) {
+  if constexpr (kThin) {
+    const Lanes<Real> phi =
+        Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24)));
+    const Lanes<Real> tr_phi = tr * phi;
+    *added = tr_phi * (sig * ds_unit) * source;
+    *tr_after = tr - tr_phi * tau;
+  } else {
+    const Lanes<Real> w = tr * OneMinusExpNegLanes<false, Real>(tau);
+    *added = w * (source * per_source);
+    *tr_after = tr - w;
+  }
+}
+
+// One step of a spectral ray, every bin: L_b += Tr_b (1 - exp(-sigma_b n ds)) S_b, Tr_b likewise
+// reduced (AdvanceLanes); returns the largest transmittance, the `clearest` bin's (ClearestBin).
 template <bool kThin, typename Real>
 inline Real SpectralStep(int nbp, int clearest, const float* const* rows, const Real* u0,
                          const Real* u1, const Real* sigma, Real n_sample, Real unit, Real ds,
                          Real* radiance, Real* transmittance) {
-  if constexpr (kThin) {
-    const Real ds_unit = ds * unit;
-    ForEachSourceGroup<Real>(nbp, rows, u0, u1, [&](int b0, const Lanes<Real>& source) {
-      const Lanes<Real> sig = LoadLanes(sigma + b0);
-      const Lanes<Real> tau = sig * (n_sample * ds);
-      const Lanes<Real> phi =
-          Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24)));
-      Lanes<Real> tr = LoadLanes(transmittance + b0);
-      const Lanes<Real> tr_phi = tr * phi;
-      StoreLanes(radiance + b0, LoadLanes(radiance + b0) + tr_phi * (sig * ds_unit) * source);
-      tr -= tr_phi * tau;
-      StoreLanes(transmittance + b0, tr);
-    });
-  } else {
-    const Real per_source = unit / n_sample;
-    ForEachSourceGroup<Real>(nbp, rows, u0, u1, [&](int b0, const Lanes<Real>& source) {
-      const Lanes<Real> absorbed =
-          OneMinusExpNegLanes<false, Real>(LoadLanes(sigma + b0) * n_sample * ds);
-      Lanes<Real> tr = LoadLanes(transmittance + b0);
-      const Lanes<Real> w = tr * absorbed;
-      StoreLanes(radiance + b0, LoadLanes(radiance + b0) + w * (source * per_source));
-      tr -= w;
-      StoreLanes(transmittance + b0, tr);
-    });
-  }
+  const Real n_ds = n_sample * ds, ds_unit = ds * unit;
+  const Real per_source = kThin ? Real(0) : unit / n_sample;
+  ForEachSourceGroup<Real>(nbp, rows, u0, u1, [&](int b0, const Lanes<Real>& source) {
+    const Lanes<Real> sig = LoadLanes(sigma + b0);
+    Lanes<Real> added, tr;
+    AdvanceLanes<kThin, Real>(sig, sig * n_ds, LoadLanes(transmittance + b0), source, ds_unit,
+                              per_source, &added, &tr);
+    StoreLanes(radiance + b0, LoadLanes(radiance + b0) + added);
+    StoreLanes(transmittance + b0, tr);
+  });
   return transmittance[clearest];
 }
 
 // The adjoint's step on a spectral ray (GradientRows, pass 2): every bin's transmittance and
-// cumulative radiance advanced, d_emission[b] = sigma_b dLoss/dE_b, and the absorption's part of
-// dLoss/dn summed over bins into *d_n; returns the clearest bin's transmittance.
+// cumulative radiance advanced as the render advanced them (AdvanceLanes), d_emission[b] = sigma_b
+// dLoss/dE_b, and the absorption's part of dLoss/dn summed over bins into *d_n; returns the
+// clearest bin's transmittance. The weights are GatherCorners<false>'s, as for SpectralStep.
 template <bool kThin, typename Real>
 inline Real SpectralAdjointStep(int nbp, int clearest, const float* const* rows, const Real* u0,
                                 const Real* u1, const Real* sigma, const Real* adjoint,
-                                const Real* total, Real n_sample, Real ds, Real* cumulative,
-                                Real* transmittance, Real* d_emission, Real* d_n) {
+                                const Real* total, Real n_sample, Real unit, Real ds,
+                                Real* cumulative, Real* transmittance, Real* d_emission,
+                                Real* d_n) {
   Lanes<Real> dn{};
+  const Real n_ds = n_sample * ds, ds_unit = ds * unit, per_source = unit / n_sample;
   ForEachSourceGroup<Real>(nbp, rows, u0, u1, [&](int b0, const Lanes<Real>& source) {
     const Lanes<Real> sig = LoadLanes(sigma + b0);
+    const Lanes<Real> tau = sig * n_ds;
     Lanes<Real> absorbed, phi, tau_dphi;
-    StepTermsLanes<kThin, Real>(sig * n_sample * ds, &absorbed, &phi, &tau_dphi);
-    Lanes<Real> tr = LoadLanes(transmittance + b0);
-    const Lanes<Real> w = tr * absorbed;
-    const Lanes<Real> cum = LoadLanes(cumulative + b0) + w * source;
+    StepTermsLanes<kThin, Real>(tau, &absorbed, &phi, &tau_dphi);
+    const Lanes<Real> tr = LoadLanes(transmittance + b0);
+    Lanes<Real> added, tr_after;
+    AdvanceLanes<kThin, Real>(sig, tau, tr, source, ds_unit, per_source, &added, &tr_after);
+    const Lanes<Real> cum = LoadLanes(cumulative + b0) + added;
     StoreLanes(cumulative + b0, cum);
     const Lanes<Real> behind = LoadLanes(total + b0) - cum;
     const Lanes<Real> sig_adj = sig * LoadLanes(adjoint + b0);
     StoreLanes(d_emission + b0, sig_adj * tr * ds * phi);
-    dn += sig_adj * ds * (tr * tau_dphi * source - behind);
-    tr -= w;
-    StoreLanes(transmittance + b0, tr);
+    dn += sig_adj * ds * (tr * tau_dphi * (source * per_source) - behind);
+    StoreLanes(transmittance + b0, tr_after);
   });
   *d_n = SumOf<Real>(dn);
   return transmittance[clearest];
@@ -776,21 +778,23 @@ inline Real SpectralAdjointStep(int nbp, int clearest, const float* const* rows,
 template <bool kThin, typename Real>
 inline Real SpectralFactorStep(int nbp, int clearest, const float* const* rows, const Real* u0,
                                const Real* u1, const Real* sigma, const Real* total, Real n_sample,
-                               Real ds, Real* cumulative, Real* transmittance, Real* e_factor,
-                               Real* n_factor) {
+                               Real unit, Real ds, Real* cumulative, Real* transmittance,
+                               Real* e_factor, Real* n_factor) {
+  const Real n_ds = n_sample * ds, ds_unit = ds * unit, per_source = unit / n_sample;
   ForEachSourceGroup<Real>(nbp, rows, u0, u1, [&](int b0, const Lanes<Real>& source) {
     const Lanes<Real> sig = LoadLanes(sigma + b0);
+    const Lanes<Real> tau = sig * n_ds;
     Lanes<Real> absorbed, phi, tau_dphi;
-    StepTermsLanes<kThin, Real>(sig * n_sample * ds, &absorbed, &phi, &tau_dphi);
-    Lanes<Real> tr = LoadLanes(transmittance + b0);
-    const Lanes<Real> w = tr * absorbed;
-    const Lanes<Real> cum = LoadLanes(cumulative + b0) + w * source;
+    StepTermsLanes<kThin, Real>(tau, &absorbed, &phi, &tau_dphi);
+    const Lanes<Real> tr = LoadLanes(transmittance + b0);
+    Lanes<Real> added, tr_after;
+    AdvanceLanes<kThin, Real>(sig, tau, tr, source, ds_unit, per_source, &added, &tr_after);
+    const Lanes<Real> cum = LoadLanes(cumulative + b0) + added;
     StoreLanes(cumulative + b0, cum);
     const Lanes<Real> behind = LoadLanes(total + b0) - cum;
     StoreLanes(e_factor + b0, sig * tr * ds * phi);
-    StoreLanes(n_factor + b0, sig * ds * (tr * tau_dphi * source - behind));
-    tr -= w;
-    StoreLanes(transmittance + b0, tr);
+    StoreLanes(n_factor + b0, sig * ds * (tr * tau_dphi * (source * per_source) - behind));
+    StoreLanes(transmittance + b0, tr_after);
   });
   return transmittance[clearest];
 }
@@ -945,7 +949,7 @@ void FireRenderer::RenderRows(const RenderJob& job, int y0, int y1, MarchCounter
             std::int32_t slots[8];
             const float* rows[8];
             Real u0[8], u1[8];
-            const Real n_sample = GatherCorners<false>(corner, weight, slots, rows, u0, u1);
+            const Real n_sample = GatherCorners(corner, weight, slots, rows, u0, u1);
             if (!(n_sample > Real(0))) return true;
             // A step thin in every bin (a candle's, mostly) needs no exponential.
             const Real unit = Real(density_unit_);
@@ -1125,7 +1129,7 @@ inline void FireRenderer::MarchRadiance(const RayMarch& march, bool spectral, in
   const float* rows[8];
   Real u0[8], u1[8];
   MarchRay<Real>(march, &ignored, [&](Real ds, const std::size_t* corner, const Real* weight) {
-    const Real n_sample = GatherCorners<false>(corner, weight, slots, rows, u0, u1);
+    const Real n_sample = GatherCorners(corner, weight, slots, rows, u0, u1);
     if (!(n_sample > Real(0))) return true;
     const Real unit = Real(density_unit_);
     const Real max_tr = sigma_max * n_sample * ds < Real(1e-2)
@@ -1259,7 +1263,7 @@ void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
           const float* rows[8];
           Real u0[8], u1[8];
           auto sample = [&](const std::size_t* corner, const Real* weight, Real* n_sample) {
-            *n_sample = GatherCorners<true>(corner, weight, slots, rows, u0, u1);
+            *n_sample = GatherCorners(corner, weight, slots, rows, u0, u1);
             return *n_sample > Real(0);
           };
           // Pass 1: the ray's radiance per bin.
@@ -1276,11 +1280,11 @@ void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
             const Real max_tr =
                 sigma_max * n_sample * ds < Real(1e-2)
                     ? SpectralAdjointStep<true, Real>(nbp, clearest, rows, u0, u1, sigma, adjoint,
-                                                      total, n_sample, ds, cumulative,
-                                                      transmittance, d_emission, &d_n)
+                                                      total, n_sample, Real(density_unit_), ds,
+                                                      cumulative, transmittance, d_emission, &d_n)
                     : SpectralAdjointStep<false, Real>(nbp, clearest, rows, u0, u1, sigma, adjoint,
-                                                       total, n_sample, ds, cumulative,
-                                                       transmittance, d_emission, &d_n);
+                                                       total, n_sample, Real(density_unit_), ds,
+                                                       cumulative, transmittance, d_emission, &d_n);
             for (int n = 0; n < 8; ++n) {
               const std::int32_t slot = slots[n];
               if (slot < 0 || weight[n] == Real(0)) continue;
@@ -1440,15 +1444,16 @@ void FireRenderer::CurvatureRows(const GradientJob& job,
         for (int b = 0; b < nbp; ++b) transmittance[b] = b < nbins ? Real(1) : Real(0);
         // Pass 2: the adjoint's factors, summed per voxel crossed.
         MarchRay<Real>(march, &c, [&](Real ds, const std::size_t* corner, const Real* w) {
-          const Real n_sample = GatherCorners<true>(corner, w, slots, rows, u0, u1);
+          const Real n_sample = GatherCorners(corner, w, slots, rows, u0, u1);
           if (!(n_sample > Real(0))) return true;
-          const Real max_tr = sigma_max * n_sample * ds < Real(1e-2)
-                                  ? SpectralFactorStep<true, Real>(
-                                        nbp, clearest, rows, u0, u1, sigma, total, n_sample, ds,
-                                        cumulative, transmittance, e_factor, n_factor)
-                                  : SpectralFactorStep<false, Real>(
-                                        nbp, clearest, rows, u0, u1, sigma, total, n_sample, ds,
-                                        cumulative, transmittance, e_factor, n_factor);
+          const Real max_tr =
+              sigma_max * n_sample * ds < Real(1e-2)
+                  ? SpectralFactorStep<true, Real>(nbp, clearest, rows, u0, u1, sigma, total,
+                                                   n_sample, Real(density_unit_), ds, cumulative,
+                                                   transmittance, e_factor, n_factor)
+                  : SpectralFactorStep<false, Real>(nbp, clearest, rows, u0, u1, sigma, total,
+                                                    n_sample, Real(density_unit_), ds, cumulative,
+                                                    transmittance, e_factor, n_factor);
           for (int k = 0; k < 8; ++k) {
             if (slots[k] < 0 || w[k] == Real(0)) continue;
             const std::size_t l = local_of(slots[k]);

@@ -230,7 +230,7 @@ class FireRenderer {
   struct GradientJob;
   template <typename Real>
   struct GradientBuffers;
-  template <bool kNormalised, typename Real>
+  template <typename Real>
   Real GatherCorners(const std::size_t* corner, const Real* weight, std::int32_t* slot,
                      const float** rows, Real* u0, Real* u1) const;
   // The fast path's sample: absorption kappa = sum w kappa_corner and source S = emission /
@@ -300,7 +300,7 @@ class FireRenderer {
   float density_unit_ = 1;
   int padded_bins_ = 0;              // the bin count rounded up to kLanes
   std::size_t hot_rows_offset_ = 0;  // where the rows of temperatures beyond the table begin
-  std::vector<float> spectral_table_;
+  std::vector<float, HugePageAllocator<float>> spectral_table_;  // rows aligned to 32 bytes
   std::vector<SpectralVoxel, HugePageAllocator<SpectralVoxel>> spectral_voxels_;  // per voxel
   Eigen::Vector3i brick_dims_ = Eigen::Vector3i::Zero();
   std::vector<std::uint8_t> brick_occupied_;

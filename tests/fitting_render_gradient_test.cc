@@ -270,7 +270,11 @@ TEST(RenderGradient, RenderAndGradientEqualsRenderThenGradient) {
       EXPECT_GT(summary.rays_hit_box, 0);
       for (std::size_t i = 0; i < image.pixels.size(); ++i)
         ASSERT_EQ(fused_image.pixels[i], image.pixels[i]) << what << " pixel value " << i;
-      // The threads' buffers are summed in whatever order the threads ran: equal to rounding.
+      // The threads' buffers are summed in whatever order the threads ran: equal to rounding. The
+      // spectral path's buffers of dLoss/dE per voxel and bin are floats, each a sum over the rays
+      // one thread took, in its order; in a density derivative the emission's part and the
+      // absorption's nearly cancel, so their float rounding shows at about 1e-7 of the largest
+      // (1.1e-7 seen on the soot scene in one run of three under load), hence 5e-7.
       double scale = 0, dn_scale = 0;
       for (std::size_t v = 0; v < dt.size(); ++v) {
         scale = std::max(scale, std::abs(dt[v]));
@@ -278,8 +282,8 @@ TEST(RenderGradient, RenderAndGradientEqualsRenderThenGradient) {
       }
       ASSERT_GT(scale, 0) << what;
       for (std::size_t v = 0; v < dt.size(); ++v) {
-        ASSERT_NEAR(fdt[v], dt[v], 1e-7 * scale) << what << " voxel " << v;
-        ASSERT_NEAR(fdn[v], dn[v], 1e-7 * dn_scale) << what << " voxel " << v;
+        ASSERT_NEAR(fdt[v], dt[v], 5e-7 * scale) << what << " voxel " << v;
+        ASSERT_NEAR(fdn[v], dn[v], 5e-7 * dn_scale) << what << " voxel " << v;
       }
     }
   }
