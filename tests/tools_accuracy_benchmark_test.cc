@@ -262,8 +262,13 @@ TEST(FootageBenchmark, QuickRunFillsEveryRowAndBeatsTheBaseline) {
   EXPECT_NE(md.find("held-out error at least 20% below the baseline's"), std::string::npos);
   EXPECT_NE(md.find("the same with `--mask-threshold 20`"), std::string::npos);
   EXPECT_NE(md.find("Options, on the same frames: the TV prior"), std::string::npos);
-  // The codec's quality: libx264's default, crf 18, and 4:4:4 chroma, each against the clean.
+  // The codec's quality: libx264's default, crf 18 and 28, and 4:4:4 chroma, each against the
+  // clean.
   EXPECT_NE(md.find("libx264 crf 23 (medium, yuv420p) (libx264's default quality): held-out"),
+            std::string::npos)
+      << md;
+  EXPECT_NE(md.find("libx264 crf 28 (medium, yuv420p) (the top of the range FFmpeg's H.264 guide "
+                    "calls sane, 17 to 28): held-out"),
             std::string::npos)
       << md;
   EXPECT_NE(md.find("libx264 crf 30 (medium, yuv444p): held-out"), std::string::npos) << md;
