@@ -642,8 +642,8 @@ inline void StepTermsLanes(const Lanes<Real>& tau, Lanes<Real>* absorbed, Lanes<
 // registers with the G sums (with the groups outside, a 24-bin ray kept 16 broadcast weights,
 // more than the 16 vector registers hold with everything else, and reloaded them from the stack
 // for every group). Each bin's sum runs over the corners in the same order either way, so the
-// values are the same. With ClearestBin below: the 128^3 soot view with the fit's 21 bins 2.5%
-// faster (paired runs on an AMD EPYC, 2026-11-28), the same images and gradients to the bit.
+// values are the same: this and ClearestBin below made the 128^3 soot view with the fit's 21 bins
+// 2.5% faster (paired runs on an AMD EPYC, 2026-11-28) and left its image unchanged to the bit.
 template <int G, typename Real>
 inline void SourceGroups(const float* const* rows, const Real* u0, const Real* u1, int b0,
                          int row_length, Lanes<Real>* source) {
@@ -693,8 +693,8 @@ inline int ClearestBin(const Real* sigma, int nbins) {
   return clearest;
 }
 
-// One group of eight bins' step from GatherCorners<false>'s source (S_b n / unit, unit =
-// density_unit_): the radiance it adds, Tr_b (1 - exp(-tau_b)) S_b with tau_b = sigma_b n ds, and
+// One group of eight bins' step from the source GatherCorners' weights give (S_b n / unit, unit
+// = density_unit_): the radiance it adds, Tr_b (1 - exp(-tau_b)) S_b with tau_b = sigma_b n ds, and
 // the transmittance after it. The render and the adjoints' second passes all step through here, so
 // that the latter retrace the former's radiance and transmittance to the bit (what is left behind
 // a sample, the total less the radiance so far, is then exactly zero at the ray's end). kThin:
@@ -741,7 +741,7 @@ inline Real SpectralStep(int nbp, int clearest, const float* const* rows, const 
 // The adjoint's step on a spectral ray (GradientRows, pass 2): every bin's transmittance and
 // cumulative radiance advanced as the render advanced them (AdvanceLanes), d_emission[b] = sigma_b
 // dLoss/dE_b, and the absorption's part of dLoss/dn summed over bins into *d_n; returns the
-// clearest bin's transmittance. The weights are GatherCorners<false>'s, as for SpectralStep.
+// clearest bin's transmittance. The weights are GatherCorners', as for SpectralStep.
 template <bool kThin, typename Real>
 inline Real SpectralAdjointStep(int nbp, int clearest, const float* const* rows, const Real* u0,
                                 const Real* u1, const Real* sigma, const Real* adjoint,
