@@ -3,6 +3,7 @@
 #include <sys/mman.h>
 #include <sys/resource.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -56,8 +57,9 @@ void* AllocateHugePageBacked(std::size_t bytes) {
   constexpr std::size_t kHugePage = std::size_t(2) << 20;
   constexpr std::size_t kCacheLine = 64;
   if (bytes < kHugePage) {
-    // A whole number of cache lines, as aligned_alloc wants.
-    return std::aligned_alloc(kCacheLine, (bytes + kCacheLine) / kCacheLine * kCacheLine);
+    // A whole number of cache lines (at least one), as aligned_alloc wants.
+    const std::size_t lines = std::max<std::size_t>(1, (bytes + kCacheLine - 1) / kCacheLine);
+    return std::aligned_alloc(kCacheLine, lines * kCacheLine);
   }
   if (bytes > std::size_t(-1) - kHugePage) return nullptr;
   const std::size_t rounded = (bytes + kHugePage - 1) / kHugePage * kHugePage;

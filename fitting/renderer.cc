@@ -642,8 +642,9 @@ inline void StepTermsLanes(const Lanes<Real>& tau, Lanes<Real>* absorbed, Lanes<
 // registers with the G sums (with the groups outside, a 24-bin ray kept 16 broadcast weights,
 // more than the 16 vector registers hold with everything else, and reloaded them from the stack
 // for every group). Each bin's sum runs over the corners in the same order either way, so the
-// values are the same: this and ClearestBin below made the 128^3 soot view with the fit's 21 bins
-// 2.5% faster (paired runs on an AMD EPYC, 2026-11-28) and left its image unchanged to the bit.
+// values are the same: this and the clearest bin's early stop (BinCrossSections) made the 128^3
+// soot view with the fit's 21 bins 2.5% faster (paired runs on an AMD EPYC, 2026-11-28) and left
+// its image unchanged to the bit.
 template <int G, typename Real>
 inline void SourceGroups(const float* const* rows, const Real* u0, const Real* u1, int b0,
                          int row_length, Lanes<Real>* source) {
@@ -680,16 +681,23 @@ inline void ForEachSourceGroup(int nbp, const float* const* rows, const Real* u0
   for (int g = 0; g < rest; ++g) step(b0 + kVectorLanes * g, source[g]);
 }
 
-// The bin with the smallest cross-section among the first nbins (the first of equal ones). Every
-// step multiplies each bin's transmittance by exp(-sigma_b n ds) (or its series), with the same
-// n ds in every bin, so this bin's transmittance is the largest of all at every step: the steps
-// below return it for the ray's early stop instead of reducing their lanes to a maximum. The
-// padding's transmittance is zero.
+// A spectral ray's cross-sections per padded bin (the padding's zero) into sigma, and their
+// largest into *sigma_max (a step is thin when it is). Returns the clearest bin: the one with the
+// smallest cross-section among the first nbins (the first of equal ones). Every step multiplies
+// each bin's transmittance by exp(-sigma_b n ds) (or its series), with the same n ds in every bin,
+// so this bin's transmittance is the largest of all at every step: the steps below return it for
+// the ray's early stop instead of reducing their lanes to a maximum. The padding's transmittance
+// is zero.
 template <typename Real>
-inline int ClearestBin(const Real* sigma, int nbins) {
+inline int BinCrossSections(const std::vector<double>& cross_sections, int nbins, int nbp,
+                            Real* sigma, Real* sigma_max) {
+  *sigma_max = 0;
   int clearest = 0;
-  for (int b = 1; b < nbins; ++b)
-    if (sigma[b] < sigma[clearest]) clearest = b;
+  for (int b = 0; b < nbp; ++b) {
+    sigma[b] = b < nbins ? Real(cross_sections[b]) : Real(0);
+    *sigma_max = std::max(*sigma_max, sigma[b]);
+    if (b < nbins && sigma[b] < sigma[clearest]) clearest = b;
+  }
   return clearest;
 }
 
@@ -701,26 +709,37 @@ inline int ClearestBin(const Real* sigma, int nbins) {
 // tau_b < 1e-2 in every bin, where 1 - exp(-tau) = tau phi(tau) with phi its series 1 - tau / 2 +
 // tau^2 / 6 - tau^3 / 24, and the step adds Tr_b phi (sigma_b ds unit) (S_b n / unit): no
 // exponential and no division (a division a sample took 3% of the soot view's time). Otherwise
-// 1 - exp(-tau) itself times S_b, `per_source` = unit / n.
+// 1 - exp(-tau) itself times S_b, `per_source` = unit / n. `factor` is phi where kThin, else
+// 1 - exp(-tau): StepFactorLanes, or StepTermsLanes' phi and absorbed, the same values.
 template <bool kThin, typename Real>
 inline void AdvanceLanes(const Lanes<Real>& sig, const Lanes<Real>& tau, const Lanes<Real>& tr,
-                         const Lanes<Real>& source, Real ds_unit, Real per_source,
-                         Lanes<Real>* added, Lanes<Real>* tr_after) {
+                         const Lanes<Real>& source, const Lanes<Real>& factor, Real ds_unit,
+                         Real per_source, Lanes<Real>* added, Lanes<Real>* tr_after) {
   if constexpr (kThin) {
-    const Lanes<Real> phi =
-        Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24)));
-    const Lanes<Real> tr_phi = tr * phi;
+    const Lanes<Real> tr_phi = tr * factor;
     *added = tr_phi * (sig * ds_unit) * source;
     *tr_after = tr - tr_phi * tau;
   } else {
-    const Lanes<Real> w = tr * OneMinusExpNegLanes<false, Real>(tau);
+    const Lanes<Real> w = tr * factor;
     *added = w * (source * per_source);
     *tr_after = tr - w;
   }
 }
 
+// AdvanceLanes' factor for a step that needs nothing else: phi's series where kThin (as
+// StepTermsLanes writes it), else 1 - exp(-tau).
+template <bool kThin, typename Real>
+inline Lanes<Real> StepFactorLanes(const Lanes<Real>& tau) {
+  if constexpr (kThin) {
+    return Real(1) - tau * (Real(0.5) - tau * (Real(1) / 6 - tau * (Real(1) / 24)));
+  } else {
+    return OneMinusExpNegLanes<false, Real>(tau);
+  }
+}
+
 // One step of a spectral ray, every bin: L_b += Tr_b (1 - exp(-sigma_b n ds)) S_b, Tr_b likewise
-// reduced (AdvanceLanes); returns the largest transmittance, the `clearest` bin's (ClearestBin).
+// reduced (AdvanceLanes); returns the largest transmittance, the `clearest` bin's
+// (BinCrossSections).
 template <bool kThin, typename Real>
 inline Real SpectralStep(int nbp, int clearest, const float* const* rows, const Real* u0,
                          const Real* u1, const Real* sigma, Real n_sample, Real unit, Real ds,
@@ -729,9 +748,10 @@ inline Real SpectralStep(int nbp, int clearest, const float* const* rows, const 
   const Real per_source = kThin ? Real(0) : unit / n_sample;
   ForEachSourceGroup<Real>(nbp, rows, u0, u1, [&](int b0, const Lanes<Real>& source) {
     const Lanes<Real> sig = LoadLanes(sigma + b0);
+    const Lanes<Real> tau = sig * n_ds;
     Lanes<Real> added, tr;
-    AdvanceLanes<kThin, Real>(sig, sig * n_ds, LoadLanes(transmittance + b0), source, ds_unit,
-                              per_source, &added, &tr);
+    AdvanceLanes<kThin, Real>(sig, tau, LoadLanes(transmittance + b0), source,
+                              StepFactorLanes<kThin, Real>(tau), ds_unit, per_source, &added, &tr);
     StoreLanes(radiance + b0, LoadLanes(radiance + b0) + added);
     StoreLanes(transmittance + b0, tr);
   });
@@ -757,7 +777,8 @@ inline Real SpectralAdjointStep(int nbp, int clearest, const float* const* rows,
     StepTermsLanes<kThin, Real>(tau, &absorbed, &phi, &tau_dphi);
     const Lanes<Real> tr = LoadLanes(transmittance + b0);
     Lanes<Real> added, tr_after;
-    AdvanceLanes<kThin, Real>(sig, tau, tr, source, ds_unit, per_source, &added, &tr_after);
+    AdvanceLanes<kThin, Real>(sig, tau, tr, source, kThin ? phi : absorbed, ds_unit, per_source,
+                              &added, &tr_after);
     const Lanes<Real> cum = LoadLanes(cumulative + b0) + added;
     StoreLanes(cumulative + b0, cum);
     const Lanes<Real> behind = LoadLanes(total + b0) - cum;
@@ -788,7 +809,8 @@ inline Real SpectralFactorStep(int nbp, int clearest, const float* const* rows, 
     StepTermsLanes<kThin, Real>(tau, &absorbed, &phi, &tau_dphi);
     const Lanes<Real> tr = LoadLanes(transmittance + b0);
     Lanes<Real> added, tr_after;
-    AdvanceLanes<kThin, Real>(sig, tau, tr, source, ds_unit, per_source, &added, &tr_after);
+    AdvanceLanes<kThin, Real>(sig, tau, tr, source, kThin ? phi : absorbed, ds_unit, per_source,
+                              &added, &tr_after);
     const Lanes<Real> cum = LoadLanes(cumulative + b0) + added;
     StoreLanes(cumulative + b0, cum);
     const Lanes<Real> behind = LoadLanes(total + b0) - cum;
@@ -900,15 +922,9 @@ void FireRenderer::RenderRows(const RenderJob& job, int y0, int y1, MarchCounter
     alignas(64) Real radiance[SpectralBins::kMaxBins];
     alignas(64) Real transmittance[SpectralBins::kMaxBins];
     alignas(64) Real sigma[SpectralBins::kMaxBins];
-    Real sigma_max = 0;  // the largest cross-section: a step is thin when it is
-    int clearest = 0;    // ClearestBin
-    if (spectral) {
-      for (int b = 0; b < nbp; ++b) {
-        sigma[b] = b < nbins ? Real(bin_cross_section_m2_[b]) : Real(0);
-        sigma_max = std::max(sigma_max, sigma[b]);
-      }
-      clearest = ClearestBin(sigma, nbins);
-    }
+    Real sigma_max = 0;  // the largest cross-section, and the clearest bin (BinCrossSections)
+    int clearest = 0;
+    if (spectral) clearest = BinCrossSections(bin_cross_section_m2_, nbins, nbp, sigma, &sigma_max);
     for (int y = y0; y < y1; ++y) {
       for (int x = 0; x < width; ++x) {
         RayMarch march;
@@ -1164,15 +1180,9 @@ void FireRenderer::GradientRows(const GradientJob& job, int y0, int y1,
     alignas(64) Real cumulative[SpectralBins::kMaxBins], adjoint[SpectralBins::kMaxBins];
     alignas(64) Real sigma[SpectralBins::kMaxBins];
     alignas(64) Real d_emission[SpectralBins::kMaxBins];
-    Real sigma_max = 0;  // as in RenderRows
+    Real sigma_max = 0;  // the largest cross-section, and the clearest bin (BinCrossSections)
     int clearest = 0;
-    if (spectral) {
-      for (int b = 0; b < nbp; ++b) {
-        sigma[b] = b < nbins ? Real(bin_cross_section_m2_[b]) : Real(0);
-        sigma_max = std::max(sigma_max, sigma[b]);
-      }
-      clearest = ClearestBin(sigma, nbins);
-    }
+    if (spectral) clearest = BinCrossSections(bin_cross_section_m2_, nbins, nbp, sigma, &sigma_max);
     for (int y = y0; y < y1; ++y) {
       for (int x = 0; x < width; ++x) {
         Eigen::Vector3d g_rgb = Eigen::Vector3d::Zero();
@@ -1394,15 +1404,9 @@ void FireRenderer::CurvatureRows(const GradientJob& job,
   alignas(64) Real cumulative[SpectralBins::kMaxBins], sigma[SpectralBins::kMaxBins];
   alignas(64) Real e_factor[SpectralBins::kMaxBins], n_factor[SpectralBins::kMaxBins];
   double adjoint[3][SpectralBins::kMaxBins];  // per residual and bin (or XYZ channel)
-  Real sigma_max = 0;
+  Real sigma_max = 0;  // the largest cross-section, and the clearest bin (BinCrossSections)
   int clearest = 0;
-  if (spectral) {
-    for (int b = 0; b < nbp; ++b) {
-      sigma[b] = b < nbins ? Real(bin_cross_section_m2_[b]) : Real(0);
-      sigma_max = std::max(sigma_max, sigma[b]);
-    }
-    clearest = ClearestBin(sigma, nbins);
-  }
+  if (spectral) clearest = BinCrossSections(bin_cross_section_m2_, nbins, nbp, sigma, &sigma_max);
   // The ray's list entry of a slot, made (zeroed) when the ray first crosses it.
   auto local_of = [&](std::int32_t slot) {
     std::int32_t& l = buf.local[slot];

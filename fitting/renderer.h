@@ -240,7 +240,7 @@ class FireRenderer {
   // The first pass of an adjoint (GradientRows, CurvatureRows): marches the ray for its radiance
   // into `total` and its transmittance (per bin on the spectral path, else XYZ and one
   // transmittance), both set by the caller; `sigma` per padded bin, `sigma_max` their largest,
-  // `clearest` the bin of the smallest (renderer.cc's ClearestBin).
+  // `clearest` the bin of the smallest (renderer.cc's BinCrossSections).
   template <typename Real>
   void MarchRadiance(const RayMarch& march, bool spectral, int nbp, const Real* sigma,
                      Real sigma_max, int clearest, Real min_transmittance, Real* total,
