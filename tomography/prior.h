@@ -57,6 +57,18 @@ class GridPrior {
   // dU/dx into g (cols * channels values). Multithreaded over columns; each g_j is written once.
   void Gradient(const float* x, int channels, const float* scale, float* g) const;
 
+  // A separable quadratic majoriser of U at x0, for a MAP update that cannot overshoot (osem.cc):
+  //     Q(x) = sum over columns and channels of (k_j x_j^2 / 2 - m_j x_j), plus a constant,
+  // with Q(x) - Q(x0) >= U(x) - U(x0) for every x >= 0 and grad Q(x0) = grad U(x0). TV's pair
+  // term is first bounded by a quadratic in the pair's difference (sqrt(t + edge^2) is concave in
+  // t = g^2: a pair weighs 1 / sqrt(g0^2 + edge^2), the half-quadratic or IRLS bound; the
+  // quadratic prior's weight is 1), then each pair of columns is split between its two ends by
+  // convexity (De Pierro 1995): (x_j - x_k)^2 <= ((2 x_j - x0_j - x0_k)^2 + (2 x_k - x0_j -
+  // x0_k)^2) / 2; a pair with an empty voxel is exact. Writes k and m (cols * channels values,
+  // k >= 0, in double: they scale as 1 / scale^2 and 1 / scale). Multithreaded over columns.
+  void SeparableMajoriser(const float* x0, int channels, const float* scale, double* k,
+                          double* m) const;
+
  private:
   PriorKind kind_;
   std::size_t cols_ = 0;
