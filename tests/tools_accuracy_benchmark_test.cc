@@ -235,28 +235,33 @@ std::vector<std::vector<std::string>> FootageRows(const std::string& md) {
 }
 
 // `flamerig benchmark footage --quick` (tools/footage_benchmark.cc): two inputs (8-bit sRGB and
-// H.264 through libx264) by five methods, every row whole; flamerig beats the baseline on the
-// held-out camera on both (the baseline is the oracle of what a plain hull and LSQR give); binned
-// 2x2 the matrix is smaller; the targets and the options' lines are written.
+// H.264 through libx264) by six methods, every row whole; flamerig beats the baseline on the
+// held-out camera on both, with either prior too (the baseline is the oracle of what a plain hull
+// and LSQR give; the quadratic prior's one-step-late update once diverged on the full-size
+// frames); binned 2x2 the matrix is smaller; the targets and the options' lines are written.
 TEST(FootageBenchmark, QuickRunFillsEveryRowAndBeatsTheBaseline) {
   FootageBenchmarkOptions o;
   o.quick = true;
   const std::string md = RunFootageBenchmark(o, nullptr);
   const auto rows = FootageRows(md);
-  ASSERT_EQ(rows.size(), 10u) << md;
+  ASSERT_EQ(rows.size(), 12u) << md;
   for (const auto& r : rows) ASSERT_EQ(r.size(), 13u) << md;
   for (std::size_t input = 0; input < 2; ++input) {
-    const auto& ours = rows[5 * input];
-    const auto& tv = rows[5 * input + 1];
-    const auto& binned = rows[5 * input + 2];
-    const auto& baseline = rows[5 * input + 4];
+    const auto& ours = rows[6 * input];
+    const auto& tv = rows[6 * input + 1];
+    const auto& quadratic = rows[6 * input + 2];
+    const auto& binned = rows[6 * input + 3];
+    const auto& baseline = rows[6 * input + 5];
     SCOPED_TRACE(ours[0]);
     EXPECT_EQ(ours[1], "flamerig (osem)");
     EXPECT_EQ(tv[1], "flamerig, osem + tv prior");
+    EXPECT_EQ(quadratic[1], "flamerig, osem + quadratic prior");
     EXPECT_EQ(baseline[1], "baseline");
     const double held = std::stod(ours[10]), base = std::stod(baseline[10]);
     EXPECT_GT(held, 0);
     EXPECT_LT(held, base);
+    EXPECT_LT(std::stod(tv[10]), base);
+    EXPECT_LT(std::stod(quadratic[10]), base);
     EXPECT_LT(std::stod(binned[5]), std::stod(ours[5]));  // matrix MB
   }
   EXPECT_NE(md.find("held-out error at least 20% below the baseline's"), std::string::npos);

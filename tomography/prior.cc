@@ -115,37 +115,32 @@ void GridPrior::Gradient(const float* x, int channels, const float* scale, float
       });
 }
 
-void GridPrior::SeparableMajoriser(const float* x0, int channels, const float* scale, double* k,
-                                   double* m) const {
-  tbb::parallel_for(
-      tbb::blocked_range<std::size_t>(0, cols_, 4096),
-      [&](const tbb::blocked_range<std::size_t>& range) {
-        for (std::size_t c = range.begin(); c < range.end(); ++c)
-          for (int ch = 0; ch < channels; ++ch) {
-            // U's pair term as a_jk (x_j - x_k)^2 about x0: rho(g) over N^3 with g = N dx / L
-            // is bounded by psi(g0) / 2 g^2 (plus a constant), so a = psi / (2 N L^2).
-            const double xj = x0[c * channels + ch], l = scale[ch];
-            double kk = 0, mm = 0;
-            if (kind_ != PriorKind::kNone)
-              for (int q = 0; q < 6; ++q) {
-                const std::int32_t o = neighbours_[c * 6 + q];
-                if (o == kOffGrid) continue;
-                const double other = o >= 0 ? x0[std::size_t(o) * channels + ch] : 0.0;
-                const double g0 = n_ * (xj - other) / l;
-                const double psi =
-                    kind_ == PriorKind::kQuadratic ? 1.0 : 1.0 / std::sqrt(g0 * g0 + edge_ * edge_);
-                const double a = psi / (2 * n_ * l * l);
-                if (o >= 0) {  // a (2 x_j - x0_j - x0_k)^2 / 2: k += 4a, m += 2a (x0_j + x0_k)
-                  kk += 4 * a;
-                  mm += 2 * a * (xj + other);
-                } else {  // a x_j^2, exact
-                  kk += 2 * a;
-                }
-              }
-            k[c * channels + ch] = kk;
-            m[c * channels + ch] = mm;
-          }
-      });
+void GridPrior::MajoriserAt(std::size_t col, const float* x0, int channels, const float* scale,
+                            double* k, double* m) const {
+  for (int ch = 0; ch < channels; ++ch) {
+    // U's pair term as a_jk (x_j - x_k)^2 about x0: rho(g) over N^3 with g = N dx / L is
+    // bounded by psi(g0) / 2 g^2 (plus a constant), so a = psi / (2 N L^2).
+    const double xj = x0[col * channels + ch], l = scale[ch];
+    double kk = 0, mm = 0;
+    if (kind_ != PriorKind::kNone)
+      for (int q = 0; q < 6; ++q) {
+        const std::int32_t o = neighbours_[col * 6 + q];
+        if (o == kOffGrid) continue;
+        const double other = o >= 0 ? x0[std::size_t(o) * channels + ch] : 0.0;
+        const double g0 = n_ * (xj - other) / l;
+        const double psi =
+            kind_ == PriorKind::kQuadratic ? 1.0 : 1.0 / std::sqrt(g0 * g0 + edge_ * edge_);
+        const double a = psi / (2 * n_ * l * l);
+        if (o >= 0) {  // a (2 x_j - x0_j - x0_k)^2 / 2: k += 4a, m += 2a (x0_j + x0_k)
+          kk += 4 * a;
+          mm += 2 * a * (xj + other);
+        } else {  // a x_j^2, exact
+          kk += 2 * a;
+        }
+      }
+    k[ch] = kk;
+    m[ch] = mm;
+  }
 }
 
 }  // namespace flamerig

@@ -64,10 +64,11 @@ class GridPrior {
   // t = g^2: a pair weighs 1 / sqrt(g0^2 + edge^2), the half-quadratic or IRLS bound; the
   // quadratic prior's weight is 1), then each pair of columns is split between its two ends by
   // convexity (De Pierro 1995): (x_j - x_k)^2 <= ((2 x_j - x0_j - x0_k)^2 + (2 x_k - x0_j -
-  // x0_k)^2) / 2; a pair with an empty voxel is exact. Writes k and m (cols * channels values,
-  // k >= 0, in double: they scale as 1 / scale^2 and 1 / scale). Multithreaded over columns.
-  void SeparableMajoriser(const float* x0, int channels, const float* scale, double* k,
-                          double* m) const;
+  // x0_k)^2) / 2; a pair with an empty voxel is exact. Writes column `col`'s k and m (`channels`
+  // values each; k >= 0; in double: they scale as 1 / scale^2 and 1 / scale). One column at a
+  // time, as the solve needs it only where the one-step-late step would overshoot.
+  void MajoriserAt(std::size_t col, const float* x0, int channels, const float* scale, double* k,
+                   double* m) const;
 
  private:
   PriorKind kind_;

@@ -24,9 +24,9 @@
 // divides by its column sums plus its share of the weighted prior's gradient at the iterate before
 // the sweep, the share being the subset's part of the voxel's column sum (so a sweep adds up to
 // the full-data step, for a voxel that few cameras see as for one that all see); where the prior
-// pushes a voxel up so hard that this divisor would fall below 0.9 of the column sum, the step is
-// instead the minimum of the prior's separable quadratic majoriser (De Pierro), which cannot
-// overshoot: the solve stays bounded at any weight (osem.cc). Codec noise and blocks then leave
+// would move that divisor by more than a tenth of the column sum, the step is instead the minimum
+// of the prior's separable quadratic majoriser (De Pierro), which cannot overshoot: the solve
+// stays bounded at any weight (osem.cc). Codec noise and blocks then leave
 // less ghost emission and grain (BENCHMARKS.md, "Tomography on real footage").
 //
 // Saturated pixels constrain only from below: their residual counts only where the model is darker
