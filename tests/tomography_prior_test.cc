@@ -84,15 +84,24 @@ TEST(GridPrior, EnergyCountsColumnPairsAndTheHullsEdgeAgainstEmptySpace) {
   EXPECT_EQ(GridPrior(PriorKind::kNone, g, cols, 0.1).Energy(x.data(), 3, scale), 0.0);
 }
 
+// A random hull with holes (70% of a 6^3 grid's voxels) and a random three-channel field on it,
+// values in [0, 5).
+void RandomHullAndField(const GridGeometry& g, std::uint32_t seed, std::vector<std::uint32_t>* cols,
+                        std::vector<float>* x) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(0, 1);
+  cols->clear();
+  for (std::uint32_t v = 0; v < g.num_voxels(); ++v)
+    if (u(rng) < 0.7) cols->push_back(v);
+  x->resize(cols->size() * 3);
+  for (float& v : *x) v = 5 * u(rng);
+}
+
 TEST(GridPrior, GradientMatchesFiniteDifferences) {
   const GridGeometry g = Cube(6);
-  std::mt19937 rng(3);
-  std::uniform_real_distribution<float> u(0, 1);
   std::vector<std::uint32_t> cols;
-  for (std::uint32_t v = 0; v < g.num_voxels(); ++v)
-    if (u(rng) < 0.7) cols.push_back(v);  // a hull with holes
-  std::vector<float> x(cols.size() * 3);
-  for (float& v : x) v = 5 * u(rng);
+  std::vector<float> x;
+  RandomHullAndField(g, 3, &cols, &x);
   const float scale[3] = {1.5f, 0.7f, 3.0f};
   for (PriorKind kind : {PriorKind::kQuadratic, PriorKind::kTotalVariation}) {
     SCOPED_TRACE(ToString(kind));
@@ -118,15 +127,13 @@ TEST(GridPrior, GradientMatchesFiniteDifferences) {
 // The majoriser that keeps OS-EM's MAP step stable (osem.cc): it touches U at x0 (equal gradients)
 // and lies above it everywhere else (on random points near and far from x0), for both priors and
 // a hull with holes, so that minimising it cannot raise U.
-TEST(GridPrior, SeparableMajoriserTouchesAtTheIterateAndBoundsTheEnergyAbove) {
+TEST(GridPrior, MajoriserTouchesAtTheIterateAndBoundsTheEnergyAbove) {
   const GridGeometry g = Cube(6);
-  std::mt19937 rng(5);
-  std::uniform_real_distribution<float> u(0, 1);
   std::vector<std::uint32_t> cols;
-  for (std::uint32_t v = 0; v < g.num_voxels(); ++v)
-    if (u(rng) < 0.7) cols.push_back(v);
-  std::vector<float> x0(cols.size() * 3);
-  for (float& v : x0) v = 5 * u(rng);
+  std::vector<float> x0;
+  RandomHullAndField(g, 5, &cols, &x0);
+  std::mt19937 rng(6);
+  std::uniform_real_distribution<float> u(0, 1);
   const float scale[3] = {1.5f, 0.7f, 3.0f};
   for (PriorKind kind : {PriorKind::kQuadratic, PriorKind::kTotalVariation}) {
     SCOPED_TRACE(ToString(kind));
