@@ -164,8 +164,8 @@ class Osem : public IterativeSolver {
   static constexpr float kFloor = 1e-3f;    // of the uniform level, for a warm start's zeros
   static constexpr float kMaxRatio = 1e3f;  // one sweep multiplies a voxel by at most this
   // With a prior: how far, as a share of the column sum, the prior may move the one-step-late
-  // divisor (so a voxel by at most 1 / 0.9 or 0.9 / 1 more than the data ask, a subset); beyond,
-  // the majoriser's step.
+  // divisor (so a subset's step is between 1 / 1.1 and 1 / 0.9 of what the data ask); beyond, the
+  // majoriser's step.
   static constexpr double kOslShare = 0.1;
   float level_[kChannels] = {};
   std::vector<float> ax_, r_;
