@@ -758,10 +758,39 @@ inline Real SpectralStep(int nbp, int clearest, const float* const* rows, const 
   return transmittance[clearest];
 }
 
-// The adjoint's step on a spectral ray (GradientRows, pass 2): every bin's transmittance and
-// cumulative radiance advanced as the render advanced them (AdvanceLanes), d_emission[b] = sigma_b
-// dLoss/dE_b, and the absorption's part of dLoss/dn summed over bins into *d_n; returns the
-// clearest bin's transmittance. The weights are GatherCorners', as for SpectralStep.
+// The step the adjoint's second pass and the curvature's share: every bin's transmittance and
+// cumulative radiance advanced as the render advanced them (AdvanceLanes), and for each group of
+// bins `use(b0, sig, tr, phi, n_term)`, with Tr the transmittance before the step and n_term =
+// Tr tau phi' S_b - behind_b (behind_b: the radiance the ray gathers after this step), from which
+// dE_b = sigma_b Tr ds phi and dn = sigma_b ds n_term per unit adjoint. The weights are
+// GatherCorners', as for SpectralStep. Returns the clearest bin's transmittance after the step.
+template <bool kThin, typename Real, typename Use>
+inline Real SpectralAdjointTerms(int nbp, int clearest, const float* const* rows, const Real* u0,
+                                 const Real* u1, const Real* sigma, const Real* total,
+                                 Real n_sample, Real unit, Real ds, Real* cumulative,
+                                 Real* transmittance, Use&& use) {
+  const Real n_ds = n_sample * ds, ds_unit = ds * unit, per_source = unit / n_sample;
+  ForEachSourceGroup<Real>(nbp, rows, u0, u1, [&](int b0, const Lanes<Real>& source) {
+    const Lanes<Real> sig = LoadLanes(sigma + b0);
+    const Lanes<Real> tau = sig * n_ds;
+    Lanes<Real> absorbed, phi, tau_dphi;
+    StepTermsLanes<kThin, Real>(tau, &absorbed, &phi, &tau_dphi);
+    const Lanes<Real> tr = LoadLanes(transmittance + b0);
+    Lanes<Real> added, tr_after;
+    AdvanceLanes<kThin, Real>(sig, tau, tr, source, kThin ? phi : absorbed, ds_unit, per_source,
+                              &added, &tr_after);
+    const Lanes<Real> cum = LoadLanes(cumulative + b0) + added;
+    StoreLanes(cumulative + b0, cum);
+    const Lanes<Real> behind = LoadLanes(total + b0) - cum;
+    use(b0, sig, tr, phi, tr * tau_dphi * (source * per_source) - behind);
+    StoreLanes(transmittance + b0, tr_after);
+  });
+  return transmittance[clearest];
+}
+
+// The adjoint's step on a spectral ray (GradientRows, pass 2): d_emission[b] = sigma_b dLoss/dE_b,
+// and the absorption's part of dLoss/dn summed over bins into *d_n; returns the clearest bin's
+// transmittance (SpectralAdjointTerms).
 template <bool kThin, typename Real>
 inline Real SpectralAdjointStep(int nbp, int clearest, const float* const* rows, const Real* u0,
                                 const Real* u1, const Real* sigma, const Real* adjoint,
@@ -769,56 +798,34 @@ inline Real SpectralAdjointStep(int nbp, int clearest, const float* const* rows,
                                 Real* cumulative, Real* transmittance, Real* d_emission,
                                 Real* d_n) {
   Lanes<Real> dn{};
-  const Real n_ds = n_sample * ds, ds_unit = ds * unit, per_source = unit / n_sample;
-  ForEachSourceGroup<Real>(nbp, rows, u0, u1, [&](int b0, const Lanes<Real>& source) {
-    const Lanes<Real> sig = LoadLanes(sigma + b0);
-    const Lanes<Real> tau = sig * n_ds;
-    Lanes<Real> absorbed, phi, tau_dphi;
-    StepTermsLanes<kThin, Real>(tau, &absorbed, &phi, &tau_dphi);
-    const Lanes<Real> tr = LoadLanes(transmittance + b0);
-    Lanes<Real> added, tr_after;
-    AdvanceLanes<kThin, Real>(sig, tau, tr, source, kThin ? phi : absorbed, ds_unit, per_source,
-                              &added, &tr_after);
-    const Lanes<Real> cum = LoadLanes(cumulative + b0) + added;
-    StoreLanes(cumulative + b0, cum);
-    const Lanes<Real> behind = LoadLanes(total + b0) - cum;
-    const Lanes<Real> sig_adj = sig * LoadLanes(adjoint + b0);
-    StoreLanes(d_emission + b0, sig_adj * tr * ds * phi);
-    dn += sig_adj * ds * (tr * tau_dphi * (source * per_source) - behind);
-    StoreLanes(transmittance + b0, tr_after);
-  });
+  const Real tr_clearest = SpectralAdjointTerms<kThin, Real>(
+      nbp, clearest, rows, u0, u1, sigma, total, n_sample, unit, ds, cumulative, transmittance,
+      [&](int b0, const Lanes<Real>& sig, const Lanes<Real>& tr, const Lanes<Real>& phi,
+          const Lanes<Real>& n_term) {
+        const Lanes<Real> sig_adj = sig * LoadLanes(adjoint + b0);
+        StoreLanes(d_emission + b0, sig_adj * tr * ds * phi);
+        dn += sig_adj * ds * n_term;
+      });
   *d_n = SumOf<Real>(dn);
-  return transmittance[clearest];
+  return tr_clearest;
 }
 
 // The adjoint's step without its adjoint (RenderCurvature): what SpectralAdjointStep multiplies by
 // the adjoint, per bin: e_factor[b] = sigma_b Tr ds phi (d_emission = adjoint * e_factor) and
-// n_factor[b] = sigma_b ds (Tr tau phi' S_b - behind_b) (d_n = sum_b adjoint_b n_factor[b]); the
-// transmittance and cumulative radiance advanced as there; returns the clearest bin's
+// n_factor[b] = sigma_b ds n_term (d_n = sum_b adjoint_b n_factor[b]); returns the clearest bin's
 // transmittance.
 template <bool kThin, typename Real>
 inline Real SpectralFactorStep(int nbp, int clearest, const float* const* rows, const Real* u0,
                                const Real* u1, const Real* sigma, const Real* total, Real n_sample,
                                Real unit, Real ds, Real* cumulative, Real* transmittance,
                                Real* e_factor, Real* n_factor) {
-  const Real n_ds = n_sample * ds, ds_unit = ds * unit, per_source = unit / n_sample;
-  ForEachSourceGroup<Real>(nbp, rows, u0, u1, [&](int b0, const Lanes<Real>& source) {
-    const Lanes<Real> sig = LoadLanes(sigma + b0);
-    const Lanes<Real> tau = sig * n_ds;
-    Lanes<Real> absorbed, phi, tau_dphi;
-    StepTermsLanes<kThin, Real>(tau, &absorbed, &phi, &tau_dphi);
-    const Lanes<Real> tr = LoadLanes(transmittance + b0);
-    Lanes<Real> added, tr_after;
-    AdvanceLanes<kThin, Real>(sig, tau, tr, source, kThin ? phi : absorbed, ds_unit, per_source,
-                              &added, &tr_after);
-    const Lanes<Real> cum = LoadLanes(cumulative + b0) + added;
-    StoreLanes(cumulative + b0, cum);
-    const Lanes<Real> behind = LoadLanes(total + b0) - cum;
-    StoreLanes(e_factor + b0, sig * tr * ds * phi);
-    StoreLanes(n_factor + b0, sig * ds * (tr * tau_dphi * (source * per_source) - behind));
-    StoreLanes(transmittance + b0, tr_after);
-  });
-  return transmittance[clearest];
+  return SpectralAdjointTerms<kThin, Real>(
+      nbp, clearest, rows, u0, u1, sigma, total, n_sample, unit, ds, cumulative, transmittance,
+      [&](int b0, const Lanes<Real>& sig, const Lanes<Real>& tr, const Lanes<Real>& phi,
+          const Lanes<Real>& n_term) {
+        StoreLanes(e_factor + b0, sig * tr * ds * phi);
+        StoreLanes(n_factor + b0, sig * ds * n_term);
+      });
 }
 
 // de[b] += weight * d_emission[b] over the padded bins.
