@@ -9,6 +9,7 @@
 #include <cmath>
 #include <deque>
 #include <limits>
+#include <map>
 #include <memory>
 #include <random>
 #include <sstream>
@@ -95,6 +96,7 @@ std::string FitResult::BriefReport() const {
   for (double d : final_terms.view_mean_delta_e) s << " " << d;
   s << "), exposure " << exposure;
   if (density_scale != 1) s << ", density scale " << density_scale;
+  if (rings > 0) s << ", axisymmetric: " << rings << " rings";
   return s.str();
 }
 
@@ -489,14 +491,83 @@ void Resample(const State& from, const std::vector<float>& emission, const ThinE
   }
 }
 
+// The rings of FitOptions::axisymmetric: per layer of the grid (y), active voxels grouped by their
+// distance to the layer's emission centroid, rounded to whole voxels. Members are active indices.
+struct RingTie {
+  std::vector<std::vector<std::size_t>> rings;
+
+  // Each ring's values replaced by their mean: the orthogonal projection onto ring-constant
+  // fields (so a projected gradient gives every direction within them its exact derivative).
+  void Project(double* values) const {
+    for (const auto& ring : rings) {
+      double sum = 0;
+      for (std::size_t a : ring) sum += values[a];
+      const double mean = sum / double(ring.size());
+      for (std::size_t a : ring) values[a] = mean;
+    }
+  }
+  // The start tied: each ring's mean temperature and mean log density.
+  void Tie(State* st) const {
+    for (const auto& ring : rings) {
+      double t = 0, ln_n = 0;
+      for (std::size_t a : ring) {
+        t += st->t[a];
+        ln_n += std::log(st->n[a]);
+      }
+      t /= double(ring.size());
+      const double n = std::exp(ln_n / double(ring.size()));
+      for (std::size_t a : ring) {
+        st->t[a] = t;
+        st->n[a] = n;
+      }
+    }
+  }
+};
+
+RingTie MakeRingTie(const GridGeometry& grid, const std::vector<std::uint32_t>& active,
+                    const std::vector<float>& emission) {
+  const Eigen::Vector3i& d = grid.dims;
+  const auto layer_of = [&](std::size_t f) { return static_cast<int>((f / d.x()) % d.y()); };
+  // Per layer: the luminance-weighted centroid of its active voxels, or their plain mean where
+  // the layer has no light.
+  std::vector<Eigen::Vector3d> weighted(d.y(), Eigen::Vector3d::Zero()),
+      plain(d.y(), Eigen::Vector3d::Zero());  // (sum w x, sum w z, sum w)
+  for (std::uint32_t f : active) {
+    const double x = double(f % d.x()), z = double(f / (std::size_t(d.x()) * d.y()));
+    const double w = std::max(0.0, Luminance(&emission[3 * std::size_t(f)]));
+    weighted[layer_of(f)] += Eigen::Vector3d(w * x, w * z, w);
+    plain[layer_of(f)] += Eigen::Vector3d(x, z, 1.0);
+  }
+  std::map<std::pair<int, long>, std::size_t> index;  // (layer, ring) -> ring number
+  RingTie tie;
+  for (std::size_t a = 0; a < active.size(); ++a) {
+    const std::size_t f = active[a];
+    const int j = layer_of(f);
+    const Eigen::Vector3d& c = weighted[j].z() > 0 ? weighted[j] : plain[j];
+    const double dx = double(f % d.x()) - c.x() / c.z(),
+                 dz = double(f / (std::size_t(d.x()) * d.y())) - c.y() / c.z();
+    const auto [it, added] =
+        index.emplace(std::make_pair(j, std::lround(std::hypot(dx, dz))), tie.rings.size());
+    if (added) tie.rings.emplace_back();
+    tie.rings[it->second].push_back(a);
+  }
+  return tie;
+}
+
 // The energy in the unbounded parameters u = (u_T per voxel, u_n per voxel, u_s).
 class SigmoidProblem : public ceres::FirstOrderFunction {
  public:
   // `start`: the values of the parameters that are held (FitOptions::vary, known_exposure), used
   // as they are rather than through the sigmoid (whose logit is clamped 1% inside the bounds).
+  // `tie`: FitOptions::axisymmetric's rings (the start must be tied already), or null.
   SigmoidProblem(const FitObjective& objective, const FitOptions& options, const State& start,
-                 int* evaluations, std::deque<std::pair<double, EnergyTerms>>* seen)
-      : objective_(objective), options_(options), evaluations_(evaluations), seen_(seen) {
+                 int* evaluations, std::deque<std::pair<double, EnergyTerms>>* seen,
+                 const RingTie* tie = nullptr)
+      : objective_(objective),
+        options_(options),
+        evaluations_(evaluations),
+        seen_(seen),
+        tie_(tie) {
     if (!options.vary.temperature) held_t_ = start.t;
     if (!options.vary.density) held_n_ = start.n;
     held_s_ = options.known_exposure > 0 ? options.known_exposure : 0.0;
@@ -556,6 +627,10 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
         gradient[m_ + a] =
             options_.vary.density ? d_n[a] * st.n[a] * ln_n_span_ * pn * (1 - pn) : 0.0;
       }
+      if (tie_) {
+        tie_->Project(gradient);
+        tie_->Project(gradient + m_);
+      }
       const double ps = Sigmoid(u[2 * m_]);
       gradient[2 * m_] =
           options_.known_exposure > 0 ? 0.0 : d_s * st.s * ln_s_span_ * ps * (1 - ps);
@@ -568,6 +643,7 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
   const FitOptions& options_;
   int* evaluations_;
   std::deque<std::pair<double, EnergyTerms>>* seen_;
+  const RingTie* tie_;
   std::size_t m_ = 0;
   double t_lo_, t_span_, ln_n_lo_, ln_n_span_, ln_s_lo_, ln_s_span_;
   std::vector<double> held_t_, held_n_;  // empty: fitted
@@ -686,6 +762,7 @@ FireVolume ToVolume(const State& st, const FitResult& r, double ambient_k) {
   v.metadata_text["termination_message"] = r.message;
   v.metadata_numbers["iterations"] = r.iterations;
   v.metadata_numbers["initial_energy"] = r.initial_energy;
+  if (r.rings > 0) v.metadata_numbers["axisymmetric_rings"] = static_cast<double>(r.rings);
   return v;
 }
 
@@ -819,12 +896,20 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
                              &st, band_start.get());
       if (band_start) result.band_radius_voxels = band_start->radius();
     }
+    // An axisymmetric fit ties the start, whichever way it was had, into this level's rings.
+    std::unique_ptr<RingTie> tie;
+    if (options.axisymmetric) {
+      tie = std::make_unique<RingTie>(MakeRingTie(st.grid, st.active, emission));
+      tie->Tie(&st);
+      result.rings = tie->rings.size();
+    }
     const std::string stage =
         "level " + std::to_string(level + 1) + "/" + std::to_string(levels.size()) + " (" +
         std::to_string(st.grid.dims.x()) + "x" + std::to_string(st.grid.dims.y()) + "x" +
         std::to_string(st.grid.dims.z()) + ", " + std::to_string(st.active.size()) +
         " active voxels)";
-    auto* problem_function = new SigmoidProblem(objective, options, st, &result.evaluations, &seen);
+    auto* problem_function =
+        new SigmoidProblem(objective, options, st, &result.evaluations, &seen, tie.get());
     std::vector<double> u(2 * st.active.size() + 1);
     problem_function->Encode(st, u.data());
     ceres::GradientProblem problem(problem_function);

@@ -46,6 +46,9 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
     const auto known = Row(md, scene, "exposure known, w_sm = 1, until the energy stalls");
     const auto equivalent = Row(md, scene, "the image-equivalent truth on the fit's grid");
     const auto alone = Row(md, scene, "the start alone");
+    const auto rings = Row(md, scene, "... axisymmetric");
+    ASSERT_EQ(rings.size(), 13u) << md;
+    EXPECT_EQ(rings[4], "1.000");  // the known exposure held, tied or not
     ASSERT_EQ(before.size(), 13u) << md;
     ASSERT_EQ(known.size(), 13u) << md;
     ASSERT_EQ(alone.size(), 13u) << md;
@@ -60,13 +63,14 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
       EXPECT_LT(rms, 2000);  // the search range
     }
   }
-  // Fifteen oracle rows per scene: fourteen variants and the noise-free one, and five rows of
+  // Sixteen oracle rows per scene: fifteen variants (the axisymmetric one among them) and the
+  // noise-free one, and five rows of
   // where the error lies (the headers are "| oracle", the finer grids' "| fit grid" and the
   // latter's "| fit |").
   const std::regex row("\\n\\| (?!oracle|fit grid|fit \\|)[a-z.`]");
   const auto rows =
       std::distance(std::sregex_iterator(md.begin(), md.end(), row), std::sregex_iterator());
-  EXPECT_EQ(rows, 2 * 15 + 5) << md;
+  EXPECT_EQ(rows, 2 * 16 + 5) << md;
 
   // The finer grids (quick: the licks' fit at 16, so 16, 24 and 32, and 32 from images twice as
   // large), each with the neighbour weight scaled by (16 / resolution)^2, the fit's default 1 at

@@ -347,6 +347,19 @@ TEST(Cli, FitASimulatedFrameSet) {
                          " --holdout cam2 --resolution 20 --fit-exposure");
   ASSERT_EQ(free.status, 0) << free.output;
   EXPECT_NE(flamerig::ReadVdb(free_out).metadata_numbers.at("exposure"), known.value);
+  // --axisymmetric ties the fit into rings about the flame's axis; the volume says how many.
+  const std::string rings_out = (dir / "rings.vdb").string();
+  Result rings = Flamerig("fit --rig " + rig + " --images " + images + " --out " + rings_out +
+                          " --holdout cam2 --resolution 20 --axisymmetric");
+  ASSERT_EQ(rings.status, 0) << rings.output;
+  EXPECT_NE(rings.output.find("axisymmetric: "), std::string::npos) << rings.output;
+  const flamerig::FireVolume tied = flamerig::ReadVdb(rings_out);
+  ASSERT_EQ(tied.metadata_numbers.count("axisymmetric_rings"), 1u);
+  std::size_t tied_medium = 0;
+  for (float d : tied.density_per_m3) tied_medium += d > 0;
+  EXPECT_GT(tied.metadata_numbers.at("axisymmetric_rings"), 0.0);
+  EXPECT_LT(tied.metadata_numbers.at("axisymmetric_rings"), 0.5 * double(tied_medium));
+  EXPECT_EQ(v.metadata_numbers.count("axisymmetric_rings"), 0u);
   EXPECT_EQ(v.metadata_text.at("absorption_model"), "grey");
   for (const char* f : {"views.png", "error.png", "report.md", "trace.csv"})
     EXPECT_TRUE(fs::exists(dir / "fit" / "fire_report" / f)) << f;

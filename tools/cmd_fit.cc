@@ -49,6 +49,9 @@ Runner AddFit(CLI::App* command) {
       ->check(kPositive);
   command->add_flag("--fit-exposure", job.fit_exposure,
                     "Fast fit: fit a free exposure (the paper's s), even a known one");
+  command->add_flag("--axisymmetric", job.fit.axisymmetric,
+                    "Fast fit: one temperature and density per ring about the flame's vertical "
+                    "axis (an axisymmetric flame, as Abel inversion assumes)");
   command->add_flag(
       "--no-sigma", [&job](std::int64_t) { job.uncertainty = false; },
       "Fast fit: do not write the per-voxel sigma grids");

@@ -83,6 +83,9 @@ Runner AddRun(CLI::App* command) {
   command->add_flag(
       "--no-sigma", o->no_sigma,
       "Do not write the per-voxel sigma grids (saves about 50 ms a frame at 64^3, two views)");
+  command->add_flag("--axisymmetric", run.fit.axisymmetric,
+                    "Fit one temperature and density per ring about the flame's vertical axis "
+                    "(an axisymmetric flame, as Abel inversion assumes)");
   command->add_flag("--fit-exposure", run.fit_exposure,
                     "Fit a free exposure on every frame (the paper's s), even a known one");
   command
