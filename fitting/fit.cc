@@ -962,7 +962,8 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
       result.final_terms = objective.Evaluate(st.t, st.n, st.s);
       if (options.estimate_uncertainty && result.termination != FitTermination::kCancelled &&
           !st.active.empty())
-        result.uncertainty = EstimateUncertainty(objective, st.t, st.n, st.s, options.uncertainty);
+        result.uncertainty = EstimateUncertainty(objective, st.t, st.n, st.s, options.uncertainty,
+                                                 tie ? &tie->rings : nullptr);
     }
     // Out of time or cancelled with finer levels to go: they are skipped, and that is why the fit
     // stopped. At the last level the solver's own reason stands.

@@ -15,15 +15,39 @@ void UncertaintyOptions::Validate() const {
 
 VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::vector<double>& t,
                                      const std::vector<double>& n, double s,
-                                     const UncertaintyOptions& options) {
+                                     const UncertaintyOptions& options,
+                                     const std::vector<std::vector<std::size_t>>* groups) {
   options.Validate();
   const auto start = std::chrono::steady_clock::now();
-  const FitObjective::Curvature c = objective.DataCurvature(t, n, s);
+  FitObjective::Curvature c = objective.DataCurvature(t, n, s);
   const std::size_t na = objective.num_active();
+  // Tied voxels share one (T, ln n): each group's block is the sum of its members'.
+  std::size_t unknowns = na;
+  if (groups) {
+    std::size_t covered = 0;
+    for (const auto& g : *groups) {
+      double tt = 0, tn = 0, nn = 0;
+      for (std::size_t a : g) {
+        if (a >= na) throw InputError("uncertainty: a group names voxel " + std::to_string(a));
+        tt += c.tt[a];
+        tn += c.tn[a];
+        nn += c.nn[a];
+      }
+      for (std::size_t a : g) {
+        c.tt[a] = tt;
+        c.tn[a] = tn;
+        c.nn[a] = nn;
+      }
+      covered += g.size();
+    }
+    if (covered != na) throw InputError("uncertainty: the groups do not cover the active voxels");
+    unknowns = groups->size();
+  }
   VoxelUncertainty u;
-  // The noise per residual from the fit's own residuals (degrees of freedom: less two per voxel,
-  // at least half the residuals).
-  const double dof = std::max(0.5 * double(c.residuals), double(c.residuals) - 2.0 * double(na));
+  // The noise per residual from the fit's own residuals (degrees of freedom: less two per unknown
+  // voxel or group, at least half the residuals).
+  const double dof =
+      std::max(0.5 * double(c.residuals), double(c.residuals) - 2.0 * double(unknowns));
   u.sigma_lab = dof > 0 ? std::sqrt(c.residual_sq / dof) : 0.0;
   const ObjectiveOptions& o = objective.options();
   u.prior_sigma_k = (o.t_max_k - o.t_min_k) / std::sqrt(12.0);

@@ -19,6 +19,11 @@
 // synthetic truth (the share of visible voxels within one and two sigma) is measured in
 // BENCHMARKS.md and by pipeline_uncertainty_test.
 //
+// A tied fit (FitOptions::axisymmetric: one temperature and density per ring of voxels) has one
+// (T, ln n) per group: `groups` (lists of active indices) then sums its members' blocks into the
+// group's precision, every member takes the group's deviations, and the noise level's degrees of
+// freedom are the residuals less two per group.
+//
 // `determined`: 1 where the temperature's deviation is below `determined_fraction` of the prior's,
 // i.e. where the images, not the search range, say what the temperature is.
 #ifndef FLAMERIG_FITTING_UNCERTAINTY_H_
@@ -48,9 +53,11 @@ struct VoxelUncertainty {
 };
 
 // At the fitted temperatures `t`, densities `n` (per active voxel of `objective`) and exposure `s`.
+// `groups`: null, or the tied fit's groups (every active voxel in exactly one).
 VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::vector<double>& t,
                                      const std::vector<double>& n, double s,
-                                     const UncertaintyOptions& options);
+                                     const UncertaintyOptions& options,
+                                     const std::vector<std::vector<std::size_t>>* groups = nullptr);
 
 // Writes the three grids into `volume` (on `grid`, whose voxels `active` are the estimate's; 0
 // elsewhere) and the noise level and determined count into its metadata.

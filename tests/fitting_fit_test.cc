@@ -4,6 +4,7 @@
 // views, on a held-out view and against the true temperatures.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <random>
@@ -234,6 +235,47 @@ TEST(FitObjective, DataCurvatureMatchesFiniteDifferenceJacobiansSoot) {
 
 TEST(FitObjective, DataCurvatureMatchesFiniteDifferenceJacobiansGrey) {
   CheckDataCurvature(AbsorptionModel::DefaultGrey());
+}
+
+// A tied fit's sigma (uncertainty.h, `groups`): groups of one voxel give each voxel exactly its
+// own deviations, and a group pools its members' information, so that in units of the noise
+// level each member's deviation can only shrink ((A + B)^-1 <= A^-1 for positive semi-definite
+// blocks), and every member carries the same.
+TEST(Uncertainty, GroupsOfOneAreTheVoxelsOwnAndAGroupPoolsItsMembers) {
+  const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
+  SmallScene s = MakeSmallScene(soot);
+  const FitObjective objective(s.grid, s.active, s.views, soot, RenderOptions(),
+                               ObjectiveOptions());
+  const UncertaintyOptions options;
+  const VoxelUncertainty own = EstimateUncertainty(objective, s.t, s.n, 1.0, options);
+  std::vector<std::vector<std::size_t>> singles(s.active.size());
+  for (std::size_t a = 0; a < singles.size(); ++a) singles[a] = {a};
+  const VoxelUncertainty one = EstimateUncertainty(objective, s.t, s.n, 1.0, options, &singles);
+  ASSERT_EQ(one.temperature_sigma_k.size(), own.temperature_sigma_k.size());
+  EXPECT_EQ(one.sigma_lab, own.sigma_lab);
+  for (std::size_t a = 0; a < s.active.size(); ++a) {
+    EXPECT_EQ(one.temperature_sigma_k[a], own.temperature_sigma_k[a]) << a;
+    EXPECT_EQ(one.log_density_sigma[a], own.log_density_sigma[a]) << a;
+  }
+  // Two groups: the even and the odd active voxels.
+  std::vector<std::vector<std::size_t>> halves(2);
+  for (std::size_t a = 0; a < s.active.size(); ++a) halves[a % 2].push_back(a);
+  const VoxelUncertainty pooled = EstimateUncertainty(objective, s.t, s.n, 1.0, options, &halves);
+  std::size_t narrower = 0;
+  for (std::size_t a = 0; a < s.active.size(); ++a) {
+    EXPECT_EQ(pooled.temperature_sigma_k[a], pooled.temperature_sigma_k[a % 2]) << a;
+    const double unit_pooled = pooled.temperature_sigma_k[a] / pooled.sigma_lab,
+                 unit_own = own.temperature_sigma_k[a] / own.sigma_lab;
+    EXPECT_LE(unit_pooled, unit_own * (1 + 1e-6)) << a;
+    narrower += unit_pooled < 0.9 * unit_own;
+  }
+  EXPECT_GT(narrower, s.active.size() / 2);
+  // Groups that do not cover the active voxels, or name one that is not there, are refused.
+  std::vector<std::vector<std::size_t>> partial = {{0}};
+  EXPECT_THROW(EstimateUncertainty(objective, s.t, s.n, 1.0, options, &partial), InputError);
+  std::vector<std::vector<std::size_t>> beyond = singles;
+  beyond.push_back({s.active.size()});
+  EXPECT_THROW(EstimateUncertainty(objective, s.t, s.n, 1.0, options, &beyond), InputError);
 }
 
 TEST(FitObjective, TheEnergyIsTheSumOfItsTerms) {
@@ -914,6 +956,7 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
   RoundTrip r = MakeRoundTrip(soot, 32, 160);
   FitOptions options;
   options.known_exposure = r.exposure;
+  options.estimate_uncertainty = true;
   const FitResult free = FastFit(r.grid, r.tomography, r.views, soot, options);
   options.axisymmetric = true;
   const FitResult tied = FastFit(r.grid, r.tomography, r.views, soot, options);
@@ -935,7 +978,8 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
   }
   ASSERT_EQ(active.size(), tied.active_voxels);
   std::map<std::pair<int, long>, std::pair<float, float>> rings;  // -> (T, n)
-  std::size_t mismatched = 0;
+  std::map<std::pair<int, long>, float> ring_sigma;               // -> its temperature sigma
+  std::size_t mismatched = 0, sigma_mismatched = 0;
   for (std::size_t v : active) {
     const int i = int(v % d.x()), j = int(v / d.x() % d.y()), k = int(v / (d.x() * d.y()));
     ASSERT_GT(sums[j].z(), 0) << "layer " << j << " has active voxels but no light";
@@ -945,9 +989,31 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
                                         tied.volume.density_per_m3[v]);
     const auto [it, added] = rings.emplace(std::make_pair(j, ring), value);
     if (!added && it->second != value) ++mismatched;
+    const float sigma = tied.volume.temperature_sigma_k[v];
+    const auto [is, sigma_added] = ring_sigma.emplace(std::make_pair(j, ring), sigma);
+    if (!sigma_added && is->second != sigma) ++sigma_mismatched;
   }
   EXPECT_EQ(rings.size(), tied.rings);
   EXPECT_EQ(mismatched, 0u);
+  // The sigma is the ring's (uncertainty.h's groups): one per ring, and in units of each fit's
+  // noise level (the tied fit's residuals are larger: rings cannot hold the candle's sway)
+  // narrower than the voxels' own, since a ring pools its voxels' information.
+  EXPECT_EQ(sigma_mismatched, 0u);
+  std::vector<double> unit_free, unit_tied;
+  for (std::size_t v : active) {
+    unit_tied.push_back(tied.volume.temperature_sigma_k[v] / tied.uncertainty.sigma_lab);
+    if (free.volume.density_per_m3[v] > 0)
+      unit_free.push_back(free.volume.temperature_sigma_k[v] / free.uncertainty.sigma_lab);
+  }
+  std::sort(unit_free.begin(), unit_free.end());
+  std::sort(unit_tied.begin(), unit_tied.end());
+  ASSERT_FALSE(unit_free.empty());
+  const double median_free = unit_free[unit_free.size() / 2],
+               median_tied = unit_tied[unit_tied.size() / 2];
+  std::printf(
+      "axisymmetric: median sigma per unit noise %.1f K (free %.1f K); noise %.2f (free %.2f)\n",
+      median_tied, median_free, tied.uncertainty.sigma_lab, free.uncertainty.sigma_lab);
+  EXPECT_LT(median_tied, 0.8 * median_free);
   // Fewer unknowns than the free fit's, and temperatures that vary (not one value per layer).
   std::set<float> distinct(tied.volume.temperature_k.begin(), tied.volume.temperature_k.end());
   EXPECT_GT(distinct.size(), std::size_t(d.y()));
