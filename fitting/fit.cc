@@ -370,8 +370,8 @@ void InitialiseFromEmission(const std::vector<float>& emission, const ThinEmissi
   for (std::size_t a = 0; a < m; ++a) {
     const std::size_t f = st->active[a];
     const float* e = &emission[3 * f];
-    const int i = static_cast<int>(f % dims.x()), j = static_cast<int>((f / dims.x()) % dims.y()),
-              k = static_cast<int>(f / (static_cast<std::size_t>(dims.x()) * dims.y()));
+    const Eigen::Vector3i v = st->grid.Unflat(f);
+    const int i = v.x(), j = v.y(), k = v.z();
     if (bands) {
       bands->BoxSums(i, j, k, &band_sum);
       const double t = bands->Temperature(band_sum);
@@ -526,26 +526,23 @@ struct RingTie {
 
 RingTie MakeRingTie(const GridGeometry& grid, const std::vector<std::uint32_t>& active,
                     const std::vector<float>& emission) {
-  const Eigen::Vector3i& d = grid.dims;
-  const auto layer_of = [&](std::size_t f) { return static_cast<int>((f / d.x()) % d.y()); };
   // Per layer: the luminance-weighted centroid of its active voxels, or their plain mean where
   // the layer has no light.
-  std::vector<Eigen::Vector3d> weighted(d.y(), Eigen::Vector3d::Zero()),
-      plain(d.y(), Eigen::Vector3d::Zero());  // (sum w x, sum w z, sum w)
+  std::vector<Eigen::Vector3d> weighted(grid.dims.y(), Eigen::Vector3d::Zero()),
+      plain(grid.dims.y(), Eigen::Vector3d::Zero());  // (sum w x, sum w z, sum w)
   for (std::uint32_t f : active) {
-    const double x = double(f % d.x()), z = double(f / (std::size_t(d.x()) * d.y()));
+    const Eigen::Vector3i v = grid.Unflat(f);
     const double w = std::max(0.0, Luminance(&emission[3 * std::size_t(f)]));
-    weighted[layer_of(f)] += Eigen::Vector3d(w * x, w * z, w);
-    plain[layer_of(f)] += Eigen::Vector3d(x, z, 1.0);
+    weighted[v.y()] += Eigen::Vector3d(w * v.x(), w * v.z(), w);
+    plain[v.y()] += Eigen::Vector3d(v.x(), v.z(), 1.0);
   }
   std::map<std::pair<int, long>, std::size_t> index;  // (layer, ring) -> ring number
   RingTie tie;
   for (std::size_t a = 0; a < active.size(); ++a) {
-    const std::size_t f = active[a];
-    const int j = layer_of(f);
+    const Eigen::Vector3i v = grid.Unflat(active[a]);
+    const int j = v.y();
     const Eigen::Vector3d& c = weighted[j].z() > 0 ? weighted[j] : plain[j];
-    const double dx = double(f % d.x()) - c.x() / c.z(),
-                 dz = double(f / (std::size_t(d.x()) * d.y())) - c.y() / c.z();
+    const double dx = v.x() - c.x() / c.z(), dz = v.z() - c.y() / c.z();
     const auto [it, added] =
         index.emplace(std::make_pair(j, std::lround(std::hypot(dx, dz))), tie.rings.size());
     if (added) tie.rings.emplace_back();

@@ -357,9 +357,8 @@ FitObjective::FitObjective(const GridGeometry& grid, std::vector<std::uint32_t> 
   const Eigen::Vector3i& dims = grid_.dims;
   for (std::size_t a = 0; a < active_.size(); ++a) {
     const std::size_t f = active_[a];
-    const int i = static_cast<int>(f % dims.x());
-    const int j = static_cast<int>((f / dims.x()) % dims.y());
-    const int k = static_cast<int>(f / (static_cast<std::size_t>(dims.x()) * dims.y()));
+    const Eigen::Vector3i v = grid_.Unflat(f);
+    const int i = v.x(), j = v.y(), k = v.z();
     for (int dk = -1; dk <= 1; ++dk)
       for (int dj = -1; dj <= 1; ++dj)
         for (int di = -1; di <= 1; ++di) {

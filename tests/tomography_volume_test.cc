@@ -66,6 +66,19 @@ TEST(GridGeometry, FromBoxMakesCubicVoxelsCentredOnTheBox) {
   EXPECT_EQ(GridGeometry::FromBox(box, 1).num_voxels(), 1u);
 }
 
+// Unflat inverts Flat (x fastest, then y, then z) on a grid whose three sides differ.
+TEST(GridGeometry, UnflatInvertsFlat) {
+  GridGeometry g;
+  g.dims = Eigen::Vector3i(3, 4, 5);
+  std::size_t expected = 0;
+  for (int k = 0; k < 5; ++k)
+    for (int j = 0; j < 4; ++j)
+      for (int i = 0; i < 3; ++i, ++expected) {
+        ASSERT_EQ(g.Flat(i, j, k), expected);
+        EXPECT_EQ(g.Unflat(expected), Eigen::Vector3i(i, j, k)) << expected;
+      }
+}
+
 TEST(Vdb, RoundTripIsExact) {
   fs::path dir = TempDir();
   FireVolume v = RandomVolume();

@@ -47,20 +47,16 @@ void CheckField(const GridGeometry& g, const std::vector<float>& values, int cha
                 const char* name, bool allow_negative) {
   if (values.empty()) return;
   if (values.size() != g.num_voxels() * channels) {
-    throw InputError(std::string("field '") + name + "' has " +
-                                std::to_string(values.size()) + " values, expected " +
-                                std::to_string(g.num_voxels() * channels));
+    throw InputError(std::string("field '") + name + "' has " + std::to_string(values.size()) +
+                     " values, expected " + std::to_string(g.num_voxels() * channels));
   }
   for (std::size_t n = 0; n < values.size(); ++n) {
     float v = values[n];
     if (!std::isfinite(v) || (v < 0 && !allow_negative)) {
-      std::size_t flat = n / channels;
-      int i = static_cast<int>(flat % g.dims.x());
-      int j = static_cast<int>((flat / g.dims.x()) % g.dims.y());
-      int k = static_cast<int>(flat / (static_cast<std::size_t>(g.dims.x()) * g.dims.y()));
+      const Eigen::Vector3i at = g.Unflat(n / channels);
       throw InputError(
-          std::string("field '") + name + "' at voxel (" + std::to_string(i) + ", " +
-          std::to_string(j) + ", " + std::to_string(k) + ") is " + std::to_string(v) +
+          std::string("field '") + name + "' at voxel (" + std::to_string(at.x()) + ", " +
+          std::to_string(at.y()) + ", " + std::to_string(at.z()) + ") is " + std::to_string(v) +
           (allow_negative ? "; values must be finite" : "; values must be finite and >= 0"));
     }
   }

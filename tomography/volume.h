@@ -45,6 +45,13 @@ struct GridGeometry {
     return static_cast<std::size_t>(i) +
            static_cast<std::size_t>(dims.x()) * (j + static_cast<std::size_t>(dims.y()) * k);
   }
+  // The inverse of Flat: (i, j, k) of a flat index below num_voxels().
+  Eigen::Vector3i Unflat(std::size_t flat) const {
+    const std::size_t nx = static_cast<std::size_t>(dims.x()),
+                      ny = static_cast<std::size_t>(dims.y());
+    return Eigen::Vector3i(static_cast<int>(flat % nx), static_cast<int>((flat / nx) % ny),
+                           static_cast<int>(flat / (nx * ny)));
+  }
   Eigen::Vector3d VoxelCenter(int i, int j, int k) const {
     return origin_in_rig +
            (Eigen::Vector3d(i, j, k).array() + 0.5).matrix().cwiseProduct(voxel_size_m);
