@@ -64,6 +64,8 @@ void FitOptions::Validate() const {
   if (!(stall_decrease >= 0) || !(stall_decrease < 1)) fail("stall_decrease must be in [0, 1)");
   if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0)) fail("smoothing must be >= 0");
   if (!(time_limit_s >= 0)) fail("time_limit_s must be >= 0");
+  if (!(axisymmetric_w_sm >= 0) || !std::isfinite(axisymmetric_w_sm))
+    fail("axisymmetric_w_sm must be >= 0, finite");
   if (!(known_exposure >= 0) || !std::isfinite(known_exposure) ||
       (known_exposure > 0 && !(known_exposure >= exposure_min && known_exposure <= exposure_max)))
     fail("known_exposure must be 0 (unknown) or in [exposure_min, exposure_max]");
@@ -794,6 +796,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   options.objective.smooth_delta_e = options.smooth_delta_e;
   options.objective.smooth_neighbour = options.smooth_neighbour;
   options.objective.density_pairwise = options.density_pairwise;
+  if (options.axisymmetric) options.objective.w_sm = options.axisymmetric_w_sm;
   const ThinEmissionTable table(
       absorption, options.objective.t_min_k, options.objective.t_max_k,
       !views.empty() && views.front().response ? views.front().response : options.render.response);

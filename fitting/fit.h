@@ -201,17 +201,28 @@ struct FitOptions {
   // emission (luminance-weighted), so a flame that sways or leans keeps its rings centred; rings
   // are one voxel wide (the distance to the axis rounded to whole voxels). The start is each
   // ring's mean (temperature, and log density); the gradient is projected onto ring-constant
-  // fields (each ring's mean), so every L-BFGS step stays tied. Fast fit only. Measured by
-  // `flamerig benchmark accuracy` (BENCHMARKS.md, issue 19): on the two-view candle, which sways
-  // and has 10% turbulence in its radius, the temperature RMS falls from 147 to 119 K (the
-  // truth's spread 142 K), the emission-weighted RMS from 88 to 62 K and the held-out camera's
-  // Delta E from 19.1 to 7.7, while the fitted views' rises from 1.4 to 2.7 (they show what rings
-  // cannot hold). The eight-view licks, not axisymmetric, are the control: 71 -> 96 K, and the
-  // held-out camera says so (1.78 -> 5.92), as it will for a user's own fire. The sigma is the
-  // ring's (uncertainty.h's groups: the ring's voxels' curvature pooled): on the main job's 12
-  // frames (two views, truth 96, fit 64) 64 to 74% of the visible voxels lie within one sigma and
-  // 90 to 95% within two, where the untied fit's per-voxel sigma holds 85 to 96% within one.
+  // fields (each ring's mean), so every L-BFGS step stays tied; the neighbour weight is
+  // axisymmetric_w_sm. Fast fit only. Measured by `flamerig benchmark accuracy` (BENCHMARKS.md,
+  // issue 19): on the two-view candle, which sways and has 10% turbulence in its radius, the
+  // temperature RMS falls from 147 to 99 K (the truth's spread 142 K), the emission-weighted RMS
+  // from 88 to 55 K and the held-out camera's Delta E from 19.1 to 7.8, while the fitted views'
+  // rises from 1.4 to 2.7 (they show what rings cannot hold). The eight-view licks, not
+  // axisymmetric, are the control: 71 -> 98 K, and the held-out camera says so (1.78 -> 6.02), as
+  // it will for a user's own fire. The sigma is the ring's (uncertainty.h's groups: the ring's
+  // voxels' curvature pooled): on the main job's 12 frames (two views, truth 96, fit 64, each
+  // frame from its own tomography) 68 to 81% of the visible voxels lie within one sigma and 89 to
+  // 94% within two, where the untied fit's per-voxel sigma holds 85 to 96% within one.
   bool axisymmetric = false;
+  // The neighbour weight of an axisymmetric fit, in place of objective.w_sm (which is the untied
+  // fit's). The rings already average away the noise the neighbour term holds down in an untied
+  // fit, so at w_sm 1 what is left of the term is its bias: it pulls the cool rings at the
+  // flame's edge towards the hot core (+57 K on the two-view candle). Chosen by `flamerig
+  // benchmark accuracy`'s two-view candle over four seeds of its turbulence (BENCHMARKS.md,
+  // issue 19): temperature RMS at 1 / 0.3 / 0.1 / 0.03 was 119 / 99 / 89 / 88 K (seed 7), 137 /
+  // 87 / 94 / 103 (3), 124 / 108 / 98 / 100 (5), 123 / 81 / 123 / 136 (9), the truth's spread 142
+  // K: 0.3 is the weight that is never far from the best; below it some candles overfit their
+  // noise. The held-out camera does not choose between them (its Delta E moves by under 0.1).
+  double axisymmetric_w_sm = 0.3;
   // The cameras' exposure when it is known (the recording's exposure time x gain, in the
   // renderer's units, as the tomography takes it): > 0 holds the fit's exposure there, so that
   // densities come out absolute and comparable across frames; 0 = unknown, fitted (the paper's

@@ -289,9 +289,10 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
   }
   const auto t0 = SteadyClock::now();
   try {
+    // An axisymmetric fit starts cold (RunOptions::warm_start says why).
+    const bool warm = chain_.previous_result >= 0 && options_.warm_start && !fit.axisymmetric;
     w->result = FastFit(reconstructor_->grid(), w->tomography, w->views, absorption_, fit,
-                        chain_.previous_result >= 0 && options_.warm_start ? &previous_ : nullptr,
-                        progress, w->bands);
+                        warm ? &previous_ : nullptr, progress, w->bands);
   } catch (const DataError& e) {
     w->summary.fit_ms = Ms(t0);
     throw DataError(std::string("fit: ") + e.what());

@@ -475,6 +475,33 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
   fs::remove_all(dir);
 }
 
+// An axisymmetric run starts every frame's fit from its own tomography (RunOptions::warm_start):
+// on one thread, frame 1 of a warm-started run is frame 1 of a cold one to the bit. The control:
+// an untied run's warm start does change frame 1, so the comparison can tell.
+TEST(RunFrames, AnAxisymmetricRunStartsEveryFrameFromItsOwnTomography) {
+  const tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
+  const fs::path dir = TempDir("axisymmetric");
+  SimulateDataset(dir / "sim", 2);
+  auto second_frame = [&](bool axisymmetric, bool warm_start, const std::string& name) {
+    RunOptions o = SmallRun(dir / "sim", dir / name);
+    o.fit.axisymmetric = axisymmetric;
+    o.warm_start = warm_start;
+    o.sigma = o.blender = o.pictures = false;
+    const RunSummary run = RunAll(o);
+    EXPECT_EQ(run.computed, 2u) << name;
+    return ReadVdb((dir / name / "frame_000001.vdb").string());
+  };
+  const FireVolume tied_warm = second_frame(true, true, "tied_warm");
+  const FireVolume tied_cold = second_frame(true, false, "tied_cold");
+  EXPECT_GT(tied_warm.metadata_numbers.at("axisymmetric_rings"), 0);
+  EXPECT_EQ(tied_warm.temperature_k, tied_cold.temperature_k);
+  EXPECT_EQ(tied_warm.density_per_m3, tied_cold.density_per_m3);
+  const FireVolume free_warm = second_frame(false, true, "free_warm");
+  const FireVolume free_cold = second_frame(false, false, "free_cold");
+  EXPECT_NE(free_warm.temperature_k, free_cold.temperature_k);
+  fs::remove_all(dir);
+}
+
 // The exposure (issue 19): a known one (the dataset's) is held on every frame; an unknown one is
 // fitted on the take's first frame and held after it, across a resume too; --fit-exposure fits a
 // free one per frame (the paper's). Oracles: the dataset's exposure, and frame 0's own.

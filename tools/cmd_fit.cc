@@ -58,7 +58,8 @@ Runner AddFit(CLI::App* command) {
   CLI::Option* w_sm =
       command
           ->add_option("--w-sm", job.fit.objective.w_sm,
-                       "Weight of the neighbour term (fast: 1; alg1/alg2: the paper's 10)")
+                       "Weight of the neighbour term (fast: 1, with --axisymmetric 0.3; "
+                       "alg1/alg2: the paper's 10)")
           ->type_name("W")
           ->check(kNonNegative);
   command
@@ -88,7 +89,8 @@ Runner AddFit(CLI::App* command) {
                  : o->method == "alg2" ? FitMethod::kAlgorithm2
                                        : FitMethod::kFast;
     // The paper's algorithms minimise the paper's energy (w_sm 10) unless told otherwise.
-    if (w_sm->count() > 0) job.paper.w_sm = job.fit.objective.w_sm;
+    // A weight given is the fit's, tied to rings or not.
+    if (w_sm->count() > 0) job.paper.w_sm = job.fit.axisymmetric_w_sm = job.fit.objective.w_sm;
     job.paper.time_limit_s = job.fit.time_limit_s;
     if (o->iterations >= 0) {
       if (o->iterations == 0 && job.method != FitMethod::kFast)

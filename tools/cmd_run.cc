@@ -85,7 +85,8 @@ Runner AddRun(CLI::App* command) {
       "Do not write the per-voxel sigma grids (saves about 50 ms a frame at 64^3, two views)");
   command->add_flag("--axisymmetric", run.fit.axisymmetric,
                     "Fit one temperature and density per ring about the flame's vertical axis "
-                    "(an axisymmetric flame, as Abel inversion assumes)");
+                    "(an axisymmetric flame, as Abel inversion assumes; every frame then starts "
+                    "from its own tomography)");
   command->add_flag("--fit-exposure", run.fit_exposure,
                     "Fit a free exposure on every frame (the paper's s), even a known one");
   command

@@ -135,12 +135,14 @@ std::string RunRunBenchmark(const RunBenchmarkOptions& options,
   o.out_dir = (dir / "cold").string();
   rows.push_back(Measure("`flamerig run --cold` (matrix reused, every fit from its tomography)", o,
                          0, frames, log));
-  // An axisymmetric flame (FitOptions::axisymmetric): one temperature and density per ring.
+  // An axisymmetric flame (FitOptions::axisymmetric): one temperature and density per ring, every
+  // frame from its own tomography whatever warm_start says (RunOptions::warm_start).
   o.warm_start = true;
   o.fit.axisymmetric = true;
   o.out_dir = (dir / "rings").string();
   const Row rings = Measure(
-      "`flamerig run --axisymmetric` (one temperature and density per ring about the flame's axis)",
+      "`flamerig run --axisymmetric` (one temperature and density per ring about the flame's axis, "
+      "neighbour weight 0.3, every fit from its tomography)",
       o, 0, frames, log);
   rows.push_back(rings);
   o.fit.axisymmetric = false;
