@@ -497,6 +497,8 @@ void Resample(const State& from, const std::vector<float>& emission, const ThinE
 // distance to the layer's emission centroid, rounded to whole voxels. Members are active indices.
 struct RingTie {
   std::vector<std::vector<std::size_t>> rings;
+  std::vector<std::pair<int, int>> places;  // per ring: (layer, radius in whole voxels)
+  std::vector<Eigen::Vector2d> axis;        // per layer: the axis at (i, k), in voxel indices
 
   // Each ring's values replaced by their mean: the orthogonal projection onto ring-constant
   // fields (so a projected gradient gives every direction within them its exact derivative).
@@ -538,19 +540,60 @@ RingTie MakeRingTie(const GridGeometry& grid, const std::vector<std::uint32_t>& 
     weighted[v.y()] += Eigen::Vector3d(w * v.x(), w * v.z(), w);
     plain[v.y()] += Eigen::Vector3d(v.x(), v.z(), 1.0);
   }
-  std::map<std::pair<int, long>, std::size_t> index;  // (layer, ring) -> ring number
+  std::map<std::pair<int, int>, std::size_t> index;  // (layer, ring) -> ring number
   RingTie tie;
+  tie.axis.assign(grid.dims.y(), Eigen::Vector2d::Zero());
+  for (int j = 0; j < grid.dims.y(); ++j) {
+    const Eigen::Vector3d& c = weighted[j].z() > 0 ? weighted[j] : plain[j];
+    if (c.z() > 0) tie.axis[j] = Eigen::Vector2d(c.x() / c.z(), c.y() / c.z());
+  }
   for (std::size_t a = 0; a < active.size(); ++a) {
     const Eigen::Vector3i v = grid.Unflat(active[a]);
     const int j = v.y();
-    const Eigen::Vector3d& c = weighted[j].z() > 0 ? weighted[j] : plain[j];
-    const double dx = v.x() - c.x() / c.z(), dz = v.z() - c.y() / c.z();
-    const auto [it, added] =
-        index.emplace(std::make_pair(j, std::lround(std::hypot(dx, dz))), tie.rings.size());
-    if (added) tie.rings.emplace_back();
+    const int radius =
+        static_cast<int>(std::lround(std::hypot(v.x() - tie.axis[j].x(), v.z() - tie.axis[j].y())));
+    const auto [it, added] = index.emplace(std::make_pair(j, radius), tie.rings.size());
+    if (added) {
+      tie.rings.emplace_back();
+      tie.places.emplace_back(j, radius);
+    }
     tie.rings[it->second].push_back(a);
   }
   return tie;
+}
+
+// The tied fit's radial profile (FitResult::ring_profile), by layer and then radius.
+std::vector<RingProfilePoint> MakeRingProfile(const GridGeometry& grid, const RingTie& tie,
+                                              const std::vector<double>& t,
+                                              const std::vector<double>& n,
+                                              const VoxelUncertainty& uncertainty) {
+  std::vector<RingProfilePoint> profile;
+  for (std::size_t r = 0; r < tie.rings.size(); ++r) {
+    const auto [j, radius] = tie.places[r];
+    const std::size_t a = tie.rings[r].front();  // every member holds the ring's values
+    RingProfilePoint p;
+    p.layer = j;
+    // Voxel indices to the rig frame as GridGeometry::VoxelCenter does, at a fractional (i, k).
+    const Eigen::Vector3d at(tie.axis[j].x() + 0.5, j + 0.5, tie.axis[j].y() + 0.5);
+    const Eigen::Vector3d axis = grid.origin_in_rig + at.cwiseProduct(grid.voxel_size_m);
+    p.height_m = axis.y();
+    p.axis_x_m = axis.x();
+    p.axis_z_m = axis.z();
+    p.radius_voxels = radius;
+    p.radius_m = radius * grid.voxel_size_m.x();
+    p.voxels = tie.rings[r].size();
+    p.temperature_k = t[a];
+    p.density_per_m3 = n[a];
+    if (!uncertainty.temperature_sigma_k.empty()) {
+      p.temperature_sigma_k = uncertainty.temperature_sigma_k[a];
+      p.log_density_sigma = uncertainty.log_density_sigma[a];
+    }
+    profile.push_back(p);
+  }
+  std::sort(profile.begin(), profile.end(), [](const auto& x, const auto& y) {
+    return std::tie(x.layer, x.radius_voxels) < std::tie(y.layer, y.radius_voxels);
+  });
+  return profile;
 }
 
 // The energy in the unbounded parameters u = (u_T per voxel, u_n per voxel, u_s).
@@ -964,6 +1007,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
           !st.active.empty())
         result.uncertainty = EstimateUncertainty(objective, st.t, st.n, st.s, options.uncertainty,
                                                  tie ? &tie->rings : nullptr);
+      if (tie) result.ring_profile = MakeRingProfile(st.grid, *tie, st.t, st.n, result.uncertainty);
     }
     // Out of time or cancelled with finer levels to go: they are skipped, and that is why the fit
     // stopped. At the last level the solver's own reason stands.

@@ -239,6 +239,23 @@ struct FitOptions {
   void Validate() const;  // throws InputError naming the field
 };
 
+// One ring of an axisymmetric fit (FitOptions::axisymmetric) at one height: a point of the radial
+// profile T(r, h) that an Abel inversion gives and combustion papers quote, in the rig frame's
+// metres. A ring holds the active voxels of one grid layer whose distance to the layer's axis,
+// rounded to whole voxels (of the grid's x size), is the ring's radius.
+struct RingProfilePoint {
+  int layer = 0;                      // the grid layer (y index)
+  double height_m = 0;                // the layer's voxel-centre y in the rig frame
+  double axis_x_m = 0, axis_z_m = 0;  // where the flame's axis crosses the layer
+  int radius_voxels = 0;              // the ring's radius in whole voxels
+  double radius_m = 0;                // the same in metres (its voxels lie within half a voxel)
+  std::size_t voxels = 0;             // the ring's voxels (their values are the ring's)
+  double temperature_k = 0;           // the ring's temperature
+  double temperature_sigma_k = 0;     // its one-sigma uncertainty (0 when not estimated)
+  double density_per_m3 = 0;          // the ring's soot density
+  double log_density_sigma = 0;       // sigma of ln(density): 0.1 is about 10% (0: none)
+};
+
 struct FitResult {
   // Temperature (K) and density (1/m^3) on the fitted grid; voxels outside the medium (density 0)
   // hold the lowest temperature of the search range (ambient). Metadata: exposure, density_scale,
@@ -258,6 +275,9 @@ struct FitResult {
   double initial_energy = 0;    // exact energy at the start (the initialisation or warm start)
   int band_radius_voxels = -1;  // a two-colour start's neighbourhood radius (-1: none)
   std::size_t rings = 0;  // FitOptions::axisymmetric: the rings of the finest level (0: untied)
+  // FitOptions::axisymmetric: one point per ring of the finest level, by layer and then radius
+  // (empty when untied).
+  std::vector<RingProfilePoint> ring_profile;
   VoxelUncertainty uncertainty;  // FitOptions::estimate_uncertainty; empty otherwise
   double seconds = 0;
   std::string method;

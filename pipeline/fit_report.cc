@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "core/atomic_file.h"
+#include "core/error.h"
 #include "core/log.h"
 #include "fitting/colour.h"
 #include "pipeline/picture.h"
@@ -27,6 +28,73 @@ namespace {
 // smallest difference a person sees, above 10 colours differ at a glance.
 constexpr double kDeltaEScale = 20;
 }  // namespace
+
+void WriteRingProfileCsv(const std::string& path, const std::vector<RingProfilePoint>& profile,
+                         const std::vector<RingTruth>* truth) {
+  if (truth && truth->size() != profile.size())
+    throw InputError("ring profile: " + std::to_string(truth->size()) + " truth rings for " +
+                     std::to_string(profile.size()) + " rings");
+  std::ostringstream csv;
+  csv << "layer,height_m,axis_x_m,axis_z_m,radius_voxels,radius_m,voxels,temperature_k,"
+         "temperature_sigma_k,density_per_m3,log_density_sigma"
+      << (truth ? ",truth_temperature_k,truth_voxels" : "") << "\n";
+  for (std::size_t r = 0; r < profile.size(); ++r) {
+    const RingProfilePoint& p = profile[r];
+    csv << fmt::format("{},{:.9g},{:.9g},{:.9g},{},{:.9g},{},{:.6g},{:.6g},{:.6g},{:.6g}", p.layer,
+                       p.height_m, p.axis_x_m, p.axis_z_m, p.radius_voxels, p.radius_m, p.voxels,
+                       p.temperature_k, p.temperature_sigma_k, p.density_per_m3,
+                       p.log_density_sigma);
+    if (truth) {
+      const RingTruth& t = (*truth)[r];
+      csv << "," << (t.voxels ? fmt::format("{:.6g}", t.temperature_k) : std::string()) << ","
+          << t.voxels;
+    }
+    csv << "\n";
+  }
+  WriteFileAtomically(path, csv.str());
+}
+
+bool WriteRingProfilePlot(const std::string& base, const std::vector<RingProfilePoint>& profile,
+                          const std::vector<RingTruth>* truth, const std::string& title,
+                          std::string* error) {
+  // Up to five layers spread evenly over those with rings (the profile is sorted by layer).
+  std::vector<int> layers;
+  for (const auto& p : profile)
+    if (layers.empty() || layers.back() != p.layer) layers.push_back(p.layer);
+  std::vector<int> shown;
+  const std::size_t count = std::min<std::size_t>(5, layers.size());
+  for (std::size_t k = 0; k < count; ++k) {
+    const int layer = layers[(2 * k + 1) * layers.size() / (2 * count)];
+    if (shown.empty() || shown.back() != layer) shown.push_back(layer);
+  }
+  PlotSpec plot;
+  plot.title = title + ": temperature against the distance from the flame's axis";
+  plot.x_label = "radius (mm)";
+  plot.y_label = "temperature (K)";
+  plot.y_from_zero = false;
+  for (int layer : shown) {
+    PlotSeries fit, reference;
+    double height = 0;
+    for (std::size_t r = 0; r < profile.size(); ++r) {
+      const RingProfilePoint& p = profile[r];
+      if (p.layer != layer) continue;
+      height = p.height_m;
+      fit.x.push_back(1e3 * p.radius_m);
+      fit.y.push_back(p.temperature_k);
+      fit.y_error.push_back(p.temperature_sigma_k);
+      if (truth && (*truth)[r].voxels) {
+        reference.x.push_back(1e3 * p.radius_m);
+        reference.y.push_back((*truth)[r].temperature_k);
+      }
+    }
+    fit.name = fmt::format("height {:.1f} mm", 1e3 * height);
+    reference.name = fmt::format("truth at {:.1f} mm", 1e3 * height);
+    reference.reference_of = static_cast<int>(plot.series.size());
+    plot.series.push_back(fit);
+    if (truth) plot.series.push_back(reference);
+  }
+  return WritePlot(plot, base, error);
+}
 
 std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& result,
                                       const std::vector<FitView>& fitted,
@@ -123,6 +191,19 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
   const bool sliced = v.temperature_k.size() == v.geometry.num_voxels() &&
                       v.density_per_m3.size() == v.geometry.num_voxels();
   if (sliced) WritePng((fs::path(dir) / "slices.png").string(), SlicesPicture(v, truth));
+  // An axisymmetric fit's radial profile, and the truth's on the same rings.
+  const bool profiled = !result.ring_profile.empty();
+  bool profile_plotted = false;
+  std::string profile_error;
+  if (profiled) {
+    std::vector<RingTruth> on_rings;
+    if (truth) on_rings = TruthOnRings(*truth, v.geometry, result.ring_profile);
+    const std::vector<RingTruth>* t = truth ? &on_rings : nullptr;
+    WriteRingProfileCsv((fs::path(dir) / "profile.csv").string(), result.ring_profile, t);
+    profile_plotted = WriteRingProfilePlot((fs::path(dir) / "profile").string(),
+                                           result.ring_profile, t, title, &profile_error);
+    if (!profile_plotted) Log().warn("fit report: no profile plot: {}", profile_error);
+  }
   {
     std::ostringstream csv;
     csv << "seconds,energy,mean_delta_e,level,stage\n";
@@ -141,6 +222,7 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
   }
   md << "\n![each view: input, rendered from the fit, Delta E (0 to 20, viridis)](views.png)\n\n"
      << (sliced ? "![temperature slices](slices.png)\n\n" : "")
+     << (profile_plotted ? "![radial profile](profile.png)\n\n" : "")
      << "![error against time](error.png)\n";
   WriteFileAtomically((fs::path(dir) / "report.md").string(), md.str());
 
@@ -169,14 +251,33 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
                            : "") +
                     (v.temperature_sigma_k.empty() ? "." : ", and its one-sigma uncertainty."));
   }
+  if (profiled) {
+    page.Section("Radial profile");
+    if (!profile_plotted) page.Warning("No plot: " + profile_error);
+    if (profile_plotted)
+      page.Figure(
+          "profile.png",
+          std::string("The axisymmetric fit's rings: temperature against the distance "
+                      "from the flame's axis at up to five heights") +
+              (result.uncertainty.temperature_sigma_k.empty() ? "" : ", with one-sigma bars") +
+              (truth ? "; dashed, the truth's visible voxels averaged over the same rings" : "") +
+              ". Every ring's numbers are in profile.csv.");
+  }
   page.Section("Error against time");
   if (!plotted) page.Warning("No plot: " + plot_error);
   if (plotted)
     page.Figure("error.png", "Mean Delta E of the fitted views as the fit ran (log time axis).");
   page.Section("Data");
-  page.Files({{"trace.csv", "the fit's energy and Delta E at each step"},
-              {"error.dat", "the plot's data; error.gp redraws it with gnuplot"},
-              {"report.md", "this report as Markdown"}});
+  std::vector<std::pair<std::string, std::string>> files = {
+      {"trace.csv", "the fit's energy and Delta E at each step"},
+      {"error.dat", "the plot's data; error.gp redraws it with gnuplot"},
+      {"report.md", "this report as Markdown"}};
+  if (profiled)
+    files.push_back({"profile.csv",
+                     "the axisymmetric fit's rings: height, radius, temperature and density with "
+                     "their sigma" +
+                         std::string(truth ? ", and the truth on each ring" : "")});
+  page.Files(files);
   page.Write((fs::path(dir) / "index.html").string());
   return scores;
 }

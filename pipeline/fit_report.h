@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "fitting/fit.h"
+#include "pipeline/truth.h"
 
 namespace flamerig {
 
@@ -24,8 +25,10 @@ struct ViewScore {
 // not empty, writes the report there: index.html (pipeline/report_page.h) and report.md over
 // views.png (input, rendered, Delta E map per view, labelled), slices.png (the fitted temperature,
 // with `truth` the truth and the error, and the sigma; run_report.h's SlicesPicture), error.png
-// and .svg (mean Delta E against time, pipeline/plot.h) and trace.csv. Returns the scores, and
-// the rendered 8-bit views (fitted, then held out) through *rendered when not null.
+// and .svg (mean Delta E against time, pipeline/plot.h) and trace.csv; for an axisymmetric fit
+// also profile.csv and profile.png (WriteRingProfileCsv and WriteRingProfilePlot below). Returns
+// the scores, and the rendered 8-bit views (fitted, then held out) through *rendered when not
+// null.
 std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& result,
                                       const std::vector<FitView>& fitted,
                                       const std::vector<FitView>& held_out,
@@ -33,6 +36,22 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
                                       const RenderOptions& render, const std::string& title,
                                       std::vector<ImageU8>* rendered = nullptr,
                                       const FireVolume* truth = nullptr);
+
+// An axisymmetric fit's radial profile (FitResult::ring_profile) as CSV, one row per ring by
+// layer and then radius: layer, height_m, axis_x_m, axis_z_m, radius_voxels, radius_m, voxels,
+// temperature_k, temperature_sigma_k, density_per_m3, log_density_sigma, and with `truth`
+// (pipeline/truth.h's TruthOnRings, one per ring) truth_temperature_k and truth_voxels (empty
+// where no truth voxel falls in the ring). Metres in the rig frame. Written atomically.
+void WriteRingProfileCsv(const std::string& path, const std::vector<RingProfilePoint>& profile,
+                         const std::vector<RingTruth>* truth = nullptr);
+
+// The profile drawn (pipeline/plot.h, base + ".png" and the rest): temperature against radius at
+// up to five heights spread over the flame, each with +- one sigma bars where the fit has a
+// sigma, and with `truth` the truth's ring means dashed in the same colour. False with the reason
+// in *error when the plot cannot be drawn (no gnuplot).
+bool WriteRingProfilePlot(const std::string& base, const std::vector<RingProfilePoint>& profile,
+                          const std::vector<RingTruth>* truth, const std::string& title,
+                          std::string* error = nullptr);
 
 }  // namespace flamerig
 

@@ -72,6 +72,7 @@ std::string RunPaths::Volume(std::size_t i) const {
 }
 std::string RunPaths::Summary(std::size_t i) const { return In(out, "frames", i, ".yaml"); }
 std::string RunPaths::Picture(std::size_t i) const { return In(out, "frames", i, ".png"); }
+std::string RunPaths::Profile(std::size_t i) const { return In(out, "frames", i, "_profile.csv"); }
 std::string RunPaths::Tomography(std::size_t i) const { return In(out, "tomography", i, ".vdb"); }
 std::string RunPaths::Blender(std::size_t i) const { return In(out, "blender", i, ".vdb"); }
 std::string RunPaths::StateYaml(std::size_t i) const { return In(out, "state", i, ".yaml"); }
@@ -188,6 +189,8 @@ void FrameStages::Reuse(FrameWork* w) {
     CopyFileAtomically(paths_.Blender(from), paths_.Blender(w->index));
   if (options_.pictures && fs::exists(paths_.Picture(from)))
     CopyFileAtomically(paths_.Picture(from), paths_.Picture(w->index));
+  if (fs::exists(paths_.Profile(from)))
+    CopyFileAtomically(paths_.Profile(from), paths_.Profile(w->index));
   s.write_ms = Ms(t0);
   std::vector<FrameSummary> reused;
   try {
@@ -316,6 +319,8 @@ void FrameStages::Write(FrameWork* w) {
   WriteVolume(paths_.Volume(w->index), result.volume);
   WriteVolume(paths_.Tomography(w->index), w->tomography);
   if (options_.blender) WriteBlenderVdb(paths_.Blender(w->index), result.volume, absorption_);
+  if (!result.ring_profile.empty())
+    WriteRingProfileCsv(paths_.Profile(w->index), result.ring_profile);
   if (options_.pictures) {
     // Input over rendered, camera by camera (fitted views, then the held-out one).
     std::vector<ImageU8> inputs;

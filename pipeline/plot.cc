@@ -67,8 +67,14 @@ bool WritePlot(const PlotSpec& spec, const std::string& base, std::string* error
     std::size_t points = 0;
     for (std::size_t i = 0; i < std::min(series.x.size(), series.y.size()); ++i) {
       if (!Usable(spec, series.x[i], series.y[i])) continue;
-      std::snprintf(buf, sizeof buf, "%.17g %.17g\n", series.x[i], series.y[i]);
+      std::snprintf(buf, sizeof buf, "%.17g %.17g", series.x[i], series.y[i]);
       block << buf;
+      if (!series.y_error.empty()) {
+        const double e = i < series.y_error.size() ? series.y_error[i] : 0.0;
+        std::snprintf(buf, sizeof buf, " %.17g", std::isfinite(e) && e > 0 ? e : 0.0);
+        block << buf;
+      }
+      block << "\n";
       ++points;
     }
     if (!points) continue;
@@ -116,12 +122,21 @@ bool WritePlot(const PlotSpec& spec, const std::string& base, std::string* error
     gp << "set xtics " << step << "\nset format x '%.0f'\nset xrange " << range_text << "\n";
   }
   if (spec.y_from_zero) gp << "set yrange [0:*]\nset y2range [0:*]\n";
-  for (std::size_t k = 0; k < plotted.size(); ++k)
-    gp << "set linetype " << k + 1 << " lc rgb '" << kColours[k % 10] << "' lw 2 pt 7 ps 0.5 dt "
-       << (k < 10   ? 1
-           : k < 20 ? 2
-                    : 3)
-       << "\n";
+  // Colours go to the series drawn in their own; a reference takes its series' colour, dashed.
+  std::vector<int> colour(spec.series.size(), -1);
+  int own = 0;
+  for (std::size_t s : plotted)
+    if (spec.series[s].reference_of < 0) colour[s] = own++;
+  for (std::size_t k = 0; k < plotted.size(); ++k) {
+    const PlotSeries& s = spec.series[plotted[k]];
+    const bool reference = s.reference_of >= 0 &&
+                           static_cast<std::size_t>(s.reference_of) < spec.series.size() &&
+                           colour[s.reference_of] >= 0;
+    const int c = reference ? colour[s.reference_of] : colour[plotted[k]];
+    const int dash = reference ? 2 : c < 10 ? 1 : c < 20 ? 2 : 3;
+    gp << "set linetype " << k + 1 << " lc rgb '" << kColours[std::max(0, c) % 10]
+       << "' lw 2 pt 7 ps 0.5 dt " << dash << "\n";
+  }
   gp << "do for [term = 1:2] {\n"
      << "  if (term == 1) { set terminal pngcairo size " << spec.width << "," << spec.height
      << " font 'Sans,11' noenhanced; set output png_out }\n"
@@ -135,8 +150,8 @@ bool WritePlot(const PlotSpec& spec, const std::string& base, std::string* error
     for (std::size_t k = 0; k < plotted.size(); ++k) {
       const PlotSeries& s = spec.series[plotted[k]];
       gp << (k ? ", \\\n       " : "") << Quoted(name + ".dat") << " index " << k
-         << " using 1:2 with linespoints lt " << k + 1 << " title " << Quoted(s.name)
-         << (s.right_axis ? " axes x1y2" : "");
+         << (s.y_error.empty() ? " using 1:2 with linespoints" : " using 1:2:3 with yerrorlines")
+         << " lt " << k + 1 << " title " << Quoted(s.name) << (s.right_axis ? " axes x1y2" : "");
     }
     gp << "\n";
   }

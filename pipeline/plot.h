@@ -16,15 +16,27 @@
 #define FLAMERIG_PIPELINE_PLOT_H_
 
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace flamerig {
 
 // One line of a plot: points (x, y) and a name for the legend. Non-finite points are left out.
 struct PlotSeries {
+  PlotSeries() = default;
+  PlotSeries(std::string name_, std::vector<double> x_ = {}, std::vector<double> y_ = {},
+             bool right_axis_ = false)
+      : name(std::move(name_)), x(std::move(x_)), y(std::move(y_)), right_axis(right_axis_) {}
+
   std::string name;
   std::vector<double> x, y;
   bool right_axis = false;  // against the second y axis (PlotSpec::y2_label)
+  // Error bars of +- y_error[i] at each point (empty: none; a non-finite or negative one: none
+  // at that point).
+  std::vector<double> y_error;
+  // Drawn dashed in the colour of series `reference_of` (an index into PlotSpec::series), as a
+  // reference beside it (a truth beside its fit); -1: its own colour.
+  int reference_of = -1;
 };
 
 struct PlotSpec {

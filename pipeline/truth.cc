@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
+#include <map>
+#include <utility>
 
 #include "core/error.h"
 #include "tomography/reconstruct.h"
@@ -10,16 +13,12 @@ namespace flamerig {
 
 namespace {
 
-// Calls visit(v, f, relative) for each visible truth voxel v (>= 1300 K with soot, and at least
-// 1% of the peak emission when the truth has an emission grid) paired with the fitted voxel f
-// that holds its centre (v itself on the same grid) where the fit has medium; `relative` is v's
-// emission over the truth's peak (1 without an emission grid). Counts the visible voxels.
+// Calls visit(centre, v, relative) for each truth voxel v the images can show (>= 1300 K with
+// soot, and at least 1% of the peak emission when the truth has an emission grid): its centre in
+// the rig frame and its emission over the truth's peak (1 without an emission grid).
 template <typename Visit>
-void ForEachScoredVoxel(const FireVolume& truth, const FireVolume& fitted, std::size_t* visible,
-                        Visit&& visit) {
+void ForEachVisibleVoxel(const FireVolume& truth, Visit&& visit) {
   const GridGeometry& tg = truth.geometry;
-  const GridGeometry& fg = fitted.geometry;
-  const bool same_grid = tg.SameVoxels(fg);
   const std::vector<float>& e = truth.emission_rgb;
   double peak = 0;
   for (std::size_t v = 0; !e.empty() && v < tg.num_voxels(); ++v)
@@ -30,12 +29,25 @@ void ForEachScoredVoxel(const FireVolume& truth, const FireVolume& fitted, std::
         const std::size_t v = tg.Flat(i, j, k);
         if (truth.temperature_k[v] < 1300 || !(truth.density_per_m3[v] > 0)) continue;
         if (!e.empty() && e[3 * v + 1] < 0.01 * peak) continue;
-        ++*visible;
-        std::size_t f = v;
-        if (!same_grid && !fg.VoxelHolding(tg.VoxelCenter(i, j, k), &f)) continue;
-        if (!(fitted.density_per_m3[f] > 0)) continue;
-        visit(v, f, e.empty() ? 1.0 : e[3 * v + 1] / peak);
+        visit(tg.VoxelCenter(i, j, k), v, e.empty() ? 1.0 : e[3 * v + 1] / peak);
       }
+}
+
+// Calls visit(v, f, relative) for each visible truth voxel v (ForEachVisibleVoxel) paired with
+// the fitted voxel f that holds its centre (v itself on the same grid) where the fit has medium.
+// Counts the visible voxels.
+template <typename Visit>
+void ForEachScoredVoxel(const FireVolume& truth, const FireVolume& fitted, std::size_t* visible,
+                        Visit&& visit) {
+  const GridGeometry& fg = fitted.geometry;
+  const bool same_grid = truth.geometry.SameVoxels(fg);
+  ForEachVisibleVoxel(truth, [&](const Eigen::Vector3d& centre, std::size_t v, double relative) {
+    ++*visible;
+    std::size_t f = v;
+    if (!same_grid && !fg.VoxelHolding(centre, &f)) return;
+    if (!(fitted.density_per_m3[f] > 0)) return;
+    visit(v, f, relative);
+  });
 }
 
 }  // namespace
@@ -177,6 +189,40 @@ double TotalSoot(const FireVolume& volume) {
   for (float n : volume.density_per_m3)
     if (n > 0) sum += n;
   return sum * volume.geometry.voxel_size_m.prod();
+}
+
+std::vector<RingTruth> TruthOnRings(const FireVolume& truth, const GridGeometry& fit_grid,
+                                    const std::vector<RingProfilePoint>& profile) {
+  const std::size_t voxels = truth.geometry.num_voxels();
+  if (truth.temperature_k.size() != voxels || truth.density_per_m3.size() != voxels)
+    throw InputError("truth on rings: the truth needs temperature and density grids");
+  std::map<std::pair<int, int>, std::size_t> ring;  // (layer, radius) -> point
+  std::vector<const RingProfilePoint*> axis_of_layer(fit_grid.dims.y(), nullptr);
+  for (std::size_t p = 0; p < profile.size(); ++p) {
+    ring.emplace(std::make_pair(profile[p].layer, profile[p].radius_voxels), p);
+    if (profile[p].layer >= 0 && profile[p].layer < fit_grid.dims.y())
+      axis_of_layer[profile[p].layer] = &profile[p];
+  }
+  std::vector<double> sum(profile.size(), 0.0);
+  std::vector<RingTruth> out(profile.size());
+  ForEachVisibleVoxel(truth, [&](const Eigen::Vector3d& centre, std::size_t v, double) {
+    std::size_t f = 0;
+    if (!fit_grid.VoxelHolding(centre, &f)) return;
+    const int layer = fit_grid.Unflat(f).y();
+    const RingProfilePoint* axis = axis_of_layer[layer];
+    if (!axis) return;
+    const int radius = static_cast<int>(
+        std::lround(std::hypot(centre.x() - axis->axis_x_m, centre.z() - axis->axis_z_m) /
+                    fit_grid.voxel_size_m.x()));
+    const auto it = ring.find(std::make_pair(layer, radius));
+    if (it == ring.end()) return;
+    sum[it->second] += truth.temperature_k[v];
+    ++out[it->second].voxels;
+  });
+  for (std::size_t p = 0; p < out.size(); ++p)
+    out[p].temperature_k =
+        out[p].voxels ? sum[p] / double(out[p].voxels) : std::numeric_limits<double>::quiet_NaN();
+  return out;
 }
 
 double EmissionError(const FireVolume& reconstruction, const FireVolume& truth,

@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "fitting/fit.h"
 #include "tomography/volume.h"
 
 namespace flamerig {
@@ -64,6 +65,19 @@ std::vector<EmissionBandError> TemperatureErrorByEmission(const FireVolume& trut
                                                           const FireVolume& fitted,
                                                           const std::vector<double>& edges = {
                                                               0.01, 0.03, 0.1, 0.3, 1.0});
+
+// The truth on an axisymmetric fit's rings (FitResult::ring_profile on `fit_grid`), so that a
+// radial profile can be drawn beside the truth's: per ring, the mean temperature of the truth's
+// visible voxels (as CompareWithTruth counts them) that fall in it. A truth voxel falls in the
+// ring of the layer of the fit voxel holding its centre whose radius is the distance from that
+// centre to the layer's axis (in the xz plane) in fit voxels, rounded. `voxels` 0 and a NaN
+// temperature where none falls. Throws InputError when the truth lacks temperature or density.
+struct RingTruth {
+  double temperature_k = 0;
+  std::size_t voxels = 0;
+};
+std::vector<RingTruth> TruthOnRings(const FireVolume& truth, const GridGeometry& fit_grid,
+                                    const std::vector<RingProfilePoint>& profile);
 
 // The relative L2 error of a reconstruction's emission against a truth's emission grid (resampled
 // onto the reconstruction's grid when they differ): |e - e_truth| / |e_truth|. Throws DataError

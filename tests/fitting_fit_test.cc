@@ -997,6 +997,39 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
   }
   EXPECT_EQ(rings.size(), tied.rings);
   EXPECT_EQ(mismatched, 0u);
+  // The radial profile: one point per ring, by layer then radius, holding that ring's values at
+  // its layer's height, its axis and its radius in metres.
+  ASSERT_EQ(tied.ring_profile.size(), rings.size());
+  std::size_t profiled_voxels = 0;
+  for (std::size_t p = 0; p < tied.ring_profile.size(); ++p) {
+    const RingProfilePoint& point = tied.ring_profile[p];
+    SCOPED_TRACE("layer " + std::to_string(point.layer) + ", radius " +
+                 std::to_string(point.radius_voxels));
+    if (p > 0) {
+      const RingProfilePoint& before = tied.ring_profile[p - 1];
+      EXPECT_LT(std::make_pair(before.layer, before.radius_voxels),
+                std::make_pair(point.layer, point.radius_voxels));
+    }
+    const auto ring = rings.find(std::make_pair(point.layer, long(point.radius_voxels)));
+    ASSERT_NE(ring, rings.end());
+    EXPECT_EQ(float(point.temperature_k), ring->second.first);
+    EXPECT_EQ(float(point.density_per_m3), ring->second.second);
+    EXPECT_EQ(float(point.temperature_sigma_k),
+              ring_sigma.at(std::make_pair(point.layer, long(point.radius_voxels))));
+    const Eigen::Vector3d& c = sums[point.layer];
+    const Eigen::Vector3d axis =
+        r.grid.origin_in_rig +
+        Eigen::Vector3d(c.x() / c.z() + 0.5, point.layer + 0.5, c.y() / c.z() + 0.5)
+            .cwiseProduct(r.grid.voxel_size_m);
+    EXPECT_NEAR(point.height_m, axis.y(), 1e-12);
+    EXPECT_NEAR(point.axis_x_m, axis.x(), 1e-9);
+    EXPECT_NEAR(point.axis_z_m, axis.z(), 1e-9);
+    EXPECT_DOUBLE_EQ(point.radius_m, point.radius_voxels * r.grid.voxel_size_m.x());
+    EXPECT_GT(point.log_density_sigma, 0);
+    profiled_voxels += point.voxels;
+  }
+  EXPECT_EQ(profiled_voxels, active.size());
+  EXPECT_TRUE(free.ring_profile.empty());
   // The sigma is the ring's (uncertainty.h's groups): one per ring, and in units of each fit's
   // noise level (the tied fit's residuals are larger: rings cannot hold the candle's sway)
   // narrower than the voxels' own, since a ring pools its voxels' information.

@@ -98,6 +98,44 @@ TEST(Plot, GnuplotDrawsLabelledAxesOneStylePerSeriesAndKeepsItsData) {
   fs::remove_all(dir);
 }
 
+// Error bars and a dashed reference (a ring profile's fit and truth, fit_report.h): the bars'
+// half-widths are the data's third column (a negative one drawn as none), the reference takes its
+// series' colour dashed, and the next series its own colour.
+TEST(Plot, ErrorBarsAndADashedReferenceInItsSeriesColour) {
+  const fs::path dir = TempDir();
+  PlotSpec spec;
+  spec.title = "profile";
+  spec.x_label = "radius (mm)";
+  spec.y_label = "temperature (K)";
+  spec.y_from_zero = false;
+  PlotSeries fit("fit", {0, 1, 2}, {1800, 1700, 1500});
+  fit.y_error = {50, -1, 80};
+  PlotSeries truth("truth", {0, 1, 2}, {1750, 1650, 1400});
+  truth.reference_of = 0;
+  spec.series = {fit, truth, PlotSeries("other", {0, 1}, {1600, 1600})};
+  std::string error;
+  ASSERT_TRUE(WritePlot(spec, (dir / "p").string(), &error)) << error;
+  EXPECT_FALSE(ReadImageU8((dir / "p.png").string(), 3).empty());
+  const std::string dat = Read(dir / "p.dat");
+  EXPECT_NE(dat.find("0 1800 50\n1 1700 0\n2 1500 80\n"), std::string::npos) << dat;
+  EXPECT_NE(dat.find("0 1750\n"), std::string::npos) << dat;
+  const std::string gp = Read(dir / "p.gp");
+  EXPECT_NE(gp.find("index 0 using 1:2:3 with yerrorlines"), std::string::npos) << gp;
+  EXPECT_NE(gp.find("index 1 using 1:2 with linespoints"), std::string::npos) << gp;
+  std::vector<std::string> styles;
+  std::istringstream lines(gp);
+  for (std::string line; std::getline(lines, line);)
+    if (line.rfind("set linetype", 0) == 0) styles.push_back(line);
+  ASSERT_EQ(styles.size(), 3u) << gp;
+  auto colour = [](const std::string& l) { return l.substr(l.find(" lc "), 18); };
+  EXPECT_EQ(colour(styles[0]), colour(styles[1]));
+  EXPECT_NE(colour(styles[2]), colour(styles[0]));
+  EXPECT_NE(styles[0].find("dt 1"), std::string::npos);
+  EXPECT_NE(styles[1].find("dt 2"), std::string::npos);
+  EXPECT_NE(styles[2].find("dt 1"), std::string::npos);
+  fs::remove_all(dir);
+}
+
 TEST(Plot, WithoutGnuplotSaysWhatToInstallAndKeepsTheScript) {
   const fs::path dir = TempDir();
   const char* path = std::getenv("PATH");

@@ -207,6 +207,56 @@ TEST(TruthError, SameGridVoxelByVoxelOtherGridsByTheVoxelHoldingEachCentre) {
   EXPECT_NEAR(part.rms_k, 10, 1e-4);
 }
 
+// The truth on an axisymmetric fit's rings. Fit voxels of 0.5 mm, a truth of 0.25 mm, the axis
+// through the box's middle. The truth is 1400 + 10 jt K (jt its layer) within 0.75 mm of the axis
+// and 1800 + 10 jt beyond, so that, in closed form, the rings of radius 0 and 1 (out to 0.75 mm)
+// average 1400 + 10 (2 j + 0.5) over the two truth layers of fit layer j, the others 1800 + ...;
+// the top truth layer is too cool to be seen (1000 K), so the top fit layer's rings hold its
+// lower one alone. Rings no visible truth voxel reaches are NaN with no voxels.
+TEST(TruthOnRings, EachRingAveragesTheVisibleTruthVoxelsAtItsHeightAndRadius) {
+  FireVolume truth = Cube(16, 0);
+  const GridGeometry& tg = truth.geometry;
+  for (int k = 0; k < 16; ++k)
+    for (int j = 0; j < 16; ++j)
+      for (int i = 0; i < 16; ++i) {
+        const Eigen::Vector3d c = tg.VoxelCenter(i, j, k);
+        const double rho = std::hypot(c.x() - 0.002, c.z() - 0.002);
+        truth.temperature_k[tg.Flat(i, j, k)] =
+            j == 15 ? 1000.0f : static_cast<float>((rho < 0.00075 ? 1400 : 1800) + 10 * j);
+      }
+  const GridGeometry fit = Cube(8, 0).geometry;
+  std::vector<RingProfilePoint> profile;
+  for (int j = 0; j < 8; ++j)
+    for (int r = 0; r <= 7; ++r) {
+      RingProfilePoint p;
+      p.layer = j;
+      p.radius_voxels = r;
+      p.axis_x_m = p.axis_z_m = 0.002;
+      profile.push_back(p);
+    }
+  const std::vector<RingTruth> rings = TruthOnRings(truth, fit, profile);
+  ASSERT_EQ(rings.size(), profile.size());
+  std::size_t counted = 0;
+  for (std::size_t p = 0; p < profile.size(); ++p) {
+    const int j = profile[p].layer, r = profile[p].radius_voxels;
+    SCOPED_TRACE("layer " + std::to_string(j) + ", ring " + std::to_string(r));
+    counted += rings[p].voxels;
+    if (r >= 6) {  // the truth's farthest voxel centre is 2.65 mm (5.3 fit voxels) out
+      EXPECT_EQ(rings[p].voxels, 0u);
+      EXPECT_TRUE(std::isnan(rings[p].temperature_k));
+      continue;
+    }
+    ASSERT_GT(rings[p].voxels, 0u);
+    const double base = r <= 1 ? 1400 : 1800;
+    const double expected = j == 7 ? base + 10 * 14 : base + 10 * (2 * j + 0.5);
+    EXPECT_NEAR(rings[p].temperature_k, expected, 1e-9);
+  }
+  EXPECT_EQ(counted, 16u * 16 * 15);  // every visible truth voxel, once
+  FireVolume bare = Cube(4, 1500);
+  bare.density_per_m3.clear();
+  EXPECT_THROW(TruthOnRings(bare, fit, profile), InputError);
+}
+
 // The same voxels as CompareWithTruth, split by the truth's emission over its peak: bands whose
 // errors are set by hand (the oracle), one voxel the fit left empty, and voxels too faint or too
 // cool to be visible.
@@ -499,6 +549,16 @@ TEST(RunFrames, AnAxisymmetricRunStartsEveryFrameFromItsOwnTomography) {
   const FireVolume free_warm = second_frame(false, true, "free_warm");
   const FireVolume free_cold = second_frame(false, false, "free_cold");
   EXPECT_NE(free_warm.temperature_k, free_cold.temperature_k);
+  // Each tied frame's radial profile beside its summary (fit_report.h's WriteRingProfileCsv): a
+  // header and a row per ring.
+  const fs::path frames = dir / "tied_warm" / "frames";
+  ASSERT_TRUE(fs::exists(frames / "frame_000000_profile.csv"));
+  std::ifstream csv(frames / "frame_000001_profile.csv");
+  ASSERT_TRUE(csv.good());
+  double lines = 0;
+  for (std::string line; std::getline(csv, line);) ++lines;
+  EXPECT_EQ(lines - 1, tied_warm.metadata_numbers.at("axisymmetric_rings"));
+  EXPECT_FALSE(fs::exists(dir / "free_warm" / "frames" / "frame_000001_profile.csv"));
   fs::remove_all(dir);
 }
 

@@ -350,7 +350,8 @@ TEST(Cli, FitASimulatedFrameSet) {
   // --axisymmetric ties the fit into rings about the flame's axis; the volume says how many.
   const std::string rings_out = (dir / "rings.vdb").string();
   Result rings = Flamerig("fit --rig " + rig + " --images " + images + " --out " + rings_out +
-                          " --holdout cam2 --resolution 20 --axisymmetric");
+                          " --holdout cam2 --resolution 20 --axisymmetric --truth " +
+                          (dir / "data" / "truth" / "frame_000000.vdb").string());
   ASSERT_EQ(rings.status, 0) << rings.output;
   EXPECT_NE(rings.output.find("axisymmetric: "), std::string::npos) << rings.output;
   const flamerig::FireVolume tied = flamerig::ReadVdb(rings_out);
@@ -360,6 +361,27 @@ TEST(Cli, FitASimulatedFrameSet) {
   EXPECT_GT(tied.metadata_numbers.at("axisymmetric_rings"), 0.0);
   EXPECT_LT(tied.metadata_numbers.at("axisymmetric_rings"), 0.5 * double(tied_medium));
   EXPECT_EQ(v.metadata_numbers.count("axisymmetric_rings"), 0u);
+  // Its report has the radial profile: a row per ring, read back by Python's csv module (an
+  // independent reader), temperatures inside the search range, the truth beside some of them.
+  const fs::path profile = dir / "rings_report" / "profile.csv";
+  ASSERT_TRUE(fs::exists(profile));
+  EXPECT_TRUE(fs::exists(dir / "rings_report" / "profile.png"));
+  EXPECT_FALSE(fs::exists(dir / "fit" / "fire_report" / "profile.csv"));
+  Result rows = Shell(
+      "/usr/bin/python3 -c \"import csv,sys; r=list(csv.DictReader(open(sys.argv[1]))); "
+      "print(len(r), sum(int(x['voxels']) for x in r), "
+      "min(float(x['temperature_k']) for x in r), max(float(x['temperature_k']) for x in r), "
+      "sum(1 for x in r if x['truth_temperature_k']))\" " +
+      profile.string());
+  ASSERT_EQ(rows.status, 0) << rows.output;
+  std::istringstream words(rows.output);
+  double ring_rows = 0, ring_voxels = 0, t_lo = 0, t_hi = 0, with_truth = 0;
+  words >> ring_rows >> ring_voxels >> t_lo >> t_hi >> with_truth;
+  EXPECT_EQ(ring_rows, tied.metadata_numbers.at("axisymmetric_rings"));
+  EXPECT_EQ(ring_voxels, double(tied_medium));
+  EXPECT_GE(t_lo, 300);
+  EXPECT_LE(t_hi, 2300);
+  EXPECT_GT(with_truth, 0);
   EXPECT_EQ(v.metadata_text.at("absorption_model"), "grey");
   for (const char* f : {"views.png", "error.png", "report.md", "trace.csv"})
     EXPECT_TRUE(fs::exists(dir / "fit" / "fire_report" / f)) << f;

@@ -111,8 +111,10 @@ TEST(ReportBrowser, EveryReportRendersWithItsPicturesInChromium) {
   const Result fit =
       Flamerig("fit --rig " + rig + " --images " + frame + " --out " +
                (dir / "fit" / "f.vdb").string() + " --holdout cam2 --resolution 20 --truth " +
-               truth + " --report " + (dir / "fit" / "report").string());
+               truth + " --report " + (dir / "fit" / "report").string() +
+               " --axisymmetric");  // its page then has the radial profile too
   ASSERT_EQ(fit.status, 0) << fit.output;
+  ASSERT_TRUE(fs::exists(dir / "fit" / "report" / "profile.png"));
   const Result run =
       Flamerig("run --images " + (dir / "data" / "frames").string() + " --rig " + rig +
                " --resolution 20 --truth " + (dir / "data" / "truth").string() + " --out " +
