@@ -65,7 +65,7 @@ void FitOptions::Validate() const {
   if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0)) fail("smoothing must be >= 0");
   if (!(time_limit_s >= 0)) fail("time_limit_s must be >= 0");
   if (!(axisymmetric_w_sm >= 0) || !std::isfinite(axisymmetric_w_sm))
-    fail("axisymmetric_w_sm must be >= 0, finite");
+    fail("axisymmetric_w_sm must be finite and >= 0");
   if (!(known_exposure >= 0) || !std::isfinite(known_exposure) ||
       (known_exposure > 0 && !(known_exposure >= exposure_min && known_exposure <= exposure_max)))
     fail("known_exposure must be 0 (unknown) or in [exposure_min, exposure_max]");
@@ -1033,6 +1033,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
                  &fine, false, fine_bands.get());
         st = fine;
         result.active_voxels = st.active.size();
+        result.rings = 0;  // the returned volume is the finest grid's, untied
         result.final_terms = fine_objective.Evaluate(st.t, st.n, st.s);
       }
       break;

@@ -57,6 +57,9 @@ void WriteRingProfileCsv(const std::string& path, const std::vector<RingProfileP
 bool WriteRingProfilePlot(const std::string& base, const std::vector<RingProfilePoint>& profile,
                           const std::vector<RingTruth>* truth, const std::string& title,
                           std::string* error) {
+  if (truth && truth->size() != profile.size())
+    throw InputError("ring profile: " + std::to_string(truth->size()) + " truth rings for " +
+                     std::to_string(profile.size()) + " rings");
   // Up to five layers spread evenly over those with rings (the profile is sorted by layer).
   std::vector<int> layers;
   for (const auto& p : profile)
@@ -193,12 +196,17 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
   if (sliced) WritePng((fs::path(dir) / "slices.png").string(), SlicesPicture(v, truth));
   // An axisymmetric fit's radial profile, and the truth's on the same rings.
   const bool profiled = !result.ring_profile.empty();
-  bool profile_plotted = false;
+  bool profile_plotted = false, profile_truth = false;
   std::string profile_error;
   if (profiled) {
+    // A truth without temperatures (an emission volume) is shown nowhere in the profile.
+    profile_truth = truth && truth->temperature_k.size() == truth->geometry.num_voxels() &&
+                    truth->density_per_m3.size() == truth->geometry.num_voxels();
+    if (truth && !profile_truth)
+      Log().warn("fit report: the truth has no temperature and density grids: not on the profile");
     std::vector<RingTruth> on_rings;
-    if (truth) on_rings = TruthOnRings(*truth, v.geometry, result.ring_profile);
-    const std::vector<RingTruth>* t = truth ? &on_rings : nullptr;
+    if (profile_truth) on_rings = TruthOnRings(*truth, v.geometry, result.ring_profile);
+    const std::vector<RingTruth>* t = profile_truth ? &on_rings : nullptr;
     WriteRingProfileCsv((fs::path(dir) / "profile.csv").string(), result.ring_profile, t);
     profile_plotted = WriteRingProfilePlot((fs::path(dir) / "profile").string(),
                                            result.ring_profile, t, title, &profile_error);
@@ -260,7 +268,8 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
           std::string("The axisymmetric fit's rings: temperature against the distance "
                       "from the flame's axis at up to five heights") +
               (result.uncertainty.temperature_sigma_k.empty() ? "" : ", with one-sigma bars") +
-              (truth ? "; dashed, the truth's visible voxels averaged over the same rings" : "") +
+              (profile_truth ? "; dashed, the truth's visible voxels averaged over the same rings"
+                             : "") +
               ". Every ring's numbers are in profile.csv.");
   }
   page.Section("Error against time");
@@ -276,7 +285,7 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
     files.push_back({"profile.csv",
                      "the axisymmetric fit's rings: height, radius, temperature and density with "
                      "their sigma" +
-                         std::string(truth ? ", and the truth on each ring" : "")});
+                         std::string(profile_truth ? ", and the truth on each ring" : "")});
   page.Files(files);
   page.Write((fs::path(dir) / "index.html").string());
   return scores;

@@ -189,8 +189,10 @@ void FrameStages::Reuse(FrameWork* w) {
     CopyFileAtomically(paths_.Blender(from), paths_.Blender(w->index));
   if (options_.pictures && fs::exists(paths_.Picture(from)))
     CopyFileAtomically(paths_.Picture(from), paths_.Picture(w->index));
-  if (fs::exists(paths_.Profile(from)))
+  if (options_.fit.axisymmetric && fs::exists(paths_.Profile(from)))
     CopyFileAtomically(paths_.Profile(from), paths_.Profile(w->index));
+  else
+    fs::remove(paths_.Profile(w->index));  // none from an earlier run into the same OUT
   s.write_ms = Ms(t0);
   std::vector<FrameSummary> reused;
   try {
@@ -321,6 +323,8 @@ void FrameStages::Write(FrameWork* w) {
   if (options_.blender) WriteBlenderVdb(paths_.Blender(w->index), result.volume, absorption_);
   if (!result.ring_profile.empty())
     WriteRingProfileCsv(paths_.Profile(w->index), result.ring_profile);
+  else
+    fs::remove(paths_.Profile(w->index));  // none from an earlier run into the same OUT
   if (options_.pictures) {
     // Input over rendered, camera by camera (fitted views, then the held-out one).
     std::vector<ImageU8> inputs;

@@ -50,16 +50,17 @@ struct FrameWork {
 // The output files of a run (OUT = options.out_dir).
 struct RunPaths {
   std::string out;
-  std::string Volume(std::size_t i) const;   // OUT/frame_NNNNNN.vdb
-  std::string Summary(std::size_t i) const;  // OUT/frames/frame_NNNNNN.yaml
-  std::string Picture(std::size_t i) const;  // OUT/frames/frame_NNNNNN.png
-  // An axisymmetric fit's radial profile (fit_report.h's WriteRingProfileCsv, without the truth).
-  std::string Profile(std::size_t i) const;     // OUT/frames/frame_NNNNNN_profile.csv
+  std::string Volume(std::size_t i) const;      // OUT/frame_NNNNNN.vdb
+  std::string Summary(std::size_t i) const;     // OUT/frames/frame_NNNNNN.yaml
+  std::string Picture(std::size_t i) const;     // OUT/frames/frame_NNNNNN.png
+  std::string Profile(std::size_t i) const;     // OUT/frames/frame_NNNNNN_profile.csv (below)
   std::string Tomography(std::size_t i) const;  // OUT/tomography/frame_NNNNNN.vdb
   std::string Blender(std::size_t i) const;     // OUT/blender/frame_NNNNNN.vdb
   std::string StateYaml(std::size_t i) const;   // OUT/state/frame_NNNNNN.yaml
   std::string StateBin(std::size_t i) const;    // OUT/state/frame_NNNNNN.state
   bool Complete(std::size_t i) const;           // the summary exists
+  // Profile: an axisymmetric fit's radial profile (fit_report.h's WriteRingProfileCsv, without
+  // the truth); no such file for an untied frame.
 };
 
 class FrameStages {

@@ -19,7 +19,8 @@ namespace fs = std::filesystem;
 namespace {
 
 // Ten colours that stay apart for people with common colour-vision deficiencies too (Tableau 10);
-// series past the tenth repeat them dashed, past the twentieth dotted.
+// series past the tenth repeat them dashed, past the twentieth dotted. A reference series
+// (PlotSeries::reference_of) is drawn dashed in its series' colour.
 constexpr const char* kColours[] = {"#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd",
                                     "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"};
 
@@ -122,20 +123,26 @@ bool WritePlot(const PlotSpec& spec, const std::string& base, std::string* error
     gp << "set xtics " << step << "\nset format x '%.0f'\nset xrange " << range_text << "\n";
   }
   if (spec.y_from_zero) gp << "set yrange [0:*]\nset y2range [0:*]\n";
-  // Colours go to the series drawn in their own; a reference takes its series' colour, dashed.
+  // Colours go to the series drawn in their own; a reference takes its series' colour, dashed (a
+  // reference whose series drew nothing takes a colour of its own).
+  auto drawn_reference = [&](std::size_t s) {
+    const int r = spec.series[s].reference_of;
+    return r >= 0 && static_cast<std::size_t>(r) < spec.series.size() &&
+           std::find(plotted.begin(), plotted.end(), static_cast<std::size_t>(r)) !=
+               plotted.end() &&
+           spec.series[r].reference_of < 0;
+  };
   std::vector<int> colour(spec.series.size(), -1);
   int own = 0;
   for (std::size_t s : plotted)
-    if (spec.series[s].reference_of < 0) colour[s] = own++;
+    if (!drawn_reference(s)) colour[s] = own++;
   for (std::size_t k = 0; k < plotted.size(); ++k) {
-    const PlotSeries& s = spec.series[plotted[k]];
-    const bool reference = s.reference_of >= 0 &&
-                           static_cast<std::size_t>(s.reference_of) < spec.series.size() &&
-                           colour[s.reference_of] >= 0;
-    const int c = reference ? colour[s.reference_of] : colour[plotted[k]];
+    const std::size_t s = plotted[k];
+    const bool reference = drawn_reference(s);
+    const int c = reference ? colour[spec.series[s].reference_of] : colour[s];
     const int dash = reference ? 2 : c < 10 ? 1 : c < 20 ? 2 : 3;
-    gp << "set linetype " << k + 1 << " lc rgb '" << kColours[std::max(0, c) % 10]
-       << "' lw 2 pt 7 ps 0.5 dt " << dash << "\n";
+    gp << "set linetype " << k + 1 << " lc rgb '" << kColours[c % 10] << "' lw 2 pt 7 ps 0.5 dt "
+       << dash << "\n";
   }
   gp << "do for [term = 1:2] {\n"
      << "  if (term == 1) { set terminal pngcairo size " << spec.width << "," << spec.height

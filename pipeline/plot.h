@@ -24,9 +24,12 @@ namespace flamerig {
 // One line of a plot: points (x, y) and a name for the legend. Non-finite points are left out.
 struct PlotSeries {
   PlotSeries() = default;
-  PlotSeries(std::string name_, std::vector<double> x_ = {}, std::vector<double> y_ = {},
-             bool right_axis_ = false)
-      : name(std::move(name_)), x(std::move(x_)), y(std::move(y_)), right_axis(right_axis_) {}
+  PlotSeries(std::string series_name, std::vector<double> xs = {}, std::vector<double> ys = {},
+             bool on_right_axis = false)
+      : name(std::move(series_name)),
+        x(std::move(xs)),
+        y(std::move(ys)),
+        right_axis(on_right_axis) {}
 
   std::string name;
   std::vector<double> x, y;
@@ -35,7 +38,8 @@ struct PlotSeries {
   // at that point).
   std::vector<double> y_error;
   // Drawn dashed in the colour of series `reference_of` (an index into PlotSpec::series), as a
-  // reference beside it (a truth beside its fit); -1: its own colour.
+  // reference beside it (a truth beside its fit); -1, or a series that draws no point or is a
+  // reference itself: its own colour.
   int reference_of = -1;
 };
 

@@ -15,7 +15,8 @@
 //   4. Fit (FastFit) warm-started from the previous frame's result (an axisymmetric fit: cold).
 //   5. Write OUT/frame_NNNNNN.vdb (temperature K, density m^-3; exposure, Delta E, timings and the
 //      fit's termination in metadata), OUT/blender/frame_NNNNNN.vdb (blender_export.h) and a small
-//      picture OUT/frames/frame_NNNNNN.png (input over rendered, per camera).
+//      picture OUT/frames/frame_NNNNNN.png (input over rendered, per camera); an axisymmetric
+//      fit's radial profile OUT/frames/frame_NNNNNN_profile.csv (fit_report.h).
 //   6. Score against the truth, when there is one (truth.h).
 //   7. Commit: the state the next frame starts from, then the summary OUT/frames/frame_NNNNNN.yaml,
 //      written last: the mark of a complete frame.
@@ -95,7 +96,7 @@ struct RunOptions {
   // (FitOptions::axisymmetric) always does: its rings follow each frame's own flame axis, and a
   // cool ring carried from the previous frame takes whatever density this frame's light needs at
   // that temperature, which at its neighbour weight (0.3) the fit does not undo. On the main job's
-  // 12 frames, warm-started, total soot rose to 1.2 to 2.2 times the truth and the temperature RMS
+  // 12 frames, warm-started, total soot rose to 1.1 to 2.2 times the truth and the temperature RMS
   // to 122 to 142 K, against 0.65 to 0.77 and 111 to 127 K started cold; the warm start saved no
   // iterations (55 to 89 against 55 to 70).
   bool warm_start = true;

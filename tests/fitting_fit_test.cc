@@ -970,6 +970,8 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
   const Eigen::Vector3i d = r.grid.dims;
   std::vector<std::size_t> active;
   std::vector<Eigen::Vector3d> sums(d.y(), Eigen::Vector3d::Zero());  // (w x, w z, w) per layer
+  // Per layer, the weighted sum of the voxel centres in the rig frame (GridGeometry::VoxelCenter).
+  std::vector<Eigen::Vector3d> centres(d.y(), Eigen::Vector3d::Zero());
   for (std::size_t v = 0; v < r.grid.num_voxels(); ++v) {
     if (!(tied.volume.density_per_m3[v] > 0)) continue;
     active.push_back(v);
@@ -977,6 +979,7 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
     const double w = std::max(0.0, 0.2126 * e[0] + 0.7152 * e[1] + 0.0722 * e[2]);
     const int i = int(v % d.x()), j = int(v / d.x() % d.y()), k = int(v / (d.x() * d.y()));
     sums[j] += w * Eigen::Vector3d(i, k, 1.0);
+    centres[j] += w * r.grid.VoxelCenter(i, j, k);
   }
   ASSERT_EQ(active.size(), tied.active_voxels);
   std::map<std::pair<int, long>, std::pair<float, float>> rings;  // -> (T, n)
@@ -1016,11 +1019,7 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
     EXPECT_EQ(float(point.density_per_m3), ring->second.second);
     EXPECT_EQ(float(point.temperature_sigma_k),
               ring_sigma.at(std::make_pair(point.layer, long(point.radius_voxels))));
-    const Eigen::Vector3d& c = sums[point.layer];
-    const Eigen::Vector3d axis =
-        r.grid.origin_in_rig +
-        Eigen::Vector3d(c.x() / c.z() + 0.5, point.layer + 0.5, c.y() / c.z() + 0.5)
-            .cwiseProduct(r.grid.voxel_size_m);
+    const Eigen::Vector3d axis = centres[point.layer] / sums[point.layer].z();
     EXPECT_NEAR(point.height_m, axis.y(), 1e-12);
     EXPECT_NEAR(point.axis_x_m, axis.x(), 1e-9);
     EXPECT_NEAR(point.axis_z_m, axis.z(), 1e-9);

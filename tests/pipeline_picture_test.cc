@@ -133,6 +133,16 @@ TEST(Plot, ErrorBarsAndADashedReferenceInItsSeriesColour) {
   EXPECT_NE(styles[0].find("dt 1"), std::string::npos);
   EXPECT_NE(styles[1].find("dt 2"), std::string::npos);
   EXPECT_NE(styles[2].find("dt 1"), std::string::npos);
+  // A reference whose series draws nothing takes a colour of its own.
+  spec.series[0].y.assign(3, std::nan(""));
+  ASSERT_TRUE(WritePlot(spec, (dir / "q").string(), &error)) << error;
+  const std::string orphan = Read(dir / "q.gp");
+  std::vector<std::string> orphan_styles;
+  std::istringstream orphan_lines(orphan);
+  for (std::string line; std::getline(orphan_lines, line);)
+    if (line.rfind("set linetype", 0) == 0) orphan_styles.push_back(line);
+  ASSERT_EQ(orphan_styles.size(), 2u) << orphan;
+  EXPECT_NE(colour(orphan_styles[0]), colour(orphan_styles[1]));
   fs::remove_all(dir);
 }
 

@@ -9,6 +9,7 @@
 #include <unistd.h>
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
@@ -212,7 +213,8 @@ TEST(TruthError, SameGridVoxelByVoxelOtherGridsByTheVoxelHoldingEachCentre) {
 // and 1800 + 10 jt beyond, so that, in closed form, the rings of radius 0 and 1 (out to 0.75 mm)
 // average 1400 + 10 (2 j + 0.5) over the two truth layers of fit layer j, the others 1800 + ...;
 // the top truth layer is too cool to be seen (1000 K), so the top fit layer's rings hold its
-// lower one alone. Rings no visible truth voxel reaches are NaN with no voxels.
+// lower one alone. Rings no visible truth voxel reaches are NaN with no voxels, and a layer
+// without rings counts none.
 TEST(TruthOnRings, EachRingAveragesTheVisibleTruthVoxelsAtItsHeightAndRadius) {
   FireVolume truth = Cube(16, 0);
   const GridGeometry& tg = truth.geometry;
@@ -234,6 +236,13 @@ TEST(TruthOnRings, EachRingAveragesTheVisibleTruthVoxelsAtItsHeightAndRadius) {
       p.axis_x_m = p.axis_z_m = 0.002;
       profile.push_back(p);
     }
+  // Layer 3 without a profile (its truth voxels are not counted), a point of a layer outside the
+  // grid (it gets none).
+  profile.erase(std::remove_if(profile.begin(), profile.end(),
+                               [](const RingProfilePoint& p) { return p.layer == 3; }),
+                profile.end());
+  profile.push_back(profile.back());
+  profile.back().layer = 99;
   const std::vector<RingTruth> rings = TruthOnRings(truth, fit, profile);
   ASSERT_EQ(rings.size(), profile.size());
   std::size_t counted = 0;
@@ -241,7 +250,7 @@ TEST(TruthOnRings, EachRingAveragesTheVisibleTruthVoxelsAtItsHeightAndRadius) {
     const int j = profile[p].layer, r = profile[p].radius_voxels;
     SCOPED_TRACE("layer " + std::to_string(j) + ", ring " + std::to_string(r));
     counted += rings[p].voxels;
-    if (r >= 6) {  // the truth's farthest voxel centre is 2.65 mm (5.3 fit voxels) out
+    if (r >= 6 || j == 99) {  // the farthest truth voxel is 2.65 mm (5.3 fit voxels) out
       EXPECT_EQ(rings[p].voxels, 0u);
       EXPECT_TRUE(std::isnan(rings[p].temperature_k));
       continue;
@@ -251,7 +260,7 @@ TEST(TruthOnRings, EachRingAveragesTheVisibleTruthVoxelsAtItsHeightAndRadius) {
     const double expected = j == 7 ? base + 10 * 14 : base + 10 * (2 * j + 0.5);
     EXPECT_NEAR(rings[p].temperature_k, expected, 1e-9);
   }
-  EXPECT_EQ(counted, 16u * 16 * 15);  // every visible truth voxel, once
+  EXPECT_EQ(counted, 16u * 16 * 13);  // every visible truth voxel but layer 3's, once
   FireVolume bare = Cube(4, 1500);
   bare.density_per_m3.clear();
   EXPECT_THROW(TruthOnRings(bare, fit, profile), InputError);
@@ -725,6 +734,19 @@ TEST(RunFrames, UnchangedFramesReuseThePreviousResult) {
   all.out_dir = (dir / "out2").string();
   all.skip_unchanged = false;
   EXPECT_EQ(RunAll(all).frames[2].status, "computed");
+  // An axisymmetric run reuses the frame's radial profile too; an untied one has none.
+  RunOptions tied = o;
+  tied.out_dir = (dir / "tied").string();
+  tied.fit.axisymmetric = true;
+  EXPECT_EQ(RunAll(tied).frames[2].status, "unchanged (reused frame 1)");
+  auto text = [](const fs::path& path) {
+    std::ifstream in(path);
+    return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  };
+  const std::string profile = text(dir / "tied" / "frames" / "frame_000001_profile.csv");
+  EXPECT_NE(profile.find("radius_m"), std::string::npos) << profile;
+  EXPECT_EQ(text(dir / "tied" / "frames" / "frame_000002_profile.csv"), profile);
+  EXPECT_FALSE(fs::exists(dir / "out" / "frames" / "frame_000002_profile.csv"));
   fs::remove_all(dir);
 }
 

@@ -111,10 +111,15 @@ TEST(ReportBrowser, EveryReportRendersWithItsPicturesInChromium) {
   const Result fit =
       Flamerig("fit --rig " + rig + " --images " + frame + " --out " +
                (dir / "fit" / "f.vdb").string() + " --holdout cam2 --resolution 20 --truth " +
-               truth + " --report " + (dir / "fit" / "report").string() +
-               " --axisymmetric");  // its page then has the radial profile too
+               truth + " --report " + (dir / "fit" / "report").string());
   ASSERT_EQ(fit.status, 0) << fit.output;
-  ASSERT_TRUE(fs::exists(dir / "fit" / "report" / "profile.png"));
+  // The same fit axisymmetric: its page has the radial profile too.
+  const Result rings =
+      Flamerig("fit --rig " + rig + " --images " + frame + " --out " +
+               (dir / "rings" / "f.vdb").string() + " --holdout cam2 --resolution 20 --truth " +
+               truth + " --report " + (dir / "rings" / "report").string() + " --axisymmetric");
+  ASSERT_EQ(rings.status, 0) << rings.output;
+  ASSERT_TRUE(fs::exists(dir / "rings" / "report" / "profile.png"));
   const Result run =
       Flamerig("run --images " + (dir / "data" / "frames").string() + " --rig " + rig +
                " --resolution 20 --truth " + (dir / "data" / "truth").string() + " --out " +
@@ -129,6 +134,7 @@ TEST(ReportBrowser, EveryReportRendersWithItsPicturesInChromium) {
   for (const Page& page : {Page{"reconstruct", dir / "reconstruct" / "index.html", true},
                            Page{"calibrate", dir / "calibrate" / "index.html", false},
                            Page{"fit", dir / "fit" / "report" / "index.html", true},
+                           Page{"axisymmetric_fit", dir / "rings" / "report" / "index.html", true},
                            Page{"run", dir / "run" / "report" / "index.html", true}}) {
     SCOPED_TRACE(page.name);
     ASSERT_TRUE(fs::exists(page.path));

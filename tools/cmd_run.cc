@@ -28,7 +28,8 @@ Runner AddRun(CLI::App* command) {
       "OUT/blender/, a summary line per frame and OUT/report/index.html. A damaged frame fails\n"
       "alone; the exit status is then 1. Stopped runs (Ctrl-C, a kill) resume at the first frame\n"
       "without a complete output. Under `mpirun -n N` the frames are split into contiguous runs\n"
-      "per rank. --truth: ground-truth volumes of a simulated recording.");
+      "per rank. --truth: ground-truth volumes of a simulated recording. --axisymmetric: each\n"
+      "frame's radial profile in OUT/frames/frame_NNNNNN_profile.csv.");
   command->add_option("--recording", run.source.recording_dir, "A flamerig recording")
       ->type_name("DIR");
   command->add_option("--seq", o->seq, "StreamPix sequences, one per camera")

@@ -142,7 +142,8 @@ std::string RunRunBenchmark(const RunBenchmarkOptions& options,
   o.out_dir = (dir / "rings").string();
   const Row rings = Measure(
       "`flamerig run --axisymmetric` (one temperature and density per ring about the flame's axis, "
-      "neighbour weight 0.3, every fit from its tomography)",
+      "neighbour weight " +
+          Fixed(o.fit.axisymmetric_w_sm, 1) + ", every fit from its tomography)",
       o, 0, frames, log);
   rows.push_back(rings);
   o.fit.axisymmetric = false;
