@@ -54,6 +54,67 @@ void WriteRingProfileCsv(const std::string& path, const std::vector<RingProfileP
   WriteFileAtomically(path, csv.str());
 }
 
+std::vector<RingProfilePoint> ReadRingProfileCsv(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw IoError(path + ": cannot be read");
+  auto split = [](const std::string& line) {
+    std::vector<std::string> cells;
+    std::stringstream s(line);
+    for (std::string cell; std::getline(s, cell, ',');) cells.push_back(cell);
+    if (!line.empty() && line.back() == ',') cells.emplace_back();
+    return cells;
+  };
+  std::string line;
+  if (!std::getline(in, line)) throw DataError(path + ": empty, no header");
+  const std::vector<std::string> header = split(line);
+  auto column = [&](const std::string& name) {
+    const auto it = std::find(header.begin(), header.end(), name);
+    if (it == header.end()) throw DataError(path + ": line 1: no '" + name + "' column");
+    return static_cast<std::size_t>(it - header.begin());
+  };
+  const std::size_t c_layer = column("layer"), c_height = column("height_m"),
+                    c_x = column("axis_x_m"), c_z = column("axis_z_m"),
+                    c_radius = column("radius_voxels"), c_radius_m = column("radius_m"),
+                    c_voxels = column("voxels"), c_t = column("temperature_k"),
+                    c_ts = column("temperature_sigma_k"), c_n = column("density_per_m3"),
+                    c_ns = column("log_density_sigma");
+  std::vector<RingProfilePoint> profile;
+  for (int number = 2; std::getline(in, line); ++number) {
+    if (line.empty()) continue;
+    const std::vector<std::string> cells = split(line);
+    const std::string where = path + ": line " + std::to_string(number);
+    if (cells.size() != header.size())
+      throw DataError(where + ": " + std::to_string(cells.size()) + " values for " +
+                      std::to_string(header.size()) + " columns");
+    auto number_at = [&](std::size_t c) {
+      std::size_t used = 0;
+      double value = 0;
+      try {
+        value = std::stod(cells[c], &used);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      if (used == 0 || used != cells[c].size() || !std::isfinite(value))
+        throw DataError(where + ": " + header[c] + " '" + cells[c] + "' is not a finite number");
+      return value;
+    };
+    RingProfilePoint p;
+    p.layer = static_cast<int>(number_at(c_layer));
+    p.height_m = number_at(c_height);
+    p.axis_x_m = number_at(c_x);
+    p.axis_z_m = number_at(c_z);
+    p.radius_voxels = static_cast<int>(number_at(c_radius));
+    p.radius_m = number_at(c_radius_m);
+    p.voxels = static_cast<std::size_t>(number_at(c_voxels));
+    p.temperature_k = number_at(c_t);
+    p.temperature_sigma_k = number_at(c_ts);
+    p.density_per_m3 = number_at(c_n);
+    p.log_density_sigma = number_at(c_ns);
+    profile.push_back(p);
+  }
+  return profile;
+}
+
 bool WriteRingProfilePlot(const std::string& base, const std::vector<RingProfilePoint>& profile,
                           const std::vector<RingTruth>* truth, const std::string& title,
                           std::string* error) {

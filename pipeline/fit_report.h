@@ -45,6 +45,11 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
 void WriteRingProfileCsv(const std::string& path, const std::vector<RingProfilePoint>& profile,
                          const std::vector<RingTruth>* truth = nullptr);
 
+// Reads what WriteRingProfileCsv wrote, its columns found by name (the truth's, if any, are not
+// read). Throws IoError when the file cannot be read and DataError naming the file and line of a
+// missing column or a malformed value.
+std::vector<RingProfilePoint> ReadRingProfileCsv(const std::string& path);
+
 // The profile drawn (pipeline/plot.h, base + ".png" and the rest): temperature against radius at
 // up to five heights spread over the flame, each with +- one sigma bars where the fit has a
 // sigma, and with `truth` the truth's ring means dashed in the same colour. False with the reason

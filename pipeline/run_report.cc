@@ -288,8 +288,9 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     WritePicture(dir / "contact.png", Stacked(rows, 16));
   }
 
-  // Temperature slices of a few computed frames.
-  std::vector<std::string> slice_files;
+  // Temperature slices of a few computed frames, and their radial profiles when the fit was
+  // axisymmetric (the run's OUT/frames/frame_NNNNNN_profile.csv).
+  std::vector<std::string> slice_files, profile_files;
   {
     std::vector<const FrameSummary*> candidates;
     for (const auto& f : frames)
@@ -308,6 +309,27 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
       const std::string name = "slices_" + FrameName(f->frame).substr(6) + ".png";
       WritePicture(dir / name, SlicesPicture(v, truth.temperature_k.empty() ? nullptr : &truth));
       slice_files.push_back(name);
+      const fs::path csv = out / "frames" / (FrameName(f->frame) + "_profile.csv");
+      if (!fs::exists(csv)) continue;
+      std::vector<RingProfilePoint> profile;
+      try {
+        profile = ReadRingProfileCsv(csv.string());
+      } catch (const DataError& e) {  // the report goes on without that picture
+        Log().warn("run report: no profile plot of {}: {}", FrameName(f->frame), e.what());
+        continue;
+      }
+      const bool with_truth = truth.temperature_k.size() == truth.geometry.num_voxels() &&
+                              truth.density_per_m3.size() == truth.geometry.num_voxels() &&
+                              !truth.temperature_k.empty();
+      std::vector<RingTruth> on_rings;
+      if (with_truth) on_rings = TruthOnRings(truth, v.geometry, profile);
+      const std::string base = "profile_" + FrameName(f->frame).substr(6);
+      std::string plot_error;
+      if (WriteRingProfilePlot((dir / base).string(), profile, with_truth ? &on_rings : nullptr,
+                               FrameName(f->frame), &plot_error))
+        profile_files.push_back(base + ".png");
+      else
+        Log().warn("run report: no profile plot of {}: {}", FrameName(f->frame), plot_error);
     }
   }
 
@@ -367,6 +389,18 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
         "cold, red where too hot; the sigma is the fit's one-standard-deviation temperature "
         "uncertainty.");
     for (const auto& f : slice_files) page.Figure(f, "Slices of frame " + f.substr(7, 6) + ".");
+  }
+  if (!profile_files.empty()) {
+    page.Section("Radial profiles (axisymmetric fit)");
+    page.Text(
+        "The same frames' rings: temperature against the distance from the flame's axis at up "
+        "to five heights, with one-sigma bars" +
+        std::string(info.truth_dir.empty()
+                        ? ""
+                        : "; dashed, the truth's visible voxels averaged over the same rings") +
+        ". Every ring's numbers: frames/frame_NNNNNN_profile.csv beside the frames' summaries.");
+    for (const auto& f : profile_files)
+      page.Figure(f, "Radial profile of frame " + f.substr(8, 6) + ".");
   }
   page.Section("Run time");
   if (timing_plotted)

@@ -30,8 +30,10 @@ struct RunReportInfo {
   int slice_frames = 3;
 };
 
-// Writes OUT/frames.csv and OUT/report/ (index.html and the pictures); returns index.html's path.
-// Throws IoError naming a file that cannot be written or read.
+// Writes OUT/frames.csv and OUT/report/ (index.html and the pictures: errors and run time over the
+// frames, a contact sheet, a few frames' slices and, where OUT/frames/frame_NNNNNN_profile.csv is
+// (an axisymmetric fit), their radial profiles); returns index.html's path. Throws IoError naming
+// a file that cannot be written or read; a malformed profile is a warning and no picture.
 std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSummary>& frames,
                            const RunReportInfo& info);
 

@@ -266,6 +266,70 @@ TEST(TruthOnRings, EachRingAveragesTheVisibleTruthVoxelsAtItsHeightAndRadius) {
   EXPECT_THROW(TruthOnRings(bare, fit, profile), InputError);
 }
 
+// A radial profile written as CSV reads back to the printed digits; a malformed file names its
+// line and column.
+TEST(RingProfileCsv, ReadsBackWhatItWroteAndNamesWhatIsMalformed) {
+  const fs::path dir = TempDir("profile_csv");
+  std::vector<RingProfilePoint> profile(3);
+  for (int r = 0; r < 3; ++r) {
+    RingProfilePoint& p = profile[r];
+    p.layer = 7;
+    p.height_m = 0.0123456789;
+    p.axis_x_m = -0.001;
+    p.axis_z_m = 0.002;
+    p.radius_voxels = r;
+    p.radius_m = 0.00109375 * r;
+    p.voxels = 1 + 6 * r;
+    p.temperature_k = 1650.5 + 10 * r;
+    p.temperature_sigma_k = 120.25;
+    p.density_per_m3 = 3.5e15;
+    p.log_density_sigma = 0.75;
+  }
+  std::vector<RingTruth> truth(3);
+  truth[1] = {1700, 12};
+  const fs::path csv = dir / "profile.csv";
+  WriteRingProfileCsv(csv.string(), profile, &truth);
+  const std::vector<RingProfilePoint> back = ReadRingProfileCsv(csv.string());
+  ASSERT_EQ(back.size(), profile.size());
+  for (std::size_t r = 0; r < back.size(); ++r) {
+    EXPECT_EQ(back[r].layer, profile[r].layer);
+    EXPECT_EQ(back[r].radius_voxels, profile[r].radius_voxels);
+    EXPECT_EQ(back[r].voxels, profile[r].voxels);
+    EXPECT_NEAR(back[r].height_m, profile[r].height_m, 1e-12);
+    EXPECT_NEAR(back[r].axis_x_m, profile[r].axis_x_m, 1e-12);
+    EXPECT_NEAR(back[r].radius_m, profile[r].radius_m, 1e-12);
+    EXPECT_NEAR(back[r].temperature_k, profile[r].temperature_k, 1e-3);
+    EXPECT_NEAR(back[r].temperature_sigma_k, profile[r].temperature_sigma_k, 1e-3);
+    EXPECT_NEAR(back[r].density_per_m3, profile[r].density_per_m3, 1e10);
+    EXPECT_NEAR(back[r].log_density_sigma, profile[r].log_density_sigma, 1e-6);
+  }
+  std::ifstream in(csv);
+  std::string header, first, second;
+  std::getline(in, header);
+  std::getline(in, first);
+  std::getline(in, second);
+  EXPECT_NE(header.find(",truth_temperature_k,truth_voxels"), std::string::npos) << header;
+  EXPECT_EQ(first.substr(first.size() - 3), ",,0") << first;  // no truth voxel in ring 0
+  EXPECT_EQ(second.substr(second.size() - 8), ",1700,12") << second;
+  auto malformed = [&](const std::string& text, const std::string& says) {
+    const fs::path bad = dir / "bad.csv";
+    std::ofstream(bad) << text;
+    try {
+      ReadRingProfileCsv(bad.string());
+      ADD_FAILURE() << "no error for " << text;
+    } catch (const DataError& e) {
+      EXPECT_NE(std::string(e.what()).find(says), std::string::npos) << e.what();
+    }
+  };
+  malformed(header + "\n" + first + "\nnot,a,row\n", "line 3: 3 values for 13 columns");
+  std::string nan_row = second;
+  nan_row.replace(nan_row.find("1660.5"), 6, "nan");
+  malformed(header + "\n" + nan_row + "\n", "line 2: temperature_k 'nan' is not a finite number");
+  malformed("layer,height_m\n", "line 1: no 'axis_x_m' column");
+  EXPECT_THROW(ReadRingProfileCsv((dir / "none.csv").string()), IoError);
+  fs::remove_all(dir);
+}
+
 // The same voxels as CompareWithTruth, split by the truth's emission over its peak: bands whose
 // errors are set by hand (the oracle), one voxel the fit left empty, and voxels too faint or too
 // cool to be visible.
@@ -568,6 +632,23 @@ TEST(RunFrames, AnAxisymmetricRunStartsEveryFrameFromItsOwnTomography) {
   for (std::string line; std::getline(csv, line);) ++lines;
   EXPECT_EQ(lines - 1, tied_warm.metadata_numbers.at("axisymmetric_rings"));
   EXPECT_FALSE(fs::exists(dir / "free_warm" / "frames" / "frame_000001_profile.csv"));
+  // The run's report draws them, the truth beside them.
+  RunReportInfo info;
+  info.truth_dir = (dir / "sim" / "truth").string();
+  const std::string page = WriteRunReport(
+      (dir / "tied_warm").string(), ReadFrameSummaries((dir / "tied_warm").string(), 0, 2), info);
+  std::ifstream in(page);
+  const std::string html((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_NE(html.find("Radial profiles"), std::string::npos);
+  for (const char* picture : {"profile_000000.png", "profile_000001.png"}) {
+    EXPECT_NE(html.find(picture), std::string::npos) << picture;
+    EXPECT_FALSE(ReadImageU8((fs::path(page).parent_path() / picture).string()).empty());
+  }
+  const std::string dat = [&] {
+    std::ifstream d(fs::path(page).parent_path() / "profile_000001.dat");
+    return std::string((std::istreambuf_iterator<char>(d)), std::istreambuf_iterator<char>());
+  }();
+  EXPECT_NE(dat.find("# truth at"), std::string::npos);
   fs::remove_all(dir);
 }
 
