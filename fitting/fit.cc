@@ -573,9 +573,8 @@ std::vector<RingProfilePoint> MakeRingProfile(const GridGeometry& grid, const Ri
     const std::size_t a = tie.rings[r].front();  // every member holds the ring's values
     RingProfilePoint p;
     p.layer = j;
-    // Voxel indices to the rig frame as GridGeometry::VoxelCenter does, at a fractional (i, k).
-    const Eigen::Vector3d at(tie.axis[j].x() + 0.5, j + 0.5, tie.axis[j].y() + 0.5);
-    const Eigen::Vector3d axis = grid.origin_in_rig + at.cwiseProduct(grid.voxel_size_m);
+    const Eigen::Vector3d axis =
+        grid.RigFromIndex(Eigen::Vector3d(tie.axis[j].x(), j, tie.axis[j].y()));
     p.height_m = axis.y();
     p.axis_x_m = axis.x();
     p.axis_z_m = axis.z();

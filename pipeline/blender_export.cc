@@ -60,7 +60,7 @@ typename GridT::Ptr MakeGrid(const GridGeometry& g, const std::string& name,
 BlenderGrids MakeBlenderGrids(const FireVolume& fitted, const AbsorptionModel& absorption) {
   const GridGeometry& g = fitted.geometry;
   const std::size_t n = g.num_voxels();
-  if (fitted.temperature_k.size() != n || fitted.density_per_m3.size() != n)
+  if (!fitted.HasTemperatureAndDensity())
     throw InputError("Blender export: the volume needs temperature and density grids");
   BlenderGrids out;
   out.density_per_m.assign(n, 0.0f);

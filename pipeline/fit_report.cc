@@ -27,13 +27,19 @@ namespace {
 // The Delta E maps' colour scale runs from 0 to this (and saturates above): 1 is about the
 // smallest difference a person sees, above 10 colours differ at a glance.
 constexpr double kDeltaEScale = 20;
+
+// A profile's truth, when given, has one value per ring.
+void CheckRingTruth(const std::vector<RingProfilePoint>& profile,
+                    const std::vector<RingTruth>* truth) {
+  if (truth && truth->size() != profile.size())
+    throw InputError("ring profile: " + std::to_string(truth->size()) + " truth rings for " +
+                     std::to_string(profile.size()) + " rings");
+}
 }  // namespace
 
 void WriteRingProfileCsv(const std::string& path, const std::vector<RingProfilePoint>& profile,
                          const std::vector<RingTruth>* truth) {
-  if (truth && truth->size() != profile.size())
-    throw InputError("ring profile: " + std::to_string(truth->size()) + " truth rings for " +
-                     std::to_string(profile.size()) + " rings");
+  CheckRingTruth(profile, truth);
   std::ostringstream csv;
   csv << "layer,height_m,axis_x_m,axis_z_m,radius_voxels,radius_m,voxels,temperature_k,"
          "temperature_sigma_k,density_per_m3,log_density_sigma"
@@ -118,9 +124,7 @@ std::vector<RingProfilePoint> ReadRingProfileCsv(const std::string& path) {
 bool WriteRingProfilePlot(const std::string& base, const std::vector<RingProfilePoint>& profile,
                           const std::vector<RingTruth>* truth, const std::string& title,
                           std::string* error) {
-  if (truth && truth->size() != profile.size())
-    throw InputError("ring profile: " + std::to_string(truth->size()) + " truth rings for " +
-                     std::to_string(profile.size()) + " rings");
+  CheckRingTruth(profile, truth);
   // Up to five layers spread evenly over those with rings (the profile is sorted by layer).
   std::vector<int> layers;
   for (const auto& p : profile)
@@ -252,8 +256,7 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
   std::string plot_error;
   const bool plotted = WritePlot(plot, (fs::path(dir) / "error").string(), &plot_error);
   if (!plotted) Log().warn("fit report: no error plot: {}", plot_error);
-  const bool sliced = v.temperature_k.size() == v.geometry.num_voxels() &&
-                      v.density_per_m3.size() == v.geometry.num_voxels();
+  const bool sliced = v.HasTemperatureAndDensity();
   if (sliced) WritePng((fs::path(dir) / "slices.png").string(), SlicesPicture(v, truth));
   // An axisymmetric fit's radial profile, and the truth's on the same rings.
   const bool profiled = !result.ring_profile.empty();
@@ -261,8 +264,7 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
   std::string profile_error;
   if (profiled) {
     // A truth without temperatures (an emission volume) is shown nowhere in the profile.
-    profile_truth = truth && truth->temperature_k.size() == truth->geometry.num_voxels() &&
-                    truth->density_per_m3.size() == truth->geometry.num_voxels();
+    profile_truth = truth && truth->HasTemperatureAndDensity();
     if (truth && !profile_truth)
       Log().warn("fit report: the truth has no temperature and density grids: not on the profile");
     std::vector<RingTruth> on_rings;

@@ -79,7 +79,7 @@ ImageU8 TemperatureSlice(const FireVolume& volume, int axis, int index, double t
 
 ImageU8 SlicesPicture(const FireVolume& v, const FireVolume* truth_volume) {
   const GridGeometry& g = v.geometry;
-  if (v.temperature_k.size() != g.num_voxels() || v.density_per_m3.size() != g.num_voxels())
+  if (!v.HasTemperatureAndDensity())
     throw InputError("SlicesPicture: the volume needs temperature and density grids");
   // The truth is usually finer than the fit (the main job's 96 against 64): shown on the fit's
   // grid, each fit voxel with the truth voxel holding its centre, as the scorer pairs them.
@@ -318,9 +318,7 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
         Log().warn("run report: no profile plot of {}: {}", FrameName(f->frame), e.what());
         continue;
       }
-      const bool with_truth = truth.temperature_k.size() == truth.geometry.num_voxels() &&
-                              truth.density_per_m3.size() == truth.geometry.num_voxels() &&
-                              !truth.temperature_k.empty();
+      const bool with_truth = !truth.temperature_k.empty() && truth.HasTemperatureAndDensity();
       std::vector<RingTruth> on_rings;
       if (with_truth) on_rings = TruthOnRings(truth, v.geometry, profile);
       const std::string base = "profile_" + FrameName(f->frame).substr(6);

@@ -193,8 +193,7 @@ double TotalSoot(const FireVolume& volume) {
 
 std::vector<RingTruth> TruthOnRings(const FireVolume& truth, const GridGeometry& fit_grid,
                                     const std::vector<RingProfilePoint>& profile) {
-  const std::size_t voxels = truth.geometry.num_voxels();
-  if (truth.temperature_k.size() != voxels || truth.density_per_m3.size() != voxels)
+  if (!truth.HasTemperatureAndDensity())
     throw InputError("truth on rings: the truth needs temperature and density grids");
   std::map<std::pair<int, int>, std::size_t> ring;  // (layer, radius) -> point
   std::vector<const RingProfilePoint*> axis_of_layer(fit_grid.dims.y(), nullptr);

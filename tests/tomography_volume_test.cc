@@ -61,8 +61,7 @@ TEST(GridGeometry, FromBoxMakesCubicVoxelsCentredOnTheBox) {
   EXPECT_EQ(g.Flat(0, 1, 0), 32u);
   EXPECT_EQ(g.Flat(0, 0, 1), 32u * 64u);
   EXPECT_THROW(GridGeometry::FromBox(box, 0), InputError);
-  EXPECT_THROW(GridGeometry::FromBox(Box3{box.max_in_rig, box.min_in_rig}, 8),
-               InputError);
+  EXPECT_THROW(GridGeometry::FromBox(Box3{box.max_in_rig, box.min_in_rig}, 8), InputError);
   EXPECT_EQ(GridGeometry::FromBox(box, 1).num_voxels(), 1u);
 }
 

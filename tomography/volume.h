@@ -53,8 +53,11 @@ struct GridGeometry {
                            static_cast<int>(flat / (nx * ny)));
   }
   Eigen::Vector3d VoxelCenter(int i, int j, int k) const {
-    return origin_in_rig +
-           (Eigen::Vector3d(i, j, k).array() + 0.5).matrix().cwiseProduct(voxel_size_m);
+    return RigFromIndex(Eigen::Vector3d(i, j, k));
+  }
+  // The point at fractional voxel indices (whole ones: the voxel's centre); IndexFromRig's inverse.
+  Eigen::Vector3d RigFromIndex(const Eigen::Vector3d& index) const {
+    return origin_in_rig + (index.array() + 0.5).matrix().cwiseProduct(voxel_size_m);
   }
   Eigen::Vector3d IndexFromRig(const Eigen::Vector3d& point_in_rig) const {
     return ((point_in_rig - origin_in_rig).cwiseQuotient(voxel_size_m).array() - 0.5).matrix();
@@ -102,6 +105,12 @@ struct FireVolume {
   // may be negative: linear sRGB of deep-red fire colours is out of gamut); throws
   // InputError naming the field and the first bad voxel (its i, j, k).
   void Validate() const;
+  // Both temperature and density hold a value per voxel (a fit's or a truth's volume; a
+  // tomography's has emission only).
+  bool HasTemperatureAndDensity() const {
+    return temperature_k.size() == geometry.num_voxels() &&
+           density_per_m3.size() == geometry.num_voxels();
+  }
 };
 
 }  // namespace flamerig
