@@ -804,6 +804,9 @@ FireVolume ToVolume(const State& st, const FitResult& r, double ambient_k) {
   v.metadata_numbers["iterations"] = r.iterations;
   v.metadata_numbers["initial_energy"] = r.initial_energy;
   if (r.rings > 0) v.metadata_numbers["axisymmetric_rings"] = static_cast<double>(r.rings);
+  // The prior the temperatures were fitted under: a researcher quoting them needs its weight.
+  for (const TermValue& term : r.final_terms.terms)
+    if (term.name == "pairwise temperature") v.metadata_numbers["w_sm"] = term.weight;
   return v;
 }
 

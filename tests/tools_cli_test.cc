@@ -361,6 +361,10 @@ TEST(Cli, FitASimulatedFrameSet) {
   EXPECT_GT(tied.metadata_numbers.at("axisymmetric_rings"), 0.0);
   EXPECT_LT(tied.metadata_numbers.at("axisymmetric_rings"), 0.5 * double(tied_medium));
   EXPECT_EQ(v.metadata_numbers.count("axisymmetric_rings"), 0u);
+  // Each volume records the neighbour weight it was fitted under: the fast fit's 1, a tied fit's
+  // 0.3 (the paper's algorithms, 10, in FitASimulatedFrameSet's alg2 run).
+  EXPECT_DOUBLE_EQ(v.metadata_numbers.at("w_sm"), 1.0);
+  EXPECT_DOUBLE_EQ(tied.metadata_numbers.at("w_sm"), 0.3);
   // Its report has the radial profile: a row per ring, read back by Python's csv module (an
   // independent reader), each with its sigma, the truth beside some of them.
   const fs::path profile = dir / "rings_report" / "profile.csv";
@@ -420,6 +424,7 @@ TEST(Cli, FitASimulatedFrameSet) {
                          " --method alg2 --fit-iterations 2 --resolution 12 --views cam0,cam1");
   EXPECT_EQ(alg2.status, 0) << alg2.output;
   EXPECT_NE(alg2.output.find("Algorithm 2"), std::string::npos) << alg2.output;
+  EXPECT_DOUBLE_EQ(flamerig::ReadVdb((dir / "alg2.vdb").string()).metadata_numbers.at("w_sm"), 10);
   // A view both fitted and held out, or fitted twice; a truth file that is not there (found before
   // the fit, not after it).
   for (const auto& [extra, expected] : std::vector<std::pair<std::string, std::string>>{

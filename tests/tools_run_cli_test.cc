@@ -11,7 +11,10 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <map>
+#include <string>
 #include <thread>
+#include <vector>
 
 #include "core/image.h"
 #include "pipeline/distributed.h"
@@ -179,6 +182,54 @@ TEST(RunCli, CalibratesFirstFromBoardViews) {
   ASSERT_EQ(again.status, 0) << again.output;
   EXPECT_EQ(fs::last_write_time(dir / "out" / "calibrated" / "rig.yaml"), written);
   EXPECT_NE(again.output.find("already done"), std::string::npos) << again.output;
+  fs::remove_all(dir);
+}
+
+// `run --w-sm` sets the fit's neighbour weight, tied to rings or not, and every frame's volume
+// records the weight it was fitted under (metadata w_sm): 1 by default, 0.3 with --axisymmetric,
+// the given one with either. A stronger prior gives a smoother temperature field.
+TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
+  const fs::path dir = TempDir("w_sm");
+  SimulateDataset(dir / "sim", 1);
+  struct Case {
+    std::string name, flags;
+    double w_sm;
+  };
+  const std::vector<Case> cases = {{"default", "", 1.0},
+                                   {"strong", "--w-sm 10", 10.0},
+                                   {"tied", "--axisymmetric", 0.3},
+                                   {"tied_given", "--axisymmetric --w-sm 2", 2.0}};
+  std::map<std::string, FireVolume> volumes;
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const Result r = Shell(RunCommand(dir / "sim", dir / c.name, "--no-blender " + c.flags));
+    ASSERT_EQ(r.status, 0) << r.output;
+    FireVolume v = ReadVdb((dir / c.name / (FrameName(0) + ".vdb")).string());
+    ASSERT_EQ(v.metadata_numbers.count("w_sm"), 1u);
+    EXPECT_DOUBLE_EQ(v.metadata_numbers.at("w_sm"), c.w_sm);
+    volumes[c.name] = std::move(v);
+  }
+  // Roughness: the mean |T difference| between face neighbours that both hold medium.
+  auto roughness = [](const FireVolume& v) {
+    const Eigen::Vector3i d = v.geometry.dims;
+    double sum = 0;
+    std::size_t pairs = 0;
+    for (int z = 0; z < d.z(); ++z)
+      for (int y = 0; y < d.y(); ++y)
+        for (int x = 0; x + 1 < d.x(); ++x) {
+          const std::size_t i = v.geometry.Flat(x, y, z), j = v.geometry.Flat(x + 1, y, z);
+          if (v.density_per_m3[i] <= 0 || v.density_per_m3[j] <= 0) continue;
+          sum += std::abs(double(v.temperature_k[i]) - v.temperature_k[j]);
+          ++pairs;
+        }
+    return pairs ? sum / double(pairs) : 0.0;
+  };
+  EXPECT_LT(roughness(volumes["strong"]), 0.8 * roughness(volumes["default"]));
+  EXPECT_LT(roughness(volumes["tied_given"]), 0.8 * roughness(volumes["tied"]));
+  const Result bad = Shell(RunCommand(dir / "sim", dir / "bad", "--w-sm -1"));
+  EXPECT_EQ(bad.status, 2) << bad.output;
+  EXPECT_NE(bad.output.find("--w-sm"), std::string::npos) << bad.output;
+  EXPECT_FALSE(fs::exists(dir / "bad"));
   fs::remove_all(dir);
 }
 

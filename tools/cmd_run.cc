@@ -15,6 +15,7 @@ Runner AddRun(CLI::App* command) {
     std::string seq, names, calibrate_config, board;
     std::int64_t first = -1, count = -1;
     int fit_iterations = -1;
+    double w_sm = -1;
     bool no_skip_unchanged = false, no_blender = false, cold = false, no_sigma = false;
     std::size_t threads = 0;
     TomographyFlags tomography;
@@ -68,6 +69,12 @@ Runner AddRun(CLI::App* command) {
                    "energy falls by less than 0.5% in 5 iterations)")
       ->type_name("N")
       ->check(Whole(0, 1000000));
+  command
+      ->add_option("--w-sm", o->w_sm,
+                   "Weight of the fit's neighbour term (default 1, with --axisymmetric 0.3); "
+                   "each frame's volume records it (metadata w_sm)")
+      ->type_name("W")
+      ->check(kNonNegative);
   command->add_option("--holdout", run.holdout_camera, "Camera to score but not fit")
       ->type_name("CAMERA");
   command
@@ -105,6 +112,8 @@ Runner AddRun(CLI::App* command) {
     if (o->first >= 0) run.first = static_cast<std::size_t>(o->first);
     if (o->count >= 0) run.count = static_cast<std::size_t>(o->count);
     if (o->fit_iterations >= 0) run.fit.iterations_finest = o->fit_iterations;
+    // A weight given is the fit's, tied to rings or not (as in `fit`).
+    if (o->w_sm >= 0) run.fit.objective.w_sm = run.fit.axisymmetric_w_sm = o->w_sm;
     run.skip_unchanged = !o->no_skip_unchanged;
     run.blender = !o->no_blender;
     run.sigma = !o->no_sigma;
