@@ -141,6 +141,10 @@ std::string FrameSummary::Line() const {
     if (truth_within_1_sigma >= 0)
       s << " (" << 100 * truth_within_1_sigma << "% within 1 sigma, " << 100 * truth_within_2_sigma
         << "% within 2; median sigma " << truth_median_sigma_k << " K)";
+    if (truth_determined_share >= 0) {
+      s << ", " << 100 * truth_determined_share << "% determined";
+      if (truth_determined_rms_k >= 0) s << " at " << truth_determined_rms_k << " K RMS";
+    }
   }
   for (const auto& n : notes) s << "; " << n;
   return s.str();
@@ -185,6 +189,9 @@ nlohmann::json SummaryJson(const FrameSummary& f) {
   j["truth_within_1_sigma"] = f.truth_within_1_sigma;
   j["truth_within_2_sigma"] = f.truth_within_2_sigma;
   j["truth_median_sigma_k"] = f.truth_median_sigma_k;
+  j["truth_determined_share"] = f.truth_determined_share;
+  j["truth_determined_rms_k"] = f.truth_determined_rms_k;
+  j["truth_undetermined_rms_k"] = f.truth_undetermined_rms_k;
   return j;
 }
 
@@ -246,6 +253,10 @@ FrameSummary FrameSummary::FromYaml(const std::string& text, const std::string& 
     s.truth_within_1_sigma = n["truth_within_1_sigma"].as<double>(-1.0);
     s.truth_within_2_sigma = n["truth_within_2_sigma"].as<double>(-1.0);
     s.truth_median_sigma_k = n["truth_median_sigma_k"].as<double>(-1.0);
+    // Summaries written before the determined voxels were scored apart have none.
+    s.truth_determined_share = n["truth_determined_share"].as<double>(-1.0);
+    s.truth_determined_rms_k = n["truth_determined_rms_k"].as<double>(-1.0);
+    s.truth_undetermined_rms_k = n["truth_undetermined_rms_k"].as<double>(-1.0);
     return s;
   } catch (const YAML::Exception& e) {
     throw DataError(where + ": not a frame summary: " + e.what());

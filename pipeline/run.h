@@ -149,6 +149,10 @@ struct FrameSummary {
   // counted voxels whose error lies within one and two sigma (calibrated: 0.68 and 0.95), and
   // the median sigma; -1 without a sigma grid or truth.
   double truth_within_1_sigma = -1, truth_within_2_sigma = -1, truth_median_sigma_k = -1;
+  // Of the counted voxels, the share the fit calls determined (its `determined` grid), and the
+  // temperature RMS over those and over the rest; -1 without a sigma grid or truth (or, for an
+  // RMS, without such voxels).
+  double truth_determined_share = -1, truth_determined_rms_k = -1, truth_undetermined_rms_k = -1;
 
   double MeanFittedDeltaE() const;  // mean over the fitted views (fire pixels), 0 if none
   std::string Line() const;         // one line for the console and frames.csv's companion log

@@ -160,7 +160,8 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     csv << "frame,status,cameras_used,total_ms,read_ms,tomography_ms,fit_ms,write_ms,matrix,"
            "active_voxels,exposure,exposure_from,soot,initial_energy,energy,fit_termination,"
            "fit_iterations,fit_message,truth_frame,truth_rms_k,truth_bias_k,truth_soot,"
-           "truth_within_1_sigma,truth_within_2_sigma,truth_median_sigma_k";
+           "truth_within_1_sigma,truth_within_2_sigma,truth_median_sigma_k,"
+           "truth_determined_share,truth_determined_rms_k,truth_undetermined_rms_k";
     for (const auto& c : cameras) csv << ",delta_e_fire_" << c << ",delta_e_all_" << c;
     csv << ",notes\n";
     for (const auto& f : frames) {
@@ -171,7 +172,8 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
           << "," << f.fit_termination << "," << f.fit_iterations << "," << quoted(f.fit_message)
           << "," << f.truth_frame << "," << f.truth_rms_k << "," << f.truth_bias_k << ","
           << f.truth_soot << "," << f.truth_within_1_sigma << "," << f.truth_within_2_sigma << ","
-          << f.truth_median_sigma_k;
+          << f.truth_median_sigma_k << "," << f.truth_determined_share << ","
+          << f.truth_determined_rms_k << "," << f.truth_undetermined_rms_k;
       for (const auto& c : cameras) {
         auto it = std::find_if(f.delta_e.begin(), f.delta_e.end(),
                                [&](const ViewDeltaE& d) { return d.camera == c; });
@@ -197,6 +199,10 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   std::size_t computed = 0, unchanged = 0, failed = 0;
   double de_sum = 0, t_sum = 0, in1_sum = 0, in2_sum = 0, sigma_sum = 0;
   int de_n = 0, t_n = 0, sigma_n = 0;
+  // The determined voxels scored apart: their share, and the RMS over them and over the rest
+  // (each averaged over the frames that have such voxels).
+  double determined_share_sum = 0, determined_rms_sum = 0, undetermined_rms_sum = 0;
+  int determined_n = 0, determined_rms_n = 0, undetermined_rms_n = 0;
   for (const auto& f : frames) {
     if (Computed(f)) ++computed;
     if (f.status.rfind("unchanged", 0) == 0) ++unchanged;
@@ -221,6 +227,18 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
         in2_sum += f.truth_within_2_sigma;
         sigma_sum += f.truth_median_sigma_k;
         ++sigma_n;
+      }
+      if (f.truth_determined_share >= 0) {
+        determined_share_sum += f.truth_determined_share;
+        ++determined_n;
+        if (f.truth_determined_rms_k >= 0) {
+          determined_rms_sum += f.truth_determined_rms_k;
+          ++determined_rms_n;
+        }
+        if (f.truth_undetermined_rms_k >= 0) {
+          undetermined_rms_sum += f.truth_undetermined_rms_k;
+          ++undetermined_rms_n;
+        }
       }
     }
     if (Computed(f)) {
@@ -356,6 +374,15 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
         "Its sigma: {:.0f}% of those voxels within one sigma, {:.0f}% within two (a calibrated "
         "sigma: 68%, 95%); median sigma {:.0f} K.",
         100 * in1_sum / sigma_n, 100 * in2_sum / sigma_n, sigma_sum / sigma_n));
+  if (determined_n) {
+    std::string line = fmt::format("The voxels the fit calls determined: {:.0f}% of those voxels",
+                                   100 * determined_share_sum / determined_n);
+    if (determined_rms_n)
+      line += fmt::format(", at {:.1f} K RMS", determined_rms_sum / determined_rms_n);
+    if (undetermined_rms_n)
+      line += fmt::format(" (the rest at {:.1f} K)", undetermined_rms_sum / undetermined_rms_n);
+    results.push_back(line + ".");
+  }
   if (info.wall_seconds > 0)
     results.push_back(fmt::format("{:.1f} s in all, {:.1f} computed frames per minute.",
                                   info.wall_seconds,

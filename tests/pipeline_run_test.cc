@@ -142,6 +142,7 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   f.delta_e = {{"1e5", true, 0.5, 1.25}, {"null", false, -0.0, 3}};
   f.truth_rms_k = -1;
   f.truth_within_1_sigma = 0.68;
+  f.truth_determined_rms_k = 123.5;
   const FrameSummary back = FrameSummary::FromYaml(f.ToYaml(), "test");
   EXPECT_EQ(back.frame, f.frame);
   EXPECT_EQ(back.status, "true");
@@ -162,6 +163,8 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   EXPECT_EQ(back.delta_e[1].camera, "null");
   EXPECT_EQ(back.truth_within_1_sigma, 0.68);
   EXPECT_EQ(back.truth_within_2_sigma, -1);
+  EXPECT_EQ(back.truth_determined_rms_k, 123.5);
+  EXPECT_EQ(back.truth_determined_share, -1);
   // Not UTF-8: the JSON replaces it and stays JSON (Python's json module reads it).
   f.notes = {std::string("image \xff\xfe.png unreadable")};
   const std::string json = f.ToJson();
@@ -197,6 +200,25 @@ TEST(TruthError, SameGridVoxelByVoxelOtherGridsByTheVoxelHoldingEachCentre) {
   EXPECT_EQ(other.counted, 64u);
   EXPECT_NEAR(other.rms_k, std::sqrt(1750.0), 1e-4);
   EXPECT_NEAR(other.mean_k, 35, 1e-4);
+  EXPECT_FALSE(other.have_sigma);
+  EXPECT_EQ(other.determined_rms_k, -1);
+  // With sigma grids: the fit determines coarse voxels 0..5 (errors 0..50 K, 48 truth voxels)
+  // and not 6 and 7 (60 and 70 K, 16 truth voxels). Closed forms: RMS over the determined
+  // sqrt(mean of (10 c)^2 for c < 6) = sqrt(5500 / 6), over the rest sqrt((3600 + 4900) / 2).
+  coarse.temperature_sigma_k.assign(8, 25.0f);
+  coarse.determined.assign(8, 1.0f);
+  coarse.determined[6] = coarse.determined[7] = 0.0f;
+  const TruthError split = CompareWithTruth(truth, coarse);
+  ASSERT_TRUE(split.have_sigma);
+  EXPECT_NEAR(split.determined_share, 0.75, 1e-12);
+  EXPECT_NEAR(split.determined_rms_k, std::sqrt(5500.0 / 6), 1e-4);
+  EXPECT_NEAR(split.undetermined_rms_k, std::sqrt(8500.0 / 2), 1e-4);
+  EXPECT_NEAR(split.within_1_sigma, 3.0 / 8, 1e-12);  // errors 0, 10, 20 K of 25
+  // Every voxel determined: no RMS for the rest.
+  coarse.determined.assign(8, 1.0f);
+  const TruthError all = CompareWithTruth(truth, coarse);
+  EXPECT_NEAR(all.determined_rms_k, all.rms_k, 1e-9);
+  EXPECT_EQ(all.undetermined_rms_k, -1);
   // A fitted box that holds only the lower half (y < 2 mm): the rest is visible, not counted.
   FireVolume half = Cube(2, 1510);
   half.geometry.dims.y() = 1;
@@ -529,6 +551,15 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
     EXPECT_GE(f.truth_within_2_sigma, f.truth_within_1_sigma);
     EXPECT_GT(f.truth_median_sigma_k, 0);
     EXPECT_NE(f.Line().find("within 1 sigma"), std::string::npos) << f.Line();
+    // The determined voxels scored apart: their share and the two RMS make up the whole RMS.
+    EXPECT_EQ(f.truth_determined_share, written.determined_share);
+    EXPECT_EQ(f.truth_determined_rms_k, written.determined_rms_k);
+    const double share = f.truth_determined_share;
+    const double det = std::max(0.0, f.truth_determined_rms_k),
+                 rest = std::max(0.0, f.truth_undetermined_rms_k);
+    EXPECT_NEAR(share * det * det + (1 - share) * rest * rest, f.truth_rms_k * f.truth_rms_k,
+                1e-6 * f.truth_rms_k * f.truth_rms_k);
+    EXPECT_NE(f.Line().find("% determined"), std::string::npos) << f.Line();
     // The summary on disk is the one returned.
     const auto back = ReadFrameSummaries(o.out_dir, f.frame, f.frame + 1);
     ASSERT_EQ(back.size(), 1u);

@@ -47,20 +47,25 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
     const auto equivalent = Row(md, scene, "the image-equivalent truth on the fit's grid");
     const auto alone = Row(md, scene, "the start alone");
     const auto rings = Row(md, scene, "... axisymmetric");
-    ASSERT_EQ(rings.size(), 13u) << md;
+    ASSERT_EQ(rings.size(), 14u) << md;
     EXPECT_EQ(rings[4], "1.000");  // the known exposure held, tied or not
-    ASSERT_EQ(before.size(), 13u) << md;
-    ASSERT_EQ(known.size(), 13u) << md;
-    ASSERT_EQ(alone.size(), 13u) << md;
-    ASSERT_EQ(equivalent.size(), 13u) << md;
+    ASSERT_EQ(before.size(), 14u) << md;
+    ASSERT_EQ(known.size(), 14u) << md;
+    ASSERT_EQ(alone.size(), 14u) << md;
+    ASSERT_EQ(equivalent.size(), 14u) << md;
     EXPECT_EQ(equivalent[2], "0");  // a start, not a fit
     EXPECT_EQ(known[4], "1.000");
     EXPECT_NE(before[4], "1.000");
     EXPECT_EQ(alone[2], "0");  // no iteration
-    for (const auto* row : {&before, &known, &alone, &equivalent}) {
+    for (const auto* row : {&before, &known, &alone, &equivalent, &rings}) {
       const double rms = std::stod((*row)[7]);
       EXPECT_GT(rms, 0);
       EXPECT_LT(rms, 2000);  // the search range
+      // Every row has its sigma: the determined voxels' share and the RMS over them and the rest.
+      std::smatch m;
+      const std::string& cell = (*row)[13];
+      ASSERT_TRUE(std::regex_match(cell, m, std::regex("(\\d+)% / (\\d+|-) / (\\d+|-)"))) << cell;
+      EXPECT_LE(std::stoi(m[1]), 100);
     }
   }
   // Sixteen oracle rows per scene: fifteen variants (the axisymmetric one among them) and the
@@ -91,10 +96,12 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
   for (const Expected& e : expected) {
     SCOPED_TRACE(e.first);
     const auto cells = Row(md, finer, e.first);
-    ASSERT_EQ(cells.size(), 15u) << md;
+    ASSERT_EQ(cells.size(), 16u) << md;
     limits.push_back(cells[12]);
     EXPECT_EQ(cells[1], e.images);
     EXPECT_NEAR(std::stod(cells[2]), e.w_sm, 5e-4);
+    EXPECT_TRUE(std::regex_match(cells[15], std::regex("\\d+% / (\\d+|-) / (\\d+|-)")))
+        << cells[15];
     const double rms = std::stod(cells[8]), limit = std::stod(cells[12]);
     EXPECT_GT(rms, 0);
     EXPECT_LT(rms, 2000);
@@ -131,7 +138,7 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
   const auto run = Row(md, where, "the fit as `run` fits");
   const auto finest = Row(md, finer, "32 | 96x72");
   ASSERT_EQ(run.size(), 11u);
-  ASSERT_EQ(finest.size(), 15u);
+  ASSERT_EQ(finest.size(), 16u);
   EXPECT_EQ(run[5], finest[8]);  // T RMS
   EXPECT_EQ(run[6], finest[9]);  // bias
   EXPECT_EQ(run[2], finest[4]);  // iterations

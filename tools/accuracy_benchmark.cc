@@ -31,6 +31,15 @@ double Since(Clock::time_point t) {
   return std::chrono::duration<double>(Clock::now() - t).count();
 }
 
+// "share% / RMS / RMS": the scored voxels the fit calls determined, the temperature RMS over
+// them and over the rest ("-" where there are none, or no sigma grid).
+std::string DeterminedCell(const TruthError& t) {
+  if (!t.have_sigma) return "-";
+  auto rms = [](double k) { return k >= 0 ? Fixed(k, 0) : std::string("-"); };
+  return Fixed(100 * t.determined_share, 0) + "% / " + rms(t.determined_rms_k) + " / " +
+         rms(t.undetermined_rms_k);
+}
+
 // A scene: a truth on a fine grid, the cameras that film it (the last one held out), their 8-bit
 // images, the exposure they were taken with, and the tomography of the fitted views on the fit's
 // grid.
@@ -333,8 +342,9 @@ std::string FinerGridSection(const SceneSpec& base,
         "most 35 K, bias within 10 K.\n\n";
   md << "| fit grid | images | w_sm | seconds | iterations | stopped by | Delta E fitted | Delta E "
         "held out | T RMS K | bias K | emission-weighted RMS K | correlation | grid limit RMS K "
-        "| truth's spread K | visible voxels with medium |\n";
-  md << "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+        "| truth's spread K | visible voxels with medium | determined: share / T RMS / the rest's "
+        "K |\n";
+  md << "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   struct Row {
     int resolution, width;
   };
@@ -366,6 +376,7 @@ std::string FinerGridSection(const SceneSpec& base,
     o.known_exposure = scene.exposure;
     const double scale = double(r0) / row.resolution;
     o.objective.w_sm *= scale * scale;
+    o.estimate_uncertainty = true;  // as `run` fits
     const auto start = Clock::now();
     const FitResult r = FastFit(scene.fit_grid, scene.tomography, fitted, scene.absorption, o);
     const double seconds = Since(start);
@@ -379,7 +390,7 @@ std::string FinerGridSection(const SceneSpec& base,
        << Fixed(delta_e.second, 2) << " | " << Fixed(t.rms_k, 0) << " | " << Fixed(t.mean_k, 0)
        << " | " << Fixed(t.weighted_rms_k, 0) << " | " << Fixed(t.correlation, 2) << " | "
        << Fixed(limit.rms_k, 0) << " | " << Fixed(t.truth_spread_k, 0) << " | " << t.counted
-       << " / " << t.visible << " |\n";
+       << " / " << t.visible << " | " << DeterminedCell(t) << " |\n";
     if (log)
       log("accuracy: finer grids: " + std::to_string(row.resolution) + ": " + Fixed(seconds, 1) +
           " s, T RMS " + Fixed(t.rms_k, 0) + " K, bias " + Fixed(t.mean_k, 0) + " K");
@@ -576,8 +587,8 @@ std::string RunAccuracyBenchmark(const AccuracyBenchmarkOptions& options,
     md << ".\n\n";
     md << "| oracle | seconds | iterations | stopped by | exposure / true | Delta E fitted | Delta "
           "E held out | T RMS K | bias K | emission-weighted RMS K | correlation | fitted spread K "
-          "| visible voxels with medium |\n";
-    md << "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+          "| visible voxels with medium | determined: share / T RMS / the rest's K |\n";
+    md << "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
     auto row = [&](const std::string& name, const FitResult& r, double seconds, const Scene& on,
                    const std::vector<FitView>& views, const std::vector<FitView>& held_views) {
       const TruthError t = CompareWithTruth(on.truth, r.volume);
@@ -587,12 +598,13 @@ std::string RunAccuracyBenchmark(const AccuracyBenchmarkOptions& options,
          << Fixed(delta_e.first, 2) << " | " << Fixed(delta_e.second, 2) << " | "
          << Fixed(t.rms_k, 0) << " | " << Fixed(t.mean_k, 0) << " | " << Fixed(t.weighted_rms_k, 0)
          << " | " << Fixed(t.correlation, 2) << " | " << Fixed(t.fit_spread_k, 0) << " | "
-         << t.counted << " / " << t.visible << " |\n";
+         << t.counted << " / " << t.visible << " | " << DeterminedCell(t) << " |\n";
       if (log)
         log("accuracy: " + spec.name + ": " + name + ": " + Fixed(seconds, 1) + " s, T RMS " +
             Fixed(t.rms_k, 0) + " K, bias " + Fixed(t.mean_k, 0) + " K");
     };
-    for (const Variant& v : variants) {
+    for (Variant v : variants) {
+      v.options.estimate_uncertainty = true;  // as `run` and `fit` do
       const auto start = Clock::now();
       FitResult warm;
       if (v.start_at_truth || v.start_at_image_equivalent) {
@@ -607,6 +619,7 @@ std::string RunAccuracyBenchmark(const AccuracyBenchmarkOptions& options,
     {
       FitOptions o = converged;
       o.known_exposure = clean.exposure;
+      o.estimate_uncertainty = true;
       const auto start = Clock::now();
       const FitResult r =
           FastFit(clean.fit_grid, clean.tomography, clean_fitted, clean.absorption, o);

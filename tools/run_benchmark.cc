@@ -34,8 +34,10 @@ struct Row {
   // The take's consistency, frame by frame (computed frames scored against the truth): the fitted
   // exposure over the images' true one, the fitted soot over the truth's, the temperature bias,
   // and the voxels at the fit's upper temperature bound; and the share of the visible voxels
-  // within one and two of the fit's sigma (percent).
+  // within one and two of the fit's sigma (percent); the share the fit calls determined (percent)
+  // and the temperature RMS over those and over the rest.
   std::vector<double> exposure_ratio, soot_ratio, bias_k, within_1_sigma, within_2_sigma;
+  std::vector<double> determined_share, determined_rms_k, undetermined_rms_k;
   std::size_t at_bound = 0;
 };
 
@@ -74,6 +76,12 @@ Row Measure(const std::string& name, const RunOptions& o, std::size_t begin, std
         if (f.truth_within_1_sigma >= 0) {
           r.within_1_sigma.push_back(100 * f.truth_within_1_sigma);
           r.within_2_sigma.push_back(100 * f.truth_within_2_sigma);
+        }
+        if (f.truth_determined_share >= 0) {
+          r.determined_share.push_back(100 * f.truth_determined_share);
+          if (f.truth_determined_rms_k >= 0) r.determined_rms_k.push_back(f.truth_determined_rms_k);
+          if (f.truth_undetermined_rms_k >= 0)
+            r.undetermined_rms_k.push_back(f.truth_undetermined_rms_k);
         }
         const FireVolume v =
             ReadVdb((fs::path(o.out_dir) / (FrameName(f.frame) + ".vdb")).string());
@@ -253,11 +261,14 @@ std::string RunRunBenchmark(const RunBenchmarkOptions& options,
   md << "| run | exposure / true | soot / truth | temperature bias K | voxels within "
      << Fixed(0.01 * (base.fit.objective.t_max_k - base.fit.objective.t_min_k), 0)
      << " K of the upper bound (all frames) | visible voxels within one sigma % | within two "
-        "sigma % |\n|---|---|---|---|---|---|---|\n";
+        "sigma % | determined by the images % | T RMS on them K | on the rest K "
+        "|\n|---|---|---|---|---|---|---|---|---|---|\n";
   for (const Row* r : std::vector<const Row*>{&rows[0], &rows[1], &rings, &free})
     md << "| " << r->name << " | " << Range(r->exposure_ratio, 3) << " | "
        << Range(r->soot_ratio, 2) << " | " << Range(r->bias_k, 0) << " | " << r->at_bound << " | "
-       << Range(r->within_1_sigma, 0) << " | " << Range(r->within_2_sigma, 0) << " |\n";
+       << Range(r->within_1_sigma, 0) << " | " << Range(r->within_2_sigma, 0) << " | "
+       << Range(r->determined_share, 0) << " | " << Range(r->determined_rms_k, 0) << " | "
+       << Range(r->undetermined_rms_k, 0) << " |\n";
   md << "\nStage shares are of the time spent in the four stages (the rest, under 1%, is "
         "bookkeeping: summaries and state files). In the still-fire rows the truth is not scored "
         "(the repeated frames no longer match it); "
