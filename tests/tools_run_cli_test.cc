@@ -209,6 +209,16 @@ TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
     EXPECT_DOUBLE_EQ(v.metadata_numbers.at("w_sm"), c.w_sm);
     volumes[c.name] = std::move(v);
   }
+  // Scored against the truth, the report and frames.csv give the determined voxels apart.
+  std::ifstream page(dir / "default" / "report" / "index.html");
+  const std::string html((std::istreambuf_iterator<char>(page)), {});
+  EXPECT_NE(html.find("The voxels the fit calls determined: "), std::string::npos);
+  std::ifstream csv(dir / "default" / "frames.csv");
+  std::string header;
+  std::getline(csv, header);
+  EXPECT_NE(header.find("truth_determined_share,truth_determined_rms_k,truth_undetermined_rms_k"),
+            std::string::npos)
+      << header;
   // Roughness: the mean |T difference| between face neighbours that both hold medium.
   auto roughness = [](const FireVolume& v) {
     const Eigen::Vector3i d = v.geometry.dims;
