@@ -386,9 +386,11 @@ void FrameStages::Score(FrameWork* w) {
       s.truth_within_1_sigma = t.within_1_sigma;
       s.truth_within_2_sigma = t.within_2_sigma;
       s.truth_median_sigma_k = t.median_sigma_k;
-      s.truth_determined_share = t.determined_share;
-      s.truth_determined_rms_k = t.determined_rms_k;
-      s.truth_undetermined_rms_k = t.undetermined_rms_k;
+      if (t.have_determined) {
+        s.truth_determined_share = t.determined_share;
+        s.truth_determined_rms_k = t.determined_rms_k;
+        s.truth_undetermined_rms_k = t.undetermined_rms_k;
+      }
     }
   } else if (!t.compared) {
     s.notes.push_back("truth not compared: " + t.why_not);

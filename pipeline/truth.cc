@@ -66,6 +66,7 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
   double n = 0, sd = 0, sdd = 0, sf = 0, st = 0, sff = 0, stt = 0, sft = 0;
   double w = 0, wd = 0, wdd = 0, wt = 0, wtt = 0;
   const bool have_sigma = fitted.temperature_sigma_k.size() == fg.num_voxels();
+  const bool have_determined = have_sigma && fitted.determined.size() == fg.num_voxels();
   double within1 = 0, within2 = 0, determined = 0, determined_dd = 0, undetermined_dd = 0;
   std::vector<double> sigmas;
   ForEachScoredVoxel(truth, fitted, &out.visible, [&](std::size_t v, std::size_t f, double) {
@@ -90,7 +91,7 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
       sigmas.push_back(sigma);
       if (std::abs(x - t) <= sigma) within1 += 1;
       if (std::abs(x - t) <= 2 * sigma) within2 += 1;
-      if (!fitted.determined.empty() && fitted.determined[f] > 0.5) {
+      if (have_determined && fitted.determined[f] > 0.5) {
         determined += 1;
         determined_dd += (x - t) * (x - t);
       } else {
@@ -116,8 +117,11 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
     out.within_1_sigma = within1 / n;
     out.within_2_sigma = within2 / n;
     out.determined_share = determined / n;
-    if (determined > 0) out.determined_rms_k = std::sqrt(determined_dd / determined);
-    if (n > determined) out.undetermined_rms_k = std::sqrt(undetermined_dd / (n - determined));
+    out.have_determined = have_determined;
+    if (have_determined && determined > 0)
+      out.determined_rms_k = std::sqrt(determined_dd / determined);
+    if (have_determined && n > determined)
+      out.undetermined_rms_k = std::sqrt(undetermined_dd / (n - determined));
     std::nth_element(sigmas.begin(), sigmas.begin() + sigmas.size() / 2, sigmas.end());
     out.median_sigma_k = sigmas[sigmas.size() / 2];
   }

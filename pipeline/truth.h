@@ -40,8 +40,10 @@ struct TruthError {
   // 0.95), the median sigma, and the share the images determine (`determined` grid).
   bool have_sigma = false;
   double within_1_sigma = 0, within_2_sigma = 0, median_sigma_k = 0, determined_share = 0;
-  // The temperature RMS over the counted voxels the fit calls determined, and over the rest
-  // (-1 where there are none): what a researcher who quotes only the determined voxels can expect.
+  // With a `determined` grid too: the temperature RMS over the counted voxels the fit calls
+  // determined, and over the rest (-1 where there are none): what a researcher who quotes only
+  // the determined voxels can expect. Without one, neither (and determined_share is 0).
+  bool have_determined = false;
   double determined_rms_k = -1, undetermined_rms_k = -1;
 };
 // `volume`'s temperature and density on `grid`: each voxel of `grid` takes the value of the voxel

@@ -142,7 +142,9 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   f.delta_e = {{"1e5", true, 0.5, 1.25}, {"null", false, -0.0, 3}};
   f.truth_rms_k = -1;
   f.truth_within_1_sigma = 0.68;
+  f.truth_determined_share = 0.625;
   f.truth_determined_rms_k = 123.5;
+  f.truth_undetermined_rms_k = 250.25;
   const FrameSummary back = FrameSummary::FromYaml(f.ToYaml(), "test");
   EXPECT_EQ(back.frame, f.frame);
   EXPECT_EQ(back.status, "true");
@@ -163,8 +165,9 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   EXPECT_EQ(back.delta_e[1].camera, "null");
   EXPECT_EQ(back.truth_within_1_sigma, 0.68);
   EXPECT_EQ(back.truth_within_2_sigma, -1);
+  EXPECT_EQ(back.truth_determined_share, 0.625);
   EXPECT_EQ(back.truth_determined_rms_k, 123.5);
-  EXPECT_EQ(back.truth_determined_share, -1);
+  EXPECT_EQ(back.truth_undetermined_rms_k, 250.25);
   // Not UTF-8: the JSON replaces it and stays JSON (Python's json module reads it).
   f.notes = {std::string("image \xff\xfe.png unreadable")};
   const std::string json = f.ToJson();
@@ -209,7 +212,7 @@ TEST(TruthError, SameGridVoxelByVoxelOtherGridsByTheVoxelHoldingEachCentre) {
   coarse.determined.assign(8, 1.0f);
   coarse.determined[6] = coarse.determined[7] = 0.0f;
   const TruthError split = CompareWithTruth(truth, coarse);
-  ASSERT_TRUE(split.have_sigma);
+  ASSERT_TRUE(split.have_sigma && split.have_determined);
   EXPECT_NEAR(split.determined_share, 0.75, 1e-12);
   EXPECT_NEAR(split.determined_rms_k, std::sqrt(5500.0 / 6), 1e-4);
   EXPECT_NEAR(split.undetermined_rms_k, std::sqrt(8500.0 / 2), 1e-4);
@@ -219,6 +222,14 @@ TEST(TruthError, SameGridVoxelByVoxelOtherGridsByTheVoxelHoldingEachCentre) {
   const TruthError all = CompareWithTruth(truth, coarse);
   EXPECT_NEAR(all.determined_rms_k, all.rms_k, 1e-9);
   EXPECT_EQ(all.undetermined_rms_k, -1);
+  // A sigma grid without a determined one (a volume from elsewhere): no split, not "none
+  // determined".
+  coarse.determined.clear();
+  const TruthError unsplit = CompareWithTruth(truth, coarse);
+  EXPECT_TRUE(unsplit.have_sigma);
+  EXPECT_FALSE(unsplit.have_determined);
+  EXPECT_EQ(unsplit.determined_rms_k, -1);
+  EXPECT_EQ(unsplit.undetermined_rms_k, -1);
   // A fitted box that holds only the lower half (y < 2 mm): the rest is visible, not counted.
   FireVolume half = Cube(2, 1510);
   half.geometry.dims.y() = 1;

@@ -335,6 +335,8 @@ TEST(Cli, FitASimulatedFrameSet) {
   ASSERT_EQ(fit.status, 0) << fit.output;
   EXPECT_NE(fit.output.find("cam2 (held out)"), std::string::npos) << fit.output;
   EXPECT_NE(fit.output.find("temperature against"), std::string::npos) << fit.output;
+  EXPECT_NE(fit.output.find("temperature RMS on the determined voxels "), std::string::npos)
+      << fit.output;
   flamerig::FireVolume v = flamerig::ReadVdb(out);
   EXPECT_EQ(v.temperature_k.size(), v.geometry.num_voxels());
   EXPECT_EQ(v.density_per_m3.size(), v.geometry.num_voxels());

@@ -32,9 +32,9 @@ double Since(Clock::time_point t) {
 }
 
 // "share% / RMS / RMS": the scored voxels the fit calls determined, the temperature RMS over
-// them and over the rest ("-" where there are none, or no sigma grid).
+// them and over the rest ("-" where there are none, or no determined grid).
 std::string DeterminedCell(const TruthError& t) {
-  if (!t.have_sigma) return "-";
+  if (!t.have_determined) return "-";
   auto rms = [](double k) { return k >= 0 ? Fixed(k, 0) : std::string("-"); };
   return Fixed(100 * t.determined_share, 0) + "% / " + rms(t.determined_rms_k) + " / " +
          rms(t.undetermined_rms_k);
@@ -472,7 +472,8 @@ std::string RunAccuracyBenchmark(const AccuracyBenchmarkOptions& options,
         "fit has medium: RMS, mean (bias), RMS weighted by the truth's emission, Pearson's "
         "correlation, and the fitted field's spread; the truth's own spread (the RMS of the best "
         "constant, the trivial baseline) is in each scene's heading. Delta E is the mean over fire "
-        "pixels.\n\n";
+        "pixels. Seconds include the per-voxel sigma, as `run` and `fit` compute it; the last "
+        "column splits the scored voxels by the fit's `determined` grid.\n\n";
   for (const SceneSpec& spec : specs) {
     const auto t0 = Clock::now();
     Scene scene = MakeScene(spec);

@@ -126,7 +126,7 @@ Runner AddFit(CLI::App* command) {
             "68%%, 95%%); median sigma %.0f K; %.0f%% determined by the images\n",
             100 * r.truth.within_1_sigma, 100 * r.truth.within_2_sigma, r.truth.median_sigma_k,
             100 * r.truth.determined_share);
-      if (r.truth.have_sigma) {
+      if (r.truth.have_determined) {
         // What a researcher who quotes only the determined voxels can expect.
         auto rms = [](double k) { return k >= 0 ? fmt::format("{:.1f} K", k) : std::string("-"); };
         std::printf("  temperature RMS on the determined voxels %s, on the rest %s\n",
