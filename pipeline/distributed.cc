@@ -58,8 +58,8 @@ MpiSession::MpiSession(int* argc, char*** argv) {
   const int size = EnvInt("OMPI_COMM_WORLD_SIZE", EnvInt("PMI_SIZE", 1));
   if (size > 1)
     throw InputError("started by mpirun with " + std::to_string(size) +
-                             " ranks, but this flamerig was built without MPI (install "
-                             "libopenmpi-dev and rebuild)");
+                     " ranks, but this flamerig was built without MPI (install "
+                     "libopenmpi-dev and rebuild)");
 #endif
 }
 
@@ -229,6 +229,7 @@ DistributedRun RunDistributed(const RunOptions& options, const DistributedOption
   info.source = options.source.Describe();
   info.rig_path = out.rig_path;
   info.truth_dir = options.truth_dir;
+  info.truth_rig = options.truth_rig;
   info.ranks = ranks.size();
   info.wall_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -31,7 +31,10 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
        {std::pair{job.truth_path, "--truth"}, std::pair{job.tomography_path, "--tomography"}})
     if (!path.empty() && !fs::is_regular_file(path))
       throw InputError(path + " (" + option + "): no such file");
+  if (!job.truth_rig.empty() && job.truth_path.empty())
+    throw InputError("fit: a truth rig (--truth-rig) without a truth (--truth) to move");
   const Rig rig = WithInputTransfer(Rig::Load(job.rig_path), job.input_transfer);
+  const RigRegistration truth_frame = RegisterTruth(job.truth_rig, rig);
   const ImagesExposure images_exposure = ResolveExposure(job.exposure, job.rig_path);
   const double exposure = images_exposure.value;
   // The fast fit holds a known exposure: checked before any work.
@@ -130,13 +133,17 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
                                               (fs::path(job.out_path).stem().string() + "_report"))
                                                  .string();
   FireVolume truth;
-  if (!job.truth_path.empty()) truth = ReadVdb(job.truth_path);
-  out.scores = WriteFitReport(out.report_dir, out.result, views, held, absorption, job.fit.render,
-                              std::string("flamerig fit (") + ToString(job.method) + ")", nullptr,
-                              job.truth_path.empty() ? nullptr : &truth);
+  if (!job.truth_path.empty()) {
+    truth = ReadVdb(job.truth_path);
+    out.truth_frame = truth_frame;
+  }
+  out.scores =
+      WriteFitReport(out.report_dir, out.result, views, held, absorption, job.fit.render,
+                     std::string("flamerig fit (") + ToString(job.method) + ")", nullptr,
+                     job.truth_path.empty() ? nullptr : &truth, out.truth_frame.to_from_from);
   if (!job.truth_path.empty()) {
     out.have_truth = true;
-    out.truth = CompareWithTruth(truth, out.result.volume);
+    out.truth = CompareWithTruth(truth, out.result.volume, out.truth_frame.to_from_from);
   }
   return out;
 }

@@ -39,6 +39,9 @@ struct FitJob {
   PaperFitOptions paper;   // alg1, alg2
   std::string report_dir;  // "" = beside the output: F_report/
   std::string truth_path;  // "" = none
+  // The rig the truth was simulated in, when rig_path is another calibration of its cameras: the
+  // truth is moved into rig_path's frame before it is scored (truth.h's RegisterTruth). "" = none.
+  std::string truth_rig;
   // Per-voxel sigma and determined grids in the .vdb (fitting/uncertainty.h; fast fit only).
   bool uncertainty = true;
 };
@@ -50,6 +53,7 @@ struct FitJobResult {
   std::string tomography;  // how the tomography was had: "file ..." or the reconstruction's report
   bool have_truth = false;
   TruthError truth;
+  RigRegistration truth_frame;  // FitJob::truth_rig's frame into the rig's (identity without)
 };
 
 // Throws InputError for bad options (views that are not in the rig, a view both fitted and held

@@ -169,7 +169,8 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
                                       const std::vector<FitView>& held_out,
                                       const AbsorptionModel& absorption,
                                       const RenderOptions& render, const std::string& title,
-                                      std::vector<ImageU8>* rendered_out, const FireVolume* truth) {
+                                      std::vector<ImageU8>* rendered_out, const FireVolume* truth,
+                                      const Rigid3& fit_from_truth) {
   const FireVolume& v = result.volume;
   // One renderer per camera response, made when a view needs it (views of one response are
   // usually together).
@@ -257,7 +258,8 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
   const bool plotted = WritePlot(plot, (fs::path(dir) / "error").string(), &plot_error);
   if (!plotted) Log().warn("fit report: no error plot: {}", plot_error);
   const bool sliced = v.HasTemperatureAndDensity();
-  if (sliced) WritePng((fs::path(dir) / "slices.png").string(), SlicesPicture(v, truth));
+  if (sliced)
+    WritePng((fs::path(dir) / "slices.png").string(), SlicesPicture(v, truth, fit_from_truth));
   // An axisymmetric fit's radial profile, and the truth's on the same rings.
   const bool profiled = !result.ring_profile.empty();
   bool profile_plotted = false, profile_truth = false;
@@ -268,7 +270,8 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
     if (truth && !profile_truth)
       Log().warn("fit report: the truth has no temperature and density grids: not on the profile");
     std::vector<RingTruth> on_rings;
-    if (profile_truth) on_rings = TruthOnRings(*truth, v.geometry, result.ring_profile);
+    if (profile_truth)
+      on_rings = TruthOnRings(*truth, v.geometry, result.ring_profile, fit_from_truth);
     const std::vector<RingTruth>* t = profile_truth ? &on_rings : nullptr;
     WriteRingProfileCsv((fs::path(dir) / "profile.csv").string(), result.ring_profile, t);
     profile_plotted = WriteRingProfilePlot((fs::path(dir) / "profile").string(),

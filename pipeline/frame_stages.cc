@@ -7,6 +7,7 @@
 
 #include "core/atomic_file.h"
 #include "core/error.h"
+#include "core/log.h"
 #include "pipeline/blender_export.h"
 #include "pipeline/fit_report.h"
 #include "pipeline/picture.h"
@@ -118,6 +119,12 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
   if (!GroupByBand(fitted).empty())
     band_reconstructor_ = std::make_unique<BandReconstructor>(rig_, ro);
   truth_count_ = CountTruth(options_.truth_dir);
+  if (truth_count_ && !options_.truth_rig.empty()) {
+    const RigRegistration r = RegisterTruth(options_.truth_rig, rig_);
+    fit_from_truth_ = r.to_from_from;
+    Log().info("run: the truth's rig {} lies in this rig's frame {}", options_.truth_rig,
+               r.Describe());
+  }
   for (const char* sub : {"frames", "tomography", "state", "blender"})
     fs::create_directories(fs::path(options_.out_dir) / sub);
 }
@@ -377,10 +384,11 @@ void FrameStages::Score(FrameWork* w) {
     s.notes.push_back(std::string("truth not compared: ") + e.what());
     return;
   }
-  const TruthError t = CompareWithTruth(truth, scored_);
+  const TruthError t = CompareWithTruth(truth, scored_, fit_from_truth_);
   if (t.compared && t.counted) {
     s.truth_rms_k = t.rms_k;
     s.truth_bias_k = t.mean_k;
+    s.truth_spread_k = t.truth_spread_k;
     s.truth_soot = t.truth_soot;
     if (t.have_sigma) {
       s.truth_within_1_sigma = t.within_1_sigma;

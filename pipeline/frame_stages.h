@@ -115,6 +115,7 @@ class FrameStages {
   AbsorptionModel absorption_;
   int holdout_ = -1;
   std::size_t truth_count_ = 0;
+  Rigid3 fit_from_truth_;  // RunOptions::truth_rig's frame into the run's
   std::unique_ptr<Reconstructor> reconstructor_;
   std::unique_ptr<BandReconstructor> band_reconstructor_;  // null unless the rig has bands
   std::vector<std::unique_ptr<CameraRays>> rays_;

@@ -92,6 +92,8 @@ void RunOptions::Validate() const {
     throw InputError("run: give a rig (--rig) or a calibration to make one");
   if (out_dir.empty()) throw InputError("run: give an output folder (--out)");
   if (count == 0) throw InputError("run: count must be >= 1");
+  if (!truth_rig.empty() && truth_dir.empty())
+    throw InputError("run: a truth rig (--truth-rig) without a truth (--truth) to move");
   if (!(exposure >= 0) || !std::isfinite(exposure))
     throw InputError("run: exposure must be finite and >= 0 (0 = from the dataset)");
   if (!absorption.empty() && absorption != "soot" && absorption != "grey")
@@ -138,6 +140,7 @@ std::string FrameSummary::Line() const {
     s.precision(1);
     if (truth_rms_k >= 0)
       s << ", T error " << truth_rms_k << " K RMS, bias " << truth_bias_k << " K on visible voxels";
+    if (truth_spread_k >= 0) s << " (a constant: " << truth_spread_k << " K)";
     if (truth_within_1_sigma >= 0)
       s << " (" << 100 * truth_within_1_sigma << "% within 1 sigma, " << 100 * truth_within_2_sigma
         << "% within 2; median sigma " << truth_median_sigma_k << " K)";
@@ -182,6 +185,7 @@ nlohmann::json SummaryJson(const FrameSummary& f) {
         {{"camera", d.camera}, {"held_out", d.held_out}, {"mean", d.mean}, {"fire", d.fire}});
   j["truth_rms_k"] = f.truth_rms_k;
   j["truth_bias_k"] = f.truth_bias_k;
+  j["truth_spread_k"] = f.truth_spread_k;
   j["truth_voxels"] = f.truth_voxels;
   j["truth_visible"] = f.truth_visible;
   j["truth_frame"] = f.truth_frame;
@@ -245,6 +249,7 @@ FrameSummary FrameSummary::FromYaml(const std::string& text, const std::string& 
     }
     s.truth_rms_k = n["truth_rms_k"].as<double>();
     s.truth_bias_k = n["truth_bias_k"].as<double>();
+    s.truth_spread_k = n["truth_spread_k"].as<double>(-1.0);  // none in older summaries
     s.truth_voxels = n["truth_voxels"].as<std::size_t>();
     s.truth_visible = n["truth_visible"].as<std::size_t>();
     s.truth_frame = n["truth_frame"].as<int>();

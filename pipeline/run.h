@@ -104,6 +104,10 @@ struct RunOptions {
   // numbered by its frame id modulo the number of truth volumes (a simulated camera replaying a
   // dataset shows frame id mod N).
   std::string truth_dir;
+  // The rig the truth was simulated in (a simulated recording's rig.yaml), when the run's rig is
+  // another calibration of its cameras: the truth is moved into the run's frame before it is
+  // scored (truth.h, calibration/rig_registration.h). "" = the truth is in the run's rig frame.
+  std::string truth_rig;
   bool blender = true;    // also write OUT/blender/
   bool pictures = true;   // per-frame picture (input over rendered)
   void Validate() const;  // throws InputError naming the field
@@ -142,6 +146,9 @@ struct FrameSummary {
   // Against the truth, on visible voxels (>= 1300 K, >= 1% of the peak emission) where the fit put
   // medium; -1 without truth.
   double truth_rms_k = -1, truth_bias_k = 0;
+  // The truth's own spread on the same voxels: the RMS of the best constant, the trivial baseline
+  // a fit must beat (issue 19's two-view target: at most 0.7 of it); -1 without truth.
+  double truth_spread_k = -1;
   std::size_t truth_voxels = 0, truth_visible = 0;
   int truth_frame = -1;
   double truth_soot = 0;  // particles in the truth

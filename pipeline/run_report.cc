@@ -77,14 +77,15 @@ ImageU8 TemperatureSlice(const FireVolume& volume, int axis, int index, double t
       [&](std::size_t v) { return ColourOf(volume.temperature_k[v], t_lo, t_hi); });
 }
 
-ImageU8 SlicesPicture(const FireVolume& v, const FireVolume* truth_volume) {
+ImageU8 SlicesPicture(const FireVolume& v, const FireVolume* truth_volume,
+                      const Rigid3& fit_from_truth) {
   const GridGeometry& g = v.geometry;
   if (!v.HasTemperatureAndDensity())
     throw InputError("SlicesPicture: the volume needs temperature and density grids");
   // The truth is usually finer than the fit (the main job's 96 against 64): shown on the fit's
   // grid, each fit voxel with the truth voxel holding its centre, as the scorer pairs them.
   FireVolume truth;
-  if (truth_volume) truth = SampleOnGrid(*truth_volume, g);
+  if (truth_volume) truth = SampleOnGrid(*truth_volume, g, fit_from_truth);
   double t_hi = 1500;
   for (std::size_t i = 0; i < v.temperature_k.size(); ++i)
     if (v.density_per_m3[i] > 0) t_hi = std::max(t_hi, double(v.temperature_k[i]));
@@ -159,7 +160,8 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     std::ostringstream csv;
     csv << "frame,status,cameras_used,total_ms,read_ms,tomography_ms,fit_ms,write_ms,matrix,"
            "active_voxels,exposure,exposure_from,soot,initial_energy,energy,fit_termination,"
-           "fit_iterations,fit_message,truth_frame,truth_rms_k,truth_bias_k,truth_soot,"
+           "fit_iterations,fit_message,truth_frame,truth_rms_k,truth_bias_k,truth_spread_k,truth_"
+           "soot,"
            "truth_within_1_sigma,truth_within_2_sigma,truth_median_sigma_k,"
            "truth_determined_share,truth_determined_rms_k,truth_undetermined_rms_k";
     for (const auto& c : cameras) csv << ",delta_e_fire_" << c << ",delta_e_all_" << c;
@@ -171,9 +173,10 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
           << quoted(f.exposure_from) << "," << f.soot << "," << f.initial_energy << "," << f.energy
           << "," << f.fit_termination << "," << f.fit_iterations << "," << quoted(f.fit_message)
           << "," << f.truth_frame << "," << f.truth_rms_k << "," << f.truth_bias_k << ","
-          << f.truth_soot << "," << f.truth_within_1_sigma << "," << f.truth_within_2_sigma << ","
-          << f.truth_median_sigma_k << "," << f.truth_determined_share << ","
-          << f.truth_determined_rms_k << "," << f.truth_undetermined_rms_k;
+          << f.truth_spread_k << "," << f.truth_soot << "," << f.truth_within_1_sigma << ","
+          << f.truth_within_2_sigma << "," << f.truth_median_sigma_k << ","
+          << f.truth_determined_share << "," << f.truth_determined_rms_k << ","
+          << f.truth_undetermined_rms_k;
       for (const auto& c : cameras) {
         auto it = std::find_if(f.delta_e.begin(), f.delta_e.end(),
                                [&](const ViewDeltaE& d) { return d.camera == c; });
@@ -309,6 +312,9 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   // Temperature slices of a few computed frames, and their radial profiles when the fit was
   // axisymmetric (the run's OUT/frames/frame_NNNNNN_profile.csv).
   std::vector<std::string> slice_files, profile_files;
+  RigRegistration truth_frame;  // identity without a truth rig
+  if (!info.truth_dir.empty() && !info.truth_rig.empty())
+    truth_frame = RegisterTruth(info.truth_rig, Rig::Load(info.rig_path));
   {
     std::vector<const FrameSummary*> candidates;
     for (const auto& f : frames)
@@ -325,7 +331,8 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
         if (fs::exists(t)) truth = ReadVdb(t.string());
       }
       const std::string name = "slices_" + FrameName(f->frame).substr(6) + ".png";
-      WritePicture(dir / name, SlicesPicture(v, truth.temperature_k.empty() ? nullptr : &truth));
+      WritePicture(dir / name, SlicesPicture(v, truth.temperature_k.empty() ? nullptr : &truth,
+                                             truth_frame.to_from_from));
       slice_files.push_back(name);
       const fs::path csv = out / "frames" / (FrameName(f->frame) + "_profile.csv");
       if (!fs::exists(csv)) continue;
@@ -338,7 +345,7 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
       }
       const bool with_truth = !truth.temperature_k.empty() && truth.HasTemperatureAndDensity();
       std::vector<RingTruth> on_rings;
-      if (with_truth) on_rings = TruthOnRings(truth, v.geometry, profile);
+      if (with_truth) on_rings = TruthOnRings(truth, v.geometry, profile, truth_frame.to_from_from);
       const std::string base = "profile_" + FrameName(f->frame).substr(6);
       std::string plot_error;
       if (WriteRingProfilePlot((dir / base).string(), profile, with_truth ? &on_rings : nullptr,
@@ -353,6 +360,9 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   std::vector<std::pair<std::string, std::string>> inputs = {{"source", info.source},
                                                              {"rig", info.rig_path}};
   if (!info.truth_dir.empty()) inputs.emplace_back("truth", info.truth_dir);
+  if (!info.truth_dir.empty() && !info.truth_rig.empty())
+    inputs.emplace_back("truth's rig", info.truth_rig + ", moved into the rig's frame by " +
+                                           truth_frame.Describe());
   if (info.ranks > 1) inputs.emplace_back("MPI ranks", std::to_string(info.ranks));
   ReportPage page(info.title, inputs);
   page.Section("Results");

@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "calibration/pose.h"
 #include "pipeline/run.h"
 
 namespace flamerig {
@@ -24,6 +25,7 @@ struct RunReportInfo {
   std::string source;  // what was read
   std::string rig_path;
   std::string truth_dir;  // "" = no truth
+  std::string truth_rig;  // RunOptions::truth_rig: the truth's frame, moved into the rig's
   double wall_seconds = 0;
   int ranks = 1;
   int contact_frames = 6;
@@ -45,10 +47,12 @@ ImageU8 TemperatureSlice(const FireVolume& volume, int axis, int index, double t
 
 // The report's slices of a fitted volume, a row per field, front (x-y) and side (z-y) through the
 // box's middle, each with its colour bar and a scale bar: the fitted temperature; with `truth`
-// (any grid, resampled onto the fit's: each fit voxel with the truth voxel holding its centre)
-// the truth and fit - truth; the temperature sigma when the volume has one. Throws InputError
-// when the volume lacks temperature or density.
-ImageU8 SlicesPicture(const FireVolume& fit, const FireVolume* truth = nullptr);
+// (any grid, resampled onto the fit's: each fit voxel with the truth voxel holding its centre,
+// moved by `fit_from_truth` into the truth's frame, truth.h) the truth and fit - truth; the
+// temperature sigma when the volume has one. Throws InputError when the volume lacks temperature
+// or density.
+ImageU8 SlicesPicture(const FireVolume& fit, const FireVolume* truth = nullptr,
+                      const Rigid3& fit_from_truth = Rigid3());
 
 }  // namespace flamerig
 

@@ -13,6 +13,10 @@ namespace flamerig {
 
 namespace {
 
+bool IsIdentity(const Rigid3& m) {
+  return m.rotation.w() == 1 && m.rotation.vec().isZero(0) && m.translation.isZero(0);
+}
+
 // Calls visit(centre, v, relative) for each truth voxel v the images can show (>= 1300 K with
 // soot, and at least 1% of the peak emission when the truth has an emission grid): its centre in
 // the rig frame and its emission over the truth's peak (1 without an emission grid).
@@ -37,14 +41,14 @@ void ForEachVisibleVoxel(const FireVolume& truth, Visit&& visit) {
 // the fitted voxel f that holds its centre (v itself on the same grid) where the fit has medium.
 // Counts the visible voxels.
 template <typename Visit>
-void ForEachScoredVoxel(const FireVolume& truth, const FireVolume& fitted, std::size_t* visible,
-                        Visit&& visit) {
+void ForEachScoredVoxel(const FireVolume& truth, const FireVolume& fitted,
+                        const Rigid3& fit_from_truth, std::size_t* visible, Visit&& visit) {
   const GridGeometry& fg = fitted.geometry;
-  const bool same_grid = truth.geometry.SameVoxels(fg);
+  const bool same_grid = truth.geometry.SameVoxels(fg) && IsIdentity(fit_from_truth);
   ForEachVisibleVoxel(truth, [&](const Eigen::Vector3d& centre, std::size_t v, double relative) {
     ++*visible;
     std::size_t f = v;
-    if (!same_grid && !fg.VoxelHolding(centre, &f)) return;
+    if (!same_grid && !fg.VoxelHolding(fit_from_truth * centre, &f)) return;
     if (!(fitted.density_per_m3[f] > 0)) return;
     visit(v, f, relative);
   });
@@ -52,7 +56,8 @@ void ForEachScoredVoxel(const FireVolume& truth, const FireVolume& fitted, std::
 
 }  // namespace
 
-TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
+TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted,
+                            const Rigid3& fit_from_truth) {
   TruthError out;
   if (truth.temperature_k.empty() || truth.density_per_m3.empty() || fitted.temperature_k.empty() ||
       fitted.density_per_m3.empty()) {
@@ -60,7 +65,7 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
     return out;
   }
   const GridGeometry& fg = fitted.geometry;
-  out.same_grid = truth.geometry.SameVoxels(fg);
+  out.same_grid = truth.geometry.SameVoxels(fg) && IsIdentity(fit_from_truth);
   const std::vector<float>& e = truth.emission_rgb;
   // Sums over the counted voxels, plain and emission-weighted.
   double n = 0, sd = 0, sdd = 0, sf = 0, st = 0, sff = 0, stt = 0, sft = 0;
@@ -69,36 +74,37 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
   const bool have_determined = have_sigma && fitted.determined.size() == fg.num_voxels();
   double within1 = 0, within2 = 0, determined = 0, determined_dd = 0, undetermined_dd = 0;
   std::vector<double> sigmas;
-  ForEachScoredVoxel(truth, fitted, &out.visible, [&](std::size_t v, std::size_t f, double) {
-    const double x = fitted.temperature_k[f], t = truth.temperature_k[v];
-    n += 1;
-    sd += x - t;
-    sdd += (x - t) * (x - t);
-    sf += x;
-    st += t;
-    sff += x * x;
-    stt += t * t;
-    sft += x * t;
-    const double weight = e.empty() ? 1.0 : std::max(0.0, double(e[3 * v + 1]));
-    w += weight;
-    wd += weight * (x - t);
-    wdd += weight * (x - t) * (x - t);
-    wt += weight * t;
-    wtt += weight * t * t;
-    ++out.counted;
-    if (have_sigma) {
-      const double sigma = fitted.temperature_sigma_k[f];
-      sigmas.push_back(sigma);
-      if (std::abs(x - t) <= sigma) within1 += 1;
-      if (std::abs(x - t) <= 2 * sigma) within2 += 1;
-      if (have_determined && fitted.determined[f] > 0.5) {
-        determined += 1;
-        determined_dd += (x - t) * (x - t);
-      } else {
-        undetermined_dd += (x - t) * (x - t);
-      }
-    }
-  });
+  ForEachScoredVoxel(truth, fitted, fit_from_truth, &out.visible,
+                     [&](std::size_t v, std::size_t f, double) {
+                       const double x = fitted.temperature_k[f], t = truth.temperature_k[v];
+                       n += 1;
+                       sd += x - t;
+                       sdd += (x - t) * (x - t);
+                       sf += x;
+                       st += t;
+                       sff += x * x;
+                       stt += t * t;
+                       sft += x * t;
+                       const double weight = e.empty() ? 1.0 : std::max(0.0, double(e[3 * v + 1]));
+                       w += weight;
+                       wd += weight * (x - t);
+                       wdd += weight * (x - t) * (x - t);
+                       wt += weight * t;
+                       wtt += weight * t * t;
+                       ++out.counted;
+                       if (have_sigma) {
+                         const double sigma = fitted.temperature_sigma_k[f];
+                         sigmas.push_back(sigma);
+                         if (std::abs(x - t) <= sigma) within1 += 1;
+                         if (std::abs(x - t) <= 2 * sigma) within2 += 1;
+                         if (have_determined && fitted.determined[f] > 0.5) {
+                           determined += 1;
+                           determined_dd += (x - t) * (x - t);
+                         } else {
+                           undetermined_dd += (x - t) * (x - t);
+                         }
+                       }
+                     });
   out.compared = true;
   out.truth_soot = TotalSoot(truth);
   out.fit_soot = TotalSoot(fitted);
@@ -136,7 +142,8 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted) {
 
 std::vector<EmissionBandError> TemperatureErrorByEmission(const FireVolume& truth,
                                                           const FireVolume& fitted,
-                                                          const std::vector<double>& edges) {
+                                                          const std::vector<double>& edges,
+                                                          const Rigid3& fit_from_truth) {
   if (truth.temperature_k.empty() || truth.density_per_m3.empty() || fitted.temperature_k.empty() ||
       fitted.density_per_m3.empty())
     throw InputError("temperature error by emission: a volume lacks temperature or density");
@@ -148,17 +155,18 @@ std::vector<EmissionBandError> TemperatureErrorByEmission(const FireVolume& trut
   std::vector<EmissionBandError> bands(edges.size() - 1);
   std::vector<double> sum(bands.size(), 0.0), sum_sq(bands.size(), 0.0);
   std::size_t visible = 0;
-  ForEachScoredVoxel(truth, fitted, &visible, [&](std::size_t v, std::size_t f, double relative) {
-    if (relative < edges.front() || relative > edges.back()) return;
-    // The band [edges[b], edges[b + 1]) holding `relative`; the last one holds its top edge.
-    const std::size_t b = std::min<std::size_t>(
-        bands.size() - 1,
-        std::upper_bound(edges.begin(), edges.end(), relative) - edges.begin() - 1);
-    const double d = double(fitted.temperature_k[f]) - truth.temperature_k[v];
-    ++bands[b].counted;
-    sum[b] += d;
-    sum_sq[b] += d * d;
-  });
+  ForEachScoredVoxel(
+      truth, fitted, fit_from_truth, &visible, [&](std::size_t v, std::size_t f, double relative) {
+        if (relative < edges.front() || relative > edges.back()) return;
+        // The band [edges[b], edges[b + 1]) holding `relative`; the last one holds its top edge.
+        const std::size_t b = std::min<std::size_t>(
+            bands.size() - 1,
+            std::upper_bound(edges.begin(), edges.end(), relative) - edges.begin() - 1);
+        const double d = double(fitted.temperature_k[f]) - truth.temperature_k[v];
+        ++bands[b].counted;
+        sum[b] += d;
+        sum_sq[b] += d * d;
+      });
   double total = 0;
   for (double x : sum_sq) total += x;
   for (std::size_t b = 0; b < bands.size(); ++b) {
@@ -173,7 +181,9 @@ std::vector<EmissionBandError> TemperatureErrorByEmission(const FireVolume& trut
   return bands;
 }
 
-FireVolume SampleOnGrid(const FireVolume& volume, const GridGeometry& grid) {
+FireVolume SampleOnGrid(const FireVolume& volume, const GridGeometry& grid,
+                        const Rigid3& grid_from_volume) {
+  const Rigid3 volume_from_grid = grid_from_volume.Inverse();
   FireVolume out;
   out.geometry = grid;
   const bool have_t = volume.temperature_k.size() == volume.geometry.num_voxels();
@@ -187,12 +197,22 @@ FireVolume SampleOnGrid(const FireVolume& volume, const GridGeometry& grid) {
     for (int j = 0; j < grid.dims.y(); ++j)
       for (int i = 0; i < grid.dims.x(); ++i) {
         std::size_t from = 0;
-        if (!volume.geometry.VoxelHolding(grid.VoxelCenter(i, j, k), &from)) continue;
+        if (!volume.geometry.VoxelHolding(volume_from_grid * grid.VoxelCenter(i, j, k), &from))
+          continue;
         const std::size_t to = grid.Flat(i, j, k);
         if (have_t) out.temperature_k[to] = volume.temperature_k[from];
         if (have_n) out.density_per_m3[to] = volume.density_per_m3[from];
       }
   return out;
+}
+
+RigRegistration RegisterTruth(const std::string& truth_rig_path, const Rig& fit_rig) {
+  if (truth_rig_path.empty()) return {};
+  try {
+    return RegisterRigs(Rig::Load(truth_rig_path), fit_rig);
+  } catch (const InputError& e) {
+    throw InputError("truth rig " + truth_rig_path + ": " + e.what());
+  }
 }
 
 double TotalSoot(const FireVolume& volume) {
@@ -203,7 +223,8 @@ double TotalSoot(const FireVolume& volume) {
 }
 
 std::vector<RingTruth> TruthOnRings(const FireVolume& truth, const GridGeometry& fit_grid,
-                                    const std::vector<RingProfilePoint>& profile) {
+                                    const std::vector<RingProfilePoint>& profile,
+                                    const Rigid3& fit_from_truth) {
   if (!truth.HasTemperatureAndDensity())
     throw InputError("truth on rings: the truth needs temperature and density grids");
   std::map<std::pair<int, int>, std::size_t> ring;  // (layer, radius) -> point
@@ -215,7 +236,8 @@ std::vector<RingTruth> TruthOnRings(const FireVolume& truth, const GridGeometry&
   }
   std::vector<double> sum(profile.size(), 0.0);
   std::vector<RingTruth> out(profile.size());
-  ForEachVisibleVoxel(truth, [&](const Eigen::Vector3d& centre, std::size_t v, double) {
+  ForEachVisibleVoxel(truth, [&](const Eigen::Vector3d& truth_centre, std::size_t v, double) {
+    const Eigen::Vector3d centre = fit_from_truth * truth_centre;
     std::size_t f = 0;
     if (!fit_grid.VoxelHolding(centre, &f)) return;
     const int layer = fit_grid.Unflat(f).y();

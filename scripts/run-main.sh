@@ -64,11 +64,13 @@ rm -rf "$RUN_DIR/recordings/fire"
 
 # 4. Every recorded frame set: tomography and fit through the calibrated rig. The cameras'
 # exposure is a capture setting, not part of the calibration: the dataset's. The truth of a set
-# is the dataset frame its cameras showed (frame id mod FRAMES).
+# is the dataset frame its cameras showed (frame id mod FRAMES). The truth is in the simulator's
+# rig frame, the calibration chose its own (about a millimetre away): --truth-rig moves the truth
+# into the calibrated frame before it is scored.
 EXPOSURE=$(sed -n 's/^  exposure: //p' "$RUN_DIR/dataset.yaml")
 rm -rf "$RUN_DIR/run"
 "$BIN" run --recording "$RUN_DIR/recordings/fire" --rig "$RUN_DIR/calibrated/rig.yaml" \
-  --exposure "$EXPOSURE" --truth "$RUN_DIR/truth" --out "$RUN_DIR/run"
+  --exposure "$EXPOSURE" --truth "$RUN_DIR/truth" --truth-rig "$RUN_DIR/rig.yaml" --out "$RUN_DIR/run"
 
 # 5. The first fitted frame lighting a small still life, beside the usual point and sphere lights.
 FIRST=$(find "$RUN_DIR/run" -maxdepth 1 -name "frame_*.vdb" | sort | head -1)

@@ -329,10 +329,15 @@ TEST(Cli, FitASimulatedFrameSet) {
   const std::string rig = (dir / "data" / "rig.yaml").string();
   const std::string images = (dir / "data" / "frames" / "frame_000000").string();
   const std::string out = (dir / "fit" / "fire.vdb").string();
-  Result fit = Flamerig("fit --rig " + rig + " --images " + images + " --out " + out +
-                        " --holdout cam2 --resolution 20 --truth " +
-                        (dir / "data" / "truth" / "frame_000000.vdb").string());
+  Result fit =
+      Flamerig("fit --rig " + rig + " --images " + images + " --out " + out +
+               " --holdout cam2 --resolution 20 --truth " +
+               (dir / "data" / "truth" / "frame_000000.vdb").string() + " --truth-rig " + rig);
   ASSERT_EQ(fit.status, 0) << fit.output;
+  // The truth's rig is the fit's own here: no motion.
+  EXPECT_NE(fit.output.find("moved into the rig's frame: 0.00 mm, 0.00 mrad, residual 0.000 mm"),
+            std::string::npos)
+      << fit.output;
   EXPECT_NE(fit.output.find("cam2 (held out)"), std::string::npos) << fit.output;
   EXPECT_NE(fit.output.find("temperature against"), std::string::npos) << fit.output;
   EXPECT_NE(fit.output.find("temperature RMS on the determined voxels "), std::string::npos)
@@ -348,6 +353,12 @@ TEST(Cli, FitASimulatedFrameSet) {
   Result free = Flamerig("fit --rig " + rig + " --images " + images + " --out " + free_out +
                          " --holdout cam2 --resolution 20 --fit-exposure");
   ASSERT_EQ(free.status, 0) << free.output;
+  // A truth rig without a truth to move is refused before any work.
+  Result lonely = Flamerig("fit --rig " + rig + " --images " + images + " --out " +
+                           (dir / "lonely.vdb").string() + " --truth-rig " + rig);
+  EXPECT_NE(lonely.status, 0);
+  EXPECT_NE(lonely.output.find("--truth-rig"), std::string::npos) << lonely.output;
+  EXPECT_FALSE(fs::exists(dir / "lonely.vdb"));
   EXPECT_NE(flamerig::ReadVdb(free_out).metadata_numbers.at("exposure"), known.value);
   // --axisymmetric ties the fit into rings about the flame's axis; the volume says how many.
   const std::string rings_out = (dir / "rings.vdb").string();

@@ -79,6 +79,11 @@ Runner AddFit(CLI::App* command) {
       ->type_name("DIR");
   command->add_option("--truth", job.truth_path, "Ground-truth volume: score the temperature")
       ->type_name("T.vdb");
+  command
+      ->add_option("--truth-rig", job.truth_rig,
+                   "The rig the truth was simulated in (its dataset's rig.yaml), when --rig is a "
+                   "calibration: the truth is moved into --rig's frame before it is scored")
+      ->type_name("RIG");
   command->add_flag("--coarse-to-fine,!--no-coarse-to-fine", job.fit.coarse_to_fine,
                     "Fast fit: start at 32^3 and double (default off)");
   return [o, w_sm](Context& context) {
@@ -111,6 +116,9 @@ Runner AddFit(CLI::App* command) {
           sc.p95_delta_e);
     std::printf("  report: %s/report.md\n", r.report_dir.c_str());
     if (r.have_truth) {
+      if (!job.truth_rig.empty())
+        std::printf("  truth's rig %s moved into the rig's frame: %s\n", job.truth_rig.c_str(),
+                    r.truth_frame.Describe().c_str());
       if (!r.truth.compared)
         std::printf("  truth: %s not compared: %s\n", job.truth_path.c_str(),
                     r.truth.why_not.c_str());

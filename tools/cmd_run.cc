@@ -84,6 +84,11 @@ Runner AddRun(CLI::App* command) {
       ->type_name("CAMERA");
   command->add_option("--truth", run.truth_dir, "Ground-truth volumes DIR/frame_NNNNNN.vdb")
       ->type_name("DIR");
+  command
+      ->add_option("--truth-rig", run.truth_rig,
+                   "The rig the truth was simulated in (its dataset's rig.yaml), when --rig is a "
+                   "calibration: the truth is moved into --rig's frame before it is scored")
+      ->type_name("RIG");
   command->add_flag("--no-skip-unchanged", o->no_skip_unchanged,
                     "Compute frames whose images did not change too");
   command->add_flag("--no-blender", o->no_blender, "Do not write OUT/blender/");
