@@ -227,6 +227,11 @@ void FrameStages::Reuse(FrameWork* w) {
   chain_.previous_result = static_cast<long long>(w->index);
 }
 
+bool FrameStages::WarmStart() const {
+  // An axisymmetric fit starts cold (RunOptions::warm_start says why).
+  return options_.warm_start && !options_.fit.axisymmetric;
+}
+
 void FrameStages::Reconstruct(FrameWork* w, const ProgressCallback& progress) {
   std::vector<LinearFrame> linear = w->set.linear;
   if (holdout_ >= 0) linear[holdout_] = LinearFrame();
@@ -235,7 +240,8 @@ void FrameStages::Reconstruct(FrameWork* w, const ProgressCallback& progress) {
   FrameSummary& s = w->summary;
   try {
     w->tomography = reconstructor_->Reconstruct(
-        linear, &rs, chain_.last_computed >= 0 ? &last_tomography_ : nullptr, progress);
+        linear, &rs, WarmStart() && chain_.last_computed >= 0 ? &last_tomography_ : nullptr,
+        progress);
   } catch (const DataError& e) {
     s.reconstruct_ms = Ms(t0);
     throw DataError(std::string("tomography: ") + e.what());
@@ -301,10 +307,9 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
   }
   const auto t0 = SteadyClock::now();
   try {
-    // An axisymmetric fit starts cold (RunOptions::warm_start says why).
-    const bool warm = chain_.previous_result >= 0 && options_.warm_start && !fit.axisymmetric;
     w->result = FastFit(reconstructor_->grid(), w->tomography, w->views, absorption_, fit,
-                        warm ? &previous_ : nullptr, progress, w->bands);
+                        WarmStart() && chain_.previous_result >= 0 ? &previous_ : nullptr, progress,
+                        w->bands);
   } catch (const DataError& e) {
     w->summary.fit_ms = Ms(t0);
     throw DataError(std::string("fit: ") + e.what());

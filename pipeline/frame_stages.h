@@ -116,6 +116,9 @@ class FrameStages {
   int holdout_ = -1;
   std::size_t truth_count_ = 0;
   Rigid3 fit_from_truth_;  // RunOptions::truth_rig's frame into the run's
+  // Whether a frame starts from the ones before it (the last computed tomography, the last
+  // result), as RunOptions::warm_start says.
+  bool WarmStart() const;
   std::unique_ptr<Reconstructor> reconstructor_;
   std::unique_ptr<BandReconstructor> band_reconstructor_;  // null unless the rig has bands
   std::vector<std::unique_ptr<CameraRays>> rays_;

@@ -92,7 +92,9 @@ Runner AddRun(CLI::App* command) {
   command->add_flag("--no-skip-unchanged", o->no_skip_unchanged,
                     "Compute frames whose images did not change too");
   command->add_flag("--no-blender", o->no_blender, "Do not write OUT/blender/");
-  command->add_flag("--cold", o->cold, "Start every frame from its own tomography");
+  command->add_flag("--cold", o->cold,
+                    "Start every frame from its own images alone: a cold tomography, the fit from "
+                    "it");
   command->add_flag(
       "--no-sigma", o->no_sigma,
       "Do not write the per-voxel sigma grids (saves about 50 ms a frame at 64^3, two views)");
