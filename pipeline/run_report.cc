@@ -160,9 +160,8 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     std::ostringstream csv;
     csv << "frame,status,cameras_used,total_ms,read_ms,tomography_ms,fit_ms,write_ms,matrix,"
            "active_voxels,exposure,exposure_from,soot,initial_energy,energy,fit_termination,"
-           "fit_iterations,fit_message,truth_frame,truth_rms_k,truth_bias_k,truth_spread_k,truth_"
-           "soot,"
-           "truth_within_1_sigma,truth_within_2_sigma,truth_median_sigma_k,"
+           "fit_iterations,fit_message,truth_frame,truth_rms_k,truth_bias_k,truth_spread_k,"
+           "truth_soot,truth_within_1_sigma,truth_within_2_sigma,truth_median_sigma_k,"
            "truth_determined_share,truth_determined_rms_k,truth_undetermined_rms_k";
     for (const auto& c : cameras) csv << ",delta_e_fire_" << c << ",delta_e_all_" << c;
     csv << ",notes\n";
