@@ -53,7 +53,8 @@ struct TruthError {
 // the fit was made in the rig the truth was simulated in. A fit through a calibrated rig is in the
 // calibration's frame, about a voxel away from the simulator's (calibration/rig_registration.h
 // measures it); scored without the motion, that gauge counts as temperature error (the main job's
-// tied fits: 111 to 127 K RMS, against 98 to 125 K registered and 98 to 122 K through the true rig).
+// tied fits on 2026-11-28, their tomography still warm-started: 111 to 127 K RMS unmoved, 84 to
+// 117 K with the truth moved, 98 to 122 K fitted through the true rig).
 // A truth voxel pairs with the fitted voxel holding its centre moved into the fit's frame.
 //
 // `volume`'s temperature and density on `grid`: each voxel of `grid` takes the value of the voxel
