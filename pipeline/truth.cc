@@ -13,8 +13,12 @@ namespace flamerig {
 
 namespace {
 
-bool IsIdentity(const Rigid3& m) {
-  return m.rotation.w() == 1 && m.rotation.vec().isZero(0) && m.translation.isZero(0);
+// Whether the truth's voxels are the fit's, in one frame: then they pair index by index.
+bool SameVoxelsInOneFrame(const FireVolume& truth, const FireVolume& fitted,
+                          const Rigid3& fit_from_truth) {
+  const Rigid3& m = fit_from_truth;
+  return truth.geometry.SameVoxels(fitted.geometry) && m.rotation.w() == 1 &&
+         m.rotation.vec().isZero(0) && m.translation.isZero(0);
 }
 
 // Calls visit(centre, v, relative) for each truth voxel v the images can show (>= 1300 K with
@@ -44,7 +48,7 @@ template <typename Visit>
 void ForEachScoredVoxel(const FireVolume& truth, const FireVolume& fitted,
                         const Rigid3& fit_from_truth, std::size_t* visible, Visit&& visit) {
   const GridGeometry& fg = fitted.geometry;
-  const bool same_grid = truth.geometry.SameVoxels(fg) && IsIdentity(fit_from_truth);
+  const bool same_grid = SameVoxelsInOneFrame(truth, fitted, fit_from_truth);
   ForEachVisibleVoxel(truth, [&](const Eigen::Vector3d& centre, std::size_t v, double relative) {
     ++*visible;
     std::size_t f = v;
@@ -65,7 +69,7 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted,
     return out;
   }
   const GridGeometry& fg = fitted.geometry;
-  out.same_grid = truth.geometry.SameVoxels(fg) && IsIdentity(fit_from_truth);
+  out.same_grid = SameVoxelsInOneFrame(truth, fitted, fit_from_truth);
   const std::vector<float>& e = truth.emission_rgb;
   // Sums over the counted voxels, plain and emission-weighted.
   double n = 0, sd = 0, sdd = 0, sf = 0, st = 0, sff = 0, stt = 0, sft = 0;
