@@ -486,14 +486,28 @@ FitObjective::Curvature FitObjective::DataCurvature(const std::vector<double>& t
     const ImageF& img = renders.linear[v];
     const auto& target = target_lab_[v];
     std::vector<Eigen::Matrix3f> jacobians(target.size(), Eigen::Matrix3f::Zero());
+    std::vector<Eigen::Vector3d> residual(target.size(), Eigen::Vector3d::Zero());
+    std::vector<char> fire(target.size(), 0);
     for (std::size_t p = 0; p < target.size(); ++p) {
       const Eigen::Vector3d linear(img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]);
       Eigen::Matrix3d jac;
       const Eigen::Vector3d lab = CameraLab(linear, s, &jac);
       if (!(linear.array() == 0.0).all()) jacobians[p] = jac.cast<float>();
       if (lab[0] > 1 || target[p][0] > 1) {
-        out.residual_sq += (lab - target[p].cast<double>()).squaredNorm();
+        residual[p] = lab - target[p].cast<double>();
+        fire[p] = 1;
+        out.residual_sq += residual[p].squaredNorm();
         out.residuals += 3;
+      }
+    }
+    // Fire pixels side by side: each with the one to its right and the one below.
+    const std::size_t w = std::size_t(std::max(0, img.width));
+    for (std::size_t p = 0; p < target.size(); ++p) {
+      if (!fire[p]) continue;
+      for (const std::size_t q : {(p + 1) % w != 0 ? p + 1 : p, p + w}) {
+        if (q == p || q >= target.size() || !fire[q]) continue;
+        out.difference_sq += 0.5 * (residual[p] - residual[q]).squaredNorm();
+        out.differences += 3;
       }
     }
     renderer(v).RenderCurvature(*views_[v].rays, jacobians, &tt, &tn, &nn);

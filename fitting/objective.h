@@ -188,12 +188,18 @@ class FitObjective {
   // (FireRenderer::RenderCurvature: one render and one curvature pass per view; until 2026-11-26 a
   // Hutchinson estimate from 16 random probes, one adjoint pass per view each, with a relative
   // error of about 35%). Black rendered pixels (their rays cross no emitting medium) are not marched.
-  // Also the residuals' sum of squares and their count over fire pixels (rendered or recorded
-  // with L* above 1), from which a noise level follows.
+  // Also the residuals over fire pixels (rendered or recorded with L* above 1), from which a noise
+  // level follows, two ways: their sum of squares (noise and model error together), and half the
+  // squared differences between the residuals of fire pixels side by side in a row or a column
+  // (the successive-difference estimate of a variance: noise that is independent from pixel to
+  // pixel passes into it whole, while an error that changes slowly across the image, as what a
+  // model cannot hold mostly does, cancels in it).
   struct Curvature {
     std::vector<double> tt, tn, nn;  // per active voxel
     double residual_sq = 0;
-    std::int64_t residuals = 0;
+    std::int64_t residuals = 0;      // 3 per fire pixel
+    double difference_sq = 0;        // sum of |r_p - r_q|^2 / 2 over neighbouring fire pixels
+    std::int64_t differences = 0;    // 3 per pair
   };
   Curvature DataCurvature(const std::vector<double>& t, const std::vector<double>& n,
                           double s) const;

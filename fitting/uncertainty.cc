@@ -7,6 +7,13 @@
 #include "core/error.h"
 
 namespace flamerig {
+namespace {
+
+// Neighbouring fire-pixel pairs (3 residual differences each) below which the differences do not
+// give the noise level: 30 pairs.
+constexpr std::int64_t kMinDifferences = 90;
+
+}  // namespace
 
 void UncertaintyOptions::Validate() const {
   if (!(determined_fraction > 0 && determined_fraction <= 1))
@@ -44,11 +51,16 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
     unknowns = groups->size();
   }
   VoxelUncertainty u;
-  // The noise per residual from the fit's own residuals (degrees of freedom: less two per unknown
-  // voxel or group, at least half the residuals).
+  // The residuals' level per residual (degrees of freedom: less two per unknown voxel or group, at
+  // least half the residuals), and the noise from their differences between neighbouring pixels,
+  // scaled by the same ratio of residuals to degrees of freedom (what the fit absorbed of the
+  // noise it absorbed from both). Too few neighbouring pairs to say: the level.
   const double dof =
       std::max(0.5 * double(c.residuals), double(c.residuals) - 2.0 * double(unknowns));
-  u.sigma_lab = dof > 0 ? std::sqrt(c.residual_sq / dof) : 0.0;
+  u.residual_lab = dof > 0 ? std::sqrt(c.residual_sq / dof) : 0.0;
+  u.sigma_lab = c.differences >= kMinDifferences && dof > 0
+                    ? std::sqrt(c.difference_sq / double(c.differences) * double(c.residuals) / dof)
+                    : u.residual_lab;
   const ObjectiveOptions& o = objective.options();
   u.prior_sigma_k = (o.t_max_k - o.t_min_k) / std::sqrt(12.0);
   const double prior_ln =
@@ -94,6 +106,7 @@ void StoreUncertainty(const GridGeometry& grid, const std::vector<std::uint32_t>
     volume->determined[active[a]] = u.determined[a];
   }
   volume->metadata_numbers["sigma_lab"] = u.sigma_lab;
+  volume->metadata_numbers["residual_lab"] = u.residual_lab;
   volume->metadata_numbers["determined_voxels"] = double(u.determined_count);
 }
 

@@ -5,9 +5,17 @@
 //
 // The model: each pixel's CIELab value (the data term's residuals, 3 per pixel of every fitted
 // view) is the rendered one plus independent Gaussian noise of one deviation sigma_lab, estimated
-// from the fit's own residuals over fire pixels (sum of squares over the residuals' count less two
-// per active voxel): model error counts as noise, so the sigma is not flattered by a model that
-// cannot match. Per voxel, the 2x2 precision over (T, ln n) is J^T J / sigma_lab^2 (the voxel's
+// from the fit's own residuals over fire pixels by their successive differences: half the mean
+// squared difference between the residuals of neighbouring fire pixels (FitObjective::Curvature),
+// times the residuals' count over their degrees of freedom (the count less two per unknown, at
+// least half the count). Noise independent from pixel to pixel passes into that whole; the error
+// of a model that cannot hold what the images show (a ring's fit of a swaying flame, a grid
+// coarser than the fire) changes slowly across the image and mostly cancels in it. The residuals'
+// plain level, noise and model error together, is `residual_lab`. Until 2026-11-28 the level was
+// the noise: on two views its sigma held 81 to 93% (tied fit) and 85 to 96% (untied) of the
+// visible voxels within one sigma, because a ring averages opposite sides of the flame and so
+// much of the model error the level counted (BENCHMARKS.md, "The sigma's noise from neighbouring
+// pixels"). Per voxel, the 2x2 precision over (T, ln n) is J^T J / sigma_lab^2 (the voxel's
 // exact diagonal block, FitObjective::DataCurvature) plus a weak prior: the search range as
 // a uniform distribution (deviation (t_max - t_min) / sqrt(12) for T, likewise for ln n between the
 // density bounds), so that a voxel the images do not see keeps the prior's deviation instead of an
@@ -46,7 +54,8 @@ struct VoxelUncertainty {
   std::vector<float> temperature_sigma_k;  // per active voxel
   std::vector<float> log_density_sigma;    // per active voxel
   std::vector<float> determined;           // per active voxel: 1 or 0
-  double sigma_lab = 0;                    // the noise per Lab residual
+  double sigma_lab = 0;     // the noise per Lab residual (from neighbouring pixels' differences)
+  double residual_lab = 0;  // the residuals' level per Lab residual: noise and model error
   double prior_sigma_k = 0;                // the search range's deviation
   std::size_t determined_count = 0;
   double seconds = 0;
@@ -60,7 +69,8 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
                                      const std::vector<std::vector<std::size_t>>* groups = nullptr);
 
 // Writes the three grids into `volume` (on `grid`, whose voxels `active` are the estimate's; 0
-// elsewhere) and the noise level and determined count into its metadata.
+// elsewhere) and the noise level, the residuals' level and the determined count into its metadata
+// (sigma_lab, residual_lab, determined_voxels).
 void StoreUncertainty(const GridGeometry& grid, const std::vector<std::uint32_t>& active,
                       const VoxelUncertainty& u, FireVolume* volume);
 

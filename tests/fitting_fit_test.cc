@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <map>
 #include <random>
 #include <set>
@@ -278,6 +279,126 @@ TEST(Uncertainty, GroupsOfOneAreTheVoxelsOwnAndAGroupPoolsItsMembers) {
   std::vector<std::vector<std::size_t>> beyond = singles;
   beyond.push_back({s.active.size()});
   EXPECT_THROW(EstimateUncertainty(objective, s.t, s.n, 1.0, options, &beyond), InputError);
+}
+
+// The sigma's noise level (uncertainty.h): from the residuals' differences between neighbouring
+// fire pixels, which carry noise independent from pixel to pixel whole and cancel an error that
+// changes slowly across the image. Views whose linear signal is the fit's own render with either
+// noise independent in every pixel and channel (3% of the signal) or a smooth brightness error
+// (the render 25% too bright, as a model that cannot hold the fire is wrong over a whole region):
+// the curvature's sums against the residuals computed here pixel by pixel, and the two estimates
+// against each other.
+TEST(Uncertainty, TheNoiseLevelIsWhatVariesFromPixelToPixel) {
+  const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
+  SmallScene s = MakeSmallScene(soot);
+  // A smooth fire (the scene's own is random from voxel to voxel) seen at 64x48.
+  for (std::size_t a = 0; a < s.active.size(); ++a) {
+    const std::uint32_t v = s.active[a];
+    const Eigen::Vector3d c = s.grid.VoxelCenter(v % 8, (v / 8) % 8, v / 64);
+    const double r = (c - Eigen::Vector3d(0, 0.02, 0)).norm() / 0.017;
+    s.t[a] = 2000 - 400 * r * r;
+    s.n[a] = 0.2 / (soot.CrossSectionM2(550) * s.grid.voxel_size_m.x()) * (1.2 - r * r);
+  }
+  Box3 box{Eigen::Vector3d(-0.02, 0, -0.02), Eigen::Vector3d(0.02, 0.04, 0.02)};
+  synthetic::RingOptions ring;
+  ring.cameras = 2;
+  ring.width = 64;
+  ring.height = 48;
+  ring.distance_m = 0.15;
+  const Rig rig = synthetic::MakeRingRig(box, ring);
+  const CameraRays rays0(rig.cameras[0].model), rays1(rig.cameras[1].model);
+  const double exposure = 0.05;
+  std::mt19937 rng(17);
+  std::normal_distribution<double> noise(0.0, 0.03);
+  // Views recording the render through `record` (linear signal in, linear signal out).
+  auto views_of = [&](const std::function<double(double)>& record) {
+    std::vector<FitView> views;
+    FireRenderer r(soot);
+    std::vector<float> t(s.grid.num_voxels(), 0), n(s.grid.num_voxels(), 0);
+    for (std::size_t a = 0; a < s.active.size(); ++a) {
+      t[s.active[a]] = float(s.t[a]);
+      n[s.active[a]] = float(s.n[a]);
+    }
+    r.SetVolume(s.grid, t, n);
+    for (const CameraRays* rays : {&rays0, &rays1}) {
+      ImageF lin;
+      r.Render(*rays, &lin);
+      FitView v;
+      v.name = "cam";
+      v.rays = rays;
+      v.image = ApplyCameraResponse(lin, exposure);
+      v.signal = lin;
+      for (float& x : v.signal.pixels)
+        x = x > 0 ? float(std::clamp(record(exposure * x), 0.0, 1.0)) : 0.0f;
+      views.push_back(std::move(v));
+    }
+    return views;
+  };
+  struct Level {
+    double level, difference;  // per Lab residual
+    VoxelUncertainty u;
+  };
+  auto measure = [&](const std::vector<FitView>& views) {
+    const FitObjective objective(s.grid, s.active, views, soot, RenderOptions(),
+                                 ObjectiveOptions());
+    const FitObjective::Curvature c = objective.DataCurvature(s.t, s.n, exposure);
+    // The same sums, pixel by pixel, from the renders and the signals' Lab.
+    const FitObjective::Renders renders = objective.Render(s.t, s.n);
+    double sq = 0, dsq = 0;
+    std::int64_t count = 0, pairs = 0;
+    for (std::size_t v = 0; v < views.size(); ++v) {
+      const ImageF& img = renders.linear[v];
+      auto residual = [&](int x, int y, Eigen::Vector3d* out) {
+        const std::size_t p = std::size_t(y) * img.width + x;
+        const Eigen::Vector3d rendered = CameraLab(
+            Eigen::Vector3d(img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]),
+            exposure);
+        const Eigen::Vector3d recorded = CameraLab(
+            Eigen::Vector3d(views[v].signal.pixels[3 * p], views[v].signal.pixels[3 * p + 1],
+                            views[v].signal.pixels[3 * p + 2]),
+            1.0);
+        *out = rendered - recorded;
+        return rendered[0] > 1 || recorded[0] > 1;
+      };
+      for (int y = 0; y < img.height; ++y)
+        for (int x = 0; x < img.width; ++x) {
+          Eigen::Vector3d r, q;
+          if (!residual(x, y, &r)) continue;
+          sq += r.squaredNorm();
+          ++count;
+          if (x + 1 < img.width && residual(x + 1, y, &q)) {
+            dsq += 0.5 * (r - q).squaredNorm();
+            ++pairs;
+          }
+          if (y + 1 < img.height && residual(x, y + 1, &q)) {
+            dsq += 0.5 * (r - q).squaredNorm();
+            ++pairs;
+          }
+        }
+    }
+    EXPECT_EQ(c.residuals, 3 * count);
+    EXPECT_EQ(c.differences, 3 * pairs);
+    EXPECT_NEAR(c.residual_sq, sq, 1e-3 * sq);
+    EXPECT_NEAR(c.difference_sq, dsq, 1e-3 * dsq);
+    Level out{std::sqrt(sq / double(3 * count)), std::sqrt(dsq / double(3 * pairs)),
+              EstimateUncertainty(objective, s.t, s.n, exposure, UncertaintyOptions())};
+    return out;
+  };
+  const Level white = measure(views_of([&](double x) { return x * (1 + noise(rng)); }));
+  const Level smooth = measure(views_of([](double x) { return 1.25 * x; }));
+  std::printf("noise: level %.3f, differences %.3f; 25%% too bright: %.3f, %.3f\n",
+              white.level, white.difference, smooth.level, smooth.difference);
+  // Noise: both say the same (each pixel's is independent of its neighbour's; 0.44 here).
+  EXPECT_NEAR(white.difference, white.level, 0.1 * white.level);
+  // A smooth error: the level sees it whole, the differences hardly at all.
+  EXPECT_GT(smooth.level, 2.0);
+  EXPECT_LT(smooth.difference, 0.2 * smooth.level);
+  // The sigma takes the differences; the residuals' level is reported beside it. Both scaled by
+  // the same count over degrees of freedom.
+  for (const Level* l : {&white, &smooth}) {
+    EXPECT_NEAR(l->u.sigma_lab / l->u.residual_lab, l->difference / l->level, 1e-6);
+  }
+  EXPECT_LT(smooth.u.sigma_lab, 0.2 * smooth.u.residual_lab);
 }
 
 TEST(FitObjective, TheEnergyIsTheSumOfItsTerms) {
@@ -1030,8 +1151,7 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
   EXPECT_EQ(profiled_voxels, active.size());
   EXPECT_TRUE(free.ring_profile.empty());
   // The sigma is the ring's (uncertainty.h's groups): one per ring, and in units of each fit's
-  // noise level (the tied fit's residuals are larger: rings cannot hold the candle's sway)
-  // narrower than the voxels' own, since a ring pools its voxels' information.
+  // own noise level narrower than the voxels' own, since a ring pools its voxels' information.
   EXPECT_EQ(sigma_mismatched, 0u);
   std::vector<double> unit_free, unit_tied;
   for (std::size_t v : active) {

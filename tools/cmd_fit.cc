@@ -144,9 +144,10 @@ Runner AddFit(CLI::App* command) {
     if (!r.result.uncertainty.temperature_sigma_k.empty())
       std::printf(
           "  sigma grids: %zu of %zu active voxels determined by the images, noise %.2f "
-          "per Lab residual, exact curvature in %.1f s\n",
+          "per Lab residual (the residuals' level %.2f), exact curvature in %.1f s\n",
           r.result.uncertainty.determined_count, r.result.active_voxels,
-          r.result.uncertainty.sigma_lab, r.result.uncertainty.seconds);
+          r.result.uncertainty.sigma_lab, r.result.uncertainty.residual_lab,
+          r.result.uncertainty.seconds);
     return r.result.termination == FitTermination::kCancelled ? kExitCancelled : kExitOk;
   };
 }
