@@ -197,6 +197,10 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   // Plots.
   std::map<std::string, PlotSeries> per_view;
   PlotSeries truth{"temperature RMS error on visible voxels (K, right axis)", {}, {}, true};
+  // The baseline the error is read against: the truth's own spread on the same voxels, the RMS of
+  // the best single temperature (drawn dashed in the error's colour).
+  PlotSeries constant{"a constant temperature's RMS error (the truth's spread; K, right axis)",
+                      {}, {}, true};
   PlotSeries tomo{"tomography", {}, {}}, fit{"fit", {}, {}}, total{"whole frame", {}, {}};
   std::size_t computed = 0, unchanged = 0, failed = 0;
   double de_sum = 0, t_sum = 0, in1_sum = 0, in2_sum = 0, sigma_sum = 0;
@@ -222,6 +226,10 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     if (f.truth_rms_k >= 0) {
       truth.x.push_back(static_cast<double>(f.frame));
       truth.y.push_back(f.truth_rms_k);
+      if (f.truth_spread_k >= 0) {
+        constant.x.push_back(static_cast<double>(f.frame));
+        constant.y.push_back(f.truth_spread_k);
+      }
       t_sum += f.truth_rms_k;
       ++t_n;
       if (f.truth_within_1_sigma >= 0) {
@@ -264,6 +272,10 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     if (!truth.x.empty()) {
       errors.y2_label = "temperature RMS error (K)";
       errors.series.push_back(truth);
+      if (!constant.x.empty()) {
+        constant.reference_of = int(errors.series.size()) - 1;
+        errors.series.push_back(constant);
+      }
     }
     std::string why;
     errors_plotted = WritePlot(errors, (dir / "errors").string(), &why);
@@ -403,9 +415,12 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     page.Figure(
         "errors.png",
         "Mean Delta E of each view's fire pixels per frame (left axis)" +
-            std::string(truth.x.empty() ? "."
-                                        : "; the temperature RMS error against the truth on "
-                                          "visible voxels, in kelvin (right axis)."));
+            std::string(truth.x.empty()
+                            ? "."
+                            : "; the temperature RMS error against the truth on visible voxels, "
+                              "in kelvin (right axis), and dashed beside it the error of the best "
+                              "single temperature on the same voxels (the truth's spread): a fit "
+                              "above that line tells less than a constant."));
   if (!shown.empty()) {
     page.Section("Input against rendered");
     page.Figure("contact.png",

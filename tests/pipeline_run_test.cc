@@ -18,6 +18,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <memory>
 #include <random>
 #include <sstream>
@@ -651,6 +652,26 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
     EXPECT_FALSE(ReadImageU8((fs::path(page).parent_path() / picture).string()).empty());
   }
   EXPECT_NE(html.find("K RMS"), std::string::npos);
+  // The error plot draws the constant's error beside the fit's: per frame the truth's spread.
+  {
+    std::ifstream dat(fs::path(page).parent_path() / "errors.dat");
+    std::string line;
+    bool in_block = false;
+    std::map<std::size_t, double> spread;
+    while (std::getline(dat, line)) {
+      if (line.rfind("# ", 0) == 0) {
+        in_block = line.find("a constant temperature's RMS error") != std::string::npos;
+      } else if (in_block && !line.empty()) {
+        std::istringstream xy(line);
+        double x = -1, y = -1;
+        xy >> x >> y;
+        spread[std::size_t(x)] = y;
+      }
+    }
+    ASSERT_EQ(spread.size(), run.frames.size());
+    for (const auto& f : run.frames) EXPECT_EQ(spread.at(f.frame), f.truth_spread_k) << f.frame;
+    EXPECT_NE(html.find("tells less than a constant"), std::string::npos);
+  }
   EXPECT_TRUE(fs::exists(dir / "out" / "frames.csv"));
   // Every frame's numbers as JSON, read back by Python's json module (an independent reader):
   // the frame, its status, the truth's error and a view's Delta E as the summary holds them.
