@@ -197,9 +197,9 @@ class FitObjective {
   struct Curvature {
     std::vector<double> tt, tn, nn;  // per active voxel
     double residual_sq = 0;
-    std::int64_t residuals = 0;      // 3 per fire pixel
-    double difference_sq = 0;        // sum of |r_p - r_q|^2 / 2 over neighbouring fire pixels
-    std::int64_t differences = 0;    // 3 per pair
+    std::int64_t residuals = 0;    // 3 per fire pixel
+    double difference_sq = 0;      // sum of |r_p - r_q|^2 / 2 over neighbouring fire pixels
+    std::int64_t differences = 0;  // 3 per pair
   };
   Curvature DataCurvature(const std::vector<double>& t, const std::vector<double>& n,
                           double s) const;

@@ -54,9 +54,9 @@ struct VoxelUncertainty {
   std::vector<float> temperature_sigma_k;  // per active voxel
   std::vector<float> log_density_sigma;    // per active voxel
   std::vector<float> determined;           // per active voxel: 1 or 0
-  double sigma_lab = 0;     // the noise per Lab residual (from neighbouring pixels' differences)
-  double residual_lab = 0;  // the residuals' level per Lab residual: noise and model error
-  double prior_sigma_k = 0;                // the search range's deviation
+  double sigma_lab = 0;      // the noise per Lab residual (from neighbouring pixels' differences)
+  double residual_lab = 0;   // the residuals' level per Lab residual: noise and model error
+  double prior_sigma_k = 0;  // the search range's deviation
   std::size_t determined_count = 0;
   double seconds = 0;
 };

@@ -199,8 +199,8 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   PlotSeries truth{"temperature RMS error on visible voxels (K, right axis)", {}, {}, true};
   // The baseline the error is read against: the truth's own spread on the same voxels, the RMS of
   // the best single temperature (drawn dashed in the error's colour).
-  PlotSeries constant{"a constant temperature's RMS error (the truth's spread; K, right axis)",
-                      {}, {}, true};
+  PlotSeries constant{
+      "a constant temperature's RMS error (the truth's spread; K, right axis)", {}, {}, true};
   PlotSeries tomo{"tomography", {}, {}}, fit{"fit", {}, {}}, total{"whole frame", {}, {}};
   std::size_t computed = 0, unchanged = 0, failed = 0;
   double de_sum = 0, t_sum = 0, in1_sum = 0, in2_sum = 0, sigma_sum = 0;

@@ -386,8 +386,8 @@ TEST(Uncertainty, TheNoiseLevelIsWhatVariesFromPixelToPixel) {
   };
   const Level white = measure(views_of([&](double x) { return x * (1 + noise(rng)); }));
   const Level smooth = measure(views_of([](double x) { return 1.25 * x; }));
-  std::printf("noise: level %.3f, differences %.3f; 25%% too bright: %.3f, %.3f\n",
-              white.level, white.difference, smooth.level, smooth.difference);
+  std::printf("noise: level %.3f, differences %.3f; 25%% too bright: %.3f, %.3f\n", white.level,
+              white.difference, smooth.level, smooth.difference);
   // Noise: both say the same (each pixel's is independent of its neighbour's; 0.44 here).
   EXPECT_NEAR(white.difference, white.level, 0.1 * white.level);
   // A smooth error: the level sees it whole, the differences hardly at all.
