@@ -53,8 +53,9 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
   VoxelUncertainty u;
   // The residuals' level per residual (degrees of freedom: less two per unknown voxel or group, at
   // least half the residuals), and the noise from their differences between neighbouring pixels,
-  // scaled by the same ratio of residuals to degrees of freedom (what the fit absorbed of the
-  // noise it absorbed from both). Too few neighbouring pairs to say: the level.
+  // scaled by the same ratio of residuals to degrees of freedom (a fit absorbs some of the noise
+  // into its unknowns, and it is missing from both alike). Too few neighbouring pairs to say: the
+  // level.
   const double dof =
       std::max(0.5 * double(c.residuals), double(c.residuals) - 2.0 * double(unknowns));
   u.residual_lab = dof > 0 ? std::sqrt(c.residual_sq / dof) : 0.0;
