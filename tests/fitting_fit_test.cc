@@ -307,6 +307,12 @@ TEST(Uncertainty, TheNoiseLevelIsWhatVariesFromPixelToPixel) {
   ring.distance_m = 0.15;
   const Rig rig = synthetic::MakeRingRig(box, ring);
   const CameraRays rays0(rig.cameras[0].model), rays1(rig.cameras[1].model);
+  // One of the cameras at 8x8 pixels: a view of a few fire pixels.
+  ring.width = 8;
+  ring.height = 8;
+  const Rig thumbnails = synthetic::MakeRingRig(box, ring);
+  const CameraRays thumb0(thumbnails.cameras[0].model);
+  std::vector<const CameraRays*> cameras = {&rays0, &rays1};
   const double exposure = 0.05;
   std::mt19937 rng(17);
   std::normal_distribution<double> noise(0.0, 0.03);
@@ -320,7 +326,7 @@ TEST(Uncertainty, TheNoiseLevelIsWhatVariesFromPixelToPixel) {
       n[s.active[a]] = float(s.n[a]);
     }
     r.SetVolume(s.grid, t, n);
-    for (const CameraRays* rays : {&rays0, &rays1}) {
+    for (const CameraRays* rays : cameras) {
       ImageF lin;
       r.Render(*rays, &lin);
       FitView v;
@@ -336,6 +342,7 @@ TEST(Uncertainty, TheNoiseLevelIsWhatVariesFromPixelToPixel) {
   };
   struct Level {
     double level, difference;  // per Lab residual
+    std::int64_t pairs;        // of neighbouring fire pixels
     VoxelUncertainty u;
   };
   auto measure = [&](const std::vector<FitView>& views) {
@@ -380,7 +387,7 @@ TEST(Uncertainty, TheNoiseLevelIsWhatVariesFromPixelToPixel) {
     EXPECT_EQ(c.differences, 3 * pairs);
     EXPECT_NEAR(c.residual_sq, sq, 1e-3 * sq);
     EXPECT_NEAR(c.difference_sq, dsq, 1e-3 * dsq);
-    Level out{std::sqrt(sq / double(3 * count)), std::sqrt(dsq / double(3 * pairs)),
+    Level out{std::sqrt(sq / double(3 * count)), std::sqrt(dsq / double(3 * pairs)), pairs,
               EstimateUncertainty(objective, s.t, s.n, exposure, UncertaintyOptions())};
     return out;
   };
@@ -399,6 +406,13 @@ TEST(Uncertainty, TheNoiseLevelIsWhatVariesFromPixelToPixel) {
     EXPECT_NEAR(l->u.sigma_lab / l->u.residual_lab, l->difference / l->level, 1e-6);
   }
   EXPECT_LT(smooth.u.sigma_lab, 0.2 * smooth.u.residual_lab);
+  // Too few neighbouring pairs to say (under 30): the noise level is the residuals' level.
+  cameras = {&thumb0};
+  const Level thumb = measure(views_of([](double x) { return 1.25 * x; }));
+  EXPECT_GT(thumb.pairs, 0);
+  EXPECT_LT(thumb.pairs, 30);
+  EXPECT_GT(thumb.level, 0);
+  EXPECT_EQ(thumb.u.sigma_lab, thumb.u.residual_lab);
 }
 
 TEST(FitObjective, TheEnergyIsTheSumOfItsTerms) {
