@@ -502,7 +502,7 @@ FitObjective::Curvature FitObjective::DataCurvature(const std::vector<double>& t
     }
     // Fire pixels side by side: each with the one to its right and the one below.
     const std::size_t w = std::size_t(std::max(0, img.width));
-    for (std::size_t p = 0; p < target.size(); ++p) {
+    for (std::size_t p = 0; w > 0 && p < target.size(); ++p) {
       if (!fire[p]) continue;
       for (const std::size_t q : {(p + 1) % w != 0 ? p + 1 : p, p + w}) {
         if (q == p || q >= target.size() || !fire[q]) continue;

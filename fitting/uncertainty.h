@@ -8,11 +8,14 @@
 // from the fit's own residuals over fire pixels by their successive differences: half the mean
 // squared difference between the residuals of neighbouring fire pixels (FitObjective::Curvature),
 // times the residuals' count over their degrees of freedom (the count less two per unknown, at
-// least half the count). Noise independent from pixel to pixel passes into that whole; the error
-// of a model that cannot hold what the images show (a ring's fit of a swaying flame, a grid
-// coarser than the fire) changes slowly across the image and mostly cancels in it. The residuals'
-// plain level, noise and model error together, is `residual_lab`. Until 2026-11-28 the level was
-// the noise: on two views its sigma held 81 to 93% (tied fit) and 85 to 96% (untied) of the
+// least half the count); with fewer than 30 such pairs, the residuals' level instead. Noise
+// independent from pixel to pixel passes into that whole; the error of a model that cannot hold
+// what the images show (a ring's fit of a swaying flame, a grid coarser than the fire) changes
+// slowly across the image and mostly cancels in it, and so does noise that neighbouring pixels
+// share (a codec's blocks, demosaicing, blur), which the estimate therefore understates. The
+// residuals' plain level, noise and model error together, is `residual_lab`. Until 2026-11-28 the
+// residuals' level was taken as the noise: on two views its sigma held 81 to 93% (tied fit) and
+// 85 to 96% (untied) of the
 // visible voxels within one sigma, because a ring averages opposite sides of the flame and so
 // much of the model error the level counted (BENCHMARKS.md, "The sigma's noise from neighbouring
 // pixels"). Per voxel, the 2x2 precision over (T, ln n) is J^T J / sigma_lab^2 (the voxel's
