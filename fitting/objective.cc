@@ -501,15 +501,19 @@ FitObjective::Curvature FitObjective::DataCurvature(const std::vector<double>& t
       }
     }
     // Fire pixels side by side: each with the one to its right and the one below.
-    const std::size_t w = std::size_t(std::max(0, img.width));
-    for (std::size_t p = 0; w > 0 && p < target.size(); ++p) {
-      if (!fire[p]) continue;
-      for (const std::size_t q : {(p + 1) % w != 0 ? p + 1 : p, p + w}) {
-        if (q == p || q >= target.size() || !fire[q]) continue;
-        out.difference_sq += 0.5 * (residual[p] - residual[q]).squaredNorm();
-        out.differences += 3;
+    auto pair = [&](std::size_t p, std::size_t q) {
+      if (!fire[q]) return;
+      out.difference_sq += 0.5 * (residual[p] - residual[q]).squaredNorm();
+      out.differences += 3;
+    };
+    const std::size_t w = std::size_t(img.width);
+    for (int y = 0; y < img.height; ++y)
+      for (int x = 0; x < img.width; ++x) {
+        const std::size_t p = std::size_t(y) * w + std::size_t(x);
+        if (!fire[p]) continue;
+        if (x + 1 < img.width) pair(p, p + 1);
+        if (y + 1 < img.height) pair(p, p + w);
       }
-    }
     renderer(v).RenderCurvature(*views_[v].rays, jacobians, &tt, &tn, &nn);
   }
   if (tt.empty()) return out;  // no view

@@ -15,11 +15,11 @@
 // share (a codec's blocks, demosaicing, blur), which the estimate therefore understates. The
 // residuals' plain level, noise and model error together, is `residual_lab`. Until 2026-11-28 the
 // residuals' level was taken as the noise: on two views its sigma held 81 to 93% (tied fit) and
-// 85 to 96% (untied) of the
-// visible voxels within one sigma, because a ring averages opposite sides of the flame and so
-// much of the model error the level counted (BENCHMARKS.md, "The sigma's noise from neighbouring
-// pixels"). Per voxel, the 2x2 precision over (T, ln n) is J^T J / sigma_lab^2 (the voxel's
-// exact diagonal block, FitObjective::DataCurvature) plus a weak prior: the search range as
+// 85 to 96% (untied) of the visible voxels within one sigma, because a ring averages opposite
+// sides of the flame and so much of the model error the level counted (BENCHMARKS.md, "The
+// sigma's noise from neighbouring pixels"). Per voxel, the 2x2 precision over (T, ln n) is
+// J^T J / sigma_lab^2 (the voxel's exact diagonal block, FitObjective::DataCurvature) plus a weak
+// prior: the search range as
 // a uniform distribution (deviation (t_max - t_min) / sqrt(12) for T, likewise for ln n between the
 // density bounds), so that a voxel the images do not see keeps the prior's deviation instead of an
 // infinite one. Its inverse gives the two deviations.
