@@ -204,10 +204,10 @@ struct FitOptions {
   // fields (each ring's mean), so every L-BFGS step stays tied; the neighbour weight is
   // axisymmetric_w_sm. Fast fit only. Measured by `flamerig benchmark accuracy` (BENCHMARKS.md,
   // issue 19): on the two-view candle, which sways and has 10% turbulence in its radius, the
-  // temperature RMS falls from 147 to 99 K (the truth's spread 142 K), the emission-weighted RMS
-  // from 88 to 55 K and the held-out camera's Delta E from 19.1 to 7.8, while the fitted views'
+  // temperature RMS falls from 147 to 98 K (the truth's spread 142 K), the emission-weighted RMS
+  // from 88 to 54 K and the held-out camera's Delta E from 19.1 to 7.8, while the fitted views'
   // rises from 1.4 to 2.7 (they show what rings cannot hold). The eight-view licks, not
-  // axisymmetric, are the control: 71 -> 98 K, and the held-out camera says so (1.78 -> 6.02), as
+  // axisymmetric, are the control: 71 -> 96 K, and the held-out camera says so (1.78 -> 6.02), as
   // it will for a user's own fire. The sigma is the ring's (uncertainty.h's groups: the ring's
   // voxels' curvature pooled): on the main job's 13 frame sets (two views, truth 96, fit 64,
   // calibrated rig, each frame from its own tomography) 59 to 73% of the visible voxels lie within

@@ -341,8 +341,8 @@ TEST(Uncertainty, TheNoiseLevelIsWhatVariesFromPixelToPixel) {
     return views;
   };
   struct Level {
-    double level, difference;  // per Lab residual
-    std::int64_t pairs;        // of neighbouring fire pixels
+    double level, difference;    // per Lab residual
+    std::int64_t pixels, pairs;  // fire pixels, and pairs of them side by side
     VoxelUncertainty u;
   };
   auto measure = [&](const std::vector<FitView>& views) {
@@ -387,7 +387,7 @@ TEST(Uncertainty, TheNoiseLevelIsWhatVariesFromPixelToPixel) {
     EXPECT_EQ(c.differences, 3 * pairs);
     EXPECT_NEAR(c.residual_sq, sq, 1e-3 * sq);
     EXPECT_NEAR(c.difference_sq, dsq, 1e-3 * dsq);
-    Level out{std::sqrt(sq / double(3 * count)), std::sqrt(dsq / double(3 * pairs)), pairs,
+    Level out{std::sqrt(sq / double(3 * count)), std::sqrt(dsq / double(3 * pairs)), count, pairs,
               EstimateUncertainty(objective, s.t, s.n, exposure, UncertaintyOptions())};
     return out;
   };
@@ -413,6 +413,20 @@ TEST(Uncertainty, TheNoiseLevelIsWhatVariesFromPixelToPixel) {
   EXPECT_LT(thumb.pairs, 30);
   EXPECT_GT(thumb.level, 0);
   EXPECT_EQ(thumb.u.sigma_lab, thumb.u.residual_lab);
+  // Fire from edge to edge (the first camera zoomed in four times on the flame's middle): every
+  // pixel is a fire pixel, so a row's last pixel and the next row's first must not count as
+  // neighbours. Pairs: (w - 1) h in the rows and w (h - 1) in the columns.
+  ring.width = 16;
+  ring.height = 12;
+  const Rig small = synthetic::MakeRingRig(box, ring);
+  const CameraModel& wide = small.cameras[0].model;
+  const std::vector<double>& k = wide.intrinsics();
+  const CameraRays close0(
+      CameraModel::Pinhole(4 * k[0], 4 * k[1], k[2], k[3], wide.cam_from_rig(), 16, 12));
+  cameras = {&close0};
+  const Level full = measure(views_of([](double x) { return 1.25 * x; }));
+  EXPECT_EQ(full.pixels, 16 * 12);
+  EXPECT_EQ(full.pairs, 15 * 12 + 16 * 11);
 }
 
 TEST(FitObjective, TheEnergyIsTheSumOfItsTerms) {
