@@ -1,5 +1,6 @@
 #include "fitting/absorption.h"
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 
@@ -10,8 +11,8 @@ namespace flamerig {
 
 AbsorptionModel AbsorptionModel::Grey(double cross_section_m2) {
   if (!(cross_section_m2 > 0) || !std::isfinite(cross_section_m2)) {
-    throw InputError("grey absorption: cross_section_m2 = " +
-                                std::to_string(cross_section_m2) + " must be finite and > 0");
+    throw InputError("grey absorption: cross_section_m2 = " + std::to_string(cross_section_m2) +
+                     " must be finite and > 0");
   }
   AbsorptionModel m;
   m.kind_ = Kind::kGrey;
@@ -22,9 +23,8 @@ AbsorptionModel AbsorptionModel::Grey(double cross_section_m2) {
 AbsorptionModel AbsorptionModel::Soot(const SootParameters& p) {
   auto check = [](double v, double lo, double hi, const char* name) {
     if (!(v > lo) || !(v <= hi) || !std::isfinite(v)) {
-      throw InputError(std::string("soot absorption: ") + name + " = " +
-                                  std::to_string(v) + " must be in (" + std::to_string(lo) + ", " +
-                                  std::to_string(hi) + "]");
+      throw InputError(std::string("soot absorption: ") + name + " = " + std::to_string(v) +
+                       " must be in (" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
     }
   };
   check(p.particle_radius_m, 0, 1e-6, "particle_radius_m");
@@ -70,6 +70,34 @@ DensityBounds DensityBounds::Plausible(const AbsorptionModel& model) {
 
 DensityBounds DensityBounds::Paper() {
   return DensityBounds{0.01e27, 500e27, "paper 0.01e27..500e27"};
+}
+
+void StampAbsorption(const AbsorptionModel& model, FireVolume* volume) {
+  volume->metadata_text["absorption_model"] = model.name();
+  volume->soot_volume_fraction.clear();
+  for (const char* key :
+       {"soot_particle_radius_m", "soot_particle_volume_m3", "soot_refractive_index_n",
+        "soot_refractive_index_k", "soot_volume_fraction_peak", "soot_volume_m3"})
+    volume->metadata_numbers.erase(key);
+  if (model.is_grey()) return;
+  const double particle = model.ParticleVolumeM3();
+  volume->metadata_numbers["soot_particle_radius_m"] = model.soot().particle_radius_m;
+  volume->metadata_numbers["soot_particle_volume_m3"] = particle;
+  volume->metadata_numbers["soot_refractive_index_n"] = model.soot().refractive_index_n;
+  volume->metadata_numbers["soot_refractive_index_k"] = model.soot().absorption_index_k;
+  const std::vector<float>& n = volume->density_per_m3;
+  if (n.empty()) return;
+  std::vector<float>& fv = volume->soot_volume_fraction;
+  fv.resize(n.size());
+  double peak = 0, sum = 0;
+  for (std::size_t i = 0; i < n.size(); ++i) {
+    const double f = double(n[i]) * particle;
+    fv[i] = static_cast<float>(f);
+    peak = std::max(peak, f);
+    sum += f;
+  }
+  volume->metadata_numbers["soot_volume_fraction_peak"] = peak;
+  volume->metadata_numbers["soot_volume_m3"] = sum * volume->geometry.voxel_size_m.prod();
 }
 
 }  // namespace flamerig

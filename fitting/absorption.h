@@ -22,6 +22,8 @@
 
 #include <string>
 
+#include "tomography/volume.h"
+
 namespace flamerig {
 
 struct SootParameters {
@@ -77,6 +79,19 @@ struct DensityBounds {
   static DensityBounds Plausible(const AbsorptionModel& model);
   static DensityBounds Paper();
 };
+
+// Says in `volume` which absorption model its densities are counted in: metadata_text
+// "absorption_model" ("soot" or "grey"), and for soot the particle's radius, volume and refractive
+// index (metadata_numbers soot_particle_radius_m, soot_particle_volume_m3, soot_refractive_index_n
+// and _k) and, where the volume has a density, the soot's volume fraction per voxel
+// (FireVolume::soot_volume_fraction, density x particle volume) with its peak and the soot's
+// whole volume (soot_volume_fraction_peak; soot_volume_m3, the fraction summed over the voxels
+// times a voxel's volume). The volume fraction is what a combustion paper quotes, and what the
+// images determine: Rayleigh absorption grows as density x radius^3, so the number density of a
+// fit is only as right as the radius assumed (20 nm by default), the volume fraction whatever it
+// is. A grey model's density has no particle size: no volume fraction is written (an old one is
+// cleared).
+void StampAbsorption(const AbsorptionModel& model, FireVolume* volume);
 
 }  // namespace flamerig
 

@@ -566,7 +566,8 @@ RingTie MakeRingTie(const GridGeometry& grid, const std::vector<std::uint32_t>& 
 std::vector<RingProfilePoint> MakeRingProfile(const GridGeometry& grid, const RingTie& tie,
                                               const std::vector<double>& t,
                                               const std::vector<double>& n,
-                                              const VoxelUncertainty& uncertainty) {
+                                              const VoxelUncertainty& uncertainty,
+                                              double particle_volume_m3) {
   std::vector<RingProfilePoint> profile;
   for (std::size_t r = 0; r < tie.rings.size(); ++r) {
     const auto [j, radius] = tie.places[r];
@@ -583,6 +584,7 @@ std::vector<RingProfilePoint> MakeRingProfile(const GridGeometry& grid, const Ri
     p.voxels = tie.rings[r].size();
     p.temperature_k = t[a];
     p.density_per_m3 = n[a];
+    p.soot_volume_fraction = n[a] * particle_volume_m3;
     if (!uncertainty.temperature_sigma_k.empty()) {
       p.temperature_sigma_k = uncertainty.temperature_sigma_k[a];
       p.log_density_sigma = uncertainty.log_density_sigma[a];
@@ -1009,7 +1011,10 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
           !st.active.empty())
         result.uncertainty = EstimateUncertainty(objective, st.t, st.n, st.s, options.uncertainty,
                                                  tie ? &tie->rings : nullptr);
-      if (tie) result.ring_profile = MakeRingProfile(st.grid, *tie, st.t, st.n, result.uncertainty);
+      if (tie)
+        result.ring_profile =
+            MakeRingProfile(st.grid, *tie, st.t, st.n, result.uncertainty,
+                            absorption.is_grey() ? 0.0 : absorption.ParticleVolumeM3());
     }
     // Out of time or cancelled with finer levels to go: they are skipped, and that is why the fit
     // stopped. At the last level the solver's own reason stands.
@@ -1048,6 +1053,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   result.exposure = st.s;
   result.seconds = Seconds(start);
   result.volume = ToVolume(st, result, options.objective.t_min_k);
+  StampAbsorption(absorption, &result.volume);
   if (!result.uncertainty.temperature_sigma_k.empty())
     StoreUncertainty(grid, st.active, result.uncertainty, &result.volume);
   return result;
@@ -1341,6 +1347,7 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
   result.active_voxels = m;
   result.seconds = Seconds(start);
   result.volume = ToVolume(st, result, options.objective.t_min_k);
+  StampAbsorption(absorption, &result.volume);
   return result;
 }
 

@@ -256,12 +256,16 @@ struct RingProfilePoint {
   double temperature_sigma_k = 0;     // its one-sigma uncertainty (0 when not estimated)
   double density_per_m3 = 0;          // the ring's soot density
   double log_density_sigma = 0;       // sigma of ln(density): 0.1 is about 10% (0: none)
+  // The soot's volume fraction (density x particle volume; absorption.h's StampAbsorption), 0 for
+  // a grey model.
+  double soot_volume_fraction = 0;
 };
 
 struct FitResult {
   // Temperature (K) and density (1/m^3) on the fitted grid; voxels outside the medium (density 0)
   // hold the lowest temperature of the search range (ambient). Metadata: exposure, density_scale,
-  // mean_delta_e, energy, active_voxels, method.
+  // mean_delta_e, energy, active_voxels, method, and the absorption model's (StampAbsorption:
+  // with soot, the soot's volume fraction per voxel too).
   FireVolume volume;
   double exposure = 1;
   double density_scale = 1;  // Algorithm 2's factor (1 for per-voxel densities)

@@ -13,7 +13,7 @@ FireVolume MakeFire(const GridGeometry& geometry, const FireOptions& options,
   options.Validate();
   FireVolume fire = MakeFire(
       geometry, options, absorption.DensityFromVolumeFraction(options.peak_soot_volume_fraction));
-  fire.metadata_text["absorption_model"] = absorption.name();
+  StampAbsorption(absorption, &fire);
   return fire;
 }
 

@@ -42,14 +42,14 @@ void WriteRingProfileCsv(const std::string& path, const std::vector<RingProfileP
   CheckRingTruth(profile, truth);
   std::ostringstream csv;
   csv << "layer,height_m,axis_x_m,axis_z_m,radius_voxels,radius_m,voxels,temperature_k,"
-         "temperature_sigma_k,density_per_m3,log_density_sigma"
+         "temperature_sigma_k,density_per_m3,log_density_sigma,soot_volume_fraction"
       << (truth ? ",truth_temperature_k,truth_voxels" : "") << "\n";
   for (std::size_t r = 0; r < profile.size(); ++r) {
     const RingProfilePoint& p = profile[r];
-    csv << fmt::format("{},{:.9g},{:.9g},{:.9g},{},{:.9g},{},{:.6g},{:.6g},{:.6g},{:.6g}", p.layer,
-                       p.height_m, p.axis_x_m, p.axis_z_m, p.radius_voxels, p.radius_m, p.voxels,
-                       p.temperature_k, p.temperature_sigma_k, p.density_per_m3,
-                       p.log_density_sigma);
+    csv << fmt::format("{},{:.9g},{:.9g},{:.9g},{},{:.9g},{},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g}",
+                       p.layer, p.height_m, p.axis_x_m, p.axis_z_m, p.radius_voxels, p.radius_m,
+                       p.voxels, p.temperature_k, p.temperature_sigma_k, p.density_per_m3,
+                       p.log_density_sigma, p.soot_volume_fraction);
     if (truth) {
       const RingTruth& t = (*truth)[r];
       csv << "," << (t.voxels ? fmt::format("{:.6g}", t.temperature_k) : std::string()) << ","
@@ -84,6 +84,10 @@ std::vector<RingProfilePoint> ReadRingProfileCsv(const std::string& path) {
                     c_voxels = column("voxels"), c_t = column("temperature_k"),
                     c_ts = column("temperature_sigma_k"), c_n = column("density_per_m3"),
                     c_ns = column("log_density_sigma");
+  // Files written before 2026-11-29 have no volume fraction: it reads as 0.
+  const auto fv_at = std::find(header.begin(), header.end(), "soot_volume_fraction");
+  const std::size_t c_fv =
+      fv_at == header.end() ? header.size() : std::size_t(fv_at - header.begin());
   std::vector<RingProfilePoint> profile;
   for (int number = 2; std::getline(in, line); ++number) {
     if (line.empty()) continue;
@@ -116,6 +120,7 @@ std::vector<RingProfilePoint> ReadRingProfileCsv(const std::string& path) {
     p.temperature_sigma_k = number_at(c_ts);
     p.density_per_m3 = number_at(c_n);
     p.log_density_sigma = number_at(c_ns);
+    if (c_fv < header.size()) p.soot_volume_fraction = number_at(c_fv);
     profile.push_back(p);
   }
   return profile;

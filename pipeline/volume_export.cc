@@ -55,6 +55,7 @@ std::vector<Column> ColumnsOf(const FireVolume& v) {
   field(v.density_sigma, "density_sigma", "standard deviation of ln(density)");
   field(v.determined, "determined",
         "1 where the images determine the voxel, 0 where the prior does");
+  field(v.soot_volume_fraction, "soot_volume_fraction", "cubic metres of soot per cubic metre");
   if (v.emission_rgb.size() == 3 * g.num_voxels())
     for (int ch = 0; ch < 3; ++ch)
       c.push_back({std::string("emission_") + "rgb"[ch], "linear emission, renderer's units",

@@ -8,6 +8,7 @@
 //   temperature_sigma_k float32 the fit's one-sigma temperature error, K (when it has it)
 //   density_sigma      float32  the sigma of ln(density): 0.1 is ~10%   (when it has it)
 //   determined         float32  1 where the images determine the voxel  (when it has it)
+//   soot_volume_fraction float32 m^3 of soot per m^3 (absorption.h)     (a soot fit, a truth)
 //   emission_r/g/b     float32  linear emission, the renderer's units   (a reconstruction)
 //
 // The field values are the .vdb's floats, exactly (CSV prints 9 significant digits, which read

@@ -801,6 +801,75 @@ TEST(FastFit, SyntheticRoundTripFromTwoViews) {
   EXPECT_LT(fit.exposure, 1000);
 }
 
+// Rayleigh soot absorbs as density x radius^3, so the images hold the soot's volume fraction and
+// not the number of particles: the same images fitted with particles of twice the radius give
+// an eighth of the density and the same volume fraction and temperatures. Every fitted volume
+// carries the fraction (density x 4/3 pi R^3, worked out here), and the simulated truth's peaks
+// at the fraction it was asked for.
+TEST(FastFit, TheImagesDetermineTheSootVolumeFractionWhateverTheParticleSize) {
+  const AbsorptionModel small = AbsorptionModel::DefaultSoot();
+  SootParameters p;
+  p.particle_radius_m = 2 * small.soot().particle_radius_m;
+  const AbsorptionModel large = AbsorptionModel::Soot(p);
+  RoundTrip r = MakeRoundTrip(small, 16, 80);
+  const double pi = 3.14159265358979323846;
+  auto particle = [&](const AbsorptionModel& m) {
+    const double radius = m.soot().particle_radius_m;
+    return 4.0 / 3.0 * pi * radius * radius * radius;
+  };
+  // The truth: its peak fraction is the simulator's default, 1e-6, averaged over the voxel.
+  ASSERT_EQ(r.truth.soot_volume_fraction.size(), r.grid.num_voxels());
+  EXPECT_LE(r.truth.metadata_numbers.at("soot_volume_fraction_peak"), 1e-6 * (1 + 1e-6));
+  EXPECT_GT(r.truth.metadata_numbers.at("soot_volume_fraction_peak"), 0.97e-6);
+  EXPECT_EQ(r.truth.metadata_text.at("absorption_model"), "soot");
+
+  FitOptions options;
+  options.known_exposure = r.exposure;
+  // On one thread, so that the two fits differ only by the particle size, not by the order in
+  // which threads sum.
+  const tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
+  const FitResult a = FastFit(r.grid, r.tomography, r.views, small, options);
+  const FitResult b = FastFit(r.grid, r.tomography, r.views, large, options);
+  double sum = 0, worst_t = 0, worst_fv = 0, worst_n = 0;
+  int medium = 0;
+  for (const FitResult* f : {&a, &b}) {
+    const AbsorptionModel& m = f == &a ? small : large;
+    ASSERT_EQ(f->volume.soot_volume_fraction.size(), r.grid.num_voxels());
+    EXPECT_NEAR(f->volume.metadata_numbers.at("soot_particle_radius_m"), m.soot().particle_radius_m,
+                1e-15);
+    for (std::size_t v = 0; v < r.grid.num_voxels(); ++v)
+      ASSERT_NEAR(f->volume.soot_volume_fraction[v], f->volume.density_per_m3[v] * particle(m),
+                  1e-6 * f->volume.density_per_m3[v] * particle(m) + 1e-30)
+          << "voxel " << v;
+  }
+  for (std::size_t v = 0; v < r.grid.num_voxels(); ++v) {
+    const double fa = a.volume.soot_volume_fraction[v], fb = b.volume.soot_volume_fraction[v];
+    if (!(fa > 0) && !(fb > 0)) continue;
+    ++medium;
+    sum += fa * r.grid.voxel_size_m.prod();
+    worst_fv = std::max(worst_fv, std::abs(fb / fa - 1));
+    worst_n = std::max(worst_n,
+                       std::abs(8.0 * b.volume.density_per_m3[v] / a.volume.density_per_m3[v] - 1));
+    worst_t =
+        std::max(worst_t, double(std::abs(a.volume.temperature_k[v] - b.volume.temperature_k[v])));
+  }
+  std::printf(
+      "radius 20 and 40 nm: %d voxels with medium; volume fractions %.2g apart at most "
+      "(relative), densities a factor 8 apart within %.2g, temperatures within %.3g K\n",
+      medium, worst_fv, worst_n, worst_t);
+  ASSERT_GT(medium, 50);
+  EXPECT_LT(worst_fv, 1e-4);
+  EXPECT_LT(worst_n, 1e-4);
+  EXPECT_LT(worst_t, 0.1);
+  EXPECT_NEAR(a.volume.metadata_numbers.at("soot_volume_m3"), sum, 1e-4 * sum);
+  // A grey model has no particle size: no fraction.
+  FireVolume grey = a.volume;
+  StampAbsorption(AbsorptionModel::DefaultGrey(), &grey);
+  EXPECT_TRUE(grey.soot_volume_fraction.empty());
+  EXPECT_EQ(grey.metadata_numbers.count("soot_particle_radius_m"), 0u);
+  EXPECT_EQ(grey.metadata_text.at("absorption_model"), "grey");
+}
+
 TEST(FastFit, WarmStartFromTheResultNeedsLittleWork) {
   const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
   RoundTrip r = MakeRoundTrip(grey, 24, 96);
@@ -1174,6 +1243,7 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
     EXPECT_NEAR(point.axis_z_m, axis.z(), 1e-9);
     EXPECT_DOUBLE_EQ(point.radius_m, point.radius_voxels * r.grid.voxel_size_m.x());
     EXPECT_GT(point.log_density_sigma, 0);
+    EXPECT_DOUBLE_EQ(point.soot_volume_fraction, point.density_per_m3 * soot.ParticleVolumeM3());
     profiled_voxels += point.voxels;
   }
   EXPECT_EQ(profiled_voxels, active.size());

@@ -361,6 +361,7 @@ TEST(RingProfileCsv, ReadsBackWhatItWroteAndNamesWhatIsMalformed) {
     p.temperature_sigma_k = 120.25;
     p.density_per_m3 = 3.5e15;
     p.log_density_sigma = 0.75;
+    p.soot_volume_fraction = 1.25e-7 * (r + 1);
   }
   std::vector<RingTruth> truth(3);
   truth[1] = {1700, 12};
@@ -379,6 +380,7 @@ TEST(RingProfileCsv, ReadsBackWhatItWroteAndNamesWhatIsMalformed) {
     EXPECT_NEAR(back[r].temperature_sigma_k, profile[r].temperature_sigma_k, 1e-3);
     EXPECT_NEAR(back[r].density_per_m3, profile[r].density_per_m3, 1e10);
     EXPECT_NEAR(back[r].log_density_sigma, profile[r].log_density_sigma, 1e-6);
+    EXPECT_NEAR(back[r].soot_volume_fraction, profile[r].soot_volume_fraction, 1e-12);
   }
   std::ifstream in(csv);
   std::string header, first, second;
@@ -398,7 +400,18 @@ TEST(RingProfileCsv, ReadsBackWhatItWroteAndNamesWhatIsMalformed) {
       EXPECT_NE(std::string(e.what()).find(says), std::string::npos) << e.what();
     }
   };
-  malformed(header + "\n" + first + "\nnot,a,row\n", "line 3: 3 values for 13 columns");
+  malformed(header + "\n" + first + "\nnot,a,row\n", "line 3: 3 values for 14 columns");
+  // A profile written before the volume fraction was (2026-11-29) reads with a fraction of 0.
+  {
+    const fs::path old = dir / "old.csv";
+    std::ofstream(old) << "layer,height_m,axis_x_m,axis_z_m,radius_voxels,radius_m,voxels,"
+                          "temperature_k,temperature_sigma_k,density_per_m3,log_density_sigma\n"
+                          "7,0.01,0,0,1,0.001,7,1700,100,3e15,0.5\n";
+    const std::vector<RingProfilePoint> read = ReadRingProfileCsv(old.string());
+    ASSERT_EQ(read.size(), 1u);
+    EXPECT_EQ(read[0].temperature_k, 1700);
+    EXPECT_EQ(read[0].soot_volume_fraction, 0);
+  }
   std::string nan_row = second;
   nan_row.replace(nan_row.find("1660.5"), 6, "nan");
   malformed(header + "\n" + nan_row + "\n", "line 2: temperature_k 'nan' is not a finite number");
@@ -640,6 +653,20 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
   const FireVolume v = ReadVdb((dir / "out" / "frame_000002.vdb").string());
   EXPECT_GT(v.metadata_numbers.at("exposure"), 0);
   EXPECT_EQ(v.metadata_numbers.at("frame"), 2);
+  // Soot: the volume fraction beside the density, each voxel's particles of 20 nm radius.
+  ASSERT_EQ(v.metadata_text.at("absorption_model"), "soot");
+  ASSERT_EQ(v.soot_volume_fraction.size(), v.geometry.num_voxels());
+  const double particle = 4.0 / 3.0 * 3.14159265358979 * 20e-9 * 20e-9 * 20e-9;
+  double fraction_sum = 0;
+  for (std::size_t i = 0; i < v.geometry.num_voxels(); ++i) {
+    ASSERT_NEAR(v.soot_volume_fraction[i], v.density_per_m3[i] * particle,
+                1e-6 * v.density_per_m3[i] * particle + 1e-30);
+    fraction_sum += v.soot_volume_fraction[i];
+  }
+  EXPECT_NEAR(v.metadata_numbers.at("soot_volume_m3"),
+              fraction_sum * v.geometry.voxel_size_m.prod(),
+              1e-4 * v.metadata_numbers.at("soot_volume_m3"));
+  EXPECT_GT(fraction_sum, 0);
 
   // The report: a page with its pictures.
   RunReportInfo info;

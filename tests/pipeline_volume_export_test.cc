@@ -56,6 +56,7 @@ FireVolume FittedVolume() {
     v.temperature_sigma_k.push_back(medium ? 50.125f + f : 0.f);
     v.density_sigma.push_back(medium ? 0.01f * f : 0.f);
     v.determined.push_back(medium && f % 2 ? 1.f : 0.f);
+    v.soot_volume_fraction.push_back(v.density_per_m3.back() * 3.351e-23f);
   }
   v.metadata_numbers["exposure"] = 1.5;
   v.metadata_text["absorption_model"] = "soot";
@@ -78,12 +79,13 @@ void ExpectMatches(const FireVolume& v, const Table& table, bool dense, const st
   std::vector<std::size_t> expected;
   for (std::size_t f = 0; f < g.num_voxels(); ++f)
     if (dense || v.density_per_m3[f] > 0) expected.push_back(f);
-  for (const char* c : {"i", "j", "k", "x_m", "y_m", "z_m", "temperature_k", "density_per_m3",
-                        "temperature_sigma_k", "density_sigma", "determined"}) {
+  for (const char* c :
+       {"i", "j", "k", "x_m", "y_m", "z_m", "temperature_k", "density_per_m3",
+        "temperature_sigma_k", "density_sigma", "determined", "soot_volume_fraction"}) {
     ASSERT_TRUE(table.count(c)) << what << " lacks column " << c;
     ASSERT_EQ(table.at(c).size(), expected.size()) << what << " column " << c;
   }
-  EXPECT_EQ(table.size(), 11u) << what;
+  EXPECT_EQ(table.size(), 12u) << what;
   for (std::size_t r = 0; r < expected.size(); ++r) {
     const int i = int(table.at("i")[r]), j = int(table.at("j")[r]), k = int(table.at("k")[r]);
     const std::size_t f = std::size_t(i) + 5 * (std::size_t(j) + 4 * std::size_t(k));
@@ -96,6 +98,7 @@ void ExpectMatches(const FireVolume& v, const Table& table, bool dense, const st
     EXPECT_EQ(float(table.at("temperature_sigma_k")[r]), v.temperature_sigma_k[f]) << what;
     EXPECT_EQ(float(table.at("density_sigma")[r]), v.density_sigma[f]) << what;
     EXPECT_EQ(float(table.at("determined")[r]), v.determined[f]) << what;
+    EXPECT_EQ(float(table.at("soot_volume_fraction")[r]), v.soot_volume_fraction[f]) << what;
   }
 }
 
@@ -146,7 +149,7 @@ TEST(VolumeExport, CsvNumPyAndHdf5RoundTripAgainstTheVdb) {
       const VolumeExportSummary s =
           ExportVolumeTable(read, (dir / ("t_" + tag + ext)).string(), options);
       EXPECT_EQ(s.rows, dense ? 60u : 40u) << ext;
-      EXPECT_EQ(s.columns.size(), 11u) << ext;
+      EXPECT_EQ(s.columns.size(), 12u) << ext;
       EXPECT_EQ(s.files.size(), std::string(ext) == ".h5" ? 1u : 2u) << ext;
     }
     ExpectMatches(truth, ReadCsv((dir / ("t_" + tag + ".csv")).string()), dense, tag + " csv");

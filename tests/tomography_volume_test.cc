@@ -43,6 +43,8 @@ FireVolume RandomVolume() {
     v.density_per_m3[i] = fire ? 1e14f * u(rng) : 0.0f;
     for (int c = 0; c < 3; ++c) v.emission_rgb[3 * i + c] = fire ? u(rng) - 0.1f : 0.0f;
   }
+  v.soot_volume_fraction.resize(n);
+  for (std::size_t i = 0; i < n; ++i) v.soot_volume_fraction[i] = v.density_per_m3[i] * 3.35e-23f;
   v.metadata_numbers["exposure"] = 12.5;
   v.metadata_numbers["density_scale"] = 3e17;
   v.metadata_text["absorption_model"] = "soot";
@@ -92,6 +94,7 @@ TEST(Vdb, RoundTripIsExact) {
   EXPECT_EQ(back.temperature_k, v.temperature_k);
   EXPECT_EQ(back.density_per_m3, v.density_per_m3);
   EXPECT_EQ(back.emission_rgb, v.emission_rgb);
+  EXPECT_EQ(back.soot_volume_fraction, v.soot_volume_fraction);
   EXPECT_EQ(back.metadata_numbers.at("exposure"), 12.5);
   EXPECT_EQ(back.metadata_numbers.at("density_scale"), 3e17);
   EXPECT_EQ(back.metadata_text.at("absorption_model"), "soot");

@@ -59,13 +59,12 @@ GridGeometry GeometryOf(const openvdb::GridBase& grid, const std::string& path) 
     for (int c = 0; c < 3; ++c)
       if (r != c && std::abs(m(r, c)) > 1e-12 * std::abs(m(r, r))) {
         throw DataError(path + ": grid '" + grid.getName() +
-                                 "' is rotated or sheared; only axis-aligned grids are supported");
+                        "' is rotated or sheared; only axis-aligned grids are supported");
       }
   GridGeometry g;
   for (int a = 0; a < 3; ++a) g.voxel_size_m[a] = m(a, a);
   if ((g.voxel_size_m.array() <= 0).any()) {
-    throw DataError(path + ": grid '" + grid.getName() +
-                             "' has a non-positive voxel size");
+    throw DataError(path + ": grid '" + grid.getName() + "' has a non-positive voxel size");
   }
   openvdb::Vec3d t = m.getTranslation();
   Eigen::Vector3d center0(t.x(), t.y(), t.z());
@@ -116,6 +115,9 @@ void WriteVdb(const std::string& path, const FireVolume& volume) {
     grids.push_back(MakeFloatGrid(g, volume.density_sigma, "density_sigma", "sigma of ln density"));
   if (!volume.determined.empty())
     grids.push_back(MakeFloatGrid(g, volume.determined, "determined", "1 = by the images"));
+  if (!volume.soot_volume_fraction.empty())
+    grids.push_back(MakeFloatGrid(g, volume.soot_volume_fraction, "soot_volume_fraction",
+                                  "m^3 of soot per m^3"));
   if (!volume.emission_rgb.empty()) {
     auto grid = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.0f));
     grid->setName("emission");
@@ -183,7 +185,7 @@ FireVolume ReadVdb(const std::string& path) {
                !g.origin_in_rig.isApprox(volume.geometry.origin_in_rig, 1e-9) ||
                !g.voxel_size_m.isApprox(volume.geometry.voxel_size_m, 1e-12)) {
       throw DataError(path + ": grid '" + grid.getName() +
-                               "' does not share the lattice of the other grids");
+                      "' does not share the lattice of the other grids");
     }
   };
   auto read_float = [&](const openvdb::FloatGrid& grid, std::vector<float>& out) {
@@ -206,12 +208,13 @@ FireVolume ReadVdb(const std::string& path) {
   };
   for (const auto& base : *grids) {
     const std::string name = base->getName();
-    std::vector<float>* field = name == "temperature"         ? &volume.temperature_k
-                                : name == "density"           ? &volume.density_per_m3
-                                : name == "temperature_sigma" ? &volume.temperature_sigma_k
-                                : name == "density_sigma"     ? &volume.density_sigma
-                                : name == "determined"        ? &volume.determined
-                                                              : nullptr;
+    std::vector<float>* field = name == "temperature"            ? &volume.temperature_k
+                                : name == "density"              ? &volume.density_per_m3
+                                : name == "temperature_sigma"    ? &volume.temperature_sigma_k
+                                : name == "density_sigma"        ? &volume.density_sigma
+                                : name == "determined"           ? &volume.determined
+                                : name == "soot_volume_fraction" ? &volume.soot_volume_fraction
+                                                                 : nullptr;
     if (field) {
       auto grid = openvdb::gridConstPtrCast<openvdb::FloatGrid>(base);
       if (!grid) throw DataError(path + ": grid '" + name + "' is not a float grid");

@@ -5,6 +5,8 @@
 //   temperature  FloatGrid, kelvin                    (background 0)
 //   density      FloatGrid, particles per m^3         (background 0)
 //   emission     Vec3SGrid, linear RGB emission       (background 0)
+// and a fit's: temperature_sigma (K), density_sigma (of ln density), determined (1 or 0), and
+// soot_volume_fraction (m^3 of soot per m^3) when the absorption model is soot.
 // Only voxels whose value differs from the background are stored (active). Each grid's transform
 // maps index (i, j, k) to the voxel centre in the rig frame, metres: world = (i, j, k) * voxel_size
 // + origin + voxel_size / 2, so the volume lands where the rig put it. The grid's dims are stored
@@ -25,7 +27,8 @@ namespace flamerig {
 // never leaves a half-written file under the final name.
 void WriteVdb(const std::string& path, const FireVolume& volume);
 
-// Reads the grids named temperature, density and emission (any subset; at least one must exist).
+// Reads the grids named above (any subset; at least one of temperature, density and emission must
+// exist).
 // Throws InputError for a missing file, DataError naming the path and the problem: not a VDB
 // file, no known grid, a non-linear or rotated transform, grids whose transforms disagree.
 FireVolume ReadVdb(const std::string& path);

@@ -73,6 +73,7 @@ void FireVolume::Validate() const {
   CheckField(geometry, temperature_sigma_k, 1, "temperature_sigma", false);
   CheckField(geometry, density_sigma, 1, "density_sigma", false);
   CheckField(geometry, determined, 1, "determined", false);
+  CheckField(geometry, soot_volume_fraction, 1, "soot_volume_fraction", false);
 }
 
 }  // namespace flamerig

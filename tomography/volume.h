@@ -98,6 +98,12 @@ struct FireVolume {
   std::vector<float> temperature_sigma_k;
   std::vector<float> density_sigma;
   std::vector<float> determined;
+  // The soot's volume fraction (m^3 of soot per m^3; a candle peaks near 1e-6), num_voxels values
+  // or empty: the density times one particle's volume, written beside the density when the
+  // absorption model is soot (fitting/absorption.h, StampAbsorption). In the Rayleigh limit the
+  // images determine it whatever particle size is assumed, where the number density scales as
+  // 1 / radius^3.
+  std::vector<float> soot_volume_fraction;
   std::map<std::string, double> metadata_numbers;    // e.g. "exposure", "density_scale"
   std::map<std::string, std::string> metadata_text;  // e.g. "absorption_model"
 

@@ -18,7 +18,8 @@ Runner AddExportVolume(CLI::App* command) {
   command->footer(
       "Write a volume (.vdb from fit, run or reconstruct) as a table, one row per voxel: i, j, k,\n"
       "the voxel centre x_m, y_m, z_m in the rig frame (metres), then temperature_k,\n"
-      "density_per_m3, temperature_sigma_k, density_sigma, determined and emission_r/g/b where\n"
+      "density_per_m3, temperature_sigma_k, density_sigma, determined, soot_volume_fraction and\n"
+      "emission_r/g/b where\n"
       "the volume has them. The format follows --out's extension: .csv, .npy (a NumPy structured\n"
       "array: numpy.load(F)[\"temperature_k\"]) or .h5 (one dataset per column, with units; the\n"
       "grid and metadata as attributes). CSV and NumPy get F.json beside them (frame.npy.json)\n"

@@ -115,6 +115,14 @@ Runner AddFit(CLI::App* command) {
           sc.name.c_str(), sc.held_out ? "held out" : "fitted", sc.mean_delta_e, sc.fire_delta_e,
           sc.p95_delta_e);
     std::printf("  report: %s/report.md\n", r.report_dir.c_str());
+    const auto& numbers = r.result.volume.metadata_numbers;
+    if (numbers.count("soot_volume_fraction_peak"))
+      std::printf(
+          "  soot: peak volume fraction %.3g (%.3g ppm), %.4g mm^3 of soot in the volume (the "
+          "density grid counts particles of %.0f nm radius; the volume fraction holds whatever "
+          "the radius)\n",
+          numbers.at("soot_volume_fraction_peak"), 1e6 * numbers.at("soot_volume_fraction_peak"),
+          1e9 * numbers.at("soot_volume_m3"), 1e9 * numbers.at("soot_particle_radius_m"));
     if (r.have_truth) {
       if (!job.truth_rig.empty())
         std::printf("  truth's rig %s moved into the rig's frame: %s\n", job.truth_rig.c_str(),
@@ -128,6 +136,8 @@ Runner AddFit(CLI::App* command) {
             "peak emission) with medium: RMS %.1f K, mean %+.1f K\n",
             job.truth_path.c_str(), r.truth.counted, r.truth.visible, r.truth.rms_k,
             r.truth.mean_k);
+      if (r.truth.compared && r.truth.truth_soot > 0)
+        std::printf("  soot: %.3f of the truth's\n", r.truth.fit_soot / r.truth.truth_soot);
       if (r.truth.have_sigma)
         std::printf(
             "  its sigma: %.0f%% of those voxels within one sigma, %.0f%% within two (calibrated: "
