@@ -82,15 +82,21 @@ rm -rf "$RUN_DIR/run_axisymmetric"
 "$BIN" run --recording "$RUN_DIR/recordings/fire" --rig "$RUN_DIR/calibrated/rig.yaml" \
   --exposure "$EXPOSURE" --truth "$RUN_DIR/truth" --truth-rig "$RUN_DIR/rig.yaml" --axisymmetric \
   --no-blender --out "$RUN_DIR/run_axisymmetric"
-score() {  # frames.csv -> "RMS a..b K, bias c..d K, within one sigma e..f%; a constant g..h K"
-  awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) col[$i] = i; next }
-    $col["truth_rms_k"] != "" {
-      r = $col["truth_rms_k"]; b = $col["truth_bias_k"]; s = $col["truth_spread_k"];
-      w = 100 * $col["truth_within_1_sigma"];
-      if (n++ == 0) { r0 = r1 = r; b0 = b1 = b; s0 = s1 = s; w0 = w1 = w }
-      if (r < r0) r0 = r; if (r > r1) r1 = r; if (b < b0) b0 = b; if (b > b1) b1 = b;
-      if (s < s0) s0 = s; if (s > s1) s1 = s; if (w < w0) w0 = w; if (w > w1) w1 = w }
-    END { printf "%d frame sets: T RMS %.0f..%.0f K, bias %+.0f..%+.0f K, %.0f..%.0f%% of the visible voxels within one sigma (a constant temperature: %.0f..%.0f K)\n", n, r0, r1, b0, b1, w0, w1, s0, s1 }' "$1"
+score() {  # frames.csv -> the frame sets' temperature error, bias and sigma coverage, ranges
+  python3 - "$1" <<'PY'
+import csv, sys
+rows = [r for r in csv.DictReader(open(sys.argv[1])) if r.get("truth_rms_k")]
+def span(key, scale=1.0):
+    v = [scale * float(r[key]) for r in rows]
+    return min(v), max(v)
+if not rows:
+    print("no frame set scored against the truth")
+else:
+    print("%d frame sets: T RMS %.0f..%.0f K, bias %+.0f..%+.0f K, %.0f..%.0f%% of the visible voxels "
+          "within one sigma (a constant temperature: %.0f..%.0f K)"
+          % ((len(rows),) + span("truth_rms_k") + span("truth_bias_k")
+             + span("truth_within_1_sigma", 100) + span("truth_spread_k")))
+PY
 }
 echo
 echo "temperatures against the truth (visible voxels, truth moved into the calibrated frame):"
