@@ -37,7 +37,8 @@ std::vector<ViewScore> WriteFitReport(
 
 // An axisymmetric fit's radial profile (FitResult::ring_profile) as CSV, one row per ring by
 // layer and then radius: layer, height_m, axis_x_m, axis_z_m, radius_voxels, radius_m, voxels,
-// temperature_k, temperature_sigma_k, density_per_m3, log_density_sigma, and with `truth`
+// temperature_k, temperature_sigma_k, density_per_m3, log_density_sigma, soot_volume_fraction (0
+// for a grey model; a file without the column, from before 2026-11-29, reads as 0), and with `truth`
 // (pipeline/truth.h's TruthOnRings, one per ring) truth_temperature_k and truth_voxels (empty
 // where no truth voxel falls in the ring). Metres in the rig frame. Written atomically.
 void WriteRingProfileCsv(const std::string& path, const std::vector<RingProfilePoint>& profile,

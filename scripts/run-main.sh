@@ -85,10 +85,11 @@ rm -rf "$RUN_DIR/run_axisymmetric"
 score() {  # frames.csv -> the frame sets' temperature error, bias and sigma coverage, ranges
   python3 - "$1" <<'PY'
 import csv, sys
-rows = [r for r in csv.DictReader(open(sys.argv[1])) if r.get("truth_rms_k")]
+# A frame not scored against the truth says -1 (pipeline/run.h), as does a sigma not estimated.
+rows = [r for r in csv.DictReader(open(sys.argv[1])) if float(r.get("truth_rms_k") or -1) >= 0]
 def span(key, scale=1.0):
-    v = [scale * float(r[key]) for r in rows]
-    return min(v), max(v)
+    v = [scale * float(r[key]) for r in rows if float(r[key] or -1) >= 0]
+    return (min(v), max(v)) if v else (float("nan"), float("nan"))
 if not rows:
     print("no frame set scored against the truth")
 else:

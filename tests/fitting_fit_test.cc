@@ -415,7 +415,8 @@ TEST(Uncertainty, TheNoiseLevelIsWhatVariesFromPixelToPixel) {
   EXPECT_EQ(thumb.u.sigma_lab, thumb.u.residual_lab);
   // Fire from edge to edge (the first camera zoomed in four times on the flame's middle): every
   // pixel is a fire pixel, so a row's last pixel and the next row's first must not count as
-  // neighbours. Pairs: (w - 1) h in the rows and w (h - 1) in the columns.
+  // neighbours. `measure` checks the curvature's count against the test's own walk; here that walk
+  // is held to the closed form: (w - 1) h pairs in the rows and w (h - 1) in the columns.
   ring.width = 16;
   ring.height = 12;
   const Rig small = synthetic::MakeRingRig(box, ring);
@@ -844,6 +845,7 @@ TEST(FastFit, TheImagesDetermineTheSootVolumeFractionWhateverTheParticleSize) {
   }
   for (std::size_t v = 0; v < r.grid.num_voxels(); ++v) {
     const double fa = a.volume.soot_volume_fraction[v], fb = b.volume.soot_volume_fraction[v];
+    ASSERT_TRUE(std::isfinite(fa) && std::isfinite(fb)) << "voxel " << v;
     if (!(fa > 0) && !(fb > 0)) continue;
     ++medium;
     sum += fa * r.grid.voxel_size_m.prod();
@@ -1243,7 +1245,10 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
     EXPECT_NEAR(point.axis_z_m, axis.z(), 1e-9);
     EXPECT_DOUBLE_EQ(point.radius_m, point.radius_voxels * r.grid.voxel_size_m.x());
     EXPECT_GT(point.log_density_sigma, 0);
-    EXPECT_DOUBLE_EQ(point.soot_volume_fraction, point.density_per_m3 * soot.ParticleVolumeM3());
+    const double radius = soot.soot().particle_radius_m;  // 4/3 pi R^3, worked out here
+    EXPECT_NEAR(point.soot_volume_fraction,
+                point.density_per_m3 * 4.0 / 3.0 * 3.14159265358979 * radius * radius * radius,
+                1e-9 * point.soot_volume_fraction);
     profiled_voxels += point.voxels;
   }
   EXPECT_EQ(profiled_voxels, active.size());

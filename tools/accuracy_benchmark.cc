@@ -264,6 +264,7 @@ std::string ErrorByEmissionRows(const Scene& scene, const std::vector<FitView>& 
       faint_from_truth.temperature_k[v] = equivalent.temperature_k[v];
       faint_from_truth.density_per_m3[v] = equivalent.density_per_m3[v];
     }
+    StampAbsorption(scene.absorption, &faint_from_truth);  // the fraction of the new densities
   }
   struct Case {
     std::string name;

@@ -206,6 +206,7 @@ std::string RunCameraBenchmark(const CameraBenchmarkOptions& options,
                        "**calibrated** (datasheet + calibrate-radiometry)"));
     rows.push_back(Fit(data, (data / "rig.yaml").string(), band_data.exposure, scene.fit_resolution,
                        dir / "fit_true", band_cameras, "the true model (the oracle)"));
+    const double spread = rows.back().truth.truth_spread_k;  // the untied oracle row's
     if (scene.config.ring.cameras == 2) {
       // Two views: the untied fit's own hot bias (+59 to +73 K whatever the cameras) hides what
       // the camera model does; the tied fit (one temperature and density per ring about the
@@ -232,7 +233,7 @@ std::string RunCameraBenchmark(const CameraBenchmarkOptions& options,
        << Fixed(100 * worst_gain, 2) << "% of the simulator's, black level within "
        << Fixed(worst_black, 2) << " DN, spectral check at most " << Fixed(100 * worst_check, 2)
        << "%. The truth's spread (the best constant's RMS) on the visible voxels: "
-       << Fixed(rows.back().truth.truth_spread_k, 0) << " K.\n\n";
+       << Fixed(spread, 0) << " K.\n\n";
     md << Table(rows);
 
     // Two-colour pyrometry (issue 19, item 6): mono cameras behind 650/40 and 550/40 nm filters in

@@ -137,7 +137,10 @@ Runner AddFit(CLI::App* command) {
             job.truth_path.c_str(), r.truth.counted, r.truth.visible, r.truth.rms_k,
             r.truth.mean_k);
       if (r.truth.compared && r.truth.truth_soot > 0)
-        std::printf("  soot: %.3f of the truth's\n", r.truth.fit_soot / r.truth.truth_soot);
+        std::printf(
+            "  soot particles: %.3f of the truth's (a volume ratio where both assume one "
+            "particle size)\n",
+            r.truth.fit_soot / r.truth.truth_soot);
       if (r.truth.have_sigma)
         std::printf(
             "  its sigma: %.0f%% of those voxels within one sigma, %.0f%% within two (calibrated: "
