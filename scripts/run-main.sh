@@ -87,15 +87,15 @@ score() {  # frames.csv -> the frame sets' temperature error, bias and sigma cov
 import csv, sys
 # A frame not scored against the truth says -1 (pipeline/run.h), as does a sigma not estimated.
 rows = [r for r in csv.DictReader(open(sys.argv[1])) if float(r.get("truth_rms_k") or -1) >= 0]
-def span(key, scale=1.0):
-    v = [scale * float(r[key]) for r in rows if float(r[key] or -1) >= 0]
+def span(key, scale=1.0, signed=False):  # a bias may be negative; the others say -1 for none
+    v = [scale * float(r[key]) for r in rows if r[key] and (signed or float(r[key]) >= 0)]
     return (min(v), max(v)) if v else (float("nan"), float("nan"))
 if not rows:
     print("no frame set scored against the truth")
 else:
     print("%d frame sets: T RMS %.0f..%.0f K, bias %+.0f..%+.0f K, %.0f..%.0f%% of the visible voxels "
           "within one sigma (a constant temperature: %.0f..%.0f K)"
-          % ((len(rows),) + span("truth_rms_k") + span("truth_bias_k")
+          % ((len(rows),) + span("truth_rms_k") + span("truth_bias_k", signed=True)
              + span("truth_within_1_sigma", 100) + span("truth_spread_k")))
 PY
 }
