@@ -327,7 +327,6 @@ void FrameStages::Write(FrameWork* w) {
                                                        options_.fit.render, "", &rendered);
   for (const auto& sc : scores)
     s.delta_e.push_back(ViewDeltaE{sc.name, sc.held_out, sc.mean_delta_e, sc.fire_delta_e});
-  StampAbsorption(absorption_, &result.volume);
   result.volume.metadata_numbers["frame"] = static_cast<double>(w->index);
   result.volume.metadata_numbers["source_frame_id"] = static_cast<double>(w->set.frame_id);
   WriteVolume(paths_.Volume(w->index), result.volume);
