@@ -86,6 +86,10 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
   c.recorder.sync_interval_s = r.NonNegative("sync_interval_s", c.recorder.sync_interval_s);
   c.recorder.max_bytes =
       static_cast<std::uint64_t>(r.Range("max_recording_mb", 0, 0, 1e12) * (1 << 20));
+  if (const long long sets = r.Get<long long>("max_recording_sets", 0); sets >= 0)
+    c.recorder.max_sets = static_cast<std::uint64_t>(sets);
+  else
+    throw InputError(where + ": 'max_recording_sets' must be a whole number >= 0 (0: no limit)");
   c.control = r.Get<std::string>("control", "");
   c.allow_remote = r.Get<bool>("allow_remote", false);
   c.live_view = r.Get<std::string>("live_view", "");
@@ -735,7 +739,9 @@ void CaptureDaemon::Stop() {
 }
 
 void CaptureDaemon::LogClosed(const std::string& dir, const RecorderStatus& r) {
-  if (r.error.empty())
+  if (r.limit_reached && r.sets_dropped == 0)
+    Log().info("capture: {}: {} frame sets recorded: {}", dir, r.sets_recorded, r.error);
+  else if (r.error.empty())
     Log().info("capture: {}: {} frame sets recorded, {} dropped", dir, r.sets_recorded,
                r.sets_dropped);
   else

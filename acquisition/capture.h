@@ -33,6 +33,8 @@
 //   queue_mb: 512                 # recorder queue bound (with a ring: at least pretrigger_max_mb + 64)
 //   min_free_mb: 64
 //   sync_interval_s: 1
+//   max_recording_mb: 0           # a recording stops cleanly at this size; 0: no limit
+//   max_recording_sets: 0         # ... after this many frame sets (`capture --frames`); 0: no limit
 //   control: unix:recordings/control.sock   # or tcp:127.0.0.1:PORT (loopback unless `allow_remote`)
 //   live_view: 127.0.0.1:8420     # the browser live view (acquisition/live_view.h); off when absent
 //   live_view_allow_remote: false # true: any address, with a token (live_view_token, or random)

@@ -59,7 +59,8 @@ std::string RecorderYaml(const RecorderStatus& s) {
   std::ostringstream o;
   o << "sets_recorded: " << s.sets_recorded << "\nsets_dropped: " << s.sets_dropped
     << "\nframes_recorded: " << s.frames_recorded << "\nbytes_written: " << s.bytes_written
-    << "\nstopped_by_error: " << (s.stopped ? "true" : "false") << "\n";
+    << "\nstopped_by_error: " << (s.stopped && !s.limit_reached ? "true" : "false")
+    << "\nstopped_by_limit: " << (s.limit_reached ? "true" : "false") << "\n";
   if (!s.error.empty()) {
     YAML::Emitter e;
     e << YAML::BeginMap << YAML::Key << "error" << YAML::Value << s.error << YAML::EndMap;

@@ -437,6 +437,9 @@ bool Recorder::Submit(const FrameSet& set) {
                      " camera slots for a recording of " + std::to_string(cameras_.size()) +
                      " cameras");
   }
+  // A recording of max_sets frame sets is complete: the sets that follow are not dropped, only
+  // not part of it.
+  if (complete_) return false;
   if (closing_ || status_.stopped) {
     ++status_.sets_dropped;
     return false;
@@ -461,6 +464,7 @@ bool Recorder::Submit(const FrameSet& set) {
   // sets; what is queued is still written.
   const std::uint64_t on_disk = bytes + sizeof(FrameRecord) * set.present();
   std::string limit;
+  bool configured = true;
   if (options_.max_bytes > 0 && accepted_bytes_ + on_disk > options_.max_bytes) {
     limit = "recording " + directory_ + ": reached its size limit of " +
             std::to_string(options_.max_bytes) + " bytes";
@@ -470,13 +474,14 @@ bool Recorder::Submit(const FrameSet& set) {
     if (::statvfs(directory_.c_str(), &v) == 0 &&
         static_cast<std::uint64_t>(v.f_bavail) * v.f_frsize <
             options_.min_free_bytes + status_.queued_bytes + on_disk) {
+      configured = false;
       limit = "recording " + directory_ + ": the disk is nearly full (less than " +
               std::to_string(options_.min_free_bytes >> 20) + " MiB free, min_free_mb)";
     }
   }
   if (!limit.empty()) {
     status_.stopped = true;
-    status_.size_limit = limit.find("size limit") != std::string::npos;
+    status_.limit_reached = configured;
     status_.error = limit + "; recording stopped (every frame set before it is readable)";
     ++status_.sets_dropped;
     return false;
@@ -502,6 +507,12 @@ bool Recorder::Submit(const FrameSet& set) {
   pending_.emplace(seq, std::move(p));
   status_.queued_bytes += bytes;
   status_.peak_queued_bytes = std::max(status_.peak_queued_bytes, status_.queued_bytes);
+  if (options_.max_sets > 0 && next_seq_ >= options_.max_sets) {  // the last set it takes
+    complete_ = true;
+    status_.stopped = true;
+    status_.limit_reached = true;
+    status_.error = "reached its limit of " + std::to_string(options_.max_sets) + " frame sets";
+  }
   CommitReady();
   work_.notify_all();
   return true;

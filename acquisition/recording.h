@@ -23,8 +23,8 @@
 // Writing: Submit() queues a set and returns at once; one writer thread per camera appends its
 // frames. The queue is bounded in bytes: when the disk cannot keep up, whole sets are dropped and
 // counted (never half a set), and memory stays bounded. A set that would take the recording past
-// `max_bytes`, or its filesystem below `min_free_bytes`, stops it cleanly: no more sets are
-// accepted, those already accepted are written. A write that fails (disk full, I/O error) stops it
+// `max_bytes` or past `max_sets` frame sets, or its filesystem below `min_free_bytes`, stops it
+// cleanly: no more sets are accepted, those already accepted are written. A write that fails (disk full, I/O error) stops it
 // at once: everything up to the last committed set stays readable. status() names the file and
 // the reason either way. A recording is refused (RecordingError, nothing created) when its disk
 // has less than `min_free_bytes` free; while it records, a small file (closing.reserve) holds room
@@ -125,7 +125,8 @@ struct RecorderOptions {
   double sync_interval_s = 1.0;                   // fdatasync cadence; 0 = only at close
   std::uint64_t min_free_bytes = 64ull << 20;     // stop cleanly below this much free space
   std::uint64_t max_bytes = 0;                    // stop cleanly past this size; 0 = no limit
-  void Validate() const;                          // throws InputError naming the field
+  std::uint64_t max_sets = 0;  // stop cleanly after this many frame sets; 0 = no limit
+  void Validate() const;       // throws InputError naming the field
 };
 
 struct RecorderStatus {
@@ -135,8 +136,8 @@ struct RecorderStatus {
   std::uint64_t frames_recorded = 0;
   std::uint64_t bytes_written = 0;  // data files, pixels and record headers
   std::uint64_t queued_bytes = 0, peak_queued_bytes = 0, max_queued_bytes = 0;
-  bool stopped = false;     // no longer accepting sets: an error or a limit; `error` says which
-  bool size_limit = false;  // stopped by max_bytes, as configured (not a fault)
+  bool stopped = false;        // no longer accepting sets: an error or a limit; `error` says which
+  bool limit_reached = false;  // stopped by max_bytes or max_sets, as configured (not a fault)
   std::string error;
 };
 
@@ -193,6 +194,7 @@ class Recorder {
   bool failed_ = false;                 // a write failed: the writers stop
   RecorderStatus status_;
   bool closing_ = false, closed_ = false;
+  bool complete_ = false;  // max_sets frame sets accepted
   std::int64_t last_sync_ns_ = 0;
   std::vector<std::vector<char>> to_commit_;  // set records ready for sets.index, in order
   std::condition_variable commit_;

@@ -115,6 +115,16 @@ TEST(CaptureConfig, ParsesAndNamesTheKeyOfEveryMistake) {
             std::string::npos);
   EXPECT_NE(ParseError("cameras: [{name: a, width: 1e300}]").find("'width' must be in"),
             std::string::npos);
+  // A recording's set count: a whole number, 0 for none.
+  EXPECT_EQ(CaptureConfig::Parse("max_recording_sets: 90\ncameras: [{name: a}]", "r.yaml")
+                .recorder.max_sets,
+            90u);
+  EXPECT_EQ(c.recorder.max_sets, 0u);
+  for (const char* bad : {"-1", "2.5", "many"})
+    EXPECT_NE(ParseError(std::string("max_recording_sets: ") + bad + "\ncameras: [{name: a}]")
+                  .find("rig.yaml: 'max_recording_sets'"),
+              std::string::npos)
+        << bad;
   EXPECT_NE(ParseError("trigger_rate_hz: 1e-300\ncameras: [{name: a}]").find("trigger_rate_hz"),
             std::string::npos);
   EXPECT_NE(ParseError("cameras: [{name: a, pixel_format: YUV}]").find("cameras[0]"),

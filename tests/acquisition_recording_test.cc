@@ -626,12 +626,38 @@ TEST(Recording, SizeLimitStopsCleanly) {
   }
   const RecorderStatus st = rec.Close();
   EXPECT_TRUE(st.stopped);
+  EXPECT_TRUE(st.limit_reached);  // configured, not a fault
   EXPECT_NE(st.error.find("size limit"), std::string::npos) << st.error;
   EXPECT_LE(st.bytes_written, o.max_bytes);
   const Recording r = Recording::Open(dir.str());
   EXPECT_EQ(r.num_sets(), st.sets_recorded);
   EXPECT_GT(r.num_sets(), 25u);
   EXPECT_EQ(r.final_counters().at("error"), st.error);
+  for (std::size_t i = 0; i < r.num_sets(); ++i) ExpectSetMatches(r.ReadSet(i), i);
+}
+
+// A set count: the recording holds exactly the first max_sets sets it was given, stops as the last
+// is accepted, and what follows is neither recorded nor counted as dropped.
+TEST(Recording, SetLimitHoldsExactlyThatManySets) {
+  TempDir dir;
+  RecorderOptions o;
+  o.max_sets = 7;
+  Recorder rec(dir.str(), Metadata(), o);
+  int accepted = 0;
+  for (std::uint64_t s = 0; s < 12; ++s) {
+    const bool took = rec.Submit(MakeSet(s));
+    accepted += took;
+    EXPECT_EQ(took, s < 7) << "set " << s;
+    EXPECT_EQ(rec.status().stopped, s >= 6) << "set " << s;
+  }
+  const RecorderStatus st = rec.Close();
+  EXPECT_EQ(accepted, 7);
+  EXPECT_EQ(st.sets_recorded, 7u);
+  EXPECT_EQ(st.sets_dropped, 0u);
+  EXPECT_TRUE(st.limit_reached);
+  EXPECT_NE(st.error.find("reached its limit of 7 frame sets"), std::string::npos) << st.error;
+  const Recording r = Recording::Open(dir.str());
+  ASSERT_EQ(r.num_sets(), 7u);
   for (std::size_t i = 0; i < r.num_sets(); ++i) ExpectSetMatches(r.ReadSet(i), i);
 }
 

@@ -162,6 +162,8 @@ TEST(Cli, UsageErrorsNameTheOptionAndWriteNothing) {
        "--exposure: '0' must be a finite number > 0"},
       {"render --scene x.yaml --out " + out + " --threads -3", "--threads: '-3' must be"},
       {"capture --config x.yaml --duration nan", "--duration: 'nan' must be a finite number > 0"},
+      {"capture --config x.yaml --frames 3", "--frames counts a recording's frame sets"},
+      {"capture --config x.yaml --record r --frames 0", "--frames: '0' must be"},
       {"benchmark run extra", "not expected: extra"},
       {"fit" + rig + " --images x --out " + out + " --method magic", "--method: magic not in"},
       {"reconstruct" + rig + " --images x --out " + out + " --iterations 3",
@@ -788,6 +790,40 @@ TEST(Cli, ADamagedTakeExportsEveryIntactFrame) {
     fs::remove_all(out);
     const Result again = Flamerig("export --recording " + copy.string() + " --out " + out.string());
     EXPECT_EQ(CountPngs(out), frames - k.lost) << again.output;
+  }
+  fs::remove_all(dir);
+}
+
+// `capture --frames N`: the recording holds exactly N frame sets whenever the daemon starts, the
+// daemon stops by itself once it is closed, and the log says why it stopped (not as an error).
+TEST(Cli, CaptureRecordsExactlyTheFrameSetsAskedFor) {
+  const fs::path dir = TempDir();
+  std::ofstream(dir / "rig.yaml") << "data_dir: " << (dir / "rec").string()
+                                  << "\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
+                                     "  - {name: a, width: 64, height: 48}\n"
+                                     "  - {name: b, width: 64, height: 48}\n";
+  for (const int n : {1, 9}) {
+    const std::string take = "take" + std::to_string(n);
+    const auto start = std::chrono::steady_clock::now();
+    const Result capture =
+        Flamerig("capture --config " + (dir / "rig.yaml").string() + " --record " + take +
+                 " --frames " + std::to_string(n) + " --duration 60");
+    ASSERT_EQ(capture.status, 0) << capture.output;
+    // Stopped by the count (half a second at 20 Hz), not by the duration.
+    EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 40)
+        << capture.output;
+    EXPECT_NE(capture.output.find("the recording is complete (--frames): stopping"),
+              std::string::npos)
+        << capture.output;
+    const flamerig::Recording r = flamerig::Recording::Open((dir / "rec" / take).string());
+    EXPECT_EQ(r.num_sets(), std::size_t(n)) << capture.output;
+    EXPECT_EQ(r.final_counters().at("sets_dropped"), "0");
+    EXPECT_NE(capture.output.find((dir / "rec" / take).string() + ": " + std::to_string(n) +
+                                  " frame sets recorded: reached its limit of " +
+                                  std::to_string(n) + " frame sets"),
+              std::string::npos)
+        << capture.output;
+    EXPECT_EQ(capture.output.find("error"), std::string::npos) << capture.output;
   }
   fs::remove_all(dir);
 }

@@ -41,13 +41,16 @@ Runner AddCapture(CLI::App* command) {
   struct Options {
     std::string config, record, event, live_view;
     double duration = -1;
+    long long frames = 0;
   };
   auto o = std::make_shared<Options>();
   command->footer(
       "Run the capture daemon: open the cameras of the config (see config/capture_sim.yaml),\n"
       "stream, assemble frame sets and serve the control API (`flamerig ctl`). --record starts\n"
       "recording into data_dir/NAME at once; --event saves the pre-trigger ring first;\n"
-      "--duration stops after S seconds (else: Ctrl-C or `flamerig ctl shutdown`). Every state\n"
+      "--duration stops after S seconds, --frames after the recording holds N frame sets (else:\n"
+      "Ctrl-C or `flamerig ctl shutdown`); a recording of a set count is the same whichever\n"
+      "moment the daemon starts, a timed one may hold a set more or less. Every state\n"
       "change and camera event is logged to stderr and to data_dir/capture.log. Exit status 1\n"
       "when a recording stopped before it was asked to (a full disk, a write error, min_free_mb;\n"
       "not max_recording_mb) or could not start, or a camera sent no frame at all; a camera\n"
@@ -65,9 +68,18 @@ Runner AddCapture(CLI::App* command) {
   command->add_option("--duration", o->duration, "Stop after S seconds")
       ->type_name("S")
       ->check(kPositive);
+  command
+      ->add_option("--frames", o->frames,
+                   "Record N frame sets, then stop (with --record or --event; the pre-trigger "
+                   "ring's sets count)")
+      ->type_name("N")
+      ->check(kPositive);
   return [o](Context& context) {
     if (!o->record.empty() && !o->event.empty()) throw UsageError("--record and --event: give one");
-    const CaptureConfig config = CaptureConfig::Load(o->config);
+    if (o->frames > 0 && o->record.empty() && o->event.empty())
+      throw UsageError("--frames counts a recording's frame sets: give --record or --event");
+    CaptureConfig config = CaptureConfig::Load(o->config);
+    if (o->frames > 0) config.recorder.max_sets = static_cast<std::uint64_t>(o->frames);
     // One daemon per data_dir: a second would mix recordings, sockets and logs.
     const FolderLock lock(config.data_dir, "flamerig capture --config " + o->config);
     const std::string log_file = (std::filesystem::path(config.data_dir) / "capture.log").string();
@@ -104,7 +116,7 @@ Runner AddCapture(CLI::App* command) {
     // A recording that stopped before it was asked to (a full disk, a write error, min_free_mb;
     // not max_recording_mb) makes the exit status 1.
     bool recording_failed = false;
-    auto failed = [](const RecorderStatus& r) { return !r.error.empty() && !r.size_limit; };
+    auto failed = [](const RecorderStatus& r) { return !r.error.empty() && !r.limit_reached; };
     // A camera that sends nothing (a hardware trigger with no pulses, a dead camera that still
     // reads as connected) is warned about after a few periods, once until it sends again; one
     // that sent nothing in the whole run makes the exit status 1.
@@ -133,18 +145,27 @@ Runner AddCapture(CLI::App* command) {
           Log().warn("capture: camera {}: no frames for {:.1f} s{}", cam.name, silent_s, hint);
       }
     };
-    while (!context.cancel().raised() && !server->shutdown_requested() &&
+    // --frames: the daemon stops once the recording of N sets is closed.
+    bool frames_done = false;
+    while (!context.cancel().raised() && !server->shutdown_requested() && !frames_done &&
            (o->duration < 0 || elapsed() < o->duration)) {
       std::this_thread::sleep_for(std::chrono::milliseconds(100));
       const CaptureStatus s = daemon.status();
       watch(s);
       if (s.recorder.stopped && s.recording) {
-        // A full disk or a write error: the recording stops cleanly, the daemon goes on.
+        // A limit reached, a full disk or a write error: the recording stops cleanly, the
+        // daemon goes on (or stops, after --frames).
         if (drawn) std::fputs("\n", stderr);
         drawn = false;
-        Log().error("capture: recording stopped: {}", s.recorder.error);
-        recording_failed = recording_failed || failed(s.recorder);
-        daemon.StopRecording();
+        if (!failed(s.recorder)) {
+          frames_done = o->frames > 0;
+          if (frames_done) Log().info("capture: the recording is complete (--frames): stopping");
+        } else {
+          Log().error("capture: recording stopped: {}", s.recorder.error);
+          recording_failed = true;
+        }
+        daemon.StopRecording();  // logs what it recorded and why it stopped
+        continue;
       }
       if (elapsed() - last_line < period || context.verbosity() == Verbosity::kQuiet) continue;
       last_line = elapsed();
