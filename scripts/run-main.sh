@@ -28,8 +28,11 @@ START=$(date +%s)
 FRAMES=$(find "$RUN_DIR/truth" -name "frame_*.vdb" | wc -l)
 
 # 2. Calibration: the sim cameras replay the board views (a board waved in front of the rig; a
-# camera that does not see it shows a dark frame) at 10 Hz into a recording, which `calibrate`
-# turns into a rig (the ring frame put at the candle's base, config/calibrate_sim.yaml).
+# camera that does not see it shows a dark frame) at 10 Hz into a recording of one frame set per
+# view (camera frame k shows view k mod VIEWS, so any VIEWS consecutive sets hold each view once),
+# which `calibrate` turns into a rig (the ring frame put at the candle's base,
+# config/calibrate_sim.yaml). A count of sets, not a duration: the same views whenever the daemon
+# starts, so the same calibration on every run.
 VIEWS=$(find "$RUN_DIR/calibration" -mindepth 1 -maxdepth 1 -type d | wc -l)
 cat > "$RUN_DIR/capture_calibration.yaml" <<YAML
 data_dir: recordings
@@ -42,14 +45,14 @@ cameras:
 YAML
 rm -rf "$RUN_DIR/recordings/calibration"
 (cd "$RUN_DIR" && "$BIN" capture --config capture_calibration.yaml --record calibration \
-  --duration "$(( VIEWS / 10 + 2 ))")
+  --frames "$VIEWS" --duration "$(( VIEWS / 10 + 30 ))")
 "$BIN" calibrate --recording "$RUN_DIR/recordings/calibration" \
   --board "$RUN_DIR/calibration/board.yaml" --config config/calibrate_sim.yaml \
   --out "$RUN_DIR/calibrated"
 
-# 3. The fire: two sim cameras on a hardware trigger line replay the dataset's frames for about
-# one pass through them (frame k of a camera shows dataset frame k mod FRAMES) into a lossless
-# recording, which is also exported as PNG frame sets.
+# 3. The fire: two sim cameras on a hardware trigger line replay the dataset's frames for one pass
+# through them and one set more (frame k of a camera shows dataset frame k mod FRAMES) into a
+# lossless recording, which is also exported as PNG frame sets.
 cat > "$RUN_DIR/capture.yaml" <<YAML
 data_dir: recordings
 sync: hardware-trigger
@@ -61,7 +64,7 @@ cameras:
 YAML
 rm -rf "$RUN_DIR/recordings/fire"
 (cd "$RUN_DIR" && "$BIN" capture --config capture.yaml --record fire \
-  --duration "$(awk "BEGIN { print $FRAMES / 10 + 0.05 }")")
+  --frames "$(( FRAMES + 1 ))" --duration "$(( FRAMES / 10 + 30 ))")
 "$BIN" export --recording "$RUN_DIR/recordings/fire" --out "$RUN_DIR/recorded"
 
 # 4. Every recorded frame set: tomography and fit through the calibrated rig. The cameras'
