@@ -66,6 +66,7 @@ void FitOptions::Validate() const {
   if (!(time_limit_s >= 0)) fail("time_limit_s must be >= 0");
   if (!(axisymmetric_w_sm >= 0) || !std::isfinite(axisymmetric_w_sm))
     fail("axisymmetric_w_sm must be finite and >= 0");
+  if (neighbour_weight_resolution < 0) fail("neighbour_weight_resolution must be >= 0");
   if (!(known_exposure >= 0) || !std::isfinite(known_exposure) ||
       (known_exposure > 0 && !(known_exposure >= exposure_min && known_exposure <= exposure_max)))
     fail("known_exposure must be 0 (unknown) or in [exposure_min, exposure_max]");
@@ -844,6 +845,15 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   options.objective.smooth_neighbour = options.smooth_neighbour;
   options.objective.density_pairwise = options.density_pairwise;
   if (options.axisymmetric) options.objective.w_sm = options.axisymmetric_w_sm;
+  // The neighbour weight on a grid: as given at neighbour_weight_resolution voxels (FitOptions).
+  auto ObjectiveAt = [&options](const GridGeometry& g) {
+    ObjectiveOptions o = options.objective;
+    if (options.neighbour_weight_resolution > 0) {
+      const double ratio = double(options.neighbour_weight_resolution) / g.dims.maxCoeff();
+      o.w_sm *= ratio * ratio;
+    }
+    return o;
+  };
   const ThinEmissionTable table(
       absorption, options.objective.t_min_k, options.objective.t_max_k,
       !views.empty() && views.front().response ? views.front().response : options.render.response);
@@ -905,7 +915,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
           "threshold)");
     }
     FitObjective objective(st.grid, st.active, views, absorption, options.render,
-                           options.objective);
+                           ObjectiveAt(st.grid));
     std::unique_ptr<BandStart> band_start = make_band_start(st.grid);
     if (have_previous) {
       // From another frame (level 0 of a warm start): the temperatures carry over, the densities
@@ -1034,7 +1044,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
         std::vector<float> e;
         fine.active = ActiveVoxels(grid, activity, options.activity_threshold, &e);
         FitObjective fine_objective(grid, fine.active, views, absorption, options.render,
-                                    options.objective);
+                                    ObjectiveAt(grid));
         std::unique_ptr<BandStart> fine_bands = make_band_start(grid);
         Resample(st, e, table, s_tomo, fine_objective.n_min(), fine_objective.n_max(), options,
                  &fine, false, fine_bands.get());
@@ -1053,6 +1063,11 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   result.exposure = st.s;
   result.seconds = Seconds(start);
   result.volume = ToVolume(st, result, options.objective.t_min_k);
+  // w_sm (ToVolume) is the weight applied on this grid; this says how it was scaled from the
+  // given one (FitOptions::neighbour_weight_resolution).
+  if (options.neighbour_weight_resolution > 0)
+    result.volume.metadata_numbers["neighbour_weight_resolution"] =
+        options.neighbour_weight_resolution;
   StampAbsorption(absorption, &result.volume);
   if (!result.uncertainty.temperature_sigma_k.empty())
     StoreUncertainty(grid, st.active, result.uncertainty, &result.volume);

@@ -120,6 +120,14 @@ struct FitOptions {
     o.w_sm = 1;
     return o;
   }();
+  // The grid size at which objective.w_sm (and axisymmetric_w_sm) hold as given: voxels along the
+  // grid's longest side. A grid of N voxels uses w_sm x (neighbour_weight_resolution / N)^2,
+  // because the pairwise sum over a field grows as N^2 (N^3 pairs, differences ~1/N) while the
+  // data term (a sum over pixels) does not; the weights above were chosen at 64. 0 = as given on
+  // every grid. Measured (BENCHMARKS.md, issue 19, "The tied fit and where the grid lies"): the
+  // main job's two views tied at 128 scored 125 to 131 K with 0.3 unscaled, 82 to 91 K with 0.075;
+  // the eight-view licks untied at 128, 70 K with 1 and 66 K with 0.25.
+  int neighbour_weight_resolution = 64;
   // The forward model's discretisation. Spectral bins of 20 nm: against a 1 nm reference they
   // differ by Delta E 0.06 on a candle's fire pixels (10 nm: 0.017), below the 8-bit floor
   // (about 0.19), at 60% of the 10 nm cost. Steps of one voxel (the renderer's default is half):

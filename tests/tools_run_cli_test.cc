@@ -220,7 +220,7 @@ TEST(RunCli, CalibratesFirstFromBoardViews) {
 
 // `run --w-sm` sets the fit's neighbour weight, tied to rings or not, and every frame's volume
 // records the weight it was fitted under (metadata w_sm): 1 by default, 0.3 with --axisymmetric,
-// the given one with either. A stronger prior gives a smoother temperature field.
+// the given one with either, each at 64 voxels and scaled to the grid. A stronger prior gives a smoother temperature field.
 TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
   const fs::path dir = TempDir("w_sm");
   SimulateDataset(dir / "sim", 1);
@@ -239,7 +239,11 @@ TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
     ASSERT_EQ(r.status, 0) << r.output;
     FireVolume v = ReadVdb((dir / c.name / (FrameName(0) + ".vdb")).string());
     ASSERT_EQ(v.metadata_numbers.count("w_sm"), 1u);
-    EXPECT_DOUBLE_EQ(v.metadata_numbers.at("w_sm"), c.w_sm);
+    // Given at 64 voxels, applied x (64 / N)^2 on a grid of N along its longest side.
+    const double n = v.geometry.dims.maxCoeff();
+    EXPECT_NE(n, 64);  // so that the rule is seen at work
+    EXPECT_DOUBLE_EQ(v.metadata_numbers.at("w_sm"), c.w_sm * (64 / n) * (64 / n));
+    EXPECT_EQ(v.metadata_numbers.at("neighbour_weight_resolution"), 64);
     volumes[c.name] = std::move(v);
   }
   // Scored against the truth, the report and frames.csv give the determined voxels apart.

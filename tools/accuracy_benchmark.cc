@@ -332,7 +332,8 @@ std::string FinerGridSection(const SceneSpec& base,
      << " (once for each image size), fitted as `run` fits (exposure known, "
         "until the energy stalls) on finer grids. The neighbour weight is scaled by ("
      << r0
-     << " / resolution)^2: the pairwise sum of |v_j - v_i| over a field grows as the "
+     << " / resolution)^2, as `fit` and `run` scale it (FitOptions::neighbour_weight_resolution): "
+        "the pairwise sum of |v_j - v_i| over a field grows as the "
         "resolution squared while the data term does not (roughly: the fit smooths |x| below "
         "about 20 K, where the sum grows more slowly). The data term sums over pixels, so images "
         "of twice the size also weaken the prior four times relative to it; the weight is not "
@@ -375,8 +376,8 @@ std::string FinerGridSection(const SceneSpec& base,
     const std::vector<FitView> fitted = Views(scene, false), held = Views(scene, true);
     FitOptions o;
     o.known_exposure = scene.exposure;
-    const double scale = double(r0) / row.resolution;
-    o.objective.w_sm *= scale * scale;
+    o.neighbour_weight_resolution = r0;  // the weight as `run` scales it: x (r0 / resolution)^2
+    const double scale = double(r0) / row.resolution, w_sm = o.objective.w_sm * scale * scale;
     o.estimate_uncertainty = true;  // as `run` fits
     const auto start = Clock::now();
     const FitResult r = FastFit(scene.fit_grid, scene.tomography, fitted, scene.absorption, o);
@@ -386,7 +387,7 @@ std::string FinerGridSection(const SceneSpec& base,
         scene.truth, ImageEquivalentTruthOnGrid(scene.truth, scene.fit_grid, scene.absorption));
     const auto delta_e = FireDeltaE(r, fitted, held, scene.absorption);
     md << "| " << row.resolution << " | " << spec.width << "x" << spec.height << " | "
-       << Fixed(o.objective.w_sm, 3) << " | " << Fixed(seconds, 1) << " | " << r.iterations << " | "
+       << Fixed(w_sm, 3) << " | " << Fixed(seconds, 1) << " | " << r.iterations << " | "
        << ToString(r.termination) << " | " << Fixed(delta_e.first, 2) << " | "
        << Fixed(delta_e.second, 2) << " | " << Fixed(t.rms_k, 0) << " | " << Fixed(t.mean_k, 0)
        << " | " << Fixed(t.weighted_rms_k, 0) << " | " << Fixed(t.correlation, 2) << " | "
