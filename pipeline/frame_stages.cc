@@ -215,6 +215,7 @@ void FrameStages::Reuse(FrameWork* w) {
     s.exposure = r.exposure;
     s.exposure_from = r.exposure_from;
     s.soot = r.soot;
+    s.soot_volume_m3 = r.soot_volume_m3;
     s.energy = r.energy;
     s.fit_termination = r.fit_termination;
     s.fit_message = r.fit_message;
@@ -358,6 +359,9 @@ void FrameStages::Write(FrameWork* w) {
   s.fit_evaluations = result.evaluations;
   s.exposure = result.exposure;
   s.soot = TotalSoot(result.volume);
+  if (const auto it = result.volume.metadata_numbers.find("soot_volume_m3");
+      it != result.volume.metadata_numbers.end())
+    s.soot_volume_m3 = it->second;
   // The take's exposure from here on (not a failed fit's).
   if (s.exposure_from == "fitted" && result.termination != FitTermination::kFailed) {
     take_exposure_ = result.exposure;

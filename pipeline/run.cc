@@ -174,6 +174,7 @@ nlohmann::json SummaryJson(const FrameSummary& f) {
   j["exposure"] = f.exposure;
   j["exposure_from"] = f.exposure_from;
   j["soot"] = f.soot;
+  j["soot_volume_m3"] = f.soot_volume_m3;
   j["energy"] = f.energy;
   j["fit_termination"] = f.fit_termination;
   j["fit_message"] = f.fit_message;
@@ -233,6 +234,7 @@ FrameSummary FrameSummary::FromYaml(const std::string& text, const std::string& 
     // Summaries written before the exposure was held have neither.
     s.exposure_from = n["exposure_from"].as<std::string>("");
     s.soot = n["soot"].as<double>(0.0);
+    s.soot_volume_m3 = n["soot_volume_m3"].as<double>(0.0);  // 0 in summaries from before it
     s.energy = n["energy"].as<double>();
     // Summaries written before the fit reported why it stopped have none of these.
     s.fit_termination = n["fit_termination"].as<std::string>("");

@@ -142,6 +142,10 @@ struct FrameSummary {
   // take's from here on), "held from frame N" (the take's), "fitted (free)" (--fit-exposure).
   std::string exposure_from;
   double soot = 0;  // particles in the fitted volume (sum of density x voxel volume)
+  // The soot's own volume in the fitted volume, m^3 (its metadata soot_volume_m3: particles x
+  // 4/3 pi R^3, fitting/absorption.h's StampAbsorption); what the images determine whatever the
+  // particles' assumed radius. 0 for a grey medium.
+  double soot_volume_m3 = 0;
   double energy = 0;
   // The fit's summary (fitting/fit.h): why it stopped, in the solver's words, after how many
   // iterations, from what energy.

@@ -667,6 +667,11 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
               fraction_sum * v.geometry.voxel_size_m.prod(),
               1e-4 * v.metadata_numbers.at("soot_volume_m3"));
   EXPECT_GT(fraction_sum, 0);
+  // The frame's summary carries that soot volume: the particles it counts times one's volume.
+  EXPECT_NEAR(run.frames[2].soot_volume_m3, fraction_sum * v.geometry.voxel_size_m.prod(),
+              1e-4 * run.frames[2].soot_volume_m3);
+  EXPECT_NEAR(run.frames[2].soot_volume_m3, run.frames[2].soot * particle,
+              1e-4 * run.frames[2].soot_volume_m3);
 
   // The report: a page with its pictures.
   RunReportInfo info;
@@ -700,6 +705,28 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
     EXPECT_NE(html.find("tells less than a constant"), std::string::npos);
   }
   EXPECT_TRUE(fs::exists(dir / "out" / "frames.csv"));
+  // frames.csv, read by Python's csv module: each frame's soot volume in mm^3.
+  {
+    const std::string command =
+        "/usr/bin/python3 -c \"import csv,sys; [print(r['frame'], r['soot_volume_mm3']) for r in "
+        "csv.DictReader(open(sys.argv[1]))]\" " +
+        (dir / "out" / "frames.csv").string();
+    std::unique_ptr<FILE, int (*)(FILE*)> pipe(popen(command.c_str(), "r"), pclose);
+    ASSERT_TRUE(pipe);
+    std::map<std::size_t, double> mm3;
+    char line[256];
+    while (fgets(line, sizeof line, pipe.get())) {
+      std::istringstream words(line);
+      std::size_t frame = 0;
+      double value = -1;
+      if (words >> frame >> value) mm3[frame] = value;
+    }
+    ASSERT_EQ(mm3.size(), run.frames.size());
+    for (const auto& f : run.frames) {
+      EXPECT_GT(f.soot_volume_m3, 0) << f.frame;
+      EXPECT_NEAR(mm3.at(f.frame), f.soot_volume_m3 * 1e9, 1e-5 * f.soot_volume_m3 * 1e9);
+    }
+  }
   // Every frame's numbers as JSON, read back by Python's json module (an independent reader):
   // the frame, its status, the truth's error and a view's Delta E as the summary holds them.
   for (const auto& f : run.frames) {
@@ -708,7 +735,8 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
     const std::string command =
         "/usr/bin/python3 -c \"import json,sys; j=json.load(open(sys.argv[1])); "
         "print(j['frame'], j['status'].split()[0], '%.17g' % j['truth_rms_k'], "
-        "'%.17g' % j['delta_e'][0]['fire'], j['delta_e'][0]['camera'])\" " +
+        "'%.17g' % j['delta_e'][0]['fire'], j['delta_e'][0]['camera'], "
+        "'%.17g' % j['soot_volume_m3'])\" " +
         json.string();
     std::unique_ptr<FILE, int (*)(FILE*)> pipe(popen(command.c_str(), "r"), pclose);
     ASSERT_TRUE(pipe);
@@ -717,8 +745,9 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
     std::istringstream words(line);
     std::size_t frame = 0;
     std::string status, camera;
-    double rms = 0, fire = 0;
-    words >> frame >> status >> rms >> fire >> camera;
+    double rms = 0, fire = 0, soot_volume = -1;
+    words >> frame >> status >> rms >> fire >> camera >> soot_volume;
+    EXPECT_EQ(soot_volume, f.soot_volume_m3);
     EXPECT_EQ(frame, f.frame);
     EXPECT_EQ(status, f.status.substr(0, f.status.find(' ')));
     EXPECT_EQ(rms, f.truth_rms_k);
