@@ -77,6 +77,15 @@ int main(int argc, char** argv) {
   v.metadata_text["absorption_model"] = "soot";
   WriteVdb((tmp / "v.vdb").string(), v);
   Write(out / "vdb" / "small.vdb", Slurp(tmp / "v.vdb"));
+  // A fitted soot volume's extra grids: the volume fraction, the sigmas and the determined mask.
+  v.soot_volume_fraction.assign(v.geometry.num_voxels(), 0.0f);
+  v.soot_volume_fraction[5] = 1e-6f;
+  v.temperature_sigma_k.assign(v.geometry.num_voxels(), 50.0f);
+  v.density_sigma.assign(v.geometry.num_voxels(), 0.2f);
+  v.determined.assign(v.geometry.num_voxels(), 1.0f);
+  v.metadata_numbers["soot_volume_fraction_peak"] = 1e-6;
+  WriteVdb((tmp / "fitted.vdb").string(), v);
+  Write(out / "vdb" / "fitted.vdb", Slurp(tmp / "fitted.vdb"));
 
   // simulate_config: the shapes of config/sim_rig.yaml and config/sim_licks.yaml, small
   Write(out / "simulate_config" / "ring.yaml",
