@@ -455,6 +455,7 @@ nlohmann::json StatusJson(const CaptureStatus& s) {
                                                                     s.recorder.max_queued_bytes
                                                               : 0.0},
                    {"stopped", s.recorder.stopped},
+                   {"limit_reached", s.recorder.limit_reached},
                    {"error", s.recorder.error}};
   j["incoming_queue"] = {s.incoming_queued, s.incoming_capacity};
   j["incoming_dropped"] = s.incoming_dropped;
@@ -741,6 +742,9 @@ void CaptureDaemon::Stop() {
 void CaptureDaemon::LogClosed(const std::string& dir, const RecorderStatus& r) {
   if (r.limit_reached && r.sets_dropped == 0)
     Log().info("capture: {}: {} frame sets recorded: {}", dir, r.sets_recorded, r.error);
+  else if (r.limit_reached)
+    Log().warn("capture: {}: {} frame sets recorded, {} dropped (the disk fell behind): {}", dir,
+               r.sets_recorded, r.sets_dropped, r.error);
   else if (r.error.empty())
     Log().info("capture: {}: {} frame sets recorded, {} dropped", dir, r.sets_recorded,
                r.sets_dropped);
@@ -1063,10 +1067,20 @@ std::string CaptureDaemon::BeginRecording(const std::string& name, bool with_rin
   totals_at_recording_start_ = CountTotals();
   recording_dir_ = dir;
   recording_started_ns_ = clock_->MonotonicNs();
-  // The ring is bounded by pretrigger_max_bytes and the queue was sized to hold it.
+  // The ring is bounded by pretrigger_max_bytes and the queue was sized to hold it. A recording
+  // of max_sets sets that the ring alone would fill takes the ring's newest: those next to the
+  // event.
+  std::size_t skip = 0;
+  if (with_ring && config_.recorder.max_sets > 0 && ring_.size() > config_.recorder.max_sets)
+    skip = ring_.size() - static_cast<std::size_t>(config_.recorder.max_sets);
   if (with_ring)
-    for (const FrameSet& s : ring_) recorder_->Submit(s);
-  if (with_ring)
+    for (std::size_t i = skip; i < ring_.size(); ++i) recorder_->Submit(ring_[i]);
+  if (with_ring && skip > 0)
+    Log().info(
+        "capture: event: recording into {}: the pre-trigger ring's newest {} sets make the {} the "
+        "recording is limited to (max_recording_sets, --frames); its {} older sets are left out",
+        dir, ring_.size() - skip, config_.recorder.max_sets, skip);
+  else if (with_ring)
     Log().info("capture: event: recording into {}, starting with the pre-trigger ring ({} sets)",
                dir, ring_.size());
   else

@@ -483,7 +483,12 @@ bool Recorder::Submit(const FrameSet& set) {
     status_.stopped = true;
     status_.limit_reached = configured;
     status_.error = limit + "; recording stopped (every frame set before it is readable)";
-    ++status_.sets_dropped;
+    // A limit the operator set ends the recording: the sets past it are not part of it, not
+    // dropped. A nearly full disk drops them.
+    if (configured)
+      complete_ = true;
+    else
+      ++status_.sets_dropped;
     return false;
   }
   // Bounded memory: a set that does not fit is dropped whole (one set always fits an empty queue).
@@ -522,6 +527,7 @@ void Recorder::Fail(const std::string& message) {
   const std::string stop =
       message + "; recording stopped (every frame set committed before is readable)";
   status_.error = status_.error.empty() ? stop : status_.error + "; then " + stop;
+  status_.limit_reached = false;  // a write that fails is a fault, whatever limit came before
   failed_ = true;
   status_.stopped = true;
   work_.notify_all();
@@ -711,7 +717,11 @@ RecorderStatus Recorder::Close(const std::map<std::string, std::string>& extra) 
     WriteAtomically(directory_, "metadata.yaml", MetadataYaml(metadata_, true, counters));
   } catch (const RecordingError& e) {
     // The frames are safe; only the closing note could not be written (a full disk, most often).
-    if (status_.error.empty()) status_.error = e.what();
+    // A fault, even after a limit the operator set.
+    if (status_.error.empty() || status_.limit_reached) {
+      status_.error = status_.error.empty() ? e.what() : status_.error + "; then " + e.what();
+      status_.limit_reached = false;
+    }
   }
   return status_;
 }

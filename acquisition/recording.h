@@ -136,8 +136,10 @@ struct RecorderStatus {
   std::uint64_t frames_recorded = 0;
   std::uint64_t bytes_written = 0;  // data files, pixels and record headers
   std::uint64_t queued_bytes = 0, peak_queued_bytes = 0, max_queued_bytes = 0;
-  bool stopped = false;        // no longer accepting sets: an error or a limit; `error` says which
-  bool limit_reached = false;  // stopped by max_bytes or max_sets, as configured (not a fault)
+  bool stopped = false;  // no longer accepting sets: an error or a limit; `error` says which
+  // Stopped by max_bytes or max_sets, as configured (not a fault; the sets it refused after are not
+  // counted as dropped). False again when a write fails after it.
+  bool limit_reached = false;
   std::string error;
 };
 
@@ -194,7 +196,7 @@ class Recorder {
   bool failed_ = false;                 // a write failed: the writers stop
   RecorderStatus status_;
   bool closing_ = false, closed_ = false;
-  bool complete_ = false;  // max_sets frame sets accepted
+  bool complete_ = false;  // a configured limit reached (max_sets, max_bytes): sets past it refused
   std::int64_t last_sync_ns_ = 0;
   std::vector<std::vector<char>> to_commit_;  // set records ready for sets.index, in order
   std::condition_variable commit_;

@@ -126,7 +126,8 @@ struct FitOptions {
   // data term (a sum over pixels) does not; the weights above were chosen at 64. 0 = as given on
   // every grid. Measured (BENCHMARKS.md, issue 19, "The tied fit and where the grid lies"): the
   // main job's two views tied at 128 scored 125 to 131 K with 0.3 unscaled, 82 to 91 K with 0.075;
-  // the eight-view licks untied at 128, 70 K with 1 and 66 K with 0.25.
+  // the eight-view licks untied at 128, 70 K with 1 and 66 K with 0.25. Each level of a
+  // coarse-to-fine fit gets its own grid's weight. The paper's algorithms (PaperFit) never scale.
   int neighbour_weight_resolution = 64;
   // The forward model's discretisation. Spectral bins of 20 nm: against a 1 nm reference they
   // differ by Delta E 0.06 on a candle's fire pixels (10 nm: 0.017), below the 8-bit floor

@@ -464,6 +464,32 @@ TEST(CaptureDaemon, AnEventSavesThePreTriggerRing) {
   EXPECT_NEAR(double(ring), 0.5 * 50, 5);
 }
 
+// An event limited to fewer sets than its ring holds (max_recording_sets, `capture --event
+// --frames`) records the ring's newest: the ten sets just before the event, in order, none after.
+TEST(CaptureDaemon, AnEventOfFewerSetsThanItsRingKeepsTheNewest) {
+  TempDir dir;
+  const CaptureConfig config =
+      CaptureConfig::Parse(Config(dir.path, "software-trigger", 50, "",
+                                  "pretrigger_seconds: 0.5\nmax_recording_sets: 10\n"),
+                           "test");
+  SystemClock clock;
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
+  daemon.Start();
+  Sleep(1.0);
+  const std::string d = daemon.TriggerEvent("ignition");
+  Sleep(0.3);
+  daemon.StopRecording();
+  daemon.Stop();
+  const Recording r = Recording::Open(d);
+  ASSERT_EQ(r.num_sets(), 10u);
+  const RecordingMetadata& m = r.metadata();
+  ASSERT_GE(m.event_last_ring_set, 20);  // the ring held about 25 sets
+  for (std::size_t i = 0; i < 10; ++i)
+    EXPECT_EQ(static_cast<std::int64_t>(r.ReadSet(i).index), m.event_last_ring_set - 9 + long(i))
+        << i;
+  EXPECT_EQ(r.final_counters().at("sets_dropped"), "0");
+}
+
 // Sim cameras replaying a `flamerig simulate` dataset: the recorded Mono8 frames are the luma of
 // the dataset's images; a camera set to another size reports the error and the others go on.
 TEST(CaptureDaemon, SimCamerasReplayADataset) {

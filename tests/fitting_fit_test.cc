@@ -947,7 +947,8 @@ TEST(FastFit, SmoothnessAndViewCountHaveThePapersEffects) {
   const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
   RoundTrip r = MakeRoundTrip(grey, 24, 96);
   FitOptions with, without;
-  with.objective.w_sm = ObjectiveOptions().w_sm;  // the paper's 10
+  with.objective.w_sm = ObjectiveOptions().w_sm;  // the paper's 10,
+  with.neighbour_weight_resolution = 0;           // unscaled on this 24-voxel grid
   without.objective.w_sm = 0;
   FitResult a = FastFit(r.grid, r.tomography, r.views, grey, with);
   FitResult b = FastFit(r.grid, r.tomography, r.views, grey, without);
@@ -1289,8 +1290,9 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
   EXPECT_LT(held_tied, 0.8 * held_free);
   EXPECT_LT(rms_tied, rms_free);
 
-  // The tied fit's neighbour weight is axisymmetric_w_sm (0.3), whatever objective.w_sm says. At
-  // the untied fit's weight, 1, the term pulls the cool outer rings towards the hot core: the
+  // The tied fit's neighbour weight is axisymmetric_w_sm (0.3), whatever objective.w_sm says
+  // (both scaled alike to this grid, FitOptions::neighbour_weight_resolution). At the untied
+  // fit's weight, 1, the term pulls the cool outer rings towards the hot core: the
   // temperatures are further from the truth and hotter (FitOptions::axisymmetric_w_sm, chosen on
   // the accuracy benchmark's larger candles; this one is smaller and seen at 160x120).
   // On one thread, so that the same fit gives the same bits.

@@ -816,7 +816,7 @@ TEST(Cli, CaptureRecordsExactlyTheFrameSetsAskedFor) {
     // Stopped by the count (half a second at 20 Hz), not by the duration.
     EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 40)
         << capture.output;
-    EXPECT_NE(capture.output.find("the recording is complete (--frames): stopping"),
+    EXPECT_NE(capture.output.find("the recording is closed (--frames): stopping"),
               std::string::npos)
         << capture.output;
     const flamerig::Recording r = flamerig::Recording::Open((dir / "rec" / take).string());
@@ -829,6 +829,18 @@ TEST(Cli, CaptureRecordsExactlyTheFrameSetsAskedFor) {
         << capture.output;
     EXPECT_EQ(capture.output.find("error"), std::string::npos) << capture.output;
   }
+  // A take that ends short of its count (here --duration, at 20 Hz about 10 of 500 sets) keeps
+  // what it recorded and says so, with exit status 1: a script must not take it for complete.
+  const Result shorter = Flamerig("capture --config " + (dir / "rig.yaml").string() +
+                                  " --record short --frames 500 --duration 0.5");
+  EXPECT_EQ(shorter.status, 1) << shorter.output;
+  const flamerig::Recording kept = flamerig::Recording::Open((dir / "rec" / "short").string());
+  EXPECT_GE(kept.num_sets(), 3u);
+  EXPECT_LT(kept.num_sets(), 500u);
+  EXPECT_NE(shorter.output.find("the recording holds " + std::to_string(kept.num_sets()) +
+                                " of the 500 frame sets asked for (--frames)"),
+            std::string::npos)
+      << shorter.output;
   fs::remove_all(dir);
 }
 

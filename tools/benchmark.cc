@@ -826,7 +826,8 @@ std::string RunFitBenchmark(const FitBenchmarkOptions& options,
     };
     const std::vector<FitView> fitted = views_of(0, 0, 2), held = views_of(0, 2, 3);
     FitOptions fo;
-    fo.objective.w_sm = ObjectiveOptions().w_sm;  // the paper's energy, for both methods
+    fo.objective.w_sm = ObjectiveOptions().w_sm;  // the paper's energy, for both methods:
+    fo.neighbour_weight_resolution = 0;           // unscaled, as PaperFit's
     auto progress_log = [&](const std::string& who) {
       auto last = std::make_shared<double>(-100.0);
       auto stage = std::make_shared<std::string>();

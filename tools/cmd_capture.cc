@@ -48,12 +48,13 @@ Runner AddCapture(CLI::App* command) {
       "Run the capture daemon: open the cameras of the config (see config/capture_sim.yaml),\n"
       "stream, assemble frame sets and serve the control API (`flamerig ctl`). --record starts\n"
       "recording into data_dir/NAME at once; --event saves the pre-trigger ring first;\n"
-      "--duration stops after S seconds, --frames after the recording holds N frame sets (else:\n"
+      "--duration stops after S seconds, --frames once the recording holds N frame sets (else:\n"
       "Ctrl-C or `flamerig ctl shutdown`); a recording of a set count is the same whichever\n"
       "moment the daemon starts, a timed one may hold a set more or less. Every state\n"
       "change and camera event is logged to stderr and to data_dir/capture.log. Exit status 1\n"
       "when a recording stopped before it was asked to (a full disk, a write error, min_free_mb;\n"
-      "not max_recording_mb) or could not start, or a camera sent no frame at all; a camera\n"
+      "not max_recording_mb or max_recording_sets) or could not start, when a --frames take\n"
+      "holds fewer than N sets, or a camera sent no frame at all; a camera\n"
       "silent for 5 periods (at least 2 s) is warned about as it happens.");
   command->add_option("--config", o->config, "Capture config")->required()->type_name("RIG.yaml");
   command->add_option("--record", o->record, "Record into data_dir/NAME at once")
@@ -114,7 +115,7 @@ Runner AddCapture(CLI::App* command) {
     double last_line = context.terminal() ? 0 : 1 - period;  // the first plain line after 1 s
     bool drawn = false;
     // A recording that stopped before it was asked to (a full disk, a write error, min_free_mb;
-    // not max_recording_mb) makes the exit status 1.
+    // not max_recording_mb or max_recording_sets) makes the exit status 1.
     bool recording_failed = false;
     auto failed = [](const RecorderStatus& r) { return !r.error.empty() && !r.limit_reached; };
     // A camera that sends nothing (a hardware trigger with no pulses, a dead camera that still
@@ -146,6 +147,8 @@ Runner AddCapture(CLI::App* command) {
       }
     };
     // --frames: the daemon stops once the recording of N sets is closed.
+    // Whatever closed it (its count, another limit, a fault, `ctl stop`), and it says whether it
+    // holds the N sets asked for (below).
     bool frames_done = false;
     while (!context.cancel().raised() && !server->shutdown_requested() && !frames_done &&
            (o->duration < 0 || elapsed() < o->duration)) {
@@ -157,14 +160,20 @@ Runner AddCapture(CLI::App* command) {
         // daemon goes on (or stops, after --frames).
         if (drawn) std::fputs("\n", stderr);
         drawn = false;
-        if (!failed(s.recorder)) {
-          frames_done = o->frames > 0;
-          if (frames_done) Log().info("capture: the recording is complete (--frames): stopping");
-        } else {
-          Log().error("capture: recording stopped: {}", s.recorder.error);
-          recording_failed = true;
+        if (failed(s.recorder)) Log().error("capture: recording stopped: {}", s.recorder.error);
+        try {
+          // Logs what it recorded and why it stopped; what it returns is the closed recording's
+          // last word (a write that failed while it drained).
+          recording_failed = failed(daemon.StopRecording()) || recording_failed;
+        } catch (const InputError&) {  // a control request stopped it meanwhile
         }
-        daemon.StopRecording();  // logs what it recorded and why it stopped
+        recording_failed = failed(daemon.status().recorder) || recording_failed;
+      }
+      if (o->frames > 0 && !daemon.status().recording) {
+        frames_done = true;
+        if (drawn) std::fputs("\n", stderr);
+        drawn = false;
+        Log().info("capture: the recording is closed (--frames): stopping");
         continue;
       }
       if (elapsed() - last_line < period || context.verbosity() == Verbosity::kQuiet) continue;
@@ -193,6 +202,17 @@ Runner AddCapture(CLI::App* command) {
     }
     // A recording that a control request closed after it had failed counts too.
     if (failed(daemon.status().recorder)) recording_failed = true;
+    // --frames N: a recording that holds fewer (stopped early by a signal, `ctl stop`, --duration,
+    // max_recording_mb or a fault) did not do what was asked.
+    bool short_of_frames = false;
+    if (o->frames > 0) {
+      const RecorderStatus r = daemon.status().recorder;
+      if (r.sets_recorded < static_cast<std::uint64_t>(o->frames)) {
+        short_of_frames = true;
+        Log().error("capture: the recording holds {} of the {} frame sets asked for (--frames){}{}",
+                    r.sets_recorded, o->frames, r.error.empty() ? "" : ": ", r.error);
+      }
+    }
     // Each camera's story, for the log (and the soak test, which reads the disconnects).
     bool silent = false;
     for (const auto& c : daemon.status().cameras) {
@@ -216,7 +236,7 @@ Runner AddCapture(CLI::App* command) {
     }
     daemon.Stop();
     RemoveLogFile(log_file);
-    return recording_failed || silent ? kExitError : kExitOk;
+    return recording_failed || silent || short_of_frames ? kExitError : kExitOk;
   };
 }
 
