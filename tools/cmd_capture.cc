@@ -146,9 +146,8 @@ Runner AddCapture(CLI::App* command) {
           Log().warn("capture: camera {}: no frames for {:.1f} s{}", cam.name, silent_s, hint);
       }
     };
-    // --frames: the daemon stops once the recording of N sets is closed.
-    // Whatever closed it (its count, another limit, a fault, `ctl stop`), and it says whether it
-    // holds the N sets asked for (below).
+    // --frames: the daemon stops once its recording is closed, whatever closed it (its count,
+    // another limit, a fault, `ctl stop`), and says below whether it holds the N sets asked for.
     bool frames_done = false;
     while (!context.cancel().raised() && !server->shutdown_requested() && !frames_done &&
            (o->duration < 0 || elapsed() < o->duration)) {
