@@ -24,9 +24,9 @@
 // frames. The queue is bounded in bytes: when the disk cannot keep up, whole sets are dropped and
 // counted (never half a set), and memory stays bounded. A set that would take the recording past
 // `max_bytes` or past `max_sets` frame sets, or its filesystem below `min_free_bytes`, stops it
-// cleanly: no more sets are accepted, those already accepted are written. A write that fails (disk full, I/O error) stops it
-// at once: everything up to the last committed set stays readable. status() names the file and
-// the reason either way. A recording is refused (RecordingError, nothing created) when its disk
+// cleanly: no more sets are accepted, those already accepted are written. A write that fails
+// (disk full, I/O error) stops it at once: everything up to the last committed set stays
+// readable. status() names the file and the reason either way. A recording is refused (RecordingError, nothing created) when its disk
 // has less than `min_free_bytes` free; while it records, a small file (closing.reserve) holds room
 // for the closing metadata.yaml, so a disk that fills still gets `closed: true` and the counters.
 //

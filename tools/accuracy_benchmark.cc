@@ -377,8 +377,7 @@ std::string FinerGridSection(const SceneSpec& base,
     FitOptions o;
     o.known_exposure = scene.exposure;
     o.neighbour_weight_resolution = r0;  // the weight as `run` scales it: x (r0 / resolution)^2
-    const double scale = double(r0) / row.resolution, w_sm = o.objective.w_sm * scale * scale;
-    o.estimate_uncertainty = true;  // as `run` fits
+    o.estimate_uncertainty = true;       // as `run` fits
     const auto start = Clock::now();
     const FitResult r = FastFit(scene.fit_grid, scene.tomography, fitted, scene.absorption, o);
     const double seconds = Since(start);
@@ -387,12 +386,13 @@ std::string FinerGridSection(const SceneSpec& base,
         scene.truth, ImageEquivalentTruthOnGrid(scene.truth, scene.fit_grid, scene.absorption));
     const auto delta_e = FireDeltaE(r, fitted, held, scene.absorption);
     md << "| " << row.resolution << " | " << spec.width << "x" << spec.height << " | "
-       << Fixed(w_sm, 3) << " | " << Fixed(seconds, 1) << " | " << r.iterations << " | "
-       << ToString(r.termination) << " | " << Fixed(delta_e.first, 2) << " | "
-       << Fixed(delta_e.second, 2) << " | " << Fixed(t.rms_k, 0) << " | " << Fixed(t.mean_k, 0)
-       << " | " << Fixed(t.weighted_rms_k, 0) << " | " << Fixed(t.correlation, 2) << " | "
-       << Fixed(limit.rms_k, 0) << " | " << Fixed(t.truth_spread_k, 0) << " | " << t.counted
-       << " / " << t.visible << " | " << DeterminedCell(t) << " |\n";
+       << Fixed(r.volume.metadata_numbers.at("w_sm"), 3) << " | " << Fixed(seconds, 1) << " | "
+       << r.iterations << " | " << ToString(r.termination) << " | " << Fixed(delta_e.first, 2)
+       << " | " << Fixed(delta_e.second, 2) << " | " << Fixed(t.rms_k, 0) << " | "
+       << Fixed(t.mean_k, 0) << " | " << Fixed(t.weighted_rms_k, 0) << " | "
+       << Fixed(t.correlation, 2) << " | " << Fixed(limit.rms_k, 0) << " | "
+       << Fixed(t.truth_spread_k, 0) << " | " << t.counted << " / " << t.visible << " | "
+       << DeterminedCell(t) << " |\n";
     if (log)
       log("accuracy: finer grids: " + std::to_string(row.resolution) + ": " + Fixed(seconds, 1) +
           " s, T RMS " + Fixed(t.rms_k, 0) + " K, bias " + Fixed(t.mean_k, 0) + " K");

@@ -161,11 +161,10 @@ Runner AddCapture(CLI::App* command) {
         drawn = false;
         if (failed(s.recorder)) Log().error("capture: recording stopped: {}", s.recorder.error);
         try {
-          // Logs what it recorded and why it stopped; what it returns is the closed recording's
-          // last word (a write that failed while it drained).
-          recording_failed = failed(daemon.StopRecording()) || recording_failed;
+          daemon.StopRecording();      // logs what it recorded and why it stopped
         } catch (const InputError&) {  // a control request stopped it meanwhile
         }
+        // The closed recording's last word (a write that failed while it drained).
         recording_failed = failed(daemon.status().recorder) || recording_failed;
       }
       if (o->frames > 0 && !daemon.status().recording) {
