@@ -711,7 +711,9 @@ RecorderStatus Recorder::Close(const std::map<std::string, std::string>& extra) 
       {"frames_recorded", std::to_string(status_.frames_recorded)},
       {"bytes_written", std::to_string(status_.bytes_written)},
       {"peak_queued_bytes", std::to_string(status_.peak_queued_bytes)},
-      {"error", status_.error}};
+      // A fault and a configured limit apart: `error` is empty when a limit ended the recording.
+      {"error", status_.limit_reached ? "" : status_.error},
+      {"limit_reached", status_.limit_reached ? status_.error : ""}};
   counters.insert(extra.begin(), extra.end());
   try {
     WriteAtomically(directory_, "metadata.yaml", MetadataYaml(metadata_, true, counters));

@@ -248,7 +248,9 @@ class Recording {
   const std::vector<FrameRecord>& frames(int camera) const { return frames_[camera]; }
   // Drops counted in the recording: frame-id gaps per camera (wrap-aware unwrapped ids).
   std::vector<std::uint64_t> MissingByFrameId() const;
-  // Counters the recorder wrote at close (sets_dropped, ...); empty when it did not close.
+  // Counters the recorder wrote at close (sets_dropped, ...; `error` the fault that stopped it,
+  // `limit_reached` the configured limit that did, each empty otherwise); empty when it did not
+  // close.
   const std::map<std::string, std::string>& final_counters() const { return final_counters_; }
 
  private:

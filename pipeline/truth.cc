@@ -192,11 +192,15 @@ FireVolume SampleOnGrid(const FireVolume& volume, const GridGeometry& grid,
   out.geometry = grid;
   const bool have_t = volume.temperature_k.size() == volume.geometry.num_voxels();
   const bool have_n = volume.density_per_m3.size() == volume.geometry.num_voxels();
+  const bool have_fv = volume.soot_volume_fraction.size() == volume.geometry.num_voxels();
   float ambient = 0;
   if (have_t && !volume.temperature_k.empty())
     ambient = *std::min_element(volume.temperature_k.begin(), volume.temperature_k.end());
   if (have_t) out.temperature_k.assign(grid.num_voxels(), ambient);
   if (have_n) out.density_per_m3.assign(grid.num_voxels(), 0.0f);
+  if (have_fv) out.soot_volume_fraction.assign(grid.num_voxels(), 0.0f);
+  out.metadata_numbers = volume.metadata_numbers;
+  out.metadata_text = volume.metadata_text;
   for (int k = 0; k < grid.dims.z(); ++k)
     for (int j = 0; j < grid.dims.y(); ++j)
       for (int i = 0; i < grid.dims.x(); ++i) {
@@ -206,6 +210,7 @@ FireVolume SampleOnGrid(const FireVolume& volume, const GridGeometry& grid,
         const std::size_t to = grid.Flat(i, j, k);
         if (have_t) out.temperature_k[to] = volume.temperature_k[from];
         if (have_n) out.density_per_m3[to] = volume.density_per_m3[from];
+        if (have_fv) out.soot_volume_fraction[to] = volume.soot_volume_fraction[from];
       }
   return out;
 }

@@ -57,9 +57,10 @@ struct TruthError {
 // 117 K with the truth moved, 98 to 122 K fitted through the true rig).
 // A truth voxel pairs with the fitted voxel holding its centre moved into the fit's frame.
 //
-// `volume`'s temperature and density on `grid`: each voxel of `grid` takes the value of the voxel
-// of `volume` that holds its centre (none: no medium, the lowest temperature of `volume`), as the
-// scorer pairs voxels, so that a truth finer (or coarser) than a fit can be shown beside it.
+// `volume`'s temperature, density and soot volume fraction (those it has) on `grid`: each voxel of
+// `grid` takes the value of the voxel of `volume` that holds its centre (none: no medium, the
+// lowest temperature of `volume`), as the scorer pairs voxels, so that a truth finer (or coarser)
+// than a fit can be shown beside it. The metadata is copied; emission and sigma grids are not.
 FireVolume SampleOnGrid(const FireVolume& volume, const GridGeometry& grid,
                         const Rigid3& grid_from_volume = Rigid3());
 // Sum of density x voxel volume: the number of particles in the volume.

@@ -13,6 +13,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iterator>
 #include <thread>
 #include <vector>
@@ -557,27 +558,22 @@ TEST(Recording, SurvivesSigkillMidWrite) {
 
 // A full disk, made real with RLIMIT_FSIZE in a child (writes fail with EFBIG): the recording stops
 // cleanly with an error naming the file and the cause, and every committed set reads back.
-TEST(Recording, AFullDiskStopsTheRecordingCleanly) {
-  TempDir dir;
+// Runs `record` in a child process in which no file may grow past `max_file_bytes` (a full disk
+// that comes at a known size) and returns what it reported.
+std::string InChildWithFileLimit(rlim_t max_file_bytes,
+                                 const std::function<std::string()>& record) {
   int pipe_fd[2];
-  ASSERT_EQ(::pipe(pipe_fd), 0);
+  if (::pipe(pipe_fd) != 0) return "pipe failed";
   const pid_t child = ::fork();
-  ASSERT_GE(child, 0);
+  if (child < 0) return "fork failed";
   if (child == 0) {
     ::close(pipe_fd[0]);
     ::signal(SIGXFSZ, SIG_IGN);
-    rlimit lim{1 << 20, 1 << 20};  // no file may grow past 1 MiB
+    rlimit lim{max_file_bytes, max_file_bytes};
     ::setrlimit(RLIMIT_FSIZE, &lim);
     std::string report;
     try {
-      Recorder rec(dir.str(), Metadata());
-      std::uint64_t s = 0;
-      for (; s < 10000 && !rec.status().stopped; ++s) {
-        while (!rec.Submit(MakeSet(s, 160, 120)) && !rec.status().stopped)
-          std::this_thread::sleep_for(std::chrono::milliseconds(1));
-      }
-      const RecorderStatus st = rec.Close();
-      report = std::to_string(st.sets_recorded) + "\n" + st.error;
+      report = record();
     } catch (const std::exception& e) {
       report = std::string("exception\n") + e.what();
     }
@@ -590,6 +586,21 @@ TEST(Recording, AFullDiskStopsTheRecordingCleanly) {
   for (ssize_t n; (n = ::read(pipe_fd[0], buf, sizeof buf)) > 0;) report.append(buf, n);
   ::close(pipe_fd[0]);
   ::waitpid(child, nullptr, 0);
+  return report;
+}
+
+TEST(Recording, AFullDiskStopsTheRecordingCleanly) {
+  TempDir dir;
+  const std::string report = InChildWithFileLimit(1 << 20, [&] {  // 1 MiB a file
+    Recorder rec(dir.str(), Metadata());
+    std::uint64_t s = 0;
+    for (; s < 10000 && !rec.status().stopped; ++s) {
+      while (!rec.Submit(MakeSet(s, 160, 120)) && !rec.status().stopped)
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
+    const RecorderStatus st = rec.Close();
+    return std::to_string(st.sets_recorded) + "\n" + st.error;
+  });
   const std::size_t nl = report.find('\n');
   ASSERT_NE(nl, std::string::npos) << report;
   const std::string error = report.substr(nl + 1);
@@ -632,7 +643,9 @@ TEST(Recording, SizeLimitStopsCleanly) {
   const Recording r = Recording::Open(dir.str());
   EXPECT_EQ(r.num_sets(), st.sets_recorded);
   EXPECT_GT(r.num_sets(), 25u);
-  EXPECT_EQ(r.final_counters().at("error"), st.error);
+  // metadata.yaml keeps the limit apart from the faults.
+  EXPECT_EQ(r.final_counters().at("error"), "");
+  EXPECT_EQ(r.final_counters().at("limit_reached"), st.error);
   for (std::size_t i = 0; i < r.num_sets(); ++i) ExpectSetMatches(r.ReadSet(i), i);
 }
 
@@ -659,6 +672,49 @@ TEST(Recording, SetLimitHoldsExactlyThatManySets) {
   const Recording r = Recording::Open(dir.str());
   ASSERT_EQ(r.num_sets(), 7u);
   for (std::size_t i = 0; i < r.num_sets(); ++i) ExpectSetMatches(r.ReadSet(i), i);
+}
+
+// A write that fails after a set limit was reached is a fault, not the limit: the disk fills (a
+// file limit of six and a half 640x480 frames) while the last of 7 sets is written, which is always
+// after the limit stopped the recording (it stops as the 7th set is accepted, before any writer has
+// it). The six sets before stay readable and metadata.yaml names the fault.
+TEST(Recording, AWriteFailingAfterTheSetLimitIsAFault) {
+  TempDir dir;
+  const rlim_t frame_record = sizeof(FrameRecord) + 640 * 480;
+  const std::string report = InChildWithFileLimit(6 * frame_record + frame_record / 2, [&] {
+    RecorderOptions o;
+    o.max_sets = 7;
+    o.min_free_bytes = 0;
+    Recorder rec(dir.str(), Metadata(), o);
+    std::string log;
+    for (std::uint64_t s = 0; s < 7; ++s)
+      log += rec.Submit(MakeSet(s, 640, 480)) ? "" : "set " + std::to_string(s) + " refused; ";
+    const RecorderStatus st = rec.Close();
+    return std::to_string(st.sets_recorded) + " " + std::to_string(st.sets_dropped) + " " +
+           std::to_string(st.limit_reached) + " " + std::to_string(st.stopped) + "\n" + log +
+           st.error;
+  });
+  const std::size_t nl = report.find('\n');
+  ASSERT_NE(nl, std::string::npos) << report;
+  // Every set accepted (no "refused" in the log), 6 recorded, none dropped, no longer
+  // `limit_reached`, stopped; the error says the limit came first, then the fault.
+  EXPECT_EQ(report.substr(0, nl), "6 0 0 1") << report;
+  const std::string error = report.substr(nl + 1);
+  EXPECT_EQ(error.rfind("reached its limit of 7 frame sets; then", 0), 0u) << error;
+  EXPECT_NE(error.find("disk full"), std::string::npos) << error;
+  const Recording r = Recording::Open(dir.str());
+  ASSERT_EQ(r.num_sets(), 6u);
+  for (std::size_t i = 0; i < r.num_sets(); ++i) {
+    const FrameSet got = r.ReadSet(i);
+    const FrameSet want = MakeSet(i, 640, 480);
+    for (int c = 0; c < 3; ++c)
+      if (want.frames[c]) {
+        ASSERT_TRUE(got.frames[c]) << i;
+        ASSERT_TRUE(*got.frames[c]->data == *want.frames[c]->data) << i;
+      }
+  }
+  EXPECT_EQ(r.final_counters().at("error"), error);
+  EXPECT_EQ(r.final_counters().at("limit_reached"), "");
 }
 
 // A producer much faster than the disk: whole sets are dropped and counted, the queue never holds

@@ -64,14 +64,22 @@ TEST(TruthOnTheFitsGrid, EachFitVoxelTakesTheTruthVoxelHoldingItsCentre) {
     for (int j = 0; j < 12; ++j)
       for (int i = 0; i < 12; ++i)
         fine.temperature_k[fine.geometry.Flat(i, j, k)] = float(1000 + 100 * i + 10 * j + k);
+  fine.soot_volume_fraction.resize(fine.temperature_k.size());
+  for (std::size_t v = 0; v < fine.temperature_k.size(); ++v)
+    fine.soot_volume_fraction[v] = 1e-9f * fine.temperature_k[v];
+  fine.metadata_text["absorption_model"] = "soot";
   const FireVolume coarse = Cube(4, 0);
   const FireVolume sampled = SampleOnGrid(fine, coarse.geometry);
   ASSERT_EQ(sampled.temperature_k.size(), 64u);
+  ASSERT_EQ(sampled.soot_volume_fraction.size(), 64u);
   for (int k = 0; k < 4; ++k)
     for (int j = 0; j < 4; ++j)
-      for (int i = 0; i < 4; ++i)
-        EXPECT_EQ(sampled.temperature_k[coarse.geometry.Flat(i, j, k)],
-                  float(1000 + 100 * (3 * i + 1) + 10 * (3 * j + 1) + (3 * k + 1)));
+      for (int i = 0; i < 4; ++i) {
+        const float t = float(1000 + 100 * (3 * i + 1) + 10 * (3 * j + 1) + (3 * k + 1));
+        EXPECT_EQ(sampled.temperature_k[coarse.geometry.Flat(i, j, k)], t);
+        EXPECT_EQ(sampled.soot_volume_fraction[coarse.geometry.Flat(i, j, k)], 1e-9f * t);
+      }
+  EXPECT_EQ(sampled.metadata_text.at("absorption_model"), "soot");
   // A grid reaching beyond the truth's box: no medium there.
   FireVolume wide = Cube(4, 0);
   wide.geometry.voxel_size_m *= 2;
