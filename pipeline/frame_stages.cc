@@ -125,8 +125,9 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
     Log().info("run: the truth's rig {} lies in this rig's frame {}", options_.truth_rig,
                r.Describe());
   }
-  for (const char* sub : {"frames", "tomography", "state", "blender"})
+  for (const char* sub : {"frames", "tomography", "state"})
     fs::create_directories(fs::path(options_.out_dir) / sub);
+  if (options_.blender) fs::create_directories(fs::path(options_.out_dir) / "blender");
 }
 
 FrameStages::~FrameStages() = default;

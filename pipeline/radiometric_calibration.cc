@@ -12,6 +12,7 @@
 #include <random>
 #include <sstream>
 
+#include "core/config_reader.h"
 #include "core/error.h"
 #include "core/log.h"
 #include "fitting/camera_response.h"
@@ -464,7 +465,10 @@ RadiometricShots RadiometricShots::Load(const std::string& path) {
   s.path = path;
   const fs::path base = fs::path(path).parent_path();
   try {
+    // A misspelt key would silently keep its default (an emissivity of 0.98, an automatic region).
+    CheckKeys(root, {"source", "region", "shots"}, path);
     if (const YAML::Node source = root["source"]) {
+      CheckKeys(source, {"kind", "emissivity"}, path + ": source");
       const std::string kind = source["kind"] ? source["kind"].as<std::string>() : "blackbody";
       if (kind == "blackbody")
         s.source = Source::kBlackbody;
@@ -483,6 +487,7 @@ RadiometricShots RadiometricShots::Load(const std::string& path) {
     for (std::size_t i = 0; i < list.size(); ++i) {
       const YAML::Node n = list[i];
       const std::string where = path + ": shots[" + std::to_string(i) + "]";
+      CheckKeys(n, {"camera", "image", "temperature_k", "exposure", "region"}, where);
       for (const char* key : {"camera", "image", "temperature_k", "exposure"})
         if (!n[key]) throw InputError(where + ": missing '" + key + "'");
       RadiometricShot shot;

@@ -242,6 +242,26 @@ TEST(RadiometricCalibration, BadShotsAreRefusedNamingWhatAndWhere) {
     EXPECT_NE(std::string(e.what()).find("shots[0]: missing 'temperature_k'"), std::string::npos)
         << e.what();
   }
+  // A misspelt key is refused, naming it and where it is (it would otherwise keep its default).
+  const std::pair<const char*, const char*> misspelt[] = {
+      {"source: {kind: blackbody, emisivity: 0.5}\nshots: [{camera: cam0, image: a.png, "
+       "temperature_k: 1500, exposure: 1}]\n",
+       "source: unknown key 'emisivity'"},
+      {"regoin: [1, 2, 3, 4]\nshots: [{camera: cam0, image: a.png, temperature_k: 1500, "
+       "exposure: 1}]\n",
+       "unknown key 'regoin'"},
+      {"shots: [{camera: cam0, image: a.png, temperature_k: 1500, exposure: 1, colour: red}]\n",
+       "shots[0]: unknown key 'colour'"}};
+  for (const auto& [text, said] : misspelt) {
+    std::ofstream(dir / "misspelt.yaml") << text;
+    try {
+      RadiometricShots::Load((dir / "misspelt.yaml").string());
+      ADD_FAILURE() << "accepted: " << text;
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find(said), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("misspelt.yaml"), std::string::npos) << e.what();
+    }
+  }
   fs::remove_all(dir);
 }
 

@@ -237,6 +237,7 @@ TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
     SCOPED_TRACE(c.name);
     const Result r = Shell(RunCommand(dir / "sim", dir / c.name, "--no-blender " + c.flags));
     ASSERT_EQ(r.status, 0) << r.output;
+    EXPECT_FALSE(fs::exists(dir / c.name / "blender"));  // --no-blender: not even the folder
     FireVolume v = ReadVdb((dir / c.name / (FrameName(0) + ".vdb")).string());
     ASSERT_EQ(v.metadata_numbers.count("w_sm"), 1u);
     // Given at 64 voxels, applied x (64 / N)^2 on a grid of N along its longest side.

@@ -178,7 +178,9 @@ void AddTomographyFlags(CLI::App* command, TomographyFlags* f, bool solve_option
       ->add_option("--tomography-config", f->config, "Tomography settings (config/tomography.yaml)")
       ->type_name("T.yaml")
       ->group(group);
-  command->add_option("--resolution", f->resolution, "Voxels along the box's longest side")
+  command
+      ->add_option("--resolution", f->resolution,
+                   "Voxels along the box's longest side (default 64, or the tomography config's)")
       ->type_name("N")
       ->check(Whole(1, 1024))
       ->group(group);
@@ -225,12 +227,13 @@ void AddTomographyFlags(CLI::App* command, TomographyFlags* f, bool solve_option
   if (!solve_options) return;
   std::vector<std::string> solvers;
   for (const auto& s : TomographySolvers()) solvers.push_back(s.name);
-  command->add_option("--solver", f->solver, "Tomography solver")
+  command->add_option("--solver", f->solver, "Tomography solver (default osem)")
       ->check(CLI::IsMember(solvers))
       ->group(group);
   command
-      ->add_option("--solve-iterations", f->max_iterations,
-                   "At most this many solver iterations (it stops earlier on its own rules)")
+      ->add_option(
+          "--solve-iterations", f->max_iterations,
+          "At most this many solver iterations (default 100; it stops earlier on its own rules)")
       ->type_name("N")
       ->check(Whole(1, 100000))
       ->group(group);
@@ -239,7 +242,7 @@ void AddTomographyFlags(CLI::App* command, TomographyFlags* f, bool solve_option
                    "Stop when an iteration improves the residual by less (0 never; default: the "
                    "solver's own, osem 0.001, sart and cgls 0.005)")
       ->type_name("R")
-      ->check(CLI::Range(0.0, 1.0))
+      ->check(kNonNegative & CLI::Range(0.0, 1.0))
       ->group(group);
   command
       ->add_option("--prior", f->prior,
@@ -251,14 +254,14 @@ void AddTomographyFlags(CLI::App* command, TomographyFlags* f, bool solve_option
       ->add_option("--prior-weight", f->prior_weight,
                    "The prior's weight, unit-free (default: tv 3e-4, quadratic 1e-5)")
       ->type_name("W")
-      ->check(CLI::Range(0.0, 10.0))
+      ->check(kNonNegative & CLI::Range(0.0, 10.0))
       ->group(group);
   command
       ->add_option("--prior-edge", f->prior_edge,
                    "TV: gradients below this (the mean emission's change across the grid) are "
                    "smoothed quadratically (default 1)")
       ->type_name("E")
-      ->check(CLI::PositiveNumber)
+      ->check(kPositive)
       ->group(group);
   command
       ->add_flag_callback(

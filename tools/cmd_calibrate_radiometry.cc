@@ -32,7 +32,8 @@ Runner AddCalibrateRadiometry(CLI::App* command) {
   command
       ->add_option("--erode", o->radiometric.erode_px,
                    "Shrink the found source patch by N px (default 3)")
-      ->type_name("N");
+      ->type_name("N")
+      ->check(Whole(0, 100));
   command->add_flag("--hold-black-level", o->hold_black, "Keep each model's black level");
   command->add_flag("--hold-gamma", o->hold_gamma, "Keep each model's gamma");
   return [o](Context&) {

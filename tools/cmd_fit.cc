@@ -41,7 +41,7 @@ Runner AddFit(CLI::App* command) {
       ->add_option("--tomography", job.tomography_path,
                    "Emission volume to start from (default: reconstructed here)")
       ->type_name("E.vdb");
-  command->add_option("--method", o->method, "fast, or the paper's Algorithm 1 or 2")
+  command->add_option("--method", o->method, "fast (default), or the paper's Algorithm 1 or 2")
       ->check(CLI::IsMember({"fast", "alg1", "alg2"}));
   command->add_option("--absorption", job.absorption, "Absorption model (default: dataset.yaml's)")
       ->check(CLI::IsMember({"soot", "grey"}));
@@ -72,7 +72,7 @@ Runner AddFit(CLI::App* command) {
   command->add_option("--time-limit", job.fit.time_limit_s, "Stop the fit after S seconds")
       ->type_name("S")
       ->check(kNonNegative);
-  command->add_option("--seed", o->seed, "alg1/alg2: random seed")
+  command->add_option("--seed", o->seed, "alg1/alg2: random seed (default 1)")
       ->type_name("N")
       ->check(Whole(0, std::int64_t(1) << 53));
   command->add_option("--report", job.report_dir, "Report folder (default: beside F.vdb)")

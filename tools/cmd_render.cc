@@ -28,8 +28,10 @@ Runner AddRender(CLI::App* command) {
       "own emission lights the surfaces. OUT/fire.exr (linear HDR), fire.png (Reinhard 2002 tone\n"
       "mapping), fire_linear.png; --lighting compare adds point and sphere lights (compare.png).");
   command->add_option("--rig", o->rig, "Rig file (rig.yaml)")->type_name("RIG.yaml");
-  command->add_option("--volume", o->volume, "Volume to render (.vdb); with --scene, replaces the "
-                                             "scene's fire volume")
+  command
+      ->add_option("--volume", o->volume,
+                   "Volume to render (.vdb); with --scene, replaces the "
+                   "scene's fire volume")
       ->type_name("V.vdb");
   command->add_option("--out", o->out, "Output folder")->required()->type_name("DIR");
   command->add_option("--exposure", o->exposure, "Camera exposure, or auto (the volume's)")
@@ -39,13 +41,15 @@ Runner AddRender(CLI::App* command) {
       ->check(CLI::IsMember({"soot", "grey"}));
   command->add_option("--step", o->step, "Ray-marching step in voxels (default 0.5)")
       ->type_name("VOXELS")
-      ->check(kPositive & CLI::Range(0.01, 100.0));
+      ->check(kPositive & CLI::Range(0.01, 4.0));
   command->add_option("--scene", o->scene, "Scene file: render fires lighting it")
       ->type_name("SCENE.yaml");
-  command->add_option("--samples", o->samples, "Scene: light samples per pixel")
+  command
+      ->add_option("--samples", o->samples,
+                   "Scene: light samples per pixel (default: the scene file's, or 64)")
       ->type_name("N")
       ->check(Whole(1, 1 << 20));
-  command->add_option("--seed", o->seed, "Scene: random seed")
+  command->add_option("--seed", o->seed, "Scene: random seed (default: the scene file's, or 1)")
       ->type_name("N")
       ->check(Whole(0, std::int64_t(1) << 53));
   command->add_option("--lighting", o->lighting, "Scene: what lights it")
@@ -69,8 +73,8 @@ Runner AddRender(CLI::App* command) {
       }
       std::unique_ptr<tbb::global_control> limit;
       if (o->threads > 0)
-        limit = std::make_unique<tbb::global_control>(
-            tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(o->threads));
+        limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                                      static_cast<std::size_t>(o->threads));
       const SceneJobResult r = RunSceneJob(job, o->out, context.Progress());
       for (const auto& summary : r.renders)
         std::printf("render: %s\n", summary.BriefReport().c_str());
@@ -90,8 +94,7 @@ Runner AddRender(CLI::App* command) {
     if (o->step > 0) job.render.step_voxels = o->step;
     for (const RenderedView& v : RunRenderJob(job, context.Progress()))
       std::printf("%s: %s\n", v.path.c_str(),
-                  v.summary.rays > 0 ? v.summary.BriefReport().c_str()
-                                                               : "emission, thin limit");
+                  v.summary.rays > 0 ? v.summary.BriefReport().c_str() : "emission, thin limit");
     return kExitOk;
   };
 }

@@ -39,15 +39,18 @@ Runner AddRun(CLI::App* command) {
       ->type_name("CAM,CAM");
   command->add_option("--images", run.source.images_dir, "Folders DIR/frame_NNNNNN/<camera>.png")
       ->type_name("DIR");
-  command->add_option("--rig", run.rig_path, "Rig file")->type_name("RIG.yaml");
+  CLI::Option* rig = command->add_option("--rig", run.rig_path, "Rig file")->type_name("RIG.yaml");
   command
       ->add_option("--calibration-recording", run.calibration.recording_dir,
-                   "Calibrate first from this recording of a board")
-      ->type_name("DIR");
+                   "Calibrate first from this recording of a board (instead of --rig; an "
+                   "OUT/calibrated/rig.yaml already there is used as it is)")
+      ->type_name("DIR")
+      ->excludes(rig);
   command
       ->add_option("--calibration-images", run.calibration.images_dir,
-                   "Calibrate first from these board views")
-      ->type_name("DIR");
+                   "Calibrate first from these board views (instead of --rig; likewise)")
+      ->type_name("DIR")
+      ->excludes(rig);
   command->add_option("--board", o->board, "The calibration board")->type_name("B.yaml");
   command->add_option("--calibrate-config", o->calibrate_config, "Calibration config")
       ->type_name("C.yaml");
