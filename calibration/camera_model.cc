@@ -178,11 +178,12 @@ Ray CameraModel::Unproject(const Eigen::Vector2d& pixel) const {
   return ray;
 }
 
-std::vector<Ray> CameraModel::UnprojectAllPixels() const {
+std::vector<Ray> CameraModel::UnprojectAllPixels(const Eigen::Vector2d& offset) const {
   const int n = width_ * height_;
   std::vector<mrcal_point2_t> q(n);
   for (int y = 0; y < height_; ++y) {
-    for (int x = 0; x < width_; ++x) q[y * width_ + x] = mrcal_point2_t{{double(x), double(y)}};
+    for (int x = 0; x < width_; ++x)
+      q[y * width_ + x] = mrcal_point2_t{{x + offset.x(), y + offset.y()}};
   }
   std::vector<mrcal_point3_t> v(n);
   Rigid3 rig_from_cam = cam_from_rig_.Inverse();

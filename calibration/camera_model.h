@@ -72,8 +72,11 @@ class CameraModel {
 
   // The ray through pixel (x, y), in the rig frame.
   Ray Unproject(const Eigen::Vector2d& pixel) const;
-  // Rays through the centres of all pixels, row-major (index y * width + x). One call into mrcal.
-  std::vector<Ray> UnprojectAllPixels() const;
+  // Rays through the centres of all pixels, row-major (index y * width + x), or through each
+  // pixel's centre moved by `offset` pixels (a point inside the pixel: (-0.5, -0.5) is its
+  // top-left corner). One call into mrcal.
+  std::vector<Ray> UnprojectAllPixels(
+      const Eigen::Vector2d& offset = Eigen::Vector2d::Zero()) const;
 
   const std::string& lensmodel() const { return lensmodel_; }
   const std::vector<double>& intrinsics() const { return intrinsics_; }

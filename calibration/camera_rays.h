@@ -2,7 +2,8 @@
 // tomography's system matrix is built from. Unprojecting a distorted lens model costs about 1 us
 // per pixel, so rays are computed once per camera and reused for every frame.
 //
-// Rays are stored row-major (index y * width + x), one per pixel centre. A CameraRays can also be
+// Rays are stored row-major (index y * width + x), one per pixel centre (or one per pixel through
+// the same point inside every pixel). A CameraRays can also be
 // made from explicit rays, for cameras mrcal has no lens model for (an orthographic test camera,
 // say).
 #ifndef FLAMERIG_CALIBRATION_CAMERA_RAYS_H_
@@ -12,8 +13,8 @@
 #include <string>
 #include <vector>
 
-#include "core/error.h"
 #include "calibration/camera_model.h"
+#include "core/error.h"
 
 namespace flamerig {
 
@@ -21,6 +22,12 @@ class CameraRays {
  public:
   explicit CameraRays(const CameraModel& camera)
       : width_(camera.width()), height_(camera.height()), rays_(camera.UnprojectAllPixels()) {}
+  // The rays through one point inside every pixel: its centre moved by `offset` pixels (a
+  // renderer averaging several such sets integrates over the pixel's area, as a sensor does).
+  CameraRays(const CameraModel& camera, const Eigen::Vector2d& offset)
+      : width_(camera.width()),
+        height_(camera.height()),
+        rays_(camera.UnprojectAllPixels(offset)) {}
   // Throws InputError unless rays.size() == width * height and every valid ray has a
   // finite origin and a finite, non-zero direction (a zero direction would march forever).
   CameraRays(int width, int height, std::vector<Ray> rays)
@@ -32,10 +39,10 @@ class CameraRays {
       const Ray& r = rays_[i];
       if (r.valid && (!r.origin_in_rig.allFinite() || !r.direction_in_rig.allFinite() ||
                       !(r.direction_in_rig.squaredNorm() > 0))) {
-        throw InputError("CameraRays: the ray of pixel (" + std::to_string(i % width) +
-                                    ", " + std::to_string(i / width) +
-                                    ") is valid but its origin or direction is not finite, or "
-                                    "its direction is zero");
+        throw InputError("CameraRays: the ray of pixel (" + std::to_string(i % width) + ", " +
+                         std::to_string(i / width) +
+                         ") is valid but its origin or direction is not finite, or "
+                         "its direction is zero");
       }
     }
   }

@@ -219,10 +219,10 @@ struct FitOptions {
   // axisymmetric, are the control: 71 -> 96 K, and the held-out camera says so (1.78 -> 6.02), as
   // it will for a user's own fire. The sigma is the ring's (uncertainty.h's groups: the ring's
   // voxels' curvature pooled): on the main job's 13 frame sets (two views, truth 96, fit 64,
-  // calibrated rig, each frame from its own tomography) 53 to 71% of the visible voxels lie within
-  // one sigma (twelve sets at 63% or more) and 87 to 94% within two, where the untied fit's
-  // per-voxel sigma holds 75 to 81% within one (`benchmark run`'s candle, truth and fit both 64:
-  // 45 to 62% tied, 62 to 68% untied).
+  // calibrated rig, each frame from its own tomography, pixels that integrate over their area,
+  // Bayer cameras) 65 to 71% of the visible voxels lie within one sigma and 90 to 93% within two,
+  // where the untied fit's per-voxel sigma holds 85 to 89% within one (`benchmark run`'s candle,
+  // truth and fit both 64, point-sampled RGB frames: 45 to 62% tied, 62 to 68% untied).
   bool axisymmetric = false;
   // The neighbour weight of an axisymmetric fit, in place of objective.w_sm (which is the untied
   // fit's). The rings already average away the noise the neighbour term holds down in an untied

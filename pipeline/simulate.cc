@@ -223,8 +223,9 @@ void ReadMaps(const YAML::Node& s, const std::string& path, SimulateConfig* out)
     }
   }
   if (YAML::Node r = s["render"]) {
-    CheckKeys(r, {"step_voxels"}, path + ": simulate.render");
+    CheckKeys(r, {"step_voxels", "pixel_samples"}, path + ": simulate.render");
     Read(r, "step_voxels", &c.render.step_voxels, path, "simulate.render.");
+    Read(r, "pixel_samples", &c.pixel_samples, path, "simulate.render.");
   }
 }
 
@@ -271,6 +272,7 @@ void SimulateConfig::Validate() const {
       fail("codec: a video codec records 8-bit frames; the radiometry has " +
            std::to_string(radiometry.bit_depth) + " bits");
   }
+  if (pixel_samples < 1 || pixel_samples > 8) fail("render.pixel_samples must be in [1, 8]");
   if (!box.IsValid()) fail("box: max must exceed min on every axis");
   if (shared_per_pair < 0 || closeups_per_camera < 0) fail("calibration view counts must be >= 0");
   if (!camera_gains.empty() && int(camera_gains.size()) != ring.cameras)
@@ -412,8 +414,9 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
       }
     }
   }
-  std::vector<CameraRays> rays;
-  for (const auto& c : rig.cameras) rays.emplace_back(c.model);
+  std::vector<CameraRays> rays;  // through the pixels' centres (pixel_samples 1)
+  if (config.pixel_samples == 1)
+    for (const auto& c : rig.cameras) rays.emplace_back(c.model);
 
   YAML::Emitter yaml;
   yaml << YAML::BeginMap;
@@ -431,6 +434,7 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
   yaml << YAML::Key << "codec" << YAML::Value
        << (config.codec_enabled ? config.codec.Describe() + ", each frame intra-coded" : "none");
   yaml << YAML::Key << "render_step_voxels" << YAML::Value << config.render.step_voxels;
+  yaml << YAML::Key << "pixel_samples" << YAML::Value << config.pixel_samples;
 
   double exposure = config.exposure;
   yaml << YAML::Key << "frames" << YAML::Value << YAML::BeginSeq;
@@ -445,7 +449,24 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
     for (auto& r : renderers) r->SetVolume(grid, fire.temperature_k, fire.density_per_m3);
     std::vector<ImageF> linear(rig.cameras.size());
     for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
-      summary.last_render = renderers[renderer_of[c]]->Render(rays[c], &linear[c]);
+      FireRenderer& renderer = *renderers[renderer_of[c]];
+      const int n = config.pixel_samples;
+      if (n == 1) {
+        summary.last_render = renderer.Render(rays[c], &linear[c]);
+      } else {
+        // The pixel's area: the mean radiance of N x N rays through a regular grid of points
+        // inside it (their rays made here, frame by frame, so that memory does not grow by N^2).
+        for (int sy = 0; sy < n; ++sy)
+          for (int sx = 0; sx < n; ++sx) {
+            const Eigen::Vector2d offset((sx + 0.5) / n - 0.5, (sy + 0.5) / n - 0.5);
+            ImageF sample;
+            summary.last_render =
+                renderer.Render(CameraRays(rig.cameras[c].model, offset), &sample);
+            if (linear[c].pixels.empty()) linear[c] = ImageF(sample.width, sample.height, 3, 0.0f);
+            for (std::size_t i = 0; i < sample.pixels.size(); ++i)
+              linear[c].pixels[i] += sample.pixels[i] / float(n * n);
+          }
+      }
       // A camera's own gains scale its output channels (camera_response.h).
       if (c < config.camera_gains.size())
         for (std::size_t p = 0; p < linear[c].num_pixels(); ++p)

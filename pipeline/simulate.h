@@ -23,7 +23,9 @@
 //                 marker_m [0.009], shared_per_pair [6], closeups_per_camera [4],
 //                 shadow [1: none; the light left in a shadow across half of each board],
 //                 gradient [0], blur_px [0]}
-//   render: {step_voxels [0.5]}
+//   render: {step_voxels [0.5], pixel_samples [1]}   pixel_samples N: N x N rays through each
+//                        pixel, their radiance averaged: the pixel integrates light over its
+//                        area, as a sensor does (1: one ray through its centre); [1, 8]
 //   radiometry: {...}   every camera's radiometric model (calibration/radiometry.h) [the default
 //                        8-bit sRGB camera]; written into OUT/rig.yaml. Cameras of more than 8 bits
 //                        write 16-bit PNGs holding their codes (0..2^bits - 1), mono cameras grey.
@@ -75,6 +77,7 @@ struct SimulateConfig {
   int closeups_per_camera = 4;
   synthetic::BoardLighting board_lighting;  // shadows, gradient and blur on the boards
   RenderOptions render;
+  int pixel_samples = 1;        // N x N rays a pixel, averaged (render.pixel_samples); [1, 8]
   CameraRadiometry radiometry;  // of every camera
   bool codec_enabled = false;   // 8-bit frames through `codec`
   VideoCodecOptions codec;

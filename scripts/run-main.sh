@@ -6,7 +6,8 @@
 #   2. the capture daemon records the board waved in front of the simulated cameras, and
 #      `flamerig calibrate` builds the rig from that recording (mrcal);
 #   3. the capture daemon records the burning fire (the sim cameras replay the dataset on a
-#      hardware trigger line), and `flamerig export` writes the recording as PNG frame sets;
+#      hardware trigger line, as Bayer mosaics), and `flamerig export` writes the recording as
+#      PNG frame sets;
 #   4. `flamerig run` reconstructs and fits every recorded frame set through the calibrated rig,
 #      warm-starting each frame from the one before, and writes the volumes, a Blender-ready
 #      sequence and a report with the error against the known truth; then again with one
@@ -52,15 +53,18 @@ rm -rf "$RUN_DIR/recordings/calibration"
 
 # 3. The fire: two sim cameras on a hardware trigger line replay the dataset's frames for one pass
 # through them and one set more (frame k of a camera shows dataset frame k mod FRAMES) into a
-# lossless recording, which is also exported as PNG frame sets.
+# lossless recording, which is also exported as PNG frame sets. They are colour machine-vision
+# cameras sending their sensor's Bayer mosaic (BayerRG8, the camera's sRGB gamma on): each pixel
+# records one colour, and the other two are interpolated on the host (OpenCV's demosaicing) before
+# the tomography and the fit, with the colour fringes that leaves at the flame's edges.
 cat > "$RUN_DIR/capture.yaml" <<YAML
 data_dir: recordings
 sync: hardware-trigger
 trigger_rate_hz: 10
 pretrigger_seconds: 0
 cameras:
-  - {name: cam0, width: 320, height: 240, pixel_format: RGB8, sim: {replay: .}}
-  - {name: cam1, width: 320, height: 240, pixel_format: RGB8, sim: {replay: .}}
+  - {name: cam0, width: 320, height: 240, pixel_format: BayerRG8, sim: {replay: .}}
+  - {name: cam1, width: 320, height: 240, pixel_format: BayerRG8, sim: {replay: .}}
 YAML
 rm -rf "$RUN_DIR/recordings/fire"
 (cd "$RUN_DIR" && "$BIN" capture --config capture.yaml --record fire \

@@ -90,6 +90,43 @@ INSTANTIATE_TEST_SUITE_P(PathsPrecisionsSteps, SlabTest,
                          ::testing::Combine(::testing::Bool(), ::testing::Bool(),
                                             ::testing::Values(0.25, 0.5, 2.0)));
 
+// Rays through points inside the pixels (CameraRays with an offset, what `simulate`'s
+// pixel_samples averages): a pixel that a slab's sharp edge crosses gets the slab's light times the
+// share of the pixel the slab covers. The slab's edge (the grid box's face, so not smeared by
+// interpolation) projects to column 10.25 of the axis camera; 4 x 4 points a pixel at offsets
+// -3/8, -1/8, 1/8, 3/8 put one of every four columns of points of pixel 10 inside, the pixel's area
+// right of 10.25 is a quarter of it; one ray through the centre (10.0) sees nothing.
+TEST(Renderer, RaysInsideThePixelAverageToItsCoveredShare) {
+  const double x_edge = (10.25 - 20.0) / 60.0;  // pixel column 10.25 at the camera's distance, 1 m
+  Box3 box{Eigen::Vector3d(x_edge, -0.5, -0.0005), Eigen::Vector3d(0.5, 0.5, 0.0005)};
+  Uniform u = UniformVolume(box, {16, 16, 2}, 1800.0f, 1e17f);
+  FireRenderer renderer(AbsorptionModel::DefaultGrey(), RenderOptions());
+  renderer.SetVolume(u.grid, u.temperature, u.density);
+  const CameraModel camera = AxisCamera(1.0);
+  ImageF centre, sum;
+  renderer.Render(CameraRays(camera), &centre);
+  const int n = 4;
+  for (int sy = 0; sy < n; ++sy)
+    for (int sx = 0; sx < n; ++sx) {
+      ImageF sample;
+      renderer.Render(
+          CameraRays(camera, Eigen::Vector2d((sx + 0.5) / n - 0.5, (sy + 0.5) / n - 0.5)), &sample);
+      if (sum.pixels.empty()) sum = ImageF(sample.width, sample.height, 3, 0.0f);
+      for (std::size_t i = 0; i < sample.pixels.size(); ++i)
+        sum.pixels[i] += sample.pixels[i] / (n * n);
+    }
+  const double inside = Pixel(centre, 11, 15).norm();
+  ASSERT_GT(inside, 0);
+  EXPECT_EQ(Pixel(centre, 10, 15).norm(), 0.0);  // its centre lies outside the slab
+  EXPECT_EQ(Pixel(sum, 9, 15).norm(), 0.0);      // wholly outside
+  EXPECT_NEAR(Pixel(sum, 10, 15).norm() / inside, 0.25, 0.01);
+  EXPECT_NEAR(Pixel(sum, 11, 15).norm() / inside, 1.0, 0.01);  // wholly inside
+  // The offset moves the ray as the lens model says: through pixel (x + 0.3, y - 0.2).
+  const CameraRays moved(camera, Eigen::Vector2d(0.3, -0.2));
+  const Ray expected = camera.Unproject(Eigen::Vector2d(7.3, 4.8));
+  EXPECT_NEAR((moved.at(7, 5).direction_in_rig - expected.direction_in_rig).norm(), 0.0, 1e-12);
+}
+
 TEST(Renderer, OpticallyThickSlabApproachesBlackbody) {
   Box3 box{Eigen::Vector3d(-0.5, -0.5, -0.01), Eigen::Vector3d(0.5, 0.5, 0.01)};
   AbsorptionModel grey = AbsorptionModel::DefaultGrey();

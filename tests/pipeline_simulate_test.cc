@@ -1,9 +1,13 @@
 // `flamerig simulate`'s dataset: complete, deterministic, the fire visible and well exposed.
 #include <gtest/gtest.h>
 
-#include <filesystem>
 #include <unistd.h>
+#include <filesystem>
 
+#include <yaml-cpp/yaml.h>
+
+#include "core/image.h"
+#include "core/srgb.h"
 #include "pipeline/simulate.h"
 #include "tomography/vdb_io.h"
 
@@ -51,6 +55,47 @@ TEST(Simulate, WritesACompleteDeterministicDataset) {
   EXPECT_TRUE(fs::exists(dir / "a" / "calibration" / "board.yaml"));
   EXPECT_TRUE(fs::exists(dir / "a" / "preview.png"));
   EXPECT_TRUE(fs::exists(dir / "a" / "dataset.yaml"));
+  fs::remove_all(dir);
+}
+
+// render.pixel_samples: each pixel the mean of N x N rays inside it (the renderer's test holds the
+// rays to the pixel's covered share). The images keep the fire's light (an integral over the image
+// that point samples and area samples both approximate), change where the fire's edges cross
+// pixels, and the dataset says how they were made.
+TEST(Simulate, PixelSamplesKeepTheLightAndSoftenTheEdges) {
+  fs::path dir = fs::temp_directory_path() / ("flamerig_sim_pixels_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  SimulateConfig config;
+  config.grid_resolution = 24;
+  config.ring.width = 80;
+  config.ring.height = 60;
+  config.calibration = false;
+  config.noise_dn = 0;
+  config.auto_exposure = false;
+  config.exposure = 0.5;
+  Simulate(config, (dir / "point").string());
+  config.pixel_samples = 4;
+  Simulate(config, (dir / "area").string());
+  const YAML::Node dataset = YAML::LoadFile((dir / "area" / "dataset.yaml").string());
+  EXPECT_EQ(dataset["dataset"]["pixel_samples"].as<int>(), 4);
+  for (const char* cam : {"cam0", "cam1"}) {
+    const std::string name = std::string("frames/frame_000000/") + cam + ".png";
+    const ImageU8 point = ReadImageU8((dir / "point" / name).string());
+    const ImageU8 area = ReadImageU8((dir / "area" / name).string());
+    double light_point = 0, light_area = 0;
+    int differ = 0;
+    for (std::size_t i = 0; i < point.pixels.size(); ++i) {
+      light_point += SrgbDecode(point.pixels[i] / 255.0);
+      light_area += SrgbDecode(area.pixels[i] / 255.0);
+      differ += point.pixels[i] != area.pixels[i];
+    }
+    ASSERT_GT(light_point, 0) << cam;
+    EXPECT_NEAR(light_area / light_point, 1.0, 0.03) << cam;
+    EXPECT_GT(differ, 20) << cam;
+  }
+  SimulateConfig bad;
+  bad.pixel_samples = 0;
+  EXPECT_THROW(bad.Validate(), InputError);
   fs::remove_all(dir);
 }
 

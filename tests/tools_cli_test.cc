@@ -168,6 +168,17 @@ TEST(Cli, UsageErrorsNameTheOptionAndWriteNothing) {
       {"fit" + rig + " --images x --out " + out + " --method magic", "--method: magic not in"},
       {"reconstruct" + rig + " --images x --out " + out + " --iterations 3",
        "not expected: 3 --iterations"},
+      // Two rigs: the one given and one to calibrate (the given one would win in silence).
+      {"run --images x" + rig + " --out " + out + " --calibration-images y",
+       "--rig excludes --calibration-images"},
+      {"render" + rig + " --volume v.vdb --out " + out + " --step 50",
+       "--step: Value 50 not in range"},
+      {"reconstruct" + rig + " --images x --out " + out + " --prior-edge nan",
+       "--prior-edge: 'nan' must be a finite number > 0"},
+      {"reconstruct" + rig + " --images x --out " + out + " --prior-weight nan",
+       "--prior-weight: 'nan' must be"},
+      {"calibrate-radiometry" + rig + " --shots s.yaml --out " + out + " --erode -5",
+       "--erode: '-5' must be a whole number in [0, 100]"},
   };
   for (const auto& [command, expected] : cases) {
     const Result r = Flamerig(command);
@@ -198,6 +209,8 @@ TEST(Cli, MalformedConfigNamesFileAndField) {
       {"simulate:\n  rig: [1]\n", "simulate.rig: must be a map"},
       {"simulate:\n  fire: 3\n", "simulate.fire: must be a map"},
       {"simulate:\n  calibration: {squares: [seven, 5]}\n", "bad3.yaml: "},
+      {"simulate:\n  render: {pixel_samples: 9}\n", "render.pixel_samples must be in [1, 8]"},
+      {"simulate:\n  render: {pixel_sample: 2}\n", "unknown key 'pixel_sample'"},
   };
   for (const auto& [text, expected] : cases) {
     std::ofstream((dir / "bad3.yaml").string()) << text;
