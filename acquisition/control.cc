@@ -61,9 +61,10 @@ std::string RecorderYaml(const RecorderStatus& s) {
     << "\nframes_recorded: " << s.frames_recorded << "\nbytes_written: " << s.bytes_written
     << "\nstopped_by_error: " << (s.stopped && !s.limit_reached ? "true" : "false")
     << "\nstopped_by_limit: " << (s.limit_reached ? "true" : "false") << "\n";
-  if (!s.error.empty()) {
+  if (!s.error.empty()) {  // as metadata.yaml keeps them: a fault, or the limit that ended it
     YAML::Emitter e;
-    e << YAML::BeginMap << YAML::Key << "error" << YAML::Value << s.error << YAML::EndMap;
+    e << YAML::BeginMap << YAML::Key << (s.limit_reached ? "limit_reached" : "error") << YAML::Value
+      << s.error << YAML::EndMap;
     o << e.c_str() << "\n";
   }
   return o.str();

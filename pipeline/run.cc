@@ -90,6 +90,8 @@ void RunOptions::Validate() const {
   source.Validate();
   if (rig_path.empty() && calibration.images_dir.empty() && calibration.recording_dir.empty())
     throw InputError("run: give a rig (--rig) or a calibration to make one");
+  if (!rig_path.empty() && !(calibration.images_dir.empty() && calibration.recording_dir.empty()))
+    throw InputError("run: give a rig (--rig) or a calibration to make one, not both");
   if (out_dir.empty()) throw InputError("run: give an output folder (--out)");
   if (count == 0) throw InputError("run: count must be >= 1");
   if (!truth_rig.empty() && truth_dir.empty())

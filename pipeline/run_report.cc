@@ -464,10 +464,12 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
                        "every number of one frame (one file per frame)");
   if (errors_plotted) files.emplace_back("errors.svg", "the error plot, scalable");
   page.Files(files);
-  page.Html(
-      "Volumes: <code>frame_NNNNNN.vdb</code> (temperature in K, density in m<sup>-3</sup>, "
-      "sigma); Blender-ready: <code>blender/frame_NNNNNN.vdb</code>; as a table: "
-      "<code>flamerig export-volume</code>.");
+  // The Blender-ready sequence is there unless the run was told not to write it (--no-blender).
+  const bool blender = fs::exists(fs::path(out_dir) / "blender");
+  page.Html(std::string("Volumes: <code>frame_NNNNNN.vdb</code> (temperature in K, density in "
+                        "m<sup>-3</sup>, sigma); ") +
+            (blender ? "Blender-ready: <code>blender/frame_NNNNNN.vdb</code>; " : "") +
+            "as a table: <code>flamerig export-volume</code>.");
   page.Section("Frames");
   std::vector<std::vector<std::string>> rows;
   for (const auto& f : frames) rows.push_back({f.Line()});

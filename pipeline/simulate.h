@@ -112,7 +112,7 @@ struct SimulateSummary {
   double exposure = 0;
   std::string exposure_source;          // "auto: ..." or "config"
   double saturated_pixel_fraction = 0;  // of fire pixels at frame 0
-  RenderSummary last_render;
+  RenderSummary last_render;  // with pixel_samples N > 1, of one of the N x N rays a pixel
   double time_s = 0;
 };
 

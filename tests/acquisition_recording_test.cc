@@ -677,7 +677,7 @@ TEST(Recording, SetLimitHoldsExactlyThatManySets) {
 // A write that fails after a set limit was reached is a fault, not the limit: the disk fills (a
 // file limit of six and a half 640x480 frames) while the last of 7 sets is written, which is always
 // after the limit stopped the recording (it stops as the 7th set is accepted, before any writer has
-// it). The six sets before stay readable and metadata.yaml names the fault.
+// it; the six before are on disk by then). The six stay readable and metadata.yaml names the fault.
 TEST(Recording, AWriteFailingAfterTheSetLimitIsAFault) {
   TempDir dir;
   const rlim_t frame_record = sizeof(FrameRecord) + 640 * 480;
@@ -687,8 +687,14 @@ TEST(Recording, AWriteFailingAfterTheSetLimitIsAFault) {
     o.min_free_bytes = 0;
     Recorder rec(dir.str(), Metadata(), o);
     std::string log;
-    for (std::uint64_t s = 0; s < 7; ++s)
+    for (std::uint64_t s = 0; s < 7; ++s) {
       log += rec.Submit(MakeSet(s, 640, 480)) ? "" : "set " + std::to_string(s) + " refused; ";
+      // The first six on disk before the seventh is given: its failure stops the writers, and a
+      // writer still holding set 5 would then leave it out (the count must not depend on timing).
+      const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+      while (s == 5 && rec.status().sets_recorded < 6 && std::chrono::steady_clock::now() < until)
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
     const RecorderStatus st = rec.Close();
     return std::to_string(st.sets_recorded) + " " + std::to_string(st.sets_dropped) + " " +
            std::to_string(st.limit_reached) + " " + std::to_string(st.stopped) + "\n" + log +

@@ -1111,6 +1111,15 @@ TEST(RunFrames, ATruthFromAnotherRigFrameIsMovedIntoTheRunsFrame) {
   o.truth_dir.clear();
   o.truth_rig = (sim / "rig.yaml").string();
   EXPECT_THROW(o.Validate(), InputError);
+  // A rig and a calibration to make one: which would be used is not the caller's to guess.
+  o = SmallRun(sim, dir / "both");
+  o.calibration.images_dir = (sim / "calibration").string();
+  try {
+    o.Validate();
+    ADD_FAILURE() << "a rig and a calibration were both accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("not both"), std::string::npos) << e.what();
+  }
   o = SmallRun(sim, dir / "other");
   Rig other = Rig::Load((sim / "rig.yaml").string());
   other.cameras[0].name = "front";

@@ -215,6 +215,8 @@ TEST(RunCli, CalibratesFirstFromBoardViews) {
   std::ifstream page(dir / "moved" / "report" / "index.html");
   const std::string html((std::istreambuf_iterator<char>(page)), {});
   EXPECT_NE(html.find("moved into the rig's frame by "), std::string::npos);
+  EXPECT_NE(html.find("blender/frame_NNNNNN.vdb"), std::string::npos);  // written by default
+  EXPECT_TRUE(fs::exists(dir / "moved" / "blender" / (FrameName(0) + ".vdb")));
   fs::remove_all(dir);
 }
 
@@ -251,6 +253,7 @@ TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
   std::ifstream page(dir / "default" / "report" / "index.html");
   const std::string html((std::istreambuf_iterator<char>(page)), {});
   EXPECT_NE(html.find("The voxels the fit calls determined: "), std::string::npos);
+  EXPECT_EQ(html.find("blender/frame_"), std::string::npos);  // --no-blender: no link to it
   std::ifstream csv(dir / "default" / "frames.csv");
   std::string header;
   std::getline(csv, header);

@@ -36,7 +36,12 @@ Runner AddSimulate(CLI::App* command) {
       std::printf(
           "  radiometric calibration: %d images of a black body, %s/radiometry/shots.yaml\n",
           s.radiometric_shots, o->out.c_str());
-    std::printf("  last render: %s\n", s.last_render.BriefReport().c_str());
+    if (config.pixel_samples > 1)
+      std::printf("  last render (one of the %d rays a pixel, %d x %d): %s\n",
+                  config.pixel_samples * config.pixel_samples, config.pixel_samples,
+                  config.pixel_samples, s.last_render.BriefReport().c_str());
+    else
+      std::printf("  last render: %s\n", s.last_render.BriefReport().c_str());
     std::printf("  preview: %s/preview.png; %.2f s in all\n", o->out.c_str(), s.time_s);
     return kExitOk;
   };
