@@ -1070,21 +1070,21 @@ std::string CaptureDaemon::BeginRecording(const std::string& name, bool with_rin
   // The ring is bounded by pretrigger_max_bytes and the queue was sized to hold it. A recording
   // of max_sets sets that the ring alone would fill takes the ring's newest: those next to the
   // event.
-  std::size_t skip = 0;
-  if (with_ring && config_.recorder.max_sets > 0 && ring_.size() > config_.recorder.max_sets)
-    skip = ring_.size() - static_cast<std::size_t>(config_.recorder.max_sets);
-  if (with_ring)
-    for (std::size_t i = skip; i < ring_.size(); ++i) recorder_->Submit(ring_[i]);
-  if (with_ring && skip > 0)
+  if (!with_ring) {
+    Log().info("capture: recording into {}", dir);
+    return dir;
+  }
+  const std::size_t max_sets = config_.recorder.max_sets;
+  const std::size_t skip = max_sets > 0 && ring_.size() > max_sets ? ring_.size() - max_sets : 0;
+  for (std::size_t i = skip; i < ring_.size(); ++i) recorder_->Submit(ring_[i]);
+  if (skip > 0)
     Log().info(
         "capture: event: recording into {}: the pre-trigger ring's newest {} sets make the {} the "
         "recording is limited to (max_recording_sets, --frames); its {} older sets are left out",
-        dir, ring_.size() - skip, config_.recorder.max_sets, skip);
-  else if (with_ring)
+        dir, ring_.size() - skip, max_sets, skip);
+  else
     Log().info("capture: event: recording into {}, starting with the pre-trigger ring ({} sets)",
                dir, ring_.size());
-  else
-    Log().info("capture: recording into {}", dir);
   return dir;
 }
 

@@ -1609,6 +1609,25 @@ RenderSummary FireRenderer::RenderAndGradient(const CameraRays& rays,
   return GradientImpl<float>(rays, nullptr, &pixel_gradient, linear_rgb, d_temperature, d_density);
 }
 
+RenderSummary FireRenderer::RenderPixelArea(const CameraModel& camera, int n,
+                                            ImageF* linear_rgb) const {
+  if (n < 1 || n > 8)
+    throw InputError("RenderPixelArea: n x n rays a pixel with n = " + std::to_string(n) +
+                     ": n must be in [1, 8]");
+  if (n == 1) return Render(CameraRays(camera), linear_rgb);
+  *linear_rgb = ImageF(camera.width(), camera.height(), 3, 0.0f);
+  RenderSummary summary;
+  for (int sy = 0; sy < n; ++sy)
+    for (int sx = 0; sx < n; ++sx) {
+      const Eigen::Vector2d offset((sx + 0.5) / n - 0.5, (sy + 0.5) / n - 0.5);
+      ImageF sample;
+      summary = Render(CameraRays(camera, offset), &sample);
+      for (std::size_t i = 0; i < sample.pixels.size(); ++i)
+        linear_rgb->pixels[i] += sample.pixels[i] / float(n * n);
+    }
+  return summary;
+}
+
 RenderSummary FireRenderer::Render(const CameraRays& rays, ImageF* linear_rgb) const {
   if (!has_volume_) throw std::logic_error("FireRenderer::Render called before SetVolume");
   if (options_.double_precision) return RenderImpl<double>(rays, linear_rgb);

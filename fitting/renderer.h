@@ -143,6 +143,12 @@ class FireRenderer {
   // 3 channels). Requires SetVolume() first.
   RenderSummary Render(const CameraRays& rays, ImageF* linear_rgb) const;
 
+  // The same over each pixel's area, as a sensor integrates light: the mean radiance of n x n rays
+  // through a regular grid of points inside every pixel of `camera` (offsets (s + 0.5) / n - 0.5;
+  // n = 1 is Render through the centres). The rays are unprojected here, one set at a time, so
+  // memory does not grow by n^2. Returns the summary of the last set rendered. n in [1, 8].
+  RenderSummary RenderPixelArea(const CameraModel& camera, int n, ImageF* linear_rgb) const;
+
   // The same for rays that end at an opaque surface: max_distance_m (one per pixel, metres along the
   // ray from its origin; +inf = no surface) ends the march there; when not null,
   // *transmittance_rgb (3 channels) receives the fraction of the surface's light that crosses the

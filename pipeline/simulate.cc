@@ -449,24 +449,12 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
     for (auto& r : renderers) r->SetVolume(grid, fire.temperature_k, fire.density_per_m3);
     std::vector<ImageF> linear(rig.cameras.size());
     for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
-      FireRenderer& renderer = *renderers[renderer_of[c]];
-      const int n = config.pixel_samples;
-      if (n == 1) {
-        summary.last_render = renderer.Render(rays[c], &linear[c]);
-      } else {
-        // The pixel's area: the mean radiance of N x N rays through a regular grid of points
-        // inside it (their rays made here, frame by frame, so that memory does not grow by N^2).
-        for (int sy = 0; sy < n; ++sy)
-          for (int sx = 0; sx < n; ++sx) {
-            const Eigen::Vector2d offset((sx + 0.5) / n - 0.5, (sy + 0.5) / n - 0.5);
-            ImageF sample;
-            summary.last_render =
-                renderer.Render(CameraRays(rig.cameras[c].model, offset), &sample);
-            if (linear[c].pixels.empty()) linear[c] = ImageF(sample.width, sample.height, 3, 0.0f);
-            for (std::size_t i = 0; i < sample.pixels.size(); ++i)
-              linear[c].pixels[i] += sample.pixels[i] / float(n * n);
-          }
-      }
+      const FireRenderer& renderer = *renderers[renderer_of[c]];
+      // The centres' rays are kept across frames; pixel areas' rays are made per frame.
+      summary.last_render =
+          config.pixel_samples == 1
+              ? renderer.Render(rays[c], &linear[c])
+              : renderer.RenderPixelArea(rig.cameras[c].model, config.pixel_samples, &linear[c]);
       // A camera's own gains scale its output channels (camera_response.h).
       if (c < config.camera_gains.size())
         for (std::size_t p = 0; p < linear[c].num_pixels(); ++p)

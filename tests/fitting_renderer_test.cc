@@ -90,8 +90,8 @@ INSTANTIATE_TEST_SUITE_P(PathsPrecisionsSteps, SlabTest,
                          ::testing::Combine(::testing::Bool(), ::testing::Bool(),
                                             ::testing::Values(0.25, 0.5, 2.0)));
 
-// Rays through points inside the pixels (CameraRays with an offset, what `simulate`'s
-// pixel_samples averages): a pixel that a slab's sharp edge crosses gets the slab's light times the
+// Rays through points inside the pixels (CameraRays with an offset), averaged by RenderPixelArea
+// (what `simulate`'s pixel_samples uses): a pixel that a slab's sharp edge crosses gets the slab's light times the
 // share of the pixel the slab covers. The slab's edge (the grid box's face, so not smeared by
 // interpolation) projects to column 10.25 of the axis camera; 4 x 4 points a pixel at offsets
 // -3/8, -1/8, 1/8, 3/8 put one of every four columns of points of pixel 10 inside, the pixel's area
@@ -105,16 +105,7 @@ TEST(Renderer, RaysInsideThePixelAverageToItsCoveredShare) {
   const CameraModel camera = AxisCamera(1.0);
   ImageF centre, sum;
   renderer.Render(CameraRays(camera), &centre);
-  const int n = 4;
-  for (int sy = 0; sy < n; ++sy)
-    for (int sx = 0; sx < n; ++sx) {
-      ImageF sample;
-      renderer.Render(
-          CameraRays(camera, Eigen::Vector2d((sx + 0.5) / n - 0.5, (sy + 0.5) / n - 0.5)), &sample);
-      if (sum.pixels.empty()) sum = ImageF(sample.width, sample.height, 3, 0.0f);
-      for (std::size_t i = 0; i < sample.pixels.size(); ++i)
-        sum.pixels[i] += sample.pixels[i] / (n * n);
-    }
+  renderer.RenderPixelArea(camera, 4, &sum);
   const double inside = Pixel(centre, 11, 15).norm();
   ASSERT_GT(inside, 0);
   EXPECT_EQ(Pixel(centre, 10, 15).norm(), 0.0);  // its centre lies outside the slab
