@@ -105,17 +105,23 @@ class DataTerm : public EnergyTerm {
 
   TermValue Evaluate(const FitParameters& x, const FitGradient& gradient,
                      EnergyTerms* stats) const override {
-    if (gradient.d_t || gradient.d_n) return EvaluateFused(x, gradient, stats);
+    if ((gradient.d_t || gradient.d_n) && !objective_.any_mosaic())
+      return EvaluateFused(x, gradient, stats);
     const bool want_gradient = gradient.wanted();
-    const double s = x.s;
-    const BlackPixel zero(s);
+    const BlackPixel zero(x.s), zero_signal(1.0);
     const FitObjective::Renders renders = objective_.Render(x.t, x.n);
     TermValue value{name(), weight_, 0, 0};
     double ds_total = 0;
     std::vector<double> grad_t, grad_n;
     const auto& views = objective_.views();
     for (std::size_t v = 0; v < views.size(); ++v) {
-      const ImageF& img = renders.linear[v];
+      // A Bayer view is compared as its signal after the mosaic and the demosaicing (exposure
+      // applied there, so Lab takes it at 1); its gradient goes back through the mosaic's adjoint.
+      const BayerRecord* mosaic = objective_.mosaic(v);
+      const ImageF recorded = mosaic ? mosaic->Forward(renders.linear[v], x.s) : ImageF();
+      const ImageF& img = mosaic ? recorded : renders.linear[v];
+      const double s = mosaic ? 1.0 : x.s;
+      const BlackPixel& black = mosaic ? zero_signal : zero;
       const auto& target = objective_.target_lab()[v];
       ImageF d_img;
       if (want_gradient) d_img = ImageF(img.width, img.height, 3, 0.0f);
@@ -129,7 +135,7 @@ class DataTerm : public EnergyTerm {
               const Eigen::Vector3d linear(img.pixels[3 * p], img.pixels[3 * p + 1],
                                            img.pixels[3 * p + 2]);
               Eigen::Matrix3d jac;
-              const Eigen::Vector3d lab = LabOf(linear, s, zero, want_gradient ? &jac : nullptr);
+              const Eigen::Vector3d lab = LabOf(linear, s, black, want_gradient ? &jac : nullptr);
               const Eigen::Vector3d diff = lab - target[p].cast<double>();
               const double de = diff.norm();
               acc.exact += de;
@@ -154,7 +160,10 @@ class DataTerm : public EnergyTerm {
           });
       value.exact += sums.exact;
       value.smooth += sums.smooth;
-      ds_total += sums.ds;
+      if (mosaic && want_gradient)
+        d_img = mosaic->Adjoint(renders.linear[v], x.s, d_img, gradient.d_s ? &ds_total : nullptr);
+      else
+        ds_total += sums.ds;
       if (stats) {
         stats->view_mean_delta_e.push_back(target.empty() ? 0.0 : sums.exact / target.size());
         stats->pixels += static_cast<std::int64_t>(target.size());
@@ -430,6 +439,12 @@ double FitObjective::NormaliseN(double n) const {
   return (std::log(std::max(n, n_min_)) - std::log(n_min_)) / (std::log(n_max_) - std::log(n_min_));
 }
 
+bool FitObjective::any_mosaic() const {
+  for (std::size_t v = 0; v < views_.size(); ++v)
+    if (mosaic(v)) return true;
+  return false;
+}
+
 double FitObjective::WeightedData(double data_exact) const {
   return terms_.front()->weight() * data_exact;  // the data term is first (constructor)
 }
@@ -529,7 +544,10 @@ FitObjective::Curvature FitObjective::DataCurvature(const std::vector<double>& t
 double FitObjective::DataTermAt(const Renders& renders, double s) const {
   double sum = 0;
   for (std::size_t v = 0; v < views_.size(); ++v) {
-    const ImageF& img = renders.linear[v];
+    const BayerRecord* bayer = mosaic(v);
+    const ImageF recorded = bayer ? bayer->Forward(renders.linear[v], s) : ImageF();
+    const ImageF& img = bayer ? recorded : renders.linear[v];
+    const double exposure = bayer ? 1.0 : s;
     const auto& target = target_lab_[v];
     sum += tbb::parallel_reduce(
         tbb::blocked_range<std::size_t>(0, target.size(), 4096), 0.0,
@@ -537,7 +555,7 @@ double FitObjective::DataTermAt(const Renders& renders, double s) const {
           for (std::size_t p = r.begin(); p < r.end(); ++p) {
             const Eigen::Vector3d lab = CameraLab(
                 Eigen::Vector3d(img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]),
-                s);
+                exposure);
             acc += colour::DeltaE76(lab, target[p].cast<double>());
           }
           return acc;

@@ -13,7 +13,9 @@
 //    response) is rendered in its own channels, and Lab is then a perceptual metric on them, not
 //    a colour: the physics is in the render, the metric only weighs the channels. Clamping at 1 is how saturated
 //    input pixels constrain only from below: a render brighter than a saturated channel clamps to
-//    it and costs nothing there.
+//    it and costs nothing there. A view from a Bayer camera (FitView::mosaic) is compared as the
+//    host's demosaicing made it: the render's one measured channel per site, interpolated in the
+//    camera's codes as the recording was (fitting/mosaic.h), then taken to Lab.
 //  - Pairwise term E_sm: for every active voxel i, the sum over its 18 nearest neighbours j
 //    (6 faces, 12 edges) that are also active of |v_j - v_i|, as the paper writes it (each pair
 //    counted from both ends), for the temperature and, when density is a per-voxel unknown, the
@@ -41,6 +43,7 @@
 #include "calibration/camera_rays.h"
 #include "core/image.h"
 #include "fitting/absorption.h"
+#include "fitting/mosaic.h"
 #include "fitting/renderer.h"
 #include "tomography/volume.h"
 
@@ -59,6 +62,10 @@ struct ObjectiveOptions {
   // The pairwise term on the per-voxel densities too (Algorithm 1; the fast fit's
   // FitOptions::density_pairwise). Off: the pairwise term is on the temperature only.
   bool density_pairwise = false;
+  // Views from Bayer cameras (FitView::mosaic) are rendered through their mosaic and the host's
+  // demosaicing. Off: their interpolated colours are fitted as if every pixel had measured all
+  // three (as until 2026-11-29; for comparison).
+  bool model_mosaic = true;
   void Validate() const;  // throws InputError naming the field
 };
 
@@ -75,6 +82,10 @@ struct FitView {
   ImageF signal;
   // The camera's spectral response (the renderer's output channels); null = the sRGB observer.
   std::shared_ptr<const ChannelResponse> response;
+  // A Bayer camera's frames (fitting/mosaic.h): `image` and `signal` are the host's demosaicing of
+  // its mosaic, and the data term renders the same of the rendered image. Null: every pixel
+  // measured its three channels (RGB and mono frames, plain image files).
+  std::shared_ptr<const BayerRecord> mosaic;
 };
 
 // One term's part of an evaluation.
@@ -193,7 +204,9 @@ class FitObjective {
   // squared differences between the residuals of fire pixels side by side in a row or a column
   // (the successive-difference estimate of a variance: noise that is independent from pixel to
   // pixel passes into it whole, while an error that changes slowly across the image, as what a
-  // model cannot hold mostly does, cancels in it).
+  // model cannot hold mostly does, cancels in it). A Bayer view's curvature and residuals are its
+  // pixels' as if each had measured its three channels (the mosaic's coupling of neighbouring
+  // pixels is left out of this diagonal estimate).
   struct Curvature {
     std::vector<double> tt, tn, nn;  // per active voxel
     double residual_sq = 0;
@@ -222,6 +235,12 @@ class FitObjective {
   const std::uint32_t* neighbours_end(std::uint32_t a) const {
     return neighbour_list_.data() + neighbour_start_[a + 1];
   }
+  // View v's Bayer model when the data term uses one (FitView::mosaic and
+  // ObjectiveOptions::model_mosaic), else null.
+  const BayerRecord* mosaic(std::size_t view) const {
+    return options_.model_mosaic ? views_[view].mosaic.get() : nullptr;
+  }
+  bool any_mosaic() const;
   // The renderer of view v (one per distinct camera response; the data term's use); not safe
   // concurrently.
   FireRenderer& renderer(std::size_t view) const { return *renderers_[view_renderer_[view]]; }

@@ -204,7 +204,13 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
     const FitView& view = *all[k];
     ImageF linear;
     renderer_for(view).Render(*view.rays, &linear);
-    const ImageU8 rendered = ApplyCameraResponse(linear, result.exposure);
+    // A Bayer camera's view as its host decodes it (objective.h): its signal at exposure 1.
+    double exposure = result.exposure;
+    if (view.mosaic) {
+      linear = view.mosaic->Forward(linear, exposure);
+      exposure = 1.0;
+    }
+    const ImageU8 rendered = ApplyCameraResponse(linear, exposure);
     ImageU8 heat(rendered.width, rendered.height, 3, 0);
     std::vector<double> fire;
     double sum = 0;
@@ -219,7 +225,7 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
                           1.0);
       const Eigen::Vector3d lab_out = CameraLab(
           Eigen::Vector3d(linear.pixels[3 * p], linear.pixels[3 * p + 1], linear.pixels[3 * p + 2]),
-          result.exposure);
+          exposure);
       const double de = colour::DeltaE76(lab_in, lab_out);
       sum += de;
       if (lab_in[0] > 1 || lab_out[0] > 1) fire.push_back(de);

@@ -21,7 +21,8 @@ struct ViewScore {
   double p95_delta_e = 0;       // 95th percentile over those pixels
 };
 
-// Renders `result.volume` through each view at `result.exposure`, scores it and, when `dir` is
+// Renders `result.volume` through each view at `result.exposure` (a Bayer camera's view through
+// its mosaic and demosaicing, FitView::mosaic, as the fit compares it), scores it and, when `dir` is
 // not empty, writes the report there: index.html (pipeline/report_page.h) and report.md over
 // views.png (input, rendered, Delta E map per view, labelled), slices.png (the fitted temperature,
 // with `truth` the truth and the error, and the sigma; run_report.h's SlicesPicture), error.png

@@ -109,6 +109,7 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
   out.images.resize(rig.cameras.size());
   out.linear.resize(rig.cameras.size());
   out.signal.resize(rig.cameras.size());
+  out.mosaic.assign(rig.cameras.size(), BayerLayout::kNone);
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const RigCamera& camera = rig.cameras[c];
     const fs::path path = fs::path(dir) / (camera.name + ".png");
@@ -260,6 +261,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
   out.images.resize(rig.cameras.size());
   out.linear.resize(rig.cameras.size());
   out.signal.resize(rig.cameras.size());
+  out.mosaic.assign(rig.cameras.size(), BayerLayout::kNone);
   bool have_id = false;
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const std::string& name = rig.cameras[c].name;
@@ -283,6 +285,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
         have_id = true;
       }
       bits = DecodeFrame(*f, &u8, &u16);
+      out.mosaic[c] = BayerLayoutOf(f->info.pixel_format);
     } else if (!impl_->seqs.empty()) {
       const int s = impl_->source_camera[c];
       const Frame f = impl_->seqs[s].ReadFrame(i, s);
@@ -292,6 +295,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
         have_id = true;
       }
       bits = DecodeFrame(f, &u8, &u16);
+      out.mosaic[c] = BayerLayoutOf(f.info.pixel_format);
     } else {
       const fs::path path = fs::path(impl_->spec.images_dir) / SetName(i) / (name + ".png");
       out.frame_id = i;

@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "calibration/rig.h"
+#include "fitting/mosaic.h"
 #include "tomography/visual_hull.h"
 
 namespace flamerig {
@@ -44,7 +45,10 @@ struct SourceFrameSet {
   std::vector<ImageU8> images;      // per rig camera: RGB8, or empty when left out
   std::vector<LinearFrame> linear;  // per rig camera: radiance / exposure, or empty
   std::vector<ImageF> signal;       // per rig camera: the linear signal (DecodeCameraImage)
-  std::vector<std::string> notes;   // cameras left out and why
+  // per rig camera: the frame's Bayer layout when it was a mosaic (the images above are its
+  // demosaicing, fitting/mosaic.h), else kNone (RGB and mono frames, image files)
+  std::vector<BayerLayout> mosaic;
+  std::vector<std::string> notes;  // cameras left out and why
   // The device frame id of the set's first present frame (recordings), the file's frame number
   // (StreamPix), or the set number (images): what a simulated camera replaying a dataset showed.
   std::uint64_t frame_id = 0;

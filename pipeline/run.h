@@ -107,7 +107,7 @@ struct RunOptions {
   // score 82 to 104 K (bias +10 to +48 K) against 100 to 117 K (+44 to +58 K), the truth moved into
   // the calibrated frame (truth_rig). An untied fit does not move (147 to 152 K either way). (Those
   // with point-sampled RGB8 frames; the main job's pixels now integrate and its cameras send Bayer
-  // mosaics: tied 84 to 96 K, BENCHMARKS.md.)
+  // mosaics, which the fit renders: tied 81 to 91 K, BENCHMARKS.md.)
   bool warm_start = true;
   // Ground truth of a simulated recording: DIR/frame_NNNNNN.vdb. The truth of a set is the one
   // numbered by its frame id modulo the number of truth volumes (a simulated camera replaying a

@@ -105,8 +105,12 @@ SmallScene MakeSmallScene(const AbsorptionModel& absorption) {
   return s;
 }
 
-void CheckEnergyGradient(const AbsorptionModel& absorption) {
+void CheckEnergyGradient(const AbsorptionModel& absorption, bool bayer = false) {
   SmallScene s = MakeSmallScene(absorption);
+  if (bayer) {  // two layouts, so that both phases of the mosaic are exercised
+    s.views[0].mosaic = MakeBayerRecord(BayerLayout::kRggb, CameraRadiometry{});
+    s.views[1].mosaic = MakeBayerRecord(BayerLayout::kGbrg, CameraRadiometry{});
+  }
   RenderOptions render;
   render.double_precision = true;
   render.min_transmittance = 0;
@@ -156,6 +160,12 @@ void CheckEnergyGradient(const AbsorptionModel& absorption) {
 
 TEST(FitObjective, GradientMatchesFiniteDifferencesGrey) {
   CheckEnergyGradient(AbsorptionModel::DefaultGrey());
+}
+
+// A Bayer camera's views are rendered through the mosaic and the host's demosaicing in sRGB
+// codes (fitting/mosaic.h): the exact gradient goes back through both.
+TEST(FitObjective, GradientMatchesFiniteDifferencesThroughABayerMosaic) {
+  CheckEnergyGradient(AbsorptionModel::DefaultGrey(), /*bayer=*/true);
 }
 
 TEST(FitObjective, GradientMatchesFiniteDifferencesSoot) {

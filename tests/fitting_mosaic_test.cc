@@ -1,0 +1,268 @@
+// The fit's model of a Bayer camera (fitting/mosaic.h) against its oracles: OpenCV's demosaicing
+// as DecodeFrame applies it to a recorded frame, the transpose's defining identity, central
+// finite differences, and a rendered truth that only the model explains.
+#include "fitting/mosaic.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "acquisition/frame.h"
+#include "calibration/camera_rays.h"
+#include "calibration/radiometry.h"
+#include "calibration/synthetic_rig.h"
+#include "core/error.h"
+#include "fitting/objective.h"
+#include "fitting/renderer.h"
+
+namespace flamerig {
+namespace {
+
+constexpr PixelFormat kFormats[] = {PixelFormat::kBayerRg8, PixelFormat::kBayerGr8,
+                                    PixelFormat::kBayerGb8, PixelFormat::kBayerBg8};
+
+// A recorded frame of `format` whose site (x, y) holds codes(x, y, its colour).
+Frame MosaicFrame(const ImageU8& codes, PixelFormat format) {
+  const BayerLayout layout = BayerLayoutOf(format);
+  auto bytes = std::make_shared<std::vector<std::uint8_t>>(codes.num_pixels());
+  for (int y = 0; y < codes.height; ++y)
+    for (int x = 0; x < codes.width; ++x)
+      (*bytes)[std::size_t(y) * codes.width + x] = codes.at(x, y, BayerColour(layout, x, y));
+  Frame f;
+  f.info.pixel_format = format;
+  f.info.width = codes.width;
+  f.info.height = codes.height;
+  f.data = bytes;
+  return f;
+}
+
+TEST(BayerLayout, FollowsTheGenICamNames) {
+  // BayerRG8: R at (0, 0), G at (1, 0) and (0, 1), B at (1, 1); the others by their names.
+  const char* cells[] = {"RGGB", "GRBG", "GBRG", "BGGR"};
+  const char colours[] = "RGB";
+  for (int i = 0; i < 4; ++i) {
+    const BayerLayout layout = BayerLayoutOf(kFormats[i]);
+    EXPECT_STREQ(ToString(layout), cells[i]);
+    const std::string read = {
+        colours[BayerColour(layout, 0, 0)], colours[BayerColour(layout, 1, 0)],
+        colours[BayerColour(layout, 0, 1)], colours[BayerColour(layout, 1, 1)]};
+    EXPECT_EQ(read, cells[i]);
+    EXPECT_EQ(BayerColour(layout, 6, 4), BayerColour(layout, 0, 0));  // the cell repeats
+    EXPECT_EQ(BayerColour(layout, 3, 5), BayerColour(layout, 1, 1));
+  }
+  EXPECT_EQ(BayerLayoutOf(PixelFormat::kRgb8), BayerLayout::kNone);
+  EXPECT_EQ(BayerLayoutOf(PixelFormat::kMono8), BayerLayout::kNone);
+}
+
+// The interpolation the model renders is the one DecodeFrame (OpenCV) applies to a recording,
+// borders included, to OpenCV's rounding of the interpolated codes.
+TEST(BayerResample, IsWhatDecodeFrameMakesOfTheMosaic) {
+  std::mt19937 rng(5);
+  std::uniform_int_distribution<int> code(0, 255);
+  for (const auto [w, h] : {std::pair{13, 10}, std::pair{12, 9}, std::pair{3, 3}}) {
+    ImageU8 codes(w, h, 3);
+    for (auto& c : codes.pixels) c = static_cast<std::uint8_t>(code(rng));
+    ImageF as_float(w, h, 3);
+    for (std::size_t i = 0; i < codes.pixels.size(); ++i) as_float.pixels[i] = codes.pixels[i];
+    for (PixelFormat format : kFormats) {
+      ImageU8 decoded;
+      ImageU16 unused;
+      ASSERT_EQ(DecodeFrame(MosaicFrame(codes, format), &decoded, &unused), 8);
+      const ImageF model = BayerResample(as_float, BayerLayoutOf(format));
+      double worst = 0;
+      for (std::size_t i = 0; i < model.pixels.size(); ++i)
+        worst = std::max(worst, std::abs(double(model.pixels[i]) - decoded.pixels[i]));
+      EXPECT_LE(worst, 0.5 + 1e-4) << ToString(format) << " " << w << "x" << h;
+    }
+  }
+}
+
+TEST(BayerResample, AdjointIsItsTranspose) {
+  std::mt19937 rng(9);
+  std::normal_distribution<float> g(0, 1);
+  ImageF a(11, 8, 3), b(11, 8, 3);
+  for (auto& v : a.pixels) v = g(rng);
+  for (auto& v : b.pixels) v = g(rng);
+  for (PixelFormat format : kFormats) {
+    const BayerLayout layout = BayerLayoutOf(format);
+    const ImageF ra = BayerResample(a, layout), rtb = BayerResampleAdjoint(b, layout);
+    double lhs = 0, rhs = 0, scale = 0;
+    for (std::size_t i = 0; i < a.pixels.size(); ++i) {
+      lhs += double(ra.pixels[i]) * b.pixels[i];
+      rhs += double(a.pixels[i]) * rtb.pixels[i];
+      scale += std::abs(double(ra.pixels[i]) * b.pixels[i]);
+    }
+    EXPECT_NEAR(lhs, rhs, 1e-5 * scale) << ToString(format);
+  }
+}
+
+TEST(BayerResample, RefusesWhatItCannotInterpolate) {
+  EXPECT_THROW(BayerResample(ImageF(2, 5, 3), BayerLayout::kRggb), InputError);
+  EXPECT_THROW(BayerResample(ImageF(5, 5, 1), BayerLayout::kRggb), InputError);
+  EXPECT_THROW(BayerResample(ImageF(5, 5, 3), BayerLayout::kNone), InputError);
+  EXPECT_THROW(BayerRecord(BayerLayout::kNone, CameraRadiometry{}), InputError);
+  CameraRadiometry mono;
+  mono.spectral.kind = SpectralSensitivity::Kind::kBands;
+  mono.spectral.bands = {SpectralBand{550, 40}};
+  EXPECT_THROW(BayerRecord(BayerLayout::kRggb, mono), InputError);
+  EXPECT_EQ(MakeBayerRecord(BayerLayout::kNone, CameraRadiometry{}), nullptr);
+}
+
+// Two cameras: the default (8-bit sRGB codes) and a raw one (linear, black level 16, saturating
+// at 250, unequal gains: the gains are the renderer's, so they do not enter here).
+std::vector<CameraRadiometry> Cameras() {
+  CameraRadiometry raw;
+  raw.transfer = TransferFunction::kLinear;
+  raw.bit_depth = 8;
+  raw.black_level = 16;
+  raw.saturation_level = 250;
+  return {CameraRadiometry{}, raw};
+}
+
+// Forward() is what the camera records (each site's code of its channel, rounded) and the host
+// decodes (DecodeFrame's demosaicing, then the camera's decoding), to within the codes' rounding.
+TEST(BayerRecord, ForwardIsWhatTheCameraRecordsAndTheHostDecodes) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(0, 1.3f);
+  const double s = 0.8;
+  ImageF linear(17, 12, 3);
+  for (auto& v : linear.pixels) v = u(rng);
+  for (const CameraRadiometry& camera : Cameras()) {
+    const CameraRadiometry::Decoding d = camera.DecodingFor(8);
+    ImageU8 codes(linear.width, linear.height, 3);
+    for (std::size_t i = 0; i < codes.pixels.size(); ++i)
+      codes.pixels[i] = static_cast<std::uint8_t>(camera.Code(s * linear.pixels[i], d));
+    for (PixelFormat format : kFormats) {
+      ImageU8 decoded;
+      ImageU16 unused;
+      DecodeFrame(MosaicFrame(codes, format), &decoded, &unused);
+      const ImageF model = BayerRecord(BayerLayoutOf(format), camera).Forward(linear, s);
+      double worst = 0;
+      for (std::size_t i = 0; i < model.pixels.size(); ++i)
+        worst = std::max(worst, std::abs(camera.Encode(model.pixels[i], d) - decoded.pixels[i]));
+      // Each site's code rounded (0.5), OpenCV's interpolated code rounded (0.5).
+      EXPECT_LE(worst, 1.0 + 1e-3) << ToString(format) << ", " << camera.Describe();
+    }
+  }
+}
+
+// dE/d(linear) and dE/ds of E = sum of weights x Forward() against central differences; channels
+// a site does not measure have no derivative.
+TEST(BayerRecord, AdjointMatchesFiniteDifferences) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(0.08f, 1.1f);  // s I within (0.05, 0.95): no clamp
+  std::normal_distribution<float> g(0, 1);
+  const double s = 0.85;
+  ImageF linear(9, 8, 3), weights(9, 8, 3);
+  for (auto& v : linear.pixels) v = u(rng);
+  for (auto& v : weights.pixels) v = g(rng);
+  for (const CameraRadiometry& camera : Cameras()) {
+    for (PixelFormat format : {PixelFormat::kBayerRg8, PixelFormat::kBayerGb8}) {
+      const BayerRecord record(BayerLayoutOf(format), camera);
+      auto energy = [&](const ImageF& image, double exposure) {
+        const ImageF out = record.Forward(image, exposure);
+        double e = 0;
+        for (std::size_t i = 0; i < out.pixels.size(); ++i)
+          e += double(weights.pixels[i]) * out.pixels[i];
+        return e;
+      };
+      double d_s = 0;
+      const ImageF grad = record.Adjoint(linear, s, weights, &d_s);
+      double scale = 0;
+      for (float v : grad.pixels) scale = std::max(scale, double(std::abs(v)));
+      ASSERT_GT(scale, 0);
+      for (int y : {0, 3, 7})
+        for (int x : {0, 4, 8})
+          for (int ch = 0; ch < 3; ++ch) {
+            const double h = 2e-3;
+            ImageF plus = linear, minus = linear;
+            plus.at(x, y, ch) += h;
+            minus.at(x, y, ch) -= h;
+            const double fd = (energy(plus, s) - energy(minus, s)) / (2 * h);
+            EXPECT_NEAR(grad.at(x, y, ch), fd, 2e-3 * scale)
+                << ToString(format) << " (" << x << ", " << y << ") channel " << ch;
+            if (ch != BayerColour(record.layout(), x, y)) {
+              EXPECT_EQ(grad.at(x, y, ch), 0.0f);
+            }
+          }
+      const double fd_s = (energy(linear, s * 1.001) - energy(linear, s * 0.999)) / (0.002 * s);
+      EXPECT_NEAR(d_s, fd_s, 2e-3 * std::abs(fd_s) + 1e-6) << ToString(format);
+    }
+  }
+}
+
+// A fire filmed by a Bayer camera and demosaiced on the host: at the true volume, the energy that
+// renders through the mosaic sees only the codes' rounding, and the one that takes the
+// interpolated colours as measured sees the interpolation's fringes at the fire's edges.
+TEST(BayerRecord, OnlyTheMosaicModelExplainsADemosaicedRecordingOfTheTruth) {
+  const AbsorptionModel absorption = AbsorptionModel::DefaultGrey();
+  const Box3 box{Eigen::Vector3d(-0.02, 0, -0.02), Eigen::Vector3d(0.02, 0.04, 0.02)};
+  const GridGeometry grid = GridGeometry::FromBox(box, 16);
+  synthetic::RingOptions ring;
+  ring.cameras = 2;
+  ring.width = 64;
+  ring.height = 48;
+  ring.distance_m = 0.15;
+  const Rig rig = synthetic::MakeRingRig(box, ring);
+  // A hot core in a cooler shell with sharp edges: colour changes within a pixel or two.
+  std::vector<std::uint32_t> active;
+  std::vector<double> t, n;
+  std::vector<float> tt(grid.num_voxels(), 0), nn(grid.num_voxels(), 0);
+  const double n0 = 0.2 / (absorption.CrossSectionM2(550) * grid.voxel_size_m.x());
+  for (std::uint32_t v = 0; v < grid.num_voxels(); ++v) {
+    const Eigen::Vector3i i = grid.Unflat(v);
+    const double r = (grid.VoxelCenter(i.x(), i.y(), i.z()) - box.center()).norm();
+    if (r > 0.014) continue;
+    active.push_back(v);
+    t.push_back(r < 0.007 ? 2000 : 1500);
+    n.push_back(n0);
+    tt[v] = static_cast<float>(t.back());
+    nn[v] = static_cast<float>(n0);
+  }
+  FireRenderer renderer(absorption);
+  renderer.SetVolume(grid, tt, nn);
+  std::vector<std::unique_ptr<CameraRays>> rays;
+  std::vector<FitView> views;
+  double exposure = 0;
+  for (const RigCamera& camera : rig.cameras) {
+    rays.push_back(std::make_unique<CameraRays>(camera.model));
+    ImageF linear;
+    renderer.Render(*rays.back(), &linear);
+    if (exposure == 0) {  // the brightest channel at 0.9 of full scale
+      float peak = 0;
+      for (float v : linear.pixels) peak = std::max(peak, v);
+      exposure = 0.9 / peak;
+    }
+    ImageU8 codes(linear.width, linear.height, 3);
+    const CameraRadiometry srgb;
+    const CameraRadiometry::Decoding d = srgb.DecodingFor(8);
+    for (std::size_t i = 0; i < codes.pixels.size(); ++i)
+      codes.pixels[i] = static_cast<std::uint8_t>(srgb.Code(exposure * linear.pixels[i], d));
+    FitView view;
+    view.name = camera.name;
+    view.rays = rays.back().get();
+    ImageU16 unused;
+    DecodeFrame(MosaicFrame(codes, PixelFormat::kBayerRg8), &view.image, &unused);
+    view.mosaic = MakeBayerRecord(BayerLayout::kRggb, srgb);
+    views.push_back(std::move(view));
+  }
+  ObjectiveOptions with, without;
+  with.w_sm = without.w_sm = 0;
+  without.model_mosaic = false;
+  const RenderOptions render;
+  const FitObjective modelled(grid, active, views, absorption, render, with);
+  const FitObjective as_measured(grid, active, views, absorption, render, without);
+  ASSERT_TRUE(modelled.any_mosaic());
+  ASSERT_FALSE(as_measured.any_mosaic());
+  const double e_model = modelled.Evaluate(t, n, exposure).data_exact;
+  const double e_plain = as_measured.Evaluate(t, n, exposure).data_exact;
+  std::printf("summed Delta E at the truth: through the mosaic %.1f, as measured %.1f\n", e_model,
+              e_plain);
+  EXPECT_LT(e_model, 0.25 * e_plain);
+  // The cheap path (DataTermAt, for exposure searches on one render) agrees with Evaluate.
+  EXPECT_NEAR(modelled.DataTermAt(modelled.Render(t, n), exposure), e_model, 1e-3 * e_model);
+}
+
+}  // namespace
+}  // namespace flamerig
