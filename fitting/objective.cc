@@ -500,13 +500,21 @@ FitObjective::Curvature FitObjective::DataCurvature(const std::vector<double>& t
     // and the residuals over fire pixels.
     const ImageF& img = renders.linear[v];
     const auto& target = target_lab_[v];
+    // The residuals are the data term's (a Bayer view's through its mosaic); the Jacobians each
+    // pixel's own, as if it had measured its three channels (see the header).
+    const BayerRecord* bayer = mosaic(v);
+    const ImageF recorded = bayer ? bayer->Forward(img, s) : ImageF();
     std::vector<Eigen::Matrix3f> jacobians(target.size(), Eigen::Matrix3f::Zero());
     std::vector<Eigen::Vector3d> residual(target.size(), Eigen::Vector3d::Zero());
     std::vector<char> fire(target.size(), 0);
     for (std::size_t p = 0; p < target.size(); ++p) {
       const Eigen::Vector3d linear(img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]);
       Eigen::Matrix3d jac;
-      const Eigen::Vector3d lab = CameraLab(linear, s, &jac);
+      Eigen::Vector3d lab = CameraLab(linear, s, &jac);
+      if (bayer)
+        lab = CameraLab(Eigen::Vector3d(recorded.pixels[3 * p], recorded.pixels[3 * p + 1],
+                                        recorded.pixels[3 * p + 2]),
+                        1.0);
       if (!(linear.array() == 0.0).all()) jacobians[p] = jac.cast<float>();
       if (lab[0] > 1 || target[p][0] > 1) {
         residual[p] = lab - target[p].cast<double>();
@@ -515,19 +523,22 @@ FitObjective::Curvature FitObjective::DataCurvature(const std::vector<double>& t
         out.residuals += 3;
       }
     }
-    // Fire pixels side by side: each with the one to its right and the one below.
+    // Fire pixels side by side: each with the one to its right and the one below; in a Bayer
+    // view three pixels apart, beyond the demosaicing's reach (its taps are the 8 neighbours),
+    // since neighbours interpolated from the same sites share their noise.
     auto pair = [&](std::size_t p, std::size_t q) {
       if (!fire[q]) return;
       out.difference_sq += 0.5 * (residual[p] - residual[q]).squaredNorm();
       out.differences += 3;
     };
     const std::size_t w = std::size_t(img.width);
+    const int lag = bayer ? 3 : 1;
     for (int y = 0; y < img.height; ++y)
       for (int x = 0; x < img.width; ++x) {
         const std::size_t p = std::size_t(y) * w + std::size_t(x);
         if (!fire[p]) continue;
-        if (x + 1 < img.width) pair(p, p + 1);
-        if (y + 1 < img.height) pair(p, p + w);
+        if (x + lag < img.width) pair(p, p + lag);
+        if (y + lag < img.height) pair(p, p + lag * w);
       }
     renderer(v).RenderCurvature(*views_[v].rays, jacobians, &tt, &tn, &nn);
   }

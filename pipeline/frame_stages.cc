@@ -290,7 +290,8 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
     v.image = w->set.images[c];
     v.signal = w->set.signal[c];
     v.response = responses_[c];
-    v.mosaic = MakeBayerRecord(w->set.mosaic[c], rig_.cameras[c].radiometry);
+    if (options_.fit.objective.model_mosaic)
+      v.mosaic = MakeBayerRecord(w->set.mosaic[c], rig_.cameras[c].radiometry);
     (static_cast<int>(c) == holdout_ ? w->held : w->views).push_back(std::move(v));
   }
   // The exposure: known, the take's, or fitted here (and the take's from here on).

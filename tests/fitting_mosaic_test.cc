@@ -192,76 +192,112 @@ TEST(BayerRecord, AdjointMatchesFiniteDifferences) {
   }
 }
 
-// A fire filmed by a Bayer camera and demosaiced on the host: at the true volume, the energy that
-// renders through the mosaic sees only the codes' rounding, and the one that takes the
-// interpolated colours as measured sees the interpolation's fringes at the fire's edges.
-TEST(BayerRecord, OnlyTheMosaicModelExplainsADemosaicedRecordingOfTheTruth) {
-  const AbsorptionModel absorption = AbsorptionModel::DefaultGrey();
+// A fire filmed by two Bayer cameras (RGGB, 64x48) and demosaiced on the host, with its truth: a
+// hot core in a cooler shell with sharp edges, so that colour changes within a pixel or two. Each
+// site's code gets Gaussian noise of `noise_codes` where the fire is (clean code >= 8).
+struct BayerScene {
+  AbsorptionModel absorption = AbsorptionModel::DefaultGrey();
+  GridGeometry grid;
+  std::vector<std::uint32_t> active;
+  std::vector<double> t, n;
+  double exposure = 0;
+  std::vector<std::unique_ptr<CameraRays>> rays;
+  std::vector<FitView> views;
+};
+
+BayerScene MakeBayerScene(double noise_codes) {
+  BayerScene s;
   const Box3 box{Eigen::Vector3d(-0.02, 0, -0.02), Eigen::Vector3d(0.02, 0.04, 0.02)};
-  const GridGeometry grid = GridGeometry::FromBox(box, 16);
+  s.grid = GridGeometry::FromBox(box, 16);
   synthetic::RingOptions ring;
   ring.cameras = 2;
   ring.width = 64;
   ring.height = 48;
   ring.distance_m = 0.15;
   const Rig rig = synthetic::MakeRingRig(box, ring);
-  // A hot core in a cooler shell with sharp edges: colour changes within a pixel or two.
-  std::vector<std::uint32_t> active;
-  std::vector<double> t, n;
-  std::vector<float> tt(grid.num_voxels(), 0), nn(grid.num_voxels(), 0);
-  const double n0 = 0.2 / (absorption.CrossSectionM2(550) * grid.voxel_size_m.x());
-  for (std::uint32_t v = 0; v < grid.num_voxels(); ++v) {
-    const Eigen::Vector3i i = grid.Unflat(v);
-    const double r = (grid.VoxelCenter(i.x(), i.y(), i.z()) - box.center()).norm();
+  std::vector<float> tt(s.grid.num_voxels(), 0), nn(s.grid.num_voxels(), 0);
+  const double n0 = 0.2 / (s.absorption.CrossSectionM2(550) * s.grid.voxel_size_m.x());
+  for (std::uint32_t v = 0; v < s.grid.num_voxels(); ++v) {
+    const Eigen::Vector3i i = s.grid.Unflat(v);
+    const double r = (s.grid.VoxelCenter(i.x(), i.y(), i.z()) - box.center()).norm();
     if (r > 0.014) continue;
-    active.push_back(v);
-    t.push_back(r < 0.007 ? 2000 : 1500);
-    n.push_back(n0);
-    tt[v] = static_cast<float>(t.back());
+    s.active.push_back(v);
+    s.t.push_back(r < 0.007 ? 2000 : 1500);
+    s.n.push_back(n0);
+    tt[v] = static_cast<float>(s.t.back());
     nn[v] = static_cast<float>(n0);
   }
-  FireRenderer renderer(absorption);
-  renderer.SetVolume(grid, tt, nn);
-  std::vector<std::unique_ptr<CameraRays>> rays;
-  std::vector<FitView> views;
-  double exposure = 0;
+  FireRenderer renderer(s.absorption);
+  renderer.SetVolume(s.grid, tt, nn);
+  std::mt19937 rng(17);
+  std::normal_distribution<double> noise(0, noise_codes);
   for (const RigCamera& camera : rig.cameras) {
-    rays.push_back(std::make_unique<CameraRays>(camera.model));
+    s.rays.push_back(std::make_unique<CameraRays>(camera.model));
     ImageF linear;
-    renderer.Render(*rays.back(), &linear);
-    if (exposure == 0) {  // the brightest channel at 0.9 of full scale
+    renderer.Render(*s.rays.back(), &linear);
+    if (s.exposure == 0) {  // the brightest channel at 0.9 of full scale
       float peak = 0;
       for (float v : linear.pixels) peak = std::max(peak, v);
-      exposure = 0.9 / peak;
+      s.exposure = 0.9 / peak;
     }
     ImageU8 codes(linear.width, linear.height, 3);
     const CameraRadiometry srgb;
     const CameraRadiometry::Decoding d = srgb.DecodingFor(8);
-    for (std::size_t i = 0; i < codes.pixels.size(); ++i)
-      codes.pixels[i] = static_cast<std::uint8_t>(srgb.Code(exposure * linear.pixels[i], d));
+    for (std::size_t i = 0; i < codes.pixels.size(); ++i) {
+      double code = srgb.Encode(s.exposure * linear.pixels[i], d);
+      if (code >= 8) code += noise(rng);
+      codes.pixels[i] = static_cast<std::uint8_t>(std::clamp(std::round(code), 0.0, 255.0));
+    }
     FitView view;
     view.name = camera.name;
-    view.rays = rays.back().get();
+    view.rays = s.rays.back().get();
     ImageU16 unused;
     DecodeFrame(MosaicFrame(codes, PixelFormat::kBayerRg8), &view.image, &unused);
     view.mosaic = MakeBayerRecord(BayerLayout::kRggb, srgb);
-    views.push_back(std::move(view));
+    s.views.push_back(std::move(view));
   }
+  return s;
+}
+
+// At the true volume, the energy that renders through the mosaic sees only the codes' rounding,
+// and the one that takes the interpolated colours as measured sees the interpolation's fringes at
+// the fire's edges.
+TEST(BayerRecord, OnlyTheMosaicModelExplainsADemosaicedRecordingOfTheTruth) {
+  const BayerScene s = MakeBayerScene(0);
   ObjectiveOptions with, without;
   with.w_sm = without.w_sm = 0;
   without.model_mosaic = false;
   const RenderOptions render;
-  const FitObjective modelled(grid, active, views, absorption, render, with);
-  const FitObjective as_measured(grid, active, views, absorption, render, without);
+  const FitObjective modelled(s.grid, s.active, s.views, s.absorption, render, with);
+  const FitObjective as_measured(s.grid, s.active, s.views, s.absorption, render, without);
   ASSERT_TRUE(modelled.any_mosaic());
   ASSERT_FALSE(as_measured.any_mosaic());
-  const double e_model = modelled.Evaluate(t, n, exposure).data_exact;
-  const double e_plain = as_measured.Evaluate(t, n, exposure).data_exact;
+  const double e_model = modelled.Evaluate(s.t, s.n, s.exposure).data_exact;
+  const double e_plain = as_measured.Evaluate(s.t, s.n, s.exposure).data_exact;
   std::printf("summed Delta E at the truth: through the mosaic %.1f, as measured %.1f\n", e_model,
               e_plain);
   EXPECT_LT(e_model, 0.25 * e_plain);
   // The cheap path (DataTermAt, for exposure searches on one render) agrees with Evaluate.
-  EXPECT_NEAR(modelled.DataTermAt(modelled.Render(t, n), exposure), e_model, 1e-3 * e_model);
+  EXPECT_NEAR(modelled.DataTermAt(modelled.Render(s.t, s.n), s.exposure), e_model, 1e-3 * e_model);
+}
+
+// The sigma's noise level (DataCurvature's differences of residuals) where the model is exact:
+// the residuals at the truth are the noise alone, so their own mean square is the level to find.
+// Neighbouring pixels interpolated from the same sites share their noise; the differences are
+// taken three pixels apart.
+TEST(BayerRecord, TheNoiseLevelOfABayerViewIsItsResidualsWhereTheModelIsExact) {
+  const BayerScene s = MakeBayerScene(3.0);
+  ObjectiveOptions o;
+  o.w_sm = 0;
+  const FitObjective objective(s.grid, s.active, s.views, s.absorption, RenderOptions{}, o);
+  const FitObjective::Curvature c = objective.DataCurvature(s.t, s.n, s.exposure);
+  ASSERT_GT(c.residuals, 1000);  // about 500 fire pixels
+  ASSERT_GT(c.differences, 1000);
+  const double from_residuals = c.residual_sq / c.residuals;
+  const double from_differences = c.difference_sq / c.differences;
+  std::printf("noise variance (Lab^2): residuals %.3f, differences %.3f\n", from_residuals,
+              from_differences);
+  EXPECT_NEAR(from_differences / from_residuals, 1.0, 0.15);
 }
 
 }  // namespace
