@@ -10,6 +10,7 @@
 #include "core/atomic_file.h"
 #include "core/error.h"
 #include "core/image.h"
+#include "pipeline/frame_source.h"
 
 namespace flamerig {
 
@@ -112,6 +113,13 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
     }
   }
   WriteFileAtomically((fs::path(out_dir) / "sets.csv").string(), csv.str());
+  std::vector<std::string> names;
+  std::vector<PixelFormat> formats;
+  for (const auto& c : meta.cameras) {
+    names.push_back(c.name);
+    formats.push_back(c.settings.pixel_format);
+  }
+  WriteExportedFormats(out_dir, names, formats);
   return summary;
 }
 
@@ -140,6 +148,7 @@ ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
   for (const auto& name : names) csv << "," << name << "_timestamp_ns";
   csv << "\n";
   ExportSummary summary;
+  std::vector<PixelFormat> formats(seqs.size(), PixelFormat::kRgb8);  // each file's, as read
   const std::size_t first = std::min(options.first, n);
   const std::size_t end = first + std::min(options.count, n - first);
   for (std::size_t i = first; i < end; ++i) {
@@ -149,6 +158,7 @@ ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
     for (std::size_t c = 0; c < seqs.size(); ++c) {
       try {
         const Frame f = seqs[c].ReadFrame(i, static_cast<int>(c));
+        formats[c] = f.info.pixel_format;
         WriteFramePng(f, dir / (names[c] + ".png"));
         csv << "," << f.info.device_timestamp_ns;
         ++summary.images;
@@ -166,6 +176,7 @@ ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
     }
   }
   WriteFileAtomically((fs::path(out_dir) / "sets.csv").string(), csv.str());
+  WriteExportedFormats(out_dir, names, formats);
   return summary;
 }
 

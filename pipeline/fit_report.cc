@@ -246,9 +246,11 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
       s.p95_delta_e = fire[static_cast<std::size_t>(0.95 * (fire.size() - 1))];
     }
     scores.push_back(s);
-    views.row_labels.push_back(fmt::format("{} ({}): mean Delta E {:.2f} over {} fire pixels",
-                                           view.name, s.held_out ? "held out" : "fitted",
-                                           s.fire_delta_e, s.fire_pixels));
+    views.row_labels.push_back(fmt::format(
+        "{} ({}{}): mean Delta E {:.2f} over {} fire pixels", view.name,
+        s.held_out ? "held out" : "fitted",
+        view.mosaic ? fmt::format(", through its {} mosaic", ToString(view.mosaic->layout())) : "",
+        s.fire_delta_e, s.fire_pixels));
     views.rows.push_back({view.image, rendered, heat});
     if (rendered_out) rendered_out->push_back(rendered);
   }

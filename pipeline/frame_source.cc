@@ -6,9 +6,12 @@
 #include <filesystem>
 #include <stdexcept>
 
+#include <yaml-cpp/yaml.h>
+
 #include "acquisition/frame.h"
 #include "acquisition/recording.h"
 #include "acquisition/streampix.h"
+#include "core/atomic_file.h"
 #include "core/error.h"
 #include "core/srgb.h"
 
@@ -103,13 +106,61 @@ Rig WithInputTransfer(Rig rig, const std::string& spec) {
   return rig;
 }
 
+void WriteExportedFormats(const std::string& dir, const std::vector<std::string>& cameras,
+                          const std::vector<PixelFormat>& formats) {
+  YAML::Emitter out;
+  out << YAML::Comment(
+      "The pixel format each camera recorded (flamerig export). A Bayer camera's PNGs here are "
+      "its mosaic demosaiced (OpenCV's bilinear interpolation); fit and run with "
+      "--images fit them through that mosaic.");
+  out << YAML::BeginMap << YAML::Key << "cameras" << YAML::Value << YAML::BeginMap;
+  for (std::size_t c = 0; c < cameras.size() && c < formats.size(); ++c)
+    out << YAML::Key << cameras[c] << YAML::Value << ToString(formats[c]);
+  out << YAML::EndMap << YAML::EndMap;
+  WriteFileAtomically((fs::path(dir) / kExportedFormatsFile).string(),
+                      std::string(out.c_str()) + "\n");
+}
+
+std::vector<BayerLayout> ReadExportedMosaics(const std::string& dir, const Rig& rig) {
+  std::vector<BayerLayout> out(rig.cameras.size(), BayerLayout::kNone);
+  const fs::path path = fs::path(dir) / kExportedFormatsFile;
+  if (!fs::exists(path)) return out;
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path.string());
+  } catch (const YAML::Exception& e) {
+    throw InputError(path.string() + ": not YAML (" + e.what() + ")");
+  }
+  const YAML::Node cameras = root["cameras"];
+  if (!root.IsMap() || !cameras || !cameras.IsMap())
+    throw InputError(path.string() + ": needs a map 'cameras: {NAME: PIXEL_FORMAT, ...}'");
+  for (const auto& entry : cameras) {
+    const std::string name = entry.first.as<std::string>();
+    std::string format_name;
+    if (entry.second.IsScalar()) format_name = entry.second.as<std::string>();
+    PixelFormat format;
+    try {
+      format = PixelFormatFromName(format_name);
+    } catch (const Error& e) {
+      throw InputError(path.string() + ": camera '" + name + "': " + e.what());
+    }
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c)
+      if (rig.cameras[c].name == name) out[c] = BayerLayoutOf(format);
+  }
+  return out;
+}
+
 SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double exposure) {
   if (!fs::is_directory(dir)) throw InputError(dir + ": no such folder of camera images");
   SourceFrameSet out;
   out.images.resize(rig.cameras.size());
   out.linear.resize(rig.cameras.size());
   out.signal.resize(rig.cameras.size());
-  out.mosaic.assign(rig.cameras.size(), BayerLayout::kNone);
+  const fs::path folder = fs::path(dir).lexically_normal();
+  const fs::path here = folder.filename().empty() ? folder.parent_path() : folder;
+  out.mosaic = fs::exists(here / kExportedFormatsFile)
+                   ? ReadExportedMosaics(here.string(), rig)
+                   : ReadExportedMosaics(fs::absolute(here).parent_path().string(), rig);
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const RigCamera& camera = rig.cameras[c];
     const fs::path path = fs::path(dir) / (camera.name + ".png");
@@ -168,6 +219,7 @@ struct FrameSource::Impl {
   std::size_t sets = 0;
   std::unique_ptr<Recording> recording;
   std::vector<StreamPixSequence> seqs;
+  std::vector<BayerLayout> images_mosaic;  // a folder's, per rig camera (ReadExportedMosaics)
 
   // Checks a decoded camera image against the rig camera's imager.
   void CheckSize(int c, std::size_t set, int width, int height) const {
@@ -241,6 +293,7 @@ FrameSource::FrameSource(const FrameSourceSpec& spec, const Rig& rig)
       if (fs::exists(fs::path(spec.images_dir) / SetName(0) / (c.name + ".png")))
         names.push_back(c.name);
     impl_->MatchCameras(names);
+    impl_->images_mosaic = ReadExportedMosaics(spec.images_dir, impl_->rig);
   }
 }
 
@@ -304,6 +357,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
         continue;
       }
       bits = ReadImage(path.string(), &u8, &u16);
+      out.mosaic[c] = impl_->images_mosaic[c];
     }
     const int width = bits == 16 ? u16.width : u8.width;
     const int height = bits == 16 ? u16.height : u8.height;

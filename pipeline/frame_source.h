@@ -24,6 +24,7 @@
 #include <string>
 #include <vector>
 
+#include "acquisition/frame.h"
 #include "calibration/rig.h"
 #include "fitting/mosaic.h"
 #include "tomography/visual_hull.h"
@@ -79,9 +80,24 @@ class FrameSource {
 
 // One frame set from a folder, DIR/<camera>.png for every rig camera: 8-bit sRGB as the camera
 // wrote it or 16-bit linear (value / 65535 is the linear signal), decoded with `exposure` (> 0).
+// The Bayer layouts (SourceFrameSet::mosaic) are those of DIR/cameras.yaml, or of the folder
+// above's (a frame set that `flamerig export` wrote: OUT/frame_NNNNNN/).
 // A missing file leaves that camera out with a note in the set's notes; a damaged file or an image
 // of the wrong size is a DataError naming the file.
 SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double exposure);
+
+// What `flamerig export` writes beside the frame sets it exports (OUT/cameras.yaml): the pixel
+// format each camera recorded, `cameras: {NAME: FORMAT, ...}` with GenICam's names (Mono8,
+// BayerRG8, ...). A Bayer camera's PNGs hold its demosaicing (DecodeFrame), and whoever reads
+// them back as a folder of frame sets fits them through that mosaic (fitting/mosaic.h).
+inline constexpr const char* kExportedFormatsFile = "cameras.yaml";
+void WriteExportedFormats(const std::string& dir, const std::vector<std::string>& cameras,
+                          const std::vector<PixelFormat>& formats);
+// The Bayer layout of each rig camera's frames by DIR/cameras.yaml: kNone for a camera it does
+// not name or whose frames were not a mosaic, and for every camera when there is no such file
+// (plain image files). Throws InputError naming the file and the entry for a file that is not
+// such a map or a format that is not one.
+std::vector<BayerLayout> ReadExportedMosaics(const std::string& dir, const Rig& rig);
 
 // One camera's image as the tomography and the fit take it, decoded through the camera's
 // radiometric model (calibration/radiometry.h) from what ReadImage or DecodeFrame gave (`bits` 8:

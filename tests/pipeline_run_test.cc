@@ -29,6 +29,7 @@
 #include "fitting/physics.h"
 #include "pipeline/blender_export.h"
 #include "pipeline/distributed.h"
+#include "pipeline/export.h"
 #include "pipeline/fit_report.h"
 #include "pipeline/frame_stages.h"
 #include "pipeline/run.h"
@@ -1312,6 +1313,42 @@ TEST(RunFrames, ABayerRecordingIsFittedThroughItsMosaic) {
                   through.frames[f].delta_e[v].camera.c_str(), a, b);
       EXPECT_LT(a, 0.8 * b);
     }
+
+  // Exported as PNG frame sets, the take keeps its mosaic: `export` writes each camera's pixel
+  // format beside the sets, and a folder of them (or one set's folder) is read back as Bayer.
+  const fs::path exported = dir / "exported";
+  ExportRecording(rec_dir.string(), exported.string(), ExportOptions{});
+  ASSERT_TRUE(fs::exists(exported / kExportedFormatsFile));
+  FrameSourceSpec images;
+  images.images_dir = exported.string();
+  const SourceFrameSet from_images = FrameSource(images, rig).Read(1, 1.0);
+  const SourceFrameSet one_set = ReadFrameFolder(rig, (exported / FrameName(1)).string(), 1.0);
+  for (int c = 0; c < 3; ++c) {
+    EXPECT_EQ(from_images.mosaic[c], BayerLayout::kRggb) << c;
+    EXPECT_EQ(one_set.mosaic[c], BayerLayout::kRggb) << c;
+    EXPECT_EQ(from_images.images[c].pixels, set.images[c].pixels) << c;
+  }
+  RunOptions o = SmallRun(dir / "sim", dir / "from_images");
+  o.source = images;
+  o.sigma = o.blender = o.pictures = false;
+  const RunSummary from_export = RunAll(o);
+  ASSERT_EQ(from_export.computed, 2u);
+  for (std::size_t f = 0; f < 2; ++f)
+    for (std::size_t v = 0; v < from_export.frames[f].delta_e.size(); ++v)
+      EXPECT_NEAR(from_export.frames[f].delta_e[v].fire, through.frames[f].delta_e[v].fire, 0.05);
+  // Plain image folders carry no mosaic; a damaged formats file is an error naming it.
+  EXPECT_EQ(ReadFrameFolder(rig, (dir / "sim" / "frames" / FrameName(0)).string(), 1.0).mosaic,
+            std::vector<BayerLayout>(3, BayerLayout::kNone));
+  std::ofstream(exported / kExportedFormatsFile) << "cameras: {cam0: BayerXY8}\n";
+  try {
+    FrameSource(images, rig);
+    ADD_FAILURE() << "a bad pixel format was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find(kExportedFormatsFile), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("BayerXY8"), std::string::npos) << e.what();
+  }
+  std::ofstream(exported / kExportedFormatsFile) << "- cam0\n";
+  EXPECT_THROW(ReadFrameFolder(rig, (exported / FrameName(1)).string(), 1.0), InputError);
 }
 
 TEST(RunFrames, RecordingsWithDropsAndCorruptionAreReportedPerFrame) {
