@@ -221,8 +221,9 @@ struct FitOptions {
   // voxels' curvature pooled): on the main job's 13 frame sets (two views, truth 96, fit 64,
   // calibrated rig, each frame from its own tomography, pixels that integrate over their area,
   // Bayer cameras fitted through their mosaic) 67 to 74% of the visible voxels lie within one sigma
-  // and 92 to 95% within two, where the untied fit's per-voxel sigma holds 70 to 77% within one (`benchmark run`'s candle,
-  // truth and fit both 64, point-sampled RGB frames: 45 to 62% tied, 62 to 68% untied).
+  // and 92 to 95% within two, where the untied fit's per-voxel sigma holds 69 to 77% within one
+  // (`benchmark run`'s candle, truth and fit both 64, point-sampled RGB frames: 45 to 62% tied,
+  // 62 to 68% untied).
   bool axisymmetric = false;
   // The neighbour weight of an axisymmetric fit, in place of objective.w_sm (which is the untied
   // fit's). The rings already average away the noise the neighbour term holds down in an untied
