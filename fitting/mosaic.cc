@@ -241,9 +241,15 @@ ImageF BayerRecord::Adjoint(const ImageF& linear, double s, const ImageF& d_sign
 }
 
 std::shared_ptr<const BayerRecord> MakeBayerRecord(BayerLayout layout,
-                                                   const CameraRadiometry& radiometry) {
+                                                   const CameraRadiometry& radiometry,
+                                                   const std::string& camera) {
   if (layout == BayerLayout::kNone) return nullptr;
-  return std::make_shared<const BayerRecord>(layout, radiometry);
+  try {
+    return std::make_shared<const BayerRecord>(layout, radiometry);
+  } catch (const InputError& e) {
+    if (camera.empty()) throw;
+    throw InputError("camera '" + camera + "' (" + ToString(layout) + " mosaic): " + e.what());
+  }
 }
 
 }  // namespace flamerig

@@ -12,7 +12,7 @@
 // term's gradient back to the one channel each site measured:
 //
 //   c_k(x, y)   = clamp(s I_k(x, y), 0, 1)         k = the site's colour, s the exposure
-//   code(x, y)  = Encode(c_k(x, y))                 the camera's transfer (calibration/radiometry.h)
+//   code(x, y)  = Encode(c_k(x, y))                 the camera's transfer (radiometry.h)
 //   code'(x, y, ch) = sum over taps w * code(x', y')  bilinear, as OpenCV: the site's own code for
 //                                                   its colour, else the mean of its 8-neighbours
 //                                                   of colour ch (two, or four); the first and last
@@ -26,6 +26,7 @@
 #define FLAMERIG_FITTING_MOSAIC_H_
 
 #include <memory>
+#include <string>
 
 #include "acquisition/frame.h"
 #include "calibration/radiometry.h"
@@ -79,9 +80,11 @@ class BayerRecord {
 };
 
 // The model of a camera whose frames are of `layout` (recorded per frame set: SourceFrameSet::
-// mosaic); null for kNone, the frames of cameras that measure every channel.
+// mosaic); null for kNone, the frames of cameras that measure every channel. BayerRecord's errors
+// name `camera` when it is given.
 std::shared_ptr<const BayerRecord> MakeBayerRecord(BayerLayout layout,
-                                                   const CameraRadiometry& radiometry);
+                                                   const CameraRadiometry& radiometry,
+                                                   const std::string& camera = "");
 
 }  // namespace flamerig
 

@@ -531,14 +531,16 @@ FitObjective::Curvature FitObjective::DataCurvature(const std::vector<double>& t
       out.difference_sq += 0.5 * (residual[p] - residual[q]).squaredNorm();
       out.differences += 3;
     };
+    // (A Bayer view's border pixels are copies of their inner neighbours': left out.)
     const std::size_t w = std::size_t(img.width);
-    const int lag = bayer ? 3 : 1;
-    for (int y = 0; y < img.height; ++y)
-      for (int x = 0; x < img.width; ++x) {
+    const int lag = bayer ? 3 : 1, edge = bayer ? 1 : 0;
+    const int x_end = img.width - edge, y_end = img.height - edge;
+    for (int y = edge; y < y_end; ++y)
+      for (int x = edge; x < x_end; ++x) {
         const std::size_t p = std::size_t(y) * w + std::size_t(x);
         if (!fire[p]) continue;
-        if (x + lag < img.width) pair(p, p + lag);
-        if (y + lag < img.height) pair(p, p + lag * w);
+        if (x + lag < x_end) pair(p, p + lag);
+        if (y + lag < y_end) pair(p, p + lag * w);
       }
     renderer(v).RenderCurvature(*views_[v].rays, jacobians, &tt, &tn, &nn);
   }

@@ -70,6 +70,9 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
     if (static_cast<std::int64_t>(rec.SetHeader(i).index) > meta.event_last_ring_set)
       first_live = static_cast<std::int64_t>(i);
   summary.event_set = first_live;
+  // Each camera's pixel format: its settings', then that of the frames written.
+  std::vector<PixelFormat> formats;
+  for (const auto& c : meta.cameras) formats.push_back(c.settings.pixel_format);
   const std::size_t first = std::min(options.first, rec.num_sets());
   const std::size_t end = first + std::min(options.count, rec.num_sets() - first);
   for (std::size_t i = first; i < end; ++i) {
@@ -88,6 +91,7 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
       std::string frame_id;
       try {
         const Frame f = *rec.ReadFrame(i, c);
+        formats[c] = f.info.pixel_format;  // the frames', which a driver may set per buffer
         frame_id = std::to_string(f.info.frame_id);
         WriteFramePng(f, dir / (camera + ".png"));
         csv << "," << frame_id << "," << ToString(f.info.status);
@@ -114,11 +118,7 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   }
   WriteFileAtomically((fs::path(out_dir) / "sets.csv").string(), csv.str());
   std::vector<std::string> names;
-  std::vector<PixelFormat> formats;
-  for (const auto& c : meta.cameras) {
-    names.push_back(c.name);
-    formats.push_back(c.settings.pixel_format);
-  }
+  for (const auto& c : meta.cameras) names.push_back(c.name);
   WriteExportedFormats(out_dir, names, formats);
   return summary;
 }

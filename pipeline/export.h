@@ -30,8 +30,9 @@ struct ExportSummary {
 };
 
 // Writes OUT/frame_NNNNNN/<camera name>.png (8-bit, or 16-bit for Mono16; Bayer demosaiced to RGB),
-// OUT/cameras.yaml (each camera's pixel format, so that a Bayer camera's frames read back from
-// here are fitted through its mosaic: pipeline/frame_source.h) and OUT/sets.csv (set, trigger id, reference time, spread, then per camera frame id and status,
+// OUT/pixel_formats.yaml (each camera's pixel format as its frames carried it, so that a Bayer
+// camera's frames read back from here are fitted through its mosaic: pipeline/frame_source.h) and
+// OUT/sets.csv (set, trigger id, reference time, spread, then per camera frame id and status,
 // empty when missing, "damaged" for a frame that is lost or fails its checksum; for an event
 // recording a last column `event`: "pre-trigger" for the ring's sets, the event's name on the
 // first set after its trigger). The recording is
@@ -46,7 +47,7 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
 // The same for StreamPix .seq files, one per camera (frame i of every file is set i, as the
 // paper's hardware-triggered capture wrote them); `names` gives the camera names (default the
 // file stems). Stops at the shortest sequence. A damaged frame is reported and left out; the other
-// cameras of its set are written. OUT/cameras.yaml gives each file's pixel format as read.
+// cameras of its set are written. OUT/pixel_formats.yaml gives each file's pixel format as read.
 ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
                               const std::vector<std::string>& names, const std::string& out_dir,
                               const ExportOptions& options,

@@ -22,8 +22,8 @@ struct ViewScore {
 };
 
 // Renders `result.volume` through each view at `result.exposure` (a Bayer camera's view through
-// its mosaic and demosaicing, FitView::mosaic, as the fit compares it), scores it and, when `dir` is
-// not empty, writes the report there: index.html (pipeline/report_page.h) and report.md over
+// its mosaic and demosaicing, FitView::mosaic, as the fit compares it), scores it and, when `dir`
+// is not empty, writes the report there: index.html (pipeline/report_page.h) and report.md over
 // views.png (input, rendered, Delta E map per view, labelled), slices.png (the fitted temperature,
 // with `truth` the truth and the error, and the sigma; run_report.h's SlicesPicture), error.png
 // and .svg (mean Delta E against time, pipeline/plot.h) and trace.csv; for an axisymmetric fit

@@ -125,30 +125,56 @@ std::vector<BayerLayout> ReadExportedMosaics(const std::string& dir, const Rig& 
   std::vector<BayerLayout> out(rig.cameras.size(), BayerLayout::kNone);
   const fs::path path = fs::path(dir) / kExportedFormatsFile;
   if (!fs::exists(path)) return out;
-  YAML::Node root;
+  const std::string shape = ": needs a map 'cameras: {NAME: PIXEL_FORMAT, ...}'";
   try {
-    root = YAML::LoadFile(path.string());
+    const YAML::Node root = YAML::LoadFile(path.string());
+    if (!root.IsMap() || !root["cameras"] || !root["cameras"].IsMap())
+      throw InputError(path.string() + shape);
+    for (const auto& entry : root["cameras"]) {
+      if (!entry.first.IsScalar() || !entry.second.IsScalar())
+        throw InputError(path.string() + shape);
+      const std::string name = entry.first.as<std::string>();
+      PixelFormat format;
+      try {
+        format = PixelFormatFromName(entry.second.as<std::string>());
+      } catch (const Error& e) {
+        throw InputError(path.string() + ": camera '" + name + "': " + e.what());
+      }
+      for (std::size_t c = 0; c < rig.cameras.size(); ++c)
+        if (rig.cameras[c].name == name) out[c] = BayerLayoutOf(format);
+    }
   } catch (const YAML::Exception& e) {
     throw InputError(path.string() + ": not YAML (" + e.what() + ")");
   }
-  const YAML::Node cameras = root["cameras"];
-  if (!root.IsMap() || !cameras || !cameras.IsMap())
-    throw InputError(path.string() + ": needs a map 'cameras: {NAME: PIXEL_FORMAT, ...}'");
-  for (const auto& entry : cameras) {
-    const std::string name = entry.first.as<std::string>();
-    std::string format_name;
-    if (entry.second.IsScalar()) format_name = entry.second.as<std::string>();
-    PixelFormat format;
-    try {
-      format = PixelFormatFromName(format_name);
-    } catch (const Error& e) {
-      throw InputError(path.string() + ": camera '" + name + "': " + e.what());
-    }
-    for (std::size_t c = 0; c < rig.cameras.size(); ++c)
-      if (rig.cameras[c].name == name) out[c] = BayerLayoutOf(format);
-  }
   return out;
 }
+
+namespace {
+
+// The Bayer layouts for a folder of one frame set: its own pixel_formats.yaml, or that of the
+// export it belongs to (a folder named frame_NNNNNN whose parent holds the export's sets.csv).
+std::vector<BayerLayout> FrameFolderMosaics(const std::string& dir, const Rig& rig) {
+  const fs::path folder = fs::weakly_canonical(fs::absolute(dir));
+  if (fs::exists(folder / kExportedFormatsFile)) return ReadExportedMosaics(folder.string(), rig);
+  const std::string name = folder.filename().string();
+  const bool set_folder =
+      name.size() == 12 && name.rfind("frame_", 0) == 0 &&
+      std::all_of(name.begin() + 6, name.end(), [](char ch) { return ch >= '0' && ch <= '9'; });
+  if (set_folder && fs::exists(folder.parent_path() / "sets.csv"))
+    return ReadExportedMosaics(folder.parent_path().string(), rig);
+  return std::vector<BayerLayout>(rig.cameras.size(), BayerLayout::kNone);
+}
+
+// A Bayer layout applies to what DecodeFrame made of a mosaic, an 8-bit RGB image; anything else
+// under that name is refused, naming the image.
+void CheckMosaicImage(BayerLayout layout, int bits, int channels, const std::string& image) {
+  if (layout == BayerLayout::kNone || (bits == 8 && channels == 3)) return;
+  throw DataError(image + ": " + std::string(kExportedFormatsFile) + " says its camera sent a " +
+                  ToString(layout) + " Bayer mosaic, demosaiced to 8-bit RGB, but the image is " +
+                  std::to_string(bits) + "-bit with " + std::to_string(channels) + " channel(s)");
+}
+
+}  // namespace
 
 SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double exposure) {
   if (!fs::is_directory(dir)) throw InputError(dir + ": no such folder of camera images");
@@ -156,11 +182,7 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
   out.images.resize(rig.cameras.size());
   out.linear.resize(rig.cameras.size());
   out.signal.resize(rig.cameras.size());
-  const fs::path folder = fs::path(dir).lexically_normal();
-  const fs::path here = folder.filename().empty() ? folder.parent_path() : folder;
-  out.mosaic = fs::exists(here / kExportedFormatsFile)
-                   ? ReadExportedMosaics(here.string(), rig)
-                   : ReadExportedMosaics(fs::absolute(here).parent_path().string(), rig);
+  out.mosaic = FrameFolderMosaics(dir, rig);
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const RigCamera& camera = rig.cameras[c];
     const fs::path path = fs::path(dir) / (camera.name + ".png");
@@ -174,6 +196,7 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
     const int bits = ReadImage(path.string(), &u8, &u16);
     const int width = bits == 16 ? u16.width : u8.width;
     const int height = bits == 16 ? u16.height : u8.height;
+    CheckMosaicImage(out.mosaic[c], bits, bits == 16 ? u16.channels : u8.channels, path.string());
     if (width != camera.model.width() || height != camera.model.height())
       throw DataError(path.string() + ": the image is " + std::to_string(width) + "x" +
                       std::to_string(height) + ", camera '" + camera.name + "' is " +
@@ -358,6 +381,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
       }
       bits = ReadImage(path.string(), &u8, &u16);
       out.mosaic[c] = impl_->images_mosaic[c];
+      CheckMosaicImage(out.mosaic[c], bits, bits == 16 ? u16.channels : u8.channels, path.string());
     }
     const int width = bits == 16 ? u16.width : u8.width;
     const int height = bits == 16 ? u16.height : u8.height;

@@ -80,21 +80,23 @@ class FrameSource {
 
 // One frame set from a folder, DIR/<camera>.png for every rig camera: 8-bit sRGB as the camera
 // wrote it or 16-bit linear (value / 65535 is the linear signal), decoded with `exposure` (> 0).
-// The Bayer layouts (SourceFrameSet::mosaic) are those of DIR/cameras.yaml, or of the folder
-// above's (a frame set that `flamerig export` wrote: OUT/frame_NNNNNN/).
+// The Bayer layouts (SourceFrameSet::mosaic) are those of DIR/pixel_formats.yaml, or, for a folder
+// named frame_NNNNNN whose parent holds an export's sets.csv, the parent's (a set that `flamerig
+// export` wrote); an image that a Bayer layout names but that is not 8-bit RGB is a DataError
+// naming it.
 // A missing file leaves that camera out with a note in the set's notes; a damaged file or an image
 // of the wrong size is a DataError naming the file.
 SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double exposure);
 
-// What `flamerig export` writes beside the frame sets it exports (OUT/cameras.yaml): the pixel
-// format each camera recorded, `cameras: {NAME: FORMAT, ...}` with GenICam's names (Mono8,
+// What `flamerig export` writes beside the frame sets it exports (OUT/pixel_formats.yaml): the
+// pixel format each camera recorded, `cameras: {NAME: FORMAT, ...}` with GenICam's names (Mono8,
 // BayerRG8, ...). A Bayer camera's PNGs hold its demosaicing (DecodeFrame), and whoever reads
 // them back as a folder of frame sets fits them through that mosaic (fitting/mosaic.h).
-inline constexpr const char* kExportedFormatsFile = "cameras.yaml";
+inline constexpr const char* kExportedFormatsFile = "pixel_formats.yaml";
 void WriteExportedFormats(const std::string& dir, const std::vector<std::string>& cameras,
                           const std::vector<PixelFormat>& formats);
-// The Bayer layout of each rig camera's frames by DIR/cameras.yaml: kNone for a camera it does
-// not name or whose frames were not a mosaic, and for every camera when there is no such file
+// The Bayer layout of each rig camera's frames by DIR/pixel_formats.yaml: kNone for a camera it
+// does not name or whose frames were not a mosaic, and for every camera when there is no such file
 // (plain image files). Throws InputError naming the file and the entry for a file that is not
 // such a map or a format that is not one.
 std::vector<BayerLayout> ReadExportedMosaics(const std::string& dir, const Rig& rig);

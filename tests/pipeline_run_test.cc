@@ -17,6 +17,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <limits>
 #include <map>
 #include <memory>
@@ -1232,17 +1233,11 @@ TEST(RunDistributed, TwoRanksAsThreadsShareTheFramesAndOneReport) {
   fs::remove_all(dir);
 }
 
-// A recording: a camera that dropped a set and a frame delivered incomplete are left out of their
-// frame with a note; a set whose pixels fail their checksum is a failed frame naming the file, and
-// the run goes on.
-// A take from colour cameras that send their Bayer mosaics (BayerRG8): the frame source says so,
-// and `run` fits and scores every view through the mosaic and the host's demosaicing
-// (fitting/mosaic.h). Fitting the interpolated colours as if measured (model_mosaic off, as until
-// 2026-11-29) leaves their fringes in the images' error.
-TEST(RunFrames, ABayerRecordingIsFittedThroughItsMosaic) {
-  const fs::path dir = TempDir("bayer_recording");
-  SimulateDataset(dir / "sim", 2);
-  const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
+// Records the first `sets` frame sets of a dataset's three 120x90 cameras into `rec_dir` as a
+// hardware-triggered take in `format` (RGB8, or a Bayer mosaic of the dataset's pixels); `frame(s,
+// c, &f)` sees every frame before it is submitted, may change it, and returns false to drop it.
+void RecordDataset(const fs::path& dataset, const Rig& rig, const fs::path& rec_dir, int sets,
+                   PixelFormat format, const std::function<bool(int, int, Frame*)>& frame) {
   RecordingMetadata meta;
   meta.sync_mode = "hardware-trigger";
   for (const auto& c : rig.cameras) {
@@ -1251,41 +1246,55 @@ TEST(RunFrames, ABayerRecordingIsFittedThroughItsMosaic) {
     rc.description.driver = "sim";
     rc.settings.width = 120;
     rc.settings.height = 90;
-    rc.settings.pixel_format = PixelFormat::kBayerRg8;
+    rc.settings.pixel_format = format;
     meta.cameras.push_back(rc);
   }
-  const fs::path rec_dir = dir / "rec";
-  std::vector<std::vector<Frame>> sent(2);
-  {
-    Recorder recorder(rec_dir.string(), meta);
-    for (int s = 0; s < 2; ++s) {
-      FrameSet set;
-      set.index = s;
-      set.trigger_id = s;
-      set.frames.resize(3);
-      for (int c = 0; c < 3; ++c) {
-        const ImageU8 image = ReadImageU8(
-            (dir / "sim" / "frames" / FrameName(s) / (rig.cameras[c].name + ".png")).string(), 3);
-        auto mosaic = std::make_shared<std::vector<std::uint8_t>>(image.num_pixels());
+  const BayerLayout layout = BayerLayoutOf(format);
+  Recorder recorder(rec_dir.string(), meta);
+  for (int s = 0; s < sets; ++s) {
+    FrameSet set;
+    set.index = s;
+    set.trigger_id = s;
+    set.frames.resize(3);
+    for (int c = 0; c < 3; ++c) {
+      const ImageU8 image = ReadImageU8(
+          (dataset / "frames" / FrameName(s) / (rig.cameras[c].name + ".png")).string(), 3);
+      auto bytes = std::make_shared<std::vector<std::uint8_t>>(image.pixels);
+      if (layout != BayerLayout::kNone) {
+        bytes->resize(image.num_pixels());
         for (int y = 0; y < image.height; ++y)
           for (int x = 0; x < image.width; ++x)
-            (*mosaic)[std::size_t(y) * image.width + x] =
-                image.at(x, y, BayerColour(BayerLayout::kRggb, x, y));
-        Frame f;
-        f.info.camera = c;
-        f.info.frame_id = 100 + s;
-        f.info.trigger_id = s;
-        f.info.pixel_format = PixelFormat::kBayerRg8;
-        f.info.width = 120;
-        f.info.height = 90;
-        f.data = mosaic;
-        set.frames[c] = f;
-        sent[s].push_back(f);
+            (*bytes)[std::size_t(y) * image.width + x] = image.at(x, y, BayerColour(layout, x, y));
       }
-      ASSERT_TRUE(recorder.Submit(set));
+      Frame f;
+      f.info.camera = c;
+      f.info.frame_id = 100 + s;
+      f.info.trigger_id = s;
+      f.info.pixel_format = format;
+      f.info.width = 120;
+      f.info.height = 90;
+      f.data = bytes;
+      if (frame(s, c, &f)) set.frames[c] = f;
     }
-    EXPECT_EQ(recorder.Close().sets_recorded, 2u);
+    ASSERT_TRUE(recorder.Submit(set));
   }
+  EXPECT_EQ(recorder.Close().sets_recorded, static_cast<std::size_t>(sets));
+}
+
+// A take from colour cameras that send their Bayer mosaics (BayerRG8): the frame source says so,
+// and `run` fits and scores every view through the mosaic and the host's demosaicing
+// (fitting/mosaic.h). Fitting the interpolated colours as if measured (model_mosaic off, as until
+// 2026-11-29) leaves their fringes in the images' error.
+TEST(RunFrames, ABayerRecordingIsFittedThroughItsMosaic) {
+  const fs::path dir = TempDir("bayer_recording");
+  SimulateDataset(dir / "sim", 2);
+  const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
+  const fs::path rec_dir = dir / "rec";
+  std::vector<std::vector<Frame>> sent(2);
+  RecordDataset(dir / "sim", rig, rec_dir, 2, PixelFormat::kBayerRg8, [&](int s, int, Frame* f) {
+    sent[s].push_back(*f);
+    return true;
+  });
   FrameSourceSpec spec;
   spec.recording_dir = rec_dir.string();
   const SourceFrameSet set = FrameSource(spec, rig).Read(1, 1.0);
@@ -1306,13 +1315,38 @@ TEST(RunFrames, ABayerRecordingIsFittedThroughItsMosaic) {
   const RunSummary through = run(true, "through"), as_measured = run(false, "as_measured");
   ASSERT_EQ(through.computed, 2u);
   ASSERT_EQ(as_measured.computed, 2u);
-  for (std::size_t f = 0; f < 2; ++f)
-    for (std::size_t v = 0; v < through.frames[f].delta_e.size(); ++v) {
-      const double a = through.frames[f].delta_e[v].fire, b = as_measured.frames[f].delta_e[v].fire;
-      std::printf("set %zu, %s: fire Delta E %.2f through the mosaic, %.2f as measured\n", f,
-                  through.frames[f].delta_e[v].camera.c_str(), a, b);
-      EXPECT_LT(a, 0.8 * b);
-    }
+  // Both fits of set 1 scored the same way, through the mosaic: the one that fitted through it
+  // matches the recording better. (Each run's own report scores as it fitted.)
+  std::vector<std::unique_ptr<CameraRays>> rays;
+  std::vector<FitView> views;
+  for (int c = 0; c < 3; ++c) {
+    rays.push_back(std::make_unique<CameraRays>(rig.cameras[c].model));
+    FitView v;
+    v.name = rig.cameras[c].name;
+    v.rays = rays.back().get();
+    v.image = set.images[c];
+    v.signal = set.signal[c];
+    v.mosaic = MakeBayerRecord(BayerLayout::kRggb, rig.cameras[c].radiometry);
+    views.push_back(std::move(v));
+  }
+  const AbsorptionModel absorption =
+      AbsorptionModel::FromName(DatasetAbsorption((dir / "sim" / "rig.yaml").string()));
+  auto score = [&](const char* name) {
+    FitResult r;
+    r.volume = ReadVdb((dir / name / "frame_000001.vdb").string());
+    r.exposure = r.volume.metadata_numbers.at("exposure");
+    double sum = 0;
+    for (const ViewScore& v : WriteFitReport("", r, views, {}, absorption, RenderOptions{}, ""))
+      sum += v.fire_delta_e;
+    return sum / 3;
+  };
+  const double fitted_through = score("through"), fitted_as_measured = score("as_measured");
+  std::printf(
+      "set 1 through the mosaic: fire Delta E %.2f fitted through it, %.2f fitted as "
+      "measured; each run's own report: %.2f and %.2f\n",
+      fitted_through, fitted_as_measured, through.frames[1].MeanFittedDeltaE(),
+      as_measured.frames[1].MeanFittedDeltaE());
+  EXPECT_LT(fitted_through, 0.8 * fitted_as_measured);
 
   // Exported as PNG frame sets, the take keeps its mosaic: `export` writes each camera's pixel
   // format beside the sets, and a folder of them (or one set's folder) is read back as Bayer.
@@ -1335,7 +1369,28 @@ TEST(RunFrames, ABayerRecordingIsFittedThroughItsMosaic) {
   ASSERT_EQ(from_export.computed, 2u);
   for (std::size_t f = 0; f < 2; ++f)
     for (std::size_t v = 0; v < from_export.frames[f].delta_e.size(); ++v)
-      EXPECT_NEAR(from_export.frames[f].delta_e[v].fire, through.frames[f].delta_e[v].fire, 0.05);
+      EXPECT_NEAR(from_export.frames[f].delta_e[v].fire, through.frames[f].delta_e[v].fire, 0.2);
+  // A folder named as a set but outside an export (no sets.csv above it) carries no mosaic; an
+  // image that the formats file calls a mosaic but is not 8-bit RGB is refused, naming it.
+  const fs::path lone = dir / "lone" / FrameName(1);
+  fs::create_directories(lone);
+  for (int c = 0; c < 3; ++c)
+    fs::copy_file(exported / FrameName(1) / (rig.cameras[c].name + ".png"),
+                  lone / (rig.cameras[c].name + ".png"));
+  fs::copy_file(exported / kExportedFormatsFile, dir / "lone" / kExportedFormatsFile);
+  EXPECT_EQ(ReadFrameFolder(rig, lone.string(), 1.0).mosaic,
+            std::vector<BayerLayout>(3, BayerLayout::kNone));
+  fs::copy_file(exported / "sets.csv", dir / "lone" / "sets.csv");
+  EXPECT_EQ(ReadFrameFolder(rig, (lone / ".").string(), 1.0).mosaic,
+            std::vector<BayerLayout>(3, BayerLayout::kRggb));
+  WritePng16((lone / (rig.cameras[0].name + ".png")).string(), ImageU16(120, 90, 3, 1000));
+  try {
+    ReadFrameFolder(rig, lone.string(), 1.0);
+    ADD_FAILURE() << "a 16-bit image was taken as a demosaiced Bayer frame";
+  } catch (const DataError& e) {
+    EXPECT_NE(std::string(e.what()).find(rig.cameras[0].name + ".png"), std::string::npos)
+        << e.what();
+  }
   // Plain image folders carry no mosaic; a damaged formats file is an error naming it.
   EXPECT_EQ(ReadFrameFolder(rig, (dir / "sim" / "frames" / FrameName(0)).string(), 1.0).mosaic,
             std::vector<BayerLayout>(3, BayerLayout::kNone));
@@ -1347,52 +1402,24 @@ TEST(RunFrames, ABayerRecordingIsFittedThroughItsMosaic) {
     EXPECT_NE(std::string(e.what()).find(kExportedFormatsFile), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("BayerXY8"), std::string::npos) << e.what();
   }
-  std::ofstream(exported / kExportedFormatsFile) << "- cam0\n";
-  EXPECT_THROW(ReadFrameFolder(rig, (exported / FrameName(1)).string(), 1.0), InputError);
+  for (const char* bad : {"- cam0\n", "cameras: {[cam0]: BayerRG8}\n", "7\n", "cameras: [\n"}) {
+    std::ofstream(exported / kExportedFormatsFile) << bad;
+    EXPECT_THROW(ReadFrameFolder(rig, (exported / FrameName(1)).string(), 1.0), InputError) << bad;
+  }
 }
 
+// A recording: a camera that dropped a set and a frame delivered incomplete are left out of their
+// frame with a note; a set whose pixels fail their checksum is a failed frame naming the file, and
+// the run goes on.
 TEST(RunFrames, RecordingsWithDropsAndCorruptionAreReportedPerFrame) {
   const fs::path dir = TempDir("recording");
   SimulateDataset(dir / "sim", 4);
   const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
-  RecordingMetadata meta;
-  meta.sync_mode = "hardware-trigger";
-  for (const auto& c : rig.cameras) {
-    RecordingCamera rc;
-    rc.name = c.name;
-    rc.description.driver = "sim";
-    rc.settings.width = 120;
-    rc.settings.height = 90;
-    rc.settings.pixel_format = PixelFormat::kRgb8;
-    meta.cameras.push_back(rc);
-  }
   const fs::path rec_dir = dir / "rec";
-  {
-    Recorder recorder(rec_dir.string(), meta);
-    for (int s = 0; s < 4; ++s) {
-      FrameSet set;
-      set.index = s;
-      set.trigger_id = s;
-      set.frames.resize(3);
-      for (int c = 0; c < 3; ++c) {
-        if (s == 1 && c == 2) continue;  // dropped
-        const ImageU8 image = ReadImageU8(
-            (dir / "sim" / "frames" / FrameName(s) / (rig.cameras[c].name + ".png")).string(), 3);
-        Frame f;
-        f.info.camera = c;
-        f.info.frame_id = 100 + s;
-        f.info.trigger_id = s;
-        f.info.pixel_format = PixelFormat::kRgb8;
-        f.info.width = 120;
-        f.info.height = 90;
-        f.info.status = s == 2 && c == 0 ? FrameStatus::kIncomplete : FrameStatus::kOk;
-        f.data = std::make_shared<std::vector<std::uint8_t>>(image.pixels);
-        set.frames[c] = f;
-      }
-      ASSERT_TRUE(recorder.Submit(set));
-    }
-    EXPECT_EQ(recorder.Close().sets_recorded, 4u);
-  }
+  RecordDataset(dir / "sim", rig, rec_dir, 4, PixelFormat::kRgb8, [](int s, int c, Frame* f) {
+    if (s == 2 && c == 0) f->info.status = FrameStatus::kIncomplete;
+    return !(s == 1 && c == 2);  // dropped
+  });
   // Corrupt a pixel of camera 1's frame in set 3.
   {
     const Recording r = Recording::Open(rec_dir.string());
