@@ -60,7 +60,7 @@ TEST(BayerLayout, FollowsTheGenICamNames) {
 TEST(BayerResample, IsWhatDecodeFrameMakesOfTheMosaic) {
   std::mt19937 rng(5);
   std::uniform_int_distribution<int> code(0, 255);
-  for (const auto [w, h] : {std::pair{13, 10}, std::pair{12, 9}, std::pair{3, 3}}) {
+  for (const auto& [w, h] : {std::pair{13, 10}, std::pair{12, 9}, std::pair{3, 3}}) {
     ImageU8 codes(w, h, 3);
     for (auto& c : codes.pixels) c = static_cast<std::uint8_t>(code(rng));
     ImageF as_float(w, h, 3);
