@@ -201,9 +201,10 @@ ImageF BayerRecord::SiteCodes(const ImageF& linear, double s) const {
   return codes;
 }
 
-ImageF BayerRecord::Forward(const ImageF& linear, double s) const {
+ImageF BayerRecord::Forward(const ImageF& linear, double s, ImageF* codes) const {
   CheckImage(linear, layout_, "BayerRecord::Forward");
   ImageF out = Interpolate(SiteCodes(linear, s), layout_);
+  if (codes) *codes = out;
   ForEachRow(out.height, [&](int y) {
     float* row = &out.at(0, y);
     for (int i = 0; i < 3 * out.width; ++i) row[i] = static_cast<float>(Signal(row[i]));
@@ -211,13 +212,15 @@ ImageF BayerRecord::Forward(const ImageF& linear, double s) const {
   return out;
 }
 
-ImageF BayerRecord::Adjoint(const ImageF& linear, double s, const ImageF& d_signal,
-                            double* d_s) const {
+ImageF BayerRecord::Adjoint(const ImageF& linear, double s, const ImageF& d_signal, double* d_s,
+                            const ImageF* codes) const {
   CheckImage(linear, layout_, "BayerRecord::Adjoint");
-  if (d_signal.width != linear.width || d_signal.height != linear.height || d_signal.channels != 3)
-    throw InputError("BayerRecord::Adjoint: the gradient is not the image's size");
-  // Recompute the interpolated codes (cheap beside the render), then dE/d(them).
-  ImageF d_code = Interpolate(SiteCodes(linear, s), layout_);
+  for (const ImageF* image : {&d_signal, codes})
+    if (image &&
+        (image->width != linear.width || image->height != linear.height || image->channels != 3))
+      throw InputError("BayerRecord::Adjoint: the gradient or the codes are not the image's size");
+  // The interpolated codes (Forward's, or worked out again), then dE/d(them).
+  ImageF d_code = codes ? *codes : Interpolate(SiteCodes(linear, s), layout_);
   ForEachRow(d_code.height, [&](int y) {
     float* row = &d_code.at(0, y);
     const float* g = &d_signal.at(0, y);
@@ -231,7 +234,8 @@ ImageF BayerRecord::Adjoint(const ImageF& linear, double s, const ImageF& d_sign
     for (int x = 0; x < linear.width; ++x) {
       const int k = BayerColour(layout_, x, y);
       const double v = s * linear.at(x, y, k);
-      if (!(v > 0 && v < 1)) continue;  // clamped: no derivative (as CameraLab)
+      // Clamped: no derivative (as CameraLab); an unseen site: nothing to pass on.
+      if (!(v > 0 && v < 1) || d_sites.at(x, y) == 0.0f) continue;
       const double d_c = d_sites.at(x, y) * EncodeSlope(v);
       out.at(x, y, k) = static_cast<float>(d_c * s);
       ds += d_c * linear.at(x, y, k);

@@ -62,10 +62,14 @@ class BayerRecord {
 
   // The linear signal (3 channels, 0..1) that the host's demosaicing gives of the rendered linear
   // radiance `linear` (the renderer's output, 3 channels) at exposure s (> 0).
-  ImageF Forward(const ImageF& linear, double s) const;
+  // `codes`, when not null, receives the interpolated codes, which Adjoint can take back instead
+  // of working them out again.
+  ImageF Forward(const ImageF& linear, double s, ImageF* codes = nullptr) const;
   // Given dE/d(signal) for every pixel and channel of Forward(linear, s), dE/d(linear) (3
   // channels; at each site only its own colour is non-zero) and, if d_s is not null, adds dE/ds.
-  ImageF Adjoint(const ImageF& linear, double s, const ImageF& d_signal, double* d_s) const;
+  // `codes`: Forward's for the same `linear` and s, or null to work them out.
+  ImageF Adjoint(const ImageF& linear, double s, const ImageF& d_signal, double* d_s,
+                 const ImageF* codes = nullptr) const;
 
  private:
   double Encode(double signal) const { return radiometry_.Encode(signal, decoding_); }

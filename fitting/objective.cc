@@ -118,7 +118,10 @@ class DataTerm : public EnergyTerm {
       // A Bayer view is compared as its signal after the mosaic and the demosaicing (exposure
       // applied there, so Lab takes it at 1); its gradient goes back through the mosaic's adjoint.
       const BayerRecord* mosaic = objective_.mosaic(v);
-      const ImageF recorded = mosaic ? mosaic->Forward(renders.linear[v], x.s) : ImageF();
+      ImageF codes;  // the mosaic's interpolated codes, for its adjoint
+      const ImageF recorded =
+          mosaic ? mosaic->Forward(renders.linear[v], x.s, want_gradient ? &codes : nullptr)
+                 : ImageF();
       const ImageF& img = mosaic ? recorded : renders.linear[v];
       const double s = mosaic ? 1.0 : x.s;
       const BlackPixel& black = mosaic ? zero_signal : zero;
@@ -161,7 +164,8 @@ class DataTerm : public EnergyTerm {
       value.exact += sums.exact;
       value.smooth += sums.smooth;
       if (mosaic && want_gradient)
-        d_img = mosaic->Adjoint(renders.linear[v], x.s, d_img, gradient.d_s ? &ds_total : nullptr);
+        d_img = mosaic->Adjoint(renders.linear[v], x.s, d_img, gradient.d_s ? &ds_total : nullptr,
+                                &codes);
       else
         ds_total += sums.ds;
       if (stats) {

@@ -190,6 +190,15 @@ TEST(BayerRecord, AdjointMatchesFiniteDifferences) {
           }
       const double fd_s = (energy(linear, s * 1.001) - energy(linear, s * 0.999)) / (0.002 * s);
       EXPECT_NEAR(d_s, fd_s, 2e-3 * std::abs(fd_s) + 1e-6) << ToString(format);
+      // Forward's codes handed to the adjoint give the same gradient as working them out again.
+      ImageF codes;
+      record.Forward(linear, s, &codes);
+      double d_s_codes = 0;
+      const ImageF grad_codes = record.Adjoint(linear, s, weights, &d_s_codes, &codes);
+      EXPECT_EQ(grad_codes.pixels, grad.pixels) << ToString(format);
+      EXPECT_EQ(d_s_codes, d_s) << ToString(format);
+      const ImageF wrong_size(4, 4, 3);
+      EXPECT_THROW(record.Adjoint(linear, s, weights, nullptr, &wrong_size), InputError);
     }
   }
 }
