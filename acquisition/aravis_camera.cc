@@ -50,14 +50,20 @@ ArvPixelFormat ToArv(PixelFormat f) {
       return ARV_PIXEL_FORMAT_BAYER_GB_8;
     case PixelFormat::kBayerBg8:
       return ARV_PIXEL_FORMAT_BAYER_BG_8;
+    case PixelFormat::kBayerRg16:
+      return ARV_PIXEL_FORMAT_BAYER_RG_16;
+    case PixelFormat::kBayerGr16:
+      return ARV_PIXEL_FORMAT_BAYER_GR_16;
+    case PixelFormat::kBayerGb16:
+      return ARV_PIXEL_FORMAT_BAYER_GB_16;
+    case PixelFormat::kBayerBg16:
+      return ARV_PIXEL_FORMAT_BAYER_BG_16;
   }
   return ARV_PIXEL_FORMAT_MONO_8;
 }
 
 bool FromArv(ArvPixelFormat f, PixelFormat* out) {
-  for (PixelFormat p :
-       {PixelFormat::kMono8, PixelFormat::kMono16, PixelFormat::kRgb8, PixelFormat::kBayerRg8,
-        PixelFormat::kBayerGr8, PixelFormat::kBayerGb8, PixelFormat::kBayerBg8}) {
+  for (PixelFormat p : kAllPixelFormats) {
     if (ToArv(p) == f) {
       *out = p;
       return true;
@@ -526,8 +532,8 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
       f.info.status = FrameStatus::kError;
   }
   // The bytes of the image (the in-process fakes report a size of 0 though the bytes are there).
-  // A wire format is unpacked into Mono16 here, before the frame is queued.
-  if (wire) f.info.pixel_format = PixelFormat::kMono16;
+  // A wire format is unpacked into Mono16 or Bayer 16 here, before the frame is queued.
+  if (wire) f.info.pixel_format = wire->stored;
   size_t size = 0;
   const auto* data = static_cast<const std::uint8_t*>(arv_buffer_get_data(buffer, &size));
   const std::size_t image_bytes =
@@ -537,7 +543,7 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
       (size == 0 || size >= image_bytes)) {
     if (wire) {
       f.data = std::make_shared<const std::vector<std::uint8_t>>(
-          UnpackToMono16(*wire, data, image_bytes, f.info.width, f.info.height));
+          UnpackTo16Bit(*wire, data, image_bytes, f.info.width, f.info.height));
     } else {
       // Out of Aravis' buffer into a pooled one (frame_pool.h): no allocation per frame.
       auto bytes = pool_.Acquire(image_bytes);

@@ -53,9 +53,13 @@
 //                                  # it in when it can (tried about once a second)
 //       width: 640
 //       height: 480
-//       pixel_format: Mono8           # Mono8, Mono16, RGB8, BayerRG8/GR8/GB8/BG8; aravis also
-//                                     # Mono10, Mono12, Mono14, Mono10Packed, Mono12Packed, Mono10p,
-//                                     # Mono12p, stored as Mono16 (value << (16 - bits))
+//       pixel_format: Mono8           # Mono8, Mono16, RGB8, BayerRG8/GR8/GB8/BG8,
+//                                     # BayerRG16/GR16/GB16/BG16; aravis also Mono10, Mono12,
+//                                     # Mono14, Mono10Packed, Mono12Packed, Mono10p, Mono12p,
+//                                     # stored as Mono16, and BayerRG10, BayerRG12,
+//                                     # BayerRG10Packed, BayerRG12Packed, BayerRG10p, BayerRG12p
+//                                     # (and GR, GB, BG), stored as BayerRG16 (and GR16, ...),
+//                                     # the value in the high bits (value << (16 - bits))
 //       frame_rate_hz: 30
 //       exposure_us: 10000
 //       gain_db: 0

@@ -92,7 +92,10 @@ std::string PreviewPng(const CaptureDaemon& daemon, const std::vector<std::strin
   const int depth = DecodeFrame(*set->frames[camera], &u8, &u16);
   cv::Mat m;
   if (depth == 16) {
-    cv::Mat(u16.height, u16.width, CV_16UC1, u16.pixels.data()).convertTo(m, CV_8U, 1.0 / 256);
+    const cv::Mat wide(u16.height, u16.width, u16.channels == 3 ? CV_16UC3 : CV_16UC1,
+                       u16.pixels.data());
+    wide.convertTo(m, CV_8U, 1.0 / 256);
+    if (u16.channels == 3) cv::cvtColor(m, m, cv::COLOR_RGB2BGR);
   } else {
     cv::Mat view(u8.height, u8.width, u8.channels == 3 ? CV_8UC3 : CV_8UC1, u8.pixels.data());
     if (u8.channels == 3)

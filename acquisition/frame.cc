@@ -27,24 +27,33 @@ const char* ToString(PixelFormat format) {
       return "BayerGB8";
     case PixelFormat::kBayerBg8:
       return "BayerBG8";
+    case PixelFormat::kBayerRg16:
+      return "BayerRG16";
+    case PixelFormat::kBayerGr16:
+      return "BayerGR16";
+    case PixelFormat::kBayerGb16:
+      return "BayerGB16";
+    case PixelFormat::kBayerBg16:
+      return "BayerBG16";
   }
   return "?";
 }
 
 PixelFormat PixelFormatFromName(const std::string& name) {
-  for (PixelFormat f :
-       {PixelFormat::kMono8, PixelFormat::kMono16, PixelFormat::kRgb8, PixelFormat::kBayerRg8,
-        PixelFormat::kBayerGr8, PixelFormat::kBayerGb8, PixelFormat::kBayerBg8}) {
+  for (PixelFormat f : kAllPixelFormats)
     if (name == ToString(f)) return f;
-  }
-  throw InputError(
-      "pixel format '" + name +
-      "': use Mono8, Mono16, RGB8, BayerRG8, BayerGR8, BayerGB8 or BayerBG8");
+  throw InputError("pixel format '" + name +
+                   "': use Mono8, Mono16, RGB8, BayerRG8, BayerGR8, BayerGB8, BayerBG8, "
+                   "BayerRG16, BayerGR16, BayerGB16 or BayerBG16");
 }
 
 int BytesPerPixel(PixelFormat format) {
   switch (format) {
     case PixelFormat::kMono16:
+    case PixelFormat::kBayerRg16:
+    case PixelFormat::kBayerGr16:
+    case PixelFormat::kBayerGb16:
+    case PixelFormat::kBayerBg16:
       return 2;
     case PixelFormat::kRgb8:
       return 3;
@@ -53,15 +62,74 @@ int BytesPerPixel(PixelFormat format) {
   }
 }
 
+bool IsBayer(PixelFormat format) { return BayerCell(format)[0] != '\0'; }
+
+PixelFormat Bayer16Of(PixelFormat bayer) {
+  for (PixelFormat f : kAllPixelFormats)
+    if (IsBayer(bayer) && BytesPerPixel(f) == 2 && std::string(BayerCell(f)) == BayerCell(bayer))
+      return f;
+  throw InputError(std::string("pixel format ") + ToString(bayer) + " is not a Bayer mosaic");
+}
+
+const char* BayerCell(PixelFormat format) {
+  switch (format) {
+    case PixelFormat::kBayerRg8:
+    case PixelFormat::kBayerRg16:
+      return "RGGB";
+    case PixelFormat::kBayerGr8:
+    case PixelFormat::kBayerGr16:
+      return "GRBG";
+    case PixelFormat::kBayerGb8:
+    case PixelFormat::kBayerGb16:
+      return "GBRG";
+    case PixelFormat::kBayerBg8:
+    case PixelFormat::kBayerBg16:
+      return "BGGR";
+    default:
+      return "";
+  }
+}
+
 namespace {
+// PFNC codes (GenICam Pixel Format Naming Convention; tests check them against Aravis' constants).
+// The Bayer ones come in the order RG, GR, GB, BG.
+constexpr PixelFormat kMono = PixelFormat::kMono16, kRg = PixelFormat::kBayerRg16,
+                      kGr = PixelFormat::kBayerGr16, kGb = PixelFormat::kBayerGb16,
+                      kBg = PixelFormat::kBayerBg16;
+constexpr WirePacking kWords = WirePacking::kWords16, kGigE = WirePacking::kGigEPacked,
+                      kStream = WirePacking::kLsbBitStream;
 constexpr WireFormat kWireFormats[] = {
-    {"Mono10", 0x01100003u, 10, WirePacking::kWords16},
-    {"Mono12", 0x01100005u, 12, WirePacking::kWords16},
-    {"Mono14", 0x01100025u, 14, WirePacking::kWords16},
-    {"Mono10Packed", 0x010C0004u, 10, WirePacking::kGigEPacked},
-    {"Mono12Packed", 0x010C0006u, 12, WirePacking::kGigEPacked},
-    {"Mono10p", 0x010A0046u, 10, WirePacking::kLsbBitStream},
-    {"Mono12p", 0x010C0047u, 12, WirePacking::kLsbBitStream},
+    {"Mono10", 0x01100003u, 10, kWords, kMono},
+    {"Mono12", 0x01100005u, 12, kWords, kMono},
+    {"Mono14", 0x01100025u, 14, kWords, kMono},
+    {"Mono10Packed", 0x010C0004u, 10, kGigE, kMono},
+    {"Mono12Packed", 0x010C0006u, 12, kGigE, kMono},
+    {"Mono10p", 0x010A0046u, 10, kStream, kMono},
+    {"Mono12p", 0x010C0047u, 12, kStream, kMono},
+    {"BayerRG10", 0x0110000Du, 10, kWords, kRg},
+    {"BayerGR10", 0x0110000Cu, 10, kWords, kGr},
+    {"BayerGB10", 0x0110000Eu, 10, kWords, kGb},
+    {"BayerBG10", 0x0110000Fu, 10, kWords, kBg},
+    {"BayerRG12", 0x01100011u, 12, kWords, kRg},
+    {"BayerGR12", 0x01100010u, 12, kWords, kGr},
+    {"BayerGB12", 0x01100012u, 12, kWords, kGb},
+    {"BayerBG12", 0x01100013u, 12, kWords, kBg},
+    {"BayerRG10Packed", 0x010C0027u, 10, kGigE, kRg},
+    {"BayerGR10Packed", 0x010C0026u, 10, kGigE, kGr},
+    {"BayerGB10Packed", 0x010C0028u, 10, kGigE, kGb},
+    {"BayerBG10Packed", 0x010C0029u, 10, kGigE, kBg},
+    {"BayerRG12Packed", 0x010C002Bu, 12, kGigE, kRg},
+    {"BayerGR12Packed", 0x010C002Au, 12, kGigE, kGr},
+    {"BayerGB12Packed", 0x010C002Cu, 12, kGigE, kGb},
+    {"BayerBG12Packed", 0x010C002Du, 12, kGigE, kBg},
+    {"BayerRG10p", 0x010A0058u, 10, kStream, kRg},
+    {"BayerGR10p", 0x010A0056u, 10, kStream, kGr},
+    {"BayerGB10p", 0x010A0054u, 10, kStream, kGb},
+    {"BayerBG10p", 0x010A0052u, 10, kStream, kBg},
+    {"BayerRG12p", 0x010C0059u, 12, kStream, kRg},
+    {"BayerGR12p", 0x010C0057u, 12, kStream, kGr},
+    {"BayerGB12p", 0x010C0055u, 12, kStream, kGb},
+    {"BayerBG12p", 0x010C0053u, 12, kStream, kBg},
 };
 }  // namespace
 
@@ -90,8 +158,8 @@ std::size_t WireBytes(const WireFormat& format, int width, int height) {
   return 0;
 }
 
-std::vector<std::uint8_t> UnpackToMono16(const WireFormat& format, const std::uint8_t* data,
-                                         std::size_t bytes, int width, int height) {
+std::vector<std::uint8_t> UnpackTo16Bit(const WireFormat& format, const std::uint8_t* data,
+                                        std::size_t bytes, int width, int height) {
   const std::size_t need = WireBytes(format, width, height);
   if (width < 0 || height < 0 || bytes != need || (need > 0 && !data)) {
     throw DataError(std::string(format.name) + " frame " + std::to_string(width) + "x" +
@@ -148,8 +216,7 @@ const char* ToString(FrameStatus status) {
 }
 
 FrameIdUnwrapper::FrameIdUnwrapper(int bits, std::uint64_t wrap_to) : wrap_to_(wrap_to) {
-  if (bits < 1 || bits > 64)
-    throw InputError("FrameIdUnwrapper: bits must be in [1, 64]");
+  if (bits < 1 || bits > 64) throw InputError("FrameIdUnwrapper: bits must be in [1, 64]");
   modulus_minus_one_ =
       bits == 64 ? std::numeric_limits<std::uint64_t>::max() : (std::uint64_t(1) << bits) - 1;
   if (wrap_to > modulus_minus_one_)
@@ -190,9 +257,9 @@ int DecodeFrame(const Frame& frame, ImageU8* u8, ImageU16* u16) {
       std::size_t(std::max(in.width, 0)) * std::max(in.height, 0) * BytesPerPixel(in.pixel_format);
   if (in.width <= 0 || in.height <= 0 || frame.bytes() != expect) {
     throw DataError("camera " + std::to_string(in.camera) + " frame " +
-                                std::to_string(in.frame_id) + ": " + std::to_string(frame.bytes()) +
-                                " bytes for " + std::to_string(in.width) + "x" +
-                                std::to_string(in.height) + " " + ToString(in.pixel_format));
+                    std::to_string(in.frame_id) + ": " + std::to_string(frame.bytes()) +
+                    " bytes for " + std::to_string(in.width) + "x" + std::to_string(in.height) +
+                    " " + ToString(in.pixel_format));
   }
   const std::uint8_t* p = frame.data->data();
   *u8 = ImageU8();
@@ -213,10 +280,21 @@ int DecodeFrame(const Frame& frame, ImageU8* u8, ImageU16* u16) {
     default: {
       // OpenCV names a Bayer pattern by the second row's second and third pixels, GenICam by the
       // first row's first two: GenICam RG is OpenCV BG, and so on.
-      int code = cv::COLOR_BayerBG2RGB;
-      if (in.pixel_format == PixelFormat::kBayerGr8) code = cv::COLOR_BayerGB2RGB;
-      if (in.pixel_format == PixelFormat::kBayerGb8) code = cv::COLOR_BayerGR2RGB;
-      if (in.pixel_format == PixelFormat::kBayerBg8) code = cv::COLOR_BayerRG2RGB;
+      const std::string cell = BayerCell(in.pixel_format);
+      const int code = cell == "RGGB"   ? cv::COLOR_BayerBG2RGB
+                       : cell == "GRBG" ? cv::COLOR_BayerGB2RGB
+                       : cell == "GBRG" ? cv::COLOR_BayerGR2RGB
+                                        : cv::COLOR_BayerRG2RGB;
+      if (BytesPerPixel(in.pixel_format) == 2) {
+        // Little-endian words, as Mono16 (this host's order: x86 and ARM run little-endian).
+        std::vector<std::uint16_t> words(std::size_t(in.width) * in.height);
+        std::memcpy(words.data(), p, expect);
+        const cv::Mat raw(in.height, in.width, CV_16UC1, words.data());
+        *u16 = ImageU16(in.width, in.height, 3);
+        cv::Mat rgb(in.height, in.width, CV_16UC3, u16->pixels.data());
+        cv::cvtColor(raw, rgb, code);
+        return 16;
+      }
       const cv::Mat raw(in.height, in.width, CV_8UC1, const_cast<std::uint8_t*>(p));
       *u8 = ImageU8(in.width, in.height, 3);
       cv::Mat rgb(in.height, in.width, CV_8UC3, u8->pixels.data());

@@ -17,17 +17,46 @@
 
 namespace flamerig {
 
-enum class PixelFormat { kMono8, kMono16, kRgb8, kBayerRg8, kBayerGr8, kBayerGb8, kBayerBg8 };
+// The formats flamerig stores, by GenICam's names. A Bayer format is a colour camera's raw mosaic,
+// one colour per site (BayerRG has R at (0, 0), G at (1, 0) and (0, 1), B at (1, 1)); the 16-bit
+// ones are little-endian words (BayerRG16), which also hold 10- and 12-bit mosaics unpacked from
+// the wire (below). Values are appended, never reordered: recordings store them as numbers.
+enum class PixelFormat {
+  kMono8,
+  kMono16,
+  kRgb8,
+  kBayerRg8,
+  kBayerGr8,
+  kBayerGb8,
+  kBayerBg8,
+  kBayerRg16,
+  kBayerGr16,
+  kBayerGb16,
+  kBayerBg16,
+};
+inline constexpr PixelFormat kAllPixelFormats[] = {
+    PixelFormat::kMono8,     PixelFormat::kMono16,    PixelFormat::kRgb8,
+    PixelFormat::kBayerRg8,  PixelFormat::kBayerGr8,  PixelFormat::kBayerGb8,
+    PixelFormat::kBayerBg8,  PixelFormat::kBayerRg16, PixelFormat::kBayerGr16,
+    PixelFormat::kBayerGb16, PixelFormat::kBayerBg16};
 const char* ToString(PixelFormat format);
 PixelFormat PixelFormatFromName(const std::string& name);  // "Mono8", ...; throws
 int BytesPerPixel(PixelFormat format);
+bool IsBayer(PixelFormat format);
+// A Bayer format's 2 x 2 cell as GenICam names it ("RGGB", "GRBG", "GBRG", "BGGR"); "" otherwise.
+const char* BayerCell(PixelFormat format);
+// The 16-bit Bayer format with `bayer`'s cell (BayerRG8 -> BayerRG16); throws InputError for a
+// format that is not Bayer.
+PixelFormat Bayer16Of(PixelFormat bayer);
 
-// A camera's pixel format on the wire when it is not one flamerig stores: mono at 10, 12 or 14 bits,
-// in 16-bit words (Mono10, Mono12, Mono14: little-endian, the value in the low bits) or packed
-// (Mono10Packed and Mono12Packed, GigE Vision's 2 pixels in 3 bytes; Mono10p and Mono12p, PFNC's
-// LSB-first bit stream). Frames are unpacked as they arrive into Mono16 with the value in the high
-// bits (v << (16 - bits)): black stays 0, the scale stays linear, and a value never clips. The
-// recording's camera settings keep the wire format's name (`wire_format`).
+// A camera's pixel format on the wire when it is not one flamerig stores: mono or a Bayer mosaic at
+// 10, 12 or 14 bits, in 16-bit words (Mono10, Mono12, Mono14, BayerRG10, BayerRG12: little-endian,
+// the value in the low bits) or packed (Mono10Packed, Mono12Packed, BayerRG10Packed,
+// BayerRG12Packed: GigE Vision's 2 pixels in 3 bytes; Mono10p, Mono12p, BayerRG10p, BayerRG12p:
+// PFNC's LSB-first bit stream); the Bayer ones in all four layouts (RG, GR, GB, BG). Frames are
+// unpacked as they arrive into Mono16 or the layout's Bayer 16 (`stored`) with the value in the
+// high bits (v << (16 - bits)): black stays 0, the scale stays linear, and a value never clips.
+// The recording's camera settings keep the wire format's name (`wire_format`).
 enum class WirePacking {
   kWords16,      // one little-endian 16-bit word per pixel, the value in its low bits
   kGigEPacked,   // 2 pixels in 3 bytes: byte 0 and 2 hold the high 8 bits of pixel 0 and 1; byte
@@ -39,16 +68,17 @@ struct WireFormat {
   std::uint32_t pfnc;  // its PFNC / GigE Vision code
   int bits;            // significant bits per pixel
   WirePacking packing;
+  PixelFormat stored;  // what its frames are unpacked into: Mono16 or a Bayer 16 format
 };
 // The wire formats above by name; nullptr for any other name (including the stored formats).
 const WireFormat* WireFormatFromName(const std::string& name);
 const WireFormat* WireFormatFromCode(std::uint32_t pfnc);
 // Bytes of one width x height frame in `format` (whole frames; no line padding).
 std::size_t WireBytes(const WireFormat& format, int width, int height);
-// Unpacks one frame of `bytes` bytes into width * height Mono16 pixels (little-endian). Throws
-// DataError when `bytes` is not WireBytes.
-std::vector<std::uint8_t> UnpackToMono16(const WireFormat& format, const std::uint8_t* data,
-                                         std::size_t bytes, int width, int height);
+// Unpacks one frame of `bytes` bytes into width * height 16-bit little-endian words (the bytes of
+// a `format.stored` frame). Throws DataError when `bytes` is not WireBytes.
+std::vector<std::uint8_t> UnpackTo16Bit(const WireFormat& format, const std::uint8_t* data,
+                                        std::size_t bytes, int width, int height);
 
 enum class FrameStatus {
   kOk,
@@ -83,7 +113,7 @@ struct Frame {
 };
 
 // A frame's pixels as an image: Mono8 -> 1 channel 8-bit, Mono16 -> 1 channel 16-bit, RGB8 -> RGB
-// 8-bit, Bayer 8-bit (GenICam names: BayerRG8 has R at (0,0)) -> RGB 8-bit by OpenCV's bilinear
+// 8-bit, Bayer 8-bit -> RGB 8-bit and Bayer 16-bit -> RGB 16-bit by OpenCV's bilinear
 // demosaicing. Fills *u8 or *u16 and returns the bit depth (8 or 16). Throws DataError
 // naming the camera and frame when the bytes do not match the size and format.
 int DecodeFrame(const Frame& frame, ImageU8* u8, ImageU16* u16);

@@ -192,7 +192,7 @@ cv::Mat ClippedMask(const Frame& f) {
   const int n = f.info.width * f.info.height;
   cv::Mat mask(f.info.height, f.info.width, CV_8UC1, cv::Scalar(0));
   const std::uint8_t* p = f.data->data();
-  if (f.info.pixel_format == PixelFormat::kMono16) {
+  if (BytesPerPixel(f.info.pixel_format) == 2) {  // Mono16, Bayer 16
     for (int i = 0; i < n; ++i) {
       std::uint16_t v;
       std::memcpy(&v, p + 2 * i, 2);
@@ -213,7 +213,8 @@ std::string PreviewWithClipping(const Frame& f, int k) {
   ImageU16 u16;
   cv::Mat m;
   if (DecodeFrame(f, &u8, &u16) == 16) {
-    cv::Mat(u16.height, u16.width, CV_16UC1, u16.pixels.data()).convertTo(m, CV_8U, 1.0 / 256);
+    cv::Mat(u16.height, u16.width, u16.channels == 3 ? CV_16UC3 : CV_16UC1, u16.pixels.data())
+        .convertTo(m, CV_8U, 1.0 / 256);
   } else {
     m = cv::Mat(u8.height, u8.width, u8.channels == 3 ? CV_8UC3 : CV_8UC1, u8.pixels.data());
   }
@@ -254,7 +255,7 @@ FrameHistogram HistogramOf(const Frame& f, int step) {
   FrameHistogram h;
   step = std::max(1, step);
   const int channels = f.info.pixel_format == PixelFormat::kRgb8 ? 3 : 1;
-  const bool wide = f.info.pixel_format == PixelFormat::kMono16;
+  const bool wide = BytesPerPixel(f.info.pixel_format) == 2;  // Mono16, Bayer 16
   const std::uint8_t* p = f.data ? f.data->data() : nullptr;
   if (!p) return h;
   for (int y = 0; y < f.info.height; y += step)

@@ -213,13 +213,14 @@ std::string HeaderProblem(const std::vector<char>& bytes, const char (&magic)[8]
 // A frame record whose fields agree with each other and with its camera.
 bool RecordSane(const FrameRecord& r, int camera) {
   if (r.camera != static_cast<std::uint32_t>(camera) ||
-      r.pixel_format > static_cast<std::uint32_t>(PixelFormat::kBayerBg8) ||
+      r.pixel_format > static_cast<std::uint32_t>(PixelFormat::kBayerBg16) ||
       r.status > static_cast<std::uint32_t>(FrameStatus::kError))
     return false;
   return r.payload_bytes == 0 ||
-         r.payload_bytes == std::uint64_t(r.width) * r.height *
-                                BytesPerPixel(static_cast<PixelFormat>(
-                                    std::min<std::uint32_t>(r.pixel_format, 6)));
+         r.payload_bytes ==
+             std::uint64_t(r.width) * r.height *
+                 BytesPerPixel(static_cast<PixelFormat>(std::min<std::uint32_t>(
+                     r.pixel_format, static_cast<std::uint32_t>(PixelFormat::kBayerBg16))));
 }
 
 // The record and its pixels lie inside a data file of `data_size` bytes.

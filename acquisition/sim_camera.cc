@@ -52,14 +52,18 @@ void CameraSettings::Validate() const {
          " us)");
   if (!std::isfinite(gain_db)) fail("gain_db must be finite");
   if (packet_size < 0) fail("packet_size must be >= 0");
-  if (!wire_format.empty() &&
-      (!WireFormatFromName(wire_format) || pixel_format != PixelFormat::kMono16))
-    fail("wire format '" + wire_format + "' is not one unpacked into Mono16");
+  if (!wire_format.empty()) {
+    const WireFormat* w = WireFormatFromName(wire_format);
+    if (!w) fail("wire format '" + wire_format + "' is not one flamerig unpacks");
+    if (pixel_format != w->stored)
+      fail("wire format '" + wire_format + "' is unpacked into " + ToString(w->stored) + ", not " +
+           ToString(pixel_format));
+  }
 }
 
 void CameraSettings::SetPixelFormat(const std::string& name) {
   if (const WireFormat* w = WireFormatFromName(name)) {
-    pixel_format = PixelFormat::kMono16;
+    pixel_format = w->stored;
     wire_format = w->name;
     return;
   }
@@ -69,7 +73,9 @@ void CameraSettings::SetPixelFormat(const std::string& name) {
   } catch (const InputError& e) {
     throw InputError(std::string(e.what()) +
                      "; or, from an aravis camera, Mono10, Mono12, Mono14, Mono10Packed, "
-                     "Mono12Packed, Mono10p or Mono12p (unpacked into Mono16)");
+                     "Mono12Packed, Mono10p or Mono12p (unpacked into Mono16), or BayerRG10, "
+                     "BayerRG12, BayerRG10Packed, BayerRG12Packed, BayerRG10p or BayerRG12p and "
+                     "their GR, GB and BG layouts (unpacked into BayerRG16, ...)");
   }
 }
 
@@ -125,14 +131,29 @@ ImageSource TestPatternSource() {
 ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera,
                                 ReplayContent content) {
   namespace fs = std::filesystem;
-  auto images = std::make_shared<std::vector<ImageU8>>();
+  // One frame: 8-bit sRGB images, or 16-bit codes from a deeper camera (3 channels either way).
+  struct Replayed {
+    ImageU8 u8;
+    ImageU16 u16;
+    std::string path;
+    bool deep() const { return u16.width > 0; }
+    int width() const { return deep() ? u16.width : u8.width; }
+    int height() const { return deep() ? u16.height : u8.height; }
+  };
+  auto images = std::make_shared<std::vector<Replayed>>();
+  auto read = [&](const fs::path& path) {
+    Replayed r;
+    r.path = path.string();
+    ReadImage(r.path, &r.u8, &r.u16, 3);
+    images->push_back(std::move(r));
+  };
   if (content == ReplayContent::kFire) {
     for (int k = 0;; ++k) {
       char name[32];
       std::snprintf(name, sizeof name, "frame_%06d", k);
       const fs::path path = fs::path(dataset_dir) / "frames" / name / (camera + ".png");
       if (!fs::exists(path)) break;
-      images->push_back(ReadImageU8(path.string(), 3));
+      read(path);
     }
     if (images->empty()) {
       throw InputError("replay of " + dataset_dir + ": no frames/frame_000000/" + camera + ".png");
@@ -151,9 +172,9 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
     for (const auto& v : views) {
       const fs::path path = v / (camera + ".png");
       if (fs::exists(path)) {
-        images->push_back(ReadImageU8(path.string(), 3));
-        width = images->back().width;
-        height = images->back().height;
+        read(path);
+        width = images->back().width();
+        height = images->back().height();
       } else {
         missing.push_back(static_cast<int>(images->size()));
         images->emplace_back();
@@ -161,48 +182,58 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
     }
     if (width == 0)
       throw InputError("replay of " + dataset_dir + ": no calibration/*/" + camera + ".png");
-    for (int k : missing) (*images)[k] = ImageU8(width, height, 3, 8);
+    for (int k : missing) (*images)[k].u8 = ImageU8(width, height, 3, 8);
   }
   return [images, dataset_dir, camera](const FrameInfo& info, std::vector<std::uint8_t>* bytes) {
-    const ImageU8& img = (*images)[info.frame_id % images->size()];
-    if (img.width != info.width || img.height != info.height) {
+    const Replayed& img = (*images)[info.frame_id % images->size()];
+    if (img.width() != info.width || img.height() != info.height) {
       throw InputError("replay of " + dataset_dir + " camera " + camera + ": images are " +
-                       std::to_string(img.width) + "x" + std::to_string(img.height) +
+                       std::to_string(img.width()) + "x" + std::to_string(img.height()) +
                        ", the camera is set to " + std::to_string(info.width) + "x" +
                        std::to_string(info.height));
     }
-    const std::size_t n = img.num_pixels();
+    const bool wide = BytesPerPixel(info.pixel_format) == 2;
+    if (img.deep() && !wide) {
+      throw InputError("replay of " + dataset_dir + " camera " + camera + ": " + img.path +
+                       " holds a deeper camera's 16-bit codes; its frames cannot be sent as " +
+                       ToString(info.pixel_format) + " (use Mono16 or a Bayer 16 format)");
+    }
+    const std::size_t n = std::size_t(info.width) * info.height;
     bytes->resize(n * BytesPerPixel(info.pixel_format));
+    // Channel c of pixel i at full scale: an 8-bit code, or in 16 bits the deeper camera's code as
+    // it is and an 8-bit one x 257.
+    auto value = [&](std::size_t i, int c) -> double {
+      return img.deep() ? img.u16.pixels[3 * i + c] : img.u8.pixels[3 * i + c] * (wide ? 257 : 1);
+    };
     auto luma = [&](std::size_t i) {
-      return 0.2126 * img.pixels[3 * i] + 0.7152 * img.pixels[3 * i + 1] +
-             0.0722 * img.pixels[3 * i + 2];
+      return 0.2126 * value(i, 0) + 0.7152 * value(i, 1) + 0.0722 * value(i, 2);
+    };
+    auto put = [&](std::size_t i, double v) {
+      if (wide) {
+        const auto w = static_cast<std::uint16_t>(std::lround(v));
+        std::memcpy(bytes->data() + 2 * i, &w, 2);
+      } else {
+        (*bytes)[i] = static_cast<std::uint8_t>(std::lround(v));
+      }
     };
     // GenICam Bayer names: the colours of the first row's two sites, then the second row's.
-    auto bayer_channel = [&](int x, int y) {
-      const char* layout = info.pixel_format == PixelFormat::kBayerRg8   ? "RGGB"
-                           : info.pixel_format == PixelFormat::kBayerGr8 ? "GRBG"
-                           : info.pixel_format == PixelFormat::kBayerGb8 ? "GBRG"
-                                                                         : "BGGR";
-      const char c = layout[2 * (y % 2) + (x % 2)];
+    const char* cell = BayerCell(info.pixel_format);
+    auto bayer_channel = [&](std::size_t i) {
+      const std::size_t x = i % info.width, y = i / info.width;
+      const char c = cell[2 * (y % 2) + (x % 2)];
       return c == 'R' ? 0 : c == 'G' ? 1 : 2;
     };
     for (std::size_t i = 0; i < n; ++i) {
       switch (info.pixel_format) {
         case PixelFormat::kMono8:
-          (*bytes)[i] = static_cast<std::uint8_t>(std::lround(luma(i)));
+        case PixelFormat::kMono16:
+          put(i, luma(i));
           break;
-        case PixelFormat::kMono16: {
-          const auto v = static_cast<std::uint16_t>(std::lround(luma(i) * 257));
-          std::memcpy(bytes->data() + 2 * i, &v, 2);
-          break;
-        }
         case PixelFormat::kRgb8:
-          std::memcpy(bytes->data() + 3 * i, img.pixels.data() + 3 * i, 3);
+          std::memcpy(bytes->data() + 3 * i, img.u8.pixels.data() + 3 * i, 3);
           break;
-        default: {
-          const int x = static_cast<int>(i % img.width), y = static_cast<int>(i / img.width);
-          (*bytes)[i] = img.pixels[3 * i + bayer_channel(x, y)];
-        }
+        default:
+          put(i, value(i, bayer_channel(i)));
       }
     }
   };

@@ -58,7 +58,10 @@ ImageSource TestPatternSource();
 // Replays a `flamerig simulate` dataset: frame k of the camera shows
 // dataset_dir/frames/frame_NNNNNN/<camera>.png with N = k mod the number of frames (loaded once,
 // here), converted to the frame's pixel format (Mono8/Mono16: Rec. 709 luma of the 8-bit sRGB
-// values; RGB8 as is; Bayer: the matching colour of each site). Throws DataError naming
+// values; RGB8 as is; Bayer: the matching colour of each site; 16-bit formats hold 8-bit values
+// x 257). A deeper camera's dataset (16-bit PNGs of its codes, `simulate`'s radiometry with
+// bit_depth > 8) replays its codes as they are, into Mono16 or a Bayer 16 format only (any
+// other is an InputError naming the file). Throws DataError naming
 // the file when a frame is missing or unreadable; a frame asked for at another size than the
 // images gets an error naming both sizes.
 // With ReplayContent::kCalibration frame k shows the k-th board view instead

@@ -65,12 +65,14 @@ StreamPixSequence::StreamPixSequence(const std::string& path, PixelFormat bayer)
     format_ = PixelFormat::kMono16;
   else if (s.image_format == 101 && s.bit_depth == 8)
     format_ = bayer;
+  else if (s.image_format == 101 && s.bit_depth == 16)
+    format_ = Bayer16Of(bayer);
   else if ((s.image_format == 200 || s.image_format == 400) && s.bit_depth == 24) {
     format_ = PixelFormat::kRgb8;
     bgr_ = s.image_format == 200;
   } else {
     fail("image format " + std::to_string(s.image_format) + " at " + std::to_string(s.bit_depth) +
-         " bits (reads 100 mono 8/16, 101 Bayer 8, 200 BGR 24, 400 RGB 24)");
+         " bits (reads 100 mono 8/16, 101 Bayer 8/16, 200 BGR 24, 400 RGB 24)");
   }
   const std::uint64_t image = std::uint64_t(s.width) * s.height * BytesPerPixel(format_);
   if (s.image_size_bytes != image)
@@ -88,8 +90,8 @@ StreamPixSequence::StreamPixSequence(const std::string& path, PixelFormat bayer)
   first_image_ = s.version >= 5 ? std::max<std::uint64_t>(8192, s.header_size) : s.header_size;
   // A last frame that the file cuts short counts: reading it is an error that says so, rather
   // than a frame that silently is not there.
-  frames_ = size > first_image_ ? (size - first_image_ + s.true_image_size - 1) / s.true_image_size
-                                : 0;
+  frames_ =
+      size > first_image_ ? (size - first_image_ + s.true_image_size - 1) / s.true_image_size : 0;
 }
 
 Frame StreamPixSequence::ReadFrame(std::size_t i, int camera) const {
@@ -105,8 +107,8 @@ Frame StreamPixSequence::ReadFrame(std::size_t i, int camera) const {
   char stamp[8];
   in.read(stamp, 8);
   if (!in) {
-    throw DataError("StreamPix sequence " + path_ + ": frame " + std::to_string(i) +
-                             " at byte " + std::to_string(at) + " cut short");
+    throw DataError("StreamPix sequence " + path_ + ": frame " + std::to_string(i) + " at byte " +
+                    std::to_string(at) + " cut short");
   }
   if (bgr_)
     for (std::size_t p = 0; p + 2 < bytes->size(); p += 3) std::swap((*bytes)[p], (*bytes)[p + 2]);

@@ -12,7 +12,8 @@
 // size, 584 frame rate (double), 620 compression format.
 //
 // Variants read: versions 3 to 6, uncompressed (compression format 0), image formats 100 (mono,
-// 8 or 16 bit), 101 (raw Bayer, 8 bit; pattern as given to the reader), 200 (BGR, 24 bit) and 400
+// 8 or 16 bit), 101 (raw Bayer, 8 or 16 bit; pattern as given to the reader, BayerRG8 for
+// BayerRG16 and so on), 200 (BGR, 24 bit) and 400
 // (RGB, 24 bit). Compressed sequences (JPEG, H.264; they need a separate index file) and the
 // packed/YUV formats are refused with an error that names the file and the variant.
 #ifndef FLAMERIG_ACQUISITION_STREAMPIX_H_

@@ -38,6 +38,14 @@ std::uint32_t FourccOf(PixelFormat f) {
       return V4L2_PIX_FMT_SGBRG8;
     case PixelFormat::kBayerBg8:
       return V4L2_PIX_FMT_SBGGR8;
+    case PixelFormat::kBayerRg16:
+      return V4L2_PIX_FMT_SRGGB16;
+    case PixelFormat::kBayerGr16:
+      return V4L2_PIX_FMT_SGRBG16;
+    case PixelFormat::kBayerGb16:
+      return V4L2_PIX_FMT_SGBRG16;
+    case PixelFormat::kBayerBg16:
+      return V4L2_PIX_FMT_SBGGR16;
   }
   return V4L2_PIX_FMT_GREY;
 }

@@ -4,7 +4,8 @@
 // V4l2Device is the seam: open, ioctl, mmap, munmap, poll, close. SystemV4l2Device is the real one
 // (the syscalls on /dev/videoN). V4l2Camera drives any V4l2Device:
 //   Configure: VIDIOC_QUERYCAP (must capture and stream), VIDIOC_S_FMT (GREY -> Mono8, Y16 ->
-//     Mono16, RGB3 -> RGB8, RGGB/GRBG/GBRG/BA81 -> Bayer 8-bit; a driver that adjusts the size or
+//     Mono16, RGB3 -> RGB8, RGGB/GRBG/GBRG/BA81 -> Bayer 8-bit, RG16/GR16/GB16/BYR2 -> Bayer
+//     16-bit; a driver that adjusts the size or
 //     format is an error naming both), VIDIOC_S_PARM (frame interval), exposure (V4L2_CID_EXPOSURE_
 //     AUTO manual, V4L2_CID_EXPOSURE_ABSOLUTE in 100 us units) and gain (V4L2_CID_GAIN) when
 //     exposure_us / gain_db are set (> 0), then `features` as V4L2 controls by v4l2-ctl's names

@@ -413,9 +413,14 @@ CalibrationData DetectViewsInRecording(const std::string& recording_dir, const B
                                  ImageU8 u8;
                                  ImageU16 u16;
                                  if (DecodeFrame(*frame, &u8, &u16) == 16) {
+                                   // To 8 bits by the frame's own top: full-scale words and
+                                   // a 12-bit camera's codes in their low bits alike.
+                                   std::uint16_t top = 255;
+                                   for (std::uint16_t v : u16.pixels) top = std::max(top, v);
                                    u8 = ImageU8(u16.width, u16.height, u16.channels);
                                    for (std::size_t i = 0; i < u16.pixels.size(); ++i)
-                                     u8.pixels[i] = static_cast<std::uint8_t>(u16.pixels[i] >> 8);
+                                     u8.pixels[i] = static_cast<std::uint8_t>(
+                                         (u16.pixels[i] * 255u + top / 2) / top);
                                  }
                                  return ToGrey(u8);
                                }});

@@ -13,18 +13,12 @@
 namespace flamerig {
 
 BayerLayout BayerLayoutOf(PixelFormat format) {
-  switch (format) {
-    case PixelFormat::kBayerRg8:
-      return BayerLayout::kRggb;
-    case PixelFormat::kBayerGr8:
-      return BayerLayout::kGrbg;
-    case PixelFormat::kBayerGb8:
-      return BayerLayout::kGbrg;
-    case PixelFormat::kBayerBg8:
-      return BayerLayout::kBggr;
-    default:
-      return BayerLayout::kNone;
-  }
+  const std::string cell = BayerCell(format);
+  if (cell == "RGGB") return BayerLayout::kRggb;
+  if (cell == "GRBG") return BayerLayout::kGrbg;
+  if (cell == "GBRG") return BayerLayout::kGbrg;
+  if (cell == "BGGR") return BayerLayout::kBggr;
+  return BayerLayout::kNone;
 }
 
 const char* ToString(BayerLayout layout) {
@@ -167,13 +161,13 @@ ImageF BayerResampleAdjoint(const ImageF& image, BayerLayout layout) {
   return out;
 }
 
-BayerRecord::BayerRecord(BayerLayout layout, const CameraRadiometry& radiometry)
-    : layout_(layout), radiometry_(radiometry) {
+BayerRecord::BayerRecord(BayerLayout layout, const CameraRadiometry& radiometry, int frame_bits)
+    : layout_(layout), frame_bits_(frame_bits), radiometry_(radiometry) {
   if (layout == BayerLayout::kNone) throw InputError("a Bayer camera model needs a layout");
   if (radiometry.channels() != 3)
     throw InputError("a Bayer camera records colour; its radiometry describes a mono camera (" +
                      radiometry.spectral.Describe() + ")");
-  decoding_ = radiometry.DecodingFor(8);
+  decoding_ = radiometry.DecodingFor(frame_bits);
 }
 
 double BayerRecord::EncodeSlope(double signal) const {
@@ -246,10 +240,10 @@ ImageF BayerRecord::Adjoint(const ImageF& linear, double s, const ImageF& d_sign
 
 std::shared_ptr<const BayerRecord> MakeBayerRecord(BayerLayout layout,
                                                    const CameraRadiometry& radiometry,
-                                                   const std::string& camera) {
+                                                   const std::string& camera, int frame_bits) {
   if (layout == BayerLayout::kNone) return nullptr;
   try {
-    return std::make_shared<const BayerRecord>(layout, radiometry);
+    return std::make_shared<const BayerRecord>(layout, radiometry, frame_bits);
   } catch (const InputError& e) {
     if (camera.empty()) throw;
     throw InputError("camera '" + camera + "' (" + ToString(layout) + " mosaic): " + e.what());

@@ -1,8 +1,9 @@
 // What a colour camera with a Bayer mosaic delivers of a rendered image, for fitting the frames
 // it recorded as it recorded them.
 //
-// A colour machine-vision camera (BayerRG8 and its kin) measures one colour at each pixel (its
-// site's filter) and the host interpolates the other two from the neighbouring sites: flamerig's
+// A colour machine-vision camera (BayerRG8, BayerRG12 and their kin) measures one colour at each
+// pixel (its site's filter) and the host interpolates the other two from the neighbouring sites:
+// flamerig's
 // DecodeFrame (acquisition/frame.h) by OpenCV's bilinear demosaicing, in the frame's codes. At the
 // flame's edges, where the brightness changes within a pixel or two, the interpolated colours are
 // not the light's, and a fit that matches them as measured colours turns their fringes into
@@ -20,8 +21,10 @@
 //                                                   and last rows theirs
 //   signal(x, y, ch) = Signal(code'(x, y, ch))      back to the linear signal, 0..1
 //
-// OpenCV rounds the interpolated 8-bit codes; the model does not (the fit sees the continuous
-// value, as it does everywhere). Images must be at least 3 x 3.
+// Frames of 8 or 16 bits (Bayer 16, and 10- or 12-bit mosaics unpacked into it) take the same
+// steps in their own codes, decoded as the radiometry decodes such a frame (DecodingFor). OpenCV
+// rounds the interpolated codes; the model does not (the fit sees the continuous value, as it
+// does everywhere). Images must be at least 3 x 3.
 #ifndef FLAMERIG_FITTING_MOSAIC_H_
 #define FLAMERIG_FITTING_MOSAIC_H_
 
@@ -53,12 +56,13 @@ ImageF BayerResampleAdjoint(const ImageF& image, BayerLayout layout);
 
 class BayerRecord {
  public:
-  // A camera of `layout` (not kNone) whose frames are 8-bit codes decoded by `radiometry`
-  // (Bayer formats are 8-bit). Throws InputError for kNone or a radiometry whose 8-bit decoding
-  // is refused, or a mono one.
-  BayerRecord(BayerLayout layout, const CameraRadiometry& radiometry);
+  // A camera of `layout` (not kNone) whose frames are `frame_bits` (8 or 16) codes decoded by
+  // `radiometry`. Throws InputError for kNone, a radiometry that refuses to decode such frames
+  // (a 12-bit camera's in 8 bits), or a mono one.
+  BayerRecord(BayerLayout layout, const CameraRadiometry& radiometry, int frame_bits = 8);
 
   BayerLayout layout() const { return layout_; }
+  int frame_bits() const { return frame_bits_; }
 
   // The linear signal (3 channels, 0..1) that the host's demosaicing gives of the rendered linear
   // radiance `linear` (the renderer's output, 3 channels) at exposure s (> 0).
@@ -79,16 +83,18 @@ class BayerRecord {
   ImageF SiteCodes(const ImageF& linear, double s) const;  // each site's code of its colour
 
   BayerLayout layout_;
+  int frame_bits_;
   CameraRadiometry radiometry_;
   CameraRadiometry::Decoding decoding_;
 };
 
-// The model of a camera whose frames are of `layout` (recorded per frame set: SourceFrameSet::
-// mosaic); null for kNone, the frames of cameras that measure every channel. BayerRecord's errors
-// name `camera` when it is given.
+// The model of a camera whose frames are of `layout` and `frame_bits` (recorded per frame set:
+// SourceFrameSet::mosaic and ::bits); null for kNone, the frames of cameras that measure every
+// channel. BayerRecord's errors name `camera` when it is given.
 std::shared_ptr<const BayerRecord> MakeBayerRecord(BayerLayout layout,
                                                    const CameraRadiometry& radiometry,
-                                                   const std::string& camera = "");
+                                                   const std::string& camera = "",
+                                                   int frame_bits = 8);
 
 }  // namespace flamerig
 

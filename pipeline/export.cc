@@ -18,7 +18,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-// 8-bit PNG, or 16-bit for Mono16; Bayer demosaiced to RGB.
+// 8-bit PNG, or 16-bit for Mono16 and Bayer 16; Bayer demosaiced to RGB.
 void WriteFramePng(const Frame& f, const fs::path& path) {
   ImageU8 u8;
   ImageU16 u16;

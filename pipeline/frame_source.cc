@@ -165,13 +165,13 @@ std::vector<BayerLayout> FrameFolderMosaics(const std::string& dir, const Rig& r
   return std::vector<BayerLayout>(rig.cameras.size(), BayerLayout::kNone);
 }
 
-// A Bayer layout applies to what DecodeFrame made of a mosaic, an 8-bit RGB image; anything else
-// under that name is refused, naming the image.
-void CheckMosaicImage(BayerLayout layout, int bits, int channels, const std::string& image) {
-  if (layout == BayerLayout::kNone || (bits == 8 && channels == 3)) return;
+// A Bayer layout applies to what DecodeFrame made of a mosaic, an RGB image (8 or 16 bits);
+// anything else under that name is refused, naming the image.
+void CheckMosaicImage(BayerLayout layout, int channels, const std::string& image) {
+  if (layout == BayerLayout::kNone || channels == 3) return;
   throw DataError(image + ": " + std::string(kExportedFormatsFile) + " says its camera sent a " +
-                  ToString(layout) + " Bayer mosaic, demosaiced to 8-bit RGB, but the image is " +
-                  std::to_string(bits) + "-bit with " + std::to_string(channels) + " channel(s)");
+                  ToString(layout) + " Bayer mosaic, demosaiced to RGB, but the image has " +
+                  std::to_string(channels) + " channel(s)");
 }
 
 }  // namespace
@@ -183,6 +183,7 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
   out.linear.resize(rig.cameras.size());
   out.signal.resize(rig.cameras.size());
   out.mosaic = FrameFolderMosaics(dir, rig);
+  out.bits.assign(rig.cameras.size(), 0);
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const RigCamera& camera = rig.cameras[c];
     const fs::path path = fs::path(dir) / (camera.name + ".png");
@@ -196,7 +197,8 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
     const int bits = ReadImage(path.string(), &u8, &u16);
     const int width = bits == 16 ? u16.width : u8.width;
     const int height = bits == 16 ? u16.height : u8.height;
-    CheckMosaicImage(out.mosaic[c], bits, bits == 16 ? u16.channels : u8.channels, path.string());
+    CheckMosaicImage(out.mosaic[c], bits == 16 ? u16.channels : u8.channels, path.string());
+    out.bits[c] = bits;
     if (width != camera.model.width() || height != camera.model.height())
       throw DataError(path.string() + ": the image is " + std::to_string(width) + "x" +
                       std::to_string(height) + ", camera '" + camera.name + "' is " +
@@ -338,6 +340,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
   out.linear.resize(rig.cameras.size());
   out.signal.resize(rig.cameras.size());
   out.mosaic.assign(rig.cameras.size(), BayerLayout::kNone);
+  out.bits.assign(rig.cameras.size(), 0);
   bool have_id = false;
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const std::string& name = rig.cameras[c].name;
@@ -381,8 +384,9 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
       }
       bits = ReadImage(path.string(), &u8, &u16);
       out.mosaic[c] = impl_->images_mosaic[c];
-      CheckMosaicImage(out.mosaic[c], bits, bits == 16 ? u16.channels : u8.channels, path.string());
+      CheckMosaicImage(out.mosaic[c], bits == 16 ? u16.channels : u8.channels, path.string());
     }
+    out.bits[c] = bits;
     const int width = bits == 16 ? u16.width : u8.width;
     const int height = bits == 16 ? u16.height : u8.height;
     impl_->CheckSize(static_cast<int>(c), i, width, height);

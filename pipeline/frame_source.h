@@ -49,6 +49,9 @@ struct SourceFrameSet {
   // per rig camera: the frame's Bayer layout when it was a mosaic (the images above are its
   // demosaicing, fitting/mosaic.h), else kNone (RGB and mono frames, image files)
   std::vector<BayerLayout> mosaic;
+  // per rig camera: the bits of the frame's codes as read (8 or 16; 0 when left out): how a
+  // mosaic's codes decode (fitting/mosaic.h)
+  std::vector<int> bits;
   std::vector<std::string> notes;  // cameras left out and why
   // The device frame id of the set's first present frame (recordings), the file's frame number
   // (StreamPix), or the set number (images): what a simulated camera replaying a dataset showed.
@@ -82,8 +85,8 @@ class FrameSource {
 // wrote it or 16-bit linear (value / 65535 is the linear signal), decoded with `exposure` (> 0).
 // The Bayer layouts (SourceFrameSet::mosaic) are those of DIR/pixel_formats.yaml, or, for a folder
 // named frame_NNNNNN whose parent holds an export's sets.csv, the parent's (a set that `flamerig
-// export` wrote); an image that a Bayer layout names but that is not 8-bit RGB is a DataError
-// naming it.
+// export` wrote); an image that a Bayer layout names but that is not RGB (8 or 16 bits) is a
+// DataError naming it.
 // A missing file leaves that camera out with a note in the set's notes; a damaged file or an image
 // of the wrong size is a DataError naming the file.
 SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double exposure);

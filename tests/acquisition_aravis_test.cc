@@ -218,10 +218,12 @@ std::string WireFormatGenicam(const fs::path& dir) {
   std::string xml(arv_fake_camera_get_genicam_xml(stock, &size));
   g_object_unref(stock);
   std::string entries;
-  for (const char* name :
-       {"Mono10", "Mono12", "Mono10Packed", "Mono12Packed", "Mono10p", "Mono12p"})
+  for (const char* name : {"Mono10", "Mono12", "Mono10Packed", "Mono12Packed", "Mono10p", "Mono12p",
+                           "BayerBG12", "BayerGR10Packed", "BayerRG12p"})
     entries += "<EnumEntry Name=\"" + std::string(name) + "\" NameSpace=\"Standard\"><Value>" +
                std::to_string(WireFormatFromName(name)->pfnc) + "</Value></EnumEntry>\n";
+  entries += "<EnumEntry Name=\"BayerGB16\" NameSpace=\"Standard\"><Value>" +
+             std::to_string(ARV_PIXEL_FORMAT_BAYER_GB_16) + "</Value></EnumEntry>\n";
   const std::size_t at = xml.find("<pValue>PixelFormatRegister</pValue>");
   if (at == std::string::npos) return "";
   xml.insert(at, entries);
@@ -230,7 +232,7 @@ std::string WireFormatGenicam(const fs::path& dir) {
   return path.string();
 }
 
-TEST(AravisCamera, TenAndTwelveBitFormatsAreUnpackedIntoMono16) {
+TEST(AravisCamera, TenAndTwelveBitFormatsAreUnpackedIntoSixteenBitOnes) {
   REQUIRE_LOOPBACK_ADDRESSES();
   const fs::path dir = fs::temp_directory_path() / ("flamerig_wire_" + std::to_string(getpid()));
   fs::create_directories(dir);
@@ -252,12 +254,41 @@ TEST(AravisCamera, TenAndTwelveBitFormatsAreUnpackedIntoMono16) {
     EXPECT_EQ(WireFormatFromName("Mono12Packed")->pfnc, ARV_PIXEL_FORMAT_MONO_12_PACKED);
     EXPECT_EQ(WireFormatFromName("Mono10p")->pfnc, 0x010A0046u);
     EXPECT_EQ(WireFormatFromName("Mono12p")->pfnc, 0x010C0047u);
-    for (const char* name :
-         {"Mono12", "Mono10", "Mono12Packed", "Mono10Packed", "Mono12p", "Mono10p"}) {
+    const std::pair<const char*, ArvPixelFormat> bayer[] = {
+        {"BayerRG10", ARV_PIXEL_FORMAT_BAYER_RG_10},
+        {"BayerGR10", ARV_PIXEL_FORMAT_BAYER_GR_10},
+        {"BayerGB10", ARV_PIXEL_FORMAT_BAYER_GB_10},
+        {"BayerBG10", ARV_PIXEL_FORMAT_BAYER_BG_10},
+        {"BayerRG12", ARV_PIXEL_FORMAT_BAYER_RG_12},
+        {"BayerGR12", ARV_PIXEL_FORMAT_BAYER_GR_12},
+        {"BayerGB12", ARV_PIXEL_FORMAT_BAYER_GB_12},
+        {"BayerBG12", ARV_PIXEL_FORMAT_BAYER_BG_12},
+        {"BayerRG10Packed", ARV_PIXEL_FORMAT_BAYER_RG_10_PACKED},
+        {"BayerGR10Packed", ARV_PIXEL_FORMAT_BAYER_GR_10_PACKED},
+        {"BayerGB10Packed", ARV_PIXEL_FORMAT_BAYER_GB_10_PACKED},
+        {"BayerBG10Packed", ARV_PIXEL_FORMAT_BAYER_BG_10_PACKED},
+        {"BayerRG12Packed", ARV_PIXEL_FORMAT_BAYER_RG_12_PACKED},
+        {"BayerGR12Packed", ARV_PIXEL_FORMAT_BAYER_GR_12_PACKED},
+        {"BayerGB12Packed", ARV_PIXEL_FORMAT_BAYER_GB_12_PACKED},
+        {"BayerBG12Packed", ARV_PIXEL_FORMAT_BAYER_BG_12_PACKED},
+        {"BayerRG10p", ARV_PIXEL_FORMAT_BAYER_RG_10P},
+        {"BayerGR10p", ARV_PIXEL_FORMAT_BAYER_GR_10P},
+        {"BayerGB10p", ARV_PIXEL_FORMAT_BAYER_GB_10P},
+        {"BayerBG10p", ARV_PIXEL_FORMAT_BAYER_BG_10P},
+        {"BayerRG12p", ARV_PIXEL_FORMAT_BAYER_RG_12P},
+        {"BayerGR12p", ARV_PIXEL_FORMAT_BAYER_GR_12P},
+        {"BayerGB12p", ARV_PIXEL_FORMAT_BAYER_GB_12P},
+        {"BayerBG12p", ARV_PIXEL_FORMAT_BAYER_BG_12P}};
+    for (const auto& [name, code] : bayer) {
+      ASSERT_TRUE(WireFormatFromName(name)) << name;
+      EXPECT_EQ(WireFormatFromName(name)->pfnc, code) << name;
+    }
+    for (const char* name : {"Mono12", "Mono10", "Mono12Packed", "Mono10Packed", "Mono12p",
+                             "Mono10p", "BayerBG12", "BayerGR10Packed", "BayerRG12p"}) {
       SCOPED_TRACE(name);
       CameraSettings s = Settings(TriggerMode::kFreeRun, 50);
       s.SetPixelFormat(name);
-      ASSERT_EQ(s.pixel_format, PixelFormat::kMono16);
+      ASSERT_EQ(s.pixel_format, WireFormatFromName(name)->stored);
       cam.Configure(s);
       EXPECT_EQ(cam.FeatureAsString("PixelFormat"), name);
       EXPECT_EQ(cam.settings().wire_format, name);
@@ -267,13 +298,26 @@ TEST(AravisCamera, TenAndTwelveBitFormatsAreUnpackedIntoMono16) {
       cam.Stop();
       ASSERT_TRUE(f);
       EXPECT_EQ(f->info.status, FrameStatus::kOk);
-      ASSERT_EQ(f->info.pixel_format, PixelFormat::kMono16);
+      ASSERT_EQ(f->info.pixel_format, WireFormatFromName(name)->stored);
       ASSERT_EQ(f->bytes(), 320u * 240u * 2);
       const int bits = WireFormatFromName(name)->bits;
       for (std::size_t k = 0; k < 320u * 240u; k += 331) {
         const std::uint32_t v = (*f->data)[2 * k] | (*f->data)[2 * k + 1] << 8;
         ASSERT_EQ(v, WireValue(k, bits) << (16 - bits)) << "pixel " << k;
       }
+    }
+    {  // A 16-bit mosaic as the camera sends it: stored as it is, its layout named.
+      CameraSettings s = Settings(TriggerMode::kFreeRun, 50);
+      s.SetPixelFormat("BayerGB16");
+      cam.Configure(s);
+      EXPECT_EQ(cam.FeatureAsString("PixelFormat"), "BayerGB16");
+      cam.Start(4);
+      std::optional<Frame> f;
+      for (int i = 0; i < 20 && !f; ++i) f = cam.Pop(200'000'000);
+      cam.Stop();
+      ASSERT_TRUE(f);
+      EXPECT_EQ(f->info.pixel_format, PixelFormat::kBayerGb16);
+      EXPECT_EQ(f->bytes(), 320u * 240u * 2);
     }
     // A wire format the camera does not list is refused by name.
     CameraSettings s = Settings(TriggerMode::kFreeRun, 50);

@@ -2,7 +2,10 @@
 // driver on a manual clock (deterministic), with the faults the daemon must survive.
 #include <gtest/gtest.h>
 
+#include <unistd.h>
 #include <cmath>
+#include <cstring>
+#include <filesystem>
 #include <memory>
 
 #include "acquisition/frame_pool.h"
@@ -57,7 +60,7 @@ TEST(WireFormats, HandPackedBytesFromTheStandards) {
   auto unpack = [](const char* name, std::vector<std::uint8_t> bytes, int w) {
     const WireFormat* f = WireFormatFromName(name);
     EXPECT_TRUE(f) << name;
-    const std::vector<std::uint8_t> out = UnpackToMono16(*f, bytes.data(), bytes.size(), w, 1);
+    const std::vector<std::uint8_t> out = UnpackTo16Bit(*f, bytes.data(), bytes.size(), w, 1);
     std::vector<std::uint32_t> v;
     for (std::size_t k = 0; k + 1 < out.size(); k += 2) v.push_back(out[k] | out[k + 1] << 8);
     return v;
@@ -80,7 +83,7 @@ TEST(WireFormats, HandPackedBytesFromTheStandards) {
   const WireFormat& m12 = *WireFormatFromName("Mono12p");
   const std::vector<std::uint8_t> two(2);
   try {
-    UnpackToMono16(m12, two.data(), two.size(), 2, 1);
+    UnpackTo16Bit(m12, two.data(), two.size(), 2, 1);
     ADD_FAILURE() << "a short frame unpacked";
   } catch (const DataError& e) {
     EXPECT_NE(std::string(e.what()).find("Mono12p frame 2x1: 2 bytes, expected 3"),
@@ -105,6 +108,116 @@ TEST(WireFormats, HandPackedBytesFromTheStandards) {
   o.id = "SIMW";
   SimCamera cam(o, &clock, nullptr);
   EXPECT_THROW(cam.Configure(s), InputError);
+}
+
+// Bayer mosaics of 10 and 12 bits: each of the five packings in the four layouts unpacks into
+// the layout's Bayer 16 (the PFNC codes are checked against Aravis' constants in
+// acquisition_aravis_test), the same bytes as the mono format of its packing.
+TEST(WireFormats, BayerMosaicsUnpackIntoTheirLayoutsSixteenBitFormat) {
+  const std::pair<const char*, const char*> same_packing[] = {{"BayerRG12", "Mono12"},
+                                                              {"BayerGR10", "Mono10"},
+                                                              {"BayerGB12Packed", "Mono12Packed"},
+                                                              {"BayerBG10Packed", "Mono10Packed"},
+                                                              {"BayerRG12p", "Mono12p"},
+                                                              {"BayerGB10p", "Mono10p"}};
+  const std::vector<std::uint8_t> bytes = {0xBC, 0x3A, 0x12, 0xFF, 0x0F, 0x00, 0x5A, 0xA5};
+  for (const auto& [bayer, mono] : same_packing) {
+    const WireFormat* b = WireFormatFromName(bayer);
+    const WireFormat* m = WireFormatFromName(mono);
+    ASSERT_TRUE(b && m) << bayer;
+    EXPECT_EQ(b->bits, m->bits) << bayer;
+    EXPECT_EQ(b->packing, m->packing) << bayer;
+    EXPECT_TRUE(IsBayer(b->stored)) << bayer;
+    EXPECT_EQ(BytesPerPixel(b->stored), 2) << bayer;
+    // The layout is the name's: BayerGB12Packed -> BayerGB16.
+    EXPECT_EQ(std::string(ToString(b->stored)).substr(0, 7), std::string(bayer).substr(0, 7));
+    EXPECT_EQ(WireFormatFromCode(b->pfnc), b) << bayer;
+    const std::size_t n = WireBytes(*b, 4, 1);
+    ASSERT_LE(n, bytes.size());
+    EXPECT_EQ(UnpackTo16Bit(*b, bytes.data(), n, 4, 1), UnpackTo16Bit(*m, bytes.data(), n, 4, 1))
+        << bayer;
+  }
+  // Every stored format by its name, both ways; the 16-bit mosaics take two bytes a site.
+  for (PixelFormat f : kAllPixelFormats) EXPECT_EQ(PixelFormatFromName(ToString(f)), f);
+  EXPECT_EQ(Bayer16Of(PixelFormat::kBayerBg8), PixelFormat::kBayerBg16);
+  EXPECT_STREQ(BayerCell(PixelFormat::kBayerGr16), "GRBG");
+  EXPECT_THROW(Bayer16Of(PixelFormat::kMono8), InputError);
+  // A config's pixel_format: a Bayer wire format is stored as its layout's Bayer 16; settings
+  // that pair it with another stored format are refused, naming both.
+  CameraSettings s;
+  s.SetPixelFormat("BayerGB12Packed");
+  EXPECT_EQ(s.pixel_format, PixelFormat::kBayerGb16);
+  EXPECT_EQ(s.pixel_format_name(), "BayerGB12Packed");
+  s.Validate();
+  s.pixel_format = PixelFormat::kMono16;
+  try {
+    s.Validate();
+    ADD_FAILURE() << "BayerGB12Packed stored as Mono16 accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("BayerGB16, not Mono16"), std::string::npos) << e.what();
+  }
+}
+
+// A sim camera replaying a dataset: a deeper camera's 16-bit PNGs of codes go out as they are
+// (Bayer 16: each site's colour; Mono16: their luma), an 8-bit dataset's sRGB values x 257; 8-bit
+// formats of a 16-bit dataset are refused, naming the file.
+TEST(SimCamera, ReplaysADeeperCamerasCodesIntoSixteenBitFormats) {
+  namespace fs = std::filesystem;
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_replay16_" + std::to_string(getpid()));
+  fs::create_directories(dir / "deep" / "frames" / "frame_000000");
+  fs::create_directories(dir / "sRGB" / "frames" / "frame_000000");
+  ImageU16 codes(6, 4, 3);
+  ImageU8 srgb(6, 4, 3);
+  for (int y = 0; y < 4; ++y)
+    for (int x = 0; x < 6; ++x)
+      for (int c = 0; c < 3; ++c) {
+        codes.at(x, y, c) = static_cast<std::uint16_t>(1000 * c + 100 * y + x);  // up to 2305
+        srgb.at(x, y, c) = static_cast<std::uint8_t>(60 * c + 10 * y + x);
+      }
+  WritePng16((dir / "deep" / "frames" / "frame_000000" / "cam.png").string(), codes);
+  WritePng((dir / "sRGB" / "frames" / "frame_000000" / "cam.png").string(), srgb);
+  auto word = [](const std::vector<std::uint8_t>& b, std::size_t i) {
+    std::uint16_t v;
+    std::memcpy(&v, b.data() + 2 * i, 2);
+    return v;
+  };
+  FrameInfo info;
+  info.width = 6;
+  info.height = 4;
+  std::vector<std::uint8_t> bytes;
+  const ImageSource deep = DatasetReplaySource((dir / "deep").string(), "cam");
+  info.pixel_format = PixelFormat::kBayerGr16;  // G R / B G
+  deep(info, &bytes);
+  ASSERT_EQ(bytes.size(), 6u * 4 * 2);
+  EXPECT_EQ(word(bytes, 0), codes.at(0, 0, 1));
+  EXPECT_EQ(word(bytes, 1), codes.at(1, 0, 0));
+  EXPECT_EQ(word(bytes, 6), codes.at(0, 1, 2));
+  EXPECT_EQ(word(bytes, 6 * 3 + 5), codes.at(5, 3, 1));
+  info.pixel_format = PixelFormat::kMono16;
+  deep(info, &bytes);
+  EXPECT_NEAR(word(bytes, 6 * 2 + 3),
+              0.2126 * codes.at(3, 2, 0) + 0.7152 * codes.at(3, 2, 1) + 0.0722 * codes.at(3, 2, 2),
+              0.51);
+  for (PixelFormat narrow : {PixelFormat::kMono8, PixelFormat::kRgb8, PixelFormat::kBayerRg8}) {
+    info.pixel_format = narrow;
+    try {
+      deep(info, &bytes);
+      ADD_FAILURE() << ToString(narrow) << " of a 16-bit dataset accepted";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("cam.png"), std::string::npos) << e.what();
+    }
+  }
+  const ImageSource narrow = DatasetReplaySource((dir / "sRGB").string(), "cam");
+  info.pixel_format = PixelFormat::kBayerBg16;  // B G / G R
+  narrow(info, &bytes);
+  EXPECT_EQ(word(bytes, 0), srgb.at(0, 0, 2) * 257);
+  EXPECT_EQ(word(bytes, 6 + 1), srgb.at(1, 1, 0) * 257);
+  info.pixel_format = PixelFormat::kBayerBg8;
+  narrow(info, &bytes);
+  ASSERT_EQ(bytes.size(), 6u * 4);
+  EXPECT_EQ(bytes[6 + 1], srgb.at(1, 1, 0));
+  fs::remove_all(dir);
 }
 
 TEST(FrameSetAssembler, GroupsByTriggerAndNeverWaitsForALostFrameItCanRuleOut) {

@@ -101,6 +101,22 @@ TEST(StreamPix, BgrBecomesRgbAndOldVersionsHaveNoMicroseconds) {
   fs::remove(p);
 }
 
+// Raw Bayer (image format 101) at 8 and 16 bits: the pattern the reader is given, in 8 or 16 bits.
+TEST(StreamPix, RawBayerAtEightAndSixteenBits) {
+  SeqSpec s;
+  s.format = 101;
+  const fs::path p8 = WriteSeq("bayer8", s);
+  EXPECT_EQ(StreamPixSequence(p8.string(), PixelFormat::kBayerGr8).ReadFrame(0).info.pixel_format,
+            PixelFormat::kBayerGr8);
+  s.bit_depth = 16;
+  const fs::path p16 = WriteSeq("bayer16", s);
+  const Frame f = StreamPixSequence(p16.string(), PixelFormat::kBayerGr8).ReadFrame(1);
+  EXPECT_EQ(f.info.pixel_format, PixelFormat::kBayerGr16);
+  ASSERT_EQ(f.bytes(), 6u * 4u * 2u);
+  EXPECT_EQ((*f.data)[7], 17);  // byte 7 of frame 1
+  for (const auto& q : {p8, p16}) fs::remove(q);
+}
+
 TEST(StreamPix, CutShortCompressedAndForeignFilesAreClear) {
   const fs::path p = WriteSeq("cut", SeqSpec{});
   fs::resize_file(p, fs::file_size(p) - 20);  // the last frame is cut inside its pixels

@@ -95,7 +95,7 @@ class FakeV4l2 : public V4l2Device {
         auto* f = static_cast<v4l2_format*>(arg);
         auto& p = f->fmt.pix;
         int bpp = 1;
-        if (p.pixelformat == V4L2_PIX_FMT_Y16)
+        if (p.pixelformat == V4L2_PIX_FMT_Y16 || p.pixelformat == V4L2_PIX_FMT_SRGGB16)
           bpp = 2;
         else if (p.pixelformat == V4L2_PIX_FMT_RGB24)
           bpp = 3;
@@ -288,6 +288,24 @@ TEST(V4l2Camera, StreamsFramesWithoutRowPaddingAndRequeuesEveryBuffer) {
   // Restart after stop: the buffers come back.
   cam.Start(4);
   EXPECT_TRUE(cam.Pop(100'000'000).has_value());
+}
+
+// A 16-bit Bayer mosaic (RG16): two bytes a site, the rows' padding left out.
+TEST(V4l2Camera, StreamsSixteenBitBayerMosaics) {
+  FakeV4l2::Shared shared;
+  V4l2Camera cam("/dev/fake0", 0, std::make_unique<FakeV4l2>(&shared));
+  CameraSettings s = Mono(64, 48);
+  s.pixel_format = PixelFormat::kBayerRg16;
+  cam.Configure(s);
+  cam.Start(4);
+  const auto f = cam.Pop(100'000'000);
+  ASSERT_TRUE(f.has_value());
+  EXPECT_EQ(f->info.pixel_format, PixelFormat::kBayerRg16);
+  ASSERT_EQ(f->bytes(), 64u * 48u * 2);
+  for (int y = 0; y < 48; y += 7)
+    for (int x = 0; x < 128; x += 5)
+      ASSERT_EQ((*f->data)[y * 128 + x], static_cast<std::uint8_t>(x + 3 * y));
+  cam.Stop();
 }
 
 TEST(V4l2Camera, DropsFromSequenceGapsAndErrorFlags) {

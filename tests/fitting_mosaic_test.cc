@@ -37,6 +37,28 @@ Frame MosaicFrame(const ImageU8& codes, PixelFormat format) {
   return f;
 }
 
+constexpr PixelFormat kFormats16[] = {PixelFormat::kBayerRg16, PixelFormat::kBayerGr16,
+                                      PixelFormat::kBayerGb16, PixelFormat::kBayerBg16};
+
+// The same for a 16-bit mosaic (little-endian words).
+Frame MosaicFrame16(const ImageU16& codes, PixelFormat format) {
+  const BayerLayout layout = BayerLayoutOf(format);
+  auto bytes = std::make_shared<std::vector<std::uint8_t>>(2 * codes.num_pixels());
+  for (int y = 0; y < codes.height; ++y)
+    for (int x = 0; x < codes.width; ++x) {
+      const std::uint16_t v = codes.at(x, y, BayerColour(layout, x, y));
+      const std::size_t i = std::size_t(y) * codes.width + x;
+      (*bytes)[2 * i] = static_cast<std::uint8_t>(v & 0xff);
+      (*bytes)[2 * i + 1] = static_cast<std::uint8_t>(v >> 8);
+    }
+  Frame f;
+  f.info.pixel_format = format;
+  f.info.width = codes.width;
+  f.info.height = codes.height;
+  f.data = bytes;
+  return f;
+}
+
 TEST(BayerLayout, FollowsTheGenICamNames) {
   // BayerRG8: R at (0, 0), G at (1, 0) and (0, 1), B at (1, 1); the others by their names.
   const char* cells[] = {"RGGB", "GRBG", "GBRG", "BGGR"};
@@ -53,6 +75,8 @@ TEST(BayerLayout, FollowsTheGenICamNames) {
   }
   EXPECT_EQ(BayerLayoutOf(PixelFormat::kRgb8), BayerLayout::kNone);
   EXPECT_EQ(BayerLayoutOf(PixelFormat::kMono8), BayerLayout::kNone);
+  EXPECT_EQ(BayerLayoutOf(PixelFormat::kMono16), BayerLayout::kNone);
+  for (int i = 0; i < 4; ++i) EXPECT_EQ(BayerLayoutOf(kFormats16[i]), BayerLayoutOf(kFormats[i]));
 }
 
 // The interpolation the model renders is the one DecodeFrame (OpenCV) applies to a recording,
@@ -74,6 +98,26 @@ TEST(BayerResample, IsWhatDecodeFrameMakesOfTheMosaic) {
       for (std::size_t i = 0; i < model.pixels.size(); ++i)
         worst = std::max(worst, std::abs(double(model.pixels[i]) - decoded.pixels[i]));
       EXPECT_LE(worst, 0.5 + 1e-4) << ToString(format) << " " << w << "x" << h;
+    }
+    // 16-bit mosaics: full-scale words and a 12-bit camera's codes.
+    for (int top : {65535, 4095}) {
+      std::uniform_int_distribution<int> code16(0, top);
+      ImageU16 codes16(w, h, 3);
+      for (auto& c : codes16.pixels) c = static_cast<std::uint16_t>(code16(rng));
+      ImageF as_float16(w, h, 3);
+      for (std::size_t i = 0; i < codes16.pixels.size(); ++i)
+        as_float16.pixels[i] = codes16.pixels[i];
+      for (PixelFormat format : kFormats16) {
+        ImageU8 unused;
+        ImageU16 decoded;
+        ASSERT_EQ(DecodeFrame(MosaicFrame16(codes16, format), &unused, &decoded), 16);
+        ASSERT_EQ(decoded.channels, 3);
+        const ImageF model = BayerResample(as_float16, BayerLayoutOf(format));
+        double worst = 0;
+        for (std::size_t i = 0; i < model.pixels.size(); ++i)
+          worst = std::max(worst, std::abs(double(model.pixels[i]) - decoded.pixels[i]));
+        EXPECT_LE(worst, 0.5 + 1e-2) << ToString(format) << " " << w << "x" << h << " to " << top;
+      }
     }
   }
 }
@@ -145,6 +189,37 @@ TEST(BayerRecord, ForwardIsWhatTheCameraRecordsAndTheHostDecodes) {
       EXPECT_LE(worst, 1.0 + 1e-3) << ToString(format) << ", " << camera.Describe();
     }
   }
+  // 16-bit mosaics: a raw 12-bit camera (linear, black 64, saturating at 4000; its codes in the
+  // words' low bits) and a full-scale linear one (the default decoding of 16-bit frames).
+  CameraRadiometry raw12;
+  raw12.transfer = TransferFunction::kLinear;
+  raw12.bit_depth = 12;
+  raw12.black_level = 64;
+  raw12.saturation_level = 4000;
+  for (const CameraRadiometry& camera : {raw12, CameraRadiometry{}}) {
+    const CameraRadiometry::Decoding d = camera.DecodingFor(16);
+    ImageU16 codes(linear.width, linear.height, 3);
+    for (std::size_t i = 0; i < codes.pixels.size(); ++i)
+      codes.pixels[i] = static_cast<std::uint16_t>(camera.Code(s * linear.pixels[i], d));
+    for (PixelFormat format : kFormats16) {
+      ImageU8 unused;
+      ImageU16 decoded;
+      DecodeFrame(MosaicFrame16(codes, format), &unused, &decoded);
+      const ImageF model = BayerRecord(BayerLayoutOf(format), camera, 16).Forward(linear, s);
+      double worst = 0;
+      for (std::size_t i = 0; i < model.pixels.size(); ++i)
+        worst = std::max(worst, std::abs(camera.Encode(model.pixels[i], d) - decoded.pixels[i]));
+      EXPECT_LE(worst, 1.0 + 0.05) << ToString(format) << ", " << camera.Describe();
+    }
+  }
+  // A 12-bit camera's mosaic cannot arrive in 8 bits: refused, naming the camera.
+  try {
+    MakeBayerRecord(BayerLayout::kRggb, raw12, "cam3");
+    ADD_FAILURE() << "a 12-bit camera decoded from 8-bit frames";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("cam3"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(MakeBayerRecord(BayerLayout::kRggb, raw12, "cam3", 16)->frame_bits(), 16);
 }
 
 // dE/d(linear) and dE/ds of E = sum of weights x Forward() against central differences; channels
