@@ -694,6 +694,19 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
   double held_s_ = 0;                    // 0: fitted
 };
 
+}  // namespace
+
+bool EnergyStalled(const std::vector<double>& costs, int window, double decrease) {
+  const int k = static_cast<int>(costs.size()) - 1;
+  if (window <= 0 || k < window) return false;
+  const double start = costs.front(), before = costs[k - window], now = costs[k];
+  if (!std::isfinite(start) || !std::isfinite(before) || !std::isfinite(now)) return false;
+  // A level that has not gone down at all has nothing to measure against: it has stalled.
+  return before - now < decrease * std::max(0.0, start - now) || !(start > now);
+}
+
+namespace {
+
 class TraceCallback : public ceres::IterationCallback {
  public:
   TraceCallback(Clock::time_point start, int level, const std::string& stage,
@@ -753,17 +766,17 @@ class TraceCallback : public ceres::IterationCallback {
       return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
     }
     // The minimised (smooth) energy over the last stall_window iterations.
-    const int k = static_cast<int>(costs_.size()) - 1;
-    if (stall_window_ > 0 && k >= stall_window_) {
-      const double before = costs_[k - stall_window_], now = costs_[k];
-      if (std::isfinite(before) && std::isfinite(now) && now > 0 &&
-          before - now < stall_decrease_ * now) {
-        std::ostringstream m;
-        m << "the energy fell by " << 100 * (before - now) / now << "% over the last "
-          << stall_window_ << " iterations (stall_decrease " << 100 * stall_decrease_ << "%)";
-        stalled_ = m.str();
-        return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
-      }
+    if (EnergyStalled(costs_, stall_window_, stall_decrease_)) {
+      const double before = costs_[costs_.size() - 1 - stall_window_], now = costs_.back();
+      std::ostringstream m;
+      if (costs_.front() > now)
+        m << "the energy fell over the last " << stall_window_ << " iterations by "
+          << 100 * (before - now) / (costs_.front() - now) << "% of its fall since the start "
+          << "(stall_decrease " << 100 * stall_decrease_ << "%)";
+      else
+        m << "the energy has not fallen in " << costs_.size() - 1 << " iterations";
+      stalled_ = m.str();
+      return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
     }
     return ceres::SOLVER_CONTINUE;
   }

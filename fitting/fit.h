@@ -181,13 +181,15 @@ struct FitOptions {
   bool coarse_to_fine = false;    // see step 2 above
   int iterations_per_level = 40;  // L-BFGS iterations at each coarse level
   int iterations_finest = 100;    // at the finest level: a cap, see stall_window
-  // The convergence criterion: a level stops when its energy fell by less than stall_decrease (a
-  // fraction) over the last stall_window iterations (window 0: no such criterion, only the
-  // iteration cap and Ceres' own tolerances). FitResult::message says which stopped it. Chosen
-  // by measurement (issue 24, BENCHMARKS.md): the 2-view candle stops after 15 to 19 iterations
-  // with the temperature error of 30 (147 K either way) in half the time; the 8-view licks after
-  // 31, as good as the 30-iteration cap it replaces (83 K); 0.2% would give them 69 iterations
-  // and 78 K in twice the time.
+  // The convergence criterion (EnergyStalled): a level stops when its energy fell over the last
+  // stall_window iterations by less than stall_decrease (a fraction) of what it has fallen since
+  // the level began (window 0: no such criterion, only the iteration cap and Ceres' own
+  // tolerances). FitResult::message says which stopped it. Measured against the energy's own
+  // size until 2026-11-29 (issue 24: the 2-view candle stopped after 15 to 19 iterations, the
+  // 8-view licks after 31): the part of the energy no fit removes (noise, pixels the model
+  // cannot explain) then set the tolerance, and a raw 12-bit linear camera, whose noise near
+  // black is a large energy in Lab, stopped after 5 to 13 iterations with the main job's tied
+  // fit 40 K too hot (BENCHMARKS.md, "Raw 12-bit Bayer cameras and when the fit stops").
   int stall_window = 5;
   double stall_decrease = 0.005;
   double smooth_delta_e = 0.5;  // Charbonnier epsilons (the fast fit's smooth energy)
@@ -299,6 +301,13 @@ struct FitResult {
   std::string method;
   std::string BriefReport() const;
 };
+
+// The convergence criterion of FitOptions: whether the energies of a level's iterations so far
+// (costs[0] at its start, costs.back() now) fell over the last `window` iterations by less than
+// `decrease` times their fall since costs[0]. False while there are at most `window` iterations,
+// with window 0, or for energies that are not finite. Adding a constant to every energy (a noise
+// floor) does not change it.
+bool EnergyStalled(const std::vector<double>& costs, int window, double decrease);
 
 // Two-colour (multi-band) pyrometry's start (issue 19, item 6). A mono camera records no colour,
 // so the fit cannot start a mono rig's temperatures from the tomography's colour; a rig of mono

@@ -727,6 +727,8 @@ TEST(FastFit, SaysWhyItStopped) {
   EXPECT_EQ(stalled.termination, FitTermination::kConverged) << stalled.message;
   EXPECT_NE(stalled.message.find("over the last 4 iterations"), std::string::npos)
       << stalled.message;
+  EXPECT_NE(stalled.message.find("of its fall since the start"), std::string::npos)
+      << stalled.message;
   EXPECT_GE(stalled.iterations, 4);
   EXPECT_LT(stalled.iterations, 200);
   FitOptions uncapped = stalling;
@@ -754,6 +756,34 @@ TEST(FastFit, SaysWhyItStopped) {
                                      [](const Progress&) { return ProgressAction::kCancel; });
   EXPECT_EQ(stopped.termination, FitTermination::kCancelled);
   EXPECT_EQ(stopped.iterations, 0);
+}
+
+// The stopping rule against closed forms: an energy floor + A r^k falls over the last w
+// iterations by A r^(k-w) (1 - r^w), and since the start by A (1 - r^k); it stalls at the first k
+// where their ratio is below the tolerance, whatever the floor (the part of the energy no fit
+// removes: noise, pixels the model cannot explain).
+TEST(EnergyStalled, StopsWhereTheClosedFormSaysWhateverTheFloor) {
+  const double r = 0.8, decrease = 0.005;
+  const int window = 5;
+  int expected = -1;
+  for (int k = window; k < 200 && expected < 0; ++k)
+    if (std::pow(r, k - window) * (1 - std::pow(r, window)) / (1 - std::pow(r, k)) < decrease)
+      expected = k;
+  ASSERT_GT(expected, window);
+  for (double floor : {0.0, 1.0, 1e3, 1e6}) {
+    std::vector<double> costs;
+    int stopped = -1;
+    for (int k = 0; k < 200 && stopped < 0; ++k) {
+      costs.push_back(floor + 10 * std::pow(r, k));
+      if (EnergyStalled(costs, window, decrease)) stopped = k;
+    }
+    EXPECT_EQ(stopped, expected) << "floor " << floor;
+  }
+  // Too few iterations, no window, a non-finite energy: not stalled; no fall at all: stalled.
+  EXPECT_FALSE(EnergyStalled({5, 4, 3}, 5, decrease));
+  EXPECT_FALSE(EnergyStalled({5, 4, 3, 3, 3, 3, 3}, 0, decrease));
+  EXPECT_FALSE(EnergyStalled({NAN, 4, 3, 3, 3, 3, 3}, 5, decrease));
+  EXPECT_TRUE(EnergyStalled({3, 3, 3, 3, 3, 3}, 5, decrease));
 }
 
 TEST(FastFit, SyntheticRoundTripFromTwoViews) {

@@ -66,7 +66,8 @@ Runner AddFit(CLI::App* command) {
   command
       ->add_option("--fit-iterations", o->iterations,
                    "Fast fit: cap on the L-BFGS iterations per grid level (it stops earlier once "
-                   "its energy falls by less than 0.5% in 5 iterations); alg1/alg2: sweeps")
+                   "its energy falls over 5 iterations by less than 0.5% of its fall since the "
+                   "level's start); alg1/alg2: sweeps")
       ->type_name("N")
       ->check(Whole(0, 1000000));
   command->add_option("--time-limit", job.fit.time_limit_s, "Stop the fit after S seconds")

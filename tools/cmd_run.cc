@@ -69,7 +69,8 @@ Runner AddRun(CLI::App* command) {
   command
       ->add_option("--fit-iterations", o->fit_iterations,
                    "Cap on the L-BFGS iterations of each frame's fit (it stops earlier once its "
-                   "energy falls by less than 0.5% in 5 iterations)")
+                   "energy falls over 5 iterations by less than 0.5% of its fall since the "
+                   "start)")
       ->type_name("N")
       ->check(Whole(0, 1000000));
   command
