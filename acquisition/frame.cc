@@ -3,6 +3,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
+#include <bit>
 #include <cstring>
 #include <limits>
 #include <stdexcept>
@@ -10,6 +11,10 @@
 #include "core/error.h"
 
 namespace flamerig {
+
+// 16-bit formats are little-endian words (GenICam, V4L2, PNG as flamerig writes it through OpenCV)
+// read in place: this host must be little-endian too.
+static_assert(std::endian::native == std::endian::little, "flamerig reads 16-bit frames in place");
 
 const char* ToString(PixelFormat format) {
   switch (format) {

@@ -54,8 +54,9 @@ void CameraSettings::Validate() const {
   if (packet_size < 0) fail("packet_size must be >= 0");
   if (!wire_format.empty()) {
     const WireFormat* w = WireFormatFromName(wire_format);
-    if (!w) fail("wire format '" + wire_format + "' is not one flamerig unpacks");
-    if (pixel_format != w->stored)
+    if (!w)
+      fail("wire format '" + wire_format + "' is not one flamerig unpacks");
+    else if (pixel_format != w->stored)
       fail("wire format '" + wire_format + "' is unpacked into " + ToString(w->stored) + ", not " +
            ToString(pixel_format));
   }

@@ -342,6 +342,18 @@ ImageU8 ToGrey(const ImageU8& image) {
   return grey;
 }
 
+// An 8-bit frame as it is; a 16-bit one scaled to 8 bits by its own top (full-scale words, and a
+// deeper camera's codes in their low bits, alike), for the board's detection.
+ImageU8 To8Bit(int bits, ImageU8 u8, const ImageU16& u16) {
+  if (bits != 16) return u8;
+  std::uint16_t top = 255;
+  for (std::uint16_t v : u16.pixels) top = std::max(top, v);
+  u8 = ImageU8(u16.width, u16.height, u16.channels);
+  for (std::size_t i = 0; i < u16.pixels.size(); ++i)
+    u8.pixels[i] = static_cast<std::uint8_t>((u16.pixels[i] * 255u + top / 2) / top);
+  return u8;
+}
+
 }  // namespace
 
 CalibrationData DetectViewsInFolder(const std::string& dir, const BoardSpec& board,
@@ -377,7 +389,12 @@ CalibrationData DetectViewsInFolder(const std::string& dir, const BoardSpec& boa
       auto it = index.find(path.stem().string());
       if (it == index.end()) continue;  // a camera not asked for
       const std::string p = path.string();
-      jobs.push_back(DetectJob{view, it->second, p, [p] { return ReadImageU8(p, 1); }});
+      jobs.push_back(DetectJob{view, it->second, p, [p] {
+                                 ImageU8 u8;
+                                 ImageU16 u16;
+                                 const int bits = ReadImage(p, &u8, &u16, 1);
+                                 return ToGrey(To8Bit(bits, std::move(u8), u16));
+                               }});
     }
   }
   return RunDetection(std::move(data), std::move(jobs), cache_path, detect, progress);
@@ -412,17 +429,8 @@ CalibrationData DetectViewsInRecording(const std::string& recording_dir, const B
                                  std::optional<Frame> frame = recording->ReadFrame(s, rc);
                                  ImageU8 u8;
                                  ImageU16 u16;
-                                 if (DecodeFrame(*frame, &u8, &u16) == 16) {
-                                   // To 8 bits by the frame's own top: full-scale words and
-                                   // a 12-bit camera's codes in their low bits alike.
-                                   std::uint16_t top = 255;
-                                   for (std::uint16_t v : u16.pixels) top = std::max(top, v);
-                                   u8 = ImageU8(u16.width, u16.height, u16.channels);
-                                   for (std::size_t i = 0; i < u16.pixels.size(); ++i)
-                                     u8.pixels[i] = static_cast<std::uint8_t>(
-                                         (u16.pixels[i] * 255u + top / 2) / top);
-                                 }
-                                 return ToGrey(u8);
+                                 const int bits = DecodeFrame(*frame, &u8, &u16);
+                                 return ToGrey(To8Bit(bits, std::move(u8), u16));
                                }});
     }
   }

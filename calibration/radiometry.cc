@@ -313,6 +313,24 @@ double CameraRadiometry::Encode(double signal, const Decoding& d) const {
   return d.black + e * (d.saturation - d.black);
 }
 
+CameraRadiometry CameraRadiometry::ForHighBitWords(int bits) const {
+  CameraRadiometry out = *this;
+  if (bits <= 8 || bits >= 16) return out;
+  const double scale = std::ldexp(1.0, 16 - bits);
+  const double top = (std::ldexp(1.0, bits) - 1) * scale;
+  if (bit_depth == 0) {
+    out.saturation_level = saturation_level > 0 ? std::min(saturation_level, top) : top;
+  } else if (bit_depth == bits) {
+    out.bit_depth = 16;
+    out.black_level = black_level * scale;
+    out.saturation_level =
+        (saturation_level > 0 ? std::min(saturation_level, std::ldexp(1.0, bits) - 1)
+                              : std::ldexp(1.0, bits) - 1) *
+        scale;
+  }
+  return out;
+}
+
 std::vector<float> CameraRadiometry::SignalTable(int frame_bits) const {
   const Decoding d = DecodingFor(frame_bits);
   std::vector<float> table(frame_bits == 8 ? 256 : 65536);

@@ -25,7 +25,9 @@
 //
 // Bit depth 0 (the default) means "as the frame says", today's rule: 8-bit frames are sRGB over
 // 0..255, 16-bit frames linear over 0..65535. Any other setting applies to every frame of the
-// camera: a Mono12 camera's frames arrive as 16-bit values in 0..4095 (bit_depth 12), and a value
+// camera: a Mono12 camera's frames arrive as 16-bit values in 0..4095 (bit_depth 12; a take that
+// flamerig recorded from a 10- to 14-bit wire format holds them in the words' high bits, and its
+// frames are read with ForHighBitWords, below), and a value
 // above 2^bits - 1 is a DataError naming the camera (a wrong bit depth, or a corrupt frame).
 //
 // On disk (a camera's entry in the rig YAML; every key optional, defaults shown):
@@ -134,6 +136,16 @@ struct CameraRadiometry {
   double Encode(double signal, const Decoding& d) const;
   // A 256- or 65536-entry table of Signal() for every code of a frame of `frame_bits`.
   std::vector<float> SignalTable(int frame_bits) const;
+
+  // This camera's model for frames that arrive as 16-bit words holding `bits`-bit values (10 to
+  // 15) in their high bits, as flamerig stores what a camera sent in a packed or 10/12-bit wire
+  // format (acquisition/frame.h: value << (16 - bits)). An entry counted in those bits (bit_depth
+  // `bits`) is scaled to the words: bit depth 16, black and saturation levels x 2^(16 - bits), the
+  // saturation at most the highest word ((2^bits - 1) << (16 - bits)). An entry that takes its
+  // bit depth from the frame (0) keeps its black level (in the words' units) and saturates at that
+  // highest word, which a value of `bits` bits reaches. Any other entry (16, or another depth) is
+  // returned as it is; so is any entry for `bits` 0 or 16.
+  CameraRadiometry ForHighBitWords(int bits) const;
 
   // Throws InputError naming `where` and the field that breaks a rule.
   void Validate(const std::string& where) const;

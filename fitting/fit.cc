@@ -702,7 +702,7 @@ bool EnergyStalled(const std::vector<double>& costs, int window, double decrease
   const double start = costs.front(), before = costs[k - window], now = costs[k];
   if (!std::isfinite(start) || !std::isfinite(before) || !std::isfinite(now)) return false;
   // A level that has not gone down at all has nothing to measure against: it has stalled.
-  return before - now < decrease * std::max(0.0, start - now) || !(start > now);
+  return !(start > now) || before - now < decrease * (start - now);
 }
 
 namespace {

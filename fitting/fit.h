@@ -188,8 +188,8 @@ struct FitOptions {
   // size until 2026-11-29 (issue 24: the 2-view candle stopped after 15 to 19 iterations, the
   // 8-view licks after 31): the part of the energy no fit removes (noise, pixels the model
   // cannot explain) then set the tolerance, and a raw 12-bit linear camera, whose noise near
-  // black is a large energy in Lab, stopped after 5 to 13 iterations with the main job's tied
-  // fit 40 K too hot (BENCHMARKS.md, "Raw 12-bit Bayer cameras and when the fit stops").
+  // black is a large energy in Lab, stopped after 5 to 32 iterations with the main job's tied
+  // fit up to 66 K too hot (BENCHMARKS.md, "Raw 12-bit Bayer cameras and when the fit stops").
   int stall_window = 5;
   double stall_decrease = 0.005;
   double smooth_delta_e = 0.5;  // Charbonnier epsilons (the fast fit's smooth energy)

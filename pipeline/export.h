@@ -29,7 +29,8 @@ struct ExportSummary {
   std::int64_t event_set = -1;  // an event recording: the first set after its trigger (else -1)
 };
 
-// Writes OUT/frame_NNNNNN/<camera name>.png (8-bit, or 16-bit for Mono16; Bayer demosaiced to RGB),
+// Writes OUT/frame_NNNNNN/<camera name>.png (8-bit, or 16-bit for Mono16 and Bayer 16; Bayer
+// demosaiced to RGB),
 // OUT/pixel_formats.yaml (each camera's pixel format as its frames carried it, so that a Bayer
 // camera's frames read back from here are fitted through its mosaic: pipeline/frame_source.h) and
 // OUT/sets.csv (set, trigger id, reference time, spread, then per camera frame id and status,

@@ -77,7 +77,7 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
     v.signal = set.signal[c];
     v.response = ChannelResponse::ForCamera(rig.cameras[c].radiometry);
     if (job.fit.objective.model_mosaic)
-      v.mosaic = MakeBayerRecord(set.mosaic[c], rig.cameras[c].radiometry, name, set.bits[c]);
+      v.mosaic = MakeBayerRecord(set.mosaic[c], set.radiometry[c], name, set.bits[c]);
     return v;
   };
   std::vector<FitView> views, held;

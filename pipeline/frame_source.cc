@@ -184,6 +184,7 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
   out.signal.resize(rig.cameras.size());
   out.mosaic = FrameFolderMosaics(dir, rig);
   out.bits.assign(rig.cameras.size(), 0);
+  for (const RigCamera& camera : rig.cameras) out.radiometry.push_back(camera.radiometry);
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const RigCamera& camera = rig.cameras[c];
     const fs::path path = fs::path(dir) / (camera.name + ".png");
@@ -245,6 +246,8 @@ struct FrameSource::Impl {
   std::unique_ptr<Recording> recording;
   std::vector<StreamPixSequence> seqs;
   std::vector<BayerLayout> images_mosaic;  // a folder's, per rig camera (ReadExportedMosaics)
+  // per rig camera: the model its frames decode with (SourceFrameSet::radiometry)
+  std::vector<CameraRadiometry> radiometry;
 
   // Checks a decoded camera image against the rig camera's imager.
   void CheckSize(int c, std::size_t set, int width, int height) const {
@@ -283,6 +286,7 @@ FrameSource::FrameSource(const FrameSourceSpec& spec, const Rig& rig)
   spec.Validate();
   impl_->spec = spec;
   impl_->rig = rig;
+  for (const RigCamera& camera : rig.cameras) impl_->radiometry.push_back(camera.radiometry);
   if (!spec.recording_dir.empty()) {
     impl_->recording = std::make_unique<Recording>(Recording::Open(spec.recording_dir));
     impl_->notes = impl_->recording->recovery().notes;
@@ -290,6 +294,14 @@ FrameSource::FrameSource(const FrameSourceSpec& spec, const Rig& rig)
     for (const auto& c : impl_->recording->metadata().cameras) names.push_back(c.name);
     impl_->MatchCameras(names);
     impl_->sets = impl_->recording->num_sets();
+    // A camera recorded from a 10- to 14-bit wire format holds its values in the words' high
+    // bits: the rig's entry, counted in those bits or taken from the frame, is read for them.
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+      const std::string& wire =
+          impl_->recording->metadata().cameras[impl_->source_camera[c]].settings.wire_format;
+      const WireFormat* w = wire.empty() ? nullptr : WireFormatFromName(wire);
+      impl_->radiometry[c] = rig.cameras[c].radiometry.ForHighBitWords(w ? w->bits : 0);
+    }
   } else if (!spec.seq_files.empty()) {
     std::vector<std::string> names = spec.seq_names;
     if (names.empty())
@@ -341,6 +353,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
   out.signal.resize(rig.cameras.size());
   out.mosaic.assign(rig.cameras.size(), BayerLayout::kNone);
   out.bits.assign(rig.cameras.size(), 0);
+  out.radiometry = impl_->radiometry;
   bool have_id = false;
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const std::string& name = rig.cameras[c].name;
@@ -391,8 +404,8 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
     const int height = bits == 16 ? u16.height : u8.height;
     impl_->CheckSize(static_cast<int>(c), i, width, height);
     try {
-      DecodeCameraImage(u8, u16, bits, exposure, impl_->rig.cameras[c].radiometry, &out.images[c],
-                        &out.linear[c], &out.signal[c]);
+      DecodeCameraImage(u8, u16, bits, exposure, out.radiometry[c], &out.images[c], &out.linear[c],
+                        &out.signal[c]);
     } catch (const InputError& e) {
       throw DataError(impl_->spec.Describe() + ", set " + std::to_string(i) + ", camera '" + name +
                       "': " + e.what());

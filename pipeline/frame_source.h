@@ -52,6 +52,10 @@ struct SourceFrameSet {
   // per rig camera: the bits of the frame's codes as read (8 or 16; 0 when left out): how a
   // mosaic's codes decode (fitting/mosaic.h)
   std::vector<int> bits;
+  // per rig camera: the radiometric model its frames were decoded with: the rig's, or for a
+  // recording from a 10- to 14-bit wire format (values in the words' high bits) the rig's for such
+  // words (CameraRadiometry::ForHighBitWords); the fit's mosaic model takes the same
+  std::vector<CameraRadiometry> radiometry;
   std::vector<std::string> notes;  // cameras left out and why
   // The device frame id of the set's first present frame (recordings), the file's frame number
   // (StreamPix), or the set number (images): what a simulated camera replaying a dataset showed.

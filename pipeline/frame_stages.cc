@@ -291,8 +291,7 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
     v.signal = w->set.signal[c];
     v.response = responses_[c];
     if (options_.fit.objective.model_mosaic)
-      v.mosaic =
-          MakeBayerRecord(w->set.mosaic[c], rig_.cameras[c].radiometry, v.name, w->set.bits[c]);
+      v.mosaic = MakeBayerRecord(w->set.mosaic[c], w->set.radiometry[c], v.name, w->set.bits[c]);
     (static_cast<int>(c) == holdout_ ? w->held : w->views).push_back(std::move(v));
   }
   // The exposure: known, the take's, or fitted here (and the take's from here on).

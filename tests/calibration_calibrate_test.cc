@@ -485,6 +485,29 @@ TEST_F(Ring, BlurredImagesAreReportedPerCamera) {
   fs::remove_all(work);
 }
 
+// A folder of 16-bit images (what `flamerig export` writes of a 16-bit camera's take; here a
+// 12-bit camera's codes in the words' low bits, v x 16) is found as its 8-bit views are.
+TEST_F(Ring, SixteenBitImagesAreDetectedAsTheirEightBitViews) {
+  const fs::path work = TempDir("deep");
+  for (const auto& v : fs::directory_iterator(*dir_ / "calibration")) {
+    if (!v.is_directory()) continue;
+    fs::create_directories(work / v.path().filename());
+    for (const auto& f : fs::directory_iterator(v.path())) {
+      const ImageU8 img = ReadImageU8(f.path().string(), 1);
+      ImageU16 deep(img.width, img.height, 1);
+      for (std::size_t i = 0; i < img.pixels.size(); ++i) deep.pixels[i] = img.pixels[i] * 16;
+      WritePng16((work / v.path().filename() / f.path().filename()).string(), deep);
+    }
+  }
+  const BoardSpec board = LoadBoardSpec((*dir_ / "calibration/board.yaml").string());
+  const CalibrationData deep = DetectViewsInFolder(work.string(), board, {}, "");
+  const CalibrationData narrow =
+      DetectViewsInFolder((*dir_ / "calibration").string(), board, {}, "");
+  ASSERT_GT(narrow.observations.size(), 0u);
+  EXPECT_EQ(deep.observations.size(), narrow.observations.size());
+  fs::remove_all(work);
+}
+
 TEST_F(Ring, ATruncatedImageIsNamed) {
   const fs::path work = TempDir("truncated");
   fs::copy(*dir_ / "calibration", work / "calibration", fs::copy_options::recursive);

@@ -109,6 +109,39 @@ TEST(Radiometry, SaturationLevelBelowFullScaleSaturatesThere) {
   EXPECT_FLOAT_EQ(table[2032], float((2032.0 - 64) / (4000 - 64)));
 }
 
+// A 12-bit camera's values stored in the high bits of 16-bit words (acquisition's unpacked wire
+// formats, v << 4): the entry counted in 12 bits decodes the words as it decodes the codes, and
+// saturates at the highest word a 12-bit value reaches; an entry that takes its depth from the
+// frame saturates there too; a 16-bit entry, and 16-bit data, are left as they are.
+TEST(Radiometry, TwelveBitValuesInTheHighBitsOfWordsDecodeAsTheirCodes) {
+  CameraRadiometry raw12;
+  raw12.transfer = TransferFunction::kGamma;
+  raw12.gamma = 1.8;
+  raw12.bit_depth = 12;
+  raw12.black_level = 64;
+  const CameraRadiometry words = raw12.ForHighBitWords(12);
+  EXPECT_EQ(words.bit_depth, 16);
+  const auto low = raw12.DecodingFor(16), high = words.DecodingFor(16);
+  EXPECT_EQ(high.black, 64 * 16);
+  EXPECT_EQ(high.saturation, 4095 * 16);
+  for (int v : {0, 64, 65, 100, 1000, 2047, 4000, 4094, 4095})
+    EXPECT_NEAR(words.Signal(v << 4, high), raw12.Signal(v, low), 1e-12) << v;
+  raw12.saturation_level = 4000;
+  EXPECT_EQ(raw12.ForHighBitWords(12).DecodingFor(16).saturation, 4000 * 16);
+  CameraRadiometry from_frame;  // bit depth 0: 16-bit frames linear over the words
+  const auto f = from_frame.ForHighBitWords(12).DecodingFor(16);
+  EXPECT_EQ(f.transfer, TransferFunction::kLinear);
+  EXPECT_EQ(f.saturation, 0xFFF0);
+  EXPECT_EQ(from_frame.ForHighBitWords(12).Signal(0xFFF0, f), 1.0);
+  EXPECT_EQ(from_frame.ForHighBitWords(10).DecodingFor(16).saturation, 0xFFC0);
+  CameraRadiometry deep;
+  deep.bit_depth = 16;
+  deep.black_level = 100;
+  EXPECT_EQ(deep.ForHighBitWords(12).DecodingFor(16).black, 100);
+  EXPECT_EQ(raw12.ForHighBitWords(0).bit_depth, 12);
+  EXPECT_EQ(raw12.ForHighBitWords(16).bit_depth, 12);
+}
+
 TEST(Radiometry, ACameraDeeperThanItsFramesIsAnError) {
   const CameraRadiometry m = FromText("{transfer: linear, bit_depth: 12}");
   EXPECT_NE(ErrorOf([&] { m.DecodingFor(8); }).find("12-bit camera's frames cannot arrive in 8"),

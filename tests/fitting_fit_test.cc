@@ -716,8 +716,8 @@ TEST(FastFit, SaysWhyItStopped) {
   const FitResult timed = FastFit(r.grid, r.tomography, r.views, soot, options);
   EXPECT_EQ(timed.termination, FitTermination::kTimeLimit) << timed.message;
 
-  // The convergence criterion: the energy that stalls (fell by less than stall_decrease over
-  // stall_window iterations) stops the fit, converged, and says so; with the criterion off the
+  // The convergence criterion: the energy that stalls (fell over stall_window iterations by less
+  // than stall_decrease of its fall since the start) stops the fit, converged, and says so; with the criterion off the
   // cap stops it; a bad criterion is refused.
   FitOptions stalling;
   stalling.iterations_finest = 200;

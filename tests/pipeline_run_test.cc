@@ -1501,6 +1501,55 @@ TEST(RunFrames, ASixteenBitBayerRecordingIsFittedThroughItsMosaic) {
       "temperature RMS %.0f K and %.0f K\n",
       e_through, e_measured, through.frames[0].truth_rms_k, as_measured.frames[0].truth_rms_k);
   EXPECT_LT(e_through, e_measured);
+  // The same codes as an Aravis camera's BayerRG12p arrive: unpacked into the words' high bits
+  // (UnpackTo16Bit), the take's settings naming the wire format. The rig's 12-bit entry reads them
+  // as the same signal, and the fit's mosaic model with it.
+  const fs::path packed_dir = dir / "rec_packed";
+  {
+    RecordingMetadata meta = Recording::Open(rec_dir.string()).metadata();
+    for (auto& cam : meta.cameras) cam.settings.SetPixelFormat("BayerRG12p");
+    Recorder recorder(packed_dir.string(), meta);
+    FrameSet packed;
+    packed.index = 0;
+    packed.trigger_id = 0;
+    for (const Frame& f : sent) {
+      Frame g = f;
+      auto words = std::make_shared<std::vector<std::uint8_t>>(*f.data);
+      for (std::size_t i = 0; i + 1 < words->size(); i += 2) {
+        const unsigned v = ((*words)[i] | (*words)[i + 1] << 8) << 4;
+        (*words)[i] = static_cast<std::uint8_t>(v & 0xff);
+        (*words)[i + 1] = static_cast<std::uint8_t>(v >> 8);
+      }
+      g.data = words;
+      packed.frames.push_back(g);
+    }
+    ASSERT_TRUE(recorder.Submit(packed));
+    recorder.Close();
+  }
+  FrameSourceSpec packed_spec;
+  packed_spec.recording_dir = packed_dir.string();
+  const SourceFrameSet from_packed = FrameSource(packed_spec, rig).Read(0, 1.0);
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_EQ(from_packed.radiometry[k].bit_depth, 16) << k;
+    EXPECT_EQ(from_packed.radiometry[k].black_level, 64 * 16) << k;
+    ASSERT_EQ(from_packed.signal[k].pixels.size(), set.signal[k].pixels.size());
+    double worst = 0;
+    for (std::size_t i = 0; i < set.signal[k].pixels.size(); ++i)
+      worst = std::max(worst,
+                       double(std::abs(from_packed.signal[k].pixels[i] - set.signal[k].pixels[i])));
+    // The demosaicing rounds its interpolated words: to a code in the low bits, to 1/16 of one in
+    // the high bits; half a code of the 4031 above black apart at most.
+    EXPECT_LE(worst, 0.5 / 4031 + 1e-6) << k;
+  }
+  {
+    RunOptions o = SmallRun(dir / "sim", dir / "packed");
+    o.source = packed_spec;
+    o.sigma = o.blender = o.pictures = false;
+    const RunSummary packed_run = RunAll(o);
+    ASSERT_EQ(packed_run.computed, 1u);
+    EXPECT_NEAR(packed_run.frames[0].MeanFittedDeltaE(), through.frames[0].MeanFittedDeltaE(),
+                0.05);
+  }
   // Exported, the take's frames are 16-bit RGB PNGs of the demosaiced codes, read back as the
   // recording's 16-bit mosaic.
   const fs::path exported = dir / "exported";
