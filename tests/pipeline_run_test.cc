@@ -1293,6 +1293,55 @@ void RecordDataset(const fs::path& dataset, const Rig& rig, const fs::path& rec_
   EXPECT_EQ(recorder.Close().sets_recorded, static_cast<std::size_t>(sets));
 }
 
+// Both fits of a Bayer take scored the same way, through the mosaic (each run's own report scores
+// as it fitted): the mean fire Delta E over the three cameras of `set` (set `frame` of the take)
+// of the volume the run in dir/name fitted. Also runs `run` on `spec` with and without the mosaic
+// model into dir/through and dir/as_measured.
+struct MosaicRuns {
+  RunSummary through, as_measured;
+  double score_through = 0, score_as_measured = 0;
+};
+MosaicRuns RunAndScoreThroughTheMosaic(const fs::path& dir, const Rig& rig,
+                                       const FrameSourceSpec& spec, const SourceFrameSet& set,
+                                       int frame) {
+  MosaicRuns out;
+  auto run = [&](bool model_mosaic, const char* name) {
+    RunOptions o = SmallRun(dir / "sim", dir / name);
+    o.source = spec;
+    o.fit.objective.model_mosaic = model_mosaic;
+    o.sigma = o.blender = o.pictures = false;
+    return RunAll(o);
+  };
+  out.through = run(true, "through");
+  out.as_measured = run(false, "as_measured");
+  std::vector<std::unique_ptr<CameraRays>> rays;
+  std::vector<FitView> views;
+  for (int c = 0; c < 3; ++c) {
+    rays.push_back(std::make_unique<CameraRays>(rig.cameras[c].model));
+    FitView v;
+    v.name = rig.cameras[c].name;
+    v.rays = rays.back().get();
+    v.image = set.images[c];
+    v.signal = set.signal[c];
+    v.mosaic = MakeBayerRecord(set.mosaic[c], set.radiometry[c], v.name, set.bits[c]);
+    views.push_back(std::move(v));
+  }
+  const AbsorptionModel absorption =
+      AbsorptionModel::FromName(DatasetAbsorption((dir / "sim" / "rig.yaml").string()));
+  auto score = [&](const char* name) {
+    FitResult r;
+    r.volume = ReadVdb((dir / name / (FrameName(frame) + ".vdb")).string());
+    r.exposure = r.volume.metadata_numbers.at("exposure");
+    double sum = 0;
+    for (const ViewScore& v : WriteFitReport("", r, views, {}, absorption, RenderOptions{}, ""))
+      sum += v.fire_delta_e;
+    return sum / 3;
+  };
+  out.score_through = score("through");
+  out.score_as_measured = score("as_measured");
+  return out;
+}
+
 // A take from colour cameras that send their Bayer mosaics (BayerRG8): the frame source says so,
 // and `run` fits and scores every view through the mosaic and the host's demosaicing
 // (fitting/mosaic.h). Fitting the interpolated colours as if measured (model_mosaic off, as until
@@ -1317,42 +1366,14 @@ TEST(RunFrames, ABayerRecordingIsFittedThroughItsMosaic) {
     DecodeFrame(sent[1][c], &decoded, &unused);
     EXPECT_EQ(set.images[c].pixels, decoded.pixels) << c;
   }
-  auto run = [&](bool model_mosaic, const char* name) {
-    RunOptions o = SmallRun(dir / "sim", dir / name);
-    o.source = spec;
-    o.fit.objective.model_mosaic = model_mosaic;
-    o.sigma = o.blender = o.pictures = false;
-    return RunAll(o);
-  };
-  const RunSummary through = run(true, "through"), as_measured = run(false, "as_measured");
+  const MosaicRuns runs = RunAndScoreThroughTheMosaic(dir, rig, spec, set, 1);
+  const RunSummary& through = runs.through;
+  const RunSummary& as_measured = runs.as_measured;
   ASSERT_EQ(through.computed, 2u);
   ASSERT_EQ(as_measured.computed, 2u);
   // Both fits of set 1 scored the same way, through the mosaic: the one that fitted through it
   // matches the recording better. (Each run's own report scores as it fitted.)
-  std::vector<std::unique_ptr<CameraRays>> rays;
-  std::vector<FitView> views;
-  for (int c = 0; c < 3; ++c) {
-    rays.push_back(std::make_unique<CameraRays>(rig.cameras[c].model));
-    FitView v;
-    v.name = rig.cameras[c].name;
-    v.rays = rays.back().get();
-    v.image = set.images[c];
-    v.signal = set.signal[c];
-    v.mosaic = MakeBayerRecord(BayerLayout::kRggb, rig.cameras[c].radiometry);
-    views.push_back(std::move(v));
-  }
-  const AbsorptionModel absorption =
-      AbsorptionModel::FromName(DatasetAbsorption((dir / "sim" / "rig.yaml").string()));
-  auto score = [&](const char* name) {
-    FitResult r;
-    r.volume = ReadVdb((dir / name / "frame_000001.vdb").string());
-    r.exposure = r.volume.metadata_numbers.at("exposure");
-    double sum = 0;
-    for (const ViewScore& v : WriteFitReport("", r, views, {}, absorption, RenderOptions{}, ""))
-      sum += v.fire_delta_e;
-    return sum / 3;
-  };
-  const double fitted_through = score("through"), fitted_as_measured = score("as_measured");
+  const double fitted_through = runs.score_through, fitted_as_measured = runs.score_as_measured;
   std::printf(
       "set 1 through the mosaic: fire Delta E %.2f fitted through it, %.2f fitted as "
       "measured; each run's own report: %.2f and %.2f\n",
@@ -1462,40 +1483,12 @@ TEST(RunFrames, ASixteenBitBayerRecordingIsFittedThroughItsMosaic) {
     EXPECT_GT(top, 1000) << k;  // the fire's codes, not a dark frame
     EXPECT_LE(top, 4095) << k;
   }
-  auto run = [&](bool model_mosaic, const char* name) {
-    RunOptions o = SmallRun(dir / "sim", dir / name);
-    o.source = spec;
-    o.fit.objective.model_mosaic = model_mosaic;
-    o.sigma = o.blender = o.pictures = false;
-    return RunAll(o);
-  };
-  const RunSummary through = run(true, "through"), as_measured = run(false, "as_measured");
+  const MosaicRuns runs = RunAndScoreThroughTheMosaic(dir, rig, spec, set, 0);
+  const RunSummary& through = runs.through;
+  const RunSummary& as_measured = runs.as_measured;
   ASSERT_EQ(through.computed, 1u);
   ASSERT_EQ(as_measured.computed, 1u);
-  std::vector<std::unique_ptr<CameraRays>> rays;
-  std::vector<FitView> views;
-  for (int k = 0; k < 3; ++k) {
-    rays.push_back(std::make_unique<CameraRays>(rig.cameras[k].model));
-    FitView v;
-    v.name = rig.cameras[k].name;
-    v.rays = rays.back().get();
-    v.image = set.images[k];
-    v.signal = set.signal[k];
-    v.mosaic = MakeBayerRecord(BayerLayout::kRggb, rig.cameras[k].radiometry, v.name, 16);
-    views.push_back(std::move(v));
-  }
-  const AbsorptionModel absorption =
-      AbsorptionModel::FromName(DatasetAbsorption((dir / "sim" / "rig.yaml").string()));
-  auto score = [&](const char* name) {
-    FitResult r;
-    r.volume = ReadVdb((dir / name / "frame_000000.vdb").string());
-    r.exposure = r.volume.metadata_numbers.at("exposure");
-    double sum = 0;
-    for (const ViewScore& v : WriteFitReport("", r, views, {}, absorption, RenderOptions{}, ""))
-      sum += v.fire_delta_e;
-    return sum / 3;
-  };
-  const double e_through = score("through"), e_measured = score("as_measured");
+  const double e_through = runs.score_through, e_measured = runs.score_as_measured;
   std::printf(
       "16-bit mosaic: fire Delta E %.2f fitted through it, %.2f fitted as measured; "
       "temperature RMS %.0f K and %.0f K\n",
