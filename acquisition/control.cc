@@ -17,6 +17,7 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
+#include "acquisition/live_view.h"
 #include "acquisition/thread_name.h"
 #include "core/error.h"
 
@@ -87,25 +88,9 @@ std::string PreviewPng(const CaptureDaemon& daemon, const std::vector<std::strin
   const std::shared_ptr<const FrameSet> set = daemon.LatestSet();
   if (!set || !set->frames[camera])
     throw InputError("preview: no frame from camera '" + cams[camera].name + "' yet");
-  ImageU8 u8;
-  ImageU16 u16;
-  const int depth = DecodeFrame(*set->frames[camera], &u8, &u16);
-  cv::Mat m;
-  if (depth == 16) {
-    const cv::Mat wide(u16.height, u16.width, u16.channels == 3 ? CV_16UC3 : CV_16UC1,
-                       u16.pixels.data());
-    wide.convertTo(m, CV_8U, 1.0 / 256);
-    if (u16.channels == 3) cv::cvtColor(m, m, cv::COLOR_RGB2BGR);
-  } else {
-    cv::Mat view(u8.height, u8.width, u8.channels == 3 ? CV_8UC3 : CV_8UC1, u8.pixels.data());
-    if (u8.channels == 3)
-      cv::cvtColor(view, m, cv::COLOR_RGB2BGR);
-    else
-      m = view.clone();
-  }
-  cv::Mat small;
-  cv::resize(m, small, cv::Size(std::max(1, m.cols / k), std::max(1, m.rows / k)), 0, 0,
-             cv::INTER_AREA);
+  const Frame& f = *set->frames[camera];
+  const cv::Mat small =
+      PreviewImage(f, k, FullScaleValue(f.info.pixel_format, cams[camera].settings.wire_format));
   std::vector<std::uint8_t> png;
   cv::imencode(".png", small, png);
   return std::string(png.begin(), png.end());

@@ -144,6 +144,13 @@ const WireFormat* WireFormatFromName(const std::string& name) {
   return nullptr;
 }
 
+int FullScaleValue(PixelFormat format, const std::string& wire_format) {
+  if (BytesPerPixel(format) != 2) return 255;  // 8-bit mono, Bayer and RGB
+  const WireFormat* wire = WireFormatFromName(wire_format);
+  if (!wire || wire->stored != format) return 0xffff;
+  return ((1 << wire->bits) - 1) << (16 - wire->bits);
+}
+
 const WireFormat* WireFormatFromCode(std::uint32_t pfnc) {
   for (const WireFormat& f : kWireFormats)
     if (pfnc == f.pfnc) return &f;

@@ -72,6 +72,12 @@ struct WireFormat {
 };
 // The wire formats above by name; nullptr for any other name (including the stored formats).
 const WireFormat* WireFormatFromName(const std::string& name);
+// The value a frame's pixels hold where its sensor clipped: 255 in an 8-bit format, 65535 in a
+// 16-bit one, and in the words a `bits`-bit wire format is unpacked into, its highest value
+// (2^bits - 1) << (16 - bits): 0xFFC0 for Mono10p, 0xFFF0 for BayerRG12p. `wire_format` names what
+// the camera sent (CameraSettings::wire_format); "" or a name that is no wire format unpacked into
+// `format` counts as the frame having arrived as `format`.
+int FullScaleValue(PixelFormat format, const std::string& wire_format = "");
 const WireFormat* WireFormatFromCode(std::uint32_t pfnc);
 // Bytes of one width x height frame in `format` (whole frames; no line padding).
 std::size_t WireBytes(const WireFormat& format, int width, int height);

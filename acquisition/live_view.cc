@@ -187,8 +187,8 @@ Frame LatestFrame(const CaptureDaemon& daemon, int camera) {
   return *set->frames[camera];
 }
 
-// Where the raw pixels sit at the format's maximum: 255 there, 0 elsewhere (full size).
-cv::Mat ClippedMask(const Frame& f) {
+// Where the raw pixels sit at or above `full_scale`: 255 there, 0 elsewhere (full size).
+cv::Mat ClippedMask(const Frame& f, int full_scale) {
   const int n = f.info.width * f.info.height;
   cv::Mat mask(f.info.height, f.info.width, CV_8UC1, cv::Scalar(0));
   const std::uint8_t* p = f.data->data();
@@ -196,40 +196,27 @@ cv::Mat ClippedMask(const Frame& f) {
     for (int i = 0; i < n; ++i) {
       std::uint16_t v;
       std::memcpy(&v, p + 2 * i, 2);
-      if (v == 0xffff) mask.data[i] = 255;
+      if (v >= full_scale) mask.data[i] = 255;
     }
   } else if (f.info.pixel_format == PixelFormat::kRgb8) {
     for (int i = 0; i < n; ++i)
-      if (p[3 * i] == 255 || p[3 * i + 1] == 255 || p[3 * i + 2] == 255) mask.data[i] = 255;
+      if (p[3 * i] >= full_scale || p[3 * i + 1] >= full_scale || p[3 * i + 2] >= full_scale)
+        mask.data[i] = 255;
   } else {
     for (int i = 0; i < n; ++i)
-      if (p[i] == 255) mask.data[i] = 255;
+      if (p[i] >= full_scale) mask.data[i] = 255;
   }
   return mask;
 }
 
-std::string PreviewWithClipping(const Frame& f, int k) {
-  ImageU8 u8;
-  ImageU16 u16;
-  cv::Mat m;
-  if (DecodeFrame(f, &u8, &u16) == 16) {
-    cv::Mat(u16.height, u16.width, u16.channels == 3 ? CV_16UC3 : CV_16UC1, u16.pixels.data())
-        .convertTo(m, CV_8U, 1.0 / 256);
-  } else {
-    m = cv::Mat(u8.height, u8.width, u8.channels == 3 ? CV_8UC3 : CV_8UC1, u8.pixels.data());
-  }
-  cv::Mat bgr;
-  if (m.channels() == 3)
-    cv::cvtColor(m, bgr, cv::COLOR_RGB2BGR);
-  else
-    cv::cvtColor(m, bgr, cv::COLOR_GRAY2BGR);
-  const cv::Size size(std::max(1, bgr.cols / k), std::max(1, bgr.rows / k));
-  cv::Mat small, mask;
-  cv::resize(bgr, small, size, 0, 0, cv::INTER_AREA);
-  cv::resize(ClippedMask(f), mask, size, 0, 0, cv::INTER_AREA);
-  small.setTo(cv::Scalar(0, 0, 255), mask > 0);  // clipped pixels in red
+// The full scale of camera `camera`'s frame `f`: its wire format's, when it sent one.
+int CameraFullScale(const CaptureDaemon& daemon, int camera, const Frame& f) {
+  return FullScaleValue(f.info.pixel_format, daemon.config().cameras[camera].settings.wire_format);
+}
+
+std::string PreviewPng(const Frame& f, int k, int full_scale) {
   std::vector<std::uint8_t> png;
-  cv::imencode(".png", small, png);
+  cv::imencode(".png", PreviewImage(f, k, full_scale, /*mark_clipped=*/true), png);
   return std::string(png.begin(), png.end());
 }
 
@@ -251,9 +238,38 @@ LiveViewOptions LiveViewOptions::Parse(const std::string& listen, const std::str
   return o;
 }
 
-FrameHistogram HistogramOf(const Frame& f, int step) {
+cv::Mat PreviewImage(const Frame& f, int k, int full_scale, bool mark_clipped) {
+  if (full_scale <= 0) full_scale = FullScaleValue(f.info.pixel_format);
+  ImageU8 u8;
+  ImageU16 u16;
+  cv::Mat m;
+  if (DecodeFrame(f, &u8, &u16) == 16) {
+    cv::Mat(u16.height, u16.width, u16.channels == 3 ? CV_16UC3 : CV_16UC1, u16.pixels.data())
+        .convertTo(m, CV_8U, 255.0 / full_scale);
+  } else {
+    m = cv::Mat(u8.height, u8.width, u8.channels == 3 ? CV_8UC3 : CV_8UC1, u8.pixels.data());
+  }
+  cv::Mat bgr = m;  // grey stays grey unless clipped pixels are drawn red
+  if (m.channels() == 3)
+    cv::cvtColor(m, bgr, cv::COLOR_RGB2BGR);
+  else if (mark_clipped)
+    cv::cvtColor(m, bgr, cv::COLOR_GRAY2BGR);
+  k = std::max(1, k);
+  const cv::Size size(std::max(1, bgr.cols / k), std::max(1, bgr.rows / k));
+  cv::Mat small;
+  cv::resize(bgr, small, size, 0, 0, cv::INTER_AREA);
+  if (mark_clipped) {
+    cv::Mat mask;
+    cv::resize(ClippedMask(f, full_scale), mask, size, 0, 0, cv::INTER_AREA);
+    small.setTo(cv::Scalar(0, 0, 255), mask > 0);  // clipped pixels in red
+  }
+  return small;
+}
+
+FrameHistogram HistogramOf(const Frame& f, int step, int full_scale) {
   FrameHistogram h;
   step = std::max(1, step);
+  if (full_scale <= 0) full_scale = FullScaleValue(f.info.pixel_format);
   const int channels = f.info.pixel_format == PixelFormat::kRgb8 ? 3 : 1;
   const bool wide = BytesPerPixel(f.info.pixel_format) == 2;  // Mono16, Bayer 16
   const std::uint8_t* p = f.data ? f.data->data() : nullptr;
@@ -266,10 +282,10 @@ FrameHistogram HistogramOf(const Frame& f, int step) {
           std::uint16_t v;
           std::memcpy(&v, p + 2 * i, 2);
           ++h.bins[v >> 8];
-          h.clipped += v == 0xffff;
+          h.clipped += v >= full_scale;
         } else {
           ++h.bins[p[i]];
-          h.clipped += p[i] == 255;
+          h.clipped += p[i] >= full_scale;
         }
         ++h.sampled;
       }
@@ -325,10 +341,13 @@ LiveViewServer::LiveViewServer(CaptureDaemon* daemon, const LiveViewOptions& opt
           if (req.has_param("k"))
             k = std::clamp(std::atoi(req.get_param_value("k").c_str()), 1, 64);
           res.set_header("Cache-Control", "no-store");
-          res.set_content(PreviewWithClipping(LatestFrame(*daemon_, camera), k), "image/png");
+          const Frame f = LatestFrame(*daemon_, camera);
+          res.set_content(PreviewPng(f, k, CameraFullScale(*daemon_, camera, f)), "image/png");
         }));
   s.Get("/api/histogram", guarded([this](const httplib::Request& req, httplib::Response& res) {
-          const FrameHistogram h = HistogramOf(LatestFrame(*daemon_, CameraParam(req, *daemon_)));
+          const int camera = CameraParam(req, *daemon_);
+          const Frame f = LatestFrame(*daemon_, camera);
+          const FrameHistogram h = HistogramOf(f, 2, CameraFullScale(*daemon_, camera, f));
           nlohmann::json j;
           j["bins"] = h.bins;
           j["sampled"] = h.sampled;

@@ -9,7 +9,8 @@
 //                                NAME, exposure and gain per camera)
 //   GET  /api/status             CaptureStatus::ToJson()
 //   GET  /api/preview?camera=C&k=K   PNG of camera C's latest frame, 1/K size (K 1..64, default
-//                                4), pixels at the format's maximum drawn red
+//                                4), pixels at the camera's full scale drawn red (FullScaleValue: a
+//                                10- to 14-bit wire format's highest word)
 //   GET  /api/histogram?camera=C JSON {bins[256], saturated_share, clipped_pixels, sampled}
 //   POST /api/control            body: one control request (acquisition/control.h) except
 //                                `shutdown`; answers its reply, status 200 or 400
@@ -36,6 +37,8 @@
 #include <thread>
 #include <vector>
 
+#include <opencv2/core.hpp>
+
 #include "acquisition/capture.h"
 #include "acquisition/frame.h"
 
@@ -52,13 +55,21 @@ struct LiveViewOptions {
 
 // A frame's histogram: 256 bins over the format's range (the top 8 bits of 16-bit pixels; every
 // channel of colour formats), on every `step`-th pixel of every `step`-th row, and the pixels at
-// the format's maximum (clipped: the flame's detail there is lost).
+// or above `full_scale` (clipped: the flame's detail there is lost). `full_scale` 0: the format's
+// maximum; a camera that sends a 10- to 14-bit wire format clips below it (FullScaleValue).
 struct FrameHistogram {
   std::vector<std::uint64_t> bins = std::vector<std::uint64_t>(256, 0);
   std::uint64_t sampled = 0, clipped = 0;
   double saturated_share() const { return sampled ? double(clipped) / sampled : 0.0; }
 };
-FrameHistogram HistogramOf(const Frame& frame, int step = 2);
+FrameHistogram HistogramOf(const Frame& frame, int step = 2, int full_scale = 0);
+
+// A frame as a person looks at it (the live view's and `flamerig ctl preview`'s picture): its
+// decoded image (DecodeFrame: Bayer demosaiced), 8-bit BGR or grey as OpenCV writes it, 16-bit
+// pixels scaled so that `full_scale` (0: 65535) shows as 255, and 1/k of its size (k >= 1; area
+// averaged). Pixels at or above `full_scale` in the frame's own bytes are drawn red when
+// `mark_clipped`.
+cv::Mat PreviewImage(const Frame& frame, int k, int full_scale = 0, bool mark_clipped = false);
 
 class LiveViewServer {
  public:

@@ -60,6 +60,77 @@ TEST(LiveView, HistogramsCountWhatTheyShould) {
   EXPECT_EQ(rgb.clipped, 1u);
 }
 
+TEST(LiveView, AWireFormatsFullScaleIsWhatItsBrightestPixelUnpacksTo) {
+  EXPECT_EQ(FullScaleValue(PixelFormat::kMono8), 255);
+  EXPECT_EQ(FullScaleValue(PixelFormat::kRgb8), 255);
+  EXPECT_EQ(FullScaleValue(PixelFormat::kBayerRg8), 255);
+  EXPECT_EQ(FullScaleValue(PixelFormat::kMono16), 65535);
+  EXPECT_EQ(FullScaleValue(PixelFormat::kBayerGb16), 65535);
+  // A name that is no wire format, or one unpacked into another format, is not the frame's.
+  EXPECT_EQ(FullScaleValue(PixelFormat::kMono16, "Mono16"), 65535);
+  EXPECT_EQ(FullScaleValue(PixelFormat::kMono16, "BayerRG12p"), 65535);
+  EXPECT_EQ(FullScaleValue(PixelFormat::kMono8, "Mono12p"), 255);
+  // The oracle: every pixel of a frame sent at its wire format's highest value (all bits set),
+  // unpacked as a camera's frames are.
+  const std::pair<const char*, int> formats[] = {
+      {"Mono10", 0xffc0},       {"Mono12", 0xfff0},         {"Mono14", 0xfffc},
+      {"Mono10Packed", 0xffc0}, {"Mono12Packed", 0xfff0},   {"Mono10p", 0xffc0},
+      {"Mono12p", 0xfff0},      {"BayerRG12p", 0xfff0},     {"BayerGB10Packed", 0xffc0},
+      {"BayerBG10", 0xffc0},    {"BayerGR12Packed", 0xfff0}};
+  for (const auto& [name, expected] : formats) {
+    SCOPED_TRACE(name);
+    const WireFormat* w = WireFormatFromName(name);
+    ASSERT_NE(w, nullptr);
+    const int width = 6, height = 2;
+    std::vector<std::uint8_t> bytes(WireBytes(*w, width, height), 0xff);
+    if (w->packing == WirePacking::kWords16)
+      for (std::size_t i = 0; i + 1 < bytes.size(); i += 2) {
+        const std::uint16_t top = static_cast<std::uint16_t>((1 << w->bits) - 1);
+        std::memcpy(&bytes[i], &top, 2);
+      }
+    const std::vector<std::uint8_t> words =
+        UnpackTo16Bit(*w, bytes.data(), bytes.size(), width, height);
+    for (int i = 0; i < width * height; ++i) {
+      std::uint16_t v;
+      std::memcpy(&v, &words[2 * i], 2);
+      ASSERT_EQ(v, FullScaleValue(w->stored, name)) << "pixel " << i;
+    }
+    EXPECT_EQ(FullScaleValue(w->stored, name), expected);
+  }
+}
+
+TEST(LiveView, ATwelveBitTakeClipsAndShowsAtItsOwnFullScale) {
+  // Mono16 words from a Mono12p camera: 0xFFF0 is its clipped value, which 65535 never reaches.
+  std::vector<std::uint8_t> wide(2 * 3);
+  const std::uint16_t v[3] = {0xfff0, 0x3ffc, 0xffe0};
+  std::memcpy(wide.data(), v, sizeof v);
+  const Frame f = MakeFrame(PixelFormat::kMono16, 3, 1, wide);
+  EXPECT_EQ(HistogramOf(f, 1).clipped, 0u);
+  const int full = FullScaleValue(PixelFormat::kMono16, "Mono12p");
+  const FrameHistogram h = HistogramOf(f, 1, full);
+  EXPECT_EQ(h.clipped, 1u);
+  EXPECT_EQ(h.bins[255], 2u);
+  // The picture: 16-bit values scaled so that the full scale is white: 0x3ffc * 255 / 0xfff0 =
+  // 63.75 -> 64, 0xffe0 -> 254.6 -> 255; grey without the clipped pixels marked.
+  const cv::Mat grey = PreviewImage(f, 1, full);
+  ASSERT_EQ(grey.type(), CV_8UC1);
+  EXPECT_EQ(grey.at<std::uint8_t>(0, 0), 255);
+  EXPECT_EQ(grey.at<std::uint8_t>(0, 1), 64);
+  EXPECT_EQ(grey.at<std::uint8_t>(0, 2), 255);
+  const cv::Mat marked = PreviewImage(f, 1, full, /*mark_clipped=*/true);
+  ASSERT_EQ(marked.type(), CV_8UC3);
+  EXPECT_EQ(marked.at<cv::Vec3b>(0, 0), cv::Vec3b(0, 0, 255));  // red, in BGR
+  EXPECT_EQ(marked.at<cv::Vec3b>(0, 1), cv::Vec3b(64, 64, 64));
+  EXPECT_EQ(marked.at<cv::Vec3b>(0, 2), cv::Vec3b(255, 255, 255));  // bright, not clipped
+  // Read as a full-scale 16-bit camera's, nothing is clipped.
+  EXPECT_EQ(PreviewImage(f, 1, 0, true).at<cv::Vec3b>(0, 0), cv::Vec3b(255, 255, 255));
+  // An RGB frame is turned into OpenCV's BGR; k shrinks it by area.
+  const cv::Mat rgb = PreviewImage(
+      MakeFrame(PixelFormat::kRgb8, 2, 2, {255, 0, 0, 255, 0, 0, 0, 0, 0, 0, 0, 0}), 2);
+  ASSERT_EQ(rgb.size(), cv::Size(1, 1));
+  EXPECT_EQ(rgb.at<cv::Vec3b>(0, 0), cv::Vec3b(0, 0, 128));
+}
+
 std::string Config(const fs::path& dir) {
   return "data_dir: " + dir.string() +
          "\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
