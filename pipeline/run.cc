@@ -143,6 +143,7 @@ std::string FrameSummary::Line() const {
     if (truth_rms_k >= 0)
       s << ", T error " << truth_rms_k << " K RMS, bias " << truth_bias_k << " K on visible voxels";
     if (truth_spread_k >= 0) s << " (a constant: " << truth_spread_k << " K)";
+    if (truth_weighted_rms_k >= 0) s << ", emission-weighted " << truth_weighted_rms_k << " K";
     if (truth_within_1_sigma >= 0)
       s << " (" << 100 * truth_within_1_sigma << "% within 1 sigma, " << 100 * truth_within_2_sigma
         << "% within 2; median sigma " << truth_median_sigma_k << " K)";
@@ -189,6 +190,7 @@ nlohmann::json SummaryJson(const FrameSummary& f) {
   j["truth_rms_k"] = f.truth_rms_k;
   j["truth_bias_k"] = f.truth_bias_k;
   j["truth_spread_k"] = f.truth_spread_k;
+  j["truth_weighted_rms_k"] = f.truth_weighted_rms_k;
   j["truth_voxels"] = f.truth_voxels;
   j["truth_visible"] = f.truth_visible;
   j["truth_frame"] = f.truth_frame;
@@ -253,7 +255,8 @@ FrameSummary FrameSummary::FromYaml(const std::string& text, const std::string& 
     }
     s.truth_rms_k = n["truth_rms_k"].as<double>();
     s.truth_bias_k = n["truth_bias_k"].as<double>();
-    s.truth_spread_k = n["truth_spread_k"].as<double>(-1.0);  // none in older summaries
+    s.truth_spread_k = n["truth_spread_k"].as<double>(-1.0);              // none in older summaries
+    s.truth_weighted_rms_k = n["truth_weighted_rms_k"].as<double>(-1.0);  // nor this
     s.truth_voxels = n["truth_voxels"].as<std::size_t>();
     s.truth_visible = n["truth_visible"].as<std::size_t>();
     s.truth_frame = n["truth_frame"].as<int>();

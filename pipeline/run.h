@@ -162,6 +162,9 @@ struct FrameSummary {
   // The truth's own spread on the same voxels: the RMS of the best constant, the trivial baseline
   // a fit must beat (issue 19's two-view target: at most 0.7 of it); -1 without truth.
   double truth_spread_k = -1;
+  // The RMS weighted by each truth voxel's emission: the error where the light comes from (the
+  // benchmarks' "emission-weighted RMS"); -1 without truth.
+  double truth_weighted_rms_k = -1;
   std::size_t truth_voxels = 0, truth_visible = 0;
   int truth_frame = -1;
   double truth_soot = 0;  // particles in the truth

@@ -157,6 +157,7 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   f.truth_determined_share = 0.625;
   f.truth_determined_rms_k = 123.5;
   f.truth_undetermined_rms_k = 250.25;
+  f.truth_weighted_rms_k = 54.125;
   const FrameSummary back = FrameSummary::FromYaml(f.ToYaml(), "test");
   EXPECT_EQ(back.frame, f.frame);
   EXPECT_EQ(back.status, "true");
@@ -181,6 +182,7 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   EXPECT_EQ(back.truth_determined_share, 0.625);
   EXPECT_EQ(back.truth_determined_rms_k, 123.5);
   EXPECT_EQ(back.truth_undetermined_rms_k, 250.25);
+  EXPECT_EQ(back.truth_weighted_rms_k, 54.125);
   // Not UTF-8: the JSON replaces it and stays JSON (Python's json module reads it).
   f.notes = {std::string("image \xff\xfe.png unreadable")};
   const std::string json = f.ToJson();
@@ -627,6 +629,9 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
     EXPECT_EQ(f.truth_within_1_sigma, written.within_1_sigma);
     EXPECT_EQ(f.truth_spread_k, written.truth_spread_k);
     EXPECT_GT(f.truth_spread_k, 0);
+    EXPECT_EQ(f.truth_weighted_rms_k, written.weighted_rms_k);
+    EXPECT_GT(f.truth_weighted_rms_k, 0);
+    EXPECT_NE(f.Line().find("emission-weighted "), std::string::npos) << f.Line();
     EXPECT_NE(f.Line().find("(a constant: "), std::string::npos) << f.Line();
     EXPECT_EQ(f.truth_within_2_sigma, written.within_2_sigma);
     EXPECT_GE(f.truth_within_2_sigma, f.truth_within_1_sigma);
