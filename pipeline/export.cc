@@ -117,9 +117,12 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
     }
   }
   WriteFileAtomically((fs::path(out_dir) / "sets.csv").string(), csv.str());
-  std::vector<std::string> names;
-  for (const auto& c : meta.cameras) names.push_back(c.name);
-  WriteExportedFormats(out_dir, names, formats);
+  std::vector<std::string> names, wire_formats;
+  for (const auto& c : meta.cameras) {
+    names.push_back(c.name);
+    wire_formats.push_back(c.settings.wire_format);
+  }
+  WriteExportedFormats(out_dir, names, formats, wire_formats);
   return summary;
 }
 

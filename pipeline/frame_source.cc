@@ -107,7 +107,8 @@ Rig WithInputTransfer(Rig rig, const std::string& spec) {
 }
 
 void WriteExportedFormats(const std::string& dir, const std::vector<std::string>& cameras,
-                          const std::vector<PixelFormat>& formats) {
+                          const std::vector<PixelFormat>& formats,
+                          const std::vector<std::string>& wire_formats) {
   YAML::Emitter out;
   out << YAML::Comment(
       "The pixel format each camera recorded (flamerig export). A Bayer camera's PNGs here are "
@@ -115,14 +116,16 @@ void WriteExportedFormats(const std::string& dir, const std::vector<std::string>
       "--images fit them through that mosaic.");
   out << YAML::BeginMap << YAML::Key << "cameras" << YAML::Value << YAML::BeginMap;
   for (std::size_t c = 0; c < cameras.size() && c < formats.size(); ++c)
-    out << YAML::Key << cameras[c] << YAML::Value << ToString(formats[c]);
+    out << YAML::Key << cameras[c] << YAML::Value
+        << (c < wire_formats.size() && !wire_formats[c].empty() ? wire_formats[c]
+                                                                : ToString(formats[c]));
   out << YAML::EndMap << YAML::EndMap;
   WriteFileAtomically((fs::path(dir) / kExportedFormatsFile).string(),
                       std::string(out.c_str()) + "\n");
 }
 
-std::vector<BayerLayout> ReadExportedMosaics(const std::string& dir, const Rig& rig) {
-  std::vector<BayerLayout> out(rig.cameras.size(), BayerLayout::kNone);
+std::vector<ExportedFormat> ReadExportedFormats(const std::string& dir, const Rig& rig) {
+  std::vector<ExportedFormat> out(rig.cameras.size());
   const fs::path path = fs::path(dir) / kExportedFormatsFile;
   if (!fs::exists(path)) return out;
   const std::string shape = ": needs a map 'cameras: {NAME: PIXEL_FORMAT, ...}'";
@@ -134,14 +137,16 @@ std::vector<BayerLayout> ReadExportedMosaics(const std::string& dir, const Rig& 
       if (!entry.first.IsScalar() || !entry.second.IsScalar())
         throw InputError(path.string() + shape);
       const std::string name = entry.first.as<std::string>();
-      PixelFormat format;
+      CameraSettings recorded;  // a stored format, or the wire format a camera sent
       try {
-        format = PixelFormatFromName(entry.second.as<std::string>());
+        recorded.SetPixelFormat(entry.second.as<std::string>());
       } catch (const Error& e) {
         throw InputError(path.string() + ": camera '" + name + "': " + e.what());
       }
+      const WireFormat* wire = WireFormatFromName(recorded.wire_format);
       for (std::size_t c = 0; c < rig.cameras.size(); ++c)
-        if (rig.cameras[c].name == name) out[c] = BayerLayoutOf(format);
+        if (rig.cameras[c].name == name)
+          out[c] = {BayerLayoutOf(recorded.pixel_format), wire ? wire->bits : 0};
     }
   } catch (const YAML::Exception& e) {
     throw InputError(path.string() + ": not YAML (" + e.what() + ")");
@@ -151,18 +156,18 @@ std::vector<BayerLayout> ReadExportedMosaics(const std::string& dir, const Rig& 
 
 namespace {
 
-// The Bayer layouts for a folder of one frame set: its own pixel_formats.yaml, or that of the
-// export it belongs to (a folder named frame_NNNNNN whose parent holds the export's sets.csv).
-std::vector<BayerLayout> FrameFolderMosaics(const std::string& dir, const Rig& rig) {
+// The formats for a folder of one frame set: its own pixel_formats.yaml, or that of the export
+// it belongs to (a folder named frame_NNNNNN whose parent holds the export's sets.csv).
+std::vector<ExportedFormat> FrameFolderFormats(const std::string& dir, const Rig& rig) {
   const fs::path folder = fs::weakly_canonical(fs::absolute(dir));
-  if (fs::exists(folder / kExportedFormatsFile)) return ReadExportedMosaics(folder.string(), rig);
+  if (fs::exists(folder / kExportedFormatsFile)) return ReadExportedFormats(folder.string(), rig);
   const std::string name = folder.filename().string();
   const bool set_folder =
       name.size() == 12 && name.rfind("frame_", 0) == 0 &&
       std::all_of(name.begin() + 6, name.end(), [](char ch) { return ch >= '0' && ch <= '9'; });
   if (set_folder && fs::exists(folder.parent_path() / "sets.csv"))
-    return ReadExportedMosaics(folder.parent_path().string(), rig);
-  return std::vector<BayerLayout>(rig.cameras.size(), BayerLayout::kNone);
+    return ReadExportedFormats(folder.parent_path().string(), rig);
+  return std::vector<ExportedFormat>(rig.cameras.size());
 }
 
 // A Bayer layout applies to what DecodeFrame made of a mosaic, an RGB image (8 or 16 bits);
@@ -182,9 +187,12 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
   out.images.resize(rig.cameras.size());
   out.linear.resize(rig.cameras.size());
   out.signal.resize(rig.cameras.size());
-  out.mosaic = FrameFolderMosaics(dir, rig);
+  const std::vector<ExportedFormat> formats = FrameFolderFormats(dir, rig);
   out.bits.assign(rig.cameras.size(), 0);
-  for (const RigCamera& camera : rig.cameras) out.radiometry.push_back(camera.radiometry);
+  for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+    out.mosaic.push_back(formats[c].mosaic);
+    out.radiometry.push_back(rig.cameras[c].radiometry.ForHighBitWords(formats[c].wire_bits));
+  }
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const RigCamera& camera = rig.cameras[c];
     const fs::path path = fs::path(dir) / (camera.name + ".png");
@@ -206,7 +214,7 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
                       std::to_string(camera.model.width()) + "x" +
                       std::to_string(camera.model.height()));
     try {
-      DecodeCameraImage(u8, u16, bits, exposure, camera.radiometry, &out.images[c], &out.linear[c],
+      DecodeCameraImage(u8, u16, bits, exposure, out.radiometry[c], &out.images[c], &out.linear[c],
                         &out.signal[c]);
     } catch (const InputError& e) {
       throw DataError(path.string() + ": " + e.what());
@@ -245,7 +253,7 @@ struct FrameSource::Impl {
   std::size_t sets = 0;
   std::unique_ptr<Recording> recording;
   std::vector<StreamPixSequence> seqs;
-  std::vector<BayerLayout> images_mosaic;  // a folder's, per rig camera (ReadExportedMosaics)
+  std::vector<ExportedFormat> images_formats;  // a folder's, per rig camera
   // per rig camera: the model its frames decode with (SourceFrameSet::radiometry)
   std::vector<CameraRadiometry> radiometry;
 
@@ -330,7 +338,11 @@ FrameSource::FrameSource(const FrameSourceSpec& spec, const Rig& rig)
       if (fs::exists(fs::path(spec.images_dir) / SetName(0) / (c.name + ".png")))
         names.push_back(c.name);
     impl_->MatchCameras(names);
-    impl_->images_mosaic = ReadExportedMosaics(spec.images_dir, impl_->rig);
+    impl_->images_formats = ReadExportedFormats(spec.images_dir, impl_->rig);
+    // An export of a camera that sent a 10- to 14-bit wire format: as from its recording.
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c)
+      impl_->radiometry[c] =
+          rig.cameras[c].radiometry.ForHighBitWords(impl_->images_formats[c].wire_bits);
   }
 }
 
@@ -396,7 +408,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
         continue;
       }
       bits = ReadImage(path.string(), &u8, &u16);
-      out.mosaic[c] = impl_->images_mosaic[c];
+      out.mosaic[c] = impl_->images_formats[c].mosaic;
       CheckMosaicImage(out.mosaic[c], bits == 16 ? u16.channels : u8.channels, path.string());
     }
     out.bits[c] = bits;

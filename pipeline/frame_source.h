@@ -97,16 +97,24 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
 
 // What `flamerig export` writes beside the frame sets it exports (OUT/pixel_formats.yaml): the
 // pixel format each camera recorded, `cameras: {NAME: FORMAT, ...}` with GenICam's names (Mono8,
-// BayerRG8, ...). A Bayer camera's PNGs hold its demosaicing (DecodeFrame), and whoever reads
-// them back as a folder of frame sets fits them through that mosaic (fitting/mosaic.h).
+// BayerRG8, ...; the wire format for a camera that sent one, BayerRG12p say: its 16-bit PNGs
+// hold the values in the high bits, as flamerig stored them, frame.h). A Bayer camera's PNGs hold
+// its demosaicing (DecodeFrame), and whoever reads them back as a folder of frame sets fits them
+// through that mosaic (fitting/mosaic.h). `wire_formats`: per camera, "" or the wire format's
+// name (CameraSettings::wire_format); may be empty.
 inline constexpr const char* kExportedFormatsFile = "pixel_formats.yaml";
 void WriteExportedFormats(const std::string& dir, const std::vector<std::string>& cameras,
-                          const std::vector<PixelFormat>& formats);
-// The Bayer layout of each rig camera's frames by DIR/pixel_formats.yaml: kNone for a camera it
-// does not name or whose frames were not a mosaic, and for every camera when there is no such file
-// (plain image files). Throws InputError naming the file and the entry for a file that is not
-// such a map or a format that is not one.
-std::vector<BayerLayout> ReadExportedMosaics(const std::string& dir, const Rig& rig);
+                          const std::vector<PixelFormat>& formats,
+                          const std::vector<std::string>& wire_formats = {});
+// One rig camera's entry of DIR/pixel_formats.yaml as the frame source reads it.
+struct ExportedFormat {
+  BayerLayout mosaic = BayerLayout::kNone;  // the layout of its mosaic, or none
+  int wire_bits = 0;  // 10 to 14: its values are in the words' high bits (ForHighBitWords); or 0
+};
+// Each rig camera's entry by DIR/pixel_formats.yaml: the defaults for a camera it does not name,
+// and for every camera when there is no such file (plain image files). Throws InputError naming
+// the file and the entry for a file that is not such a map or a format that is not one.
+std::vector<ExportedFormat> ReadExportedFormats(const std::string& dir, const Rig& rig);
 
 // One camera's image as the tomography and the fit take it, decoded through the camera's
 // radiometric model (calibration/radiometry.h) from what ReadImage or DecodeFrame gave (`bits` 8:

@@ -1560,6 +1560,28 @@ TEST(RunFrames, ASixteenBitBayerRecordingIsFittedThroughItsMosaic) {
     EXPECT_EQ(from_images.bits[k], 16) << k;
     EXPECT_EQ(from_images.signal[k].pixels, set.signal[k].pixels) << k;
   }
+  // The BayerRG12p take exported: its PNGs keep the words' high bits, and pixel_formats.yaml names
+  // the wire format, so that the same 12-bit rig entry reads them as it read the take (a folder
+  // of one set too), where naming the stored BayerRG16 made every such pixel an error.
+  const fs::path exported_packed = dir / "exported_packed";
+  ExportRecording(packed_dir.string(), exported_packed.string(), ExportOptions{});
+  {
+    std::ifstream yaml(exported_packed / kExportedFormatsFile);
+    const std::string text((std::istreambuf_iterator<char>(yaml)), {});
+    EXPECT_NE(text.find("BayerRG12p"), std::string::npos) << text;
+  }
+  FrameSourceSpec packed_images;
+  packed_images.images_dir = exported_packed.string();
+  const SourceFrameSet from_packed_images = FrameSource(packed_images, rig).Read(0, 1.0);
+  const SourceFrameSet from_packed_folder =
+      ReadFrameFolder(rig, (exported_packed / "frame_000000").string(), 1.0);
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_EQ(from_packed_images.mosaic[k], BayerLayout::kRggb) << k;
+    EXPECT_EQ(from_packed_images.radiometry[k].black_level, 64 * 16) << k;
+    EXPECT_EQ(from_packed_images.signal[k].pixels, from_packed.signal[k].pixels) << k;
+    EXPECT_EQ(from_packed_folder.mosaic[k], BayerLayout::kRggb) << k;
+    EXPECT_EQ(from_packed_folder.signal[k].pixels, from_packed.signal[k].pixels) << k;
+  }
 }
 
 // A recording: a camera that dropped a set and a frame delivered incomplete are left out of their
