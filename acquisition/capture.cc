@@ -1154,6 +1154,11 @@ CaptureStatus CaptureDaemon::status() const {
   return s;
 }
 
+CameraSettings CaptureDaemon::camera_settings(int camera) const {
+  std::lock_guard<std::mutex> lock(config_mutex_);
+  return config_.cameras.at(static_cast<std::size_t>(camera)).settings;
+}
+
 void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::string& key,
                                      const std::string& value) {
   std::lock_guard<std::recursive_mutex> command(command_mutex_);

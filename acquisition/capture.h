@@ -232,6 +232,10 @@ class CaptureDaemon {
   // The latest frame set (shared pixels, no copy); empty before the first.
   std::shared_ptr<const FrameSet> LatestSet() const;
   const CaptureConfig& config() const { return config_; }
+  // Camera `camera`'s settings as configured now: a copy taken under the lock SetCameraSetting
+  // writes under, for readers on other threads (the live view, `ctl preview`). std::out_of_range
+  // for a camera the rig does not have.
+  CameraSettings camera_settings(int camera) const;
 
  private:
   struct CameraState;
@@ -269,7 +273,7 @@ class CaptureDaemon {
   std::int64_t last_trigger_id_ = 0;                    // used by the trigger thread only
   // Triggers sent since the arm: those older than the grace time counted, the recent ones timed.
   mutable std::mutex trigger_mutex_;
-  std::mutex config_mutex_;  // SetCameraSetting's writes to config_
+  mutable std::mutex config_mutex_;  // SetCameraSetting's writes to config_
   // Commands (arm, disarm, start, stop, event, configure) one at a time: the control socket and
   // the live view's server threads may send them at once.
   std::recursive_mutex command_mutex_;

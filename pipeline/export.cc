@@ -118,9 +118,12 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   }
   WriteFileAtomically((fs::path(out_dir) / "sets.csv").string(), csv.str());
   std::vector<std::string> names, wire_formats;
-  for (const auto& c : meta.cameras) {
-    names.push_back(c.name);
-    wire_formats.push_back(c.settings.wire_format);
+  for (std::size_t c = 0; c < meta.cameras.size(); ++c) {
+    names.push_back(meta.cameras[c].name);
+    // The wire format, where the frames are what it is unpacked into (a driver may set a
+    // buffer's format itself: then the frames' own format is named).
+    const WireFormat* wire = WireFormatFromName(meta.cameras[c].settings.wire_format);
+    wire_formats.push_back(wire && wire->stored == formats[c] ? wire->name : "");
   }
   WriteExportedFormats(out_dir, names, formats, wire_formats);
   return summary;

@@ -31,8 +31,9 @@ struct ExportSummary {
 
 // Writes OUT/frame_NNNNNN/<camera name>.png (8-bit, or 16-bit for Mono16 and Bayer 16; Bayer
 // demosaiced to RGB),
-// OUT/pixel_formats.yaml (each camera's pixel format as its frames carried it, so that a Bayer
-// camera's frames read back from here are fitted through its mosaic: pipeline/frame_source.h) and
+// OUT/pixel_formats.yaml (each camera's pixel format as its frames carried it, or the 10- to
+// 14-bit wire format they were unpacked from, so that a Bayer camera's frames read back from here
+// are fitted through its mosaic and a wire format's words read as the take's: frame_source.h) and
 // OUT/sets.csv (set, trigger id, reference time, spread, then per camera frame id and status,
 // empty when missing, "damaged" for a frame that is lost or fails its checksum; for an event
 // recording a last column `event`: "pre-trigger" for the ring's sets, the event's name on the

@@ -53,8 +53,9 @@ struct SourceFrameSet {
   // mosaic's codes decode (fitting/mosaic.h)
   std::vector<int> bits;
   // per rig camera: the radiometric model its frames were decoded with: the rig's, or for a
-  // recording from a 10- to 14-bit wire format (values in the words' high bits) the rig's for such
-  // words (CameraRadiometry::ForHighBitWords); the fit's mosaic model takes the same
+  // recording from a 10- to 14-bit wire format (values in the words' high bits), or an export of
+  // one (pixel_formats.yaml names the wire format), the rig's for such words
+  // (CameraRadiometry::ForHighBitWords); the fit's mosaic model takes the same
   std::vector<CameraRadiometry> radiometry;
   std::vector<std::string> notes;  // cameras left out and why
   // The device frame id of the set's first present frame (recordings), the file's frame number
@@ -86,7 +87,8 @@ class FrameSource {
 };
 
 // One frame set from a folder, DIR/<camera>.png for every rig camera: 8-bit sRGB as the camera
-// wrote it or 16-bit linear (value / 65535 is the linear signal), decoded with `exposure` (> 0).
+// wrote it or 16-bit linear (value / 65535 is the linear signal; an export of a 10- to 14-bit
+// wire format's words saturates at their highest, ForHighBitWords), decoded with `exposure` (> 0).
 // The Bayer layouts (SourceFrameSet::mosaic) are those of DIR/pixel_formats.yaml, or, for a folder
 // named frame_NNNNNN whose parent holds an export's sets.csv, the parent's (a set that `flamerig
 // export` wrote); an image that a Bayer layout names but that is not RGB (8 or 16 bits) is a

@@ -143,7 +143,6 @@ std::string FrameSummary::Line() const {
     if (truth_rms_k >= 0)
       s << ", T error " << truth_rms_k << " K RMS, bias " << truth_bias_k << " K on visible voxels";
     if (truth_spread_k >= 0) s << " (a constant: " << truth_spread_k << " K)";
-    if (truth_weighted_rms_k >= 0) s << ", emission-weighted " << truth_weighted_rms_k << " K";
     if (truth_within_1_sigma >= 0)
       s << " (" << 100 * truth_within_1_sigma << "% within 1 sigma, " << 100 * truth_within_2_sigma
         << "% within 2; median sigma " << truth_median_sigma_k << " K)";
@@ -151,6 +150,7 @@ std::string FrameSummary::Line() const {
       s << ", " << 100 * truth_determined_share << "% determined";
       if (truth_determined_rms_k >= 0) s << " at " << truth_determined_rms_k << " K RMS";
     }
+    if (truth_weighted_rms_k >= 0) s << ", emission-weighted RMS " << truth_weighted_rms_k << " K";
   }
   for (const auto& n : notes) s << "; " << n;
   return s.str();

@@ -631,7 +631,7 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
     EXPECT_GT(f.truth_spread_k, 0);
     EXPECT_EQ(f.truth_weighted_rms_k, written.weighted_rms_k);
     EXPECT_GT(f.truth_weighted_rms_k, 0);
-    EXPECT_NE(f.Line().find("emission-weighted "), std::string::npos) << f.Line();
+    EXPECT_NE(f.Line().find("emission-weighted RMS "), std::string::npos) << f.Line();
     EXPECT_NE(f.Line().find("(a constant: "), std::string::npos) << f.Line();
     EXPECT_EQ(f.truth_within_2_sigma, written.within_2_sigma);
     EXPECT_GE(f.truth_within_2_sigma, f.truth_within_1_sigma);
