@@ -144,11 +144,16 @@ const WireFormat* WireFormatFromName(const std::string& name) {
   return nullptr;
 }
 
+int WireBitsOf(PixelFormat format, const std::string& wire_format) {
+  if (wire_format.empty()) return 0;
+  const WireFormat* wire = WireFormatFromName(wire_format);
+  return wire && wire->stored == format ? wire->bits : 0;
+}
+
 int FullScaleValue(PixelFormat format, const std::string& wire_format) {
   if (BytesPerPixel(format) != 2) return 255;  // 8-bit mono, Bayer and RGB
-  const WireFormat* wire = WireFormatFromName(wire_format);
-  if (!wire || wire->stored != format) return 0xffff;
-  return ((1 << wire->bits) - 1) << (16 - wire->bits);
+  const int bits = WireBitsOf(format, wire_format);
+  return bits == 0 ? 0xffff : ((1 << bits) - 1) << (16 - bits);
 }
 
 const WireFormat* WireFormatFromCode(std::uint32_t pfnc) {

@@ -72,11 +72,16 @@ struct WireFormat {
 };
 // The wire formats above by name; nullptr for any other name (including the stored formats).
 const WireFormat* WireFormatFromName(const std::string& name);
+// The significant bits of a frame of `format` from a camera whose settings name `wire_format`
+// (CameraSettings::wire_format): the wire format's bits where `format` is what it is unpacked
+// into; 0 (the frame arrived as `format`, at its own scale) for "", for a name that is no wire
+// format, and where a driver delivered another format than the settings name (it may set a
+// buffer's format itself). The one rule for reading a take's values in the words' high bits:
+// the live view's clipping, `export`'s pixel_formats.yaml and the pipeline's frame source.
+int WireBitsOf(PixelFormat format, const std::string& wire_format);
 // The value a frame's pixels hold where its sensor clipped: 255 in an 8-bit format, 65535 in a
-// 16-bit one, and in the words a `bits`-bit wire format is unpacked into, its highest value
-// (2^bits - 1) << (16 - bits): 0xFFC0 for Mono10p, 0xFFF0 for BayerRG12p. `wire_format` names what
-// the camera sent (CameraSettings::wire_format); "" or a name that is no wire format unpacked into
-// `format` counts as the frame having arrived as `format`.
+// 16-bit one, and in the words a `bits`-bit wire format is unpacked into (WireBitsOf), its highest
+// value (2^bits - 1) << (16 - bits): 0xFFC0 for Mono10p, 0xFFF0 for BayerRG12p.
 int FullScaleValue(PixelFormat format, const std::string& wire_format = "");
 const WireFormat* WireFormatFromCode(std::uint32_t pfnc);
 // Bytes of one width x height frame in `format` (whole frames; no line padding).

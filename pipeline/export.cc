@@ -122,8 +122,8 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
     names.push_back(meta.cameras[c].name);
     // The wire format, where the frames are what it is unpacked into (a driver may set a
     // buffer's format itself: then the frames' own format is named).
-    const WireFormat* wire = WireFormatFromName(meta.cameras[c].settings.wire_format);
-    wire_formats.push_back(wire && wire->stored == formats[c] ? wire->name : "");
+    const std::string& wire = meta.cameras[c].settings.wire_format;
+    wire_formats.push_back(WireBitsOf(formats[c], wire) > 0 ? wire : "");
   }
   WriteExportedFormats(out_dir, names, formats, wire_formats);
   return summary;

@@ -143,10 +143,10 @@ std::vector<ExportedFormat> ReadExportedFormats(const std::string& dir, const Ri
       } catch (const Error& e) {
         throw InputError(path.string() + ": camera '" + name + "': " + e.what());
       }
-      const WireFormat* wire = WireFormatFromName(recorded.wire_format);
       for (std::size_t c = 0; c < rig.cameras.size(); ++c)
         if (rig.cameras[c].name == name)
-          out[c] = {BayerLayoutOf(recorded.pixel_format), wire ? wire->bits : 0};
+          out[c] = {BayerLayoutOf(recorded.pixel_format),
+                    WireBitsOf(recorded.pixel_format, recorded.wire_format)};
     }
   } catch (const YAML::Exception& e) {
     throw InputError(path.string() + ": not YAML (" + e.what() + ")");
@@ -190,11 +190,9 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
   const std::vector<ExportedFormat> formats = FrameFolderFormats(dir, rig);
   out.bits.assign(rig.cameras.size(), 0);
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
-    out.mosaic.push_back(formats[c].mosaic);
-    out.radiometry.push_back(rig.cameras[c].radiometry.ForHighBitWords(formats[c].wire_bits));
-  }
-  for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const RigCamera& camera = rig.cameras[c];
+    out.mosaic.push_back(formats[c].mosaic);
+    out.radiometry.push_back(camera.radiometry.ForHighBitWords(formats[c].wire_bits));
     const fs::path path = fs::path(dir) / (camera.name + ".png");
     if (!fs::exists(path)) {
       out.notes.push_back("no image for camera '" + camera.name + "' (" + path.string() +
@@ -302,14 +300,6 @@ FrameSource::FrameSource(const FrameSourceSpec& spec, const Rig& rig)
     for (const auto& c : impl_->recording->metadata().cameras) names.push_back(c.name);
     impl_->MatchCameras(names);
     impl_->sets = impl_->recording->num_sets();
-    // A camera recorded from a 10- to 14-bit wire format holds its values in the words' high
-    // bits: the rig's entry, counted in those bits or taken from the frame, is read for them.
-    for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
-      const std::string& wire =
-          impl_->recording->metadata().cameras[impl_->source_camera[c]].settings.wire_format;
-      const WireFormat* w = wire.empty() ? nullptr : WireFormatFromName(wire);
-      impl_->radiometry[c] = rig.cameras[c].radiometry.ForHighBitWords(w ? w->bits : 0);
-    }
   } else if (!spec.seq_files.empty()) {
     std::vector<std::string> names = spec.seq_names;
     if (names.empty())
@@ -390,6 +380,12 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
       }
       bits = DecodeFrame(*f, &u8, &u16);
       out.mosaic[c] = BayerLayoutOf(f->info.pixel_format);
+      // A frame that arrived in a 10- to 14-bit wire format holds its values in the words' high
+      // bits: the rig's entry, counted in those bits or taken from the frame, is read for them.
+      const std::string& wire =
+          impl_->recording->metadata().cameras[impl_->source_camera[c]].settings.wire_format;
+      out.radiometry[c] = rig.cameras[c].radiometry.ForHighBitWords(
+          WireBitsOf(f->info.pixel_format, wire));
     } else if (!impl_->seqs.empty()) {
       const int s = impl_->source_camera[c];
       const Frame f = impl_->seqs[s].ReadFrame(i, s);

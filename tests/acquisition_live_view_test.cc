@@ -70,6 +70,11 @@ TEST(LiveView, AWireFormatsFullScaleIsWhatItsBrightestPixelUnpacksTo) {
   EXPECT_EQ(FullScaleValue(PixelFormat::kMono16, "Mono16"), 65535);
   EXPECT_EQ(FullScaleValue(PixelFormat::kMono16, "BayerRG12p"), 65535);
   EXPECT_EQ(FullScaleValue(PixelFormat::kMono8, "Mono12p"), 255);
+  EXPECT_EQ(WireBitsOf(PixelFormat::kBayerRg16, "BayerRG12p"), 12);
+  EXPECT_EQ(WireBitsOf(PixelFormat::kMono16, "Mono10Packed"), 10);
+  EXPECT_EQ(WireBitsOf(PixelFormat::kMono16, "BayerRG12p"), 0);
+  EXPECT_EQ(WireBitsOf(PixelFormat::kMono16, "Mono16"), 0);
+  EXPECT_EQ(WireBitsOf(PixelFormat::kMono16, ""), 0);
   // The oracle: every pixel of a frame sent at its wire format's highest value (all bits set),
   // unpacked as a camera's frames are.
   const std::pair<const char*, int> formats[] = {

@@ -1548,6 +1548,38 @@ TEST(RunFrames, ASixteenBitBayerRecordingIsFittedThroughItsMosaic) {
     EXPECT_NEAR(packed_run.frames[0].MeanFittedDeltaE(), through.frames[0].MeanFittedDeltaE(),
                 0.05);
   }
+  // A driver may deliver another format than the settings name (it sets a buffer's format
+  // itself): a take whose settings say Mono12p but whose frames are the BayerRG16 mosaic above,
+  // codes in the low bits, is read as those frames are, with the rig's 12-bit entry as it stands
+  // (WireBitsOf), and its export names the frames' own format.
+  const fs::path mislabelled_dir = dir / "rec_mislabelled";
+  {
+    RecordingMetadata meta = Recording::Open(rec_dir.string()).metadata();
+    for (auto& cam : meta.cameras) cam.settings.SetPixelFormat("Mono12p");
+    Recorder recorder(mislabelled_dir.string(), meta);
+    FrameSet same;
+    same.index = 0;
+    same.trigger_id = 0;
+    for (const Frame& f : sent) same.frames.push_back(f);
+    ASSERT_TRUE(recorder.Submit(same));
+    recorder.Close();
+  }
+  FrameSourceSpec mislabelled_spec;
+  mislabelled_spec.recording_dir = mislabelled_dir.string();
+  const SourceFrameSet from_mislabelled = FrameSource(mislabelled_spec, rig).Read(0, 1.0);
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_EQ(from_mislabelled.radiometry[k].bit_depth, 12) << k;
+    EXPECT_EQ(from_mislabelled.radiometry[k].black_level, 64) << k;
+    EXPECT_EQ(from_mislabelled.signal[k].pixels, set.signal[k].pixels) << k;
+  }
+  ExportRecording(mislabelled_dir.string(), (dir / "exported_mislabelled").string(),
+                  ExportOptions{});
+  {
+    std::ifstream yaml(dir / "exported_mislabelled" / kExportedFormatsFile);
+    const std::string text((std::istreambuf_iterator<char>(yaml)), {});
+    EXPECT_NE(text.find("BayerRG16"), std::string::npos) << text;
+    EXPECT_EQ(text.find("Mono12p"), std::string::npos) << text;
+  }
   // Exported, the take's frames are 16-bit RGB PNGs of the demosaiced codes, read back as the
   // recording's 16-bit mosaic.
   const fs::path exported = dir / "exported";
