@@ -384,8 +384,8 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
       // bits: the rig's entry, counted in those bits or taken from the frame, is read for them.
       const std::string& wire =
           impl_->recording->metadata().cameras[impl_->source_camera[c]].settings.wire_format;
-      out.radiometry[c] = rig.cameras[c].radiometry.ForHighBitWords(
-          WireBitsOf(f->info.pixel_format, wire));
+      out.radiometry[c] =
+          rig.cameras[c].radiometry.ForHighBitWords(WireBitsOf(f->info.pixel_format, wire));
     } else if (!impl_->seqs.empty()) {
       const int s = impl_->source_camera[c];
       const Frame f = impl_->seqs[s].ReadFrame(i, s);
