@@ -40,7 +40,8 @@ struct CameraSettings {
   int offset_x = 0, offset_y = 0;                  // the region of interest's corner on the sensor
   PixelFormat pixel_format = PixelFormat::kMono8;  // as stored
   // The camera's own format when it sends one of the WireFormats (frame.h): then pixel_format is
-  // Mono16 and the driver unpacks every frame. "" = it sends pixel_format. Aravis only.
+  // what it unpacks into (Mono16, or the layout's Bayer 16) and the driver unpacks every frame.
+  // "" = it sends pixel_format. Aravis only.
   std::string wire_format;
   double frame_rate_hz = 30;  // free-run rate; the maximum rate when triggered
   double exposure_us = 10000;

@@ -144,10 +144,19 @@ const WireFormat* WireFormatFromName(const std::string& name) {
   return nullptr;
 }
 
-int WireBitsOf(PixelFormat format, const std::string& wire_format) {
-  if (wire_format.empty()) return 0;
+const WireFormat* WireFormatOfFrame(PixelFormat format, const std::string& wire_format) {
+  if (wire_format.empty()) return nullptr;
   const WireFormat* wire = WireFormatFromName(wire_format);
-  return wire && wire->stored == format ? wire->bits : 0;
+  if (!wire || wire->stored == format) return wire;
+  if (!IsBayer(wire->stored) || !IsBayer(format) || BytesPerPixel(format) != 2) return nullptr;
+  for (const WireFormat& f : kWireFormats)  // the same depth and packing in the frame's layout
+    if (f.stored == format && f.bits == wire->bits && f.packing == wire->packing) return &f;
+  return nullptr;
+}
+
+int WireBitsOf(PixelFormat format, const std::string& wire_format) {
+  const WireFormat* wire = WireFormatOfFrame(format, wire_format);
+  return wire ? wire->bits : 0;
 }
 
 int FullScaleValue(PixelFormat format, const std::string& wire_format) {

@@ -72,12 +72,19 @@ struct WireFormat {
 };
 // The wire formats above by name; nullptr for any other name (including the stored formats).
 const WireFormat* WireFormatFromName(const std::string& name);
-// The significant bits of a frame of `format` from a camera whose settings name `wire_format`
-// (CameraSettings::wire_format): the wire format's bits where `format` is what it is unpacked
-// into; 0 (the frame arrived as `format`, at its own scale) for "", for a name that is no wire
-// format, and where a driver delivered another format than the settings name (it may set a
-// buffer's format itself). The one rule for reading a take's values in the words' high bits:
-// the live view's clipping, `export`'s pixel_formats.yaml and the pipeline's frame source.
+// The wire format a frame of `format` arrived in, as far as a take can tell: its camera's
+// settings name the format the camera was set to send (CameraSettings::wire_format), and the
+// driver unpacks each buffer as the buffer names itself and keeps only the 16-bit format it made
+// (aravis_camera.cc). So: the settings' wire format where `format` is what it unpacks into; the
+// same depth and packing in `format`'s Bayer layout where only the layout differs (a camera
+// mirrored by ReverseX sends BayerGR12p under BayerRG12p settings); nullptr for "", a name that is
+// no wire format, and a frame of another kind (8-bit, or mono under a Bayer wire format, or the
+// reverse: a driver that delivered another format than the settings name). A camera that sent
+// another depth than its settings say (Mono10p under Mono12p) is taken at the settings' depth.
+// The one rule for reading a take's values in the words' high bits: the live view's clipping,
+// `export`'s pixel_formats.yaml and the pipeline's frame source.
+const WireFormat* WireFormatOfFrame(PixelFormat format, const std::string& wire_format);
+// That wire format's significant bits; 0 where there is none (the frame is at its own scale).
 int WireBitsOf(PixelFormat format, const std::string& wire_format);
 // The value a frame's pixels hold where its sensor clipped: 255 in an 8-bit format, 65535 in a
 // 16-bit one, and in the words a `bits`-bit wire format is unpacked into (WireBitsOf), its highest

@@ -120,10 +120,10 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   std::vector<std::string> names, wire_formats;
   for (std::size_t c = 0; c < meta.cameras.size(); ++c) {
     names.push_back(meta.cameras[c].name);
-    // The wire format, where the frames are what it is unpacked into (a driver may set a
-    // buffer's format itself: then the frames' own format is named).
-    const std::string& wire = meta.cameras[c].settings.wire_format;
-    wire_formats.push_back(WireBitsOf(formats[c], wire) > 0 ? wire : "");
+    // The wire format the frames arrived in (WireFormatOfFrame: in their own Bayer layout; a
+    // driver may set a buffer's format itself, and then the frames' own format is named).
+    const WireFormat* wire = WireFormatOfFrame(formats[c], meta.cameras[c].settings.wire_format);
+    wire_formats.push_back(wire ? wire->name : "");
   }
   WriteExportedFormats(out_dir, names, formats, wire_formats);
   return summary;

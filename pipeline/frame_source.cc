@@ -252,7 +252,8 @@ struct FrameSource::Impl {
   std::unique_ptr<Recording> recording;
   std::vector<StreamPixSequence> seqs;
   std::vector<ExportedFormat> images_formats;  // a folder's, per rig camera
-  // per rig camera: the model its frames decode with (SourceFrameSet::radiometry)
+  // per rig camera: the model its frames decode with (SourceFrameSet::radiometry); a
+  // recording's is decided again for each frame, by the frame's format (WireBitsOf)
   std::vector<CameraRadiometry> radiometry;
 
   // Checks a decoded camera image against the rig camera's imager.

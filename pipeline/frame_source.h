@@ -52,10 +52,12 @@ struct SourceFrameSet {
   // per rig camera: the bits of the frame's codes as read (8 or 16; 0 when left out): how a
   // mosaic's codes decode (fitting/mosaic.h)
   std::vector<int> bits;
-  // per rig camera: the radiometric model its frames were decoded with: the rig's, or for a
-  // recording from a 10- to 14-bit wire format (values in the words' high bits), or an export of
-  // one (pixel_formats.yaml names the wire format), the rig's for such words
-  // (CameraRadiometry::ForHighBitWords); the fit's mosaic model takes the same
+  // per rig camera: the radiometric model its frames were decoded with: the rig's, or for a frame
+  // that arrived in a 10- to 14-bit wire format (values in the words' high bits: a recording's
+  // frame whose format is what its camera's wire format unpacks into, acquisition/frame.h's
+  // WireFormatOfFrame, or an export whose pixel_formats.yaml names the wire format), the rig's
+  // for such words (CameraRadiometry::ForHighBitWords); the rig's for a camera left out. The
+  // fit's mosaic model takes the same
   std::vector<CameraRadiometry> radiometry;
   std::vector<std::string> notes;  // cameras left out and why
   // The device frame id of the set's first present frame (recordings), the file's frame number
@@ -99,11 +101,12 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
 
 // What `flamerig export` writes beside the frame sets it exports (OUT/pixel_formats.yaml): the
 // pixel format each camera recorded, `cameras: {NAME: FORMAT, ...}` with GenICam's names (Mono8,
-// BayerRG8, ...; the wire format for a camera that sent one, BayerRG12p say: its 16-bit PNGs
-// hold the values in the high bits, as flamerig stored them, frame.h). A Bayer camera's PNGs hold
+// BayerRG8, ...; the wire format the frames arrived in for a camera that sent one, BayerRG12p
+// say, frame.h's WireFormatOfFrame: its 16-bit PNGs hold the values in the high bits, as
+// flamerig stored them). A Bayer camera's PNGs hold
 // its demosaicing (DecodeFrame), and whoever reads them back as a folder of frame sets fits them
-// through that mosaic (fitting/mosaic.h). `wire_formats`: per camera, "" or the wire format's
-// name (CameraSettings::wire_format); may be empty.
+// through that mosaic (fitting/mosaic.h). `wire_formats`: per camera, "" or the name of the wire
+// format its frames arrived in; may be empty.
 inline constexpr const char* kExportedFormatsFile = "pixel_formats.yaml";
 void WriteExportedFormats(const std::string& dir, const std::vector<std::string>& cameras,
                           const std::vector<PixelFormat>& formats,

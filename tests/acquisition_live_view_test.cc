@@ -75,6 +75,15 @@ TEST(LiveView, AWireFormatsFullScaleIsWhatItsBrightestPixelUnpacksTo) {
   EXPECT_EQ(WireBitsOf(PixelFormat::kMono16, "BayerRG12p"), 0);
   EXPECT_EQ(WireBitsOf(PixelFormat::kMono16, "Mono16"), 0);
   EXPECT_EQ(WireBitsOf(PixelFormat::kMono16, ""), 0);
+  EXPECT_EQ(WireBitsOf(PixelFormat::kBayerRg8, "BayerRG12p"), 0);
+  // A mirrored camera sends its wire format in another Bayer layout than its settings name.
+  ASSERT_NE(WireFormatOfFrame(PixelFormat::kBayerGr16, "BayerRG12p"), nullptr);
+  EXPECT_STREQ(WireFormatOfFrame(PixelFormat::kBayerGr16, "BayerRG12p")->name, "BayerGR12p");
+  ASSERT_NE(WireFormatOfFrame(PixelFormat::kBayerGb16, "BayerRG10Packed"), nullptr);
+  EXPECT_STREQ(WireFormatOfFrame(PixelFormat::kBayerGb16, "BayerRG10Packed")->name,
+               "BayerGB10Packed");
+  EXPECT_EQ(FullScaleValue(PixelFormat::kBayerBg16, "BayerRG12"), 0xfff0);
+  EXPECT_EQ(WireFormatOfFrame(PixelFormat::kBayerRg16, "Mono12p"), nullptr);
   // The oracle: every pixel of a frame sent at its wire format's highest value (all bits set),
   // unpacked as a camera's frames are.
   const std::pair<const char*, int> formats[] = {

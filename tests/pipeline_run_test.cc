@@ -1580,6 +1580,40 @@ TEST(RunFrames, ASixteenBitBayerRecordingIsFittedThroughItsMosaic) {
     EXPECT_NE(text.find("BayerRG16"), std::string::npos) << text;
     EXPECT_EQ(text.find("Mono12p"), std::string::npos) << text;
   }
+  // A camera mirrored after it was set up sends BayerGR12p under its BayerRG12p settings, and the
+  // driver stores BayerGR16: read in the words' high bits all the same, through the GR mosaic,
+  // and exported under the layout's own wire format.
+  const fs::path mirrored_dir = dir / "rec_mirrored";
+  {
+    RecordingMetadata meta = Recording::Open(packed_dir.string()).metadata();
+    const Recording packed_take = Recording::Open(packed_dir.string());
+    Recorder recorder(mirrored_dir.string(), meta);
+    FrameSet mirrored;
+    mirrored.index = 0;
+    mirrored.trigger_id = 0;
+    for (int k = 0; k < 3; ++k) {
+      std::optional<Frame> f = packed_take.ReadFrame(0, k);
+      ASSERT_TRUE(f.has_value());
+      f->info.pixel_format = PixelFormat::kBayerGr16;
+      mirrored.frames.push_back(*f);
+    }
+    ASSERT_TRUE(recorder.Submit(mirrored));
+    recorder.Close();
+  }
+  FrameSourceSpec mirrored_spec;
+  mirrored_spec.recording_dir = mirrored_dir.string();
+  const SourceFrameSet from_mirrored = FrameSource(mirrored_spec, rig).Read(0, 1.0);
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_EQ(from_mirrored.mosaic[k], BayerLayout::kGrbg) << k;
+    EXPECT_EQ(from_mirrored.radiometry[k].bit_depth, 16) << k;
+    EXPECT_EQ(from_mirrored.radiometry[k].black_level, 64 * 16) << k;
+  }
+  ExportRecording(mirrored_dir.string(), (dir / "exported_mirrored").string(), ExportOptions{});
+  {
+    std::ifstream yaml(dir / "exported_mirrored" / kExportedFormatsFile);
+    const std::string text((std::istreambuf_iterator<char>(yaml)), {});
+    EXPECT_NE(text.find("BayerGR12p"), std::string::npos) << text;
+  }
   // Exported, the take's frames are 16-bit RGB PNGs of the demosaiced codes, read back as the
   // recording's 16-bit mosaic.
   const fs::path exported = dir / "exported";
