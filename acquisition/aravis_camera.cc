@@ -34,44 +34,6 @@ bool IsIpv4(const std::string& s) {
   return ::inet_pton(AF_INET, s.c_str(), &a) == 1;
 }
 
-ArvPixelFormat ToArv(PixelFormat f) {
-  switch (f) {
-    case PixelFormat::kMono8:
-      return ARV_PIXEL_FORMAT_MONO_8;
-    case PixelFormat::kMono16:
-      return ARV_PIXEL_FORMAT_MONO_16;
-    case PixelFormat::kRgb8:
-      return ARV_PIXEL_FORMAT_RGB_8_PACKED;
-    case PixelFormat::kBayerRg8:
-      return ARV_PIXEL_FORMAT_BAYER_RG_8;
-    case PixelFormat::kBayerGr8:
-      return ARV_PIXEL_FORMAT_BAYER_GR_8;
-    case PixelFormat::kBayerGb8:
-      return ARV_PIXEL_FORMAT_BAYER_GB_8;
-    case PixelFormat::kBayerBg8:
-      return ARV_PIXEL_FORMAT_BAYER_BG_8;
-    case PixelFormat::kBayerRg16:
-      return ARV_PIXEL_FORMAT_BAYER_RG_16;
-    case PixelFormat::kBayerGr16:
-      return ARV_PIXEL_FORMAT_BAYER_GR_16;
-    case PixelFormat::kBayerGb16:
-      return ARV_PIXEL_FORMAT_BAYER_GB_16;
-    case PixelFormat::kBayerBg16:
-      return ARV_PIXEL_FORMAT_BAYER_BG_16;
-  }
-  return ARV_PIXEL_FORMAT_MONO_8;
-}
-
-bool FromArv(ArvPixelFormat f, PixelFormat* out) {
-  for (PixelFormat p : kAllPixelFormats) {
-    if (ToArv(p) == f) {
-      *out = p;
-      return true;
-    }
-  }
-  return false;
-}
-
 FrameStatus StatusOf(ArvBufferStatus s) {
   switch (s) {
     case ARV_BUFFER_STATUS_SUCCESS:
@@ -282,7 +244,7 @@ void AravisCamera::Configure(const CameraSettings& s) {
   // A wire format (Mono12p, ...) by its GenICam name: the camera must list it.
   const WireFormat* wire = s.wire_format.empty() ? nullptr : WireFormatFromName(s.wire_format);
   const ArvPixelFormat wanted =
-      wire ? static_cast<ArvPixelFormat>(wire->pfnc) : ToArv(s.pixel_format);
+      static_cast<ArvPixelFormat>(wire ? wire->pfnc : PfncOf(s.pixel_format));
   if (wire)
     arv_camera_set_pixel_format_from_string(cam, wire->name, &e);
   else
@@ -520,16 +482,18 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
   const WireFormat* wire =
       settings_.wire_format.empty() ? nullptr : WireFormatFromName(settings_.wire_format);
   if (arv_buffer_get_payload_type(buffer) == ARV_BUFFER_PAYLOAD_TYPE_IMAGE) {
-    wire = nullptr;  // the buffer says which
+    wire = nullptr;  // the buffer says which, and the frame keeps what it said
     f.info.width = arv_buffer_get_image_width(buffer);
     f.info.height = arv_buffer_get_image_height(buffer);
+    const std::uint32_t sent = arv_buffer_get_image_pixel_format(buffer);
     PixelFormat p;
-    if (const WireFormat* w = WireFormatFromCode(arv_buffer_get_image_pixel_format(buffer)))
+    if (const WireFormat* w = WireFormatFromCode(sent))
       wire = w;
-    else if (FromArv(arv_buffer_get_image_pixel_format(buffer), &p))
+    else if (PixelFormatFromPfnc(sent, &p))
       f.info.pixel_format = p;
     else
       f.info.status = FrameStatus::kError;
+    if (f.info.status != FrameStatus::kError) f.info.sent_pfnc = sent;
   }
   // The bytes of the image (the in-process fakes report a size of 0 though the bytes are there).
   // A wire format is unpacked into Mono16 or Bayer 16 here, before the frame is queued.

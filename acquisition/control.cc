@@ -89,8 +89,8 @@ std::string PreviewPng(const CaptureDaemon& daemon, const std::vector<std::strin
   if (!set || !set->frames[camera])
     throw InputError("preview: no frame from camera '" + cams[camera].name + "' yet");
   const Frame& f = *set->frames[camera];
-  const cv::Mat small = PreviewImage(
-      f, k, FullScaleValue(f.info.pixel_format, daemon.camera_settings(camera).wire_format));
+  const cv::Mat small =
+      PreviewImage(f, k, FullScaleValue(f.info, daemon.camera_settings(camera).wire_format));
   std::vector<std::uint8_t> png;
   cv::imencode(".png", small, png);
   return std::string(png.begin(), png.end());

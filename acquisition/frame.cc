@@ -52,6 +52,44 @@ PixelFormat PixelFormatFromName(const std::string& name) {
                    "BayerRG16, BayerGR16, BayerGB16 or BayerBG16");
 }
 
+std::uint32_t PfncOf(PixelFormat format) {
+  switch (format) {
+    case PixelFormat::kMono8:
+      return 0x01080001u;
+    case PixelFormat::kMono16:
+      return 0x01100007u;
+    case PixelFormat::kRgb8:
+      return 0x02180014u;
+    case PixelFormat::kBayerRg8:
+      return 0x01080009u;
+    case PixelFormat::kBayerGr8:
+      return 0x01080008u;
+    case PixelFormat::kBayerGb8:
+      return 0x0108000Au;
+    case PixelFormat::kBayerBg8:
+      return 0x0108000Bu;
+    case PixelFormat::kBayerRg16:
+      return 0x0110002Fu;
+    case PixelFormat::kBayerGr16:
+      return 0x0110002Eu;
+    case PixelFormat::kBayerGb16:
+      return 0x01100030u;
+    case PixelFormat::kBayerBg16:
+      return 0x01100031u;
+  }
+  return 0;
+}
+
+bool PixelFormatFromPfnc(std::uint32_t pfnc, PixelFormat* format) {
+  for (PixelFormat f : kAllPixelFormats) {
+    if (PfncOf(f) == pfnc) {
+      *format = f;
+      return true;
+    }
+  }
+  return false;
+}
+
 int BytesPerPixel(PixelFormat format) {
   switch (format) {
     case PixelFormat::kMono16:
@@ -148,8 +186,9 @@ const WireFormat* WireFormatOfFrame(PixelFormat format, const std::string& wire_
   if (wire_format.empty()) return nullptr;
   const WireFormat* wire = WireFormatFromName(wire_format);
   if (!wire || wire->stored == format) return wire;
-  if (!IsBayer(wire->stored) || !IsBayer(format) || BytesPerPixel(format) != 2) return nullptr;
-  for (const WireFormat& f : kWireFormats)  // the same depth and packing in the frame's layout
+  if (!IsBayer(wire->stored) || !IsBayer(format)) return nullptr;
+  // The same depth and packing in the frame's layout (none for an 8-bit one).
+  for (const WireFormat& f : kWireFormats)
     if (f.stored == format && f.bits == wire->bits && f.packing == wire->packing) return &f;
   return nullptr;
 }
@@ -159,10 +198,32 @@ int WireBitsOf(PixelFormat format, const std::string& wire_format) {
   return wire ? wire->bits : 0;
 }
 
-int FullScaleValue(PixelFormat format, const std::string& wire_format) {
+namespace {
+// The full scale of a frame of `format` whose values lie in the high `bits` (0: at its own scale).
+int FullScaleOf(PixelFormat format, int bits) {
   if (BytesPerPixel(format) != 2) return 255;  // 8-bit mono, Bayer and RGB
-  const int bits = WireBitsOf(format, wire_format);
   return bits == 0 ? 0xffff : ((1 << bits) - 1) << (16 - bits);
+}
+}  // namespace
+
+int FullScaleValue(PixelFormat format, const std::string& wire_format) {
+  return FullScaleOf(format, WireBitsOf(format, wire_format));
+}
+
+const WireFormat* WireFormatOfFrame(const FrameInfo& info,
+                                    const std::string& settings_wire_format) {
+  if (info.sent_pfnc == 0) return WireFormatOfFrame(info.pixel_format, settings_wire_format);
+  const WireFormat* sent = WireFormatFromCode(info.sent_pfnc);
+  return sent && sent->stored == info.pixel_format ? sent : nullptr;
+}
+
+int WireBitsOf(const FrameInfo& info, const std::string& settings_wire_format) {
+  const WireFormat* wire = WireFormatOfFrame(info, settings_wire_format);
+  return wire ? wire->bits : 0;
+}
+
+int FullScaleValue(const FrameInfo& info, const std::string& settings_wire_format) {
+  return FullScaleOf(info.pixel_format, WireBitsOf(info, settings_wire_format));
 }
 
 const WireFormat* WireFormatFromCode(std::uint32_t pfnc) {

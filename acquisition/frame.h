@@ -41,6 +41,10 @@ inline constexpr PixelFormat kAllPixelFormats[] = {
     PixelFormat::kBayerGb16, PixelFormat::kBayerBg16};
 const char* ToString(PixelFormat format);
 PixelFormat PixelFormatFromName(const std::string& name);  // "Mono8", ...; throws
+// The format's PFNC / GigE Vision code (Mono8: 0x01080001; RGB8 is PFNC's RGB8Packed), which
+// Aravis' ArvPixelFormat also is; and back: false for a code that is no format flamerig stores.
+std::uint32_t PfncOf(PixelFormat format);
+bool PixelFormatFromPfnc(std::uint32_t pfnc, PixelFormat* format);
 int BytesPerPixel(PixelFormat format);
 bool IsBayer(PixelFormat format);
 // A Bayer format's 2 x 2 cell as GenICam names it ("RGGB", "GRBG", "GBRG", "BGGR"); "" otherwise.
@@ -72,17 +76,17 @@ struct WireFormat {
 };
 // The wire formats above by name; nullptr for any other name (including the stored formats).
 const WireFormat* WireFormatFromName(const std::string& name);
-// The wire format a frame of `format` arrived in, as far as a take can tell: its camera's
-// settings name the format the camera was set to send (CameraSettings::wire_format), and the
-// driver unpacks each buffer as the buffer names itself and keeps only the 16-bit format it made
-// (aravis_camera.cc). So: the settings' wire format where `format` is what it unpacks into; the
-// same depth and packing in `format`'s Bayer layout where only the layout differs (a camera
-// mirrored by ReverseX sends BayerGR12p under BayerRG12p settings); nullptr for "", a name that is
-// no wire format, and a frame of another kind (8-bit, or mono under a Bayer wire format, or the
-// reverse: a driver that delivered another format than the settings name). A camera that sent
-// another depth than its settings say (Mono10p under Mono12p) is taken at the settings' depth.
-// The one rule for reading a take's values in the words' high bits: the live view's clipping,
-// `export`'s pixel_formats.yaml and the pipeline's frame source.
+// The wire format a frame of `format` arrived in, as far as its camera's settings tell: they name
+// the format the camera was set to send (CameraSettings::wire_format). So: the settings' wire
+// format where `format` is what it unpacks into; the same depth and packing in `format`'s Bayer
+// layout where only the layout differs (a camera mirrored by ReverseX sends BayerGR12p under
+// BayerRG12p settings); nullptr for "", a name that is no wire format, and a frame of another
+// kind (8-bit, or mono under a Bayer wire format, or the reverse: a driver that delivered another
+// format than the settings name). The rule for a frame that does not say what it was sent in
+// (FrameInfo::sent_pfnc 0: a recording made before it was kept, a simulated or V4L2 camera);
+// the overloads on FrameInfo below are the one rule for reading a frame's values in the words'
+// high bits: the live view's clipping, `export`'s pixel_formats.yaml and the pipeline's frame
+// source.
 const WireFormat* WireFormatOfFrame(PixelFormat format, const std::string& wire_format);
 // That wire format's significant bits; 0 where there is none (the frame is at its own scale).
 int WireBitsOf(PixelFormat format, const std::string& wire_format);
@@ -119,7 +123,21 @@ struct FrameInfo {
   PixelFormat pixel_format = PixelFormat::kMono8;
   int width = 0, height = 0;
   FrameStatus status = FrameStatus::kOk;
+  // The PFNC code of the format the camera sent this frame in, as its driver read it from the
+  // buffer: a wire format's (Mono10p: 0x010A0046) where the driver unpacked it into
+  // `pixel_format`, `pixel_format`'s own (PfncOf) where it arrived as stored; 0 where not known (a
+  // simulated or V4L2 camera, a recording made before flamerig kept it). Recorded with the frame.
+  std::uint32_t sent_pfnc = 0;
 };
+
+// The wire format the frame `info` describes arrived in: the one its driver read from the buffer
+// where it said (sent_pfnc; nullptr where that is a stored format's own code, or a wire format
+// that is not unpacked into `info.pixel_format`), else as its camera's settings say
+// (`settings_wire_format`, WireFormatOfFrame above). So a camera that sent Mono10p under Mono12p
+// settings is read at 10 bits, and a buffer that came as Mono16 at 16.
+const WireFormat* WireFormatOfFrame(const FrameInfo& info, const std::string& settings_wire_format);
+int WireBitsOf(const FrameInfo& info, const std::string& settings_wire_format);
+int FullScaleValue(const FrameInfo& info, const std::string& settings_wire_format);
 
 // A frame: its description and its bytes (row-major, width * height * BytesPerPixel, no padding).
 // The bytes are shared so that a frame can sit in the recorder's queue and the preview at once

@@ -211,7 +211,7 @@ cv::Mat ClippedMask(const Frame& f, int full_scale) {
 
 // The full scale of camera `camera`'s frame `f`: its wire format's, when it sent one.
 int CameraFullScale(const CaptureDaemon& daemon, int camera, const Frame& f) {
-  return FullScaleValue(f.info.pixel_format, daemon.camera_settings(camera).wire_format);
+  return FullScaleValue(f.info, daemon.camera_settings(camera).wire_format);
 }
 
 std::string PreviewPng(const Frame& f, int k, int full_scale) {

@@ -627,6 +627,7 @@ void Recorder::WriterLoop(int camera) {
       r.payload_bytes = payload;
       r.payload_crc = payload ? Crc(job.frame.data->data(), payload) : 0;
       r.camera = static_cast<std::uint32_t>(camera);
+      r.sent_pfnc = in.sent_pfnc;
       FillRecordCrc(&r);
       const void* pixels = payload ? job.frame.data->data() : nullptr;
       int e = WriteAll(files.data_fd, &r, sizeof r);
@@ -1108,6 +1109,7 @@ std::optional<Frame> Recording::ReadFrame(std::size_t i, int c) const {
   f.info.width = static_cast<int>(r.width);
   f.info.height = static_cast<int>(r.height);
   f.info.status = static_cast<FrameStatus>(r.status);
+  f.info.sent_pfnc = r.sent_pfnc;
   f.data = std::move(pixels);
   return f;
 }

@@ -115,7 +115,11 @@ struct FrameRecord {
   std::uint64_t payload_bytes;
   std::uint32_t payload_crc;  // CRC-32 of the pixels
   std::uint32_t camera;
-  std::uint8_t reserved[8];
+  // FrameInfo::sent_pfnc: the format the camera sent the frame in, 0 where not known. Zero in
+  // recordings made before it was kept (the bytes were reserved and written as zeros), which
+  // read as frames that do not say.
+  std::uint32_t sent_pfnc;
+  std::uint8_t reserved[4];
 };
 #pragma pack(pop)
 static_assert(sizeof(FrameRecord) == 128, "FrameRecord is part of the file format");

@@ -72,7 +72,11 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   summary.event_set = first_live;
   // Each camera's pixel format: its settings', then that of the frames written.
   std::vector<PixelFormat> formats;
-  for (const auto& c : meta.cameras) formats.push_back(c.settings.pixel_format);
+  std::vector<FrameInfo> last(meta.cameras.size());  // each camera's last frame read
+  for (std::size_t c = 0; c < meta.cameras.size(); ++c) {
+    formats.push_back(meta.cameras[c].settings.pixel_format);
+    last[c].pixel_format = formats[c];
+  }
   const std::size_t first = std::min(options.first, rec.num_sets());
   const std::size_t end = first + std::min(options.count, rec.num_sets() - first);
   for (std::size_t i = first; i < end; ++i) {
@@ -92,6 +96,7 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
       try {
         const Frame f = *rec.ReadFrame(i, c);
         formats[c] = f.info.pixel_format;  // the frames', which a driver may set per buffer
+        last[c] = f.info;
         frame_id = std::to_string(f.info.frame_id);
         WriteFramePng(f, dir / (camera + ".png"));
         csv << "," << frame_id << "," << ToString(f.info.status);
@@ -120,9 +125,10 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   std::vector<std::string> names, wire_formats;
   for (std::size_t c = 0; c < meta.cameras.size(); ++c) {
     names.push_back(meta.cameras[c].name);
-    // The wire format the frames arrived in (WireFormatOfFrame: in their own Bayer layout; a
-    // driver may set a buffer's format itself, and then the frames' own format is named).
-    const WireFormat* wire = WireFormatOfFrame(formats[c], meta.cameras[c].settings.wire_format);
+    // The wire format the frames arrived in (WireFormatOfFrame: as the frame recorded it, else as
+    // the settings say, in the frames' own Bayer layout; a driver may set a buffer's format
+    // itself, and then the frames' own format is named).
+    const WireFormat* wire = WireFormatOfFrame(last[c], meta.cameras[c].settings.wire_format);
     wire_formats.push_back(wire ? wire->name : "");
   }
   WriteExportedFormats(out_dir, names, formats, wire_formats);

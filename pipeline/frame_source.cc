@@ -253,7 +253,7 @@ struct FrameSource::Impl {
   std::vector<StreamPixSequence> seqs;
   std::vector<ExportedFormat> images_formats;  // a folder's, per rig camera
   // per rig camera: the model its frames decode with (SourceFrameSet::radiometry); a
-  // recording's is decided again for each frame, by the frame's format (WireBitsOf)
+  // recording's is decided again for each frame, by what it was sent in (WireBitsOf)
   std::vector<CameraRadiometry> radiometry;
 
   // Checks a decoded camera image against the rig camera's imager.
@@ -385,8 +385,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
       // bits: the rig's entry, counted in those bits or taken from the frame, is read for them.
       const std::string& wire =
           impl_->recording->metadata().cameras[impl_->source_camera[c]].settings.wire_format;
-      out.radiometry[c] =
-          rig.cameras[c].radiometry.ForHighBitWords(WireBitsOf(f->info.pixel_format, wire));
+      out.radiometry[c] = rig.cameras[c].radiometry.ForHighBitWords(WireBitsOf(f->info, wire));
     } else if (!impl_->seqs.empty()) {
       const int s = impl_->source_camera[c];
       const Frame f = impl_->seqs[s].ReadFrame(i, s);

@@ -54,8 +54,9 @@ struct SourceFrameSet {
   std::vector<int> bits;
   // per rig camera: the radiometric model its frames were decoded with: the rig's, or for a frame
   // that arrived in a 10- to 14-bit wire format (values in the words' high bits: a recording's
-  // frame whose format is what its camera's wire format unpacks into, acquisition/frame.h's
-  // WireFormatOfFrame, or an export whose pixel_formats.yaml names the wire format), the rig's
+  // frame that says it was sent in one, or does not say and is what its camera's wire format
+  // unpacks into, acquisition/frame.h's WireFormatOfFrame; or an export whose pixel_formats.yaml
+  // names the wire format), the rig's
   // for such words (CameraRadiometry::ForHighBitWords); the rig's for a camera left out. The
   // fit's mosaic model takes the same
   std::vector<CameraRadiometry> radiometry;

@@ -272,6 +272,29 @@ TEST(WireFormats, PfncCodesAreAravisOwn) {
     ASSERT_TRUE(WireFormatFromName(name)) << name;
     EXPECT_EQ(WireFormatFromName(name)->pfnc, code) << name;
   }
+  // The stored formats' codes (frame.h's PfncOf, which the driver sets and reads formats by).
+  const std::pair<PixelFormat, ArvPixelFormat> stored[] = {
+      {PixelFormat::kMono8, ARV_PIXEL_FORMAT_MONO_8},
+      {PixelFormat::kMono16, ARV_PIXEL_FORMAT_MONO_16},
+      {PixelFormat::kRgb8, ARV_PIXEL_FORMAT_RGB_8_PACKED},
+      {PixelFormat::kBayerRg8, ARV_PIXEL_FORMAT_BAYER_RG_8},
+      {PixelFormat::kBayerGr8, ARV_PIXEL_FORMAT_BAYER_GR_8},
+      {PixelFormat::kBayerGb8, ARV_PIXEL_FORMAT_BAYER_GB_8},
+      {PixelFormat::kBayerBg8, ARV_PIXEL_FORMAT_BAYER_BG_8},
+      {PixelFormat::kBayerRg16, ARV_PIXEL_FORMAT_BAYER_RG_16},
+      {PixelFormat::kBayerGr16, ARV_PIXEL_FORMAT_BAYER_GR_16},
+      {PixelFormat::kBayerGb16, ARV_PIXEL_FORMAT_BAYER_GB_16},
+      {PixelFormat::kBayerBg16, ARV_PIXEL_FORMAT_BAYER_BG_16}};
+  ASSERT_EQ(std::size(stored), std::size(kAllPixelFormats));
+  for (const auto& [format, code] : stored) {
+    EXPECT_EQ(PfncOf(format), code) << ToString(format);
+    PixelFormat back = PixelFormat::kMono8;
+    EXPECT_TRUE(PixelFormatFromPfnc(code, &back)) << ToString(format);
+    EXPECT_EQ(back, format) << ToString(format);
+  }
+  PixelFormat unused;
+  EXPECT_FALSE(PixelFormatFromPfnc(ARV_PIXEL_FORMAT_MONO_12, &unused));
+  EXPECT_FALSE(PixelFormatFromPfnc(0, &unused));
 }
 
 TEST(AravisCamera, TenAndTwelveBitFormatsAreUnpackedIntoSixteenBitOnes) {
@@ -303,6 +326,7 @@ TEST(AravisCamera, TenAndTwelveBitFormatsAreUnpackedIntoSixteenBitOnes) {
       ASSERT_TRUE(f);
       EXPECT_EQ(f->info.status, FrameStatus::kOk);
       ASSERT_EQ(f->info.pixel_format, WireFormatFromName(name)->stored);
+      EXPECT_EQ(f->info.sent_pfnc, WireFormatFromName(name)->pfnc);  // as the buffer said
       ASSERT_EQ(f->bytes(), 320u * 240u * 2);
       const int bits = WireFormatFromName(name)->bits;
       for (std::size_t k = 0; k < 320u * 240u; k += 331) {
@@ -321,6 +345,8 @@ TEST(AravisCamera, TenAndTwelveBitFormatsAreUnpackedIntoSixteenBitOnes) {
       cam.Stop();
       ASSERT_TRUE(f);
       EXPECT_EQ(f->info.pixel_format, PixelFormat::kBayerGb16);
+      EXPECT_EQ(f->info.sent_pfnc, ARV_PIXEL_FORMAT_BAYER_GB_16);
+      EXPECT_EQ(WireBitsOf(f->info, "BayerGB12p"), 0);  // at its own scale, whatever was set
       EXPECT_EQ(f->bytes(), 320u * 240u * 2);
     }
     // A wire format the camera does not list is refused by name.

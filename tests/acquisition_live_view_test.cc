@@ -84,6 +84,24 @@ TEST(LiveView, AWireFormatsFullScaleIsWhatItsBrightestPixelUnpacksTo) {
                "BayerGB10Packed");
   EXPECT_EQ(FullScaleValue(PixelFormat::kBayerBg16, "BayerRG12"), 0xfff0);
   EXPECT_EQ(WireFormatOfFrame(PixelFormat::kBayerRg16, "Mono12p"), nullptr);
+  // A frame that says what it was sent in is taken at its word, whatever the settings name; one
+  // that does not say, as the settings do.
+  FrameInfo info;
+  info.pixel_format = PixelFormat::kMono16;
+  EXPECT_EQ(FullScaleValue(info, "Mono12p"), 0xfff0);  // sent_pfnc 0: the settings' rule
+  info.sent_pfnc = WireFormatFromName("Mono10p")->pfnc;
+  EXPECT_EQ(FullScaleValue(info, "Mono12p"), 0xffc0);
+  EXPECT_EQ(WireBitsOf(info, ""), 10);
+  EXPECT_STREQ(WireFormatOfFrame(info, "Mono12p")->name, "Mono10p");
+  info.sent_pfnc = PfncOf(PixelFormat::kMono16);  // a camera switched to Mono16 meanwhile
+  EXPECT_EQ(FullScaleValue(info, "Mono12p"), 0xffff);
+  EXPECT_EQ(WireFormatOfFrame(info, "Mono12p"), nullptr);
+  info.sent_pfnc = WireFormatFromName("BayerRG12p")->pfnc;  // not what a Mono16 frame unpacks from
+  EXPECT_EQ(WireBitsOf(info, "Mono12p"), 0);
+  info.pixel_format = PixelFormat::kBayerRg16;
+  EXPECT_EQ(WireBitsOf(info, ""), 12);
+  info.pixel_format = PixelFormat::kRgb8;
+  EXPECT_EQ(FullScaleValue(info, "BayerRG12p"), 255);
   // The oracle: every pixel of a frame sent at its wire format's highest value (all bits set),
   // unpacked as a camera's frames are.
   const std::pair<const char*, int> formats[] = {

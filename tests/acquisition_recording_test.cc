@@ -67,6 +67,8 @@ Frame MakeFrame(int camera, std::uint64_t set, int width, int height,
   f.info.width = width;
   f.info.height = height;
   f.info.status = set % 7 == 3 ? FrameStatus::kIncomplete : FrameStatus::kOk;
+  // What the camera sent: said by camera 1 (a wire format in odd sets), not by the others.
+  if (camera == 1) f.info.sent_pfnc = set % 2 ? 0x010C0047u /* Mono12p */ : PfncOf(format);
   auto bytes = std::make_shared<std::vector<std::uint8_t>>(std::size_t(width) * height *
                                                            BytesPerPixel(format));
   for (std::size_t i = 0; i < bytes->size(); ++i) (*bytes)[i] = Pixel(camera, set, i);
@@ -133,6 +135,7 @@ void ExpectSetMatches(const FrameSet& got, std::uint64_t s) {
     EXPECT_EQ(g.width, w.width);
     EXPECT_EQ(g.height, w.height);
     EXPECT_EQ(g.status, w.status);
+    EXPECT_EQ(g.sent_pfnc, w.sent_pfnc);
     ASSERT_TRUE(*got.frames[c]->data == *want.frames[c]->data) << "set " << s << " cam " << c;
   }
 }

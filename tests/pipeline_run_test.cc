@@ -1446,6 +1446,18 @@ TEST(RunFrames, ABayerRecordingIsFittedThroughItsMosaic) {
   }
 }
 
+// Records `frames` as the one frame set of a take described by `meta`, in `dir`.
+void RecordTake(const RecordingMetadata& meta, const std::vector<Frame>& frames,
+                const fs::path& dir) {
+  Recorder recorder(dir.string(), meta);
+  FrameSet set;
+  set.index = 0;
+  set.trigger_id = 0;
+  for (const Frame& f : frames) set.frames.push_back(f);
+  ASSERT_TRUE(recorder.Submit(set));
+  recorder.Close();
+}
+
 // A take from raw 12-bit colour cameras (linear, black level 64) sending 16-bit Bayer mosaics
 // (BayerRG16, the codes in the words' low bits, as the rig's bit depth says): the frame source
 // reads 16-bit frames, and the fit through the mosaic decodes their codes as the camera's (an
@@ -1503,27 +1515,22 @@ TEST(RunFrames, ASixteenBitBayerRecordingIsFittedThroughItsMosaic) {
   // (UnpackTo16Bit), the take's settings naming the wire format. The rig's 12-bit entry reads them
   // as the same signal, and the fit's mosaic model with it.
   const fs::path packed_dir = dir / "rec_packed";
-  {
-    RecordingMetadata meta = Recording::Open(rec_dir.string()).metadata();
-    for (auto& cam : meta.cameras) cam.settings.SetPixelFormat("BayerRG12p");
-    Recorder recorder(packed_dir.string(), meta);
-    FrameSet packed;
-    packed.index = 0;
-    packed.trigger_id = 0;
-    for (const Frame& f : sent) {
-      Frame g = f;
-      auto words = std::make_shared<std::vector<std::uint8_t>>(*f.data);
-      for (std::size_t i = 0; i + 1 < words->size(); i += 2) {
-        const unsigned v = ((*words)[i] | (*words)[i + 1] << 8) << 4;
-        (*words)[i] = static_cast<std::uint8_t>(v & 0xff);
-        (*words)[i + 1] = static_cast<std::uint8_t>(v >> 8);
-      }
-      g.data = words;
-      packed.frames.push_back(g);
+  const RecordingMetadata low_bits_meta = Recording::Open(rec_dir.string()).metadata();
+  RecordingMetadata packed_meta = low_bits_meta;
+  for (auto& cam : packed_meta.cameras) cam.settings.SetPixelFormat("BayerRG12p");
+  std::vector<Frame> packed;  // as the driver unpacks them; frames that do not say (sent_pfnc 0)
+  for (const Frame& f : sent) {
+    Frame g = f;
+    auto words = std::make_shared<std::vector<std::uint8_t>>(*f.data);
+    for (std::size_t i = 0; i + 1 < words->size(); i += 2) {
+      const unsigned v = ((*words)[i] | (*words)[i + 1] << 8) << 4;
+      (*words)[i] = static_cast<std::uint8_t>(v & 0xff);
+      (*words)[i + 1] = static_cast<std::uint8_t>(v >> 8);
     }
-    ASSERT_TRUE(recorder.Submit(packed));
-    recorder.Close();
+    g.data = words;
+    packed.push_back(g);
   }
+  RecordTake(packed_meta, packed, packed_dir);
   FrameSourceSpec packed_spec;
   packed_spec.recording_dir = packed_dir.string();
   const SourceFrameSet from_packed = FrameSource(packed_spec, rig).Read(0, 1.0);
@@ -1553,17 +1560,9 @@ TEST(RunFrames, ASixteenBitBayerRecordingIsFittedThroughItsMosaic) {
   // codes in the low bits, is read as those frames are, with the rig's 12-bit entry as it stands
   // (WireBitsOf), and its export names the frames' own format.
   const fs::path mislabelled_dir = dir / "rec_mislabelled";
-  {
-    RecordingMetadata meta = Recording::Open(rec_dir.string()).metadata();
-    for (auto& cam : meta.cameras) cam.settings.SetPixelFormat("Mono12p");
-    Recorder recorder(mislabelled_dir.string(), meta);
-    FrameSet same;
-    same.index = 0;
-    same.trigger_id = 0;
-    for (const Frame& f : sent) same.frames.push_back(f);
-    ASSERT_TRUE(recorder.Submit(same));
-    recorder.Close();
-  }
+  RecordingMetadata mono_meta = low_bits_meta;
+  for (auto& cam : mono_meta.cameras) cam.settings.SetPixelFormat("Mono12p");
+  RecordTake(mono_meta, sent, mislabelled_dir);
   FrameSourceSpec mislabelled_spec;
   mislabelled_spec.recording_dir = mislabelled_dir.string();
   const SourceFrameSet from_mislabelled = FrameSource(mislabelled_spec, rig).Read(0, 1.0);
@@ -1584,22 +1583,9 @@ TEST(RunFrames, ASixteenBitBayerRecordingIsFittedThroughItsMosaic) {
   // driver stores BayerGR16: read in the words' high bits all the same, through the GR mosaic,
   // and exported under the layout's own wire format.
   const fs::path mirrored_dir = dir / "rec_mirrored";
-  {
-    RecordingMetadata meta = Recording::Open(packed_dir.string()).metadata();
-    const Recording packed_take = Recording::Open(packed_dir.string());
-    Recorder recorder(mirrored_dir.string(), meta);
-    FrameSet mirrored;
-    mirrored.index = 0;
-    mirrored.trigger_id = 0;
-    for (int k = 0; k < 3; ++k) {
-      std::optional<Frame> f = packed_take.ReadFrame(0, k);
-      ASSERT_TRUE(f.has_value());
-      f->info.pixel_format = PixelFormat::kBayerGr16;
-      mirrored.frames.push_back(*f);
-    }
-    ASSERT_TRUE(recorder.Submit(mirrored));
-    recorder.Close();
-  }
+  std::vector<Frame> mirrored = packed;
+  for (Frame& f : mirrored) f.info.pixel_format = PixelFormat::kBayerGr16;
+  RecordTake(packed_meta, mirrored, mirrored_dir);
   FrameSourceSpec mirrored_spec;
   mirrored_spec.recording_dir = mirrored_dir.string();
   const SourceFrameSet from_mirrored = FrameSource(mirrored_spec, rig).Read(0, 1.0);
@@ -1613,6 +1599,36 @@ TEST(RunFrames, ASixteenBitBayerRecordingIsFittedThroughItsMosaic) {
     std::ifstream yaml(dir / "exported_mirrored" / kExportedFormatsFile);
     const std::string text((std::istreambuf_iterator<char>(yaml)), {});
     EXPECT_NE(text.find("BayerGR12p"), std::string::npos) << text;
+  }
+  // Frames that say what they were sent in (FrameInfo::sent_pfnc, as the Aravis driver records
+  // it) are read by what they say, not by the settings: a camera switched to BayerRG16 under its
+  // BayerRG12p settings is read at its own scale with the rig's 12-bit entry as it stands (the
+  // settings alone would take it as 12-bit words), and the packed words under Mono12p settings
+  // in the words' high bits (the settings alone would take them at 16 bits).
+  {
+    std::vector<Frame> said16 = sent, said12 = packed;
+    for (Frame& f : said16) f.info.sent_pfnc = PfncOf(PixelFormat::kBayerRg16);
+    for (Frame& f : said12) f.info.sent_pfnc = WireFormatFromName("BayerRG12p")->pfnc;
+    RecordTake(packed_meta, said16, dir / "rec_said16");
+    RecordTake(mono_meta, said12, dir / "rec_said12");
+    FrameSourceSpec said16_spec, said12_spec;
+    said16_spec.recording_dir = (dir / "rec_said16").string();
+    said12_spec.recording_dir = (dir / "rec_said12").string();
+    const SourceFrameSet from16 = FrameSource(said16_spec, rig).Read(0, 1.0);
+    const SourceFrameSet from12 = FrameSource(said12_spec, rig).Read(0, 1.0);
+    for (int k = 0; k < 3; ++k) {
+      EXPECT_EQ(from16.radiometry[k].bit_depth, 12) << k;
+      EXPECT_EQ(from16.radiometry[k].black_level, 64) << k;
+      EXPECT_EQ(from16.signal[k].pixels, set.signal[k].pixels) << k;
+      EXPECT_EQ(from12.radiometry[k].bit_depth, 16) << k;
+      EXPECT_EQ(from12.radiometry[k].black_level, 64 * 16) << k;
+      EXPECT_EQ(from12.signal[k].pixels, from_packed.signal[k].pixels) << k;
+    }
+    ExportRecording(said16_spec.recording_dir, (dir / "exported_said16").string(), ExportOptions{});
+    std::ifstream yaml(dir / "exported_said16" / kExportedFormatsFile);
+    const std::string text((std::istreambuf_iterator<char>(yaml)), {});
+    EXPECT_NE(text.find("BayerRG16"), std::string::npos) << text;
+    EXPECT_EQ(text.find("BayerRG12p"), std::string::npos) << text;
   }
   // Exported, the take's frames are 16-bit RGB PNGs of the demosaiced codes, read back as the
   // recording's 16-bit mosaic.
