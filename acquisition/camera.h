@@ -41,7 +41,8 @@ struct CameraSettings {
   PixelFormat pixel_format = PixelFormat::kMono8;  // as stored
   // The camera's own format when it sends one of the WireFormats (frame.h): then pixel_format is
   // what it unpacks into (Mono16, or the layout's Bayer 16) and the driver unpacks every frame.
-  // "" = it sends pixel_format. Aravis only.
+  // "" = it sends pixel_format. Aravis cameras, and sim ones rehearsing them (sim_camera.h);
+  // V4L2 refuses one.
   std::string wire_format;
   double frame_rate_hz = 30;  // free-run rate; the maximum rate when triggered
   double exposure_us = 10000;

@@ -125,8 +125,9 @@ struct FrameInfo {
   FrameStatus status = FrameStatus::kOk;
   // The PFNC code of the format the camera sent this frame in, as its driver read it from the
   // buffer: a wire format's (Mono10p: 0x010A0046) where the driver unpacked it into
-  // `pixel_format`, `pixel_format`'s own (PfncOf) where it arrived as stored; 0 where not known (a
-  // simulated or V4L2 camera, a recording made before flamerig kept it). Recorded with the frame.
+  // `pixel_format`, `pixel_format`'s own (PfncOf) where it arrived as stored (the simulated camera
+  // says so too); 0 where not known (a V4L2 camera, a recording made before flamerig kept it).
+  // Recorded with the frame.
   std::uint32_t sent_pfnc = 0;
 };
 

@@ -199,6 +199,10 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
                        " holds a deeper camera's 16-bit codes; its frames cannot be sent as " +
                        ToString(info.pixel_format) + " (use Mono16 or a Bayer 16 format)");
     }
+    // A camera sending a wire format (Mono12p, ...) puts a deeper camera's codes in the words'
+    // high bits, as its driver unpacks them; it cannot send codes deeper than the format.
+    const WireFormat* wire = WireFormatFromCode(info.sent_pfnc);
+    const int shift = wire && wire->stored == info.pixel_format && img.deep() ? 16 - wire->bits : 0;
     const std::size_t n = std::size_t(info.width) * info.height;
     bytes->resize(n * BytesPerPixel(info.pixel_format));
     // Channel c of pixel i at full scale: an 8-bit code, or in 16 bits the deeper camera's code as
@@ -211,7 +215,13 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
     };
     auto put = [&](std::size_t i, double v) {
       if (wide) {
-        const auto w = static_cast<std::uint16_t>(std::lround(v));
+        const long code = std::lround(v);
+        if (shift > 0 && code >> (16 - shift) != 0) {
+          throw InputError("replay of " + dataset_dir + " camera " + camera + ": " + img.path +
+                           " holds code " + std::to_string(code) + ", deeper than " + wire->name +
+                           " sends (" + std::to_string(wire->bits) + " bits)");
+        }
+        const auto w = static_cast<std::uint16_t>(code << shift);
         std::memcpy(bytes->data() + 2 * i, &w, 2);
       } else {
         (*bytes)[i] = static_cast<std::uint8_t>(std::lround(v));
@@ -279,8 +289,6 @@ void SimCamera::Configure(const CameraSettings& settings) {
   if (running_) throw InputError("sim camera '" + options_.id + "': configure it while stopped");
   try {
     settings.Validate();
-    if (!settings.wire_format.empty())
-      throw InputError("pixel_format " + settings.wire_format + " is for aravis cameras only");
   } catch (const InputError& e) {
     throw InputError("sim camera '" + options_.id + "': " + e.what());
   }
@@ -296,6 +304,9 @@ void SimCamera::Configure(const CameraSettings& settings) {
                      settings.trigger_source + " is not wired)");
   }
   settings_ = settings;
+  const WireFormat* wire = WireFormatFromName(settings_.wire_format);
+  wire_pfnc_ = wire ? wire->pfnc : 0;
+  wire_bits_ = wire ? wire->bits : 0;
   if (settings_.width == 0) settings_.width = 640;  // the simulated sensor
   if (settings_.height == 0) settings_.height = 480;
   live_exposure_us_ = settings_.exposure_us;
@@ -457,8 +468,20 @@ std::optional<Frame> SimCamera::Pop(std::int64_t timeout_ns) {
     f.info.host_monotonic_ns = clock_->MonotonicNs();
     f.info.host_realtime_ns = clock_->RealtimeNs();
     // A pooled buffer (frame_pool.h), filled as a driver copies out of its DMA buffer.
+    // What it sends: its stored format, or a wire format, whose words keep their high bits only
+    // (as the driver unpacks them: wire_bits_ set by Configure).
+    f.info.sent_pfnc = wire_pfnc_ ? wire_pfnc_ : PfncOf(f.info.pixel_format);
     auto bytes = pool_.Acquire(FrameBytes());
     source_(f.info, bytes.get());
+    if (wire_bits_ > 0) {
+      const std::uint16_t keep = static_cast<std::uint16_t>(0xffffu << (16 - wire_bits_));
+      for (std::size_t i = 0; i + 1 < bytes->size(); i += 2) {
+        std::uint16_t w;
+        std::memcpy(&w, bytes->data() + i, 2);
+        w &= keep;
+        std::memcpy(bytes->data() + i, &w, 2);
+      }
+    }
     f.data = std::move(bytes);
     counters_.missing_by_id = unwrapper_.missing();
     counters_.buffers_allocated = pool_.stats().allocated;

@@ -11,7 +11,10 @@
 // advances, no frame arrives), late frames (host receive delayed), incomplete frames, outages
 // (disconnected from one time to another, or for good; as many as wanted), a device frame counter
 // of a given width that wraps, and images from a pluggable source (a test pattern by default, or a
-// callback).
+// callback). It sends its configured pixel format, or a 10- to 14-bit wire format (Mono12p,
+// BayerRG12p, ...) as an Aravis camera's frames arrive from the driver: in the 16-bit format it
+// unpacks into, only the words' high bits set, each frame saying what it was sent in
+// (FrameInfo::sent_pfnc), so a 12-bit rig can be rehearsed end to end.
 #ifndef FLAMERIG_ACQUISITION_SIM_CAMERA_H_
 #define FLAMERIG_ACQUISITION_SIM_CAMERA_H_
 
@@ -61,7 +64,9 @@ ImageSource TestPatternSource();
 // values; RGB8 as is; Bayer: the matching colour of each site; 16-bit formats hold 8-bit values
 // x 257). A deeper camera's dataset (16-bit PNGs of its codes, `simulate`'s radiometry with
 // bit_depth > 8) replays its codes as they are, into Mono16 or a Bayer 16 format only (any
-// other is an InputError naming the file). Throws DataError naming
+// other is an InputError naming the file); for a frame sent in a wire format (FrameInfo::sent_pfnc
+// Mono12p, BayerRG12p, ...) in the words' high bits, as the driver unpacks them (a code deeper
+// than the format is an InputError naming the file). Throws DataError naming
 // the file when a frame is missing or unreadable; a frame asked for at another size than the
 // images gets an error naming both sizes.
 // With ReplayContent::kCalibration frame k shows the k-th board view instead
@@ -142,6 +147,9 @@ class SimCamera : public Camera {
            BytesPerPixel(settings_.pixel_format);
   }
   CameraSettings settings_;
+  // A wire format the settings name (Mono12p, ...): its PFNC code and depth; 0 for none.
+  std::uint32_t wire_pfnc_ = 0;
+  int wire_bits_ = 0;
   std::atomic<double> live_exposure_us_{0}, live_gain_db_{0};  // what the next exposure uses
   bool running_ = false;
   std::mt19937_64 rng_;

@@ -543,6 +543,71 @@ TEST(CaptureDaemon, SimCamerasReplayADataset) {
   }
 }
 
+// A 12-bit rig rehearsed with sim cameras: replaying a deeper camera's dataset (16-bit PNGs of
+// 12-bit codes) as BayerRG12p and Mono12p, the take holds each code in the words' high bits, says
+// so per frame and in its settings, and its full scale is the 12-bit one; a camera set to Mono10p
+// cannot send those codes and says so, naming the file, while the others record.
+TEST(CaptureDaemon, SimCamerasRehearseATwelveBitRig) {
+  TempDir dir;
+  const fs::path f = dir.path / "data" / "frames" / "frame_000000";
+  fs::create_directories(f);
+  ImageU16 codes(96, 64, 3);
+  for (int y = 0; y < 64; ++y)
+    for (int x = 0; x < 96; ++x)
+      for (int c = 0; c < 3; ++c)
+        codes.at(x, y, c) = static_cast<std::uint16_t>(25 * x + 3 * y + 600 * c);  // to 3764
+  for (const char* cam : {"cam0", "cam1", "cam2"})
+    WritePng16((f / (std::string(cam) + ".png")).string(), codes);
+  std::string yaml = Config(dir.path, "software-trigger", 50);
+  const char* formats[] = {"BayerRG12p", "Mono12p", "Mono10p"};
+  for (int c = 0; c < 3; ++c) {
+    const std::string key = "name: cam" + std::to_string(c) + "\n    driver: sim\n";
+    yaml.replace(yaml.find(key), key.size(),
+                 key + "    pixel_format: " + formats[c] + "\n    sim: {replay: data}\n");
+  }
+  std::ofstream(dir.path / "rig.yaml") << yaml;
+  const CaptureConfig config = CaptureConfig::Load((dir.path / "rig.yaml").string());
+  SystemClock clock;
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
+  daemon.Start();
+  const std::string rec = daemon.StartRecording("twelve");
+  Sleep(0.4);
+  daemon.StopRecording();
+  const CaptureStatus st = daemon.status();
+  daemon.Stop();
+  EXPECT_NE(st.cameras[2].error.find("cam2.png"), std::string::npos) << st.cameras[2].error;
+  EXPECT_NE(st.cameras[2].error.find("Mono10p"), std::string::npos) << st.cameras[2].error;
+  const Recording r = Recording::Open(rec);
+  ASSERT_GE(r.num_sets(), 3u);
+  EXPECT_EQ(r.metadata().cameras[0].settings.wire_format, "BayerRG12p");
+  EXPECT_EQ(r.metadata().cameras[1].settings.wire_format, "Mono12p");
+  const FrameSet s = r.ReadSet(1);
+  ASSERT_TRUE(s.frames[0].has_value());
+  ASSERT_TRUE(s.frames[1].has_value());
+  EXPECT_FALSE(s.frames[2].has_value());
+  const Frame& bayer = *s.frames[0];
+  const Frame& mono = *s.frames[1];
+  EXPECT_EQ(bayer.info.pixel_format, PixelFormat::kBayerRg16);
+  EXPECT_EQ(bayer.info.sent_pfnc, WireFormatFromName("BayerRG12p")->pfnc);
+  EXPECT_EQ(mono.info.pixel_format, PixelFormat::kMono16);
+  EXPECT_EQ(mono.info.sent_pfnc, WireFormatFromName("Mono12p")->pfnc);
+  EXPECT_EQ(FullScaleValue(bayer.info, r.metadata().cameras[0].settings.wire_format), 0xfff0);
+  auto word = [](const Frame& fr, int x, int y) {
+    std::uint16_t v;
+    std::memcpy(&v, fr.data->data() + 2 * (std::size_t(y) * 96 + x), 2);
+    return v;
+  };
+  // RGGB: R at (0, 0), G at (1, 0), B at (1, 1).
+  for (int x : {0, 2, 60}) EXPECT_EQ(word(bayer, x, 10), codes.at(x, 10, 0) << 4) << x;
+  EXPECT_EQ(word(bayer, 1, 10), codes.at(1, 10, 1) << 4);
+  EXPECT_EQ(word(bayer, 5, 11), codes.at(5, 11, 2) << 4);
+  for (int x : {0, 17, 95}) {
+    const double luma =
+        0.2126 * codes.at(x, 20, 0) + 0.7152 * codes.at(x, 20, 1) + 0.0722 * codes.at(x, 20, 2);
+    EXPECT_EQ(word(mono, x, 20), std::lround(luma) << 4) << x;
+  }
+}
+
 TEST(CaptureDaemon, RecordingNamesCannotLeaveTheDataDirectory) {
   TempDir dir;
   const CaptureConfig config = CaptureConfig::Parse(Config(dir.path / "data", "free-run", 30), "t");

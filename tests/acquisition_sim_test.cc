@@ -92,7 +92,7 @@ TEST(WireFormats, HandPackedBytesFromTheStandards) {
   }
   EXPECT_EQ(WireFormatFromName("Mono16"), nullptr);
   EXPECT_EQ(WireFormatFromCode(0x01080001u), nullptr);  // Mono8
-  // A config's pixel_format: a wire format is stored as Mono16; a sim camera refuses it.
+  // A config's pixel_format: a wire format is stored as Mono16.
   CameraSettings s;
   s.SetPixelFormat("Mono12p");
   EXPECT_EQ(s.pixel_format, PixelFormat::kMono16);
@@ -103,11 +103,6 @@ TEST(WireFormats, HandPackedBytesFromTheStandards) {
   } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("Mono12p"), std::string::npos) << e.what();
   }
-  ManualClock clock(0);
-  SimCameraOptions o;
-  o.id = "SIMW";
-  SimCamera cam(o, &clock, nullptr);
-  EXPECT_THROW(cam.Configure(s), InputError);
 }
 
 // Bayer mosaics of 10 and 12 bits: each of the five packings in the four layouts unpacks into
@@ -208,6 +203,23 @@ TEST(SimCamera, ReplaysADeeperCamerasCodesIntoSixteenBitFormats) {
       EXPECT_NE(std::string(e.what()).find("cam.png"), std::string::npos) << e.what();
     }
   }
+  // Sent as a wire format: the codes in its bits' place, as the driver unpacks them; a code the
+  // format cannot hold is refused, naming the file.
+  info.pixel_format = PixelFormat::kBayerGr16;
+  info.sent_pfnc = WireFormatFromName("BayerGR12p")->pfnc;
+  deep(info, &bytes);
+  EXPECT_EQ(word(bytes, 1), codes.at(1, 0, 0) << 4);
+  EXPECT_EQ(word(bytes, 6 * 3 + 5), codes.at(5, 3, 1) << 4);
+  info.pixel_format = PixelFormat::kMono16;
+  info.sent_pfnc = WireFormatFromName("Mono10p")->pfnc;  // codes up to 2305: not in 10 bits
+  try {
+    deep(info, &bytes);
+    ADD_FAILURE() << "2305 sent in 10 bits";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("cam.png"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("Mono10p"), std::string::npos) << e.what();
+  }
+  info.sent_pfnc = 0;
   const ImageSource narrow = DatasetReplaySource((dir / "sRGB").string(), "cam");
   info.pixel_format = PixelFormat::kBayerBg16;  // B G / G R
   narrow(info, &bytes);
@@ -313,6 +325,47 @@ CameraSettings Settings(double fps, TriggerMode mode = TriggerMode::kFreeRun) {
   s.exposure_us = 1000;
   s.trigger = mode;
   return s;
+}
+
+// A sim camera set to a wire format sends what an Aravis camera's driver delivers: the 16-bit
+// format it unpacks into with only the wire format's bits (the words' high bits), each frame
+// saying what it was sent in; the same camera set to Mono16 sends the same image in full.
+TEST(SimCamera, AWireFormatArrivesAsTheDriverUnpacksIt) {
+  for (const char* name : {"Mono12p", "Mono10Packed", "BayerGR12p"}) {
+    SCOPED_TRACE(name);
+    const WireFormat& wire = *WireFormatFromName(name);
+    ManualClock clock(0);
+    SimCameraOptions o;
+    o.id = "SIMW";
+    SimCamera sent(o, &clock, nullptr), full(o, &clock, nullptr);
+    CameraSettings s = Settings(100);
+    s.SetPixelFormat(name);
+    sent.Configure(s);
+    EXPECT_EQ(sent.settings().wire_format, name);
+    s.SetPixelFormat(ToString(wire.stored));
+    full.Configure(s);
+    sent.Start(4);
+    full.Start(4);
+    std::optional<Frame> a, b;
+    while (!a) a = sent.Pop(50'000'000);
+    while (!b) b = full.Pop(50'000'000);
+    ASSERT_EQ(a->info.frame_id, b->info.frame_id);
+    EXPECT_EQ(a->info.pixel_format, wire.stored);
+    EXPECT_EQ(a->info.sent_pfnc, wire.pfnc);
+    EXPECT_EQ(b->info.sent_pfnc, PfncOf(wire.stored));
+    EXPECT_EQ(WireBitsOf(a->info, ""), wire.bits);
+    ASSERT_EQ(a->bytes(), b->bytes());
+    const std::uint16_t keep = static_cast<std::uint16_t>(0xffffu << (16 - wire.bits));
+    int differ = 0;
+    for (std::size_t i = 0; i + 1 < a->bytes(); i += 2) {
+      std::uint16_t va, vb;
+      std::memcpy(&va, a->data->data() + i, 2);
+      std::memcpy(&vb, b->data->data() + i, 2);
+      ASSERT_EQ(va, vb & keep) << "word " << i / 2;
+      differ += va != vb;
+    }
+    EXPECT_GT(differ, 0);  // the pattern has low bits to lose
+  }
 }
 
 TEST(SimCamera, FreeRunsAtItsRateWithDriftJitterAndAWrappingCounter) {
