@@ -167,7 +167,8 @@ std::string Config(const fs::path& dir) {
   return "data_dir: " + dir.string() +
          "\nsync: software-trigger\ntrigger_rate_hz: 20\ncameras:\n"
          "  - {name: a, width: 64, height: 48}\n"
-         "  - {name: b, width: 64, height: 48, pixel_format: Mono16}\n";
+         "  - {name: b, width: 64, height: 48, pixel_format: Mono16}\n"
+         "  - {name: c, width: 160, height: 60, pixel_format: Mono12p}\n";
 }
 
 TEST(LiveView, TheApiAnswersFromTheDaemonAndATokenGuardsIt) {
@@ -200,6 +201,24 @@ TEST(LiveView, TheApiAnswersFromTheDaemonAndATokenGuardsIt) {
       cv::imdecode(std::vector<std::uint8_t>(png->body.begin(), png->body.end()), cv::IMREAD_COLOR);
   EXPECT_EQ(image.cols, 32);
   EXPECT_EQ(image.rows, 24);
+  // A camera sending Mono12p (its test pattern's words reach 0xFFF8 but keep 12 bits: 0xFFF0,
+  // on some pixel of every frame at this size) shows those pixels clipped in red, at its own
+  // full scale; the Mono16 camera's never reach 65535.
+  auto red_pixels = [&](const std::string& camera) {
+    auto r = client.Get("/api/preview?camera=" + camera + "&k=1&token=s3cret");
+    EXPECT_EQ(r->status, 200) << r->body;
+    const cv::Mat bgr =
+        cv::imdecode(std::vector<std::uint8_t>(r->body.begin(), r->body.end()), cv::IMREAD_COLOR);
+    int red = 0;
+    for (int y = 0; y < bgr.rows; ++y)
+      for (int x = 0; x < bgr.cols; ++x) {
+        const cv::Vec3b p = bgr.at<cv::Vec3b>(y, x);
+        red += p[2] > 200 && p[1] < 60 && p[0] < 60;
+      }
+    return red;
+  };
+  EXPECT_GT(red_pixels("c"), 0);
+  EXPECT_EQ(red_pixels("b"), 0);
   auto hist = client.Get("/api/histogram?camera=0&token=s3cret");
   ASSERT_EQ(hist->status, 200);
   const nlohmann::json h = nlohmann::json::parse(hist->body);
