@@ -487,13 +487,15 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
     f.info.height = arv_buffer_get_image_height(buffer);
     const std::uint32_t sent = arv_buffer_get_image_pixel_format(buffer);
     PixelFormat p;
-    if (const WireFormat* w = WireFormatFromCode(sent))
+    if (const WireFormat* w = WireFormatFromCode(sent)) {
       wire = w;
-    else if (PixelFormatFromPfnc(sent, &p))
+      f.info.sent_pfnc = sent;
+    } else if (PixelFormatFromPfnc(sent, &p)) {
       f.info.pixel_format = p;
-    else
+      f.info.sent_pfnc = sent;
+    } else {
       f.info.status = FrameStatus::kError;
-    if (f.info.status != FrameStatus::kError) f.info.sent_pfnc = sent;
+    }
   }
   // The bytes of the image (the in-process fakes report a size of 0 though the bytes are there).
   // A wire format is unpacked into Mono16 or Bayer 16 here, before the frame is queued.

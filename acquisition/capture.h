@@ -54,7 +54,8 @@
 //       width: 640
 //       height: 480
 //       pixel_format: Mono8           # Mono8, Mono16, RGB8, BayerRG8/GR8/GB8/BG8,
-//                                     # BayerRG16/GR16/GB16/BG16; aravis also Mono10, Mono12,
+//                                     # BayerRG16/GR16/GB16/BG16; aravis (and sim, which
+//                                     # rehearses them) also Mono10, Mono12,
 //                                     # Mono14, Mono10Packed, Mono12Packed, Mono10p, Mono12p,
 //                                     # stored as Mono16, and BayerRG10, BayerRG12,
 //                                     # BayerRG10Packed, BayerRG12Packed, BayerRG10p, BayerRG12p

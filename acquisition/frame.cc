@@ -212,9 +212,11 @@ int FullScaleValue(PixelFormat format, const std::string& wire_format) {
 
 const WireFormat* WireFormatOfFrame(const FrameInfo& info,
                                     const std::string& settings_wire_format) {
-  if (info.sent_pfnc == 0) return WireFormatOfFrame(info.pixel_format, settings_wire_format);
   const WireFormat* sent = WireFormatFromCode(info.sent_pfnc);
-  return sent && sent->stored == info.pixel_format ? sent : nullptr;
+  if (sent) return sent->stored == info.pixel_format ? sent : nullptr;
+  PixelFormat as_stored;
+  if (PixelFormatFromPfnc(info.sent_pfnc, &as_stored)) return nullptr;  // it came as it is
+  return WireFormatOfFrame(info.pixel_format, settings_wire_format);  // not said, or not known
 }
 
 int WireBitsOf(const FrameInfo& info, const std::string& settings_wire_format) {

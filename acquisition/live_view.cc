@@ -239,7 +239,7 @@ LiveViewOptions LiveViewOptions::Parse(const std::string& listen, const std::str
 }
 
 cv::Mat PreviewImage(const Frame& f, int k, int full_scale, bool mark_clipped) {
-  if (full_scale <= 0) full_scale = FullScaleValue(f.info.pixel_format);
+  if (full_scale <= 0) full_scale = FullScaleValue(f.info, "");
   ImageU8 u8;
   ImageU16 u16;
   cv::Mat m;
@@ -269,7 +269,7 @@ cv::Mat PreviewImage(const Frame& f, int k, int full_scale, bool mark_clipped) {
 FrameHistogram HistogramOf(const Frame& f, int step, int full_scale) {
   FrameHistogram h;
   step = std::max(1, step);
-  if (full_scale <= 0) full_scale = FullScaleValue(f.info.pixel_format);
+  if (full_scale <= 0) full_scale = FullScaleValue(f.info, "");
   const int channels = f.info.pixel_format == PixelFormat::kRgb8 ? 3 : 1;
   const bool wide = BytesPerPixel(f.info.pixel_format) == 2;  // Mono16, Bayer 16
   const std::uint8_t* p = f.data ? f.data->data() : nullptr;

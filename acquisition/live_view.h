@@ -55,8 +55,9 @@ struct LiveViewOptions {
 
 // A frame's histogram: 256 bins over the format's range (the top 8 bits of 16-bit pixels; every
 // channel of colour formats), on every `step`-th pixel of every `step`-th row, and the pixels at
-// or above `full_scale` (clipped: the flame's detail there is lost). `full_scale` 0: the format's
-// maximum; a camera that sends a 10- to 14-bit wire format clips below it (FullScaleValue).
+// or above `full_scale` (clipped: the flame's detail there is lost). `full_scale` 0: the frame's
+// own (FullScaleValue of its info: the format's maximum, or below it for a frame that says it was
+// sent in a 10- to 14-bit wire format; the live view passes its camera's, settings included).
 struct FrameHistogram {
   std::vector<std::uint64_t> bins = std::vector<std::uint64_t>(256, 0);
   std::uint64_t sampled = 0, clipped = 0;
@@ -66,7 +67,8 @@ FrameHistogram HistogramOf(const Frame& frame, int step = 2, int full_scale = 0)
 
 // A frame as a person looks at it (the live view's and `flamerig ctl preview`'s picture): its
 // decoded image (DecodeFrame: Bayer demosaiced), 8-bit BGR or grey as OpenCV writes it, 16-bit
-// pixels scaled so that `full_scale` (0: 65535) shows as 255, and 1/k of its size (k >= 1; area
+// pixels scaled so that `full_scale` (0: the frame's own, as above) shows as 255, and 1/k of its
+// size (k >= 1; area
 // averaged). Pixels at or above `full_scale` in the frame's own bytes are drawn red when
 // `mark_clipped`.
 cv::Mat PreviewImage(const Frame& frame, int k, int full_scale = 0, bool mark_clipped = false);

@@ -73,10 +73,10 @@ void CameraSettings::SetPixelFormat(const std::string& name) {
     wire_format.clear();
   } catch (const InputError& e) {
     throw InputError(std::string(e.what()) +
-                     "; or, from an aravis camera, Mono10, Mono12, Mono14, Mono10Packed, "
-                     "Mono12Packed, Mono10p or Mono12p (unpacked into Mono16), or BayerRG10, "
-                     "BayerRG12, BayerRG10Packed, BayerRG12Packed, BayerRG10p or BayerRG12p and "
-                     "their GR, GB and BG layouts (unpacked into BayerRG16, ...)");
+                     "; or, from an aravis camera (or a sim one), Mono10, Mono12, Mono14, "
+                     "Mono10Packed, Mono12Packed, Mono10p or Mono12p (unpacked into Mono16), or "
+                     "BayerRG10, BayerRG12, BayerRG10Packed, BayerRG12Packed, BayerRG10p or "
+                     "BayerRG12p and their GR, GB and BG layouts (unpacked into BayerRG16, ...)");
   }
 }
 

@@ -56,7 +56,8 @@ class SimTriggerBus : public TriggerLine {
 // pooled buffer that may hold an earlier frame, frame_pool.h).
 using ImageSource = std::function<void(const FrameInfo& info, std::vector<std::uint8_t>* bytes)>;
 // A moving gradient with the camera index and frame id encoded in the first bytes (so a test can
-// tell frames apart and check them bit-exact after recording).
+// tell frames apart and check them bit-exact after recording; a camera sending a wire format
+// keeps only each word's high bits of it, WireBitsOf).
 ImageSource TestPatternSource();
 // Replays a `flamerig simulate` dataset: frame k of the camera shows
 // dataset_dir/frames/frame_NNNNNN/<camera>.png with N = k mod the number of frames (loaded once,

@@ -72,7 +72,15 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   summary.event_set = first_live;
   // Each camera's pixel format: its settings', then that of the frames written.
   std::vector<PixelFormat> formats;
-  std::vector<FrameInfo> last(meta.cameras.size());  // each camera's last frame read
+  std::vector<FrameInfo> last(meta.cameras.size());         // each camera's last good frame read
+  std::vector<bool> have_good(meta.cameras.size(), false);  // a frame of status kOk read
+  std::vector<int> changed(meta.cameras.size(), 0);
+  // What pixel_formats.yaml calls camera c's frames like `info`: the wire format they were sent
+  // in (WireFormatOfFrame: as the frame says, else as the settings say), else their own format.
+  auto FormatName = [&](const FrameInfo& info, int c) -> std::string {
+    const WireFormat* wire = WireFormatOfFrame(info, meta.cameras[c].settings.wire_format);
+    return wire ? wire->name : ToString(info.pixel_format);
+  };
   for (std::size_t c = 0; c < meta.cameras.size(); ++c) {
     formats.push_back(meta.cameras[c].settings.pixel_format);
     last[c].pixel_format = formats[c];
@@ -95,8 +103,19 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
       std::string frame_id;
       try {
         const Frame f = *rec.ReadFrame(i, c);
-        formats[c] = f.info.pixel_format;  // the frames', which a driver may set per buffer
-        last[c] = f.info;
+        // The frames' format, which a driver may set per buffer: the last good frame's names the
+        // camera's in pixel_formats.yaml, and a change within the take is a note.
+        if (f.info.status == FrameStatus::kOk || !have_good[c]) {
+          const std::string was = have_good[c] ? FormatName(last[c], c) : "";
+          formats[c] = f.info.pixel_format;
+          last[c] = f.info;
+          if (have_good[c] && FormatName(last[c], c) != was && changed[c]++ == 0)
+            summary.notes.push_back("camera " + camera +
+                                    ": its frames change format within the take (" + was + " to " +
+                                    FormatName(last[c], c) + " at set " + std::to_string(i) +
+                                    "); pixel_formats.yaml names its last good frame's");
+          have_good[c] = have_good[c] || f.info.status == FrameStatus::kOk;
+        }
         frame_id = std::to_string(f.info.frame_id);
         WriteFramePng(f, dir / (camera + ".png"));
         csv << "," << frame_id << "," << ToString(f.info.status);
@@ -125,9 +144,7 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   std::vector<std::string> names, wire_formats;
   for (std::size_t c = 0; c < meta.cameras.size(); ++c) {
     names.push_back(meta.cameras[c].name);
-    // The wire format the frames arrived in (WireFormatOfFrame: as the frame recorded it, else as
-    // the settings say, in the frames' own Bayer layout; a driver may set a buffer's format
-    // itself, and then the frames' own format is named).
+    // The wire format the last good frame arrived in (FormatName above).
     const WireFormat* wire = WireFormatOfFrame(last[c], meta.cameras[c].settings.wire_format);
     wire_formats.push_back(wire ? wire->name : "");
   }

@@ -25,6 +25,9 @@ struct ExportSummary {
   // format that cannot be decoded), each "set N, camera C: what", in order. They are left out and
   // the export goes on.
   std::vector<std::string> failed;
+  // Warnings that lose no image: a camera whose frames changed format (or wire format) within the
+  // take, "camera C: ...", when pixel_formats.yaml can name only its last good frame's.
+  std::vector<std::string> notes;
   bool cancelled = false;       // the progress callback asked to stop (the sets before are whole)
   std::int64_t event_set = -1;  // an event recording: the first set after its trigger (else -1)
 };

@@ -93,6 +93,8 @@ TEST(LiveView, AWireFormatsFullScaleIsWhatItsBrightestPixelUnpacksTo) {
   EXPECT_EQ(FullScaleValue(info, "Mono12p"), 0xffc0);
   EXPECT_EQ(WireBitsOf(info, ""), 10);
   EXPECT_STREQ(WireFormatOfFrame(info, "Mono12p")->name, "Mono10p");
+  info.sent_pfnc = 0x7fff0001u;  // a code this flamerig does not know: as the settings say
+  EXPECT_EQ(FullScaleValue(info, "Mono12p"), 0xfff0);
   info.sent_pfnc = PfncOf(PixelFormat::kMono16);  // a camera switched to Mono16 meanwhile
   EXPECT_EQ(FullScaleValue(info, "Mono12p"), 0xffff);
   EXPECT_EQ(WireFormatOfFrame(info, "Mono12p"), nullptr);

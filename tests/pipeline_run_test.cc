@@ -1624,11 +1624,39 @@ TEST(RunFrames, ASixteenBitBayerRecordingIsFittedThroughItsMosaic) {
       EXPECT_EQ(from12.radiometry[k].black_level, 64 * 16) << k;
       EXPECT_EQ(from12.signal[k].pixels, from_packed.signal[k].pixels) << k;
     }
-    ExportRecording(said16_spec.recording_dir, (dir / "exported_said16").string(), ExportOptions{});
+    const ExportSummary said16_export = ExportRecording(
+        said16_spec.recording_dir, (dir / "exported_said16").string(), ExportOptions{});
+    EXPECT_TRUE(said16_export.notes.empty());
     std::ifstream yaml(dir / "exported_said16" / kExportedFormatsFile);
     const std::string text((std::istreambuf_iterator<char>(yaml)), {});
     EXPECT_NE(text.find("BayerRG16"), std::string::npos) << text;
     EXPECT_EQ(text.find("BayerRG12p"), std::string::npos) << text;
+    // A take whose frames change what they were sent in: the export names the last good frame's
+    // and says so, once per camera; an incomplete frame after it does not count.
+    {
+      Recorder recorder((dir / "rec_changed").string(), packed_meta);
+      for (int k = 0; k < 3; ++k) {
+        FrameSet set;
+        set.index = k;
+        set.trigger_id = k;
+        for (int c = 0; c < 3; ++c) {
+          Frame f = k == 1 ? said16[c] : said12[c];
+          if (k == 2) f.info.status = FrameStatus::kIncomplete;
+          set.frames.push_back(f);
+        }
+        ASSERT_TRUE(recorder.Submit(set));
+      }
+      recorder.Close();
+    }
+    const ExportSummary changed = ExportRecording(
+        (dir / "rec_changed").string(), (dir / "exported_changed").string(), ExportOptions{});
+    ASSERT_EQ(changed.notes.size(), 3u);
+    EXPECT_NE(changed.notes[0].find("BayerRG12p to BayerRG16 at set 1"), std::string::npos)
+        << changed.notes[0];
+    std::ifstream changed_yaml(dir / "exported_changed" / kExportedFormatsFile);
+    const std::string changed_text((std::istreambuf_iterator<char>(changed_yaml)), {});
+    EXPECT_NE(changed_text.find("BayerRG16"), std::string::npos) << changed_text;
+    EXPECT_EQ(changed_text.find("BayerRG12p"), std::string::npos) << changed_text;
   }
   // Exported, the take's frames are 16-bit RGB PNGs of the demosaiced codes, read back as the
   // recording's 16-bit mosaic.

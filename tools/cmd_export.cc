@@ -48,6 +48,7 @@ Runner AddExport(CLI::App* command) {
       s = ExportRecording(o->recording, o->out, options, context.Progress());
     }
     for (const auto& f : s.failed) Log().error("export: skipped {}", f);
+    for (const auto& n : s.notes) Log().warn("export: {}", n);
     if (s.event_set >= 0)
       Log().info("export: the event's trigger falls before set {}", s.event_set);
     Log().info("export: {} frame sets, {} images, {} camera frames missing, {} damaged", s.sets,

@@ -1,6 +1,7 @@
 // A recording directory (acquisition/recording.h), as the four files of a one-camera recording
 // joined by kSeparator in the order of kFiles: opening and reading every set either works or throws
-// RecordingError naming the file; torn tails are recovered, never trusted.
+// RecordingError naming the file; torn tails are recovered, never trusted; what a frame says it was
+// sent in is read without fault, whatever it says.
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
@@ -28,7 +29,13 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   }
   try {
     const flamerig::Recording rec = flamerig::Recording::Open(dir.string());
-    for (std::size_t i = 0; i < std::min<std::size_t>(rec.num_sets(), 16); ++i) rec.ReadSet(i);
+    for (std::size_t i = 0; i < std::min<std::size_t>(rec.num_sets(), 16); ++i) {
+      const flamerig::FrameSet set = rec.ReadSet(i);
+      for (std::size_t c = 0; c < set.frames.size() && c < rec.metadata().cameras.size(); ++c)
+        if (set.frames[c])  // what a frame says it was sent in, whatever the bytes say
+          flamerig::FullScaleValue(set.frames[c]->info,
+                                   rec.metadata().cameras[c].settings.wire_format);
+    }
     rec.MissingByFrameId();
   } catch (const flamerig::Error&) {  // every error of the hierarchy (core/error.h)
   } catch (const std::invalid_argument&) {
