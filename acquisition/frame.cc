@@ -216,7 +216,7 @@ const WireFormat* WireFormatOfFrame(const FrameInfo& info,
   if (sent) return sent->stored == info.pixel_format ? sent : nullptr;
   PixelFormat as_stored;
   if (PixelFormatFromPfnc(info.sent_pfnc, &as_stored)) return nullptr;  // it came as it is
-  return WireFormatOfFrame(info.pixel_format, settings_wire_format);  // not said, or not known
+  return WireFormatOfFrame(info.pixel_format, settings_wire_format);    // not said, or not known
 }
 
 int WireBitsOf(const FrameInfo& info, const std::string& settings_wire_format) {

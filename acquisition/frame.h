@@ -84,9 +84,9 @@ const WireFormat* WireFormatFromName(const std::string& name);
 // kind (8-bit, or mono under a Bayer wire format, or the reverse: a driver that delivered another
 // format than the settings name). The rule for a frame that does not say what it was sent in
 // (FrameInfo::sent_pfnc 0: a recording made before it was kept, a V4L2 camera) or says it in a
-// code this flamerig does not know; the overloads on FrameInfo below are the one rule for reading a frame's values in the words'
-// high bits: the live view's clipping, `export`'s pixel_formats.yaml and the pipeline's frame
-// source.
+// code this flamerig does not know; the overloads on FrameInfo below are the one rule for reading
+// a frame's values in the words' high bits: the live view's clipping, `export`'s
+// pixel_formats.yaml and the pipeline's frame source.
 const WireFormat* WireFormatOfFrame(PixelFormat format, const std::string& wire_format);
 // That wire format's significant bits; 0 where there is none (the frame is at its own scale).
 int WireBitsOf(PixelFormat format, const std::string& wire_format);
@@ -134,9 +134,8 @@ struct FrameInfo {
 // The wire format the frame `info` describes arrived in: the one its driver read from the buffer
 // where it said (sent_pfnc; nullptr where that is a stored format's own code, or a wire format
 // that is not unpacked into `info.pixel_format`), else (0, or a code that is neither) as its
-// camera's settings say
-// (`settings_wire_format`, WireFormatOfFrame above). So a camera that sent Mono10p under Mono12p
-// settings is read at 10 bits, and a buffer that came as Mono16 at 16.
+// camera's settings say (`settings_wire_format`, WireFormatOfFrame above). So a camera that sent
+// Mono10p under Mono12p settings is read at 10 bits, and a buffer that came as Mono16 at 16.
 const WireFormat* WireFormatOfFrame(const FrameInfo& info, const std::string& settings_wire_format);
 int WireBitsOf(const FrameInfo& info, const std::string& settings_wire_format);
 int FullScaleValue(const FrameInfo& info, const std::string& settings_wire_format);

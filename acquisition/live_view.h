@@ -68,9 +68,8 @@ FrameHistogram HistogramOf(const Frame& frame, int step = 2, int full_scale = 0)
 // A frame as a person looks at it (the live view's and `flamerig ctl preview`'s picture): its
 // decoded image (DecodeFrame: Bayer demosaiced), 8-bit BGR or grey as OpenCV writes it, 16-bit
 // pixels scaled so that `full_scale` (0: the frame's own, as above) shows as 255, and 1/k of its
-// size (k >= 1; area
-// averaged). Pixels at or above `full_scale` in the frame's own bytes are drawn red when
-// `mark_clipped`.
+// size (k >= 1; area averaged). Pixels at or above `full_scale` in the frame's own bytes are drawn
+// red when `mark_clipped`.
 cv::Mat PreviewImage(const Frame& frame, int k, int full_scale = 0, bool mark_clipped = false);
 
 class LiveViewServer {
