@@ -70,21 +70,19 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
     if (static_cast<std::int64_t>(rec.SetHeader(i).index) > meta.event_last_ring_set)
       first_live = static_cast<std::int64_t>(i);
   summary.event_set = first_live;
-  // Each camera's pixel format: its settings', then that of the frames written.
-  std::vector<PixelFormat> formats;
-  std::vector<FrameInfo> last(meta.cameras.size());         // each camera's last good frame read
+  // Each camera's frames as pixel_formats.yaml names them: its settings' format, then its last
+  // good frame's (a driver may set a buffer's format itself).
+  std::vector<FrameInfo> last(meta.cameras.size());
   std::vector<bool> have_good(meta.cameras.size(), false);  // a frame of status kOk read
-  std::vector<int> changed(meta.cameras.size(), 0);
+  std::vector<bool> changed(meta.cameras.size(), false);    // and said so in a note
   // What pixel_formats.yaml calls camera c's frames like `info`: the wire format they were sent
   // in (WireFormatOfFrame: as the frame says, else as the settings say), else their own format.
   auto FormatName = [&](const FrameInfo& info, int c) -> std::string {
     const WireFormat* wire = WireFormatOfFrame(info, meta.cameras[c].settings.wire_format);
     return wire ? wire->name : ToString(info.pixel_format);
   };
-  for (std::size_t c = 0; c < meta.cameras.size(); ++c) {
-    formats.push_back(meta.cameras[c].settings.pixel_format);
-    last[c].pixel_format = formats[c];
-  }
+  for (std::size_t c = 0; c < meta.cameras.size(); ++c)
+    last[c].pixel_format = meta.cameras[c].settings.pixel_format;
   const std::size_t first = std::min(options.first, rec.num_sets());
   const std::size_t end = first + std::min(options.count, rec.num_sets() - first);
   for (std::size_t i = first; i < end; ++i) {
@@ -103,17 +101,19 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
       std::string frame_id;
       try {
         const Frame f = *rec.ReadFrame(i, c);
-        // The frames' format, which a driver may set per buffer: the last good frame's names the
-        // camera's in pixel_formats.yaml, and a change within the take is a note.
+        // A change of format between good frames is a note, once per camera.
         if (f.info.status == FrameStatus::kOk || !have_good[c]) {
-          const std::string was = have_good[c] ? FormatName(last[c], c) : "";
-          formats[c] = f.info.pixel_format;
+          if (have_good[c] && !changed[c]) {
+            const std::string was = FormatName(last[c], c), now = FormatName(f.info, c);
+            if (now != was) {
+              changed[c] = true;
+              summary.notes.push_back("camera " + camera +
+                                      ": its frames change format within the take (" + was +
+                                      " to " + now + " at set " + std::to_string(i) +
+                                      "); pixel_formats.yaml names its last good frame's");
+            }
+          }
           last[c] = f.info;
-          if (have_good[c] && FormatName(last[c], c) != was && changed[c]++ == 0)
-            summary.notes.push_back("camera " + camera +
-                                    ": its frames change format within the take (" + was + " to " +
-                                    FormatName(last[c], c) + " at set " + std::to_string(i) +
-                                    "); pixel_formats.yaml names its last good frame's");
           have_good[c] = have_good[c] || f.info.status == FrameStatus::kOk;
         }
         frame_id = std::to_string(f.info.frame_id);
@@ -142,8 +142,10 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   }
   WriteFileAtomically((fs::path(out_dir) / "sets.csv").string(), csv.str());
   std::vector<std::string> names, wire_formats;
+  std::vector<PixelFormat> formats;
   for (std::size_t c = 0; c < meta.cameras.size(); ++c) {
     names.push_back(meta.cameras[c].name);
+    formats.push_back(last[c].pixel_format);
     // The wire format the last good frame arrived in (FormatName above).
     const WireFormat* wire = WireFormatOfFrame(last[c], meta.cameras[c].settings.wire_format);
     wire_formats.push_back(wire ? wire->name : "");

@@ -56,9 +56,8 @@ struct SourceFrameSet {
   // that arrived in a 10- to 14-bit wire format (values in the words' high bits: a recording's
   // frame that says it was sent in one, or does not say and is what its camera's wire format
   // unpacks into, acquisition/frame.h's WireFormatOfFrame; or an export whose pixel_formats.yaml
-  // names the wire format), the rig's
-  // for such words (CameraRadiometry::ForHighBitWords); the rig's for a camera left out. The
-  // fit's mosaic model takes the same
+  // names the wire format), the rig's for such words (CameraRadiometry::ForHighBitWords); the
+  // rig's for a camera left out. The fit's mosaic model takes the same
   std::vector<CameraRadiometry> radiometry;
   std::vector<std::string> notes;  // cameras left out and why
   // The device frame id of the set's first present frame (recordings), the file's frame number
@@ -104,9 +103,8 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
 // pixel format each camera recorded, `cameras: {NAME: FORMAT, ...}` with GenICam's names (Mono8,
 // BayerRG8, ...; the wire format the frames arrived in for a camera that sent one, BayerRG12p
 // say, frame.h's WireFormatOfFrame: its 16-bit PNGs hold the values in the high bits, as
-// flamerig stored them). A Bayer camera's PNGs hold
-// its demosaicing (DecodeFrame), and whoever reads them back as a folder of frame sets fits them
-// through that mosaic (fitting/mosaic.h). `wire_formats`: per camera, "" or the name of the wire
+// flamerig stored them). A Bayer camera's PNGs hold its demosaicing (DecodeFrame), and whoever
+// reads them back as a folder of frame sets fits them through that mosaic (fitting/mosaic.h). `wire_formats`: per camera, "" or the name of the wire
 // format its frames arrived in; may be empty.
 inline constexpr const char* kExportedFormatsFile = "pixel_formats.yaml";
 void WriteExportedFormats(const std::string& dir, const std::vector<std::string>& cameras,

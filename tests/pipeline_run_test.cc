@@ -1466,18 +1466,7 @@ void RecordTake(const RecordingMetadata& meta, const std::vector<Frame>& frames,
 // the simulated noise, 0.5 DN at 8 bits scaled to 12, is 1.8 L* near black in a linear camera.)
 TEST(RunFrames, ASixteenBitBayerRecordingIsFittedThroughItsMosaic) {
   const fs::path dir = TempDir("bayer16_recording");
-  SimulateConfig c;
-  c.frames = 1;
-  c.grid_resolution = 24;
-  c.ring.cameras = 3;
-  c.ring.width = 120;
-  c.ring.height = 90;
-  c.ring.fill = 0.8;
-  c.calibration = false;
-  c.radiometry.transfer = TransferFunction::kLinear;
-  c.radiometry.bit_depth = 12;
-  c.radiometry.black_level = 64;
-  Simulate(c, (dir / "sim").string());
+  SimulateRawTwelveBit(dir / "sim");
   const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
   ASSERT_EQ(rig.cameras[0].radiometry.bit_depth, 12);
   const fs::path rec_dir = dir / "rec";

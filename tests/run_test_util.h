@@ -12,9 +12,9 @@
 #include <vector>
 
 #include "core/image.h"
-#include "tomography/vdb_io.h"
 #include "pipeline/run.h"
 #include "pipeline/simulate.h"
+#include "tomography/vdb_io.h"
 
 namespace flamerig {
 namespace testing_run {
@@ -30,8 +30,9 @@ inline fs::path TempDir(const std::string& tag) {
   return dir;
 }
 
-// A small candle filmed by three cameras 120 degrees apart: 24^3 voxels, 120x90 images.
-inline fs::path SimulateDataset(const fs::path& dir, int frames, int cameras = 3) {
+// A small candle filmed by `cameras` cameras on a ring (three: 120 degrees apart): 24^3 voxels,
+// 120x90 images, no board views.
+inline SimulateConfig SmallCandle(int frames, int cameras = 3) {
   SimulateConfig c;
   c.frames = frames;
   c.grid_resolution = 24;
@@ -40,6 +41,21 @@ inline fs::path SimulateDataset(const fs::path& dir, int frames, int cameras = 3
   c.ring.height = 90;
   c.ring.fill = 0.8;
   c.calibration = false;
+  return c;
+}
+
+inline fs::path SimulateDataset(const fs::path& dir, int frames, int cameras = 3) {
+  Simulate(SmallCandle(frames, cameras), dir.string());
+  return dir;
+}
+
+// One frame of the small candle from raw 12-bit colour cameras (linear, black level 64): its
+// frames are 16-bit PNGs of their codes, and its rig says so.
+inline fs::path SimulateRawTwelveBit(const fs::path& dir, int cameras = 3) {
+  SimulateConfig c = SmallCandle(1, cameras);
+  c.radiometry.transfer = TransferFunction::kLinear;
+  c.radiometry.bit_depth = 12;
+  c.radiometry.black_level = 64;
   Simulate(c, dir.string());
   return dir;
 }
@@ -87,7 +103,8 @@ inline void WriteStreamPix(const fs::path& path, const std::vector<ImageU8>& fra
   for (std::size_t f = 0; f < frames.size(); ++f) {
     std::vector<char> bytes(true_size, 0);
     for (std::uint32_t p = 0; p < w * h; ++p)
-      for (int c = 0; c < 3; ++c) bytes[3 * p + c] = static_cast<char>(frames[f].pixels[3 * p + 2 - c]);
+      for (int c = 0; c < 3; ++c)
+        bytes[3 * p + c] = static_cast<char>(frames[f].pixels[3 * p + 2 - c]);
     put(&bytes, image, std::int32_t(1'700'000'000));
     put(&bytes, image + 4, static_cast<std::uint16_t>(33 * f));
     out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));

@@ -229,17 +229,7 @@ TEST(RunCli, CalibratesFirstFromBoardViews) {
 // rig's 12-bit entry as it stands fails the frame (its words are above 12 bits).
 TEST(RunCli, ATwelveBitRigIsRehearsedWithSimCameras) {
   const fs::path dir = TempDir("twelve_bit_rig");
-  SimulateConfig c;
-  c.frames = 1;
-  c.grid_resolution = 24;
-  c.ring.width = 120;
-  c.ring.height = 90;
-  c.ring.fill = 0.8;
-  c.calibration = false;
-  c.radiometry.transfer = TransferFunction::kLinear;
-  c.radiometry.bit_depth = 12;
-  c.radiometry.black_level = 64;
-  Simulate(c, (dir / "sim").string());
+  SimulateRawTwelveBit(dir / "sim", 2);
   const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
   std::map<std::string, FrameSummary> fitted;
   for (const std::string format : {"BayerRG12p", "BayerRG16"}) {
