@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <bit>
 #include <cstring>
+#include <iterator>
 #include <limits>
 #include <stdexcept>
 
@@ -16,74 +17,68 @@ namespace flamerig {
 // read in place: this host must be little-endian too.
 static_assert(std::endian::native == std::endian::little, "flamerig reads 16-bit frames in place");
 
+namespace {
+// Each stored format's GenICam name, PFNC code (tests check them against Aravis' constants), bytes
+// per pixel and Bayer cell, in PixelFormat's order.
+struct StoredFormat {
+  PixelFormat format;
+  const char* name;
+  std::uint32_t pfnc;
+  int bytes;
+  const char* cell;  // "" for a format that is not a mosaic
+};
+constexpr StoredFormat kStoredFormats[] = {
+    {PixelFormat::kMono8, "Mono8", 0x01080001u, 1, ""},
+    {PixelFormat::kMono16, "Mono16", 0x01100007u, 2, ""},
+    {PixelFormat::kRgb8, "RGB8", 0x02180014u, 3, ""},
+    {PixelFormat::kBayerRg8, "BayerRG8", 0x01080009u, 1, "RGGB"},
+    {PixelFormat::kBayerGr8, "BayerGR8", 0x01080008u, 1, "GRBG"},
+    {PixelFormat::kBayerGb8, "BayerGB8", 0x0108000Au, 1, "GBRG"},
+    {PixelFormat::kBayerBg8, "BayerBG8", 0x0108000Bu, 1, "BGGR"},
+    {PixelFormat::kBayerRg16, "BayerRG16", 0x0110002Fu, 2, "RGGB"},
+    {PixelFormat::kBayerGr16, "BayerGR16", 0x0110002Eu, 2, "GRBG"},
+    {PixelFormat::kBayerGb16, "BayerGB16", 0x01100030u, 2, "GBRG"},
+    {PixelFormat::kBayerBg16, "BayerBG16", 0x01100031u, 2, "BGGR"},
+};
+static_assert(std::size(kStoredFormats) == std::size(kAllPixelFormats));
+constexpr bool InEnumOrder() {
+  for (std::size_t i = 0; i < std::size(kStoredFormats); ++i)
+    if (static_cast<std::size_t>(kStoredFormats[i].format) != i) return false;
+  return true;
+}
+static_assert(InEnumOrder(), "kStoredFormats is indexed by PixelFormat");
+
+// The row of `format`, or null for a value outside the enum (a corrupt recording's).
+const StoredFormat* Find(PixelFormat format) {
+  const auto i = static_cast<std::size_t>(format);
+  return i < std::size(kStoredFormats) ? &kStoredFormats[i] : nullptr;
+}
+}  // namespace
+
 const char* ToString(PixelFormat format) {
-  switch (format) {
-    case PixelFormat::kMono8:
-      return "Mono8";
-    case PixelFormat::kMono16:
-      return "Mono16";
-    case PixelFormat::kRgb8:
-      return "RGB8";
-    case PixelFormat::kBayerRg8:
-      return "BayerRG8";
-    case PixelFormat::kBayerGr8:
-      return "BayerGR8";
-    case PixelFormat::kBayerGb8:
-      return "BayerGB8";
-    case PixelFormat::kBayerBg8:
-      return "BayerBG8";
-    case PixelFormat::kBayerRg16:
-      return "BayerRG16";
-    case PixelFormat::kBayerGr16:
-      return "BayerGR16";
-    case PixelFormat::kBayerGb16:
-      return "BayerGB16";
-    case PixelFormat::kBayerBg16:
-      return "BayerBG16";
-  }
-  return "?";
+  const StoredFormat* f = Find(format);
+  return f ? f->name : "?";
 }
 
 PixelFormat PixelFormatFromName(const std::string& name) {
-  for (PixelFormat f : kAllPixelFormats)
-    if (name == ToString(f)) return f;
-  throw InputError("pixel format '" + name +
-                   "': use Mono8, Mono16, RGB8, BayerRG8, BayerGR8, BayerGB8, BayerBG8, "
-                   "BayerRG16, BayerGR16, BayerGB16 or BayerBG16");
+  for (const StoredFormat& f : kStoredFormats)
+    if (name == f.name) return f.format;
+  std::string known;  // "Mono8, Mono16, ... or BayerBG16"
+  const std::size_t count = std::size(kStoredFormats);
+  for (std::size_t i = 0; i < count; ++i)
+    known += (i == 0 ? "" : i + 1 == count ? " or " : ", ") + std::string(kStoredFormats[i].name);
+  throw InputError("pixel format '" + name + "': use " + known);
 }
 
 std::uint32_t PfncOf(PixelFormat format) {
-  switch (format) {
-    case PixelFormat::kMono8:
-      return 0x01080001u;
-    case PixelFormat::kMono16:
-      return 0x01100007u;
-    case PixelFormat::kRgb8:
-      return 0x02180014u;
-    case PixelFormat::kBayerRg8:
-      return 0x01080009u;
-    case PixelFormat::kBayerGr8:
-      return 0x01080008u;
-    case PixelFormat::kBayerGb8:
-      return 0x0108000Au;
-    case PixelFormat::kBayerBg8:
-      return 0x0108000Bu;
-    case PixelFormat::kBayerRg16:
-      return 0x0110002Fu;
-    case PixelFormat::kBayerGr16:
-      return 0x0110002Eu;
-    case PixelFormat::kBayerGb16:
-      return 0x01100030u;
-    case PixelFormat::kBayerBg16:
-      return 0x01100031u;
-  }
-  return 0;
+  const StoredFormat* f = Find(format);
+  return f ? f->pfnc : 0;
 }
 
 bool PixelFormatFromPfnc(std::uint32_t pfnc, PixelFormat* format) {
-  for (PixelFormat f : kAllPixelFormats) {
-    if (PfncOf(f) == pfnc) {
-      *format = f;
+  for (const StoredFormat& f : kStoredFormats) {
+    if (f.pfnc == pfnc) {
+      *format = f.format;
       return true;
     }
   }
@@ -91,46 +86,21 @@ bool PixelFormatFromPfnc(std::uint32_t pfnc, PixelFormat* format) {
 }
 
 int BytesPerPixel(PixelFormat format) {
-  switch (format) {
-    case PixelFormat::kMono16:
-    case PixelFormat::kBayerRg16:
-    case PixelFormat::kBayerGr16:
-    case PixelFormat::kBayerGb16:
-    case PixelFormat::kBayerBg16:
-      return 2;
-    case PixelFormat::kRgb8:
-      return 3;
-    default:
-      return 1;
-  }
+  const StoredFormat* f = Find(format);
+  return f ? f->bytes : 1;
 }
 
 bool IsBayer(PixelFormat format) { return BayerCell(format)[0] != '\0'; }
 
 PixelFormat Bayer16Of(PixelFormat bayer) {
-  for (PixelFormat f : kAllPixelFormats)
-    if (IsBayer(bayer) && BytesPerPixel(f) == 2 && std::string(BayerCell(f)) == BayerCell(bayer))
-      return f;
+  for (const StoredFormat& f : kStoredFormats)
+    if (IsBayer(bayer) && f.bytes == 2 && std::string(f.cell) == BayerCell(bayer)) return f.format;
   throw InputError(std::string("pixel format ") + ToString(bayer) + " is not a Bayer mosaic");
 }
 
 const char* BayerCell(PixelFormat format) {
-  switch (format) {
-    case PixelFormat::kBayerRg8:
-    case PixelFormat::kBayerRg16:
-      return "RGGB";
-    case PixelFormat::kBayerGr8:
-    case PixelFormat::kBayerGr16:
-      return "GRBG";
-    case PixelFormat::kBayerGb8:
-    case PixelFormat::kBayerGb16:
-      return "GBRG";
-    case PixelFormat::kBayerBg8:
-    case PixelFormat::kBayerBg16:
-      return "BGGR";
-    default:
-      return "";
-  }
+  const StoredFormat* f = Find(format);
+  return f ? f->cell : "";
 }
 
 namespace {
