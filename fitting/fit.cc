@@ -100,6 +100,9 @@ std::string FitResult::BriefReport() const {
   s << "), exposure " << exposure;
   if (density_scale != 1) s << ", density scale " << density_scale;
   if (rings > 0) s << ", axisymmetric: " << rings << " rings";
+  if (voxels_at_temperature_bound + voxels_at_density_bound > 0)
+    s << "; at the upper bound (held by it, not by the images): " << voxels_at_temperature_bound
+      << " voxel(s) in temperature, " << voxels_at_density_bound << " in density";
   return s.str();
 }
 
@@ -798,6 +801,19 @@ class TraceCallback : public ceres::IterationCallback {
   std::string stalled_;
 };
 
+// FitResult::voxels_at_temperature_bound and voxels_at_density_bound of `st`, fitted in
+// [t_min, t_max] and [n_min, n_max] (n_min > 0).
+void CountAtUpperBounds(const State& st, double t_min, double t_max, double n_min, double n_max,
+                        FitResult* r) {
+  const double t_near = t_max - 0.01 * (t_max - t_min);
+  const double ln_n_near = std::log(n_max) - 0.01 * (std::log(n_max) - std::log(n_min));
+  r->voxels_at_temperature_bound = r->voxels_at_density_bound = 0;
+  for (std::size_t a = 0; a < st.active.size(); ++a) {
+    r->voxels_at_temperature_bound += st.t[a] >= t_near;
+    r->voxels_at_density_bound += st.n[a] > 0 && std::log(st.n[a]) >= ln_n_near;
+  }
+}
+
 // Voxels outside the medium get the ambient (lowest) temperature: they hold no soot, so they
 // neither emit nor absorb, and a renderer that reads temperature alone sees them as cold.
 FireVolume ToVolume(const State& st, const FitResult& r, double ambient_k) {
@@ -814,6 +830,9 @@ FireVolume ToVolume(const State& st, const FitResult& r, double ambient_k) {
   v.metadata_numbers["mean_delta_e"] = r.final_terms.mean_delta_e;
   v.metadata_numbers["energy"] = r.final_terms.exact_energy();
   v.metadata_numbers["active_voxels"] = static_cast<double>(st.active.size());
+  v.metadata_numbers["voxels_at_temperature_bound"] =
+      static_cast<double>(r.voxels_at_temperature_bound);
+  v.metadata_numbers["voxels_at_density_bound"] = static_cast<double>(r.voxels_at_density_bound);
   v.metadata_text["method"] = r.method;
   v.metadata_text["termination"] = ToString(r.termination);
   v.metadata_text["termination_message"] = r.message;
@@ -917,6 +936,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   const FireVolume& activity = bands.empty() ? tomography : band_activity;
   std::deque<std::pair<double, EnergyTerms>> seen;
   State st;
+  double n_min = 0, n_max = 0;  // the density bounds of the returned level
   for (std::size_t level = 0; level < levels.size(); ++level) {
     st = State();
     st.grid = levels[level];
@@ -929,6 +949,8 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     }
     FitObjective objective(st.grid, st.active, views, absorption, options.render,
                            ObjectiveAt(st.grid));
+    n_min = objective.n_min();
+    n_max = objective.n_max();
     std::unique_ptr<BandStart> band_start = make_band_start(st.grid);
     if (have_previous) {
       // From another frame (level 0 of a warm start): the temperatures carry over, the densities
@@ -1062,6 +1084,8 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
         Resample(st, e, table, s_tomo, fine_objective.n_min(), fine_objective.n_max(), options,
                  &fine, false, fine_bands.get());
         st = fine;
+        n_min = fine_objective.n_min();
+        n_max = fine_objective.n_max();
         result.active_voxels = st.active.size();
         result.rings = 0;  // the returned volume is the finest grid's, untied
         result.final_terms = fine_objective.Evaluate(st.t, st.n, st.s);
@@ -1075,6 +1099,8 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
                      std::to_string(result.band_radius_voxels);
   result.exposure = st.s;
   result.seconds = Seconds(start);
+  CountAtUpperBounds(st, options.objective.t_min_k, options.objective.t_max_k, n_min, n_max,
+                     &result);
   result.volume = ToVolume(st, result, options.objective.t_min_k);
   // w_sm (ToVolume) is the weight applied on this grid; this says how it was scaled from the
   // given one (FitOptions::neighbour_weight_resolution).
@@ -1374,6 +1400,8 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
   result.final_terms = objective.Evaluate(st.t, st.n, st.s);
   result.active_voxels = m;
   result.seconds = Seconds(start);
+  CountAtUpperBounds(st, options.objective.t_min_k, options.objective.t_max_k, objective.n_min(),
+                     objective.n_max(), &result);
   result.volume = ToVolume(st, result, options.objective.t_min_k);
   StampAbsorption(absorption, &result.volume);
   return result;

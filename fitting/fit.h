@@ -284,6 +284,12 @@ struct FitResult {
   EnergyTerms final_terms;   // exact, at the returned parameters
   std::vector<FitTracePoint> trace;
   std::size_t active_voxels = 0;
+  // Active voxels the fit left at the upper bound of its search range, temperature
+  // (ObjectiveOptions::t_max_k) and density (FitObjective::n_max()): within 1% of the range of it
+  // (of ln n's for density; the sigmoid never reaches it). The bound holds such a voxel, not the
+  // images: a fire cooler and thinner than the bounds puts none there (issue 19's "no voxel
+  // pinned at a bound that the truth does not reach"). Also in the volume's metadata.
+  std::size_t voxels_at_temperature_bound = 0, voxels_at_density_bound = 0;
   int evaluations = 0;  // energy (and gradient) evaluations
   int iterations = 0;   // solver iterations (L-BFGS steps; sweeps of the paper's algorithms)
   // Why it stopped, and the solver's own words ("Function tolerance reached. |cost_change|/cost:

@@ -222,6 +222,8 @@ void FrameStages::Reuse(FrameWork* w) {
     s.fit_message = r.fit_message;
     s.fit_iterations = r.fit_iterations;
     s.initial_energy = r.initial_energy;
+    s.voxels_at_temperature_bound = r.voxels_at_temperature_bound;
+    s.voxels_at_density_bound = r.voxels_at_density_bound;
   }
   s.status = "unchanged (reused frame " + std::to_string(chain_.last_computed) + ")";
   scored_ = previous_.volume;  // what was just copied
@@ -375,6 +377,8 @@ void FrameStages::Write(FrameWork* w) {
   s.fit_message = result.message;
   s.fit_iterations = result.iterations;
   s.initial_energy = result.initial_energy;
+  s.voxels_at_temperature_bound = result.voxels_at_temperature_bound;
+  s.voxels_at_density_bound = result.voxels_at_density_bound;
   w->have_output = true;
   scored_ = result.volume;
   previous_ = std::move(result);

@@ -137,6 +137,9 @@ std::string FrameSummary::Line() const {
     s << ", " << active_voxels << " active voxels";
     if (!matrix_source.empty()) s << ", matrix " << matrix_source;
     if (!fit_termination.empty()) s << ", fit " << fit_termination << " after " << fit_iterations;
+    if (voxels_at_temperature_bound + voxels_at_density_bound > 0)
+      s << ", " << voxels_at_temperature_bound << " voxel(s) at the temperature bound and "
+        << voxels_at_density_bound << " at the density bound";
     s.precision(4);
     if (!exposure_from.empty()) s << ", exposure " << exposure << " (" << exposure_from << ")";
     s.precision(1);
@@ -183,6 +186,8 @@ nlohmann::json SummaryJson(const FrameSummary& f) {
   j["fit_message"] = f.fit_message;
   j["fit_iterations"] = f.fit_iterations;
   j["initial_energy"] = f.initial_energy;
+  j["voxels_at_temperature_bound"] = f.voxels_at_temperature_bound;
+  j["voxels_at_density_bound"] = f.voxels_at_density_bound;
   j["delta_e"] = nlohmann::json::array();
   for (const auto& d : f.delta_e)
     j["delta_e"].push_back(
@@ -245,6 +250,9 @@ FrameSummary FrameSummary::FromYaml(const std::string& text, const std::string& 
     s.fit_message = n["fit_message"].as<std::string>("");
     s.fit_iterations = n["fit_iterations"].as<int>(0);
     s.initial_energy = n["initial_energy"].as<double>(0.0);
+    // Summaries written before the voxels at the bounds were counted have none.
+    s.voxels_at_temperature_bound = n["voxels_at_temperature_bound"].as<std::size_t>(0);
+    s.voxels_at_density_bound = n["voxels_at_density_bound"].as<std::size_t>(0);
     for (const auto& d : n["delta_e"]) {
       ViewDeltaE v;
       v.camera = d["camera"].as<std::string>();

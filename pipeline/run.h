@@ -155,6 +155,9 @@ struct FrameSummary {
   std::string fit_message;
   int fit_iterations = 0;
   double initial_energy = 0;
+  // Voxels the fit left at the upper bound of its temperature and density range (FitResult's):
+  // held there by the bound, not by the images. 0 in summaries from before they were counted.
+  std::size_t voxels_at_temperature_bound = 0, voxels_at_density_bound = 0;
   std::vector<ViewDeltaE> delta_e;
   // Against the truth, on visible voxels (>= 1300 K, >= 1% of the peak emission) where the fit put
   // medium; -1 without truth.

@@ -161,7 +161,8 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     csv << "frame,status,cameras_used,total_ms,read_ms,tomography_ms,fit_ms,write_ms,matrix,"
            "active_voxels,exposure,exposure_from,soot,soot_volume_mm3,initial_energy,energy,"
            "fit_termination,"
-           "fit_iterations,fit_message,truth_frame,truth_rms_k,truth_bias_k,truth_spread_k,"
+           "fit_iterations,fit_message,voxels_at_temperature_bound,voxels_at_density_bound,"
+           "truth_frame,truth_rms_k,truth_bias_k,truth_spread_k,"
            "truth_soot,truth_within_1_sigma,truth_within_2_sigma,truth_median_sigma_k,"
            "truth_determined_share,truth_determined_rms_k,truth_undetermined_rms_k,"
            "truth_weighted_rms_k";
@@ -173,12 +174,13 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
           << f.matrix_source << "," << f.active_voxels << "," << f.exposure << ","
           << quoted(f.exposure_from) << "," << f.soot << "," << f.soot_volume_m3 * 1e9 << ","
           << f.initial_energy << "," << f.energy << "," << f.fit_termination << ","
-          << f.fit_iterations << "," << quoted(f.fit_message) << "," << f.truth_frame << ","
-          << f.truth_rms_k << "," << f.truth_bias_k << "," << f.truth_spread_k << ","
-          << f.truth_soot << "," << f.truth_within_1_sigma << "," << f.truth_within_2_sigma << ","
-          << f.truth_median_sigma_k << "," << f.truth_determined_share << ","
-          << f.truth_determined_rms_k << "," << f.truth_undetermined_rms_k << ","
-          << f.truth_weighted_rms_k;
+          << f.fit_iterations << "," << quoted(f.fit_message) << ","
+          << f.voxels_at_temperature_bound << "," << f.voxels_at_density_bound << ","
+          << f.truth_frame << "," << f.truth_rms_k << "," << f.truth_bias_k << ","
+          << f.truth_spread_k << "," << f.truth_soot << "," << f.truth_within_1_sigma << ","
+          << f.truth_within_2_sigma << "," << f.truth_median_sigma_k << ","
+          << f.truth_determined_share << "," << f.truth_determined_rms_k << ","
+          << f.truth_undetermined_rms_k << "," << f.truth_weighted_rms_k;
       for (const auto& c : cameras) {
         auto it = std::find_if(f.delta_e.begin(), f.delta_e.end(),
                                [&](const ViewDeltaE& d) { return d.camera == c; });

@@ -105,6 +105,11 @@ else:
           "within one sigma (a constant temperature: %.0f..%.0f K)"
           % ((len(rows),) + span("truth_rms_k") + span("truth_bias_k", signed=True)
              + span("truth_within_1_sigma", 100) + span("truth_spread_k")))
+    for bound in ("temperature", "density"):  # held there by the fit's bound, not by the images
+        pinned = [(r["frame"], int(r["voxels_at_%s_bound" % bound])) for r in rows
+                  if int(r.get("voxels_at_%s_bound" % bound) or 0) > 0]
+        print("    voxels at the %s bound: %s" % (bound, ", ".join(
+            "%d on set %s" % (n, f) for f, n in pinned) if pinned else "none"))
 PY
 }
 echo

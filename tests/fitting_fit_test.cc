@@ -1051,6 +1051,63 @@ TEST(FastFit, StressBlackSaturatedAndExtremeBounds) {
   EXPECT_THROW(FastFit(r.grid, r.tomography, r.views, grey, bad), InputError);
 }
 
+// The voxels the fit leaves at an upper bound (FitResult::voxels_at_temperature_bound and
+// voxels_at_density_bound) are those the truth puts beyond it: none with the default bounds,
+// which the candle stays well inside (its peak about 2000 K, 2300 K the bound), and some of the
+// truth's hot (dense) voxels with an upper bound below their temperature (density). Each count
+// is checked against the returned volume and its metadata.
+TEST(FastFit, CountsTheVoxelsItLeavesAtAnUpperBound) {
+  const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
+  RoundTrip r = MakeRoundTrip(soot, 16, 80);
+  FitOptions options;
+  options.iterations_finest = 30;
+  options.known_exposure = r.exposure;
+  // Counted by hand from a volume: within 1% of the range of the bound (of ln n's for density).
+  auto count = [&](const FitResult& f, const FitOptions& o, double n_max, double n_min) {
+    std::size_t hot = 0, dense = 0;
+    const double t_near = o.objective.t_max_k - 0.01 * (o.objective.t_max_k - o.objective.t_min_k);
+    const double n_near = n_max * std::pow(n_min / n_max, 0.01);
+    for (std::size_t v = 0; v < r.grid.num_voxels(); ++v) {
+      if (!(f.volume.density_per_m3[v] > 0)) continue;
+      hot += f.volume.temperature_k[v] >= t_near;
+      dense += f.volume.density_per_m3[v] >= 0.999 * n_near;
+    }
+    return std::make_pair(hot, dense);
+  };
+  const DensityBounds plausible = DensityBounds::Plausible(soot);
+  const FitResult inside = FastFit(r.grid, r.tomography, r.views, soot, options);
+  EXPECT_EQ(inside.voxels_at_temperature_bound, 0u);
+  EXPECT_EQ(inside.voxels_at_density_bound, 0u);
+  EXPECT_EQ(inside.volume.metadata_numbers.at("voxels_at_temperature_bound"), 0.0);
+  EXPECT_EQ(inside.volume.metadata_numbers.at("voxels_at_density_bound"), 0.0);
+  EXPECT_EQ(count(inside, options, plausible.max_per_m3, plausible.min_per_m3),
+            std::make_pair(std::size_t{0}, std::size_t{0}));
+
+  // The truth's voxels beyond the bounds below (1700 K, a fifth of its peak density) by a margin:
+  // hotter than 1750 K, denser than 0.3 of its peak.
+  double peak_n = 0;
+  for (float n : r.truth.density_per_m3) peak_n = std::max(peak_n, double(n));
+  std::size_t truth_hot = 0, truth_dense = 0;
+  for (std::size_t v = 0; v < r.grid.num_voxels(); ++v) {
+    truth_hot += r.truth.density_per_m3[v] > 0 && r.truth.temperature_k[v] > 1750;
+    truth_dense += r.truth.density_per_m3[v] > 0.3 * peak_n;
+  }
+  ASSERT_GT(truth_hot, 10u);
+  ASSERT_GT(truth_dense, 10u);
+  FitOptions cut = options;
+  cut.objective.t_max_k = 1700;
+  cut.objective.n_min_per_m3 = plausible.min_per_m3;
+  cut.objective.n_max_per_m3 = 0.2 * peak_n;
+  const FitResult pinned = FastFit(r.grid, r.tomography, r.views, soot, cut);
+  EXPECT_GE(pinned.voxels_at_temperature_bound, truth_hot / 2) << truth_hot;
+  EXPECT_GE(pinned.voxels_at_density_bound, truth_dense / 2) << truth_dense;
+  EXPECT_LE(pinned.voxels_at_temperature_bound, pinned.active_voxels);
+  EXPECT_EQ(count(pinned, cut, cut.objective.n_max_per_m3, cut.objective.n_min_per_m3),
+            std::make_pair(pinned.voxels_at_temperature_bound, pinned.voxels_at_density_bound));
+  EXPECT_EQ(pinned.volume.metadata_numbers.at("voxels_at_density_bound"),
+            double(pinned.voxels_at_density_bound));
+}
+
 }  // namespace
 }  // namespace flamerig
 

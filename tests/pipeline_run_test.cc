@@ -150,6 +150,8 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   f.energy = std::nan("");
   f.initial_energy = std::numeric_limits<double>::infinity();
   f.fit_message = "a \"quoted\" message: with colons, and\nlines";
+  f.voxels_at_temperature_bound = 7;
+  f.voxels_at_density_bound = 1;
   f.delta_e = {{"1e5", true, 0.5, 1.25}, {"null", false, -0.0, 3}};
   f.truth_rms_k = -1;
   f.truth_spread_k = 141.75;
@@ -171,6 +173,8 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   EXPECT_TRUE(std::isnan(back.energy));
   EXPECT_EQ(back.initial_energy, std::numeric_limits<double>::infinity());
   EXPECT_EQ(back.fit_message, f.fit_message);
+  EXPECT_EQ(back.voxels_at_temperature_bound, 7u);
+  EXPECT_EQ(back.voxels_at_density_bound, 1u);
   ASSERT_EQ(back.delta_e.size(), 2u);
   EXPECT_EQ(back.delta_e[0].camera, "1e5");
   EXPECT_TRUE(back.delta_e[0].held_out);

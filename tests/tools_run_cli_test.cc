@@ -360,6 +360,7 @@ TEST(RunCli, ACorruptFrameFailsAloneAndTheExitStatusSaysSo) {
   std::ifstream csv(dir / "out" / "frames.csv");
   const std::string table((std::istreambuf_iterator<char>(csv)), {});
   EXPECT_NE(table.find("fit_termination"), std::string::npos) << table;
+  EXPECT_NE(table.find("voxels_at_density_bound"), std::string::npos) << table;
   fs::remove_all(dir);
 }
 

@@ -33,12 +33,12 @@ struct Row {
   int matrix_builds = 0;
   // The take's consistency, frame by frame (computed frames scored against the truth): the fitted
   // exposure over the images' true one, the fitted soot over the truth's, the temperature bias,
-  // and the voxels at the fit's upper temperature bound; and the share of the visible voxels
+  // and the voxels at the fit's upper temperature and density bounds (FrameSummary's); and the share of the visible voxels
   // within one and two of the fit's sigma (percent); the share the fit calls determined (percent)
   // and the temperature RMS over those and over the rest.
   std::vector<double> exposure_ratio, soot_ratio, bias_k, within_1_sigma, within_2_sigma;
   std::vector<double> determined_share, determined_rms_k, undetermined_rms_k;
-  std::size_t at_bound = 0;
+  std::size_t at_temperature_bound = 0, at_density_bound = 0;
 };
 
 // Frames [begin, end) of `o`'s source, from an empty output folder.
@@ -83,13 +83,8 @@ Row Measure(const std::string& name, const RunOptions& o, std::size_t begin, std
           if (f.truth_undetermined_rms_k >= 0)
             r.undetermined_rms_k.push_back(f.truth_undetermined_rms_k);
         }
-        const FireVolume v =
-            ReadVdb((fs::path(o.out_dir) / (FrameName(f.frame) + ".vdb")).string());
-        // At the bound: within 1% of the search range of it (the sigmoid never reaches it).
-        const ObjectiveOptions& b = o.fit.objective;
-        const double near = b.t_max_k - 0.01 * (b.t_max_k - b.t_min_k);
-        for (std::size_t i = 0; i < v.temperature_k.size(); ++i)
-          r.at_bound += v.density_per_m3[i] > 0 && v.temperature_k[i] >= near;
+        r.at_temperature_bound += f.voxels_at_temperature_bound;
+        r.at_density_bound += f.voxels_at_density_bound;
       }
     }
   }
@@ -261,12 +256,14 @@ std::string RunRunBenchmark(const RunBenchmarkOptions& options,
         "at the bound.\n\n";
   md << "| run | exposure / true | soot / truth | temperature bias K | voxels within "
      << Fixed(0.01 * (base.fit.objective.t_max_k - base.fit.objective.t_min_k), 0)
-     << " K of the upper bound (all frames) | visible voxels within one sigma % | within two "
+     << " K of the upper temperature bound (all frames) | voxels within 1% of the density "
+        "bound's ln range (all frames) | visible voxels within one sigma % | within two "
         "sigma % | determined by the images % | T RMS on them K | on the rest K "
-        "|\n|---|---|---|---|---|---|---|---|---|---|\n";
+        "|\n|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const Row* r : std::vector<const Row*>{&rows[0], &rows[1], &rings, &free})
     md << "| " << r->name << " | " << Range(r->exposure_ratio, 3) << " | "
-       << Range(r->soot_ratio, 2) << " | " << Range(r->bias_k, 0) << " | " << r->at_bound << " | "
+       << Range(r->soot_ratio, 2) << " | " << Range(r->bias_k, 0) << " | "
+       << r->at_temperature_bound << " | " << r->at_density_bound << " | "
        << Range(r->within_1_sigma, 0) << " | " << Range(r->within_2_sigma, 0) << " | "
        << Range(r->determined_share, 0) << " | " << Range(r->determined_rms_k, 0) << " | "
        << Range(r->undetermined_rms_k, 0) << " |\n";
