@@ -802,11 +802,14 @@ class TraceCallback : public ceres::IterationCallback {
 };
 
 // FitResult::voxels_at_temperature_bound and voxels_at_density_bound of `st`, fitted in
-// [t_min, t_max] and [n_min, n_max] (n_min > 0).
+// [t_min, t_max] and [n_min, n_max] (n_min > 0). 1% of the range is also where Logit clamps a
+// start beyond the bound: a voxel left there unmoved is counted, whatever the rounding of its
+// round trip through the sigmoid (hence the 1e-6 of the range below the 1%).
 void CountAtUpperBounds(const State& st, double t_min, double t_max, double n_min, double n_max,
                         FitResult* r) {
-  const double t_near = t_max - 0.01 * (t_max - t_min);
-  const double ln_n_near = std::log(n_max) - 0.01 * (std::log(n_max) - std::log(n_min));
+  const double near = 0.01 + 1e-6;
+  const double t_near = t_max - near * (t_max - t_min);
+  const double ln_n_near = std::log(n_max) - near * (std::log(n_max) - std::log(n_min));
   r->voxels_at_temperature_bound = r->voxels_at_density_bound = 0;
   for (std::size_t a = 0; a < st.active.size(); ++a) {
     r->voxels_at_temperature_bound += st.t[a] >= t_near;

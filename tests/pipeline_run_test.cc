@@ -1028,6 +1028,36 @@ TEST(RunFrames, UnchangedFramesReuseThePreviousResult) {
   EXPECT_NE(profile.find("radius_m"), std::string::npos) << profile;
   EXPECT_EQ(text(dir / "tied" / "frames" / "frame_000002_profile.csv"), profile);
   EXPECT_FALSE(fs::exists(dir / "out" / "frames" / "frame_000002_profile.csv"));
+  // Under a temperature bound below the candle's (about 2000 K), voxels are held at it: each
+  // summary counts them as its .vdb does, the report's frames.csv (read by Python's csv module)
+  // says so, and the reused frame copies the count of the frame it reuses from its state file.
+  RunOptions capped = o;
+  capped.out_dir = (dir / "capped").string();
+  capped.fit.objective.t_max_k = 1600;
+  const RunSummary held = RunAll(capped);
+  ASSERT_EQ(held.frames.size(), 3u);
+  EXPECT_EQ(held.frames[2].status, "unchanged (reused frame 1)");
+  const std::size_t at_bound = held.frames[1].voxels_at_temperature_bound;
+  EXPECT_GT(at_bound, 0u);
+  EXPECT_EQ(ReadVdb((dir / "capped" / "frame_000001.vdb").string())
+                .metadata_numbers.at("voxels_at_temperature_bound"),
+            double(at_bound));
+  EXPECT_EQ(held.frames[2].voxels_at_temperature_bound, at_bound);  // read from frame 1's state
+  WriteRunReport(capped.out_dir, held.frames, RunReportInfo());
+  const std::string command =
+      "/usr/bin/python3 -c \"import csv,sys; print(' '.join(r['voxels_at_temperature_bound'] for "
+      "r in csv.DictReader(open(sys.argv[1]))))\" " +
+      (dir / "capped" / "frames.csv").string();
+  std::unique_ptr<FILE, int (*)(FILE*)> pipe(popen(command.c_str(), "r"), pclose);
+  ASSERT_TRUE(pipe);
+  char line[256] = {};
+  ASSERT_TRUE(fgets(line, sizeof line, pipe.get()));
+  std::istringstream column(line);
+  for (const FrameSummary& f : held.frames) {
+    std::size_t value = 0;
+    ASSERT_TRUE(column >> value);
+    EXPECT_EQ(value, f.voxels_at_temperature_bound) << f.frame;
+  }
   fs::remove_all(dir);
 }
 

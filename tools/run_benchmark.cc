@@ -15,7 +15,6 @@
 #include "pipeline/distributed.h"
 #include "pipeline/run.h"
 #include "pipeline/simulate.h"
-#include "tomography/vdb_io.h"
 #include "tools/benchmark.h"
 
 namespace flamerig {
