@@ -331,6 +331,13 @@ void SimCamera::Start(int buffers) {
   pool_.Reserve(static_cast<std::size_t>(buffers), FrameBytes());
   running_ = true;
   started_ns_ = clock_->MonotonicNs();
+  if (settings_.frame_rate_hz > 0) {
+    const auto period_ns = static_cast<std::int64_t>(std::llround(1e9 / settings_.frame_rate_hz));
+    free_run_first_ns_ =
+        period_ns > 0 ? (started_ns_ + period_ns - 1) / period_ns * period_ns : started_ns_;
+  } else {
+    free_run_first_ns_ = started_ns_;
+  }
   produced_ = 0;
   pending_.clear();
   bus_position_ = bus_ ? bus_->count() : 0;  // pulses before the start are not seen
@@ -401,7 +408,8 @@ void SimCamera::Produce(std::int64_t until_ns) {
     const double period_ns = 1e9 / settings_.frame_rate_hz * (1.0 + options_.drift_ppm * 1e-6);
     while (true) {
       const std::int64_t nominal =
-          started_ns_ + static_cast<std::int64_t>(std::llround(double(produced_) * period_ns));
+          free_run_first_ns_ +
+          static_cast<std::int64_t>(std::llround(double(produced_) * period_ns));
       if (nominal > until_ns) break;
       AddExposure(jittered(nominal), -1);
     }
