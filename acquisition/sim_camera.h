@@ -160,7 +160,7 @@ class SimCamera : public Camera {
   std::mt19937_64 rng_;
   std::int64_t started_ns_ = 0;
   std::int64_t free_run_first_ns_ = 0;  // the first free-run exposure: on the period's grid
-  std::uint64_t produced_ = 0;  // exposures so far
+  std::uint64_t produced_ = 0;          // exposures so far
   std::atomic<std::uint64_t> triggers_ignored_{0};
   std::size_t bus_position_ = 0;
   std::uint64_t device_counter_ = 0;
