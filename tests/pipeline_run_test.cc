@@ -43,6 +43,25 @@
 namespace flamerig {
 namespace {
 
+// One column of a run's frames.csv by frame, read by Python's csv module (an independent reader).
+std::map<std::size_t, std::string> FramesCsvColumn(const std::filesystem::path& csv,
+                                                   const std::string& column) {
+  const std::string command = "/usr/bin/python3 -c \"import csv,sys; [print(r['frame'], r['" +
+                              column + "']) for r in csv.DictReader(open(sys.argv[1]))]\" " +
+                              csv.string();
+  std::map<std::size_t, std::string> values;
+  std::unique_ptr<FILE, int (*)(FILE*)> pipe(popen(command.c_str(), "r"), pclose);
+  if (!pipe) return values;
+  char line[256];
+  while (fgets(line, sizeof line, pipe.get())) {
+    std::istringstream words(line);
+    std::size_t frame = 0;
+    std::string value;
+    if (words >> frame >> value) values[frame] = value;
+  }
+  return values;
+}
+
 namespace fs = std::filesystem;
 
 using namespace testing_run;
@@ -726,24 +745,12 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
   EXPECT_TRUE(fs::exists(dir / "out" / "frames.csv"));
   // frames.csv, read by Python's csv module: each frame's soot volume in mm^3.
   {
-    const std::string command =
-        "/usr/bin/python3 -c \"import csv,sys; [print(r['frame'], r['soot_volume_mm3']) for r in "
-        "csv.DictReader(open(sys.argv[1]))]\" " +
-        (dir / "out" / "frames.csv").string();
-    std::unique_ptr<FILE, int (*)(FILE*)> pipe(popen(command.c_str(), "r"), pclose);
-    ASSERT_TRUE(pipe);
-    std::map<std::size_t, double> mm3;
-    char line[256];
-    while (fgets(line, sizeof line, pipe.get())) {
-      std::istringstream words(line);
-      std::size_t frame = 0;
-      double value = -1;
-      if (words >> frame >> value) mm3[frame] = value;
-    }
+    const auto mm3 = FramesCsvColumn(dir / "out" / "frames.csv", "soot_volume_mm3");
     ASSERT_EQ(mm3.size(), run.frames.size());
     for (const auto& f : run.frames) {
       EXPECT_GT(f.soot_volume_m3, 0) << f.frame;
-      EXPECT_NEAR(mm3.at(f.frame), f.soot_volume_m3 * 1e9, 1e-5 * f.soot_volume_m3 * 1e9);
+      EXPECT_NEAR(std::stod(mm3.at(f.frame)), f.soot_volume_m3 * 1e9,
+                  1e-5 * f.soot_volume_m3 * 1e9);
     }
   }
   // Every frame's numbers as JSON, read back by Python's json module (an independent reader):
@@ -1044,20 +1051,10 @@ TEST(RunFrames, UnchangedFramesReuseThePreviousResult) {
             double(at_bound));
   EXPECT_EQ(held.frames[2].voxels_at_temperature_bound, at_bound);  // read from frame 1's state
   WriteRunReport(capped.out_dir, held.frames, RunReportInfo());
-  const std::string command =
-      "/usr/bin/python3 -c \"import csv,sys; print(' '.join(r['voxels_at_temperature_bound'] for "
-      "r in csv.DictReader(open(sys.argv[1]))))\" " +
-      (dir / "capped" / "frames.csv").string();
-  std::unique_ptr<FILE, int (*)(FILE*)> pipe(popen(command.c_str(), "r"), pclose);
-  ASSERT_TRUE(pipe);
-  char line[256] = {};
-  ASSERT_TRUE(fgets(line, sizeof line, pipe.get()));
-  std::istringstream column(line);
-  for (const FrameSummary& f : held.frames) {
-    std::size_t value = 0;
-    ASSERT_TRUE(column >> value);
-    EXPECT_EQ(value, f.voxels_at_temperature_bound) << f.frame;
-  }
+  const auto column = FramesCsvColumn(dir / "capped" / "frames.csv", "voxels_at_temperature_bound");
+  ASSERT_EQ(column.size(), held.frames.size());
+  for (const FrameSummary& f : held.frames)
+    EXPECT_EQ(column.at(f.frame), std::to_string(f.voxels_at_temperature_bound)) << f.frame;
   fs::remove_all(dir);
 }
 
