@@ -4,17 +4,17 @@
 # browser (headless Chromium), slow (over a minute under the sanitizers; tests/CMakeLists.txt). Pass
 # CTest arguments through, e.g. scripts/test.sh -L unit.
 #
-# Then the hardening passes (issue 9), each in its own build folder, chosen by FLAMERIG_HARDENING:
+# Then the hardening passes (issue 9), chosen by FLAMERIG_HARDENING:
 #   tsan   the threaded capture tests (acquisition) under ThreadSanitizer        (build-tsan, ~1 min)
 #   asan   the suite again under AddressSanitizer + UndefinedBehaviorSanitizer, built by clang at
 #          -O1 in build-fuzz with the fuzz targets (scripts/fuzz.sh), but the test binaries labelled
 #          slow (tests/CMakeLists.txt: the fit's, tomography's and end-to-end runs, 10 to 40 times
-#          slower there; they took over 30 minutes); the calibration tests reuse the ring the plain
-#          build rendered (FLAMERIG_TEST_DATA_DIR)
+#          slower there; they took over 30 minutes); pipeline_calibrate_job_test reuses the ring
+#          the plain build rendered (FLAMERIG_TEST_DATA_DIR)
 #   fuzz   every fuzz target for FUZZ_SECONDS (default 10) after replaying its
 #          checked-in regressions (scripts/fuzz.sh)                               (build-fuzz)
 # The two share build-fuzz's libraries: whichever runs first builds them. GCC's -O3 ASan build of
-# its own took over 35 minutes on two cores (400 s for fitting/renderer.cc alone, 5 times clang's).
+# its own took over 35 minutes on two cores (400 s for fitting/renderer.cc alone; clang, 37 s).
 # FLAMERIG_HARDENING="tsan asan fuzz" is the default in CI (CI=true), "" elsewhere; "all" = all three;
 # "none" = none.
 set -euo pipefail
