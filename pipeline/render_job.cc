@@ -29,7 +29,8 @@ std::vector<RenderedView> RunRenderJob(const RenderJob& job, const ProgressCallb
   }
   std::unique_ptr<FireRenderer> renderer;
   if (physical) {
-    renderer = std::make_unique<FireRenderer>(AbsorptionModel::FromName(absorption_name), job.render);
+    renderer =
+        std::make_unique<FireRenderer>(AbsorptionModel::FromName(absorption_name), job.render);
     renderer->SetVolume(volume.geometry, volume.temperature_k, volume.density_per_m3);
   }
   fs::create_directories(job.out_dir);

@@ -954,10 +954,15 @@ TEST(Cli, AnOptionalCameraJoinsWhenItAppears) {
                            .c_str(),
                        "r");
   ASSERT_NE(daemon, nullptr);
-  usleep(1'200'000);
-  std::ofstream(dir / "cable") << "plugged\n";
+  // The cable goes in a second after the recording starts, however long the daemon took to get
+  // there (a loaded host can take longer than that to start it).
   std::string log;
   std::array<char, 4096> buffer;
+  while (log.find("recording into") == std::string::npos &&
+         fgets(buffer.data(), buffer.size(), daemon))
+    log += buffer.data();
+  usleep(1'000'000);
+  std::ofstream(dir / "cable") << "plugged\n";
   while (fgets(buffer.data(), buffer.size(), daemon)) log += buffer.data();
   const int status = pclose(daemon);
   EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << log;
