@@ -56,10 +56,13 @@ CameraModel::CameraModel(const std::string& lensmodel, std::vector<double> intri
     throw InputError("imager size " + std::to_string(width_px) + "x" + std::to_string(height_px) +
                      " must be positive");
   }
-  auto rt = cam_from_rig.ToRt();
-  for (double v : rt) {
-    if (!std::isfinite(v)) throw InputError("camera pose is not finite");
-  }
+  // ToRt maps a rotation that is not finite to none, so the pose is checked as it is held.
+  if (!cam_from_rig.rotation.coeffs().allFinite() || !cam_from_rig.translation.allFinite())
+    throw InputError("camera pose is not finite");
+  if (mrcal_lensmodel_metadata(parsed.get()).has_core &&
+      (!(intrinsics_[0] > 0) || !(intrinsics_[1] > 0)))
+    throw InputError("focal lengths fx = " + FormatDouble(intrinsics_[0]) + ", fy = " +
+                     FormatDouble(intrinsics_[1]) + " of " + lensmodel + " must be > 0 (pixels)");
   mrcal_lensmodel_ = parsed;
 }
 
@@ -100,12 +103,13 @@ CameraModel CameraModel::Load(const std::string& path) {
   }
   int n = mrcal_lensmodel_num_params(&model->lensmodel);
   std::vector<double> intrinsics(model->intrinsics, model->intrinsics + n);
-  Rigid3 cam_from_rig = Rigid3::FromRt(model->rt_cam_ref);
+  std::array<double, 6> rt;
+  std::copy(model->rt_cam_ref, model->rt_cam_ref + 6, rt.begin());
   int w = static_cast<int>(model->imagersize[0]);
   int h = static_cast<int>(model->imagersize[1]);
   mrcal_free_cameramodel(&model);
   try {
-    return CameraModel(name, std::move(intrinsics), cam_from_rig, w, h);
+    return CameraModel(name, std::move(intrinsics), Rigid3::FromRt(rt), w, h);
   } catch (const InputError& e) {
     throw InputError(path + ": " + e.what());
   }

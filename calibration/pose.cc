@@ -1,7 +1,9 @@
 #include "calibration/pose.h"
 
 #include <cmath>
+#include <cstdio>
 #include <stdexcept>
+#include <string>
 
 #include "core/error.h"
 
@@ -18,9 +20,28 @@ std::array<double, 6> Rigid3::ToRt() const {
   return {r.x(), r.y(), r.z(), translation.x(), translation.y(), translation.z()};
 }
 
+namespace {
+
+std::string Short(double v) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%.6g", v);
+  return text;
+}
+
+}  // namespace
+
 Rigid3 Rigid3::FromRt(const double* rt) {
+  for (int i = 0; i < 6; ++i)
+    if (!std::isfinite(rt[i]))
+      throw InputError("pose rt[" + std::to_string(i) + "] = " + Short(rt[i]) + " is not finite");
   Eigen::Vector3d r(rt[0], rt[1], rt[2]);
-  double angle = r.norm();
+  // stableNorm: |r| of a vector like (1e300, 0, 0) without overflowing its square.
+  double angle = r.stableNorm();
+  if (angle > kMaxRotationAngle)
+    throw InputError("pose rotation vector of " + Short(angle) + " rad is not an angle (at most " +
+                     Short(kMaxRotationAngle) +
+                     " rad: a rotation holds its angle modulo 2 pi, and cos and sin of a larger "
+                     "one lose its digits)");
   Eigen::Quaterniond q = Eigen::Quaterniond::Identity();
   if (angle > 0) q = Eigen::Quaterniond(Eigen::AngleAxisd(angle, r / angle));
   return Rigid3(q, Eigen::Vector3d(rt[3], rt[4], rt[5]));

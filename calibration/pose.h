@@ -38,7 +38,10 @@ struct Rigid3 {
   }
   Eigen::Matrix3d RotationMatrix() const { return rotation.toRotationMatrix(); }
 
-  // rt = (r, t), r a Rodrigues vector with |r| in [0, pi].
+  // rt = (r, t), r a Rodrigues vector with |r| in [0, pi]. FromRt takes any |r| up to
+  // kMaxRotationAngle and throws InputError for a larger one or a value that is not finite (a
+  // camera model's extrinsics of 1e300 made NaN rotations that crashed the tomography).
+  static constexpr double kMaxRotationAngle = 1000;
   std::array<double, 6> ToRt() const;
   static Rigid3 FromRt(const std::array<double, 6>& rt);
   static Rigid3 FromRt(const double* rt);

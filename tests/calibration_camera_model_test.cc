@@ -6,9 +6,11 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <memory>
 #include <random>
 #include <sstream>
+#include <string>
 
 #include "calibration/camera_model.h"
 #include "core/error.h"
@@ -213,7 +215,36 @@ TEST(CameraModel, BadInputGivesClearErrors) {
   EXPECT_THROW(CameraModel("LENSMODEL_OPENCV8", {1, 2, 3, 4}, identity, 10, 10), InputError);
   EXPECT_THROW(CameraModel("LENSMODEL_PINHOLE", {1, 2, NAN, 4}, identity, 10, 10), InputError);
   EXPECT_THROW(CameraModel("LENSMODEL_PINHOLE", {1, 2, 3, 4}, identity, 0, 10), InputError);
+  EXPECT_THROW(CameraModel("LENSMODEL_PINHOLE", {0, 2, 3, 4}, identity, 10, 10), InputError);
+  EXPECT_THROW(CameraModel("LENSMODEL_PINHOLE", {1, -2, 3, 4}, identity, 10, 10), InputError);
+  // Rotation vectors: any angle up to Rigid3::kMaxRotationAngle is a rotation (7 rad is 7 - 2 pi
+  // about the same axis); beyond it, or not finite, an error (1e300 made NaN rotations that
+  // crashed the tomography's matrix build).
+  const Rigid3 seven = Rigid3::FromRt(std::array<double, 6>{7, 0, 0, 0, 0, 0});
+  EXPECT_NEAR(seven.ToRt()[0], 7 - 2 * M_PI, 1e-12);
+  for (const double r : {1e300, 1e160, 1e20, 1001.0, double(NAN), double(INFINITY)})
+    EXPECT_THROW(Rigid3::FromRt(std::array<double, 6>{0, r, 0, 0, 0, 0.3}), InputError) << r;
+  EXPECT_THROW(Rigid3::FromRt(std::array<double, 6>{0, 0, 0, 0, NAN, 0.3}), InputError);
   fs::path dir = TempDir();
+  {
+    // A .cameramodel file with such a rotation: the error names the file.
+    CameraModel::Pinhole(100, 100, 5, 5, identity, 10, 10)
+        .Save((dir / "huge.cameramodel").string());
+    std::ifstream in(dir / "huge.cameramodel");
+    std::string text((std::istreambuf_iterator<char>(in)), {});
+    const std::size_t at = text.find("'extrinsics': [");
+    ASSERT_NE(at, std::string::npos);
+    const std::size_t end = text.find(']', at);
+    text.replace(at, end - at, "'extrinsics': [ 1e300, 0, 0, 0, 0, 0.3 ");
+    std::ofstream(dir / "huge.cameramodel") << text;
+    try {
+      CameraModel::Load((dir / "huge.cameramodel").string());
+      FAIL() << "no error";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("huge.cameramodel"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("rotation"), std::string::npos) << e.what();
+    }
+  }
   try {
     CameraModel::Load((dir / "missing.cameramodel").string());
     FAIL();

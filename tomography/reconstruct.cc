@@ -5,6 +5,7 @@
 
 #include <zlib.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -12,8 +13,10 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
+#include <string>
 
 #include "core/atomic_file.h"
 #include "core/error.h"
@@ -23,6 +26,33 @@
 
 namespace flamerig {
 namespace {
+
+// Whether any valid ray of `rays` enters `box` in front of its origin (a slab test).
+bool AnyRayMeetsBox(const CameraRays& rays, const Box3& box) {
+  for (const Ray& r : rays.rays()) {
+    if (!r.valid) continue;
+    double near = 0, far = std::numeric_limits<double>::infinity();
+    for (int a = 0; a < 3 && near <= far; ++a) {
+      const double o = r.origin_in_rig[a], d = r.direction_in_rig[a];
+      if (d == 0) {
+        if (o < box.min_in_rig[a] || o > box.max_in_rig[a]) far = -1;
+        continue;
+      }
+      double t0 = (box.min_in_rig[a] - o) / d, t1 = (box.max_in_rig[a] - o) / d;
+      if (t0 > t1) std::swap(t0, t1);
+      near = std::max(near, t0);
+      far = std::min(far, t1);
+    }
+    if (near <= far) return true;
+  }
+  return false;
+}
+
+std::string FormatPoint(const Eigen::Vector3d& p) {
+  char text[96];
+  std::snprintf(text, sizeof text, "(%.3g, %.3g, %.3g)", p.x(), p.y(), p.z());
+  return text;
+}
 
 using Clock = std::chrono::steady_clock;
 double Ms(Clock::time_point since) {
@@ -165,6 +195,14 @@ Reconstructor::Reconstructor(const Rig& rig, const ReconstructOptions& options)
       }
     }
     rays_.push_back(std::make_unique<CameraRays>(c.model));
+    if (!AnyRayMeetsBox(*rays_.back(), rig_.box)) {
+      const Eigen::Vector3d eye = c.model.cam_from_rig().Inverse().translation;
+      throw InputError(
+          "camera '" + c.name + "' (at " + FormatPoint(eye) +
+          " m in the rig frame) sees none of the reconstruction box (" +
+          FormatPoint(rig_.box.min_in_rig) + " to " + FormatPoint(rig_.box.max_in_rig) +
+          " m): its pose or intrinsics are wrong, or the box is not where the fire is");
+    }
   }
   auto find = [&](const std::string& name, const char* field) {
     if (name.empty()) return -1;
