@@ -101,6 +101,15 @@ Frame StreamPixSequence::ReadFrame(std::size_t i, int camera) const {
   }
   std::ifstream in(path_, std::ios::binary);
   const std::uint64_t at = first_image_ + std::uint64_t(i) * header_.true_image_size;
+  // Checked before the frame's buffer is made: a damaged header's 65536 x 65536 frame asked for
+  // 4 GiB of a 1 KiB file.
+  std::error_code ec;
+  const std::uint64_t file_bytes = std::filesystem::file_size(path_, ec);
+  if (ec || at + header_.image_size_bytes + 8 > file_bytes)
+    throw DataError("StreamPix sequence " + path_ + ": frame " + std::to_string(i) + " at byte " +
+                    std::to_string(at) + " cut short (" + std::to_string(header_.image_size_bytes) +
+                    " bytes and an 8-byte timestamp; the file has " + std::to_string(file_bytes) +
+                    ")");
   in.seekg(static_cast<std::streamoff>(at));
   auto bytes = std::make_shared<std::vector<std::uint8_t>>(header_.image_size_bytes);
   in.read(reinterpret_cast<char*>(bytes->data()), static_cast<std::streamsize>(bytes->size()));

@@ -33,8 +33,9 @@ void RenameInto(const std::string& temp, const std::string& path) {
   std::error_code ec;
   fs::rename(temp, path, ec);
   if (ec) {
+    const std::string why = ec.message();  // before remove() sets ec again (it said "Success")
     fs::remove(temp, ec);
-    throw IoError(path + ": cannot move the written file into place: " + ec.message());
+    throw IoError(path + ": cannot move the written file into place: " + why);
   }
   SyncFolderOf(path);
 }

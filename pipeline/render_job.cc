@@ -1,8 +1,11 @@
 #include "pipeline/render_job.h"
 
+#include <cmath>
 #include <filesystem>
+#include <string>
 
 #include "core/error.h"
+#include "core/log.h"
 #include "tomography/reconstruct.h"
 #include "tomography/vdb_io.h"
 
@@ -20,7 +23,15 @@ std::vector<RenderedView> RunRenderJob(const RenderJob& job, const ProgressCallb
   double exposure = job.exposure;
   if (!(exposure > 0)) {
     auto it = volume.metadata_numbers.find("exposure");
-    exposure = it != volume.metadata_numbers.end() && it->second > 0 ? it->second : 1.0;
+    if (it == volume.metadata_numbers.end()) {
+      exposure = 1.0;
+      Log().info("render: {} states no exposure: rendered at 1", job.volume_path);
+    } else if (!(it->second > 0) || !std::isfinite(it->second)) {
+      throw InputError(job.volume_path + ": its metadata's exposure " + std::to_string(it->second) +
+                       " must be finite and > 0 (give --exposure to render it at another)");
+    } else {
+      exposure = it->second;
+    }
   }
   std::string absorption_name = job.absorption;
   if (absorption_name.empty()) {

@@ -130,6 +130,23 @@ TEST(StreamPix, CutShortCompressedAndForeignFilesAreClear) {
     EXPECT_NE(std::string(e.what()).find("frame 2"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("cut short"), std::string::npos) << e.what();
   }
+  // A header that states 20000 x 20000 pixels in a file of a few KiB: an error that says so
+  // before a buffer of the stated 400 MB is made (a 65535 x 65535 header took 4.3 GB).
+  SeqSpec huge;
+  huge.width = huge.height = 20000;
+  huge.frames = 0;
+  const fs::path big = WriteSeq("huge", huge);
+  std::ofstream(big, std::ios::binary | std::ios::app) << std::string(100, 'x');
+  const StreamPixSequence claims(big.string());
+  ASSERT_EQ(claims.num_frames(), 1u);
+  try {
+    claims.ReadFrame(0, 0);
+    FAIL() << "a frame the file cannot hold was read";
+  } catch (const DataError& e) {
+    EXPECT_NE(std::string(e.what()).find("cut short (400000000 bytes"), std::string::npos)
+        << e.what();
+  }
+  fs::remove(big);
   SeqSpec c;
   c.compression = 1;
   const fs::path q = WriteSeq("jpeg", c);
