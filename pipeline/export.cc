@@ -44,6 +44,15 @@ std::string SetName(std::size_t i) {
   return name;
 }
 
+// Export writes into a new or empty folder: into one that holds an earlier export, the frame sets
+// of both would mix (a shorter take's sets.csv beside a longer one's stale frames).
+void RequireEmptyFolder(const std::string& out_dir) {
+  std::error_code ec;
+  if (fs::exists(out_dir, ec) && !fs::is_empty(out_dir, ec))
+    throw InputError("export: " + out_dir +
+                     " is not empty: give a new or empty folder (nothing was overwritten)");
+}
+
 }  // namespace
 
 ExportSummary ExportRecording(const std::string& recording_dir, const std::string& out_dir,
@@ -54,6 +63,7 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
     throw InputError("export: --first " + std::to_string(options.first) +
                      " is past the recording's last frame set (" + std::to_string(rec.num_sets()) +
                      " sets)");
+  RequireEmptyFolder(out_dir);
   fs::create_directories(out_dir);
   std::ostringstream csv;
   // An event recording marks its sets: "pre-trigger" from the ring, "event" for the first live
@@ -173,6 +183,7 @@ ExportSummary ExportStreamPix(const std::vector<std::string>& seq_files,
   if (options.first > 0 && options.first >= n)
     throw InputError("export: --first " + std::to_string(options.first) +
                      " is past the sequences' last frame set (" + std::to_string(n) + " sets)");
+  RequireEmptyFolder(out_dir);
   fs::create_directories(out_dir);
   std::ostringstream csv;
   csv << "set";

@@ -99,6 +99,10 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
   const bool band_rig = job.method == FitMethod::kFast && !GroupByBand(responses).empty();
   if (!job.tomography_path.empty()) {
     tomography = ReadVdb(job.tomography_path);
+    if (tomography.emission_rgb.empty())
+      throw InputError("--tomography " + job.tomography_path +
+                       ": has no 'emission' grid (a tomography's; a fitted volume has temperature "
+                       "and density instead)");
     out.tomography = "file " + job.tomography_path;
   } else if (!band_rig) {
     std::vector<LinearFrame> used(rig.cameras.size());

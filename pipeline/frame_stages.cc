@@ -3,7 +3,9 @@
 #include <yaml-cpp/yaml.h>
 
 #include <filesystem>
+#include <fstream>
 #include <sstream>
+#include <string>
 
 #include "core/atomic_file.h"
 #include "core/error.h"
@@ -78,7 +80,20 @@ std::string RunPaths::Tomography(std::size_t i) const { return In(out, "tomograp
 std::string RunPaths::Blender(std::size_t i) const { return In(out, "blender", i, ".vdb"); }
 std::string RunPaths::StateYaml(std::size_t i) const { return In(out, "state", i, ".yaml"); }
 std::string RunPaths::StateBin(std::size_t i) const { return In(out, "state", i, ".state"); }
-bool RunPaths::Complete(std::size_t i) const { return fs::exists(Summary(i)); }
+bool RunPaths::Complete(std::size_t i) const {
+  std::error_code ec;
+  if (!fs::exists(Summary(i), ec)) return false;
+  const auto size = fs::file_size(Volume(i), ec);
+  if (!ec && size > 0) return true;
+  try {  // no volume: complete only as a failed frame's record
+    std::ifstream in(Summary(i));
+    std::stringstream text;
+    text << in.rdbuf();
+    return FrameSummary::FromYaml(text.str(), Summary(i)).status.rfind("failed", 0) == 0;
+  } catch (const std::exception&) {
+    return false;  // a summary that does not read: the frame is computed again
+  }
+}
 
 FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path, std::size_t begin)
     : options_(options),
@@ -125,6 +140,21 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
     Log().info("run: the truth's rig {} lies in this rig's frame {}", options_.truth_rig,
                r.Describe());
   }
+  {
+    const FitOptions& f = options_.fit;
+    std::ostringstream key;
+    key.precision(17);
+    key << "absorption " << absorption_.name() << ", exposure " << exposure_
+        << (exposure_known_ ? " known" : " unknown") << (options_.fit_exposure ? " fitted" : "")
+        << ", w_sm " << f.objective.w_sm << ", axisymmetric " << f.axisymmetric << " (w_sm "
+        << f.axisymmetric_w_sm << "), iterations " << f.iterations_finest << ", per level "
+        << f.iterations_per_level << ", coarse_to_fine " << f.coarse_to_fine << ", stall "
+        << f.stall_window << " / " << f.stall_decrease << ", density_pairwise "
+        << f.density_pairwise << ", mosaic " << f.objective.model_mosaic << ", held out '"
+        << options_.holdout_camera << "', warm_start " << options_.warm_start << ", sigma "
+        << options_.sigma << ", input_transfer '" << options_.input_transfer << "'";
+    fit_key_ = key.str();
+  }
   for (const char* sub : {"frames", "tomography", "state"})
     fs::create_directories(fs::path(options_.out_dir) / sub);
   if (options_.blender) fs::create_directories(fs::path(options_.out_dir) / "blender");
@@ -133,8 +163,30 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
 FrameStages::~FrameStages() = default;
 
 void FrameStages::Resume(std::size_t next) {
+  // Every state file in OUT (the last frame of each range a run committed) says the options its
+  // frames were fitted with; absent from a run before 2026-12-01, taken as this run's.
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator(fs::path(options_.out_dir) / "state", ec)) {
+    if (entry.path().extension() != ".yaml") continue;
+    std::string saved = fit_key_;
+    try {
+      saved = YAML::LoadFile(entry.path().string())["fit_options"].as<std::string>(fit_key_);
+    } catch (const YAML::Exception&) {
+      continue;  // one that does not read is refused below if this run needs it
+    }
+    if (saved != fit_key_)
+      throw InputError(options_.out_dir + " holds frames fitted with other options (" +
+                       entry.path().string() + ": " + saved + "; this run: " + fit_key_ +
+                       "): give another --out, or remove it to fit them again");
+  }
   if (next <= begin_) return;
   const std::string state = paths_.StateYaml(next - 1);
+  if (!fs::exists(state)) {
+    // Only the last committed frame keeps its state: a frame before it whose volume has gone
+    // since starts cold, as after a failed frame.
+    Log().warn("run: {} is computed again (its volume is gone) and starts cold", FrameName(next));
+    return;
+  }
   try {
     const YAML::Node n = YAML::LoadFile(state);
     chain_.previous_result = n["previous_result"].as<long long>();
@@ -169,6 +221,12 @@ void FrameStages::Read(FrameWork* w) {
   s.read_ms = Ms(t0);
   s.notes = w->set.notes;
   s.cameras_used = w->set.present();
+  if (s.cameras_used < static_cast<int>(rig_.cameras.size())) {
+    std::string why;
+    for (const std::string& n : s.notes) why += "; " + n;
+    Log().warn("run: {}: {} of the rig's {} cameras have an image{}", FrameName(w->index),
+               s.cameras_used, rig_.cameras.size(), why);
+  }
   if (holdout_ >= 0 && w->set.images[holdout_].empty())
     s.notes.push_back("held-out camera " + options_.holdout_camera + " has no frame");
   if (truth_count_) s.truth_frame = static_cast<int>(w->set.frame_id % truth_count_);
@@ -425,6 +483,8 @@ void FrameStages::Score(FrameWork* w) {
 
 void FrameStages::Fail(FrameWork* w, const std::string& what) {
   w->summary.status = "failed: " + what;
+  // At error level, so that `run -q` says why beside its count of failed frames.
+  Log().error("run: {}: failed: {}", FrameName(w->index), what);
   w->summary.exposure_from.clear();  // no output, no exposure
   w->have_output = false;
   chain_.previous_result = -1;  // a failed frame has no output to start from
@@ -437,7 +497,8 @@ void FrameStages::Commit(FrameWork* w) {
   chain.precision(17);
   chain << "previous_result: " << chain_.previous_result
         << "\nlast_computed: " << chain_.last_computed << "\ntake_exposure: " << take_exposure_
-        << "\ntake_exposure_frame: " << take_exposure_frame_ << "\n";
+        << "\ntake_exposure_frame: " << take_exposure_frame_ << "\nfit_options: \"" << fit_key_
+        << "\"\n";
   WriteFileAtomically(paths_.StateYaml(i), chain.str());
   if (chain_.last_computed >= 0) reconstructor_->SaveState(paths_.StateBin(i));
   WriteFileAtomically(paths_.Summary(i), w->summary.ToYaml());

@@ -58,7 +58,9 @@ struct RunPaths {
   std::string Blender(std::size_t i) const;     // OUT/blender/frame_NNNNNN.vdb
   std::string StateYaml(std::size_t i) const;   // OUT/state/frame_NNNNNN.yaml
   std::string StateBin(std::size_t i) const;    // OUT/state/frame_NNNNNN.state
-  bool Complete(std::size_t i) const;           // the summary exists
+  // The summary exists, and so does a non-empty volume unless the summary records a failed frame
+  // (a volume deleted after the run makes its frame, and those after it, computed again).
+  bool Complete(std::size_t i) const;
   // Profile: an axisymmetric fit's radial profile (fit_report.h's WriteRingProfileCsv, without
   // the truth); no such file for an untied frame.
 };
@@ -113,6 +115,9 @@ class FrameStages {
   double take_exposure_ = 0;
   long long take_exposure_frame_ = -1;
   AbsorptionModel absorption_;
+  // The options that change a fitted frame, as text, kept in every state file: a run into an OUT
+  // whose frames were fitted with other options is refused (it would take them as done).
+  std::string fit_key_;
   int holdout_ = -1;
   std::size_t truth_count_ = 0;
   Rigid3 fit_from_truth_;  // RunOptions::truth_rig's frame into the run's

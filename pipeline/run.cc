@@ -17,6 +17,7 @@
 #include "acquisition/recording.h"
 #include "core/error.h"
 #include "core/json_yaml.h"
+#include "fitting/absorption.h"
 #include "fitting/renderer.h"
 #include "pipeline/blender_export.h"
 #include "pipeline/fit_report.h"
@@ -41,6 +42,9 @@ bool DatasetExposure(const std::string& rig_path, double* exposure) {
     const YAML::Node root = YAML::LoadFile(dataset.string());
     if (root["dataset"] && root["dataset"]["exposure"]) {
       *exposure = root["dataset"]["exposure"].as<double>();
+      if (!(*exposure > 0 && std::isfinite(*exposure)))
+        throw InputError(dataset.string() + ": dataset.exposure must be a positive number, not " +
+                         std::to_string(*exposure));
       return true;
     }
   } catch (const YAML::Exception& e) {
@@ -56,9 +60,6 @@ ImagesExposure ResolveExposure(double given, const std::string& rig_path) {
     e.known = true;
   } else {
     e.known = DatasetExposure(rig_path, &e.value);
-    if (e.known && !(e.value > 0 && std::isfinite(e.value)))
-      throw InputError((fs::path(rig_path).parent_path() / "dataset.yaml").string() +
-                       ": exposure must be a positive number, not " + std::to_string(e.value));
     if (!e.known) e.value = 1;
   }
   return e;
@@ -78,8 +79,15 @@ std::string DatasetAbsorption(const std::string& rig_path) {
   if (!fs::exists(dataset)) return "soot";
   try {
     const YAML::Node root = YAML::LoadFile(dataset.string());
-    if (root["dataset"] && root["dataset"]["absorption"])
-      return root["dataset"]["absorption"].as<std::string>();
+    if (root["dataset"] && root["dataset"]["absorption"]) {
+      const std::string name = root["dataset"]["absorption"].as<std::string>();
+      try {
+        AbsorptionModel::FromName(name);
+      } catch (const InputError& e) {
+        throw InputError(dataset.string() + ": dataset.absorption: " + e.what());
+      }
+      return name;
+    }
   } catch (const YAML::Exception& e) {
     throw InputError(dataset.string() + ": " + e.what());
   }

@@ -69,6 +69,7 @@ YAML
 rm -rf "$RUN_DIR/recordings/fire"
 (cd "$RUN_DIR" && "$BIN" capture --config capture.yaml --record fire \
   --frames "$(( FRAMES + 1 ))" --duration "$(( FRAMES / 10 + 30 ))")
+rm -rf "$RUN_DIR/recorded"
 "$BIN" export --recording "$RUN_DIR/recordings/fire" --out "$RUN_DIR/recorded"
 
 # 4. Every recorded frame set: tomography and fit through the calibrated rig. The cameras'

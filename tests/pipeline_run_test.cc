@@ -1243,6 +1243,34 @@ TEST(RunFrames, ACancelInsideAFrameCommitsNothingOfItAndTheRunResumes) {
   fs::remove_all(dir);
 }
 
+// A resumed run takes a frame as done only when its volume is there (a volume deleted after the
+// run is computed again, with the frames after it), and refuses an OUT whose frames were fitted
+// with other options, which it took as done until 2026-12-01.
+TEST(RunFrames, AResumeRecomputesAMissingVolumeAndRefusesOtherOptions) {
+  const fs::path dir = TempDir("resume_options");
+  SimulateDataset(dir / "sim", 3);
+  const RunOptions o = SmallRun(dir / "sim", dir / "out");
+  ASSERT_EQ(RunAll(o).computed, 3u);
+  fs::remove(dir / "out" / "frame_000001.vdb");
+  const RunSummary again = RunAll(o);
+  EXPECT_EQ(again.resumed, 1u);
+  EXPECT_EQ(again.computed, 2u);
+  EXPECT_TRUE(fs::exists(dir / "out" / "frame_000001.vdb"));
+  EXPECT_EQ(RunAll(o).resumed, 3u);  // all there now
+  RunOptions other = o;
+  other.fit.objective.w_sm *= 2;
+  try {
+    RunAll(other);
+    FAIL() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("holds frames fitted with other options"),
+              std::string::npos)
+        << e.what();
+  }
+  EXPECT_TRUE(fs::exists(dir / "out" / "frame_000002.vdb"));  // nothing of it was touched
+  fs::remove_all(dir);
+}
+
 // The orchestration of ranks, in process: two ranks as threads split the frames contiguously,
 // rank 0 writes the one report with every frame, in order.
 TEST(RunDistributed, TwoRanksAsThreadsShareTheFramesAndOneReport) {

@@ -246,6 +246,21 @@ TEST(Cli, RenderReproducesSimulatedImages) {
         flamerig::ReadImageU8((dir / "render" / (std::string(cam) + ".png")).string());
     EXPECT_EQ(a.pixels, b.pixels) << cam;
   }
+  // A volume whose stated exposure cannot be one is an error naming it (it was rendered at 1, in
+  // silence); --exposure renders it at the one given.
+  flamerig::FireVolume v =
+      flamerig::ReadVdb((dir / "data" / "truth" / "frame_000000.vdb").string());
+  v.metadata_numbers["exposure"] = -1;
+  flamerig::WriteVdb((dir / "negative.vdb").string(), v);
+  const std::string rig = " --rig " + (dir / "data" / "rig.yaml").string();
+  render = Flamerig("render" + rig + " --volume " + (dir / "negative.vdb").string() + " --out " +
+                    (dir / "render_negative").string());
+  EXPECT_EQ(render.status, 1) << render.output;
+  EXPECT_NE(render.output.find("negative.vdb: its metadata's exposure -1"), std::string::npos)
+      << render.output;
+  render = Flamerig("render" + rig + " --volume " + (dir / "negative.vdb").string() + " --out " +
+                    (dir / "render_negative").string() + " --exposure 2");
+  EXPECT_EQ(render.status, 0) << render.output;
   fs::remove_all(dir);
 }
 
@@ -330,6 +345,25 @@ TEST(Cli, ReconstructASimulatedFrameSet) {
       Flamerig("reconstruct --rig " + (dir / "nope.yaml").string() + " --images x --out y.vdb");
   EXPECT_EQ(norig.status, 1);
   EXPECT_NE(norig.output.find("nope.yaml"), std::string::npos) << norig.output;
+  // A dataset.yaml beside the rig whose exposure or absorption cannot be: errors naming it and the
+  // field (the exposure was blamed on an image, the absorption named no file).
+  const std::vector<std::pair<std::string, std::string>> datasets = {
+      {"dataset:\n  exposure: .nan\n", "dataset.yaml: dataset.exposure must be a positive number"},
+      {"dataset:\n  exposure: 1\n  absorption: plasma\n",
+       "dataset.yaml: dataset.absorption: absorption model 'plasma' is unknown"},
+  };
+  for (const auto& [text, expected] : datasets) {
+    std::ofstream(dir / "data" / "dataset.yaml") << text;
+    const bool absorption = text.find("absorption") != std::string::npos;
+    for (const std::string command : {"reconstruct", "fit"}) {
+      if (command == "reconstruct" && absorption) continue;  // the tomography has no absorption
+      Result bad = Flamerig(command + " --rig " + (dir / "data" / "rig.yaml").string() +
+                            " --images " + (dir / "data" / "frames" / "frame_000000").string() +
+                            " --out " + (dir / "bad.vdb").string() + " --resolution 8");
+      EXPECT_EQ(bad.status, 1) << command << " " << text << bad.output;
+      EXPECT_NE(bad.output.find(expected), std::string::npos) << command << bad.output;
+    }
+  }
   fs::remove_all(dir);
 }
 
@@ -380,6 +414,13 @@ TEST(Cli, FitASimulatedFrameSet) {
   EXPECT_NE(lonely.output.find("--truth-rig"), std::string::npos) << lonely.output;
   EXPECT_FALSE(fs::exists(dir / "lonely.vdb"));
   EXPECT_NE(flamerig::ReadVdb(free_out).metadata_numbers.at("exposure"), known.value);
+  // A fitted volume given as the tomography: an error naming the option and the file.
+  Result not_tomography = Flamerig("fit --rig " + rig + " --images " + images + " --out " +
+                                   (dir / "twice.vdb").string() + " --tomography " + free_out);
+  EXPECT_EQ(not_tomography.status, 1) << not_tomography.output;
+  EXPECT_NE(not_tomography.output.find("--tomography " + free_out + ": has no 'emission' grid"),
+            std::string::npos)
+      << not_tomography.output;
   // --axisymmetric ties the fit into rings about the flame's axis; the volume says how many.
   const std::string rings_out = (dir / "rings.vdb").string();
   Result rings = Flamerig("fit --rig " + rig + " --images " + images + " --out " + rings_out +
@@ -692,6 +733,12 @@ TEST(Cli, CaptureCtlAndExport) {
                              (dir / "png").string());
   ASSERT_EQ(ex.status, 0) << ex.output;
   EXPECT_TRUE(fs::exists(dir / "png" / "sets.csv"));
+  // Into a folder that is not empty: refused, as capture refuses (two exports' sets would mix).
+  const Result twice = Flamerig("export --recording " + (dir / "rec" / "take").string() +
+                                " --out " + (dir / "png").string() + " --count 2");
+  EXPECT_EQ(twice.status, 1) << twice.output;
+  EXPECT_NE(twice.output.find("png is not empty: give a new or empty folder"), std::string::npos)
+      << twice.output;
   const flamerig::ImageU8 left =
       flamerig::ReadImageU8((dir / "png" / "frame_000005" / "left.png").string());
   const flamerig::ImageU8 right =
