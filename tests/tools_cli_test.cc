@@ -985,6 +985,27 @@ TEST(Cli, ASilentCameraIsWarnedAboutAndFailsTheCapture) {
   EXPECT_NE(r.output.find("camera b (SIM1) sent no frame at all (no trigger pulses?)"),
             std::string::npos)
       << r.output;
+  // One that sent frames, went away and did not come back fails the capture too (it exited 0
+  // with most of the recorded sets lacking it); one that came back in time does not.
+  std::ofstream(dir / "lost.yaml")
+      << "data_dir: rec\nsync: software-trigger\ntrigger_rate_hz: 20\n"
+         "cameras:\n  - {name: a, width: 32, height: 24}\n"
+         "  - {name: b, width: 32, height: 24, sim: {disconnect_at_s: 0.5}}\n";
+  const Result lost =
+      Flamerig("capture --config " + (dir / "lost.yaml").string() + " --record lost --duration 4");
+  EXPECT_EQ(lost.status, 1) << lost.output;
+  EXPECT_TRUE(std::regex_search(
+      lost.output, std::regex(R"(error +capture: camera b \(SIM1\) sent no frame in the last )"
+                              R"([0-9.]+ s of the run \([0-9]+ frames, 1 disconnects)")))
+      << lost.output;
+  std::ofstream(dir / "back.yaml")
+      << "data_dir: rec\nsync: software-trigger\ntrigger_rate_hz: 20\n"
+         "cameras:\n  - {name: a, width: 32, height: 24}\n"
+         "  - {name: b, width: 32, height: 24, sim: {disconnect_at_s: 0.5, reconnect_at_s: 1}}\n";
+  const Result back =
+      Flamerig("capture --config " + (dir / "back.yaml").string() + " --record back --duration 4");
+  EXPECT_EQ(back.status, 0) << back.output;
+  EXPECT_EQ(back.output.find("sent no frame in the last"), std::string::npos) << back.output;
   fs::remove_all(dir);
 }
 

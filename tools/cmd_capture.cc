@@ -225,6 +225,15 @@ Runner AddCapture(CLI::App* command) {
         Log().error("capture: camera {} ({}) sent no frame at all{}", c.name, c.id,
                     config.sync == SyncMode::kHardwareTrigger ? " (no trigger pulses?)" : "");
         silent = true;
+      } else if (!optional && c.last_frame_age_s > stall_s) {
+        // A required camera that went away and did not come back: the sets recorded after it
+        // lack it (the exit status said 0 while 46 of 60 sets had no frame of it).
+        Log().error(
+            "capture: camera {} ({}) sent no frame in the last {:.1f} s of the run ({} frames, {} "
+            "disconnects, {} reconnects{}{}): the sets recorded since lack it",
+            c.name, c.id, c.last_frame_age_s, c.frames, c.disconnects, c.reconnects,
+            c.error.empty() ? "" : "; last error: ", c.error);
+        silent = true;
       }
       Log().info(
           "capture: {}: {} frames, {} missing by frame id, {} missed triggers, {} incomplete, {} "
