@@ -740,6 +740,9 @@ Recording Recording::Open(const std::string& directory) {
   if (!fs::is_directory(dir))
     throw RecordingError("recording: " + directory + " is not a directory");
   const fs::path meta_path = dir / "metadata.yaml";
+  if (!fs::exists(meta_path))
+    throw RecordingError("recording: " + directory +
+                         " has no metadata.yaml: not a flamerig recording");
   try {
     const YAML::Node root = YAML::LoadFile(meta_path.string());
     if (!root["flamerig_recording"] || root["flamerig_recording"].as<int>() != 1)

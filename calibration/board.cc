@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <opencv2/aruco/charuco.hpp>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
@@ -51,6 +52,7 @@ std::string BoardSpec::Describe() const {
 
 BoardSpec LoadBoardSpec(const std::string& yaml_path) {
   YAML::Node root;
+  if (!std::filesystem::exists(yaml_path)) throw InputError(yaml_path + ": no such file");
   try {
     root = YAML::LoadFile(yaml_path);
   } catch (const YAML::Exception& e) {

@@ -54,6 +54,7 @@ cv::Scalar ErrorColour(double error_px, double scale) {
 
 CalibrateConfig CalibrateConfig::Load(const std::string& path) {
   YAML::Node root;
+  if (!fs::exists(path)) throw InputError(path + ": no such file");
   try {
     root = YAML::LoadFile(path);
   } catch (const YAML::Exception& e) {

@@ -449,7 +449,7 @@ TEST_F(Damage, OnlyMetadataIsIndispensable) {
   EXPECT_NE(m.find("metadata.yaml"), std::string::npos) << m;
   fs::remove(at("metadata.yaml"));
   m = OpenError(dir_.str());
-  EXPECT_NE(m.find("metadata.yaml"), std::string::npos) << m;
+  EXPECT_NE(m.find("has no metadata.yaml: not a flamerig recording"), std::string::npos) << m;
   EXPECT_NE(OpenError((dir_.path() / "nothing").string()).find("not a directory"),
             std::string::npos);
 }

@@ -67,6 +67,11 @@ TEST(CalibrateConfig, ErrorsNameTheFileAndKey) {
   EXPECT_NE(d.find("subpix_iterations"), std::string::npos) << d;
   d = write("calibrate: {detect: {windows: 3}}\n");
   EXPECT_NE(d.find("unknown key 'windows'"), std::string::npos) << d;
+  // A file that is not there says so (yaml-cpp says "bad file"), for the board's too.
+  d = ErrorOf([&] { CalibrateConfig::Load((dir / "none.yaml").string()); });
+  EXPECT_NE(d.find("none.yaml: no such file"), std::string::npos) << d;
+  d = ErrorOf([&] { LoadBoardSpec((dir / "no_board.yaml").string()); });
+  EXPECT_NE(d.find("no_board.yaml: no such file"), std::string::npos) << d;
   const CalibrateConfig classic = [&] {
     std::ofstream((dir / "ok.yaml").string())
         << "calibrate: {board_warp: false, detect: {detector: classic, subpix_half_window: 4}}\n";
