@@ -3,7 +3,6 @@
 #include <yaml-cpp/yaml.h>
 
 #include <filesystem>
-#include <fstream>
 #include <sstream>
 #include <string>
 
@@ -86,10 +85,7 @@ bool RunPaths::Complete(std::size_t i) const {
   const auto size = fs::file_size(Volume(i), ec);
   if (!ec && size > 0) return true;
   try {  // no volume: complete only as a failed frame's record
-    std::ifstream in(Summary(i));
-    std::stringstream text;
-    text << in.rdbuf();
-    return FrameSummary::FromYaml(text.str(), Summary(i)).status.rfind("failed", 0) == 0;
+    return ReadFrameSummaries(out, i, i + 1).at(0).status.rfind("failed", 0) == 0;
   } catch (const std::exception&) {
     return false;  // a summary that does not read: the frame is computed again
   }

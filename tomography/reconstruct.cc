@@ -13,7 +13,6 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
-#include <limits>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -27,24 +26,13 @@
 namespace flamerig {
 namespace {
 
-// Whether any valid ray of `rays` enters `box` in front of its origin (a slab test).
+// Whether any valid ray of `rays` enters `box` in front of its origin.
 bool AnyRayMeetsBox(const CameraRays& rays, const Box3& box) {
-  for (const Ray& r : rays.rays()) {
-    if (!r.valid) continue;
-    double near = 0, far = std::numeric_limits<double>::infinity();
-    for (int a = 0; a < 3 && near <= far; ++a) {
-      const double o = r.origin_in_rig[a], d = r.direction_in_rig[a];
-      if (d == 0) {
-        if (o < box.min_in_rig[a] || o > box.max_in_rig[a]) far = -1;
-        continue;
-      }
-      double t0 = (box.min_in_rig[a] - o) / d, t1 = (box.max_in_rig[a] - o) / d;
-      if (t0 > t1) std::swap(t0, t1);
-      near = std::max(near, t0);
-      far = std::min(far, t1);
-    }
-    if (near <= far) return true;
-  }
+  double t_enter, t_exit;
+  for (const Ray& r : rays.rays())
+    if (r.valid && IntersectBox(r.origin_in_rig, r.direction_in_rig, box.min_in_rig, box.max_in_rig,
+                                &t_enter, &t_exit))
+      return true;
   return false;
 }
 
