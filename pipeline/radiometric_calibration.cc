@@ -10,6 +10,7 @@
 #include <map>
 #include <opencv2/imgproc.hpp>
 #include <random>
+#include <set>
 #include <sstream>
 
 #include "core/config_reader.h"
@@ -328,47 +329,128 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
     result->notes.push_back("gamma held at " + Num(model.gamma) +
                             ": fewer than three distinct signal levels");
 
-  // Start: the model's black level and the least-squares gains of the decoded signals.
-  double black = decoding.black, gamma = model.gamma;
-  double gains[3] = {model.gain[0], model.gain[1], model.gain[2]};
-  for (int c = 0; c < channels; ++c) {
-    double xy = 0, xx = 0;
-    for (const Observation& o : observations)
-      if (o.channel == c && o.for_gain) {
-        xy += o.x * model.Signal(o.code, decoding);
-        xx += o.x * o.x;
-      }
-    if (xx > 0 && xy > 0) gains[c] = xy / xx;
+  // The fit of the observations of the shots not in `outliers`: black level, gains and gamma.
+  struct Fitted {
+    double black = 0, gamma = 1, gains[3] = {1, 1, 1};
+    double rms = 0;                          // DN, over the observations fitted
+    std::map<std::size_t, double> shot_rms;  // per shot index in out->shots, DN
+  };
+  auto solve = [&](const std::set<std::size_t>& outliers) {
+    Fitted f;
+    f.black = decoding.black;
+    f.gamma = model.gamma;
+    // Start: the model's black level and the least-squares gains of the decoded signals.
+    for (int c = 0; c < 3; ++c) f.gains[c] = model.gain[c];
+    for (int c = 0; c < channels; ++c) {
+      double xy = 0, xx = 0;
+      for (const Observation& o : observations)
+        if (o.channel == c && o.for_gain && !outliers.count(o.shot)) {
+          xy += o.x * model.Signal(o.code, decoding);
+          xx += o.x * o.x;
+        }
+      if (xx > 0 && xy > 0) f.gains[c] = xy / xx;
+    }
+    ceres::Problem problem;
+    std::vector<const Observation*> fitted_observations;
+    for (const Observation& o : observations) {
+      if ((!o.for_gain && !black_identifiable) || outliers.count(o.shot)) continue;
+      auto* cost = new ceres::NumericDiffCostFunction<CodeResidual, ceres::CENTRAL, 1, 1, 1, 1>(
+          new CodeResidual(model, decoding, o.x, o.code));
+      problem.AddResidualBlock(cost, nullptr, &f.black, &f.gains[o.channel], &f.gamma);
+      fitted_observations.push_back(&o);
+    }
+    if (!black_identifiable) {
+      problem.SetParameterBlockConstant(&f.black);
+    } else {
+      problem.SetParameterLowerBound(&f.black, 0, 0.0);
+      problem.SetParameterUpperBound(&f.black, 0, decoding.saturation - 1);
+    }
+    if (!gamma_identifiable) {
+      problem.SetParameterBlockConstant(&f.gamma);
+    } else {
+      problem.SetParameterLowerBound(&f.gamma, 0, 0.2);
+      problem.SetParameterUpperBound(&f.gamma, 0, 5.0);
+    }
+    for (int c = 0; c < channels; ++c) problem.SetParameterLowerBound(&f.gains[c], 0, 1e-12);
+    ceres::Solver::Options solver;
+    solver.max_num_iterations = 100;
+    solver.function_tolerance = 1e-12;
+    solver.parameter_tolerance = 1e-12;
+    solver.num_threads = 1;
+    ceres::Solver::Summary summary;
+    ceres::Solve(solver, &problem, &summary);
+    if (!summary.IsSolutionUsable())
+      throw DataError(where + ": the radiometric fit failed: " + summary.message);
+    // Every shot's residuals in the fitted model, the left-out shots' included.
+    std::map<std::size_t, std::pair<double, int>> per_shot;
+    double sum = 0;
+    for (const Observation& o : observations) {
+      if (!o.for_gain && !black_identifiable) continue;
+      double e = 0;
+      CodeResidual(model, decoding, o.x, o.code)(&f.black, &f.gains[o.channel], &f.gamma, &e);
+      per_shot[o.shot].first += e * e;
+      per_shot[o.shot].second += 1;
+      if (!outliers.count(o.shot)) sum += e * e;
+    }
+    f.rms = fitted_observations.empty() ? 0 : std::sqrt(sum / double(fitted_observations.size()));
+    for (const auto& [shot, entry] : per_shot)
+      f.shot_rms[shot] = std::sqrt(entry.first / entry.second);
+    return f;
+  };
+
+  // A shot that disagrees with all the others (a wrong image, a capped lens, a mistyped exposure)
+  // would pull every gain: it is left out, with a warning naming it, when leaving it out divides
+  // the fit's RMS by `outlier_ratio` or more. Systematic misfit (a wrong spectral model) spreads
+  // over all shots and leaves none out. At most a quarter of the shots, and 3 must remain.
+  std::set<std::size_t> outliers;
+  Fitted fit = solve(outliers);
+  const double full_scale = decoding.saturation - decoding.black;
+  while (4 * (outliers.size() + 1) <= images.size() && images.size() - outliers.size() > 3 &&
+         fit.rms > 0.001 * full_scale) {
+    std::size_t worst = 0;
+    double worst_rms = -1;
+    for (const auto& [shot, rms] : fit.shot_rms)
+      if (!outliers.count(shot) && rms > worst_rms) worst = shot, worst_rms = rms;
+    std::set<std::size_t> trial = outliers;
+    trial.insert(worst);
+    // Every channel must keep a shot for its gain.
+    bool keeps_every_channel = true;
+    for (int c = 0; c < channels; ++c) {
+      bool kept = false;
+      for (const Observation& o : observations)
+        kept |= o.channel == c && o.for_gain && !trial.count(o.shot);
+      keeps_every_channel &= kept;
+    }
+    if (!keeps_every_channel) break;
+    const Fitted without = solve(trial);
+    if (!(without.rms * options.outlier_ratio <= fit.rms)) break;
+    const RadiometricShot& s = out->shots[worst].shot;
+    result->warnings.push_back(
+        "shot " + s.image + " (" + Num(s.temperature_k) + " K, exposure " + Num(s.exposure) +
+        ") left out: its codes lie " + Num(without.shot_rms.at(worst), 3) +
+        " DN (rms) from what the other shots predict, which agree to " + Num(without.rms, 3) +
+        " DN: a wrong image, a covered lens or a wrong exposure in the shots file?");
+    for (int c = 0; c < channels; ++c)
+      if (out->shots[worst].left_out[std::size_t(c)].empty())
+        out->shots[worst].left_out[std::size_t(c)] =
+            "an outlier (" + Num(without.shot_rms.at(worst), 3) + " DN from the others' fit)";
+    outliers = trial;
+    fit = without;
   }
-  ceres::Problem problem;
-  for (const Observation& o : observations) {
-    if (!o.for_gain && !black_identifiable) continue;
-    auto* cost = new ceres::NumericDiffCostFunction<CodeResidual, ceres::CENTRAL, 1, 1, 1, 1>(
-        new CodeResidual(model, decoding, o.x, o.code));
-    problem.AddResidualBlock(cost, nullptr, &black, &gains[o.channel], &gamma);
+  if (fit.rms > options.max_rms * full_scale) {
+    std::size_t worst = 0;
+    double worst_rms = -1;
+    for (const auto& [shot, rms] : fit.shot_rms)
+      if (!outliers.count(shot) && rms > worst_rms) worst = shot, worst_rms = rms;
+    throw DataError(where + ": the model does not explain the shots: their codes lie " +
+                    Num(fit.rms, 4) + " DN (rms) from it, " + Num(100 * fit.rms / full_scale, 3) +
+                    "% of full scale (at most " + Num(100 * options.max_rms) + "%); the worst is " +
+                    out->shots[worst].shot.image + " (" + Num(worst_rms, 4) +
+                    " DN). Check the shots' images and exposures, and the "
+                    "model's transfer function, bit depth and spectral sensitivity");
   }
-  if (!black_identifiable) {
-    problem.SetParameterBlockConstant(&black);
-  } else {
-    problem.SetParameterLowerBound(&black, 0, 0.0);
-    problem.SetParameterUpperBound(&black, 0, decoding.saturation - 1);
-  }
-  if (!gamma_identifiable) {
-    problem.SetParameterBlockConstant(&gamma);
-  } else {
-    problem.SetParameterLowerBound(&gamma, 0, 0.2);
-    problem.SetParameterUpperBound(&gamma, 0, 5.0);
-  }
-  for (int c = 0; c < channels; ++c) problem.SetParameterLowerBound(&gains[c], 0, 1e-12);
-  ceres::Solver::Options solver;
-  solver.max_num_iterations = 100;
-  solver.function_tolerance = 1e-12;
-  solver.parameter_tolerance = 1e-12;
-  solver.num_threads = 1;
-  ceres::Solver::Summary summary;
-  ceres::Solve(solver, &problem, &summary);
-  if (!summary.IsSolutionUsable())
-    throw DataError(where + ": the radiometric fit failed: " + summary.message);
+  const double black = fit.black, gamma = fit.gamma;
+  const double* gains = fit.gains;
 
   CameraRadiometry after = model;
   after.black_level = black;
@@ -396,6 +478,7 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
     const double g = gains[o.channel];
     const double model_code = after.Encode(g * o.x, fitted);
     r.model_code[o.channel] = model_code;
+    if (outliers.count(o.shot)) continue;  // its reason is said
     if (g * o.x < options.min_signal)
       r.left_out[std::size_t(o.channel)] =
           !o.for_gain && !black_identifiable
@@ -450,6 +533,8 @@ void RadiometricOptions::Validate() const {
     fail("max_saturated_fraction", "must be in [0, 1)");
   if (!(min_signal >= 0 && min_signal < 1)) fail("min_signal", "must be in [0, 1)");
   if (!(max_spectral_mismatch > 0)) fail("max_spectral_mismatch", "must be > 0");
+  if (!(outlier_ratio > 1)) fail("outlier_ratio", "must be > 1");
+  if (!(max_rms > 0)) fail("max_rms", "must be > 0");
 }
 
 RadiometricShots RadiometricShots::Load(const std::string& path) {

@@ -28,6 +28,13 @@
 // level is held, a channel below 1% of full scale (when the black level is fitted such a dark
 // channel stays in the fit, where it mostly weighs on the black level, and the report says so).
 //
+// A shot that disagrees with all the others (a wrong image, a covered lens, a mistyped exposure)
+// is left out with a warning naming it, when leaving it out divides the fit's RMS by
+// `outlier_ratio` (5) or more; at most a quarter of a camera's shots, and three must remain. A
+// systematic misfit (a wrong spectral model) spreads over every shot and leaves none out. A fit
+// whose RMS is still above `max_rms` (5%) of full scale is an error (DataError) naming the camera
+// and its worst shot, and nothing is written: such gains would bias every fire fitted with them.
+//
 // The spectral check: with shots at two temperatures or more, the ratio of the measured signal to
 // the model's at each temperature, per channel, should be 1 whatever the temperature when the
 // spectral sensitivity is right. A spread above `max_spectral_mismatch` (2%) is a warning that
@@ -94,6 +101,8 @@ struct RadiometricOptions {
   double max_saturated_fraction = 1e-3;  // of a patch's pixels at the saturation level
   double min_signal = 0.01;              // of full scale, for a shot's channel to count for gains
   double max_spectral_mismatch = 0.02;   // the spectral check's warning threshold
+  double outlier_ratio = 5;              // leaving a shot out must divide the RMS by this
+  double max_rms = 0.05;                 // of full scale: a worse fit is an error
   bool fit_black_level = true;           // when the data allow
   bool fit_gamma = true;                 // transfer gamma, when the data allow
   void Validate() const;                 // throws InputError naming the field

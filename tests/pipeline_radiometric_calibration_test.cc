@@ -265,6 +265,60 @@ TEST(RadiometricCalibration, BadShotsAreRefusedNamingWhatAndWhere) {
   fs::remove_all(dir);
 }
 
+TEST(RadiometricCalibration, AShotThatDisagreesWithAllTheOthersIsLeftOutAndNamed) {
+  const fs::path dir = TempDir("outlier");
+  Rig rig = SmallRig();
+  CameraRadiometry film = BandCamera12();
+  film.gain = Eigen::Vector3d(0.55, 1.0, 1.45);
+  film.black_level = 64;
+  rig.cameras[0].radiometry = BandCamera12();
+  RadiometricShots shots = Film(dir, rig.cameras[0].name, film, kTemperatures, kLevels, 0.25);
+  // A capped lens: one mid-level shot's image is black, below the camera's black level.
+  const std::string capped = shots.shots[8].image;
+  WritePng16(capped, ImageU16(160, 120, 3, 0));
+  const RadiometricCalibration cal = CalibrateRadiometry(rig, shots, RadiometricOptions());
+  const CameraRadiometricResult& r = cal.cameras[0];
+  std::printf("%s", cal.Brief().c_str());
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(r.after.gain[c] / film.gain[c], 1.0, 0.005) << c;
+  EXPECT_NEAR(r.after.black_level, 64, 1.0);
+  EXPECT_LT(r.rms_dn, 1.0);
+  ASSERT_EQ(r.warnings.size(), 1u);
+  EXPECT_NE(r.warnings[0].find(capped), std::string::npos) << r.warnings[0];
+  EXPECT_NE(r.warnings[0].find("left out"), std::string::npos) << r.warnings[0];
+  EXPECT_NE(cal.shots[8].left_out[0].find("an outlier"), std::string::npos);
+  // Kept in, the black shot pulls the gains and the black level far off (what the check is for).
+  RadiometricOptions keep;
+  keep.outlier_ratio = 1e9;
+  keep.max_rms = 1;
+  const CameraRadiometricResult kept = CalibrateRadiometry(rig, shots, keep).cameras[0];
+  EXPECT_GT(kept.rms_dn, 100);
+  EXPECT_GT(
+      (kept.after.gain.cwiseQuotient(film.gain) - Eigen::Vector3d::Ones()).cwiseAbs().maxCoeff(),
+      0.05);
+  fs::remove_all(dir);
+}
+
+TEST(RadiometricCalibration, ShotsTheModelCannotExplainAreAnErrorNamingTheWorst) {
+  const fs::path dir = TempDir("unexplained");
+  Rig rig = SmallRig();
+  rig.cameras[0].radiometry = BandCamera12();
+  RadiometricShots shots =
+      Film(dir, rig.cameras[0].name, BandCamera12(), kTemperatures, kLevels, 0.25);
+  // Exposures copied from another session: every shot's is off by its own factor, 1/3 to 3.
+  for (std::size_t i = 0; i < shots.shots.size(); ++i)
+    shots.shots[i].exposure *= std::pow(3.0, std::sin(2.7 * double(i) + 0.4));
+  try {
+    CalibrateRadiometry(rig, shots, RadiometricOptions());
+    ADD_FAILURE() << "calibrated from shots the model cannot explain";
+  } catch (const DataError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("camera " + rig.cameras[0].name), std::string::npos) << what;
+    EXPECT_NE(what.find("does not explain the shots"), std::string::npos) << what;
+    EXPECT_NE(what.find("the worst is " + dir.string()), std::string::npos) << what;
+  }
+  fs::remove_all(dir);
+}
+
 // The fit's temperature error (truth finer than the fit's grid) of a simulated 2-view candle, with
 // the cameras' models taken from `rig_path`.
 TruthError FitWith(const fs::path& data, const std::string& rig_path, double exposure,
