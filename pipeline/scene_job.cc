@@ -185,8 +185,10 @@ SceneJob SceneJob::Load(const std::string& path, const std::string& volume_overr
       const std::string file = f.Get<std::string>("volume", "");
       if (file.empty() && volume_override.empty())
         throw InputError(at + ": 'volume' (a .vdb file) is required");
+      // What was read: the scene's own file, or the --volume that replaces it.
+      const std::string read = volume_override.empty() ? resolve(file) : volume_override;
       try {
-        fire.volume = ReadVdb(volume_override.empty() ? resolve(file) : volume_override);
+        fire.volume = ReadVdb(read);
       } catch (const Error& e) {
         Rethrow(e, at + ": ", Error::Kind::kInput);
       }
@@ -205,7 +207,10 @@ SceneJob SceneJob::Load(const std::string& path, const std::string& volume_overr
       fire.translate = Vec3(f, "translate", Eigen::Vector3d::Zero());
       f.CheckKnown();
       if (fire.volume.temperature_k.empty() || fire.volume.density_per_m3.empty())
-        throw InputError(at + ": " + file + " needs temperature and density grids");
+        throw InputError(
+            at + ": " + read + (volume_override.empty() ? "" : " (given with --volume)") +
+            " needs temperature and density grids to light a scene (it has " +
+            (fire.volume.emission_rgb.empty() ? "neither" : "only an emission grid") + ")");
       scene.fires.push_back(std::move(fire));
     }
   }

@@ -7,6 +7,7 @@
 #include <fstream>
 #include <string>
 
+#include "core/error.h"
 #include "pipeline/scene_job.h"
 #include "tests/scene_util.h"
 #include "tomography/vdb_io.h"
@@ -83,6 +84,20 @@ TEST(SceneJob, ReadsScenesMeshesAndWritesExr) {
                "albedo");
   expect_error("scene:\n  objects: []\n", "no fire");
   expect_error("scene:\n  fires: [{volume: missing.vdb}]\n", "missing.vdb");
+  // A --volume with only emission (a reconstruction) is named, not the scene's own volume.
+  FireVolume emission_only;
+  emission_only.geometry = lit.fires[0].volume.geometry;
+  emission_only.emission_rgb.assign(3 * emission_only.geometry.num_voxels(), 0.5f);
+  WriteVdb((dir / "reconstruction.vdb").string(), emission_only);
+  try {
+    SceneJob::Load((dir / "scene.yaml").string(), (dir / "reconstruction.vdb").string());
+    ADD_FAILURE() << "lit a scene with an emission-only volume";
+  } catch (const InputError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("reconstruction.vdb (given with --volume)"), std::string::npos) << what;
+    EXPECT_NE(what.find("only an emission grid"), std::string::npos) << what;
+    EXPECT_EQ(what.find("fire.vdb"), std::string::npos) << what;
+  }
   std::ofstream(dir / "broken.obj") << "v 0 0 0\nf 1 2 3\n";
   expect_error(
       "scene:\n  materials: {a: {albedo: [1, 1, 1]}}\n  objects: [{type: mesh, file: broken.obj, "
