@@ -4,8 +4,10 @@
 
 #include <array>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <memory>
 #include <random>
 
@@ -202,6 +204,25 @@ TEST(Vdb, BadFilesAndVolumesGiveClearErrors) {
       EXPECT_LT(what.size(), 400u) << at;
       EXPECT_NE(what.find("cut_at.vdb: not a readable VDB file"), std::string::npos) << what;
     }
+  }
+  // A damaged transform (the map's scale patched in the file) names the file: a zero scale is
+  // OpenVDB's singular-matrix error, a scale of 1e300 puts the grid beyond any rig.
+  for (const double scale : {0.0, 1e300, std::nan("")}) {
+    std::string bytes;
+    {
+      std::ifstream in(dir / "good.vdb", std::ios::binary);
+      bytes.assign(std::istreambuf_iterator<char>(in), {});
+    }
+    const std::string map = "UniformScaleTranslateMap";
+    int patched = 0;
+    for (auto at = bytes.find(map); at != std::string::npos; at = bytes.find(map, at + 1)) {
+      for (int c = 0; c < 3; ++c)  // translation (3 doubles), then the scale (3 doubles)
+        std::memcpy(&bytes[at + map.size() + 24 + 8 * std::size_t(c)], &scale, sizeof scale);
+      ++patched;
+    }
+    ASSERT_GT(patched, 0);
+    std::ofstream(dir / "map.vdb", std::ios::binary) << bytes;
+    expect_error([&] { ReadVdb((dir / "map.vdb").string()); }, "map.vdb: ");
   }
   // A file with no known grid.
   openvdb::initialize();

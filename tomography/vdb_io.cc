@@ -251,41 +251,47 @@ FireVolume ReadVdb(const std::string& path) {
       }
     }
   };
-  for (const auto& base : *grids) {
-    const std::string name = base->getName();
-    std::vector<float>* field = name == "temperature"            ? &volume.temperature_k
-                                : name == "density"              ? &volume.density_per_m3
-                                : name == "temperature_sigma"    ? &volume.temperature_sigma_k
-                                : name == "density_sigma"        ? &volume.density_sigma
-                                : name == "determined"           ? &volume.determined
-                                : name == "soot_volume_fraction" ? &volume.soot_volume_fraction
-                                                                 : nullptr;
-    if (field) {
-      auto grid = openvdb::gridConstPtrCast<openvdb::FloatGrid>(base);
-      if (!grid) throw DataError(path + ": grid '" + name + "' is not a float grid");
-      read_float(*grid, *field);
-    } else if (name == "emission") {
-      auto grid = openvdb::gridConstPtrCast<openvdb::Vec3SGrid>(base);
-      if (!grid) throw DataError(path + ": grid 'emission' is not a Vec3s grid");
-      adopt_geometry(*grid);
-      const GridGeometry& g = volume.geometry;
-      openvdb::Coord off = OffsetOf(*grid);
-      volume.emission_rgb.assign(3 * g.num_voxels(), 0.0f);
-      for (auto it = grid->cbeginValueOn(); it; ++it) {
-        openvdb::CoordBBox box;
-        it.getBoundingBox(box);
-        for (auto c = box.begin(); c; ++c) {
-          openvdb::Coord ijk = *c - off;
-          if (ijk.x() < 0 || ijk.y() < 0 || ijk.z() < 0 || ijk.x() >= g.dims.x() ||
-              ijk.y() >= g.dims.y() || ijk.z() >= g.dims.z()) {
-            continue;
+  // OpenVDB checks a grid's transform only when it is used (a zero scale throws its own
+  // ArithmeticError from getAffineMap): its messages get the file's name.
+  try {
+    for (const auto& base : *grids) {
+      const std::string name = base->getName();
+      std::vector<float>* field = name == "temperature"            ? &volume.temperature_k
+                                  : name == "density"              ? &volume.density_per_m3
+                                  : name == "temperature_sigma"    ? &volume.temperature_sigma_k
+                                  : name == "density_sigma"        ? &volume.density_sigma
+                                  : name == "determined"           ? &volume.determined
+                                  : name == "soot_volume_fraction" ? &volume.soot_volume_fraction
+                                                                   : nullptr;
+      if (field) {
+        auto grid = openvdb::gridConstPtrCast<openvdb::FloatGrid>(base);
+        if (!grid) throw DataError(path + ": grid '" + name + "' is not a float grid");
+        read_float(*grid, *field);
+      } else if (name == "emission") {
+        auto grid = openvdb::gridConstPtrCast<openvdb::Vec3SGrid>(base);
+        if (!grid) throw DataError(path + ": grid 'emission' is not a Vec3s grid");
+        adopt_geometry(*grid);
+        const GridGeometry& g = volume.geometry;
+        openvdb::Coord off = OffsetOf(*grid);
+        volume.emission_rgb.assign(3 * g.num_voxels(), 0.0f);
+        for (auto it = grid->cbeginValueOn(); it; ++it) {
+          openvdb::CoordBBox box;
+          it.getBoundingBox(box);
+          for (auto c = box.begin(); c; ++c) {
+            openvdb::Coord ijk = *c - off;
+            if (ijk.x() < 0 || ijk.y() < 0 || ijk.z() < 0 || ijk.x() >= g.dims.x() ||
+                ijk.y() >= g.dims.y() || ijk.z() >= g.dims.z()) {
+              continue;
+            }
+            std::size_t f = g.Flat(ijk.x(), ijk.y(), ijk.z());
+            openvdb::Vec3s v = *it;
+            for (int ch = 0; ch < 3; ++ch) volume.emission_rgb[3 * f + ch] = v[ch];
           }
-          std::size_t f = g.Flat(ijk.x(), ijk.y(), ijk.z());
-          openvdb::Vec3s v = *it;
-          for (int ch = 0; ch < 3; ++ch) volume.emission_rgb[3 * f + ch] = v[ch];
         }
       }
     }
+  } catch (const openvdb::Exception& e) {
+    throw DataError(path + ": not a readable VDB file: " + Printable(e.what()));
   }
   if (!have_geometry) {
     throw DataError(path + ": no grid named temperature, density or emission");

@@ -35,9 +35,15 @@ GridGeometry GridGeometry::FromBoxAndDims(const Box3& box, const Eigen::Vector3i
 
 void GridGeometry::Validate() const {
   if ((dims.array() < 1).any()) throw InputError("grid dims must all be >= 1");
-  if (!origin_in_rig.allFinite()) throw InputError("grid origin_in_rig is not finite");
-  if (!voxel_size_m.allFinite() || (voxel_size_m.array() <= 0).any()) {
-    throw InputError("grid voxel_size_m must be finite and positive");
+  // A fire is millimetres to kilometres across: sizes and places far outside that are a damaged
+  // file, and would overflow the ray marcher's arithmetic.
+  if (!origin_in_rig.allFinite() || (origin_in_rig.array().abs() > kMaxExtentM).any())
+    throw InputError("grid origin_in_rig must be finite and within 1e6 m of the rig's origin");
+  if (!voxel_size_m.allFinite() || (voxel_size_m.array() < kMinVoxelSizeM).any() ||
+      (voxel_size_m.cwiseProduct(dims.cast<double>()).array() > kMaxExtentM).any()) {
+    throw InputError(
+        "grid voxel_size_m must be finite and at least 1e-9 m, and the grid at most "
+        "1e6 m across");
   }
 }
 

@@ -72,7 +72,10 @@ struct GridGeometry {
   Box3 box() const {
     return Box3{origin_in_rig, origin_in_rig + dims.cast<double>().cwiseProduct(voxel_size_m)};
   }
-  // Throws InputError naming the bad member.
+  // Throws InputError naming the bad member: dims >= 1, the origin finite and within
+  // kMaxExtentM of the rig's, voxels at least kMinVoxelSizeM and the grid at most kMaxExtentM
+  // across (a fire is millimetres to kilometres across; far outside is a damaged file).
+  static constexpr double kMinVoxelSizeM = 1e-9, kMaxExtentM = 1e6;
   void Validate() const;
   bool operator==(const GridGeometry& o) const {
     return dims == o.dims && origin_in_rig == o.origin_in_rig && voxel_size_m == o.voxel_size_m;
