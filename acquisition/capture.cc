@@ -1183,10 +1183,12 @@ void CaptureDaemon::SetCameraSetting(const std::string& camera, const std::strin
     return v;
   };
   try {
-    // Sizes in [1, 65536] before they become ints (a conversion out of range is undefined).
+    // Sizes in range before they become ints (a conversion out of range is undefined); the
+    // range is the config file's (0: the sensor's size).
     auto size = [&] {
       const double v = number();
-      if (!(v >= 1 && v <= 65536)) throw InputError(where + ": must be in [1, 65536]");
+      if (!(v >= 0 && v <= 16384) || v != std::floor(v))
+        throw InputError(where + ": must be a whole number in [0, 16384] (0: the sensor's size)");
       return static_cast<int>(v);
     };
     if (key == "width")

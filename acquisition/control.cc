@@ -1,6 +1,7 @@
 #include "acquisition/control.h"
 
 #include <arpa/inet.h>
+#include <netdb.h>
 #include <netinet/in.h>
 #include <poll.h>
 #include <sys/socket.h>
@@ -353,12 +354,18 @@ ControlReply ControlRequest(const std::string& endpoint, const std::string& line
     std::strncpy(addr.sun_path, e.path.c_str(), sizeof(addr.sun_path) - 1);
     rc = ::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr);
   } else {
+    // A host name (the rig's computer) or an IPv4 address; the daemon listens on IPv4.
+    addrinfo hints{};
+    hints.ai_family = AF_INET;
+    hints.ai_socktype = SOCK_STREAM;
+    addrinfo* found = nullptr;
+    const int gai = ::getaddrinfo(e.host.c_str(), std::to_string(e.port).c_str(), &hints, &found);
+    if (gai != 0 || !found)
+      throw IoError("cannot reach the capture daemon at " + endpoint + ": no such host '" + e.host +
+                    "' (" + ::gai_strerror(gai) + ")");
     fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
-    sockaddr_in addr{};
-    addr.sin_family = AF_INET;
-    addr.sin_port = htons(static_cast<std::uint16_t>(e.port));
-    ::inet_pton(AF_INET, e.host.c_str(), &addr.sin_addr);
-    rc = ::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr);
+    rc = ::connect(fd, found->ai_addr, found->ai_addrlen);
+    ::freeaddrinfo(found);
   }
   if (rc != 0) {
     const std::string why = std::strerror(errno);

@@ -50,7 +50,7 @@ void CameraSettings::Validate() const {
   if (!(exposure_us <= 1e6 / frame_rate_hz))
     fail("exposure_us must not exceed the frame period (" + std::to_string(1e6 / frame_rate_hz) +
          " us)");
-  if (!std::isfinite(gain_db)) fail("gain_db must be finite");
+  if (!(gain_db >= -100 && gain_db <= 100)) fail("gain_db must be in [-100, 100]");
   if (packet_size < 0) fail("packet_size must be >= 0");
   if (!wire_format.empty()) {
     const WireFormat* w = WireFormatFromName(wire_format);

@@ -727,7 +727,15 @@ TEST(ControlApi, StatusRecordingAndPreviewOverAUnixSocket) {
   // Found by fuzzing: a width of 66 digits was converted to int (undefined behaviour).
   r = ControlRequest(config.control, "configure cam1 width 2222222222222222222222222222222222");
   EXPECT_FALSE(r.ok);
-  EXPECT_NE(r.body.find("must be in [1, 65536]"), std::string::npos) << r.body;
+  EXPECT_NE(r.body.find("must be a whole number in [0, 16384]"), std::string::npos) << r.body;
+  // The ranges are the config file's: a gain a config refuses is refused here too, and a width
+  // the config takes (17000 is over its 16384) is not.
+  r = ControlRequest(config.control, "configure cam1 gain_db 1e9");
+  EXPECT_FALSE(r.ok);
+  EXPECT_NE(r.body.find("gain_db must be in [-100, 100]"), std::string::npos) << r.body;
+  r = ControlRequest(config.control, "configure cam1 width 17000");
+  EXPECT_FALSE(r.ok);
+  EXPECT_NE(r.body.find("[0, 16384]"), std::string::npos) << r.body;
   r = ControlRequest(config.control, "configure cam1 focus 3");
   EXPECT_FALSE(r.ok);
   EXPECT_NE(r.body.find("unknown key"), std::string::npos) << r.body;
@@ -759,6 +767,16 @@ TEST(ControlApi, TcpOnlyOnLoopbackUnlessAsked) {
       ControlRequest("tcp:127.0.0.1:" + std::to_string(server.port()), "cameras");
   ASSERT_TRUE(r.ok) << r.body;
   EXPECT_NE(r.body.find("id: SIM1"), std::string::npos) << r.body;
+  // A host name is resolved (the rig's computer by name), and one that does not resolve is said
+  // so, where it was tried as 0.0.0.0 and said "Connection refused".
+  EXPECT_TRUE(ControlRequest("tcp:localhost:" + std::to_string(server.port()), "cameras").ok);
+  try {
+    ControlRequest("tcp:no-such-host.invalid:7000", "status");
+    ADD_FAILURE() << "reached a host that does not exist";
+  } catch (const IoError& e) {
+    EXPECT_NE(std::string(e.what()).find("no such host 'no-such-host.invalid'"), std::string::npos)
+        << e.what();
+  }
   EXPECT_THROW(ControlRequest("unix:" + (dir.path / "nobody.sock").string(), "status"),
                std::runtime_error);
 }
