@@ -64,8 +64,8 @@ void FitOptions::Validate() const {
   if (!(stall_decrease >= 0) || !(stall_decrease < 1)) fail("stall_decrease must be in [0, 1)");
   if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0)) fail("smoothing must be >= 0");
   if (!(time_limit_s >= 0)) fail("time_limit_s must be >= 0");
-  if (!(axisymmetric_w_sm >= 0) || !std::isfinite(axisymmetric_w_sm))
-    fail("axisymmetric_w_sm must be finite and >= 0");
+  if (!(axisymmetric_w_sm >= 0 && axisymmetric_w_sm <= ObjectiveOptions::kMaxWeight))
+    fail("axisymmetric_w_sm must be in [0, 1e6]");
   if (neighbour_weight_resolution < 0) fail("neighbour_weight_resolution must be >= 0");
   if (!(known_exposure >= 0) || !std::isfinite(known_exposure) ||
       (known_exposure > 0 && !(known_exposure >= exposure_min && known_exposure <= exposure_max)))

@@ -66,6 +66,9 @@ struct ObjectiveOptions {
   // demosaicing. Off: their interpolated colours are fitted as if every pixel had measured all
   // three (as until 2026-11-29; for comparison).
   bool model_mosaic = true;
+  // The weights w_am and w_sm lie in [0, kMaxWeight]: a million times the default already makes
+  // the data term vanish, and a larger one overflows the energy.
+  static constexpr double kMaxWeight = 1e6;
   void Validate() const;  // throws InputError naming the field
 };
 

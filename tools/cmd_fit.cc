@@ -47,7 +47,7 @@ Runner AddFit(CLI::App* command) {
       ->check(CLI::IsMember({"soot", "grey"}));
   command->add_option("--exposure", job.exposure, "Exposure the images were taken with")
       ->type_name("S")
-      ->check(kPositive);
+      ->check(kPositive & CLI::Range(1e-6, 1e6));
   command->add_flag("--fit-exposure", job.fit_exposure,
                     "Fast fit: fit a free exposure (the paper's s), even a known one");
   command->add_flag("--axisymmetric", job.fit.axisymmetric,
@@ -62,7 +62,7 @@ Runner AddFit(CLI::App* command) {
                        "Weight of the neighbour term (fast: 1, with --axisymmetric 0.3, at 64 "
                        "voxels, x (64 / resolution)^2 on other grids; alg1/alg2: the paper's 10)")
           ->type_name("W")
-          ->check(kNonNegative);
+          ->check(kNonNegative & CLI::Range(0.0, 1e6));
   command
       ->add_option("--fit-iterations", o->iterations,
                    "Fast fit: cap on the L-BFGS iterations per grid level (it stops earlier once "

@@ -63,7 +63,7 @@ Runner AddRun(CLI::App* command) {
       ->check(Whole(1, kMaxFrames));
   command->add_option("--exposure", run.exposure, "Exposure the images were taken with")
       ->type_name("S")
-      ->check(kPositive);
+      ->check(kPositive & CLI::Range(1e-6, 1e6));
   command->add_option("--absorption", run.absorption, "Absorption model (default: dataset.yaml's)")
       ->check(CLI::IsMember({"soot", "grey"}));
   command
@@ -79,7 +79,7 @@ Runner AddRun(CLI::App* command) {
                    "voxels, x (64 / resolution)^2 on other grids; each frame's volume records the "
                    "weight applied (metadata w_sm)")
       ->type_name("W")
-      ->check(kNonNegative);
+      ->check(kNonNegative & CLI::Range(0.0, 1e6));
   command->add_option("--holdout", run.holdout_camera, "Camera to score but not fit")
       ->type_name("CAMERA");
   command
