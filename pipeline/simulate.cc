@@ -370,6 +370,33 @@ int RecordCameraImage(const ImageF& linear, double exposure, const CameraRadiome
   return bits;
 }
 
+namespace {
+
+// See Simulate in the header: an earlier simulation's own folders go, anything else stays.
+void ClearEarlierSimulation(const std::string& out_dir) {
+  static const char* const kOwned[] = {"frames", "truth", "calibration", "radiometry", "cameras"};
+  std::vector<fs::path> present;
+  for (const char* name : kOwned)
+    if (fs::exists(fs::path(out_dir) / name)) present.push_back(fs::path(out_dir) / name);
+  if (present.empty()) return;
+  const fs::path dataset = fs::path(out_dir) / "dataset.yaml";
+  bool simulated = false;
+  try {
+    const YAML::Node root = YAML::LoadFile(dataset.string());
+    simulated = root["dataset"] && root["dataset"]["generator"] &&
+                root["dataset"]["generator"].as<std::string>() == "flamerig simulate";
+  } catch (const YAML::Exception&) {
+    simulated = false;  // none, or not one simulate wrote
+  }
+  if (!simulated)
+    throw InputError("simulate: " + out_dir + " holds " + present.front().filename().string() +
+                     "/ but no dataset.yaml written by flamerig simulate (an exported recording?):"
+                     " give a new or empty folder, so that nothing in it is overwritten");
+  for (const fs::path& p : present) fs::remove_all(p);
+}
+
+}  // namespace
+
 SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_dir,
                          const ProgressCallback& progress) {
   config.Validate();
@@ -382,6 +409,7 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
     p.total = total;
     if (ReportProgress(progress, p)) throw Cancelled("simulate: cancelled");
   };
+  ClearEarlierSimulation(out_dir);
   fs::create_directories(out_dir);
   SimulateSummary summary;
   summary.out_dir = out_dir;

@@ -118,6 +118,11 @@ struct SimulateSummary {
 
 // Writes the dataset into `out_dir`. Progress: stages "fire frames" (unit frames) and
 // "calibration views" (unit views); cancelling throws Cancelled, leaving what was written.
+// A folder that holds an earlier simulation (its dataset.yaml says `generator: flamerig
+// simulate`) is simulated again: that simulation's folders (frames, truth, calibration,
+// radiometry, cameras) are removed first, so that no frame of a longer earlier take stays behind.
+// A folder that holds any of those but no simulation's dataset.yaml (an exported recording) is
+// refused with an InputError, and nothing in it is touched. Other files in the folder are kept.
 // The exposure that puts the 99.5th percentile of the brightest channel over the fire pixels
 // (above 1e-3 of the brightest) of `linear` renders at full scale, so that the cores of the flame
 // saturate slightly, as in real footage; 0 when no fire is visible. Not clamped to any range.

@@ -3,9 +3,11 @@
 
 #include <unistd.h>
 #include <filesystem>
+#include <fstream>
 
 #include <yaml-cpp/yaml.h>
 
+#include "core/error.h"
 #include "core/image.h"
 #include "core/srgb.h"
 #include "pipeline/simulate.h"
@@ -55,6 +57,33 @@ TEST(Simulate, WritesACompleteDeterministicDataset) {
   EXPECT_TRUE(fs::exists(dir / "a" / "calibration" / "board.yaml"));
   EXPECT_TRUE(fs::exists(dir / "a" / "preview.png"));
   EXPECT_TRUE(fs::exists(dir / "a" / "dataset.yaml"));
+
+  // Simulated again with fewer frames: no frame of the longer take stays behind, and a file of
+  // the user's own stays.
+  std::ofstream(dir / "a" / "notes.txt") << "mine\n";
+  SimulateConfig shorter = config;
+  shorter.frames = 1;
+  shorter.calibration = false;
+  Simulate(shorter, (dir / "a").string());
+  EXPECT_TRUE(fs::exists(dir / "a" / "frames" / "frame_000000"));
+  EXPECT_FALSE(fs::exists(dir / "a" / "frames" / "frame_000001"));
+  EXPECT_FALSE(fs::exists(dir / "a" / "truth" / "frame_000001.vdb"));
+  EXPECT_FALSE(fs::exists(dir / "a" / "calibration"));
+  EXPECT_TRUE(fs::exists(dir / "a" / "notes.txt"));
+  // A folder holding frames that simulate did not write (an exported recording) is refused and
+  // left as it was.
+  fs::create_directories(dir / "recorded" / "frames" / "frame_000000");
+  std::ofstream(dir / "recorded" / "dataset.yaml") << "dataset:\n  rig: rig.yaml\n";
+  try {
+    Simulate(shorter, (dir / "recorded").string());
+    ADD_FAILURE() << "simulated over an exported recording";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("no dataset.yaml written by flamerig simulate"),
+              std::string::npos)
+        << e.what();
+  }
+  EXPECT_TRUE(fs::exists(dir / "recorded" / "frames" / "frame_000000"));
+  EXPECT_FALSE(fs::exists(dir / "recorded" / "rig.yaml"));
   fs::remove_all(dir);
 }
 
