@@ -14,18 +14,13 @@ extern "C" {
 
 #include "core/atomic_file.h"
 #include "core/error.h"
+#include "core/format.h"
 
 namespace flamerig {
 namespace {
 
 const mrcal_lensmodel_t& Lens(const std::shared_ptr<const void>& p) {
   return *static_cast<const mrcal_lensmodel_t*>(p.get());
-}
-
-std::string FormatDouble(double v) {
-  char buffer[64];
-  std::snprintf(buffer, sizeof(buffer), "%.17g", v);
-  return buffer;
 }
 
 }  // namespace
@@ -61,8 +56,9 @@ CameraModel::CameraModel(const std::string& lensmodel, std::vector<double> intri
     throw InputError("camera pose is not finite");
   if (mrcal_lensmodel_metadata(parsed.get()).has_core &&
       (!(intrinsics_[0] > 0) || !(intrinsics_[1] > 0)))
-    throw InputError("focal lengths fx = " + FormatDouble(intrinsics_[0]) + ", fy = " +
-                     FormatDouble(intrinsics_[1]) + " of " + lensmodel + " must be > 0 (pixels)");
+    throw InputError("focal lengths fx = " + FormatNumber(intrinsics_[0], 17) +
+                     ", fy = " + FormatNumber(intrinsics_[1], 17) + " of " + lensmodel +
+                     " must be > 0 (pixels)");
   mrcal_lensmodel_ = parsed;
 }
 
@@ -127,14 +123,14 @@ void CameraModel::Save(const std::string& path, const std::string& comment) cons
   out << "    # intrinsics are fx,fy,cx,cy,distortion0,distortion1,....\n";
   out << "    'intrinsics': [";
   for (std::size_t i = 0; i < intrinsics_.size(); ++i) {
-    out << (i ? ", " : " ") << FormatDouble(intrinsics_[i]);
+    out << (i ? ", " : " ") << FormatNumber(intrinsics_[i], 17);
   }
   out << " ],\n";
   out << "    # extrinsics are rt_cam_from_rig (mrcal's rt_fromref): rotation (Rodrigues), "
          "translation (m)\n";
   out << "    'extrinsics': [";
   auto rt = cam_from_rig_.ToRt();
-  for (std::size_t i = 0; i < rt.size(); ++i) out << (i ? ", " : " ") << FormatDouble(rt[i]);
+  for (std::size_t i = 0; i < rt.size(); ++i) out << (i ? ", " : " ") << FormatNumber(rt[i], 17);
   out << " ],\n";
   out << "    'imagersize': [ " << width_ << ", " << height_ << " ],\n";
   out << "}\n";

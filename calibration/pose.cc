@@ -6,6 +6,7 @@
 #include <string>
 
 #include "core/error.h"
+#include "core/format.h"
 
 namespace flamerig {
 
@@ -20,26 +21,17 @@ std::array<double, 6> Rigid3::ToRt() const {
   return {r.x(), r.y(), r.z(), translation.x(), translation.y(), translation.z()};
 }
 
-namespace {
-
-std::string Short(double v) {
-  char text[32];
-  std::snprintf(text, sizeof text, "%.6g", v);
-  return text;
-}
-
-}  // namespace
-
 Rigid3 Rigid3::FromRt(const double* rt) {
   for (int i = 0; i < 6; ++i)
     if (!std::isfinite(rt[i]))
-      throw InputError("pose rt[" + std::to_string(i) + "] = " + Short(rt[i]) + " is not finite");
+      throw InputError("pose rt[" + std::to_string(i) + "] = " + FormatNumber(rt[i]) +
+                       " is not finite");
   Eigen::Vector3d r(rt[0], rt[1], rt[2]);
   // stableNorm: |r| of a vector like (1e300, 0, 0) without overflowing its square.
   double angle = r.stableNorm();
   if (angle > kMaxRotationAngle)
-    throw InputError("pose rotation vector of " + Short(angle) + " rad is not an angle (at most " +
-                     Short(kMaxRotationAngle) +
+    throw InputError("pose rotation vector of " + FormatNumber(angle) +
+                     " rad is not an angle (at most " + FormatNumber(kMaxRotationAngle) +
                      " rad: a rotation holds its angle modulo 2 pi, and cos and sin of a larger "
                      "one lose its digits)");
   Eigen::Quaterniond q = Eigen::Quaterniond::Identity();

@@ -10,16 +10,11 @@
 
 #include "core/config_reader.h"
 #include "core/error.h"
+#include "core/format.h"
 #include "core/srgb.h"
 
 namespace flamerig {
 namespace {
-
-std::string Num(double v) {
-  std::ostringstream s;
-  s << v;
-  return s.str();
-}
 
 // Linear interpolation in a strictly increasing table of y over evenly spaced x in [0, 1].
 double CurveAt(const std::vector<double>& curve, double x) {
@@ -67,10 +62,11 @@ void CheckTable(const SpectralSensitivity& s, const std::string& where) {
     if (!std::isfinite(s.wavelengths_nm[i]) || s.wavelengths_nm[i] < 200 ||
         s.wavelengths_nm[i] > 2000)
       throw InputError(where + ": row " + std::to_string(i + 1) + ": wavelength " +
-                       Num(s.wavelengths_nm[i]) + " nm is not in [200, 2000]");
+                       FormatNumber(s.wavelengths_nm[i]) + " nm is not in [200, 2000]");
     if (i > 0 && !(s.wavelengths_nm[i] > s.wavelengths_nm[i - 1]))
       throw InputError(where + ": row " + std::to_string(i + 1) + ": wavelengths must increase, " +
-                       Num(s.wavelengths_nm[i]) + " follows " + Num(s.wavelengths_nm[i - 1]));
+                       FormatNumber(s.wavelengths_nm[i]) + " follows " +
+                       FormatNumber(s.wavelengths_nm[i - 1]));
   }
   for (std::size_t c = 0; c < s.columns.size(); ++c) {
     if (s.columns[c].size() != n)
@@ -82,7 +78,7 @@ void CheckTable(const SpectralSensitivity& s, const std::string& where) {
       const double v = s.columns[c][i];
       if (!std::isfinite(v) || v < 0)
         throw InputError(where + ": row " + std::to_string(i + 1) + ", channel " +
-                         std::to_string(c) + ": sensitivity " + Num(v) +
+                         std::to_string(c) + ": sensitivity " + FormatNumber(v) +
                          " must be finite and >= 0");
       peak = std::max(peak, v);
     }
@@ -177,11 +173,13 @@ std::string SpectralSensitivity::Describe() const {
   } else {
     s = "bands";
     for (std::size_t i = 0; i < bands.size(); ++i)
-      s += (i ? ", " : " ") + Num(bands[i].centre_nm) + "/" + Num(bands[i].fwhm_nm);
+      s += (i ? ", " : " ") + FormatNumber(bands[i].centre_nm) + "/" +
+           FormatNumber(bands[i].fwhm_nm);
     s += " nm";
   }
   if (has_filter())
-    s += " behind a " + Num(filter.centre_nm) + "/" + Num(filter.fwhm_nm) + " nm filter";
+    s += " behind a " + FormatNumber(filter.centre_nm) + "/" + FormatNumber(filter.fwhm_nm) +
+         " nm filter";
   return s;
 }
 
@@ -266,9 +264,9 @@ CameraRadiometry::Decoding CameraRadiometry::DecodingFor(int frame_bits) const {
   d.black = black_level;
   d.saturation = saturation_level > 0 ? std::min(saturation_level, d.max_code) : d.max_code;
   if (!(d.black < d.saturation))
-    throw InputError("radiometry: black level " + Num(d.black) + " is not below the saturation " +
-                     "level " + Num(d.saturation) + " of a " + std::to_string(frame_bits) +
-                     "-bit frame");
+    throw InputError("radiometry: black level " + FormatNumber(d.black) +
+                     " is not below the saturation " + "level " + FormatNumber(d.saturation) +
+                     " of a " + std::to_string(frame_bits) + "-bit frame");
   return d;
 }
 
@@ -346,33 +344,36 @@ void CameraRadiometry::Validate(const std::string& where) const {
   if (bit_depth != 0 && (bit_depth < 8 || bit_depth > 16))
     fail("bit_depth", "must be 0 (from the frame) or 8..16, got " + std::to_string(bit_depth));
   if (transfer == TransferFunction::kGamma && !(gamma >= 0.1 && gamma <= 10))
-    fail("gamma", "must be in [0.1, 10], got " + Num(gamma));
+    fail("gamma", "must be in [0.1, 10], got " + FormatNumber(gamma));
   if (transfer == TransferFunction::kCurve) {
     if (curve.size() < 2) fail("curve", "needs at least 2 values");
     for (std::size_t i = 0; i < curve.size(); ++i) {
       if (!std::isfinite(curve[i]) || curve[i] < 0)
         fail("curve", "value " + std::to_string(i) + " must be finite and >= 0");
       if (i > 0 && !(curve[i] > curve[i - 1]))
-        fail("curve", "must increase strictly; value " + std::to_string(i) + " (" + Num(curve[i]) +
-                          ") does not exceed the one before");
+        fail("curve", "must increase strictly; value " + std::to_string(i) + " (" +
+                          FormatNumber(curve[i]) + ") does not exceed the one before");
     }
     if (curve.front() != 0 || curve.back() != 1)
-      fail("curve", "must run from 0 (black) to 1 (saturation), got " + Num(curve.front()) +
-                        " .. " + Num(curve.back()));
+      fail("curve", "must run from 0 (black) to 1 (saturation), got " +
+                        FormatNumber(curve.front()) + " .. " + FormatNumber(curve.back()));
   }
   const double max_code = bit_depth ? std::ldexp(1.0, bit_depth) - 1 : 65535;
   if (!std::isfinite(black_level) || black_level < 0 || black_level >= max_code)
-    fail("black_level", "must be in [0, " + Num(max_code) + "), got " + Num(black_level));
+    fail("black_level",
+         "must be in [0, " + FormatNumber(max_code) + "), got " + FormatNumber(black_level));
   if (!std::isfinite(saturation_level) || saturation_level < 0 || saturation_level > max_code)
-    fail("saturation_level", "must be 0 (full scale) or in (black_level, " + Num(max_code) +
-                                 "], got " + Num(saturation_level));
+    fail("saturation_level", "must be 0 (full scale) or in (black_level, " +
+                                 FormatNumber(max_code) + "], got " +
+                                 FormatNumber(saturation_level));
   if (saturation_level > 0 && !(saturation_level > black_level))
-    fail("saturation_level",
-         "must exceed black_level (" + Num(black_level) + "), got " + Num(saturation_level));
+    fail("saturation_level", "must exceed black_level (" + FormatNumber(black_level) + "), got " +
+                                 FormatNumber(saturation_level));
   const int n = spectral.channels();
   for (int c = 0; c < 3; ++c)
     if (!std::isfinite(gain[c]) || !(gain[c] > 0))
-      fail("gain", "channel " + std::to_string(c) + " must be finite and > 0, got " + Num(gain[c]));
+      fail("gain", "channel " + std::to_string(c) + " must be finite and > 0, got " +
+                       FormatNumber(gain[c]));
   if (n == 1 && !(gain[1] == gain[0] && gain[2] == gain[0]))
     fail("gain", "a mono camera has one gain");
   switch (spectral.kind) {

@@ -15,6 +15,7 @@
 
 #include "core/config_reader.h"
 #include "core/error.h"
+#include "core/format.h"
 #include "core/log.h"
 #include "fitting/camera_response.h"
 #include "pipeline/simulate.h"
@@ -23,13 +24,6 @@ namespace flamerig {
 namespace {
 
 namespace fs = std::filesystem;
-
-std::string Num(double v, int precision = 4) {
-  std::ostringstream s;
-  s.precision(precision);
-  s << v;
-  return s.str();
-}
 
 std::array<int, 4> ReadRegion(const YAML::Node& node, const std::string& where) {
   if (!node || (node.IsScalar() && node.as<std::string>() == "auto")) return {0, 0, 0, 0};
@@ -96,7 +90,7 @@ std::array<int, 4> FindPatch(const ShotImage& image, int erode_px, const std::st
     throw InputError(where +
                      ": no bright source patch in the camera's brightest shot (its 99.5th "
                      "percentile is " +
-                     Num(peak) + ", its median " + Num(median) +
+                     FormatNumber(peak, 4) + ", its median " + FormatNumber(median, 4) +
                      "): give `region: [x, y, width, height]`");
   cv::Mat mask = value > float(0.5 * (median + peak));
   cv::Mat labels, stats, centroids;
@@ -273,7 +267,7 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
         continue;
       }
       if (saturated[c] > options.max_saturated_fraction) {
-        r.left_out[c] = "saturated (" + Num(100 * saturated[c], 3) + "% of the patch)";
+        r.left_out[c] = "saturated (" + FormatNumber(100 * saturated[c], 3) + "% of the patch)";
         continue;  // a clipped mean says nothing exact, not even about the black level
       }
       // Dark by the model's black level: in the fit only when the black level is fitted.
@@ -309,7 +303,7 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
         list += (list.empty() ? "" : ", ") + std::to_string(count) + " " + why;
       throw InputError(where + ": no usable shot for channel " + std::to_string(c) + " (" + list +
                        "): film the source so that every channel lies between " +
-                       Num(options.min_signal) + " of full scale and saturation");
+                       FormatNumber(options.min_signal, 4) + " of full scale and saturation");
     }
     std::sort(all.begin(), all.end());
     if (all.empty() || !(all.back() >= 1.5 * all.front())) black_identifiable = false;
@@ -322,11 +316,11 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
   const bool gamma_identifiable =
       options.fit_gamma && decoding.transfer == TransferFunction::kGamma && gamma_levels >= 3;
   if (options.fit_black_level && !black_identifiable)
-    result->notes.push_back("black level held at " + Num(model.black_level) +
+    result->notes.push_back("black level held at " + FormatNumber(model.black_level, 4) +
                             " DN: the shots do not span signals a factor 1.5 apart in every "
                             "channel");
   if (options.fit_gamma && decoding.transfer == TransferFunction::kGamma && !gamma_identifiable)
-    result->notes.push_back("gamma held at " + Num(model.gamma) +
+    result->notes.push_back("gamma held at " + FormatNumber(model.gamma, 4) +
                             ": fewer than three distinct signal levels");
 
   // The fit of the observations of the shots not in `outliers`: black level, gains and gamma.
@@ -426,14 +420,17 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
     if (!(without.rms * options.outlier_ratio <= fit.rms)) break;
     const RadiometricShot& s = out->shots[worst].shot;
     result->warnings.push_back(
-        "shot " + s.image + " (" + Num(s.temperature_k) + " K, exposure " + Num(s.exposure) +
-        ") left out: its codes lie " + Num(without.shot_rms.at(worst), 3) +
-        " DN (rms) from what the other shots predict, which agree to " + Num(without.rms, 3) +
+        "shot " + s.image + " (" + FormatNumber(s.temperature_k, 4) + " K, exposure " +
+        FormatNumber(s.exposure, 4) + ") left out: its codes lie " +
+        FormatNumber(without.shot_rms.at(worst), 3) +
+        " DN (rms) from what the other shots predict, which agree to " +
+        FormatNumber(without.rms, 3) +
         " DN: a wrong image, a covered lens or a wrong exposure in the shots file?");
     for (int c = 0; c < channels; ++c)
       if (out->shots[worst].left_out[std::size_t(c)].empty())
-        out->shots[worst].left_out[std::size_t(c)] =
-            "an outlier (" + Num(without.shot_rms.at(worst), 3) + " DN from the others' fit)";
+        out->shots[worst].left_out[std::size_t(c)] = "an outlier (" +
+                                                     FormatNumber(without.shot_rms.at(worst), 3) +
+                                                     " DN from the others' fit)";
     outliers = trial;
     fit = without;
   }
@@ -443,9 +440,10 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
     for (const auto& [shot, rms] : fit.shot_rms)
       if (!outliers.count(shot) && rms > worst_rms) worst = shot, worst_rms = rms;
     throw DataError(where + ": the model does not explain the shots: their codes lie " +
-                    Num(fit.rms, 4) + " DN (rms) from it, " + Num(100 * fit.rms / full_scale, 3) +
-                    "% of full scale (at most " + Num(100 * options.max_rms) + "%); the worst is " +
-                    out->shots[worst].shot.image + " (" + Num(worst_rms, 4) +
+                    FormatNumber(fit.rms, 4) + " DN (rms) from it, " +
+                    FormatNumber(100 * fit.rms / full_scale, 3) + "% of full scale (at most " +
+                    FormatNumber(100 * options.max_rms, 4) + "%); the worst is " +
+                    out->shots[worst].shot.image + " (" + FormatNumber(worst_rms, 4) +
                     " DN). Check the shots' images and exposures, and the "
                     "model's transfer function, bit depth and spectral sensitivity");
   }
@@ -482,8 +480,8 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
     if (g * o.x < options.min_signal)
       r.left_out[std::size_t(o.channel)] =
           !o.for_gain && !black_identifiable
-              ? "too dark for the gain (signal " + Num(g * o.x, 3) + "), left out"
-              : "dark (signal " + Num(g * o.x, 3) + "): weighs on the black level";
+              ? "too dark for the gain (signal " + FormatNumber(g * o.x, 3) + "), left out"
+              : "dark (signal " + FormatNumber(g * o.x, 3) + "): weighs on the black level";
     sum += (model_code - o.code) * (model_code - o.code);
     ++result->residuals;
     if (o.for_gain && g * o.x >= options.min_signal) {
@@ -507,8 +505,9 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
       result->spectral_mismatch[c] = worst;
       if (worst > options.max_spectral_mismatch)
         result->warnings.push_back(
-            std::string("channel ") + names[c] + ": measured / model is " + Num(lo, 4) + " at " +
-            Num(t_lo) + " K but " + Num(hi, 4) + " at " + Num(t_hi) +
+            std::string("channel ") + names[c] + ": measured / model is " + FormatNumber(lo, 4) +
+            " at " + FormatNumber(t_lo, 4) + " K but " + FormatNumber(hi, 4) + " at " +
+            FormatNumber(t_hi, 4) +
             " K: the camera's spectral "
             "sensitivity is not what its model says (" +
             model.spectral.Describe() +
@@ -563,7 +562,8 @@ RadiometricShots RadiometricShots::Load(const std::string& path) {
         throw InputError(path + ": source.kind: 'blackbody' or 'lamp', got '" + kind + "'");
       if (source["emissivity"]) s.emissivity = source["emissivity"].as<double>();
       if (!(s.emissivity > 0 && s.emissivity <= 1))
-        throw InputError(path + ": source.emissivity: must be in (0, 1], got " + Num(s.emissivity));
+        throw InputError(path + ": source.emissivity: must be in (0, 1], got " +
+                         FormatNumber(s.emissivity, 4));
     }
     s.region = ReadRegion(root["region"], path);
     const YAML::Node list = root["shots"];
@@ -583,9 +583,10 @@ RadiometricShots RadiometricShots::Load(const std::string& path) {
       shot.exposure = n["exposure"].as<double>();
       if (!(shot.temperature_k >= 500 && shot.temperature_k <= 4000))
         throw InputError(where + ": temperature_k: must be in 500..4000 K, got " +
-                         Num(shot.temperature_k));
+                         FormatNumber(shot.temperature_k, 4));
       if (!(shot.exposure > 0) || !std::isfinite(shot.exposure))
-        throw InputError(where + ": exposure: must be finite and > 0, got " + Num(shot.exposure));
+        throw InputError(where + ": exposure: must be finite and > 0, got " +
+                         FormatNumber(shot.exposure, 4));
       shot.region = ReadRegion(n["region"], where);
       s.shots.push_back(shot);
     }
@@ -657,12 +658,13 @@ RadiometricCalibration CalibrateRadiometry(const Rig& rig, const RadiometricShot
     CameraRadiometricResult result;
     CalibrateCamera(rig.cameras[c], per_camera[c], shots, options, &out, &result);
     Log().info("radiometry: {}: gains {} -> {}, black {} -> {}, rms {} DN", result.camera,
-               Num(result.before.gain[0]) + "/" + Num(result.before.gain[1]) + "/" +
-                   Num(result.before.gain[2]),
-               Num(result.after.gain[0]) + "/" + Num(result.after.gain[1]) + "/" +
-                   Num(result.after.gain[2]),
-               Num(result.before.black_level), Num(result.after.black_level),
-               Num(result.rms_dn, 3));
+               FormatNumber(result.before.gain[0], 4) + "/" +
+                   FormatNumber(result.before.gain[1], 4) + "/" +
+                   FormatNumber(result.before.gain[2], 4),
+               FormatNumber(result.after.gain[0], 4) + "/" + FormatNumber(result.after.gain[1], 4) +
+                   "/" + FormatNumber(result.after.gain[2], 4),
+               FormatNumber(result.before.black_level, 4),
+               FormatNumber(result.after.black_level, 4), FormatNumber(result.rms_dn, 3));
     for (const std::string& w : result.warnings) Log().warn("radiometry: {}: {}", result.camera, w);
     out.cameras.push_back(std::move(result));
   }
@@ -682,13 +684,14 @@ std::string RadiometricCalibration::Brief() const {
   std::ostringstream s;
   for (const CameraRadiometricResult& c : cameras) {
     s << c.camera << ": gain";
-    for (int i = 0; i < c.channels; ++i) s << (i ? "/" : " ") << Num(c.after.gain[i]);
-    s << ", black " << Num(c.after.black_level) << " DN" << (c.fitted_black_level ? "" : " (held)");
-    if (c.fitted_gamma) s << ", gamma " << Num(c.after.gamma);
-    s << ", rms " << Num(c.rms_dn, 3) << " DN over " << c.residuals << " shot channels";
+    for (int i = 0; i < c.channels; ++i) s << (i ? "/" : " ") << FormatNumber(c.after.gain[i], 4);
+    s << ", black " << FormatNumber(c.after.black_level, 4) << " DN"
+      << (c.fitted_black_level ? "" : " (held)");
+    if (c.fitted_gamma) s << ", gamma " << FormatNumber(c.after.gamma, 4);
+    s << ", rms " << FormatNumber(c.rms_dn, 3) << " DN over " << c.residuals << " shot channels";
     if (c.temperatures_k.size() >= 2) {
-      s << ", spectral check " << Num(100 * c.spectral_mismatch.head(c.channels).maxCoeff(), 3)
-        << "%";
+      s << ", spectral check "
+        << FormatNumber(100 * c.spectral_mismatch.head(c.channels).maxCoeff(), 3) << "%";
     }
     s << "\n";
     for (const std::string& w : c.warnings) s << "  WARNING: " << w << "\n";
@@ -707,22 +710,22 @@ std::string RadiometricCalibration::Report() const {
     << "|---|---|---|---|---|---|---|---|---|---|---|\n";
   auto gains = [](const CameraRadiometry& r, int channels) {
     std::string g;
-    for (int i = 0; i < channels; ++i) g += (i ? " / " : "") + Num(r.gain[i]);
+    for (int i = 0; i < channels; ++i) g += (i ? " / " : "") + FormatNumber(r.gain[i], 4);
     return g;
   };
   for (const CameraRadiometricResult& c : cameras) {
     s << "| " << c.camera << " | " << c.before.spectral.Describe() << " | "
       << gains(c.before, c.channels) << " | " << gains(c.after, c.channels) << " | "
-      << Num(c.before.black_level) << " | " << Num(c.after.black_level)
+      << FormatNumber(c.before.black_level, 4) << " | " << FormatNumber(c.after.black_level, 4)
       << (c.fitted_black_level ? "" : " (held)") << " | "
       << (c.after.transfer == TransferFunction::kGamma
-              ? Num(c.after.gamma) + (c.fitted_gamma ? "" : " (held)")
+              ? FormatNumber(c.after.gamma, 4) + (c.fitted_gamma ? "" : " (held)")
               : std::string(ToString(c.after.transfer)))
-      << " | " << Num(c.rms_dn, 3) << " | " << c.residuals << " | " << Num(c.dark_level_dn)
-      << " | ";
+      << " | " << FormatNumber(c.rms_dn, 3) << " | " << c.residuals << " | "
+      << FormatNumber(c.dark_level_dn, 4) << " | ";
     if (c.temperatures_k.size() >= 2) {
       for (int i = 0; i < c.channels; ++i)
-        s << (i ? " / " : "") << Num(100 * c.spectral_mismatch[i], 3) << "%";
+        s << (i ? " / " : "") << FormatNumber(100 * c.spectral_mismatch[i], 3) << "%";
     } else {
       s << "one temperature";
     }
@@ -747,15 +750,15 @@ std::string RadiometricCalibration::Report() const {
     }();
     std::string mean, model, left;
     for (int i = 0; i < channels; ++i) {
-      mean += (i ? " / " : "") + Num(r.mean_code[i], 5);
-      model += (i ? " / " : "") + (r.model_code[i] != 0 ? Num(r.model_code[i], 5) : "-");
+      mean += (i ? " / " : "") + FormatNumber(r.mean_code[i], 5);
+      model += (i ? " / " : "") + (r.model_code[i] != 0 ? FormatNumber(r.model_code[i], 5) : "-");
       if (!r.left_out[i].empty())
         left += (left.empty() ? "" : "; ") + std::string(1, channels == 1 ? 'M' : "RGB"[i]) + ": " +
                 r.left_out[i];
     }
     s << "| " << r.shot.camera << " | " << fs::path(r.shot.image).filename().string() << " | "
-      << Num(r.shot.temperature_k) << " | " << Num(r.shot.exposure) << " | " << mean << " | "
-      << model << " | " << left << " |\n";
+      << FormatNumber(r.shot.temperature_k, 4) << " | " << FormatNumber(r.shot.exposure, 4) << " | "
+      << mean << " | " << model << " | " << left << " |\n";
   }
   return s.str();
 }

@@ -1,0 +1,20 @@
+// Numbers in messages, reports and text files: printf's %g with `significant` digits ("0.55",
+// "1.92e+03", "nan", "inf"), the same on every locale. One formatter for the whole project, so
+// that a number reads the same in an error, a report and a log line.
+//
+//   FormatNumber(0.549999)      -> "0.549999"
+//   FormatNumber(0.549999, 3)   -> "0.55"
+//   FormatNumber(1.0 / 3, 17)   -> "0.33333333333333331" (round-trips a double exactly)
+#ifndef FLAMERIG_CORE_FORMAT_H_
+#define FLAMERIG_CORE_FORMAT_H_
+
+#include <string>
+
+namespace flamerig {
+
+// `significant` in 1..17 (clamped).
+std::string FormatNumber(double v, int significant = 6);
+
+}  // namespace flamerig
+
+#endif  // FLAMERIG_CORE_FORMAT_H_
