@@ -35,22 +35,41 @@ std::string FrameName(std::size_t i) {
   return name;
 }
 
-bool DatasetExposure(const std::string& rig_path, double* exposure) {
+namespace {
+
+// `dataset.KEY` of the dataset.yaml beside `rig_path` into *value; false when the file or the
+// key is not there (or the key is empty). *file is the dataset's path, for messages. InputError
+// when the file is not YAML.
+bool DatasetKey(const std::string& rig_path, const char* key, std::string* file,
+                YAML::Node* value) {
   const fs::path dataset = fs::path(rig_path).parent_path() / "dataset.yaml";
+  *file = dataset.string();
   if (!fs::exists(dataset)) return false;
   try {
-    const YAML::Node root = YAML::LoadFile(dataset.string());
-    if (root["dataset"] && root["dataset"]["exposure"]) {
-      *exposure = root["dataset"]["exposure"].as<double>();
-      if (!(*exposure > 0 && std::isfinite(*exposure)))
-        throw InputError(dataset.string() + ": dataset.exposure must be a positive number, not " +
-                         std::to_string(*exposure));
-      return true;
-    }
+    const YAML::Node root = YAML::LoadFile(*file);
+    if (!root["dataset"] || !root["dataset"][key] || root["dataset"][key].IsNull()) return false;
+    *value = root["dataset"][key];
+    return true;
   } catch (const YAML::Exception& e) {
-    throw InputError(dataset.string() + ": " + e.what());
+    throw InputError(*file + ": " + e.what());
   }
-  return false;
+}
+
+}  // namespace
+
+bool DatasetExposure(const std::string& rig_path, double* exposure) {
+  std::string file;
+  YAML::Node node;
+  if (!DatasetKey(rig_path, "exposure", &file, &node)) return false;
+  try {
+    *exposure = node.as<double>();
+  } catch (const YAML::Exception& e) {
+    throw InputError(file + ": dataset.exposure: " + e.what());
+  }
+  if (!(*exposure > 0 && std::isfinite(*exposure)))
+    throw InputError(file + ": dataset.exposure must be a positive number, not " +
+                     std::to_string(*exposure));
+  return true;
 }
 
 ImagesExposure ResolveExposure(double given, const std::string& rig_path) {
@@ -75,23 +94,18 @@ double HeldExposure(const ImagesExposure& exposure, const FitOptions& fit, const
 }
 
 std::string DatasetAbsorption(const std::string& rig_path) {
-  const fs::path dataset = fs::path(rig_path).parent_path() / "dataset.yaml";
-  if (!fs::exists(dataset)) return "soot";
+  std::string file;
+  YAML::Node node;
+  if (!DatasetKey(rig_path, "absorption", &file, &node)) return "soot";
   try {
-    const YAML::Node root = YAML::LoadFile(dataset.string());
-    if (root["dataset"] && root["dataset"]["absorption"]) {
-      const std::string name = root["dataset"]["absorption"].as<std::string>();
-      try {
-        AbsorptionModel::FromName(name);
-      } catch (const InputError& e) {
-        throw InputError(dataset.string() + ": dataset.absorption: " + e.what());
-      }
-      return name;
-    }
+    const std::string name = node.as<std::string>();
+    AbsorptionModel::FromName(name);
+    return name;
   } catch (const YAML::Exception& e) {
-    throw InputError(dataset.string() + ": " + e.what());
+    throw InputError(file + ": dataset.absorption: " + e.what());
+  } catch (const InputError& e) {
+    throw InputError(file + ": dataset.absorption: " + e.what());
   }
-  return "soot";
 }
 
 void RunOptions::Validate() const {
