@@ -17,6 +17,7 @@
 #include <tuple>
 
 #include "core/error.h"
+#include "core/log.h"
 #include "fitting/colour.h"
 #include "fitting/physics.h"
 #include "tomography/reconstruct.h"
@@ -65,7 +66,7 @@ void FitOptions::Validate() const {
   if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0)) fail("smoothing must be >= 0");
   if (!(time_limit_s >= 0)) fail("time_limit_s must be >= 0");
   if (!(axisymmetric_w_sm >= 0 && axisymmetric_w_sm <= ObjectiveOptions::kMaxWeight))
-    fail("axisymmetric_w_sm must be in [0, 1e6]");
+    fail("axisymmetric_w_sm must be in [0, 1e12]");
   if (neighbour_weight_resolution < 0) fail("neighbour_weight_resolution must be >= 0");
   if (!(known_exposure >= 0) || !std::isfinite(known_exposure) ||
       (known_exposure > 0 && !(known_exposure >= exposure_min && known_exposure <= exposure_max)))
@@ -735,6 +736,9 @@ class TraceCallback : public ceres::IterationCallback {
   const std::string& stalled_message() const { return stalled_; }
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override {
     costs_.push_back(summary.cost);
+    Log().debug("fit: {} iteration {}: energy {:.9g}, |gradient| {:.3g}, step {:.3g}, {:.3f} s",
+                stage_, summary.iteration, summary.cost, summary.gradient_max_norm,
+                summary.step_norm, Seconds(start_));
     auto it = std::find_if(seen_->rbegin(), seen_->rend(),
                            [&](const auto& e) { return e.first == summary.cost; });
     if (it != seen_->rend()) {

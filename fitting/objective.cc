@@ -16,10 +16,8 @@ namespace flamerig {
 
 void ObjectiveOptions::Validate() const {
   auto fail = [](const std::string& what) { throw InputError("objective options: " + what); };
-  // A weight a million times the default already makes the data term vanish; a larger one
-  // overflows the energy, and the fit stops after one step as if converged.
-  if (!(w_am >= 0 && w_am <= kMaxWeight)) fail("w_am must be in [0, 1e6]");
-  if (!(w_sm >= 0 && w_sm <= kMaxWeight)) fail("w_sm must be in [0, 1e6]");
+  if (!(w_am >= 0 && w_am <= kMaxWeight)) fail("w_am must be in [0, 1e12]");
+  if (!(w_sm >= 0 && w_sm <= kMaxWeight)) fail("w_sm must be in [0, 1e12]");
   if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0)) fail("smoothing epsilons must be >= 0");
   if (!(t_min_k > 0) || !(t_max_k > t_min_k) || !std::isfinite(t_max_k))
     fail("need 0 < t_min_k < t_max_k, finite");

@@ -66,9 +66,10 @@ struct ObjectiveOptions {
   // demosaicing. Off: their interpolated colours are fitted as if every pixel had measured all
   // three (as until 2026-11-29; for comparison).
   bool model_mosaic = true;
-  // The weights w_am and w_sm lie in [0, kMaxWeight]: a million times the default already makes
-  // the data term vanish, and a larger one overflows the energy.
-  static constexpr double kMaxWeight = 1e6;
+  // The weights w_am and w_sm lie in [0, kMaxWeight]: the stress tests prove the energy and its
+  // gradient finite up to there (FitObjective.RejectsBadInput); 1e300 overflowed the energy, and
+  // the fit stopped after one step as if converged.
+  static constexpr double kMaxWeight = 1e12;
   void Validate() const;  // throws InputError naming the field
 };
 

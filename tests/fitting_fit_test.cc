@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
+#include <limits>
 #include <map>
 #include <random>
 #include <set>
@@ -686,6 +687,15 @@ TEST(FastFit, HoldsAKnownExposureAndUnselectedParameters) {
   FitOptions bad;
   bad.known_exposure = 1e6;
   EXPECT_THROW(bad.Validate(), InputError);
+  // Weights: up to 1e12, where RejectsBadInput proves the energy finite; 1e300 overflows it.
+  ObjectiveOptions weights;
+  weights.w_sm = 1e12;
+  EXPECT_NO_THROW(weights.Validate());
+  weights.w_sm = 1e300;
+  EXPECT_THROW(weights.Validate(), InputError);
+  weights.w_sm = 1;
+  weights.w_am = std::numeric_limits<double>::infinity();
+  EXPECT_THROW(weights.Validate(), InputError);
 }
 
 // The fit says why it stopped, in the manner of Ceres' Summary: the iteration limit, a time

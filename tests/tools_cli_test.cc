@@ -159,7 +159,7 @@ TEST(Cli, UsageErrorsNameTheOptionAndWriteNothing) {
       {"reconstruct" + rig + " --images x --out " + out + " --resolution 16.7",
        "--resolution: '16.7' must be a whole number in [1, 1024]"},
       {"reconstruct" + rig + " --images x --out " + out + " --exposure 0",
-       "--exposure: '0' must be a finite number > 0"},
+       "--exposure: '0' must be a finite number in [1e-06, 1e+06]"},
       {"render --scene x.yaml --out " + out + " --threads -3", "--threads: '-3' must be"},
       {"capture --config x.yaml --duration nan", "--duration: 'nan' must be a finite number > 0"},
       {"capture --config x.yaml --frames 3", "--frames counts a recording's frame sets"},
@@ -179,6 +179,20 @@ TEST(Cli, UsageErrorsNameTheOptionAndWriteNothing) {
        "--prior-weight: 'nan' must be"},
       {"calibrate-radiometry" + rig + " --shots s.yaml --out " + out + " --erode -5",
        "--erode: '-5' must be a whole number in [0, 100]"},
+      // Finite but absurd: a weight that overflows the energy, an exposure of 1e300.
+      {"fit" + rig + " --images x --out " + out + " --w-sm 1e300",
+       "--w-sm: '1e300' must be a finite number in [0, 1e+12]"},
+      {"run --images x" + rig + " --out " + out + " --w-sm 1e13", "--w-sm: '1e13' must be"},
+      {"render" + rig + " --volume v.vdb --out " + out + " --exposure 1e300",
+       "--exposure: '1e300' must be a finite number in [1e-06, 1e+06]"},
+      // A missing source or rig (these exited 1 before 2026-12-01).
+      {"run" + rig + " --out " + out, "give one frame source"},
+      {"run --images x --recording y" + rig + " --out " + out, "give one frame source"},
+      {"run --images x --out " + out, "give a rig (--rig), or a calibration"},
+      {"calibrate --out " + out, "give the board views"},
+      // A truth's rig with no truth to move (exit 1 before 2026-12-01).
+      {"fit" + rig + " --images x --out " + out + " --truth-rig r.yaml", "--truth-rig requires"},
+      {"run --images x" + rig + " --out " + out + " --truth-rig r.yaml", "--truth-rig requires"},
   };
   for (const auto& [command, expected] : cases) {
     const Result r = Flamerig(command);
@@ -349,6 +363,8 @@ TEST(Cli, ReconstructASimulatedFrameSet) {
   // field (the exposure was blamed on an image, the absorption named no file).
   const std::vector<std::pair<std::string, std::string>> datasets = {
       {"dataset:\n  exposure: .nan\n", "dataset.yaml: dataset.exposure must be a positive number"},
+      {"dataset:\n  exposure: [1, 2]\n",
+       "dataset.yaml: dataset.exposure: yaml-cpp: error at line 2"},
       {"dataset:\n  exposure: 1\n  absorption: plasma\n",
        "dataset.yaml: dataset.absorption: absorption model 'plasma' is unknown"},
   };
@@ -364,6 +380,20 @@ TEST(Cli, ReconstructASimulatedFrameSet) {
       EXPECT_NE(bad.output.find(expected), std::string::npos) << command << bad.output;
     }
   }
+  // No dataset.yaml beside the rig (a calibrated rig's folder): the exposure is unknown and the
+  // absorption soot, and both commands run. -v adds each solver iteration as a debug line.
+  fs::remove(dir / "data" / "dataset.yaml");
+  for (const std::string command : {"reconstruct", "fit"}) {
+    Result plain = Flamerig("-v " + command + " --rig " + (dir / "data" / "rig.yaml").string() +
+                            " --images " + (dir / "data" / "frames" / "frame_000000").string() +
+                            " --out " + (dir / "plain.vdb").string() + " --resolution 8");
+    EXPECT_EQ(plain.status, 0) << command << plain.output;
+    EXPECT_NE(plain.output.find("debug   tomography: iteration 1: residual rms"), std::string::npos)
+        << command << plain.output;
+    if (command == "fit")
+      EXPECT_NE(plain.output.find("iteration 1: energy"), std::string::npos) << plain.output;
+  }
+  EXPECT_EQ(missing.output.find("debug "), std::string::npos) << missing.output;
   fs::remove_all(dir);
 }
 

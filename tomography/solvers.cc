@@ -7,6 +7,7 @@
 #include <stdexcept>
 
 #include "core/error.h"
+#include "core/log.h"
 #include "tomography/prior.h"
 #include "tomography/solver_kernels.h"
 
@@ -212,6 +213,8 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
     } else {
       summary.best_iteration = it;
     }
+    Log().debug("tomography: iteration {}: residual rms {:.6g}{}", it, residual,
+                holdout ? ", held-out error " + std::to_string(summary.holdout_error.back()) : "");
     Progress p;
     p.stage = "solve";
     p.unit = "iterations";

@@ -7,6 +7,7 @@
 #include <memory>
 #include <sstream>
 
+#include "core/format.h"
 #include "pipeline/tomography_config.h"
 
 namespace flamerig::cli {
@@ -163,6 +164,29 @@ CLI::Validator Whole(std::int64_t min, std::int64_t max) {
       std::to_string(min) + ".." +
           (max >= (std::int64_t(1) << 40) ? "2^" + std::to_string(int(std::log2(max)))
                                           : std::to_string(max)));
+}
+
+CLI::Validator Between(double min, double max) {
+  const std::string range = "[" + FormatNumber(min) + ", " + FormatNumber(max) + "]";
+  return CLI::Validator(
+      [min, max, range](std::string& text) -> std::string {
+        double v;
+        if (!Finite(text, &v) || !(v >= min && v <= max))
+          return "'" + text + "' must be a finite number in " + range;
+        return "";
+      },
+      range);
+}
+
+CLI::Validator ExposureRange(bool or_auto) {
+  const CLI::Validator range = Between(1e-6, 1e6);
+  return CLI::Validator(
+      [range, or_auto](std::string& text) -> std::string {
+        if (or_auto && text == "auto") return "";
+        std::string error = range(text);
+        return error.empty() || !or_auto ? error : error + ", or auto";
+      },
+      or_auto ? "[1e-06, 1e+06]|auto" : "[1e-06, 1e+06]");
 }
 
 const CLI::Validator kNotAnOption(

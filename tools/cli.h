@@ -71,6 +71,11 @@ extern const CLI::Validator kPositive;
 extern const CLI::Validator kNonNegative;
 // A whole number in [min, max] ("2.5", "nan" and "1e30" are refused, naming the range).
 CLI::Validator Whole(std::int64_t min, std::int64_t max);
+// A finite number in [min, max] ("nan" and "1e300" are refused, naming the range).
+CLI::Validator Between(double min, double max);
+// A known exposure (--exposure): a finite number in [1e-6, 1e6], wide enough for any camera's
+// and narrow enough that the rendering's arithmetic stays finite; or, with `or_auto`, "auto".
+CLI::Validator ExposureRange(bool or_auto = false);
 // Put on every option that takes a value: a value that is itself an option ("--out --resolution")
 // is a forgotten value, not a file named "--resolution".
 extern const CLI::Validator kNotAnOption;

@@ -2,6 +2,7 @@
 #include <cstdio>
 #include <memory>
 
+#include "core/error.h"
 #include "pipeline/calibrate_job.h"
 #include "tools/cli.h"
 
@@ -28,6 +29,8 @@ Runner AddCalibrate(CLI::App* command) {
                    "beside the images)")
       ->type_name("B.yaml");
   return [o](Context& context) {
+    if (o->images.empty() == o->recording.empty())
+      throw UsageError("give the board views: --images or --recording (one of them)");
     context.StopOnSignals();
     CalibrateConfig config;
     if (!o->config.empty()) config = CalibrateConfig::Load(o->config);

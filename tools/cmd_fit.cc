@@ -4,6 +4,7 @@
 #include <memory>
 
 #include "core/error.h"
+#include "fitting/objective.h"
 #include "pipeline/fit_job.h"
 #include "tools/cli.h"
 
@@ -47,7 +48,7 @@ Runner AddFit(CLI::App* command) {
       ->check(CLI::IsMember({"soot", "grey"}));
   command->add_option("--exposure", job.exposure, "Exposure the images were taken with")
       ->type_name("S")
-      ->check(kPositive & CLI::Range(1e-6, 1e6));
+      ->check(ExposureRange());
   command->add_flag("--fit-exposure", job.fit_exposure,
                     "Fast fit: fit a free exposure (the paper's s), even a known one");
   command->add_flag("--axisymmetric", job.fit.axisymmetric,
@@ -62,7 +63,7 @@ Runner AddFit(CLI::App* command) {
                        "Weight of the neighbour term (fast: 1, with --axisymmetric 0.3, at 64 "
                        "voxels, x (64 / resolution)^2 on other grids; alg1/alg2: the paper's 10)")
           ->type_name("W")
-          ->check(kNonNegative & CLI::Range(0.0, 1e6));
+          ->check(Between(0, ObjectiveOptions::kMaxWeight));
   command
       ->add_option("--fit-iterations", o->iterations,
                    "Fast fit: cap on the L-BFGS iterations per grid level (it stops earlier once "
@@ -78,13 +79,15 @@ Runner AddFit(CLI::App* command) {
       ->check(Whole(0, std::int64_t(1) << 53));
   command->add_option("--report", job.report_dir, "Report folder (default: beside F.vdb)")
       ->type_name("DIR");
-  command->add_option("--truth", job.truth_path, "Ground-truth volume: score the temperature")
-      ->type_name("T.vdb");
+  CLI::Option* truth =
+      command->add_option("--truth", job.truth_path, "Ground-truth volume: score the temperature")
+          ->type_name("T.vdb");
   command
       ->add_option("--truth-rig", job.truth_rig,
                    "The rig the truth was simulated in (its dataset's rig.yaml), when --rig is a "
                    "calibration: the truth is moved into --rig's frame before it is scored")
-      ->type_name("RIG");
+      ->type_name("RIG")
+      ->needs(truth);
   command->add_flag("--coarse-to-fine,!--no-coarse-to-fine", job.fit.coarse_to_fine,
                     "Fast fit: start at 32^3 and double (default off)");
   return [o, w_sm](Context& context) {

@@ -24,7 +24,7 @@ Runner AddReconstruct(CLI::App* command) {
       ->type_name("E.vdb");
   command->add_option("--exposure", job->exposure, "Exposure the images were taken with")
       ->type_name("S")
-      ->check(kPositive & CLI::Range(1e-6, 1e6));
+      ->check(ExposureRange());
   command
       ->add_option("--holdout", *holdout,
                    "Camera to leave out and score the result on (it does not stop the solve)")

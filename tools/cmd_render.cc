@@ -36,7 +36,7 @@ Runner AddRender(CLI::App* command) {
   command->add_option("--out", o->out, "Output folder")->required()->type_name("DIR");
   command->add_option("--exposure", o->exposure, "Camera exposure, or auto (the volume's)")
       ->type_name("S|auto")
-      ->check((kPositive & CLI::Range(1e-6, 1e6)) | CLI::IsMember({"auto"}));
+      ->check(ExposureRange(/*or_auto=*/true));
   command->add_option("--absorption", o->absorption, "Absorption model (default: the volume's)")
       ->check(CLI::IsMember({"soot", "grey"}));
   command->add_option("--step", o->step, "Ray-marching step in voxels (default 0.5)")

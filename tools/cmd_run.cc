@@ -4,6 +4,7 @@
 #include <memory>
 
 #include "core/error.h"
+#include "fitting/objective.h"
 #include "pipeline/distributed.h"
 #include "tools/cli.h"
 
@@ -63,7 +64,7 @@ Runner AddRun(CLI::App* command) {
       ->check(Whole(1, kMaxFrames));
   command->add_option("--exposure", run.exposure, "Exposure the images were taken with")
       ->type_name("S")
-      ->check(kPositive & CLI::Range(1e-6, 1e6));
+      ->check(ExposureRange());
   command->add_option("--absorption", run.absorption, "Absorption model (default: dataset.yaml's)")
       ->check(CLI::IsMember({"soot", "grey"}));
   command
@@ -79,7 +80,7 @@ Runner AddRun(CLI::App* command) {
                    "voxels, x (64 / resolution)^2 on other grids; each frame's volume records the "
                    "weight applied (metadata w_sm)")
       ->type_name("W")
-      ->check(kNonNegative & CLI::Range(0.0, 1e6));
+      ->check(Between(0, ObjectiveOptions::kMaxWeight));
   command->add_option("--holdout", run.holdout_camera, "Camera to score but not fit")
       ->type_name("CAMERA");
   command
@@ -87,13 +88,15 @@ Runner AddRun(CLI::App* command) {
                    "Camera the tomography leaves out and stops its solve on (its best iterate is "
                    "kept; the fit still uses the camera)")
       ->type_name("CAMERA");
-  command->add_option("--truth", run.truth_dir, "Ground-truth volumes DIR/frame_NNNNNN.vdb")
-      ->type_name("DIR");
+  CLI::Option* truth =
+      command->add_option("--truth", run.truth_dir, "Ground-truth volumes DIR/frame_NNNNNN.vdb")
+          ->type_name("DIR");
   command
       ->add_option("--truth-rig", run.truth_rig,
                    "The rig the truth was simulated in (its dataset's rig.yaml), when --rig is a "
                    "calibration: the truth is moved into --rig's frame before it is scored")
-      ->type_name("RIG");
+      ->type_name("RIG")
+      ->needs(truth);
   command->add_flag("--no-skip-unchanged", o->no_skip_unchanged,
                     "Compute frames whose images did not change too");
   command->add_flag("--no-blender", o->no_blender, "Do not write OUT/blender/");
@@ -116,6 +119,16 @@ Runner AddRun(CLI::App* command) {
       ->check(Whole(1, 4096));
   return [o](Context& context) {
     RunOptions run = o->run;
+    // Mistakes of the command line itself are usage errors (status 2), found before any work.
+    if (int(!run.source.recording_dir.empty()) + int(!o->seq.empty()) +
+            int(!run.source.images_dir.empty()) !=
+        1)
+      throw UsageError("give one frame source: --images, --recording or --seq");
+    if (run.rig_path.empty() && run.calibration.images_dir.empty() &&
+        run.calibration.recording_dir.empty())
+      throw UsageError(
+          "give a rig (--rig), or a calibration to make one (--calibration-images or "
+          "--calibration-recording)");
     ApplyTomographyFlags(o->tomography, &run.reconstruct, &run.input_transfer);
     run.source.seq_files = SplitList(o->seq);
     run.source.seq_names = SplitList(o->names);

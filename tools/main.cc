@@ -105,7 +105,9 @@ int main(int argc, char** argv) {
   try {
     return runners.at(command)(context);
   } catch (const UsageError& e) {
-    Log().error("flamerig {}: {} (see flamerig {} --help)", name, e.what(), name);
+    // As CLI11's own parse errors: a plain line, no timestamp (README, "Usage errors").
+    std::fprintf(stderr, "flamerig %s: %s (see flamerig %s --help)\n", name.c_str(), e.what(),
+                 name.c_str());
     return cli::kExitUsage;
   } catch (const Cancelled& e) {
     Log().warn("flamerig {}: stopped: {}", name, e.what());
