@@ -233,21 +233,20 @@ FireVolume ReadVdb(const std::string& path) {
                       "' does not share the lattice of the other grids");
     }
   };
-  auto read_float = [&](const openvdb::FloatGrid& grid, std::vector<float>& out) {
-    adopt_geometry(grid);
+  // Calls store(flat index, value) for every active voxel of `grid` inside the lattice adopted
+  // (voxels outside it are ignored).
+  auto for_each_voxel = [&](const auto& grid, const auto& store) {
     const GridGeometry& g = volume.geometry;
-    openvdb::Coord off = OffsetOf(grid);
-    out.assign(g.num_voxels(), 0.0f);
+    const openvdb::Coord off = OffsetOf(grid);
     for (auto it = grid.cbeginValueOn(); it; ++it) {
       openvdb::CoordBBox box;
       it.getBoundingBox(box);
       for (auto c = box.begin(); c; ++c) {
-        openvdb::Coord ijk = *c - off;
+        const openvdb::Coord ijk = *c - off;
         if (ijk.x() < 0 || ijk.y() < 0 || ijk.z() < 0 || ijk.x() >= g.dims.x() ||
-            ijk.y() >= g.dims.y() || ijk.z() >= g.dims.z()) {
-          continue;  // outside the declared lattice: ignored
-        }
-        out[g.Flat(ijk.x(), ijk.y(), ijk.z())] = *it;
+            ijk.y() >= g.dims.y() || ijk.z() >= g.dims.z())
+          continue;
+        store(g.Flat(ijk.x(), ijk.y(), ijk.z()), *it);
       }
     }
   };
@@ -266,28 +265,17 @@ FireVolume ReadVdb(const std::string& path) {
       if (field) {
         auto grid = openvdb::gridConstPtrCast<openvdb::FloatGrid>(base);
         if (!grid) throw DataError(path + ": grid '" + name + "' is not a float grid");
-        read_float(*grid, *field);
+        adopt_geometry(*grid);
+        field->assign(volume.geometry.num_voxels(), 0.0f);
+        for_each_voxel(*grid, [&](std::size_t f, float v) { (*field)[f] = v; });
       } else if (name == "emission") {
         auto grid = openvdb::gridConstPtrCast<openvdb::Vec3SGrid>(base);
         if (!grid) throw DataError(path + ": grid 'emission' is not a Vec3s grid");
         adopt_geometry(*grid);
-        const GridGeometry& g = volume.geometry;
-        openvdb::Coord off = OffsetOf(*grid);
-        volume.emission_rgb.assign(3 * g.num_voxels(), 0.0f);
-        for (auto it = grid->cbeginValueOn(); it; ++it) {
-          openvdb::CoordBBox box;
-          it.getBoundingBox(box);
-          for (auto c = box.begin(); c; ++c) {
-            openvdb::Coord ijk = *c - off;
-            if (ijk.x() < 0 || ijk.y() < 0 || ijk.z() < 0 || ijk.x() >= g.dims.x() ||
-                ijk.y() >= g.dims.y() || ijk.z() >= g.dims.z()) {
-              continue;
-            }
-            std::size_t f = g.Flat(ijk.x(), ijk.y(), ijk.z());
-            openvdb::Vec3s v = *it;
-            for (int ch = 0; ch < 3; ++ch) volume.emission_rgb[3 * f + ch] = v[ch];
-          }
-        }
+        volume.emission_rgb.assign(3 * volume.geometry.num_voxels(), 0.0f);
+        for_each_voxel(*grid, [&](std::size_t f, const openvdb::Vec3s& v) {
+          for (int ch = 0; ch < 3; ++ch) volume.emission_rgb[3 * f + ch] = v[ch];
+        });
       }
     }
   } catch (const openvdb::Exception& e) {
