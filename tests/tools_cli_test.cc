@@ -390,8 +390,9 @@ TEST(Cli, ReconstructASimulatedFrameSet) {
     EXPECT_EQ(plain.status, 0) << command << plain.output;
     EXPECT_NE(plain.output.find("debug   tomography: iteration 1: residual rms"), std::string::npos)
         << command << plain.output;
-    if (command == "fit")
+    if (command == "fit") {
       EXPECT_NE(plain.output.find("iteration 1: energy"), std::string::npos) << plain.output;
+    }
   }
   EXPECT_EQ(missing.output.find("debug "), std::string::npos) << missing.output;
   fs::remove_all(dir);
