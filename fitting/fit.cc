@@ -17,6 +17,7 @@
 #include <tuple>
 
 #include "core/error.h"
+#include "core/format.h"
 #include "core/log.h"
 #include "fitting/colour.h"
 #include "fitting/physics.h"
@@ -71,6 +72,36 @@ void FitOptions::Validate() const {
   if (!(known_exposure >= 0) || !std::isfinite(known_exposure) ||
       (known_exposure > 0 && !(known_exposure >= exposure_min && known_exposure <= exposure_max)))
     fail("known_exposure must be 0 (unknown) or in [exposure_min, exposure_max]");
+}
+
+std::string FitOptions::Key() const {
+  std::ostringstream k;
+  k.precision(17);
+  const ObjectiveOptions& o = objective;
+  k << "w_am " << o.w_am << ", w_sm " << o.w_sm << ", smooth_delta_e " << o.smooth_delta_e
+    << ", smooth_neighbour " << o.smooth_neighbour << ", t " << o.t_min_k << " .. " << o.t_max_k
+    << " K, n " << o.n_min_per_m3 << " .. " << o.n_max_per_m3 << " /m^3, density_pairwise "
+    << o.density_pairwise << ", model_mosaic " << o.model_mosaic;
+  const RenderOptions& r = render;
+  k << "; render: step " << r.step_voxels << ", min_transmittance " << r.min_transmittance
+    << ", skip_empty_space " << r.skip_empty_space << ", brick " << r.brick_size_voxels
+    << ", path " << ToString(r.path) << ", spectral " << r.spectral_first_nm << " .. "
+    << r.spectral_last_nm << " / " << r.spectral_step_nm << " nm, double " << r.double_precision
+    << ", wide " << r.wide_kernels << ", response '"
+    << (r.response ? r.response->name() : std::string("the views'")) << "'";
+  k << "; fit: neighbour_weight_resolution " << neighbour_weight_resolution << ", activity "
+    << activity_threshold << ", exposure " << exposure_min << " .. " << exposure_max
+    << ", known " << known_exposure << ", colour start " << init_colour_radius_voxels << " / "
+    << init_colour_cap_brightness << ", band start " << init_band_radius_voxels
+    << ", coarse_to_fine " << coarse_to_fine << " from " << coarsest_resolution
+    << ", iterations " << iterations_per_level << " / " << iterations_finest << ", stall "
+    << stall_window << " / " << stall_decrease << ", smooth " << smooth_delta_e << " / "
+    << smooth_neighbour << ", time_limit " << time_limit_s << " s, density_pairwise "
+    << density_pairwise << ", warm density from emission " << warm_start_density_from_emission
+    << ", axisymmetric " << axisymmetric << " (w_sm " << axisymmetric_w_sm << "), vary "
+    << vary.temperature << vary.density << ", uncertainty " << estimate_uncertainty << " ("
+    << uncertainty.determined_fraction << ")";
+  return k.str();
 }
 
 const char* ToString(FitTermination termination) {
@@ -890,6 +921,14 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     if (options.neighbour_weight_resolution > 0) {
       const double ratio = double(options.neighbour_weight_resolution) / g.dims.maxCoeff();
       o.w_sm *= ratio * ratio;
+      // Said in the weight the user gave, not in the scaled one ObjectiveOptions::Validate sees.
+      if (o.w_sm > ObjectiveOptions::kMaxWeight)
+        throw InputError("fit: the neighbour weight " + FormatNumber(options.objective.w_sm) +
+                         ", scaled by (" + std::to_string(options.neighbour_weight_resolution) +
+                         " / " + std::to_string(g.dims.maxCoeff()) + ")^2 on this grid, is " +
+                         FormatNumber(o.w_sm) + ", above the limit " +
+                         FormatNumber(ObjectiveOptions::kMaxWeight) +
+                         ": give a smaller --w-sm or a finer grid");
     }
     return o;
   };

@@ -251,6 +251,12 @@ struct FitOptions {
   bool estimate_uncertainty = false;
   UncertaintyOptions uncertainty;
   void Validate() const;  // throws InputError naming the field
+  // Every field of these options, and of the structs it holds, as one line ("w_am 1, w_sm 1,
+  // ..."; numbers to 17 digits, so a line read back means the same doubles): two fits whose keys
+  // are equal were given the same options. `run` stores it with each frame and refuses to resume
+  // a run fitted with other ones. tests/fitting_fit_test.cc counts the fields of each struct, so
+  // a field added without a place here fails the test rather than a resume.
+  std::string Key() const;
 };
 
 // One ring of an axisymmetric fit (FitOptions::axisymmetric) at one height: a point of the radial

@@ -142,13 +142,9 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
     key.precision(17);
     key << "absorption " << absorption_.name() << ", exposure " << exposure_
         << (exposure_known_ ? " known" : " unknown") << (options_.fit_exposure ? " fitted" : "")
-        << ", w_sm " << f.objective.w_sm << ", axisymmetric " << f.axisymmetric << " (w_sm "
-        << f.axisymmetric_w_sm << "), iterations " << f.iterations_finest << ", per level "
-        << f.iterations_per_level << ", coarse_to_fine " << f.coarse_to_fine << ", stall "
-        << f.stall_window << " / " << f.stall_decrease << ", density_pairwise "
-        << f.density_pairwise << ", mosaic " << f.objective.model_mosaic << ", held out '"
-        << options_.holdout_camera << "', warm_start " << options_.warm_start << ", sigma "
-        << options_.sigma << ", input_transfer '" << options_.input_transfer << "'";
+        << ", held out '" << options_.holdout_camera << "', warm_start " << options_.warm_start
+        << ", sigma " << options_.sigma << ", input_transfer '" << options_.input_transfer
+        << "'; " << f.Key();
     fit_key_ = key.str();
   }
   for (const char* sub : {"frames", "tomography", "state"})

@@ -11,6 +11,9 @@
 #include <map>
 #include <random>
 #include <set>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include <tbb/global_control.h>
 
@@ -696,6 +699,125 @@ TEST(FastFit, HoldsAKnownExposureAndUnselectedParameters) {
   weights.w_sm = 1;
   weights.w_am = std::numeric_limits<double>::infinity();
   EXPECT_THROW(weights.Validate(), InputError);
+  // The weight is scaled to the grid, (64 / 16)^2 = 16 here: a weight within the limit as given
+  // but not as scaled is refused in the user's own number, with what scaled it.
+  FitOptions scaled;
+  scaled.objective.w_sm = 1e11;
+  ASSERT_EQ(scaled.neighbour_weight_resolution, 64);
+  try {
+    FastFit(r.grid, r.tomography, r.views, soot, scaled);
+    ADD_FAILURE() << "a neighbour weight scaled to 1.6e12 was accepted";
+  } catch (const InputError& e) {
+    const std::string what = e.what();
+    for (const char* said : {"neighbour weight 1e+11", "(64 / 16)^2", "1.6e+12", "--w-sm"})
+      EXPECT_NE(what.find(said), std::string::npos) << said << " not in: " << what;
+  }
+  scaled.objective.w_sm = 1e12 / 16;  // exactly at the limit once scaled
+  scaled.iterations_finest = 1;
+  EXPECT_NO_THROW(FastFit(r.grid, r.tomography, r.views, soot, scaled));
+}
+
+// FitOptions::Key() names every field of the options and of the structs they hold: each field
+// changed on its own changes the key, and the fields are counted (an aggregate initialised from
+// N placeholders has at least N fields), so one added later without a place in the key, and in
+// this list, fails here rather than in a resumed run that reuses frames fitted otherwise.
+struct AnyField {
+  template <class T>
+  operator T() const;  // only named in unevaluated initialisers
+};
+template <class T, std::size_t... I>
+constexpr bool InitialisableFrom(std::index_sequence<I...>) {
+  return requires { T{(void(I), AnyField{})...}; };
+}
+template <class T, std::size_t N = 0>
+constexpr std::size_t FieldCount() {
+  if constexpr (InitialisableFrom<T>(std::make_index_sequence<N + 1>()))
+    return FieldCount<T, N + 1>();
+  else
+    return N;
+}
+
+TEST(FitOptions, TheKeyNamesEveryField) {
+  using Change = std::function<void(FitOptions&)>;
+  const std::vector<Change> objective = {
+      [](FitOptions& f) { f.objective.w_am = 2; },
+      [](FitOptions& f) { f.objective.w_sm = 2; },
+      [](FitOptions& f) { f.objective.smooth_delta_e = 0.25; },
+      [](FitOptions& f) { f.objective.smooth_neighbour = 0.25; },
+      [](FitOptions& f) { f.objective.t_min_k = 400; },
+      [](FitOptions& f) { f.objective.t_max_k = 2500; },
+      [](FitOptions& f) { f.objective.n_min_per_m3 = 1e10; },
+      [](FitOptions& f) { f.objective.n_max_per_m3 = 1e20; },
+      [](FitOptions& f) { f.objective.density_pairwise = true; },
+      [](FitOptions& f) { f.objective.model_mosaic = false; },
+  };
+  const std::vector<Change> render = {
+      [](FitOptions& f) { f.render.step_voxels = 0.25; },
+      [](FitOptions& f) { f.render.min_transmittance = 1e-3; },
+      [](FitOptions& f) { f.render.skip_empty_space = false; },
+      [](FitOptions& f) { f.render.brick_size_voxels = 4; },
+      [](FitOptions& f) { f.render.path = SpectralPath::kSpectral; },
+      [](FitOptions& f) { f.render.spectral_first_nm = 400; },
+      [](FitOptions& f) { f.render.spectral_last_nm = 700; },
+      [](FitOptions& f) { f.render.spectral_step_nm = 5; },
+      [](FitOptions& f) { f.render.double_precision = true; },
+      [](FitOptions& f) { f.render.wide_kernels = false; },
+      [](FitOptions& f) { f.render.response = ChannelResponse::SrgbObserver(); },
+  };
+  const std::vector<Change> fit = {
+      objective[1],  // objective: its own list
+      [](FitOptions& f) { f.neighbour_weight_resolution = 32; },
+      render[0],  // render: its own list
+      [](FitOptions& f) { f.activity_threshold = 1e-2; },
+      [](FitOptions& f) { f.exposure_min = 0.1; },
+      [](FitOptions& f) { f.exposure_max = 100; },
+      [](FitOptions& f) { f.init_colour_radius_voxels = 2; },
+      [](FitOptions& f) { f.init_colour_cap_brightness = false; },
+      [](FitOptions& f) { f.init_band_radius_voxels = 3; },
+      [](FitOptions& f) { f.coarsest_resolution = 16; },
+      [](FitOptions& f) { f.coarse_to_fine = true; },
+      [](FitOptions& f) { f.iterations_per_level = 20; },
+      [](FitOptions& f) { f.iterations_finest = 50; },
+      [](FitOptions& f) { f.stall_window = 10; },
+      [](FitOptions& f) { f.stall_decrease = 0.01; },
+      [](FitOptions& f) { f.smooth_delta_e = 0.25; },
+      [](FitOptions& f) { f.smooth_neighbour = 0.02; },
+      [](FitOptions& f) { f.time_limit_s = 5; },
+      [](FitOptions& f) { f.density_pairwise = true; },
+      [](FitOptions& f) { f.warm_start_density_from_emission = false; },
+      [](FitOptions& f) { f.axisymmetric = true; },
+      [](FitOptions& f) { f.axisymmetric_w_sm = 0.1; },
+      [](FitOptions& f) { f.known_exposure = 2; },
+      [](FitOptions& f) { f.vary.temperature = false; },  // vary: both below
+      [](FitOptions& f) { f.estimate_uncertainty = true; },
+      [](FitOptions& f) { f.uncertainty.determined_fraction = 0.25; },
+  };
+  const std::vector<Change> vary = {[](FitOptions& f) { f.vary.temperature = false; },
+                                    [](FitOptions& f) { f.vary.density = false; }};
+  EXPECT_EQ(FieldCount<FitOptions>(), fit.size());
+  EXPECT_EQ(FieldCount<ObjectiveOptions>(), objective.size());
+  EXPECT_EQ(FieldCount<RenderOptions>(), render.size());
+  EXPECT_EQ(FieldCount<FitSelection>(), vary.size());
+  EXPECT_EQ(FieldCount<UncertaintyOptions>(), 1u);  // determined_fraction, in `fit`
+
+  const std::string plain = FitOptions().Key();
+  std::set<std::string> keys = {plain};
+  std::size_t changes = 0;
+  for (const auto* list : {&objective, &render, &fit, &vary})
+    for (std::size_t i = 0; i < list->size(); ++i) {
+      FitOptions changed;
+      (*list)[i](changed);
+      const std::string key = changed.Key();
+      EXPECT_NE(key, plain) << "change " << i << " of its list leaves the key as it was";
+      keys.insert(key);
+      ++changes;
+    }
+  // Changes of different fields give different keys (the repeats in `fit` name the same field).
+  EXPECT_EQ(keys.size(), 1 + changes - 3);
+  // Numbers keep every digit: a weight 1e-17 apart is another fit.
+  FitOptions close;
+  close.objective.w_sm = std::nextafter(1.0, 2.0);
+  EXPECT_NE(close.Key(), plain);
 }
 
 // The fit says why it stopped, in the manner of Ceres' Summary: the iteration limit, a time

@@ -1267,6 +1267,10 @@ TEST(RunFrames, AResumeRecomputesAMissingVolumeAndRefusesOtherOptions) {
               std::string::npos)
         << e.what();
   }
+  // An option the hand-written key of 2026-12-01 left out (the temperature's upper bound).
+  RunOptions bounds = o;
+  bounds.fit.objective.t_max_k = 2500;
+  EXPECT_THROW(RunAll(bounds), InputError);
   EXPECT_TRUE(fs::exists(dir / "out" / "frame_000002.vdb"));  // nothing of it was touched
   fs::remove_all(dir);
 }
