@@ -45,7 +45,8 @@ std::uint32_t Crc(const void* p, std::size_t n) {
 
 std::string Errno(int e) {
   std::string s = std::strerror(e);
-  if (e == ENOSPC || e == EDQUOT || e == EFBIG) s += " (disk full)";
+  if (e == ENOSPC || e == EDQUOT) s += " (disk full)";
+  if (e == EFBIG) s += " (the file size limit: `ulimit -f`, or the file system's largest file)";
   return s;
 }
 
@@ -470,7 +471,10 @@ bool Recorder::Submit(const FrameSet& set) {
     limit = "recording " + directory_ + ": reached its size limit of " +
             std::to_string(options_.max_bytes) + " bytes";
   } else if (options_.min_free_bytes > 0 && accepted_bytes_ >= next_space_check_) {
-    next_space_check_ = accepted_bytes_ + (8ull << 20);
+    // Checked again after at most half the reserve has been written, so the reserve itself
+    // cannot be used up between two checks (a fixed 8 MiB filled a disk with 2 MiB kept free).
+    next_space_check_ =
+        accepted_bytes_ + std::clamp<std::uint64_t>(options_.min_free_bytes / 2, 64 << 10, 8 << 20);
     struct statvfs v;
     if (::statvfs(directory_.c_str(), &v) == 0 &&
         static_cast<std::uint64_t>(v.f_bavail) * v.f_frsize <
@@ -784,6 +788,36 @@ Recording Recording::Open(const std::string& directory) {
     throw RecordingError("recording: " + meta_path.string() + ": " + e.what());
   }
   const int n = rec.num_cameras();
+  // metadata.yaml lists every camera the take holds. One cut short (or edited) may list fewer
+  // and still parse: the files of a camera it does not list, or a sets.index that records more
+  // cameras a set, say so. Read as it is, that take lost a whole camera with only a warning
+  // (2026-12-02); its frames are intact, and it is metadata.yaml that must be restored.
+  {
+    std::vector<std::string> unlisted;
+    for (int c = n; c < n + 64; ++c)
+      for (const std::string& file : {CameraDataFile(c), CameraIndexFile(c)})
+        if (fs::exists(dir / file)) unlisted.push_back(file);
+    std::uint32_t per_set = 0;
+    char header[kFileHeader] = {};
+    std::ifstream sets(dir / "sets.index", std::ios::binary);
+    if (sets.read(header, kFileHeader) && std::memcmp(header, kSetsMagic, 8) == 0)
+      std::memcpy(&per_set, header + 12, 4);
+    if (!unlisted.empty() || per_set > static_cast<std::uint32_t>(n)) {
+      std::string what;
+      if (!unlisted.empty()) {
+        what = "the take holds ";
+        for (std::size_t i = 0; i < unlisted.size(); ++i) what += (i ? ", " : "") + unlisted[i];
+        what += " of a camera it does not list";
+      }
+      if (per_set > static_cast<std::uint32_t>(n))
+        what += std::string(what.empty() ? "" : ", and ") + "sets.index records " +
+                std::to_string(per_set) + " cameras a set";
+      throw RecordingError("recording: " + meta_path.string() + " lists " + std::to_string(n) +
+                           " camera(s), but " + what +
+                           ": metadata.yaml is damaged or cut short (the frames are "
+                           "untouched; restore it from a copy of the take)");
+    }
+  }
   RecoveryReport& report = rec.recovery_;
   rec.frames_.resize(n);
   // ---- Each camera's frames: from its index, or found again in its data file.

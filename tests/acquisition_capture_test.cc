@@ -77,6 +77,15 @@ TEST(CaptureConfig, ParsesAndNamesTheKeyOfEveryMistake) {
   EXPECT_NE(ParseError("sync: free-run\ncameras: [{name: a, wdth: 3}]")
                 .find("rig.yaml: cameras[0]: unknown key 'wdth'"),
             std::string::npos);
+  // A key given twice, at the top or in a camera: YAML's reader kept the first without a word.
+  EXPECT_NE(ParseError("sync: free-run\ntrigger_rate_hz: 30\ncameras: [{name: a}]\n"
+                       "trigger_rate_hz: 5\n")
+                .find("rig.yaml: 'trigger_rate_hz' is given twice (line 4)"),
+            std::string::npos);
+  EXPECT_NE(ParseError("sync: free-run\ncameras:\n  - {name: a, exposure_us: 2000, "
+                       "exposure_us: 100000}\n")
+                .find("'exposure_us' is given twice (line 3)"),
+            std::string::npos);
   EXPECT_NE(ParseError("synk: free-run\ncameras: [{name: a}]").find("unknown key 'synk'"),
             std::string::npos);
   EXPECT_NE(ParseError("sync: sometimes\ncameras: [{name: a}]").find("sync 'sometimes'"),
@@ -420,6 +429,27 @@ TEST(CaptureDaemon, ExposureChangesWhileRecording) {
   EXPECT_GE(before, 15u);
   EXPECT_GE(after, 15u);
   EXPECT_EQ(r.metadata().cameras[0].settings.exposure_us, config.cameras[0].settings.exposure_us);
+}
+
+// `ctl configure` holds a triggered camera's frame rate to the config file's rule, at least 1.1 x
+// the trigger rate: it took 5 Hz under a 30 Hz trigger, and the take missed 59 triggers.
+TEST(CaptureDaemon, ConfigureRefusesAFrameRateThatMissesTriggers) {
+  TempDir dir;
+  const CaptureConfig config =
+      CaptureConfig::Parse(Config(dir.path, "software-trigger", 50, "", ""), "test");
+  SystemClock clock;
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
+  try {
+    daemon.SetCameraSetting("cam0", "frame_rate_hz", "50");
+    ADD_FAILURE() << "no error";
+  } catch (const InputError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("camera 'cam0': frame_rate_hz '50'"), std::string::npos) << what;
+    EXPECT_NE(what.find("at least 1.1 x trigger_rate_hz (55 Hz)"), std::string::npos) << what;
+  }
+  EXPECT_EQ(daemon.config().cameras[0].settings.frame_rate_hz,
+            config.cameras[0].settings.frame_rate_hz);  // unchanged
+  EXPECT_NO_THROW(daemon.SetCameraSetting("cam0", "frame_rate_hz", "55"));
 }
 
 TEST(CaptureDaemon, AnEventSavesThePreTriggerRing) {

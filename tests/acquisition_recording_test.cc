@@ -18,6 +18,8 @@
 #include <thread>
 #include <vector>
 
+#include <yaml-cpp/yaml.h>
+
 #include "acquisition/recording.h"
 #include "core/error.h"
 
@@ -454,6 +456,27 @@ TEST_F(Damage, OnlyMetadataIsIndispensable) {
             std::string::npos);
 }
 
+// A metadata.yaml cut short that still parses, listing fewer cameras than the take holds: an
+// error naming the files of the camera it leaves out and sets.index's count. Read as it was, the
+// take lost a whole camera with only a warning (2026-12-02).
+TEST_F(Damage, AMetadataThatListsFewerCamerasThanTheTakeIsAnError) {
+  YAML::Node meta = YAML::LoadFile(at("metadata.yaml").string());
+  YAML::Node cameras = meta["cameras"];
+  YAML::Node first_two(YAML::NodeType::Sequence);
+  first_two.push_back(cameras[0]);
+  first_two.push_back(cameras[1]);
+  meta["cameras"] = first_two;
+  std::ofstream(at("metadata.yaml"), std::ios::trunc) << meta << "\n";
+  const std::string m = OpenError(dir_.str());
+  for (const char* said : {"metadata.yaml lists 2 camera(s)", "cam02.data, cam02.index",
+                           "sets.index records 3 cameras a set", "damaged or cut short"})
+    EXPECT_NE(m.find(said), std::string::npos) << said << " not in: " << m;
+  // Only sets.index to tell: the same.
+  fs::remove(at("cam02.data"));
+  fs::remove(at("cam02.index"));
+  EXPECT_NE(OpenError(dir_.str()).find("sets.index records 3 cameras a set"), std::string::npos);
+}
+
 // `flamerig recover`: the damage salvaged, the sets an interrupted recorder left uncommitted taken
 // in when their frames are whole, the pixels checked, and the result opens clean.
 TEST_F(Damage, RebuildIndexesWritesACleanRecordingAndKeepsTheOldFiles) {
@@ -607,7 +630,7 @@ TEST(Recording, AFullDiskStopsTheRecordingCleanly) {
   const std::size_t nl = report.find('\n');
   ASSERT_NE(nl, std::string::npos) << report;
   const std::string error = report.substr(nl + 1);
-  EXPECT_NE(error.find("disk full"), std::string::npos) << error;
+  EXPECT_NE(error.find("file size limit"), std::string::npos) << error;
   EXPECT_NE(error.find(".data"), std::string::npos) << error;
   const std::uint64_t recorded = std::stoull(report.substr(0, nl));
   // 1 MiB holds 54 frames of 19200 bytes per camera. The writers run independently, so when the
@@ -710,7 +733,7 @@ TEST(Recording, AWriteFailingAfterTheSetLimitIsAFault) {
   EXPECT_EQ(report.substr(0, nl), "6 0 0 1") << report;
   const std::string error = report.substr(nl + 1);
   EXPECT_EQ(error.rfind("reached its limit of 7 frame sets; then", 0), 0u) << error;
-  EXPECT_NE(error.find("disk full"), std::string::npos) << error;
+  EXPECT_NE(error.find("file size limit"), std::string::npos) << error;
   const Recording r = Recording::Open(dir.str());
   ASSERT_EQ(r.num_sets(), 6u);
   for (std::size_t i = 0; i < r.num_sets(); ++i) {

@@ -1127,6 +1127,21 @@ TEST(Cli, AFullDiskEndsTheTakeCleanlyAndTheExitStatusSaysSo) {
     for (std::size_t s = 0; s < r.num_sets(); ++s) EXPECT_EQ(r.ReadSet(s).present(), 2) << s;
   }
   fs::remove_all(dir / "copy");
+  // min_free_mb stops the take before the disk is full: the free space is checked after at most
+  // half the reserve is written (every 8 MiB until 2026-12-02, and this 3 MiB disk filled first).
+  {
+    const auto [status, log, files] = on_small_disk(config(1));
+    EXPECT_EQ(status, "1\n") << log;
+    EXPECT_NE(log.find("the disk is nearly full (less than 1 MiB free, min_free_mb)"),
+              std::string::npos)
+        << log;
+    EXPECT_EQ(log.find("No space left"), std::string::npos) << log;
+    const flamerig::Recording r = flamerig::Recording::Open((dir / "copy").string());
+    EXPECT_TRUE(r.recovery().closed_cleanly) << log;
+    EXPECT_GE(r.num_sets(), 1u);
+    for (std::size_t s = 0; s < r.num_sets(); ++s) EXPECT_EQ(r.ReadSet(s).present(), 2) << s;
+  }
+  fs::remove_all(dir / "copy");
   {
     const auto [status, log, files] = on_small_disk(config(64));
     EXPECT_EQ(status, "1\n") << log;
@@ -1178,39 +1193,80 @@ TEST(Cli, CaptureLogsEveryEventWithATimestamp) {
   fs::remove_all(dir);
 }
 
-// SIGTERM (as a service manager sends it) stops the daemon cleanly: the recording closes with
-// every frame set flushed and metadata.yaml saying so.
-TEST(Cli, CaptureStopsCleanlyOnSigterm) {
+// SIGTERM (as a service manager sends it) and SIGHUP (the terminal or SSH session that started it
+// gone) stop the daemon cleanly: the recording closes with every frame set flushed and
+// metadata.yaml saying so. SIGHUP ended it with the take open until 2026-12-02.
+TEST(Cli, CaptureStopsCleanlyOnSigtermAndSighup) {
+  for (const int signal : {SIGTERM, SIGHUP}) {
+    SCOPED_TRACE(signal == SIGTERM ? "SIGTERM" : "SIGHUP");
+    fs::path dir = TempDir();
+    std::ofstream(dir / "rig.yaml") << "data_dir: " << (dir / "rec").string()
+                                    << "\nsync: hardware-trigger\ntrigger_rate_hz: 50\ncameras:\n"
+                                       "  - {name: a, width: 32, height: 24}\n"
+                                       "  - {name: b, width: 32, height: 24}\n";
+    const std::string cmd = std::string(FLAMERIG_BINARY) + " capture --config " +
+                            (dir / "rig.yaml").string() + " --record take > " +
+                            (dir / "log.txt").string() + " 2>&1 & echo $!";
+    FILE* p = popen(cmd.c_str(), "r");
+    ASSERT_NE(p, nullptr);
+    int pid = 0;
+    ASSERT_EQ(fscanf(p, "%d", &pid), 1);
+    pclose(p);
+    // Once the take is open (a fixed second was not enough on a loaded CI host: the signal came
+    // before the daemon had started, and ended it as it ends any program).
+    auto said = [&] {
+      std::ifstream in(dir / "log.txt");
+      return std::string((std::istreambuf_iterator<char>(in)), {});
+    };
+    for (int i = 0; i < 600 && said().find("recording into") == std::string::npos; ++i)
+      usleep(50'000);
+    usleep(300'000);  // a few frame sets
+    ASSERT_EQ(::kill(pid, signal), 0);
+    for (int i = 0; i < 100 && ::kill(pid, 0) == 0; ++i) usleep(50'000);
+    EXPECT_NE(::kill(pid, 0), 0) << "still running after the signal";
+    std::ifstream meta(dir / "rec" / "take" / "metadata.yaml");
+    std::string text((std::istreambuf_iterator<char>(meta)), {});
+    EXPECT_NE(text.find("closed: true"), std::string::npos) << text;
+    const std::string out = said();
+    EXPECT_NE(out.find("frame sets recorded"), std::string::npos) << out;
+    fs::remove_all(dir);
+  }
+}
+
+// Two signals that are side effects of where the daemon writes, not requests to stop, used to end
+// a take with its recording open and its queued frame sets lost (2026-12-02): SIGPIPE, when its
+// log is piped into a `head` (or a `tee` closed first) that has ended, and SIGXFSZ, when a file
+// reaches `ulimit -f`. Now the log's writes fail quietly and the recording goes on to its count;
+// the file limit stops the recording as a full disk does, named, with what was committed readable.
+TEST(Cli, CaptureSurvivesAClosedLogPipeAndStopsAtAFileLimit) {
   fs::path dir = TempDir();
   std::ofstream(dir / "rig.yaml") << "data_dir: " << (dir / "rec").string()
                                   << "\nsync: hardware-trigger\ntrigger_rate_hz: 50\ncameras:\n"
-                                     "  - {name: a, width: 32, height: 24}\n"
-                                     "  - {name: b, width: 32, height: 24}\n";
-  const std::string cmd = std::string(FLAMERIG_BINARY) + " capture --config " +
-                          (dir / "rig.yaml").string() + " --record take > " +
-                          (dir / "log.txt").string() + " 2>&1 & echo $!";
-  FILE* p = popen(cmd.c_str(), "r");
-  ASSERT_NE(p, nullptr);
-  int pid = 0;
-  ASSERT_EQ(fscanf(p, "%d", &pid), 1);
-  pclose(p);
-  // Once the take is open (a fixed second was not enough on a loaded CI host: the signal came
-  // before the daemon had started, and ended it as it ends any program).
-  auto said = [&] {
-    std::ifstream in(dir / "log.txt");
+                                     "  - {name: a, width: 160, height: 120}\n"
+                                     "  - {name: b, width: 160, height: 120}\n";
+  const std::string capture =
+      std::string(FLAMERIG_BINARY) + " capture --config " + (dir / "rig.yaml").string();
+  auto metadata = [&](const char* take) {
+    std::ifstream in(dir / "rec" / take / "metadata.yaml");
     return std::string((std::istreambuf_iterator<char>(in)), {});
   };
-  for (int i = 0; i < 600 && said().find("recording into") == std::string::npos; ++i)
-    usleep(50'000);
-  usleep(300'000);  // a few frame sets
-  ASSERT_EQ(::kill(pid, SIGTERM), 0);
-  for (int i = 0; i < 100 && ::kill(pid, 0) == 0; ++i) usleep(50'000);
-  EXPECT_NE(::kill(pid, 0), 0) << "still running after SIGTERM";
-  std::ifstream meta(dir / "rec" / "take" / "metadata.yaml");
-  std::string text((std::istreambuf_iterator<char>(meta)), {});
-  EXPECT_NE(text.find("closed: true"), std::string::npos) << text;
-  const std::string out = said();
-  EXPECT_NE(out.find("frame sets recorded"), std::string::npos) << out;
+  // The pipe: `head -1` ends after the first line; capture's status is the pipeline's first.
+  const Result piped = Shell("bash -c '" + capture +
+                             " --record piped --frames 40 2>&1 | head -1 > /dev/null; "
+                             "exit ${PIPESTATUS[0]}'");
+  EXPECT_EQ(piped.status, 0) << piped.output;
+  EXPECT_NE(metadata("piped").find("closed: true"), std::string::npos) << metadata("piped");
+  const flamerig::Recording whole = flamerig::Recording::Open((dir / "rec" / "piped").string());
+  EXPECT_EQ(whole.num_sets(), 40u);
+  // The file limit: 400 KiB a file holds 21 frames of 19200 bytes.
+  const Result limited =
+      Shell("bash -c 'ulimit -f 400; " + capture + " --record limited --frames 100'");
+  EXPECT_EQ(limited.status, 1) << limited.output;
+  EXPECT_NE(limited.output.find("file size limit"), std::string::npos) << limited.output;
+  EXPECT_NE(metadata("limited").find("closed: true"), std::string::npos) << metadata("limited");
+  const flamerig::Recording part = flamerig::Recording::Open((dir / "rec" / "limited").string());
+  EXPECT_GT(part.num_sets(), 0u);
+  EXPECT_LE(part.num_sets(), 21u);
   fs::remove_all(dir);
 }
 

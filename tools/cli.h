@@ -36,8 +36,9 @@ class Context {
  public:
   Context(Verbosity verbosity, bool terminal) : verbosity_(verbosity), terminal_(terminal) {}
 
-  // Ctrl-C (SIGINT) and SIGTERM raise cancel(): the command stops at its next safe point. A second
-  // Ctrl-C ends the process at once.
+  // Ctrl-C (SIGINT), SIGTERM and SIGHUP (the terminal or the SSH session that started it gone)
+  // raise cancel(): the command stops at its next safe point, so a recording is closed. A second
+  // one ends the process at once.
   void StopOnSignals();
   const CancelFlag& cancel() const;
 
@@ -101,6 +102,12 @@ void ApplyTomographyFlags(const TomographyFlags& flags, ReconstructOptions* opti
 
 // "a,b,,c" -> {"a", "b", "c"}.
 std::vector<std::string> SplitList(const std::string& text);
+
+// SIGPIPE (stderr piped into a `tee` or `head` that has ended) and SIGXFSZ (`ulimit -f` reached)
+// are ignored, for every command, from main(): their writes fail with EPIPE and EFBIG instead,
+// which the log skips and the recorder reports and closes on. Either signal ended a capture
+// mid-take with its recording open and its queued frame sets lost (until 2026-12-02).
+void IgnoreWriteSignals();
 
 // Frame indices and counts go up to 2^48.
 constexpr std::int64_t kMaxFrames = std::int64_t(1) << 48;

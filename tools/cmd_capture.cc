@@ -1,4 +1,5 @@
 // `flamerig capture`: the capture daemon (acquisition/capture.h) and its control API.
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -83,6 +84,8 @@ Runner AddCapture(CLI::App* command) {
     if (o->frames > 0) config.recorder.max_sets = static_cast<std::uint64_t>(o->frames);
     // One daemon per data_dir: a second would mix recordings, sockets and logs.
     const FolderLock lock(config.data_dir, "flamerig capture --config " + o->config);
+    // From here a signal stops the daemon at its next step, so a recording it starts is closed.
+    context.StopOnSignals();
     const std::string log_file = (std::filesystem::path(config.data_dir) / "capture.log").string();
     AddLogFile(log_file);
     SystemClock clock;
@@ -103,10 +106,11 @@ Runner AddCapture(CLI::App* command) {
     }
     if (!o->event.empty() && config.pretrigger_seconds > 0)
       std::this_thread::sleep_for(std::chrono::duration<double>(config.pretrigger_seconds));
+    // --duration counts from the recording's start: a timed take holds duration x rate sets,
+    // give or take one (the frame sets in flight when it stops).
+    const auto start = std::chrono::steady_clock::now();
     if (!o->record.empty()) daemon.StartRecording(o->record);
     if (!o->event.empty()) daemon.TriggerEvent(o->event);
-    context.StopOnSignals();
-    const auto start = std::chrono::steady_clock::now();
     auto elapsed = [&] {
       return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     };
@@ -151,7 +155,10 @@ Runner AddCapture(CLI::App* command) {
     bool frames_done = false;
     while (!context.cancel().raised() && !server->shutdown_requested() && !frames_done &&
            (o->duration < 0 || elapsed() < o->duration)) {
-      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      // Every 100 ms, and at --duration's end (a 100 ms step overshot a 1 s take by 2 sets).
+      const double step_s = o->duration < 0 ? 0.1 : std::clamp(o->duration - elapsed(), 0.0, 0.1);
+      std::this_thread::sleep_for(std::chrono::duration<double>(step_s));
+      if (o->duration >= 0 && elapsed() >= o->duration) break;
       const CaptureStatus s = daemon.status();
       watch(s);
       if (s.recorder.stopped && s.recording) {

@@ -48,6 +48,7 @@ const std::vector<cli::Command>& Commands() {
 
 int main(int argc, char** argv) {
   cli::Args() = {&argc, &argv};
+  cli::IgnoreWriteSignals();
   CLI::App app("flamerig: fire reconstruction from a calibrated multi-camera rig", "flamerig");
   app.set_version_flag("--version", FLAMERIG_VERSION);
   app.require_subcommand(0, 1);
