@@ -55,6 +55,7 @@ BoardSpec LoadBoardSpec(const std::string& yaml_path) {
   if (!std::filesystem::exists(yaml_path)) throw InputError(yaml_path + ": no such file");
   try {
     root = YAML::LoadFile(yaml_path);
+    RejectDuplicateKeys(root, yaml_path);
   } catch (const YAML::Exception& e) {
     throw InputError(yaml_path + ": cannot read the board description: " + e.what());
   }

@@ -220,6 +220,7 @@ struct DetectJob {
 
 struct DetectResult {
   BoardDetection detection;
+  std::string unreadable;  // a recording's frame that did not read: why
   int width = 0, height = 0;
   bool cached = false;
 };
@@ -248,6 +249,8 @@ CalibrationData RunDetection(CalibrationData data, std::vector<DetectJob> jobs,
         results[i].detection = DetectBoard(image, data.board, detect);
         cache.Put(key, results[i].detection);
       }
+    } catch (const RecordingError& e) {  // a damaged take costs the frames it touches
+      results[i].unreadable = e.what();
     } catch (const std::exception& e) {
       errors[i] = e.what();
     }
@@ -280,6 +283,12 @@ CalibrationData RunDetection(CalibrationData data, std::vector<DetectJob> jobs,
     const DetectJob& job = jobs[i];
     DetectResult& r = results[i];
     const int c = job.camera;
+    if (!r.unreadable.empty()) {
+      ++data.images_per_camera[c];
+      ++data.unreadable;
+      data.failures_per_camera[c].push_back(job.source + ": unreadable (" + r.unreadable + ")");
+      continue;
+    }
     if (data.widths[c] == 0) {
       data.widths[c] = r.width;
       data.heights[c] = r.height;

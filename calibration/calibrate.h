@@ -64,6 +64,11 @@ struct CalibrationData {
   // Per camera: images looked at, and why the board was not found in the others.
   std::vector<int> images_per_camera;
   std::vector<std::vector<std::string>> failures_per_camera;  // every one, "<source>: <reason>"
+  // A recording's frames that could not be read (a damaged file: a checksum that fails, a data
+  // file cut short or gone): each is one of failures_per_camera, "unreadable: <why>", and the
+  // calibration goes on without it, as `export` and `run` do. An image file that does not read
+  // is an error.
+  int unreadable = 0;
   // Detection work: images detected now, and images whose detection came from the cache.
   int detected = 0;
   int from_cache = 0;

@@ -43,8 +43,7 @@ class ConfigReader {
   }
   double NonNegative(const std::string& key, double fallback) {
     const double v = Get<double>(key, fallback);
-    if (!(v >= 0) || !std::isfinite(v))
-      throw InputError(where_ + ": '" + key + "' must be >= 0");
+    if (!(v >= 0) || !std::isfinite(v)) throw InputError(where_ + ": '" + key + "' must be >= 0");
     return v;
   }
   // A number in [lo, hi] (bounds that keep every later conversion to an integer type defined).
@@ -58,10 +57,16 @@ class ConfigReader {
     return v;
   }
   void Seen(const std::string& key) { seen_.insert(key); }
-  // Unknown keys are errors: a typo must not silently fall back to a default.
+  // Unknown keys are errors: a typo must not silently fall back to a default. So is a key given
+  // twice, of which YAML's reader keeps the first without a word (an edited config whose second
+  // `trigger_rate_hz: 5` recorded at 30 Hz).
   void CheckKnown() const {
+    std::set<std::string> keys;
     for (const auto& kv : node_) {
       const std::string k = kv.first.as<std::string>();
+      if (!keys.insert(k).second)
+        throw InputError(where_ + ": '" + k + "' is given twice (line " +
+                         std::to_string(kv.first.Mark().line + 1) + ")");
       if (!seen_.count(k)) throw InputError(where_ + ": unknown key '" + k + "'");
     }
   }
@@ -73,13 +78,30 @@ class ConfigReader {
   std::set<std::string> seen_;
 };
 
-// The YAML file at `path`, a `kind` of file ("config file", "rig file"). Throws InputError
+// A key given twice in any map of `node`, at any depth, is an error naming it and its line: YAML's
+// reader keeps the first without a word. Throws InputError "<where>: 'k' is given twice (line L)".
+inline void RejectDuplicateKeys(const YAML::Node& node, const std::string& where) {
+  if (node.IsSequence()) {
+    for (const auto& item : node) RejectDuplicateKeys(item, where);
+  } else if (node.IsMap()) {
+    std::set<std::string> keys;
+    for (const auto& kv : node) {
+      if (kv.first.IsScalar() && !keys.insert(kv.first.Scalar()).second)
+        throw InputError(where + ": '" + kv.first.Scalar() + "' is given twice (line " +
+                         std::to_string(kv.first.Mark().line + 1) + ")");
+      RejectDuplicateKeys(kv.second, where);
+    }
+  }
+}
+
+// The YAML file at `path`, a `kind` of file ("config file", "rig file"), with no key given twice. Throws InputError
 // naming the path: "a folder, not a <kind>", "cannot open <kind>", "not valid YAML: ...".
 inline YAML::Node LoadYamlFile(const std::string& path, const std::string& kind) {
-  if (std::filesystem::is_directory(path))
-    throw InputError(path + ": a folder, not a " + kind);
+  if (std::filesystem::is_directory(path)) throw InputError(path + ": a folder, not a " + kind);
   try {
-    return YAML::LoadFile(path);
+    const YAML::Node root = YAML::LoadFile(path);
+    RejectDuplicateKeys(root, path);
+    return root;
   } catch (const YAML::BadFile&) {
     throw InputError(path + ": cannot open " + kind);
   } catch (const YAML::Exception& e) {

@@ -1,12 +1,16 @@
 #include "core/image.h"
 
+#include <algorithm>
+#include <filesystem>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <algorithm>
 #include <random>
 #include <stdexcept>
+#include <string_view>
+#include <vector>
 
+#include "core/atomic_file.h"
 #include "core/error.h"
 
 namespace flamerig {
@@ -17,8 +21,8 @@ template <typename T>
 void WritePngImpl(const std::string& path, const Image<T>& image) {
   constexpr int depth = sizeof(T) == 1 ? CV_8U : CV_16U;
   if (image.channels != 1 && image.channels != 3) {
-    throw InputError(path + ": cannot write an image with " +
-                             std::to_string(image.channels) + " channels (need 1 or 3)");
+    throw InputError(path + ": cannot write an image with " + std::to_string(image.channels) +
+                     " channels (need 1 or 3)");
   }
   cv::Mat view(image.height, image.width, CV_MAKETYPE(depth, image.channels),
                const_cast<T*>(image.pixels.data()));
@@ -28,13 +32,21 @@ void WritePngImpl(const std::string& path, const Image<T>& image) {
   } else {
     out = view;
   }
+  // Encoded in memory and written whole or not at all (core/atomic_file.h): cv::imwrite says
+  // true when the disk fills under it, and an export onto a full disk left 125 empty PNGs of 200
+  // with no name in any message (2026-12-02).
+  std::string ext = std::filesystem::path(path).extension().string();
+  if (ext.empty()) ext = ".png";
+  std::vector<uchar> bytes;
   bool ok = false;
   try {
-    ok = cv::imwrite(path, out);
+    ok = cv::imencode(ext, out, bytes);
   } catch (const cv::Exception& e) {
     throw IoError(path + ": cannot write image: " + e.what());
   }
-  if (!ok) throw IoError(path + ": cannot write image");
+  if (!ok) throw IoError(path + ": cannot write image (encoding " + ext + " failed)");
+  WriteFileAtomically(path,
+                      std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
 }
 
 template <typename T>

@@ -44,8 +44,9 @@ using ImageU8 = Image<std::uint8_t>;
 using ImageU16 = Image<std::uint16_t>;
 using ImageF = Image<float>;
 
-// Writes an 8-bit image (1 or 3 channels, RGB order) as PNG. Throws IoError naming the
-// path when the file cannot be written.
+// Writes an 8-bit image (1 or 3 channels, RGB order) as PNG (or the format of the path's
+// extension, which OpenCV knows), whole or not at all (core/atomic_file.h). Throws IoError naming
+// the path and the system's reason when the file cannot be written (a full disk, say).
 void WritePng(const std::string& path, const ImageU8& image);
 // The same for 16-bit images (PNG stores 16 bits per channel).
 void WritePng16(const std::string& path, const ImageU16& image);

@@ -15,6 +15,7 @@
 #include "core/atomic_file.h"
 #include "core/config_reader.h"
 #include "core/error.h"
+#include "core/log.h"
 #include "pipeline/picture.h"
 #include "pipeline/report_page.h"
 #include "tomography/reconstruct.h"
@@ -57,6 +58,7 @@ CalibrateConfig CalibrateConfig::Load(const std::string& path) {
   if (!fs::exists(path)) throw InputError(path + ": no such file");
   try {
     root = YAML::LoadFile(path);
+    RejectDuplicateKeys(root, path);
   } catch (const YAML::Exception& e) {
     throw InputError(path + ": cannot read the calibration config: " + e.what());
   }
@@ -373,8 +375,8 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
         fs::path(input.images_dir.empty() ? input.recording_dir : input.images_dir) / "board.yaml";
     if (!fs::exists(beside))
       throw InputError(
-          "calibrate: no board described: give one in the config (board: or board_file:) or put "
-          "a board.yaml beside the images (" +
+          "calibrate: no board described: give --board FILE, one in the config (board: or "
+          "board_file:), or put a board.yaml beside the images or recording (" +
           beside.string() + " does not exist)");
     board = LoadBoardSpec(beside.string());
   }
@@ -385,6 +387,12 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
                                                       cache, config.detect, progress)
                              : DetectViewsInFolder(input.images_dir, board, config.cameras, cache,
                                                    config.detect, progress);
+  if (data.unreadable > 0)
+    Log().warn(
+        "calibrate: {} frame(s) of {} could not be read (a damaged take) and are left out; "
+        "the report lists each, and `flamerig recover --recording {}` lists the take's "
+        "lost frames",
+        data.unreadable, input.recording_dir, input.recording_dir);
   WriteMrcalCorners(data, (fs::path(out_dir) / "corners.vnl").string(), "views");
   CalibrationSummary summary = Calibrate(data, config.options, progress);
   summary.rig.Save((fs::path(out_dir) / "rig.yaml").string());
@@ -490,8 +498,11 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   std::ostringstream header;
   header << "Board: " << board.Describe() << ". Lens model: " << config.options.lensmodel
          << ". Detection: " << data.detected << " images detected, " << data.from_cache
-         << " from the cache, in " << data.detect_time_s << " s. Solve: " << summary.solve_time_s
-         << " s.";
+         << " from the cache"
+         << (data.unreadable > 0
+                 ? ", " + std::to_string(data.unreadable) + " frames unreadable (damaged)"
+                 : std::string())
+         << ", in " << data.detect_time_s << " s. Solve: " << summary.solve_time_s << " s.";
   const char* rms_note =
       "The RMS per point is sqrt(mean(dx^2 + dy^2)) over inlier corners; per coordinate "
       "(mrcal's convention) it is smaller by sqrt(2). mrcal-calibrate-cameras prints a smaller "

@@ -540,6 +540,7 @@ RadiometricShots RadiometricShots::Load(const std::string& path) {
   YAML::Node root;
   try {
     root = YAML::LoadFile(path);
+    RejectDuplicateKeys(root, path);
   } catch (const YAML::BadFile&) {
     throw IoError("cannot read the shots file " + path);
   } catch (const YAML::Exception& e) {

@@ -68,6 +68,7 @@ SceneJob SceneJob::Load(const std::string& path, const std::string& volume_overr
   YAML::Node root;
   try {
     root = YAML::LoadFile(path);
+    RejectDuplicateKeys(root, path);
   } catch (const YAML::Exception& e) {
     throw InputError(path + ": not a readable YAML file: " + e.what());
   }

@@ -426,6 +426,38 @@ TEST_F(Ring, ReadsARecording) {
     EXPECT_EQ(rec.observations[i].detection.corner_ids,
               folder.observations[i].detection.corner_ids);
   }
+  EXPECT_EQ(rec.unreadable, 0);
+  // A damaged take costs the frames it touches (README, "Damage costs only the frames it
+  // touches"): a flipped pixel byte in the first camera's last frame (its pixels end the data
+  // file) leaves that frame out, named, and every other detection as it was. It stopped the whole
+  // calibration until 2026-12-02.
+  int last_view = -1;
+  for (std::size_t v = 0; v < folder.view_names.size(); ++v)
+    if (fs::exists(*dir_ / "calibration" / folder.view_names[v] /
+                   (folder.camera_names[0] + ".png")))
+      last_view = static_cast<int>(v);
+  ASSERT_GE(last_view, 0);
+  {
+    std::fstream data(rec_dir / "cam00.data", std::ios::in | std::ios::out | std::ios::binary);
+    data.seekg(-100, std::ios::end);
+    const char byte = static_cast<char>(data.get());
+    data.seekp(-100, std::ios::end);
+    data.put(static_cast<char>(byte ^ 0x55));
+  }
+  const CalibrationData damaged = DetectViewsInRecording(rec_dir.string(), folder.board, {}, "");
+  EXPECT_EQ(damaged.unreadable, 1);
+  std::size_t expected = 0;
+  for (const auto& o : folder.observations) expected += !(o.camera == 0 && o.view == last_view);
+  EXPECT_EQ(damaged.observations.size(), expected);
+  for (const auto& o : damaged.observations) EXPECT_FALSE(o.camera == 0 && o.view == last_view);
+  const auto& failures = damaged.failures_per_camera[0];
+  ASSERT_FALSE(failures.empty());
+  const std::string& why = failures.back();
+  EXPECT_NE(why.find("set " + std::to_string(last_view) + " camera " + folder.camera_names[0] +
+                     ": unreadable"),
+            std::string::npos)
+      << why;
+  EXPECT_NE(why.find("checksum"), std::string::npos) << why;
   fs::remove_all(rec_dir.parent_path());
 }
 

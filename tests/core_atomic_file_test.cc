@@ -1,14 +1,19 @@
 // Atomic writes: a file is written beside its path and renamed into place, and an error says why
 // it could not be, naming the path, with no temporary file left behind.
 #include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <filesystem>
 #include <fstream>
+#include <random>
 #include <string>
 
 #include "core/atomic_file.h"
 #include "core/error.h"
+#include "core/image.h"
 
 namespace flamerig {
 namespace {
@@ -41,6 +46,53 @@ TEST(AtomicFile, WritesTheWholeFileOrSaysWhyNot) {
   std::size_t files = 0;
   for (const auto& e : fs::directory_iterator(dir)) files += e.is_regular_file();
   EXPECT_EQ(files, 1u);  // file.txt, and no temporary file
+  fs::remove_all(dir);
+}
+
+// A PNG onto a disk that fills (RLIMIT_FSIZE in a child: writes fail with EFBIG, as ENOSPC on a
+// full disk): an error naming the file and the reason, and no file, whole or empty, under its
+// name. cv::imwrite said true there, and `export` left empty PNGs behind (2026-12-02).
+TEST(AtomicFile, APictureOnAFullDiskIsAnErrorAndNoFile) {
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_atomic_png_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  ImageU8 noise(256, 256, 3);  // does not compress: about 200 KB as PNG
+  std::mt19937 rng(1);
+  for (auto& p : noise.pixels) p = static_cast<std::uint8_t>(rng());
+  const fs::path png = dir / "cam0.png";
+  int pipe_fd[2];
+  ASSERT_EQ(::pipe(pipe_fd), 0);
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    ::close(pipe_fd[0]);
+    ::signal(SIGXFSZ, SIG_IGN);
+    const rlimit limit{16384, 16384};
+    ::setrlimit(RLIMIT_FSIZE, &limit);
+    std::string said = "no error";
+    try {
+      WritePng(png.string(), noise);
+    } catch (const IoError& e) {
+      said = e.what();
+    }
+    (void)!::write(pipe_fd[1], said.data(), said.size());
+    ::_exit(0);
+  }
+  ::close(pipe_fd[1]);
+  std::string said;
+  char buffer[512];
+  for (ssize_t n; (n = ::read(pipe_fd[0], buffer, sizeof buffer)) > 0;) said.append(buffer, n);
+  ::close(pipe_fd[0]);
+  ::waitpid(child, nullptr, 0);
+  EXPECT_NE(said.find(png.string()), std::string::npos) << said;
+  EXPECT_NE(said.find(std::error_code(EFBIG, std::generic_category()).message()), std::string::npos)
+      << said;
+  EXPECT_FALSE(fs::exists(png));
+  EXPECT_TRUE(fs::is_empty(dir)) << "a temporary file was left";
+  // Without the limit the same picture is written and reads back.
+  WritePng(png.string(), noise);
+  EXPECT_EQ(ReadImageU8(png.string(), 3).pixels, noise.pixels);
   fs::remove_all(dir);
 }
 
