@@ -2,6 +2,8 @@
 
 #include <openvdb/openvdb.h>
 
+#include <Eigen/Geometry>
+
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -17,32 +19,40 @@ namespace flamerig {
 namespace {
 
 // Index (i, j, k) -> voxel centre in Blender's Z-up world: rig (x, y, z) -> (x, -z, y).
-openvdb::math::Transform::Ptr BlenderTransform(const GridGeometry& g) {
-  openvdb::math::Mat4d m = openvdb::math::Mat4d::identity();
-  // Column a of the 3x3 part maps index axis a; OpenVDB applies row vectors: world = index * M.
+// Blender's Z up from the rig's up: R0 takes a y-up rig to Blender, (x, -z, y); a rig with another
+// up is first turned so that its up is y by the smallest rotation (about x, by half a turn, for
+// the first camera's frame, whose up is -y: (x, z, -y) in all).
+Eigen::Matrix3d BlenderFromRig(const Eigen::Vector3d& up_in_rig) {
+  Eigen::Matrix3d r0;
+  r0 << 1, 0, 0, 0, 0, -1, 0, 1, 0;
+  const Eigen::Vector3d u = up_in_rig.normalized();
+  Eigen::Matrix3d q;
+  if (u.y() < -1 + 1e-9)
+    q = Eigen::Vector3d(1, -1, -1).asDiagonal();
+  else
+    q = Eigen::Quaterniond::FromTwoVectors(u, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  return r0 * q;
+}
+
+openvdb::math::Transform::Ptr BlenderTransform(const GridGeometry& g, const Eigen::Vector3d& up) {
+  // rig = t + diag(s) ijk; blender = R rig. OpenVDB applies row vectors (world = index * M), so
+  // row a of M's 3x3 part is where index axis a goes: R's column a, times the voxel's size.
+  const Eigen::Matrix3d r = BlenderFromRig(up);
   const Eigen::Vector3d s = g.voxel_size_m;
-  const Eigen::Vector3d t = g.origin_in_rig + 0.5 * s;
-  // rig = t + diag(s) ijk; blender = R rig with R = [[1,0,0],[0,0,-1],[0,1,0]].
-  m.setToScale(openvdb::Vec3d(1, 1, 1));
-  m(0, 0) = s.x();  // i -> blender x
-  m(0, 1) = 0;
-  m(0, 2) = 0;
-  m(1, 0) = 0;  // j (rig y) -> blender z
-  m(1, 1) = 0;
-  m(1, 2) = s.y();
-  m(2, 0) = 0;  // k (rig z) -> blender -y
-  m(2, 1) = -s.z();
-  m(2, 2) = 0;
-  m.setTranslation(openvdb::Vec3d(t.x(), -t.z(), t.y()));
+  const Eigen::Vector3d t = r * (g.origin_in_rig + 0.5 * s);
+  openvdb::math::Mat4d m = openvdb::math::Mat4d::identity();
+  for (int a = 0; a < 3; ++a)
+    for (int b = 0; b < 3; ++b) m(a, b) = r(b, a) * s[a];
+  m.setTranslation(openvdb::Vec3d(t.x(), t.y(), t.z()));
   return openvdb::math::Transform::createLinearTransform(m);
 }
 
 template <typename GridT, typename Get>
-typename GridT::Ptr MakeGrid(const GridGeometry& g, const std::string& name,
-                             const std::string& units, Get get) {
+typename GridT::Ptr MakeGrid(const GridGeometry& g, const Eigen::Vector3d& up_in_rig,
+                             const std::string& name, const std::string& units, Get get) {
   auto grid = GridT::create();
   grid->setName(name);
-  grid->setTransform(BlenderTransform(g));
+  grid->setTransform(BlenderTransform(g, up_in_rig));
   grid->insertMeta("units", openvdb::StringMetadata(units));
   auto acc = grid->getAccessor();
   for (int k = 0; k < g.dims.z(); ++k)
@@ -91,7 +101,7 @@ BlenderGrids MakeBlenderGrids(const FireVolume& fitted, const AbsorptionModel& a
 }
 
 void WriteBlenderVdb(const std::string& path, const FireVolume& fitted,
-                     const AbsorptionModel& absorption) {
+                     const AbsorptionModel& absorption, const Eigen::Vector3d& up_in_rig) {
   static std::once_flag once;
   std::call_once(once, [] { openvdb::initialize(); });
   const BlenderGrids b = MakeBlenderGrids(fitted, absorption);
@@ -103,22 +113,22 @@ void WriteBlenderVdb(const std::string& path, const FireVolume& fitted,
     };
   };
   openvdb::GridPtrVec grids;
-  grids.push_back(MakeGrid<openvdb::FloatGrid>(g, "density", "1/m (absorption at 550 nm)",
-                                               scalar(b.density_per_m)));
-  grids.push_back(MakeGrid<openvdb::FloatGrid>(g, "temperature", "K (0 outside the soot)",
-                                               scalar(b.temperature_k)));
+  grids.push_back(MakeGrid<openvdb::FloatGrid>(
+      g, up_in_rig, "density", "1/m (absorption at 550 nm)", scalar(b.density_per_m)));
+  grids.push_back(MakeGrid<openvdb::FloatGrid>(g, up_in_rig, "temperature",
+                                               "K (0 outside the soot)", scalar(b.temperature_k)));
   grids.push_back(MakeGrid<openvdb::Vec3SGrid>(
-      g, "emission", "linear sRGB radiance per metre (W m^-2 sr^-1 nm^-1 m^-1)",
+      g, up_in_rig, "emission", "linear sRGB radiance per metre (W m^-2 sr^-1 nm^-1 m^-1)",
       [&](std::size_t v, openvdb::Vec3s* out) {
         const float* e = &b.emission_rgb_per_m[3 * v];
         *out = openvdb::Vec3s(e[0], e[1], e[2]);
         return e[0] != 0.0f || e[1] != 0.0f || e[2] != 0.0f;
       }));
-  grids.push_back(
-      MakeGrid<openvdb::FloatGrid>(g, "flame", "luminance of emission per metre", scalar(b.flame)));
+  grids.push_back(MakeGrid<openvdb::FloatGrid>(g, up_in_rig, "flame",
+                                               "luminance of emission per metre", scalar(b.flame)));
   openvdb::MetaMap meta;
   meta.insertMeta("creator", openvdb::StringMetadata("flamerig (Blender export, Z up)"));
-  for (const char* key : {"exposure", "mean_delta_e"}) {
+  for (const char* key : {"exposure", "mean_delta_e", "frame", "source_frame_id"}) {
     auto it = fitted.metadata_numbers.find(key);
     if (it != fitted.metadata_numbers.end())
       meta.insertMeta(key, openvdb::DoubleMetadata(it->second));

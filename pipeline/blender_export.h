@@ -19,13 +19,19 @@
 //                integrates in the thin limit. `tools/blender_fire.py` builds the material that uses
 //                it (Emission Color from this grid, Strength 1): the physically right picture.
 //   flame        FloatGrid, the luminance of `emission` (for users who prefer a strength map).
-// Grid transforms are turned from our Y-up rig frame to Blender's Z-up: (x, y, z)_blender =
-// (x, -z, y)_rig, a rotation of +90 degrees about X, so the flame stands upright.
+// Grid transforms are turned from the rig frame to Blender's Z-up, taking the rig's up
+// (Rig::up_in_rig) to Blender's +Z so the flame stands upright: for a y-up rig (the ring frame,
+// the simulator's) (x, y, z)_blender = (x, -z, y)_rig, a rotation of +90 degrees about X; for the
+// first camera's frame, whose up is -y, (x, z, -y)_rig, so that a Blender camera looking along +y
+// sees what that camera saw. (Until 2026-12-02 every rig was taken as y-up, and a rig calibrated
+// in its first camera's frame gave an upside-down fire.)
 // File metadata: exposure (render the sequence with Film > Exposure = log2(exposure) stops and the
-// "Standard" view transform to get the camera's image), units, source frame.
+// "Standard" view transform to get the camera's image), units, the frame and its source frame id
+// (where the fitted volume has them), the absorption model.
 #ifndef FLAMERIG_PIPELINE_BLENDER_EXPORT_H_
 #define FLAMERIG_PIPELINE_BLENDER_EXPORT_H_
 
+#include <Eigen/Core>
 #include <string>
 
 #include "fitting/absorption.h"
@@ -46,7 +52,8 @@ BlenderGrids MakeBlenderGrids(const FireVolume& fitted, const AbsorptionModel& a
 
 // Writes them to `path` (to path.tmp, then renamed); IoError naming the path on failure.
 void WriteBlenderVdb(const std::string& path, const FireVolume& fitted,
-                     const AbsorptionModel& absorption);
+                     const AbsorptionModel& absorption,
+                     const Eigen::Vector3d& up_in_rig = Eigen::Vector3d::UnitY());
 
 }  // namespace flamerig
 

@@ -169,13 +169,11 @@ bool WriteRingProfilePlot(const std::string& base, const std::vector<RingProfile
   return WritePlot(plot, base, error);
 }
 
-std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& result,
-                                      const std::vector<FitView>& fitted,
-                                      const std::vector<FitView>& held_out,
-                                      const AbsorptionModel& absorption,
-                                      const RenderOptions& render, const std::string& title,
-                                      std::vector<ImageU8>* rendered_out, const FireVolume* truth,
-                                      const Rigid3& fit_from_truth) {
+std::vector<ViewScore> WriteFitReport(
+    const std::string& dir, const FitResult& result, const std::vector<FitView>& fitted,
+    const std::vector<FitView>& held_out, const AbsorptionModel& absorption,
+    const RenderOptions& render, const std::string& title, std::vector<ImageU8>* rendered_out,
+    const FireVolume* truth, const Rigid3& fit_from_truth, const Eigen::Vector3d& up_in_rig) {
   const FireVolume& v = result.volume;
   // One renderer per camera response, made when a view needs it (views of one response are
   // usually together).
@@ -272,7 +270,8 @@ std::vector<ViewScore> WriteFitReport(const std::string& dir, const FitResult& r
   if (!plotted) Log().warn("fit report: no error plot: {}", plot_error);
   const bool sliced = v.HasTemperatureAndDensity();
   if (sliced)
-    WritePng((fs::path(dir) / "slices.png").string(), SlicesPicture(v, truth, fit_from_truth));
+    WritePng((fs::path(dir) / "slices.png").string(),
+             SlicesPicture(v, truth, fit_from_truth, up_in_rig));
   // An axisymmetric fit's radial profile, and the truth's on the same rings.
   const bool profiled = !result.ring_profile.empty();
   bool profile_plotted = false, profile_truth = false;

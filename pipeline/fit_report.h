@@ -34,7 +34,8 @@ std::vector<ViewScore> WriteFitReport(
     const std::string& dir, const FitResult& result, const std::vector<FitView>& fitted,
     const std::vector<FitView>& held_out, const AbsorptionModel& absorption,
     const RenderOptions& render, const std::string& title, std::vector<ImageU8>* rendered = nullptr,
-    const FireVolume* truth = nullptr, const Rigid3& fit_from_truth = Rigid3());
+    const FireVolume* truth = nullptr, const Rigid3& fit_from_truth = Rigid3(),
+    const Eigen::Vector3d& up_in_rig = Eigen::Vector3d::UnitY());
 
 // An axisymmetric fit's radial profile (FitResult::ring_profile) as CSV, one row per ring by
 // layer and then radius: layer, height_m, axis_x_m, axis_z_m, radius_voxels, radius_m, voxels,

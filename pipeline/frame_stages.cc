@@ -143,8 +143,8 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
     key << "absorption " << absorption_.name() << ", exposure " << exposure_
         << (exposure_known_ ? " known" : " unknown") << (options_.fit_exposure ? " fitted" : "")
         << ", held out '" << options_.holdout_camera << "', warm_start " << options_.warm_start
-        << ", sigma " << options_.sigma << ", input_transfer '" << options_.input_transfer
-        << "'; " << f.Key();
+        << ", sigma " << options_.sigma << ", input_transfer '" << options_.input_transfer << "'; "
+        << f.Key();
     fit_key_ = key.str();
   }
   for (const char* sub : {"frames", "tomography", "state"})
@@ -242,9 +242,15 @@ void FrameStages::Reuse(FrameWork* w) {
   const auto t0 = SteadyClock::now();
   FrameSummary& s = w->summary;
   const std::size_t from = static_cast<std::size_t>(chain_.previous_result);
-  CopyFileAtomically(paths_.Volume(from), paths_.Volume(w->index));
-  if (options_.blender && fs::exists(paths_.Blender(from)))
-    CopyFileAtomically(paths_.Blender(from), paths_.Blender(w->index));
+  // The volume it reuses, under this frame's own number and set id, and the frame it came from
+  // (a byte copy said it was that frame, 2026-12-02).
+  FireVolume volume = ReadVdb(paths_.Volume(from));
+  volume.metadata_numbers["frame"] = static_cast<double>(w->index);
+  volume.metadata_numbers["source_frame_id"] = static_cast<double>(w->set.frame_id);
+  volume.metadata_numbers["reused_from_frame"] = static_cast<double>(from);
+  WriteVolume(paths_.Volume(w->index), volume);
+  if (options_.blender)
+    WriteBlenderVdb(paths_.Blender(w->index), volume, absorption_, rig_.up_in_rig);
   if (options_.pictures && fs::exists(paths_.Picture(from)))
     CopyFileAtomically(paths_.Picture(from), paths_.Picture(w->index));
   if (options_.fit.axisymmetric && fs::exists(paths_.Profile(from)))
@@ -387,7 +393,8 @@ void FrameStages::Write(FrameWork* w) {
   result.volume.metadata_numbers["source_frame_id"] = static_cast<double>(w->set.frame_id);
   WriteVolume(paths_.Volume(w->index), result.volume);
   WriteVolume(paths_.Tomography(w->index), w->tomography);
-  if (options_.blender) WriteBlenderVdb(paths_.Blender(w->index), result.volume, absorption_);
+  if (options_.blender)
+    WriteBlenderVdb(paths_.Blender(w->index), result.volume, absorption_, rig_.up_in_rig);
   if (!result.ring_profile.empty())
     WriteRingProfileCsv(paths_.Profile(w->index), result.ring_profile);
   else

@@ -312,10 +312,13 @@ std::string RunSummary::BriefReport() const {
   std::size_t failed_here = 0;
   double fit_ms = 0, tomo_ms = 0, de = 0;
   int de_n = 0;
-  for (const auto& f : frames) {
+  for (std::size_t i = 0; i < frames.size(); ++i) {
+    const FrameSummary& f = frames[i];
     if (f.status.rfind("failed", 0) == 0) ++failed_here;
-    fit_ms += f.fit_ms;
-    tomo_ms += f.reconstruct_ms;
+    if (i >= resumed) {  // the times of this call's frames, as `seconds` is this call's
+      fit_ms += f.fit_ms;
+      tomo_ms += f.reconstruct_ms;
+    }
     if (!f.delta_e.empty()) {
       de += f.MeanFittedDeltaE();
       ++de_n;

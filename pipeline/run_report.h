@@ -47,12 +47,14 @@ ImageU8 TemperatureSlice(const FireVolume& volume, int axis, int index, double t
 
 // The report's slices of a fitted volume, a row per field, front (x-y) and side (z-y) through the
 // box's middle, each with its colour bar and a scale bar: the fitted temperature; with `truth`
-// (any grid, resampled onto the fit's: each fit voxel with the truth voxel holding its centre,
-// moved by `fit_from_truth` into the truth's frame, truth.h) the truth and fit - truth; the
-// temperature sigma when the volume has one. Throws InputError when the volume lacks temperature
-// or density.
+// (any grid, sampled at each fit voxel's centre, moved by `fit_from_truth` into the truth's
+// frame, truth.h) the truth and fit - truth; the temperature sigma when the volume has one. The
+// temperature scale spans the fit's and the truth's. The rig's up (Rig::up_in_rig) is up in the
+// picture: +y, or -y for a rig in its first camera's frame (drawn upside down until 2026-12-02).
+// Throws InputError when the volume lacks temperature or density.
 ImageU8 SlicesPicture(const FireVolume& fit, const FireVolume* truth = nullptr,
-                      const Rigid3& fit_from_truth = Rigid3());
+                      const Rigid3& fit_from_truth = Rigid3(),
+                      const Eigen::Vector3d& up_in_rig = Eigen::Vector3d::UnitY());
 
 }  // namespace flamerig
 

@@ -149,6 +149,78 @@ TEST(RunReport, SlicesShowFitTruthErrorAndSigmaWhenTheTruthIsFiner) {
   fs::remove_all(dir);
 }
 
+// The slices put the rig's up at the top: +y, or -y for a rig in its first camera's frame (whose
+// y points down; such a fire was drawn on its head until 2026-12-02). And the temperature scale
+// spans the truth as well as the fit: a truth hotter than the fit was drawn in the top colour
+// whatever its temperature.
+TEST(RunReport, SlicesPutTheRigsUpAtTheTopAndScaleToTheTruthToo) {
+  FireVolume fit = Cube(8, 1000);
+  for (int k = 0; k < 8; ++k)
+    for (int j = 0; j < 8; ++j)
+      for (int i = 0; i < 8; ++i) fit.temperature_k[fit.geometry.Flat(i, j, k)] = 1000 + 100 * j;
+  const int top = 48 + 20, bottom = 48 + 7 * 40 + 20;  // the first and last voxel rows' middles
+  auto colour = [](const ImageU8& picture, int y) {
+    return std::array<int, 3>{picture.at(160, y, 0), picture.at(160, y, 1), picture.at(160, y, 2)};
+  };
+  const ImageU8 y_up = SlicesPicture(fit);
+  const ImageU8 minus_y_up = SlicesPicture(fit, nullptr, Rigid3(), -Eigen::Vector3d::UnitY());
+  ASSERT_EQ(y_up.height, minus_y_up.height);
+  EXPECT_NE(colour(y_up, top), colour(y_up, bottom));
+  EXPECT_EQ(colour(y_up, top), colour(minus_y_up, bottom));  // the hot layer, j = 7
+  EXPECT_EQ(colour(y_up, bottom), colour(minus_y_up, top));  // the cool one, j = 0
+  // A truth at 1800 K below and 2000 K above, beside a fit of at most 1700 K: two colours in the
+  // truth's row, where a scale of the fit's alone drew both in its top colour.
+  FireVolume truth = Cube(8, 1800);
+  for (int k = 0; k < 8; ++k)
+    for (int j = 4; j < 8; ++j)
+      for (int i = 0; i < 8; ++i) truth.temperature_k[truth.geometry.Flat(i, j, k)] = 2000;
+  const int row = 24 + 24 + 8 * 40 + 16;
+  const ImageU8 with_truth = SlicesPicture(fit, &truth);
+  EXPECT_NE(colour(with_truth, row + top), colour(with_truth, row + bottom));
+}
+
+// A resumed run's times and rates cover the same frames: the one line counts this call's frames'
+// stage times against this call's seconds, and the report (every frame in OUT) its frames' own
+// times. Both divided every frame's work by this call's time until 2026-12-02 (a resume that
+// computed nothing reported 361 frames a minute).
+TEST(RunReport, AResumedRunsRateCoversTheFramesItTimes) {
+  FrameSummary earlier, now;
+  earlier.frame = 0;
+  now.frame = 1;
+  earlier.status = now.status = "computed";
+  earlier.fit_ms = 4000;
+  earlier.reconstruct_ms = 1000;
+  earlier.total_ms = 6000;
+  now.fit_ms = 1500;
+  now.reconstruct_ms = 500;
+  now.total_ms = 3000;
+  RunSummary run;
+  run.begin = 0;
+  run.end = 2;
+  run.resumed = 1;
+  run.computed = 1;
+  run.seconds = 3.0;
+  run.frames = {earlier, now};
+  const std::string line = run.BriefReport();
+  EXPECT_NE(line.find("20.0 computed frames/min; tomography 0.5 s, fit 1.5 s"), std::string::npos)
+      << line;
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_report_rate_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  RunReportInfo info;
+  info.wall_seconds = 0.5;  // a call that resumed both frames and computed nothing
+  WriteRunReport(dir.string(), {earlier, now}, info);
+  std::ifstream in(dir / "report" / "index.html");
+  const std::string html((std::istreambuf_iterator<char>(in)), {});
+  EXPECT_NE(html.find("The 2 computed frames took 9.0 s, read to write: 13.3 computed frames per "
+                      "minute"),
+            std::string::npos);
+  EXPECT_NE(html.find("This call of run took 0.5 s."), std::string::npos);
+  EXPECT_EQ(html.find("240.0"), std::string::npos);  // 2 frames in this call's 0.5 s
+  fs::remove_all(dir);
+}
+
 // The state files and the report's JSON keep every field: doubles to the last bit, NaN and
 // infinities (as YAML's .nan and .inf), empty lists, strings that look like numbers or booleans,
 // and text that is not UTF-8 (replaced in JSON, not thrown on).
@@ -1017,6 +1089,13 @@ TEST(RunFrames, UnchangedFramesReuseThePreviousResult) {
   EXPECT_EQ(run.unchanged, 1u);
   EXPECT_EQ(run.frames[2].fit_ms, 0);
   ExpectSameVolume(dir / "out" / "frame_000001.vdb", dir / "out" / "frame_000002.vdb");
+  // Its own frame number and set id, and where it came from (a byte copy said frame 1).
+  const FireVolume second = ReadVdb((dir / "out" / "frame_000001.vdb").string());
+  const FireVolume third = ReadVdb((dir / "out" / "frame_000002.vdb").string());
+  EXPECT_EQ(third.metadata_numbers.at("frame"), 2);
+  EXPECT_EQ(third.metadata_numbers.at("reused_from_frame"), 1);
+  EXPECT_NE(third.metadata_numbers.at("source_frame_id"),
+            second.metadata_numbers.at("source_frame_id"));
   // With the skip off, it is computed.
   RunOptions all = o;
   all.out_dir = (dir / "out2").string();
@@ -1892,6 +1971,46 @@ TEST(RunFrames, BlenderGridsFollowTheirDefinitions) {
   EXPECT_NEAR(world.x(), rig.x(), 1e-9);
   EXPECT_NEAR(world.y(), -rig.z(), 1e-9);  // Blender's y is the rig's -z
   EXPECT_NEAR(world.z(), rig.y(), 1e-9);   // Blender's z (up) is the rig's y (up)
+  // A rig in its first camera's frame (calibrate without a config): up is -y (the camera's y
+  // points down), and Blender's z is the rig's -y, its y the rig's z (the view direction), so a
+  // Blender camera looking along +y sees what that camera saw; the frame and the set's id are
+  // kept. Every rig was taken as y-up until 2026-12-02, and this one's fire stood on its head.
+  v.metadata_numbers["frame"] = 7;
+  v.metadata_numbers["source_frame_id"] = 1234;
+  const std::string down = (dir / "down.vdb").string();
+  WriteBlenderVdb(down, v, grey, -Eigen::Vector3d::UnitY());
+  openvdb::io::File down_file(down);
+  down_file.open();
+  const auto down_grid =
+      openvdb::gridPtrCast<openvdb::FloatGrid>(down_file.readGrid("temperature"));
+  const openvdb::MetaMap::Ptr meta = down_file.getMetadata();
+  down_file.close();
+  ASSERT_TRUE(down_grid && meta);
+  const openvdb::Vec3d turned = down_grid->indexToWorld(openvdb::Vec3d(1, 4, 2));
+  EXPECT_NEAR(turned.x(), rig.x(), 1e-9);
+  EXPECT_NEAR(turned.y(), rig.z(), 1e-9);
+  EXPECT_NEAR(turned.z(), -rig.y(), 1e-9);
+  EXPECT_EQ(meta->metaValue<double>("frame"), 7);
+  EXPECT_EQ(meta->metaValue<double>("source_frame_id"), 1234);
+  // Any other up: taken to Blender's +z by a rotation (lengths and handedness kept).
+  const Eigen::Vector3d tilted = Eigen::Vector3d(1, 2, 2) / 3;
+  WriteBlenderVdb(down, v, grey, tilted);
+  openvdb::io::File tilted_file(down);
+  tilted_file.open();
+  const auto tilted_grid =
+      openvdb::gridPtrCast<openvdb::FloatGrid>(tilted_file.readGrid("temperature"));
+  tilted_file.close();
+  const Eigen::Vector3d c0 = v.geometry.VoxelCenter(0, 0, 0);
+  auto world_of = [&](const Eigen::Vector3d& ijk) {
+    const openvdb::Vec3d w = tilted_grid->indexToWorld(openvdb::Vec3d(ijk.x(), ijk.y(), ijk.z()));
+    return Eigen::Vector3d(w.x(), w.y(), w.z());
+  };
+  // The index step that moves along `tilted` in the rig moves along Blender's +z.
+  const Eigen::Vector3d step = tilted.cwiseQuotient(v.geometry.voxel_size_m);
+  const Eigen::Vector3d along = world_of(step) - world_of(Eigen::Vector3d::Zero());
+  EXPECT_NEAR(along.norm(), 1.0, 1e-9);
+  EXPECT_NEAR(along.z(), 1.0, 1e-9);
+  EXPECT_NEAR(world_of(Eigen::Vector3d::Zero()).norm(), c0.norm(), 1e-9) << "not a rotation";
   fs::remove_all(dir);
 }
 
