@@ -2,6 +2,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <cmath>
 #include <filesystem>
 #include <sstream>
 #include <string>
@@ -337,6 +338,10 @@ void FrameStages::Reconstruct(FrameWork* w, const ProgressCallback& progress) {
   if (rs.fire_pixels_outside_envelope)
     s.notes.push_back(std::to_string(rs.fire_pixels_outside_envelope) +
                       " fire pixels outside the matrix's envelope left out");
+  if (rs.box_face_light_share > ReconstructSummary::kBoxFaceWarning)
+    s.notes.push_back(std::to_string(std::lround(100 * rs.box_face_light_share)) +
+                      "% of the light on the box's faces (" + rs.box_faces_lit +
+                      "): the box cuts the fire");
 }
 
 void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {

@@ -713,6 +713,29 @@ TEST(Reconstruct, ReproducesTheInputImages) {
   }
 }
 
+// A box that cuts the fire: the light the solve cannot place inside piles onto the box's faces,
+// which a fire inside its box leaves dark; the summary measures it and names the faces (a rig
+// calibrated with its default box fitted half a flame with no word until 2026-12-02).
+TEST(Reconstruct, ABoxThatCutsTheFireIsMeasuredOnItsFaces) {
+  Dataset d = MakeDataset(4, 24);
+  ReconstructOptions options;
+  options.resolution = 24;
+  options.exposure = d.exposure;
+  std::vector<ImageU8> images = d.images;
+  images.back() = ImageU8();
+  ReconstructSummary inside;
+  Reconstructor(d.rig, options).Reconstruct(images, &inside);
+  EXPECT_LT(inside.box_face_light_share, 0.01) << inside.BriefReport();
+  Rig cut = d.rig;  // the flame is 7 cm tall; the box now ends at half its height
+  cut.box.max_in_rig.y() = 0.035;
+  ReconstructSummary halved;
+  Reconstructor(cut, options).Reconstruct(images, &halved);
+  EXPECT_GT(halved.box_face_light_share, ReconstructSummary::kBoxFaceWarning)
+      << halved.BriefReport();
+  EXPECT_NE(halved.box_faces_lit.find("y-max"), std::string::npos) << halved.box_faces_lit;
+  EXPECT_NE(halved.BriefReport().find("light on the box's faces"), std::string::npos);
+}
+
 TEST(Reconstruct, MatrixIsReusedAcrossFramesAndCachedOnDisk) {
   Dataset d0 = MakeDataset(4, 20), d1 = MakeDataset(4, 20, kBox, 0, 1.0 / 30);
   fs::path cache =

@@ -6,6 +6,7 @@
 #include <zlib.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -19,6 +20,7 @@
 
 #include "core/atomic_file.h"
 #include "core/error.h"
+#include "core/log.h"
 #include "core/memory.h"
 #include "core/srgb.h"
 #include "tomography/ray_march.h"
@@ -141,6 +143,8 @@ std::string ReconstructSummary::BriefReport() const {
     << matrix_bytes / 1048576.0 << " MB, " << matrix_source << ", " << matrix_build_ms << " ms)";
   if (fire_pixels_outside_envelope > 0)
     s << ", " << fire_pixels_outside_envelope << " fire pixels outside its envelope left out";
+  s << ", light on the box's faces " << box_face_light_share * 100 << "%";
+  if (!box_faces_lit.empty()) s << " (" << box_faces_lit << ")";
   for (const auto& solve : solves) s << "; " << solve.BriefReport();
   if (!stop_camera.empty()) s << "; stopped on " << stop_camera;
   if (holdout_rms >= 0)
@@ -607,6 +611,41 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
     summary.holdout_rms = n ? std::sqrt(error / n) : 0.0;
     summary.holdout_relative = data > 0 ? std::sqrt(error / data) : 0.0;
     summary.holdout_ms = Ms(holdout_start);
+  }
+  // Light on the box's faces: a box that cuts the fire.
+  {
+    const GridGeometry& g = out.geometry;
+    double all = 0, on_faces = 0;
+    std::array<double, 6> face{};  // x-min, x-max, y-min, y-max, z-min, z-max
+    if (out.emission_rgb.size() == 3 * g.num_voxels())
+      for (int k = 0; k < g.dims.z(); ++k)
+        for (int j = 0; j < g.dims.y(); ++j)
+          for (int i = 0; i < g.dims.x(); ++i) {
+            const float* e = &out.emission_rgb[3 * g.Flat(i, j, k)];
+            const double light = double(e[0]) + e[1] + e[2];
+            if (!(light > 0)) continue;
+            all += light;
+            const std::array<bool, 6> at = {i == 0, i == g.dims.x() - 1, j == 0,
+                                            j == g.dims.y() - 1, k == 0, k == g.dims.z() - 1};
+            bool on = false;
+            for (int f = 0; f < 6; ++f)
+              if (at[f]) {
+                face[f] += light;
+                on = true;
+              }
+            if (on) on_faces += light;
+          }
+    summary.box_face_light_share = all > 0 ? on_faces / all : 0.0;
+    static const char* kFaceNames[6] = {"x-min", "x-max", "y-min", "y-max", "z-min", "z-max"};
+    for (int f = 0; f < 6; ++f)
+      if (all > 0 && face[f] / all > 0.01)
+        summary.box_faces_lit += (summary.box_faces_lit.empty() ? "" : " ") +
+                                 std::string(kFaceNames[f]);
+    if (summary.box_face_light_share > ReconstructSummary::kBoxFaceWarning)
+      Log().warn(
+          "reconstruct: {:.0f}% of the fire's light lies on the box's faces ({}): the box cuts "
+          "the fire; widen the rig's box (rig.yaml: box) on those sides",
+          100 * summary.box_face_light_share, summary.box_faces_lit);
   }
   summary.working_bytes = peak;
   summary.process_peak_bytes = PeakResidentBytes();

@@ -110,6 +110,14 @@ struct ReconstructSummary {
   std::size_t matrix_stored_entries = 0;  // the non-zeros and the padding of the products' runs
   std::string matrix_source;              // "built", "reused (envelope)", "disk cache"
   std::size_t fire_pixels_outside_envelope = 0;  // left out of a frame that reused the matrix
+  // The share of the result's light (R + G + B emission) in the voxels on the box's six faces,
+  // and the faces that hold light ("x-min z-max"). A fire inside its box leaves them dark (a
+  // candle's box: under 0.1%); a box that cuts the fire piles the light it cannot place onto
+  // them, and the fit then matches half a flame (Delta E 15 and 26 where 2 to 3 is usual, with no
+  // word until 2026-12-02). Above kBoxFaceWarning the reconstruction warns, naming the faces.
+  double box_face_light_share = 0;
+  std::string box_faces_lit;
+  static constexpr double kBoxFaceWarning = 0.05;
   double matrix_build_ms = 0;
   std::vector<SolveSummary> solves;  // coarse (if any), then full resolution
   std::string holdout_camera, stop_camera;
