@@ -84,22 +84,22 @@ std::string FitOptions::Key() const {
     << o.density_pairwise << ", model_mosaic " << o.model_mosaic;
   const RenderOptions& r = render;
   k << "; render: step " << r.step_voxels << ", min_transmittance " << r.min_transmittance
-    << ", skip_empty_space " << r.skip_empty_space << ", brick " << r.brick_size_voxels
-    << ", path " << ToString(r.path) << ", spectral " << r.spectral_first_nm << " .. "
-    << r.spectral_last_nm << " / " << r.spectral_step_nm << " nm, double " << r.double_precision
-    << ", wide " << r.wide_kernels << ", response '"
+    << ", skip_empty_space " << r.skip_empty_space << ", brick " << r.brick_size_voxels << ", path "
+    << ToString(r.path) << ", spectral " << r.spectral_first_nm << " .. " << r.spectral_last_nm
+    << " / " << r.spectral_step_nm << " nm, double " << r.double_precision << ", wide "
+    << r.wide_kernels << ", response '"
     << (r.response ? r.response->name() : std::string("the views'")) << "'";
   k << "; fit: neighbour_weight_resolution " << neighbour_weight_resolution << ", activity "
-    << activity_threshold << ", exposure " << exposure_min << " .. " << exposure_max
-    << ", known " << known_exposure << ", colour start " << init_colour_radius_voxels << " / "
+    << activity_threshold << ", exposure " << exposure_min << " .. " << exposure_max << ", known "
+    << known_exposure << ", colour start " << init_colour_radius_voxels << " / "
     << init_colour_cap_brightness << ", band start " << init_band_radius_voxels
-    << ", coarse_to_fine " << coarse_to_fine << " from " << coarsest_resolution
-    << ", iterations " << iterations_per_level << " / " << iterations_finest << ", stall "
-    << stall_window << " / " << stall_decrease << ", smooth " << smooth_delta_e << " / "
-    << smooth_neighbour << ", time_limit " << time_limit_s << " s, density_pairwise "
-    << density_pairwise << ", warm density from emission " << warm_start_density_from_emission
-    << ", axisymmetric " << axisymmetric << " (w_sm " << axisymmetric_w_sm << "), vary "
-    << vary.temperature << vary.density << ", uncertainty " << estimate_uncertainty << " ("
+    << ", coarse_to_fine " << coarse_to_fine << " from " << coarsest_resolution << ", iterations "
+    << iterations_per_level << " / " << iterations_finest << ", stall " << stall_window << " / "
+    << stall_decrease << ", smooth " << smooth_delta_e << " / " << smooth_neighbour
+    << ", time_limit " << time_limit_s << " s, density_pairwise " << density_pairwise
+    << ", warm density from emission " << warm_start_density_from_emission << ", axisymmetric "
+    << axisymmetric << " (w_sm " << axisymmetric_w_sm << "), vary " << vary.temperature
+    << vary.density << ", uncertainty " << estimate_uncertainty << " ("
     << uncertainty.determined_fraction << ")";
   return k.str();
 }

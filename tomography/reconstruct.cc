@@ -625,8 +625,9 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
             const double light = double(e[0]) + e[1] + e[2];
             if (!(light > 0)) continue;
             all += light;
-            const std::array<bool, 6> at = {i == 0, i == g.dims.x() - 1, j == 0,
-                                            j == g.dims.y() - 1, k == 0, k == g.dims.z() - 1};
+            const std::array<bool, 6> at = {i == 0, i == g.dims.x() - 1,
+                                            j == 0, j == g.dims.y() - 1,
+                                            k == 0, k == g.dims.z() - 1};
             bool on = false;
             for (int f = 0; f < 6; ++f)
               if (at[f]) {
@@ -639,8 +640,8 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
     static const char* kFaceNames[6] = {"x-min", "x-max", "y-min", "y-max", "z-min", "z-max"};
     for (int f = 0; f < 6; ++f)
       if (all > 0 && face[f] / all > 0.01)
-        summary.box_faces_lit += (summary.box_faces_lit.empty() ? "" : " ") +
-                                 std::string(kFaceNames[f]);
+        summary.box_faces_lit +=
+            (summary.box_faces_lit.empty() ? "" : " ") + std::string(kFaceNames[f]);
     if (summary.box_face_light_share > ReconstructSummary::kBoxFaceWarning)
       Log().warn(
           "reconstruct: {:.0f}% of the fire's light lies on the box's faces ({}): the box cuts "
