@@ -614,6 +614,7 @@ std::vector<RingProfilePoint> MakeRingProfile(const GridGeometry& grid, const Ri
         grid.RigFromIndex(Eigen::Vector3d(tie.axis[j].x(), j, tie.axis[j].y()));
     p.height_m = axis.y();
     p.axis_x_m = axis.x();
+    p.axis_y_m = axis.y();
     p.axis_z_m = axis.z();
     p.radius_voxels = radius;
     p.radius_m = radius * grid.voxel_size_m.x();
@@ -632,6 +633,19 @@ std::vector<RingProfilePoint> MakeRingProfile(const GridGeometry& grid, const Ri
   });
   return profile;
 }
+
+}  // namespace
+
+void MeasureRingHeights(const Eigen::Vector3d& up_in_rig, std::vector<RingProfilePoint>* profile) {
+  if (!up_in_rig.allFinite() || up_in_rig.norm() == 0)
+    throw InputError(fmt::format("ring heights: the rig's up ({}, {}, {}) is not a direction",
+                                 up_in_rig.x(), up_in_rig.y(), up_in_rig.z()));
+  const Eigen::Vector3d up = up_in_rig.normalized();
+  for (RingProfilePoint& p : *profile)
+    p.height_m = up.dot(Eigen::Vector3d(p.axis_x_m, p.axis_y_m, p.axis_z_m));
+}
+
+namespace {
 
 // The energy in the unbounded parameters u = (u_T per voxel, u_n per voxel, u_s).
 class SigmoidProblem : public ceres::FirstOrderFunction {

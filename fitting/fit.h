@@ -264,20 +264,30 @@ struct FitOptions {
 // metres. A ring holds the active voxels of one grid layer whose distance to the layer's axis,
 // rounded to whole voxels (of the grid's x size), is the ring's radius.
 struct RingProfilePoint {
-  int layer = 0;                      // the grid layer (y index)
-  double height_m = 0;                // the layer's voxel-centre y in the rig frame
-  double axis_x_m = 0, axis_z_m = 0;  // where the flame's axis crosses the layer
-  int radius_voxels = 0;              // the ring's radius in whole voxels
-  double radius_m = 0;                // the same in metres (its voxels lie within half a voxel)
-  std::size_t voxels = 0;             // the ring's voxels (their values are the ring's)
-  double temperature_k = 0;           // the ring's temperature
-  double temperature_sigma_k = 0;     // its one-sigma uncertainty (0 when not estimated)
-  double density_per_m3 = 0;          // the ring's soot density
-  double log_density_sigma = 0;       // sigma of ln(density): 0.1 is about 10% (0: none)
+  int layer = 0;  // the grid layer (y index)
+  // The layer's height along the rig's up (Rig::up_in_rig), in metres from the rig's origin:
+  // up . (axis_x_m, axis_y_m, axis_z_m), so that it grows up the flame. The fit, which is not
+  // told the rig's up, gives axis_y_m (an up of +y); MeasureRingHeights measures it along another
+  // (a rig calibrated in its first camera's frame has an up of about -y).
+  double height_m = 0;
+  // Where the flame's axis crosses the layer, in the rig frame (axis_y_m: the layer's voxel
+  // centres).
+  double axis_x_m = 0, axis_y_m = 0, axis_z_m = 0;
+  int radius_voxels = 0;           // the ring's radius in whole voxels
+  double radius_m = 0;             // the same in metres (its voxels lie within half a voxel)
+  std::size_t voxels = 0;          // the ring's voxels (their values are the ring's)
+  double temperature_k = 0;        // the ring's temperature
+  double temperature_sigma_k = 0;  // its one-sigma uncertainty (0 when not estimated)
+  double density_per_m3 = 0;       // the ring's soot density
+  double log_density_sigma = 0;    // sigma of ln(density): 0.1 is about 10% (0: none)
   // The soot's volume fraction (density x particle volume; absorption.h's StampAbsorption), 0 for
   // a grey model.
   double soot_volume_fraction = 0;
 };
+
+// Sets each point's height_m to its axis point's height along `up_in_rig` (normalised; the
+// rig's up, Rig::up_in_rig). Throws InputError when `up_in_rig` is zero or not finite.
+void MeasureRingHeights(const Eigen::Vector3d& up_in_rig, std::vector<RingProfilePoint>* profile);
 
 struct FitResult {
   // Temperature (K) and density (1/m^3) on the fitted grid; voxels outside the medium (density 0)

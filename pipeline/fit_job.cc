@@ -130,6 +130,7 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
                                                            : PaperAlgorithm::kDensityScale;
     out.result = PaperFit(grid, tomography, views, absorption, job.fit, paper, progress);
   }
+  MeasureRingHeights(rig.up_in_rig, &out.result.ring_profile);
   if (fs::path(job.out_path).has_parent_path())
     fs::create_directories(fs::path(job.out_path).parent_path());
   WriteVdb(job.out_path, out.result.volume);

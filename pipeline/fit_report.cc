@@ -41,15 +41,16 @@ void WriteRingProfileCsv(const std::string& path, const std::vector<RingProfileP
                          const std::vector<RingTruth>* truth) {
   CheckRingTruth(profile, truth);
   std::ostringstream csv;
-  csv << "layer,height_m,axis_x_m,axis_z_m,radius_voxels,radius_m,voxels,temperature_k,"
+  csv << "layer,height_m,axis_x_m,axis_y_m,axis_z_m,radius_voxels,radius_m,voxels,temperature_k,"
          "temperature_sigma_k,density_per_m3,log_density_sigma,soot_volume_fraction"
       << (truth ? ",truth_temperature_k,truth_voxels" : "") << "\n";
   for (std::size_t r = 0; r < profile.size(); ++r) {
     const RingProfilePoint& p = profile[r];
-    csv << fmt::format("{},{:.9g},{:.9g},{:.9g},{},{:.9g},{},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g}",
-                       p.layer, p.height_m, p.axis_x_m, p.axis_z_m, p.radius_voxels, p.radius_m,
-                       p.voxels, p.temperature_k, p.temperature_sigma_k, p.density_per_m3,
-                       p.log_density_sigma, p.soot_volume_fraction);
+    csv << fmt::format(
+        "{},{:.9g},{:.9g},{:.9g},{:.9g},{},{:.9g},{},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g}", p.layer,
+        p.height_m, p.axis_x_m, p.axis_y_m, p.axis_z_m, p.radius_voxels, p.radius_m, p.voxels,
+        p.temperature_k, p.temperature_sigma_k, p.density_per_m3, p.log_density_sigma,
+        p.soot_volume_fraction);
     if (truth) {
       const RingTruth& t = (*truth)[r];
       csv << "," << (t.voxels ? fmt::format("{:.6g}", t.temperature_k) : std::string()) << ","
@@ -84,10 +85,13 @@ std::vector<RingProfilePoint> ReadRingProfileCsv(const std::string& path) {
                     c_voxels = column("voxels"), c_t = column("temperature_k"),
                     c_ts = column("temperature_sigma_k"), c_n = column("density_per_m3"),
                     c_ns = column("log_density_sigma");
-  // Files written before 2026-11-29 have no volume fraction: it reads as 0.
-  const auto fv_at = std::find(header.begin(), header.end(), "soot_volume_fraction");
-  const std::size_t c_fv =
-      fv_at == header.end() ? header.size() : std::size_t(fv_at - header.begin());
+  // Columns added later, absent from older files: the volume fraction (2026-11-29) reads as 0,
+  // axis_y_m (2026-12-02) as height_m, which was the rig y until then.
+  auto optional_column = [&](const std::string& name) {
+    return static_cast<std::size_t>(std::find(header.begin(), header.end(), name) - header.begin());
+  };
+  const std::size_t c_fv = optional_column("soot_volume_fraction"),
+                    c_y = optional_column("axis_y_m");
   std::vector<RingProfilePoint> profile;
   for (int number = 2; std::getline(in, line); ++number) {
     if (line.empty()) continue;
@@ -112,6 +116,7 @@ std::vector<RingProfilePoint> ReadRingProfileCsv(const std::string& path) {
     p.layer = static_cast<int>(number_at(c_layer));
     p.height_m = number_at(c_height);
     p.axis_x_m = number_at(c_x);
+    p.axis_y_m = c_y < header.size() ? number_at(c_y) : p.height_m;
     p.axis_z_m = number_at(c_z);
     p.radius_voxels = static_cast<int>(number_at(c_radius));
     p.radius_m = number_at(c_radius_m);

@@ -38,11 +38,13 @@ std::vector<ViewScore> WriteFitReport(
     const Eigen::Vector3d& up_in_rig = Eigen::Vector3d::UnitY());
 
 // An axisymmetric fit's radial profile (FitResult::ring_profile) as CSV, one row per ring by
-// layer and then radius: layer, height_m, axis_x_m, axis_z_m, radius_voxels, radius_m, voxels,
-// temperature_k, temperature_sigma_k, density_per_m3, log_density_sigma, soot_volume_fraction (0
-// for a grey model; a file without the column, from before 2026-11-29, reads as 0), and with `truth`
-// (pipeline/truth.h's TruthOnRings, one per ring) truth_temperature_k and truth_voxels (empty
-// where no truth voxel falls in the ring). Metres in the rig frame. Written atomically.
+// layer and then radius: layer, height_m (along the rig's up: fit.h's MeasureRingHeights),
+// axis_x_m, axis_y_m, axis_z_m, radius_voxels, radius_m, voxels, temperature_k,
+// temperature_sigma_k, density_per_m3, log_density_sigma, soot_volume_fraction (0 for a grey
+// model), and with `truth` (pipeline/truth.h's TruthOnRings, one per ring) truth_temperature_k and
+// truth_voxels (empty where no truth voxel falls in the ring). Metres in the rig frame. Written
+// atomically. Files from before 2026-11-29 have no soot_volume_fraction (read as 0); from before
+// 2026-12-02 no axis_y_m, and their height_m is the rig y (read as both).
 void WriteRingProfileCsv(const std::string& path, const std::vector<RingProfilePoint>& profile,
                          const std::vector<RingTruth>* truth = nullptr);
 

@@ -382,6 +382,7 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
     throw DataError(std::string("fit: ") + e.what());
   }
   w->summary.fit_ms = Ms(t0);
+  MeasureRingHeights(rig_.up_in_rig, &w->result.ring_profile);
   if (w->result.termination == FitTermination::kCancelled) throw Cancelled("run: cancelled");
 }
 
@@ -483,6 +484,18 @@ void FrameStages::Score(FrameWork* w) {
   }
   s.truth_voxels = t.counted;
   s.truth_visible = t.visible;
+  // A tied frame's profile gains the truth's ring means, as `fit --truth`'s does.
+  const std::string profile = paths_.Profile(w->index);
+  if (t.compared && truth.HasTemperatureAndDensity() && fs::exists(profile)) {
+    try {
+      const std::vector<RingProfilePoint> rings = ReadRingProfileCsv(profile);
+      const std::vector<RingTruth> on_rings =
+          TruthOnRings(truth, scored_.geometry, rings, fit_from_truth_);
+      WriteRingProfileCsv(profile, rings, &on_rings);
+    } catch (const DataError& e) {
+      s.notes.push_back(std::string("truth not put on the profile: ") + e.what());
+    }
+  }
 }
 
 void FrameStages::Fail(FrameWork* w, const std::string& what) {

@@ -1488,6 +1488,7 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
     const Eigen::Vector3d axis = centres[point.layer] / sums[point.layer].z();
     EXPECT_NEAR(point.height_m, axis.y(), 1e-12);
     EXPECT_NEAR(point.axis_x_m, axis.x(), 1e-9);
+    EXPECT_NEAR(point.axis_y_m, axis.y(), 1e-12);
     EXPECT_NEAR(point.axis_z_m, axis.z(), 1e-9);
     EXPECT_DOUBLE_EQ(point.radius_m, point.radius_voxels * r.grid.voxel_size_m.x());
     EXPECT_GT(point.log_density_sigma, 0);
@@ -1499,6 +1500,22 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
   }
   EXPECT_EQ(profiled_voxels, active.size());
   EXPECT_TRUE(free.ring_profile.empty());
+  // Heights along another up (a rig calibrated in its first camera's frame has about -y): the
+  // axis point's component along it, worked out here; a zero or NaN up is refused.
+  std::vector<RingProfilePoint> down = tied.ring_profile;
+  MeasureRingHeights(Eigen::Vector3d(0, -2, 0), &down);
+  const Eigen::Vector3d tilted = Eigen::Vector3d(0.6, -0.8, 0);
+  std::vector<RingProfilePoint> leaning = tied.ring_profile;
+  MeasureRingHeights(tilted * 5, &leaning);
+  for (std::size_t k = 0; k < down.size(); ++k) {
+    const RingProfilePoint& p = tied.ring_profile[k];
+    EXPECT_DOUBLE_EQ(down[k].height_m, -p.axis_y_m);
+    EXPECT_NEAR(leaning[k].height_m, 0.6 * p.axis_x_m - 0.8 * p.axis_y_m, 1e-12);
+    EXPECT_EQ(down[k].axis_y_m, p.axis_y_m);
+  }
+  EXPECT_GT(down.front().height_m, down.back().height_m);  // layer 0 is the top for an up of -y
+  EXPECT_THROW(MeasureRingHeights(Eigen::Vector3d::Zero(), &down), InputError);
+  EXPECT_THROW(MeasureRingHeights(Eigen::Vector3d(0, std::nan(""), 0), &down), InputError);
   // The sigma is the ring's (uncertainty.h's groups): one per ring, and in units of each fit's
   // own noise level narrower than the voxels' own, since a ring pools its voxels' information.
   EXPECT_EQ(sigma_mismatched, 0u);

@@ -460,6 +460,7 @@ TEST(RingProfileCsv, ReadsBackWhatItWroteAndNamesWhatIsMalformed) {
     p.layer = 7;
     p.height_m = 0.0123456789;
     p.axis_x_m = -0.001;
+    p.axis_y_m = -0.0123456789;
     p.axis_z_m = 0.002;
     p.radius_voxels = r;
     p.radius_m = 0.00109375 * r;
@@ -482,6 +483,7 @@ TEST(RingProfileCsv, ReadsBackWhatItWroteAndNamesWhatIsMalformed) {
     EXPECT_EQ(back[r].voxels, profile[r].voxels);
     EXPECT_NEAR(back[r].height_m, profile[r].height_m, 1e-12);
     EXPECT_NEAR(back[r].axis_x_m, profile[r].axis_x_m, 1e-12);
+    EXPECT_NEAR(back[r].axis_y_m, profile[r].axis_y_m, 1e-12);
     EXPECT_NEAR(back[r].radius_m, profile[r].radius_m, 1e-12);
     EXPECT_NEAR(back[r].temperature_k, profile[r].temperature_k, 1e-3);
     EXPECT_NEAR(back[r].temperature_sigma_k, profile[r].temperature_sigma_k, 1e-3);
@@ -507,8 +509,9 @@ TEST(RingProfileCsv, ReadsBackWhatItWroteAndNamesWhatIsMalformed) {
       EXPECT_NE(std::string(e.what()).find(says), std::string::npos) << e.what();
     }
   };
-  malformed(header + "\n" + first + "\nnot,a,row\n", "line 3: 3 values for 14 columns");
-  // A profile written before the volume fraction was (2026-11-29) reads with a fraction of 0.
+  malformed(header + "\n" + first + "\nnot,a,row\n", "line 3: 3 values for 15 columns");
+  // A profile written before the volume fraction was (2026-11-29) reads with a fraction of 0,
+  // and one from before axis_y_m (2026-12-02), whose height_m was the rig y, with that as both.
   {
     const fs::path old = dir / "old.csv";
     std::ofstream(old) << "layer,height_m,axis_x_m,axis_z_m,radius_voxels,radius_m,voxels,"
@@ -518,6 +521,8 @@ TEST(RingProfileCsv, ReadsBackWhatItWroteAndNamesWhatIsMalformed) {
     ASSERT_EQ(read.size(), 1u);
     EXPECT_EQ(read[0].temperature_k, 1700);
     EXPECT_EQ(read[0].soot_volume_fraction, 0);
+    EXPECT_EQ(read[0].axis_y_m, 0.01);
+    EXPECT_EQ(read[0].height_m, 0.01);
   }
   std::string nan_row = second;
   nan_row.replace(nan_row.find("1660.5"), 6, "nan");
@@ -902,14 +907,48 @@ TEST(RunFrames, AnAxisymmetricRunStartsEveryFrameFromItsOwnTomography) {
   EXPECT_LT(max_difference(free_alone.temperature_k, free_cold.temperature_k), 1.0);
   EXPECT_GT(max_difference(free_alone.temperature_k, free_warm.temperature_k), 10.0);
   // Each tied frame's radial profile beside its summary (fit_report.h's WriteRingProfileCsv): a
-  // header and a row per ring.
+  // header and a row per ring, with the truth's ring means (the run has a truth), and heights
+  // along the rig's up (+y here).
   const fs::path frames = dir / "tied_warm" / "frames";
   ASSERT_TRUE(fs::exists(frames / "frame_000000_profile.csv"));
   std::ifstream csv(frames / "frame_000001_profile.csv");
   ASSERT_TRUE(csv.good());
   double lines = 0;
-  for (std::string line; std::getline(csv, line);) ++lines;
+  std::string csv_header;
+  for (std::string line; std::getline(csv, line);) ++lines == 1 ? void(csv_header = line) : void();
   EXPECT_EQ(lines - 1, tied_warm.metadata_numbers.at("axisymmetric_rings"));
+  EXPECT_NE(csv_header.find(",truth_temperature_k,truth_voxels"), std::string::npos) << csv_header;
+  const std::vector<RingProfilePoint> rings =
+      ReadRingProfileCsv((frames / "frame_000001_profile.csv").string());
+  ASSERT_FALSE(rings.empty());
+  for (const auto& p : rings) EXPECT_EQ(p.height_m, p.axis_y_m);
+  // The same rig said to be up -y (as one calibrated in its first camera's frame): the same
+  // rings, their heights now -y, growing up the flame.
+  {
+    Rig down = Rig::Load((dir / "sim" / "rig.yaml").string());
+    down.up_in_rig = -Eigen::Vector3d::UnitY();
+    down.Save((dir / "sim" / "rig_down.yaml").string());
+    RunOptions o = SmallRun(dir / "sim", dir / "tied_down");
+    o.rig_path = (dir / "sim" / "rig_down.yaml").string();
+    o.fit.axisymmetric = true;
+    o.first = 1;
+    o.sigma = o.blender = o.pictures = false;
+    ASSERT_EQ(RunAll(o).computed, 1u);
+    auto profile_of = [&](const std::string& run) {
+      return ReadRingProfileCsv((dir / run / "frames" / "frame_000001_profile.csv").string());
+    };
+    const std::vector<RingProfilePoint> up = profile_of("tied_alone"),
+                                        flipped = profile_of("tied_down");
+    ASSERT_EQ(flipped.size(), up.size());
+    for (std::size_t k = 0; k < up.size(); ++k) {
+      EXPECT_EQ(flipped[k].layer, up[k].layer);
+      EXPECT_EQ(flipped[k].temperature_k, up[k].temperature_k);
+      EXPECT_EQ(flipped[k].axis_y_m, up[k].axis_y_m);
+      EXPECT_EQ(up[k].height_m, up[k].axis_y_m);
+      EXPECT_EQ(flipped[k].height_m, -up[k].axis_y_m);
+    }
+    EXPECT_GT(flipped.front().height_m, flipped.back().height_m);
+  }
   EXPECT_FALSE(fs::exists(dir / "free_warm" / "frames" / "frame_000001_profile.csv"));
   // The run's report draws them, the truth beside them.
   RunReportInfo info;
