@@ -369,6 +369,17 @@ void CameraRadiometry::Validate(const std::string& where) const {
   if (saturation_level > 0 && !(saturation_level > black_level))
     fail("saturation_level", "must exceed black_level (" + FormatNumber(black_level) + "), got " +
                                  FormatNumber(saturation_level));
+  // The bands' and the filter's range, as a rig file's reader (ReadBand) takes them.
+  auto check_band = [&](const SpectralBand& b, const std::string& field) {
+    if (!(b.centre_nm >= 200 && b.centre_nm <= 2000))
+      fail(field, "'centre_nm' must be in [200, 2000], got " + FormatNumber(b.centre_nm));
+    if (!(b.fwhm_nm >= 0.1 && b.fwhm_nm <= 2000))
+      fail(field, "'fwhm_nm' must be in [0.1, 2000], got " + FormatNumber(b.fwhm_nm));
+  };
+  if (spectral.has_filter()) check_band(spectral.filter, "filter");
+  if (spectral.kind == SpectralSensitivity::Kind::kBands)
+    for (std::size_t i = 0; i < spectral.bands.size(); ++i)
+      check_band(spectral.bands[i], "bands[" + std::to_string(i) + "]");
   const int n = spectral.channels();
   for (int c = 0; c < 3; ++c)
     if (!std::isfinite(gain[c]) || !(gain[c] > 0))

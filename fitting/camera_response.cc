@@ -80,6 +80,18 @@ std::shared_ptr<const ChannelResponse> ChannelResponse::ForCamera(
     // basis = S * gain / Ybar, so that basis = sum L S gain / Ybar over 1 nm steps.
     for (int i = 0; i < n; ++i)
       r->basis_[i] = (raw[i] * scale).cwiseProduct(radiometry.gain) / ybar;
+    Eigen::Vector3d peak = Eigen::Vector3d::Zero();
+    for (const auto& b : r->basis_) peak = peak.cwiseMax(b.cwiseAbs());
+    auto responds = [&](int i) {
+      for (int c = 0; c < 3; ++c)
+        if (std::abs(r->basis_[i][c]) > kSupportShare * peak[c]) return true;
+      return false;
+    };
+    int lo = 0, hi = n - 1;
+    while (lo < hi && !responds(lo)) ++lo;
+    while (hi > lo && !responds(hi)) --hi;
+    r->support_first_nm_ = kFirstNm + lo;
+    r->support_last_nm_ = kFirstNm + hi;
     r->table_.assign(3 * (kMaxTableK + 2), 0.0);
     for (int t = 1; t <= kMaxTableK + 1; ++t) {
       Eigen::Vector3d v = Eigen::Vector3d::Zero();

@@ -101,6 +101,15 @@ class ChannelResponse {
   // bin times its width (SpectralBins' weights for this response).
   Eigen::Vector3d BinWeight(double centre_nm, double step_nm) const;
 
+  // Where the response responds: the first and last whole nm at which some basis channel exceeds
+  // kSupportShare of its own peak (the sRGB observer: 360 and 830, the CIE table's ends). The
+  // renderer's spectral path puts its bins there for a camera's response, so that a band-pass
+  // filter at 850 nm is seen at 850 nm (renderer.h's RenderOptions) and one at 650/40 nm needs
+  // 17 bins.
+  static constexpr double kSupportShare = 1e-5;
+  int support_first_nm() const { return support_first_nm_; }
+  int support_last_nm() const { return support_last_nm_; }
+
  private:
   ChannelResponse() = default;
   Eigen::Vector3d At(int nm) const;  // basis at an integer wavelength
@@ -113,6 +122,7 @@ class ChannelResponse {
   Eigen::Matrix3d output_from_basis_ = Eigen::Matrix3d::Identity();
   Eigen::Vector3d gain_ = Eigen::Vector3d::Ones();
   int first_nm_ = 360, last_nm_ = 830;
+  int support_first_nm_ = 360, support_last_nm_ = 830;
   std::vector<Eigen::Vector3d> basis_;  // per nm from first_nm_ (cameras only)
   std::vector<double> table_;           // 3 * (kMaxTableK + 2) (cameras only)
   const double* rows_ = nullptr;        // the table: BlackbodyXyzTable's rows, or table_

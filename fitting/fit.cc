@@ -925,6 +925,12 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     throw InputError("fit: a two-colour start needs two bands or more, got one");
   FitOptions options = options_in;
   options.Validate();
+  if (OneBand(views))
+    Log().warn(
+        "fit: every fitted camera sees one band ({}): the images hold each voxel's emission in it, "
+        "not its temperature, which comes from the start and the prior (no voxel is marked "
+        "determined); cameras behind two filters or more (two-colour pyrometry) measure it",
+        views.front().response->name());
   options.objective.smooth_delta_e = options.smooth_delta_e;
   options.objective.smooth_neighbour = options.smooth_neighbour;
   options.objective.density_pairwise = options.density_pairwise;

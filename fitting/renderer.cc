@@ -89,8 +89,16 @@ FireRenderer::FireRenderer(const AbsorptionModel& absorption, const RenderOption
     path_reason_ = "wavelength-dependent absorption (" + absorption_.name() + ")";
   }
   if (path_ == SpectralPath::kSpectral) {
-    bins_ = std::make_unique<SpectralBins>(options_.spectral_first_nm, options_.spectral_last_nm,
-                                           options_.spectral_step_nm, response_.get());
+    double first = options_.spectral_first_nm, last = options_.spectral_last_nm;
+    const double step = options_.spectral_step_nm;
+    if (!response_->basis_is_xyz()) {
+      // Bins centred on where the camera responds, covering it.
+      const double lo = response_->support_first_nm(), hi = response_->support_last_nm();
+      const double bins = std::max(1.0, std::ceil((hi - lo) / step - 1e-9));
+      first = 0.5 * (lo + hi) - 0.5 * (bins - 1) * step;
+      last = first + (bins - 1) * step;
+    }
+    bins_ = std::make_unique<SpectralBins>(first, last, step, response_.get());
     for (double nm : bins_->centers_nm())
       bin_cross_section_m2_.push_back(absorption_.CrossSectionM2(nm));
   }

@@ -94,7 +94,12 @@ struct RenderOptions {
   // kAuto: fast for grey absorption, spectral otherwise. kFast with non-grey absorption is an
   // error.
   SpectralPath path = SpectralPath::kAuto;
-  // Wavelength bins of the spectral path: centres first..last nm in steps of step nm.
+  // Wavelength bins of the spectral path: centres first..last nm in steps of step nm, for the sRGB
+  // observer. A camera's own response (below) puts them where it responds instead
+  // (ChannelResponse::support_first_nm .. support_last_nm, within 300..1100 nm), centred on that
+  // range in steps of step nm: a mono camera behind an 850 nm filter is rendered at 850 nm (with
+  // first..last it was black), and one behind a 650/40 nm filter in 17 bins rather than 41; a
+  // bare sensor from 300 to 1100 nm takes 81.
   double spectral_first_nm = 380.0;
   double spectral_last_nm = 780.0;
   double spectral_step_nm = 10.0;
@@ -104,8 +109,8 @@ struct RenderOptions {
   // (SSE2) build, for benchmarks and tests that compare the two. Same results up to rounding.
   bool wide_kernels = true;
   // The camera's spectral response (camera_response.h): what the output channels are. Null: the
-  // sRGB observer, linear sRGB out. The spectral path sees only its bins' range (360..830 nm at
-  // most); the fast path integrates the response's whole range.
+  // sRGB observer, linear sRGB out. The spectral path sees its bins' range (the observer's 360..830
+  // nm at most; a camera's, where it responds); the fast path integrates the response's whole range.
   std::shared_ptr<const ChannelResponse> response;
 
   // Throws InputError naming the field, its value and the rule.

@@ -48,20 +48,30 @@ template void BlackbodyXyzTable::LookupExactWithDerivative<double>(double, doubl
 SpectralBins::SpectralBins(double first_nm, double last_nm, double step_nm,
                            const ChannelResponse* response)
     : step_nm_(step_nm) {
-  if (!(first_nm >= 360) || !(last_nm <= 830) || !(first_nm < last_nm) || !(step_nm > 0)) {
+  if (!response) response = ChannelResponse::SrgbObserver().get();
+  if (response->basis_is_xyz()) {
+    if (!(first_nm >= 360) || !(last_nm <= 830) || !(first_nm < last_nm) || !(step_nm > 0)) {
+      throw InputError(
+          "spectral bins: need 360 <= first_nm < last_nm <= 830 and step_nm > 0, got " +
+          std::to_string(first_nm) + ".." + std::to_string(last_nm) + " step " +
+          std::to_string(step_nm));
+    }
+  } else if (!(step_nm > 0) || !(first_nm >= ChannelResponse::kFirstNm - step_nm) ||
+             !(last_nm <= ChannelResponse::kLastNm + step_nm) || !(first_nm <= last_nm)) {
     throw InputError(
-        "spectral bins: need 360 <= first_nm < last_nm <= 830 and step_nm > 0, got " +
-        std::to_string(first_nm) + ".." + std::to_string(last_nm) + " step " +
-        std::to_string(step_nm));
+        "spectral bins for " + response->name() + ": need " +
+        std::to_string(ChannelResponse::kFirstNm) +
+        " - step <= first_nm <= last_nm <= " + std::to_string(ChannelResponse::kLastNm) +
+        " + step and step_nm > 0, got " + std::to_string(first_nm) + ".." +
+        std::to_string(last_nm) + " step " + std::to_string(step_nm));
   }
   // Counted in double first: a tiny step would overflow an int.
   const double bins = std::floor((last_nm - first_nm) / step_nm + 1e-9) + 1;
   if (bins > kMaxBins) {
-    throw InputError("spectral bins: " + std::to_string(bins) +
-                                " bins exceed the maximum of " + std::to_string(kMaxBins));
+    throw InputError("spectral bins: " + std::to_string(bins) + " bins exceed the maximum of " +
+                     std::to_string(kMaxBins));
   }
   const int n = static_cast<int>(bins);
-  if (!response) response = ChannelResponse::SrgbObserver().get();
   for (int i = 0; i < n; ++i) {
     centers_nm_.push_back(first_nm + i * step_nm);
     weights_.push_back(response->BinWeight(centers_nm_.back(), step_nm));

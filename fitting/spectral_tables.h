@@ -80,9 +80,10 @@ class BlackbodyXyzTable {
 class SpectralBins {
  public:
   // Bins centred on first_nm, first_nm + step_nm, ..., last_nm. Throws InputError unless
-  // 360 <= first < last <= 830, step > 0 and there are at most kMaxBins bins. The weights are the
-  // basis channels of `response` (camera_response.h; null: the sRGB observer, whose basis is CIE
-  // XYZ); every channel must respond somewhere in the bins.
+  // 360 <= first < last <= 830 (a camera's response: 300 - step <= first <= last <= 1100 + step,
+  // the range its tables integrate), step > 0 and there are at most kMaxBins bins. The weights are
+  // the basis channels of `response` (camera_response.h; null: the sRGB observer, whose basis is
+  // CIE XYZ); every channel must respond somewhere in the bins.
   SpectralBins(double first_nm, double last_nm, double step_nm,
                const ChannelResponse* response = nullptr);
   static constexpr int kMaxBins = 512;

@@ -5,6 +5,7 @@
 #include <cmath>
 
 #include "core/error.h"
+#include "fitting/camera_response.h"
 
 namespace flamerig {
 namespace {
@@ -14,6 +15,15 @@ namespace {
 constexpr std::int64_t kMinDifferences = 90;
 
 }  // namespace
+
+bool OneBand(const std::vector<FitView>& views) {
+  if (views.empty()) return false;
+  for (const FitView& v : views)
+    if (!v.response || v.response->channels() != 1 ||
+        v.response->name() != views.front().response->name())
+      return false;
+  return true;
+}
 
 void UncertaintyOptions::Validate() const {
   if (!(determined_fraction > 0 && determined_fraction <= 1))
@@ -69,6 +79,7 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
   // A noise level of zero (a perfect fit of noise-free data) would make every voxel exact: keep
   // a floor of a hundredth of a Delta E.
   const double noise2 = std::max(u.sigma_lab * u.sigma_lab, 1e-4);
+  u.one_band = OneBand(objective.views());
   u.temperature_sigma_k.resize(na);
   u.log_density_sigma.resize(na);
   u.determined.resize(na);
@@ -83,8 +94,8 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
     // which narrowed exactly these voxels' sigma.)
     const double det = std::max(htt * hnn - htn * htn, 1e-12 * htt * hnn);
     const double var_t = hnn / det, var_n = htt / det;
-    const double sigma_t = std::isfinite(var_t) ? std::sqrt(var_t) : u.prior_sigma_k;
-    const double sigma_n = std::isfinite(var_n) ? std::sqrt(var_n) : prior_ln;
+    const double sigma_t = std::isfinite(var_t) && !u.one_band ? std::sqrt(var_t) : u.prior_sigma_k;
+    const double sigma_n = std::isfinite(var_n) && !u.one_band ? std::sqrt(var_n) : prior_ln;
     u.temperature_sigma_k[a] = float(std::min(sigma_t, u.prior_sigma_k));
     u.log_density_sigma[a] = float(std::min(sigma_n, prior_ln));
     const bool determined = sigma_t < options.determined_fraction * u.prior_sigma_k;
@@ -108,6 +119,7 @@ void StoreUncertainty(const GridGeometry& grid, const std::vector<std::uint32_t>
   }
   volume->metadata_numbers["sigma_lab"] = u.sigma_lab;
   volume->metadata_numbers["residual_lab"] = u.residual_lab;
+  if (u.one_band) volume->metadata_numbers["one_band"] = 1;
   volume->metadata_numbers["determined_voxels"] = double(u.determined_count);
 }
 

@@ -37,6 +37,13 @@
 //
 // `determined`: 1 where the temperature's deviation is below `determined_fraction` of the prior's,
 // i.e. where the images, not the search range, say what the temperature is.
+//
+// One band (OneBand: every fitted view a mono camera with the same spectral response, e.g. all
+// behind one 650 nm filter): the images give each voxel's emission in that band, which any
+// temperature makes with a matching density, so neither is determined whatever the curvature says
+// (a band's self-absorption separates them a little, and the noise-level curvature called 60% of
+// such a rig's voxels determined, their errors 400 K): every voxel gets the prior's deviations and
+// none is determined. Two bands or more (two-colour pyrometry) measure the temperature.
 #ifndef FLAMERIG_FITTING_UNCERTAINTY_H_
 #define FLAMERIG_FITTING_UNCERTAINTY_H_
 
@@ -61,8 +68,13 @@ struct VoxelUncertainty {
   double residual_lab = 0;   // the residuals' level per Lab residual: noise and model error
   double prior_sigma_k = 0;  // the search range's deviation
   std::size_t determined_count = 0;
+  bool one_band = false;  // OneBand(the fitted views): the prior's deviations everywhere
   double seconds = 0;
 };
+
+// True when every view is a mono camera and all share one spectral response (by
+// ChannelResponse::name(): sensitivity and filter, not gains): the images hold no temperature.
+bool OneBand(const std::vector<FitView>& views);
 
 // At the fitted temperatures `t`, densities `n` (per active voxel of `objective`) and exposure `s`.
 // `groups`: null, or the tied fit's groups (every active voxel in exactly one).
@@ -73,7 +85,7 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
 
 // Writes the three grids into `volume` (on `grid`, whose voxels `active` are the estimate's; 0
 // elsewhere) and the noise level, the residuals' level and the determined count into its metadata
-// (sigma_lab, residual_lab, determined_voxels).
+// (sigma_lab, residual_lab, determined_voxels; one_band 1 when the estimate's was).
 void StoreUncertainty(const GridGeometry& grid, const std::vector<std::uint32_t>& active,
                       const VoxelUncertainty& u, FireVolume* volume);
 

@@ -4,6 +4,8 @@
 #include <memory>
 
 #include "core/error.h"
+#include "core/format.h"
+#include "core/log.h"
 #include "pipeline/band_tomography.h"
 #include "pipeline/frame_source.h"
 #include "pipeline/run.h"
@@ -35,13 +37,21 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
     throw InputError("fit: a truth rig (--truth-rig) without a truth (--truth) to move");
   const Rig rig = WithInputTransfer(Rig::Load(job.rig_path), job.input_transfer);
   const RigRegistration truth_frame = RegisterTruth(job.truth_rig, rig);
-  const ImagesExposure images_exposure = ResolveExposure(job.exposure, job.rig_path);
+  const ImagesExposure images_exposure =
+      ResolveExposure(job.exposure, job.rig_path, job.images_dir);
   const double exposure = images_exposure.value;
   // The fast fit holds a known exposure: checked before any work.
   FitOptions fit = job.fit;
   fit.estimate_uncertainty = fit.estimate_uncertainty || job.uncertainty;
   if (job.method == FitMethod::kFast && images_exposure.known && !job.fit_exposure)
     fit.known_exposure = HeldExposure(images_exposure, fit, "fit");
+  if (job.method == FitMethod::kFast && !images_exposure.known)
+    Log().warn(
+        "fit: the images' exposure is unknown (no --exposure, and no dataset.yaml beside the rig "
+        "or the images): the fit finds one, and the densities are relative to it, not absolute");
+  else if (images_exposure.known)
+    Log().info("fit: the images' exposure {} ({}){}", FormatNumber(images_exposure.value, 6),
+               images_exposure.from, fit.known_exposure > 0 ? ", held" : ", a start; fitted");
   const AbsorptionModel absorption = AbsorptionModel::FromName(
       job.absorption.empty() ? DatasetAbsorption(job.rig_path) : job.absorption);
   const SourceFrameSet set = ReadFrameFolder(rig, job.images_dir, exposure);

@@ -28,6 +28,52 @@ namespace {
 // smallest difference a person sees, above 10 colours differ at a glance.
 constexpr double kDeltaEScale = 20;
 
+// What a researcher quotes beside the images' error, as rows of (quantity, value): the sigma's
+// summary when the fit has one, and with a truth that has temperatures the scores `fit --truth`
+// prints (CompareWithTruth).
+std::vector<std::vector<std::string>> Quotables(const FitResult& result, const FireVolume* truth,
+                                                const Rigid3& fit_from_truth) {
+  std::vector<std::vector<std::string>> rows;
+  const VoxelUncertainty& u = result.uncertainty;
+  if (!u.temperature_sigma_k.empty()) {
+    std::vector<float> sigmas = u.temperature_sigma_k;
+    auto mid = sigmas.begin() + std::ptrdiff_t(sigmas.size() / 2);
+    std::nth_element(sigmas.begin(), mid, sigmas.end());
+    rows.push_back({"voxels the images determine",
+                    fmt::format("{} of {} active{}", u.determined_count, sigmas.size(),
+                                u.one_band ? " (one band: the temperature is the prior's)" : "")});
+    rows.push_back({"median temperature sigma", fmt::format("{:.0f} K", *mid)});
+  }
+  if (!truth || !truth->HasTemperatureAndDensity()) return rows;
+  const TruthError t = CompareWithTruth(*truth, result.volume, fit_from_truth);
+  if (!t.compared || !t.counted) {
+    rows.push_back({"truth", "not compared: " +
+                                 (t.why_not.empty() ? "no visible voxel with medium" : t.why_not)});
+    return rows;
+  }
+  rows.push_back({"truth's visible voxels (>= 1300 K, >= 1% of the peak emission) with medium",
+                  fmt::format("{} of {}", t.counted, t.visible)});
+  rows.push_back({"temperature RMS, mean (fit - truth)",
+                  fmt::format("{:.1f} K, {:+.1f} K", t.rms_k, t.mean_k)});
+  rows.push_back(
+      {"the truth's spread (the best constant's RMS)", fmt::format("{:.1f} K", t.truth_spread_k)});
+  rows.push_back({"emission-weighted RMS (the truth's spread)",
+                  fmt::format("{:.1f} K ({:.1f} K)", t.weighted_rms_k, t.weighted_truth_spread_k)});
+  if (t.have_sigma)
+    rows.push_back({"error within one, two sigma",
+                    fmt::format("{:.0f}%, {:.0f}% (a calibrated sigma: 68%, 95%)",
+                                100 * t.within_1_sigma, 100 * t.within_2_sigma)});
+  if (t.have_determined) {
+    auto rms = [](double k) { return k < 0 ? std::string("none") : fmt::format("{:.1f} K", k); };
+    rows.push_back({"temperature RMS on the determined voxels, on the rest",
+                    rms(t.determined_rms_k) + ", " + rms(t.undetermined_rms_k)});
+  }
+  if (t.truth_soot > 0)
+    rows.push_back(
+        {"soot particles, of the truth's", fmt::format("{:.3f}", t.fit_soot / t.truth_soot)});
+  return rows;
+}
+
 // A profile's truth, when given, has one value per ring.
 void CheckRingTruth(const std::vector<RingProfilePoint>& profile,
                     const std::vector<RingTruth>* truth) {
@@ -311,6 +357,11 @@ std::vector<ViewScore> WriteFitReport(
     md << "| " << s.name << " | " << (s.held_out ? "held out" : "fitted") << " | " << s.mean_delta_e
        << " | " << s.fire_delta_e << " | " << s.p95_delta_e << " |\n";
   }
+  const std::vector<std::vector<std::string>> quotables = Quotables(result, truth, fit_from_truth);
+  if (!quotables.empty()) {
+    md << "\n| quantity | value |\n|---|---|\n";
+    for (const auto& row : quotables) md << "| " << row[0] << " | " << row[1] << " |\n";
+  }
   md << "\n![each view: input, rendered from the fit, Delta E (0 to 20, viridis)](views.png)\n\n"
      << (sliced ? "![temperature slices](slices.png)\n\n" : "")
      << (profile_plotted ? "![radial profile](profile.png)\n\n" : "")
@@ -328,6 +379,10 @@ std::vector<ViewScore> WriteFitReport(
   page.Table({"view", "role", "mean Delta E (all pixels)", "mean Delta E (fire pixels)",
               "95th percentile (fire pixels)", "fire pixels"},
              rows);
+  if (!quotables.empty()) {
+    page.Section(truth ? "Uncertainty and the truth" : "Uncertainty");
+    page.Table({"quantity", "value"}, quotables);
+  }
   page.Section("Views");
   page.Figure("views.png",
               "Each view: its input, the fitted volume rendered through it, and their Delta E "
@@ -335,8 +390,8 @@ std::vector<ViewScore> WriteFitReport(
   if (sliced) {
     page.Section("Temperature slices");
     page.Figure("slices.png",
-                std::string("Front (x-y) and side (z-y) slices through the box's middle, y up; "
-                            "dark grey: no medium. The fitted temperature") +
+                std::string("Front (x-y) and side (z-y) slices through the box's middle, the "
+                            "rig's up at the top; dark grey: no medium. The fitted temperature") +
                     (truth ? ", the truth on the fit's grid and fit - truth (blue too cold, red "
                              "too hot)"
                            : "") +

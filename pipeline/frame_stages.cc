@@ -101,7 +101,8 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
       absorption_(AbsorptionModel::FromName(options.absorption.empty() ? DatasetAbsorption(rig_path)
                                                                        : options.absorption)) {
   options_.Validate();
-  const ImagesExposure exposure = ResolveExposure(options_.exposure, rig_path);
+  const ImagesExposure exposure =
+      ResolveExposure(options_.exposure, rig_path, options_.source.images_dir);
   exposure_ = exposure.value;
   exposure_known_ = exposure.known;
   if (exposure_known_ && !options_.fit_exposure) HeldExposure(exposure, options_.fit, "run");

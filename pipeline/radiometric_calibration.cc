@@ -210,7 +210,7 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
       throw InputError(where + ": " + shots.shots[shot_indices[k]].image + " is " +
                        std::to_string(images[k].bits) + "-bit, its first shot " +
                        std::to_string(bits) + "-bit");
-  const CameraRadiometry::Decoding decoding = model.DecodingFor(bits);
+  CameraRadiometry::Decoding decoding = model.DecodingFor(bits);
   // The camera's channels of a black body with unit gains, in the renderer's units: one response
   // for all its shots.
   const auto response = ChannelResponse::ForCamera(model);
@@ -301,9 +301,24 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
       std::string list;
       for (const auto& [why, count] : reasons)
         list += (list.empty() ? "" : ", ") + std::to_string(count) + " " + why;
+      std::string remedy = "film the source so that every channel lies between " +
+                           FormatNumber(options.min_signal, 4) + " of full scale and saturation";
+      if (reasons.size() == 1 &&
+          reasons.begin()->first.rfind("the model predicts no signal", 0) == 0) {
+        // A cool black body's blue lies outside the sRGB gamut: from which temperature it does not.
+        double from = 0;
+        for (double t = 1000; t <= 20000 && from == 0; t += 50)
+          if (unit_gain_blackbody(t)[c] > 0) from = t;
+        remedy = "the model gives a black body at " + FormatNumber(temperatures.front(), 5) +
+                 (temperatures.size() > 1 ? " to " + FormatNumber(temperatures.back(), 5) : "") +
+                 " K no signal in that channel (the sRGB observer's blue of a cool source is "
+                 "outside the sRGB gamut)" +
+                 (from > 0 ? ": film the source at " + FormatNumber(from, 5) + " K or hotter"
+                           : std::string()) +
+                 ", or give the camera's spectral curves";
+      }
       throw InputError(where + ": no usable shot for channel " + std::to_string(c) + " (" + list +
-                       "): film the source so that every channel lies between " +
-                       FormatNumber(options.min_signal, 4) + " of full scale and saturation");
+                       "): " + remedy);
     }
     std::sort(all.begin(), all.end());
     if (all.empty() || !(all.back() >= 1.5 * all.front())) black_identifiable = false;
@@ -315,10 +330,44 @@ void CalibrateCamera(const RigCamera& camera, const std::vector<std::size_t>& sh
   }
   const bool gamma_identifiable =
       options.fit_gamma && decoding.transfer == TransferFunction::kGamma && gamma_levels >= 3;
-  if (options.fit_black_level && !black_identifiable)
-    result->notes.push_back("black level held at " + FormatNumber(model.black_level, 4) +
-                            " DN: the shots do not span signals a factor 1.5 apart in every "
-                            "channel");
+  // The dark pixels around the source against the black level the fit holds: a black level that
+  // is wrong by tens of DN made gains 5 times off that fitted their shots to 1e-13 DN.
+  {
+    const double full = decoding.saturation - decoding.black, dark = result->dark_level_dn;
+    double darkest = decoding.saturation;
+    for (const Observation& o : observations) darkest = std::min(darkest, o.code);
+    const bool disagrees = std::abs(dark - decoding.black) > std::max(2.0, 0.002 * full);
+    const bool plausible = dark >= 0 && dark < darkest && dark <= decoding.black + 0.1 * full;
+    const std::string says = "the dark pixels around the source read " + FormatNumber(dark, 4) +
+                             " DN, the model's black level is " + FormatNumber(decoding.black, 4) +
+                             " DN";
+    if (options.fit_black_level && !black_identifiable) {
+      if (disagrees && plausible) {
+        result->notes.push_back(
+            "black level " + FormatNumber(dark, 4) +
+            " DN, the dark pixels' median: the shots do not span signals a factor 1.5 apart in "
+            "every channel to fit it, and " +
+            says);
+        decoding.black = dark;
+        result->black_level_from_dark = true;
+        for (Observation& o : observations)
+          o.for_gain = model.Signal(o.code, decoding) >= options.min_signal;
+      } else {
+        result->notes.push_back("black level held at " + FormatNumber(decoding.black, 4) +
+                                " DN: the shots do not span signals a factor 1.5 apart in every "
+                                "channel");
+        if (disagrees)
+          result->warnings.push_back(says +
+                                     ", too bright to be a black level: is the background "
+                                     "lit? The gains rest on the model's black level");
+      }
+    } else if (!options.fit_black_level && disagrees) {
+      result->warnings.push_back(says +
+                                 " (held): if the background is dark, the held level is "
+                                 "wrong and the gains with it; let the calibration fit it, or set "
+                                 "the camera's black_level");
+    }
+  }
   if (options.fit_gamma && decoding.transfer == TransferFunction::kGamma && !gamma_identifiable)
     result->notes.push_back("gamma held at " + FormatNumber(model.gamma, 4) +
                             ": fewer than three distinct signal levels");
@@ -549,6 +598,16 @@ RadiometricShots RadiometricShots::Load(const std::string& path) {
   RadiometricShots s;
   s.path = path;
   const fs::path base = fs::path(path).parent_path();
+  // A number, or an error naming the field and what it holds (yaml-cpp says only "bad
+  // conversion" at a line; `nan` unquoted is not YAML's NaN, `.nan`).
+  auto number = [](const YAML::Node& node, const std::string& field) {
+    try {
+      return node.as<double>();
+    } catch (const YAML::Exception&) {
+      throw InputError(field + ": '" + (node.IsScalar() ? node.Scalar() : std::string("a list")) +
+                       "' is not a number");
+    }
+  };
   try {
     // A misspelt key would silently keep its default (an emissivity of 0.98, an automatic region).
     CheckKeys(root, {"source", "region", "shots"}, path);
@@ -561,7 +620,8 @@ RadiometricShots RadiometricShots::Load(const std::string& path) {
         s.source = Source::kLamp;
       else
         throw InputError(path + ": source.kind: 'blackbody' or 'lamp', got '" + kind + "'");
-      if (source["emissivity"]) s.emissivity = source["emissivity"].as<double>();
+      if (source["emissivity"])
+        s.emissivity = number(source["emissivity"], path + ": source.emissivity");
       if (!(s.emissivity > 0 && s.emissivity <= 1))
         throw InputError(path + ": source.emissivity: must be in (0, 1], got " +
                          FormatNumber(s.emissivity, 4));
@@ -580,8 +640,8 @@ RadiometricShots RadiometricShots::Load(const std::string& path) {
       shot.camera = n["camera"].as<std::string>();
       const fs::path image = n["image"].as<std::string>();
       shot.image = (image.is_absolute() ? image : base / image).string();
-      shot.temperature_k = n["temperature_k"].as<double>();
-      shot.exposure = n["exposure"].as<double>();
+      shot.temperature_k = number(n["temperature_k"], where + ": temperature_k");
+      shot.exposure = number(n["exposure"], where + ": exposure");
       if (!(shot.temperature_k >= 500 && shot.temperature_k <= 4000))
         throw InputError(where + ": temperature_k: must be in 500..4000 K, got " +
                          FormatNumber(shot.temperature_k, 4));
@@ -687,7 +747,9 @@ std::string RadiometricCalibration::Brief() const {
     s << c.camera << ": gain";
     for (int i = 0; i < c.channels; ++i) s << (i ? "/" : " ") << FormatNumber(c.after.gain[i], 4);
     s << ", black " << FormatNumber(c.after.black_level, 4) << " DN"
-      << (c.fitted_black_level ? "" : " (held)");
+      << (c.fitted_black_level      ? ""
+          : c.black_level_from_dark ? " (dark pixels)"
+                                    : " (held)");
     if (c.fitted_gamma) s << ", gamma " << FormatNumber(c.after.gamma, 4);
     s << ", rms " << FormatNumber(c.rms_dn, 3) << " DN over " << c.residuals << " shot channels";
     if (c.temperatures_k.size() >= 2) {
@@ -718,7 +780,10 @@ std::string RadiometricCalibration::Report() const {
     s << "| " << c.camera << " | " << c.before.spectral.Describe() << " | "
       << gains(c.before, c.channels) << " | " << gains(c.after, c.channels) << " | "
       << FormatNumber(c.before.black_level, 4) << " | " << FormatNumber(c.after.black_level, 4)
-      << (c.fitted_black_level ? "" : " (held)") << " | "
+      << (c.fitted_black_level      ? ""
+          : c.black_level_from_dark ? " (dark pixels)"
+                                    : " (held)")
+      << " | "
       << (c.after.transfer == TransferFunction::kGamma
               ? FormatNumber(c.after.gamma, 4) + (c.fitted_gamma ? "" : " (held)")
               : std::string(ToString(c.after.transfer)))
@@ -784,6 +849,15 @@ RadiometricCalibration RunRadiometricCalibration(const std::string& rig_path,
                                                  const std::string& shots_path,
                                                  const std::string& out_dir,
                                                  const RadiometricOptions& options) {
+  // OUT/rig.yaml must not be the rig being calibrated: its datasheet model would be lost.
+  {
+    std::error_code a, b;
+    const fs::path in = fs::weakly_canonical(rig_path, a),
+                   written = fs::weakly_canonical(fs::path(out_dir) / "rig.yaml", b);
+    if (!a && !b && in == written)
+      throw InputError("calibrate-radiometry: --out " + out_dir + " would overwrite the rig " +
+                       rig_path + " that it calibrates: give another folder");
+  }
   const Rig rig = Rig::Load(rig_path);
   const RadiometricShots shots = RadiometricShots::Load(shots_path);
   RadiometricCalibration calibration = CalibrateRadiometry(rig, shots, options);

@@ -121,6 +121,9 @@ struct CameraRadiometricResult {
   int channels = 3;
   CameraRadiometry before, after;
   bool fitted_black_level = false, fitted_gamma = false;
+  // The black level is the dark pixels' median (dark_level_dn): the shots could not fit it, and
+  // the model's disagreed with the dark pixels (a datasheet's 0 for a camera whose offset is 64).
+  bool black_level_from_dark = false;
   int shots = 0;             // of this camera
   int residuals = 0;         // shot channels in the fit
   double rms_dn = 0;         // of the fit's code residuals

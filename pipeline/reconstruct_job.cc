@@ -7,6 +7,7 @@
 #include <filesystem>
 
 #include "core/error.h"
+#include "fitting/camera_response.h"
 #include "fitting/renderer.h"
 #include "pipeline/frame_source.h"
 #include "pipeline/picture.h"
@@ -110,17 +111,19 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
     throw InputError(job.truth_path + " (--truth): no such file");
   ReconstructJobResult out;
   ReconstructOptions options = job.reconstruct;
-  out.exposure_source = "default 1";
-  if (job.exposure > 0) {
-    options.exposure = job.exposure;
-    out.exposure_source = "--exposure";
-  } else if (DatasetExposure(job.rig_path, &options.exposure)) {
-    out.exposure_source = "dataset.yaml";
-  } else {
-    options.exposure = 1;
-  }
+  const ImagesExposure exposure = ResolveExposure(job.exposure, job.rig_path, job.images_dir);
+  options.exposure = exposure.value;
+  out.exposure_source = exposure.known ? exposure.from : "default 1";
   out.exposure = options.exposure;
   const Rig rig = WithInputTransfer(Rig::Load(job.rig_path), job.input_transfer);
+  // The emission is in the cameras' own unit-gain channels: linear sRGB only when every camera is
+  // the sRGB observer (a truth's emission is linear sRGB, so only then can they be compared).
+  std::string channels;
+  for (const RigCamera& c : rig.cameras) {
+    const auto response = ChannelResponse::ForCamera(c.radiometry);
+    if (!response->basis_is_xyz() && channels.find(response->name()) == std::string::npos)
+      channels += (channels.empty() ? "" : "; ") + response->name();
+  }
   options.keep_masks = options.keep_masks || !job.masks_dir.empty() || !job.report_dir.empty();
   options.keep_coarse_matrix = false;  // one frame
   SourceFrameSet set = ReadFrameFolder(rig, job.images_dir, options.exposure);
@@ -138,6 +141,10 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
   Reconstructor reconstructor(rig, options);
   FireVolume volume = reconstructor.Reconstruct(set.linear, &out.summary, nullptr, progress);
   volume.metadata_text["exposure_source"] = out.exposure_source;
+  if (!channels.empty())
+    volume.metadata_text["emission_units"] =
+        "radiance per metre in the cameras' own unit-gain channels (" + channels +
+        "), not linear sRGB";
   if (fs::path(job.out_path).has_parent_path())
     fs::create_directories(fs::path(job.out_path).parent_path());
   WriteVdb(job.out_path, volume);
@@ -163,7 +170,11 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
     views = DrawPictureGrid(grid);
     if (!job.preview_path.empty()) WritePng(job.preview_path, views);
   }
-  if (!job.truth_path.empty())
+  if (!job.truth_path.empty() && !channels.empty())
+    out.notes.push_back("the volume is not compared with the truth " + job.truth_path +
+                        ": its emission is in the cameras' own channels (" + channels +
+                        "), the truth's in linear sRGB (fit --truth scores temperatures)");
+  else if (!job.truth_path.empty())
     out.truth_error = EmissionError(volume, ReadVdb(job.truth_path), job.truth_path);
   if (!job.masks_dir.empty()) fs::create_directories(job.masks_dir);
   ImageU8 masks;

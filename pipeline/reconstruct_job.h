@@ -16,7 +16,8 @@ struct ReconstructJob {
   std::string rig_path;
   std::string images_dir;
   std::string out_path;  // the .vdb (its folder is made)
-  // The exposure the images were taken with; 0 = dataset.yaml beside the rig, else 1.
+  // The exposure the images were taken with; 0 = ResolveExposure's (run.h: dataset.yaml beside the
+  // rig or the images), else 1.
   double exposure = 0;
   ReconstructOptions reconstruct;  // its exposure is the job's
   std::string input_transfer;      // "" = the rig's; else srgb | linear | gamma=G (frame_source.h)
@@ -34,8 +35,8 @@ struct ReconstructJob {
 struct ReconstructJobResult {
   ReconstructSummary summary;
   double exposure = 1;
-  std::string exposure_source;     // "--exposure", "dataset.yaml", "default 1"
-  std::vector<std::string> notes;  // cameras left out and why
+  std::string exposure_source;     // "--exposure", the dataset.yaml that gave it, "default 1"
+  std::vector<std::string> notes;  // cameras left out and why; a truth not compared and why
   double truth_error = -1;         // relative L2 against the truth's emission; -1 without one
 };
 

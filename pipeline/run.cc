@@ -72,24 +72,41 @@ bool DatasetExposure(const std::string& rig_path, double* exposure) {
   return true;
 }
 
-ImagesExposure ResolveExposure(double given, const std::string& rig_path) {
+ImagesExposure ResolveExposure(double given, const std::string& rig_path,
+                               const std::string& images_dir) {
   ImagesExposure e;
   if (given > 0) {
     e.value = given;
     e.known = true;
-  } else {
-    e.known = DatasetExposure(rig_path, &e.value);
-    if (!e.known) e.value = 1;
+    e.from = "--exposure";
+    return e;
   }
+  e.known = DatasetExposure(rig_path, &e.value);
+  if (e.known) e.from = (fs::path(rig_path).parent_path() / "dataset.yaml").string();
+  if (!e.known && !images_dir.empty()) {
+    // DATASET/frames or DATASET/frames/frame_NNNNNN.
+    std::error_code ec;
+    const fs::path images = fs::weakly_canonical(images_dir, ec);
+    for (fs::path frames : {images, images.parent_path()}) {
+      if (ec || frames.filename() != "frames") continue;
+      const fs::path dataset = frames.parent_path() / "dataset.yaml";
+      if (fs::exists(dataset) && DatasetExposure(dataset.string(), &e.value)) {
+        e.known = true;
+        e.from = dataset.string();
+        break;
+      }
+    }
+  }
+  if (!e.known) e.value = 1;
   return e;
 }
 
 double HeldExposure(const ImagesExposure& exposure, const FitOptions& fit, const std::string& job) {
   if (!(exposure.value >= fit.exposure_min && exposure.value <= fit.exposure_max))
-    throw InputError(job + ": the images' exposure " + std::to_string(exposure.value) +
-                     " (--exposure, or dataset.yaml beside the rig) is outside the fit's range [" +
-                     std::to_string(fit.exposure_min) + ", " + std::to_string(fit.exposure_max) +
-                     "]");
+    throw InputError(job + ": the images' exposure " + std::to_string(exposure.value) + " (" +
+                     (exposure.from.empty() ? std::string("unknown") : exposure.from) +
+                     ") is outside the fit's range [" + std::to_string(fit.exposure_min) + ", " +
+                     std::to_string(fit.exposure_max) + "]");
   return exposure.value;
 }
 

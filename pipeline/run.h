@@ -234,13 +234,18 @@ std::string FrameName(std::size_t i);
 // there is none). InputError naming dataset.yaml when it is malformed.
 bool DatasetExposure(const std::string& rig_path, double* exposure);
 
-// The exposure of a job's images: `given` when > 0, else the dataset's beside the rig; known when
-// one of them says. Unknown: value 1 (the tomography's), and the fit finds its own.
+// The exposure of a job's images: `given` when > 0, else the dataset's beside the rig, else that of
+// the `flamerig simulate` dataset the images belong to (`images_dir` is DATASET/frames or a
+// DATASET/frames/frame_NNNNNN beside DATASET/dataset.yaml: a rig calibrated elsewhere, e.g. by
+// calibrate-radiometry, films the same images); known when one of them says, `from` naming it.
+// Unknown: value 1 (the tomography's), and the fit finds its own, the densities relative to it.
 struct ImagesExposure {
   double value = 1;
   bool known = false;
+  std::string from;  // "--exposure" or the dataset.yaml that gave it; empty when unknown
 };
-ImagesExposure ResolveExposure(double given, const std::string& rig_path);
+ImagesExposure ResolveExposure(double given, const std::string& rig_path,
+                               const std::string& images_dir = "");
 // `exposure.value`, checked against the fit's exposure range, for a fit that holds it; InputError
 // naming `job` and where the value came from when it lies outside.
 double HeldExposure(const ImagesExposure& exposure, const FitOptions& fit, const std::string& job);

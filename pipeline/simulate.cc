@@ -14,6 +14,7 @@
 #include "core/atomic_file.h"
 #include "core/config_reader.h"
 #include "core/error.h"
+#include "fitting/camera_response.h"
 #include "pipeline/frame_source.h"
 #include "pipeline/picture.h"
 #include "pipeline/radiometric_calibration.h"
@@ -292,6 +293,23 @@ void SimulateConfig::Validate() const {
            "]: a centre > 0 nm and a width > 0 nm, or [0, 0] for none");
   }
   radiometry.Validate("simulate");
+  // Every camera as it will be filmed, checked before anything is written: the rig's reader
+  // refuses what its Validate refuses (a filter at 100 nm), and a filter where the sensor sees
+  // nothing (5000 nm) left a half-written dataset that a second run would not overwrite.
+  if (!camera_filters.empty() || !camera_gains.empty())
+    for (int c = 0; c < ring.cameras; ++c) {
+      const std::string where =
+          "simulate: camera " + std::to_string(c) +
+          (c < int(camera_filters.size()) ? " (camera_filters[" + std::to_string(c) + "])"
+                                          : std::string());
+      const CameraRadiometry film = CameraFilm(std::size_t(c));
+      film.Validate(where);
+      try {
+        ChannelResponse::ForCamera(film);
+      } catch (const InputError& e) {
+        throw InputError(where + ": " + e.what());
+      }
+    }
   if (radiometric_calibration.enabled) {
     const auto& rc = radiometric_calibration;
     if (rc.temperatures_k.empty() || rc.levels.empty())
@@ -409,16 +427,9 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
     p.total = total;
     if (ReportProgress(progress, p)) throw Cancelled("simulate: cancelled");
   };
-  ClearEarlierSimulation(out_dir);
-  fs::create_directories(out_dir);
-  SimulateSummary summary;
-  summary.out_dir = out_dir;
-
   Rig rig = synthetic::MakeRingRig(config.box, config.ring, "sim");
   for (std::size_t c = 0; c < rig.cameras.size(); ++c)
     rig.cameras[c].radiometry = config.CameraFilm(c);
-  rig.Save((fs::path(out_dir) / "rig.yaml").string());
-  summary.cameras = static_cast<int>(rig.cameras.size());
 
   const AbsorptionModel absorption = AbsorptionModel::FromName(config.absorption);
   const GridGeometry grid = GridGeometry::FromBox(config.box, config.grid_resolution);
@@ -442,6 +453,13 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
       }
     }
   }
+  // Nothing is written before the renderers stand: a camera they refuse leaves no half dataset.
+  ClearEarlierSimulation(out_dir);
+  fs::create_directories(out_dir);
+  SimulateSummary summary;
+  summary.out_dir = out_dir;
+  rig.Save((fs::path(out_dir) / "rig.yaml").string());
+  summary.cameras = static_cast<int>(rig.cameras.size());
   std::vector<CameraRays> rays;  // through the pixels' centres (pixel_samples 1)
   if (config.pixel_samples == 1)
     for (const auto& c : rig.cameras) rays.emplace_back(c.model);

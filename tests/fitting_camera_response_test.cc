@@ -118,6 +118,40 @@ TEST(ChannelResponse, AThickSlabSeenByANarrowBandCameraIsPlancksLaw) {
     EXPECT_NEAR(image.at(20, 15, c), Planck(centres[c], 1600), 1e-3 * Planck(centres[c], 1600));
 }
 
+// Soot's absorption depends on wavelength, so it takes the spectral path: a thick soot slab seen by
+// near-infrared mono cameras (850 and 1050 nm, the long band of a two-colour pyrometer) is
+// Planck's law at their wavelengths, from bins put where each camera responds (the observer's
+// 380..780 nm rendered an 850 nm camera nearly black). A 650/40 nm camera needs 17 bins.
+TEST(ChannelResponse, NearInfraredCamerasSeeSootAtTheirOwnWavelengths) {
+  const Box3 box{Eigen::Vector3d(-0.5, -0.5, -0.01), Eigen::Vector3d(0.5, 0.5, 0.01)};
+  const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
+  const GridGeometry grid = GridGeometry::FromBoxAndDims(box, Eigen::Vector3i(4, 4, 4));
+  const std::vector<float> t(grid.num_voxels(), 1600.0f),
+      n(grid.num_voxels(), static_cast<float>(1e6 / soot.CrossSectionM2(1100)));
+  for (double centre : {850.0, 1050.0}) {
+    SCOPED_TRACE(centre);
+    RenderOptions options;
+    options.response = ChannelResponse::ForCamera(Bands({{centre, 2}}));
+    EXPECT_LE(options.response->support_first_nm(), centre - 2);
+    EXPECT_GE(options.response->support_last_nm(), centre + 2);
+    EXPECT_LT(options.response->support_last_nm() - options.response->support_first_nm(), 20);
+    FireRenderer renderer(soot, options);
+    renderer.SetVolume(grid, t, n);
+    ImageF image;
+    const RenderSummary summary = renderer.Render(CameraRays(AxisCamera(1.0, 41, 31, 60)), &image);
+    EXPECT_EQ(summary.path_used, SpectralPath::kSpectral);
+    EXPECT_LE(summary.spectral_bins, 2);
+    for (int c = 0; c < 3; ++c)
+      EXPECT_NEAR(image.at(20, 15, c), Planck(centre, 1600), 2e-3 * Planck(centre, 1600));
+  }
+  RenderOptions red;
+  red.response = ChannelResponse::ForCamera(Bands({{650, 40}}));
+  FireRenderer renderer(soot, red);
+  renderer.SetVolume(grid, t, n);
+  ImageF image;
+  EXPECT_EQ(renderer.Render(CameraRays(AxisCamera(1.0, 9, 9, 12)), &image).spectral_bins, 17);
+}
+
 TEST(ChannelResponse, FastAndSpectralPathsAgreeForACamera) {
   const Box3 box{Eigen::Vector3d(-0.02, -0.02, -0.02), Eigen::Vector3d(0.02, 0.02, 0.02)};
   const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
@@ -131,23 +165,29 @@ TEST(ChannelResponse, FastAndSpectralPathsAgreeForACamera) {
         n[grid.Flat(i, j, k)] =
             r2 < 1 ? static_cast<float>(60 * (1 - r2) / grey.CrossSectionM2(550)) : 0.0f;
       }
-  RenderOptions fast_options, spectral_options;
-  fast_options.response = ChannelResponse::ForCamera(Bands({{610, 60}, {530, 60}, {460, 60}}));
-  spectral_options = fast_options;
-  spectral_options.path = SpectralPath::kSpectral;
-  spectral_options.spectral_step_nm = 5;
-  FireRenderer fast(grey, fast_options), spectral(grey, spectral_options);
-  fast.SetVolume(grid, t, n);
-  spectral.SetVolume(grid, t, n);
-  const CameraRays rays(AxisCamera(0.3, 41, 41, 250));
-  ImageF a, b;
-  fast.Render(rays, &a);
-  spectral.Render(rays, &b);
-  double peak = 0;
-  for (float v : a.pixels) peak = std::max(peak, double(v));
-  ASSERT_GT(peak, 0);
-  for (std::size_t i = 0; i < a.pixels.size(); ++i)
-    ASSERT_NEAR(a.pixels[i], b.pixels[i], 2e-3 * peak) << i;
+  // A colour camera, and a mono camera in the near infrared behind a filter (whose light the
+  // observer's 380..780 nm bins missed).
+  for (const CameraRadiometry& camera :
+       {Bands({{610, 60}, {530, 60}, {460, 60}}), Bands({{850, 40}})}) {
+    RenderOptions fast_options, spectral_options;
+    fast_options.response = ChannelResponse::ForCamera(camera);
+    SCOPED_TRACE(fast_options.response->name());
+    spectral_options = fast_options;
+    spectral_options.path = SpectralPath::kSpectral;
+    spectral_options.spectral_step_nm = 5;
+    FireRenderer fast(grey, fast_options), spectral(grey, spectral_options);
+    fast.SetVolume(grid, t, n);
+    spectral.SetVolume(grid, t, n);
+    const CameraRays rays(AxisCamera(0.3, 41, 41, 250));
+    ImageF a, b;
+    fast.Render(rays, &a);
+    spectral.Render(rays, &b);
+    double peak = 0;
+    for (float v : a.pixels) peak = std::max(peak, double(v));
+    ASSERT_GT(peak, 0);
+    for (std::size_t i = 0; i < a.pixels.size(); ++i)
+      ASSERT_NEAR(a.pixels[i], b.pixels[i], 2e-3 * peak) << i;
+  }
 }
 
 TEST(ChannelResponse, ExtremeTemperaturesStayFinite) {

@@ -13,7 +13,9 @@
 
 #include "calibration/synthetic_rig.h"
 #include "core/error.h"
+#include "core/format.h"
 #include "fitting/camera_response.h"
+#include "fitting/colour.h"
 #include "pipeline/fit_job.h"
 #include "pipeline/radiometric_calibration.h"
 #include "pipeline/simulate.h"
@@ -122,6 +124,76 @@ TEST(RadiometricCalibration, RecoversTheGainsAndBlackLevelOfALinearCamera) {
   const Rig back = Rig::Load((dir / "out" / "rig.yaml").string());
   EXPECT_NEAR(back.cameras[0].radiometry.gain[2], r.after.gain[2], 1e-6 * r.after.gain[2]);
   EXPECT_NEAR(back.cameras[0].radiometry.black_level, r.after.black_level, 1e-6);
+  fs::remove_all(dir);
+}
+
+// Shots that cannot fit the black level (one level per temperature, their signals within a factor
+// 1.5 of each other in a channel) and a datasheet that says black 0 for a camera whose offset is
+// 64 DN: the dark pixels around the source give it, and the gains come out right. Held at 0 as
+// before, the gains were up to 5 times off (blue 7.4 for 1.45) with residuals of 24 DN and no word
+// of the black level. Held by the user (fit_black_level false), a warning names both levels.
+TEST(RadiometricCalibration, ShotsThatCannotFitTheBlackLevelTakeItFromTheDarkPixels) {
+  const fs::path dir = TempDir("dark");
+  Rig rig = SmallRig();
+  CameraRadiometry film = BandCamera12();
+  film.gain = Eigen::Vector3d(0.7, 1.1, 1.2);
+  film.black_level = 64;
+  rig.cameras[0].radiometry = BandCamera12();  // black 0
+  const RadiometricShots shots =
+      Film(dir, rig.cameras[0].name, film, {1600, 1700, 1800}, {0.6}, /*noise_dn=*/0.25);
+  const RadiometricCalibration cal = CalibrateRadiometry(rig, shots, RadiometricOptions());
+  const CameraRadiometricResult& r = cal.cameras.at(0);
+  std::printf("%s", cal.Brief().c_str());
+  EXPECT_FALSE(r.fitted_black_level);
+  EXPECT_TRUE(r.black_level_from_dark);
+  EXPECT_NEAR(r.after.black_level, 64, 2.0);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(r.after.gain[c] / film.gain[c], 1.0, 0.01) << c;
+  ASSERT_FALSE(r.notes.empty());
+  EXPECT_NE(r.notes.front().find("the dark pixels' median"), std::string::npos) << r.notes.front();
+  EXPECT_NE(cal.Report().find("(dark pixels)"), std::string::npos);
+
+  RadiometricOptions hold;
+  hold.fit_black_level = false;
+  const RadiometricCalibration held = CalibrateRadiometry(rig, shots, hold);
+  const CameraRadiometricResult& h = held.cameras.at(0);
+  EXPECT_FALSE(h.black_level_from_dark);
+  EXPECT_EQ(h.after.black_level, 0);
+  bool named = false;
+  for (const std::string& w : h.warnings)
+    named |= w.find("the dark pixels around the source read " + FormatNumber(h.dark_level_dn, 4) +
+                    " DN, the model's black level is 0 DN (held)") != std::string::npos;
+  EXPECT_NEAR(h.dark_level_dn, 64, 2.0);
+  EXPECT_TRUE(named) << (h.warnings.empty() ? "no warning" : h.warnings.front());
+  fs::remove_all(dir);
+}
+
+// The sRGB observer's blue of a black body below about 2000 K is negative (outside the sRGB
+// gamut): such shots say nothing of the blue gain, and the error says from which temperature
+// they would (the closed form: the first 50 K step at which the observer's blue is positive).
+TEST(RadiometricCalibration, ShotsTooCoolForTheSrgbObserversBlueNameTheTemperatureNeeded) {
+  const fs::path dir = TempDir("srgb_cool");
+  Rig rig = SmallRig();
+  CameraRadiometry srgb;
+  srgb.transfer = TransferFunction::kLinear;
+  srgb.bit_depth = 12;
+  rig.cameras[0].radiometry = srgb;
+  const RadiometricShots shots =
+      Film(dir, rig.cameras[0].name, srgb, kTemperatures, {0.3, 0.6}, /*noise_dn=*/0.25);
+  double from = 0;
+  for (double t = 1000; t <= 20000 && from == 0; t += 50)
+    if ((colour::LinearSrgbFromXyz() * colour::BlackbodyXyz(t))[2] > 0) from = t;
+  ASSERT_GT(from, 1900);
+  try {
+    CalibrateRadiometry(rig, shots, RadiometricOptions());
+    ADD_FAILURE() << "no error";
+  } catch (const InputError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("no usable shot for channel 2"), std::string::npos) << what;
+    EXPECT_NE(what.find("at 1300 to 1900 K no signal"), std::string::npos) << what;
+    EXPECT_NE(what.find("film the source at " + FormatNumber(from, 5) + " K or hotter"),
+              std::string::npos)
+        << what;
+  }
   fs::remove_all(dir);
 }
 
@@ -251,7 +323,15 @@ TEST(RadiometricCalibration, BadShotsAreRefusedNamingWhatAndWhere) {
        "exposure: 1}]\n",
        "unknown key 'regoin'"},
       {"shots: [{camera: cam0, image: a.png, temperature_k: 1500, exposure: 1, colour: red}]\n",
-       "shots[0]: unknown key 'colour'"}};
+       "shots[0]: unknown key 'colour'"},
+      // Not a number: named with its field and value (yaml-cpp said "bad conversion" at a line).
+      {"shots: [{camera: cam0, image: a.png, temperature_k: nan, exposure: 1}]\n",
+       "shots[0]: temperature_k: 'nan' is not a number"},
+      {"shots: [{camera: cam0, image: a.png, temperature_k: 1500, exposure: 1 ms}]\n",
+       "shots[0]: exposure: '1 ms' is not a number"},
+      {"source: {kind: blackbody, emissivity: high}\nshots: [{camera: cam0, image: a.png, "
+       "temperature_k: 1500, exposure: 1}]\n",
+       "source.emissivity: 'high' is not a number"}};
   for (const auto& [text, said] : misspelt) {
     std::ofstream(dir / "misspelt.yaml") << text;
     try {
@@ -364,6 +444,19 @@ TEST(RadiometricCalibration, EndToEndTheCalibratedRigFitsTheTemperaturesOfTheTru
       EXPECT_NEAR(cal.cameras[c].after.gain[k] / config.camera_gains[c][k], 1.0, 0.005);
   EXPECT_TRUE(fs::exists(dir / "calibrated" / "report.md"));
   EXPECT_TRUE(fs::exists(dir / "calibrated" / "shots.csv"));
+  // Into the rig's own folder (by another spelling of it): refused before any work, the datasheet
+  // rig untouched.
+  const auto datasheet_time = fs::last_write_time(dir / "datasheet" / "rig.yaml");
+  try {
+    RunRadiometricCalibration(
+        (dir / "datasheet" / "rig.yaml").string(), (data / "radiometry" / "shots.yaml").string(),
+        (dir / "datasheet" / ".." / "datasheet" / ".").string(), RadiometricOptions());
+    ADD_FAILURE() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("would overwrite the rig"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(fs::last_write_time(dir / "datasheet" / "rig.yaml"), datasheet_time);
+  EXPECT_FALSE(fs::exists(dir / "datasheet" / "report.md"));
 
   const TruthError uncalibrated = FitWith(data, (dir / "datasheet" / "rig.yaml").string(),
                                           s.exposure, dir / "fit_uncalibrated");

@@ -128,5 +128,40 @@ TEST(Simulate, PixelSamplesKeepTheLightAndSoftenTheEdges) {
   fs::remove_all(dir);
 }
 
+// Filters the rig's reader would refuse (100 nm), or where the sensor sees nothing (5000 nm), are
+// refused before anything is written, naming the camera and its filter: the dataset was once
+// half-written, its rig unreadable, and a second run into the same folder refused.
+TEST(Simulate, CameraFiltersARigCannotHoldAreRefusedBeforeAnythingIsWritten) {
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_simulate_filters_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  SimulateConfig c;
+  c.frames = 1;
+  c.grid_resolution = 16;
+  c.ring.cameras = 2;
+  c.ring.width = 40;
+  c.ring.height = 30;
+  c.calibration = false;
+  c.radiometry.transfer = TransferFunction::kLinear;
+  c.radiometry.bit_depth = 12;
+  c.radiometry.spectral.kind = SpectralSensitivity::Kind::kBands;
+  c.radiometry.spectral.bands = {{700, 400}};
+  for (const auto& [filter, says] :
+       {std::pair{SpectralBand{100, 40},
+                  "camera 1 (camera_filters[1]): radiometry.filter: "
+                  "'centre_nm' must be in [200, 2000], got 100"},
+        std::pair{SpectralBand{1900, 40}, "camera 1 (camera_filters[1]): camera response"}}) {
+    c.camera_filters = {SpectralBand{650, 40}, filter};
+    try {
+      Simulate(c, dir.string());
+      ADD_FAILURE() << "no error for " << filter.centre_nm;
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find(says), std::string::npos) << e.what();
+    }
+    EXPECT_FALSE(fs::exists(dir / "rig.yaml")) << filter.centre_nm;
+  }
+  fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace flamerig

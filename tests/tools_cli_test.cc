@@ -294,7 +294,7 @@ TEST(Cli, ReconstructASimulatedFrameSet) {
                         (dir / "data" / "truth" / "frame_000000.vdb").string() + " --cache " +
                         (dir / "cache").string());
   ASSERT_EQ(rec.status, 0) << rec.output;
-  EXPECT_NE(rec.output.find("from dataset.yaml"), std::string::npos)
+  EXPECT_NE(rec.output.find("from " + (dir / "data" / "dataset.yaml").string()), std::string::npos)
       << rec.output;  // exposure found
   EXPECT_NE(rec.output.find("relative L2"), std::string::npos) << rec.output;
   EXPECT_TRUE(fs::exists(out));
@@ -585,6 +585,30 @@ TEST(Cli, CalibrateRadiometryRecoversTheConfigsGains) {
   }
   EXPECT_TRUE(fs::exists(dir / "cal" / "report.md"));
   EXPECT_TRUE(fs::exists(dir / "cal" / "cameras" / "cam0.cameramodel"));
+  // The recipe's next step: fit the dataset's images through the calibrated rig, which has no
+  // dataset.yaml beside it. The exposure is the images' dataset's, held (it was fitted, 10 times
+  // off, and the soot 7 times the truth's, without a word); images from nowhere known have none,
+  // and the fit says what that costs. The soot's peak comes with its 99th percentile.
+  const fs::path frame = dir / "data" / "frames" / "frame_000000";
+  Result fit =
+      Flamerig("fit --rig " + (dir / "cal" / "rig.yaml").string() + " --images " + frame.string() +
+               " --out " + (dir / "fit" / "f.vdb").string() + " --resolution 16");
+  ASSERT_EQ(fit.status, 0) << fit.output;
+  EXPECT_NE(fit.output.find("dataset.yaml), held"), std::string::npos) << fit.output;
+  EXPECT_NE(fit.output.find("99% of the "), std::string::npos) << fit.output;
+  fs::create_directories(dir / "loose");
+  fs::copy(frame, dir / "loose" / "frame_000000", fs::copy_options::recursive);
+  Result loose = Flamerig("fit --rig " + (dir / "cal" / "rig.yaml").string() + " --images " +
+                          (dir / "loose" / "frame_000000").string() + " --out " +
+                          (dir / "fit" / "g.vdb").string() + " --resolution 16");
+  ASSERT_EQ(loose.status, 0) << loose.output;
+  EXPECT_NE(loose.output.find("the images' exposure is unknown"), std::string::npos)
+      << loose.output;
+  // Into the datasheet rig's own folder: refused, the datasheet kept.
+  Result over = Flamerig("calibrate-radiometry --rig " + (dir / "datasheet" / "rig.yaml").string() +
+                         " --shots " + shots + " --out " + (dir / "datasheet").string());
+  EXPECT_EQ(over.status, 1) << over.output;
+  EXPECT_NE(over.output.find("would overwrite the rig"), std::string::npos) << over.output;
   // A shot of a camera the rig lacks: status 1, naming it, and no rig written.
   std::ofstream(dir / "bad.yaml") << "shots:\n  - {camera: cam7, image: data/radiometry/"
                                      "cam0_1300K_2.png, temperature_k: 1300, exposure: 1}\n";
