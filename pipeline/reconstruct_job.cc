@@ -7,7 +7,6 @@
 #include <filesystem>
 
 #include "core/error.h"
-#include "fitting/camera_response.h"
 #include "fitting/renderer.h"
 #include "pipeline/frame_source.h"
 #include "pipeline/picture.h"
@@ -120,9 +119,11 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
   // the sRGB observer (a truth's emission is linear sRGB, so only then can they be compared).
   std::string channels;
   for (const RigCamera& c : rig.cameras) {
-    const auto response = ChannelResponse::ForCamera(c.radiometry);
-    if (!response->basis_is_xyz() && channels.find(response->name()) == std::string::npos)
-      channels += (channels.empty() ? "" : "; ") + response->name();
+    // The response's kind and name (ChannelResponse::name), without building its tables.
+    const SpectralSensitivity& s = c.radiometry.spectral;
+    if (s.kind != SpectralSensitivity::Kind::kSrgbObserver &&
+        channels.find(s.Describe()) == std::string::npos)
+      channels += (channels.empty() ? "" : "; ") + s.Describe();
   }
   options.keep_masks = options.keep_masks || !job.masks_dir.empty() || !job.report_dir.empty();
   options.keep_coarse_matrix = false;  // one frame

@@ -304,8 +304,11 @@ void SimulateConfig::Validate() const {
                                           : std::string());
       const CameraRadiometry film = CameraFilm(std::size_t(c));
       film.Validate(where);
+      // Without its gains, as the renderers below take it: the same cached response, built once.
+      CameraRadiometry spectral = radiometry;
+      spectral.spectral = film.spectral;
       try {
-        ChannelResponse::ForCamera(film);
+        ChannelResponse::ForCamera(spectral);
       } catch (const InputError& e) {
         throw InputError(where + ": " + e.what());
       }
