@@ -19,6 +19,8 @@
 #include <set>
 #include <sstream>
 
+#include <spdlog/fmt/fmt.h>
+
 #include "acquisition/frame.h"
 #include "acquisition/recording.h"
 #include "core/atomic_file.h"
@@ -35,14 +37,34 @@ namespace fs = std::filesystem;
 void CalibrationOptions::Validate() const {
   mrcal_lensmodel_t lm;
   if (!mrcal_lensmodel_from_name(&lm, lensmodel.c_str()) || !mrcal_lensmodel_type_is_valid(lm.type))
-    throw InputError("calibration: lensmodel '" + lensmodel + "' is not an mrcal lens model name");
-  if (!mrcal_lensmodel_metadata(&lm).has_core)
-    throw InputError("calibration: lensmodel '" + lensmodel +
+    throw InputError("calibrate.lensmodel: '" + lensmodel + "' is not an mrcal lens model name");
+  const mrcal_lensmodel_metadata_t meta = mrcal_lensmodel_metadata(&lm);
+  if (!meta.has_core)
+    throw InputError("calibrate.lensmodel: '" + lensmodel +
                      "' has no fx fy cx cy core; use a PINHOLE or OPENCV model");
-  if (!(focal_px >= 0) || !std::isfinite(focal_px))
-    throw InputError("calibration: focal_px must be >= 0 (0: estimate)");
-  if (min_views_per_camera < 1) throw InputError("calibration: min_views_per_camera must be >= 1");
-  if (!ring_origin_m.allFinite()) throw InputError("calibration: ring_origin must be finite");
+  // mrcal_optimize needs the model's gradients, which CAHVORE does not have (mrcal aborts).
+  if (!meta.has_gradients)
+    throw InputError("calibrate.lensmodel: '" + lensmodel +
+                     "' has no gradients in mrcal, so mrcal cannot solve for it; use CAHVOR or an "
+                     "OPENCV or SPLINED_STEREOGRAPHIC model");
+  // mrcal's splines are quadratic or cubic, on a grid of at least order + 1 knots a side (it
+  // aborts otherwise).
+  if (lm.type == MRCAL_LENSMODEL_SPLINED_STEREOGRAPHIC) {
+    const auto& cfg = lm.LENSMODEL_SPLINED_STEREOGRAPHIC__config;
+    if (cfg.order != 2 && cfg.order != 3)
+      throw InputError("calibrate.lensmodel: '" + lensmodel + "': order must be 2 or 3, got " +
+                       std::to_string(cfg.order));
+    if (cfg.Nx < cfg.order + 1 || cfg.Ny < cfg.order + 1)
+      throw InputError("calibrate.lensmodel: '" + lensmodel + "': Nx and Ny must be at least " +
+                       std::to_string(cfg.order + 1) + " for order " + std::to_string(cfg.order));
+    if (cfg.fov_x_deg == 0 || cfg.fov_x_deg >= 360)
+      throw InputError("calibrate.lensmodel: '" + lensmodel + "': fov_x_deg must be in (0, 360)");
+  }
+  if (!(focal_px >= 0 && focal_px <= 1e6))
+    throw InputError("calibrate.focal_px: must be 0 (estimate) or a focal length in (0, 1e6] px");
+  if (min_views_per_camera < 1) throw InputError("calibrate.min_views_per_camera: must be >= 1");
+  if (!ring_origin_m.allFinite()) throw InputError("calibrate.ring_origin: must be finite");
+  if (rig_name.empty()) throw InputError("calibrate.name: must not be empty");
 }
 
 // ---- Detection
@@ -324,6 +346,11 @@ std::vector<std::string> OrderCameras(const std::set<std::string>& found,
                                       const std::string& where) {
   if (found.empty()) throw CalibrationError(where + ": no camera images found");
   if (requested.empty()) return {found.begin(), found.end()};
+  for (std::size_t i = 0; i < requested.size(); ++i)
+    for (std::size_t j = 0; j < i; ++j)
+      if (requested[i] == requested[j])
+        throw CalibrationError(where + ": camera " + requested[i] +
+                               " is listed twice in 'cameras'");
   for (const auto& name : requested)
     if (!found.count(name))
       throw CalibrationError(where + ": camera " + name + " has no images there");
@@ -535,6 +562,65 @@ Eigen::Vector3d WarpedCorner(const Eigen::Vector3d& corner, const BoardSpec& boa
   return corner + Eigen::Vector3d(0, 0, warp.x2 * (1 - xr * xr) + warp.y2 * (1 - yr * yr));
 }
 
+// When detection refused images because their corners did not fit the board (board.cc: "wrong
+// board size or dictionary?"), a sentence saying how many, for the errors that follow from too few
+// views; otherwise empty.
+std::string BoardMisfitHint(const CalibrationData& data) {
+  int misfit = 0, images = 0;
+  for (const auto& failures : data.failures_per_camera)
+    for (const auto& f : failures)
+      if (f.find("wrong board size") != std::string::npos) ++misfit;
+  for (int n : data.images_per_camera) images += n;
+  if (misfit == 0) return "";
+  return "; " + std::to_string(misfit) + " of " + std::to_string(images) +
+         " images were refused because their corners do not fit the board described (" +
+         data.board.Describe() + "): check its squares, square size and dictionary";
+}
+
+// A solve can converge on nonsense: a board described with the wrong number of squares puts every
+// corner at the wrong place, and mrcal then fits a focal length under a pixel at 45 px RMS. Such a
+// calibration is refused (not written): intrinsics no lens gives (a focal length outside 0.05 to
+// 100 times the imager's larger side, a principal point more than half the imager outside it),
+// checked before the models are made of them, or a camera's inlier RMS over kRefusedRmsPx; over
+// kWarnedRmsPx (a detector's corners are good to a few tenths of a pixel) a warning in the notes.
+constexpr double kRefusedRmsPx = 10, kWarnedRmsPx = 2;
+void CheckSolvedIntrinsics(const CalibrationData& data, const std::vector<double>& intrinsics,
+                           int num_params) {
+  for (std::size_t c = 0; c < data.camera_names.size(); ++c) {
+    const double* in = intrinsics.data() + c * num_params;
+    const double w = data.widths[c], h = data.heights[c], side = std::max(w, h);
+    const std::string& name = data.camera_names[c];
+    const std::string imager = fmt::format("its {}x{} imager", w, h);
+    if (!(std::min(in[0], in[1]) >= 0.05 * side && std::max(in[0], in[1]) <= 100 * side))
+      throw CalibrationError(fmt::format(
+          "camera {}: the solve gives focal lengths of {:.4g} and {:.4g} px for {} (a lens gives "
+          "0.05 to 100 times its larger side): not a calibration{}",
+          name, in[0], in[1], imager, BoardMisfitHint(data)));
+    if (!(in[2] >= -0.5 * w && in[2] <= 1.5 * w && in[3] >= -0.5 * h && in[3] <= 1.5 * h))
+      throw CalibrationError(fmt::format(
+          "camera {}: the solve puts the principal point at ({:.4g}, {:.4g}) px, more than half "
+          "of {} outside it: not a calibration{}",
+          name, in[2], in[3], imager, BoardMisfitHint(data)));
+  }
+}
+void CheckSolvedResiduals(const CalibrationData& data, CalibrationSummary* summary) {
+  for (std::size_t c = 0; c < data.camera_names.size(); ++c) {
+    const std::string& name = data.camera_names[c];
+    const double rms = summary->cameras[c].rms_px_per_point;
+    if (rms > kRefusedRmsPx)
+      throw CalibrationError(fmt::format(
+          "camera {}: the solve's corners are {:.3g} px RMS from where its model puts them "
+          "(refused above {} px; a board's detected corners are good to a few tenths): a wrong "
+          "board description or lens model{}",
+          name, rms, kRefusedRmsPx, BoardMisfitHint(data)));
+    if (rms > kWarnedRmsPx)
+      summary->notes.push_back(fmt::format(
+          "WARNING: camera {}: RMS {:.3g} px per point, more than {} px: check the board's "
+          "description, the lens model and the worst corners below",
+          name, rms, kWarnedRmsPx));
+  }
+}
+
 }  // namespace
 
 CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptions& options,
@@ -566,11 +652,12 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
                              std::to_string(c < static_cast<int>(data.images_per_camera.size())
                                                 ? data.images_per_camera[c]
                                                 : 0) +
-                             " images" + why);
+                             " images" + why + BoardMisfitHint(data));
     if (views_of[c] < options.min_views_per_camera)
       throw CalibrationError("camera " + name + " sees the board in only " +
                              std::to_string(views_of[c]) + " views (at least " +
-                             std::to_string(options.min_views_per_camera) + " needed)" + why);
+                             std::to_string(options.min_views_per_camera) + " needed)" + why +
+                             BoardMisfitHint(data));
   }
 
   // Intrinsics seeds: a pinhole core from the board homographies (or the focal given).
@@ -686,7 +773,8 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
     if (!lost.empty())
       throw CalibrationError("the camera graph is disconnected: camera(s) " + lost +
                              " share no board view with " + data.camera_names[0] + "'s group (" +
-                             linked + "); record views that neighbouring cameras see together");
+                             linked + "); record views that neighbouring cameras see together" +
+                             BoardMisfitHint(data));
   }
 
   // The ring frame's precondition, on these first poses: a rig whose axes do not meet is refused
@@ -768,8 +856,11 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
     p.unit = "solves";
     p.done = done;
     p.total = 2;
-    if (ReportProgress(progress, p) && done < 2)
-      throw Cancelled("calibration: cancelled before the solve");
+    // mrcal's solves cannot be stopped half way: a cancel is taken between them and after the
+    // last (nothing is written then).
+    if (ReportProgress(progress, p))
+      throw Cancelled(done < 2 ? "calibration: cancelled before the solve"
+                               : "calibration: cancelled after the solve; nothing written");
   };
   report(0);
   mrcal_stats_t stats = solve(false, false, false);
@@ -782,6 +873,7 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
   for (double v : intrinsics)
     if (!std::isfinite(v))
       throw CalibrationError("calibration: the solve gave non-finite intrinsics");
+  CheckSolvedIntrinsics(data, intrinsics, num_params);
 
   // The rig in the chosen frame.
   std::vector<Rigid3> solved_cam_from_ref(num_cameras);
@@ -892,6 +984,7 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
     s.p95_px = Percentile(v, 0.95);
     s.max_px = v.empty() ? 0 : *std::max_element(v.begin(), v.end());
   }
+  CheckSolvedResiduals(data, &summary);
   std::vector<ObservationError> sorted;
   for (const auto& e : summary.errors)
     if (!e.outlier) sorted.push_back(e);
@@ -913,7 +1006,8 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
 ProjectionUncertainty EstimateProjectionUncertainty(const CalibrationData& data,
                                                     const CalibrationSummary& summary,
                                                     const CalibrationOptions& options, int trials,
-                                                    double voxel_m, std::uint64_t seed) {
+                                                    double voxel_m, std::uint64_t seed,
+                                                    const CalibrationProgress& progress) {
   if (trials < 2) throw InputError("projection uncertainty: need at least 2 trials");
   if (!(voxel_m > 0) || !std::isfinite(voxel_m))
     throw InputError("projection uncertainty: the voxel size must be > 0");
@@ -966,6 +1060,14 @@ ProjectionUncertainty EstimateProjectionUncertainty(const CalibrationData& data,
   CalibrationOptions trial_options = options;
   trial_options.box = rig.box;  // the same box; no note about it
   for (int t = 0; t < trials; ++t) {
+    Progress p;
+    p.stage = "uncertainty";
+    p.unit = "solves";
+    p.done = t;
+    p.total = trials;
+    if (ReportProgress(progress, p))
+      throw Cancelled("projection uncertainty: cancelled after " + std::to_string(t) + " of " +
+                      std::to_string(trials) + " solves");
     CalibrationData noisy = exact;
     for (auto& o : noisy.observations)
       for (auto& p : o.detection.corners_px) p += Eigen::Vector2d(noise(rng), noise(rng));
@@ -1062,7 +1164,7 @@ std::string MrcalImageExtension(const std::string& source) {
 
 void WriteMrcalCorners(const CalibrationData& data, const std::string& path,
                        const std::string& dir_prefix) {
-  std::ofstream out(path);
+  std::ostringstream out;
   out << "# filename x y level\n";
   const int n = data.board.num_corners();
   char buf[128];
@@ -1080,7 +1182,11 @@ void WriteMrcalCorners(const CalibrationData& data, const std::string& path,
       out << name << buf;
     }
   }
-  if (!out) throw CalibrationError(path + ": cannot write mrcal's corners file");
+  try {
+    WriteFileAtomically(path, out.str());
+  } catch (const std::exception& e) {
+    throw CalibrationError(path + ": cannot write mrcal's corners file: " + e.what());
+  }
 }
 
 }  // namespace flamerig

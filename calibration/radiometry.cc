@@ -38,8 +38,8 @@ SpectralBand ReadBand(const YAML::Node& node, const std::string& where) {
   CheckKeys(node, {"centre_nm", "fwhm_nm"}, where);
   ConfigReader r(node, where);
   SpectralBand b;
-  b.centre_nm = r.Range("centre_nm", 0, 200, 2000);
-  b.fwhm_nm = r.Range("fwhm_nm", 0, 0.1, 2000);
+  b.centre_nm = r.Range("centre_nm", 0, kMinWavelengthNm, kMaxWavelengthNm);
+  b.fwhm_nm = r.Range("fwhm_nm", 0, kMinBandFwhmNm, kMaxBandFwhmNm);
   return b;
 }
 
@@ -59,10 +59,12 @@ void CheckTable(const SpectralSensitivity& s, const std::string& where) {
     throw InputError(where + ": a sensitivity table has 1 (mono) or 3 (colour) channels, got " +
                      std::to_string(s.columns.size()));
   for (std::size_t i = 0; i < n; ++i) {
-    if (!std::isfinite(s.wavelengths_nm[i]) || s.wavelengths_nm[i] < 200 ||
-        s.wavelengths_nm[i] > 2000)
+    if (!std::isfinite(s.wavelengths_nm[i]) || s.wavelengths_nm[i] < kMinWavelengthNm ||
+        s.wavelengths_nm[i] > kMaxWavelengthNm)
       throw InputError(where + ": row " + std::to_string(i + 1) + ": wavelength " +
-                       FormatNumber(s.wavelengths_nm[i]) + " nm is not in [200, 2000]");
+                       FormatNumber(s.wavelengths_nm[i]) + " nm is not in [" +
+                       FormatNumber(kMinWavelengthNm) + ", " + FormatNumber(kMaxWavelengthNm) +
+                       "]");
     if (i > 0 && !(s.wavelengths_nm[i] > s.wavelengths_nm[i - 1]))
       throw InputError(where + ": row " + std::to_string(i + 1) + ": wavelengths must increase, " +
                        FormatNumber(s.wavelengths_nm[i]) + " follows " +
@@ -371,10 +373,13 @@ void CameraRadiometry::Validate(const std::string& where) const {
                                  FormatNumber(saturation_level));
   // The bands' and the filter's range, as a rig file's reader (ReadBand) takes them.
   auto check_band = [&](const SpectralBand& b, const std::string& field) {
-    if (!(b.centre_nm >= 200 && b.centre_nm <= 2000))
-      fail(field, "'centre_nm' must be in [200, 2000], got " + FormatNumber(b.centre_nm));
-    if (!(b.fwhm_nm >= 0.1 && b.fwhm_nm <= 2000))
-      fail(field, "'fwhm_nm' must be in [0.1, 2000], got " + FormatNumber(b.fwhm_nm));
+    auto in = [&](const char* key, double v, double lo, double hi) {
+      if (!(v >= lo && v <= hi))
+        fail(field, std::string("'") + key + "' must be in [" + FormatNumber(lo) + ", " +
+                        FormatNumber(hi) + "], got " + FormatNumber(v));
+    };
+    in("centre_nm", b.centre_nm, kMinWavelengthNm, kMaxWavelengthNm);
+    in("fwhm_nm", b.fwhm_nm, kMinBandFwhmNm, kMaxBandFwhmNm);
   };
   if (spectral.has_filter()) check_band(spectral.filter, "filter");
   if (spectral.kind == SpectralSensitivity::Kind::kBands)

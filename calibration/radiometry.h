@@ -77,6 +77,11 @@ struct SpectralBand {
   double At(double wavelength_nm) const;  // peak 1
 };
 
+// The wavelengths a rig file may name, for a band's centre and a table's rows, and a band's
+// widths (nm); the reader and CameraRadiometry::Validate take the same.
+constexpr double kMinWavelengthNm = 200, kMaxWavelengthNm = 2000;
+constexpr double kMinBandFwhmNm = 0.1, kMaxBandFwhmNm = 2000;
+
 struct SpectralSensitivity {
   enum class Kind { kSrgbObserver, kTable, kBands };
   Kind kind = Kind::kSrgbObserver;

@@ -8,8 +8,8 @@
 #include <stdexcept>
 
 #include "core/atomic_file.h"
-#include "core/error.h"
 #include "core/config_reader.h"
+#include "core/error.h"
 
 namespace flamerig {
 namespace {
@@ -116,8 +116,9 @@ void Rig::Save(const std::string& yaml_path) const {
   YAML::Emitter out;
   out << YAML::BeginMap << YAML::Key << "rig" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "name" << YAML::Value << name;
+  // + 0.0: a negated axis is written [0, -1, 0], not [-0, -1, -0].
   out << YAML::Key << "up" << YAML::Value << YAML::Flow
-      << std::vector<double>{up_in_rig.x(), up_in_rig.y(), up_in_rig.z()};
+      << std::vector<double>{up_in_rig.x() + 0.0, up_in_rig.y() + 0.0, up_in_rig.z() + 0.0};
   out << YAML::Key << "box" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "min" << YAML::Value << YAML::Flow
       << std::vector<double>{box.min_in_rig.x(), box.min_in_rig.y(), box.min_in_rig.z()};

@@ -135,6 +135,8 @@ CalibrateConfig CalibrateConfig::Load(const std::string& path) {
     br.CheckKnown();
     c.options.box.min_in_rig = ReadVector3(box["min"], where + ".box.min");
     c.options.box.max_in_rig = ReadVector3(box["max"], where + ".box.max");
+    if (!c.options.box.min_in_rig.allFinite() || !c.options.box.max_in_rig.allFinite())
+      throw InputError(where + ".box: min and max must be finite numbers");
     if (!c.options.box.IsValid())
       throw InputError(where + ".box: max must be greater than min on every axis");
   }
@@ -367,6 +369,14 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
                                   CalibrationData* data_out) {
   if (input.images_dir.empty() == input.recording_dir.empty())
     throw InputError("calibrate: give either images or a recording");
+  const std::string source = input.images_dir.empty() ? input.recording_dir : input.images_dir;
+  if (!fs::is_directory(source)) throw InputError("calibrate: " + source + " is not a folder");
+  // A simulated dataset's rig.yaml and cameras are its truth: calibrating into it would replace
+  // them with the estimate they are meant to check.
+  if (fs::exists(fs::path(out_dir) / "dataset.yaml"))
+    throw InputError("calibrate: --out " + out_dir +
+                     " holds a simulated dataset (dataset.yaml), whose rig.yaml and cameras/ are "
+                     "the truth; write the calibration to another folder");
   BoardSpec board;
   if (config.board) {
     board = *config.board;
@@ -393,17 +403,24 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
         "the report lists each, and `flamerig recover --recording {}` lists the take's "
         "lost frames",
         data.unreadable, input.recording_dir, input.recording_dir);
-  WriteMrcalCorners(data, (fs::path(out_dir) / "corners.vnl").string(), "views");
+  // Into a folder with an earlier calibration nothing but the detection cache is written until the
+  // solve and the uncertainty are done, so that one that fails or is cancelled leaves it whole;
+  // into a fresh folder the detections go first, for mrcal's tools when the solve fails.
+  const std::string corners_path = (fs::path(out_dir) / "corners.vnl").string();
+  if (!fs::exists(fs::path(out_dir) / "rig.yaml")) WriteMrcalCorners(data, corners_path, "views");
   CalibrationSummary summary = Calibrate(data, config.options, progress);
-  summary.rig.Save((fs::path(out_dir) / "rig.yaml").string());
   // Projection uncertainty over the box, in voxels of the grid `flamerig reconstruct` makes of it
   // by default.
   ProjectionUncertainty uncertainty;
   if (config.uncertainty_trials > 0) {
     const double voxel_m = summary.rig.box.size().maxCoeff() / ReconstructOptions{}.resolution;
     try {
-      uncertainty = EstimateProjectionUncertainty(data, summary, config.options,
-                                                  config.uncertainty_trials, voxel_m);
+      uncertainty = EstimateProjectionUncertainty(
+          data, summary, config.options, config.uncertainty_trials, voxel_m, /*seed=*/1, progress);
+    } catch (const Cancelled& e) {
+      throw Cancelled(std::string(e.what()) +
+                      "; nothing written (the detections are cached: `uncertainty_trials: 0` "
+                      "calibrates without it)");
     } catch (const CalibrationError& e) {
       // The rig is written; the report says why its uncertainty is missing.
       summary.notes.push_back(std::string("WARNING: projection uncertainty not computed: ") +
@@ -411,6 +428,8 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
     }
     for (const auto& w : uncertainty.warnings) summary.notes.push_back("WARNING: " + w);
   }
+  WriteMrcalCorners(data, corners_path, "views");
+  summary.rig.Save((fs::path(out_dir) / "rig.yaml").string());
   const std::vector<std::string> uncertainty_header = {"camera", "max px (1 sigma)", "mean px",
                                                        "max voxels"};
   Rows uncertainty_rows;
@@ -423,14 +442,19 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
           ? "Not computed (uncertainty_trials: 0, or see the notes)."
           : fmt::format(
                 "How far each camera's projection of the reconstruction box's points moves (1 "
-                "sigma in the worst direction, a point held fixed relative to the boards, as "
-                "mrcal-show-projection-uncertainty shows it) when the corners carry the noise the "
-                "solve found in them ({:.3f} px per coordinate): {} solves by Monte Carlo, which "
-                "agree with mrcal's linearised figure to about 15% (tested), in {:.1f} s. Voxels: "
-                "of the default {}-voxel grid ({:.2f} mm). "
+                "sigma in the worst direction, a point held fixed relative to the boards: "
+                "mrcal's 'worstdirection-stdev' with its mean-frames convention) when the corners "
+                "carry the noise the solve found in them ({:.3f} px per coordinate): {} solves by "
+                "Monte Carlo in {:.1f} s. Each figure is a standard deviation from {} samples, "
+                "uncertain by about {:.0f}% of itself (1 / sqrt(2 (N - 1)); the largest leans "
+                "high by about as much); more `uncertainty_trials` narrow it (5% at 200). "
+                "mrcal's linearised figure cannot be computed from these .cameramodel files "
+                "(they carry no optimization_inputs): re-solve with mrcal's own tool (the end of "
+                "this report) for that. Voxels: of the default {}-voxel grid ({:.2f} mm). "
                 "Over half a voxel, the reconstruction is limited by the calibration.",
-                uncertainty.noise_px, uncertainty.trials, uncertainty.time_s,
-                ReconstructOptions{}.resolution, uncertainty.voxel_m * 1e3);
+                uncertainty.noise_px, uncertainty.trials, uncertainty.time_s, uncertainty.trials,
+                100 / std::sqrt(2.0 * (uncertainty.trials - 1)), ReconstructOptions{}.resolution,
+                uncertainty.voxel_m * 1e3);
 
   // The report: the same tables as Markdown (report.md) and as a page (index.html).
   const std::vector<std::string> camera_header = {"camera",   "views",  "corners",
@@ -543,8 +567,23 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
     md << "![coverage " << s.name << "](coverage_" << s.name << ".png)\n"
        << "![residuals " << s.name << "](residuals_" << s.name << ".png)\n"
        << "![residuals per image " << s.name << "](per_image_" << s.name << ".png)\n";
+  // mrcal 2.2 seeds its board poses from every corner, missing ones included (calibrate.h's
+  // WriteMrcalCorners): its solve of part boards starts far off.
+  int part_boards = 0;
+  for (const auto& o : data.observations)
+    if (static_cast<int>(o.detection.corner_ids.size()) < board.num_corners()) ++part_boards;
+  const std::string mrcal_caveat =
+      part_boards == 0
+          ? std::string()
+          : fmt::format(
+                " Caution: {} of the {} board views hold part of the board, and mrcal "
+                "2.2's tool seeds its solve from every corner, the missing ones' "
+                "placeholders included, so on them it does not find this solve (measured "
+                "on part ChArUco views: 3.5 px RMS, a third of the corners outliers); it "
+                "reproduces this one on whole boards.",
+                part_boards, data.observations.size());
   md << "\nTo solve the same detections with mrcal's own tool: `" << mrcal.str()
-     << "` (with `--imagersize W H` since the paths are virtual).\n";
+     << "` (with `--imagersize W H` since the paths are virtual)." << mrcal_caveat << "\n";
 
   ReportPage page("Calibration of rig '" + summary.rig.name + "'",
                   {{"images", input.images_dir.empty() ? input.recording_dir : input.images_dir}});
@@ -594,7 +633,8 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
               {"corners.vnl", "every detected corner, in mrcal's corners-cache format"},
               {"report.md", "this report as Markdown"}});
   page.Html("The same detections through mrcal's own tool: <code>" + HtmlEscape(mrcal.str()) +
-            "</code> (with <code>--imagersize W H</code>, the paths being virtual).");
+            "</code> (with <code>--imagersize W H</code>, the paths being virtual)." +
+            HtmlEscape(mrcal_caveat));
   page.Write((fs::path(out_dir) / "index.html").string());
   WriteFileAtomically((fs::path(out_dir) / "report.md").string(), md.str());
   if (data_out) *data_out = std::move(data);

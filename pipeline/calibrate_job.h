@@ -12,6 +12,7 @@
 //     outlier_rejection: true
 //     board_warp: true               # solve the board's bow (mrcal's calobject_warp)
 //     uncertainty_trials: 20         # Monte Carlo solves for the projection uncertainty; 0: off
+//                                    # (each figure uncertain by 1/sqrt(2(N-1)): 16% at 20)
 //     regularization: true           # mrcal's light pull of the distortion towards zero
 //     detect:                        # calibration/board.h DetectOptions
 //       detector: auto               # chessboards: auto (classic, then sb) | classic | sb
@@ -74,8 +75,12 @@ struct CalibrateInput {
   std::string recording_dir;  // a flamerig recording
 };
 
-// Detects, solves and writes everything listed above into out_dir. Returns the summary; the data
-// (detections) through *data when not null.
+// Detects, solves and writes everything listed above into out_dir. Into an out_dir holding an
+// earlier calibration (a rig.yaml) only the detection cache is written before the solve and the
+// uncertainty are done, so that a failed or cancelled run leaves it whole; into a fresh one
+// corners.vnl is written first, for mrcal's tools when the solve fails. Refuses (InputError) an input that is not a folder and
+// an out_dir holding a simulated dataset (dataset.yaml: its rig is the truth). Returns the
+// summary; the data (detections) through *data when not null.
 CalibrationSummary RunCalibration(const CalibrateConfig& config, const CalibrateInput& input,
                                   const std::string& out_dir,
                                   const CalibrationProgress& progress = nullptr,

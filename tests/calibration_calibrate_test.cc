@@ -572,5 +572,60 @@ TEST_F(Ring, AWrongBoardSizeNeverReachesTheSolve) {
   EXPECT_NE(e.find("wrong board size"), std::string::npos) << e;
 }
 
+// A board described one square too wide and too tall. On `simulate`'s ChArUco views a third of
+// the images still detect (the first rows of markers agree) and mrcal converged on nonsense (a
+// reviewer measured 45 px RMS, fx 0.69 px, cx -163 px, written with exit 0: refused now after the
+// solve, as the next test checks). On this ring few views survive; whichever error stops it names
+// the camera and how many images the detection refused for not fitting the board.
+TEST_F(Ring, AWrongBoardOneSquareOffNamesWhatTheDetectionSaid) {
+  BoardSpec wrong = LoadBoardSpec((*dir_ / "calibration/board.yaml").string());
+  wrong.squares_x += 1;
+  wrong.squares_y += 1;
+  const CalibrationData data = DetectViewsInFolder((*dir_ / "calibration").string(), wrong, {}, "");
+  const std::string e = ErrorOf([&] { Calibrate(data, CalibrationOptions{}); });
+  std::fprintf(stderr, "%zu views kept; error: %s\n", data.observations.size(), e.c_str());
+  EXPECT_NE(e, "(no error)");
+  EXPECT_NE(e.find("camera cam"), std::string::npos) << e;
+  EXPECT_NE(e.find("do not fit the board described"), std::string::npos) << e;
+}
+
+// The same refusal without detection: exact corners numbered as if the board had one more column,
+// so every row wraps onto the next (a board's geometry no lens can give).
+TEST_F(Ring, CornersOfAnotherBoardAreRefusedAfterTheSolve) {
+  CalibrationData data = ExactCorners(Detect(), *dir_ / "calibration", *truth_);
+  ++data.board.squares_x;
+  for (auto& o : data.observations) o.detection.rejected.clear();
+  const std::string e = ErrorOf([&] { Calibrate(data, CalibrationOptions{}); });
+  EXPECT_TRUE(e.find("not a calibration") != std::string::npos ||
+              e.find("px RMS from where its model puts them") != std::string::npos)
+      << e;
+  EXPECT_NE(e.find("camera cam"), std::string::npos) << e;
+}
+
+// A cancel is taken after mrcal's last solve (it cannot stop one half way), and between the
+// uncertainty's solves: Cancelled, nothing returned.
+TEST_F(Ring, ACancelAfterTheSolveOrDuringTheUncertaintyStops) {
+  const CalibrationData data = Detect();
+  std::vector<int> seen;
+  auto cancel_at = [&](const std::string& stage, int done) {
+    return [&seen, stage, done](const Progress& p) {
+      if (p.stage == stage) seen.push_back(static_cast<int>(p.done));
+      return p.stage == stage && p.done == done ? ProgressAction::kCancel
+                                                : ProgressAction::kContinue;
+    };
+  };
+  std::string e = ErrorOf([&] { Calibrate(data, CalibrationOptions{}, cancel_at("solve", 2)); });
+  EXPECT_NE(e.find("cancelled after the solve"), std::string::npos) << e;
+  EXPECT_EQ(seen, (std::vector<int>{0, 1, 2}));
+  const CalibrationSummary s = Calibrate(data, CalibrationOptions{});
+  seen.clear();
+  e = ErrorOf([&] {
+    EstimateProjectionUncertainty(data, s, CalibrationOptions{}, 5, 0.001, 1,
+                                  cancel_at("uncertainty", 2));
+  });
+  EXPECT_NE(e.find("cancelled after 2 of 5 solves"), std::string::npos) << e;
+  EXPECT_EQ(seen, (std::vector<int>{0, 1, 2}));
+}
+
 }  // namespace
 }  // namespace flamerig

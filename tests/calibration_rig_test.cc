@@ -2,6 +2,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 
 #include "calibration/rig.h"
 
@@ -36,8 +37,15 @@ Rig TwoCameraRig() {
 TEST(Rig, SaveLoadRoundTrip) {
   fs::path dir = TempDir("roundtrip");
   Rig rig = TwoCameraRig();
+  rig.up_in_rig = -Eigen::Vector3d::UnitY();  // a calibrated first camera's frame: (-0, -1, -0)
   rig.Save((dir / "rig.yaml").string());
+  {
+    std::ifstream in(dir / "rig.yaml");
+    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    EXPECT_NE(text.find("up: [0, -1, 0]"), std::string::npos) << text;
+  }
   Rig back = Rig::Load((dir / "rig.yaml").string());
+  EXPECT_EQ(back.up_in_rig, Eigen::Vector3d(0, -1, 0));
   EXPECT_EQ(back.name, "test");
   ASSERT_EQ(back.cameras.size(), 2u);
   EXPECT_EQ(back.FindCamera("cam1"), 1);

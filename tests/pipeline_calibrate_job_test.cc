@@ -4,6 +4,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <regex>
 #include <string>
 
@@ -83,7 +84,79 @@ TEST(CalibrateConfig, ErrorsNameTheFileAndKey) {
   const std::string e = write("calibrate: {board: {type: chessboard, squares: [8, 6]}}\n");
   EXPECT_NE(e.find("c.yaml"), std::string::npos) << e;
   EXPECT_NE(e.find("one odd and one even"), std::string::npos) << e;
+  // Lens models mrcal names but cannot solve (it aborts on them), refused with the rule.
+  d = write("calibrate: {lensmodel: LENSMODEL_CAHVORE_linearity=0.00}\n");
+  EXPECT_NE(d.find("c.yaml: calibrate.lensmodel"), std::string::npos) << d;
+  EXPECT_NE(d.find("no gradients"), std::string::npos) << d;
+  d = write(
+      "calibrate: {lensmodel: LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=3_Ny=3_fov_x_deg=200}\n");
+  EXPECT_NE(d.find("Nx and Ny must be at least 4 for order 3"), std::string::npos) << d;
+  d = write(
+      "calibrate: {lensmodel: LENSMODEL_SPLINED_STEREOGRAPHIC_order=4_Nx=9_Ny=9_fov_x_deg=200}\n");
+  EXPECT_NE(d.find("order must be 2 or 3"), std::string::npos) << d;
+  EXPECT_EQ(write("calibrate: {lensmodel: "
+                  "LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=4_Ny=4_fov_x_deg=200}\n"),
+            "(no error)");
+  EXPECT_EQ(write("calibrate: {lensmodel: LENSMODEL_CAHVOR}\n"), "(no error)");
+  // A focal length no lens has, a name that is empty, a box that is not finite.
+  d = write("calibrate: {focal_px: 1e308}\n");
+  EXPECT_NE(d.find("calibrate.focal_px"), std::string::npos) << d;
+  d = write("calibrate: {name: ''}\n");
+  EXPECT_NE(d.find("calibrate.name: must not be empty"), std::string::npos) << d;
+  d = write("calibrate: {box: {min: [0, .nan, 0], max: [1, 1, 1]}}\n");
+  EXPECT_NE(d.find("box: min and max must be finite"), std::string::npos) << d;
   fs::remove_all(dir);
+}
+
+// A calibration that fails leaves the one already in OUT whole (its corners.vnl included); a
+// simulated dataset's folder, whose rig is the truth, is refused as OUT; a camera listed twice is
+// named.
+TEST_F(Ring, AFailedRunKeepsTheEarlierCalibrationAndTheTruthIsNotOverwritten) {
+  const fs::path out = TempDir("keep");
+  CalibrateConfig config =
+      CalibrateConfig::Load(std::string(FLAMERIG_SOURCE_DIR) + "/config/calibrate_sim.yaml");
+  config.uncertainty_trials = 0;
+  RunCalibration(config, CalibrateInput{(*dir_ / "calibration").string(), ""}, out.string());
+  auto read = [](const fs::path& f) {
+    std::ifstream in(f);
+    return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  };
+  const std::string corners = read(out / "corners.vnl"), rig = read(out / "rig.yaml");
+  ASSERT_FALSE(corners.empty());
+  // Two views: too few for any camera.
+  const fs::path few = TempDir("few");
+  fs::copy_file(*dir_ / "calibration" / "board.yaml", few / "board.yaml");
+  int copied = 0;
+  for (const auto& v : fs::directory_iterator(*dir_ / "calibration"))
+    if (v.is_directory() && copied++ < 2)
+      fs::copy(v.path(), few / v.path().filename(), fs::copy_options::recursive);
+  const std::string e = ErrorOf([&] {
+    RunCalibration(config, CalibrateInput{few.string(), ""}, out.string());
+  });
+  EXPECT_NE(e.find("views"), std::string::npos) << e;
+  EXPECT_EQ(read(out / "corners.vnl"), corners);
+  EXPECT_EQ(read(out / "rig.yaml"), rig);
+
+  std::ofstream(out / "dataset.yaml") << "seed: 1\n";
+  const std::string truth = ErrorOf([&] {
+    RunCalibration(config, CalibrateInput{(*dir_ / "calibration").string(), ""}, out.string());
+  });
+  EXPECT_NE(truth.find("holds a simulated dataset"), std::string::npos) << truth;
+  EXPECT_EQ(read(out / "rig.yaml"), rig);
+  fs::remove(out / "dataset.yaml");
+
+  const std::string none = ErrorOf([&] {
+    RunCalibration(config, CalibrateInput{(few / "none").string(), ""}, out.string());
+  });
+  EXPECT_NE(none.find("none is not a folder"), std::string::npos) << none;
+
+  config.cameras = {"cam0", "cam1", "cam0"};
+  const std::string twice = ErrorOf([&] {
+    RunCalibration(config, CalibrateInput{(*dir_ / "calibration").string(), ""}, out.string());
+  });
+  EXPECT_NE(twice.find("camera cam0 is listed twice"), std::string::npos) << twice;
+  fs::remove_all(out);
+  fs::remove_all(few);
 }
 
 }  // namespace
