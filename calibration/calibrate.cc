@@ -23,6 +23,7 @@
 
 #include "acquisition/frame.h"
 #include "acquisition/recording.h"
+#include "calibration/mrcal_inputs.h"
 #include "core/atomic_file.h"
 #include "core/error.h"
 
@@ -927,6 +928,36 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
                             " m around " + where + " (set box in the config)");
   }
   summary.views_used = static_cast<int>(frames.size());
+  {
+    auto problem = std::make_shared<MrcalProblem>();
+    MrcalProblem& p = *problem;
+    p.lensmodel = options.lensmodel;
+    p.num_cameras = num_cameras;
+    p.num_params = num_params;
+    p.intrinsics = intrinsics;
+    auto rt = [](const mrcal_pose_t& pose) {
+      return std::array<double, 6>{pose.r.x, pose.r.y, pose.r.z, pose.t.x, pose.t.y, pose.t.z};
+    };
+    for (const auto& e : extrinsics) p.extrinsics.push_back(rt(e));
+    for (const auto& f : frames) p.frames.push_back(rt(f));
+    p.calobject_warp = {warp.x2, warp.y2};
+    for (const auto& o : observations)
+      p.indices.push_back({o.iframe, o.icam.intrinsics, o.icam.extrinsics});
+    p.board_width = W;
+    p.board_height = H;
+    for (const auto& q : pool) p.observations.insert(p.observations.end(), {q.x, q.y, q.z});
+    for (int c = 0; c < num_cameras; ++c)
+      p.imagersizes.push_back({data.widths[c], data.heights[c]});
+    p.spacing_m = board.square_m;
+    p.optimize_intrinsics_distortions = num_params > 4;
+    // One camera has no extrinsics, so the switch changes nothing in the solve; true as
+    // mrcal-calibrate-cameras stores it (mrcal's uncertainty refuses false).
+    p.optimize_extrinsics = true;
+    p.optimize_calobject_warp = options.board_warp;
+    p.apply_regularization = options.regularization;
+    p.apply_outlier_rejection = options.outlier_rejection;
+    summary.mrcal_problem = std::move(problem);
+  }
   summary.mrcal_rms_px = stats.rms_reproj_error__pixels;
   summary.mrcal_outliers = stats.Noutliers;
   summary.board_warp_x_m = warp.x2;

@@ -30,6 +30,7 @@
 
 #include <functional>
 #include <map>
+#include <memory>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -40,6 +41,8 @@
 #include "core/progress.h"
 
 namespace flamerig {
+
+struct MrcalProblem;  // calibration/mrcal_inputs.h
 
 class CalibrationError : public DataError {
  public:
@@ -173,6 +176,9 @@ struct CalibrationSummary {
   std::vector<ObservationError> worst;   // the largest inlier errors, largest first (up to 12)
   double solve_time_s = 0;
   std::vector<std::string> notes;  // views left out and why, frame choice, ...
+  // The final solve as mrcal took it (mrcal's frame, outliers marked), for the models'
+  // optimization_inputs (calibration/mrcal_inputs.h), so that mrcal's tools read them.
+  std::shared_ptr<const MrcalProblem> mrcal_problem;
   std::string BriefReport() const;
 };
 

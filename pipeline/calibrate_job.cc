@@ -12,6 +12,7 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
+#include "calibration/mrcal_inputs.h"
 #include "core/atomic_file.h"
 #include "core/config_reader.h"
 #include "core/error.h"
@@ -430,6 +431,13 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   }
   WriteMrcalCorners(data, corners_path, "views");
   summary.rig.Save((fs::path(out_dir) / "rig.yaml").string());
+  // Each model carries the solve, as mrcal-calibrate-cameras's do, for mrcal's uncertainty tools.
+  if (summary.mrcal_problem) {
+    const std::string inputs = SerializeMrcalOptimizationInputs(*summary.mrcal_problem);
+    for (std::size_t c = 0; c < summary.rig.cameras.size(); ++c)
+      AddMrcalOptimizationInputs((fs::path(out_dir) / summary.rig.cameras[c].model_path).string(),
+                                 inputs, static_cast<int>(c));
+  }
   const std::vector<std::string> uncertainty_header = {"camera", "max px (1 sigma)", "mean px",
                                                        "max voxels"};
   Rows uncertainty_rows;
@@ -448,9 +456,9 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
                 "Monte Carlo in {:.1f} s. Each figure is a standard deviation from {} samples, "
                 "uncertain by about {:.0f}% of itself (1 / sqrt(2 (N - 1)); the largest leans "
                 "high by about as much); more `uncertainty_trials` narrow it (5% at 200). "
-                "mrcal's linearised figure cannot be computed from these .cameramodel files "
-                "(they carry no optimization_inputs): re-solve with mrcal's own tool (the end of "
-                "this report) for that. Voxels: of the default {}-voxel grid ({:.2f} mm). "
+                "mrcal's linearised figure comes from the models themselves, which carry the "
+                "solve's optimization_inputs: mrcal-show-projection-uncertainty "
+                "cameras/<camera>.cameramodel. Voxels: of the default {}-voxel grid ({:.2f} mm). "
                 "Over half a voxel, the reconstruction is limited by the calibration.",
                 uncertainty.noise_px, uncertainty.trials, uncertainty.time_s, uncertainty.trials,
                 100 / std::sqrt(2.0 * (uncertainty.trials - 1)), ReconstructOptions{}.resolution,

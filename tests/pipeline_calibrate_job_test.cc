@@ -25,6 +25,14 @@ TEST_F(Ring, WritesARigThatLoadsAndAReport) {
   const Rig rig = Rig::Load((out / "rig.yaml").string());
   ASSERT_EQ(rig.cameras.size(), 4u);
   EXPECT_EQ(rig.box.min_in_rig, config.options.box.min_in_rig);
+  // Each model carries the solve for mrcal's tools (read back by mrcal in
+  // calibration_mrcal_inputs_test and pipeline_calibrate_rigs_test), its own camera's index.
+  for (int c = 0; c < 4; ++c) {
+    std::ifstream in(out / "cameras" / ("cam" + std::to_string(c) + ".cameramodel"));
+    const std::string model((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    EXPECT_NE(model.find("'icam_intrinsics': " + std::to_string(c) + ","), std::string::npos);
+    EXPECT_NE(model.find("'optimization_inputs': b'"), std::string::npos);
+  }
   // The models on disk are the solved ones, at full precision.
   for (std::size_t c = 0; c < 4; ++c)
     for (std::size_t i = 0; i < rig.cameras[c].model.intrinsics().size(); ++i)

@@ -5,6 +5,7 @@
 #include <sys/file.h>
 #include <unistd.h>
 
+#include <array>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -15,6 +16,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include "calibration/mrcal_inputs.h"
 #include "calibration/synthetic_rig.h"
 #include "pipeline/calibrate_job.h"
 #include "pipeline/simulate.h"
@@ -298,6 +300,12 @@ TEST(CalibrateStrongLens, ShadowedBoardsKeepEveryCornerAndTheIntrinsicsComeBack)
     GTEST_SKIP() << "mrcal-calibrate-cameras is not installed (Debian package mrcal)";
   const fs::path work = TempDir("uncertainty");
   WriteMrcalCorners(data, (work / "corners.vnl").string(), "views");
+  // Our models with the solve's optimization inputs, as `flamerig calibrate` writes them.
+  s.rig.Save((work / "ours" / "rig.yaml").string());
+  ASSERT_TRUE(s.mrcal_problem);
+  for (int c = 0; c < 2; ++c)
+    AddMrcalOptimizationInputs((work / "ours" / s.rig.cameras[c].model_path).string(),
+                               SerializeMrcalOptimizationInputs(*s.mrcal_problem), c);
   {
     std::ofstream points(work / "points.txt");
     points.precision(17);
@@ -316,11 +324,13 @@ TEST(CalibrateStrongLens, ShadowedBoardsKeepEveryCornerAndTheIntrinsicsComeBack)
       "--object-height-n 6 'views/*/cam0.png' 'views/*/cam1.png' > tool.log 2>&1 && "
       "/usr/bin/python3 -c \"import mrcal, numpy as np; p = np.loadtxt('points.txt'); "
       "ms = [mrcal.cameramodel(f'camera-{i}.cameramodel') for i in (0, 1)]; "
+      "ms += [mrcal.cameramodel(f'ours/cameras/cam{i}.cameramodel') for i in (0, 1)]; "
       "[print(np.max(s), np.mean(s)) for s in [mrcal.projection_uncertainty("
       "mrcal.transform_point_rt(m.extrinsics_rt_fromref(), p), model=m, "
       "what='worstdirection-stdev') for m in ms]]\" > mrcal_uncertainty.txt 2>> tool.log";
   ASSERT_EQ(std::system(tool.c_str()), 0) << "see " << (work / "tool.log");
   std::ifstream in(work / "mrcal_uncertainty.txt");
+  std::array<std::array<double, 2>, 2> mrcal_by_tool{};
   for (int c = 0; c < 2; ++c) {
     double mrcal_max = 0, mrcal_mean = 0;
     ASSERT_TRUE(in >> mrcal_max >> mrcal_mean);
@@ -332,6 +342,18 @@ TEST(CalibrateStrongLens, ShadowedBoardsKeepEveryCornerAndTheIntrinsicsComeBack)
     // 0.0051, 0.0078 and 0.0073 (20 Monte Carlo solves estimate a sigma to about 16%).
     EXPECT_NEAR(ours.cameras[c].mean_px / mrcal_mean, 1.0, 0.3) << c;
     EXPECT_NEAR(ours.cameras[c].max_px / mrcal_max, 1.0, 0.4) << c;
+    mrcal_by_tool[c] = {mrcal_max, mrcal_mean};
+  }
+  // mrcal's linearised uncertainty computed from our models' optimization inputs: the same
+  // corners solved the same way, so the same figure as from mrcal-calibrate-cameras's models
+  // (their solves agree to the seed: AgreesWithMrcalCalibrateCameras).
+  for (int c = 0; c < 2; ++c) {
+    double mrcal_max = 0, mrcal_mean = 0;
+    ASSERT_TRUE(in >> mrcal_max >> mrcal_mean);
+    std::fprintf(stderr, "cam%d: mrcal's uncertainty from our model: max %.4f mean %.4f px\n", c,
+                 mrcal_max, mrcal_mean);
+    EXPECT_NEAR(mrcal_max / mrcal_by_tool[c][0], 1.0, 0.05) << c;
+    EXPECT_NEAR(mrcal_mean / mrcal_by_tool[c][1], 1.0, 0.05) << c;
   }
   fs::remove_all(work);
 }
