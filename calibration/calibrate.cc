@@ -566,15 +566,19 @@ Eigen::Vector3d WarpedCorner(const Eigen::Vector3d& corner, const BoardSpec& boa
 // When detection refused images because their corners did not fit the board (board.cc: "wrong
 // board size or dictionary?"), a sentence saying how many, for the errors that follow from too few
 // views; otherwise empty.
-std::string BoardMisfitHint(const CalibrationData& data) {
+// `camera` >= 0: that camera's images only.
+std::string BoardMisfitHint(const CalibrationData& data, int camera = -1) {
   int misfit = 0, images = 0;
-  for (const auto& failures : data.failures_per_camera)
-    for (const auto& f : failures)
-      if (f.find("wrong board size") != std::string::npos) ++misfit;
-  for (int n : data.images_per_camera) images += n;
+  for (std::size_t c = 0; c < data.failures_per_camera.size(); ++c)
+    if (camera < 0 || static_cast<int>(c) == camera)
+      for (const auto& f : data.failures_per_camera[c])
+        if (f.find("wrong board size") != std::string::npos) ++misfit;
+  for (std::size_t c = 0; c < data.images_per_camera.size(); ++c)
+    if (camera < 0 || static_cast<int>(c) == camera) images += data.images_per_camera[c];
   if (misfit == 0) return "";
   return "; " + std::to_string(misfit) + " of " + std::to_string(images) +
-         " images were refused because their corners do not fit the board described (" +
+         (camera < 0 ? " images" : " of its images") +
+         " were refused because their corners do not fit the board described (" +
          data.board.Describe() + "): check its squares, square size and dictionary";
 }
 
@@ -596,24 +600,36 @@ void CheckSolvedIntrinsics(const CalibrationData& data, const std::vector<double
       throw CalibrationError(fmt::format(
           "camera {}: the solve gives focal lengths of {:.4g} and {:.4g} px for {} (a lens gives "
           "0.05 to 100 times its larger side): not a calibration{}",
-          name, in[0], in[1], imager, BoardMisfitHint(data)));
+          name, in[0], in[1], imager, BoardMisfitHint(data, static_cast<int>(c))));
     if (!(in[2] >= -0.5 * w && in[2] <= 1.5 * w && in[3] >= -0.5 * h && in[3] <= 1.5 * h))
       throw CalibrationError(fmt::format(
           "camera {}: the solve puts the principal point at ({:.4g}, {:.4g}) px, more than half "
           "of {} outside it: not a calibration{}",
-          name, in[2], in[3], imager, BoardMisfitHint(data)));
+          name, in[2], in[3], imager, BoardMisfitHint(data, static_cast<int>(c))));
   }
 }
 void CheckSolvedResiduals(const CalibrationData& data, CalibrationSummary* summary) {
   for (std::size_t c = 0; c < data.camera_names.size(); ++c) {
     const std::string& name = data.camera_names[c];
-    const double rms = summary->cameras[c].rms_px_per_point;
+    const CameraResidualStats& stats = summary->cameras[c];
+    // Outlier rejection can hide a bad solve: every corner thrown out leaves an RMS of 0.
+    if (stats.points > 0 && stats.outliers == stats.points)
+      throw CalibrationError(
+          fmt::format("camera {}: mrcal's outlier rejection threw out all {} of its corners: not a "
+                      "calibration{}",
+                      name, stats.points, BoardMisfitHint(data, static_cast<int>(c))));
+    if (stats.outliers > stats.points / 2)
+      summary->notes.push_back(fmt::format(
+          "WARNING: camera {}: mrcal's outlier rejection threw out {} of its {} corners, more "
+          "than half: its residuals describe the rest only",
+          name, stats.outliers, stats.points));
+    const double rms = stats.rms_px_per_point;
     if (rms > kRefusedRmsPx)
       throw CalibrationError(fmt::format(
           "camera {}: the solve's corners are {:.3g} px RMS from where its model puts them "
           "(refused above {} px; a board's detected corners are good to a few tenths): a wrong "
           "board description or lens model{}",
-          name, rms, kRefusedRmsPx, BoardMisfitHint(data)));
+          name, rms, kRefusedRmsPx, BoardMisfitHint(data, static_cast<int>(c))));
     if (rms > kWarnedRmsPx)
       summary->notes.push_back(fmt::format(
           "WARNING: camera {}: RMS {:.3g} px per point, more than {} px: check the board's "
@@ -653,12 +669,12 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
                              std::to_string(c < static_cast<int>(data.images_per_camera.size())
                                                 ? data.images_per_camera[c]
                                                 : 0) +
-                             " images" + why + BoardMisfitHint(data));
+                             " images" + why + BoardMisfitHint(data, c));
     if (views_of[c] < options.min_views_per_camera)
       throw CalibrationError("camera " + name + " sees the board in only " +
                              std::to_string(views_of[c]) + " views (at least " +
                              std::to_string(options.min_views_per_camera) + " needed)" + why +
-                             BoardMisfitHint(data));
+                             BoardMisfitHint(data, c));
   }
 
   // Intrinsics seeds: a pinhole core from the board homographies (or the focal given).
@@ -861,7 +877,7 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
     // last (nothing is written then).
     if (ReportProgress(progress, p))
       throw Cancelled(done < 2 ? "calibration: cancelled before the solve"
-                               : "calibration: cancelled after the solve; nothing written");
+                               : "calibration: cancelled after the solve");
   };
   report(0);
   mrcal_stats_t stats = solve(false, false, false);
@@ -874,7 +890,7 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
   for (double v : intrinsics)
     if (!std::isfinite(v))
       throw CalibrationError("calibration: the solve gave non-finite intrinsics");
-  CheckSolvedIntrinsics(data, intrinsics, num_params);
+  if (options.check_solve) CheckSolvedIntrinsics(data, intrinsics, num_params);
 
   // The rig in the chosen frame.
   std::vector<Rigid3> solved_cam_from_ref(num_cameras);
@@ -1015,7 +1031,7 @@ CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptio
     s.p95_px = Percentile(v, 0.95);
     s.max_px = v.empty() ? 0 : *std::max_element(v.begin(), v.end());
   }
-  CheckSolvedResiduals(data, &summary);
+  if (options.check_solve) CheckSolvedResiduals(data, &summary);
   std::vector<ObservationError> sorted;
   for (const auto& e : summary.errors)
     if (!e.outlier) sorted.push_back(e);
@@ -1090,7 +1106,10 @@ ProjectionUncertainty EstimateProjectionUncertainty(const CalibrationData& data,
   for (int c = 0; c < num_cameras; ++c) solved[c] = rig.cameras[c].model.Project(points);
   CalibrationOptions trial_options = options;
   trial_options.box = rig.box;  // the same box; no note about it
-  for (int t = 0; t < trials; ++t) {
+  // A solve that passed its checks is not refused for what a noisy trial of it does.
+  trial_options.check_solve = false;
+  // A report (and a chance to cancel) before each solve and after the last.
+  for (int t = 0; t <= trials; ++t) {
     Progress p;
     p.stage = "uncertainty";
     p.unit = "solves";
@@ -1099,6 +1118,7 @@ ProjectionUncertainty EstimateProjectionUncertainty(const CalibrationData& data,
     if (ReportProgress(progress, p))
       throw Cancelled("projection uncertainty: cancelled after " + std::to_string(t) + " of " +
                       std::to_string(trials) + " solves");
+    if (t == trials) break;
     CalibrationData noisy = exact;
     for (auto& o : noisy.observations)
       for (auto& p : o.detection.corners_px) p += Eigen::Vector2d(noise(rng), noise(rng));

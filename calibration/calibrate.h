@@ -133,6 +133,9 @@ struct CalibrationOptions {
   // the calibration was done, which is where the cameras look) for kFirstCamera.
   Box3 box;
   std::string rig_name = "calibrated";
+  // Refuse a solve no lens gives (Calibrate's comment). Off only for the uncertainty's Monte Carlo
+  // trials of a solve that passed.
+  bool check_solve = true;
   // Throws InputError naming the field and the rule.
   void Validate() const;
 };
@@ -185,8 +188,9 @@ struct CalibrationSummary {
 // Solves the calibration. Throws CalibrationError naming the camera and reason when the data
 // cannot give a calibration (see the file comment) or the solve gives one no lens has (a focal
 // length outside 0.05 to 100 times the imager's larger side, a principal point more than half the
-// imager outside it, a camera's corners over 10 px RMS: a wrong board description, say; over 2 px
-// is a warning in the notes), InputError for invalid options. Progress: stage "solve"; a cancel
+// imager outside it, a camera's corners over 10 px RMS or every one an outlier: a wrong board
+// description, say; over 2 px, or over half the corners outliers, is a warning in the notes),
+// InputError for invalid options. Progress: stage "solve"; a cancel
 // before, between or after mrcal's two solves throws Cancelled.
 CalibrationSummary Calibrate(const CalibrationData& data, const CalibrationOptions& options,
                              const CalibrationProgress& progress = nullptr);

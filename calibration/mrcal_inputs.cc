@@ -4,9 +4,9 @@
 
 #include <algorithm>
 #include <cstring>
-#include <stdexcept>
 #include <fstream>
 #include <sstream>
+#include <stdexcept>
 
 #include "core/atomic_file.h"
 #include "core/error.h"
@@ -69,6 +69,10 @@ std::string Deflate(const std::string& in) {
   z_stream z{};
   if (deflateInit2(&z, Z_DEFAULT_COMPRESSION, Z_DEFLATED, -15, 8, Z_DEFAULT_STRATEGY) != Z_OK)
     throw std::runtime_error("npz: zlib's deflate could not start");
+  if (in.size() > 0xffffffffu) {  // zlib's counts are 32-bit
+    deflateEnd(&z);
+    throw DataError("npz: a member larger than 4 GiB, which this writer cannot store");
+  }
   std::string out(deflateBound(&z, in.size()), '\0');
   z.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(in.data()));
   z.avail_in = static_cast<uInt>(in.size());
@@ -92,6 +96,10 @@ std::string WriteNpz(const std::vector<NpyMember>& members) {
     const std::uint32_t crc =
         crc32(0L, reinterpret_cast<const Bytef*>(raw.data()), static_cast<uInt>(raw.size()));
     const std::size_t offset = zip.size();
+    // No zip64: every size and offset must fit 32 bits (numpy would read a larger file, this
+    // writer would not write it correctly).
+    if (raw.size() > 0xffffffffu || packed.size() > 0xffffffffu || offset > 0xffffffffu)
+      throw DataError("npz: " + name + " is larger than 4 GiB, which this writer cannot store");
     // Local file header: version 2.0, no flags, deflated, 1980-01-01 00:00.
     PutLe(&zip, 0x04034b50, 4);
     PutLe(&zip, 20, 2);
@@ -127,6 +135,8 @@ std::string WriteNpz(const std::vector<NpyMember>& members) {
     directory += name;
   }
   const std::size_t directory_offset = zip.size();
+  if (directory_offset + directory.size() > 0xffffffffu || members.size() > 0xffff)
+    throw DataError("npz: larger than 4 GiB or 65535 members, which this writer cannot store");
   zip += directory;
   PutLe(&zip, 0x06054b50, 4);
   PutLe(&zip, 0, 2);
@@ -162,7 +172,12 @@ NpyMember Bool(const std::string& name, bool b) { return {name, "|b1", {}, std::
 // A str scalar: numpy's '<U' dtype, four bytes (UTF-32 little-endian) a character; '' is None.
 NpyMember Text(const std::string& name, const std::string& text) {
   std::string data;
-  for (char ch : text) PutLe(&data, static_cast<unsigned char>(ch), 4);
+  for (char ch : text) {
+    // One byte a code point: ASCII only (a lens model's name is).
+    if (static_cast<unsigned char>(ch) >= 0x80)
+      throw DataError("mrcal optimization inputs: '" + name + "' is not ASCII");
+    PutLe(&data, static_cast<unsigned char>(ch), 4);
+  }
   if (text.empty()) data.assign(4, '\0');
   return {name, "<U" + std::to_string(std::max<std::size_t>(1, text.size())), {}, data};
 }

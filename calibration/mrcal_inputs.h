@@ -45,7 +45,8 @@ struct MrcalProblem {
 };
 
 // The problem as mrcal serialises it: the base85 text of its .npz (without the b'' quotes).
-// Throws DataError when its arrays' sizes disagree with its counts.
+// Throws DataError when its arrays' sizes disagree with its counts, the lens model's name is not
+// ASCII, or the .npz would exceed 4 GiB (no zip64).
 std::string SerializeMrcalOptimizationInputs(const MrcalProblem& problem);
 
 // Adds 'icam_intrinsics' and 'optimization_inputs' to a .cameramodel that CameraModel::Save

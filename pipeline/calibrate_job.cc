@@ -407,9 +407,17 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   // Into a folder with an earlier calibration nothing but the detection cache is written until the
   // solve and the uncertainty are done, so that one that fails or is cancelled leaves it whole;
   // into a fresh folder the detections go first, for mrcal's tools when the solve fails.
-  const std::string corners_path = (fs::path(out_dir) / "corners.vnl").string();
-  if (!fs::exists(fs::path(out_dir) / "rig.yaml")) WriteMrcalCorners(data, corners_path, "views");
-  CalibrationSummary summary = Calibrate(data, config.options, progress);
+  if (!fs::exists(fs::path(out_dir) / "rig.yaml"))
+    WriteMrcalCorners(data, (fs::path(out_dir) / "corners.vnl").string(), "views");
+  const char* kNotWritten =
+      "; the calibration is not written (the detections are cached: a second run detects "
+      "nothing again, and `uncertainty_trials: 0` calibrates without the uncertainty)";
+  CalibrationSummary summary;
+  try {
+    summary = Calibrate(data, config.options, progress);
+  } catch (const Cancelled& e) {
+    throw Cancelled(e.what() + std::string(kNotWritten));
+  }
   // Projection uncertainty over the box, in voxels of the grid `flamerig reconstruct` makes of it
   // by default.
   ProjectionUncertainty uncertainty;
@@ -419,25 +427,38 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
       uncertainty = EstimateProjectionUncertainty(
           data, summary, config.options, config.uncertainty_trials, voxel_m, /*seed=*/1, progress);
     } catch (const Cancelled& e) {
-      throw Cancelled(std::string(e.what()) +
-                      "; nothing written (the detections are cached: `uncertainty_trials: 0` "
-                      "calibrates without it)");
+      throw Cancelled(std::string(e.what()) + kNotWritten);
     } catch (const CalibrationError& e) {
-      // The rig is written; the report says why its uncertainty is missing.
+      // The rig is still written; the report says why its uncertainty is missing.
       summary.notes.push_back(std::string("WARNING: projection uncertainty not computed: ") +
                               e.what());
     }
     for (const auto& w : uncertainty.warnings) summary.notes.push_back("WARNING: " + w);
   }
-  WriteMrcalCorners(data, corners_path, "views");
-  summary.rig.Save((fs::path(out_dir) / "rig.yaml").string());
   // Each model carries the solve, as mrcal-calibrate-cameras's do, for mrcal's uncertainty tools.
-  if (summary.mrcal_problem) {
-    const std::string inputs = SerializeMrcalOptimizationInputs(*summary.mrcal_problem);
+  const std::string inputs = summary.mrcal_problem
+                                 ? SerializeMrcalOptimizationInputs(*summary.mrcal_problem)
+                                 : std::string();
+  // Everything is written into a staging folder and then moved into OUT file by file (a rename
+  // each), rig.yaml last: `run` takes a rig.yaml for a finished calibration, and a failure while
+  // writing (a full disk) leaves the earlier calibration in OUT whole. A staging folder left by a
+  // killed run is removed here.
+  const fs::path stage = fs::path(out_dir) / ".calibrate-partial";
+  fs::remove_all(stage);
+  fs::create_directories(stage);
+  struct RemovedOnExit {  // whether the calibration is written, fails or is cancelled
+    fs::path path;
+    ~RemovedOnExit() {
+      std::error_code ignored;
+      fs::remove_all(path, ignored);
+    }
+  } stage_guard{stage};
+  WriteMrcalCorners(data, (stage / "corners.vnl").string(), "views");
+  summary.rig.Save((stage / "rig.yaml").string());
+  if (!inputs.empty())
     for (std::size_t c = 0; c < summary.rig.cameras.size(); ++c)
-      AddMrcalOptimizationInputs((fs::path(out_dir) / summary.rig.cameras[c].model_path).string(),
-                                 inputs, static_cast<int>(c));
-  }
+      AddMrcalOptimizationInputs((stage / summary.rig.cameras[c].model_path).string(), inputs,
+                                 static_cast<int>(c));
   const std::vector<std::string> uncertainty_header = {"camera", "max px (1 sigma)", "mean px",
                                                        "max voxels"};
   Rows uncertainty_rows;
@@ -472,11 +493,11 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   for (std::size_t c = 0; c < summary.cameras.size(); ++c) {
     const auto& s = summary.cameras[c];
     double covered = 0;
-    WritePng((fs::path(out_dir) / ("coverage_" + s.name + ".png")).string(),
+    WritePng((stage / ("coverage_" + s.name + ".png")).string(),
              CoveragePicture(data, summary, static_cast<int>(c), &covered));
-    WritePng((fs::path(out_dir) / ("residuals_" + s.name + ".png")).string(),
+    WritePng((stage / ("residuals_" + s.name + ".png")).string(),
              ResidualVectorsPicture(data, summary, static_cast<int>(c)));
-    WritePng((fs::path(out_dir) / ("per_image_" + s.name + ".png")).string(),
+    WritePng((stage / ("per_image_" + s.name + ".png")).string(),
              ResidualsPerImagePicture(data, summary, static_cast<int>(c)));
     camera_rows.push_back({s.name, std::to_string(s.views), std::to_string(s.points),
                            std::to_string(s.outliers), fmt::format("{:.3f}", s.rms_px_per_point),
@@ -513,7 +534,7 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
     for (const auto& r : o.detection.rejected)
       dropped_rows.push_back({data.camera_names[o.camera], o.source, std::to_string(r.corner_id),
                               fmt::format("({:.1f}, {:.1f})", r.px.x(), r.px.y()), r.reason});
-  WritePng((fs::path(out_dir) / "rig_top.png").string(), RigFromAbove(summary));
+  WritePng((stage / "rig_top.png").string(), RigFromAbove(summary));
   std::ostringstream mrcal;
   mrcal << "mrcal-calibrate-cameras --corners-cache corners.vnl --lensmodel "
         << config.options.lensmodel << " --focal F --object-spacing " << board.square_m
@@ -643,8 +664,23 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   page.Html("The same detections through mrcal's own tool: <code>" + HtmlEscape(mrcal.str()) +
             "</code> (with <code>--imagersize W H</code>, the paths being virtual)." +
             HtmlEscape(mrcal_caveat));
-  page.Write((fs::path(out_dir) / "index.html").string());
-  WriteFileAtomically((fs::path(out_dir) / "report.md").string(), md.str());
+  page.Write((stage / "index.html").string());
+  WriteFileAtomically((stage / "report.md").string(), md.str());
+  // The last chance to stop: nothing of this calibration is in OUT yet.
+  Progress writing;
+  writing.stage = "write";
+  writing.unit = "files";
+  if (ReportProgress(progress, writing))
+    throw Cancelled(std::string("calibration: cancelled before writing") + kNotWritten);
+  std::vector<fs::path> files;
+  for (const auto& e : fs::recursive_directory_iterator(stage))
+    if (e.is_regular_file() && e.path() != stage / "rig.yaml") files.push_back(e.path());
+  files.push_back(stage / "rig.yaml");
+  for (const fs::path& f : files) {
+    const fs::path to = fs::path(out_dir) / fs::relative(f, stage);
+    fs::create_directories(to.parent_path());
+    fs::rename(f, to);
+  }
   if (data_out) *data_out = std::move(data);
   return summary;
 }

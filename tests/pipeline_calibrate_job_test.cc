@@ -145,6 +145,28 @@ TEST_F(Ring, AFailedRunKeepsTheEarlierCalibrationAndTheTruthIsNotOverwritten) {
   EXPECT_EQ(read(out / "corners.vnl"), corners);
   EXPECT_EQ(read(out / "rig.yaml"), rig);
 
+  // Stopped after the uncertainty's last solve, or just before writing: the earlier calibration
+  // (its models and report too) stays as it was, and no staging folder is left.
+  const std::string model = read(out / "cameras" / "cam2.cameramodel"),
+                    report = read(out / "report.md");
+  for (const std::string stop : {"uncertainty", "write"}) {
+    CalibrateConfig with_uncertainty = config;
+    with_uncertainty.uncertainty_trials = 3;
+    const std::string cancelled = ErrorOf([&] {
+      RunCalibration(with_uncertainty, CalibrateInput{(*dir_ / "calibration").string(), ""},
+                     out.string(), [&](const Progress& p) {
+                       return p.stage == stop && (stop == "write" || p.done == 3)
+                                  ? ProgressAction::kCancel
+                                  : ProgressAction::kContinue;
+                     });
+    });
+    EXPECT_NE(cancelled.find("the calibration is not written"), std::string::npos) << cancelled;
+    EXPECT_EQ(read(out / "rig.yaml"), rig) << stop;
+    EXPECT_EQ(read(out / "cameras" / "cam2.cameramodel"), model) << stop;
+    EXPECT_EQ(read(out / "report.md"), report) << stop;
+    EXPECT_FALSE(fs::exists(out / ".calibrate-partial")) << stop;
+  }
+
   std::ofstream(out / "dataset.yaml") << "seed: 1\n";
   const std::string truth = ErrorOf([&] {
     RunCalibration(config, CalibrateInput{(*dir_ / "calibration").string(), ""}, out.string());
