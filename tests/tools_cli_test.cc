@@ -754,6 +754,9 @@ TEST(Cli, CaptureCtlAndExport) {
     usleep(50'000);
     status = Flamerig("ctl --config " + config + " status");
   }
+  // At least 1.5 s of take before it is stopped (30 sets at 20 Hz): on a fast host the three
+  // requests below took under a second, and the take held 19 sets, under the 20 asserted below.
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
   // The same status for scripts: JSON, and the daemon's YAML.
   const Result json = Flamerig("ctl --config " + config + " --json status");
   const Result yaml = Flamerig("ctl --config " + config + " status yaml");
