@@ -10,6 +10,7 @@
 
 #include "core/atomic_file.h"
 #include "core/error.h"
+#include "core/npy.h"
 
 namespace flamerig {
 namespace {
@@ -44,26 +45,8 @@ std::string Base85Encode(std::string_view bytes) {
 
 namespace {
 
-// A .npy file, format 1.0: magic, version, header length, a Python dict literal padded with
-// spaces to a multiple of 64 bytes and ended by a newline, then the data.
-std::string Npy(const NpyMember& m) {
-  std::string shape = "(";
-  for (std::size_t i = 0; i < m.shape.size(); ++i)
-    shape += std::to_string(m.shape[i]) + (m.shape.size() == 1      ? ","
-                                           : i + 1 < m.shape.size() ? ", "
-                                                                    : "");
-  shape += ")";
-  std::string header =
-      "{'descr': '" + m.descr + "', 'fortran_order': False, 'shape': " + shape + ", }";
-  const std::size_t unpadded = 10 + header.size() + 1;
-  header.append((64 - unpadded % 64) % 64, ' ');
-  header.push_back('\n');
-  std::string out("\x93NUMPY\x01\x00", 8);
-  PutLe(&out, header.size(), 2);
-  out += header;
-  out += m.data;
-  return out;
-}
+// A .npy file: the shared header (core/npy.h), then the data.
+std::string Npy(const NpyMember& m) { return NpyHeader("'" + m.descr + "'", m.shape) + m.data; }
 
 std::string Deflate(const std::string& in) {
   z_stream z{};
@@ -100,33 +83,23 @@ std::string WriteNpz(const std::vector<NpyMember>& members) {
     // writer would not write it correctly).
     if (raw.size() > 0xffffffffu || packed.size() > 0xffffffffu || offset > 0xffffffffu)
       throw DataError("npz: " + name + " is larger than 4 GiB, which this writer cannot store");
-    // Local file header: version 2.0, no flags, deflated, 1980-01-01 00:00.
-    PutLe(&zip, 0x04034b50, 4);
-    PutLe(&zip, 20, 2);
-    PutLe(&zip, 0, 2);
-    PutLe(&zip, 8, 2);
-    PutLe(&zip, 0, 2);
-    PutLe(&zip, 0x21, 2);
-    PutLe(&zip, crc, 4);
-    PutLe(&zip, packed.size(), 4);
-    PutLe(&zip, raw.size(), 4);
-    PutLe(&zip, name.size(), 2);
-    PutLe(&zip, 0, 2);
+    // The fields the local header and the central directory entry share: version 2.0 needed, no
+    // flags, deflated, 1980-01-01 00:00, the CRC and sizes, the name's length, no extra field.
+    auto shared = [&](std::string* to) {
+      for (int v : {20, 0, 8, 0, 0x21}) PutLe(to, static_cast<std::uint64_t>(v), 2);
+      PutLe(to, crc, 4);
+      PutLe(to, packed.size(), 4);
+      PutLe(to, raw.size(), 4);
+      PutLe(to, name.size(), 2);
+      PutLe(to, 0, 2);
+    };
+    PutLe(&zip, 0x04034b50, 4);  // local file header
+    shared(&zip);
     zip += name;
     zip += packed;
-    // Its central directory entry.
-    PutLe(&directory, 0x02014b50, 4);
-    PutLe(&directory, 20, 2);
-    PutLe(&directory, 20, 2);
-    PutLe(&directory, 0, 2);
-    PutLe(&directory, 8, 2);
-    PutLe(&directory, 0, 2);
-    PutLe(&directory, 0x21, 2);
-    PutLe(&directory, crc, 4);
-    PutLe(&directory, packed.size(), 4);
-    PutLe(&directory, raw.size(), 4);
-    PutLe(&directory, name.size(), 2);
-    PutLe(&directory, 0, 2);  // extra
+    PutLe(&directory, 0x02014b50, 4);  // its central directory entry
+    PutLe(&directory, 20, 2);          // made by version 2.0
+    shared(&directory);
     PutLe(&directory, 0, 2);  // comment
     PutLe(&directory, 0, 2);  // disk
     PutLe(&directory, 0, 2);  // internal attributes

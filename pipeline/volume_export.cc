@@ -12,6 +12,7 @@
 
 #include "core/atomic_file.h"
 #include "core/error.h"
+#include "core/npy.h"
 
 namespace flamerig {
 
@@ -138,22 +139,14 @@ void WriteNpy(const std::string& path, const std::vector<Column>& columns,
   const std::uint16_t probe = 1;
   if (*reinterpret_cast<const unsigned char*>(&probe) != 1)
     throw IoError(path + ": NumPy export is written little-endian; this machine is not");
-  std::string header = "{'descr': [";
+  std::string descr = "[";
   for (std::size_t c = 0; c < columns.size(); ++c)
-    header += (c ? ", ('" : "('") + columns[c].name + "', '" +
-              (columns[c].type == Column::kInt32     ? "<i4"
-               : columns[c].type == Column::kFloat32 ? "<f4"
-                                                     : "<f8") +
-              "')";
-  header += "], 'fortran_order': False, 'shape': (" + std::to_string(rows.size()) + ",), }";
-  // Magic (6) + version (2) + length (2) + header, padded with spaces to a multiple of 64 and
-  // ended by a newline (format 1.0).
-  const std::size_t unpadded = 10 + header.size() + 1;
-  header.append((64 - unpadded % 64) % 64, ' ');
-  header += '\n';
-  std::string out("\x93NUMPY\x01\x00", 8);
-  Append(&out, static_cast<std::uint16_t>(header.size()));
-  out += header;
+    descr += (c ? ", ('" : "('") + columns[c].name + "', '" +
+             (columns[c].type == Column::kInt32     ? "<i4"
+              : columns[c].type == Column::kFloat32 ? "<f4"
+                                                    : "<f8") +
+             "')";
+  std::string out = NpyHeader(descr + "]", {rows.size()});
   for (std::size_t r : rows)
     for (const auto& c : columns) {
       const double x = c.value(r);
