@@ -43,15 +43,18 @@ for bin in "$BUILD"/tests/fuzz/fuzz_*; do
   # damaged .vdb makes it ask for gigabytes to terabytes before the read fails. Without sanitizers
   # that is std::bad_alloc, which ReadVdb turns into an error naming the file (a test checks it);
   # under ASan it is a report. Such reports (an out-of-memory whose allocation comes from
-  # libopenvdb) are counted and fuzzing goes on; every other finding fails the run.
+  # libopenvdb) are counted and fuzzing goes on; every other finding fails the run. A single
+  # allocation over 1 GB is reported with its stack (-malloc_limit_mb): OpenVDB's allocation of a
+  # 2.9 GB metadata name, freed and held in ASan's quarantine, then passed the 3 GB RSS limit in
+  # a report that names no allocation (fuzz_vdb budgets ReadVdb's own fields at 256 MB).
   dependency_oom() {
     [ "$target" = vdb ] && grep -q "out-of-memory\|out of memory" "$1" &&
-      grep -A16 -E "out-of-memory|out of memory" "$1" | grep -q "libopenvdb"
+      grep -A40 -E "out-of-memory|out of memory" "$1" | grep -q "libopenvdb"
   }
   # The regressions, one at a time.
   for input in tests/fuzz/regressions/"$target"/*; do
     [ -f "$input" ] || continue
-    "$bin" -rss_limit_mb=3072 -malloc_limit_mb=4096 -timeout=20 "$input" > "$findings/replay.log" 2>&1 ||
+    "$bin" -rss_limit_mb=3072 -malloc_limit_mb=1024 -timeout=20 "$input" > "$findings/replay.log" 2>&1 ||
       dependency_oom "$findings/replay.log" ||
       { echo "fuzz $target: regression input $input fails again"; tail -30 "$findings/replay.log"; status=1; }
   done
@@ -59,7 +62,7 @@ for bin in "$BUILD"/tests/fuzz/fuzz_*; do
   while [ -z "$verdict" ]; do
     left=$(( deadline - $(date +%s) )); [ "$left" -ge 1 ] || { verdict=ok; break; }
     rm -f "$findings"/crash-* "$findings"/oom-* "$findings"/timeout-*
-    if "$bin" -max_total_time="$left" -rss_limit_mb=3072 -malloc_limit_mb=4096 -timeout=20 \
+    if "$bin" -max_total_time="$left" -rss_limit_mb=3072 -malloc_limit_mb=1024 -timeout=20 \
          -max_len=65536 -print_final_stats=1 -artifact_prefix="$findings/" "$corpus" \
          > "$findings/fuzz.log" 2>&1; then
       verdict=ok

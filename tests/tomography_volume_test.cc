@@ -171,6 +171,77 @@ TEST(Vdb, ReadsForeignFilesByTheirActiveBoundingBox) {
   fs::remove_all(dir);
 }
 
+// Tiles, as Houdini writes a region of one value: a root tile spans 4096^3 voxels, and only the
+// lattice that flamerig_dims declares is read (it was walked whole: over a minute for this file).
+TEST(Vdb, ReadsTilesWithinTheDeclaredLattice) {
+  fs::path dir = TempDir();
+  openvdb::initialize();
+  auto grid = openvdb::FloatGrid::create(0.0f);
+  grid->setName("temperature");
+  grid->setTransform(openvdb::math::Transform::createLinearTransform(0.01));
+  grid->insertMeta("flamerig_dims", openvdb::Vec3IMetadata(openvdb::Vec3i(6, 5, 4)));
+  grid->tree().root().addTile(openvdb::Coord(-4096, 0, 0), 1500.0f, /*active=*/true);
+  grid->tree().addTile(/*level=*/1, openvdb::Coord(0, 0, 0), 1800.0f, /*active=*/true);
+  grid->tree().setValue(openvdb::Coord(200, 3, 2), 2000.0f);
+  const std::string path = (dir / "tiles.vdb").string();
+  openvdb::io::File(path).write({grid});
+  FireVolume v = ReadVdb(path);
+  ASSERT_EQ(v.geometry.dims, Eigen::Vector3i(6, 5, 4));
+  for (float t : v.temperature_k) EXPECT_EQ(t, 1800.0f);
+  fs::remove_all(dir);
+}
+
+// A file of a few hundred bytes may declare a lattice of two billion voxels, whose dense fields
+// no machine holds: refused with the sizes before any is allocated (by the budget given, or by
+// this machine's memory), not killed by the kernel part-way.
+TEST(Vdb, ALatticeLargerThanMemoryIsRefusedBeforeItIsAllocated) {
+  fs::path dir = TempDir();
+  openvdb::initialize();
+  auto make = [&](const std::string& name, openvdb::Vec3i dims) {
+    openvdb::GridPtrVec grids;
+    for (const char* field : {"temperature", "density", "temperature_sigma", "density_sigma",
+                              "determined", "soot_volume_fraction"}) {
+      auto grid = openvdb::FloatGrid::create(0.0f);
+      grid->setName(field);
+      grid->insertMeta("flamerig_dims", openvdb::Vec3IMetadata(dims));
+      grid->tree().setValue(openvdb::Coord(1, 2, 3), 1500.0f);
+      grids.push_back(grid);
+    }
+    const std::string path = (dir / name).string();
+    openvdb::io::File(path).write(grids);
+    return path;
+  };
+  // 1000^3 voxels, six fields: 24 GB.
+  const std::string big = make("big.vdb", openvdb::Vec3i(1000, 1000, 1000));
+  try {
+    ReadVdb(big, /*max_bytes=*/std::size_t(1) << 30);
+    FAIL() << "no error";
+  } catch (const DataError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("big.vdb: its lattice of 1000 x 1000 x 1000 voxels needs 24.0 GB for "
+                        "its 6 field values a voxel, more than the 1.1 GB allowed"),
+              std::string::npos)
+        << what;
+  }
+  // Within the budget, the same kind of file reads.
+  const FireVolume small = ReadVdb(make("small.vdb", openvdb::Vec3i(8, 8, 8)), 6 * 512 * 4);
+  EXPECT_EQ(small.temperature_k[small.geometry.Flat(1, 2, 3)], 1500.0f);
+  // 1290 x 1290 x 1290, six fields: 51.5 GB, more than this machine has (else skipped).
+  const std::string huge = make("huge.vdb", openvdb::Vec3i(1290, 1290, 1290));
+  if (PhysicalMemoryBytes() == 0 || PhysicalMemoryBytes() > 51'000'000'000u) {
+    fs::remove_all(dir);
+    GTEST_SKIP() << "this machine has over 51 GB of memory";
+  }
+  try {
+    ReadVdb(huge);
+    FAIL() << "no error";
+  } catch (const DataError& e) {
+    EXPECT_NE(std::string(e.what()).find("of this machine's memory"), std::string::npos)
+        << e.what();
+  }
+  fs::remove_all(dir);
+}
+
 TEST(Vdb, BadFilesAndVolumesGiveClearErrors) {
   fs::path dir = TempDir();
   auto expect_error = [](auto fn, const std::string& fragment) {
@@ -269,6 +340,13 @@ TEST(Vdb, ADamagedFileFoundByFuzzingIsAnErrorNotAnAbort) {
 // OpenVDB's own error); tomography/openvdb_blosc_guard.cc compares first.
 TEST(Vdb, AHeapOverflowFoundByFuzzingIsAnError) {
   ExpectFuzzFindingIsAnError("blosc_uncompressed_overflow.vdb", "the file states");
+}
+
+// A root tile whose active flag is the byte 64, not a bool (found by fuzzing in CI: undefined
+// behaviour in OpenVDB's reader, tests/fuzz/ubsan_ignorelist.txt): with no flamerig_dims its
+// bounding box is the tile's 4096^3 voxels, which no fire lattice is.
+TEST(Vdb, ARootTileFoundByFuzzingIsAnError) {
+  ExpectFuzzFindingIsAnError("root_tile_bool_64.vdb", "unusable dimensions");
 }
 
 }  // namespace

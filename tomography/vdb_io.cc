@@ -4,12 +4,15 @@
 #include <openvdb/openvdb.h>
 
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <ios>
 #include <mutex>
 #include <stdexcept>
 #include <string>
+
+#include <unistd.h>
 
 #include "core/atomic_file.h"
 #include "core/error.h"
@@ -91,6 +94,30 @@ GridGeometry GeometryOf(const openvdb::GridBase& grid, const std::string& path) 
   Eigen::Vector3d lo_d(lo.x(), lo.y(), lo.z());
   g.origin_in_rig = center0 + lo_d.cwiseProduct(g.voxel_size_m) - 0.5 * g.voxel_size_m;
   return g;
+}
+
+bool IsScalarField(const std::string& name) {
+  return name == "temperature" || name == "density" || name == "temperature_sigma" ||
+         name == "density_sigma" || name == "determined" || name == "soot_volume_fraction";
+}
+
+// Refuses a lattice whose dense fields (floats_per_voxel floats a voxel) need more than max_bytes
+// (0: the machine's physical memory), before any is allocated.
+void CheckFieldsFit(const GridGeometry& g, std::size_t floats_per_voxel, std::size_t max_bytes,
+                    const std::string& path) {
+  const bool machine = max_bytes == 0;
+  if (machine) max_bytes = PhysicalMemoryBytes();
+  if (max_bytes == 0) return;
+  const double need = double(g.num_voxels()) * double(floats_per_voxel) * sizeof(float);
+  if (need <= double(max_bytes)) return;
+  char text[256];
+  std::snprintf(text, sizeof text,
+                ": its lattice of %d x %d x %d voxels needs %.1f GB for its %zu field values a "
+                "voxel, more than the %.1f GB %s (a damaged flamerig_dims, or a volume too large "
+                "to read here)",
+                g.dims.x(), g.dims.y(), g.dims.z(), need / 1e9, floats_per_voxel, max_bytes / 1e9,
+                machine ? "of this machine's memory" : "allowed");
+  throw DataError(path + text);
 }
 
 openvdb::Coord OffsetOf(const openvdb::GridBase& grid) {
@@ -175,7 +202,14 @@ std::string Printable(const std::string& text) {
 
 }  // namespace
 
-FireVolume ReadVdb(const std::string& path) {
+std::size_t PhysicalMemoryBytes() {
+  const long pages = ::sysconf(_SC_PHYS_PAGES);
+  const long page_size = ::sysconf(_SC_PAGE_SIZE);
+  if (pages <= 0 || page_size <= 0) return 0;
+  return std::size_t(pages) * std::size_t(page_size);
+}
+
+FireVolume ReadVdb(const std::string& path, std::size_t max_bytes) {
   InitializeOpenVdb();
   if (!std::filesystem::exists(path)) throw InputError(path + ": no such file");
   FireVolume volume;
@@ -220,10 +254,20 @@ FireVolume ReadVdb(const std::string& path) {
   } catch (const std::exception& e) {
     throw DataError(path + ": not a readable VDB file: " + Printable(e.what()));
   }
+  // Floats per voxel of the dense fields to be read: one per known scalar grid, three for emission.
+  std::size_t floats_per_voxel = 0;
+  for (const auto& base : *grids) {
+    const std::string& name = base->getName();
+    if (name == "emission")
+      floats_per_voxel += 3;
+    else if (IsScalarField(name))
+      floats_per_voxel += 1;
+  }
   bool have_geometry = false;
   auto adopt_geometry = [&](const openvdb::GridBase& grid) {
     GridGeometry g = GeometryOf(grid, path);
     if (!have_geometry) {
+      CheckFieldsFit(g, floats_per_voxel, max_bytes, path);
       volume.geometry = g;
       have_geometry = true;
     } else if (!(g.dims == volume.geometry.dims) ||
@@ -234,13 +278,18 @@ FireVolume ReadVdb(const std::string& path) {
     }
   };
   // Calls store(flat index, value) for every active voxel of `grid` inside the lattice adopted
-  // (voxels outside it are ignored).
+  // (voxels outside it are ignored). A tile's box is clipped to the lattice first: a root tile
+  // spans 4096^3 voxels, and a file with one and a small flamerig_dims took minutes here.
   auto for_each_voxel = [&](const auto& grid, const auto& store) {
     const GridGeometry& g = volume.geometry;
     const openvdb::Coord off = OffsetOf(grid);
+    const openvdb::CoordBBox lattice(
+        off, off + openvdb::Coord(g.dims.x() - 1, g.dims.y() - 1, g.dims.z() - 1));
     for (auto it = grid.cbeginValueOn(); it; ++it) {
       openvdb::CoordBBox box;
       it.getBoundingBox(box);
+      box.intersect(lattice);
+      if (box.empty()) continue;
       for (auto c = box.begin(); c; ++c) {
         const openvdb::Coord ijk = *c - off;
         if (ijk.x() < 0 || ijk.y() < 0 || ijk.z() < 0 || ijk.x() >= g.dims.x() ||

@@ -16,6 +16,7 @@
 #ifndef FLAMERIG_TOMOGRAPHY_VDB_IO_H_
 #define FLAMERIG_TOMOGRAPHY_VDB_IO_H_
 
+#include <cstddef>
 #include <string>
 
 #include "tomography/volume.h"
@@ -30,8 +31,14 @@ void WriteVdb(const std::string& path, const FireVolume& volume);
 // Reads the grids named above (any subset; at least one of temperature, density and emission must
 // exist).
 // Throws InputError for a missing file, DataError naming the path and the problem: not a VDB
-// file, no known grid, a non-linear or rotated transform, grids whose transforms disagree.
-FireVolume ReadVdb(const std::string& path);
+// file, no known grid, a non-linear or rotated transform, grids whose transforms disagree, or a
+// lattice whose dense fields need more than `max_bytes` (0: this machine's physical memory). The
+// fields are dense over the lattice that flamerig_dims declares, so a damaged or hostile file of a
+// few hundred bytes can state 2^31 voxels: it is refused with the sizes, not killed by the kernel.
+FireVolume ReadVdb(const std::string& path, std::size_t max_bytes = 0);
+
+// This machine's physical memory in bytes (sysconf), or 0 if unknown.
+std::size_t PhysicalMemoryBytes();
 
 }  // namespace flamerig
 
