@@ -14,6 +14,7 @@
 
 #include "core/config_reader.h"
 #include "core/error.h"
+#include "core/format.h"
 
 namespace flamerig {
 
@@ -42,11 +43,10 @@ std::vector<Eigen::Vector3d> BoardSpec::InnerCornersInBoard() const {
 
 std::string BoardSpec::Describe() const {
   std::ostringstream s;
-  s.precision(17);
   s << (type == BoardType::kCharuco ? "charuco " : "chessboard ") << squares_x << "x" << squares_y
-    << " squares of " << square_m << " m";
+    << " squares of " << FormatExact(square_m) << " m";
   if (type == BoardType::kCharuco)
-    s << ", markers " << marker_m << " m, dictionary " << aruco_dictionary;
+    s << ", markers " << FormatExact(marker_m) << " m, dictionary " << aruco_dictionary;
   return s.str();
 }
 
@@ -113,13 +113,13 @@ void DetectOptions::Validate() const {
 
 std::string DetectOptions::Describe() const {
   std::ostringstream s;
-  s.precision(17);
   s << "detector " << ChessboardDetectorName(detector) << ", min_corners " << min_corners
-    << ", min_span " << min_span_fraction << ", misfit " << max_misfit_squares << " squares";
+    << ", min_span " << FormatExact(min_span_fraction) << ", misfit "
+    << FormatExact(max_misfit_squares) << " squares";
   if (detector != ChessboardDetector::kClassic) s << ", sb accuracy " << accurate_chessboard;
   if (detector != ChessboardDetector::kSb)
     s << ", subpix " << subpix_half_window << " px " << subpix_iterations << " iterations "
-      << subpix_epsilon << " px";
+      << FormatExact(subpix_epsilon) << " px";
   return s.str();
 }
 

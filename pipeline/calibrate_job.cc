@@ -379,11 +379,27 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
                      " holds a simulated dataset (dataset.yaml), whose rig.yaml and cameras/ are "
                      "the truth; write the calibration to another folder");
   BoardSpec board;
+  const fs::path beside = fs::path(source) / "board.yaml";
+  // A board given (--board, the config) that is not the one described beside the views: a square
+  // size off by a factor scales the whole rig, and nothing in the solve can tell.
+  std::string board_mismatch;
   if (config.board) {
     board = *config.board;
+    if (fs::exists(beside)) {
+      try {
+        const BoardSpec there = LoadBoardSpec(beside.string());
+        if (there.Describe() != board.Describe())
+          board_mismatch = "the board given (" + board.Describe() + ") is not the one " +
+                           beside.string() + " describes (" + there.Describe() +
+                           "): the one given is used, and a wrong square size scales the whole "
+                           "rig";
+      } catch (const std::exception& e) {
+        board_mismatch = "the board given is used; " + beside.string() +
+                         " beside the views is not readable: " + e.what();
+      }
+      if (!board_mismatch.empty()) Log().warn("calibrate: {}", board_mismatch);
+    }
   } else {
-    const fs::path beside =
-        fs::path(input.images_dir.empty() ? input.recording_dir : input.images_dir) / "board.yaml";
     if (!fs::exists(beside))
       throw InputError(
           "calibrate: no board described: give --board FILE, one in the config (board: or "
@@ -418,6 +434,7 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   } catch (const Cancelled& e) {
     throw Cancelled(e.what() + std::string(kNotWritten));
   }
+  if (!board_mismatch.empty()) summary.notes.push_back("WARNING: " + board_mismatch);
   // Projection uncertainty over the box, in voxels of the grid `flamerig reconstruct` makes of it
   // by default.
   ProjectionUncertainty uncertainty;
@@ -672,6 +689,24 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   writing.unit = "files";
   if (ReportProgress(progress, writing))
     throw Cancelled(std::string("calibration: cancelled before writing") + kNotWritten);
+  // What an earlier calibration in OUT wrote for cameras this one does not have (a rig that had
+  // more cameras): removed once the new rig.yaml is in place, so that cameras/*.cameramodel, which
+  // mrcal's tools take by the folder, holds this rig's cameras only. Files it did not write stay.
+  std::vector<fs::path> stale;
+  if (fs::exists(fs::path(out_dir) / "rig.yaml")) {
+    try {
+      const Rig earlier = Rig::Load((fs::path(out_dir) / "rig.yaml").string());
+      for (const RigCamera& c : earlier.cameras) {
+        if (summary.rig.FindCamera(c.name) >= 0) continue;
+        stale.push_back(fs::path(out_dir) / c.model_path);
+        for (const char* picture : {"coverage_", "residuals_", "per_image_"})
+          stale.push_back(fs::path(out_dir) / (picture + c.name + ".png"));
+      }
+    } catch (const std::exception& e) {
+      Log().warn("calibrate: the earlier {}/rig.yaml is not readable ({}); its files are left",
+                 out_dir, e.what());
+    }
+  }
   std::vector<fs::path> files;
   for (const auto& e : fs::recursive_directory_iterator(stage))
     if (e.is_regular_file() && e.path() != stage / "rig.yaml") files.push_back(e.path());
@@ -680,6 +715,10 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
     const fs::path to = fs::path(out_dir) / fs::relative(f, stage);
     fs::create_directories(to.parent_path());
     fs::rename(f, to);
+  }
+  for (const fs::path& f : stale) {
+    std::error_code ignored;
+    fs::remove(f, ignored);
   }
   if (data_out) *data_out = std::move(data);
   return summary;

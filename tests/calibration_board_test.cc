@@ -224,6 +224,18 @@ TEST(DetectOptions, DescribeChangesWithEverySettingAndBadValuesAreNamed) {
     changes[i](o);
     EXPECT_NE(o.Describe(), b.Describe()) << "setting " << i;
   }
+  // A change in the last bit of a double changes it too (the description keys the detection
+  // cache), yet values read as written.
+  DetectOptions nudged = b;
+  nudged.subpix_epsilon = std::nextafter(b.subpix_epsilon, 1.0);
+  EXPECT_NE(nudged.Describe(), b.Describe());
+  EXPECT_NE(b.Describe().find(", misfit 0.1 squares"), std::string::npos) << b.Describe();
+  BoardSpec board;
+  board.square_m = 0.009;
+  EXPECT_NE(board.Describe().find(" squares of 0.009 m"), std::string::npos) << board.Describe();
+  BoardSpec board_nudged = board;
+  board_nudged.square_m = std::nextafter(0.009, 1.0);
+  EXPECT_NE(board_nudged.Describe(), board.Describe());
   DetectOptions sb;
   sb.detector = ChessboardDetector::kSb;
   DetectOptions sb_fast = sb;

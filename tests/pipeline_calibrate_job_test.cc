@@ -20,8 +20,12 @@ TEST_F(Ring, WritesARigThatLoadsAndAReport) {
   const fs::path out = TempDir("job");
   CalibrateConfig config =
       CalibrateConfig::Load(std::string(FLAMERIG_SOURCE_DIR) + "/config/calibrate_sim.yaml");
+  // The board given is the one beside the views: no warning that they differ.
+  config.board = LoadBoardSpec((*dir_ / "calibration" / "board.yaml").string());
   const CalibrationSummary s =
       RunCalibration(config, CalibrateInput{(*dir_ / "calibration").string(), ""}, out.string());
+  for (const auto& note : s.notes)
+    EXPECT_EQ(note.find("is not the one"), std::string::npos) << note;
   const Rig rig = Rig::Load((out / "rig.yaml").string());
   ASSERT_EQ(rig.cameras.size(), 4u);
   EXPECT_EQ(rig.box.min_in_rig, config.options.box.min_in_rig);
@@ -54,6 +58,64 @@ TEST_F(Ring, WritesARigThatLoadsAndAReport) {
   EXPECT_TRUE(
       std::regex_search(text, std::regex("\\| cam3 \\| [0-9.]+ \\| [0-9.]+ \\| [0-9.]+ \\|\n")))
       << text;
+  fs::remove_all(out);
+}
+
+// A board given with squares 1.5 times those of the board.yaml beside the views (and of the board
+// filmed): the solve cannot tell, and the rig comes out 1.5 times too large, so the report warns.
+TEST_F(Ring, ABoardGivenThatIsNotTheOneBesideTheViewsIsAWarning) {
+  const fs::path out = TempDir("scaled");
+  CalibrateConfig config =
+      CalibrateConfig::Load(std::string(FLAMERIG_SOURCE_DIR) + "/config/calibrate_sim.yaml");
+  config.uncertainty_trials = 0;
+  BoardSpec board = LoadBoardSpec((*dir_ / "calibration" / "board.yaml").string());
+  ASSERT_EQ(board.square_m, 0.012);
+  board.square_m = 0.018;
+  board.marker_m = 0.0135;
+  config.board = board;
+  const CalibrationSummary s =
+      RunCalibration(config, CalibrateInput{(*dir_ / "calibration").string(), ""}, out.string());
+  // The oracle for the scale: the simulator's true rig.
+  const Eigen::Vector3d truth =
+      truth_->cameras[0].model.center_in_rig() - truth_->cameras[2].model.center_in_rig();
+  const Eigen::Vector3d solved =
+      s.rig.cameras[0].model.center_in_rig() - s.rig.cameras[2].model.center_in_rig();
+  EXPECT_NEAR(solved.norm() / truth.norm(), 1.5, 0.01);
+  std::string warning;
+  for (const auto& note : s.notes)
+    if (note.find("is not the one") != std::string::npos) warning = note;
+  EXPECT_NE(warning.find("WARNING: the board given (charuco"), std::string::npos) << warning;
+  EXPECT_NE(warning.find("squares of 0.018 m"), std::string::npos) << warning;
+  EXPECT_NE(warning.find("board.yaml describes (charuco"), std::string::npos) << warning;
+  EXPECT_NE(warning.find("squares of 0.012 m"), std::string::npos) << warning;
+  std::ifstream report(out / "report.md");
+  const std::string text((std::istreambuf_iterator<char>(report)),
+                         std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("a wrong square size scales the whole rig"), std::string::npos);
+  fs::remove_all(out);
+}
+
+// Calibrating fewer cameras into a folder that holds a larger rig: the cameras that are gone
+// leave no model or picture behind (mrcal's tools take cameras/*.cameramodel), and files the
+// calibration did not write stay.
+TEST_F(Ring, ACameraLessLeavesNoStaleModel) {
+  const fs::path out = TempDir("fewer");
+  CalibrateConfig config =
+      CalibrateConfig::Load(std::string(FLAMERIG_SOURCE_DIR) + "/config/calibrate_sim.yaml");
+  config.uncertainty_trials = 0;
+  const CalibrateInput input{(*dir_ / "calibration").string(), ""};
+  RunCalibration(config, input, out.string());
+  ASSERT_TRUE(fs::exists(out / "cameras" / "cam3.cameramodel"));
+  ASSERT_TRUE(fs::exists(out / "coverage_cam3.png"));
+  std::ofstream(out / "cameras" / "notes.txt") << "lens serials\n";
+  config.cameras = {"cam0", "cam1", "cam2"};
+  RunCalibration(config, input, out.string());
+  EXPECT_EQ(Rig::Load((out / "rig.yaml").string()).cameras.size(), 3u);
+  for (const char* gone : {"cameras/cam3.cameramodel", "coverage_cam3.png", "residuals_cam3.png",
+                           "per_image_cam3.png"})
+    EXPECT_FALSE(fs::exists(out / gone)) << gone;
+  for (const char* kept : {"cameras/cam2.cameramodel", "coverage_cam2.png", "cameras/notes.txt"})
+    EXPECT_TRUE(fs::exists(out / kept)) << kept;
   fs::remove_all(out);
 }
 
