@@ -698,7 +698,10 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
       const Rig earlier = Rig::Load((fs::path(out_dir) / "rig.yaml").string());
       for (const RigCamera& c : earlier.cameras) {
         if (summary.rig.FindCamera(c.name) >= 0) continue;
-        stale.push_back(fs::path(out_dir) / c.model_path);
+        // Only the model where calibrate writes it: a rig.yaml edited to name a model elsewhere
+        // (outside OUT) keeps that file.
+        if (fs::path(c.model_path) == fs::path("cameras") / (c.name + ".cameramodel"))
+          stale.push_back(fs::path(out_dir) / c.model_path);
         for (const char* picture : {"coverage_", "residuals_", "per_image_"})
           stale.push_back(fs::path(out_dir) / (picture + c.name + ".png"));
       }

@@ -116,6 +116,23 @@ TEST_F(Ring, ACameraLessLeavesNoStaleModel) {
     EXPECT_FALSE(fs::exists(out / gone)) << gone;
   for (const char* kept : {"cameras/cam2.cameramodel", "coverage_cam2.png", "cameras/notes.txt"})
     EXPECT_TRUE(fs::exists(out / kept)) << kept;
+  // A rig.yaml edited to take cam2's model from elsewhere: that file is not calibrate's to remove.
+  const fs::path elsewhere = TempDir("elsewhere");
+  fs::copy_file(out / "cameras" / "cam2.cameramodel", elsewhere / "cam2.cameramodel");
+  std::string yaml;
+  {
+    std::ifstream in(out / "rig.yaml");
+    yaml.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  const std::string from = "cameras/cam2.cameramodel";
+  ASSERT_NE(yaml.find(from), std::string::npos) << yaml;
+  yaml.replace(yaml.find(from), from.size(), (elsewhere / "cam2.cameramodel").string());
+  std::ofstream(out / "rig.yaml", std::ios::trunc) << yaml;
+  config.cameras = {"cam0", "cam1"};
+  RunCalibration(config, input, out.string());
+  EXPECT_TRUE(fs::exists(elsewhere / "cam2.cameramodel"));
+  EXPECT_FALSE(fs::exists(out / "coverage_cam2.png"));
+  fs::remove_all(elsewhere);
   fs::remove_all(out);
 }
 
