@@ -2,6 +2,7 @@
 
 #include <sys/mman.h>
 #include <sys/resource.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cstdio>
@@ -52,6 +53,13 @@ bool ResetPeakResident() {
 }
 
 std::size_t ResidentBytes() { return StatusKilobytes("VmRSS"); }
+
+std::size_t PhysicalMemoryBytes() {
+  const long pages = ::sysconf(_SC_PHYS_PAGES);
+  const long page_size = ::sysconf(_SC_PAGE_SIZE);
+  if (pages <= 0 || page_size <= 0) return 0;
+  return std::size_t(pages) * std::size_t(page_size);
+}
 
 void* AllocateHugePageBacked(std::size_t bytes) {
   constexpr std::size_t kHugePage = std::size_t(2) << 20;

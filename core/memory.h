@@ -19,6 +19,8 @@ std::size_t PeakResidentBytesOf(int pid);
 bool ResetPeakResident();
 // The resident set size now (VmRSS), bytes; 0 when unavailable.
 std::size_t ResidentBytes();
+// This machine's physical memory (sysconf), bytes; 0 when unavailable.
+std::size_t PhysicalMemoryBytes();
 
 // Memory for a large array read at random (a voxel grid that rays cross in every direction),
 // backed by 2 MiB pages where the kernel allows it: a 128^3 grid of 16-byte records is 34 MB,

@@ -16,10 +16,19 @@ namespace {
 
 namespace fs = std::filesystem;
 
+// The simulated rig's calibration config (config/calibrate_sim.yaml).
+CalibrateConfig SimConfig() {
+  return CalibrateConfig::Load(std::string(FLAMERIG_SOURCE_DIR) + "/config/calibrate_sim.yaml");
+}
+
+std::string ReadText(const fs::path& path) {
+  std::ifstream in(path);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
 TEST_F(Ring, WritesARigThatLoadsAndAReport) {
   const fs::path out = TempDir("job");
-  CalibrateConfig config =
-      CalibrateConfig::Load(std::string(FLAMERIG_SOURCE_DIR) + "/config/calibrate_sim.yaml");
+  CalibrateConfig config = SimConfig();
   // The board given is the one beside the views: no warning that they differ.
   config.board = LoadBoardSpec((*dir_ / "calibration" / "board.yaml").string());
   const CalibrationSummary s =
@@ -32,8 +41,8 @@ TEST_F(Ring, WritesARigThatLoadsAndAReport) {
   // Each model carries the solve for mrcal's tools (read back by mrcal in
   // calibration_mrcal_inputs_test and pipeline_calibrate_rigs_test), its own camera's index.
   for (int c = 0; c < 4; ++c) {
-    std::ifstream in(out / "cameras" / ("cam" + std::to_string(c) + ".cameramodel"));
-    const std::string model((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const std::string model =
+        ReadText(out / "cameras" / ("cam" + std::to_string(c) + ".cameramodel"));
     EXPECT_NE(model.find("'icam_intrinsics': " + std::to_string(c) + ","), std::string::npos);
     EXPECT_NE(model.find("'optimization_inputs': b'"), std::string::npos);
   }
@@ -45,8 +54,7 @@ TEST_F(Ring, WritesARigThatLoadsAndAReport) {
        {"report.md", "rig_top.png", "coverage_cam0.png", "coverage_cam3.png", "residuals_cam0.png",
         "per_image_cam3.png", "corners.vnl", "detections.cache"})
     EXPECT_TRUE(fs::exists(out / f)) << f;
-  std::ifstream report(out / "report.md");
-  std::string text((std::istreambuf_iterator<char>(report)), std::istreambuf_iterator<char>());
+  const std::string text = ReadText(out / "report.md");
   EXPECT_NE(text.find("per coordinate"), std::string::npos);
   EXPECT_NE(text.find("Worst corners"), std::string::npos);
   EXPECT_NE(text.find("## Images without a board"), std::string::npos);
@@ -65,8 +73,7 @@ TEST_F(Ring, WritesARigThatLoadsAndAReport) {
 // filmed): the solve cannot tell, and the rig comes out 1.5 times too large, so the report warns.
 TEST_F(Ring, ABoardGivenThatIsNotTheOneBesideTheViewsIsAWarning) {
   const fs::path out = TempDir("scaled");
-  CalibrateConfig config =
-      CalibrateConfig::Load(std::string(FLAMERIG_SOURCE_DIR) + "/config/calibrate_sim.yaml");
+  CalibrateConfig config = SimConfig();
   config.uncertainty_trials = 0;
   BoardSpec board = LoadBoardSpec((*dir_ / "calibration" / "board.yaml").string());
   ASSERT_EQ(board.square_m, 0.012);
@@ -88,9 +95,7 @@ TEST_F(Ring, ABoardGivenThatIsNotTheOneBesideTheViewsIsAWarning) {
   EXPECT_NE(warning.find("squares of 0.018 m"), std::string::npos) << warning;
   EXPECT_NE(warning.find("board.yaml describes (charuco"), std::string::npos) << warning;
   EXPECT_NE(warning.find("squares of 0.012 m"), std::string::npos) << warning;
-  std::ifstream report(out / "report.md");
-  const std::string text((std::istreambuf_iterator<char>(report)),
-                         std::istreambuf_iterator<char>());
+  const std::string text = ReadText(out / "report.md");
   EXPECT_NE(text.find("a wrong square size scales the whole rig"), std::string::npos);
   fs::remove_all(out);
 }
@@ -100,8 +105,7 @@ TEST_F(Ring, ABoardGivenThatIsNotTheOneBesideTheViewsIsAWarning) {
 // calibration did not write stay.
 TEST_F(Ring, ACameraLessLeavesNoStaleModel) {
   const fs::path out = TempDir("fewer");
-  CalibrateConfig config =
-      CalibrateConfig::Load(std::string(FLAMERIG_SOURCE_DIR) + "/config/calibrate_sim.yaml");
+  CalibrateConfig config = SimConfig();
   config.uncertainty_trials = 0;
   const CalibrateInput input{(*dir_ / "calibration").string(), ""};
   RunCalibration(config, input, out.string());
@@ -119,11 +123,7 @@ TEST_F(Ring, ACameraLessLeavesNoStaleModel) {
   // A rig.yaml edited to take cam2's model from elsewhere: that file is not calibrate's to remove.
   const fs::path elsewhere = TempDir("elsewhere");
   fs::copy_file(out / "cameras" / "cam2.cameramodel", elsewhere / "cam2.cameramodel");
-  std::string yaml;
-  {
-    std::ifstream in(out / "rig.yaml");
-    yaml.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-  }
+  std::string yaml = ReadText(out / "rig.yaml");
   const std::string from = "cameras/cam2.cameramodel";
   ASSERT_NE(yaml.find(from), std::string::npos) << yaml;
   yaml.replace(yaml.find(from), from.size(), (elsewhere / "cam2.cameramodel").string());
@@ -200,15 +200,10 @@ TEST(CalibrateConfig, ErrorsNameTheFileAndKey) {
 // named.
 TEST_F(Ring, AFailedRunKeepsTheEarlierCalibrationAndTheTruthIsNotOverwritten) {
   const fs::path out = TempDir("keep");
-  CalibrateConfig config =
-      CalibrateConfig::Load(std::string(FLAMERIG_SOURCE_DIR) + "/config/calibrate_sim.yaml");
+  CalibrateConfig config = SimConfig();
   config.uncertainty_trials = 0;
   RunCalibration(config, CalibrateInput{(*dir_ / "calibration").string(), ""}, out.string());
-  auto read = [](const fs::path& f) {
-    std::ifstream in(f);
-    return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  };
-  const std::string corners = read(out / "corners.vnl"), rig = read(out / "rig.yaml");
+  const std::string corners = ReadText(out / "corners.vnl"), rig = ReadText(out / "rig.yaml");
   ASSERT_FALSE(corners.empty());
   // Two views: too few for any camera.
   const fs::path few = TempDir("few");
@@ -221,13 +216,13 @@ TEST_F(Ring, AFailedRunKeepsTheEarlierCalibrationAndTheTruthIsNotOverwritten) {
     RunCalibration(config, CalibrateInput{few.string(), ""}, out.string());
   });
   EXPECT_NE(e.find("views"), std::string::npos) << e;
-  EXPECT_EQ(read(out / "corners.vnl"), corners);
-  EXPECT_EQ(read(out / "rig.yaml"), rig);
+  EXPECT_EQ(ReadText(out / "corners.vnl"), corners);
+  EXPECT_EQ(ReadText(out / "rig.yaml"), rig);
 
   // Stopped after the uncertainty's last solve, or just before writing: the earlier calibration
   // (its models and report too) stays as it was, and no staging folder is left.
-  const std::string model = read(out / "cameras" / "cam2.cameramodel"),
-                    report = read(out / "report.md");
+  const std::string model = ReadText(out / "cameras" / "cam2.cameramodel"),
+                    report = ReadText(out / "report.md");
   for (const std::string stop : {"uncertainty", "write"}) {
     CalibrateConfig with_uncertainty = config;
     with_uncertainty.uncertainty_trials = 3;
@@ -240,9 +235,9 @@ TEST_F(Ring, AFailedRunKeepsTheEarlierCalibrationAndTheTruthIsNotOverwritten) {
                      });
     });
     EXPECT_NE(cancelled.find("the calibration is not written"), std::string::npos) << cancelled;
-    EXPECT_EQ(read(out / "rig.yaml"), rig) << stop;
-    EXPECT_EQ(read(out / "cameras" / "cam2.cameramodel"), model) << stop;
-    EXPECT_EQ(read(out / "report.md"), report) << stop;
+    EXPECT_EQ(ReadText(out / "rig.yaml"), rig) << stop;
+    EXPECT_EQ(ReadText(out / "cameras" / "cam2.cameramodel"), model) << stop;
+    EXPECT_EQ(ReadText(out / "report.md"), report) << stop;
     EXPECT_FALSE(fs::exists(out / ".calibrate-partial")) << stop;
   }
 
@@ -251,7 +246,7 @@ TEST_F(Ring, AFailedRunKeepsTheEarlierCalibrationAndTheTruthIsNotOverwritten) {
     RunCalibration(config, CalibrateInput{(*dir_ / "calibration").string(), ""}, out.string());
   });
   EXPECT_NE(truth.find("holds a simulated dataset"), std::string::npos) << truth;
-  EXPECT_EQ(read(out / "rig.yaml"), rig);
+  EXPECT_EQ(ReadText(out / "rig.yaml"), rig);
   fs::remove(out / "dataset.yaml");
 
   const std::string none = ErrorOf([&] {

@@ -12,6 +12,7 @@
 #include <random>
 
 #include "core/error.h"
+#include "core/memory.h"
 #include "tomography/vdb_io.h"
 #include "tomography/volume.h"
 

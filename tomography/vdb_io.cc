@@ -12,10 +12,9 @@
 #include <stdexcept>
 #include <string>
 
-#include <unistd.h>
-
 #include "core/atomic_file.h"
 #include "core/error.h"
+#include "core/memory.h"
 
 namespace flamerig {
 namespace {
@@ -96,9 +95,25 @@ GridGeometry GeometryOf(const openvdb::GridBase& grid, const std::string& path) 
   return g;
 }
 
-bool IsScalarField(const std::string& name) {
-  return name == "temperature" || name == "density" || name == "temperature_sigma" ||
-         name == "density_sigma" || name == "determined" || name == "soot_volume_fraction";
+// The float grids, as stored: name, the FireVolume field, the unit written beside it.
+struct ScalarGrid {
+  const char* name;
+  std::vector<float> FireVolume::*field;
+  const char* unit;
+};
+constexpr ScalarGrid kScalarGrids[] = {
+    {"temperature", &FireVolume::temperature_k, "K"},
+    {"density", &FireVolume::density_per_m3, "m^-3"},
+    {"temperature_sigma", &FireVolume::temperature_sigma_k, "K"},
+    {"density_sigma", &FireVolume::density_sigma, "sigma of ln density"},
+    {"determined", &FireVolume::determined, "1 = by the images"},
+    {"soot_volume_fraction", &FireVolume::soot_volume_fraction, "m^3 of soot per m^3"}};
+
+// The field a float grid called `name` is read into, or nullptr for a grid flamerig does not read.
+std::vector<float>* ScalarField(FireVolume& volume, const std::string& name) {
+  for (const ScalarGrid& s : kScalarGrids)
+    if (name == s.name) return &(volume.*s.field);
+  return nullptr;
 }
 
 // Refuses a lattice whose dense fields (floats_per_voxel floats a voxel) need more than max_bytes
@@ -136,19 +151,9 @@ void WriteVdb(const std::string& path, const FireVolume& volume) {
   InitializeOpenVdb();
   const GridGeometry& g = volume.geometry;
   openvdb::GridPtrVec grids;
-  if (!volume.temperature_k.empty())
-    grids.push_back(MakeFloatGrid(g, volume.temperature_k, "temperature", "K"));
-  if (!volume.density_per_m3.empty())
-    grids.push_back(MakeFloatGrid(g, volume.density_per_m3, "density", "m^-3"));
-  if (!volume.temperature_sigma_k.empty())
-    grids.push_back(MakeFloatGrid(g, volume.temperature_sigma_k, "temperature_sigma", "K"));
-  if (!volume.density_sigma.empty())
-    grids.push_back(MakeFloatGrid(g, volume.density_sigma, "density_sigma", "sigma of ln density"));
-  if (!volume.determined.empty())
-    grids.push_back(MakeFloatGrid(g, volume.determined, "determined", "1 = by the images"));
-  if (!volume.soot_volume_fraction.empty())
-    grids.push_back(MakeFloatGrid(g, volume.soot_volume_fraction, "soot_volume_fraction",
-                                  "m^3 of soot per m^3"));
+  for (const ScalarGrid& s : kScalarGrids)
+    if (!(volume.*s.field).empty())
+      grids.push_back(MakeFloatGrid(g, volume.*s.field, s.name, s.unit));
   if (!volume.emission_rgb.empty()) {
     auto grid = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.0f));
     grid->setName("emission");
@@ -202,13 +207,6 @@ std::string Printable(const std::string& text) {
 
 }  // namespace
 
-std::size_t PhysicalMemoryBytes() {
-  const long pages = ::sysconf(_SC_PHYS_PAGES);
-  const long page_size = ::sysconf(_SC_PAGE_SIZE);
-  if (pages <= 0 || page_size <= 0) return 0;
-  return std::size_t(pages) * std::size_t(page_size);
-}
-
 FireVolume ReadVdb(const std::string& path, std::size_t max_bytes) {
   InitializeOpenVdb();
   if (!std::filesystem::exists(path)) throw InputError(path + ": no such file");
@@ -260,7 +258,7 @@ FireVolume ReadVdb(const std::string& path, std::size_t max_bytes) {
     const std::string& name = base->getName();
     if (name == "emission")
       floats_per_voxel += 3;
-    else if (IsScalarField(name))
+    else if (ScalarField(volume, name))
       floats_per_voxel += 1;
   }
   bool have_geometry = false;
@@ -304,13 +302,7 @@ FireVolume ReadVdb(const std::string& path, std::size_t max_bytes) {
   try {
     for (const auto& base : *grids) {
       const std::string name = base->getName();
-      std::vector<float>* field = name == "temperature"            ? &volume.temperature_k
-                                  : name == "density"              ? &volume.density_per_m3
-                                  : name == "temperature_sigma"    ? &volume.temperature_sigma_k
-                                  : name == "density_sigma"        ? &volume.density_sigma
-                                  : name == "determined"           ? &volume.determined
-                                  : name == "soot_volume_fraction" ? &volume.soot_volume_fraction
-                                                                   : nullptr;
+      std::vector<float>* field = ScalarField(volume, name);
       if (field) {
         auto grid = openvdb::gridConstPtrCast<openvdb::FloatGrid>(base);
         if (!grid) throw DataError(path + ": grid '" + name + "' is not a float grid");

@@ -32,13 +32,11 @@ void WriteVdb(const std::string& path, const FireVolume& volume);
 // exist).
 // Throws InputError for a missing file, DataError naming the path and the problem: not a VDB
 // file, no known grid, a non-linear or rotated transform, grids whose transforms disagree, or a
-// lattice whose dense fields need more than `max_bytes` (0: this machine's physical memory). The
+// lattice whose dense fields need more than `max_bytes` (0: this machine's physical memory,
+// core/memory.h's PhysicalMemoryBytes). The
 // fields are dense over the lattice that flamerig_dims declares, so a damaged or hostile file of a
 // few hundred bytes can state 2^31 voxels: it is refused with the sizes, not killed by the kernel.
 FireVolume ReadVdb(const std::string& path, std::size_t max_bytes = 0);
-
-// This machine's physical memory in bytes (sysconf), or 0 if unknown.
-std::size_t PhysicalMemoryBytes();
 
 }  // namespace flamerig
 
