@@ -52,6 +52,30 @@ cv::Scalar ErrorColour(double error_px, double scale) {
   return t < 0.5 ? cv::Scalar(0, 200, 510 * t) : cv::Scalar(0, 200 * (1 - t) * 2, 255);
 }
 
+// The pictures drawn per camera, each written as OUT/<prefix><camera>.png: their names, what the
+// Markdown report calls them and what the page says under them, in one place for the writer, both
+// reports and the removal of a gone camera's pictures.
+struct CameraPicture {
+  const char* prefix;
+  const char* alt;
+  const char* caption;  // follows the camera's name
+};
+enum CameraPictureKind { kCoverage, kResiduals, kPerImage };
+constexpr CameraPicture kCameraPictures[] = {
+    {"coverage_", "coverage",
+     ": where its corners fell on the image, each coloured by its reprojection error; magenta "
+     "crosses are outliers."},
+    {"residuals_", "residuals",
+     ": each corner's residual as an arrow, magnified; arrows that turn together over the image "
+     "mean a lens model that does not fit."},
+    {"per_image_", "residuals per image",
+     ": the RMS residual of each image; a bad image stands out."},
+};
+
+std::string CameraPictureFile(CameraPictureKind kind, const std::string& camera) {
+  return kCameraPictures[kind].prefix + camera + ".png";
+}
+
 }  // namespace
 
 CalibrateConfig CalibrateConfig::Load(const std::string& path) {
@@ -510,11 +534,11 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   for (std::size_t c = 0; c < summary.cameras.size(); ++c) {
     const auto& s = summary.cameras[c];
     double covered = 0;
-    WritePng((stage / ("coverage_" + s.name + ".png")).string(),
+    WritePng((stage / CameraPictureFile(kCoverage, s.name)).string(),
              CoveragePicture(data, summary, static_cast<int>(c), &covered));
-    WritePng((stage / ("residuals_" + s.name + ".png")).string(),
+    WritePng((stage / CameraPictureFile(kResiduals, s.name)).string(),
              ResidualVectorsPicture(data, summary, static_cast<int>(c)));
-    WritePng((stage / ("per_image_" + s.name + ".png")).string(),
+    WritePng((stage / CameraPictureFile(kPerImage, s.name)).string(),
              ResidualsPerImagePicture(data, summary, static_cast<int>(c)));
     camera_rows.push_back({s.name, std::to_string(s.views), std::to_string(s.points),
                            std::to_string(s.outliers), fmt::format("{:.3f}", s.rms_px_per_point),
@@ -610,9 +634,9 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   for (const auto& n : notes) md << "- " << n << "\n";
   md << "\n![rig from above](rig_top.png)\n\n";
   for (const auto& s : summary.cameras)
-    md << "![coverage " << s.name << "](coverage_" << s.name << ".png)\n"
-       << "![residuals " << s.name << "](residuals_" << s.name << ".png)\n"
-       << "![residuals per image " << s.name << "](per_image_" << s.name << ".png)\n";
+    for (int k : {kCoverage, kResiduals, kPerImage})
+      md << "![" << kCameraPictures[k].alt << " " << s.name << "]("
+         << CameraPictureFile(CameraPictureKind(k), s.name) << ")\n";
   // mrcal 2.2 seeds its board poses from every corner, missing ones included (calibrate.h's
   // WriteMrcalCorners): its solve of part boards starts far off.
   int part_boards = 0;
@@ -638,18 +662,10 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   page.Section("Residuals per camera");
   page.Text(rms_note);
   page.Table(camera_header, camera_rows);
-  for (const auto& s : summary.cameras) {
-    page.Figure("coverage_" + s.name + ".png",
-                s.name +
-                    ": where its corners fell on the image, each coloured by its "
-                    "reprojection error; magenta crosses are outliers.");
-    page.Figure("residuals_" + s.name + ".png",
-                s.name +
-                    ": each corner's residual as an arrow, magnified; arrows that turn together "
-                    "over the image mean a lens model that does not fit.");
-    page.Figure("per_image_" + s.name + ".png",
-                s.name + ": the RMS residual of each image; a bad image stands out.");
-  }
+  for (const auto& s : summary.cameras)
+    for (int k : {kCoverage, kResiduals, kPerImage})
+      page.Figure(CameraPictureFile(CameraPictureKind(k), s.name),
+                  s.name + kCameraPictures[k].caption);
   page.Section("Projection uncertainty over the box");
   page.Text(uncertainty_text);
   if (!uncertainty_rows.empty()) page.Table(uncertainty_header, uncertainty_rows);
@@ -702,8 +718,8 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
         // (outside OUT) keeps that file.
         if (fs::path(c.model_path) == fs::path("cameras") / (c.name + ".cameramodel"))
           stale.push_back(fs::path(out_dir) / c.model_path);
-        for (const char* picture : {"coverage_", "residuals_", "per_image_"})
-          stale.push_back(fs::path(out_dir) / (picture + c.name + ".png"));
+        for (int k : {kCoverage, kResiduals, kPerImage})
+          stale.push_back(fs::path(out_dir) / CameraPictureFile(CameraPictureKind(k), c.name));
       }
     } catch (const std::exception& e) {
       Log().warn("calibrate: the earlier {}/rig.yaml is not readable ({}); its files are left",

@@ -152,15 +152,13 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
   if (!job.truth_path.empty()) {
     truth = ReadVdb(job.truth_path);
     out.truth_frame = truth_frame;
-  }
-  out.scores = WriteFitReport(out.report_dir, out.result, views, held, absorption, job.fit.render,
-                              std::string("flamerig fit (") + ToString(job.method) + ")", nullptr,
-                              job.truth_path.empty() ? nullptr : &truth,
-                              out.truth_frame.to_from_from, rig.up_in_rig);
-  if (!job.truth_path.empty()) {
     out.have_truth = true;
     out.truth = CompareWithTruth(truth, out.result.volume, out.truth_frame.to_from_from);
   }
+  out.scores = WriteFitReport(out.report_dir, out.result, views, held, absorption, job.fit.render,
+                              std::string("flamerig fit (") + ToString(job.method) + ")", nullptr,
+                              out.have_truth ? &truth : nullptr, out.truth_frame.to_from_from,
+                              rig.up_in_rig, out.have_truth ? &out.truth : nullptr);
   return out;
 }
 

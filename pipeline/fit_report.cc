@@ -32,7 +32,8 @@ constexpr double kDeltaEScale = 20;
 // summary when the fit has one, and with a truth that has temperatures the scores `fit --truth`
 // prints (CompareWithTruth).
 std::vector<std::vector<std::string>> Quotables(const FitResult& result, const FireVolume* truth,
-                                                const Rigid3& fit_from_truth) {
+                                                const Rigid3& fit_from_truth,
+                                                const TruthError* truth_error) {
   std::vector<std::vector<std::string>> rows;
   const VoxelUncertainty& u = result.uncertainty;
   if (!u.temperature_sigma_k.empty()) {
@@ -45,7 +46,8 @@ std::vector<std::vector<std::string>> Quotables(const FitResult& result, const F
     rows.push_back({"median temperature sigma", fmt::format("{:.0f} K", *mid)});
   }
   if (!truth || !truth->HasTemperatureAndDensity()) return rows;
-  const TruthError t = CompareWithTruth(*truth, result.volume, fit_from_truth);
+  const TruthError t =
+      truth_error ? *truth_error : CompareWithTruth(*truth, result.volume, fit_from_truth);
   if (!t.compared || !t.counted) {
     rows.push_back({"truth", "not compared: " +
                                  (t.why_not.empty() ? "no visible voxel with medium" : t.why_not)});
@@ -224,7 +226,8 @@ std::vector<ViewScore> WriteFitReport(
     const std::string& dir, const FitResult& result, const std::vector<FitView>& fitted,
     const std::vector<FitView>& held_out, const AbsorptionModel& absorption,
     const RenderOptions& render, const std::string& title, std::vector<ImageU8>* rendered_out,
-    const FireVolume* truth, const Rigid3& fit_from_truth, const Eigen::Vector3d& up_in_rig) {
+    const FireVolume* truth, const Rigid3& fit_from_truth, const Eigen::Vector3d& up_in_rig,
+    const TruthError* truth_error) {
   const FireVolume& v = result.volume;
   // One renderer per camera response, made when a view needs it (views of one response are
   // usually together).
@@ -357,7 +360,8 @@ std::vector<ViewScore> WriteFitReport(
     md << "| " << s.name << " | " << (s.held_out ? "held out" : "fitted") << " | " << s.mean_delta_e
        << " | " << s.fire_delta_e << " | " << s.p95_delta_e << " |\n";
   }
-  const std::vector<std::vector<std::string>> quotables = Quotables(result, truth, fit_from_truth);
+  const std::vector<std::vector<std::string>> quotables =
+      Quotables(result, truth, fit_from_truth, truth_error);
   if (!quotables.empty()) {
     md << "\n| quantity | value |\n|---|---|\n";
     for (const auto& row : quotables) md << "| " << row[0] << " | " << row[1] << " |\n";
