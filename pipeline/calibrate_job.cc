@@ -19,6 +19,7 @@
 #include "core/log.h"
 #include "pipeline/picture.h"
 #include "pipeline/report_page.h"
+#include "pipeline/valid_region.h"
 #include "tomography/reconstruct.h"
 
 namespace flamerig {
@@ -496,10 +497,36 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   } stage_guard{stage};
   WriteMrcalCorners(data, (stage / "corners.vnl").string(), "views");
   summary.rig.Save((stage / "rig.yaml").string());
-  if (!inputs.empty())
-    for (std::size_t c = 0; c < summary.rig.cameras.size(); ++c)
-      AddMrcalOptimizationInputs((stage / summary.rig.cameras[c].model_path).string(), inputs,
-                                 static_cast<int>(c));
+  // And, from the solve, the valid-intrinsics region mrcal-calibrate-cameras writes (mrcal's own
+  // function, pipeline/valid_region.h).
+  std::vector<ValidRegion> regions;
+  if (!inputs.empty()) {
+    std::vector<std::string> model_paths;
+    for (std::size_t c = 0; c < summary.rig.cameras.size(); ++c) {
+      model_paths.push_back((stage / summary.rig.cameras[c].model_path).string());
+      AddMrcalOptimizationInputs(model_paths.back(), inputs, static_cast<int>(c));
+    }
+    regions = AddValidIntrinsicsRegions(model_paths);
+    const ValidRegionParameters region_parameters;
+    for (std::size_t c = 0; c < regions.size(); ++c) {
+      const ValidRegion& r = regions[c];
+      const std::string& name = summary.rig.cameras[c].name;
+      if (!r.computed) {
+        summary.notes.push_back("WARNING: no valid-intrinsics region in " + name +
+                                "'s model: " + r.error);
+      } else if (r.contour.empty()) {
+        summary.notes.push_back(fmt::format(
+            "{}'s valid-intrinsics region is empty: mrcal's projection uncertainty at infinity "
+            "is at least {:.3f} px (median {:.3f} px) over the image, above its threshold of {} "
+            "x the residuals' {:.3f} px, or the corners in each part of the image are too few "
+            "(mrcal asks for more than {} in each of its cells) or their residuals biased. More "
+            "board views, nearer the camera and tilted, over the whole image, shrink it. The "
+            "projection over the box is in the uncertainty section.",
+            name, r.min_uncertainty_px, r.median_uncertainty_px, region_parameters.uncertainty,
+            r.residual_sigma_px, region_parameters.count));
+      }
+    }
+  }
   const std::vector<std::string> uncertainty_header = {"camera", "max px (1 sigma)", "mean px",
                                                        "max voxels"};
   Rows uncertainty_rows;
@@ -527,9 +554,9 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
                 uncertainty.voxel_m * 1e3);
 
   // The report: the same tables as Markdown (report.md) and as a page (index.html).
-  const std::vector<std::string> camera_header = {"camera",   "views",  "corners",
-                                                  "outliers", "RMS px", "median px",
-                                                  "p95 px",   "max px", "image covered"};
+  const std::vector<std::string> camera_header = {
+      "camera",    "views",  "corners", "outliers",      "RMS px",
+      "median px", "p95 px", "max px",  "image covered", "valid region"};
   Rows camera_rows;
   for (std::size_t c = 0; c < summary.cameras.size(); ++c) {
     const auto& s = summary.cameras[c];
@@ -543,7 +570,10 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
     camera_rows.push_back({s.name, std::to_string(s.views), std::to_string(s.points),
                            std::to_string(s.outliers), fmt::format("{:.3f}", s.rms_px_per_point),
                            fmt::format("{:.3f}", s.median_px), fmt::format("{:.3f}", s.p95_px),
-                           fmt::format("{:.3f}", s.max_px), fmt::format("{:.0f}%", 100 * covered)});
+                           fmt::format("{:.3f}", s.max_px), fmt::format("{:.0f}%", 100 * covered),
+                           c < regions.size() && regions[c].computed
+                               ? fmt::format("{:.0f}%", 100 * regions[c].imager_fraction)
+                               : std::string("-")});
   }
   const std::vector<std::string> worst_header = {"camera", "view", "corner", "error px"};
   Rows worst_rows;
@@ -601,7 +631,10 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
       "The RMS per point is sqrt(mean(dx^2 + dy^2)) over inlier corners; per coordinate "
       "(mrcal's convention) it is smaller by sqrt(2). mrcal-calibrate-cameras prints a smaller "
       "figure still: it divides by every board corner, the outliers and the corners not detected "
-      "included.";
+      "included. The valid region is the share of the image inside the valid-intrinsics region "
+      "each model carries, as mrcal-calibrate-cameras computes it (mrcal's own function, its "
+      "default thresholds): where the projection is certain and the residuals are small and "
+      "unbiased; mrcal-show-valid-intrinsics-region cameras/<camera>.cameramodel draws it.";
 
   std::ostringstream md;
   auto md_table = [&md](const std::vector<std::string>& head, const Rows& rows) {

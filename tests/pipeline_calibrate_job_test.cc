@@ -45,7 +45,12 @@ TEST_F(Ring, WritesARigThatLoadsAndAReport) {
         ReadText(out / "cameras" / ("cam" + std::to_string(c) + ".cameramodel"));
     EXPECT_NE(model.find("'icam_intrinsics': " + std::to_string(c) + ","), std::string::npos);
     EXPECT_NE(model.find("'optimization_inputs': b'"), std::string::npos);
+    // And the valid-intrinsics region mrcal-calibrate-cameras would write (compared with the
+    // tool's own in pipeline_calibrate_rigs_test), here empty or not.
+    EXPECT_NE(model.find("'valid_intrinsics_region': ["), std::string::npos) << c;
   }
+  for (const auto& note : s.notes)
+    EXPECT_EQ(note.find("no valid-intrinsics region"), std::string::npos) << note;
   // The models on disk are the solved ones, at full precision.
   for (std::size_t c = 0; c < 4; ++c)
     for (std::size_t i = 0; i < rig.cameras[c].model.intrinsics().size(); ++i)
@@ -62,6 +67,10 @@ TEST_F(Ring, WritesARigThatLoadsAndAReport) {
   EXPECT_NE(text.find("mrcal counts"), std::string::npos);
   EXPECT_NE(text.find("## Projection uncertainty over the box"), std::string::npos);
   EXPECT_NE(text.find("| max voxels |"), std::string::npos);
+  // Each camera's row ends with the share of its image in the region (a percentage).
+  EXPECT_TRUE(
+      std::regex_search(text, std::regex("\\| cam2 \\|[^\n]* \\| [0-9]+% \\| [0-9]+% \\|\n")))
+      << text;
   // A row of the uncertainty table: four cells, all numbers.
   EXPECT_TRUE(
       std::regex_search(text, std::regex("\\| cam3 \\| [0-9.]+ \\| [0-9.]+ \\| [0-9.]+ \\|\n")))

@@ -20,6 +20,7 @@
 #include "calibration/synthetic_rig.h"
 #include "pipeline/calibrate_job.h"
 #include "pipeline/simulate.h"
+#include "pipeline/valid_region.h"
 #include "tests/calibration_ring.h"
 
 namespace flamerig {
@@ -354,6 +355,37 @@ TEST(CalibrateStrongLens, ShadowedBoardsKeepEveryCornerAndTheIntrinsicsComeBack)
                  mrcal_max, mrcal_mean);
     EXPECT_NEAR(mrcal_max / mrcal_by_tool[c][0], 1.0, 0.05) << c;
     EXPECT_NEAR(mrcal_mean / mrcal_by_tool[c][1], 1.0, 0.05) << c;
+  }
+
+  // The valid-intrinsics region, as `flamerig calibrate` adds it to our models, against the one
+  // mrcal-calibrate-cameras wrote into its own from the same corners (pipeline/valid_region.h).
+  std::vector<std::string> ours_paths;
+  for (int c = 0; c < 2; ++c)
+    ours_paths.push_back((work / "ours" / s.rig.cameras[c].model_path).string());
+  const std::vector<ValidRegion> regions = AddValidIntrinsicsRegions(ours_paths);
+  ASSERT_EQ(regions.size(), 2u);
+  for (int c = 0; c < 2; ++c) {
+    ASSERT_TRUE(regions[c].computed) << regions[c].error;
+    const std::vector<Eigen::Vector2i> tool = ReadValidIntrinsicsRegion(
+        (work / ("camera-" + std::to_string(c) + ".cameramodel")).string());
+    const std::vector<Eigen::Vector2i> written = ReadValidIntrinsicsRegion(ours_paths[c]);
+    std::fprintf(stderr,
+                 "cam%d valid-intrinsics region: %zu points, %.1f%% of the imager (mrcal's tool: "
+                 "%zu points); uncertainty at infinity from %.3f px, residuals %.3f px\n",
+                 c, written.size(), 100 * regions[c].imager_fraction, tool.size(),
+                 regions[c].min_uncertainty_px, regions[c].residual_sigma_px);
+    EXPECT_EQ(written, regions[c].contour);
+    // A region that says something: neither empty nor the whole imager.
+    EXPECT_GT(regions[c].imager_fraction, 0.05) << c;
+    EXPECT_LT(regions[c].imager_fraction, 0.95) << c;
+    EXPECT_GT(regions[c].residual_sigma_px, 0);
+    EXPECT_LT(regions[c].min_uncertainty_px, regions[c].residual_sigma_px) << c;
+    // The same solve (to the seed) gives the same cells: the same contour, to a pixel.
+    ASSERT_EQ(written.size(), tool.size()) << c;
+    for (std::size_t i = 0; i < tool.size(); ++i)
+      EXPECT_LE((written[i] - tool[i]).cwiseAbs().maxCoeff(), 1) << c << " point " << i;
+    // The model with its region still reads, in mrcal's C reader (ours) and so in its tools.
+    EXPECT_NO_THROW(CameraModel::Load(ours_paths[c]));
   }
   fs::remove_all(work);
 }

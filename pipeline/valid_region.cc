@@ -1,0 +1,214 @@
+#include "pipeline/valid_region.h"
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "core/atomic_file.h"
+#include "core/error.h"
+#include "pipeline/subprocess.h"
+
+namespace flamerig {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+// Run as `python3 -c SCRIPT uncertainty mean stdev count distance grid_width MODEL...`: for each
+// model, MODEL.region holds "uncertainty MIN MEDIAN SIGMA" (the projection uncertainty over the
+// grid's cell centres and the residuals' deviation, px) and then the contour's points ("x y" per
+// line, none for an empty region), or one line "error: ...". The thresholds are scaled as mrcal-calibrate-cameras scales them, by the
+// standard deviation of the solve's board residuals.
+constexpr const char* kScript = R"(
+import sys
+try:
+    import numpy as np
+    import mrcal
+    from mrcal.calibration import _compute_valid_intrinsics_region
+except Exception as e:
+    sys.stderr.write("mrcal's Python package cannot be imported: %s\n" % e)
+    sys.exit(3)
+u, mean, stdev, count, distance, gridn = [float(x) for x in sys.argv[1:7]]
+for path in sys.argv[7:]:
+    with open(path + ".region", "w") as out:
+        try:
+            m = mrcal.cameramodel(path)
+            oi = m.optimization_inputs()
+            if oi is None:
+                raise Exception("the model carries no optimization_inputs")
+            sigma = np.std(mrcal.residuals_chessboard(oi).ravel())
+            r = _compute_valid_intrinsics_region(m, u * sigma, mean, stdev * sigma, count,
+                                                 distance, gridn_width=int(gridn))
+            W, H = m.imagersize()
+            v = mrcal.unproject(mrcal.sample_imager(int(gridn), int(round(H / W * gridn)), W, H),
+                                *m.intrinsics(), normalize=True)
+            unc = mrcal.projection_uncertainty(v if distance <= 0 else v * distance, model=m,
+                                               atinfinity=distance <= 0,
+                                               what="worstdirection-stdev")
+            unc = unc[np.isfinite(unc)]
+            out.write("uncertainty %.9g %.9g %.9g\n" % (
+                np.min(unc) if unc.size else float("inf"),
+                np.median(unc) if unc.size else float("inf"), sigma))
+            for x, y in r:
+                out.write("%d %d\n" % (x, y))
+        except Exception as e:
+            out.write("error: %s\n" % str(e).replace("\n", " "))
+)";
+
+double ContourArea(const std::vector<Eigen::Vector2i>& c) {
+  double twice = 0;
+  for (std::size_t i = 0; i + 1 < c.size(); ++i)
+    twice += double(c[i].x()) * c[i + 1].y() - double(c[i + 1].x()) * c[i].y();
+  return std::abs(twice) / 2;
+}
+
+std::string ReadAll(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw IoError(path + ": cannot read");
+  std::ostringstream all;
+  all << in.rdbuf();
+  return all.str();
+}
+
+// The imager size a .cameramodel declares ('imagersize': [W, H]), or (0, 0).
+Eigen::Vector2d ImagerSize(const std::string& text) {
+  const std::size_t key = text.find("'imagersize'");
+  if (key == std::string::npos) return Eigen::Vector2d::Zero();
+  const std::size_t open = text.find('[', key);
+  double w = 0, h = 0;
+  char comma = 0;
+  std::istringstream in(text.substr(open + 1, 64));
+  if (!(in >> w >> comma >> h)) return Eigen::Vector2d::Zero();
+  return Eigen::Vector2d(w, h);
+}
+
+}  // namespace
+
+std::vector<ValidRegion> AddValidIntrinsicsRegions(const std::vector<std::string>& model_paths,
+                                                   const ValidRegionParameters& p) {
+  std::vector<ValidRegion> regions(model_paths.size());
+  for (std::size_t i = 0; i < model_paths.size(); ++i) regions[i].model_path = model_paths[i];
+  if (model_paths.empty()) return regions;
+  // mrcal's own tools run /usr/bin/python3 (their #! line): the interpreter Debian's
+  // python3-mrcal is installed for, whatever python3 comes first in PATH.
+  std::vector<std::string> argv = {"/usr/bin/python3",
+                                   "-c",
+                                   kScript,
+                                   std::to_string(p.uncertainty),
+                                   std::to_string(p.mean),
+                                   std::to_string(p.stdev),
+                                   std::to_string(p.count),
+                                   std::to_string(p.distance_m),
+                                   std::to_string(p.grid_width)};
+  for (const std::string& path : model_paths) {
+    fs::remove(path + ".region");
+    argv.push_back(fs::absolute(path).string());
+  }
+  const ProgramResult run = RunProgram(argv);
+  std::string failed;
+  if (!run.started)
+    failed = "/usr/bin/python3 could not be run (" + run.error + ")";
+  else if (run.exit_status != 0) {
+    std::string why = run.error;
+    while (!why.empty() && (why.back() == '\n' || why.back() == '\r')) why.pop_back();
+    failed = "/usr/bin/python3 with mrcal failed (status " + std::to_string(run.exit_status) +
+             (why.empty() ? std::string() : ": " + why) + ")";
+  }
+  for (ValidRegion& r : regions) {
+    const std::string sidecar = fs::absolute(r.model_path).string() + ".region";
+    if (!failed.empty() || !fs::exists(sidecar)) {
+      r.error = failed.empty() ? "mrcal wrote no region" : failed;
+      std::error_code ignored;
+      fs::remove(sidecar, ignored);
+      continue;
+    }
+    std::istringstream lines(ReadAll(sidecar));
+    fs::remove(sidecar);
+    std::string line;
+    bool ok = true;
+    while (std::getline(lines, line)) {
+      if (line.rfind("error: ", 0) == 0) {
+        r.error = "mrcal: " + line.substr(7);
+        ok = false;
+        break;
+      }
+      if (line.rfind("uncertainty ", 0) == 0) {
+        std::istringstream u(line.substr(12));
+        u >> r.min_uncertainty_px >> r.median_uncertainty_px >> r.residual_sigma_px;
+        continue;
+      }
+      std::istringstream xy(line);
+      int x = 0, y = 0;
+      if (!(xy >> x >> y)) {
+        r.error = "mrcal's region is unreadable: '" + line + "'";
+        ok = false;
+        break;
+      }
+      r.contour.emplace_back(x, y);
+    }
+    if (!ok) {
+      r.contour.clear();
+      continue;
+    }
+    std::string text = ReadAll(r.model_path);
+    const std::size_t brace = text.rfind('}');
+    if (brace == std::string::npos) {
+      r.error = r.model_path + ": not a camera model (no closing brace)";
+      r.contour.clear();
+      continue;
+    }
+    std::ostringstream field;
+    field << "    # Where the calibration can be trusted, as mrcal-calibrate-cameras computes it "
+             "(its function,\n    # its default thresholds "
+          << p.uncertainty << " " << p.mean << " " << p.stdev << " " << p.count << " "
+          << p.distance_m << "): a closed contour in pixels.\n"
+          << "    'valid_intrinsics_region': [\n";
+    for (const Eigen::Vector2i& q : r.contour)
+      field << "    [ " << q.x() << ", " << q.y() << " ],\n";
+    field << "    ],\n";
+    text.insert(brace, field.str());
+    WriteFileAtomically(r.model_path, text);
+    r.computed = true;
+    const Eigen::Vector2d size = ImagerSize(text);
+    if (size.prod() > 0) r.imager_fraction = ContourArea(r.contour) / size.prod();
+  }
+  return regions;
+}
+
+std::vector<Eigen::Vector2i> ReadValidIntrinsicsRegion(const std::string& model_path) {
+  const std::string text = ReadAll(model_path);
+  const std::size_t key = text.find("'valid_intrinsics_region'");
+  if (key == std::string::npos) return {};
+  const std::size_t open = text.find('[', key);
+  if (open == std::string::npos)
+    throw DataError(model_path + ": 'valid_intrinsics_region' is not a list");
+  std::vector<Eigen::Vector2i> contour;
+  int depth = 0;
+  std::size_t i = open;
+  for (; i < text.size(); ++i) {
+    if (text[i] == '[') {
+      if (++depth == 2) {
+        const std::size_t close = text.find(']', i);
+        if (close == std::string::npos) break;
+        std::string pair = text.substr(i + 1, close - i - 1);
+        for (char& ch : pair)
+          if (ch == ',') ch = ' ';
+        std::istringstream in(pair);
+        double x = 0, y = 0;
+        if (!(in >> x >> y))
+          throw DataError(model_path + ": a point of 'valid_intrinsics_region' is not [x, y]: [" +
+                          text.substr(i + 1, close - i - 1) + "]");
+        contour.emplace_back(static_cast<int>(std::lround(x)), static_cast<int>(std::lround(y)));
+        i = close;
+        --depth;
+      }
+    } else if (text[i] == ']') {
+      if (--depth == 0) break;
+    }
+  }
+  if (depth != 0) throw DataError(model_path + ": 'valid_intrinsics_region' is not closed");
+  return contour;
+}
+
+}  // namespace flamerig
