@@ -65,7 +65,7 @@ enum CameraPictureKind { kCoverage, kResiduals, kPerImage };
 constexpr CameraPicture kCameraPictures[] = {
     {"coverage_", "coverage",
      ": where its corners fell on the image, each coloured by its reprojection error; magenta "
-     "crosses are outliers."},
+     "crosses are outliers; the cyan outline is mrcal's valid-intrinsics region."},
     {"residuals_", "residuals",
      ": each corner's residual as an arrow, magnified; arrows that turn together over the image "
      "mean a lens model that does not fit."},
@@ -175,8 +175,9 @@ CalibrateConfig CalibrateConfig::Load(const std::string& path) {
   return c;
 }
 
+// `region`: the camera's valid-intrinsics region (null: not computed), outlined in cyan.
 ImageU8 CoveragePicture(const CalibrationData& data, const CalibrationSummary& summary, int camera,
-                        double* covered_fraction) {
+                        double* covered_fraction, const ValidRegion* region) {
   const int w = data.widths.at(camera), h = data.heights.at(camera);
   const double scale = std::min(1.0, 800.0 / w);
   const int W = std::max(1, static_cast<int>(w * scale)),
@@ -216,15 +217,26 @@ ImageU8 CoveragePicture(const CalibrationData& data, const CalibrationSummary& s
         cv::circle(img, q, 2, ErrorColour(e.error_px, error_scale), cv::FILLED, cv::LINE_AA);
     }
   }
+  std::string region_text = "no valid-intrinsics region (see the notes)";
+  if (region && region->computed) {
+    std::vector<cv::Point> outline;
+    for (const Eigen::Vector2i& q : region->contour)
+      outline.emplace_back(static_cast<int>(std::lround(q.x() * scale)),
+                           static_cast<int>(std::lround(q.y() * scale)));
+    if (!outline.empty())
+      cv::polylines(img, outline, true, cv::Scalar(255, 255, 0), 2, cv::LINE_AA);
+    region_text = outline.empty() ? "mrcal's valid-intrinsics region: empty"
+                                  : fmt::format("cyan: mrcal's valid-intrinsics region ({:.0f}%)",
+                                                100 * region->imager_fraction);
+  }
   int n = 0;
   for (bool b : covered) n += b;
   if (covered_fraction) *covered_fraction = static_cast<double>(n) / covered.size();
-  char text[200];
-  std::snprintf(text, sizeof(text),
-                "%s: %d%% of the image covered by corners\n"
-                "corner error: green 0 px, red %.2f px; magenta x: outlier",
-                data.camera_names[camera].c_str(), 100 * n / (cells * cells), error_scale);
-  return Labelled(FromBgr(img), text);
+  return Labelled(
+      FromBgr(img),
+      fmt::format("{}: {}% of the image covered by corners\n"
+                  "corner error: green 0 px, red {:.2f} px; magenta x: outlier\n{}",
+                  data.camera_names[camera], 100 * n / (cells * cells), error_scale, region_text));
 }
 
 ImageU8 ResidualVectorsPicture(const CalibrationData& data, const CalibrationSummary& summary,
@@ -562,7 +574,8 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
     const auto& s = summary.cameras[c];
     double covered = 0;
     WritePng((stage / CameraPictureFile(kCoverage, s.name)).string(),
-             CoveragePicture(data, summary, static_cast<int>(c), &covered));
+             CoveragePicture(data, summary, static_cast<int>(c), &covered,
+                             c < regions.size() ? &regions[c] : nullptr));
     WritePng((stage / CameraPictureFile(kResiduals, s.name)).string(),
              ResidualVectorsPicture(data, summary, static_cast<int>(c)));
     WritePng((stage / CameraPictureFile(kPerImage, s.name)).string(),
