@@ -18,8 +18,8 @@ namespace {
 // Run as `python3 -c SCRIPT uncertainty mean stdev count distance grid_width MODEL...`: for each
 // model, MODEL.region holds "uncertainty MIN MEDIAN SIGMA" (the projection uncertainty over the
 // grid's cell centres and the residuals' deviation, px) and then the contour's points ("x y" per
-// line, none for an empty region), or one line "error: ...". The thresholds are scaled as mrcal-calibrate-cameras scales them, by the
-// standard deviation of the solve's board residuals.
+// line, none for an empty region), or one line "error: ...". The thresholds are scaled as
+// mrcal-calibrate-cameras scales them, by the standard deviation of the solve's board residuals.
 constexpr const char* kScript = R"(
 import sys
 try:
@@ -76,6 +76,7 @@ Eigen::Vector2d ImagerSize(const std::string& text) {
   const std::size_t key = text.find("'imagersize'");
   if (key == std::string::npos) return Eigen::Vector2d::Zero();
   const std::size_t open = text.find('[', key);
+  if (open == std::string::npos) return Eigen::Vector2d::Zero();
   double w = 0, h = 0;
   char comma = 0;
   std::istringstream in(text.substr(open + 1, 64));
@@ -160,7 +161,7 @@ std::vector<ValidRegion> AddValidIntrinsicsRegions(const std::vector<std::string
     }
     std::ostringstream field;
     field << "    # Where the calibration can be trusted, as mrcal-calibrate-cameras computes it "
-             "(its function,\n    # its default thresholds "
+             "(its function,\n    # --valid-intrinsics-region-parameters "
           << p.uncertainty << " " << p.mean << " " << p.stdev << " " << p.count << " "
           << p.distance_m << "): a closed contour in pixels.\n"
           << "    'valid_intrinsics_region': [\n";
