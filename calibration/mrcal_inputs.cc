@@ -195,8 +195,7 @@ std::string SerializeMrcalOptimizationInputs(const MrcalProblem& p) {
   return internal::Base85Encode(internal::WriteNpz(m));
 }
 
-void AddMrcalOptimizationInputs(const std::string& cameramodel_path, const std::string& serialized,
-                                int icam_intrinsics) {
+void AddCameraModelFields(const std::string& cameramodel_path, const std::string& fields) {
   std::string text;
   {
     std::ifstream in(cameramodel_path, std::ios::binary);
@@ -208,16 +207,21 @@ void AddMrcalOptimizationInputs(const std::string& cameramodel_path, const std::
   const std::size_t brace = text.rfind('}');
   if (brace == std::string::npos)
     throw DataError(cameramodel_path + ": not a camera model (no closing brace)");
-  const std::string fields =
-      "    'icam_intrinsics': " + std::to_string(icam_intrinsics) +
-      ",\n"
-      "    # The solve's inputs, as mrcal-calibrate-cameras stores them (numpy .npz, base85): "
-      "mrcal's\n"
-      "    # tools compute the projection uncertainty from them.\n"
-      "    'optimization_inputs': b'" +
-      serialized + "',\n";
   text.insert(brace, fields);
   WriteFileAtomically(cameramodel_path, text);
+}
+
+void AddMrcalOptimizationInputs(const std::string& cameramodel_path, const std::string& serialized,
+                                int icam_intrinsics) {
+  AddCameraModelFields(
+      cameramodel_path,
+      "    'icam_intrinsics': " + std::to_string(icam_intrinsics) +
+          ",\n"
+          "    # The solve's inputs, as mrcal-calibrate-cameras stores them (numpy "
+          ".npz, base85): mrcal's\n"
+          "    # tools compute the projection uncertainty from them.\n"
+          "    'optimization_inputs': b'" +
+          serialized + "',\n");
 }
 
 }  // namespace flamerig

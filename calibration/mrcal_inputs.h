@@ -50,10 +50,14 @@ struct MrcalProblem {
 std::string SerializeMrcalOptimizationInputs(const MrcalProblem& problem);
 
 // Adds 'icam_intrinsics' and 'optimization_inputs' to a .cameramodel that CameraModel::Save
-// wrote (inserted before its closing brace; the file is rewritten atomically). Throws IoError
-// when the file cannot be read or written, DataError when it has no closing brace.
+// wrote (AddCameraModelFields). Throws as that does.
 void AddMrcalOptimizationInputs(const std::string& cameramodel_path, const std::string& serialized,
                                 int icam_intrinsics);
+
+// Inserts `fields` (lines of "    'key': value,\n", comments allowed) before a .cameramodel's
+// closing brace; the file is rewritten atomically. Throws IoError when the file cannot be read or
+// written, DataError when it has no closing brace.
+void AddCameraModelFields(const std::string& cameramodel_path, const std::string& fields);
 
 namespace internal {
 // Exposed for tests: Python's base64.b85encode(bytes) (pad=False), and a .npz of named .npy

@@ -60,6 +60,7 @@ struct CameraPicture {
   const char* prefix;
   const char* alt;
   const char* caption;  // follows the camera's name
+  std::string File(const std::string& camera) const { return prefix + camera + ".png"; }
 };
 enum CameraPictureKind { kCoverage, kResiduals, kPerImage };
 constexpr CameraPicture kCameraPictures[] = {
@@ -72,10 +73,6 @@ constexpr CameraPicture kCameraPictures[] = {
     {"per_image_", "residuals per image",
      ": the RMS residual of each image; a bad image stands out."},
 };
-
-std::string CameraPictureFile(CameraPictureKind kind, const std::string& camera) {
-  return kCameraPictures[kind].prefix + camera + ".png";
-}
 
 }  // namespace
 
@@ -573,12 +570,12 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   for (std::size_t c = 0; c < summary.cameras.size(); ++c) {
     const auto& s = summary.cameras[c];
     double covered = 0;
-    WritePng((stage / CameraPictureFile(kCoverage, s.name)).string(),
+    WritePng((stage / kCameraPictures[kCoverage].File(s.name)).string(),
              CoveragePicture(data, summary, static_cast<int>(c), &covered,
                              c < regions.size() ? &regions[c] : nullptr));
-    WritePng((stage / CameraPictureFile(kResiduals, s.name)).string(),
+    WritePng((stage / kCameraPictures[kResiduals].File(s.name)).string(),
              ResidualVectorsPicture(data, summary, static_cast<int>(c)));
-    WritePng((stage / CameraPictureFile(kPerImage, s.name)).string(),
+    WritePng((stage / kCameraPictures[kPerImage].File(s.name)).string(),
              ResidualsPerImagePicture(data, summary, static_cast<int>(c)));
     camera_rows.push_back({s.name, std::to_string(s.views), std::to_string(s.points),
                            std::to_string(s.outliers), fmt::format("{:.3f}", s.rms_px_per_point),
@@ -680,9 +677,8 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   for (const auto& n : notes) md << "- " << n << "\n";
   md << "\n![rig from above](rig_top.png)\n\n";
   for (const auto& s : summary.cameras)
-    for (int k : {kCoverage, kResiduals, kPerImage})
-      md << "![" << kCameraPictures[k].alt << " " << s.name << "]("
-         << CameraPictureFile(CameraPictureKind(k), s.name) << ")\n";
+    for (const CameraPicture& picture : kCameraPictures)
+      md << "![" << picture.alt << " " << s.name << "](" << picture.File(s.name) << ")\n";
   // mrcal 2.2 seeds its board poses from every corner, missing ones included (calibrate.h's
   // WriteMrcalCorners): its solve of part boards starts far off.
   int part_boards = 0;
@@ -709,9 +705,8 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
   page.Text(rms_note);
   page.Table(camera_header, camera_rows);
   for (const auto& s : summary.cameras)
-    for (int k : {kCoverage, kResiduals, kPerImage})
-      page.Figure(CameraPictureFile(CameraPictureKind(k), s.name),
-                  s.name + kCameraPictures[k].caption);
+    for (const CameraPicture& picture : kCameraPictures)
+      page.Figure(picture.File(s.name), s.name + picture.caption);
   page.Section("Projection uncertainty over the box");
   page.Text(uncertainty_text);
   if (!uncertainty_rows.empty()) page.Table(uncertainty_header, uncertainty_rows);
@@ -764,8 +759,8 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
         // (outside OUT) keeps that file.
         if (fs::path(c.model_path) == fs::path("cameras") / (c.name + ".cameramodel"))
           stale.push_back(fs::path(out_dir) / c.model_path);
-        for (int k : {kCoverage, kResiduals, kPerImage})
-          stale.push_back(fs::path(out_dir) / CameraPictureFile(CameraPictureKind(k), c.name));
+        for (const CameraPicture& picture : kCameraPictures)
+          stale.push_back(fs::path(out_dir) / picture.File(c.name));
       }
     } catch (const std::exception& e) {
       Log().warn("calibrate: the earlier {}/rig.yaml is not readable ({}); its files are left",

@@ -5,7 +5,8 @@
 #include <fstream>
 #include <sstream>
 
-#include "core/atomic_file.h"
+#include "calibration/camera_model.h"
+#include "calibration/mrcal_inputs.h"
 #include "core/error.h"
 #include "pipeline/subprocess.h"
 
@@ -69,19 +70,6 @@ std::string ReadAll(const std::string& path) {
   std::ostringstream all;
   all << in.rdbuf();
   return all.str();
-}
-
-// The imager size a .cameramodel declares ('imagersize': [W, H]), or (0, 0).
-Eigen::Vector2d ImagerSize(const std::string& text) {
-  const std::size_t key = text.find("'imagersize'");
-  if (key == std::string::npos) return Eigen::Vector2d::Zero();
-  const std::size_t open = text.find('[', key);
-  if (open == std::string::npos) return Eigen::Vector2d::Zero();
-  double w = 0, h = 0;
-  char comma = 0;
-  std::istringstream in(text.substr(open + 1, 64));
-  if (!(in >> w >> comma >> h)) return Eigen::Vector2d::Zero();
-  return Eigen::Vector2d(w, h);
 }
 
 }  // namespace
@@ -152,13 +140,6 @@ std::vector<ValidRegion> AddValidIntrinsicsRegions(const std::vector<std::string
       r.contour.clear();
       continue;
     }
-    std::string text = ReadAll(r.model_path);
-    const std::size_t brace = text.rfind('}');
-    if (brace == std::string::npos) {
-      r.error = r.model_path + ": not a camera model (no closing brace)";
-      r.contour.clear();
-      continue;
-    }
     std::ostringstream field;
     field << "    # Where the calibration can be trusted, as mrcal-calibrate-cameras computes it "
              "(its function,\n    # --valid-intrinsics-region-parameters "
@@ -168,11 +149,16 @@ std::vector<ValidRegion> AddValidIntrinsicsRegions(const std::vector<std::string
     for (const Eigen::Vector2i& q : r.contour)
       field << "    [ " << q.x() << ", " << q.y() << " ],\n";
     field << "    ],\n";
-    text.insert(brace, field.str());
-    WriteFileAtomically(r.model_path, text);
+    try {
+      const CameraModel model = CameraModel::Load(r.model_path);
+      AddCameraModelFields(r.model_path, field.str());
+      r.imager_fraction = ContourArea(r.contour) / (double(model.width()) * model.height());
+    } catch (const Error& e) {
+      r.error = e.what();
+      r.contour.clear();
+      continue;
+    }
     r.computed = true;
-    const Eigen::Vector2d size = ImagerSize(text);
-    if (size.prod() > 0) r.imager_fraction = ContourArea(r.contour) / size.prod();
   }
   return regions;
 }
