@@ -9,6 +9,7 @@
 #include "core/format.h"
 #include "core/json_yaml.h"
 #include "core/log.h"
+#include "core/read_file.h"
 
 #include <sys/statvfs.h>
 #include <yaml-cpp/yaml.h>
@@ -18,11 +19,9 @@
 #include <cctype>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <functional>
 #include <mutex>
 #include <set>
-#include <sstream>
 
 namespace flamerig {
 
@@ -68,11 +67,13 @@ void CheckTriggeredFrameRate(const CaptureConfig& c, const CameraSettings& s,
 }  // namespace
 
 CaptureConfig CaptureConfig::Load(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw InputError("capture config " + path + ": cannot be read");
-  std::stringstream s;
-  s << in.rdbuf();
-  return Parse(s.str(), path);
+  std::string text;
+  try {
+    text = ReadFile(path);
+  } catch (const IoError& e) {
+    throw InputError("capture config " + std::string(e.what()));
+  }
+  return Parse(text, path);
 }
 
 CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& where) {

@@ -9,7 +9,6 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <map>
 #include <mutex>
 #include <numeric>
@@ -26,6 +25,7 @@
 #include "calibration/mrcal_inputs.h"
 #include "core/atomic_file.h"
 #include "core/error.h"
+#include "core/read_file.h"
 
 extern "C" {
 #include <mrcal/mrcal.h>
@@ -176,11 +176,9 @@ class DetectionCache {
   DetectionCache(std::string path, const BoardSpec& board, const DetectOptions& detect)
       : path_(std::move(path)), board_(board.Describe()), detect_(detect.Describe()) {
     if (path_.empty()) return;
-    std::ifstream in(path_);
-    if (!in) return;
-    std::stringstream text;
-    text << in.rdbuf();
-    ParseDetectionCache(text.str(), board, detect, &entries_);
+    const std::optional<std::string> text = ReadFileIfPresent(path_);
+    if (!text) return;
+    ParseDetectionCache(*text, board, detect, &entries_);
   }
 
   bool Find(const std::string& key, BoardDetection* d) const {

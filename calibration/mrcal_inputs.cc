@@ -4,13 +4,12 @@
 
 #include <algorithm>
 #include <cstring>
-#include <fstream>
-#include <sstream>
 #include <stdexcept>
 
 #include "core/atomic_file.h"
 #include "core/error.h"
 #include "core/npy.h"
+#include "core/read_file.h"
 
 namespace flamerig {
 namespace {
@@ -196,14 +195,7 @@ std::string SerializeMrcalOptimizationInputs(const MrcalProblem& p) {
 }
 
 void AddCameraModelFields(const std::string& cameramodel_path, const std::string& fields) {
-  std::string text;
-  {
-    std::ifstream in(cameramodel_path, std::ios::binary);
-    if (!in) throw IoError(cameramodel_path + ": cannot read the camera model");
-    std::ostringstream all;
-    all << in.rdbuf();
-    text = all.str();
-  }
+  std::string text = ReadFile(cameramodel_path);
   const std::size_t brace = text.rfind('}');
   if (brace == std::string::npos)
     throw DataError(cameramodel_path + ": not a camera model (no closing brace)");

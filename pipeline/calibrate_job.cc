@@ -16,6 +16,7 @@
 #include "core/atomic_file.h"
 #include "core/config_reader.h"
 #include "core/error.h"
+#include "core/format.h"
 #include "core/log.h"
 #include "pipeline/picture.h"
 #include "pipeline/report_page.h"
@@ -119,6 +120,11 @@ CalibrateConfig CalibrateConfig::Load(const std::string& path) {
   if (c.uncertainty_trials != 0 && (c.uncertainty_trials < 2 || c.uncertainty_trials > 1000))
     throw InputError(where + ": 'uncertainty_trials' must be 0 (off) or in [2, 1000]");
   c.options.regularization = r.Get<bool>("regularization", c.options.regularization);
+  if (node["valid_intrinsics_region_parameters"]) {
+    const std::string key = where + ".valid_intrinsics_region_parameters";
+    c.valid_region = ValidRegionParameters::FromMrcal(
+        r.Get<std::vector<double>>("valid_intrinsics_region_parameters", {}), key);
+  }
   if (const YAML::Node detect = node["detect"]) {
     r.Seen("detect");
     if (!detect.IsMap()) throw InputError(where + ".detect: must be a map");
@@ -515,8 +521,8 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
       model_paths.push_back((stage / summary.rig.cameras[c].model_path).string());
       AddMrcalOptimizationInputs(model_paths.back(), inputs, static_cast<int>(c));
     }
-    regions = AddValidIntrinsicsRegions(model_paths);
-    const ValidRegionParameters region_parameters;
+    const ValidRegionParameters& region_parameters = config.valid_region;
+    regions = AddValidIntrinsicsRegions(model_paths, region_parameters);
     for (std::size_t c = 0; c < regions.size(); ++c) {
       const ValidRegion& r = regions[c];
       const std::string& name = summary.rig.cameras[c].name;
@@ -525,14 +531,19 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
                                 "'s model: " + r.error);
       } else if (r.contour.empty()) {
         summary.notes.push_back(fmt::format(
-            "{}'s valid-intrinsics region is empty: mrcal's projection uncertainty at infinity "
-            "is at least {:.3f} px (median {:.3f} px) over the image, above its threshold of {} "
-            "x the residuals' {:.3f} px, or the corners in each part of the image are too few "
-            "(mrcal asks for more than {} in each of its cells) or their residuals biased. More "
-            "board views, nearer the camera and tilted, over the whole image, shrink it. The "
-            "projection over the box is in the uncertainty section.",
-            name, r.min_uncertainty_px, r.median_uncertainty_px, region_parameters.uncertainty,
-            r.residual_sigma_px, region_parameters.count));
+            "{}'s valid-intrinsics region is empty: mrcal's projection uncertainty {} is at "
+            "least {:.3f} px (median {:.3f} px) over the image, above its threshold of {} x the "
+            "residuals' {:.3f} px, or the corners in each part of the image are too few (mrcal "
+            "asks for more than {} in each of its cells) or their residuals biased. More board "
+            "views, nearer the camera and tilted, over the whole image, shrink it. The "
+            "projection over the box is in the uncertainty section{}.",
+            name, region_parameters.DistanceText(), r.min_uncertainty_px, r.median_uncertainty_px,
+            FormatNumber(region_parameters.uncertainty), r.residual_sigma_px,
+            region_parameters.count,
+            region_parameters.distance_m > 0
+                ? ""
+                : "; `valid_intrinsics_region_parameters` can evaluate the region at the rig's "
+                  "working distance"));
       }
     }
   }
@@ -637,14 +648,18 @@ CalibrationSummary RunCalibration(const CalibrateConfig& config, const Calibrate
                  ? ", " + std::to_string(data.unreadable) + " frames unreadable (damaged)"
                  : std::string())
          << ", in " << data.detect_time_s << " s. Solve: " << summary.solve_time_s << " s.";
-  const char* rms_note =
+  const std::string rms_note = fmt::format(
       "The RMS per point is sqrt(mean(dx^2 + dy^2)) over inlier corners; per coordinate "
       "(mrcal's convention) it is smaller by sqrt(2). mrcal-calibrate-cameras prints a smaller "
       "figure still: it divides by every board corner, the outliers and the corners not detected "
       "included. The valid region is the share of the image inside the valid-intrinsics region "
-      "each model carries, as mrcal-calibrate-cameras computes it (mrcal's own function, its "
-      "default thresholds): where the projection is certain and the residuals are small and "
-      "unbiased; mrcal-show-valid-intrinsics-region cameras/<camera>.cameramodel draws it.";
+      "each model carries, as mrcal-calibrate-cameras computes it (mrcal's own function, "
+      "--valid-intrinsics-region-parameters {}{}): where the projection {} is certain and the "
+      "residuals are small and unbiased; mrcal-show-valid-intrinsics-region "
+      "cameras/<camera>.cameramodel draws it.",
+      config.valid_region.ToMrcal(),
+      config.valid_region.ToMrcal() == ValidRegionParameters().ToMrcal() ? ", its defaults" : "",
+      config.valid_region.DistanceText());
 
   std::ostringstream md;
   auto md_table = [&md](const std::vector<std::string>& head, const Rows& rows) {

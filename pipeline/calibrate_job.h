@@ -14,6 +14,11 @@
 //     uncertainty_trials: 20         # Monte Carlo solves for the projection uncertainty; 0: off
 //                                    # (each figure uncertain by 1/sqrt(2(N-1)): 16% at 20)
 //     regularization: true           # mrcal's light pull of the distortion towards zero
+//     valid_intrinsics_region_parameters: [1, 0.5, 1.5, 3, 0]
+//                                    # mrcal-calibrate-cameras's, in its order: uncertainty and
+//                                    # stdev (x the residuals' deviation), mean (px), count, and
+//                                    # the distance (m) the uncertainty is evaluated at (0:
+//                                    # infinity; a rig's working distance is more telling)
 //     detect:                        # calibration/board.h DetectOptions
 //       detector: auto               # chessboards: auto (classic, then sb) | classic | sb
 //       min_corners: 6
@@ -55,6 +60,7 @@
 #include <vector>
 
 #include "calibration/calibrate.h"
+#include "pipeline/valid_region.h"
 
 namespace flamerig {
 
@@ -65,6 +71,8 @@ struct CalibrateConfig {
   DetectOptions detect;
   // Monte Carlo solves for the projection uncertainty (calibration/calibrate.h); 0: none.
   int uncertainty_trials = 20;
+  // The valid-intrinsics region written into each model (pipeline/valid_region.h).
+  ValidRegionParameters valid_region;
   // Reads the `calibrate:` map of a YAML file; errors (InputError) name the file and
   // key. Relative board_file paths are relative to the config file.
   static CalibrateConfig Load(const std::string& path);
@@ -78,9 +86,9 @@ struct CalibrateInput {
 // Detects, solves and writes everything listed above into out_dir. Into an out_dir holding an
 // earlier calibration (a rig.yaml) only the detection cache is written before the solve and the
 // uncertainty are done, so that a failed or cancelled run leaves it whole; into a fresh one
-// corners.vnl is written first, for mrcal's tools when the solve fails. Refuses (InputError) an input that is not a folder and
-// an out_dir holding a simulated dataset (dataset.yaml: its rig is the truth). Returns the
-// summary; the data (detections) through *data when not null.
+// corners.vnl is written first, for mrcal's tools when the solve fails. Refuses (InputError) an
+// input that is not a folder and an out_dir holding a simulated dataset (dataset.yaml: its rig is
+// the truth). Returns the summary; the data (detections) through *data when not null.
 CalibrationSummary RunCalibration(const CalibrateConfig& config, const CalibrateInput& input,
                                   const std::string& out_dir,
                                   const CalibrationProgress& progress = nullptr,

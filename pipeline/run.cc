@@ -9,7 +9,6 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <stdexcept>
@@ -17,6 +16,7 @@
 #include "acquisition/recording.h"
 #include "core/error.h"
 #include "core/json_yaml.h"
+#include "core/read_file.h"
 #include "fitting/absorption.h"
 #include "fitting/renderer.h"
 #include "pipeline/blender_export.h"
@@ -378,10 +378,7 @@ std::vector<FrameSummary> ReadFrameSummaries(const std::string& out_dir, std::si
   for (std::size_t i = begin; i < end; ++i) {
     const fs::path p = paths.Summary(i);
     if (!fs::exists(p)) continue;
-    std::ifstream in(p);
-    std::stringstream text;
-    text << in.rdbuf();
-    out.push_back(FrameSummary::FromYaml(text.str(), p.string()));
+    out.push_back(FrameSummary::FromYaml(ReadFile(p.string()), p.string()));
   }
   return out;
 }

@@ -13,11 +13,11 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
-#include <sstream>
 #include <thread>
 
+#include "core/error.h"
 #include "core/memory.h"
+#include "core/read_file.h"
 
 namespace flamerig {
 
@@ -70,11 +70,10 @@ ProgramResult RunProgram(const std::vector<std::string>& args, const std::string
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   result.peak_resident_bytes =
       polled_peak > 0 ? polled_peak : static_cast<std::size_t>(usage.ru_maxrss) * 1024;
-  {
-    std::ifstream in(log);
-    std::ostringstream text;
-    text << in.rdbuf();
-    result.error = text.str().substr(0, 2000);
+  try {
+    result.error = ReadFileIfPresent(log.string()).value_or("").substr(0, 2000);
+  } catch (const IoError& e) {
+    result.error = e.what();
   }
   fs::remove(log, ignored);
   result.exit_status = WIFEXITED(status) ? WEXITSTATUS(status) : -1;

@@ -1,13 +1,15 @@
 #include "pipeline/valid_region.h"
 
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
-#include <fstream>
 #include <sstream>
 
 #include "calibration/camera_model.h"
 #include "calibration/mrcal_inputs.h"
 #include "core/error.h"
+#include "core/format.h"
+#include "core/read_file.h"
 #include "pipeline/subprocess.h"
 
 namespace flamerig {
@@ -64,15 +66,61 @@ double ContourArea(const std::vector<Eigen::Vector2i>& c) {
   return std::abs(twice) / 2;
 }
 
-std::string ReadAll(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw IoError(path + ": cannot read");
-  std::ostringstream all;
-  all << in.rdbuf();
-  return all.str();
+// Three numbers after the sidecar's "uncertainty " (strtod reads the "inf" that Python writes
+// when no cell's uncertainty is finite, which a stream's >> does not).
+bool ParseUncertaintyLine(const std::string& rest, ValidRegion* r) {
+  double v[3];
+  const char* p = rest.c_str();
+  for (double& x : v) {
+    char* end = nullptr;
+    x = std::strtod(p, &end);
+    if (end == p) return false;
+    p = end;
+  }
+  r->min_uncertainty_px = v[0];
+  r->median_uncertainty_px = v[1];
+  r->residual_sigma_px = v[2];
+  return true;
 }
 
 }  // namespace
+
+ValidRegionParameters ValidRegionParameters::FromMrcal(const std::vector<double>& five,
+                                                       const std::string& where) {
+  if (five.size() != 5)
+    throw InputError(where +
+                     ": needs mrcal's five numbers (uncertainty, mean, stdev, count, "
+                     "distance; its defaults 1 0.5 1.5 3 0), not " +
+                     std::to_string(five.size()));
+  for (double x : five)
+    if (!std::isfinite(x)) throw InputError(where + ": " + FormatNumber(x) + " is not finite");
+  ValidRegionParameters p;
+  p.uncertainty = five[0];
+  p.mean = five[1];
+  p.stdev = five[2];
+  p.distance_m = five[4];
+  if (p.uncertainty <= 0 || p.mean <= 0 || p.stdev <= 0)
+    throw InputError(where + ": the thresholds (the first three numbers) must be above zero");
+  if (five[3] < 0 || five[3] != std::floor(five[3]) || five[3] > 1e6)
+    throw InputError(where + ": the count (the fourth number) must be a whole number >= 0, not " +
+                     FormatNumber(five[3]));
+  p.count = static_cast<int>(five[3]);
+  if (p.distance_m < 0)
+    throw InputError(where +
+                     ": the distance (the fifth number) must be 0 (infinity) or above, "
+                     "in metres, not " +
+                     FormatNumber(p.distance_m));
+  return p;
+}
+
+std::string ValidRegionParameters::ToMrcal() const {
+  return FormatNumber(uncertainty) + " " + FormatNumber(mean) + " " + FormatNumber(stdev) + " " +
+         std::to_string(count) + " " + FormatNumber(distance_m);
+}
+
+std::string ValidRegionParameters::DistanceText() const {
+  return distance_m > 0 ? "at " + FormatNumber(distance_m) + " m" : std::string("at infinity");
+}
 
 std::vector<ValidRegion> AddValidIntrinsicsRegions(const std::vector<std::string>& model_paths,
                                                    const ValidRegionParameters& p) {
@@ -84,11 +132,11 @@ std::vector<ValidRegion> AddValidIntrinsicsRegions(const std::vector<std::string
   std::vector<std::string> argv = {"/usr/bin/python3",
                                    "-c",
                                    kScript,
-                                   std::to_string(p.uncertainty),
-                                   std::to_string(p.mean),
-                                   std::to_string(p.stdev),
+                                   FormatNumber(p.uncertainty, 17),
+                                   FormatNumber(p.mean, 17),
+                                   FormatNumber(p.stdev, 17),
                                    std::to_string(p.count),
-                                   std::to_string(p.distance_m),
+                                   FormatNumber(p.distance_m, 17),
                                    std::to_string(p.grid_width)};
   for (const std::string& path : model_paths) {
     fs::remove(path + ".region");
@@ -112,7 +160,7 @@ std::vector<ValidRegion> AddValidIntrinsicsRegions(const std::vector<std::string
       fs::remove(sidecar, ignored);
       continue;
     }
-    std::istringstream lines(ReadAll(sidecar));
+    std::istringstream lines(ReadFile(sidecar));
     fs::remove(sidecar);
     std::string line;
     bool ok = true;
@@ -123,8 +171,11 @@ std::vector<ValidRegion> AddValidIntrinsicsRegions(const std::vector<std::string
         break;
       }
       if (line.rfind("uncertainty ", 0) == 0) {
-        std::istringstream u(line.substr(12));
-        u >> r.min_uncertainty_px >> r.median_uncertainty_px >> r.residual_sigma_px;
+        if (!ParseUncertaintyLine(line.substr(12), &r)) {
+          r.error = "mrcal's uncertainty line is unreadable: '" + line + "'";
+          ok = false;
+          break;
+        }
         continue;
       }
       std::istringstream xy(line);
@@ -143,8 +194,7 @@ std::vector<ValidRegion> AddValidIntrinsicsRegions(const std::vector<std::string
     std::ostringstream field;
     field << "    # Where the calibration can be trusted, as mrcal-calibrate-cameras computes it "
              "(its function,\n    # --valid-intrinsics-region-parameters "
-          << p.uncertainty << " " << p.mean << " " << p.stdev << " " << p.count << " "
-          << p.distance_m << "): a closed contour in pixels.\n"
+          << p.ToMrcal() << "): a closed contour in pixels.\n"
           << "    'valid_intrinsics_region': [\n";
     for (const Eigen::Vector2i& q : r.contour)
       field << "    [ " << q.x() << ", " << q.y() << " ],\n";
@@ -164,7 +214,7 @@ std::vector<ValidRegion> AddValidIntrinsicsRegions(const std::vector<std::string
 }
 
 std::vector<Eigen::Vector2i> ReadValidIntrinsicsRegion(const std::string& model_path) {
-  const std::string text = ReadAll(model_path);
+  const std::string text = ReadFile(model_path);
   const std::size_t key = text.find("'valid_intrinsics_region'");
   if (key == std::string::npos) return {};
   const std::size_t open = text.find('[', key);

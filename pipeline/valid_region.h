@@ -34,6 +34,16 @@ struct ValidRegionParameters {
   int count = 3;           // corners a cell needs, exclusive
   double distance_m = 0;   // where the uncertainty is evaluated; 0: at infinity
   int grid_width = 30;     // cells across the imager (mrcal's gridn_width)
+
+  // From the five numbers in mrcal's order (uncertainty, mean, stdev, count, distance), as
+  // mrcal-calibrate-cameras takes them. Throws InputError naming `where` when there are not five,
+  // one is not finite, a threshold is not above zero, the count is not a whole number >= 0 or
+  // the distance is below zero.
+  static ValidRegionParameters FromMrcal(const std::vector<double>& five, const std::string& where);
+  // "1 0.5 1.5 3 0": as they are passed to mrcal-calibrate-cameras.
+  std::string ToMrcal() const;
+  // "at infinity" or "at 0.3 m".
+  std::string DistanceText() const;
 };
 
 struct ValidRegion {

@@ -1,5 +1,6 @@
 // Atomic writes: a file is written beside its path and renamed into place, and an error says why
-// it could not be, naming the path, with no temporary file left behind.
+// it could not be, naming the path, with no temporary file left behind. And reading one back
+// whole (core/read_file.h).
 #include <gtest/gtest.h>
 #include <signal.h>
 #include <sys/resource.h>
@@ -14,6 +15,7 @@
 #include "core/atomic_file.h"
 #include "core/error.h"
 #include "core/image.h"
+#include "core/read_file.h"
 
 namespace flamerig {
 namespace {
@@ -93,6 +95,60 @@ TEST(AtomicFile, APictureOnAFullDiskIsAnErrorAndNoFile) {
   // Without the limit the same picture is written and reads back.
   WritePng(png.string(), noise);
   EXPECT_EQ(ReadImageU8(png.string(), 3).pixels, noise.pixels);
+  fs::remove_all(dir);
+}
+
+// What a writer wrote comes back byte for byte (NULs and all); an empty file is an empty string;
+// what cannot be read is an IoError naming the path and the system's reason, and only a file
+// that is not there is "not present".
+TEST(ReadFile, ReadsTheWholeFileOrSaysWhyNot) {
+  const fs::path dir = fs::temp_directory_path() / ("flamerig_read_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir / "a_folder");
+  std::string bytes(70000, '\0');
+  std::mt19937 random(7);
+  for (char& b : bytes) b = static_cast<char>(random() & 0xff);
+  WriteFileAtomically((dir / "blob").string(), bytes);
+  EXPECT_EQ(ReadFile((dir / "blob").string()), bytes);
+  EXPECT_EQ(ReadFileIfPresent((dir / "blob").string()).value_or(""), bytes);
+  WriteFileAtomically((dir / "empty").string(), "");
+  EXPECT_EQ(ReadFile((dir / "empty").string()), "");
+  ASSERT_TRUE(ReadFileIfPresent((dir / "empty").string()).has_value());
+
+  const std::string missing = (dir / "missing.yaml").string();
+  EXPECT_FALSE(ReadFileIfPresent(missing).has_value());
+  try {
+    ReadFile(missing);
+    FAIL() << "no error";
+  } catch (const IoError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find(missing + ": cannot be read: No such file"), std::string::npos) << what;
+  }
+  for (const auto& read : {+[](const std::string& p) { return ReadFile(p); },
+                           +[](const std::string& p) { return *ReadFileIfPresent(p); }}) {
+    try {
+      read((dir / "a_folder").string());
+      FAIL() << "no error";
+    } catch (const IoError& e) {
+      EXPECT_NE(std::string(e.what()).find("a_folder: cannot be read: it is a folder"),
+                std::string::npos)
+          << e.what();
+    }
+  }
+  // A file without read permission (root reads it anyway).
+  fs::permissions(dir / "blob", fs::perms::none);
+  if (::geteuid() != 0) {
+    EXPECT_THROW(ReadFileIfPresent((dir / "blob").string()), IoError);
+    try {
+      ReadFile((dir / "blob").string());
+      FAIL() << "no error";
+    } catch (const IoError& e) {
+      EXPECT_NE(std::string(e.what()).find("blob: cannot be read: Permission denied"),
+                std::string::npos)
+          << e.what();
+    }
+  }
+  fs::permissions(dir / "blob", fs::perms::owner_all);
   fs::remove_all(dir);
 }
 

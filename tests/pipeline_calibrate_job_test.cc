@@ -31,6 +31,8 @@ TEST_F(Ring, WritesARigThatLoadsAndAReport) {
   CalibrateConfig config = SimConfig();
   // The board given is the one beside the views: no warning that they differ.
   config.board = LoadBoardSpec((*dir_ / "calibration" / "board.yaml").string());
+  // The valid-intrinsics region at a working distance rather than mrcal's infinity.
+  config.valid_region.distance_m = 0.3;
   const CalibrationSummary s =
       RunCalibration(config, CalibrateInput{(*dir_ / "calibration").string(), ""}, out.string());
   for (const auto& note : s.notes)
@@ -48,6 +50,9 @@ TEST_F(Ring, WritesARigThatLoadsAndAReport) {
     // And the valid-intrinsics region mrcal-calibrate-cameras would write (compared with the
     // tool's own in pipeline_calibrate_rigs_test), here empty or not.
     EXPECT_NE(model.find("'valid_intrinsics_region': ["), std::string::npos) << c;
+    EXPECT_NE(model.find("--valid-intrinsics-region-parameters 1 0.5 1.5 3 0.3)"),
+              std::string::npos)
+        << c;
   }
   for (const auto& note : s.notes)
     EXPECT_EQ(note.find("no valid-intrinsics region"), std::string::npos) << note;
@@ -67,6 +72,10 @@ TEST_F(Ring, WritesARigThatLoadsAndAReport) {
   EXPECT_NE(text.find("mrcal counts"), std::string::npos);
   EXPECT_NE(text.find("## Projection uncertainty over the box"), std::string::npos);
   EXPECT_NE(text.find("| max voxels |"), std::string::npos);
+  EXPECT_NE(text.find("--valid-intrinsics-region-parameters 1 0.5 1.5 3 0.3): where the "
+                      "projection at 0.3 m is certain"),
+            std::string::npos)
+      << text;
   // Each camera's row ends with the share of its image in the region (a percentage).
   EXPECT_TRUE(
       std::regex_search(text, std::regex("\\| cam2 \\|[^\n]* \\| [0-9]+% \\| [0-9]+% \\|\n")))
@@ -201,6 +210,33 @@ TEST(CalibrateConfig, ErrorsNameTheFileAndKey) {
   EXPECT_NE(d.find("calibrate.name: must not be empty"), std::string::npos) << d;
   d = write("calibrate: {box: {min: [0, .nan, 0], max: [1, 1, 1]}}\n");
   EXPECT_NE(d.find("box: min and max must be finite"), std::string::npos) << d;
+  // mrcal-calibrate-cameras's five numbers for the valid-intrinsics region, each rule named.
+  const std::string key = "c.yaml: calibrate.valid_intrinsics_region_parameters: ";
+  d = write("calibrate: {valid_intrinsics_region_parameters: [1, 0.5, 1.5, 3]}\n");
+  EXPECT_NE(d.find(key + "needs mrcal's five numbers"), std::string::npos) << d;
+  d = write("calibrate: {valid_intrinsics_region_parameters: [1, 0.5, 1.5, 2.5, 0]}\n");
+  EXPECT_NE(d.find(key + "the count (the fourth number) must be a whole number"), std::string::npos)
+      << d;
+  d = write("calibrate: {valid_intrinsics_region_parameters: [1, 0.5, 1.5, 3, -0.3]}\n");
+  EXPECT_NE(d.find(key + "the distance (the fifth number) must be 0"), std::string::npos) << d;
+  d = write("calibrate: {valid_intrinsics_region_parameters: [0, 0.5, 1.5, 3, 0]}\n");
+  EXPECT_NE(d.find(key + "the thresholds"), std::string::npos) << d;
+  d = write("calibrate: {valid_intrinsics_region_parameters: [1, .nan, 1.5, 3, 0]}\n");
+  EXPECT_NE(d.find(key + "nan is not finite"), std::string::npos) << d;
+  d = write("calibrate: {valid_intrinsics_region_parameters: 3}\n");
+  EXPECT_NE(d.find("valid_intrinsics_region_parameters"), std::string::npos) << d;
+  EXPECT_EQ(CalibrateConfig::Load((dir / "ok.yaml").string()).valid_region.ToMrcal(),
+            "1 0.5 1.5 3 0");
+  std::ofstream((dir / "near.yaml").string())
+      << "calibrate: {valid_intrinsics_region_parameters: [2, 0.25, 1, 5, 0.3]}\n";
+  const ValidRegionParameters near =
+      CalibrateConfig::Load((dir / "near.yaml").string()).valid_region;
+  EXPECT_EQ(near.uncertainty, 2);
+  EXPECT_EQ(near.mean, 0.25);
+  EXPECT_EQ(near.stdev, 1);
+  EXPECT_EQ(near.count, 5);
+  EXPECT_EQ(near.distance_m, 0.3);
+  EXPECT_EQ(near.DistanceText(), "at 0.3 m");
   fs::remove_all(dir);
 }
 

@@ -17,6 +17,7 @@
 #include "calibration/synthetic_rig.h"
 #include "core/cpu.h"
 #include "core/error.h"
+#include "core/read_file.h"
 #include "fitting/colour.h"
 #include "fitting/fit.h"
 #include "fitting/renderer.h"
@@ -651,15 +652,7 @@ std::string RunTomographyBenchmark(const TomographyBenchmarkOptions& options,
 
 void WriteBenchmarkSection(const std::string& path, const std::string& name,
                            const std::string& markdown) {
-  std::string content;
-  {
-    std::ifstream in(path);
-    if (in) {
-      std::stringstream s;
-      s << in.rdbuf();
-      content = s.str();
-    }
-  }
+  std::string content = ReadFileIfPresent(path).value_or("");
   if (content.empty()) {
     content =
         "# flamerig benchmarks\n\nWritten by `flamerig benchmark ...` (see README). Each section "
