@@ -2,9 +2,11 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <limits>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <optional>
 #include <random>
 #include <stdexcept>
 #include <string_view>
@@ -12,6 +14,7 @@
 
 #include "core/atomic_file.h"
 #include "core/error.h"
+#include "core/read_file.h"
 
 namespace flamerig {
 
@@ -79,14 +82,45 @@ Image<T> FromMat(const std::string& path, const cv::Mat& in, int channels) {
   return image;
 }
 
+// A PNG that a crash or a full disk cut short: its signature without its closing IEND chunk in
+// the last bytes (libpng allows nothing but a CRC after it; 64 bytes leave room for trailing
+// padding some writers add). Named before libpng sees it, which would only print "libpng error:
+// Read Error" on stderr.
+bool IsPngCutShort(const std::string& bytes) {
+  static constexpr std::string_view kSignature("\x89PNG\r\n\x1a\n", 8);
+  if (bytes.size() < kSignature.size() || bytes.compare(0, 8, kSignature) != 0) return false;
+  const std::size_t tail = std::min<std::size_t>(bytes.size() - 8, 64);
+  return std::string_view(bytes).substr(bytes.size() - tail).find("IEND") == std::string_view::npos;
+}
+
+// Damage is a DataError, the failure of the frame that holds the image (core/error.h), whether the
+// file is missing, unreadable, empty, cut short or not an image.
 cv::Mat Decode(const std::string& path) {
+  std::string bytes;
+  try {
+    const std::optional<std::string> read = ReadFileIfPresent(path);
+    if (!read) throw DataError(path + ": no such image file");
+    bytes = *read;
+  } catch (const IoError& e) {
+    throw DataError(e.what());
+  }
+  if (bytes.empty()) throw DataError(path + ": the image file is empty (0 bytes)");
+  if (IsPngCutShort(bytes))
+    throw DataError(path + ": a PNG cut short (" + std::to_string(bytes.size()) +
+                    " bytes, without its closing IEND chunk)");
+  if (bytes.size() > static_cast<std::size_t>(std::numeric_limits<int>::max()))
+    throw DataError(path + ": an image file of " + std::to_string(bytes.size()) +
+                    " bytes is beyond what OpenCV decodes");
   cv::Mat in;
   try {
-    in = cv::imread(path, cv::IMREAD_UNCHANGED);
+    in = cv::imdecode(cv::Mat(1, static_cast<int>(bytes.size()), CV_8U, bytes.data()),
+                      cv::IMREAD_UNCHANGED);
   } catch (const cv::Exception& e) {
     throw DataError(path + ": cannot decode: " + e.what());
   }
-  if (in.empty()) throw DataError(path + ": missing or not a decodable image");
+  if (in.empty())
+    throw DataError(path + ": cannot be decoded (" + std::to_string(bytes.size()) +
+                    " bytes): damaged, or not an image format OpenCV reads");
   return in;
 }
 

@@ -52,8 +52,9 @@ void WritePng(const std::string& path, const ImageU8& image);
 void WritePng16(const std::string& path, const ImageU16& image);
 
 // Reads an 8-bit PNG (or any format OpenCV decodes) as 1 or 3 channels (RGB order); `channels` 0
-// keeps the file's channel count (alpha dropped). Throws DataError naming the path when
-// the file is missing, cannot be decoded, or is not 8-bit.
+// keeps the file's channel count (alpha dropped). Throws DataError naming the path and what is
+// wrong when the file is missing, unreadable, empty, a PNG cut short (no closing IEND chunk),
+// cannot be decoded, or is not 8-bit.
 ImageU8 ReadImageU8(const std::string& path, int channels = 0);
 // Reads an 8-bit or 16-bit image into *image8 or *image16 (the other is left empty) and returns
 // the bit depth, 8 or 16. Same channel rules and errors as ReadImageU8.

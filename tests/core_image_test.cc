@@ -1,0 +1,100 @@
+// Reading images (core/image.h): what a damaged file says. A frame's image that a crash cut short,
+// an empty or missing file, bytes that are no image: each a DataError naming the file and what is
+// wrong (so that `run` fails that frame alone and says why), and libpng's own "libpng error" line
+// no longer on stderr for the commonest damage, a PNG cut short.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <string>
+
+#include "core/atomic_file.h"
+#include "core/error.h"
+#include "core/image.h"
+#include "core/read_file.h"
+
+namespace flamerig {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string ErrorReading(const std::string& path) {
+  try {
+    ReadImageU8(path);
+  } catch (const DataError& e) {
+    return e.what();
+  }
+  return "(no DataError)";
+}
+
+TEST(ReadImage, DamageIsADataErrorThatSaysWhat) {
+  const fs::path dir = fs::temp_directory_path() / ("flamerig_image_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  // A noisy picture, so that the PNG is large enough to cut (random pixels do not compress).
+  ImageU8 image(64, 48, 3);
+  std::mt19937 random(3);
+  for (auto& v : image.pixels) v = static_cast<std::uint8_t>(random() & 0xff);
+  const std::string good = (dir / "good.png").string();
+  WritePng(good, image);
+  EXPECT_EQ(ReadImageU8(good).pixels, image.pixels);
+  const std::string bytes = ReadFile(good);
+  ASSERT_GT(bytes.size(), 9000u);
+
+  // Cut short, as a crash during the write leaves it: named, and nothing from libpng on stderr.
+  const std::string cut = (dir / "cut.png").string();
+  WriteFileAtomically(cut, bytes.substr(0, bytes.size() / 2));
+  testing::internal::CaptureStderr();
+  const std::string cut_error = ErrorReading(cut);
+  const std::string printed = testing::internal::GetCapturedStderr();
+  EXPECT_EQ(cut_error, cut + ": a PNG cut short (" + std::to_string(bytes.size() / 2) +
+                           " bytes, without its closing IEND chunk)");
+  EXPECT_EQ(printed, "");
+  // Its last 12 bytes only (the IEND chunk and its CRC) missing: the same.
+  WriteFileAtomically(cut, bytes.substr(0, bytes.size() - 12));
+  EXPECT_NE(ErrorReading(cut).find("a PNG cut short"), std::string::npos);
+
+  // Bytes after the IEND chunk (some writers pad): read as before.
+  const std::string padded = (dir / "padded.png").string();
+  WriteFileAtomically(padded, bytes + std::string(16, '\0'));
+  EXPECT_EQ(ReadImageU8(padded).pixels, image.pixels);
+
+  // Damage inside: a flipped byte in the middle of the pixel data fails libpng's CRC or zlib's
+  // check; a DataError naming the file, whatever libpng prints.
+  std::string flipped = bytes;
+  flipped[bytes.size() / 2] = static_cast<char>(flipped[bytes.size() / 2] ^ 0x5a);
+  const std::string damaged = (dir / "damaged.png").string();
+  WriteFileAtomically(damaged, flipped);
+  testing::internal::CaptureStderr();
+  const std::string damaged_error = ErrorReading(damaged);
+  testing::internal::GetCapturedStderr();
+  EXPECT_EQ(damaged_error.rfind(damaged + ": ", 0), 0u) << damaged_error;
+
+  const std::string empty = (dir / "empty.png").string();
+  WriteFileAtomically(empty, "");
+  EXPECT_EQ(ErrorReading(empty), empty + ": the image file is empty (0 bytes)");
+  const std::string missing = (dir / "missing.png").string();
+  EXPECT_EQ(ErrorReading(missing), missing + ": no such image file");
+  const std::string text = (dir / "notes.png").string();
+  WriteFileAtomically(text, "not an image at all\n");
+  EXPECT_EQ(ErrorReading(text), text +
+                                    ": cannot be decoded (20 bytes): damaged, or not an image "
+                                    "format OpenCV reads");
+  EXPECT_NE(ErrorReading(dir.string()).find("it is a folder"), std::string::npos);
+
+  // A 16-bit image where 8 bits are wanted.
+  ImageU16 deep(8, 8, 1);
+  const std::string deep_path = (dir / "deep.png").string();
+  WritePng16(deep_path, deep);
+  EXPECT_NE(ErrorReading(deep_path).find("expected an 8-bit image"), std::string::npos);
+  ImageU8 as8;
+  ImageU16 as16;
+  EXPECT_EQ(ReadImage(deep_path, &as8, &as16), 16);
+  EXPECT_EQ(as16.width, 8);
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace flamerig
