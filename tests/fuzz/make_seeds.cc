@@ -11,6 +11,7 @@
 #include "acquisition/recording.h"
 #include "calibration/board.h"
 #include "calibration/camera_model.h"
+#include "core/image.h"
 #include "tests/fuzz/small_fire.h"
 #include "tomography/vdb_io.h"
 
@@ -141,6 +142,19 @@ int main(int argc, char** argv) {
       frames += block;
     }
     Write(out / "streampix" / "v5.seq", h + frames);
+  }
+
+  // image: small PNGs as cameras and `simulate` write them: 8-bit RGB and grey, 16-bit grey.
+  {
+    ImageU8 rgb(6, 4, 3), grey(5, 3, 1);
+    ImageU16 deep(4, 3, 1);
+    for (std::size_t i = 0; i < rgb.pixels.size(); ++i) rgb.pixels[i] = (i * 37) & 0xff;
+    for (std::size_t i = 0; i < grey.pixels.size(); ++i) grey.pixels[i] = (i * 11) & 0xff;
+    for (std::size_t i = 0; i < deep.pixels.size(); ++i) deep.pixels[i] = (i * 4099) & 0xffff;
+    fs::create_directories(out / "image");
+    WritePng((out / "image" / "rgb8.png").string(), rgb);
+    WritePng((out / "image" / "grey8.png").string(), grey);
+    WritePng16((out / "image" / "grey16.png").string(), deep);
   }
 
   // detection_cache (the default board: ChArUco 7x5, 24 inner corners)
