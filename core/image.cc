@@ -96,14 +96,14 @@ bool IsPngCutShort(const std::string& bytes) {
 // Damage is a DataError, the failure of the frame that holds the image (core/error.h), whether the
 // file is missing, unreadable, empty, cut short or not an image.
 cv::Mat Decode(const std::string& path) {
-  std::string bytes;
+  std::optional<std::string> read;
   try {
-    const std::optional<std::string> read = ReadFileIfPresent(path);
-    if (!read) throw DataError(path + ": no such image file");
-    bytes = *read;
+    read = ReadFileIfPresent(path);
   } catch (const IoError& e) {
     throw DataError(e.what());
   }
+  if (!read) throw DataError(path + ": no such image file");
+  std::string& bytes = *read;  // non-const: cv::Mat wraps it (imdecode only reads)
   if (bytes.empty()) throw DataError(path + ": the image file is empty (0 bytes)");
   if (IsPngCutShort(bytes))
     throw DataError(path + ": a PNG cut short (" + std::to_string(bytes.size()) +

@@ -98,6 +98,17 @@ TEST(AtomicFile, APictureOnAFullDiskIsAnErrorAndNoFile) {
   fs::remove_all(dir);
 }
 
+// The IoError `read` throws, or "(no error)".
+template <typename Read>
+std::string IoErrorOf(Read read) {
+  try {
+    read();
+  } catch (const IoError& e) {
+    return e.what();
+  }
+  return "(no error)";
+}
+
 // What a writer wrote comes back byte for byte (NULs and all); an empty file is an empty string;
 // what cannot be read is an IoError naming the path and the system's reason, and only a file
 // that is not there is "not present".
@@ -117,36 +128,18 @@ TEST(ReadFile, ReadsTheWholeFileOrSaysWhyNot) {
 
   const std::string missing = (dir / "missing.yaml").string();
   EXPECT_FALSE(ReadFileIfPresent(missing).has_value());
-  try {
-    ReadFile(missing);
-    FAIL() << "no error";
-  } catch (const IoError& e) {
-    const std::string what = e.what();
-    EXPECT_NE(what.find(missing + ": cannot be read: No such file"), std::string::npos) << what;
-  }
-  for (const auto& read : {+[](const std::string& p) { return ReadFile(p); },
-                           +[](const std::string& p) { return *ReadFileIfPresent(p); }}) {
-    try {
-      read((dir / "a_folder").string());
-      FAIL() << "no error";
-    } catch (const IoError& e) {
-      EXPECT_NE(std::string(e.what()).find("a_folder: cannot be read: it is a folder"),
-                std::string::npos)
-          << e.what();
-    }
-  }
+  std::string what = IoErrorOf([&] { ReadFile(missing); });
+  EXPECT_NE(what.find(missing + ": cannot be read: No such file"), std::string::npos) << what;
+  const std::string folder = (dir / "a_folder").string();
+  for (const std::string& error :
+       {IoErrorOf([&] { ReadFile(folder); }), IoErrorOf([&] { ReadFileIfPresent(folder); })})
+    EXPECT_NE(error.find("a_folder: cannot be read: it is a folder"), std::string::npos) << error;
   // A file without read permission (root reads it anyway).
   fs::permissions(dir / "blob", fs::perms::none);
   if (::geteuid() != 0) {
     EXPECT_THROW(ReadFileIfPresent((dir / "blob").string()), IoError);
-    try {
-      ReadFile((dir / "blob").string());
-      FAIL() << "no error";
-    } catch (const IoError& e) {
-      EXPECT_NE(std::string(e.what()).find("blob: cannot be read: Permission denied"),
-                std::string::npos)
-          << e.what();
-    }
+    what = IoErrorOf([&] { ReadFile((dir / "blob").string()); });
+    EXPECT_NE(what.find("blob: cannot be read: Permission denied"), std::string::npos) << what;
   }
   fs::permissions(dir / "blob", fs::perms::owner_all);
   fs::remove_all(dir);

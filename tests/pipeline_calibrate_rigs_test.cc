@@ -319,11 +319,18 @@ TEST(CalibrateStrongLens, ShadowedBoardsKeepEveryCornerAndTheIntrinsicsComeBack)
           points << p.x() << " " << p.y() << " " << p.z() << "\n";
         }
   }
+  // mrcal's tool on our corners, in `dir` (it writes camera-<i>.cameramodel there), with `extra`
+  // options.
+  auto calibrate_cameras = [&](const fs::path& dir, const std::string& extra) {
+    return "cd " + dir.string() + " && mrcal-calibrate-cameras --corners-cache " +
+           (work / "corners.vnl").string() +
+           " --lensmodel LENSMODEL_OPENCV8 --focal 400 --imagersize 640 480 --object-spacing "
+           "0.015 --object-width-n 9 --object-height-n 6 " +
+           extra + "'views/*/cam0.png' 'views/*/cam1.png' > tool.log 2>&1";
+  };
   const std::string tool =
-      "cd " + work.string() +
-      " && mrcal-calibrate-cameras --corners-cache corners.vnl --lensmodel LENSMODEL_OPENCV8 "
-      "--focal 400 --imagersize 640 480 --object-spacing 0.015 --object-width-n 9 "
-      "--object-height-n 6 'views/*/cam0.png' 'views/*/cam1.png' > tool.log 2>&1 && "
+      calibrate_cameras(work, "") +
+      " && "
       "/usr/bin/python3 -c \"import mrcal, numpy as np; p = np.loadtxt('points.txt'); "
       "ms = [mrcal.cameramodel(f'camera-{i}.cameramodel') for i in (0, 1)]; "
       "ms += [mrcal.cameramodel(f'ours/cameras/cam{i}.cameramodel') for i in (0, 1)]; "
@@ -401,12 +408,8 @@ TEST(CalibrateStrongLens, ShadowedBoardsKeepEveryCornerAndTheIntrinsicsComeBack)
   ValidRegionParameters at_distance;
   at_distance.distance_m = std::round(distance * 1000) / 1000;
   fs::create_directories(work / "near");
-  const std::string near_tool =
-      "cd " + (work / "near").string() +
-      " && mrcal-calibrate-cameras --corners-cache ../corners.vnl --lensmodel LENSMODEL_OPENCV8 "
-      "--focal 400 --imagersize 640 480 --object-spacing 0.015 --object-width-n 9 "
-      "--object-height-n 6 --valid-intrinsics-region-parameters " +
-      at_distance.ToMrcal() + " 'views/*/cam0.png' 'views/*/cam1.png' > tool.log 2>&1";
+  const std::string near_tool = calibrate_cameras(
+      work / "near", "--valid-intrinsics-region-parameters " + at_distance.ToMrcal() + " ");
   ASSERT_EQ(std::system(near_tool.c_str()), 0) << "see " << (work / "near" / "tool.log");
   const std::vector<ValidRegion> near = AddValidIntrinsicsRegions(near_paths, at_distance);
   ASSERT_EQ(near.size(), 2u);
