@@ -33,6 +33,15 @@ except Exception as e:
     sys.stderr.write("mrcal's Python package cannot be imported: %s\n" % e)
     sys.exit(3)
 u, mean, stdev, count, distance, gridn = [float(x) for x in sys.argv[1:7]]
+# The region's own grid of projection uncertainties, kept as mrcal computes it (a copy: mrcal then
+# marks the non-finite cells 1e9 in place) so that the figures below need no second computation.
+seen = []
+computed = mrcal.projection_uncertainty
+def kept(*args, **kwargs):
+    result = computed(*args, **kwargs)
+    seen.append(np.array(result, copy=True))
+    return result
+mrcal.projection_uncertainty = kept
 for path in sys.argv[7:]:
     with open(path + ".region", "w") as out:
         try:
@@ -41,15 +50,13 @@ for path in sys.argv[7:]:
             if oi is None:
                 raise Exception("the model carries no optimization_inputs")
             sigma = np.std(mrcal.residuals_chessboard(oi).ravel())
+            seen.clear()
             r = _compute_valid_intrinsics_region(m, u * sigma, mean, stdev * sigma, count,
                                                  distance, gridn_width=int(gridn))
-            W, H = m.imagersize()
-            v = mrcal.unproject(mrcal.sample_imager(int(gridn), int(round(H / W * gridn)), W, H),
-                                *m.intrinsics(), normalize=True)
-            unc = mrcal.projection_uncertainty(v if distance <= 0 else v * distance, model=m,
-                                               atinfinity=distance <= 0,
-                                               what="worstdirection-stdev")
-            unc = unc[np.isfinite(unc)]
+            if len(seen) != 1:
+                raise Exception("mrcal computed the projection uncertainty %d times, not once"
+                                % len(seen))
+            unc = seen[0][np.isfinite(seen[0])]
             out.write("uncertainty %.9g %.9g %.9g\n" % (
                 np.min(unc) if unc.size else float("inf"),
                 np.median(unc) if unc.size else float("inf"), sigma))
