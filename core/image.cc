@@ -1,5 +1,6 @@
 #include "core/image.h"
 
+#include <libdeflate.h>
 #include <algorithm>
 #include <filesystem>
 #include <limits>
@@ -82,15 +83,56 @@ Image<T> FromMat(const std::string& path, const cv::Mat& in, int channels) {
   return image;
 }
 
-// A PNG that a crash or a full disk cut short: its signature without its closing IEND chunk in
-// the last bytes (libpng allows nothing but a CRC after it; 64 bytes leave room for trailing
-// padding some writers add). Named before libpng sees it, which would only print "libpng error:
-// Read Error" on stderr.
-bool IsPngCutShort(const std::string& bytes) {
+std::uint32_t BigEndian32(const std::string& bytes, std::size_t at) {
+  return std::uint32_t(std::uint8_t(bytes[at])) << 24 |
+         std::uint32_t(std::uint8_t(bytes[at + 1])) << 16 |
+         std::uint32_t(std::uint8_t(bytes[at + 2])) << 8 |
+         std::uint32_t(std::uint8_t(bytes[at + 3]));
+}
+
+// What is wrong with a PNG's chunks, or nullopt when they are whole (or the bytes are not a PNG:
+// OpenCV then says what it can). Each chunk (length, type, data, CRC-32 over type and data) is
+// walked up to the closing IEND:
+// - a file that ends before IEND is "cut short", as a crash or a full disk leaves it;
+// - a critical chunk (its type's first letter upper case: IHDR, PLTE, IDAT, IEND) whose CRC does
+//   not match its bytes is damaged inside, and named with its byte offset. An ancillary chunk's
+//   damage (text, timestamps) is left to libpng, which drops that chunk and reads the pixels;
+// - a chunk whose stated length runs past the end of a file that does end in IEND has a damaged
+//   length field.
+// Found here, none of them reaches libpng, which would print "libpng error: ..." on stderr
+// before OpenCV returned an empty image. Bytes after IEND (some writers pad) are allowed.
+std::optional<std::string> PngDamage(const std::string& bytes) {
   static constexpr std::string_view kSignature("\x89PNG\r\n\x1a\n", 8);
-  if (bytes.size() < kSignature.size() || bytes.compare(0, 8, kSignature) != 0) return false;
+  if (bytes.size() < kSignature.size() || bytes.compare(0, 8, kSignature) != 0) return std::nullopt;
+  const std::string size = " (" + std::to_string(bytes.size()) + " bytes";
   const std::size_t tail = std::min<std::size_t>(bytes.size() - 8, 64);
-  return std::string_view(bytes).substr(bytes.size() - tail).find("IEND") == std::string_view::npos;
+  const bool ends_in_iend =
+      std::string_view(bytes).substr(bytes.size() - tail).find("IEND") != std::string_view::npos;
+  std::size_t at = 8;
+  while (at + 8 <= bytes.size()) {
+    const std::uint64_t length = BigEndian32(bytes, at);
+    const std::string type = bytes.substr(at + 4, 4);
+    const bool named = std::all_of(type.begin(), type.end(), [](char c) {
+      return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z');
+    });
+    const std::string chunk = (named ? "its " + type + " chunk" : "a chunk of damaged type") +
+                              " at byte " + std::to_string(at);
+    if (at + 12 + length > bytes.size()) {
+      if (!ends_in_iend) break;
+      return "a damaged PNG" + size + "): " + chunk + " states a length of " +
+             std::to_string(length) + " bytes, past the file's end";
+    }
+    const bool critical = named && type[0] >= 'A' && type[0] <= 'Z';
+    if (critical || !named) {
+      const std::uint32_t crc =
+          libdeflate_crc32(0, bytes.data() + at + 4, static_cast<std::size_t>(length) + 4);
+      if (crc != BigEndian32(bytes, at + 8 + length))
+        return "a damaged PNG" + size + "): " + chunk + " fails its CRC-32 check";
+    }
+    if (type == "IEND") return std::nullopt;
+    at += 12 + length;
+  }
+  return "a PNG cut short" + size + ", without its closing IEND chunk)";
 }
 
 // Damage is a DataError, the failure of the frame that holds the image (core/error.h), whether the
@@ -105,9 +147,7 @@ cv::Mat Decode(const std::string& path) {
   if (!read) throw DataError(path + ": no such image file");
   std::string& bytes = *read;  // non-const: cv::Mat wraps it (imdecode only reads)
   if (bytes.empty()) throw DataError(path + ": the image file is empty (0 bytes)");
-  if (IsPngCutShort(bytes))
-    throw DataError(path + ": a PNG cut short (" + std::to_string(bytes.size()) +
-                    " bytes, without its closing IEND chunk)");
+  if (const auto damage = PngDamage(bytes)) throw DataError(path + ": " + *damage);
   if (bytes.size() > static_cast<std::size_t>(std::numeric_limits<int>::max()))
     throw DataError(path + ": an image file of " + std::to_string(bytes.size()) +
                     " bytes is beyond what OpenCV decodes");

@@ -1,7 +1,7 @@
 // Reading images (core/image.h): what a damaged file says. A frame's image that a crash cut short,
 // an empty or missing file, bytes that are no image: each a DataError naming the file and what is
 // wrong (so that `run` fails that frame alone and says why), and libpng's own "libpng error" line
-// no longer on stderr for the commonest damage, a PNG cut short.
+// no longer on stderr: a PNG cut short or with a damaged chunk is named before libpng reads it.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -61,16 +61,45 @@ TEST(ReadImage, DamageIsADataErrorThatSaysWhat) {
   WriteFileAtomically(padded, bytes + std::string(16, '\0'));
   EXPECT_EQ(ReadImageU8(padded).pixels, image.pixels);
 
-  // Damage inside: a flipped byte in the middle of the pixel data fails libpng's CRC or zlib's
-  // check; a DataError naming the file, whatever libpng prints.
+  // Damage inside: a flipped byte in the middle of the pixel data. The chunk that holds it is
+  // named by its type and offset (an IDAT chunk that starts at most 8 KiB + 12 bytes before the
+  // byte, libpng's chunk size), and libpng prints nothing.
+  const std::size_t middle = bytes.size() / 2;
   std::string flipped = bytes;
-  flipped[bytes.size() / 2] = static_cast<char>(flipped[bytes.size() / 2] ^ 0x5a);
+  flipped[middle] = static_cast<char>(flipped[middle] ^ 0x5a);
   const std::string damaged = (dir / "damaged.png").string();
   WriteFileAtomically(damaged, flipped);
   testing::internal::CaptureStderr();
   const std::string damaged_error = ErrorReading(damaged);
+  EXPECT_EQ(testing::internal::GetCapturedStderr(), "");
+  const std::string prefix = damaged + ": a damaged PNG (" + std::to_string(bytes.size()) +
+                             " bytes): its IDAT chunk at byte ";
+  ASSERT_EQ(damaged_error.rfind(prefix, 0), 0u) << damaged_error;
+  const std::size_t chunk_at = std::stoul(damaged_error.substr(prefix.size()));
+  EXPECT_EQ(bytes.substr(chunk_at + 4, 4), "IDAT");
+  EXPECT_LT(chunk_at, middle);
+  EXPECT_LE(middle - chunk_at, 8192u + 12u);
+  EXPECT_NE(damaged_error.find(" fails its CRC-32 check"), std::string::npos) << damaged_error;
+
+  // The same chunk's length field overwritten: it would run past the end.
+  std::string long_chunk = bytes;
+  long_chunk.replace(chunk_at, 4, std::string("\x7f\xff\xff\xff", 4));
+  WriteFileAtomically(damaged, long_chunk);
+  EXPECT_NE(ErrorReading(damaged).find("its IDAT chunk at byte " + std::to_string(chunk_at) +
+                                       " states a length of 2147483647 bytes, past the file's end"),
+            std::string::npos)
+      << ErrorReading(damaged);
+
+  // An ancillary chunk (a tEXt note after the 33 bytes of signature and IHDR) with a wrong CRC:
+  // the pixels still read, as libpng reads them (it drops the chunk).
+  const std::string text_chunk = std::string("\0\0\0\x04tEXtab\0c", 12) + std::string(4, '\x11');
+  std::string with_note = bytes;
+  with_note.insert(33, text_chunk);
+  const std::string noted = (dir / "noted.png").string();
+  WriteFileAtomically(noted, with_note);
+  testing::internal::CaptureStderr();
+  EXPECT_EQ(ReadImageU8(noted).pixels, image.pixels);
   testing::internal::GetCapturedStderr();
-  EXPECT_EQ(damaged_error.rfind(damaged + ": ", 0), 0u) << damaged_error;
 
   const std::string empty = (dir / "empty.png").string();
   WriteFileAtomically(empty, "");
