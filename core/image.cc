@@ -98,7 +98,9 @@ std::uint32_t BigEndian32(const std::string& bytes, std::size_t at) {
 //   not match its bytes is damaged inside, and named with its byte offset. An ancillary chunk's
 //   damage (text, timestamps) is left to libpng, which drops that chunk and reads the pixels;
 // - a chunk whose stated length runs past the end of a file that does end in IEND has a damaged
-//   length field.
+//   length field;
+// - a first chunk other than the image header (IHDR), or an IEND before any pixel data (IDAT), is
+//   damage too.
 // Found here, none of them reaches libpng, which would print "libpng error: ..." on stderr
 // before OpenCV returned an empty image. Bytes after IEND (some writers pad) are allowed.
 std::optional<std::string> PngDamage(const std::string& bytes) {
@@ -109,6 +111,7 @@ std::optional<std::string> PngDamage(const std::string& bytes) {
   const bool ends_in_iend =
       std::string_view(bytes).substr(bytes.size() - tail).find("IEND") != std::string_view::npos;
   std::size_t at = 8;
+  bool seen_pixels = false;
   while (at + 8 <= bytes.size()) {
     const std::uint64_t length = BigEndian32(bytes, at);
     const std::string type = bytes.substr(at + 4, 4);
@@ -122,6 +125,8 @@ std::optional<std::string> PngDamage(const std::string& bytes) {
       return "a damaged PNG" + size + "): " + chunk + " states a length of " +
              std::to_string(length) + " bytes, past the file's end";
     }
+    if (at == 8 && type != "IHDR")
+      return "a damaged PNG" + size + "): " + chunk + " comes first, where IHDR must";
     const bool critical = named && type[0] >= 'A' && type[0] <= 'Z';
     if (critical || !named) {
       const std::uint32_t crc =
@@ -129,7 +134,10 @@ std::optional<std::string> PngDamage(const std::string& bytes) {
       if (crc != BigEndian32(bytes, at + 8 + length))
         return "a damaged PNG" + size + "): " + chunk + " fails its CRC-32 check";
     }
+    if (type == "IEND" && !seen_pixels)
+      return "a damaged PNG" + size + "): " + chunk + " ends it before any IDAT (pixel data)";
     if (type == "IEND") return std::nullopt;
+    seen_pixels = seen_pixels || type == "IDAT";
     at += 12 + length;
   }
   return "a PNG cut short" + size + ", without its closing IEND chunk)";

@@ -90,6 +90,20 @@ TEST(ReadImage, DamageIsADataErrorThatSaysWhat) {
             std::string::npos)
       << ErrorReading(damaged);
 
+  // The header chunk's type damaged (IHDR to iHDR, which alone would read as an ancillary chunk).
+  std::string no_header = bytes;
+  no_header[12] = 'i';
+  WriteFileAtomically(damaged, no_header);
+  EXPECT_EQ(ErrorReading(damaged),
+            damaged + ": a damaged PNG (" + std::to_string(bytes.size()) +
+                " bytes): its iHDR chunk at byte 8 comes first, where IHDR must");
+
+  // No pixel data: the header followed by the closing chunk.
+  WriteFileAtomically(damaged, bytes.substr(0, 33) + bytes.substr(bytes.size() - 12));
+  EXPECT_EQ(ErrorReading(damaged), damaged +
+                                       ": a damaged PNG (45 bytes): its IEND chunk at byte 33 "
+                                       "ends it before any IDAT (pixel data)");
+
   // An ancillary chunk (a tEXt note after the 33 bytes of signature and IHDR) with a wrong CRC:
   // the pixels still read, as libpng reads them (it drops the chunk).
   const std::string text_chunk = std::string("\0\0\0\x04tEXtab\0c", 12) + std::string(4, '\x11');
