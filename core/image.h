@@ -54,10 +54,10 @@ void WritePng16(const std::string& path, const ImageU16& image);
 // Reads an 8-bit PNG (or any format OpenCV decodes) as 1 or 3 channels (RGB order); `channels` 0
 // keeps the file's channel count (alpha dropped). Throws DataError naming the path and what is
 // wrong when the file is missing, unreadable, empty, a PNG cut short (no closing IEND chunk), a
-// PNG with a damaged chunk (a critical chunk failing its CRC-32, a length past the file's end, or
-// a first chunk that is not IHDR: the chunk's type and byte offset named), cannot be decoded, or
-// is not 8-bit. A PNG's damage is found before libpng reads it, so libpng prints no error of its
-// own (only its warning for a damaged ancillary chunk, which it drops).
+// PNG with a damaged chunk (a critical chunk failing its CRC-32, a length past the file's end, a
+// first chunk that is not IHDR, an IEND before any IDAT: the chunk's type and byte offset named),
+// cannot be decoded, or is not 8-bit. A PNG's damage is found before libpng reads it, so libpng
+// prints no error of its own (only its warning for a damaged ancillary chunk, which it drops).
 ImageU8 ReadImageU8(const std::string& path, int channels = 0);
 // Reads an 8-bit or 16-bit image into *image8 or *image16 (the other is left empty) and returns
 // the bit depth, 8 or 16. Same channel rules and errors as ReadImageU8.
