@@ -107,9 +107,6 @@ std::optional<std::string> PngDamage(const std::string& bytes) {
   static constexpr std::string_view kSignature("\x89PNG\r\n\x1a\n", 8);
   if (bytes.size() < kSignature.size() || bytes.compare(0, 8, kSignature) != 0) return std::nullopt;
   const std::string size = " (" + std::to_string(bytes.size()) + " bytes";
-  const std::size_t tail = std::min<std::size_t>(bytes.size() - 8, 64);
-  const bool ends_in_iend =
-      std::string_view(bytes).substr(bytes.size() - tail).find("IEND") != std::string_view::npos;
   std::size_t at = 8;
   bool seen_pixels = false;
   while (at + 8 <= bytes.size()) {
@@ -118,24 +115,28 @@ std::optional<std::string> PngDamage(const std::string& bytes) {
     const bool named = std::all_of(type.begin(), type.end(), [](char c) {
       return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z');
     });
-    const std::string chunk = (named ? "its " + type + " chunk" : "a chunk of damaged type") +
-                              " at byte " + std::to_string(at);
+    // The chunk's description, built only for a report.
+    const auto damaged = [&](const std::string& what) {
+      return "a damaged PNG" + size +
+             "): " + (named ? "its " + type + " chunk" : "a chunk of damaged type") + " at byte " +
+             std::to_string(at) + what;
+    };
     if (at + 12 + length > bytes.size()) {
-      if (!ends_in_iend) break;
-      return "a damaged PNG" + size + "): " + chunk + " states a length of " +
-             std::to_string(length) + " bytes, past the file's end";
+      const std::size_t tail = std::min<std::size_t>(bytes.size() - 8, 64);
+      if (std::string_view(bytes).substr(bytes.size() - tail).find("IEND") ==
+          std::string_view::npos)
+        break;  // no IEND at the end either: cut short
+      return damaged(" states a length of " + std::to_string(length) +
+                     " bytes, past the file's end");
     }
-    if (at == 8 && type != "IHDR")
-      return "a damaged PNG" + size + "): " + chunk + " comes first, where IHDR must";
+    if (at == 8 && type != "IHDR") return damaged(" comes first, where IHDR must");
     const bool critical = named && type[0] >= 'A' && type[0] <= 'Z';
     if (critical || !named) {
       const std::uint32_t crc =
           libdeflate_crc32(0, bytes.data() + at + 4, static_cast<std::size_t>(length) + 4);
-      if (crc != BigEndian32(bytes, at + 8 + length))
-        return "a damaged PNG" + size + "): " + chunk + " fails its CRC-32 check";
+      if (crc != BigEndian32(bytes, at + 8 + length)) return damaged(" fails its CRC-32 check");
     }
-    if (type == "IEND" && !seen_pixels)
-      return "a damaged PNG" + size + "): " + chunk + " ends it before any IDAT (pixel data)";
+    if (type == "IEND" && !seen_pixels) return damaged(" ends it before any IDAT (pixel data)");
     if (type == "IEND") return std::nullopt;
     seen_pixels = seen_pixels || type == "IDAT";
     at += 12 + length;
