@@ -1552,7 +1552,7 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
   EXPECT_LT(held_tied, 0.8 * held_free);
   EXPECT_LT(rms_tied, rms_free);
 
-  // The tied fit's neighbour weight is axisymmetric_w_sm (0.3), whatever objective.w_sm says
+  // The tied fit's neighbour weight is axisymmetric_w_sm (0.2), whatever objective.w_sm says
   // (both scaled alike to this grid, FitOptions::neighbour_weight_resolution). At the untied
   // fit's weight, 1, the term pulls the cool outer rings towards the hot core: the
   // temperatures are further from the truth and hotter (FitOptions::axisymmetric_w_sm, chosen on
@@ -1572,7 +1572,7 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
       VisibleTemperatureRms(r, stiff.volume.temperature_k, stiff.volume.density_per_m3);
   const double rms_reference =
       VisibleTemperatureRms(r, reference.volume.temperature_k, reference.volume.density_per_m3);
-  std::printf("axisymmetric: visible temperature RMS %.0f K at w_sm 0.3, %.0f K at 1\n",
+  std::printf("axisymmetric: visible temperature RMS %.0f K at w_sm 0.2, %.0f K at 1\n",
               rms_reference, rms_stiff);
   EXPECT_LT(rms_reference, rms_stiff);
   other.axisymmetric_w_sm = -1;

@@ -467,12 +467,12 @@ TEST(Cli, FitASimulatedFrameSet) {
   EXPECT_LT(tied.metadata_numbers.at("axisymmetric_rings"), 0.5 * double(tied_medium));
   EXPECT_EQ(v.metadata_numbers.count("axisymmetric_rings"), 0u);
   // Each volume records the neighbour weight it was fitted under: the fast fit's 1, a tied fit's
-  // 0.3, given at 64 voxels and applied x (64 / N)^2 on this grid of N along its longest side (the
+  // 0.2, given at 64 voxels and applied x (64 / N)^2 on this grid of N along its longest side (the
   // paper's algorithms, 10 unscaled, in FitASimulatedFrameSet's alg2 run).
   const double at_20 = std::pow(64.0 / 20, 2);
   EXPECT_EQ(v.geometry.dims.maxCoeff(), 20);
   EXPECT_DOUBLE_EQ(v.metadata_numbers.at("w_sm"), 1.0 * at_20);
-  EXPECT_DOUBLE_EQ(tied.metadata_numbers.at("w_sm"), 0.3 * at_20);
+  EXPECT_DOUBLE_EQ(tied.metadata_numbers.at("w_sm"), 0.2 * at_20);
   EXPECT_EQ(v.metadata_numbers.at("neighbour_weight_resolution"), 64);
   // Its report has the radial profile: a row per ring, read back by Python's csv module (an
   // independent reader), each with its sigma, the truth beside some of them.

@@ -270,7 +270,7 @@ TEST(RunCli, ATwelveBitRigIsRehearsedWithSimCameras) {
 }
 
 // `run --w-sm` sets the fit's neighbour weight, tied to rings or not, and every frame's volume
-// records the weight it was fitted under (metadata w_sm): 1 by default, 0.3 with --axisymmetric,
+// records the weight it was fitted under (metadata w_sm): 1 by default, 0.2 with --axisymmetric,
 // the given one with either, each at 64 voxels and scaled to the grid. A stronger prior gives a smoother temperature field.
 TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
   const fs::path dir = TempDir("w_sm");
@@ -281,7 +281,7 @@ TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
   };
   const std::vector<Case> cases = {{"default", "", 1.0},
                                    {"strong", "--w-sm 10", 10.0},
-                                   {"tied", "--axisymmetric", 0.3},
+                                   {"tied", "--axisymmetric", 0.2},
                                    {"tied_given", "--axisymmetric --w-sm 2", 2.0}};
   std::map<std::string, FireVolume> volumes;
   for (const Case& c : cases) {

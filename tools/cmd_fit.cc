@@ -62,7 +62,7 @@ Runner AddFit(CLI::App* command) {
   CLI::Option* w_sm =
       command
           ->add_option("--w-sm", job.fit.objective.w_sm,
-                       "Weight of the neighbour term (fast: 1, with --axisymmetric 0.3, at 64 "
+                       "Weight of the neighbour term (fast: 1, with --axisymmetric 0.2, at 64 "
                        "voxels, x (64 / resolution)^2 on other grids; alg1/alg2: the paper's 10)")
           ->type_name("W")
           ->check(Between(0, ObjectiveOptions::kMaxWeight));

@@ -76,7 +76,7 @@ Runner AddRun(CLI::App* command) {
       ->check(Whole(0, 1000000));
   command
       ->add_option("--w-sm", o->w_sm,
-                   "Weight of the fit's neighbour term (default 1, with --axisymmetric 0.3) at 64 "
+                   "Weight of the fit's neighbour term (default 1, with --axisymmetric 0.2) at 64 "
                    "voxels, x (64 / resolution)^2 on other grids; each frame's volume records the "
                    "weight applied (metadata w_sm)")
       ->type_name("W")
