@@ -59,18 +59,24 @@ Runner AddFit(CLI::App* command) {
   command->add_flag(
       "--no-sigma", [&job](std::int64_t) { job.uncertainty = false; },
       "Fast fit: do not write the per-voxel sigma grids");
+  const FitOptions defaults = job.fit;  // the help states the defaults it describes
   CLI::Option* w_sm =
       command
           ->add_option("--w-sm", job.fit.objective.w_sm,
-                       "Weight of the neighbour term (fast: 1, with --axisymmetric 0.2, at 64 "
-                       "voxels, x (64 / resolution)^2 on other grids; alg1/alg2: the paper's 10)")
+                       fmt::format("Weight of the neighbour term (fast: {:g}, with --axisymmetric "
+                                   "{:g}, at {} voxels, x ({} / resolution)^2 on other grids; "
+                                   "alg1/alg2: the paper's {:g})",
+                                   defaults.objective.w_sm, defaults.axisymmetric_w_sm,
+                                   defaults.neighbour_weight_resolution,
+                                   defaults.neighbour_weight_resolution, PaperFitOptions().w_sm))
           ->type_name("W")
           ->check(Between(0, ObjectiveOptions::kMaxWeight));
   command
       ->add_option("--fit-iterations", o->iterations,
-                   "Fast fit: cap on the L-BFGS iterations per grid level (it stops earlier once "
-                   "its energy falls over 5 iterations by less than 0.5% of its fall since the "
-                   "level's start); alg1/alg2: sweeps")
+                   fmt::format("Fast fit: cap on the L-BFGS iterations per grid level (it stops "
+                               "earlier once its energy falls over {} iterations by less than "
+                               "{:g}% of its fall since the level's start); alg1/alg2: sweeps",
+                               defaults.stall_window, 100 * defaults.stall_decrease))
       ->type_name("N")
       ->check(Whole(0, 1000000));
   command->add_option("--time-limit", job.fit.time_limit_s, "Stop the fit after S seconds")

@@ -1,5 +1,6 @@
 // `flamerig run`: every frame set of a recording through tomography and the fit
 // (pipeline/run.h), over MPI ranks when started by mpirun (pipeline/distributed.h).
+#include <fmt/format.h>
 #include <cstdio>
 #include <memory>
 
@@ -67,18 +68,24 @@ Runner AddRun(CLI::App* command) {
       ->check(ExposureRange());
   command->add_option("--absorption", run.absorption, "Absorption model (default: dataset.yaml's)")
       ->check(CLI::IsMember({"soot", "grey"}));
+  const FitOptions defaults = run.fit;  // the help states the defaults it describes
   command
       ->add_option("--fit-iterations", o->fit_iterations,
-                   "Cap on the L-BFGS iterations of each frame's fit (it stops earlier once its "
-                   "energy falls over 5 iterations by less than 0.5% of its fall since the "
-                   "start)")
+                   fmt::format("Cap on the L-BFGS iterations of each frame's fit (it stops "
+                               "earlier once its energy falls over {} iterations by less than "
+                               "{:g}% of its fall since the start)",
+                               defaults.stall_window, 100 * defaults.stall_decrease))
       ->type_name("N")
       ->check(Whole(0, 1000000));
   command
-      ->add_option("--w-sm", o->w_sm,
-                   "Weight of the fit's neighbour term (default 1, with --axisymmetric 0.2) at 64 "
-                   "voxels, x (64 / resolution)^2 on other grids; each frame's volume records the "
-                   "weight applied (metadata w_sm)")
+      ->add_option(
+          "--w-sm", o->w_sm,
+          fmt::format("Weight of the fit's neighbour term (default {:g}, with "
+                      "--axisymmetric {:g}) at {} voxels, x ({} / resolution)^2 on other "
+                      "grids; each frame's volume records the weight applied (metadata "
+                      "w_sm)",
+                      defaults.objective.w_sm, defaults.axisymmetric_w_sm,
+                      defaults.neighbour_weight_resolution, defaults.neighbour_weight_resolution))
       ->type_name("W")
       ->check(Between(0, ObjectiveOptions::kMaxWeight));
   command->add_option("--holdout", run.holdout_camera, "Camera to score but not fit")
