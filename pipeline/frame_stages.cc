@@ -469,6 +469,7 @@ void FrameStages::Score(FrameWork* w) {
     s.truth_bias_k = t.mean_k;
     s.truth_spread_k = t.truth_spread_k;
     s.truth_weighted_rms_k = t.weighted_rms_k;
+    s.truth_weighted_bias_k = t.weighted_mean_k;
     s.truth_soot = t.truth_soot;
     if (t.have_sigma) {
       s.truth_within_1_sigma = t.within_1_sigma;

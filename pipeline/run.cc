@@ -192,7 +192,9 @@ std::string FrameSummary::Line() const {
       s << ", " << 100 * truth_determined_share << "% determined";
       if (truth_determined_rms_k >= 0) s << " at " << truth_determined_rms_k << " K RMS";
     }
-    if (truth_weighted_rms_k >= 0) s << ", emission-weighted RMS " << truth_weighted_rms_k << " K";
+    if (truth_weighted_rms_k >= 0)
+      s << ", emission-weighted RMS " << truth_weighted_rms_k << " K (bias " << std::showpos
+        << truth_weighted_bias_k << std::noshowpos << " K)";
   }
   for (const auto& n : notes) s << "; " << n;
   return s.str();
@@ -235,6 +237,7 @@ nlohmann::json SummaryJson(const FrameSummary& f) {
   j["truth_bias_k"] = f.truth_bias_k;
   j["truth_spread_k"] = f.truth_spread_k;
   j["truth_weighted_rms_k"] = f.truth_weighted_rms_k;
+  j["truth_weighted_bias_k"] = f.truth_weighted_bias_k;
   j["truth_voxels"] = f.truth_voxels;
   j["truth_visible"] = f.truth_visible;
   j["truth_frame"] = f.truth_frame;
@@ -304,6 +307,7 @@ FrameSummary FrameSummary::FromYaml(const std::string& text, const std::string& 
     s.truth_bias_k = n["truth_bias_k"].as<double>();
     s.truth_spread_k = n["truth_spread_k"].as<double>(-1.0);              // none in older summaries
     s.truth_weighted_rms_k = n["truth_weighted_rms_k"].as<double>(-1.0);  // nor this
+    s.truth_weighted_bias_k = n["truth_weighted_bias_k"].as<double>(0.0);  // nor this
     s.truth_voxels = n["truth_voxels"].as<std::size_t>();
     s.truth_visible = n["truth_visible"].as<std::size_t>();
     s.truth_frame = n["truth_frame"].as<int>();

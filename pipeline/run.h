@@ -166,8 +166,11 @@ struct FrameSummary {
   // a fit must beat (issue 19's two-view target: at most 0.7 of it); -1 without truth.
   double truth_spread_k = -1;
   // The RMS weighted by each truth voxel's emission: the error where the light comes from (the
-  // benchmarks' "emission-weighted RMS"); -1 without truth.
-  double truth_weighted_rms_k = -1;
+  // benchmarks' "emission-weighted RMS"); -1 without truth. And the mean error weighted the same
+  // way: the images show temperatures weighted by emission, so a fit that cannot resolve a
+  // fire's cool edge from its hot core tends to put the edge near the light's mean, and its
+  // plain bias (truth_bias_k, over voxels) is then hotter than this one.
+  double truth_weighted_rms_k = -1, truth_weighted_bias_k = 0;
   std::size_t truth_voxels = 0, truth_visible = 0;
   int truth_frame = -1;
   double truth_soot = 0;  // particles in the truth

@@ -102,9 +102,11 @@ def span(key, scale=1.0, signed=False):  # a bias may be negative; the others sa
 if not rows:
     print("no frame set scored against the truth")
 else:
-    print("%d frame sets: T RMS %.0f..%.0f K, bias %+.0f..%+.0f K, %.0f..%.0f%% of the visible voxels "
-          "within one sigma (a constant temperature: %.0f..%.0f K)"
+    print("%d frame sets: T RMS %.0f..%.0f K, bias %+.0f..%+.0f K (weighted by the truth's "
+          "emission %+.0f..%+.0f K), %.0f..%.0f%% of the visible voxels within one sigma "
+          "(a constant temperature: %.0f..%.0f K)"
           % ((len(rows),) + span("truth_rms_k") + span("truth_bias_k", signed=True)
+             + span("truth_weighted_bias_k", signed=True)
              + span("truth_within_1_sigma", 100) + span("truth_spread_k")))
     for bound in ("temperature", "density"):  # held there by the fit's bound, not by the images
         pinned = [(r["frame"], int(r["voxels_at_%s_bound" % bound])) for r in rows

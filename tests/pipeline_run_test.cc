@@ -251,6 +251,7 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   f.truth_determined_rms_k = 123.5;
   f.truth_undetermined_rms_k = 250.25;
   f.truth_weighted_rms_k = 54.125;
+  f.truth_weighted_bias_k = -12.5;
   const FrameSummary back = FrameSummary::FromYaml(f.ToYaml(), "test");
   EXPECT_EQ(back.frame, f.frame);
   EXPECT_EQ(back.status, "true");
@@ -278,6 +279,7 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   EXPECT_EQ(back.truth_determined_rms_k, 123.5);
   EXPECT_EQ(back.truth_undetermined_rms_k, 250.25);
   EXPECT_EQ(back.truth_weighted_rms_k, 54.125);
+  EXPECT_EQ(back.truth_weighted_bias_k, -12.5);
   // Not UTF-8: the JSON replaces it and stays JSON (Python's json module reads it).
   f.notes = {std::string("image \xff\xfe.png unreadable")};
   const std::string json = f.ToJson();
@@ -577,6 +579,12 @@ TEST(TruthError, ByEmissionSplitsTheScoredVoxelsByTheTruthsBrightness) {
   const TruthError all = CompareWithTruth(truth, fitted);
   EXPECT_EQ(all.counted, 55u);
   EXPECT_NEAR(all.rms_k, std::sqrt(total / 55), 1e-3);
+  // Weighted by the truth's emission, band by band (the faintest band's errors cancel): 15
+  // voxels at 1, 16 at 0.2, 16 at 0.05 and 8 at 0.02.
+  const double weight = 15 + 16 * 0.2 + 16 * 0.05 + 8 * 0.02;
+  EXPECT_NEAR(all.weighted_mean_k, (15 * 10.0 - 3.2 * 20 + 0.8 * 40) / weight, 1e-3);
+  EXPECT_NEAR(all.weighted_rms_k,
+              std::sqrt((15 * 100.0 + 3.2 * 400 + 0.8 * 1600 + 0.16 * 900) / weight), 1e-3);
   // Bands of one's own; a voxel outside them is left out.
   const std::vector<EmissionBandError> upper = TemperatureErrorByEmission(truth, fitted, {0.1, 1});
   ASSERT_EQ(upper.size(), 1u);
@@ -730,6 +738,7 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
     EXPECT_EQ(f.truth_spread_k, written.truth_spread_k);
     EXPECT_GT(f.truth_spread_k, 0);
     EXPECT_EQ(f.truth_weighted_rms_k, written.weighted_rms_k);
+    EXPECT_EQ(f.truth_weighted_bias_k, written.weighted_mean_k);
     EXPECT_GT(f.truth_weighted_rms_k, 0);
     EXPECT_NE(f.Line().find("emission-weighted RMS "), std::string::npos) << f.Line();
     EXPECT_NE(f.Line().find("(a constant: "), std::string::npos) << f.Line();
