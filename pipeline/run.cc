@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <stdexcept>
@@ -192,9 +193,11 @@ std::string FrameSummary::Line() const {
       s << ", " << 100 * truth_determined_share << "% determined";
       if (truth_determined_rms_k >= 0) s << " at " << truth_determined_rms_k << " K RMS";
     }
-    if (truth_weighted_rms_k >= 0)
-      s << ", emission-weighted RMS " << truth_weighted_rms_k << " K (bias " << std::showpos
-        << truth_weighted_bias_k << std::noshowpos << " K)";
+    if (truth_weighted_rms_k >= 0) {
+      s << ", emission-weighted RMS " << truth_weighted_rms_k << " K";
+      if (std::isfinite(truth_weighted_bias_k))
+        s << " (bias " << std::showpos << truth_weighted_bias_k << std::noshowpos << " K)";
+    }
   }
   for (const auto& n : notes) s << "; " << n;
   return s.str();
@@ -307,7 +310,8 @@ FrameSummary FrameSummary::FromYaml(const std::string& text, const std::string& 
     s.truth_bias_k = n["truth_bias_k"].as<double>();
     s.truth_spread_k = n["truth_spread_k"].as<double>(-1.0);              // none in older summaries
     s.truth_weighted_rms_k = n["truth_weighted_rms_k"].as<double>(-1.0);  // nor this
-    s.truth_weighted_bias_k = n["truth_weighted_bias_k"].as<double>(0.0);  // nor this
+    s.truth_weighted_bias_k =  // nor this, which no sentinel can stand for: NaN, not 0
+        n["truth_weighted_bias_k"].as<double>(std::numeric_limits<double>::quiet_NaN());
     s.truth_voxels = n["truth_voxels"].as<std::size_t>();
     s.truth_visible = n["truth_visible"].as<std::size_t>();
     s.truth_frame = n["truth_frame"].as<int>();

@@ -169,7 +169,8 @@ struct FrameSummary {
   // benchmarks' "emission-weighted RMS"); -1 without truth. And the mean error weighted the same
   // way: the images show temperatures weighted by emission, so a fit that cannot resolve a
   // fire's cool edge from its hot core tends to put the edge near the light's mean, and its
-  // plain bias (truth_bias_k, over voxels) is then hotter than this one.
+  // plain bias (truth_bias_k, over voxels) is then hotter than this one. NaN in a summary written
+  // before it was (2026-12-03).
   double truth_weighted_rms_k = -1, truth_weighted_bias_k = 0;
   std::size_t truth_voxels = 0, truth_visible = 0;
   int truth_frame = -1;

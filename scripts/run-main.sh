@@ -97,16 +97,18 @@ import csv, sys
 # A frame not scored against the truth says -1 (pipeline/run.h), as does a sigma not estimated.
 rows = [r for r in csv.DictReader(open(sys.argv[1])) if float(r.get("truth_rms_k") or -1) >= 0]
 def span(key, scale=1.0, signed=False):  # a bias may be negative; the others say -1 for none
-    v = [scale * float(r[key]) for r in rows if r[key] and (signed or float(r[key]) >= 0)]
+    v = [scale * float(r[key]) for r in rows
+         if r.get(key) and float(r[key]) == float(r[key]) and (signed or float(r[key]) >= 0)]
     return (min(v), max(v)) if v else (float("nan"), float("nan"))
 if not rows:
     print("no frame set scored against the truth")
 else:
-    print("%d frame sets: T RMS %.0f..%.0f K, bias %+.0f..%+.0f K (weighted by the truth's "
-          "emission %+.0f..%+.0f K), %.0f..%.0f%% of the visible voxels within one sigma "
-          "(a constant temperature: %.0f..%.0f K)"
+    weighted = span("truth_weighted_bias_k", signed=True)  # none from a build before 2026-12-03
+    print("%d frame sets: T RMS %.0f..%.0f K, bias %+.0f..%+.0f K%s, %.0f..%.0f%% of the visible "
+          "voxels within one sigma (a constant temperature: %.0f..%.0f K)"
           % ((len(rows),) + span("truth_rms_k") + span("truth_bias_k", signed=True)
-             + span("truth_weighted_bias_k", signed=True)
+             + ((" (weighted by the truth's emission %+.0f..%+.0f K)" % weighted
+                 if weighted[0] == weighted[0] else ""),)
              + span("truth_within_1_sigma", 100) + span("truth_spread_k")))
     for bound in ("temperature", "density"):  # held there by the fit's bound, not by the images
         pinned = [(r["frame"], int(r["voxels_at_%s_bound" % bound])) for r in rows

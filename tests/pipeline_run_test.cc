@@ -280,6 +280,24 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   EXPECT_EQ(back.truth_undetermined_rms_k, 250.25);
   EXPECT_EQ(back.truth_weighted_rms_k, 54.125);
   EXPECT_EQ(back.truth_weighted_bias_k, -12.5);
+  {
+    // A summary written before the weighted bias was reads it as NaN (0 is a bias), and its line
+    // leaves it out.
+    std::string older = f.ToYaml();
+    const std::size_t at = older.find("truth_weighted_bias_k:");
+    ASSERT_NE(at, std::string::npos);
+    older.erase(at, older.find('\n', at) + 1 - at);
+    FrameSummary old = FrameSummary::FromYaml(older, "test");
+    EXPECT_TRUE(std::isnan(old.truth_weighted_bias_k));
+    EXPECT_EQ(old.truth_weighted_rms_k, 54.125);
+    old.status = "computed";
+    old.truth_rms_k = 80;
+    EXPECT_NE(old.Line().find("emission-weighted RMS 54.1 K"), std::string::npos) << old.Line();
+    EXPECT_EQ(old.Line().find("(bias"), std::string::npos) << old.Line();
+    old.truth_weighted_bias_k = -12.5;
+    EXPECT_NE(old.Line().find("emission-weighted RMS 54.1 K (bias -12.5 K)"), std::string::npos)
+        << old.Line();
+  }
   // Not UTF-8: the JSON replaces it and stays JSON (Python's json module reads it).
   f.notes = {std::string("image \xff\xfe.png unreadable")};
   const std::string json = f.ToJson();
