@@ -68,6 +68,9 @@ void FitOptions::Validate() const {
   if (!(time_limit_s >= 0)) fail("time_limit_s must be >= 0");
   if (!(axisymmetric_w_sm >= 0 && axisymmetric_w_sm <= ObjectiveOptions::kMaxWeight))
     fail("axisymmetric_w_sm must be in [0, 1e12]");
+  for (const double f : {axisymmetric_along_y, axisymmetric_across_y})
+    if (!(f >= 0 && f <= ObjectiveOptions::kMaxDirectionFactor))
+      fail("axisymmetric_along_y and axisymmetric_across_y must be in [0, 1000]");
   if (neighbour_weight_resolution < 0) fail("neighbour_weight_resolution must be >= 0");
   if (!(known_exposure >= 0) || !std::isfinite(known_exposure) ||
       (known_exposure > 0 && !(known_exposure >= exposure_min && known_exposure <= exposure_max)))
@@ -81,7 +84,8 @@ std::string FitOptions::Key() const {
   k << "w_am " << o.w_am << ", w_sm " << o.w_sm << ", smooth_delta_e " << o.smooth_delta_e
     << ", smooth_neighbour " << o.smooth_neighbour << ", t " << o.t_min_k << " .. " << o.t_max_k
     << " K, n " << o.n_min_per_m3 << " .. " << o.n_max_per_m3 << " /m^3, density_pairwise "
-    << o.density_pairwise << ", model_mosaic " << o.model_mosaic;
+    << o.density_pairwise << ", model_mosaic " << o.model_mosaic << ", along_y " << o.along_y
+    << ", across_y " << o.across_y;
   const RenderOptions& r = render;
   k << "; render: step " << r.step_voxels << ", min_transmittance " << r.min_transmittance
     << ", skip_empty_space " << r.skip_empty_space << ", brick " << r.brick_size_voxels << ", path "
@@ -98,7 +102,8 @@ std::string FitOptions::Key() const {
     << stall_decrease << ", smooth " << smooth_delta_e << " / " << smooth_neighbour
     << ", time_limit " << time_limit_s << " s, density_pairwise " << density_pairwise
     << ", warm density from emission " << warm_start_density_from_emission << ", axisymmetric "
-    << axisymmetric << " (w_sm " << axisymmetric_w_sm << "), vary " << vary.temperature
+    << axisymmetric << " (w_sm " << axisymmetric_w_sm << " x " << axisymmetric_along_y
+    << " along y, x " << axisymmetric_across_y << " across), vary " << vary.temperature
     << vary.density << ", uncertainty " << estimate_uncertainty << " ("
     << uncertainty.determined_fraction << ")";
   return k.str();
@@ -934,7 +939,11 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   options.objective.smooth_delta_e = options.smooth_delta_e;
   options.objective.smooth_neighbour = options.smooth_neighbour;
   options.objective.density_pairwise = options.density_pairwise;
-  if (options.axisymmetric) options.objective.w_sm = options.axisymmetric_w_sm;
+  if (options.axisymmetric) {
+    options.objective.w_sm = options.axisymmetric_w_sm;
+    options.objective.along_y = options.axisymmetric_along_y;
+    options.objective.across_y = options.axisymmetric_across_y;
+  }
   // The neighbour weight on a grid: as given at neighbour_weight_resolution voxels (FitOptions).
   auto ObjectiveAt = [&options](const GridGeometry& g) {
     ObjectiveOptions o = options.objective;

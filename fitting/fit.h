@@ -247,6 +247,23 @@ struct FitOptions {
   // K with 0.3, 0.1, 0.03 and 0, and the RMS 108, 88, 94 and 128 K. The held-out camera does not
   // choose (its Delta E moves by under 0.1).
   double axisymmetric_w_sm = 0.2;
+  // The tied fit's neighbour term by direction (ObjectiveOptions::along_y, across_y): the pairs
+  // along the flame's axis (y) weigh axisymmetric_w_sm x 40, the pairs across it nothing. A
+  // laminar flame's radial profile changes little from one layer to the next but sharply from
+  // the axis outwards (the main job's truth: a core at 1550 K, a shell at 1950 K two to three
+  // voxels out, an edge at 1550 to 1800 K); a term alike in every direction fills the cool core
+  // and the edge towards the shell, while one along the axis averages the noise of neighbouring
+  // layers and leaves the profile's contrast alone. Measured on 2026-12-03 (BENCHMARKS.md, issue
+  // 19, "The tied fit's neighbour term along the axis only") at weight 0.2 under the stop rule,
+  // against the term alike in every direction (1, 1; until then), as T RMS / bias / emission-
+  // weighted RMS K, means over the sets: the main job's 13 sets 86.0 / +18.1 (10 sets within
+  // 20 K) / 59.2 -> 81.6 / +12.2 (all 13) / 58.5; `simulate`'s candle seeds 3, 5, 7, 9, three
+  // frames each, 90.2 / +27.8 (2 of 12) / 53.3 -> 85.5 / +23.1 (6) / 53.3. Along the axis only,
+  // x 9, 20, 40, 80 and 160: the main job's RMS 87.8, 85.0, 81.6, 79.8, 80.4 K and bias +10.9,
+  // +10.3, +12.2, +15.0, +19.0 K; the seeds' RMS 90.0, 88.1, 85.5, 84.9 K and bias +18.0, +19.2,
+  // +23.1, +26.1 K. 40 is the weight never far from the best RMS whose bias keeps every set of
+  // the take within 20 K.
+  double axisymmetric_along_y = 40, axisymmetric_across_y = 0;
   // The cameras' exposure when it is known (the recording's exposure time x gain, in the
   // renderer's units, as the tomography takes it): > 0 holds the fit's exposure there, so that
   // densities come out absolute and comparable across frames; 0 = unknown, fitted (the paper's

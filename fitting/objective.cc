@@ -19,6 +19,9 @@ void ObjectiveOptions::Validate() const {
   if (!(w_am >= 0 && w_am <= kMaxWeight)) fail("w_am must be in [0, 1e12]");
   if (!(w_sm >= 0 && w_sm <= kMaxWeight)) fail("w_sm must be in [0, 1e12]");
   if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0)) fail("smoothing epsilons must be >= 0");
+  if (!(along_y >= 0 && along_y <= kMaxDirectionFactor) ||
+      !(across_y >= 0 && across_y <= kMaxDirectionFactor))
+    fail("along_y and across_y must be in [0, 1000]");
   if (!(t_min_k > 0) || !(t_max_k > t_min_k) || !std::isfinite(t_max_k))
     fail("need 0 < t_min_k < t_max_k, finite");
   if (!(n_min_per_m3 >= 0) || !(n_max_per_m3 >= 0) ||
@@ -251,7 +254,8 @@ class DataTerm : public EnergyTerm {
 };
 
 // E_sm on one parameter: for every active voxel the sum over its active 18-neighbours of
-// |v_j - v_i| in normalised units, each unordered pair counted from both ends (the paper's sum).
+// |v_j - v_i| in normalised units, each unordered pair counted from both ends (the paper's sum),
+// each pair x its direction's factor (ObjectiveOptions::along_y, across_y).
 class PairwiseTerm : public EnergyTerm {
  public:
   enum class Parameter { kTemperature, kDensity };
@@ -260,6 +264,10 @@ class PairwiseTerm : public EnergyTerm {
     const ObjectiveOptions& o = objective.options();
     t_scale_ = 1.0 / (o.t_max_k - o.t_min_k);
     ln_range_ = std::log(objective.n_max()) - std::log(objective.n_min());
+    if (o.along_y != 1 || o.across_y != 1) {
+      factor_.reserve(objective.neighbour_pairs().size());
+      for (const auto& [a, b] : objective.neighbour_pairs()) factor_.push_back(Factor(a, b));
+    }
   }
   std::string name() const override {
     return parameter_ == Parameter::kTemperature ? "pairwise temperature" : "pairwise density";
@@ -272,14 +280,17 @@ class PairwiseTerm : public EnergyTerm {
     TermValue value{name(), weight_, 0, 0};
     const double n_min = objective_.n_min();
     std::vector<double>* d = parameter_ == Parameter::kTemperature ? gradient.d_t : gradient.d_n;
-    for (const auto& [a, b] : objective_.neighbour_pairs()) {
+    const auto& pairs = objective_.neighbour_pairs();
+    for (std::size_t p = 0; p < pairs.size(); ++p) {
+      const auto [a, b] = pairs[p];
       // Each unordered pair counts twice (the paper's sum over voxels of their neighbours).
+      const double twice = factor_.empty() ? 2.0 : 2.0 * factor_[p];
       if (parameter_ == Parameter::kTemperature) {
         const double dt = (x.t[b] - x.t[a]) * t_scale_;
-        value.exact += 2 * std::abs(dt);
-        value.smooth += 2 * Charbonnier(dt, eps_);
+        value.exact += twice * std::abs(dt);
+        value.smooth += twice * Charbonnier(dt, eps_);
         if (d) {
-          const double g = 2 * weight_ * CharbonnierDerivative(dt, eps_) * t_scale_;
+          const double g = twice * weight_ * CharbonnierDerivative(dt, eps_) * t_scale_;
           (*d)[b] += g;
           (*d)[a] -= g;
         }
@@ -288,10 +299,10 @@ class PairwiseTerm : public EnergyTerm {
         // counts as that lowest one: the term and its gradient stay finite, and flat there.
         const double na = std::max(x.n[a], n_min), nb = std::max(x.n[b], n_min);
         const double dn = (std::log(nb) - std::log(na)) / ln_range_;
-        value.exact += 2 * std::abs(dn);
-        value.smooth += 2 * Charbonnier(dn, eps_);
+        value.exact += twice * std::abs(dn);
+        value.smooth += twice * Charbonnier(dn, eps_);
         if (d) {
-          const double g = 2 * weight_ * CharbonnierDerivative(dn, eps_) / ln_range_;
+          const double g = twice * weight_ * CharbonnierDerivative(dn, eps_) / ln_range_;
           if (x.n[b] > n_min) (*d)[b] += g / nb;
           if (x.n[a] > n_min) (*d)[a] -= g / na;
         }
@@ -306,11 +317,18 @@ class PairwiseTerm : public EnergyTerm {
     const double va = Normalised(x, a);
     for (const std::uint32_t* e = objective_.neighbours_begin(a); e != objective_.neighbours_end(a);
          ++e)
-      sum += std::abs(Normalised(x, *e) - va);
+      sum += (factor_.empty() ? 1.0 : Factor(a, *e)) * std::abs(Normalised(x, *e) - va);
     return sum;
   }
 
  private:
+  // The direction factor of the pair of active voxels a and b (ObjectiveOptions::along_y).
+  double Factor(std::uint32_t a, std::uint32_t b) const {
+    const GridGeometry& g = objective_.grid();
+    const Eigen::Vector3i d = g.Unflat(objective_.active()[b]) - g.Unflat(objective_.active()[a]);
+    const ObjectiveOptions& o = objective_.options();
+    return d.x() == 0 && d.z() == 0 ? o.along_y : o.across_y;
+  }
   double Normalised(const FitParameters& x, std::uint32_t a) const {
     return parameter_ == Parameter::kTemperature ? objective_.NormaliseT(x.t[a])
                                                  : objective_.NormaliseN(x.n[a]);
@@ -318,6 +336,7 @@ class PairwiseTerm : public EnergyTerm {
   const FitObjective& objective_;
   Parameter parameter_;
   double weight_, eps_, t_scale_ = 0, ln_range_ = 0;
+  std::vector<double> factor_;  // per neighbour pair; empty: 1 for every pair
 };
 
 }  // namespace

@@ -62,6 +62,12 @@ struct ObjectiveOptions {
   // The pairwise term on the per-voxel densities too (Algorithm 1; the fast fit's
   // FitOptions::density_pairwise). Off: the pairwise term is on the temperature only.
   bool density_pairwise = false;
+  // The pairwise terms' weight by a pair's direction: a pair whose voxels differ in y only (the
+  // grid's vertical axis, an axisymmetric fit's axis: FitOptions::axisymmetric_along_y) weighs
+  // w_sm x along_y, every other pair w_sm x across_y. 1 and 1: the paper's term, alike in every
+  // direction. Each in [0, kMaxDirectionFactor].
+  double along_y = 1, across_y = 1;
+  static constexpr double kMaxDirectionFactor = 1e3;
   // Views from Bayer cameras (FitView::mosaic) are rendered through their mosaic and the host's
   // demosaicing. Off: their interpolated colours are fitted as if every pixel had measured all
   // three (as until 2026-11-29; for comparison).

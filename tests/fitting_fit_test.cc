@@ -109,7 +109,8 @@ SmallScene MakeSmallScene(const AbsorptionModel& absorption) {
   return s;
 }
 
-void CheckEnergyGradient(const AbsorptionModel& absorption, bool bayer = false) {
+void CheckEnergyGradient(const AbsorptionModel& absorption, bool bayer = false,
+                         bool directional = false) {
   SmallScene s = MakeSmallScene(absorption);
   if (bayer) {  // two layouts, so that both phases of the mosaic are exercised
     s.views[0].mosaic = MakeBayerRecord(BayerLayout::kRggb, CameraRadiometry{});
@@ -123,6 +124,10 @@ void CheckEnergyGradient(const AbsorptionModel& absorption, bool bayer = false) 
   o.smooth_delta_e = 0.5;
   o.smooth_neighbour = 0.01;
   o.density_pairwise = true;
+  if (directional) {  // the pairs along y and across it weighed apart (an axisymmetric fit's)
+    o.along_y = 3;
+    o.across_y = 0.25;
+  }
   FitObjective objective(s.grid, s.active, s.views, absorption, render, o);
   ASSERT_GT(objective.neighbour_pairs().size(), s.active.size());  // the 18-neighbourhood
   const double exposure = 0.04;
@@ -174,6 +179,10 @@ TEST(FitObjective, GradientMatchesFiniteDifferencesThroughABayerMosaic) {
 
 TEST(FitObjective, GradientMatchesFiniteDifferencesSoot) {
   CheckEnergyGradient(AbsorptionModel::DefaultSoot());
+}
+
+TEST(FitObjective, GradientMatchesFiniteDifferencesWithTheNeighboursWeighedByDirection) {
+  CheckEnergyGradient(AbsorptionModel::DefaultGrey(), /*bayer=*/false, /*directional=*/true);
 }
 
 // The energy is its list of terms: the data term and the pairwise terms, each with its weight;
@@ -486,6 +495,46 @@ TEST(FitObjective, TheEnergyIsTheSumOfItsTerms) {
   double local = 0;
   for (std::uint32_t a = 0; a < s.active.size(); ++a) local += objective.LocalEnergy(x, a);
   EXPECT_NEAR(local, 7 * (pair_t + pair_n), 1e-9 * local);
+
+  // Weighed by direction: a pair that differs in y only counts x along_y, any other x across_y.
+  o.along_y = 3;
+  o.across_y = 0.25;
+  FitObjective directed(s.grid, s.active, s.views, grey, RenderOptions(), o);
+  double along_t = 0, along_n = 0, across_t = 0, across_n = 0;
+  for (std::size_t a = 0; a < s.active.size(); ++a)
+    for (std::size_t b = 0; b < s.active.size(); ++b) {
+      const Eigen::Vector3i d = coords(s.active[a]) - coords(s.active[b]);
+      const int steps = (d.array() != 0).count();
+      if (d.cwiseAbs().maxCoeff() != 1 || steps < 1 || steps > 2) continue;
+      const bool along = d.x() == 0 && d.z() == 0;
+      (along ? along_t : across_t) += std::abs(s.t[b] - s.t[a]) / (o.t_max_k - o.t_min_k);
+      (along ? along_n : across_n) +=
+          std::abs(std::log(s.n[b]) - std::log(s.n[a])) / (ln_hi - ln_lo);
+    }
+  ASSERT_GT(along_t, 0);
+  ASSERT_GT(across_t, 0);
+  EXPECT_NEAR(along_t + across_t, pair_t, 1e-9 * pair_t);
+  const EnergyTerms de = directed.Evaluate(s.t, s.n, 0.04);
+  EXPECT_NEAR(de.terms[1].exact, 3 * along_t + 0.25 * across_t, 1e-9 * pair_t);
+  EXPECT_NEAR(de.terms[2].exact, 3 * along_n + 0.25 * across_n, 1e-9 * pair_n);
+  double directed_local = 0;
+  for (std::uint32_t a = 0; a < s.active.size(); ++a) directed_local += directed.LocalEnergy(x, a);
+  EXPECT_NEAR(directed_local, 7 * (de.terms[1].exact + de.terms[2].exact), 1e-9 * directed_local);
+  // Along y only (the tied fit's default): a field that changes across y alone, as a radial
+  // profile the same at every height, costs nothing; one that changes with height does.
+  o.along_y = 1;
+  o.across_y = 0;
+  FitObjective along(s.grid, s.active, s.views, grey, RenderOptions(), o);
+  std::vector<double> radial_t(s.active.size()), radial_n(s.active.size());
+  for (std::size_t a = 0; a < s.active.size(); ++a) {
+    const Eigen::Vector3i c = coords(s.active[a]);
+    radial_t[a] = 1000 + 100 * c.x() + 30 * c.z();
+    radial_n[a] = s.n[0] * (1 + c.x() + 2 * c.z());
+  }
+  const EnergyTerms flat = along.Evaluate(radial_t, radial_n, 0.04);
+  EXPECT_EQ(flat.terms[1].exact, 0);
+  EXPECT_EQ(flat.terms[2].exact, 0);
+  EXPECT_NEAR(along.Evaluate(s.t, s.n, 0.04).terms[1].exact, along_t, 1e-9 * pair_t);
 }
 
 TEST(FitObjective, RejectsBadInput) {
@@ -534,6 +583,14 @@ TEST(FitObjective, RejectsBadInput) {
   ObjectiveOptions bad;
   bad.t_max_k = 100;
   EXPECT_THROW(FitObjective(s.grid, s.active, s.views, grey, render, bad), InputError);
+  for (const double f : {-1.0, std::nan(""), 1e4}) {
+    ObjectiveOptions bad_direction;
+    bad_direction.along_y = f;
+    EXPECT_THROW(bad_direction.Validate(), InputError) << f;
+    bad_direction.along_y = 1;
+    bad_direction.across_y = f;
+    EXPECT_THROW(bad_direction.Validate(), InputError) << f;
+  }
 }
 
 TEST(ThinEmissionTable, RecoversTheTemperatureOfABlackBodyColour) {
@@ -750,6 +807,8 @@ TEST(FitOptions, TheKeyNamesEveryField) {
       [](FitOptions& f) { f.objective.n_max_per_m3 = 1e20; },
       [](FitOptions& f) { f.objective.density_pairwise = true; },
       [](FitOptions& f) { f.objective.model_mosaic = false; },
+      [](FitOptions& f) { f.objective.along_y = 2; },
+      [](FitOptions& f) { f.objective.across_y = 0.5; },
   };
   const std::vector<Change> render = {
       [](FitOptions& f) { f.render.step_voxels = 0.25; },
@@ -787,6 +846,8 @@ TEST(FitOptions, TheKeyNamesEveryField) {
       [](FitOptions& f) { f.warm_start_density_from_emission = false; },
       [](FitOptions& f) { f.axisymmetric = true; },
       [](FitOptions& f) { f.axisymmetric_w_sm = 0.1; },
+      [](FitOptions& f) { f.axisymmetric_along_y = 10; },
+      [](FitOptions& f) { f.axisymmetric_across_y = 1; },
       [](FitOptions& f) { f.known_exposure = 2; },
       [](FitOptions& f) { f.vary.temperature = false; },  // vary: both below
       [](FitOptions& f) { f.estimate_uncertainty = true; },
@@ -1552,7 +1613,8 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
   EXPECT_LT(held_tied, 0.8 * held_free);
   EXPECT_LT(rms_tied, rms_free);
 
-  // The tied fit's neighbour weight is axisymmetric_w_sm (0.2), whatever objective.w_sm says
+  // The tied fit's neighbour weight is axisymmetric_w_sm (0.2; on the pairs along the axis x 40,
+  // none across, FitOptions::axisymmetric_along_y), whatever objective.w_sm says
   // (both scaled alike to this grid, FitOptions::neighbour_weight_resolution). At the untied
   // fit's weight, 1, the term pulls the cool outer rings towards the hot core: the
   // temperatures are further from the truth and hotter (FitOptions::axisymmetric_w_sm, chosen on
@@ -1575,6 +1637,18 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
   std::printf("axisymmetric: visible temperature RMS %.0f K at w_sm 0.2, %.0f K at 1\n",
               rms_reference, rms_stiff);
   EXPECT_LT(rms_reference, rms_stiff);
+  // The term alike in every direction (until 2026-12-03) at the same weight.
+  other.axisymmetric_w_sm = 0.2;
+  other.axisymmetric_along_y = other.axisymmetric_across_y = 1;
+  const FitResult isotropic = FastFit(r.grid, r.tomography, r.views, soot, other);
+  const double rms_isotropic =
+      VisibleTemperatureRms(r, isotropic.volume.temperature_k, isotropic.volume.density_per_m3);
+  std::printf("axisymmetric: visible temperature RMS %.0f K along the axis, %.0f K alike\n",
+              rms_reference, rms_isotropic);
+  EXPECT_LT(rms_reference, rms_isotropic);  // measured 106 against 111 K
+  other.axisymmetric_along_y = -1;
+  EXPECT_THROW(other.Validate(), InputError);
+  other.axisymmetric_along_y = 1;
   other.axisymmetric_w_sm = -1;
   EXPECT_THROW(other.Validate(), InputError);
 }
