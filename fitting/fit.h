@@ -215,10 +215,10 @@ struct FitOptions {
   // fields (each ring's mean), so every L-BFGS step stays tied; the neighbour weight is
   // axisymmetric_w_sm. Fast fit only. Measured by `flamerig benchmark accuracy` (BENCHMARKS.md,
   // issue 19): on the two-view candle, which sways and has 10% turbulence in its radius, the
-  // temperature RMS falls from 148 to 91 K (the truth's spread 142 K), the emission-weighted RMS
-  // from 82 to 51 K and the held-out camera's Delta E from 20.7 to 7.7, while the fitted views'
+  // temperature RMS falls from 148 to 84 K (the truth's spread 142 K), the emission-weighted RMS
+  // from 82 to 52 K and the held-out camera's Delta E from 20.7 to 7.8, while the fitted views'
   // rises from 1.3 to 2.7 (they show what rings cannot hold). The eight-view licks, not
-  // axisymmetric, are the control: 69 -> 98 K, and the held-out camera says so (1.72 -> 5.96), as
+  // axisymmetric, are the control: 69 -> 94 K, and the held-out camera says so (1.72 -> 5.93), as
   // it will for a user's own fire. The sigma is the ring's (uncertainty.h's groups: the ring's
   // voxels' curvature pooled): on the main job's 13 frame sets (two views, truth 96, fit 64,
   // calibrated rig, each frame from its own tomography, pixels that integrate over their area,

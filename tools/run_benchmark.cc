@@ -145,7 +145,9 @@ std::string RunRunBenchmark(const RunBenchmarkOptions& options,
   const Row rings = Measure(
       "`flamerig run --axisymmetric` (one temperature and density per ring about the flame's axis, "
       "neighbour weight " +
-          Fixed(o.fit.axisymmetric_w_sm, 1) + ", every fit from its tomography)",
+          Fixed(o.fit.axisymmetric_w_sm, 1) + " on the pairs along the axis x " +
+          Fixed(o.fit.axisymmetric_along_y, 0) + " and across x " +
+          Fixed(o.fit.axisymmetric_across_y, 0) + ", every fit from its tomography)",
       o, 0, frames, log);
   rows.push_back(rings);
   o.fit.axisymmetric = false;
