@@ -71,6 +71,9 @@ void FitOptions::Validate() const {
   for (const double f : {axisymmetric_along_y, axisymmetric_across_y})
     if (!(f >= 0 && f <= ObjectiveOptions::kMaxDirectionFactor))
       fail("axisymmetric_along_y and axisymmetric_across_y must be in [0, 1000]");
+  if (!(axisymmetric_w_sm * std::max(axisymmetric_along_y, axisymmetric_across_y) <=
+        ObjectiveOptions::kMaxWeight))
+    fail("axisymmetric_w_sm x its direction factors must be <= 1e12");
   if (neighbour_weight_resolution < 0) fail("neighbour_weight_resolution must be >= 0");
   if (!(known_exposure >= 0) || !std::isfinite(known_exposure) ||
       (known_exposure > 0 && !(known_exposure >= exposure_min && known_exposure <= exposure_max)))
@@ -1182,6 +1185,10 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   if (options.neighbour_weight_resolution > 0)
     result.volume.metadata_numbers["neighbour_weight_resolution"] =
         options.neighbour_weight_resolution;
+  // And how it weighed the pairs by direction (ObjectiveOptions::along_y): w_sm x w_sm_along_y on
+  // the pairs along y, w_sm x w_sm_across_y on the others (an axisymmetric fit's 40 and 0).
+  result.volume.metadata_numbers["w_sm_along_y"] = options.objective.along_y;
+  result.volume.metadata_numbers["w_sm_across_y"] = options.objective.across_y;
   StampAbsorption(absorption, &result.volume);
   if (!result.uncertainty.temperature_sigma_k.empty())
     StoreUncertainty(grid, st.active, result.uncertainty, &result.volume);

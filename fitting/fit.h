@@ -206,46 +206,48 @@ struct FitOptions {
   // changes less than where the soot is.
   bool warm_start_density_from_emission = true;
   // An axisymmetric flame (the assumption of Abel inversion, usual for laminar flames filmed from
-  // one or two directions): every active voxel is tied to its ring about the flame's axis, and
-  // the fit has one temperature and one density per ring. The axis is vertical (y, up in the rig
-  // frame) and passes, in each layer of the grid, through the centroid of that layer's tomography
-  // emission (luminance-weighted), so a flame that sways or leans keeps its rings centred; rings
-  // are one voxel wide (the distance to the axis rounded to whole voxels). The start is each
-  // ring's mean (temperature, and log density); the gradient is projected onto ring-constant
-  // fields (each ring's mean), so every L-BFGS step stays tied; the neighbour weight is
-  // axisymmetric_w_sm. Fast fit only. Measured by `flamerig benchmark accuracy` (BENCHMARKS.md,
-  // issue 19): on the two-view candle, which sways and has 10% turbulence in its radius, the
-  // temperature RMS falls from 148 to 84 K (the truth's spread 142 K), the emission-weighted RMS
-  // from 82 to 52 K and the held-out camera's Delta E from 20.7 to 7.8, while the fitted views'
-  // rises from 1.3 to 2.7 (they show what rings cannot hold). The eight-view licks, not
-  // axisymmetric, are the control: 69 -> 94 K, and the held-out camera says so (1.72 -> 5.93), as
-  // it will for a user's own fire. The sigma is the ring's (uncertainty.h's groups: the ring's
-  // voxels' curvature pooled): on the main job's 13 frame sets (two views, truth 96, fit 64,
-  // calibrated rig, each frame from its own tomography, pixels that integrate over their area,
-  // Bayer cameras fitted through their mosaic) 69 to 73% of the visible voxels lie within one sigma
-  // and 92 to 95% within two, where the untied fit's per-voxel sigma holds 69 to 77% within one
-  // (`benchmark run`'s candle, truth and fit both 64, point-sampled RGB frames: 45 to 63% tied,
-  // 62 to 68% untied).
+  // one or two directions): every active voxel is tied to its ring about the flame's axis, and the
+  // fit has one temperature and one density per ring. The axis is vertical (y, up in the rig frame)
+  // and passes, in each layer of the grid, through the centroid of that layer's tomography emission
+  // (luminance-weighted), so a flame that sways or leans keeps its rings centred; rings are one
+  // voxel wide (the distance to the axis rounded to whole voxels). The start is each ring's mean
+  // (temperature, and log density); the gradient is projected onto ring-constant fields (each
+  // ring's mean), so every L-BFGS step stays tied; the neighbour weight is axisymmetric_w_sm, on
+  // the pairs along the axis only (axisymmetric_along_y, across_y below). Fast fit only. Measured
+  // by `flamerig benchmark accuracy` (BENCHMARKS.md, issue 19): on the two-view candle, which sways
+  // and has 10% turbulence in its radius, the temperature RMS falls from 148 to 84 K (the truth's
+  // spread 142 K), the emission-weighted RMS from 82 to 52 K and the held-out camera's Delta E from
+  // 20.7 to 7.8, while the fitted views' rises from 1.3 to 2.7 (they show what rings cannot hold).
+  // The eight-view licks, not axisymmetric, are the control: 69 -> 94 K, and the held-out camera
+  // says so (1.72 -> 5.93), as it will for a user's own fire. The sigma is the ring's
+  // (uncertainty.h's groups: the ring's voxels' curvature pooled): on the main job's 13 frame sets
+  // (two views, truth 96, fit 64, calibrated rig, each frame from its own tomography, pixels that
+  // integrate over their area, Bayer cameras fitted through their mosaic) 71 to 77% of the visible
+  // voxels lie within one sigma and 92 to 95% within two (69 to 73% with the neighbour term alike
+  // in every direction), where the untied fit's per-voxel sigma holds 69 to 77% within one
+  // (`benchmark run`'s candle, truth and fit both 64, point-sampled RGB frames: 45 to 63% tied, 62
+  // to 68% untied).
   bool axisymmetric = false;
   // The neighbour weight of an axisymmetric fit, in place of objective.w_sm (which is the untied
   // fit's). The rings already average away the noise the neighbour term holds down in an untied
-  // fit, so at w_sm 1 what is left of the term is its bias: it pulls the cool rings at the flame's
-  // edge towards the hot core (+57 K on the two-view candle). 0.3 was chosen on 2026-11-28 by
-  // `flamerig benchmark accuracy`'s two-view candle over four seeds of its turbulence, as the
-  // weight whose temperature RMS is never far from the best (RMS at 1 / 0.3 / 0.1 / 0.03: 119 / 99
-  // / 89 / 88 K, seed 7; 137 / 87 / 94 / 103, seed 3; 124 / 108 / 98 / 100, seed 5; 123 / 81 / 123
-  // / 136, seed 9; the truth's spread 142 K), under the stop rule of that time, which measured the
-  // energy's fall against its own size and stopped the two-view candle after 15 to 19 iterations.
-  // Since the stop rule of 2026-11-29 the tied fit runs 50 to 60, and the same criterion picks 0.2
-  // (BENCHMARKS.md, issue 19, "The tied fit run to convergence"; RMS / bias / emission-weighted K
-  // at 0.3 against 0.2): `simulate`'s candle through the true rig, seeds 3, 5, 7, 9, three frames
-  // each, 92 / +28 / 54 -> 90 / +22 / 56, 91 / +33 / 52 -> 88 / +27 / 52, 97 / +42 / 52 -> 94 / +39
-  // / 51, 90 / +28 / 53 -> 90 / +24 / 56 (0.15 and 0.1 are no better on RMS, 0.05 worse); the main
-  // job's 13 sets 86.5 / +22.1 / 58.3 -> 86.1 / +17.9 / 59.4 (0.1: 88.0 / +12.6 / 61.6). A weaker
-  // term is cooler and closer in soot, but its emission-weighted error rises. Run to convergence
-  // (400 iterations) the term's bias shows plainly: the main job's take at +46, +19, +3.5 and -6.5
-  // K with 0.3, 0.1, 0.03 and 0, and the RMS 108, 88, 94 and 128 K. The held-out camera does not
-  // choose (its Delta E moves by under 0.1).
+  // fit, so at w_sm 1 what is left of the term is its bias: alike in every direction (as below,
+  // until axisymmetric_along_y), it pulls the cool rings at the flame's edge towards the hot core
+  // (+57 K on the two-view candle). The measurements below are of that term. 0.3 was chosen on
+  // 2026-11-28 by `flamerig benchmark accuracy`'s two-view candle over four seeds of its
+  // turbulence, as the weight whose temperature RMS is never far from the best (RMS at 1 / 0.3 /
+  // 0.1 / 0.03: 119 / 99 / 89 / 88 K, seed 7; 137 / 87 / 94 / 103, seed 3; 124 / 108 / 98 / 100,
+  // seed 5; 123 / 81 / 123 / 136, seed 9; the truth's spread 142 K), under the stop rule of that
+  // time, which measured the energy's fall against its own size and stopped the two-view candle
+  // after 15 to 19 iterations. Since the stop rule of 2026-11-29 the tied fit runs 50 to 60, and
+  // the same criterion picks 0.2 (BENCHMARKS.md, issue 19, "The tied fit run to convergence"; RMS /
+  // bias / emission-weighted K at 0.3 against 0.2): `simulate`'s candle through the true rig, seeds
+  // 3, 5, 7, 9, three frames each, 92 / +28 / 54 -> 90 / +22 / 56, 91 / +33 / 52 -> 88 / +27 / 52,
+  // 97 / +42 / 52 -> 94 / +39 / 51, 90 / +28 / 53 -> 90 / +24 / 56 (0.15 and 0.1 are no better on
+  // RMS, 0.05 worse); the main job's 13 sets 86.5 / +22.1 / 58.3 -> 86.1 / +17.9 / 59.4 (0.1: 88.0
+  // / +12.6 / 61.6). A weaker term is cooler and closer in soot, but its emission-weighted error
+  // rises. Run to convergence (400 iterations) the term's bias shows plainly: the main job's take
+  // at +46, +19, +3.5 and -6.5 K with 0.3, 0.1, 0.03 and 0, and the RMS 108, 88, 94 and 128 K. The
+  // held-out camera does not choose (its Delta E moves by under 0.1).
   double axisymmetric_w_sm = 0.2;
   // The tied fit's neighbour term by direction (ObjectiveOptions::along_y, across_y): the pairs
   // along the flame's axis (y) weigh axisymmetric_w_sm x 40, the pairs across it nothing. A

@@ -22,6 +22,8 @@ void ObjectiveOptions::Validate() const {
   if (!(along_y >= 0 && along_y <= kMaxDirectionFactor) ||
       !(across_y >= 0 && across_y <= kMaxDirectionFactor))
     fail("along_y and across_y must be in [0, 1000]");
+  if (!(w_sm * std::max(along_y, across_y) <= kMaxWeight))
+    fail("w_sm x along_y and w_sm x across_y must be <= 1e12");
   if (!(t_min_k > 0) || !(t_max_k > t_min_k) || !std::isfinite(t_max_k))
     fail("need 0 < t_min_k < t_max_k, finite");
   if (!(n_min_per_m3 >= 0) || !(n_max_per_m3 >= 0) ||

@@ -22,7 +22,9 @@
 //    density. Departure from the paper, which does not give v's units: v is the parameter
 //    normalised by its search range, (T - T_min) / (T_max - T_min) and (ln n - ln n_min) /
 //    (ln n_max - ln n_min). In kelvin, w_sm = 10 would make the pairwise term about a thousand
-//    times the data term and flatten every fire.
+//    times the data term and flatten every fire. Each pair may weigh apart by its direction
+//    (ObjectiveOptions::along_y, across_y; 1 and 1, the paper's, by default): an axisymmetric fit
+//    weighs only the pairs along its axis.
 //
 // Smooth mode (for gradient-based fits): |x| becomes the Charbonnier function
 // sqrt(x^2 + eps^2) - eps, for the Delta E of each pixel and for each neighbour difference. The
@@ -65,7 +67,7 @@ struct ObjectiveOptions {
   // The pairwise terms' weight by a pair's direction: a pair whose voxels differ in y only (the
   // grid's vertical axis, an axisymmetric fit's axis: FitOptions::axisymmetric_along_y) weighs
   // w_sm x along_y, every other pair w_sm x across_y. 1 and 1: the paper's term, alike in every
-  // direction. Each in [0, kMaxDirectionFactor].
+  // direction. Each in [0, kMaxDirectionFactor], and w_sm times either at most kMaxWeight.
   double along_y = 1, across_y = 1;
   static constexpr double kMaxDirectionFactor = 1e3;
   // Views from Bayer cameras (FitView::mosaic) are rendered through their mosaic and the host's

@@ -97,17 +97,18 @@ struct RunOptions {
   // started from it (for comparisons, and what a frame gives whatever came before it). An
   // axisymmetric fit (FitOptions::axisymmetric) always starts cold: its rings follow each frame's
   // own flame axis, and a cool ring carried from the previous frame takes whatever density this
-  // frame's light needs at that temperature, which at its neighbour weight (0.3) the fit does not
-  // undo. On the main job's 12 frames, fits warm-started, total soot rose to 1.1 to 2.2 times the
-  // truth and the temperature RMS to 122 to 142 K, against 0.65 to 0.77 and 111 to 127 K started
-  // cold; the warm start saved no iterations (55 to 89 against 55 to 70). Its tomography too: on
-  // two views a warm-started solve keeps the previous frame's streaks, and the tied fit took their
-  // colour as a hot bias: the main job's frames 0 and 12, the same images, scored 84 and 114 K RMS
-  // (bias +11 and +55 K) with the tomography warm after frame 0; every tomography cold, the frames
-  // score 82 to 104 K (bias +10 to +48 K) against 100 to 117 K (+44 to +58 K), the truth moved into
-  // the calibrated frame (truth_rig). An untied fit does not move (147 to 152 K either way). (Those
-  // with point-sampled RGB8 frames; the main job's pixels now integrate and its cameras send Bayer
-  // mosaics, which the fit renders: tied 81 to 91 K, BENCHMARKS.md.)
+  // frame's light needs at that temperature, which at its neighbour weight (0.3 then, alike in
+  // every direction) the fit does not undo. On the main job's 12 frames, fits warm-started, total
+  // soot rose to 1.1 to 2.2 times the truth and the temperature RMS to 122 to 142 K, against 0.65
+  // to 0.77 and 111 to 127 K started cold; the warm start saved no iterations (55 to 89 against 55
+  // to 70). Its tomography too: on two views a warm-started solve keeps the previous frame's
+  // streaks, and the tied fit took their colour as a hot bias: the main job's frames 0 and 12, the
+  // same images, scored 84 and 114 K RMS (bias +11 and +55 K) with the tomography warm after frame
+  // 0; every tomography cold, the frames score 82 to 104 K (bias +10 to +48 K) against 100 to 117 K
+  // (+44 to +58 K), the truth moved into the calibrated frame (truth_rig). An untied fit does not
+  // move (147 to 152 K either way). (Those with point-sampled RGB8 frames; the main job's pixels
+  // now integrate and its cameras send Bayer mosaics, which the fit renders: tied 81 to 91 K,
+  // BENCHMARKS.md.)
   bool warm_start = true;
   // Ground truth of a simulated recording: DIR/frame_NNNNNN.vdb. The truth of a set is the one
   // numbered by its frame id modulo the number of truth volumes (a simulated camera replaying a

@@ -583,6 +583,17 @@ TEST(FitObjective, RejectsBadInput) {
   ObjectiveOptions bad;
   bad.t_max_k = 100;
   EXPECT_THROW(FitObjective(s.grid, s.active, s.views, grey, render, bad), InputError);
+  // The weight a pair gets, w_sm x its direction's factor, stays within the range the stress
+  // tests above prove finite.
+  ObjectiveOptions heaviest;
+  heaviest.w_sm = 1e9;
+  heaviest.along_y = 1000;
+  EXPECT_NO_THROW(heaviest.Validate());
+  heaviest.w_sm = 1e12;
+  EXPECT_THROW(heaviest.Validate(), InputError);
+  heaviest.along_y = 1;
+  heaviest.across_y = 1.5;
+  EXPECT_THROW(heaviest.Validate(), InputError);
   for (const double f : {-1.0, std::nan(""), 1e4}) {
     ObjectiveOptions bad_direction;
     bad_direction.along_y = f;
@@ -1614,12 +1625,12 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
   EXPECT_LT(rms_tied, rms_free);
 
   // The tied fit's neighbour weight is axisymmetric_w_sm (0.2; on the pairs along the axis x 40,
-  // none across, FitOptions::axisymmetric_along_y), whatever objective.w_sm says
-  // (both scaled alike to this grid, FitOptions::neighbour_weight_resolution). At the untied
-  // fit's weight, 1, the term pulls the cool outer rings towards the hot core: the
-  // temperatures are further from the truth and hotter (FitOptions::axisymmetric_w_sm, chosen on
-  // the accuracy benchmark's larger candles; this one is smaller and seen at 160x120).
-  // On one thread, so that the same fit gives the same bits.
+  // none across, FitOptions::axisymmetric_along_y), whatever objective.w_sm says (both scaled alike
+  // to this grid, FitOptions::neighbour_weight_resolution). At the untied fit's weight, 1 (along
+  // the axis, x 40), the temperatures are further from the truth (measured 106 against 137 K on
+  // 2026-12-03) (FitOptions::axisymmetric_w_sm, chosen on the accuracy benchmark's larger candles;
+  // this one is smaller and seen at 160x120). On one thread, so that the same fit gives the same
+  // bits.
   const tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
   FitOptions other = options;
   other.estimate_uncertainty = false;
@@ -1647,6 +1658,9 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
               rms_reference, rms_isotropic);
   EXPECT_LT(rms_reference, rms_isotropic);  // measured 106 against 111 K
   other.axisymmetric_along_y = -1;
+  EXPECT_THROW(other.Validate(), InputError);
+  other.axisymmetric_along_y = 1000;
+  other.axisymmetric_w_sm = 1e10;
   EXPECT_THROW(other.Validate(), InputError);
   other.axisymmetric_along_y = 1;
   other.axisymmetric_w_sm = -1;
