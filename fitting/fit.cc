@@ -66,18 +66,25 @@ void FitOptions::Validate() const {
   if (!(stall_decrease >= 0) || !(stall_decrease < 1)) fail("stall_decrease must be in [0, 1)");
   if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0)) fail("smoothing must be >= 0");
   if (!(time_limit_s >= 0)) fail("time_limit_s must be >= 0");
-  if (!(axisymmetric_w_sm >= 0 && axisymmetric_w_sm <= ObjectiveOptions::kMaxWeight))
-    fail("axisymmetric_w_sm must be in [0, 1e12]");
-  for (const double f : {axisymmetric_along_y, axisymmetric_across_y})
-    if (!(f >= 0 && f <= ObjectiveOptions::kMaxDirectionFactor))
-      fail("axisymmetric_along_y and axisymmetric_across_y must be in [0, 1000]");
-  if (!(axisymmetric_w_sm * std::max(axisymmetric_along_y, axisymmetric_across_y) <=
-        ObjectiveOptions::kMaxWeight))
-    fail("axisymmetric_w_sm x its direction factors must be <= 1e12");
+  try {
+    TiedObjective().Validate();
+  } catch (const InputError& e) {
+    fail(std::string("the tied fit's axisymmetric_w_sm, axisymmetric_along_y and "
+                     "axisymmetric_across_y (its w_sm, along_y and across_y): ") +
+         e.what());
+  }
   if (neighbour_weight_resolution < 0) fail("neighbour_weight_resolution must be >= 0");
   if (!(known_exposure >= 0) || !std::isfinite(known_exposure) ||
       (known_exposure > 0 && !(known_exposure >= exposure_min && known_exposure <= exposure_max)))
     fail("known_exposure must be 0 (unknown) or in [exposure_min, exposure_max]");
+}
+
+ObjectiveOptions FitOptions::TiedObjective() const {
+  ObjectiveOptions tied = objective;
+  tied.w_sm = axisymmetric_w_sm;
+  tied.along_y = axisymmetric_along_y;
+  tied.across_y = axisymmetric_across_y;
+  return tied;
 }
 
 std::string FitOptions::Key() const {
@@ -942,11 +949,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   options.objective.smooth_delta_e = options.smooth_delta_e;
   options.objective.smooth_neighbour = options.smooth_neighbour;
   options.objective.density_pairwise = options.density_pairwise;
-  if (options.axisymmetric) {
-    options.objective.w_sm = options.axisymmetric_w_sm;
-    options.objective.along_y = options.axisymmetric_along_y;
-    options.objective.across_y = options.axisymmetric_across_y;
-  }
+  if (options.axisymmetric) options.objective = options.TiedObjective();
   // The neighbour weight on a grid: as given at neighbour_weight_resolution voxels (FitOptions).
   auto ObjectiveAt = [&options](const GridGeometry& g) {
     ObjectiveOptions o = options.objective;

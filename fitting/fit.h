@@ -280,6 +280,11 @@ struct FitOptions {
   bool estimate_uncertainty = false;
   UncertaintyOptions uncertainty;
   void Validate() const;  // throws InputError naming the field
+  // The energy's options an axisymmetric fit minimises: `objective` with the tied fit's neighbour
+  // weight and direction factors (axisymmetric_w_sm, axisymmetric_along_y, axisymmetric_across_y)
+  // in place of the untied fit's (FastFit uses it; Validate checks it, so the rules are
+  // ObjectiveOptions::Validate's alone).
+  ObjectiveOptions TiedObjective() const;
   // Every field of these options, and of the structs it holds, as one line ("w_am 1, w_sm 1,
   // ..."; numbers to 17 digits, so a line read back means the same doubles): two fits whose keys
   // are equal were given the same options. `run` stores it with each frame and refuses to resume

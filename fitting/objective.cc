@@ -269,6 +269,10 @@ class PairwiseTerm : public EnergyTerm {
     if (o.along_y != 1 || o.across_y != 1) {
       factor_.reserve(objective.neighbour_pairs().size());
       for (const auto& [a, b] : objective.neighbour_pairs()) factor_.push_back(Factor(a, b));
+      for (std::uint32_t a = 0; a < objective.num_active(); ++a)
+        for (const std::uint32_t* e = objective.neighbours_begin(a);
+             e != objective.neighbours_end(a); ++e)
+          local_factor_.push_back(Factor(a, *e));
     }
   }
   std::string name() const override {
@@ -317,9 +321,11 @@ class PairwiseTerm : public EnergyTerm {
   double Local(const FitParameters& x, std::uint32_t a) const override {
     double sum = 0;
     const double va = Normalised(x, a);
+    const std::uint32_t* first = objective_.neighbours_begin(0);
     for (const std::uint32_t* e = objective_.neighbours_begin(a); e != objective_.neighbours_end(a);
          ++e)
-      sum += (factor_.empty() ? 1.0 : Factor(a, *e)) * std::abs(Normalised(x, *e) - va);
+      sum += (local_factor_.empty() ? 1.0 : local_factor_[e - first]) *
+             std::abs(Normalised(x, *e) - va);
     return sum;
   }
 
@@ -339,6 +345,8 @@ class PairwiseTerm : public EnergyTerm {
   Parameter parameter_;
   double weight_, eps_, t_scale_ = 0, ln_range_ = 0;
   std::vector<double> factor_;  // per neighbour pair; empty: 1 for every pair
+  // Per entry of the objective's neighbour lists (neighbours_begin(0) on), for Local; empty: 1.
+  std::vector<double> local_factor_;
 };
 
 }  // namespace

@@ -272,9 +272,10 @@ TEST(RunCli, ATwelveBitRigIsRehearsedWithSimCameras) {
 // `run --w-sm` sets the fit's neighbour weight, tied to rings or not, and every frame's volume
 // records the weight it was fitted under (metadata w_sm): 1 by default, 0.2 with --axisymmetric,
 // the given one with either, each at 64 voxels and scaled to the grid, and its factors by
-// direction (w_sm_along_y, w_sm_across_y: 1 and 1 untied, 40 and 0 tied). A stronger prior gives
-// a smoother temperature field in the direction it acts: across the grid untied, along the
-// flame's axis (y) tied.
+// direction (w_sm_along_y, w_sm_across_y: 1 and 1 untied, 40 and 0 tied, or the ones
+// --w-sm-along-y and --w-sm-across-y give either). A stronger prior gives a smoother temperature
+// field in the direction it acts: across the grid untied, along the flame's axis (y) tied, and
+// along y rather than x when its pairs along y weigh more.
 TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
   const fs::path dir = TempDir("w_sm");
   SimulateDataset(dir / "sim", 1);
@@ -282,10 +283,13 @@ TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
     std::string name, flags;
     double w_sm, along_y, across_y;
   };
-  const std::vector<Case> cases = {{"default", "", 1.0, 1, 1},
-                                   {"strong", "--w-sm 10", 10.0, 1, 1},
-                                   {"tied", "--axisymmetric", 0.2, 40, 0},
-                                   {"tied_given", "--axisymmetric --w-sm 2", 2.0, 40, 0}};
+  const std::vector<Case> cases = {
+      {"default", "", 1.0, 1, 1},
+      {"strong", "--w-sm 10", 10.0, 1, 1},
+      {"tied", "--axisymmetric", 0.2, 40, 0},
+      {"tied_given", "--axisymmetric --w-sm 2", 2.0, 40, 0},
+      {"along_y", "--w-sm-along-y 10 --w-sm-across-y 0.1", 1.0, 10, 0.1},
+      {"tied_alike", "--axisymmetric --w-sm-across-y 1", 0.2, 40, 1}};
   std::map<std::string, FireVolume> volumes;
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
@@ -341,10 +345,18 @@ TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
       roughness(volumes["strong"]), roughness(volumes["default"]),
       roughness(volumes["tied_given"], true), roughness(volumes["tied"], true));
   EXPECT_LT(roughness(volumes["tied_given"], true), 0.8 * roughness(volumes["tied"], true));
-  const Result bad = Shell(RunCommand(dir / "sim", dir / "bad", "--w-sm -1"));
-  EXPECT_EQ(bad.status, 2) << bad.output;
-  EXPECT_NE(bad.output.find("--w-sm"), std::string::npos) << bad.output;
-  EXPECT_FALSE(fs::exists(dir / "bad"));
+  // The untied field's roughness along y over that along x: the pairs along y weighed 100 times
+  // the others make it smaller.
+  auto anisotropy = [&roughness](const FireVolume& v) { return roughness(v, true) / roughness(v); };
+  std::printf("roughness along y / along x: untied %.2f with the pairs alike, %.2f along y x 100\n",
+              anisotropy(volumes["default"]), anisotropy(volumes["along_y"]));
+  EXPECT_LT(anisotropy(volumes["along_y"]), 0.8 * anisotropy(volumes["default"]));
+  for (const std::string flags : {"--w-sm -1", "--w-sm-along-y -1", "--w-sm-across-y nan"}) {
+    const Result bad = Shell(RunCommand(dir / "sim", dir / "bad", flags));
+    EXPECT_EQ(bad.status, 2) << bad.output;
+    EXPECT_NE(bad.output.find(flags.substr(0, flags.find(' '))), std::string::npos) << bad.output;
+    EXPECT_FALSE(fs::exists(dir / "bad"));
+  }
   fs::remove_all(dir);
 }
 

@@ -1,5 +1,6 @@
 #include "tools/cli.h"
 
+#include <fmt/format.h>
 #include <signal.h>
 
 #include <cmath>
@@ -322,6 +323,29 @@ void ApplyTomographyFlags(const TomographyFlags& f, ReconstructOptions* o,
   if (f.min_speck_px) o->hull.min_speck_px = *f.min_speck_px;
   // A bad --input-transfer is refused by the job before any work (WithInputTransfer, run's
   // Validate).
+}
+
+void AddDirectionFlags(CLI::App* command, DirectionFlags* flags, const FitOptions& defaults) {
+  command
+      ->add_option(
+          "--w-sm-along-y", flags->along_y,
+          fmt::format("Factor on the neighbour weight of the pairs along the grid's "
+                      "vertical axis, the flame's (default {:g}, with --axisymmetric {:g})",
+                      defaults.objective.along_y, defaults.axisymmetric_along_y))
+      ->type_name("F")
+      ->check(Between(0, ObjectiveOptions::kMaxDirectionFactor));
+  command
+      ->add_option("--w-sm-across-y", flags->across_y,
+                   fmt::format("Factor on the neighbour weight of every other pair (default {:g}, "
+                               "with --axisymmetric {:g})",
+                               defaults.objective.across_y, defaults.axisymmetric_across_y))
+      ->type_name("F")
+      ->check(Between(0, ObjectiveOptions::kMaxDirectionFactor));
+}
+
+void ApplyDirectionFlags(const DirectionFlags& flags, FitOptions* fit) {
+  if (flags.along_y) fit->objective.along_y = fit->axisymmetric_along_y = *flags.along_y;
+  if (flags.across_y) fit->objective.across_y = fit->axisymmetric_across_y = *flags.across_y;
 }
 
 void Context::StopOnSignals() {

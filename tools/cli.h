@@ -22,6 +22,7 @@
 
 #include "core/log.h"
 #include "core/progress.h"
+#include "fitting/fit.h"
 #include "tomography/reconstruct.h"
 
 namespace flamerig::cli {
@@ -99,6 +100,18 @@ void AddTomographyFlags(CLI::App* command, TomographyFlags* flags, bool solve_op
 // refuse).
 void ApplyTomographyFlags(const TomographyFlags& flags, ReconstructOptions* options,
                           std::string* input_transfer);
+
+// The fit's neighbour term by direction, shared by fit and run: --w-sm-along-y F and
+// --w-sm-across-y F (ObjectiveOptions::along_y, across_y: the factors on the weight of the
+// neighbour pairs along the grid's vertical axis and of every other pair). A factor given is the
+// fit's, tied to rings or not, as --w-sm's weight is; a factor not given keeps each fit's default
+// (untied 1 and 1, the paper's term; tied FitOptions::axisymmetric_along_y and _across_y).
+struct DirectionFlags {
+  std::optional<double> along_y, across_y;
+};
+// `defaults` are the options the help describes.
+void AddDirectionFlags(CLI::App* command, DirectionFlags* flags, const FitOptions& defaults);
+void ApplyDirectionFlags(const DirectionFlags& flags, FitOptions* fit);
 
 // "a,b,,c" -> {"a", "b", "c"}.
 std::vector<std::string> SplitList(const std::string& text);

@@ -19,6 +19,7 @@ Runner AddFit(CLI::App* command) {
     int iterations = -1;
     std::int64_t seed = -1;
     TomographyFlags tomography;
+    DirectionFlags directions;
   };
   auto o = std::make_shared<Options>();
   FitJob& job = o->job;
@@ -73,6 +74,7 @@ Runner AddFit(CLI::App* command) {
                                    defaults.neighbour_weight_resolution, PaperFitOptions().w_sm))
           ->type_name("W")
           ->check(Between(0, ObjectiveOptions::kMaxWeight));
+  AddDirectionFlags(command, &o->directions, defaults);
   command
       ->add_option("--fit-iterations", o->iterations,
                    fmt::format("Fast fit: cap on the L-BFGS iterations per grid level (it stops "
@@ -111,6 +113,7 @@ Runner AddFit(CLI::App* command) {
     // The paper's algorithms minimise the paper's energy (w_sm 10) unless told otherwise.
     // A weight given is the fit's, tied to rings or not.
     if (w_sm->count() > 0) job.paper.w_sm = job.fit.axisymmetric_w_sm = job.fit.objective.w_sm;
+    ApplyDirectionFlags(o->directions, &job.fit);
     job.paper.time_limit_s = job.fit.time_limit_s;
     if (o->iterations >= 0) {
       if (o->iterations == 0 && job.method != FitMethod::kFast)

@@ -21,6 +21,7 @@ Runner AddRun(CLI::App* command) {
     bool no_skip_unchanged = false, no_blender = false, cold = false, no_sigma = false;
     std::size_t threads = 0;
     TomographyFlags tomography;
+    DirectionFlags directions;
   };
   auto o = std::make_shared<Options>();
   RunOptions& run = o->run;
@@ -89,6 +90,7 @@ Runner AddRun(CLI::App* command) {
                       defaults.neighbour_weight_resolution, defaults.neighbour_weight_resolution))
       ->type_name("W")
       ->check(Between(0, ObjectiveOptions::kMaxWeight));
+  AddDirectionFlags(command, &o->directions, defaults);
   command->add_option("--holdout", run.holdout_camera, "Camera to score but not fit")
       ->type_name("CAMERA");
   command
@@ -147,6 +149,7 @@ Runner AddRun(CLI::App* command) {
     if (o->fit_iterations >= 0) run.fit.iterations_finest = o->fit_iterations;
     // A weight given is the fit's, tied to rings or not (as in `fit`).
     if (o->w_sm >= 0) run.fit.objective.w_sm = run.fit.axisymmetric_w_sm = o->w_sm;
+    ApplyDirectionFlags(o->directions, &run.fit);
     run.skip_unchanged = !o->no_skip_unchanged;
     run.blender = !o->no_blender;
     run.sigma = !o->no_sigma;
