@@ -113,9 +113,9 @@ std::string FitOptions::Key() const {
     << ", time_limit " << time_limit_s << " s, density_pairwise " << density_pairwise
     << ", warm density from emission " << warm_start_density_from_emission << ", axisymmetric "
     << axisymmetric << " (w_sm " << axisymmetric_w_sm << " x " << axisymmetric_along_y
-    << " along y, x " << axisymmetric_across_y << " across), vary " << vary.temperature
-    << vary.density << ", uncertainty " << estimate_uncertainty << " ("
-    << uncertainty.determined_fraction << ")";
+    << " along y, x " << axisymmetric_across_y << " across, interpolate "
+    << axisymmetric_interpolate << "), vary " << vary.temperature << vary.density
+    << ", uncertainty " << estimate_uncertainty << " (" << uncertainty.determined_fraction << ")";
   return k.str();
 }
 
@@ -546,22 +546,61 @@ void Resample(const State& from, const std::vector<float>& emission, const ThinE
 
 // The rings of FitOptions::axisymmetric: per layer of the grid (y), active voxels grouped by their
 // distance to the layer's emission centroid, rounded to whole voxels. Members are active indices.
+// The fit's parameters are tied to nodes (NodeTie), one per layer and whole radius: each voxel
+// takes its ring's node (weight 1), or with FitOptions::axisymmetric_interpolate the two nodes at
+// the whole radii either side of its own radius rho, floor(rho) and floor(rho) + 1, weights 1 - f
+// and f (f = rho - floor(rho)): a field linear in the radius between the nodes.
 struct RingTie {
   std::vector<std::vector<std::size_t>> rings;
   std::vector<std::pair<int, int>> places;  // per ring: (layer, radius in whole voxels)
   std::vector<Eigen::Vector2d> axis;        // per layer: the axis at (i, k), in voxel indices
+  NodeTie nodes;
+  bool interpolated = false;             // FitOptions::axisymmetric_interpolate
+  std::vector<std::size_t> layer_nodes;  // per layer: its first node; one past the last at the end
 
-  // Each ring's values replaced by their mean: the orthogonal projection onto ring-constant
-  // fields (so a projected gradient gives every direction within them its exact derivative).
+  // The orthogonal projection onto the tied fields (those the nodes give): the least-squares
+  // nodes q of `values` (W^T W q = W^T values, W the voxels' weights; per layer a tridiagonal
+  // system, as each voxel weighs two neighbouring nodes), then W q. A projected gradient gives
+  // every direction within the tied fields its exact derivative. Rings alone (weights 1): each
+  // ring's mean.
   void Project(double* values) const {
-    for (const auto& ring : rings) {
-      double sum = 0;
-      for (std::size_t a : ring) sum += values[a];
-      const double mean = sum / double(ring.size());
-      for (std::size_t a : ring) values[a] = mean;
+    const std::size_t m = nodes.node.size();
+    std::vector<double> b(nodes.nodes, 0.0), d(nodes.nodes, 0.0), e(nodes.nodes, 0.0);
+    for (std::size_t a = 0; a < m; ++a) {
+      const auto& [r0, r1] = nodes.node[a];
+      const auto& [w0, w1] = nodes.weight[a];
+      b[r0] += w0 * values[a];
+      d[r0] += w0 * w0;
+      b[r1] += w1 * values[a];
+      d[r1] += w1 * w1;
+      if (r1 == r0 + 1) e[r0] += w0 * w1;  // e[r]: the (r, r + 1) entry
     }
+    // Thomas's algorithm per layer; a node no voxel weighs solves to 0 (its row is empty).
+    std::vector<double> c(nodes.nodes, 0.0);
+    for (std::size_t layer = 0; layer + 1 < layer_nodes.size(); ++layer) {
+      const std::size_t lo = layer_nodes[layer], hi = layer_nodes[layer + 1];
+      for (std::size_t r = lo; r < hi; ++r) {
+        double diag = d[r], rhs = b[r];
+        if (r > lo) {
+          diag -= e[r - 1] * c[r - 1];
+          rhs -= e[r - 1] * b[r - 1];
+        }
+        if (!(diag > 1e-12)) {
+          c[r] = 0;
+          b[r] = 0;
+          continue;
+        }
+        c[r] = r + 1 < hi ? e[r] / diag : 0.0;
+        b[r] = rhs / diag;
+      }
+      for (std::size_t r = hi; r-- > lo + 1;) b[r - 1] -= c[r - 1] * b[r];
+    }
+    for (std::size_t a = 0; a < m; ++a)
+      values[a] =
+          nodes.weight[a][0] * b[nodes.node[a][0]] + nodes.weight[a][1] * b[nodes.node[a][1]];
   }
-  // The start tied: each ring's mean temperature and mean log density.
+  // The start tied to the rings: each ring's mean temperature and mean log density (then, in the
+  // fit's parameters, projected onto the tied fields: Project).
   void Tie(State* st) const {
     for (const auto& ring : rings) {
       double t = 0, ln_n = 0;
@@ -580,7 +619,7 @@ struct RingTie {
 };
 
 RingTie MakeRingTie(const GridGeometry& grid, const std::vector<std::uint32_t>& active,
-                    const std::vector<float>& emission) {
+                    const std::vector<float>& emission, bool interpolate) {
   // Per layer: the luminance-weighted centroid of its active voxels, or their plain mean where
   // the layer has no light.
   std::vector<Eigen::Vector3d> weighted(grid.dims.y(), Eigen::Vector3d::Zero()),
@@ -598,17 +637,37 @@ RingTie MakeRingTie(const GridGeometry& grid, const std::vector<std::uint32_t>& 
     const Eigen::Vector3d& c = weighted[j].z() > 0 ? weighted[j] : plain[j];
     if (c.z() > 0) tie.axis[j] = Eigen::Vector2d(c.x() / c.z(), c.y() / c.z());
   }
+  std::vector<double> rho(active.size());
+  std::vector<int> last(grid.dims.y(), -1);  // per layer: its last node's radius
   for (std::size_t a = 0; a < active.size(); ++a) {
     const Eigen::Vector3i v = grid.Unflat(active[a]);
     const int j = v.y();
-    const int radius =
-        static_cast<int>(std::lround(std::hypot(v.x() - tie.axis[j].x(), v.z() - tie.axis[j].y())));
+    rho[a] = std::hypot(v.x() - tie.axis[j].x(), v.z() - tie.axis[j].y());
+    const int radius = static_cast<int>(std::lround(rho[a]));
+    last[j] = std::max(last[j], static_cast<int>(std::floor(rho[a])) + 1);
     const auto [it, added] = index.emplace(std::make_pair(j, radius), tie.rings.size());
     if (added) {
       tie.rings.emplace_back();
       tie.places.emplace_back(j, radius);
     }
     tie.rings[it->second].push_back(a);
+  }
+  // Nodes: per layer, whole radii 0 .. last (interpolated) or one per ring.
+  tie.layer_nodes.assign(grid.dims.y() + 1, 0);
+  for (int j = 0; j < grid.dims.y(); ++j) tie.layer_nodes[j + 1] = tie.layer_nodes[j] + last[j] + 1;
+  tie.nodes.nodes = tie.layer_nodes.back();
+  tie.interpolated = interpolate;
+  tie.nodes.node.resize(active.size());
+  tie.nodes.weight.resize(active.size());
+  for (std::size_t a = 0; a < active.size(); ++a) {
+    const int j = grid.Unflat(active[a]).y();
+    const std::size_t first = tie.layer_nodes[j];
+    const int r0 =
+        interpolate ? static_cast<int>(std::floor(rho[a])) : static_cast<int>(std::lround(rho[a]));
+    const double f = interpolate ? rho[a] - r0 : 0.0;
+    tie.nodes.node[a] = {std::uint32_t(first + r0),
+                         std::uint32_t(first + std::min(r0 + 1, last[j]))};
+    tie.nodes.weight[a] = {1.0 - f, f};
   }
   return tie;
 }
@@ -622,8 +681,19 @@ std::vector<RingProfilePoint> MakeRingProfile(const GridGeometry& grid, const Ri
   std::vector<RingProfilePoint> profile;
   for (std::size_t r = 0; r < tie.rings.size(); ++r) {
     const auto [j, radius] = tie.places[r];
-    const std::size_t a = tie.rings[r].front();  // every member holds the ring's values
     RingProfilePoint p;
+    const std::size_t front = tie.rings[r].front();
+    // Rings alone: every member holds the ring's values. Interpolated: the ring's voxels' means.
+    double t_sum = 0, ln_n_sum = 0, var_t = 0, var_ln_n = 0;
+    for (std::size_t a : tie.rings[r]) {
+      t_sum += t[a];
+      ln_n_sum += std::log(n[a]);
+      if (!uncertainty.temperature_sigma_k.empty()) {
+        var_t += double(uncertainty.temperature_sigma_k[a]) * uncertainty.temperature_sigma_k[a];
+        var_ln_n += double(uncertainty.log_density_sigma[a]) * uncertainty.log_density_sigma[a];
+      }
+    }
+    const double members = double(tie.rings[r].size());
     p.layer = j;
     const Eigen::Vector3d axis =
         grid.RigFromIndex(Eigen::Vector3d(tie.axis[j].x(), j, tie.axis[j].y()));
@@ -634,12 +704,14 @@ std::vector<RingProfilePoint> MakeRingProfile(const GridGeometry& grid, const Ri
     p.radius_voxels = radius;
     p.radius_m = radius * grid.voxel_size_m.x();
     p.voxels = tie.rings[r].size();
-    p.temperature_k = t[a];
-    p.density_per_m3 = n[a];
-    p.soot_volume_fraction = n[a] * particle_volume_m3;
+    p.temperature_k = tie.interpolated ? t_sum / members : t[front];
+    p.density_per_m3 = tie.interpolated ? std::exp(ln_n_sum / members) : n[front];
+    p.soot_volume_fraction = p.density_per_m3 * particle_volume_m3;
     if (!uncertainty.temperature_sigma_k.empty()) {
-      p.temperature_sigma_k = uncertainty.temperature_sigma_k[a];
-      p.log_density_sigma = uncertainty.log_density_sigma[a];
+      p.temperature_sigma_k =
+          tie.interpolated ? std::sqrt(var_t / members) : uncertainty.temperature_sigma_k[front];
+      p.log_density_sigma =
+          tie.interpolated ? std::sqrt(var_ln_n / members) : uncertainty.log_density_sigma[front];
     }
     profile.push_back(p);
   }
@@ -1072,7 +1144,8 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     // An axisymmetric fit ties the start, whichever way it was had, into this level's rings.
     std::unique_ptr<RingTie> tie;
     if (options.axisymmetric) {
-      tie = std::make_unique<RingTie>(MakeRingTie(st.grid, st.active, emission));
+      tie = std::make_unique<RingTie>(
+          MakeRingTie(st.grid, st.active, emission, options.axisymmetric_interpolate));
       tie->Tie(&st);
       result.rings = tie->rings.size();
     }
@@ -1085,6 +1158,10 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
         new SigmoidProblem(objective, options, st, &result.evaluations, &seen, tie.get());
     std::vector<double> u(2 * st.active.size() + 1);
     problem_function->Encode(st, u.data());
+    if (tie) {  // ring means, as the fit's parameters, onto the tied fields
+      tie->Project(u.data());
+      tie->Project(u.data() + st.active.size());
+    }
     ceres::GradientProblem problem(problem_function);
     ceres::GradientProblemSolver::Options solver;
     solver.line_search_direction_type = ceres::LBFGS;
@@ -1135,8 +1212,9 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
       result.final_terms = objective.Evaluate(st.t, st.n, st.s);
       if (options.estimate_uncertainty && result.termination != FitTermination::kCancelled &&
           !st.active.empty())
-        result.uncertainty = EstimateUncertainty(objective, st.t, st.n, st.s, options.uncertainty,
-                                                 tie ? &tie->rings : nullptr);
+        result.uncertainty =
+            tie ? EstimateUncertainty(objective, st.t, st.n, st.s, options.uncertainty, tie->nodes)
+                : EstimateUncertainty(objective, st.t, st.n, st.s, options.uncertainty);
       if (tie)
         result.ring_profile =
             MakeRingProfile(st.grid, *tie, st.t, st.n, result.uncertainty,
@@ -1192,6 +1270,9 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   // the pairs along y, w_sm x w_sm_across_y on the others (an axisymmetric fit's 40 and 0).
   result.volume.metadata_numbers["w_sm_along_y"] = options.objective.along_y;
   result.volume.metadata_numbers["w_sm_across_y"] = options.objective.across_y;
+  // A tied fit: whether its field is linear in the radius between nodes (1) or one value a ring.
+  if (options.axisymmetric)
+    result.volume.metadata_numbers["axisymmetric_interpolate"] = options.axisymmetric_interpolate;
   StampAbsorption(absorption, &result.volume);
   if (!result.uncertainty.temperature_sigma_k.empty())
     StoreUncertainty(grid, st.active, result.uncertainty, &result.volume);

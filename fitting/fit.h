@@ -266,6 +266,19 @@ struct FitOptions {
   // +23.1, +26.1 K. 40 is the weight never far from the best RMS whose bias keeps every set of
   // the take within 20 K.
   double axisymmetric_along_y = 40, axisymmetric_across_y = 0;
+  // The tied fit's field between whole radii: constant over each ring, a voxel taking the node at
+  // its radius rounded (false, the default); or linear in the radius, each voxel interpolating
+  // the nodes at the whole radii either side of its own (true; `--axisymmetric-interpolate`), so
+  // that the radial profile is not a staircase whose steps fall where the grid happens to cut the
+  // flame. Measured on 2026-12-03 (BENCHMARKS.md, issue 19, "A tied field linear in the radius"),
+  // T RMS / bias / emission-weighted RMS K, soot over the truth's, share within one sigma: the main
+  // job's 13 sets 81.7 / +12.3 / 58.5, 0.71 to 0.83, 71 to 77% -> 79.0 / +5.1 / 58.8, 0.76 to
+  // 0.99, 58 to 75% (its two worst sets 80 -> 91 K: neighbouring nodes trade against each other),
+  // and with a weak term across the axis too (axisymmetric_across_y 0.5) 76.0 / +11.6 / 54.8, 0.74
+  // to 0.91, 61 to 76%; `simulate`'s candle seeds 3, 5, 7, 9, three frames each, 85.6 / +23.2 /
+  // 53.4, 66 to 81% -> 79.3 / +22.4 / 46.2, 76 to 85% (with 0.5 across: 80.5 / +28.1 / 45.2, 75 to
+  // 86%). Not the default until the benchmarks are re-run with it.
+  bool axisymmetric_interpolate = false;
   // The cameras' exposure when it is known (the recording's exposure time x gain, in the
   // renderer's units, as the tomography takes it): > 0 holds the fit's exposure there, so that
   // densities come out absolute and comparable across frames; 0 = unknown, fitted (the paper's

@@ -34,40 +34,71 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
                                      const std::vector<double>& n, double s,
                                      const UncertaintyOptions& options,
                                      const std::vector<std::vector<std::size_t>>* groups) {
+  if (!groups) return EstimateUncertainty(objective, t, n, s, options, NodeTie());
+  const std::size_t na = objective.num_active();
+  NodeTie tie;
+  tie.nodes = groups->size();
+  tie.node.assign(na, {0, 0});
+  tie.weight.assign(na, {0.0, 0.0});
+  std::size_t covered = 0;
+  for (std::size_t g = 0; g < groups->size(); ++g) {
+    for (std::size_t a : (*groups)[g]) {
+      if (a >= na) throw InputError("uncertainty: a group names voxel " + std::to_string(a));
+      tie.node[a] = {std::uint32_t(g), std::uint32_t(g)};
+      tie.weight[a] = {1.0, 0.0};
+    }
+    covered += (*groups)[g].size();
+  }
+  if (covered != na) throw InputError("uncertainty: the groups do not cover the active voxels");
+  return EstimateUncertainty(objective, t, n, s, options, tie);
+}
+
+VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::vector<double>& t,
+                                     const std::vector<double>& n, double s,
+                                     const UncertaintyOptions& options, const NodeTie& tie) {
   options.Validate();
   const auto start = std::chrono::steady_clock::now();
   FitObjective::Curvature c = objective.DataCurvature(t, n, s);
   const std::size_t na = objective.num_active();
-  // Tied voxels share one (T, ln n): each group's block is the sum of its members'.
-  std::size_t unknowns = na;
-  if (groups) {
-    std::size_t covered = 0;
-    for (const auto& g : *groups) {
-      double tt = 0, tn = 0, nn = 0;
-      for (std::size_t a : g) {
-        if (a >= na) throw InputError("uncertainty: a group names voxel " + std::to_string(a));
-        tt += c.tt[a];
-        tn += c.tn[a];
-        nn += c.nn[a];
+  const bool tied = tie.nodes > 0;
+  if (tied) {
+    if (tie.node.size() != na || tie.weight.size() != na)
+      throw InputError("uncertainty: the tie has " + std::to_string(tie.node.size()) +
+                       " voxels, the fit " + std::to_string(na));
+    for (std::size_t a = 0; a < na; ++a)
+      for (int k = 0; k < 2; ++k)
+        if (tie.node[a][k] >= tie.nodes || !(tie.weight[a][k] >= 0 && tie.weight[a][k] <= 1))
+          throw InputError("uncertainty: voxel " + std::to_string(a) +
+                           "'s tie names a node or a weight out of range");
+  }
+  // Tied voxels share their nodes' (T, ln n): a node's block is its voxels' summed, each x its
+  // weight squared.
+  const std::size_t unknowns = tied ? tie.nodes : na;
+  std::size_t used = na;                                // unknowns that some voxel depends on
+  std::vector<double> tt = c.tt, tn = c.tn, nn = c.nn;  // per unknown
+  if (tied) {
+    tt.assign(tie.nodes, 0.0);
+    tn.assign(tie.nodes, 0.0);
+    nn.assign(tie.nodes, 0.0);
+    std::vector<char> depended(tie.nodes, 0);
+    for (std::size_t a = 0; a < na; ++a)
+      for (int k = 0; k < 2; ++k) {
+        const double w2 = tie.weight[a][k] * tie.weight[a][k];
+        const std::uint32_t r = tie.node[a][k];
+        tt[r] += w2 * c.tt[a];
+        tn[r] += w2 * c.tn[a];
+        nn[r] += w2 * c.nn[a];
+        if (w2 > 0) depended[r] = 1;
       }
-      for (std::size_t a : g) {
-        c.tt[a] = tt;
-        c.tn[a] = tn;
-        c.nn[a] = nn;
-      }
-      covered += g.size();
-    }
-    if (covered != na) throw InputError("uncertainty: the groups do not cover the active voxels");
-    unknowns = groups->size();
+    used = std::count(depended.begin(), depended.end(), 1);
   }
   VoxelUncertainty u;
-  // The residuals' level per residual (degrees of freedom: less two per unknown voxel or group, at
+  // The residuals' level per residual (degrees of freedom: less two per unknown voxel or node, at
   // least half the residuals), and the noise from their differences between neighbouring pixels,
   // scaled by the same ratio of residuals to degrees of freedom (a fit absorbs some of the noise
   // into its unknowns, and it is missing from both alike). Too few neighbouring pairs to say: the
   // level.
-  const double dof =
-      std::max(0.5 * double(c.residuals), double(c.residuals) - 2.0 * double(unknowns));
+  const double dof = std::max(0.5 * double(c.residuals), double(c.residuals) - 2.0 * double(used));
   u.residual_lab = dof > 0 ? std::sqrt(c.residual_sq / dof) : 0.0;
   u.sigma_lab = c.differences >= kMinDifferences && dof > 0
                     ? std::sqrt(c.difference_sq / double(c.differences) * double(c.residuals) / dof)
@@ -80,22 +111,39 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
   // a floor of a hundredth of a Delta E.
   const double noise2 = std::max(u.sigma_lab * u.sigma_lab, 1e-4);
   u.one_band = OneBand(objective.views());
-  u.temperature_sigma_k.resize(na);
-  u.log_density_sigma.resize(na);
-  u.determined.resize(na);
-  for (std::size_t a = 0; a < na; ++a) {
-    const double htt = c.tt[a] / noise2 + 1.0 / (u.prior_sigma_k * u.prior_sigma_k);
-    const double hnn = c.nn[a] / noise2 + 1.0 / (prior_ln * prior_ln);
-    const double htn = c.tn[a] / noise2;
+  // Each unknown's deviations from its 2x2 precision.
+  std::vector<double> var_t(unknowns), var_n(unknowns);
+  for (std::size_t r = 0; r < unknowns; ++r) {
+    const double htt = tt[r] / noise2 + 1.0 / (u.prior_sigma_k * u.prior_sigma_k);
+    const double hnn = nn[r] / noise2 + 1.0 / (prior_ln * prior_ln);
+    const double htn = tn[r] / noise2;
     // An exact block has tn^2 <= tt nn and the prior's terms make the sum positive definite; a
     // voxel whose temperature and density columns are all but parallel (its brightness could
     // come from either) loses that to rounding only: keep the determinant at a relative 1e-12
     // there. (Until the blocks were exact the cross term was clamped at 0.99 of its bound,
     // which narrowed exactly these voxels' sigma.)
     const double det = std::max(htt * hnn - htn * htn, 1e-12 * htt * hnn);
-    const double var_t = hnn / det, var_n = htt / det;
-    const double sigma_t = std::isfinite(var_t) && !u.one_band ? std::sqrt(var_t) : u.prior_sigma_k;
-    const double sigma_n = std::isfinite(var_n) && !u.one_band ? std::sqrt(var_n) : prior_ln;
+    var_t[r] = hnn / det;
+    var_n[r] = htt / det;
+  }
+  u.temperature_sigma_k.resize(na);
+  u.log_density_sigma.resize(na);
+  u.determined.resize(na);
+  for (std::size_t a = 0; a < na; ++a) {
+    double vt = var_t[tied ? 0 : a], vn = var_n[tied ? 0 : a];
+    if (tied) {  // sum_k w_k sigma_k (uncertainty.h)
+      double st = 0, sn = 0;
+      for (int k = 0; k < 2; ++k) {
+        const double w = tie.weight[a][k];
+        if (w == 0) continue;
+        st += w * std::sqrt(var_t[tie.node[a][k]]);
+        sn += w * std::sqrt(var_n[tie.node[a][k]]);
+      }
+      vt = st * st;
+      vn = sn * sn;
+    }
+    const double sigma_t = std::isfinite(vt) && !u.one_band ? std::sqrt(vt) : u.prior_sigma_k;
+    const double sigma_n = std::isfinite(vn) && !u.one_band ? std::sqrt(vn) : prior_ln;
     u.temperature_sigma_k[a] = float(std::min(sigma_t, u.prior_sigma_k));
     u.log_density_sigma[a] = float(std::min(sigma_n, prior_ln));
     const bool determined = sigma_t < options.determined_fraction * u.prior_sigma_k;

@@ -30,10 +30,18 @@
 // synthetic truth (the share of visible voxels within one and two sigma) is measured in
 // BENCHMARKS.md and by pipeline_uncertainty_test.
 //
-// A tied fit (FitOptions::axisymmetric: one temperature and density per ring of voxels) has one
-// (T, ln n) per group: `groups` (lists of active indices) then sums its members' blocks into the
-// group's precision, every member takes the group's deviations, and the noise level's degrees of
-// freedom are the residuals less two per group.
+// A tied fit (FitOptions::axisymmetric) has one (T, ln n) per node, and each voxel's parameters
+// are a weighted sum of at most two nodes' (NodeTie: a ring's node, weight 1; or the two nodes at
+// the whole radii either side of the voxel's, weights 1 - f and f, FitOptions::
+// axisymmetric_interpolate). A node's precision is the sum of its voxels' blocks, each x its
+// weight squared (the voxel's parameter moves by the weight when the node's does); a voxel's
+// deviation is its nodes' deviations weighed by its weights, sum_k w_k sigma_k: the largest the
+// interpolation's can be whatever the two nodes' correlation, which the block diagonal leaves out
+// (taken as independent, sqrt(sum_k w_k^2 sigma_k^2), half-way voxels held half the deviation,
+// and the main job's interpolated tied fits 51 to 66% of the visible voxels within one sigma;
+// BENCHMARKS.md, "A tied field linear in the radius"). The noise level's degrees of freedom are
+// the residuals less two per node. With weights 1 (`groups`: lists of active indices) every member
+// takes its group's deviations.
 //
 // `determined`: 1 where the temperature's deviation is below `determined_fraction` of the prior's,
 // i.e. where the images, not the search range, say what the temperature is.
@@ -47,6 +55,7 @@
 #ifndef FLAMERIG_FITTING_UNCERTAINTY_H_
 #define FLAMERIG_FITTING_UNCERTAINTY_H_
 
+#include <array>
 #include <cstdint>
 #include <vector>
 
@@ -76,12 +85,24 @@ struct VoxelUncertainty {
 // ChannelResponse::name(): sensitivity and filter, not gains): the images hold no temperature.
 bool OneBand(const std::vector<FitView>& views);
 
+// A tied fit's parameters: active voxel a's are sum over k of weight[a][k] x those of node
+// node[a][k] (a weight of 0 leaves its node out).
+struct NodeTie {
+  std::size_t nodes = 0;
+  std::vector<std::array<std::uint32_t, 2>> node;  // per active voxel, each < nodes
+  std::vector<std::array<double, 2>> weight;       // per active voxel, each in [0, 1]
+};
+
 // At the fitted temperatures `t`, densities `n` (per active voxel of `objective`) and exposure `s`.
 // `groups`: null, or the tied fit's groups (every active voxel in exactly one).
 VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::vector<double>& t,
                                      const std::vector<double>& n, double s,
                                      const UncertaintyOptions& options,
                                      const std::vector<std::vector<std::size_t>>* groups = nullptr);
+// The same for a fit tied to nodes (every active voxel with a weight above 0 on one node at least).
+VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::vector<double>& t,
+                                     const std::vector<double>& n, double s,
+                                     const UncertaintyOptions& options, const NodeTie& tie);
 
 // Writes the three grids into `volume` (on `grid`, whose voxels `active` are the estimate's; 0
 // elsewhere) and the noise level, the residuals' level and the determined count into its metadata

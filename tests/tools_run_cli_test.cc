@@ -289,7 +289,8 @@ TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
       {"tied", "--axisymmetric", 0.2, 40, 0},
       {"tied_given", "--axisymmetric --w-sm 2", 2.0, 40, 0},
       {"along_y", "--w-sm-along-y 10 --w-sm-across-y 0.1", 1.0, 10, 0.1},
-      {"tied_alike", "--axisymmetric --w-sm-across-y 1", 0.2, 40, 1}};
+      {"tied_alike", "--axisymmetric --w-sm-across-y 1", 0.2, 40, 1},
+      {"tied_linear", "--axisymmetric --axisymmetric-interpolate", 0.2, 40, 0}};
   std::map<std::string, FireVolume> volumes;
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
@@ -306,6 +307,12 @@ TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
     ASSERT_EQ(v.metadata_numbers.count("w_sm_along_y"), 1u);
     EXPECT_EQ(v.metadata_numbers.at("w_sm_along_y"), c.along_y);
     EXPECT_EQ(v.metadata_numbers.at("w_sm_across_y"), c.across_y);
+    // A tied fit says whether its field is linear in the radius (--axisymmetric-interpolate).
+    const bool tied = c.flags.find("--axisymmetric") != std::string::npos;
+    ASSERT_EQ(v.metadata_numbers.count("axisymmetric_interpolate"), tied ? 1u : 0u);
+    if (tied)
+      EXPECT_EQ(v.metadata_numbers.at("axisymmetric_interpolate"),
+                c.flags.find("-interpolate") != std::string::npos ? 1 : 0);
     volumes[c.name] = std::move(v);
   }
   // Scored against the truth, the report and frames.csv give the determined voxels apart.

@@ -58,6 +58,11 @@ Runner AddFit(CLI::App* command) {
                     "Fast fit: one temperature and density per ring about the flame's vertical "
                     "axis (an axisymmetric flame, as Abel inversion assumes)");
   command->add_flag(
+      "--axisymmetric-interpolate", job.fit.axisymmetric_interpolate,
+      "Fast fit: With --axisymmetric: a field linear in the radius between whole radii "
+      "instead of constant over each ring (measured, not the default: BENCHMARKS.md, "
+      "\"A tied field linear in the radius\")");
+  command->add_flag(
       "--no-sigma", [&job](std::int64_t) { job.uncertainty = false; },
       "Fast fit: do not write the per-voxel sigma grids");
   const FitOptions defaults = job.fit;  // the help states the defaults it describes

@@ -120,6 +120,10 @@ Runner AddRun(CLI::App* command) {
                     "Fit one temperature and density per ring about the flame's vertical axis "
                     "(an axisymmetric flame, as Abel inversion assumes; every frame then starts "
                     "from its own tomography)");
+  command->add_flag("--axisymmetric-interpolate", run.fit.axisymmetric_interpolate,
+                    "With --axisymmetric: a field linear in the radius between whole radii "
+                    "instead of constant over each ring (measured, not the default: BENCHMARKS.md, "
+                    "\"A tied field linear in the radius\")");
   command->add_flag("--fit-exposure", run.fit_exposure,
                     "Fit a free exposure on every frame (the paper's s), even a known one");
   command
