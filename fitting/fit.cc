@@ -571,6 +571,7 @@ struct RingTie {
       const auto& [w0, w1] = nodes.weight[a];
       b[r0] += w0 * values[a];
       d[r0] += w0 * w0;
+      if (w1 == 0) continue;  // (a value that is not finite stays in its own node)
       b[r1] += w1 * values[a];
       d[r1] += w1 * w1;
       if (r1 == r0 + 1) e[r0] += w0 * w1;  // e[r]: the (r, r + 1) entry
@@ -596,8 +597,8 @@ struct RingTie {
       for (std::size_t r = hi; r-- > lo + 1;) b[r - 1] -= c[r - 1] * b[r];
     }
     for (std::size_t a = 0; a < m; ++a)
-      values[a] =
-          nodes.weight[a][0] * b[nodes.node[a][0]] + nodes.weight[a][1] * b[nodes.node[a][1]];
+      values[a] = nodes.weight[a][0] * b[nodes.node[a][0]] +
+                  (nodes.weight[a][1] == 0 ? 0.0 : nodes.weight[a][1] * b[nodes.node[a][1]]);
   }
   // The start tied to the rings: each ring's mean temperature and mean log density (then, in the
   // fit's parameters, projected onto the tied fields: Project).
@@ -1158,7 +1159,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
         new SigmoidProblem(objective, options, st, &result.evaluations, &seen, tie.get());
     std::vector<double> u(2 * st.active.size() + 1);
     problem_function->Encode(st, u.data());
-    if (tie) {  // ring means, as the fit's parameters, onto the tied fields
+    if (tie && tie->interpolated) {  // ring means, as the fit's parameters, onto the tied fields
       tie->Project(u.data());
       tie->Project(u.data() + st.active.size());
     }

@@ -268,7 +268,9 @@ struct FitOptions {
   double axisymmetric_along_y = 40, axisymmetric_across_y = 0;
   // The tied fit's field between whole radii: constant over each ring, a voxel taking the node at
   // its radius rounded (false, the default); or linear in the radius, each voxel interpolating
-  // the nodes at the whole radii either side of its own (true; `--axisymmetric-interpolate`), so
+  // the nodes at the whole radii either side of its own (true; `--axisymmetric-interpolate`; linear
+  // in the fit's parameters, the logit of T's place in its search range and likewise of ln n's, so
+  // nearly linear in T and ln n between two nodes a whole voxel apart), so
   // that the radial profile is not a staircase whose steps fall where the grid happens to cut the
   // flame. Measured on 2026-12-03 (BENCHMARKS.md, issue 19, "A tied field linear in the radius"),
   // T RMS / bias / emission-weighted RMS K, soot over the truth's, share within one sigma: the main
@@ -322,7 +324,8 @@ struct RingProfilePoint {
   double axis_x_m = 0, axis_y_m = 0, axis_z_m = 0;
   int radius_voxels = 0;           // the ring's radius in whole voxels
   double radius_m = 0;             // the same in metres (its voxels lie within half a voxel)
-  std::size_t voxels = 0;          // the ring's voxels (their values are the ring's)
+  std::size_t voxels = 0;          // the ring's voxels (their values are the ring's, or with
+                                   // axisymmetric_interpolate, the values below are their means)
   double temperature_k = 0;        // the ring's temperature
   double temperature_sigma_k = 0;  // its one-sigma uncertainty (0 when not estimated)
   double density_per_m3 = 0;       // the ring's soot density

@@ -40,16 +40,18 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
   tie.nodes = groups->size();
   tie.node.assign(na, {0, 0});
   tie.weight.assign(na, {0.0, 0.0});
-  std::size_t covered = 0;
-  for (std::size_t g = 0; g < groups->size(); ++g) {
+  for (std::size_t g = 0; g < groups->size(); ++g)
     for (std::size_t a : (*groups)[g]) {
       if (a >= na) throw InputError("uncertainty: a group names voxel " + std::to_string(a));
+      if (tie.weight[a][0] > 0)
+        throw InputError("uncertainty: voxel " + std::to_string(a) + " is in two groups");
       tie.node[a] = {std::uint32_t(g), std::uint32_t(g)};
       tie.weight[a] = {1.0, 0.0};
     }
-    covered += (*groups)[g].size();
-  }
-  if (covered != na) throw InputError("uncertainty: the groups do not cover the active voxels");
+  for (std::size_t a = 0; a < na; ++a)
+    if (!(tie.weight[a][0] > 0))
+      throw InputError("uncertainty: the groups do not cover the active voxels (voxel " +
+                       std::to_string(a) + ")");
   return EstimateUncertainty(objective, t, n, s, options, tie);
 }
 
@@ -70,6 +72,9 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
         if (tie.node[a][k] >= tie.nodes || !(tie.weight[a][k] >= 0 && tie.weight[a][k] <= 1))
           throw InputError("uncertainty: voxel " + std::to_string(a) +
                            "'s tie names a node or a weight out of range");
+    for (std::size_t a = 0; a < na; ++a)
+      if (!(tie.weight[a][0] > 0 || tie.weight[a][1] > 0))
+        throw InputError("uncertainty: voxel " + std::to_string(a) + " weighs no node");
   }
   // Tied voxels share their nodes' (T, ln n): a node's block is its voxels' summed, each x its
   // weight squared.
@@ -84,11 +89,12 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
     for (std::size_t a = 0; a < na; ++a)
       for (int k = 0; k < 2; ++k) {
         const double w2 = tie.weight[a][k] * tie.weight[a][k];
+        if (w2 == 0) continue;
         const std::uint32_t r = tie.node[a][k];
         tt[r] += w2 * c.tt[a];
         tn[r] += w2 * c.tn[a];
         nn[r] += w2 * c.nn[a];
-        if (w2 > 0) depended[r] = 1;
+        depended[r] = 1;
       }
     used = std::count(depended.begin(), depended.end(), 1);
   }

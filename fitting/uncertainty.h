@@ -86,7 +86,9 @@ struct VoxelUncertainty {
 bool OneBand(const std::vector<FitView>& views);
 
 // A tied fit's parameters: active voxel a's are sum over k of weight[a][k] x those of node
-// node[a][k] (a weight of 0 leaves its node out).
+// node[a][k] (a weight of 0 leaves its node out). FastFit's interpolated tie weighs its nodes in
+// the fit's parameters (the logit of T's place in its range, likewise of ln n's), and the curvature
+// blocks are in T and ln n: the weights hold there to first order, between nodes of like values.
 struct NodeTie {
   std::size_t nodes = 0;
   std::vector<std::array<std::uint32_t, 2>> node;  // per active voxel, each < nodes

@@ -327,7 +327,7 @@ TEST(Uncertainty, ANodeTiePoolsEachNodesVoxelsByTheirWeightsSquared) {
   const UncertaintyOptions options;
   const VoxelUncertainty u = EstimateUncertainty(objective, s.t, s.n, 1.0, options, tie);
   const FitObjective::Curvature c = objective.DataCurvature(s.t, s.n, 1.0);
-  const double noise2 = u.sigma_lab * u.sigma_lab;
+  const double noise2 = std::max(u.sigma_lab * u.sigma_lab, 1e-4);  // uncertainty.cc's floor
   const double prior_t = u.prior_sigma_k,
                prior_n = std::log(objective.n_max() / objective.n_min()) / std::sqrt(12.0);
   double var_t[2], var_n[2];
@@ -371,6 +371,14 @@ TEST(Uncertainty, ANodeTiePoolsEachNodesVoxelsByTheirWeightsSquared) {
   bad = tie;
   bad.node.pop_back();
   EXPECT_THROW(EstimateUncertainty(objective, s.t, s.n, 1.0, options, bad), InputError);
+  bad = tie;
+  bad.weight[3] = {0.0, 0.0};  // a voxel that weighs no node
+  EXPECT_THROW(EstimateUncertainty(objective, s.t, s.n, 1.0, options, bad), InputError);
+  // Groups: a voxel in two groups (and so another in none) is refused, not given a sigma of 0.
+  std::vector<std::vector<std::size_t>> twice(m);
+  for (std::size_t a = 0; a < m; ++a) twice[a] = {a};
+  twice[1] = {0};
+  EXPECT_THROW(EstimateUncertainty(objective, s.t, s.n, 1.0, options, &twice), InputError);
 }
 
 // The sigma's noise level (uncertainty.h): from the residuals' differences between neighbouring

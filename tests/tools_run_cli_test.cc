@@ -358,7 +358,8 @@ TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
   std::printf("roughness along y / along x: untied %.2f with the pairs alike, %.2f along y x 100\n",
               anisotropy(volumes["default"]), anisotropy(volumes["along_y"]));
   EXPECT_LT(anisotropy(volumes["along_y"]), 0.8 * anisotropy(volumes["default"]));
-  for (const std::string flags : {"--w-sm -1", "--w-sm-along-y -1", "--w-sm-across-y nan"}) {
+  for (const std::string flags :
+       {"--w-sm -1", "--w-sm-along-y -1", "--w-sm-across-y nan", "--axisymmetric-interpolate"}) {
     const Result bad = Shell(RunCommand(dir / "sim", dir / "bad", flags));
     EXPECT_EQ(bad.status, 2) << bad.output;
     EXPECT_NE(bad.output.find(flags.substr(0, flags.find(' '))), std::string::npos) << bad.output;
