@@ -310,9 +310,10 @@ TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
     // A tied fit says whether its field is linear in the radius (--axisymmetric-interpolate).
     const bool tied = c.flags.find("--axisymmetric") != std::string::npos;
     ASSERT_EQ(v.metadata_numbers.count("axisymmetric_interpolate"), tied ? 1u : 0u);
-    if (tied)
+    if (tied) {
       EXPECT_EQ(v.metadata_numbers.at("axisymmetric_interpolate"),
                 c.flags.find("-interpolate") != std::string::npos ? 1 : 0);
+    }
     volumes[c.name] = std::move(v);
   }
   // Scored against the truth, the report and frames.csv give the determined voxels apart.
