@@ -279,7 +279,9 @@ struct FitOptions {
   // and with a weak term across the axis too (axisymmetric_across_y 0.5) 76.0 / +11.6 / 54.8, 0.74
   // to 0.91, 61 to 76%; `simulate`'s candle seeds 3, 5, 7, 9, three frames each, 85.6 / +23.2 /
   // 53.4, 66 to 81% -> 79.3 / +22.4 / 46.2, 76 to 85% (with 0.5 across: 80.5 / +28.1 / 45.2, 75 to
-  // 86%). Not the default until the benchmarks are re-run with it.
+  // 86%). The sigma there was the bound sum_k w_k sigma_k; from the nodes' covariance (since
+  // 2026-12-03 16:40 UTC, uncertainty.h) the main job holds 51 to 66% (55 to 67% with 0.5 across)
+  // and the seeds 69 to 81% (65 to 81%). Not the default until the benchmarks are re-run with it.
   bool axisymmetric_interpolate = false;
   // The cameras' exposure when it is known (the recording's exposure time x gain, in the
   // renderer's units, as the tomography takes it): > 0 holds the fit's exposure there, so that

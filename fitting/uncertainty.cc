@@ -3,6 +3,10 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <numeric>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
 
 #include "core/error.h"
 #include "fitting/camera_response.h"
@@ -13,6 +17,83 @@ namespace {
 // Neighbouring fire-pixel pairs (3 residual differences each) below which the differences do not
 // give the noise level: 30 pairs.
 constexpr std::int64_t kMinDifferences = 90;
+
+// Nodes in one component of the tie (nodes joined by a voxel that weighs both) above which its
+// precision is not inverted densely: 256 nodes, a 512 x 512 matrix. An interpolated tie's
+// components are its layers, a node per voxel of the radius (tens).
+constexpr std::size_t kMaxDenseNodes = 256;
+
+// The variances of each tied voxel's T and ln n from its nodes' exact covariance: the inverse of
+// the nodes' precision, which sums over voxels w w^T (x) (the voxel's block / noise2) and adds the
+// prior's diagonal, taken per component of nodes that share voxels. A voxel whose nodes are a
+// component alone (a ring), whose component is larger than kMaxDenseNodes, or whose component's
+// precision the factorisation finds not positive definite gets -1 (the caller's bound instead).
+void NodeCovariance(const NodeTie& tie, const FitObjective::Curvature& c, double noise2,
+                    double prior_t, double prior_n, std::vector<double>* var_t,
+                    std::vector<double>* var_n) {
+  const std::size_t na = tie.node.size();
+  var_t->assign(na, -1.0);
+  var_n->assign(na, -1.0);
+  // Components by union-find over the nodes.
+  std::vector<std::uint32_t> parent(tie.nodes);
+  std::iota(parent.begin(), parent.end(), 0u);
+  const auto find = [&parent](std::uint32_t x) {
+    while (parent[x] != x) x = parent[x] = parent[parent[x]];
+    return x;
+  };
+  for (std::size_t a = 0; a < na; ++a)
+    if (tie.weight[a][0] > 0 && tie.weight[a][1] > 0) {
+      const std::uint32_t x = find(tie.node[a][0]), y = find(tie.node[a][1]);
+      if (x != y) parent[std::max(x, y)] = std::min(x, y);
+    }
+  std::vector<std::vector<std::uint32_t>> members(tie.nodes);  // nodes per component root
+  for (std::uint32_t r = 0; r < tie.nodes; ++r) members[find(r)].push_back(r);
+  std::vector<std::vector<std::size_t>> voxels(tie.nodes);  // voxels per component root
+  for (std::size_t a = 0; a < na; ++a)
+    voxels[find(tie.weight[a][0] > 0 ? tie.node[a][0] : tie.node[a][1])].push_back(a);
+  std::vector<std::size_t> local(tie.nodes, 0);  // a node's place in its component
+  for (std::uint32_t root = 0; root < tie.nodes; ++root) {
+    const std::vector<std::uint32_t>& nodes = members[root];
+    if (nodes.size() < 2 || nodes.size() > kMaxDenseNodes) continue;
+    for (std::size_t i = 0; i < nodes.size(); ++i) local[nodes[i]] = i;
+    const Eigen::Index m = Eigen::Index(2 * nodes.size());
+    Eigen::MatrixXd h = Eigen::MatrixXd::Zero(m, m);
+    for (std::size_t a : voxels[root])
+      for (int k = 0; k < 2; ++k)
+        for (int l = 0; l < 2; ++l) {
+          const double w = tie.weight[a][k] * tie.weight[a][l] / noise2;
+          if (w == 0) continue;
+          const Eigen::Index i = Eigen::Index(2 * local[tie.node[a][k]]),
+                             j = Eigen::Index(2 * local[tie.node[a][l]]);
+          h(i, j) += w * c.tt[a];
+          h(i, j + 1) += w * c.tn[a];
+          h(i + 1, j) += w * c.tn[a];
+          h(i + 1, j + 1) += w * c.nn[a];
+        }
+    for (Eigen::Index i = 0; i < m; i += 2) {
+      h(i, i) += 1.0 / (prior_t * prior_t);
+      h(i + 1, i + 1) += 1.0 / (prior_n * prior_n);
+    }
+    const Eigen::LLT<Eigen::MatrixXd> llt(h);
+    if (llt.info() != Eigen::Success) continue;
+    const Eigen::MatrixXd cov = llt.solve(Eigen::MatrixXd::Identity(m, m));
+    if (!cov.allFinite()) continue;
+    for (std::size_t a : voxels[root]) {
+      double vt = 0, vn = 0;
+      for (int k = 0; k < 2; ++k)
+        for (int l = 0; l < 2; ++l) {
+          const double w = tie.weight[a][k] * tie.weight[a][l];
+          if (w == 0) continue;
+          const Eigen::Index i = Eigen::Index(2 * local[tie.node[a][k]]),
+                             j = Eigen::Index(2 * local[tie.node[a][l]]);
+          vt += w * cov(i, j);
+          vn += w * cov(i + 1, j + 1);
+        }
+      (*var_t)[a] = std::max(vt, 0.0);
+      (*var_n)[a] = std::max(vn, 0.0);
+    }
+  }
+}
 
 }  // namespace
 
@@ -132,12 +213,19 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
     var_t[r] = hnn / det;
     var_n[r] = htt / det;
   }
+  // A tied voxel's deviations: from its nodes' exact covariance where the nodes that share voxels
+  // form a component small enough to invert densely (uncertainty.h), else sum_k w_k sigma_k.
+  std::vector<double> voxel_var_t, voxel_var_n;
+  if (tied) NodeCovariance(tie, c, noise2, u.prior_sigma_k, prior_ln, &voxel_var_t, &voxel_var_n);
   u.temperature_sigma_k.resize(na);
   u.log_density_sigma.resize(na);
   u.determined.resize(na);
   for (std::size_t a = 0; a < na; ++a) {
     double vt = var_t[tied ? 0 : a], vn = var_n[tied ? 0 : a];
-    if (tied) {  // sum_k w_k sigma_k (uncertainty.h)
+    if (tied && voxel_var_t[a] >= 0) {
+      vt = voxel_var_t[a];
+      vn = voxel_var_n[a];
+    } else if (tied) {  // sum_k w_k sigma_k (uncertainty.h)
       double st = 0, sn = 0;
       for (int k = 0; k < 2; ++k) {
         const double w = tie.weight[a][k];

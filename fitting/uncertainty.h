@@ -33,15 +33,21 @@
 // A tied fit (FitOptions::axisymmetric) has one (T, ln n) per node, and each voxel's parameters
 // are a weighted sum of at most two nodes' (NodeTie: a ring's node, weight 1; or the two nodes at
 // the whole radii either side of the voxel's, weights 1 - f and f, FitOptions::
-// axisymmetric_interpolate). A node's precision is the sum of its voxels' blocks, each x its
-// weight squared (the voxel's parameter moves by the weight when the node's does); a voxel's
-// deviation is its nodes' deviations weighed by its weights, sum_k w_k sigma_k: the largest the
-// interpolation's can be whatever the two nodes' correlation, which the block diagonal leaves out
-// (taken as independent, sqrt(sum_k w_k^2 sigma_k^2), half-way voxels held half the deviation,
-// and the main job's interpolated tied fits 51 to 66% of the visible voxels within one sigma;
-// BENCHMARKS.md, "A tied field linear in the radius"). The noise level's degrees of freedom are
-// the residuals less two per node. With weights 1 (`groups`: lists of active indices) every member
-// takes its group's deviations.
+// axisymmetric_interpolate). The nodes' precision is A^T H A plus the prior, where H holds the
+// voxels' blocks and A the weights (a voxel's parameter moves by its weight when a node's does):
+// a node's diagonal block sums its voxels' blocks x their weights squared, and two nodes that share
+// voxels are coupled by the blocks x the product of the weights. Its inverse, taken per component
+// of nodes that share voxels (an interpolated tie's layer; a ring is a component alone, where this
+// is the 2x2 algebra above), gives each voxel's variance as w^T C w over its nodes' covariance C.
+// Nodes that share a voxel trade against each other (one up, the other down, the voxel between
+// them unmoved), which the nodes' own blocks leave out: their deviations grow, and a half-way
+// voxel's is what the images hold of it. Measured on the interpolated tied fit (BENCHMARKS.md, "The
+// interpolated tie's sigma from its nodes' covariance"): the main job 51 to 66% of the visible
+// voxels within one sigma, `simulate`'s candle seeds 69 to 81%. Until 2026-12-03 a voxel's
+// deviation was the bound sum_k w_k sigma_k over the nodes' block-diagonal deviations (58 to 75%
+// and 76 to 85%); that bound stays for a component of more than 256 nodes or one the Cholesky
+// factorisation refuses. The noise level's degrees of freedom are the residuals less two per node.
+// With weights 1 (`groups`: lists of active indices) every member takes its group's deviations.
 //
 // `determined`: 1 where the temperature's deviation is below `determined_fraction` of the prior's,
 // i.e. where the images, not the search range, say what the temperature is.

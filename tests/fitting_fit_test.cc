@@ -16,6 +16,7 @@
 #include <vector>
 
 #include <tbb/global_control.h>
+#include <Eigen/LU>
 
 #include "calibration/radiometry.h"
 #include "calibration/synthetic_rig.h"
@@ -304,69 +305,81 @@ TEST(Uncertainty, GroupsOfOneAreTheVoxelsOwnAndAGroupPoolsItsMembers) {
   EXPECT_THROW(EstimateUncertainty(objective, s.t, s.n, 1.0, options, &beyond), InputError);
 }
 
-// A fit tied to nodes with weights (uncertainty.h, NodeTie): each node's precision is its voxels'
-// curvature blocks x their weights squared, plus the prior; each voxel's deviation its nodes'
-// deviations x its weights, summed. Oracle: the same 2x2 algebra worked out here from the data's
-// curvature blocks (FitObjective::DataCurvature) at the estimate's own noise level, on a tie where
-// voxels 0 and 1 each hold a node of their own and every other voxel lies between the two (weights
-// 0.25 and 0.75). Weights out of [0, 1], a node out of range and a tie of the wrong size are refused.
-TEST(Uncertainty, ANodeTiePoolsEachNodesVoxelsByTheirWeightsSquared) {
+// A fit tied to nodes with weights (uncertainty.h, NodeTie): each voxel's deviations from its
+// nodes' exact covariance, the inverse of A^T H A + the prior, where A maps the nodes' (T, ln n)
+// to the voxels' by the weights and H is the voxels' curvature blocks over the noise level.
+// Oracle: that product formed as dense matrices here from the data's curvature blocks
+// (FitObjective::DataCurvature) at the estimate's own noise level and inverted by LU, on a tie
+// where voxels 0 and 1 each hold a node of their own, every third voxel from 2 on holds node 2
+// alone (a component of one node, the ring's 2x2 algebra) and every other voxel lies between
+// nodes 0 and 1 (weights 0.25 and 0.75). Weights out of [0, 1], a node out of range, a tie of
+// the wrong size and a voxel that weighs no node are refused.
+TEST(Uncertainty, ANodeTieTakesEachVoxelsDeviationFromItsNodesCovariance) {
   const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
   SmallScene s = MakeSmallScene(soot);
   const FitObjective objective(s.grid, s.active, s.views, soot, RenderOptions(),
                                ObjectiveOptions());
   const std::size_t m = s.active.size();
-  ASSERT_GT(m, 3u);
+  ASSERT_GT(m, 5u);
   NodeTie tie;
-  tie.nodes = 2;
+  tie.nodes = 3;
   tie.node.assign(m, {0, 1});
   tie.weight.assign(m, {0.25, 0.75});
   tie.weight[0] = {1.0, 0.0};
   tie.node[1] = {1, 0};
   tie.weight[1] = {1.0, 0.0};
+  for (std::size_t a = 2; a < m; a += 3) {
+    tie.node[a] = {2, 2};
+    tie.weight[a] = {1.0, 0.0};
+  }
   const UncertaintyOptions options;
   const VoxelUncertainty u = EstimateUncertainty(objective, s.t, s.n, 1.0, options, tie);
   const FitObjective::Curvature c = objective.DataCurvature(s.t, s.n, 1.0);
   const double noise2 = std::max(u.sigma_lab * u.sigma_lab, 1e-4);  // uncertainty.cc's floor
   const double prior_t = u.prior_sigma_k,
                prior_n = std::log(objective.n_max() / objective.n_min()) / std::sqrt(12.0);
-  double var_t[2], var_n[2];
-  for (int node = 0; node < 2; ++node) {
-    double tt = 0, tn = 0, nn = 0;
-    for (std::size_t a = 0; a < m; ++a) {
-      const double w = a == 0   ? (node == 0 ? 1.0 : 0.0)
-                       : a == 1 ? (node == 1 ? 1.0 : 0.0)
-                                : (node == 0 ? 0.25 : 0.75);
-      tt += w * w * c.tt[a];
-      tn += w * w * c.tn[a];
-      nn += w * w * c.nn[a];
+  const Eigen::Index rows = Eigen::Index(2 * m), cols = 6;
+  Eigen::MatrixXd map = Eigen::MatrixXd::Zero(rows, cols), h = Eigen::MatrixXd::Zero(rows, rows);
+  for (std::size_t a = 0; a < m; ++a) {
+    const Eigen::Index r = Eigen::Index(2 * a);
+    for (int k = 0; k < 2; ++k) {
+      map(r, 2 * tie.node[a][k]) += tie.weight[a][k];
+      map(r + 1, 2 * tie.node[a][k] + 1) += tie.weight[a][k];
     }
-    Eigen::Matrix2d h;
-    h << tt / noise2 + 1 / (prior_t * prior_t), tn / noise2, tn / noise2,
-        nn / noise2 + 1 / (prior_n * prior_n);
-    const Eigen::Matrix2d cov = h.inverse();
-    var_t[node] = cov(0, 0);
-    var_n[node] = cov(1, 1);
+    h(r, r) = c.tt[a] / noise2;
+    h(r, r + 1) = h(r + 1, r) = c.tn[a] / noise2;
+    h(r + 1, r + 1) = c.nn[a] / noise2;
   }
-  EXPECT_NEAR(u.temperature_sigma_k[0], std::min(std::sqrt(var_t[0]), prior_t),
-              1e-4 * u.temperature_sigma_k[0]);
-  EXPECT_NEAR(u.temperature_sigma_k[1], std::min(std::sqrt(var_t[1]), prior_t),
-              1e-4 * u.temperature_sigma_k[1]);
-  for (std::size_t a = 2; a < m; ++a) {
-    EXPECT_NEAR(u.temperature_sigma_k[a],
-                std::min(0.25 * std::sqrt(var_t[0]) + 0.75 * std::sqrt(var_t[1]), prior_t),
+  Eigen::MatrixXd precision = map.transpose() * h * map;
+  for (Eigen::Index i = 0; i < cols; i += 2) {
+    precision(i, i) += 1 / (prior_t * prior_t);
+    precision(i + 1, i + 1) += 1 / (prior_n * prior_n);
+  }
+  const Eigen::MatrixXd voxel_cov = map * precision.fullPivLu().inverse() * map.transpose();
+  int between = 0;
+  for (std::size_t a = 0; a < m; ++a) {
+    const Eigen::Index r = Eigen::Index(2 * a);
+    EXPECT_NEAR(u.temperature_sigma_k[a], std::min(std::sqrt(voxel_cov(r, r)), prior_t),
                 1e-4 * u.temperature_sigma_k[a])
         << a;
-    EXPECT_NEAR(u.log_density_sigma[a],
-                std::min(0.25 * std::sqrt(var_n[0]) + 0.75 * std::sqrt(var_n[1]), prior_n),
+    EXPECT_NEAR(u.log_density_sigma[a], std::min(std::sqrt(voxel_cov(r + 1, r + 1)), prior_n),
                 1e-4 * u.log_density_sigma[a])
         << a;
+    between += tie.weight[a][1] > 0;
   }
+  EXPECT_GT(between, 2);
+  // The nodes are not independent: the exact deviation of a voxel between them differs from both
+  // readings of its nodes' own deviations (independent, and the sum of weighed deviations).
+  const double var0 = voxel_cov(0, 0), var1 = voxel_cov(2, 2);
+  const double independent = std::sqrt(0.0625 * var0 + 0.5625 * var1),
+               summed = 0.25 * std::sqrt(var0) + 0.75 * std::sqrt(var1);
+  EXPECT_GT(std::abs(u.temperature_sigma_k[3] - independent), 1e-3 * independent);
+  EXPECT_GT(std::abs(u.temperature_sigma_k[3] - summed), 1e-3 * summed);
   NodeTie bad = tie;
   bad.weight[2] = {1.5, 0.0};
   EXPECT_THROW(EstimateUncertainty(objective, s.t, s.n, 1.0, options, bad), InputError);
   bad = tie;
-  bad.node[2] = {0, 2};
+  bad.node[2] = {0, 3};
   EXPECT_THROW(EstimateUncertainty(objective, s.t, s.n, 1.0, options, bad), InputError);
   bad = tie;
   bad.node.pop_back();
