@@ -18,19 +18,14 @@ namespace {
 // give the noise level: 30 pairs.
 constexpr std::int64_t kMinDifferences = 90;
 
-// Nodes in one component of the tie (nodes joined by a voxel that weighs both) above which its
-// precision is not inverted densely: 256 nodes, a 512 x 512 matrix. An interpolated tie's
-// components are its layers, a node per voxel of the radius (tens).
-constexpr std::size_t kMaxDenseNodes = 256;
-
 // The variances of each tied voxel's T and ln n from its nodes' exact covariance: the inverse of
 // the nodes' precision, which sums over voxels w w^T (x) (the voxel's block / noise2) and adds the
 // prior's diagonal, taken per component of nodes that share voxels. A voxel whose nodes are a
-// component alone (a ring), whose component is larger than kMaxDenseNodes, or whose component's
+// component alone (a ring), whose component has more than `max_nodes`, or whose component's
 // precision the factorisation finds not positive definite gets -1 (the caller's bound instead).
 void NodeCovariance(const NodeTie& tie, const FitObjective::Curvature& c, double noise2,
-                    double prior_t, double prior_n, std::vector<double>* var_t,
-                    std::vector<double>* var_n) {
+                    double prior_t, double prior_n, std::size_t max_nodes,
+                    std::vector<double>* var_t, std::vector<double>* var_n) {
   const std::size_t na = tie.node.size();
   var_t->assign(na, -1.0);
   var_n->assign(na, -1.0);
@@ -54,7 +49,7 @@ void NodeCovariance(const NodeTie& tie, const FitObjective::Curvature& c, double
   std::vector<std::size_t> local(tie.nodes, 0);  // a node's place in its component
   for (std::uint32_t root = 0; root < tie.nodes; ++root) {
     const std::vector<std::uint32_t>& nodes = members[root];
-    if (nodes.size() < 2 || nodes.size() > kMaxDenseNodes) continue;
+    if (nodes.size() < 2 || nodes.size() > max_nodes) continue;
     for (std::size_t i = 0; i < nodes.size(); ++i) local[nodes[i]] = i;
     const Eigen::Index m = Eigen::Index(2 * nodes.size());
     Eigen::MatrixXd h = Eigen::MatrixXd::Zero(m, m);
@@ -216,7 +211,9 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
   // A tied voxel's deviations: from its nodes' exact covariance where the nodes that share voxels
   // form a component small enough to invert densely (uncertainty.h), else sum_k w_k sigma_k.
   std::vector<double> voxel_var_t, voxel_var_n;
-  if (tied) NodeCovariance(tie, c, noise2, u.prior_sigma_k, prior_ln, &voxel_var_t, &voxel_var_n);
+  if (tied)
+    NodeCovariance(tie, c, noise2, u.prior_sigma_k, prior_ln, options.max_dense_nodes, &voxel_var_t,
+                   &voxel_var_n);
   u.temperature_sigma_k.resize(na);
   u.log_density_sigma.resize(na);
   u.determined.resize(na);

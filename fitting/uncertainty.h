@@ -45,9 +45,10 @@
 // interpolated tie's sigma from its nodes' covariance"): the main job 51 to 66% of the visible
 // voxels within one sigma, `simulate`'s candle seeds 69 to 81%. Until 2026-12-03 a voxel's
 // deviation was the bound sum_k w_k sigma_k over the nodes' block-diagonal deviations (58 to 75%
-// and 76 to 85%); that bound stays for a component of more than 256 nodes or one the Cholesky
-// factorisation refuses. The noise level's degrees of freedom are the residuals less two per node.
-// With weights 1 (`groups`: lists of active indices) every member takes its group's deviations.
+// and 76 to 85%); that bound stays for a component of more than `max_dense_nodes` nodes or one the
+// Cholesky factorisation refuses. The noise level's degrees of freedom are the residuals less two
+// per node. With weights 1 (`groups`: lists of active indices) every member takes its group's
+// deviations.
 //
 // `determined`: 1 where the temperature's deviation is below `determined_fraction` of the prior's,
 // i.e. where the images, not the search range, say what the temperature is.
@@ -72,7 +73,11 @@ namespace flamerig {
 
 struct UncertaintyOptions {
   double determined_fraction = 0.5;  // of the prior's temperature deviation
-  void Validate() const;             // throws InputError naming the field
+  // A tied fit's component of nodes that share voxels is inverted densely up to this many nodes
+  // (a 2n x 2n matrix); a larger one takes the bound sum_k w_k sigma_k. An interpolated tie's
+  // components are its layers, a node per voxel of the radius (tens).
+  std::size_t max_dense_nodes = 256;
+  void Validate() const;  // throws InputError naming the field
 };
 
 struct VoxelUncertainty {

@@ -375,6 +375,40 @@ TEST(Uncertainty, ANodeTieTakesEachVoxelsDeviationFromItsNodesCovariance) {
                summed = 0.25 * std::sqrt(var0) + 0.75 * std::sqrt(var1);
   EXPECT_GT(std::abs(u.temperature_sigma_k[3] - independent), 1e-3 * independent);
   EXPECT_GT(std::abs(u.temperature_sigma_k[3] - summed), 1e-3 * summed);
+  // A component larger than max_dense_nodes takes the bound sum_k w_k sigma_k over the nodes'
+  // deviations from their own blocks: each node's 2x2 precision sums its voxels' blocks x their
+  // weights squared, plus the prior.
+  UncertaintyOptions bound_options;
+  bound_options.max_dense_nodes = 1;
+  const VoxelUncertainty b = EstimateUncertainty(objective, s.t, s.n, 1.0, bound_options, tie);
+  double node_var_t[3], node_var_n[3];
+  for (std::uint32_t node = 0; node < 3; ++node) {
+    Eigen::Matrix2d block = Eigen::Matrix2d::Zero();
+    for (std::size_t a = 0; a < m; ++a)
+      for (int k = 0; k < 2; ++k) {
+        if (tie.node[a][k] != node) continue;
+        const double w2 = tie.weight[a][k] * tie.weight[a][k];
+        block(0, 0) += w2 * c.tt[a] / noise2;
+        block(0, 1) += w2 * c.tn[a] / noise2;
+        block(1, 1) += w2 * c.nn[a] / noise2;
+      }
+    block(1, 0) = block(0, 1);
+    block(0, 0) += 1 / (prior_t * prior_t);
+    block(1, 1) += 1 / (prior_n * prior_n);
+    const Eigen::Matrix2d cov = block.inverse();
+    node_var_t[node] = cov(0, 0);
+    node_var_n[node] = cov(1, 1);
+  }
+  for (std::size_t a = 0; a < m; ++a) {
+    double st = 0, sn = 0;
+    for (int k = 0; k < 2; ++k) {
+      st += tie.weight[a][k] * std::sqrt(node_var_t[tie.node[a][k]]);
+      sn += tie.weight[a][k] * std::sqrt(node_var_n[tie.node[a][k]]);
+    }
+    EXPECT_NEAR(b.temperature_sigma_k[a], std::min(st, prior_t), 1e-4 * b.temperature_sigma_k[a])
+        << a;
+    EXPECT_NEAR(b.log_density_sigma[a], std::min(sn, prior_n), 1e-4 * b.log_density_sigma[a]) << a;
+  }
   NodeTie bad = tie;
   bad.weight[2] = {1.5, 0.0};
   EXPECT_THROW(EstimateUncertainty(objective, s.t, s.n, 1.0, options, bad), InputError);
