@@ -550,6 +550,21 @@ TEST(Cli, FitASimulatedFrameSet) {
   Result nocam = Flamerig("fit --rig " + rig + " --images " + images + " --out x.vdb --views cam9");
   EXPECT_EQ(nocam.status, 1);
   EXPECT_NE(nocam.output.find("cam9"), std::string::npos) << nocam.output;
+  // A neighbour weight too strong for the tied fit's factor along the axis (40 x 3e10 > 1e12) is
+  // an untied fit's to take, and refused for a tied one by name (until 2026-12-03 `--w-sm` set the
+  // tied weight too, and an untied fit was refused with the tied fit's message).
+  Result strong = Flamerig("fit --rig " + rig + " --images " + images + " --out " +
+                           (dir / "strong.vdb").string() + " --resolution 12 --w-sm 3e10");
+  EXPECT_EQ(strong.status, 0) << strong.output;
+  EXPECT_EQ(strong.output.find("axisymmetric_w_sm"), std::string::npos) << strong.output;
+  for (const std::string& command :
+       {"fit --rig " + rig + " --images " + images + " --out " + (dir / "tied.vdb").string(),
+        "run --rig " + rig + " --images " + (dir / "data" / "frames").string() + " --out " +
+            (dir / "tied_run").string()}) {
+    Result tied = Flamerig(command + " --resolution 12 --w-sm 3e10 --axisymmetric");
+    EXPECT_NE(tied.status, 0) << command;
+    EXPECT_NE(tied.output.find("axisymmetric_w_sm"), std::string::npos) << tied.output;
+  }
   fs::remove_all(dir);
 }
 
