@@ -115,7 +115,8 @@ std::string FitOptions::Key() const {
     << axisymmetric << " (w_sm " << axisymmetric_w_sm << " x " << axisymmetric_along_y
     << " along y, x " << axisymmetric_across_y << " across, interpolate "
     << axisymmetric_interpolate << "), vary " << vary.temperature << vary.density
-    << ", uncertainty " << estimate_uncertainty << " (" << uncertainty.determined_fraction << ")";
+    << ", uncertainty " << estimate_uncertainty << " (" << uncertainty.determined_fraction
+    << ", dense up to " << uncertainty.max_dense_nodes << " nodes)";
   return k.str();
 }
 

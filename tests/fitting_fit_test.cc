@@ -987,20 +987,23 @@ TEST(FitOptions, TheKeyNamesEveryField) {
       [](FitOptions& f) { f.known_exposure = 2; },
       [](FitOptions& f) { f.vary.temperature = false; },  // vary: both below
       [](FitOptions& f) { f.estimate_uncertainty = true; },
-      [](FitOptions& f) { f.uncertainty.determined_fraction = 0.25; },
+      [](FitOptions& f) { f.uncertainty.determined_fraction = 0.25; },  // uncertainty: below
   };
   const std::vector<Change> vary = {[](FitOptions& f) { f.vary.temperature = false; },
                                     [](FitOptions& f) { f.vary.density = false; }};
+  const std::vector<Change> uncertainty = {
+      [](FitOptions& f) { f.uncertainty.determined_fraction = 0.25; },
+      [](FitOptions& f) { f.uncertainty.max_dense_nodes = 8; }};
   EXPECT_EQ(FieldCount<FitOptions>(), fit.size());
   EXPECT_EQ(FieldCount<ObjectiveOptions>(), objective.size());
   EXPECT_EQ(FieldCount<RenderOptions>(), render.size());
   EXPECT_EQ(FieldCount<FitSelection>(), vary.size());
-  EXPECT_EQ(FieldCount<UncertaintyOptions>(), 1u);  // determined_fraction, in `fit`
+  EXPECT_EQ(FieldCount<UncertaintyOptions>(), uncertainty.size());
 
   const std::string plain = FitOptions().Key();
   std::set<std::string> keys = {plain};
   std::size_t changes = 0;
-  for (const auto* list : {&objective, &render, &fit, &vary})
+  for (const auto* list : {&objective, &render, &fit, &vary, &uncertainty})
     for (std::size_t i = 0; i < list->size(); ++i) {
       FitOptions changed;
       (*list)[i](changed);
@@ -1010,7 +1013,7 @@ TEST(FitOptions, TheKeyNamesEveryField) {
       ++changes;
     }
   // Changes of different fields give different keys (the repeats in `fit` name the same field).
-  EXPECT_EQ(keys.size(), 1 + changes - 3);
+  EXPECT_EQ(keys.size(), 1 + changes - 4);
   // Numbers keep every digit: a weight 1e-17 apart is another fit.
   FitOptions close;
   close.objective.w_sm = std::nextafter(1.0, 2.0);

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 #include <signal.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -343,9 +344,19 @@ void AddDirectionFlags(CLI::App* command, DirectionFlags* flags, const FitOption
       ->check(Between(0, ObjectiveOptions::kMaxDirectionFactor));
 }
 
-void ApplyDirectionFlags(const DirectionFlags& flags, FitOptions* fit) {
+void ApplyNeighbourFlags(std::optional<double> w_sm, const DirectionFlags& flags, FitOptions* fit) {
+  if (w_sm) fit->objective.w_sm = *w_sm;
+  if (w_sm && fit->axisymmetric) fit->axisymmetric_w_sm = *w_sm;
   if (flags.along_y) fit->objective.along_y = fit->axisymmetric_along_y = *flags.along_y;
   if (flags.across_y) fit->objective.across_y = fit->axisymmetric_across_y = *flags.across_y;
+  const ObjectiveOptions used = fit->axisymmetric ? fit->TiedObjective() : fit->objective;
+  const double strongest = used.w_sm * std::max(used.along_y, used.across_y);
+  if (!(strongest <= ObjectiveOptions::kMaxWeight))
+    throw UsageError(fmt::format(
+        "--w-sm {:g} x its factor {:g} (--w-sm-along-y or --w-sm-across-y{}) weighs the "
+        "neighbour pairs {:g}, above {:g}",
+        used.w_sm, std::max(used.along_y, used.across_y),
+        fit->axisymmetric ? ", with --axisymmetric" : "", strongest, ObjectiveOptions::kMaxWeight));
 }
 
 void Context::StopOnSignals() {

@@ -111,7 +111,12 @@ struct DirectionFlags {
 };
 // `defaults` are the options the help describes.
 void AddDirectionFlags(CLI::App* command, DirectionFlags* flags, const FitOptions& defaults);
-void ApplyDirectionFlags(const DirectionFlags& flags, FitOptions* fit);
+// Applies --w-sm's weight (`w_sm`, unset when not given) and the factors to the fit that runs:
+// the untied fit's objective, and with fit->axisymmetric the tied fit's weight too (an untied
+// fit's weight leaves the tied one alone; until 2026-12-03 it set it, and a weight above 2.5e10
+// was refused with the tied fit's message). Throws UsageError naming the flags when the fit that
+// runs would weigh its pairs above ObjectiveOptions::kMaxWeight (the weight x either factor).
+void ApplyNeighbourFlags(std::optional<double> w_sm, const DirectionFlags& flags, FitOptions* fit);
 
 // "a,b,,c" -> {"a", "b", "c"}.
 std::vector<std::string> SplitList(const std::string& text);

@@ -118,12 +118,11 @@ Runner AddFit(CLI::App* command) {
                  : o->method == "alg2" ? FitMethod::kAlgorithm2
                                        : FitMethod::kFast;
     // The paper's algorithms minimise the paper's energy (w_sm 10) unless told otherwise.
-    // A weight given is the fit's, tied to rings or not; an untied fit's leaves the tied weight
-    // alone (whose product with the tied factor along the axis is checked against its bound).
+    // A weight given is the fit's, tied to rings or not (ApplyNeighbourFlags).
     if (w_sm->count() > 0) job.paper.w_sm = job.fit.objective.w_sm;
-    if (w_sm->count() > 0 && job.fit.axisymmetric)
-      job.fit.axisymmetric_w_sm = job.fit.objective.w_sm;
-    ApplyDirectionFlags(o->directions, &job.fit);
+    ApplyNeighbourFlags(
+        w_sm->count() > 0 ? std::optional<double>(job.fit.objective.w_sm) : std::nullopt,
+        o->directions, &job.fit);
     job.paper.time_limit_s = job.fit.time_limit_s;
     if (o->iterations >= 0) {
       if (o->iterations == 0 && job.method != FitMethod::kFast)

@@ -153,11 +153,9 @@ Runner AddRun(CLI::App* command) {
     if (o->first >= 0) run.first = static_cast<std::size_t>(o->first);
     if (o->count >= 0) run.count = static_cast<std::size_t>(o->count);
     if (o->fit_iterations >= 0) run.fit.iterations_finest = o->fit_iterations;
-    // A weight given is the fit's, tied to rings or not (as in `fit`; an untied fit's leaves the
-    // tied weight alone).
-    if (o->w_sm >= 0) run.fit.objective.w_sm = o->w_sm;
-    if (o->w_sm >= 0 && run.fit.axisymmetric) run.fit.axisymmetric_w_sm = o->w_sm;
-    ApplyDirectionFlags(o->directions, &run.fit);
+    // A weight given is the fit's, tied to rings or not (ApplyNeighbourFlags, as in `fit`).
+    ApplyNeighbourFlags(o->w_sm >= 0 ? std::optional<double>(o->w_sm) : std::nullopt, o->directions,
+                        &run.fit);
     run.skip_unchanged = !o->no_skip_unchanged;
     run.blender = !o->no_blender;
     run.sigma = !o->no_sigma;
