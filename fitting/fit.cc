@@ -1030,14 +1030,18 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     if (options.neighbour_weight_resolution > 0) {
       const double ratio = double(options.neighbour_weight_resolution) / g.dims.maxCoeff();
       o.w_sm *= ratio * ratio;
-      // Said in the weight the user gave, not in the scaled one ObjectiveOptions::Validate sees.
-      if (o.w_sm > ObjectiveOptions::kMaxWeight)
-        throw InputError("fit: the neighbour weight " + FormatNumber(options.objective.w_sm) +
-                         ", scaled by (" + std::to_string(options.neighbour_weight_resolution) +
-                         " / " + std::to_string(g.dims.maxCoeff()) + ")^2 on this grid, is " +
-                         FormatNumber(o.w_sm) + ", above the limit " +
-                         FormatNumber(ObjectiveOptions::kMaxWeight) +
-                         ": give a smaller --w-sm or a finer grid");
+      // Said in the weight the user gave, not in the scaled one ObjectiveOptions::Validate sees;
+      // times the stronger direction's factor, as that check takes it (a tied fit's along the
+      // axis is 40).
+      const double factor = std::max({1.0, o.along_y, o.across_y});
+      if (o.w_sm * factor > ObjectiveOptions::kMaxWeight)
+        throw InputError(
+            "fit: the neighbour weight " + FormatNumber(options.objective.w_sm) + ", scaled by (" +
+            std::to_string(options.neighbour_weight_resolution) + " / " +
+            std::to_string(g.dims.maxCoeff()) + ")^2 on this grid" +
+            (factor > 1 ? " and by its direction factor " + FormatNumber(factor) : std::string()) +
+            ", is " + FormatNumber(o.w_sm * factor) + ", above the limit " +
+            FormatNumber(ObjectiveOptions::kMaxWeight) + ": give a smaller --w-sm or a finer grid");
     }
     return o;
   };

@@ -21,8 +21,9 @@ constexpr std::int64_t kMinDifferences = 90;
 // The variances of each tied voxel's T and ln n from its nodes' exact covariance: the inverse of
 // the nodes' precision, which sums over voxels w w^T (x) (the voxel's block / noise2) and adds the
 // prior's diagonal, taken per component of nodes that share voxels. A voxel whose nodes are a
-// component alone (a ring), whose component has more than `max_nodes`, or whose component's
-// precision the factorisation finds not positive definite gets -1 (the caller's bound instead).
+// component alone (a ring), whose component has more than `max_nodes`, whose component's
+// precision the factorisation finds not positive definite, or whose variance rounding leaves at 0
+// or below gets -1 (the caller's bound instead).
 void NodeCovariance(const NodeTie& tie, const FitObjective::Curvature& c, double noise2,
                     double prior_t, double prior_n, std::size_t max_nodes,
                     std::vector<double>* var_t, std::vector<double>* var_n) {
@@ -84,8 +85,9 @@ void NodeCovariance(const NodeTie& tie, const FitObjective::Curvature& c, double
           vt += w * cov(i, j);
           vn += w * cov(i + 1, j + 1);
         }
-      (*var_t)[a] = std::max(vt, 0.0);
-      (*var_n)[a] = std::max(vn, 0.0);
+      if (!(vt > 0 && vn > 0)) continue;  // lost to rounding: the bound instead
+      (*var_t)[a] = vt;
+      (*var_n)[a] = vn;
     }
   }
 }
@@ -153,7 +155,7 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
         throw InputError("uncertainty: voxel " + std::to_string(a) + " weighs no node");
   }
   // Tied voxels share their nodes' (T, ln n): a node's block is its voxels' summed, each x its
-  // weight squared.
+  // weight squared (a voxel that names one node twice: x the sum of its weights, squared).
   const std::size_t unknowns = tied ? tie.nodes : na;
   std::size_t used = na;                                // unknowns that some voxel depends on
   std::vector<double> tt = c.tt, tn = c.tn, nn = c.nn;  // per unknown
@@ -164,7 +166,10 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
     std::vector<char> depended(tie.nodes, 0);
     for (std::size_t a = 0; a < na; ++a)
       for (int k = 0; k < 2; ++k) {
-        const double w2 = tie.weight[a][k] * tie.weight[a][k];
+        const bool twice = tie.node[a][0] == tie.node[a][1];
+        if (twice && k == 1) continue;
+        const double w = twice ? tie.weight[a][0] + tie.weight[a][1] : tie.weight[a][k];
+        const double w2 = w * w;
         if (w2 == 0) continue;
         const std::uint32_t r = tie.node[a][k];
         tt[r] += w2 * c.tt[a];
@@ -211,7 +216,7 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
   // A tied voxel's deviations: from its nodes' exact covariance where the nodes that share voxels
   // form a component small enough to invert densely (uncertainty.h), else sum_k w_k sigma_k.
   std::vector<double> voxel_var_t, voxel_var_n;
-  if (tied)
+  if (tied && !u.one_band)  // one band: the prior's deviations everywhere (below)
     NodeCovariance(tie, c, noise2, u.prior_sigma_k, prior_ln, options.max_dense_nodes, &voxel_var_t,
                    &voxel_var_n);
   u.temperature_sigma_k.resize(na);
@@ -219,7 +224,7 @@ VoxelUncertainty EstimateUncertainty(const FitObjective& objective, const std::v
   u.determined.resize(na);
   for (std::size_t a = 0; a < na; ++a) {
     double vt = var_t[tied ? 0 : a], vn = var_n[tied ? 0 : a];
-    if (tied && voxel_var_t[a] >= 0) {
+    if (tied && !voxel_var_t.empty() && voxel_var_t[a] >= 0) {
       vt = voxel_var_t[a];
       vn = voxel_var_n[a];
     } else if (tied) {  // sum_k w_k sigma_k (uncertainty.h)

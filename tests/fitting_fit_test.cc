@@ -309,36 +309,45 @@ TEST(Uncertainty, GroupsOfOneAreTheVoxelsOwnAndAGroupPoolsItsMembers) {
 // nodes' exact covariance, the inverse of A^T H A + the prior, where A maps the nodes' (T, ln n)
 // to the voxels' by the weights and H is the voxels' curvature blocks over the noise level.
 // Oracle: that product formed as dense matrices here from the data's curvature blocks
-// (FitObjective::DataCurvature) at the estimate's own noise level and inverted by LU, on a tie
-// where voxels 0 and 1 each hold a node of their own, every third voxel from 2 on holds node 2
-// alone (a component of one node, the ring's 2x2 algebra) and every other voxel lies between
-// nodes 0 and 1 (weights 0.25 and 0.75). Weights out of [0, 1], a node out of range, a tie of
-// the wrong size and a voxel that weighs no node are refused.
+// (FitObjective::DataCurvature) at the estimate's own noise level and inverted by LU. The tie:
+// voxels 0 and 1 hold nodes 0 and 1 alone; every third voxel from 2 on holds node 5 alone (a
+// component of one node: the ring's 2x2 algebra), voxel 5 naming it twice with weights 0.5 and
+// 0.5; every other voxel lies between nodes k and k + 1 of a chain of five (k = a / 3 mod 4), with
+// weights 0.25 and 0.75, 0.6 and 0.4, or 0 and 1 in turn. Then the bound that a component larger
+// than max_dense_nodes takes, against each node's 2x2 algebra worked out here. Weights out of
+// [0, 1], a node out of range, a tie of the wrong size and a voxel that weighs no node are
+// refused.
 TEST(Uncertainty, ANodeTieTakesEachVoxelsDeviationFromItsNodesCovariance) {
   const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
   SmallScene s = MakeSmallScene(soot);
   const FitObjective objective(s.grid, s.active, s.views, soot, RenderOptions(),
                                ObjectiveOptions());
   const std::size_t m = s.active.size();
-  ASSERT_GT(m, 5u);
+  ASSERT_GT(m, 15u);
+  constexpr std::uint32_t kNodes = 6, kAlone = 5;
   NodeTie tie;
-  tie.nodes = 3;
-  tie.node.assign(m, {0, 1});
-  tie.weight.assign(m, {0.25, 0.75});
-  tie.weight[0] = {1.0, 0.0};
-  tie.node[1] = {1, 0};
-  tie.weight[1] = {1.0, 0.0};
-  for (std::size_t a = 2; a < m; a += 3) {
-    tie.node[a] = {2, 2};
-    tie.weight[a] = {1.0, 0.0};
+  tie.nodes = kNodes;
+  tie.node.resize(m);
+  tie.weight.resize(m);
+  const std::array<std::array<double, 2>, 3> pattern = {{{0.25, 0.75}, {0.6, 0.4}, {0.0, 1.0}}};
+  for (std::size_t a = 0; a < m; ++a) {
+    const std::uint32_t k = std::uint32_t(a / 3 % 4);
+    tie.node[a] = a % 3 == 2 ? std::array<std::uint32_t, 2>{kAlone, kAlone}
+                             : std::array<std::uint32_t, 2>{k, k + 1};
+    tie.weight[a] = a % 3 == 2 ? std::array<double, 2>{1.0, 0.0} : pattern[a / 3 % 3];
   }
+  tie.node[0] = {0, 0};
+  tie.weight[0] = {1.0, 0.0};
+  tie.node[1] = {1, 1};
+  tie.weight[1] = {1.0, 0.0};
+  tie.weight[5] = {0.5, 0.5};  // node 5 named twice
   const UncertaintyOptions options;
   const VoxelUncertainty u = EstimateUncertainty(objective, s.t, s.n, 1.0, options, tie);
   const FitObjective::Curvature c = objective.DataCurvature(s.t, s.n, 1.0);
   const double noise2 = std::max(u.sigma_lab * u.sigma_lab, 1e-4);  // uncertainty.cc's floor
   const double prior_t = u.prior_sigma_k,
                prior_n = std::log(objective.n_max() / objective.n_min()) / std::sqrt(12.0);
-  const Eigen::Index rows = Eigen::Index(2 * m), cols = 6;
+  const Eigen::Index rows = Eigen::Index(2 * m), cols = 2 * kNodes;
   Eigen::MatrixXd map = Eigen::MatrixXd::Zero(rows, cols), h = Eigen::MatrixXd::Zero(rows, rows);
   for (std::size_t a = 0; a < m; ++a) {
     const Eigen::Index r = Eigen::Index(2 * a);
@@ -355,8 +364,8 @@ TEST(Uncertainty, ANodeTieTakesEachVoxelsDeviationFromItsNodesCovariance) {
     precision(i, i) += 1 / (prior_t * prior_t);
     precision(i + 1, i + 1) += 1 / (prior_n * prior_n);
   }
-  const Eigen::MatrixXd voxel_cov = map * precision.fullPivLu().inverse() * map.transpose();
-  int between = 0;
+  const Eigen::MatrixXd node_cov = precision.fullPivLu().inverse();
+  const Eigen::MatrixXd voxel_cov = map * node_cov * map.transpose();
   for (std::size_t a = 0; a < m; ++a) {
     const Eigen::Index r = Eigen::Index(2 * a);
     EXPECT_NEAR(u.temperature_sigma_k[a], std::min(std::sqrt(voxel_cov(r, r)), prior_t),
@@ -365,33 +374,34 @@ TEST(Uncertainty, ANodeTieTakesEachVoxelsDeviationFromItsNodesCovariance) {
     EXPECT_NEAR(u.log_density_sigma[a], std::min(std::sqrt(voxel_cov(r + 1, r + 1)), prior_n),
                 1e-4 * u.log_density_sigma[a])
         << a;
-    between += tie.weight[a][1] > 0;
   }
-  EXPECT_GT(between, 2);
-  // The nodes are not independent: the exact deviation of a voxel between them differs from both
-  // readings of its nodes' own deviations (independent, and the sum of weighed deviations).
-  const double var0 = voxel_cov(0, 0), var1 = voxel_cov(2, 2);
-  const double independent = std::sqrt(0.0625 * var0 + 0.5625 * var1),
-               summed = 0.25 * std::sqrt(var0) + 0.75 * std::sqrt(var1);
+  // Voxel 3 lies between nodes 1 and 2 (weights 0.6 and 0.4), which are not independent: its
+  // exact deviation differs from both readings of its nodes' own (independent, and the sum of
+  // weighed deviations), and the images, not the prior, hold it.
+  ASSERT_EQ(tie.node[3][0], 1u);
+  ASSERT_LT(u.temperature_sigma_k[3], 0.5 * prior_t);
+  const double var1 = node_cov(2, 2), var2 = node_cov(4, 4);
+  const double independent = std::sqrt(0.36 * var1 + 0.16 * var2),
+               summed = 0.6 * std::sqrt(var1) + 0.4 * std::sqrt(var2);
   EXPECT_GT(std::abs(u.temperature_sigma_k[3] - independent), 1e-3 * independent);
   EXPECT_GT(std::abs(u.temperature_sigma_k[3] - summed), 1e-3 * summed);
   // A component larger than max_dense_nodes takes the bound sum_k w_k sigma_k over the nodes'
   // deviations from their own blocks: each node's 2x2 precision sums its voxels' blocks x their
-  // weights squared, plus the prior.
+  // weights squared (a node named twice: the weights' sum, squared), plus the prior. The nodes
+  // alone in their component keep that algebra either way, to the bit.
   UncertaintyOptions bound_options;
   bound_options.max_dense_nodes = 1;
   const VoxelUncertainty b = EstimateUncertainty(objective, s.t, s.n, 1.0, bound_options, tie);
-  double node_var_t[3], node_var_n[3];
-  for (std::uint32_t node = 0; node < 3; ++node) {
+  double node_var_t[kNodes], node_var_n[kNodes];
+  for (std::uint32_t node = 0; node < kNodes; ++node) {
     Eigen::Matrix2d block = Eigen::Matrix2d::Zero();
-    for (std::size_t a = 0; a < m; ++a)
-      for (int k = 0; k < 2; ++k) {
-        if (tie.node[a][k] != node) continue;
-        const double w2 = tie.weight[a][k] * tie.weight[a][k];
-        block(0, 0) += w2 * c.tt[a] / noise2;
-        block(0, 1) += w2 * c.tn[a] / noise2;
-        block(1, 1) += w2 * c.nn[a] / noise2;
-      }
+    for (std::size_t a = 0; a < m; ++a) {
+      double w = 0;
+      for (int k = 0; k < 2; ++k) w += tie.node[a][k] == node ? tie.weight[a][k] : 0.0;
+      block(0, 0) += w * w * c.tt[a] / noise2;
+      block(0, 1) += w * w * c.tn[a] / noise2;
+      block(1, 1) += w * w * c.nn[a] / noise2;
+    }
     block(1, 0) = block(0, 1);
     block(0, 0) += 1 / (prior_t * prior_t);
     block(1, 1) += 1 / (prior_n * prior_n);
@@ -408,12 +418,16 @@ TEST(Uncertainty, ANodeTieTakesEachVoxelsDeviationFromItsNodesCovariance) {
     EXPECT_NEAR(b.temperature_sigma_k[a], std::min(st, prior_t), 1e-4 * b.temperature_sigma_k[a])
         << a;
     EXPECT_NEAR(b.log_density_sigma[a], std::min(sn, prior_n), 1e-4 * b.log_density_sigma[a]) << a;
+    if (tie.node[a][0] == kAlone) {
+      EXPECT_EQ(b.temperature_sigma_k[a], u.temperature_sigma_k[a]) << a;
+      EXPECT_EQ(b.log_density_sigma[a], u.log_density_sigma[a]) << a;
+    }
   }
   NodeTie bad = tie;
   bad.weight[2] = {1.5, 0.0};
   EXPECT_THROW(EstimateUncertainty(objective, s.t, s.n, 1.0, options, bad), InputError);
   bad = tie;
-  bad.node[2] = {0, 3};
+  bad.node[2] = {0, kNodes};
   EXPECT_THROW(EstimateUncertainty(objective, s.t, s.n, 1.0, options, bad), InputError);
   bad = tie;
   bad.node.pop_back();
@@ -907,6 +921,21 @@ TEST(FastFit, HoldsAKnownExposureAndUnselectedParameters) {
   scaled.objective.w_sm = 1e12 / 16;  // exactly at the limit once scaled
   scaled.iterations_finest = 1;
   EXPECT_NO_THROW(FastFit(r.grid, r.tomography, r.views, soot, scaled));
+  // A tied fit's pairs along the axis weigh 40 times its weight: 1e10 x 16 x 40 = 6.4e12, said
+  // with the factor (an InputError from the objective's own check, without the scaling, before
+  // 2026-12-03).
+  FitOptions tied;
+  tied.axisymmetric = true;
+  tied.axisymmetric_w_sm = 1e10;
+  try {
+    FastFit(r.grid, r.tomography, r.views, soot, tied);
+    ADD_FAILURE() << "a tied neighbour weight scaled to 6.4e12 was accepted";
+  } catch (const InputError& e) {
+    const std::string what = e.what();
+    for (const char* said :
+         {"neighbour weight 1e+10", "(64 / 16)^2", "direction factor 40", "6.4e+12", "--w-sm"})
+      EXPECT_NE(what.find(said), std::string::npos) << said << " not in: " << what;
+  }
 }
 
 // FitOptions::Key() names every field of the options and of the structs they hold: each field
