@@ -771,6 +771,31 @@ struct RoundTrip {
   double exposure = 1;
 };
 
+// The tied fit's axes as FitOptions::axisymmetric defines them, recomputed from the tomography:
+// the fitted volume's active voxels (density > 0) and, per layer, the luminance-weighted sums of
+// their indices (w i, w k, w) and of their centres in the rig frame (GridGeometry::VoxelCenter).
+struct LayerAxes {
+  std::vector<std::size_t> active;
+  std::vector<Eigen::Vector3d> sums, centres;
+};
+LayerAxes RecomputeLayerAxes(const GridGeometry& grid, const FireVolume& tomography,
+                             const FireVolume& volume) {
+  const Eigen::Vector3i d = grid.dims;
+  LayerAxes axes;
+  axes.sums.assign(d.y(), Eigen::Vector3d::Zero());
+  axes.centres.assign(d.y(), Eigen::Vector3d::Zero());
+  for (std::size_t v = 0; v < grid.num_voxels(); ++v) {
+    if (!(volume.density_per_m3[v] > 0)) continue;
+    axes.active.push_back(v);
+    const float* e = &tomography.emission_rgb[3 * v];
+    const double w = std::max(0.0, 0.2126 * e[0] + 0.7152 * e[1] + 0.0722 * e[2]);
+    const int i = int(v % d.x()), j = int(v / d.x() % d.y()), k = int(v / (d.x() * d.y()));
+    axes.sums[j] += w * Eigen::Vector3d(i, k, 1.0);
+    axes.centres[j] += w * grid.VoxelCenter(i, j, k);
+  }
+  return axes;
+}
+
 RoundTrip MakeRoundTrip(const AbsorptionModel& absorption, int resolution, int width) {
   RoundTrip r;
   const Box3 box{Eigen::Vector3d(-0.015, 0.0, -0.015), Eigen::Vector3d(0.015, 0.07, 0.015)};
@@ -1663,19 +1688,9 @@ TEST(FastFit, AnAxisymmetricFitTiesEveryRingAndSeesTheHeldOutViewBetter) {
   EXPECT_EQ(tied.volume.metadata_numbers.at("axisymmetric_rings"), double(tied.rings));
 
   const Eigen::Vector3i d = r.grid.dims;
-  std::vector<std::size_t> active;
-  std::vector<Eigen::Vector3d> sums(d.y(), Eigen::Vector3d::Zero());  // (w x, w z, w) per layer
-  // Per layer, the weighted sum of the voxel centres in the rig frame (GridGeometry::VoxelCenter).
-  std::vector<Eigen::Vector3d> centres(d.y(), Eigen::Vector3d::Zero());
-  for (std::size_t v = 0; v < r.grid.num_voxels(); ++v) {
-    if (!(tied.volume.density_per_m3[v] > 0)) continue;
-    active.push_back(v);
-    const float* e = &r.tomography.emission_rgb[3 * v];
-    const double w = std::max(0.0, 0.2126 * e[0] + 0.7152 * e[1] + 0.0722 * e[2]);
-    const int i = int(v % d.x()), j = int(v / d.x() % d.y()), k = int(v / (d.x() * d.y()));
-    sums[j] += w * Eigen::Vector3d(i, k, 1.0);
-    centres[j] += w * r.grid.VoxelCenter(i, j, k);
-  }
+  const LayerAxes axes = RecomputeLayerAxes(r.grid, r.tomography, tied.volume);
+  const std::vector<std::size_t>& active = axes.active;
+  const std::vector<Eigen::Vector3d>&sums = axes.sums, &centres = axes.centres;
   ASSERT_EQ(active.size(), tied.active_voxels);
   std::map<std::pair<int, long>, std::pair<float, float>> rings;  // -> (T, n)
   std::map<std::pair<int, long>, float> ring_sigma;               // -> its temperature sigma
@@ -1856,16 +1871,9 @@ TEST(FastFit, AnInterpolatedTieIsLinearInTheRadiusBetweenItsNodes) {
   const FitResult tied = FastFit(r.grid, r.tomography, r.views, soot, options);
   ASSERT_GT(tied.rings, 0u);
   const Eigen::Vector3i d = r.grid.dims;
-  std::vector<Eigen::Vector3d> sums(d.y(), Eigen::Vector3d::Zero());  // (w x, w z, w) per layer
-  std::vector<std::size_t> active;
-  for (std::size_t v = 0; v < r.grid.num_voxels(); ++v) {
-    if (!(tied.volume.density_per_m3[v] > 0)) continue;
-    active.push_back(v);
-    const float* e = &r.tomography.emission_rgb[3 * v];
-    const double w = std::max(0.0, 0.2126 * e[0] + 0.7152 * e[1] + 0.0722 * e[2]);
-    sums[v / d.x() % d.y()] +=
-        w * Eigen::Vector3d(double(v % d.x()), double(v / (d.x() * d.y())), 1);
-  }
+  const LayerAxes axes = RecomputeLayerAxes(r.grid, r.tomography, tied.volume);
+  const std::vector<std::size_t>& active = axes.active;
+  const std::vector<Eigen::Vector3d>& sums = axes.sums;
   ASSERT_EQ(active.size(), tied.active_voxels);
   const ObjectiveOptions& o = options.objective;
   auto logit = [](double p) { return std::log(p / (1 - p)); };

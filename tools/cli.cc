@@ -326,6 +326,18 @@ void ApplyTomographyFlags(const TomographyFlags& f, ReconstructOptions* o,
   // Validate).
 }
 
+void AddTieFlags(CLI::App* command, FitOptions* fit, const std::string& what,
+                 const std::string& prefix) {
+  CLI::Option* axisymmetric = command->add_flag("--axisymmetric", fit->axisymmetric, what);
+  command
+      ->add_flag("--axisymmetric-interpolate", fit->axisymmetric_interpolate,
+                 prefix +
+                     ": a field linear in the radius between whole radii (in the fit's "
+                     "parameters) instead of constant over each ring (measured, not the default: "
+                     "BENCHMARKS.md, \"A tied field linear in the radius\")")
+      ->needs(axisymmetric);
+}
+
 void AddDirectionFlags(CLI::App* command, DirectionFlags* flags, const FitOptions& defaults) {
   command
       ->add_option(

@@ -101,6 +101,12 @@ void AddTomographyFlags(CLI::App* command, TomographyFlags* flags, bool solve_op
 void ApplyTomographyFlags(const TomographyFlags& flags, ReconstructOptions* options,
                           std::string* input_transfer);
 
+// The tied fit's flags, shared by fit and run: --axisymmetric (FitOptions::axisymmetric, its help
+// `what` as the command says it) and --axisymmetric-interpolate, which needs it; `prefix` starts
+// the latter's help ("Fast fit, with --axisymmetric" in `fit`, whose other methods do not tie).
+void AddTieFlags(CLI::App* command, FitOptions* fit, const std::string& what,
+                 const std::string& prefix);
+
 // The fit's neighbour term by direction, shared by fit and run: --w-sm-along-y F and
 // --w-sm-across-y F (ObjectiveOptions::along_y, across_y: the factors on the weight of the
 // neighbour pairs along the grid's vertical axis and of every other pair). A factor given is the

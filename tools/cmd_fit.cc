@@ -54,16 +54,10 @@ Runner AddFit(CLI::App* command) {
       ->check(ExposureRange());
   command->add_flag("--fit-exposure", job.fit_exposure,
                     "Fast fit: fit a free exposure (the paper's s), even a known one");
-  CLI::Option* axisymmetric = command->add_flag(
-      "--axisymmetric", job.fit.axisymmetric,
-      "Fast fit: one temperature and density per ring about the flame's vertical axis (an "
-      "axisymmetric flame, as Abel inversion assumes)");
-  command
-      ->add_flag("--axisymmetric-interpolate", job.fit.axisymmetric_interpolate,
-                 "Fast fit, with --axisymmetric: a field linear in the radius between whole "
-                 "radii (in the fit's parameters) instead of constant over each ring (measured, "
-                 "not the default: BENCHMARKS.md, \"A tied field linear in the radius\")")
-      ->needs(axisymmetric);
+  AddTieFlags(command, &job.fit,
+              "Fast fit: one temperature and density per ring about the flame's vertical axis "
+              "(an axisymmetric flame, as Abel inversion assumes)",
+              "Fast fit, with --axisymmetric");
   command->add_flag(
       "--no-sigma", [&job](std::int64_t) { job.uncertainty = false; },
       "Fast fit: do not write the per-voxel sigma grids");

@@ -116,16 +116,11 @@ Runner AddRun(CLI::App* command) {
   command->add_flag(
       "--no-sigma", o->no_sigma,
       "Do not write the per-voxel sigma grids (saves about 50 ms a frame at 64^3, two views)");
-  CLI::Option* axisymmetric = command->add_flag(
-      "--axisymmetric", run.fit.axisymmetric,
-      "Fit one temperature and density per ring about the flame's vertical axis (an axisymmetric "
-      "flame, as Abel inversion assumes; every frame then starts from its own tomography)");
-  command
-      ->add_flag("--axisymmetric-interpolate", run.fit.axisymmetric_interpolate,
-                 "With --axisymmetric: a field linear in the radius between whole radii (in the "
-                 "fit's parameters) instead of constant over each ring (measured, not the "
-                 "default: BENCHMARKS.md, \"A tied field linear in the radius\")")
-      ->needs(axisymmetric);
+  AddTieFlags(command, &run.fit,
+              "Fit one temperature and density per ring about the flame's vertical axis (an "
+              "axisymmetric flame, as Abel inversion assumes; every frame then starts from its own "
+              "tomography)",
+              "With --axisymmetric");
   command->add_flag("--fit-exposure", run.fit_exposure,
                     "Fit a free exposure on every frame (the paper's s), even a known one");
   command
