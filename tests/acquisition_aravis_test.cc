@@ -635,10 +635,17 @@ TEST(AravisCamera, AnOptionalCameraIsTakenInWhenItAppears) {
     EXPECT_EQ(r1.frames(1).size(), 0u);
     EXPECT_GE(r2.frames(0).size(), 10u);
     EXPECT_GE(r2.frames(1).size(), 10u);
+    // A frame the stream flagged (the camera that just appeared may deliver a buffer Aravis marks
+    // failed, kept with its status as incomplete: it failed this check once in CI on 2026-12-03)
+    // holds no pattern; every complete one does.
+    std::size_t complete = 0;
     for (std::size_t i = 0; i < r2.num_sets(); ++i) {
       const FrameSet s = r2.ReadSet(i);
-      if (s.frames[1]) ExpectPattern(*s.frames[1]);
+      if (!s.frames[1] || s.frames[1]->info.status != FrameStatus::kOk) continue;
+      ExpectPattern(*s.frames[1]);
+      ++complete;
     }
+    EXPECT_GE(complete, 5u);
     EXPECT_EQ(r2.metadata().features.at("b.DeviceID"), "FLAMERIG-O2");
   }
   fs::remove_all(dir);
