@@ -481,7 +481,10 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
   f.info.pixel_format = settings_.pixel_format;
   const WireFormat* wire =
       settings_.wire_format.empty() ? nullptr : WireFormatFromName(settings_.wire_format);
-  if (arv_buffer_get_payload_type(buffer) == ARV_BUFFER_PAYLOAD_TYPE_IMAGE) {
+  // A buffer the stream flagged may hold no image part: its size and format are not asked (Aravis
+  // prints a CRITICAL for them), and the frame keeps the configured ones with its failed status.
+  if (arv_buffer_get_status(buffer) == ARV_BUFFER_STATUS_SUCCESS &&
+      arv_buffer_get_payload_type(buffer) == ARV_BUFFER_PAYLOAD_TYPE_IMAGE) {
     wire = nullptr;  // the buffer says which, and the frame keeps what it said
     f.info.width = arv_buffer_get_image_width(buffer);
     f.info.height = arv_buffer_get_image_height(buffer);
