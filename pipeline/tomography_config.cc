@@ -45,6 +45,11 @@ void LoadTomographyConfig(const std::string& path, ReconstructOptions* options,
   if (o.warm_stagnation_tolerance < 0 && o.warm_stagnation_tolerance != -1)
     throw InputError(r.where() +
                      ": 'warm_stagnation_tolerance' is -1 (as a cold solve) or in [0, 1]");
+  o.two_view_fine_iterations =
+      static_cast<int>(r.Range("two_view_fine_iterations", o.two_view_fine_iterations, -1, 100000));
+  if (o.two_view_fine_iterations < 1 && o.two_view_fine_iterations != -1)
+    throw InputError(r.where() +
+                     ": 'two_view_fine_iterations' is -1 (the solve's own rules) or >= 1");
   o.solve.holdout_patience =
       static_cast<int>(r.Range("holdout_patience", o.solve.holdout_patience, 1, 100000));
   o.solve.prior = r.Get<std::string>("prior", o.solve.prior);

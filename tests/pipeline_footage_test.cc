@@ -114,6 +114,8 @@ TEST(TomographyConfig, TheShippedFileHoldsTheDefaults) {
   EXPECT_DOUBLE_EQ(o.solve.prior_edge, d.solve.prior_edge);
   EXPECT_EQ(o.coarse_to_fine, d.coarse_to_fine);
   EXPECT_EQ(o.coarse_iterations, d.coarse_iterations);
+  EXPECT_DOUBLE_EQ(o.warm_stagnation_tolerance, d.warm_stagnation_tolerance);
+  EXPECT_EQ(o.two_view_fine_iterations, d.two_view_fine_iterations);
   EXPECT_EQ(o.envelope_margin_voxels, d.envelope_margin_voxels);
   EXPECT_DOUBLE_EQ(o.hull.threshold_sigmas, d.hull.threshold_sigmas);
   EXPECT_DOUBLE_EQ(o.hull.noise_sigma, d.hull.noise_sigma);
@@ -133,7 +135,8 @@ TEST(TomographyConfig, ReadsKeysAndNamesTheFileAndKeyOfAnError) {
   std::string transfer;
   LoadTomographyConfig(write("tomography:\n  resolution: 48\n  input_transfer: gamma=2.2\n"
                              "  cache: m\n  mask: {min_speck_px: 7, threshold_sigmas: 3}\n"
-                             "  prior: tv\n  prior_weight: 0.5\n  bin: 3\n"),
+                             "  prior: tv\n  prior_weight: 0.5\n  bin: 3\n"
+                             "  two_view_fine_iterations: -1\n"),
                        &o, &transfer);
   EXPECT_EQ(o.resolution, 48);
   EXPECT_EQ(transfer, "gamma=2.2");
@@ -142,6 +145,7 @@ TEST(TomographyConfig, ReadsKeysAndNamesTheFileAndKeyOfAnError) {
   EXPECT_EQ(o.solve.prior, "tv");
   EXPECT_EQ(o.bin, 3);
   EXPECT_DOUBLE_EQ(o.solve.prior_weight, 0.5);
+  EXPECT_EQ(o.two_view_fine_iterations, -1);
   EXPECT_EQ(fs::path(o.cache_dir), dir / "m");  // relative to the file
   const std::vector<std::pair<std::string, std::string>> bad = {
       {"tomography:\n  resolutoin: 48\n", "unknown key 'resolutoin'"},
@@ -154,6 +158,7 @@ TEST(TomographyConfig, ReadsKeysAndNamesTheFileAndKeyOfAnError) {
       {"tomography:\n  solver: sart\n  prior: tv\n", "needs solver osem"},
       {"tomography:\n  prior_weight: -0.5\n", "'prior_weight'"},
       {"tomography:\n  bin: 0\n", "'bin'"},
+      {"tomography:\n  two_view_fine_iterations: 0\n", "'two_view_fine_iterations'"},
       {"resolution: 48\n", "a 'tomography:' map"},
       {"tomography: [1, 2]\n", "a 'tomography:' map"}};
   for (const auto& [text, message] : bad) {

@@ -335,6 +335,21 @@ Dataset MakeDataset(int views, int resolution, const Box3& box = kBox, double no
   return d;
 }
 
+// The system matrix of the dataset's whole grid seen by every pixel of its first `cameras` cameras.
+SystemMatrix WholeMatrix(const Dataset& d, int cameras) {
+  std::vector<std::unique_ptr<CameraRays>> rays;
+  std::vector<const CameraRays*> cams;
+  std::vector<std::vector<std::uint8_t>> pixels;
+  for (int c = 0; c < cameras; ++c) {
+    rays.push_back(std::make_unique<CameraRays>(d.rig.cameras[c].model));
+    cams.push_back(rays.back().get());
+    pixels.emplace_back(rays.back()->rays().size(), 1);
+  }
+  const GridGeometry& grid = d.truth.geometry;
+  return SystemMatrix::Build(grid, cams, pixels, std::vector<std::uint8_t>(grid.num_voxels(), 1),
+                             SystemMatrixOptions());
+}
+
 double VolumeError(const FireVolume& got, const FireVolume& truth) {
   std::vector<float> t = got.geometry == truth.geometry
                              ? truth.emission_rgb
@@ -507,17 +522,7 @@ TEST(Reconstruct, TheHeldOutCameraScoresAndTheStopCameraStops) {
 // the solve returns (the coarse stage kept when the fine one does worse).
 TEST(Solve, AStartNoIterateBeatsIsKept) {
   Dataset d = MakeDataset(2, 16);
-  std::vector<std::unique_ptr<CameraRays>> rays;
-  std::vector<const CameraRays*> cams;
-  std::vector<std::vector<std::uint8_t>> pixels;
-  for (int c = 0; c < 2; ++c) {
-    rays.push_back(std::make_unique<CameraRays>(d.rig.cameras[c].model));
-    cams.push_back(rays.back().get());
-    pixels.emplace_back(rays.back()->rays().size(), 1);
-  }
-  const GridGeometry grid = d.truth.geometry;
-  const SystemMatrix a = SystemMatrix::Build(
-      grid, cams, pixels, std::vector<std::uint8_t>(grid.num_voxels(), 1), SystemMatrixOptions());
+  const SystemMatrix a = WholeMatrix(d, 2);
   // The truth's emission, non-negative as every start is made (linear sRGB of a red fire has a
   // slightly negative blue).
   std::vector<float> truth = d.truth.emission_rgb;
@@ -552,22 +557,40 @@ TEST(Solve, AStartNoIterateBeatsIsKept) {
   }
 }
 
+// OS-EM's residual is accumulated during its sweep, each subset's rows measured before that
+// subset's update; with one subset the first iteration's figure is the start's own. The stagnation
+// rule then begins at the second iteration (IterativeSolver::SweepsSubsets): from a start at half
+// the truth, a solve whose true residual (measured after the solve, on the returned iterate) falls
+// far below the start's is not stopped after one sweep as "stagnated". It was, until 2026-12-03.
+TEST(Solve, ASweepsResidualIsNotComparedWithTheStartsOwn) {
+  Dataset d = MakeDataset(2, 16);
+  const SystemMatrix a = WholeMatrix(d, 2);
+  std::vector<float> truth = d.truth.emission_rgb;
+  for (float& t : truth) t = std::max(t, 0.0f);
+  SolveProblem problem;
+  problem.a = &a;
+  problem.b.resize(a.rows() * 3);
+  a.Multiply(truth.data(), problem.b.data(), 3);
+  for (const bool ordered : {false, true}) {
+    SCOPED_TRACE(ordered ? "two subsets" : "one subset");
+    SolveOptions options;  // osem, the solver's own stagnation tolerance (1e-3)
+    options.ordered_subsets = ordered;
+    options.max_iterations = 40;
+    std::vector<float> x = truth;
+    for (float& v : x) v *= 0.5f;
+    const SolveSummary s = SolveTomography(problem, &x, options);
+    EXPECT_GT(s.iterations, 1);
+    EXPECT_LT(s.final_residual_rms, 0.2 * s.initial_residual_rms);
+  }
+}
+
 // Grey data (every channel equal) solved as one channel (SolveProblem::channels = 1) give what the
 // three-channel solve gives on each of its identical channels, for every solver and with the TV
 // prior; the three-channel solve, whose code paths are the colour ones, is the oracle.
 TEST(Solve, GreyDataInOneChannelMatchTheThreeChannelSolve) {
   Dataset d = MakeDataset(3, 16, kBox, 0.05);
-  std::vector<std::unique_ptr<CameraRays>> rays;
-  std::vector<const CameraRays*> cams;
-  std::vector<std::vector<std::uint8_t>> pixels;
-  for (int c = 0; c < 3; ++c) {
-    rays.push_back(std::make_unique<CameraRays>(d.rig.cameras[c].model));
-    cams.push_back(rays.back().get());
-    pixels.emplace_back(rays.back()->rays().size(), 1);
-  }
   const GridGeometry grid = d.truth.geometry;
-  const SystemMatrix a = SystemMatrix::Build(
-      grid, cams, pixels, std::vector<std::uint8_t>(grid.num_voxels(), 1), SystemMatrixOptions());
+  const SystemMatrix a = WholeMatrix(d, 3);
   std::vector<float> grey(grid.num_voxels());
   for (std::size_t v = 0; v < grey.size(); ++v)
     grey[v] = std::max(0.0f, d.truth.emission_rgb[v * 3]);
@@ -855,6 +878,37 @@ TEST(Reconstruct, AWarmStartStopsSoonerAndNoWorse) {
   ReconstructOptions bad = options;
   bad.warm_stagnation_tolerance = 2;
   EXPECT_THROW(Reconstructor(d0.rig, bad), InputError);
+}
+
+// With two cameras the fine level takes ReconstructOptions::two_view_fine_iterations sweeps from
+// the coarse level's result (1 by default); -1 leaves it to the solve's rules, which run on; three
+// cameras are not capped. Out-of-range values are refused.
+TEST(Reconstruct, TwoViewsFineLevelTakesItsSweeps) {
+  auto solve = [](int views, int fine_iterations) {
+    Dataset d = MakeDataset(views, 20);
+    d.images.pop_back();  // the held-out camera
+    d.rig.cameras.pop_back();
+    ReconstructOptions options;
+    options.resolution = 20;
+    options.exposure = d.exposure;
+    options.solve.stagnation_tolerance = 0;  // the cap alone stops the fine level
+    options.solve.max_iterations = 25;
+    options.two_view_fine_iterations = fine_iterations;
+    Reconstructor rec(d.rig, options);
+    ReconstructSummary summary;
+    rec.Reconstruct(d.images, &summary);
+    EXPECT_EQ(summary.solves.size(), 2u);  // coarse, fine
+    return summary.solves.back().iterations;
+  };
+  EXPECT_EQ(solve(2, 1), 1);
+  EXPECT_EQ(solve(2, 3), 3);
+  EXPECT_EQ(solve(2, -1), 25);
+  EXPECT_EQ(solve(3, 1), 25);
+  for (const int bad : {0, -2}) {
+    ReconstructOptions o;
+    o.two_view_fine_iterations = bad;
+    EXPECT_THROW(o.Validate(), InputError);
+  }
 }
 
 TEST(Reconstruct, StressCasesGiveResultsOrClearErrors) {

@@ -82,6 +82,10 @@ class Osem : public IterativeSolver {
     return Residual(problem, *x, &ax_, &r_, false);
   }
 
+  // Each subset's residual is taken before its update (one subset: the whole sweep's is the
+  // iterate's before it).
+  bool SweepsSubsets(const SolveProblem&, const SolveOptions&) const override { return true; }
+
   double Iterate(const SolveProblem& problem, const SolveOptions& options,
                  std::vector<float>* x) override {
     const SystemMatrix& a = *problem.a;

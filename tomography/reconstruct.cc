@@ -117,6 +117,8 @@ void ReconstructOptions::Validate() const {
   if (!(warm_stagnation_tolerance >= 0 && warm_stagnation_tolerance <= 1) &&
       warm_stagnation_tolerance != -1)
     fail("warm_stagnation_tolerance must be in [0, 1], or -1 for the solve's own");
+  if (two_view_fine_iterations < 1 && two_view_fine_iterations != -1)
+    fail("two_view_fine_iterations must be >= 1, or -1 for the solve's own rules");
   if (envelope_margin_voxels < 0 || envelope_margin_voxels > 16)
     fail("envelope_margin_voxels must be in [0, 16]");
   if (!(envelope_pixel_tolerance >= 0) || !(envelope_pixel_tolerance <= 0.1))
@@ -495,6 +497,11 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
     if (!is_fine)
       solve_options.max_iterations =
           std::min(solve_options.max_iterations, options_.coarse_iterations);
+    // Two views' fine level refines a start (ReconstructOptions::two_view_fine_iterations).
+    if (is_fine && full && !use_stop && solve_cameras.size() <= 2 &&
+        options_.two_view_fine_iterations > 0)
+      solve_options.max_iterations =
+          std::min(solve_options.max_iterations, options_.two_view_fine_iterations);
     if (solve_options.noise_sigma == 0 && !use_stop) {
       // The discrepancy principle needs the noise of the data actually fitted: the sensor noise
       // seen in the background plus 8-bit quantisation, whose step in radiance grows with the

@@ -20,6 +20,10 @@ class Sart : public IterativeSolver {
     return Residual(problem, *x, &ax_, &r_, false);
   }
 
+  bool SweepsSubsets(const SolveProblem& problem, const SolveOptions& options) const override {
+    return options.ordered_subsets && problem.a->camera_row_ranges().size() > 1;
+  }
+
   double Iterate(const SolveProblem& problem, const SolveOptions& options,
                  std::vector<float>* x) override {
     const SystemMatrix& a = *problem.a;

@@ -179,6 +179,7 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
   std::unique_ptr<IterativeSolver> solver = entry.make(channels);
   const double stagnation =
       options.stagnation_tolerance >= 0 ? options.stagnation_tolerance : entry.stagnation_tolerance;
+  const bool sweeps_subsets = solver->SweepsSubsets(problem, options);
   summary.initial_residual_rms = solver->Start(problem, options, x);
   auto as_result = [&](const std::vector<float>& iterate) {
     std::vector<float> r = iterate;
@@ -229,7 +230,8 @@ SolveSummary SolveTomography(const SolveProblem& problem, std::vector<float>* x,
       summary.stop = SolveStop::kDiscrepancy;
       break;
     }
-    if (stagnation > 0 && previous > 0 && std::abs(previous - residual) <= stagnation * previous) {
+    if (stagnation > 0 && previous > 0 && !(sweeps_subsets && it == 1) &&
+        std::abs(previous - residual) <= stagnation * previous) {
       summary.stop = SolveStop::kStagnation;
       break;
     }

@@ -39,7 +39,8 @@
 //    reconstructor scores a held-out camera separately, reconstruct.h);
 //  - the discrepancy principle: stop once the RMS residual is below discrepancy_tau * noise_sigma;
 //  - stagnation: stop when an iteration improves the RMS residual by less than
-//    stagnation_tolerance;
+//    stagnation_tolerance (from the second iteration on for a solver whose residual is the sweep's:
+//    IterativeSolver::SweepsSubsets);
 //  - the iteration limit; and a progress callback that asks to stop (SolveStop::kCancelled).
 #ifndef FLAMERIG_TOMOGRAPHY_SOLVERS_H_
 #define FLAMERIG_TOMOGRAPHY_SOLVERS_H_
@@ -123,9 +124,18 @@ class IterativeSolver {
   // The RMS of the residual b - A x at the start (with the lower-bound rule for saturated rows).
   virtual double Start(const SolveProblem& problem, const SolveOptions& options,
                        std::vector<float>* x) = 0;
-  // One iteration: updates *x and returns the RMS residual after it.
+  // One iteration: updates *x and returns the RMS residual of the iteration: after it, or, for a
+  // solver that sweeps subsets of rows (SweepsSubsets), accumulated during the sweep.
   virtual double Iterate(const SolveProblem& problem, const SolveOptions& options,
                          std::vector<float>* x) = 0;
+  // True when Iterate's residual is accumulated during the sweep, each subset's rows measured before
+  // that subset's update (OS-EM; OS-SART): the first iteration's figure is then mostly the start's
+  // own, so the driver's stagnation test begins at the second iteration. Until 2026-12-03 it began
+  // at the first, and a good start (a coarse level's result upsampled, the previous frame) on two
+  // cameras stopped after one sweep as "stagnated" while that sweep had halved the residual.
+  virtual bool SweepsSubsets(const SolveProblem& problem, const SolveOptions& options) const {
+    return false;
+  }
   // The iterate as a result (e.g. clipped to >= 0); returns the share of the mass removed.
   virtual double Result(const SolveOptions& options, std::vector<float>* x) const { return 0.0; }
 };
