@@ -350,6 +350,18 @@ SystemMatrix WholeMatrix(const Dataset& d, int cameras) {
                              SystemMatrixOptions());
 }
 
+// The dataset's truth emission, non-negative as every start is made (linear sRGB of a red fire has
+// a slightly negative blue), and a problem whose data are its projection through a.
+SolveProblem ProjectedTruth(const Dataset& d, const SystemMatrix& a, std::vector<float>* truth) {
+  *truth = d.truth.emission_rgb;
+  for (float& t : *truth) t = std::max(t, 0.0f);
+  SolveProblem problem;
+  problem.a = &a;
+  problem.b.resize(a.rows() * 3);
+  a.Multiply(truth->data(), problem.b.data(), 3);
+  return problem;
+}
+
 double VolumeError(const FireVolume& got, const FireVolume& truth) {
   std::vector<float> t = got.geometry == truth.geometry
                              ? truth.emission_rgb
@@ -523,14 +535,8 @@ TEST(Reconstruct, TheHeldOutCameraScoresAndTheStopCameraStops) {
 TEST(Solve, AStartNoIterateBeatsIsKept) {
   Dataset d = MakeDataset(2, 16);
   const SystemMatrix a = WholeMatrix(d, 2);
-  // The truth's emission, non-negative as every start is made (linear sRGB of a red fire has a
-  // slightly negative blue).
-  std::vector<float> truth = d.truth.emission_rgb;
-  for (float& t : truth) t = std::max(t, 0.0f);
-  SolveProblem problem;
-  problem.a = &a;
-  problem.b.resize(a.rows() * 3);
-  a.Multiply(truth.data(), problem.b.data(), 3);
+  std::vector<float> truth;
+  SolveProblem problem = ProjectedTruth(d, a, &truth);
   std::mt19937 rng(2);
   std::normal_distribution<float> noise(0, 1);
   float peak = 0;
@@ -565,12 +571,8 @@ TEST(Solve, AStartNoIterateBeatsIsKept) {
 TEST(Solve, ASweepsResidualIsNotComparedWithTheStartsOwn) {
   Dataset d = MakeDataset(2, 16);
   const SystemMatrix a = WholeMatrix(d, 2);
-  std::vector<float> truth = d.truth.emission_rgb;
-  for (float& t : truth) t = std::max(t, 0.0f);
-  SolveProblem problem;
-  problem.a = &a;
-  problem.b.resize(a.rows() * 3);
-  a.Multiply(truth.data(), problem.b.data(), 3);
+  std::vector<float> truth;
+  const SolveProblem problem = ProjectedTruth(d, a, &truth);
   for (const bool ordered : {false, true}) {
     SCOPED_TRACE(ordered ? "two subsets" : "one subset");
     SolveOptions options;  // osem, the solver's own stagnation tolerance (1e-3)

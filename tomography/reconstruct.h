@@ -69,7 +69,7 @@ struct ReconstructOptions {
   // (seeds 3 and 5, frame 1) the volume's relative L2 error against the truth grows from the
   // first sweep on (0.604 / 0.610 after one, 0.616 / 0.619 after 10, 0.672 / 0.668 after 50), and
   // the main job's fits from 100 sweeps are worse than from one (untied T RMS 156 against 152 K,
-  // tied bias +17.7 against +12.9 K; BENCHMARKS.md, "The fine level's stop on two views"). On two
+  // tied bias +17.7 against +12.7 K; BENCHMARKS.md, "The fine level's stop on two views"). On two
   // views of the licks at right angles the solve stagnates after 10 sweeps at 0.493 against 0.499
   // after one. Until 2026-12-03 a stopping rule that compared the first sweep's residual with the
   // start's (solvers.h, IterativeSolver::SweepsSubsets) stopped the candle after one sweep by
