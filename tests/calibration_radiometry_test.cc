@@ -20,11 +20,19 @@ namespace {
 
 namespace fs = std::filesystem;
 
+// A file in this process's scratch folder, which is removed when the tests exit.
 std::string Temp(const std::string& name) {
-  const fs::path dir =
-      fs::temp_directory_path() / ("flamerig_radiometry_" + std::to_string(::getpid()));
-  fs::create_directories(dir);
-  return (dir / name).string();
+  struct Scratch {
+    fs::path path =
+        fs::temp_directory_path() / ("flamerig_radiometry_" + std::to_string(::getpid()));
+    Scratch() { fs::create_directories(path); }
+    ~Scratch() {
+      std::error_code ignored;
+      fs::remove_all(path, ignored);
+    }
+  };
+  static const Scratch dir;
+  return (dir.path / name).string();
 }
 
 std::string ErrorOf(const std::function<void()>& f) {

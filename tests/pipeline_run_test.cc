@@ -1676,6 +1676,7 @@ TEST(RunFrames, ABayerRecordingIsFittedThroughItsMosaic) {
     std::ofstream(exported / kExportedFormatsFile) << bad;
     EXPECT_THROW(ReadFrameFolder(rig, (exported / FrameName(1)).string(), 1.0), InputError) << bad;
   }
+  fs::remove_all(dir);
 }
 
 // Records `frames` as the one frame set of a take described by `meta`, in `dir`.
@@ -1913,6 +1914,7 @@ TEST(RunFrames, ASixteenBitBayerRecordingIsFittedThroughItsMosaic) {
     EXPECT_EQ(from_packed_folder.mosaic[k], BayerLayout::kRggb) << k;
     EXPECT_EQ(from_packed_folder.signal[k].pixels, from_packed.signal[k].pixels) << k;
   }
+  fs::remove_all(dir);
 }
 
 // A recording: a camera that dropped a set and a frame delivered incomplete are left out of their

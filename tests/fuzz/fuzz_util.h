@@ -10,17 +10,24 @@
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <system_error>
 
 namespace flamerig_fuzz {
 
+// This process's scratch folder, removed when the process exits normally (a crash keeps it, with
+// the input that caused it).
 inline const std::filesystem::path& Dir() {
-  static const std::filesystem::path dir = [] {
-    const auto d =
+  struct Scratch {
+    std::filesystem::path path =
         std::filesystem::temp_directory_path() / ("flamerig_fuzz_" + std::to_string(::getpid()));
-    std::filesystem::create_directories(d);
-    return d;
-  }();
-  return dir;
+    Scratch() { std::filesystem::create_directories(path); }
+    ~Scratch() {
+      std::error_code ignored;
+      std::filesystem::remove_all(path, ignored);
+    }
+  };
+  static const Scratch dir;
+  return dir.path;
 }
 
 inline std::string WriteFile(const std::string& name, const std::uint8_t* data, std::size_t size) {
