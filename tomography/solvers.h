@@ -88,7 +88,11 @@ struct SolveSummary {
   double prior_weight = 0;  // the weight in effect
   int iterations = 0;
   SolveStop stop = SolveStop::kMaxIterations;
-  std::vector<double> residual_rms;   // after each iteration (radiance units)
+  // Each iteration's RMS residual (radiance units): after it, or for a solver that sweeps
+  // subsets of rows (IterativeSolver::SweepsSubsets: OS-EM, OS-SART) accumulated during its sweep,
+  // each subset's rows measured before that subset's update. final_residual_rms is the returned
+  // iterate's, measured after the solve.
+  std::vector<double> residual_rms;
   std::vector<double> holdout_error;  // after each iteration, when a stop camera's scorer was given
   double initial_holdout_error = -1;  // the start's, likewise
   int best_iteration = 0;             // the iterate returned (0: the start)
