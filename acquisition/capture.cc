@@ -96,7 +96,7 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
   c.match_tolerance_ns = static_cast<std::int64_t>(
       r.Range("match_tolerance_ms", 400.0 / c.trigger_rate_hz, 1e-6, 1e6) * 1e6);
   c.set_timeout_ns = static_cast<std::int64_t>(r.Range("set_timeout_ms", 200, 1e-3, 1e6) * 1e6);
-  c.buffers = static_cast<int>(r.Range("buffers", c.buffers, 1, 1024));
+  c.buffers = r.Whole<int>("buffers", c.buffers, 1, 1024);
   c.pretrigger_seconds = r.Range("pretrigger_seconds", c.pretrigger_seconds, 0, 3600);
   c.pretrigger_max_bytes =
       static_cast<std::uint64_t>(r.Range("pretrigger_max_mb", 256, 0, 1e7) * (1 << 20));
@@ -147,7 +147,7 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
       throw InputError(where + ": action: 'group_mask' 0 would fire no camera");
     a.lead_ms = ar.Range("lead_ms", a.lead_ms, 1e-3, 1e6);
     a.destination = ar.Get<std::string>("destination", a.destination);
-    a.port = static_cast<int>(ar.Range("port", a.port, 1, 65535));
+    a.port = ar.Whole<int>("port", a.port, 1, 65535);
     ar.CheckKnown();
   }
   r.Seen("cameras");
@@ -194,10 +194,10 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     CameraSettings& s = cc.settings;
     // Absent: the camera's own size (aravis: its whole sensor; v4l2: its current format).
     const bool sim = cc.driver == "sim";
-    s.width = static_cast<int>(cr.Range("width", sim ? s.width : 0, 0, 16384));
-    s.height = static_cast<int>(cr.Range("height", sim ? s.height : 0, 0, 16384));
-    s.offset_x = static_cast<int>(cr.Range("offset_x", 0, 0, 16384));
-    s.offset_y = static_cast<int>(cr.Range("offset_y", 0, 0, 16384));
+    s.width = cr.Whole<int>("width", sim ? s.width : 0, 0, 16384);
+    s.height = cr.Whole<int>("height", sim ? s.height : 0, 0, 16384);
+    s.offset_x = cr.Whole<int>("offset_x", 0, 0, 16384);
+    s.offset_y = cr.Whole<int>("offset_y", 0, 0, 16384);
     cr.Seen("features");
     if (const YAML::Node f = cams[i]["features"]) {
       if (!f.IsMap())
@@ -225,7 +225,7 @@ CaptureConfig CaptureConfig::Parse(const std::string& text, const std::string& w
     s.exposure_us = cr.Range("exposure_us", s.exposure_us, 1e-3, 1e9);
     s.gain_db = cr.Range("gain_db", s.gain_db, -100, 100);
     s.trigger_source = cr.Get<std::string>("trigger_source", s.trigger_source);
-    s.packet_size = static_cast<int>(cr.Range("packet_size", 0, 0, 65535));
+    s.packet_size = cr.Whole<int>("packet_size", 0, 0, 65535);
     s.ptp = c.sync == SyncMode::kPtp;
     s.trigger = c.sync == SyncMode::kHardwareTrigger   ? TriggerMode::kHardware
                 : c.sync == SyncMode::kSoftwareTrigger ? TriggerMode::kSoftware

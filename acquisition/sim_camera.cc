@@ -519,7 +519,7 @@ void ReadSimKeys(const YAML::Node& keys, const std::string& where, const std::st
   o.seed = static_cast<std::uint64_t>(index) + 1;
   if (keys) {
     ConfigReader sr(keys, where);
-    o.seed = static_cast<std::uint64_t>(sr.Range("seed", double(o.seed), 0, 9e15));
+    o.seed = sr.Whole<std::uint64_t>("seed", double(o.seed), 0, 9e15);
     o.drop_probability = sr.NonNegative("drop_probability", 0);
     o.miss_trigger_probability = sr.NonNegative("miss_trigger_probability", 0);
     o.plugged = sr.Get<std::string>("plugged", "");

@@ -451,7 +451,7 @@ CameraRadiometry CameraRadiometry::FromYaml(const YAML::Node& node, const std::s
   m.curve = r.Get<std::vector<double>>("curve", {});
   if (m.transfer != TransferFunction::kCurve && !m.curve.empty())
     throw InputError(where + ": 'curve' is given but transfer is " + transfer);
-  m.bit_depth = static_cast<int>(r.Range("bit_depth", 0, 0, 16));
+  m.bit_depth = r.Whole<int>("bit_depth", 0, 0, 16);
   m.black_level = r.NonNegative("black_level", 0);
   m.saturation_level = r.NonNegative("saturation_level", 0);
   const std::string spectral = r.Get<std::string>("spectral", "srgb");

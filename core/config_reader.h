@@ -56,6 +56,14 @@ class ConfigReader {
     }
     return v;
   }
+  // A whole number in [lo, hi] as an integer type (a count, a size, a port): 2.7 is an error, where
+  // a cast would have taken 2 without a word.
+  template <typename Int>
+  Int Whole(const std::string& key, double fallback, double lo, double hi) {
+    const double v = Range(key, fallback, lo, hi);
+    if (v != std::floor(v)) throw InputError(where_ + ": '" + key + "' must be a whole number");
+    return static_cast<Int>(v);
+  }
   void Seen(const std::string& key) { seen_.insert(key); }
   // Unknown keys are errors: a typo must not silently fall back to a default. So is a key given
   // twice, of which YAML's reader keeps the first without a word (an edited config whose second

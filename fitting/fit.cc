@@ -572,18 +572,21 @@ struct RingTie {
       const auto& [w0, w1] = nodes.weight[a];
       b[r0] += w0 * values[a];
       d[r0] += w0 * w0;
-      if (w1 == 0) continue;  // (a value that is not finite stays in its own node)
+      if (w1 == 0) continue;  // (a ring's value that is not finite stays in its own ring)
       b[r1] += w1 * values[a];
       d[r1] += w1 * w1;
       if (r1 == r0 + 1) e[r0] += w0 * w1;  // e[r]: the (r, r + 1) entry
     }
-    // Thomas's algorithm per layer; a node no voxel weighs solves to 0 (its row is empty).
+    // Thomas's algorithm per layer; a node no voxel weighs solves to 0 (its row is empty). Nodes
+    // that share no voxel (e = 0: always for rings) are not coupled, so that a value that is not
+    // finite stays in its own nodes (0 x NaN would carry it along the layer); the same figures
+    // for finite values.
     std::vector<double> c(nodes.nodes, 0.0);
     for (std::size_t layer = 0; layer + 1 < layer_nodes.size(); ++layer) {
       const std::size_t lo = layer_nodes[layer], hi = layer_nodes[layer + 1];
       for (std::size_t r = lo; r < hi; ++r) {
         double diag = d[r], rhs = b[r];
-        if (r > lo) {
+        if (r > lo && e[r - 1] != 0) {
           diag -= e[r - 1] * c[r - 1];
           rhs -= e[r - 1] * b[r - 1];
         }
@@ -595,7 +598,8 @@ struct RingTie {
         c[r] = r + 1 < hi ? e[r] / diag : 0.0;
         b[r] = rhs / diag;
       }
-      for (std::size_t r = hi; r-- > lo + 1;) b[r - 1] -= c[r - 1] * b[r];
+      for (std::size_t r = hi; r-- > lo + 1;)
+        if (c[r - 1] != 0) b[r - 1] -= c[r - 1] * b[r];
     }
     for (std::size_t a = 0; a < m; ++a)
       values[a] = nodes.weight[a][0] * b[nodes.node[a][0]] +

@@ -11,7 +11,8 @@
 //     stagnation_tolerance: -1  # stop when an iteration improves the residual less; 0 never;
 //                               # -1 the solver's own (osem 1e-3, sart and cgls 5e-3)
 //     warm_stagnation_tolerance: 0.02  # the same, warm-started osem with 4 cameras or more
-//     two_view_fine_iterations: 1  # two cameras: the fine level's sweeps from a start; -1 none
+//     two_view_fine_iterations: 1  # two cameras, osem or os-sart: the fine level's sweeps from
+//                                  # a start; -1 the solve's own rules
 //     holdout_patience: 10
 //     prior: none               # osem's smoothness prior: none | quadratic | tv (prior.h)
 //     prior_weight: -1          # unit-free; -1 the prior's own (tv 3e-4, quadratic 1e-5)

@@ -124,6 +124,9 @@ TEST(CaptureConfig, ParsesAndNamesTheKeyOfEveryMistake) {
             std::string::npos);
   EXPECT_NE(ParseError("cameras: [{name: a, width: 1e300}]").find("'width' must be in"),
             std::string::npos);
+  // A size given as a fraction: an error, not truncated.
+  EXPECT_NE(ParseError("cameras: [{name: a, width: 640.5}]").find("'width' must be a whole number"),
+            std::string::npos);
   // A recording's set count: a whole number, 0 for none.
   EXPECT_EQ(CaptureConfig::Parse("max_recording_sets: 90\ncameras: [{name: a}]", "r.yaml")
                 .recorder.max_sets,

@@ -159,6 +159,10 @@ TEST(TomographyConfig, ReadsKeysAndNamesTheFileAndKeyOfAnError) {
       {"tomography:\n  prior_weight: -0.5\n", "'prior_weight'"},
       {"tomography:\n  bin: 0\n", "'bin'"},
       {"tomography:\n  two_view_fine_iterations: 0\n", "'two_view_fine_iterations'"},
+      // A count given as a fraction: an error, not truncated to 2.
+      {"tomography:\n  two_view_fine_iterations: 2.7\n",
+       "'two_view_fine_iterations' must be a whole number"},
+      {"tomography:\n  mask: {dilation_px: 1.5}\n", "'dilation_px' must be a whole number"},
       {"resolution: 48\n", "a 'tomography:' map"},
       {"tomography: [1, 2]\n", "a 'tomography:' map"}};
   for (const auto& [text, message] : bad) {

@@ -883,29 +883,70 @@ TEST(Reconstruct, AWarmStartStopsSoonerAndNoWorse) {
 }
 
 // With two cameras the fine level takes ReconstructOptions::two_view_fine_iterations sweeps from
-// the coarse level's result (1 by default); -1 leaves it to the solve's rules, which run on; three
-// cameras are not capped. Out-of-range values are refused.
+// the coarse level's result or a warm start (1 by default), with OS-EM or OS-SART; -1 leaves it to
+// the solve's rules, which run on. Not capped: three cameras, a stop camera, a fine level with no
+// start (no coarse level), CGLS and plain SART. Out-of-range values are refused.
 TEST(Reconstruct, TwoViewsFineLevelTakesItsSweeps) {
-  auto solve = [](int views, int fine_iterations) {
-    Dataset d = MakeDataset(views, 20);
-    d.images.pop_back();  // the held-out camera
-    d.rig.cameras.pop_back();
+  struct Case {
+    int views = 2;
+    int fine_iterations = 1;
+    std::string solver = "osem";
+    bool ordered_subsets = true;
+    bool coarse_to_fine = true;
+    bool warm = false;
+    bool stop_camera = false;
+  };
+  auto solve = [](const Case& c) {
+    Dataset d = MakeDataset(c.views, 20);
+    if (!c.stop_camera) {
+      d.images.pop_back();  // the held-out camera
+      d.rig.cameras.pop_back();
+    }
     ReconstructOptions options;
     options.resolution = 20;
     options.exposure = d.exposure;
+    options.solve.solver = c.solver;
+    options.solve.ordered_subsets = c.ordered_subsets;
     options.solve.stagnation_tolerance = 0;  // the cap alone stops the fine level
     options.solve.max_iterations = 25;
-    options.two_view_fine_iterations = fine_iterations;
+    options.coarse_to_fine = c.coarse_to_fine;
+    options.two_view_fine_iterations = c.fine_iterations;
+    if (c.stop_camera) {
+      options.stop_camera = "holdout";
+      options.solve.holdout_patience = 1000;  // the stop camera never stops it
+    }
     Reconstructor rec(d.rig, options);
     ReconstructSummary summary;
-    rec.Reconstruct(d.images, &summary);
-    EXPECT_EQ(summary.solves.size(), 2u);  // coarse, fine
+    if (!c.warm) {
+      rec.Reconstruct(d.images, &summary);
+      EXPECT_EQ(summary.solves.size(), c.coarse_to_fine ? 2u : 1u);  // coarse, fine
+      return summary.solves.back().iterations;
+    }
+    const FireVolume previous = rec.Reconstruct(d.images, nullptr);
+    rec.Reconstruct(d.images, &summary, &previous);
+    EXPECT_EQ(summary.solves.size(), 1u);  // a warm start skips the coarse level
     return summary.solves.back().iterations;
   };
-  EXPECT_EQ(solve(2, 1), 1);
-  EXPECT_EQ(solve(2, 3), 3);
-  EXPECT_EQ(solve(2, -1), 25);
-  EXPECT_EQ(solve(3, 1), 25);
+  auto with = [](auto change) {
+    Case c;
+    change(c);
+    return c;
+  };
+  EXPECT_EQ(solve(Case()), 1);
+  EXPECT_EQ(solve(with([](Case& c) { c.fine_iterations = 3; })), 3);
+  EXPECT_EQ(solve(with([](Case& c) { c.fine_iterations = -1; })), 25);
+  EXPECT_EQ(solve(with([](Case& c) { c.warm = true; })), 1);
+  EXPECT_EQ(solve(with([](Case& c) { c.solver = "sart"; })), 1);  // OS-SART
+  // Not capped: more than the cap's one sweep (the discrepancy principle may stop them before 25).
+  EXPECT_GT(solve(with([](Case& c) { c.views = 3; })), 1);
+  EXPECT_GT(solve(with([](Case& c) { c.stop_camera = true; })), 1);
+  EXPECT_GT(solve(with([](Case& c) { c.coarse_to_fine = false; })), 1);
+  EXPECT_GT(solve(with([](Case& c) { c.solver = "cgls"; })), 1);
+  EXPECT_GT(solve(with([](Case& c) {
+              c.solver = "sart";
+              c.ordered_subsets = false;
+            })),
+            1);
   for (const int bad : {0, -2}) {
     ReconstructOptions o;
     o.two_view_fine_iterations = bad;

@@ -497,9 +497,11 @@ FireVolume Reconstructor::Reconstruct(const std::vector<LinearFrame>& input_fram
     if (!is_fine)
       solve_options.max_iterations =
           std::min(solve_options.max_iterations, options_.coarse_iterations);
-    // Two views' fine level refines a start (ReconstructOptions::two_view_fine_iterations).
+    // Two views' fine level refines a start (ReconstructOptions::two_view_fine_iterations): with
+    // a solver that sweeps subsets (OS-EM, OS-SART), the solves it was measured on.
     if (is_fine && full && !use_stop && solve_cameras.size() <= 2 &&
-        options_.two_view_fine_iterations > 0)
+        options_.two_view_fine_iterations > 0 &&
+        FindTomographySolver(solve_options.solver).make(nc)->SweepsSubsets(problem, solve_options))
       solve_options.max_iterations =
           std::min(solve_options.max_iterations, options_.two_view_fine_iterations);
     if (solve_options.noise_sigma == 0 && !use_stop) {

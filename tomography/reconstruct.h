@@ -63,8 +63,11 @@ struct ReconstructOptions {
   // less, and the fit starts from its colours. (The "full" two-view solves of that measurement
   // were one sweep: two_view_fine_iterations, below.)
   double warm_stagnation_tolerance = 0.02;
-  // With two solve cameras (or one) and no stop camera, the fine level, when it starts from the
-  // coarse level or a warm start, takes at most this many iterations; -1 = the solve's own rules.
+  // With two solve cameras (or one), no stop camera and a solver that sweeps subsets of rows
+  // (IterativeSolver::SweepsSubsets: OS-EM, and SART with ordered_subsets), the fine level, when it
+  // starts from the coarse level or a warm start, takes at most this many iterations; -1 = the
+  // solve's own rules. CGLS and plain SART, which the old rule below never stopped early and which
+  // were not measured so, keep their own rules.
   // Two views do not hold the fine grid, and its sweeps fit their streaks: on `simulate`'s candle
   // (seeds 3 and 5, frame 1) the volume's relative L2 error against the truth grows from the
   // first sweep on (0.604 / 0.610 after one, 0.616 / 0.619 after 10, 0.672 / 0.668 after 50), and
