@@ -1289,6 +1289,25 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   return result;
 }
 
+FitResult NoFireResult(const GridGeometry& grid, const AbsorptionModel& absorption,
+                       const FitOptions& options, double exposure) {
+  if (!(exposure > 0) || !std::isfinite(exposure))
+    throw InputError("fit: no fire: the exposure " + std::to_string(exposure) +
+                     " is not a positive number");
+  FitResult result;
+  result.method = "no fire";
+  result.termination = FitTermination::kConverged;
+  result.message = "the images show no fire: nothing to fit";
+  result.exposure = exposure;
+  State st;
+  st.grid = grid;
+  st.s = exposure;
+  result.volume = ToVolume(st, result, options.objective.t_min_k);
+  result.volume.metadata_numbers["no_fire"] = 1;
+  StampAbsorption(absorption, &result.volume);
+  return result;
+}
+
 }  // namespace flamerig
 
 namespace flamerig {

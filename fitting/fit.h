@@ -412,6 +412,15 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
                   const ProgressCallback& progress = nullptr,
                   const std::vector<BandTomography>& bands = {});
 
+// The result for images that hold no fire (a take filmed before ignition or after the flame is
+// out, a frame set with the fire outside every camera's view): no active voxel, every voxel at the
+// ambient temperature (ObjectiveOptions::t_min_k) with no soot, `exposure` as given, 0 iterations,
+// method "no fire" and termination "converged" with the message "the images show no fire: nothing
+// to fit". The same metadata as FastFit's volume, so that a take's sequence of volumes has no gap
+// and every reader of a fitted volume reads it. No sigma grids: nothing was estimated.
+FitResult NoFireResult(const GridGeometry& grid, const AbsorptionModel& absorption,
+                       const FitOptions& options, double exposure);
+
 enum class PaperAlgorithm { kPerVoxelDensity = 1, kDensityScale = 2 };
 
 struct PaperFitOptions {

@@ -1,5 +1,7 @@
 #include "pipeline/frame_source.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -357,6 +359,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
   out.mosaic.assign(rig.cameras.size(), BayerLayout::kNone);
   out.bits.assign(rig.cameras.size(), 0);
   out.radiometry = impl_->radiometry;
+  out.exposure_ratio.assign(rig.cameras.size(), 1.0);
   bool have_id = false;
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const std::string& name = rig.cameras[c].name;
@@ -381,6 +384,21 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
       }
       bits = DecodeFrame(*f, &u8, &u16);
       out.mosaic[c] = BayerLayoutOf(f->info.pixel_format);
+      // Its exposure against the recording's start (a frame that records none says nothing).
+      const CameraSettings& start =
+          impl_->recording->metadata().cameras[impl_->source_camera[c]].settings;
+      if (f->info.exposure_us > 0 && start.exposure_us > 0 && std::isfinite(f->info.exposure_us) &&
+          std::isfinite(f->info.gain_db)) {
+        const double ratio = f->info.exposure_us / start.exposure_us *
+                             std::pow(10.0, (f->info.gain_db - start.gain_db) / 20.0);
+        out.exposure_ratio[c] = ratio;
+        if (std::abs(ratio - 1) > kExposureChange)
+          out.notes.push_back(fmt::format(
+              "{} exposed at {:.3g} times the recording's start ({:g} us, {:g} dB; it started at "
+              "{:g} us, {:g} dB): run holds one exposure per take, so this set's densities are "
+              "off by that factor; split the take where the exposure changed",
+              name, ratio, f->info.exposure_us, f->info.gain_db, start.exposure_us, start.gain_db));
+      }
       // A frame that arrived in a 10- to 14-bit wire format holds its values in the words' high
       // bits: the rig's entry, counted in those bits or taken from the frame, is read for them.
       const std::string& wire =

@@ -41,6 +41,11 @@ struct FrameSourceSpec {
   std::string Describe() const;  // "recording DIR", "2 StreamPix sequences", "images DIR"
 };
 
+// A frame's exposure x gain that differs from its recording's start by more than this share is a
+// change (SourceFrameSet::exposure_ratio); a camera's own rounding of the time it is given, a few
+// parts in a thousand, is not.
+inline constexpr double kExposureChange = 0.01;
+
 struct SourceFrameSet {
   std::size_t index = 0;            // the set's number in the source
   std::vector<ImageU8> images;      // per rig camera: RGB8, or empty when left out
@@ -59,7 +64,14 @@ struct SourceFrameSet {
   // names the wire format), the rig's for such words (CameraRadiometry::ForHighBitWords); the
   // rig's for a camera left out. The fit's mosaic model takes the same
   std::vector<CameraRadiometry> radiometry;
-  std::vector<std::string> notes;  // cameras left out and why
+  // per rig camera: the frame's exposure time x gain over the recording's at its start (its
+  // metadata's settings), from the frame's own record: a camera whose exposure or gain was changed
+  // while it recorded (`ctl configure CAM exposure_us`, live) says so here. 1 where the source does
+  // not say (image files, StreamPix, a frame that records no exposure, a camera left out).
+  // `flamerig run` holds one exposure per take, so a set whose ratio is not 1 gets a note (below)
+  // and a warning: its densities are off by that factor.
+  std::vector<double> exposure_ratio;
+  std::vector<std::string> notes;  // cameras left out and why; exposures that changed
   // The device frame id of the set's first present frame (recordings), the file's frame number
   // (StreamPix), or the set number (images): what a simulated camera replaying a dataset showed.
   std::uint64_t frame_id = 0;

@@ -2,6 +2,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <sstream>
@@ -221,6 +222,12 @@ void FrameStages::Read(FrameWork* w) {
     Log().warn("run: {}: {} of the rig's {} cameras have an image{}", FrameName(w->index),
                s.cameras_used, rig_.cameras.size(), why);
   }
+  for (std::size_t c = 0; c < w->set.exposure_ratio.size(); ++c)
+    if (std::abs(w->set.exposure_ratio[c] - 1) > kExposureChange)
+      Log().warn(
+          "run: {}: {} exposed at {:.3g} times the recording's start; its densities are off "
+          "by that factor (one exposure a take)",
+          FrameName(w->index), rig_.cameras[c].name, w->set.exposure_ratio[c]);
   if (holdout_ >= 0 && w->set.images[holdout_].empty())
     s.notes.push_back("held-out camera " + options_.holdout_camera + " has no frame");
   if (truth_count_) s.truth_frame = static_cast<int>(w->set.frame_id % truth_count_);
@@ -300,10 +307,13 @@ void FrameStages::Reconstruct(FrameWork* w, const ProgressCallback& progress) {
   const auto t0 = SteadyClock::now();
   ReconstructSummary rs;
   FrameSummary& s = w->summary;
+  // A black tomography (the last computed frame held no fire) is no start.
+  const bool warm = WarmStart() && chain_.last_computed >= 0 &&
+                    std::any_of(last_tomography_.emission_rgb.begin(),
+                                last_tomography_.emission_rgb.end(), [](float e) { return e > 0; });
   try {
-    w->tomography = reconstructor_->Reconstruct(
-        linear, &rs, WarmStart() && chain_.last_computed >= 0 ? &last_tomography_ : nullptr,
-        progress);
+    w->tomography =
+        reconstructor_->Reconstruct(linear, &rs, warm ? &last_tomography_ : nullptr, progress);
   } catch (const DataError& e) {
     s.reconstruct_ms = Ms(t0);
     throw DataError(std::string("tomography: ") + e.what());
@@ -328,6 +338,8 @@ void FrameStages::Reconstruct(FrameWork* w, const ProgressCallback& progress) {
                         " bands' tomographies");
   }
   s.reconstruct_ms = Ms(t0);
+  for (const CameraMaskSummary& m : rs.masks)
+    if (!m.held_out) w->fire_pixels.emplace_back(m.camera, m.fire_pixels);
   s.matrix_source = rs.matrix_source;
   s.hull_fraction = rs.voxel_fraction_in_hull;
   if (!rs.stop_camera.empty() && !rs.solves.empty()) {
@@ -374,6 +386,35 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
     from = "fitted";
   }
   const auto t0 = SteadyClock::now();
+  if (ActiveVoxels(reconstructor_->grid(), w->tomography, fit.activity_threshold, nullptr)
+          .empty()) {
+    // Which cameras see fire, and how much of it.
+    std::string seen;
+    int seeing = 0;
+    for (const auto& [camera, pixels] : w->fire_pixels)
+      if (pixels > 0) {
+        seen += (seeing++ ? ", " : "") + camera + " (" + std::to_string(pixels) + " pixels)";
+      }
+    const int min_views =
+        std::min<int>(options_.reconstruct.hull.min_views, static_cast<int>(w->fire_pixels.size()));
+    if (seeing >= std::max(min_views, 1))
+      throw DataError("fit: the tomography is black although " + seen +
+                      " see fire: their views of it do not meet inside the box (is the rig or "
+                      "the box wrong?)");
+    w->no_fire = true;
+    if (seeing == 0) {
+      w->summary.notes.push_back("no camera sees fire");
+    } else {
+      w->summary.notes.push_back("only " + seen + " sees fire, where " + std::to_string(min_views) +
+                                 " cameras must (the visual hull's min_views)");
+    }
+    // The exposure as a fit would hold it; none fitted.
+    if (fit.known_exposure <= 0) from.clear();
+    w->result = NoFireResult(reconstructor_->grid(), absorption_, fit,
+                             fit.known_exposure > 0 ? fit.known_exposure : exposure_);
+    w->summary.fit_ms = Ms(t0);
+    return;
+  }
   try {
     w->result = FastFit(reconstructor_->grid(), w->tomography, w->views, absorption_, fit,
                         WarmStart() && chain_.previous_result >= 0 ? &previous_ : nullptr, progress,
@@ -392,10 +433,15 @@ void FrameStages::Write(FrameWork* w) {
   FrameSummary& s = w->summary;
   FitResult& result = w->result;
   std::vector<ImageU8> rendered;
-  const std::vector<ViewScore> scores = WriteFitReport("", result, w->views, w->held, absorption_,
-                                                       options_.fit.render, "", &rendered);
-  for (const auto& sc : scores)
-    s.delta_e.push_back(ViewDeltaE{sc.name, sc.held_out, sc.mean_delta_e, sc.fire_delta_e});
+  if (w->no_fire) {  // nothing rendered: black, and no Delta E (there are no fire pixels)
+    for (const std::vector<FitView>* views : {&w->views, &w->held})
+      for (const FitView& v : *views) rendered.emplace_back(v.image.width, v.image.height, 3);
+  } else {
+    const std::vector<ViewScore> scores = WriteFitReport("", result, w->views, w->held, absorption_,
+                                                         options_.fit.render, "", &rendered);
+    for (const auto& sc : scores)
+      s.delta_e.push_back(ViewDeltaE{sc.name, sc.held_out, sc.mean_delta_e, sc.fire_delta_e});
+  }
   result.volume.metadata_numbers["frame"] = static_cast<double>(w->index);
   result.volume.metadata_numbers["source_frame_id"] = static_cast<double>(w->set.frame_id);
   WriteVolume(paths_.Volume(w->index), result.volume);
@@ -423,7 +469,7 @@ void FrameStages::Write(FrameWork* w) {
     picture.Commit();
   }
   s.write_ms = Ms(t0);
-  s.status = "computed";
+  s.status = w->no_fire ? "no fire" : "computed";
   s.active_voxels = result.active_voxels;
   s.fit_evaluations = result.evaluations;
   s.exposure = result.exposure;
@@ -449,12 +495,17 @@ void FrameStages::Write(FrameWork* w) {
   last_tomography_ = std::move(w->tomography);
   last_images_ = w->set.images;
   chain_.last_computed = static_cast<long long>(w->index);
-  chain_.previous_result = static_cast<long long>(w->index);
+  // No fire: the next frame's fit starts cold (and its tomography too: Reconstruct).
+  chain_.previous_result = w->no_fire ? -1 : static_cast<long long>(w->index);
 }
 
 void FrameStages::Score(FrameWork* w) {
   if (!w->have_output || !truth_count_) return;
   FrameSummary& s = w->summary;
+  if (w->no_fire) {
+    s.notes.push_back("no fire: not compared with the truth");
+    return;
+  }
   // The frame's output is written: a truth that cannot be read is a note, not a failed frame.
   FireVolume truth;
   try {

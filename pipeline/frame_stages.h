@@ -10,6 +10,10 @@
 //   Read(i) -> SkipUnchanged ? Reuse : (Reconstruct -> Fit -> Write) -> Score -> Commit
 // and, when a stage throws a DataError, Fail(what) -> Commit. A stage that is cancelled (through
 // the progress callback given to it) throws Cancelled, and RunFrames stops without committing.
+// A frame set whose images hold no fire (filmed before ignition or after the flame is out) is not
+// a failure: Fit gives it the empty result (fitting/fit.h, NoFireResult), Write writes it like any
+// other (so that the take's volumes and its Blender sequence have no gap) with the status "no
+// fire", and the next frame starts cold (its tomography too: a black volume is no start).
 //
 // Errors: DataError for the frame's data (see run.h), InputError and IoError for the run.
 // Thread safety: one thread; the stages use TBB inside.
@@ -20,6 +24,7 @@
 #include <cstddef>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "core/progress.h"
@@ -44,6 +49,10 @@ struct FrameWork {
   std::vector<FitView> views;  // the fitted views
   std::vector<FitView> held;   // the held-out view, if any
   bool have_output = false;    // a volume was written (computed or reused)
+  // Reconstruct's fire pixels per camera of the solve (its masks': above the threshold, specks
+  // removed), and Fit's verdict that the images hold no fire (FrameStages::Fit).
+  std::vector<std::pair<std::string, std::size_t>> fire_pixels;
+  bool no_fire = false;
   std::chrono::steady_clock::time_point start;
 };
 
@@ -82,6 +91,9 @@ class FrameStages {
   virtual bool SkipUnchanged(FrameWork* w);
   virtual void Reuse(FrameWork* w);
   virtual void Reconstruct(FrameWork* w, const ProgressCallback& progress);
+  // No voxel of the tomography active: the images hold no fire when fewer cameras than the visual
+  // hull's min_views see fire pixels (w->no_fire, the empty result); when enough of them do, their
+  // views do not meet inside the box, which is a DataError naming them (a wrong rig or box).
   virtual void Fit(FrameWork* w, const ProgressCallback& progress);
   virtual void Write(FrameWork* w);
   virtual void Score(FrameWork* w);

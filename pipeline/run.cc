@@ -168,7 +168,10 @@ std::string FrameSummary::Line() const {
   s.setf(std::ios::fixed);
   s.precision(0);
   s << FrameName(frame) << ": " << status;
-  if (status == "computed" || status.rfind("unchanged", 0) == 0) {
+  if (status == "no fire") {
+    s << ", " << cameras_used << " camera(s), " << total_ms << " ms (read " << read_ms
+      << ", tomography " << reconstruct_ms << ", write " << write_ms << ")";
+  } else if (status == "computed" || status.rfind("unchanged", 0) == 0) {
     s << ", " << cameras_used << " camera(s), " << total_ms << " ms (read " << read_ms
       << ", tomography " << reconstruct_ms << ", fit " << fit_ms << ", write " << write_ms << ")";
     s.precision(3);
@@ -351,7 +354,9 @@ std::string RunSummary::BriefReport() const {
   }
   s << "frames " << begin << ".." << (end ? end - 1 : 0) << ": " << computed << " computed, "
     << unchanged << " unchanged (reused), " << resumed << " already done, " << failed_here
-    << " failed" << (cancelled ? ", cancelled" : "") << "; " << seconds << " s";
+    << " failed";
+  if (no_fire) s << ", " << no_fire << " without fire";
+  s << (cancelled ? ", cancelled" : "") << "; " << seconds << " s";
   if (computed > 0)
     s << " (" << 60.0 * computed / std::max(seconds, 1e-9) << " computed frames/min; tomography "
       << tomo_ms / 1000 << " s, fit " << fit_ms / 1000 << " s)";
@@ -450,6 +455,8 @@ RunSummary RunFrames(const RunOptions& options, const std::string& rig_path, std
     stages.Commit(&w);
     if (w.unchanged) {
       ++run.unchanged;
+    } else if (w.no_fire && w.have_output) {
+      ++run.no_fire;
     } else if (w.have_output) {
       ++run.computed;
     } else {

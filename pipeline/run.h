@@ -22,9 +22,12 @@
 //      written last: the mark of a complete frame.
 //
 // Failures. A DataError in any stage (a corrupt PNG, a StreamPix frame cut short, a recording frame
-// whose checksum fails, an image of the wrong size, no fire in view) fails that frame only: its
-// summary says why, the next frame starts cold, and the run goes on. Bad options, a missing rig
-// (InputError) and a disk that refuses to write (IoError) stop the run.
+// whose checksum fails, an image of the wrong size, cameras that see fire where no voxel of the
+// box lies) fails that frame only: its summary says why, the next frame starts cold, and the run
+// goes on. Bad options, a missing rig (InputError) and a disk that refuses to write (IoError) stop
+// the run. A frame set whose images hold no fire (before ignition, after the flame is out) is not a
+// failure: it is written as an empty volume with the status "no fire" (frame_stages.h), counted
+// apart (RunSummary::no_fire), and the next frame starts cold.
 //
 // Resuming and stopping. Every output is written to a temporary name and renamed, so a killed run
 // never leaves a half-written file under a final name; a frame is complete when its summary exists.
@@ -132,7 +135,9 @@ struct ViewDeltaE {
 
 struct FrameSummary {
   std::size_t frame = 0;
-  std::string status;              // "computed", "unchanged (reused frame N)", "failed: ..."
+  // "computed", "unchanged (reused frame N)", "no fire" (an empty volume written: the images hold
+  // no fire, the notes say which cameras saw any), "failed: ..."
+  std::string status;
   std::vector<std::string> notes;  // cameras left out and why, matrix rebuilt, ...
   int cameras_used = 0;
   double read_ms = 0, reconstruct_ms = 0, fit_ms = 0, write_ms = 0, total_ms = 0;
@@ -197,6 +202,8 @@ struct RunSummary {
   std::size_t begin = 0, end = 0;                        // frames of the range this call covered
   std::size_t computed = 0, unchanged = 0, resumed = 0;  // resumed: complete before this call
   std::size_t failed = 0;
+  // Frames whose images held no fire (FrameStages::Fit): written as empty volumes, not failed.
+  std::size_t no_fire = 0;
   bool cancelled = false;  // stopped by the progress callback; frames after the last are not done
   std::vector<FrameSummary> frames;  // every frame of [begin, end) done, in order
   std::string rig_path;              // the rig used

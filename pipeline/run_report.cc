@@ -217,7 +217,7 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   PlotSeries constant{
       "a constant temperature's RMS error (the truth's spread; K, right axis)", {}, {}, true};
   PlotSeries tomo{"tomography", {}, {}}, fit{"fit", {}, {}}, total{"whole frame", {}, {}};
-  std::size_t computed = 0, unchanged = 0, failed = 0;
+  std::size_t computed = 0, unchanged = 0, failed = 0, no_fire = 0;
   double de_sum = 0, t_sum = 0, in1_sum = 0, in2_sum = 0, sigma_sum = 0;
   int de_n = 0, t_n = 0, sigma_n = 0;
   // The determined voxels scored apart: their share, and the RMS over them and over the rest
@@ -232,6 +232,7 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
     }
     if (f.status.rfind("unchanged", 0) == 0) ++unchanged;
     if (f.status.rfind("failed", 0) == 0) ++failed;
+    if (f.status == "no fire") ++no_fire;
     for (const auto& d : f.delta_e) {
       PlotSeries& s = per_view[d.camera];
       s.name = d.camera + (d.held_out ? " (held out)" : " (fitted)");
@@ -401,9 +402,13 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   if (info.ranks > 1) inputs.emplace_back("MPI ranks", std::to_string(info.ranks));
   ReportPage page(info.title, inputs);
   page.Section("Results");
-  std::vector<std::string> results = {
-      fmt::format("{} frame{}: {} computed, {} unchanged (the previous result reused), {} failed.",
-                  frames.size(), frames.size() == 1 ? "" : "s", computed, unchanged, failed)};
+  std::vector<std::string> results = {fmt::format(
+      "{} frame{}: {} computed, {} unchanged (the previous result reused), {} failed{}.",
+      frames.size(), frames.size() == 1 ? "" : "s", computed, unchanged, failed,
+      no_fire ? fmt::format(", {} without fire (their images hold none: empty "
+                            "volumes written)",
+                            no_fire)
+              : std::string())};
   if (de_n)
     results.push_back(fmt::format(
         "Mean Delta E of the fitted views' fire pixels: <b>{:.3f}</b> (CIELab; 1 is about the "

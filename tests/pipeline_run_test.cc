@@ -1276,6 +1276,102 @@ TEST(RunFrames, ADamagedFrameFailsAloneWhateverTheSource) {
   fs::remove_all(dir);
 }
 
+// A take filmed before ignition or after the flame is out: frame sets that hold no fire are not
+// failures. Frame 1's cameras see only sensor noise, frame 2's fire is seen by one camera of three
+// (the hull needs two); each is written as an empty volume (no soot, ambient temperature, the
+// take's exposure, metadata no_fire) with its Blender frame, so the sequence has no gap, and the
+// run succeeds. The frame after them starts cold: its volume is a cold run's, bit for bit. A rig
+// whose box lies beside the fire, which the cameras see, is still a failed frame, and says why.
+TEST(RunFrames, FramesWithoutFireAreEmptyVolumesNotFailures) {
+  const fs::path dir = TempDir("no_fire");
+  SimulateDataset(dir / "sim", 4);
+  const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
+  const fs::path frames = dir / "sim" / "frames";
+  for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+    const std::string png = rig.cameras[c].name + ".png";
+    ImageU8 dark = ReadImageU8((frames / "frame_000001" / png).string(), 3);
+    std::fill(dark.pixels.begin(), dark.pixels.end(), 0);
+    AddSensorNoise(&dark, 1.5, 11 + c);
+    WritePng((frames / "frame_000001" / png).string(), dark);
+    if (c > 0) WritePng((frames / "frame_000002" / png).string(), dark);
+  }
+  const RunOptions o = SmallRun(dir / "sim", dir / "out");
+  const RunSummary run = RunAll(o);
+  ASSERT_EQ(run.frames.size(), 4u);
+  EXPECT_EQ(run.failed, 0u);
+  EXPECT_EQ(run.no_fire, 2u);
+  EXPECT_EQ(run.computed, 2u);
+  EXPECT_NE(run.BriefReport().find("2 without fire"), std::string::npos) << run.BriefReport();
+  EXPECT_EQ(run.frames[0].status, "computed");
+  EXPECT_EQ(run.frames[3].status, "computed");
+  for (int f : {1, 2}) {
+    SCOPED_TRACE(f);
+    const FrameSummary& s = run.frames[f];
+    EXPECT_EQ(s.status, "no fire") << s.Line();
+    EXPECT_EQ(s.active_voxels, 0u);
+    EXPECT_EQ(s.soot, 0);
+    EXPECT_TRUE(s.delta_e.empty());
+    EXPECT_EQ(s.truth_rms_k, -1);  // not scored
+    const FireVolume v = ReadVdb((dir / "out" / (FrameName(f) + ".vdb")).string());
+    EXPECT_EQ(v.metadata_numbers.at("no_fire"), 1);
+    EXPECT_EQ(v.metadata_numbers.at("exposure"), run.frames[0].exposure);
+    EXPECT_EQ(v.geometry.num_voxels(), std::size_t(v.density_per_m3.size()));
+    EXPECT_TRUE(std::all_of(v.density_per_m3.begin(), v.density_per_m3.end(),
+                            [](float n) { return n == 0; }));
+    EXPECT_TRUE(std::all_of(v.temperature_k.begin(), v.temperature_k.end(),
+                            [&](float t) { return t == float(o.fit.objective.t_min_k); }));
+    EXPECT_TRUE(fs::exists(dir / "out" / "blender" / (FrameName(f) + ".vdb")));
+    EXPECT_TRUE(fs::exists(dir / "out" / "frames" / (FrameName(f) + ".png")));
+  }
+  const std::string none = run.frames[1].Line(), one = run.frames[2].Line();
+  EXPECT_NE(none.find("no camera sees fire"), std::string::npos) << none;
+  EXPECT_NE(one.find("only " + rig.cameras[0].name + " ("), std::string::npos) << one;
+  // The frame after them as a run that starts every frame cold computes it (one thread each, so
+  // that the sums' order is the same).
+  RunOptions cold = o;
+  cold.out_dir = (dir / "cold").string();
+  cold.warm_start = false;
+  RunOptions warm = o;
+  warm.out_dir = (dir / "warm").string();
+  {
+    const tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
+    EXPECT_EQ(RunAll(cold).no_fire, 2u);
+    EXPECT_EQ(RunAll(warm).no_fire, 2u);
+  }
+  ExpectSameVolume(dir / "warm" / "frame_000003.vdb", dir / "cold" / "frame_000003.vdb");
+  // A second run into the same folder finds every frame done.
+  const RunSummary again = RunAll(o);
+  EXPECT_EQ(again.resumed, 4u);
+  EXPECT_EQ(again.failed, 0u);
+  // The box moved beside the fire: the cameras see fire that no voxel of the box holds.
+  std::string text;
+  {
+    std::ifstream in(dir / "sim" / "rig.yaml");
+    text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  YAML::Node moved = YAML::Load(text);
+  YAML::Node box = moved["rig"]["box"];
+  ASSERT_TRUE(box.IsDefined()) << text;
+  const double width = box["max"][0].as<double>() - box["min"][0].as<double>();
+  box["min"][0] = box["min"][0].as<double>() + 2 * width;
+  box["max"][0] = box["max"][0].as<double>() + 2 * width;
+  {
+    YAML::Emitter e;
+    e << moved;
+    std::ofstream(dir / "sim" / "beside.yaml") << e.c_str();
+  }
+  RunOptions beside = o;
+  beside.rig_path = (dir / "sim" / "beside.yaml").string();
+  beside.out_dir = (dir / "beside").string();
+  beside.count = 1;
+  const RunSummary wrong = RunAll(beside);
+  ASSERT_EQ(wrong.frames.size(), 1u);
+  EXPECT_EQ(wrong.failed, 1u);
+  EXPECT_NE(wrong.frames[0].status.find("do not meet inside the box"), std::string::npos)
+      << wrong.frames[0].status;
+  fs::remove_all(dir);
+}
+
 // A truth volume that cannot be read is a note on a frame whose output is written, not a failed
 // frame (a failed frame would start the next one cold and never be computed again).
 // A run through another calibration of the simulated cameras: the same cameras and box in a frame
@@ -1528,6 +1624,49 @@ void RecordDataset(const fs::path& dataset, const Rig& rig, const fs::path& rec_
     ASSERT_TRUE(recorder.Submit(set));
   }
   EXPECT_EQ(recorder.Close().sets_recorded, static_cast<std::size_t>(sets));
+}
+
+// A camera whose exposure or gain was changed while it recorded (`ctl configure CAM exposure_us`,
+// live): the frames' own records say so, and each set after the change carries the factor and a
+// note (run holds one exposure per take). Frames that record no exposure say nothing.
+TEST(FrameSource, ARecordingSaysWhenACamerasExposureChanged) {
+  const fs::path dir = TempDir("exposure_change");
+  SimulateDataset(dir / "sim", 3);
+  const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
+  const fs::path rec_dir = dir / "rec";
+  // The recording started at the settings' 10000 us and 0 dB.
+  RecordDataset(dir / "sim", rig, rec_dir, 3, PixelFormat::kRgb8, [](int s, int c, Frame* f) {
+    f->info.exposure_us = c == 2 ? 0 : 10000;  // camera 2's frames record none
+    if (s == 2 && c == 0) f->info.exposure_us = 8000;
+    if (s >= 1 && c == 1) f->info.gain_db = 6;
+    return true;
+  });
+  FrameSourceSpec spec;
+  spec.recording_dir = rec_dir.string();
+  const FrameSource source(spec, rig);
+  const SourceFrameSet first = source.Read(0, 1.0), last = source.Read(2, 1.0);
+  ASSERT_EQ(first.exposure_ratio.size(), 3u);
+  for (int c = 0; c < 3; ++c) EXPECT_EQ(first.exposure_ratio[c], 1.0) << c;
+  EXPECT_TRUE(first.notes.empty());
+  EXPECT_NEAR(last.exposure_ratio[0], 0.8, 1e-12);
+  EXPECT_NEAR(last.exposure_ratio[1], std::pow(10.0, 6.0 / 20), 1e-12);  // 6 dB: 1.995 times
+  EXPECT_EQ(last.exposure_ratio[2], 1.0);
+  ASSERT_EQ(last.notes.size(), 2u);
+  EXPECT_NE(last.notes[0].find(rig.cameras[0].name + " exposed at 0.8 times"), std::string::npos)
+      << last.notes[0];
+  EXPECT_NE(last.notes[0].find("8000 us, 0 dB; it started at 10000 us, 0 dB"), std::string::npos)
+      << last.notes[0];
+  EXPECT_NE(last.notes[1].find(rig.cameras[1].name + " exposed at 2 times"), std::string::npos)
+      << last.notes[1];
+  // The run computes such a set, and its summary line carries the note.
+  RunOptions o = SmallRun(dir / "sim", dir / "out");
+  o.source = spec;
+  const RunSummary run = RunAll(o);
+  ASSERT_EQ(run.frames.size(), 3u);
+  EXPECT_EQ(run.frames[2].status, "computed");
+  EXPECT_NE(run.frames[2].Line().find("split the take"), std::string::npos) << run.frames[2].Line();
+  EXPECT_EQ(run.frames[0].Line().find("exposed at"), std::string::npos) << run.frames[0].Line();
+  fs::remove_all(dir);
 }
 
 // Both fits of a Bayer take scored the same way, through the mosaic (each run's own report scores
