@@ -1094,7 +1094,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   }
   // With bands, the active voxels are where any band has light: a tomography of all the cameras
   // together mixes bands whose brightness differs several times over (eight cameras in two bands:
-  // its residual stayed at 59% of the data).
+  // its residual stayed at 59% of the data). (FitActiveVoxels states the same rule.)
   const FireVolume band_activity = BandActivity(bands);
   const FireVolume& activity = bands.empty() ? tomography : band_activity;
   std::deque<std::pair<double, EnergyTerms>> seen;
@@ -1287,6 +1287,13 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   if (!result.uncertainty.temperature_sigma_k.empty())
     StoreUncertainty(grid, st.active, result.uncertainty, &result.volume);
   return result;
+}
+
+std::vector<std::uint32_t> FitActiveVoxels(const GridGeometry& grid, const FireVolume& tomography,
+                                           const std::vector<BandTomography>& bands,
+                                           double threshold) {
+  if (bands.empty()) return ActiveVoxels(grid, tomography, threshold, nullptr);
+  return ActiveVoxels(grid, BandActivity(bands), threshold, nullptr);
 }
 
 FitResult NoFireResult(const GridGeometry& grid, const AbsorptionModel& absorption,

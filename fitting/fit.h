@@ -414,10 +414,12 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
 
 // The result for images that hold no fire (a take filmed before ignition or after the flame is
 // out, a frame set with the fire outside every camera's view): no active voxel, every voxel at the
-// ambient temperature (ObjectiveOptions::t_min_k) with no soot, `exposure` as given, 0 iterations,
-// method "no fire" and termination "converged" with the message "the images show no fire: nothing
-// to fit". The same metadata as FastFit's volume, so that a take's sequence of volumes has no gap
-// and every reader of a fitted volume reads it. No sigma grids: nothing was estimated.
+// ambient temperature (ObjectiveOptions::t_min_k) with no soot, `exposure` as given (a placeholder
+// where the take's is not known yet: a reader needs one > 0), 0 iterations, method "no fire" and
+// termination "converged" with the message "the images show no fire: nothing to fit", metadata
+// no_fire 1. The keys every reader of a fitted volume needs (exposure, energy, active_voxels, the
+// absorption's), so that a take's sequence of volumes has no gap; no neighbour weights and no
+// sigma grids: nothing was fitted or estimated.
 FitResult NoFireResult(const GridGeometry& grid, const AbsorptionModel& absorption,
                        const FitOptions& options, double exposure);
 
@@ -446,6 +448,12 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
 // Active voxels of `grid` from an emission volume (resampled onto it when its grid differs).
 std::vector<std::uint32_t> ActiveVoxels(const GridGeometry& grid, const FireVolume& tomography,
                                         double threshold, std::vector<float>* emission_on_grid);
+// The active voxels FastFit fits on `grid` (its finest level) with these inputs: ActiveVoxels of
+// `tomography`, or with `bands` of where any band has light (FastFit's rule). Empty: the inputs
+// hold nothing to fit.
+std::vector<std::uint32_t> FitActiveVoxels(const GridGeometry& grid, const FireVolume& tomography,
+                                           const std::vector<BandTomography>& bands,
+                                           double threshold);
 
 }  // namespace flamerig
 

@@ -388,15 +388,16 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
       const CameraSettings& start =
           impl_->recording->metadata().cameras[impl_->source_camera[c]].settings;
       if (f->info.exposure_us > 0 && start.exposure_us > 0 && std::isfinite(f->info.exposure_us) &&
-          std::isfinite(f->info.gain_db)) {
+          std::isfinite(start.exposure_us) && std::isfinite(f->info.gain_db) &&
+          std::isfinite(start.gain_db)) {
         const double ratio = f->info.exposure_us / start.exposure_us *
                              std::pow(10.0, (f->info.gain_db - start.gain_db) / 20.0);
         out.exposure_ratio[c] = ratio;
         if (std::abs(ratio - 1) > kExposureChange)
           out.notes.push_back(fmt::format(
               "{} exposed at {:.3g} times the recording's start ({:g} us, {:g} dB; it started at "
-              "{:g} us, {:g} dB): run holds one exposure per take, so this set's densities are "
-              "off by that factor; split the take where the exposure changed",
+              "{:g} us, {:g} dB): run holds one exposure per take, so the take's sets do not "
+              "share one density scale; split the take where the exposure changed",
               name, ratio, f->info.exposure_us, f->info.gain_db, start.exposure_us, start.gain_db));
       }
       // A frame that arrived in a 10- to 14-bit wire format holds its values in the words' high

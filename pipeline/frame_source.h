@@ -69,7 +69,9 @@ struct SourceFrameSet {
   // while it recorded (`ctl configure CAM exposure_us`, live) says so here. 1 where the source does
   // not say (image files, StreamPix, a frame that records no exposure, a camera left out).
   // `flamerig run` holds one exposure per take, so a set whose ratio is not 1 gets a note (below)
-  // and a warning: its densities are off by that factor.
+  // and a warning: the take's sets at different exposures do not share one density scale. The
+  // gain is taken as dB (GenICam Gain); a driver that records raw device units (Aravis GainRaw,
+  // V4L2's gain control) still shows a change of gain, with a factor that is not its light's.
   std::vector<double> exposure_ratio;
   std::vector<std::string> notes;  // cameras left out and why; exposures that changed
   // The device frame id of the set's first present frame (recordings), the file's frame number

@@ -1,5 +1,6 @@
 #include "pipeline/frame_stages.h"
 
+#include <fmt/format.h>
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
@@ -225,8 +226,8 @@ void FrameStages::Read(FrameWork* w) {
   for (std::size_t c = 0; c < w->set.exposure_ratio.size(); ++c)
     if (std::abs(w->set.exposure_ratio[c] - 1) > kExposureChange)
       Log().warn(
-          "run: {}: {} exposed at {:.3g} times the recording's start; its densities are off "
-          "by that factor (one exposure a take)",
+          "run: {}: {} exposed at {:.3g} times the recording's start (run holds one exposure a "
+          "take)",
           FrameName(w->index), rig_.cameras[c].name, w->set.exposure_ratio[c]);
   if (holdout_ >= 0 && w->set.images[holdout_].empty())
     s.notes.push_back("held-out camera " + options_.holdout_camera + " has no frame");
@@ -386,30 +387,38 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
     from = "fitted";
   }
   const auto t0 = SteadyClock::now();
-  if (ActiveVoxels(reconstructor_->grid(), w->tomography, fit.activity_threshold, nullptr)
+  if (FitActiveVoxels(reconstructor_->grid(), w->tomography, w->bands, fit.activity_threshold)
           .empty()) {
     // Which cameras see fire, and how much of it.
-    std::string seen;
+    std::string seen, dark;
     int seeing = 0;
     for (const auto& [camera, pixels] : w->fire_pixels)
       if (pixels > 0) {
         seen += (seeing++ ? ", " : "") + camera + " (" + std::to_string(pixels) + " pixels)";
+      } else {
+        dark += (dark.empty() ? "" : ", ") + camera;
       }
     const int min_views =
         std::min<int>(options_.reconstruct.hull.min_views, static_cast<int>(w->fire_pixels.size()));
     if (seeing >= std::max(min_views, 1))
       throw DataError("fit: the tomography is black although " + seen +
                       " see fire: their views of it do not meet inside the box (is the rig or "
-                      "the box wrong?)");
+                      "the box wrong" +
+                      (dark.empty()
+                           ? std::string()
+                           : ", or is the fire hidden from " + dark + ", which sees none") +
+                      "?)");
     w->no_fire = true;
     if (seeing == 0) {
       w->summary.notes.push_back("no camera sees fire");
     } else {
+      // One camera's fire alone may be a fault of the others (a lens cap, a dead sensor): said.
       w->summary.notes.push_back("only " + seen + " sees fire, where " + std::to_string(min_views) +
                                  " cameras must (the visual hull's min_views)");
+      Log().warn("run: {}: {}", FrameName(w->index), w->summary.notes.back());
     }
-    // The exposure as a fit would hold it; none fitted.
-    if (fit.known_exposure <= 0) from.clear();
+    // The exposure as a fit would hold it; none fitted. Not known yet: a placeholder, said so.
+    if (fit.known_exposure <= 0) from = fmt::format("none (no fire; {:g} written)", exposure_);
     w->result = NoFireResult(reconstructor_->grid(), absorption_, fit,
                              fit.known_exposure > 0 ? fit.known_exposure : exposure_);
     w->summary.fit_ms = Ms(t0);

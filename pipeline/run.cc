@@ -421,7 +421,10 @@ RunSummary RunFrames(const RunOptions& options, const std::string& rig_path, std
   while (next < end && stages.paths().Complete(next)) ++next;
   run.frames = ReadFrameSummaries(options.out_dir, begin, next);
   run.resumed = next - begin;
-  for (const auto& f : run.frames) run.failed += f.status.rfind("failed", 0) == 0;
+  for (const auto& f : run.frames) {
+    run.failed += f.status.rfind("failed", 0) == 0;
+    run.no_fire += f.status == "no fire";
+  }
   stages.Resume(next);
 
   // The inner stages report their own progress through the run's callback; a cancel there (or at

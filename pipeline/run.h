@@ -203,6 +203,7 @@ struct RunSummary {
   std::size_t computed = 0, unchanged = 0, resumed = 0;  // resumed: complete before this call
   std::size_t failed = 0;
   // Frames whose images held no fire (FrameStages::Fit): written as empty volumes, not failed.
+  // Like `failed`, it counts the frames done before this call too.
   std::size_t no_fire = 0;
   bool cancelled = false;  // stopped by the progress callback; frames after the last are not done
   std::vector<FrameSummary> frames;  // every frame of [begin, end) done, in order

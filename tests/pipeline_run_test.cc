@@ -1339,6 +1339,19 @@ TEST(RunFrames, FramesWithoutFireAreEmptyVolumesNotFailures) {
     EXPECT_EQ(RunAll(warm).no_fire, 2u);
   }
   ExpectSameVolume(dir / "warm" / "frame_000003.vdb", dir / "cold" / "frame_000003.vdb");
+  // A run stopped after the set without fire and started again computes the same frame 3.
+  RunOptions split = o;
+  split.out_dir = (dir / "split").string();
+  {
+    const tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
+    split.count = 2;
+    EXPECT_EQ(RunAll(split).no_fire, 1u);
+    split.count = o.count;
+    const RunSummary rest = RunAll(split);
+    EXPECT_EQ(rest.resumed, 2u);
+    EXPECT_EQ(rest.no_fire, 2u);  // the resumed one counted too
+  }
+  ExpectSameVolume(dir / "warm" / "frame_000003.vdb", dir / "split" / "frame_000003.vdb");
   // A second run into the same folder finds every frame done.
   const RunSummary again = RunAll(o);
   EXPECT_EQ(again.resumed, 4u);
@@ -1658,6 +1671,10 @@ TEST(FrameSource, ARecordingSaysWhenACamerasExposureChanged) {
       << last.notes[0];
   EXPECT_NE(last.notes[1].find(rig.cameras[1].name + " exposed at 2 times"), std::string::npos)
       << last.notes[1];
+  const SourceFrameSet second = source.Read(1, 1.0);  // the gain alone changed
+  ASSERT_EQ(second.notes.size(), 1u);
+  EXPECT_NE(second.notes[0].find(rig.cameras[1].name + " exposed at"), std::string::npos)
+      << second.notes[0];
   // The run computes such a set, and its summary line carries the note.
   RunOptions o = SmallRun(dir / "sim", dir / "out");
   o.source = spec;
