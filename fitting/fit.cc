@@ -1094,7 +1094,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   }
   // With bands, the active voxels are where any band has light: a tomography of all the cameras
   // together mixes bands whose brightness differs several times over (eight cameras in two bands:
-  // its residual stayed at 59% of the data). (FitActiveVoxels states the same rule.)
+  // its residual stayed at 59% of the data).
   const FireVolume band_activity = BandActivity(bands);
   const FireVolume& activity = bands.empty() ? tomography : band_activity;
   std::deque<std::pair<double, EnergyTerms>> seen;
@@ -1106,7 +1106,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     std::vector<float> emission;
     st.active = ActiveVoxels(st.grid, activity, options.activity_threshold, &emission);
     if (st.active.empty()) {
-      throw DataError(
+      throw NoActiveVoxelsError(
           "fit: no active voxels (the tomography volume is black or below the activity "
           "threshold)");
     }
@@ -1289,13 +1289,6 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
   return result;
 }
 
-std::vector<std::uint32_t> FitActiveVoxels(const GridGeometry& grid, const FireVolume& tomography,
-                                           const std::vector<BandTomography>& bands,
-                                           double threshold) {
-  if (bands.empty()) return ActiveVoxels(grid, tomography, threshold, nullptr);
-  return ActiveVoxels(grid, BandActivity(bands), threshold, nullptr);
-}
-
 FitResult NoFireResult(const GridGeometry& grid, const AbsorptionModel& absorption,
                        const FitOptions& options, double exposure) {
   if (!(exposure > 0) || !std::isfinite(exposure))
@@ -1365,7 +1358,7 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
   const std::vector<std::uint32_t> active =
       ActiveVoxels(grid, tomography, options.activity_threshold, &emission);
   if (active.empty()) {
-    throw DataError(
+    throw NoActiveVoxelsError(
         "fit: no active voxels (the tomography volume is black or below the activity threshold)");
   }
   const FitObjective objective(grid, active, views, absorption, options.render, options.objective);

@@ -50,6 +50,7 @@
 #include <string>
 #include <vector>
 
+#include "core/error.h"
 #include "core/progress.h"
 #include "fitting/objective.h"
 #include "fitting/uncertainty.h"
@@ -412,6 +413,15 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
                   const ProgressCallback& progress = nullptr,
                   const std::vector<BandTomography>& bands = {});
 
+// What FastFit and PaperFit throw when their inputs hold nothing to fit: no voxel of the
+// tomography (with bands: of any band) is active. A DataError, so that a caller that does not
+// tell it apart fails as before; `flamerig run` writes the frame as one without fire
+// (NoFireResult, below).
+class NoActiveVoxelsError : public DataError {
+ public:
+  explicit NoActiveVoxelsError(const std::string& message) : DataError(message) {}
+};
+
 // The result for images that hold no fire (a take filmed before ignition or after the flame is
 // out, a frame set with the fire outside every camera's view): no active voxel, every voxel at the
 // ambient temperature (ObjectiveOptions::t_min_k) with no soot, `exposure` as given (a placeholder
@@ -448,12 +458,6 @@ FitResult PaperFit(const GridGeometry& grid, const FireVolume& tomography,
 // Active voxels of `grid` from an emission volume (resampled onto it when its grid differs).
 std::vector<std::uint32_t> ActiveVoxels(const GridGeometry& grid, const FireVolume& tomography,
                                         double threshold, std::vector<float>* emission_on_grid);
-// The active voxels FastFit fits on `grid` (its finest level) with these inputs: ActiveVoxels of
-// `tomography`, or with `bands` of where any band has light (FastFit's rule). Empty: the inputs
-// hold nothing to fit.
-std::vector<std::uint32_t> FitActiveVoxels(const GridGeometry& grid, const FireVolume& tomography,
-                                           const std::vector<BandTomography>& bands,
-                                           double threshold);
 
 }  // namespace flamerig
 

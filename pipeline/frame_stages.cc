@@ -387,8 +387,19 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
     from = "fitted";
   }
   const auto t0 = SteadyClock::now();
-  if (FitActiveVoxels(reconstructor_->grid(), w->tomography, w->bands, fit.activity_threshold)
-          .empty()) {
+  bool nothing = false;  // FastFit found no active voxel: the images hold no fire (or a fault)
+  try {
+    w->result = FastFit(reconstructor_->grid(), w->tomography, w->views, absorption_, fit,
+                        WarmStart() && chain_.previous_result >= 0 ? &previous_ : nullptr, progress,
+                        w->bands);
+  } catch (const NoActiveVoxelsError&) {
+    nothing = true;
+  } catch (const DataError& e) {
+    w->summary.fit_ms = Ms(t0);
+    throw DataError(std::string("fit: ") + e.what());
+  }
+  w->summary.fit_ms = Ms(t0);
+  if (nothing) {
     // Which cameras see fire, and how much of it.
     std::string seen, dark;
     int seeing = 0;
@@ -421,18 +432,8 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
     if (fit.known_exposure <= 0) from = fmt::format("none (no fire; {:g} written)", exposure_);
     w->result = NoFireResult(reconstructor_->grid(), absorption_, fit,
                              fit.known_exposure > 0 ? fit.known_exposure : exposure_);
-    w->summary.fit_ms = Ms(t0);
     return;
   }
-  try {
-    w->result = FastFit(reconstructor_->grid(), w->tomography, w->views, absorption_, fit,
-                        WarmStart() && chain_.previous_result >= 0 ? &previous_ : nullptr, progress,
-                        w->bands);
-  } catch (const DataError& e) {
-    w->summary.fit_ms = Ms(t0);
-    throw DataError(std::string("fit: ") + e.what());
-  }
-  w->summary.fit_ms = Ms(t0);
   MeasureRingHeights(rig_.up_in_rig, &w->result.ring_profile);
   if (w->result.termination == FitTermination::kCancelled) throw Cancelled("run: cancelled");
 }

@@ -91,9 +91,10 @@ class FrameStages {
   virtual bool SkipUnchanged(FrameWork* w);
   virtual void Reuse(FrameWork* w);
   virtual void Reconstruct(FrameWork* w, const ProgressCallback& progress);
-  // No voxel of the tomography active: the images hold no fire when fewer cameras than the visual
-  // hull's min_views see fire pixels (w->no_fire, the empty result); when enough of them do, their
-  // views do not meet inside the box, which is a DataError naming them (a wrong rig or box).
+  // FastFit finds no active voxel (NoActiveVoxelsError): the images hold no fire when fewer
+  // cameras than the visual hull's min_views see fire pixels (w->no_fire, the empty result); when
+  // enough of them do, their views do not meet inside the box, which is a DataError naming them
+  // (a wrong rig or box).
   virtual void Fit(FrameWork* w, const ProgressCallback& progress);
   virtual void Write(FrameWork* w);
   virtual void Score(FrameWork* w);
