@@ -144,6 +144,38 @@ std::optional<std::string> PngDamage(const std::string& bytes) {
   return "a PNG cut short" + size + ", without its closing IEND chunk)";
 }
 
+// The image formats a camera's frames come in (calibration/calibrate.cc's image extensions), by
+// their leading bytes: PNG, JPEG, TIFF (either byte order), BMP and the PNM family (PBM, PGM, PPM,
+// binary or text). Nothing else reaches OpenCV, whose other decoders (OpenEXR, Radiance HDR,
+// JPEG 2000, WebP, ...) are no camera's frame format and trust their headers more than a frame's
+// reader may: OpenEXR's allocates what a damaged attribute size states (a fuzzer's finding,
+// tests/fuzz/regressions/image/). The format that the bytes show is named when it is refused.
+std::optional<std::string> NotAFrameFormat(std::string_view bytes) {
+  using namespace std::string_view_literals;  // magic with NUL bytes in it
+  const auto starts = [&](std::string_view magic) {
+    return bytes.substr(0, magic.size()) == magic;
+  };
+  if (starts("\x89PNG"sv) || starts("\xFF\xD8\xFF"sv) || starts("II*\0"sv) || starts("MM\0*"sv) ||
+      starts("BM"sv))
+    return std::nullopt;
+  if (bytes.size() >= 2 && bytes[0] == 'P' && bytes[1] >= '1' && bytes[1] <= '6')
+    return std::nullopt;
+  const std::string format = starts("v/1\x01"sv)                            ? "an OpenEXR file"
+                             : starts("#?RADIANCE"sv) || starts("#?RGBE"sv) ? "a Radiance HDR file"
+                             : starts("RIFF"sv)                             ? "a RIFF (WebP?) file"
+                             : starts("\0\0\0\x0CjP"sv) || starts("\xFF\x4F\xFF\x51"sv)
+                                 ? "a JPEG 2000 file"
+                                 : "not a known image format";
+  std::string lead;
+  for (std::size_t i = 0; i < std::min<std::size_t>(bytes.size(), 8); ++i) {
+    static const char* const kHex = "0123456789abcdef";
+    const auto b = static_cast<unsigned char>(bytes[i]);
+    lead += std::string(i ? " " : "") + kHex[b >> 4] + kHex[b & 15];
+  }
+  return format + " (it starts " + lead +
+         "); a camera's frames are read as PNG, JPEG, TIFF, BMP or PGM/PPM";
+}
+
 // Damage is a DataError, the failure of the frame that holds the image (core/error.h), whether the
 // file is missing, unreadable, empty, cut short or not an image.
 cv::Mat Decode(const std::string& path) {
@@ -156,6 +188,7 @@ cv::Mat Decode(const std::string& path) {
   if (!read) throw DataError(path + ": no such image file");
   std::string& bytes = *read;  // non-const: cv::Mat wraps it (imdecode only reads)
   if (bytes.empty()) throw DataError(path + ": the image file is empty (0 bytes)");
+  if (const auto other = NotAFrameFormat(bytes)) throw DataError(path + ": " + *other);
   if (const auto damage = PngDamage(bytes)) throw DataError(path + ": " + *damage);
   if (bytes.size() > static_cast<std::size_t>(std::numeric_limits<int>::max()))
     throw DataError(path + ": an image file of " + std::to_string(bytes.size()) +

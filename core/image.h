@@ -51,9 +51,11 @@ void WritePng(const std::string& path, const ImageU8& image);
 // The same for 16-bit images (PNG stores 16 bits per channel).
 void WritePng16(const std::string& path, const ImageU16& image);
 
-// Reads an 8-bit PNG (or any format OpenCV decodes) as 1 or 3 channels (RGB order); `channels` 0
-// keeps the file's channel count (alpha dropped). Throws DataError naming the path and what is
-// wrong when the file is missing, unreadable, empty, a PNG cut short (no closing IEND chunk), a
+// Reads an 8-bit PNG (or JPEG, TIFF, BMP, PBM/PGM/PPM: the formats a camera's frames come in,
+// known by their leading bytes, whatever the file is called) as 1 or 3 channels (RGB order);
+// `channels` 0 keeps the file's channel count (alpha dropped). Throws DataError naming the path and
+// what is wrong when the file is missing, unreadable, empty, of another format (OpenEXR, Radiance
+// HDR, ...: named, and never handed to OpenCV's decoder for it), a PNG cut short (no closing IEND chunk), a
 // PNG with a damaged chunk (a critical chunk failing its CRC-32, a length past the file's end, a
 // first chunk that is not IHDR, an IEND before any IDAT: the chunk's type and byte offset named),
 // cannot be decoded, or is not 8-bit. A PNG's damage is found before libpng reads it, so libpng

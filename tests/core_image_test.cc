@@ -123,8 +123,9 @@ TEST(ReadImage, DamageIsADataErrorThatSaysWhat) {
   const std::string text = (dir / "notes.png").string();
   WriteFileAtomically(text, "not an image at all\n");
   EXPECT_EQ(ErrorReading(text), text +
-                                    ": cannot be decoded (20 bytes): damaged, or not an image "
-                                    "format OpenCV reads");
+                                    ": not a known image format (it starts 6e 6f 74 20 61 6e 20 "
+                                    "69); a camera's frames are read as PNG, JPEG, TIFF, BMP or "
+                                    "PGM/PPM");
   EXPECT_NE(ErrorReading(dir.string()).find("it is a folder"), std::string::npos);
 
   // A 16-bit image where 8 bits are wanted.
@@ -136,6 +137,45 @@ TEST(ReadImage, DamageIsADataErrorThatSaysWhat) {
   ImageU16 as16;
   EXPECT_EQ(ReadImage(deep_path, &as8, &as16), 16);
   EXPECT_EQ(as16.width, 8);
+  fs::remove_all(dir);
+}
+
+// The formats a camera's frames come in read back (whatever the file is called: the bytes decide);
+// any other format OpenCV decodes is refused before its decoder sees it, named by its magic. The
+// OpenEXR file is the fuzzer's finding (tests/fuzz/regressions/image/): a damaged attribute size
+// that OpenEXR's header reader allocated.
+TEST(ReadImage, OnlyACamerasFrameFormatsReachOpenCV) {
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_formats_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  ImageU8 image(16, 12, 3);
+  for (std::size_t i = 0; i < image.pixels.size(); ++i)
+    image.pixels[i] = static_cast<std::uint8_t>(i * 7);
+  for (const char* extension : {".png", ".tif", ".bmp", ".ppm", ".jpg"}) {
+    const std::string written = (dir / (std::string("frame") + extension)).string();
+    WritePng(written, image);
+    const std::string renamed = written + ".img";  // the magic decides, not the name
+    fs::rename(written, renamed);
+    const ImageU8 back = ReadImageU8(renamed, 3);
+    ASSERT_EQ(back.pixels.size(), image.pixels.size()) << extension;
+    if (std::string(extension) != ".jpg") {
+      EXPECT_EQ(back.pixels, image.pixels) << extension;
+    }
+  }
+  ImageU8 grey(16, 12, 1);
+  WritePng((dir / "grey.pgm").string(), grey);
+  EXPECT_EQ(ReadImageU8((dir / "grey.pgm").string()).channels, 1);
+
+  const std::string exr = (dir / "frame.png").string();
+  WriteFileAtomically(exr, std::string("v/1\x01\x02\0\0\0P\xdd\xdd\xdd", 12));
+  EXPECT_EQ(ErrorReading(exr), exr +
+                                   ": an OpenEXR file (it starts 76 2f 31 01 02 00 00 00); a "
+                                   "camera's frames are read as PNG, JPEG, TIFF, BMP or PGM/PPM");
+  const std::string hdr = (dir / "sky.hdr").string();
+  WriteFileAtomically(hdr, "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n");
+  EXPECT_NE(ErrorReading(hdr).find(": a Radiance HDR file (it starts 23 3f 52"), std::string::npos)
+      << ErrorReading(hdr);
   fs::remove_all(dir);
 }
 
