@@ -2,6 +2,7 @@
 
 #include <libdeflate.h>
 #include <algorithm>
+#include <cctype>
 #include <filesystem>
 #include <limits>
 #include <opencv2/core.hpp>
@@ -149,16 +150,20 @@ std::optional<std::string> PngDamage(const std::string& bytes) {
 // binary or text). Nothing else reaches OpenCV, whose other decoders (OpenEXR, Radiance HDR,
 // JPEG 2000, WebP, ...) are no camera's frame format and trust their headers more than a frame's
 // reader may: OpenEXR's allocates what a damaged attribute size states (a fuzzer's finding,
-// tests/fuzz/regressions/image/). The format that the bytes show is named when it is refused.
+// tests/fuzz/regressions/image/). The signatures are whole, as OpenCV's own decoders check them,
+// so that bytes let through are claimed by that decoder: a PNG's first 4 bytes alone let
+// OpenCV try the rest on GDAL, through a temporary file. The format the bytes show is named when
+// it is refused.
 std::optional<std::string> NotAFrameFormat(std::string_view bytes) {
   using namespace std::string_view_literals;  // magic with NUL bytes in it
   const auto starts = [&](std::string_view magic) {
     return bytes.substr(0, magic.size()) == magic;
   };
-  if (starts("\x89PNG"sv) || starts("\xFF\xD8\xFF"sv) || starts("II*\0"sv) || starts("MM\0*"sv) ||
-      starts("BM"sv))
+  if (starts("\x89PNG\r\n\x1A\n"sv) || starts("\xFF\xD8\xFF"sv) || starts("II*\0"sv) ||
+      starts("MM\0*"sv) || starts("BM"sv))
     return std::nullopt;
-  if (bytes.size() >= 2 && bytes[0] == 'P' && bytes[1] >= '1' && bytes[1] <= '6')
+  if (bytes.size() >= 3 && bytes[0] == 'P' && bytes[1] >= '1' && bytes[1] <= '6' &&
+      std::isspace(static_cast<unsigned char>(bytes[2])))
     return std::nullopt;
   const std::string format = starts("v/1\x01"sv)                            ? "an OpenEXR file"
                              : starts("#?RADIANCE"sv) || starts("#?RGBE"sv) ? "a Radiance HDR file"
