@@ -1,5 +1,6 @@
 #include "fitting/camera_response.h"
 
+#include <cmath>
 #include <deque>
 #include <map>
 #include <mutex>
@@ -104,6 +105,22 @@ std::shared_ptr<const ChannelResponse> ChannelResponse::ForCamera(
   cache[key.str()] = r;
   recent.push_back(r);
   if (recent.size() > kRecent) recent.pop_front();
+  return r;
+}
+
+std::shared_ptr<const ChannelResponse> ChannelResponse::Exposed(
+    const std::shared_ptr<const ChannelResponse>& response, double factor) {
+  if (!(factor > 0) || !std::isfinite(factor))
+    throw InputError("camera response (" + (response ? response->name() : "sRGB observer") +
+                     "): an exposure factor of " + std::to_string(factor) +
+                     " (must be finite and > 0)");
+  const auto& base = response ? response : SrgbObserver();
+  if (factor == 1) return base;
+  std::shared_ptr<ChannelResponse> r(new ChannelResponse(*base));
+  r->output_from_basis_ *= factor;
+  r->gain_ *= factor;
+  // The copy's table is its own (the observer's rows are BlackbodyXyzTable's, shared).
+  if (!r->table_.empty()) r->rows_ = r->table_.data();
   return r;
 }
 

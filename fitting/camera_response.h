@@ -9,9 +9,9 @@
 //    BlackbodyXyzTable. Gains other than 1 scale the output: diag(gain) * LinearSrgbFromXyz.
 //  - a camera with tabulated or parametric sensitivities (and a filter): the basis is the camera's
 //    own channels, S_c(lambda) * gain_c / Ybar with S_c scaled so that the channel with the largest
-//    integral integrates to Ybar (radiometry.h), and output_from_basis is the identity. A mono
-//    camera's one channel fills all three (an image of three equal channels: the data term sees a
-//    grey with no colour to match).
+//    integral integrates to Ybar (radiometry.h), and output_from_basis is the identity (times a
+//    frame's exposure factor, Exposed()). A mono camera's one channel fills all three (an image of
+//    three equal channels: the data term sees a grey with no colour to match).
 //
 // Black bodies: Lookup() and LookupWithDerivative() give the basis channels of B(lambda, T) per
 // kelvin from 0 to kMaxTableK, linear between kelvins, exact above (the same contract as
@@ -44,6 +44,16 @@ class ChannelResponse {
   // A camera's response from its radiometry's spectral sensitivity and gains (SrgbObserver() for
   // the defaults). Throws InputError from the radiometry's Validate.
   static std::shared_ptr<const ChannelResponse> ForCamera(const CameraRadiometry& radiometry);
+
+  // `response` for a frame exposed `factor` times (> 0, finite) as long as the recording's start
+  // (the frame's exposure time x gain over the start's: SourceFrameSet::exposure_ratio): its output
+  // and its gains times the factor, its sensitivity, tables and name the same (so that bands group
+  // as before, and the output divided by gain() is still the unit-gain channels the tomography's
+  // frames, decoded at the frame's exposure, hold). `response` itself when the factor is 1. The
+  // copy is cheap for the sRGB observer; a camera's shares nothing and copies its table (0.5 MB).
+  // Throws InputError for a factor that is not finite and > 0.
+  static std::shared_ptr<const ChannelResponse> Exposed(
+      const std::shared_ptr<const ChannelResponse>& response, double factor);
 
   const std::string& name() const { return name_; }  // "sRGB observer", or the camera's spectral
   int channels() const { return channels_; }         // 1 or 3

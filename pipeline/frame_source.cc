@@ -245,6 +245,20 @@ int SourceFrameSet::present() const {
   return n;
 }
 
+namespace {
+
+// Whether a recording's camera records its gain in dB (CameraSettings::gain_db as named): a
+// simulated camera, and an Aravis camera with GenICam's Gain feature (SFNC: dB), which the driver
+// sets when the device has it. An Aravis camera with GainRaw alone and a V4L2 camera (its gain
+// control) take the number in the device's own units: their change of gain has no known factor.
+bool GainInDecibels(const RecordingMetadata& metadata, int camera) {
+  const RecordingCamera& rc = metadata.cameras.at(static_cast<std::size_t>(camera));
+  if (rc.description.driver == "sim") return true;
+  return rc.description.driver == "aravis" && metadata.features.count(rc.name + ".Gain") > 0;
+}
+
+}  // namespace
+
 struct FrameSource::Impl {
   FrameSourceSpec spec;
   Rig rig;
@@ -257,6 +271,9 @@ struct FrameSource::Impl {
   // per rig camera: the model its frames decode with (SourceFrameSet::radiometry); a
   // recording's is decided again for each frame, by what it was sent in (WireBitsOf)
   std::vector<CameraRadiometry> radiometry;
+  // per rig camera: whether its recording's gain_db is in dB (GainInDecibels); else the device's
+  // own units, whose change has no known factor
+  std::vector<bool> gain_in_decibels;
 
   // Checks a decoded camera image against the rig camera's imager.
   void CheckSize(int c, std::size_t set, int width, int height) const {
@@ -303,6 +320,9 @@ FrameSource::FrameSource(const FrameSourceSpec& spec, const Rig& rig)
     for (const auto& c : impl_->recording->metadata().cameras) names.push_back(c.name);
     impl_->MatchCameras(names);
     impl_->sets = impl_->recording->num_sets();
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c)
+      impl_->gain_in_decibels.push_back(
+          GainInDecibels(impl_->recording->metadata(), impl_->source_camera[c]));
   } else if (!spec.seq_files.empty()) {
     std::vector<std::string> names = spec.seq_names;
     if (names.empty())
@@ -390,15 +410,25 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
       if (f->info.exposure_us > 0 && start.exposure_us > 0 && std::isfinite(f->info.exposure_us) &&
           std::isfinite(start.exposure_us) && std::isfinite(f->info.gain_db) &&
           std::isfinite(start.gain_db)) {
-        const double ratio = f->info.exposure_us / start.exposure_us *
-                             std::pow(10.0, (f->info.gain_db - start.gain_db) / 20.0);
-        out.exposure_ratio[c] = ratio;
-        if (std::abs(ratio - 1) > kExposureChange)
+        const bool decibels = impl_->gain_in_decibels[c];
+        const double time_ratio = f->info.exposure_us / start.exposure_us;
+        const double gain_ratio = std::pow(10.0, (f->info.gain_db - start.gain_db) / 20.0);
+        const double ratio = time_ratio * (decibels ? gain_ratio : 1.0);
+        const bool gain_changed = f->info.gain_db != start.gain_db;
+        if (std::isfinite(ratio) && ratio > 0) out.exposure_ratio[c] = ratio;
+        if (!decibels && gain_changed)
+          out.notes.push_back(fmt::format(
+              "{}'s gain is {:g} where the recording started at {:g}, in the device's own units "
+              "({} records no gain in dB): its factor is unknown, so this set's densities do not "
+              "share the take's scale; split the take where the gain changed",
+              name, f->info.gain_db, start.gain_db,
+              impl_->recording->metadata().cameras[impl_->source_camera[c]].description.driver));
+        else if (std::abs(out.exposure_ratio[c] - 1) > kExposureChange)
           out.notes.push_back(fmt::format(
               "{} exposed at {:.3g} times the recording's start ({:g} us, {:g} dB; it started at "
-              "{:g} us, {:g} dB): run holds one exposure per take, so the take's sets do not "
-              "share one density scale; split the take where the exposure changed",
-              name, ratio, f->info.exposure_us, f->info.gain_db, start.exposure_us, start.gain_db));
+              "{:g} us, {:g} dB): fitted at that exposure",
+              name, out.exposure_ratio[c], f->info.exposure_us, f->info.gain_db, start.exposure_us,
+              start.gain_db));
       }
       // A frame that arrived in a 10- to 14-bit wire format holds its values in the words' high
       // bits: the rig's entry, counted in those bits or taken from the frame, is read for them.
@@ -431,8 +461,9 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
     const int height = bits == 16 ? u16.height : u8.height;
     impl_->CheckSize(static_cast<int>(c), i, width, height);
     try {
-      DecodeCameraImage(u8, u16, bits, exposure, out.radiometry[c], &out.images[c], &out.linear[c],
-                        &out.signal[c]);
+      // The frame's own exposure: its linear frame is radiance in the take's units.
+      DecodeCameraImage(u8, u16, bits, exposure * out.exposure_ratio[c], out.radiometry[c],
+                        &out.images[c], &out.linear[c], &out.signal[c]);
     } catch (const InputError& e) {
       throw DataError(impl_->spec.Describe() + ", set " + std::to_string(i) + ", camera '" + name +
                       "': " + e.what());

@@ -68,10 +68,12 @@ struct SourceFrameSet {
   // metadata's settings), from the frame's own record: a camera whose exposure or gain was changed
   // while it recorded (`ctl configure CAM exposure_us`, live) says so here. 1 where the source does
   // not say (image files, StreamPix, a frame that records no exposure, a camera left out).
-  // `flamerig run` holds one exposure per take, so a set whose ratio is not 1 gets a note (below)
-  // and a warning: the take's sets at different exposures do not share one density scale. The
-  // gain is taken as dB (GenICam Gain); a driver that records raw device units (Aravis GainRaw,
-  // V4L2's gain control) still shows a change of gain, with a factor that is not its light's.
+  // The frame is decoded at that exposure (its linear frame is radiance in the take's units), and
+  // `flamerig run` fits the camera at it (ChannelResponse::Exposed), so that the take keeps one
+  // exposure and one density scale; a ratio beyond kExposureChange gets a note. The gain counts
+  // where the recording gives it in dB (a simulated camera; an Aravis camera with GenICam's Gain
+  // feature); a change of gain in a device's own units (Aravis GainRaw, V4L2's gain control) has
+  // no known factor: the ratio is the exposure time's alone, and the note says so.
   std::vector<double> exposure_ratio;
   std::vector<std::string> notes;  // cameras left out and why; exposures that changed
   // The device frame id of the set's first present frame (recordings), the file's frame number

@@ -225,10 +225,8 @@ void FrameStages::Read(FrameWork* w) {
   }
   for (std::size_t c = 0; c < w->set.exposure_ratio.size(); ++c)
     if (std::abs(w->set.exposure_ratio[c] - 1) > kExposureChange)
-      Log().warn(
-          "run: {}: {} exposed at {:.3g} times the recording's start (run holds one exposure a "
-          "take)",
-          FrameName(w->index), rig_.cameras[c].name, w->set.exposure_ratio[c]);
+      Log().info("run: {}: {} exposed at {:.3g} times the recording's start: fitted so",
+                 FrameName(w->index), rig_.cameras[c].name, w->set.exposure_ratio[c]);
   if (holdout_ >= 0 && w->set.images[holdout_].empty())
     s.notes.push_back("held-out camera " + options_.holdout_camera + " has no frame");
   if (truth_count_) s.truth_frame = static_cast<int>(w->set.frame_id % truth_count_);
@@ -302,6 +300,12 @@ bool FrameStages::WarmStart() const {
   return options_.warm_start && !options_.fit.axisymmetric;
 }
 
+std::shared_ptr<const ChannelResponse> FrameStages::ResponseOf(const SourceFrameSet& set,
+                                                               std::size_t c) const {
+  return ChannelResponse::Exposed(responses_[c],
+                                  c < set.exposure_ratio.size() ? set.exposure_ratio[c] : 1.0);
+}
+
 void FrameStages::Reconstruct(FrameWork* w, const ProgressCallback& progress) {
   std::vector<LinearFrame> linear = w->set.linear;
   if (holdout_ >= 0) linear[holdout_] = LinearFrame();
@@ -324,7 +328,7 @@ void FrameStages::Reconstruct(FrameWork* w, const ProgressCallback& progress) {
     std::vector<int> rig_index;
     for (std::size_t c = 0; c < rig_.cameras.size(); ++c)
       if (!linear[c].radiance.empty()) {
-        responses.push_back(responses_[c]);
+        responses.push_back(ResponseOf(w->set, c));
         rig_index.push_back(static_cast<int>(c));
       }
     std::string report;
@@ -366,7 +370,7 @@ void FrameStages::Fit(FrameWork* w, const ProgressCallback& progress) {
     v.rays = rays_[c].get();
     v.image = w->set.images[c];
     v.signal = w->set.signal[c];
-    v.response = responses_[c];
+    v.response = ResponseOf(w->set, c);
     if (options_.fit.objective.model_mosaic)
       v.mosaic = MakeBayerRecord(w->set.mosaic[c], w->set.radiometry[c], v.name, w->set.bits[c]);
     (static_cast<int>(c) == holdout_ ? w->held : w->views).push_back(std::move(v));

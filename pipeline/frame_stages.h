@@ -137,6 +137,10 @@ class FrameStages {
   // Whether a frame starts from the ones before it (the last computed tomography, the last
   // result), as RunOptions::warm_start says.
   bool WarmStart() const;
+  // Rig camera c's response for set `set`: its own at the frame's exposure (SourceFrameSet::
+  // exposure_ratio, ChannelResponse::Exposed), so that a camera re-exposed while recording is
+  // fitted as it recorded.
+  std::shared_ptr<const ChannelResponse> ResponseOf(const SourceFrameSet& set, std::size_t c) const;
   std::unique_ptr<Reconstructor> reconstructor_;
   std::unique_ptr<BandReconstructor> band_reconstructor_;  // null unless the rig has bands
   std::vector<std::unique_ptr<CameraRays>> rays_;

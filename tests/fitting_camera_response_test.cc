@@ -8,6 +8,7 @@
 
 #include <cmath>
 
+#include "core/error.h"
 #include "fitting/colour.h"
 #include "fitting/physics.h"
 #include "fitting/renderer.h"
@@ -188,6 +189,71 @@ TEST(ChannelResponse, FastAndSpectralPathsAgreeForACamera) {
     for (std::size_t i = 0; i < a.pixels.size(); ++i)
       ASSERT_NEAR(a.pixels[i], b.pixels[i], 2e-3 * peak) << i;
   }
+}
+
+// A frame exposed k times as long (or at k times the gain) as its take's start: the camera's
+// output is k times as large, on both renderer paths, for the observer and for a camera's table;
+// output / gain() is the same unit-gain light; the sensitivity, bands and name are unchanged.
+// The oracle is the response at unit factor times k (exposure is linear in time and gain).
+TEST(ChannelResponse, AFrameExposedKTimesAsLongSeesKTimesTheLight) {
+  const Box3 box{Eigen::Vector3d(-0.02, -0.02, -0.02), Eigen::Vector3d(0.02, 0.02, 0.02)};
+  const AbsorptionModel grey = AbsorptionModel::DefaultGrey();
+  const GridGeometry grid = GridGeometry::FromBoxAndDims(box, Eigen::Vector3i(8, 8, 8));
+  std::vector<float> t(grid.num_voxels()), n(grid.num_voxels());
+  for (std::size_t i = 0; i < t.size(); ++i) {
+    t[i] = static_cast<float>(1400 + 3 * (i % 97));
+    n[i] = static_cast<float>((i % 5) * 10 / grey.CrossSectionM2(550));
+  }
+  const double k = 0.37;
+  for (const auto& base :
+       {ChannelResponse::SrgbObserver(),
+        ChannelResponse::ForCamera(Bands({{610, 60}, {530, 60}, {460, 60}}, {1.5, 1, 0.7}))}) {
+    SCOPED_TRACE(base->name());
+    const auto exposed = ChannelResponse::Exposed(base, k);
+    EXPECT_EQ(exposed->name(), base->name());
+    EXPECT_EQ(exposed->channels(), base->channels());
+    EXPECT_EQ(exposed->basis_is_xyz(), base->basis_is_xyz());
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(exposed->gain()[c], k * base->gain()[c], 1e-15);
+    const Eigen::Vector3d a = base->Blackbody(1800), b = exposed->Blackbody(1800);
+    for (int c = 0; c < 3; ++c) {
+      EXPECT_NEAR(b[c], k * a[c], 1e-12 * std::abs(a[c]));
+      EXPECT_NEAR(b[c] / exposed->gain()[c], a[c] / base->gain()[c], 1e-12 * std::abs(a[c]));
+    }
+    for (SpectralPath path : {SpectralPath::kFast, SpectralPath::kSpectral}) {
+      RenderOptions options;
+      options.path = path;
+      options.response = base;
+      FireRenderer at_start(grey, options);
+      options.response = exposed;
+      FireRenderer at_k(grey, options);
+      at_start.SetVolume(grid, t, n);
+      at_k.SetVolume(grid, t, n);
+      const CameraRays rays(AxisCamera(0.3, 31, 31, 200));
+      ImageF a_img, b_img;
+      at_start.Render(rays, &a_img);
+      at_k.Render(rays, &b_img);
+      double peak = 0;
+      for (float v : a_img.pixels) peak = std::max(peak, double(std::abs(v)));
+      ASSERT_GT(peak, 0);
+      for (std::size_t i = 0; i < a_img.pixels.size(); ++i)
+        ASSERT_NEAR(b_img.pixels[i], k * a_img.pixels[i], 1e-5 * peak) << i;
+    }
+  }
+  // A camera's table is the copy's own: it outlives the response it was made from.
+  std::shared_ptr<const ChannelResponse> alone;
+  {
+    alone = ChannelResponse::Exposed(
+        ChannelResponse::ForCamera(Bands({{700, 20}, {600, 20}, {500, 20}}, {3, 1, 2})), 2.0);
+  }
+  float out[3];
+  alone->Lookup(1500.0f, out);
+  EXPECT_TRUE(std::isfinite(out[0]) && out[0] > 0);
+  // 1 is the response itself; a factor that is not finite and positive is an error.
+  const auto observer = ChannelResponse::SrgbObserver();
+  EXPECT_EQ(ChannelResponse::Exposed(observer, 1.0), observer);
+  EXPECT_EQ(ChannelResponse::Exposed(nullptr, 1.0), observer);
+  for (double bad : {0.0, -1.0, std::nan(""), HUGE_VAL})
+    EXPECT_THROW(ChannelResponse::Exposed(observer, bad), InputError) << bad;
 }
 
 TEST(ChannelResponse, ExtremeTemperaturesStayFinite) {
