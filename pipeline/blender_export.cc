@@ -128,7 +128,7 @@ void WriteBlenderVdb(const std::string& path, const FireVolume& fitted,
                                                "luminance of emission per metre", scalar(b.flame)));
   openvdb::MetaMap meta;
   meta.insertMeta("creator", openvdb::StringMetadata("flamerig (Blender export, Z up)"));
-  for (const char* key : {"exposure", "mean_delta_e", "frame", "source_frame_id"}) {
+  for (const char* key : {"exposure", "mean_delta_e", "frame", "source_frame_id", "no_fire"}) {
     auto it = fitted.metadata_numbers.find(key);
     if (it != fitted.metadata_numbers.end())
       meta.insertMeta(key, openvdb::DoubleMetadata(it->second));

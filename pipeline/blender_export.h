@@ -27,7 +27,8 @@
 // in its first camera's frame gave an upside-down fire.)
 // File metadata: exposure (render the sequence with Film > Exposure = log2(exposure) stops and the
 // "Standard" view transform to get the camera's image), units, the frame and its source frame id
-// (where the fitted volume has them), the absorption model.
+// (where the fitted volume has them), no_fire 1 for a frame set without fire (fitting/fit.h's
+// NoFireResult), the absorption model.
 #ifndef FLAMERIG_PIPELINE_BLENDER_EXPORT_H_
 #define FLAMERIG_PIPELINE_BLENDER_EXPORT_H_
 

@@ -132,13 +132,22 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
     out.tomography += (out.tomography.empty() ? "" : "\n") + report;
   }
   const GridGeometry grid = GridGeometry::FromBox(rig.box, ro.resolution);
-  if (job.method == FitMethod::kFast) {
-    out.result = FastFit(grid, tomography, views, absorption, fit, nullptr, progress, bands);
-  } else {
-    PaperFitOptions paper = job.paper;
-    paper.algorithm = job.method == FitMethod::kAlgorithm1 ? PaperAlgorithm::kPerVoxelDensity
-                                                           : PaperAlgorithm::kDensityScale;
-    out.result = PaperFit(grid, tomography, views, absorption, job.fit, paper, progress);
+  try {
+    if (job.method == FitMethod::kFast) {
+      out.result = FastFit(grid, tomography, views, absorption, fit, nullptr, progress, bands);
+    } else {
+      PaperFitOptions paper = job.paper;
+      paper.algorithm = job.method == FitMethod::kAlgorithm1 ? PaperAlgorithm::kPerVoxelDensity
+                                                             : PaperAlgorithm::kDensityScale;
+      out.result = PaperFit(grid, tomography, views, absorption, job.fit, paper, progress);
+    }
+  } catch (const NoActiveVoxelsError& e) {
+    // A set without fire: nothing to fit, and nothing written (`run` writes such a set of a take
+    // as an empty volume, so that its sequence has no gap).
+    throw NoActiveVoxelsError(
+        (job.tomography_path.empty() ? job.images_dir : job.tomography_path) +
+        ": no fire to fit, nothing written to " + job.out_path + " (" + e.what() +
+        "; `flamerig run` writes a take's sets without fire as empty volumes)");
   }
   MeasureRingHeights(rig.up_in_rig, &out.result.ring_profile);
   if (fs::path(job.out_path).has_parent_path())

@@ -32,6 +32,7 @@
 #include "pipeline/blender_export.h"
 #include "pipeline/distributed.h"
 #include "pipeline/export.h"
+#include "pipeline/fit_job.h"
 #include "pipeline/fit_report.h"
 #include "pipeline/frame_stages.h"
 #include "pipeline/run.h"
@@ -1321,11 +1322,33 @@ TEST(RunFrames, FramesWithoutFireAreEmptyVolumesNotFailures) {
                             [](float n) { return n == 0; }));
     EXPECT_TRUE(std::all_of(v.temperature_k.begin(), v.temperature_k.end(),
                             [&](float t) { return t == float(o.fit.objective.t_min_k); }));
-    EXPECT_TRUE(fs::exists(dir / "out" / "blender" / (FrameName(f) + ".vdb")));
+    // Blender's frame says so too (its metadata, as the fitted volume's).
+    openvdb::initialize();
+    openvdb::io::File blender((dir / "out" / "blender" / (FrameName(f) + ".vdb")).string());
+    blender.open();
+    EXPECT_EQ(blender.getMetadata()->metaValue<double>("no_fire"), 1.0);
+    blender.close();
     EXPECT_TRUE(fs::exists(dir / "out" / "frames" / (FrameName(f) + ".png")));
   }
   const std::string none = run.frames[1].Line(), one = run.frames[2].Line();
   EXPECT_NE(none.find("no camera sees fire"), std::string::npos) << none;
+  // `flamerig fit` of the dark set alone: an error naming the folder that says nothing was
+  // written, and nothing is.
+  FitJob dark;
+  dark.rig_path = o.rig_path;
+  dark.images_dir = (frames / "frame_000001").string();
+  dark.out_path = (dir / "dark_fit.vdb").string();
+  dark.resolution = 24;
+  try {
+    RunFitJob(dark);
+    ADD_FAILURE() << "fit of a set without fire did not fail";
+  } catch (const DataError& e) {
+    EXPECT_NE(std::string(e.what()).find(dark.images_dir + ": no fire to fit, nothing written to " +
+                                         dark.out_path),
+              std::string::npos)
+        << e.what();
+  }
+  EXPECT_FALSE(fs::exists(dark.out_path));
   EXPECT_NE(one.find("only " + rig.cameras[0].name + " ("), std::string::npos) << one;
   // The frame after them as a run that starts every frame cold computes it (one thread each, so
   // that the sums' order is the same).
