@@ -116,8 +116,29 @@ struct AravisCamera::Impl {
   bool configured = false;
   bool streaming = false;  // between Start and Stop, whatever the connection does
   int buffers = 8;
+  // Reads a buffer's chunk data (ChunkExposureTime, ChunkGain) where the camera sends it (its
+  // ChunkModeActive and ChunkEnable set, in the config's features); made at the first such buffer.
+  ArvChunkParser* chunks = nullptr;
 
   ArvDevice* device() const { return arv_camera_get_device(camera); }
+  // The exposure and gain a buffer's chunk data give, over `info`'s (which stay where it gives
+  // none). GenICam's ChunkGain is in dB where the camera's Gain is (SFNC); a GainRaw camera's
+  // stays in its own units, as its recording says (frame_source.h).
+  void ReadChunkSettings(ArvBuffer* buffer, FrameInfo* info) {
+    {
+      std::lock_guard<std::mutex> lock(device_mutex);
+      if (!chunks && camera) chunks = arv_camera_create_chunk_parser(camera);
+    }
+    if (!chunks) return;
+    GError* e = nullptr;
+    const double exposure =
+        arv_chunk_parser_get_float_value(chunks, buffer, "ChunkExposureTime", &e);
+    if (!e && std::isfinite(exposure) && exposure > 0) info->exposure_us = exposure;
+    g_clear_error(&e);
+    const double gain = arv_chunk_parser_get_float_value(chunks, buffer, "ChunkGain", &e);
+    if (!e && std::isfinite(gain)) info->gain_db = gain;
+    g_clear_error(&e);
+  }
   bool Has(const char* feature) const {
     GError* e = nullptr;
     const bool yes = arv_camera_is_feature_available(camera, feature, &e);
@@ -208,6 +229,7 @@ void AravisCamera::Close() {
     g_object_unref(impl_->camera);
     impl_->camera = nullptr;
   }
+  g_clear_object(&impl_->chunks);
 }
 
 bool AravisCamera::Reconnect() {
@@ -399,8 +421,7 @@ void AravisCamera::Configure(const CameraSettings& s) {
     }
   }
   settings_ = taken;
-  live_exposure_us_ = taken.exposure_us;
-  live_gain_db_ = taken.gain_db;
+  live_.Reset({taken.exposure_us, taken.gain_db});
   impl_->configured = true;
 }
 
@@ -474,8 +495,15 @@ std::optional<Frame> AravisCamera::Pop(std::int64_t timeout_ns) {
   f.info.device_frame_id = arv_buffer_get_frame_id(buffer);
   f.info.frame_id = impl_->unwrapper.Next(f.info.device_frame_id);
   f.info.device_timestamp_ns = static_cast<std::int64_t>(arv_buffer_get_timestamp(buffer));
-  f.info.exposure_us = live_exposure_us_;
-  f.info.gain_db = live_gain_db_;
+  // The settings it was exposed with: the camera's chunk data where it sends them, else those in
+  // force when its exposure began, by its first packet's arrival (live_exposure.h).
+  const guint64 arrived = arv_buffer_get_system_timestamp(buffer);
+  const ExposureSettings taken = live_.ForFrameEndingAt(
+      arrived > 0 ? static_cast<std::int64_t>(arrived) : f.info.host_realtime_ns);
+  f.info.exposure_us = taken.exposure_us;
+  f.info.gain_db = taken.gain_db;
+  if (arv_buffer_get_status(buffer) == ARV_BUFFER_STATUS_SUCCESS && arv_buffer_has_chunks(buffer))
+    impl_->ReadChunkSettings(buffer, &f.info);
   f.info.width = settings_.width;
   f.info.height = settings_.height;
   f.info.pixel_format = settings_.pixel_format;
@@ -566,8 +594,9 @@ StreamCounters AravisCamera::counters() const { return impl_->counters; }
 
 CameraSettings AravisCamera::settings() const {
   CameraSettings s = settings_;
-  s.exposure_us = live_exposure_us_;
-  s.gain_db = live_gain_db_;
+  const ExposureSettings now = live_.Current();
+  s.exposure_us = now.exposure_us;
+  s.gain_db = now.gain_db;
   return s;
 }
 
@@ -605,24 +634,38 @@ bool AravisCamera::SetExposureGainLive(double exposure_us, double gain_db) {
   if (!impl_->camera || !connected_) return false;
   GError* e = nullptr;
   const char* exposure = impl_->Has("ExposureTime") ? "ExposureTime" : "ExposureTimeAbs";
+  // The change's moment: just before the write (a frame whose exposure began after it may be the
+  // new settings'; the read-backs below take round trips).
+  const std::int64_t at_ns = SystemClock().RealtimeNs();
   arv_device_set_float_feature_value(impl_->device(), exposure, exposure_us, &e);
   if (e) {
     g_clear_error(&e);
     return false;  // this camera locks it while streaming
   }
-  if (impl_->Has("Gain")) {
-    arv_device_set_float_feature_value(impl_->device(), "Gain", gain_db, &e);
-  } else if (impl_->Has("GainRaw")) {
-    arv_device_set_integer_feature_value(impl_->device(), "GainRaw", std::llround(gain_db), &e);
-  }
-  if (e) {
-    g_clear_error(&e);
-    live_exposure_us_ = exposure_us;  // the exposure took
-    return false;
-  }
-  live_exposure_us_ = exposure_us;
-  live_gain_db_ = gain_db;
-  return true;
+  // What the camera took (it rounds to its own steps), read back; what was asked where it cannot
+  // be read.
+  auto taken = [&](const char* feature, double asked, bool integer) {
+    GError* r = nullptr;
+    const double v =
+        integer ? double(arv_device_get_integer_feature_value(impl_->device(), feature, &r))
+                : arv_device_get_float_feature_value(impl_->device(), feature, &r);
+    const bool read = !r && std::isfinite(v);
+    g_clear_error(&r);
+    return read ? v : asked;
+  };
+  const double exposure_taken = taken(exposure, exposure_us, false);
+  const double gain_before = live_.Current().gain_db;
+  const char* gain = impl_->Has("Gain") ? "Gain" : impl_->Has("GainRaw") ? "GainRaw" : nullptr;
+  if (gain && std::string(gain) == "Gain")
+    arv_device_set_float_feature_value(impl_->device(), gain, gain_db, &e);
+  else if (gain)
+    arv_device_set_integer_feature_value(impl_->device(), gain, std::llround(gain_db), &e);
+  const bool gain_took = !e;
+  g_clear_error(&e);
+  const double gain_taken =
+      gain && gain_took ? taken(gain, gain_db, std::string(gain) == "GainRaw") : gain_before;
+  live_.Change({exposure_taken, gain_taken}, at_ns);
+  return gain_took;
 }
 
 std::map<std::string, std::string> AravisCamera::FeatureState() const {

@@ -31,6 +31,7 @@
 #include "acquisition/camera.h"
 #include "acquisition/clock.h"
 #include "acquisition/frame_pool.h"
+#include "acquisition/live_exposure.h"
 
 namespace flamerig {
 
@@ -79,7 +80,9 @@ class AravisCamera : public Camera {
   CameraSettings settings_;
   int camera_index_;
   std::atomic<bool> connected_{true};
-  std::atomic<double> live_exposure_us_{0}, live_gain_db_{0};
+  // The exposure and gain in force, and their changes while streaming, on the host's realtime
+  // clock (Aravis' buffers' system timestamps): each frame's by when its exposure began.
+  LiveExposure live_;
   FrameBufferPool pool_{0, 0};  // the frames' pixels (frame_pool.h)
 };
 

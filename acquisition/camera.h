@@ -101,10 +101,11 @@ class Camera {
   virtual StreamCounters counters() const = 0;
   // Changes exposure and gain while streaming, from the next frame the camera exposes (each
   // frame's FrameInfo carries the values it was taken with); callable from any thread. False when
-  // this camera cannot (then it must be stopped to be configured). Aravis and V4L2 label frames by
-  // when they are received: exact when triggered (no frame in flight at the change), but a
-  // free-running frame on its way or already in a buffer during the change carries the new values
-  // (no chunk data yet).
+  // this camera cannot (then it must be stopped to be configured). Aravis takes a frame's values
+  // from its chunk data where the camera sends them (ChunkExposureTime, ChunkGain), else Aravis
+  // and V4L2 from the values in force when its exposure began, by its timestamp (live_exposure.h):
+  // a frame exposed before the change and delivered after it keeps the old values; a camera that
+  // applies a change a frame or two late is labelled early by as much.
   virtual bool SetExposureGainLive(double exposure_us, double gain_db) { return false; }
   // Every readable feature of the device and its value as text (GenICam cameras), for the
   // recording's metadata; empty for cameras without such a tree.

@@ -8,8 +8,11 @@
 #include "core/config_reader.h"
 #include "core/error.h"
 #include "core/image.h"
+#include "core/srgb.h"
 
 #include <algorithm>
+#include <array>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <stdexcept>
@@ -185,8 +188,29 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
       throw InputError("replay of " + dataset_dir + ": no calibration/*/" + camera + ".png");
     for (int k : missing) (*images)[k].u8 = ImageU8(width, height, 3, 8);
   }
-  return [images, dataset_dir, camera](const FrameInfo& info, std::vector<std::uint8_t>* bytes) {
+  // The exposure x gain of the first frame asked for: the one the dataset's frames were filmed at.
+  auto reference = std::make_shared<std::atomic<double>>(0.0);
+  return [images, dataset_dir, camera, reference](const FrameInfo& info,
+                                                  std::vector<std::uint8_t>* bytes) {
     const Replayed& img = (*images)[info.frame_id % images->size()];
+    // An 8-bit frame's light scales with the camera's exposure and gain against the reference's:
+    // its sRGB values through a table, linear light times the factor, clipped at full scale.
+    const double exposure = info.exposure_us * std::pow(10.0, info.gain_db / 20.0);
+    double factor = 1.0;
+    if (exposure > 0 && std::isfinite(exposure)) {
+      double expected = 0.0;
+      reference->compare_exchange_strong(expected, exposure);
+      factor = exposure / reference->load();
+    }
+    std::array<std::uint8_t, 256> scaled;
+    const bool rescale = factor != 1.0 && !img.deep();
+    if (rescale) {
+      const auto& linear = SrgbU8ToLinearTable();
+      for (int v = 0; v < 256; ++v) scaled[v] = QuantizeU8(SrgbEncode(factor * linear[v]));
+    }
+    auto code8 = [&](std::size_t k) {
+      return rescale ? scaled[img.u8.pixels[k]] : img.u8.pixels[k];
+    };
     if (img.width() != info.width || img.height() != info.height) {
       throw InputError("replay of " + dataset_dir + " camera " + camera + ": images are " +
                        std::to_string(img.width()) + "x" + std::to_string(img.height()) +
@@ -208,7 +232,7 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
     // Channel c of pixel i at full scale: an 8-bit code, or in 16 bits the deeper camera's code as
     // it is and an 8-bit one x 257.
     auto value = [&](std::size_t i, int c) -> double {
-      return img.deep() ? img.u16.pixels[3 * i + c] : img.u8.pixels[3 * i + c] * (wide ? 257 : 1);
+      return img.deep() ? img.u16.pixels[3 * i + c] : code8(3 * i + c) * (wide ? 257 : 1);
     };
     auto luma = [&](std::size_t i) {
       return 0.2126 * value(i, 0) + 0.7152 * value(i, 1) + 0.0722 * value(i, 2);
@@ -241,7 +265,7 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
           put(i, luma(i));
           break;
         case PixelFormat::kRgb8:
-          std::memcpy(bytes->data() + 3 * i, img.u8.pixels.data() + 3 * i, 3);
+          for (int c = 0; c < 3; ++c) (*bytes)[3 * i + c] = code8(3 * i + c);
           break;
         default:
           put(i, value(i, bayer_channel(i)));

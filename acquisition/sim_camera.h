@@ -74,6 +74,11 @@ ImageSource TestPatternSource();
 // than the format is an InputError naming the file). Throws DataError naming
 // the file when a frame is missing or unreadable; a frame asked for at another size than the
 // images gets an error naming both sizes.
+// The frames are what the camera sees at the exposure x gain of the first frame it is asked for
+// (the one it started streaming with); a frame at another (`ctl configure CAM exposure_us`, live)
+// shows an 8-bit dataset's light times the factor, through its sRGB values and clipped at full
+// scale, as a real camera's image brightens. A deeper camera's codes replay as they are (their
+// black level is the rig's, which the camera does not know).
 // With ReplayContent::kCalibration frame k shows the k-th board view instead
 // (dataset_dir/calibration/view_NNN/<camera>.png, k mod the number of views), and a dark frame
 // where the camera did not see that view: a board waved in front of the rig.

@@ -203,17 +203,18 @@ void V4l2Camera::Configure(const CameraSettings& s) {
   settings_ = asked;
   // Frames carry what the device exposes: its 100 us units, read back after the features (which
   // may name the exposure control themselves).
-  live_exposure_us_ = asked.exposure_us;
+  double exposure_us = asked.exposure_us;
   v4l2_control taken{V4L2_CID_EXPOSURE_ABSOLUTE, 0};
   if (s.exposure_us > 0 && Xioctl(*device_, VIDIOC_G_CTRL, &taken) == 0)
-    live_exposure_us_ = taken.value * 100.0;
-  live_gain_db_ = asked.gain_db;
+    exposure_us = taken.value * 100.0;
+  live_.Reset({exposure_us, asked.gain_db});
 }
 
 CameraSettings V4l2Camera::settings() const {
   CameraSettings s = settings_;
-  s.exposure_us = live_exposure_us_;
-  s.gain_db = live_gain_db_;
+  const ExposureSettings now = live_.Current();
+  s.exposure_us = now.exposure_us;
+  s.gain_db = now.gain_db;
   return s;
 }
 
@@ -298,13 +299,17 @@ bool V4l2Camera::SetExposureGainLive(double exposure_us, double gain_db) {
   v4l2_control exposure{V4L2_CID_EXPOSURE_ABSOLUTE,
                         static_cast<std::int32_t>(std::llround(exposure_us / 100.0))};
   if (Xioctl(*device_, VIDIOC_S_CTRL, &exposure) != 0) return false;  // busy while streaming
-  live_exposure_us_ = exposure.value * 100.0;  // what the device took, in its 100 us units
-  if (std::llround(gain_db) == std::llround(live_gain_db_.load())) return true;
-  // A gain change (a camera without a gain control can still change its exposure live).
-  v4l2_control gain{V4L2_CID_GAIN, static_cast<std::int32_t>(std::llround(gain_db))};
-  if (Xioctl(*device_, VIDIOC_S_CTRL, &gain) != 0) return false;
-  live_gain_db_ = gain.value;
-  return true;
+  ExposureSettings now = live_.Current();
+  now.exposure_us = exposure.value * 100.0;  // what the device took, in its 100 us units
+  bool took = true;
+  if (std::llround(gain_db) != std::llround(now.gain_db)) {
+    // A gain change (a camera without a gain control can still change its exposure live).
+    v4l2_control gain{V4L2_CID_GAIN, static_cast<std::int32_t>(std::llround(gain_db))};
+    took = Xioctl(*device_, VIDIOC_S_CTRL, &gain) == 0;
+    if (took) now.gain_db = gain.value;
+  }
+  live_.Change(now, SystemClock().MonotonicNs());
+  return took;
 }
 
 void V4l2Camera::Start(int buffers) {
@@ -381,8 +386,21 @@ std::optional<Frame> V4l2Camera::Pop(std::int64_t timeout_ns) {
   f.info.frame_id = unwrapper_.Next(b.sequence);
   f.info.device_timestamp_ns =
       std::int64_t(b.timestamp.tv_sec) * 1'000'000'000 + std::int64_t(b.timestamp.tv_usec) * 1000;
-  f.info.exposure_us = live_exposure_us_;
-  f.info.gain_db = live_gain_db_;
+  // The settings it was exposed with: those in force when its exposure began, by the buffer's
+  // timestamp where the driver stamps CLOCK_MONOTONIC (at the exposure's start, or its end) and
+  // the stamp is within 10 s before now, else by when it was taken off the queue.
+  {
+    const std::int64_t stamp = f.info.device_timestamp_ns;
+    const bool monotonic =
+        (b.flags & V4L2_BUF_FLAG_TIMESTAMP_MASK) == V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC &&
+        stamp <= f.info.host_monotonic_ns && f.info.host_monotonic_ns - stamp < 10'000'000'000;
+    const bool at_start = (b.flags & V4L2_BUF_FLAG_TSTAMP_SRC_MASK) == V4L2_BUF_FLAG_TSTAMP_SRC_SOE;
+    const ExposureSettings taken = !monotonic ? live_.ForFrameEndingAt(f.info.host_monotonic_ns)
+                                   : at_start ? live_.ForFrameStartingAt(stamp)
+                                              : live_.ForFrameEndingAt(stamp);
+    f.info.exposure_us = taken.exposure_us;
+    f.info.gain_db = taken.gain_db;
+  }
   f.info.pixel_format = settings_.pixel_format;
   f.info.width = settings_.width;
   f.info.height = settings_.height;

@@ -39,6 +39,7 @@
 #include "acquisition/camera.h"
 #include "acquisition/clock.h"
 #include "acquisition/frame_pool.h"
+#include "acquisition/live_exposure.h"
 
 namespace flamerig {
 
@@ -117,9 +118,11 @@ class V4l2Camera : public Camera {
   std::vector<Mapped> buffers_;
   FrameBufferPool pool_{0, 0};  // the frames' pixels (frame_pool.h)
   bool streaming_ = false;
-  std::atomic<bool> connected_{true};                          // written by Pop, read by any thread
-  std::atomic<double> live_exposure_us_{0}, live_gain_db_{0};  // what frames carry
-  std::mutex control_mutex_;                                   // live changes one at a time
+  std::atomic<bool> connected_{true};  // written by Pop, read by any thread
+  // The exposure and gain in force, and their changes while streaming, on CLOCK_MONOTONIC (the
+  // buffers' timestamps): each frame's by when its exposure began (live_exposure.h).
+  LiveExposure live_;
+  std::mutex control_mutex_;  // live changes one at a time
   std::uint32_t bytes_per_line_ = 0;
   FrameIdUnwrapper unwrapper_{32, 0};
   StreamCounters counters_;

@@ -146,39 +146,44 @@ std::optional<std::string> PngDamage(const std::string& bytes) {
 }
 
 // The image formats a camera's frames come in (calibration/calibrate.cc's image extensions), by
-// their leading bytes: PNG, JPEG, TIFF (either byte order), BMP and the PNM family (PBM, PGM, PPM,
-// binary or text). Nothing else reaches OpenCV, whose other decoders (OpenEXR, Radiance HDR,
-// JPEG 2000, WebP, ...) are no camera's frame format and trust their headers more than a frame's
-// reader may: OpenEXR's allocates what a damaged attribute size states (a fuzzer's finding,
-// tests/fuzz/regressions/image/). The signatures are whole, as OpenCV's own decoders check them,
-// so that bytes let through are claimed by that decoder: a PNG's first 4 bytes alone let
-// OpenCV try the rest on GDAL, through a temporary file. The format the bytes show is named when
-// it is refused.
+// their leading bytes: PNG, JPEG, TIFF (either byte order; BigTIFF too), BMP and the PNM family
+// (PBM, PGM, PPM, binary or text). Nothing else reaches OpenCV, whose other decoders (OpenEXR,
+// Radiance HDR, JPEG 2000, WebP, ...) are no camera's frame format and trust their headers more
+// than a frame's reader may: OpenEXR's allocates what a damaged attribute size states (a fuzzer's
+// finding, tests/fuzz/regressions/image/). The signatures are whole, as OpenCV's own decoders
+// check them, so that bytes let through are claimed by that decoder: a PNG's first 4 bytes alone
+// let OpenCV try the rest on GDAL, through a temporary file. The format the bytes show is named
+// when it is refused.
 std::optional<std::string> NotAFrameFormat(std::string_view bytes) {
   using namespace std::string_view_literals;  // magic with NUL bytes in it
   const auto starts = [&](std::string_view magic) {
     return bytes.substr(0, magic.size()) == magic;
   };
   if (starts("\x89PNG\r\n\x1A\n"sv) || starts("\xFF\xD8\xFF"sv) || starts("II*\0"sv) ||
-      starts("MM\0*"sv) || starts("BM"sv))
+      starts("MM\0*"sv) || starts("II+\0"sv) || starts("MM\0+"sv) || starts("BM"sv))
     return std::nullopt;
   if (bytes.size() >= 3 && bytes[0] == 'P' && bytes[1] >= '1' && bytes[1] <= '6' &&
       std::isspace(static_cast<unsigned char>(bytes[2])))
     return std::nullopt;
-  const std::string format = starts("v/1\x01"sv)                            ? "an OpenEXR file"
-                             : starts("#?RADIANCE"sv) || starts("#?RGBE"sv) ? "a Radiance HDR file"
-                             : starts("RIFF"sv)                             ? "a RIFF (WebP?) file"
-                             : starts("\0\0\0\x0CjP"sv) || starts("\xFF\x4F\xFF\x51"sv)
-                                 ? "a JPEG 2000 file"
-                                 : "not a known image format";
-  std::string lead;
+  const std::string format =
+      starts("\x89PNG"sv)   ? "a PNG with a damaged signature (a text-mode copy changes its line "
+                              "ends)"
+      : starts("v/1\x01"sv) ? "an OpenEXR file"
+      : starts("#?RADIANCE"sv) || starts("#?RGBE"sv)             ? "a Radiance HDR file"
+      : starts("RIFF"sv)                                         ? "a RIFF (WebP?) file"
+      : starts("\0\0\0\x0CjP"sv) || starts("\xFF\x4F\xFF\x51"sv) ? "a JPEG 2000 file"
+      : starts("version https://git-lfs"sv) ? "a Git LFS pointer, not the image (git lfs pull)"
+                                            : "not a known image format";
+  // The first bytes in hex and as text (a pointer or a note is legible).
+  std::string hex, text;
   for (std::size_t i = 0; i < std::min<std::size_t>(bytes.size(), 8); ++i) {
     static const char* const kHex = "0123456789abcdef";
     const auto b = static_cast<unsigned char>(bytes[i]);
-    lead += std::string(i ? " " : "") + kHex[b >> 4] + kHex[b & 15];
+    hex += std::string(i ? " " : "") + kHex[b >> 4] + kHex[b & 15];
+    text += b >= 0x20 && b < 0x7f ? static_cast<char>(b) : '.';
   }
-  return format + " (it starts " + lead +
-         "); a camera's frames are read as PNG, JPEG, TIFF, BMP or PGM/PPM";
+  return format + " (it starts " + hex + ", \"" + text +
+         "\"); a camera's frames are read as PNG, JPEG, TIFF, BMP or PGM/PPM";
 }
 
 // Damage is a DataError, the failure of the frame that holds the image (core/error.h), whether the

@@ -116,11 +116,21 @@ std::shared_ptr<const ChannelResponse> ChannelResponse::Exposed(
                      " (must be finite and > 0)");
   const auto& base = response ? response : SrgbObserver();
   if (factor == 1) return base;
-  std::shared_ptr<ChannelResponse> r(new ChannelResponse(*base));
-  r->output_from_basis_ *= factor;
-  r->gain_ *= factor;
-  // The copy's table is its own (the observer's rows are BlackbodyXyzTable's, shared).
-  if (!r->table_.empty()) r->rows_ = r->table_.data();
+  // Everything but the table, which stays the base's (held by base_; the observer's rows are
+  // BlackbodyXyzTable's): a camera's re-exposed frame costs no table.
+  std::shared_ptr<ChannelResponse> r(new ChannelResponse());
+  r->name_ = base->name_;
+  r->channels_ = base->channels_;
+  r->observer_ = base->observer_;
+  r->output_from_basis_ = factor * base->output_from_basis_;
+  r->gain_ = factor * base->gain_;
+  r->first_nm_ = base->first_nm_;
+  r->last_nm_ = base->last_nm_;
+  r->support_first_nm_ = base->support_first_nm_;
+  r->support_last_nm_ = base->support_last_nm_;
+  r->basis_ = base->basis_;
+  r->rows_ = base->rows_;
+  r->base_ = base;
   return r;
 }
 

@@ -50,8 +50,9 @@ class ChannelResponse {
   // and its gains times the factor, its sensitivity, tables and name the same (so that bands group
   // as before, and the output divided by gain() is still the unit-gain channels the tomography's
   // frames, decoded at the frame's exposure, hold). `response` itself when the factor is 1. The
-  // copy is cheap for the sRGB observer; a camera's shares nothing and copies its table (0.5 MB).
-  // Throws InputError for a factor that is not finite and > 0.
+  // copy shares the black-body table with `response` (and keeps it alive): it costs a camera's
+  // 1 nm basis (20 kB), not its table (0.5 MB). Throws InputError for a factor that is not finite
+  // and > 0.
   static std::shared_ptr<const ChannelResponse> Exposed(
       const std::shared_ptr<const ChannelResponse>& response, double factor);
 
@@ -136,6 +137,8 @@ class ChannelResponse {
   std::vector<Eigen::Vector3d> basis_;  // per nm from first_nm_ (cameras only)
   std::vector<double> table_;           // 3 * (kMaxTableK + 2) (cameras only)
   const double* rows_ = nullptr;        // the table: BlackbodyXyzTable's rows, or table_
+  // Exposed(): the response whose table rows_ points into, held while this one lives
+  std::shared_ptr<const ChannelResponse> base_;
 };
 
 }  // namespace flamerig

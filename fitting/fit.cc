@@ -161,7 +161,8 @@ ThinEmissionTable::ThinEmissionTable(const AbsorptionModel& absorption, double t
   if (!(t_min_k > 0) || !(t_max_k > t_min_k))
     throw InputError("ThinEmissionTable: need 0 < t_min < t_max");
   if (!response) response = ChannelResponse::SrgbObserver();
-  xyz_chromaticity_ = response == ChannelResponse::SrgbObserver();
+  // The observer (with any gains, at any exposure: ChannelResponse::Exposed) by its basis.
+  xyz_chromaticity_ = response->basis_is_xyz();
   mono_ = response->channels() == 1;
   const int first = xyz_chromaticity_ ? colour::CieObserver::kFirstNm : ChannelResponse::kFirstNm;
   const int last = xyz_chromaticity_ ? colour::CieObserver::kLastNm : ChannelResponse::kLastNm;

@@ -77,7 +77,7 @@ class ThinEmissionTable {
 
  private:
   double t_min_, t_max_;
-  bool xyz_chromaticity_ = true;      // the sRGB observer: CIE xy
+  bool xyz_chromaticity_ = true;      // the sRGB observer (any gains, basis_is_xyz()): CIE xy
   bool mono_ = false;                 // one channel: TemperatureOf gives the range's middle
   std::vector<Eigen::Vector3d> rgb_;  // per kelvin from t_min
   std::vector<Eigen::Vector2d> xy_;

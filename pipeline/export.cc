@@ -1,5 +1,7 @@
 #include "pipeline/export.h"
 
+#include <fmt/format.h>
+
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -71,7 +73,8 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   const RecordingMetadata& meta = rec.metadata();
   const bool event = !meta.event_name.empty();
   csv << "set,trigger_id,reference_ns,spread_ns";
-  for (const auto& c : meta.cameras) csv << "," << c.name << "_frame_id," << c.name << "_status";
+  for (const auto& c : meta.cameras)
+    csv << "," << c.name << "_frame_id," << c.name << "_status," << c.name << "_exposure";
   if (event) csv << ",event";
   csv << "\n";
   // The first set after the trigger, over the whole take (an export may start past it).
@@ -105,7 +108,7 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
       const std::string& camera = rec.metadata().cameras[c].name;
       if (!rec.HasFrame(i, c) && !rec.FrameLost(i, c)) {
         ++summary.missing_frames;
-        csv << ",,";
+        csv << ",,,";
         continue;
       }
       std::string frame_id;
@@ -128,12 +131,15 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
         }
         frame_id = std::to_string(f.info.frame_id);
         WriteFramePng(f, dir / (camera + ".png"));
-        csv << "," << frame_id << "," << ToString(f.info.status);
+        // Its exposure against the take's start, as `run` reads it from the recording.
+        const FrameExposure e = ExposureOfFrame(meta, c, f.info);
+        csv << "," << frame_id << "," << ToString(f.info.status) << ","
+            << (e.unknown ? std::string("unknown") : fmt::format("{:.9g}", e.ratio));
         ++summary.images;
       } catch (const DataError& e) {
         summary.failed.push_back("set " + std::to_string(i) + ", camera " + camera + ": " +
                                  e.what());
-        csv << "," << frame_id << ",damaged";
+        csv << "," << frame_id << ",damaged,";
       }
     }
     if (event) {

@@ -37,8 +37,11 @@ struct ExportSummary {
 // OUT/pixel_formats.yaml (each camera's pixel format as its frames carried it, or the 10- to
 // 14-bit wire format they were unpacked from, so that a Bayer camera's frames read back from here
 // are fitted through its mosaic and a wire format's words read as the take's: frame_source.h) and
-// OUT/sets.csv (set, trigger id, reference time, spread, then per camera frame id and status,
-// empty when missing, "damaged" for a frame that is lost or fails its checksum; for an event
+// OUT/sets.csv (set, trigger id, reference time, spread, then per camera frame id, status and
+// exposure (`<camera>_exposure`: the frame's exposure time x gain over the take's start, as `run`
+// fits it, frame_source.h's ExposureOfFrame; "unknown" for a change of gain in a device's own
+// units; a folder read back from here is decoded and fitted at it), empty when missing, "damaged"
+// for a frame that is lost or fails its checksum; for an event
 // recording a last column `event`: "pre-trigger" for the ring's sets, the event's name on the
 // first set after its trigger). The recording is
 // opened with every salvage Recording::Open() does (acquisition/recording.h), so a damaged file

@@ -5,7 +5,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
+#include <map>
+#include <sstream>
 #include <stdexcept>
 
 #include <yaml-cpp/yaml.h>
@@ -15,6 +18,7 @@
 #include "acquisition/streampix.h"
 #include "core/atomic_file.h"
 #include "core/error.h"
+#include "core/read_file.h"
 #include "core/srgb.h"
 
 namespace flamerig {
@@ -158,18 +162,111 @@ std::vector<ExportedFormat> ReadExportedFormats(const std::string& dir, const Ri
 
 namespace {
 
+// A folder of one frame set that an export wrote (frame_NNNNNN beside the export's sets.csv): its
+// set number; else -1.
+long long ExportedSetNumber(const fs::path& folder) {
+  const std::string name = folder.filename().string();
+  const bool set_folder =
+      name.size() == 12 && name.rfind("frame_", 0) == 0 &&
+      std::all_of(name.begin() + 6, name.end(), [](char ch) { return ch >= '0' && ch <= '9'; });
+  if (!set_folder || !fs::exists(folder.parent_path() / "sets.csv")) return -1;
+  return std::stoll(name.substr(6));
+}
+
 // The formats for a folder of one frame set: its own pixel_formats.yaml, or that of the export
 // it belongs to (a folder named frame_NNNNNN whose parent holds the export's sets.csv).
 std::vector<ExportedFormat> FrameFolderFormats(const std::string& dir, const Rig& rig) {
   const fs::path folder = fs::weakly_canonical(fs::absolute(dir));
   if (fs::exists(folder / kExportedFormatsFile)) return ReadExportedFormats(folder.string(), rig);
-  const std::string name = folder.filename().string();
-  const bool set_folder =
-      name.size() == 12 && name.rfind("frame_", 0) == 0 &&
-      std::all_of(name.begin() + 6, name.end(), [](char ch) { return ch >= '0' && ch <= '9'; });
-  if (set_folder && fs::exists(folder.parent_path() / "sets.csv"))
+  if (ExportedSetNumber(folder) >= 0)
     return ReadExportedFormats(folder.parent_path().string(), rig);
   return std::vector<ExportedFormat>(rig.cameras.size());
+}
+
+// The exposure factors an export's sets.csv gives (its <camera>_exposure columns, ExposureOfFrame's
+// ratio, or "unknown"), per set number, per rig camera; empty for a sets.csv without them (an
+// export before 2026-12-04, StreamPix's). A cell that is neither is a DataError naming the file,
+// its line and the column.
+using ExportedExposures = std::map<std::size_t, std::vector<FrameExposure>>;
+ExportedExposures ReadExportedExposures(const fs::path& sets_csv, const Rig& rig) {
+  ExportedExposures out;
+  std::istringstream in(ReadFile(sets_csv.string()));
+  auto cells = [](const std::string& line) {
+    std::vector<std::string> v;
+    std::stringstream row(line);
+    std::string cell;
+    while (std::getline(row, cell, ',')) v.push_back(cell);
+    if (!line.empty() && line.back() == ',') v.emplace_back();
+    return v;
+  };
+  std::string line;
+  if (!std::getline(in, line)) return out;
+  const std::vector<std::string> header = cells(line);
+  std::vector<int> column(rig.cameras.size(), -1);
+  bool any = false;
+  for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+    const auto it = std::find(header.begin(), header.end(), rig.cameras[c].name + "_exposure");
+    if (it != header.end()) {
+      column[c] = static_cast<int>(it - header.begin());
+      any = true;
+    }
+  }
+  if (!any) return out;
+  for (int number = 2; std::getline(in, line); ++number) {
+    if (line.empty()) continue;
+    const std::vector<std::string> row = cells(line);
+    const auto bad = [&](const std::string& what) {
+      return DataError(sets_csv.string() + ", line " + std::to_string(number) + ": " + what);
+    };
+    std::size_t set = 0;
+    try {
+      std::size_t used = 0;
+      set = std::stoul(row.at(0), &used);
+      if (used != row[0].size()) throw std::invalid_argument(row[0]);
+    } catch (const std::exception&) {
+      throw bad("the set number '" + (row.empty() ? std::string() : row[0]) + "' is not one");
+    }
+    std::vector<FrameExposure>& sets = out[set];
+    sets.assign(rig.cameras.size(), FrameExposure());
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+      if (column[c] < 0 || static_cast<std::size_t>(column[c]) >= row.size()) continue;
+      const std::string& cell = row[column[c]];
+      const std::string name = rig.cameras[c].name;
+      if (cell.empty()) continue;
+      if (cell == "unknown") {
+        sets[c].unknown = true;
+        sets[c].note = "'s exposure changed by a factor its recording does not give (" +
+                       sets_csv.string() + ")";
+        continue;
+      }
+      char* end = nullptr;
+      const double ratio = std::strtod(cell.c_str(), &end);
+      if (*end != '\0' || !(ratio >= 1 / kExposureRatioRange && ratio <= kExposureRatioRange))
+        throw bad(name + "_exposure '" + cell + "' is not an exposure factor (" +
+                  fmt::format("{:g} to {:g}", 1 / kExposureRatioRange, kExposureRatioRange) +
+                  ", or unknown)");
+      sets[c].ratio = ratio;
+      if (std::abs(ratio - 1) > kExposureChange)
+        sets[c].note = fmt::format(
+            " exposed at {:.3g} times the recording's start ({}): fitted at "
+            "that exposure",
+            ratio, sets_csv.string());
+    }
+  }
+  return out;
+}
+
+// A set's exposures from an export's sets.csv into `out` (its ratios, flags and notes), when the
+// file gives that set.
+void ApplyExportedExposures(const ExportedExposures& exposures, std::size_t set, const Rig& rig,
+                            SourceFrameSet* out) {
+  const auto it = exposures.find(set);
+  if (it == exposures.end()) return;
+  for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+    out->exposure_ratio[c] = it->second[c].ratio;
+    out->exposure_unknown[c] = it->second[c].unknown;
+    if (!it->second[c].note.empty()) out->notes.push_back(rig.cameras[c].name + it->second[c].note);
+  }
 }
 
 // A Bayer layout applies to what DecodeFrame made of a mosaic, an RGB image (8 or 16 bits);
@@ -191,6 +288,13 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
   out.signal.resize(rig.cameras.size());
   const std::vector<ExportedFormat> formats = FrameFolderFormats(dir, rig);
   out.bits.assign(rig.cameras.size(), 0);
+  out.exposure_ratio.assign(rig.cameras.size(), 1.0);
+  out.exposure_unknown.assign(rig.cameras.size(), false);
+  // A set that an export wrote: its cameras' exposures as the export's sets.csv gives them.
+  const fs::path folder = fs::weakly_canonical(fs::absolute(dir));
+  if (const long long set = ExportedSetNumber(folder); set >= 0)
+    ApplyExportedExposures(ReadExportedExposures(folder.parent_path() / "sets.csv", rig),
+                           static_cast<std::size_t>(set), rig, &out);
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const RigCamera& camera = rig.cameras[c];
     out.mosaic.push_back(formats[c].mosaic);
@@ -214,8 +318,8 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
                       std::to_string(camera.model.width()) + "x" +
                       std::to_string(camera.model.height()));
     try {
-      DecodeCameraImage(u8, u16, bits, exposure, out.radiometry[c], &out.images[c], &out.linear[c],
-                        &out.signal[c]);
+      DecodeCameraImage(u8, u16, bits, exposure * out.exposure_ratio[c], out.radiometry[c],
+                        &out.images[c], &out.linear[c], &out.signal[c]);
     } catch (const InputError& e) {
       throw DataError(path.string() + ": " + e.what());
     }
@@ -259,6 +363,42 @@ bool GainInDecibels(const RecordingMetadata& metadata, int camera) {
 
 }  // namespace
 
+FrameExposure ExposureOfFrame(const RecordingMetadata& metadata, int camera,
+                              const FrameInfo& frame) {
+  FrameExposure out;
+  const RecordingCamera& rc = metadata.cameras.at(static_cast<std::size_t>(camera));
+  const CameraSettings& start = rc.settings;
+  if (!(frame.exposure_us > 0) || !(start.exposure_us > 0) || !std::isfinite(frame.exposure_us) ||
+      !std::isfinite(start.exposure_us) || !std::isfinite(frame.gain_db) ||
+      !std::isfinite(start.gain_db))
+    return out;
+  const bool decibels = GainInDecibels(metadata, camera);
+  const double ratio = frame.exposure_us / start.exposure_us *
+                       (decibels ? std::pow(10.0, (frame.gain_db - start.gain_db) / 20.0) : 1.0);
+  const bool gain_changed = frame.gain_db != start.gain_db;
+  const bool believed =
+      ratio >= 1 / kExposureRatioRange && ratio <= kExposureRatioRange;  // false for NaN
+  if (believed) out.ratio = ratio;
+  out.unknown = !believed || (!decibels && gain_changed);
+  if (!believed)
+    out.note = fmt::format(
+        "'s frame records {:g} us, {:g} dB where the recording started at {:g} us, {:g} dB: a "
+        "factor of {:g}, not believed (a damaged record?), so not applied",
+        frame.exposure_us, frame.gain_db, start.exposure_us, start.gain_db, ratio);
+  else if (!decibels && gain_changed)
+    out.note = fmt::format(
+        "'s gain is {:g} where the recording started at {:g}, in the device's own units ({} "
+        "records no gain in dB): its factor is unknown, so this set's densities do not share the "
+        "take's scale; split the take where the gain changed",
+        frame.gain_db, start.gain_db, rc.description.driver);
+  else if (std::abs(out.ratio - 1) > kExposureChange)
+    out.note = fmt::format(
+        " exposed at {:.3g} times the recording's start ({:g} us, {:g} dB; it started at {:g} us, "
+        "{:g} dB): fitted at that exposure",
+        out.ratio, frame.exposure_us, frame.gain_db, start.exposure_us, start.gain_db);
+  return out;
+}
+
 struct FrameSource::Impl {
   FrameSourceSpec spec;
   Rig rig;
@@ -268,12 +408,10 @@ struct FrameSource::Impl {
   std::unique_ptr<Recording> recording;
   std::vector<StreamPixSequence> seqs;
   std::vector<ExportedFormat> images_formats;  // a folder's, per rig camera
+  ExportedExposures images_exposures;          // an export's folder's, per set
   // per rig camera: the model its frames decode with (SourceFrameSet::radiometry); a
   // recording's is decided again for each frame, by what it was sent in (WireBitsOf)
   std::vector<CameraRadiometry> radiometry;
-  // per rig camera: whether its recording's gain_db is in dB (GainInDecibels); else the device's
-  // own units, whose change has no known factor
-  std::vector<bool> gain_in_decibels;
 
   // Checks a decoded camera image against the rig camera's imager.
   void CheckSize(int c, std::size_t set, int width, int height) const {
@@ -320,9 +458,6 @@ FrameSource::FrameSource(const FrameSourceSpec& spec, const Rig& rig)
     for (const auto& c : impl_->recording->metadata().cameras) names.push_back(c.name);
     impl_->MatchCameras(names);
     impl_->sets = impl_->recording->num_sets();
-    for (std::size_t c = 0; c < rig.cameras.size(); ++c)
-      impl_->gain_in_decibels.push_back(
-          GainInDecibels(impl_->recording->metadata(), impl_->source_camera[c]));
   } else if (!spec.seq_files.empty()) {
     std::vector<std::string> names = spec.seq_names;
     if (names.empty())
@@ -352,6 +487,10 @@ FrameSource::FrameSource(const FrameSourceSpec& spec, const Rig& rig)
         names.push_back(c.name);
     impl_->MatchCameras(names);
     impl_->images_formats = ReadExportedFormats(spec.images_dir, impl_->rig);
+    // An export's folder: its cameras' exposures per set, as its sets.csv gives them.
+    if (fs::exists(fs::path(spec.images_dir) / "sets.csv"))
+      impl_->images_exposures =
+          ReadExportedExposures(fs::path(spec.images_dir) / "sets.csv", impl_->rig);
     // An export of a camera that sent a 10- to 14-bit wire format: as from its recording.
     for (std::size_t c = 0; c < rig.cameras.size(); ++c)
       impl_->radiometry[c] =
@@ -380,6 +519,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
   out.bits.assign(rig.cameras.size(), 0);
   out.radiometry = impl_->radiometry;
   out.exposure_ratio.assign(rig.cameras.size(), 1.0);
+  out.exposure_unknown.assign(rig.cameras.size(), false);
   bool have_id = false;
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const std::string& name = rig.cameras[c].name;
@@ -405,31 +545,11 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
       bits = DecodeFrame(*f, &u8, &u16);
       out.mosaic[c] = BayerLayoutOf(f->info.pixel_format);
       // Its exposure against the recording's start (a frame that records none says nothing).
-      const CameraSettings& start =
-          impl_->recording->metadata().cameras[impl_->source_camera[c]].settings;
-      if (f->info.exposure_us > 0 && start.exposure_us > 0 && std::isfinite(f->info.exposure_us) &&
-          std::isfinite(start.exposure_us) && std::isfinite(f->info.gain_db) &&
-          std::isfinite(start.gain_db)) {
-        const bool decibels = impl_->gain_in_decibels[c];
-        const double time_ratio = f->info.exposure_us / start.exposure_us;
-        const double gain_ratio = std::pow(10.0, (f->info.gain_db - start.gain_db) / 20.0);
-        const double ratio = time_ratio * (decibels ? gain_ratio : 1.0);
-        const bool gain_changed = f->info.gain_db != start.gain_db;
-        if (std::isfinite(ratio) && ratio > 0) out.exposure_ratio[c] = ratio;
-        if (!decibels && gain_changed)
-          out.notes.push_back(fmt::format(
-              "{}'s gain is {:g} where the recording started at {:g}, in the device's own units "
-              "({} records no gain in dB): its factor is unknown, so this set's densities do not "
-              "share the take's scale; split the take where the gain changed",
-              name, f->info.gain_db, start.gain_db,
-              impl_->recording->metadata().cameras[impl_->source_camera[c]].description.driver));
-        else if (std::abs(out.exposure_ratio[c] - 1) > kExposureChange)
-          out.notes.push_back(fmt::format(
-              "{} exposed at {:.3g} times the recording's start ({:g} us, {:g} dB; it started at "
-              "{:g} us, {:g} dB): fitted at that exposure",
-              name, out.exposure_ratio[c], f->info.exposure_us, f->info.gain_db, start.exposure_us,
-              start.gain_db));
-      }
+      const FrameExposure e =
+          ExposureOfFrame(impl_->recording->metadata(), impl_->source_camera[c], f->info);
+      out.exposure_ratio[c] = e.ratio;
+      out.exposure_unknown[c] = e.unknown;
+      if (!e.note.empty()) out.notes.push_back(name + e.note);
       // A frame that arrived in a 10- to 14-bit wire format holds its values in the words' high
       // bits: the rig's entry, counted in those bits or taken from the frame, is read for them.
       const std::string& wire =
@@ -454,6 +574,13 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
       }
       bits = ReadImage(path.string(), &u8, &u16);
       out.mosaic[c] = impl_->images_formats[c].mosaic;
+      const auto exported = impl_->images_exposures.find(i);
+      if (exported != impl_->images_exposures.end()) {
+        const FrameExposure& e = exported->second[c];
+        out.exposure_ratio[c] = e.ratio;
+        out.exposure_unknown[c] = e.unknown;
+        if (!e.note.empty()) out.notes.push_back(name + e.note);
+      }
       CheckMosaicImage(out.mosaic[c], bits == 16 ? u16.channels : u8.channels, path.string());
     }
     out.bits[c] = bits;

@@ -45,6 +45,23 @@ struct FrameSourceSpec {
 // change (SourceFrameSet::exposure_ratio); a camera's own rounding of the time it is given, a few
 // parts in a thousand, is not.
 inline constexpr double kExposureChange = 0.01;
+// A frame's exposure ratio is believed within [1 / this, this]: beyond, a damaged record.
+inline constexpr double kExposureRatioRange = 1e4;
+
+struct RecordingMetadata;
+
+// A recording's frame's exposure time x gain against its recording's start (what
+// SourceFrameSet::exposure_ratio and exposure_unknown below hold for it), and the note it gets
+// (to follow the camera's name: " exposed at 0.5 times ...", "'s gain is ..."; empty when the
+// factor is within kExposureChange of 1 or the frame records no exposure). `camera` indexes the
+// recording's cameras. `flamerig export` writes the same factor into its sets.csv.
+struct FrameExposure {
+  double ratio = 1;
+  bool unknown = false;
+  std::string note;
+};
+FrameExposure ExposureOfFrame(const RecordingMetadata& metadata, int camera,
+                              const FrameInfo& frame);
 
 struct SourceFrameSet {
   std::size_t index = 0;            // the set's number in the source
@@ -73,8 +90,12 @@ struct SourceFrameSet {
   // exposure and one density scale; a ratio beyond kExposureChange gets a note. The gain counts
   // where the recording gives it in dB (a simulated camera; an Aravis camera with GenICam's Gain
   // feature); a change of gain in a device's own units (Aravis GainRaw, V4L2's gain control) has
-  // no known factor: the ratio is the exposure time's alone, and the note says so.
+  // no known factor: the ratio is the exposure time's alone, and the note says so. A ratio beyond
+  // kExposureRatioRange (a damaged record) is not applied either: 1, with a note.
   std::vector<double> exposure_ratio;
+  // per rig camera: its exposure changed by a factor the record does not give (the two cases
+  // above); `run` warns, as the set's densities are then not on the take's scale
+  std::vector<bool> exposure_unknown;
   std::vector<std::string> notes;  // cameras left out and why; exposures that changed
   // The device frame id of the set's first present frame (recordings), the file's frame number
   // (StreamPix), or the set number (images): what a simulated camera replaying a dataset showed.

@@ -147,8 +147,8 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
     key << "absorption " << absorption_.name() << ", exposure " << exposure_
         << (exposure_known_ ? " known" : " unknown") << (options_.fit_exposure ? " fitted" : "")
         << ", held out '" << options_.holdout_camera << "', warm_start " << options_.warm_start
-        << ", sigma " << options_.sigma << ", input_transfer '" << options_.input_transfer << "'; "
-        << f.Key();
+        << ", sigma " << options_.sigma << ", input_transfer '" << options_.input_transfer
+        << "', per-frame exposure; " << f.Key();
     fit_key_ = key.str();
   }
   for (const char* sub : {"frames", "tomography", "state"})
@@ -227,6 +227,12 @@ void FrameStages::Read(FrameWork* w) {
     if (std::abs(w->set.exposure_ratio[c] - 1) > kExposureChange)
       Log().info("run: {}: {} exposed at {:.3g} times the recording's start: fitted so",
                  FrameName(w->index), rig_.cameras[c].name, w->set.exposure_ratio[c]);
+  for (std::size_t c = 0; c < w->set.exposure_unknown.size(); ++c)
+    if (w->set.exposure_unknown[c])
+      Log().warn(
+          "run: {}: {}'s exposure changed by a factor its record does not give: this set's "
+          "densities are not on the take's scale (its note says why)",
+          FrameName(w->index), rig_.cameras[c].name);
   if (holdout_ >= 0 && w->set.images[holdout_].empty())
     s.notes.push_back("held-out camera " + options_.holdout_camera + " has no frame");
   if (truth_count_) s.truth_frame = static_cast<int>(w->set.frame_id % truth_count_);

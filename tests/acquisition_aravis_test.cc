@@ -379,9 +379,15 @@ TEST(AravisCamera, ExposureChangedWhileStreamingIsRecordedFromTheFrameItTookEffe
   arv_fake_camera_set_fill_pattern(fc, FillExposure, nullptr);
   arv_fake_camera_set_trigger_frequency(fc, 1000);
   {
-    // Software-triggered, as a flame rig runs: no frame is on its way when the change is made, so
-    // the label is exact. (Free-running, a frame in flight during the change would carry the new
-    // value: camera.h.)
+    // Software-triggered, as a flame rig runs: no frame is on its way when the change is made.
+    // Each frame is labelled with the settings in force when its exposure began, counted back from
+    // its arrival by its exposure time (live_exposure.h). The fake sends a frame without spending
+    // its exposure time, where a camera's arrives at least that long after its trigger: the test
+    // waits 4 ms (more than the new 3 ms) after the change before the next trigger, so that the
+    // fake's frame arrives no sooner than a camera's could (without the wait, 1 run in 20 put
+    // frame 10 within 3 ms of the change, labelled old).
+    //
+    // Free-running, a frame in flight during the change keeps the old settings: camera.h.
     AravisCamera cam("127.0.0.9", 0);
     cam.Configure(Settings(TriggerMode::kSoftware, 200));  // 1000 us
     cam.Start(8);
@@ -389,6 +395,7 @@ TEST(AravisCamera, ExposureChangedWhileStreamingIsRecordedFromTheFrameItTookEffe
     for (int k = 0; k < 20; ++k) {
       if (k == 10) {
         ASSERT_TRUE(cam.SetExposureGainLive(3000, 0));  // the fake allows it
+        std::this_thread::sleep_for(std::chrono::milliseconds(4));
       }
       cam.SoftwareTrigger(k);
       if (auto f = cam.Pop(500'000'000)) frames.push_back(*f);

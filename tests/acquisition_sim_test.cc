@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <unistd.h>
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -229,6 +230,63 @@ TEST(SimCamera, ReplaysADeeperCamerasCodesIntoSixteenBitFormats) {
   narrow(info, &bytes);
   ASSERT_EQ(bytes.size(), 6u * 4);
   EXPECT_EQ(bytes[6 + 1], srgb.at(1, 1, 0));
+  fs::remove_all(dir);
+}
+
+// A replaying camera re-exposed while it streams (`ctl configure CAM exposure_us`, live): its
+// 8-bit frames carry the dataset's light times its exposure x gain over the first frame's, as a
+// real camera's image darkens and brightens (the oracle: IEC 61966-2-1's sRGB curve, written out
+// here, on the dataset's values). The first frame's exposure is the dataset's; a deeper camera's
+// codes stay as they are.
+TEST(SimCamera, AReplayingCameraReExposedLiveScalesItsLight) {
+  namespace fs = std::filesystem;
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_replay_exposure_" + std::to_string(getpid()));
+  fs::create_directories(dir / "frames" / "frame_000000");
+  ImageU8 srgb(16, 16, 3);
+  for (std::size_t i = 0; i < srgb.pixels.size(); ++i)
+    srgb.pixels[i] = static_cast<std::uint8_t>(i % 256);
+  WritePng((dir / "frames" / "frame_000000" / "cam.png").string(), srgb);
+  const auto decode = [](double v) {
+    return v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4);
+  };
+  const auto encode = [](double l) {
+    l = std::min(1.0, l);
+    return l <= 0.0031308 ? 12.92 * l : 1.055 * std::pow(l, 1 / 2.4) - 0.055;
+  };
+  const ImageSource replay = DatasetReplaySource(dir.string(), "cam");
+  FrameInfo info;
+  info.width = info.height = 16;
+  info.pixel_format = PixelFormat::kRgb8;
+  std::vector<std::uint8_t> bytes;
+  info.exposure_us = 10000;  // the first frame: the dataset as it is
+  replay(info, &bytes);
+  EXPECT_EQ(bytes, srgb.pixels);
+  for (const auto& [exposure_us, gain_db] :
+       {std::pair{5000.0, 0.0}, std::pair{10000.0, 6.0}, std::pair{2500.0, 12.0}}) {
+    SCOPED_TRACE(exposure_us);
+    info.exposure_us = exposure_us;
+    info.gain_db = gain_db;
+    replay(info, &bytes);
+    const double factor = exposure_us / 10000 * std::pow(10.0, gain_db / 20);
+    int saturated = 0;
+    for (std::size_t i = 0; i < bytes.size(); ++i) {
+      const double want = 255 * encode(factor * decode(srgb.pixels[i] / 255.0));
+      ASSERT_NEAR(bytes[i], want, 0.5 + 1e-9) << i << " from " << int(srgb.pixels[i]);
+      saturated += bytes[i] == 255;
+    }
+    if (factor > 1) {
+      EXPECT_GT(saturated, 100);  // brighter: the top of the range clips
+    }
+  }
+  // Mono8 is the luma of the scaled values.
+  info.exposure_us = 5000;
+  info.gain_db = 0;
+  info.pixel_format = PixelFormat::kMono8;
+  replay(info, &bytes);
+  const auto half = [&](int v) { return std::lround(255 * encode(0.5 * decode(v / 255.0))); };
+  const std::uint8_t* p = &srgb.pixels[3 * 20];
+  EXPECT_NEAR(bytes[20], 0.2126 * half(p[0]) + 0.7152 * half(p[1]) + 0.0722 * half(p[2]), 0.51);
   fs::remove_all(dir);
 }
 

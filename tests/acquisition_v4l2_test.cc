@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cerrno>
 #include <cstring>
+#include <ctime>
 #include <deque>
 #include <map>
 #include <optional>
@@ -39,6 +40,10 @@ class FakeV4l2 : public V4l2Device {
     bool next_frame_error = false;
     int double_queue_errors = 0;
     std::uint32_t exposure = 0, gain = 0;
+    // Stamp frames as a real driver does, CLOCK_MONOTONIC at the exposure's start (SOE), shifted
+    // by this (a frame exposed that long ago); else by their sequence number from 0.
+    bool stamp_now = false;
+    std::int64_t stamp_shift_ns = 0;
     // Controls as uvcvideo names them, in id order: a class, a disabled one, an inactive one.
     std::vector<Ctrl> controls = {
         {V4L2_CID_USER_CLASS, "User Controls", V4L2_CTRL_TYPE_CTRL_CLASS, 0, 0, 0, 0},
@@ -238,6 +243,15 @@ class FakeV4l2 : public V4l2Device {
     b.timestamp.tv_sec = seq / 30;
     b.timestamp.tv_usec = (seq % 30) * 33333;
     b.flags = V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC | (s_->next_frame_error ? V4L2_BUF_FLAG_ERROR : 0);
+    if (s_->stamp_now) {
+      timespec now{};
+      clock_gettime(CLOCK_MONOTONIC, &now);
+      const std::int64_t ns =
+          std::int64_t(now.tv_sec) * 1'000'000'000 + now.tv_nsec + s_->stamp_shift_ns;
+      b.timestamp.tv_sec = ns / 1'000'000'000;
+      b.timestamp.tv_usec = (ns % 1'000'000'000) / 1000;
+      b.flags |= V4L2_BUF_FLAG_TSTAMP_SRC_SOE;
+    }
     s_->next_frame_error = false;
     state_[i] = kDone;
     done_.push_back(b);
@@ -417,7 +431,9 @@ TEST(V4l2Camera, ControlsByNameFeatureStateAndLiveExposure) {
   EXPECT_NE(refused("white_balance_automatic", "maybe").find("or true/false"), std::string::npos);
   EXPECT_EQ(value(V4L2_CID_GAMMA), 220);  // nothing refused was written
 
-  // Live: the next frames carry what the device took (exposure in its 100 us units).
+  // Live: the next frames carry what the device took (exposure in its 100 us units), each frame
+  // the settings in force when its exposure began (its timestamp, stamped at the start here).
+  shared.stamp_now = true;
   cam.Configure(Mono(64, 48));
   cam.Start(4);
   ASSERT_TRUE(cam.Pop(100'000'000));
@@ -425,6 +441,13 @@ TEST(V4l2Camera, ControlsByNameFeatureStateAndLiveExposure) {
   ASSERT_TRUE(cam.SetExposureGainLive(2540, 7));
   EXPECT_EQ(shared.exposure, 25u);
   EXPECT_EQ(shared.gain, 7u);
+  // A frame whose exposure began 50 ms before the change, delivered after it: the old settings.
+  shared.stamp_shift_ns = -50'000'000;
+  const std::optional<Frame> in_flight = cam.Pop(100'000'000);
+  ASSERT_TRUE(in_flight);
+  EXPECT_EQ(in_flight->info.exposure_us, Mono(64, 48).exposure_us);
+  EXPECT_EQ(in_flight->info.gain_db, 0);
+  shared.stamp_shift_ns = 0;
   const std::optional<Frame> f = cam.Pop(100'000'000);
   ASSERT_TRUE(f);
   EXPECT_EQ(f->info.exposure_us, 2500);

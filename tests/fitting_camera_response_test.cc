@@ -239,15 +239,24 @@ TEST(ChannelResponse, AFrameExposedKTimesAsLongSeesKTimesTheLight) {
         ASSERT_NEAR(b_img.pixels[i], k * a_img.pixels[i], 1e-5 * peak) << i;
     }
   }
-  // A camera's table is the copy's own: it outlives the response it was made from.
+  // The copy keeps the camera's table alive after every other user of the response it was made
+  // from is gone (ForCamera's own cache holds its last 8 responses: 8 others are built after it).
+  const CameraRadiometry alone_camera = Bands({{700, 20}, {600, 20}, {500, 20}}, {3, 1, 2});
   std::shared_ptr<const ChannelResponse> alone;
+  std::weak_ptr<const ChannelResponse> source;
+  float before[3];
   {
-    alone = ChannelResponse::Exposed(
-        ChannelResponse::ForCamera(Bands({{700, 20}, {600, 20}, {500, 20}}, {3, 1, 2})), 2.0);
+    const auto made = ChannelResponse::ForCamera(alone_camera);
+    source = made;
+    made->Lookup(1500.0f, before);
+    alone = ChannelResponse::Exposed(made, 2.0);
   }
+  for (int i = 0; i < 8; ++i)
+    ChannelResponse::ForCamera(Bands({{700, 20.0 + i}, {600, 20}, {500, 20}}));
+  EXPECT_FALSE(source.expired());  // held by the copy alone
   float out[3];
   alone->Lookup(1500.0f, out);
-  EXPECT_TRUE(std::isfinite(out[0]) && out[0] > 0);
+  for (int c = 0; c < 3; ++c) EXPECT_EQ(out[c], before[c]);  // the basis: the factor is outside
   // 1 is the response itself; a factor that is not finite and positive is an error.
   const auto observer = ChannelResponse::SrgbObserver();
   EXPECT_EQ(ChannelResponse::Exposed(observer, 1.0), observer);

@@ -25,8 +25,12 @@
 #include <sstream>
 #include <thread>
 
+#include "acquisition/capture.h"
+#include "acquisition/clock.h"
 #include "acquisition/recording.h"
+#include "core/atomic_file.h"
 #include "core/error.h"
+#include "core/read_file.h"
 #include "core/srgb.h"
 #include "fitting/physics.h"
 #include "pipeline/blender_export.h"
@@ -1720,6 +1724,7 @@ TEST(FrameSource, ARecordingSaysWhenACamerasExposureChanged) {
         f->info.exposure_us = 10000;
         if (s == 2 && c == 0) f->info.exposure_us = 8000;
         if (s >= 1 && c == 1) f->info.gain_db = 6;
+        if (s == 2 && c == 2) f->info.exposure_us = 1e12;  // a damaged record: 1e8 times
         return true;
       },
       "v4l2");
@@ -1728,12 +1733,54 @@ TEST(FrameSource, ARecordingSaysWhenACamerasExposureChanged) {
   const SourceFrameSet raw_gain = FrameSource(v4l2_spec, rig).Read(2, 1.0);
   EXPECT_NEAR(raw_gain.exposure_ratio[0], 0.8, 1e-12);
   EXPECT_EQ(raw_gain.exposure_ratio[1], 1.0);
-  ASSERT_EQ(raw_gain.notes.size(), 2u);
+  EXPECT_EQ(raw_gain.exposure_ratio[2], 1.0);
+  EXPECT_EQ(raw_gain.exposure_unknown, (std::vector<bool>{false, true, true}));
+  EXPECT_EQ(last.exposure_unknown, (std::vector<bool>{false, false, false}));
+  ASSERT_EQ(raw_gain.notes.size(), 3u);
+  EXPECT_NE(raw_gain.notes[2].find(rig.cameras[2].name + "'s frame records 1e+12 us, 0 dB"),
+            std::string::npos)
+      << raw_gain.notes[2];
+  EXPECT_NE(raw_gain.notes[2].find("not believed (a damaged record?), so not applied"),
+            std::string::npos)
+      << raw_gain.notes[2];
   EXPECT_NE(raw_gain.notes[1].find(rig.cameras[1].name +
                                    "'s gain is 6 where the recording started at 0, in the "
                                    "device's own units (v4l2 records no gain in dB)"),
             std::string::npos)
       << raw_gain.notes[1];
+  // Exported, the set's folder says so in sets.csv, and reads back at the same exposure: as a
+  // folder of sets, and as the one set's folder.
+  ExportRecording(rec_dir.string(), (dir / "png").string(), ExportOptions());
+  FrameSourceSpec png_spec;
+  png_spec.images_dir = (dir / "png").string();
+  const FrameSource png(png_spec, rig);
+  for (const SourceFrameSet& back :
+       {png.Read(2, 1.0), ReadFrameFolder(rig, (dir / "png" / FrameName(2)).string(), 1.0)}) {
+    EXPECT_NEAR(back.exposure_ratio[0], 0.8, 1e-9);
+    EXPECT_NEAR(back.exposure_ratio[1], std::pow(10.0, 6.0 / 20), 1e-8);
+    EXPECT_EQ(back.exposure_ratio[2], 1.0);
+    ASSERT_EQ(back.notes.size(), 2u);
+    EXPECT_NE(back.notes[0].find(rig.cameras[0].name + " exposed at 0.8 times"), std::string::npos)
+        << back.notes[0];
+    for (std::size_t p = 0; p < back.signal[0].pixels.size(); p += 97)
+      ASSERT_NEAR(back.linear[0].radiance.pixels[p], back.signal[0].pixels[p] / 0.8, 1e-5) << p;
+  }
+  EXPECT_TRUE(png.Read(0, 1.0).notes.empty());
+  // A damaged cell is an error naming the file, its line and the column.
+  std::string csv = ReadFile((dir / "png" / "sets.csv").string());
+  const std::size_t at = csv.find(",0.8,");
+  ASSERT_NE(at, std::string::npos) << csv;
+  csv.replace(at, 5, ",zero,");
+  WriteFileAtomically((dir / "png" / "sets.csv").string(), csv);
+  try {
+    FrameSource damaged(png_spec, rig);
+    ADD_FAILURE() << "a damaged exposure accepted";
+  } catch (const DataError& e) {
+    EXPECT_NE(std::string(e.what()).find("sets.csv, line 4: " + rig.cameras[0].name +
+                                         "_exposure 'zero' is not an exposure factor"),
+              std::string::npos)
+        << e.what();
+  }
   // The run computes such a set, and its summary line carries the note.
   RunOptions o = SmallRun(dir / "sim", dir / "out");
   o.source = spec;
@@ -1802,12 +1849,76 @@ TEST(RunFrames, ACameraReExposedWhileRecordingIsFittedAtItsOwnExposure) {
   EXPECT_NEAR(said.soot / unchanged.soot, 1.0, 0.05);
   EXPECT_NEAR(said.truth_rms_k, unchanged.truth_rms_k, 5.0);
   // The re-exposed camera's fire pixels match as the unchanged camera's do (Delta E about 0.8);
-  // unsaid, its frame is twice as dark as anything the volume can render for it (measured: 11.3),
-  // while the other two cameras outvote it (the robust data term), so its soot hardly moves (0.997).
+  // unsaid, its frame is twice as dark as anything the volume can render for it (measured:
+  // 11.3), while the other two cameras outvote it (the robust data term), so its soot hardly moves
+  // (0.997).
   ASSERT_EQ(said.delta_e.size(), 3u);
   ASSERT_EQ(unsaid.delta_e.size(), 3u);
   EXPECT_NEAR(said.delta_e[1].fire, unchanged.delta_e[1].fire, 0.5);
   EXPECT_GT(unsaid.delta_e[1].fire, 5 * said.delta_e[1].fire);
+  fs::remove_all(dir);
+}
+
+// The same through the capture daemon, as an operator does it: sim cameras replay the dataset,
+// and while the take records cam1's exposure is halved live (`ctl configure cam1 exposure_us`):
+// its frames darken (the replay scales their light), carry the new exposure, and `run` fits them
+// at it, as well as the frames before the change (cam1's Delta E on fire pixels after the change
+// within 0.5 of before; the soot of a set against the set of the same dataset frame before the
+// change within 5%).
+TEST(RunFrames, AnExposureChangedLiveInTheDaemonIsFittedAtTheFramesOwn) {
+  const fs::path dir = TempDir("live_exposure");
+  SimulateDataset(dir / "sim", 2);
+  const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
+  std::string yaml = "data_dir: " + (dir / "rec").string() +
+                     "\nsync: software-trigger\ntrigger_rate_hz: 10\ncameras:\n";
+  for (const auto& cam : rig.cameras)
+    yaml += "  - {name: " + cam.name + ", width: 120, height: 90, pixel_format: RGB8, " +
+            "exposure_us: 10000, sim: {replay: " + (dir / "sim").string() + "}}\n";
+  const CaptureConfig config = CaptureConfig::Parse(yaml, (dir / "capture.yaml").string());
+  SystemClock clock;
+  std::string take;
+  {
+    CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
+    daemon.Start();
+    take = daemon.StartRecording("take");
+    std::this_thread::sleep_for(std::chrono::milliseconds(700));
+    daemon.SetCameraSetting(rig.cameras[1].name, "exposure_us", "5000");
+    std::this_thread::sleep_for(std::chrono::milliseconds(700));
+    daemon.StopRecording();
+    daemon.Stop();
+  }
+  RunOptions o = SmallRun(dir / "sim", dir / "out");
+  o.source = FrameSourceSpec();
+  o.source.recording_dir = take;
+  o.sigma = o.blender = o.pictures = false;
+  const RunSummary run = RunAll(o);
+  ASSERT_GE(run.frames.size(), 8u);
+  EXPECT_EQ(run.failed, 0u);
+  // Per dataset frame (the replay cycles the dataset's two): cam1's Delta E and the soot, before
+  // and after the change.
+  std::map<int, std::vector<const FrameSummary*>> before, after;
+  for (const FrameSummary& f : run.frames) {
+    ASSERT_EQ(f.status, "computed") << f.Line();
+    ASSERT_EQ(f.delta_e.size(), 3u);
+    const bool changed =
+        f.Line().find(rig.cameras[1].name + " exposed at 0.5 times") != std::string::npos;
+    (changed ? after : before)[f.truth_frame].push_back(&f);
+  }
+  ASSERT_FALSE(before.empty());
+  ASSERT_FALSE(after.empty());
+  for (const auto& [truth, frames] : after) {
+    SCOPED_TRACE(truth);
+    ASSERT_TRUE(before.count(truth));
+    const FrameSummary& was = *before[truth].back();  // warm-started, as the ones after
+    for (const FrameSummary* f : frames) {
+      std::printf(
+          "dataset frame %d: cam1 fire Delta E %.2f after, %.2f before; soot %.3f of "
+          "before's\n",
+          truth, f->delta_e[1].fire, was.delta_e[1].fire, f->soot / was.soot);
+      EXPECT_NEAR(f->delta_e[1].fire, was.delta_e[1].fire, 0.5);
+      EXPECT_NEAR(f->soot / was.soot, 1.0, 0.05);
+    }
+  }
   fs::remove_all(dir);
 }
 

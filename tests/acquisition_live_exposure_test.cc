@@ -1,0 +1,82 @@
+// Which exposure a frame was taken with when it changes while the camera streams
+// (acquisition/live_exposure.h): the oracle is the timeline itself, a frame's exposure window
+// against the moments of the changes, worked out by hand for each case.
+#include "acquisition/live_exposure.h"
+
+#include <gtest/gtest.h>
+
+#include <thread>
+#include <vector>
+
+namespace flamerig {
+namespace {
+
+constexpr std::int64_t kMs = 1'000'000;
+
+TEST(LiveExposure, AFrameKeepsTheSettingsItsExposureBeganWith) {
+  LiveExposure live;
+  live.Reset({10000, 0});  // 10 ms
+  EXPECT_EQ(live.Current().exposure_us, 10000);
+  // Nothing changed yet: every frame is at the configured settings.
+  EXPECT_EQ(live.ForFrameEndingAt(5 * kMs).exposure_us, 10000);
+  // At t = 100 ms the exposure becomes 5 ms and the gain 6 dB.
+  live.Change({5000, 6}, 100 * kMs);
+  EXPECT_EQ(live.Current().exposure_us, 5000);
+  EXPECT_EQ(live.Current().gain_db, 6);
+  // A frame that arrived before the change, or waited in a buffer: the old settings.
+  EXPECT_EQ(live.ForFrameEndingAt(99 * kMs).exposure_us, 10000);
+  // One that arrived 3 ms after it: at the new 5 ms its exposure would have begun 2 ms before the
+  // change, so it was exposed at the old settings (in flight).
+  EXPECT_EQ(live.ForFrameEndingAt(103 * kMs).exposure_us, 10000);
+  EXPECT_EQ(live.ForFrameEndingAt(103 * kMs).gain_db, 0);
+  // One that arrived 5 ms after it began exposing at the change's moment, or later: new.
+  EXPECT_EQ(live.ForFrameEndingAt(105 * kMs).exposure_us, 5000);
+  EXPECT_EQ(live.ForFrameEndingAt(130 * kMs).gain_db, 6);
+  // Timed by its exposure's start instead (a V4L2 driver stamping the start of exposure).
+  EXPECT_EQ(live.ForFrameStartingAt(99 * kMs).exposure_us, 10000);
+  EXPECT_EQ(live.ForFrameStartingAt(100 * kMs).exposure_us, 5000);
+  // A second change at 120 ms, to 20 ms: a frame arriving at 125 ms would, at 20 ms, have begun
+  // at 105 ms, before that change: it has the 5 ms settings.
+  live.Change({20000, 0}, 120 * kMs);
+  EXPECT_EQ(live.ForFrameEndingAt(125 * kMs).exposure_us, 5000);
+  EXPECT_EQ(live.ForFrameEndingAt(140 * kMs).exposure_us, 20000);
+  EXPECT_EQ(live.ForFrameEndingAt(102 * kMs).exposure_us, 10000);
+  // Reset (a new configure) forgets the history.
+  live.Reset({8000, 1});
+  EXPECT_EQ(live.ForFrameEndingAt(125 * kMs).exposure_us, 8000);
+}
+
+TEST(LiveExposure, TheHistoryIsBoundedAndTimesOnlyGoForward) {
+  LiveExposure live;
+  live.Reset({1000, 0});
+  for (int k = 1; k <= 40; ++k) live.Change({1000.0 + k, 0}, k * 10 * kMs);
+  // The oldest changes fold into the starting settings: a frame from long ago gets the oldest
+  // change kept, not a made-up value.
+  EXPECT_EQ(live.ForFrameStartingAt(0).exposure_us, 1000.0 + 40 - double(LiveExposure::kHistory));
+  EXPECT_EQ(live.ForFrameStartingAt(400 * kMs).exposure_us, 1040);
+  // A change stamped before the last one (a clock stepped back) is taken at the last one's time.
+  live.Change({7, 0}, 5 * kMs);
+  EXPECT_EQ(live.ForFrameStartingAt(400 * kMs).exposure_us, 7);
+  EXPECT_EQ(live.ForFrameStartingAt(399 * kMs).exposure_us, 1039);
+}
+
+// A change from the control thread while the camera thread labels frames.
+TEST(LiveExposure, ChangesAndLookupsFromTwoThreads) {
+  LiveExposure live;
+  live.Reset({10000, 0});
+  std::thread changer([&] {
+    for (int k = 1; k <= 2000; ++k) live.Change({10000.0 + k, 0}, k * kMs);
+  });
+  double seen = 0;
+  for (int k = 0; k < 2000; ++k) {
+    const double e = live.ForFrameStartingAt(std::int64_t(k) * kMs).exposure_us;
+    EXPECT_GE(e, 10000);
+    seen = e;
+  }
+  changer.join();
+  EXPECT_GE(seen, 10000);
+  EXPECT_EQ(live.Current().exposure_us, 12000);
+}
+
+}  // namespace
+}  // namespace flamerig
