@@ -37,8 +37,10 @@ class LiveExposure {
   ExposureSettings Current() const;
   // The settings of a frame whose exposure began at `start_ns`: the newest change at or before it.
   ExposureSettings ForFrameStartingAt(std::int64_t start_ns) const;
-  // The settings of a frame whose exposure ended at `end_ns` (or that arrived then): the newest
-  // change whose settings' exposure time, counted back from `end_ns`, began at or after it.
+  // The settings of a frame whose exposure ended at `end_ns` (or that arrived then): those under
+  // which its exposure, counted back from `end_ns` by their exposure time, began while they were
+  // in force; where two fit (an exposure shortened), the older; where none does (lengthened), the
+  // ones in force at `end_ns`.
   ExposureSettings ForFrameEndingAt(std::int64_t end_ns) const;
 
   static constexpr std::size_t kHistory = 16;  // changes kept (frames in flight span a few)

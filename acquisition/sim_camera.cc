@@ -133,7 +133,7 @@ ImageSource TestPatternSource() {
 }
 
 ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera,
-                                ReplayContent content) {
+                                ReplayContent content, std::shared_ptr<ReplayExposure> exposure) {
   namespace fs = std::filesystem;
   // One frame: 8-bit sRGB images, or 16-bit codes from a deeper camera (3 channels either way).
   struct Replayed {
@@ -188,19 +188,23 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
       throw InputError("replay of " + dataset_dir + ": no calibration/*/" + camera + ".png");
     for (int k : missing) (*images)[k].u8 = ImageU8(width, height, 3, 8);
   }
-  // The exposure x gain of the first frame asked for: the one the dataset's frames were filmed at.
-  auto reference = std::make_shared<std::atomic<double>>(0.0);
-  return [images, dataset_dir, camera, reference](const FrameInfo& info,
-                                                  std::vector<std::uint8_t>* bytes) {
+  // The exposure x gain the dataset's frames show: the camera's configured one, or else the first
+  // frame's. A deeper camera's codes cannot follow a change.
+  if (!exposure) exposure = std::make_shared<ReplayExposure>();
+  exposure->scalable =
+      std::none_of(images->begin(), images->end(), [](const Replayed& r) { return r.deep(); });
+  return [images, dataset_dir, camera, exposure](const FrameInfo& info,
+                                                 std::vector<std::uint8_t>* bytes) {
     const Replayed& img = (*images)[info.frame_id % images->size()];
     // An 8-bit frame's light scales with the camera's exposure and gain against the reference's:
     // its sRGB values through a table, linear light times the factor, clipped at full scale.
-    const double exposure = info.exposure_us * std::pow(10.0, info.gain_db / 20.0);
+    std::atomic<double>& reference = exposure->reference;
+    const double taken = info.exposure_us * std::pow(10.0, info.gain_db / 20.0);
     double factor = 1.0;
-    if (exposure > 0 && std::isfinite(exposure)) {
+    if (taken > 0 && std::isfinite(taken)) {
       double expected = 0.0;
-      reference->compare_exchange_strong(expected, exposure);
-      factor = exposure / reference->load();
+      reference.compare_exchange_strong(expected, taken);
+      factor = taken / reference.load();
     }
     std::array<std::uint8_t, 256> scaled;
     const bool rescale = factor != 1.0 && !img.deep();
@@ -335,6 +339,10 @@ void SimCamera::Configure(const CameraSettings& settings) {
   if (settings_.height == 0) settings_.height = 480;
   live_exposure_us_ = settings_.exposure_us;
   live_gain_db_ = settings_.gain_db;
+  // A replay shows its dataset as it is at the configured settings.
+  if (options_.replay_exposure)
+    options_.replay_exposure->reference =
+        settings_.exposure_us * std::pow(10.0, settings_.gain_db / 20.0);
 }
 
 CameraSettings SimCamera::settings() const {
@@ -345,6 +353,8 @@ CameraSettings SimCamera::settings() const {
 }
 
 bool SimCamera::SetExposureGainLive(double exposure_us, double gain_db) {
+  // A deeper camera's replayed codes cannot follow: configure it while stopped instead.
+  if (options_.replay_exposure && !options_.replay_exposure->scalable) return false;
   live_exposure_us_ = exposure_us;
   live_gain_db_ = gain_db;
   return true;
@@ -563,9 +573,11 @@ void ReadSimKeys(const YAML::Node& keys, const std::string& where, const std::st
                                    ? fs::path(replay)
                                    : fs::path(config_path).parent_path() / replay;
       try {
+        o.replay_exposure = std::make_shared<ReplayExposure>();
         o.source = DatasetReplaySource(
             dataset.string(), camera->name,
-            replay_content == "fire" ? ReplayContent::kFire : ReplayContent::kCalibration);
+            replay_content == "fire" ? ReplayContent::kFire : ReplayContent::kCalibration,
+            o.replay_exposure);
       } catch (const std::exception& e) {
         throw InputError(where + ".replay: " + e.what());
       }

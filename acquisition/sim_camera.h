@@ -74,17 +74,26 @@ ImageSource TestPatternSource();
 // than the format is an InputError naming the file). Throws DataError naming
 // the file when a frame is missing or unreadable; a frame asked for at another size than the
 // images gets an error naming both sizes.
-// The frames are what the camera sees at the exposure x gain of the first frame it is asked for
-// (the one it started streaming with); a frame at another (`ctl configure CAM exposure_us`, live)
+// The frames are what the camera sees at its configured exposure x gain (ReplayExposure below;
+// without one, the first frame's); a frame at another (`ctl configure CAM exposure_us`, live)
 // shows an 8-bit dataset's light times the factor, through its sRGB values and clipped at full
-// scale, as a real camera's image brightens. A deeper camera's codes replay as they are (their
-// black level is the rig's, which the camera does not know).
+// scale, as a real camera's image brightens. A deeper camera's codes replay as they are.
 // With ReplayContent::kCalibration frame k shows the k-th board view instead
 // (dataset_dir/calibration/view_NNN/<camera>.png, k mod the number of views), and a dark frame
 // where the camera did not see that view: a board waved in front of the rig.
 enum class ReplayContent { kFire, kCalibration };
+// Shared by a replaying sim camera and its source: the exposure x gain the dataset's frames show,
+// the camera's configured settings (SimCamera::Configure sets it; 0: the first frame's), and
+// whether the replay's light can follow a live change (an 8-bit dataset's; false for a deeper
+// camera's codes, whose black level the camera does not know: such a camera refuses a live
+// change, and shows the dataset as it is at whatever it is configured to).
+struct ReplayExposure {
+  std::atomic<double> reference{0};
+  std::atomic<bool> scalable{true};
+};
 ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera,
-                                ReplayContent content = ReplayContent::kFire);
+                                ReplayContent content = ReplayContent::kFire,
+                                std::shared_ptr<ReplayExposure> exposure = nullptr);
 
 // The camera is gone (no frames, connected() false) from down_ns until up_ns; up_ns = -1: for good.
 struct SimOutage {
@@ -115,6 +124,9 @@ struct SimCameraOptions {
   int frame_id_bits = 16;             // device counter width (GigE Vision: 16)
   std::uint64_t first_frame_id = 1;
   ImageSource source;  // empty = TestPatternSource()
+  // A dataset replay's (DatasetReplaySource's): Configure sets its reference; a live change is
+  // refused where its light cannot follow. Null for other sources.
+  std::shared_ptr<ReplayExposure> replay_exposure;
 };
 
 class SimCamera : public Camera {

@@ -296,6 +296,9 @@ std::map<std::string, std::string> V4l2Camera::FeatureState() const {
 bool V4l2Camera::SetExposureGainLive(double exposure_us, double gain_db) {
   std::lock_guard<std::mutex> lock(control_mutex_);
   if (!connected_) return false;
+  // The change's moment: before the writes (a UVC control write takes milliseconds, and a frame
+  // whose exposure began after the first may be the new settings').
+  const std::int64_t at_ns = SystemClock().MonotonicNs();
   v4l2_control exposure{V4L2_CID_EXPOSURE_ABSOLUTE,
                         static_cast<std::int32_t>(std::llround(exposure_us / 100.0))};
   if (Xioctl(*device_, VIDIOC_S_CTRL, &exposure) != 0) return false;  // busy while streaming
@@ -308,7 +311,7 @@ bool V4l2Camera::SetExposureGainLive(double exposure_us, double gain_db) {
     took = Xioctl(*device_, VIDIOC_S_CTRL, &gain) == 0;
     if (took) now.gain_db = gain.value;
   }
-  live_.Change(now, SystemClock().MonotonicNs());
+  live_.Change(now, at_ns);
   return took;
 }
 

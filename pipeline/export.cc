@@ -74,7 +74,8 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   const bool event = !meta.event_name.empty();
   csv << "set,trigger_id,reference_ns,spread_ns";
   for (const auto& c : meta.cameras)
-    csv << "," << c.name << "_frame_id," << c.name << "_status," << c.name << "_exposure";
+    csv << "," << c.name << "_frame_id," << c.name << "_status," << c.name << "_exposure," << c.name
+        << "_exposure_known";
   if (event) csv << ",event";
   csv << "\n";
   // The first set after the trigger, over the whole take (an export may start past it).
@@ -108,7 +109,7 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
       const std::string& camera = rec.metadata().cameras[c].name;
       if (!rec.HasFrame(i, c) && !rec.FrameLost(i, c)) {
         ++summary.missing_frames;
-        csv << ",,,";
+        csv << ",,,,";
         continue;
       }
       std::string frame_id;
@@ -134,12 +135,12 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
         // Its exposure against the take's start, as `run` reads it from the recording.
         const FrameExposure e = ExposureOfFrame(meta, c, f.info);
         csv << "," << frame_id << "," << ToString(f.info.status) << ","
-            << (e.unknown ? std::string("unknown") : fmt::format("{:.9g}", e.ratio));
+            << fmt::format("{:.9g}", e.ratio) << "," << (e.unknown ? 0 : 1);
         ++summary.images;
       } catch (const DataError& e) {
         summary.failed.push_back("set " + std::to_string(i) + ", camera " + camera + ": " +
                                  e.what());
-        csv << "," << frame_id << ",damaged,";
+        csv << "," << frame_id << ",damaged,,";
       }
     }
     if (event) {

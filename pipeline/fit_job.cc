@@ -85,7 +85,15 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
     v.rays = rays[c].get();
     v.image = set.images[c];
     v.signal = set.signal[c];
-    v.response = ChannelResponse::ForCamera(rig.cameras[c].radiometry);
+    // At the frame's own exposure, as the set's linear frames were decoded (an exported set of a
+    // take whose camera was re-exposed: frame_source.h).
+    v.response = ChannelResponse::Exposed(ChannelResponse::ForCamera(rig.cameras[c].radiometry),
+                                          set.exposure_ratio.at(c));
+    if (set.exposure_unknown.at(c))
+      Log().warn(
+          "fit: camera '{}' changed its exposure by a factor its record does not give: its "
+          "densities are not on the take's scale",
+          name);
     if (job.fit.objective.model_mosaic)
       v.mosaic = MakeBayerRecord(set.mosaic[c], set.radiometry[c], name, set.bits[c]);
     return v;

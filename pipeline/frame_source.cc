@@ -183,15 +183,22 @@ std::vector<ExportedFormat> FrameFolderFormats(const std::string& dir, const Rig
   return std::vector<ExportedFormat>(rig.cameras.size());
 }
 
-// The exposure factors an export's sets.csv gives (its <camera>_exposure columns, ExposureOfFrame's
-// ratio, or "unknown"), per set number, per rig camera; empty for a sets.csv without them (an
-// export before 2026-12-04, StreamPix's). A cell that is neither is a DataError naming the file,
-// its line and the column.
-using ExportedExposures = std::map<std::size_t, std::vector<FrameExposure>>;
+// The exposure factors an export's sets.csv gives, per set number, per rig camera: its
+// <camera>_exposure columns (ExposureOfFrame's ratio) and <camera>_exposure_known (0 where the
+// factor is not known: a gain changed in a device's own units, a damaged record); none for a
+// sets.csv without them (an export before 2026-12-04, StreamPix's). A row whose set number or
+// exposure is not one is kept as the error that reading that set raises (a DataError naming the
+// file, its line and the column), so that a damaged row costs its own set only.
+struct ExportedExposures {
+  std::map<std::size_t, std::vector<FrameExposure>> sets;
+  std::map<std::size_t, std::string> damaged;  // set number -> what is wrong with its row
+  std::vector<std::string> unreadable;         // rows without a set number
+};
 ExportedExposures ReadExportedExposures(const fs::path& sets_csv, const Rig& rig) {
   ExportedExposures out;
   std::istringstream in(ReadFile(sets_csv.string()));
-  auto cells = [](const std::string& line) {
+  auto cells = [](std::string line) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();  // a CRLF copy
     std::vector<std::string> v;
     std::stringstream row(line);
     std::string cell;
@@ -202,66 +209,83 @@ ExportedExposures ReadExportedExposures(const fs::path& sets_csv, const Rig& rig
   std::string line;
   if (!std::getline(in, line)) return out;
   const std::vector<std::string> header = cells(line);
-  std::vector<int> column(rig.cameras.size(), -1);
+  auto column_of = [&](const std::string& name) {
+    const auto it = std::find(header.begin(), header.end(), name);
+    return it == header.end() ? -1 : static_cast<int>(it - header.begin());
+  };
+  std::vector<int> ratio_column(rig.cameras.size()), known_column(rig.cameras.size());
   bool any = false;
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
-    const auto it = std::find(header.begin(), header.end(), rig.cameras[c].name + "_exposure");
-    if (it != header.end()) {
-      column[c] = static_cast<int>(it - header.begin());
-      any = true;
-    }
+    ratio_column[c] = column_of(rig.cameras[c].name + "_exposure");
+    known_column[c] = column_of(rig.cameras[c].name + "_exposure_known");
+    any = any || ratio_column[c] >= 0;
   }
   if (!any) return out;
   for (int number = 2; std::getline(in, line); ++number) {
-    if (line.empty()) continue;
     const std::vector<std::string> row = cells(line);
-    const auto bad = [&](const std::string& what) {
-      return DataError(sets_csv.string() + ", line " + std::to_string(number) + ": " + what);
-    };
-    std::size_t set = 0;
-    try {
-      std::size_t used = 0;
-      set = std::stoul(row.at(0), &used);
-      if (used != row[0].size()) throw std::invalid_argument(row[0]);
-    } catch (const std::exception&) {
-      throw bad("the set number '" + (row.empty() ? std::string() : row[0]) + "' is not one");
+    if (row.empty() || (row.size() == 1 && row[0].empty())) continue;
+    const std::string at = sets_csv.string() + ", line " + std::to_string(number) + ": ";
+    const std::string& first = row[0];
+    if (first.empty() || first.size() > 18 ||
+        !std::all_of(first.begin(), first.end(), [](char ch) { return ch >= '0' && ch <= '9'; })) {
+      out.unreadable.push_back(at + "the set number '" + first + "' is not one");
+      continue;
     }
-    std::vector<FrameExposure>& sets = out[set];
-    sets.assign(rig.cameras.size(), FrameExposure());
-    for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
-      if (column[c] < 0 || static_cast<std::size_t>(column[c]) >= row.size()) continue;
-      const std::string& cell = row[column[c]];
-      const std::string name = rig.cameras[c].name;
-      if (cell.empty()) continue;
-      if (cell == "unknown") {
-        sets[c].unknown = true;
-        sets[c].note = "'s exposure changed by a factor its recording does not give (" +
-                       sets_csv.string() + ")";
-        continue;
-      }
+    const std::size_t set = std::stoull(first);
+    std::vector<FrameExposure> exposures(rig.cameras.size());
+    std::string wrong;
+    for (std::size_t c = 0; c < rig.cameras.size() && wrong.empty(); ++c) {
+      const std::string& name = rig.cameras[c].name;
+      const auto cell = [&](int column) {
+        return column >= 0 && static_cast<std::size_t>(column) < row.size() ? row[column]
+                                                                            : std::string();
+      };
+      const std::string ratio_cell = cell(ratio_column[c]), known_cell = cell(known_column[c]);
+      if (ratio_cell.empty()) continue;  // no frame of it in that set
       char* end = nullptr;
-      const double ratio = std::strtod(cell.c_str(), &end);
-      if (*end != '\0' || !(ratio >= 1 / kExposureRatioRange && ratio <= kExposureRatioRange))
-        throw bad(name + "_exposure '" + cell + "' is not an exposure factor (" +
-                  fmt::format("{:g} to {:g}", 1 / kExposureRatioRange, kExposureRatioRange) +
-                  ", or unknown)");
-      sets[c].ratio = ratio;
-      if (std::abs(ratio - 1) > kExposureChange)
-        sets[c].note = fmt::format(
-            " exposed at {:.3g} times the recording's start ({}): fitted at "
-            "that exposure",
-            ratio, sets_csv.string());
+      const double ratio = std::strtod(ratio_cell.c_str(), &end);
+      if (*end != '\0' || !(ratio >= 1 / kExposureRatioRange && ratio <= kExposureRatioRange)) {
+        wrong = at + name + "_exposure '" + ratio_cell + "' is not an exposure factor (" +
+                fmt::format("{:g} to {:g}", 1 / kExposureRatioRange, kExposureRatioRange) + ")";
+        break;
+      }
+      if (!known_cell.empty() && known_cell != "0" && known_cell != "1") {
+        wrong = at + name + "_exposure_known '" + known_cell + "' is not 0 or 1";
+        break;
+      }
+      FrameExposure& e = exposures[c];
+      e.ratio = ratio;
+      e.unknown = known_cell == "0";
+      if (e.unknown)
+        e.note = fmt::format(
+            "'s exposure changed by a factor its recording does not give ({}; {:.3g} applied, "
+            "the exposure time's)",
+            sets_csv.string(), ratio);
+      else if (std::abs(ratio - 1) > kExposureChange)
+        e.note = fmt::format(
+            " exposed at {:.3g} times the recording's start ({}): fitted at that exposure", ratio,
+            sets_csv.string());
     }
+    if (wrong.empty())
+      out.sets[set] = std::move(exposures);
+    else
+      out.damaged[set] = wrong;
   }
   return out;
 }
 
 // A set's exposures from an export's sets.csv into `out` (its ratios, flags and notes), when the
-// file gives that set.
+// file gives that set; a DataError when its row is damaged, or when a row without a set number
+// may be it (a set the file does not give, among unreadable rows).
 void ApplyExportedExposures(const ExportedExposures& exposures, std::size_t set, const Rig& rig,
                             SourceFrameSet* out) {
-  const auto it = exposures.find(set);
-  if (it == exposures.end()) return;
+  if (const auto bad = exposures.damaged.find(set); bad != exposures.damaged.end())
+    throw DataError(bad->second);
+  const auto it = exposures.sets.find(set);
+  if (it == exposures.sets.end()) {
+    if (!exposures.unreadable.empty()) throw DataError(exposures.unreadable.front());
+    return;
+  }
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     out->exposure_ratio[c] = it->second[c].ratio;
     out->exposure_unknown[c] = it->second[c].unknown;
@@ -521,6 +545,9 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
   out.exposure_ratio.assign(rig.cameras.size(), 1.0);
   out.exposure_unknown.assign(rig.cameras.size(), false);
   bool have_id = false;
+  // An export's folder: the set's cameras' exposures as its sets.csv gives them.
+  if (!impl_->spec.images_dir.empty())
+    ApplyExportedExposures(impl_->images_exposures, i, rig, &out);
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     const std::string& name = rig.cameras[c].name;
     ImageU8 u8;
@@ -574,13 +601,6 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
       }
       bits = ReadImage(path.string(), &u8, &u16);
       out.mosaic[c] = impl_->images_formats[c].mosaic;
-      const auto exported = impl_->images_exposures.find(i);
-      if (exported != impl_->images_exposures.end()) {
-        const FrameExposure& e = exported->second[c];
-        out.exposure_ratio[c] = e.ratio;
-        out.exposure_unknown[c] = e.unknown;
-        if (!e.note.empty()) out.notes.push_back(name + e.note);
-      }
       CheckMosaicImage(out.mosaic[c], bits == 16 ? u16.channels : u8.channels, path.string());
     }
     out.bits[c] = bits;

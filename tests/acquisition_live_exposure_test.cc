@@ -29,16 +29,23 @@ TEST(LiveExposure, AFrameKeepsTheSettingsItsExposureBeganWith) {
   // change, so it was exposed at the old settings (in flight).
   EXPECT_EQ(live.ForFrameEndingAt(103 * kMs).exposure_us, 10000);
   EXPECT_EQ(live.ForFrameEndingAt(103 * kMs).gain_db, 0);
-  // One that arrived 5 ms after it began exposing at the change's moment, or later: new.
-  EXPECT_EQ(live.ForFrameEndingAt(105 * kMs).exposure_us, 5000);
+  // One that arrived between 5 and 10 ms after it could have begun at the change under the new
+  // 5 ms or before it under the old 10 ms: taken as the old (exposed first).
+  EXPECT_EQ(live.ForFrameEndingAt(105 * kMs).exposure_us, 10000);
+  EXPECT_EQ(live.ForFrameEndingAt(109 * kMs).exposure_us, 10000);
+  // From 10 ms after the change on, only the new settings fit.
+  EXPECT_EQ(live.ForFrameEndingAt(110 * kMs).exposure_us, 5000);
   EXPECT_EQ(live.ForFrameEndingAt(130 * kMs).gain_db, 6);
   // Timed by its exposure's start instead (a V4L2 driver stamping the start of exposure).
   EXPECT_EQ(live.ForFrameStartingAt(99 * kMs).exposure_us, 10000);
   EXPECT_EQ(live.ForFrameStartingAt(100 * kMs).exposure_us, 5000);
-  // A second change at 120 ms, to 20 ms: a frame arriving at 125 ms would, at 20 ms, have begun
-  // at 105 ms, before that change: it has the 5 ms settings.
+  // A second change at 120 ms, lengthening to 20 ms. A frame arriving at 124 ms began at 119 ms
+  // under the 5 ms settings, before that change: 5 ms. One arriving at 130 ms fits neither (at
+  // 5 ms it began at 125, after the change; at 20 ms at 110, before it): the settings in force at
+  // its end, 20 ms. From 140 ms on, 20 ms fits.
   live.Change({20000, 0}, 120 * kMs);
-  EXPECT_EQ(live.ForFrameEndingAt(125 * kMs).exposure_us, 5000);
+  EXPECT_EQ(live.ForFrameEndingAt(124 * kMs).exposure_us, 5000);
+  EXPECT_EQ(live.ForFrameEndingAt(130 * kMs).exposure_us, 20000);
   EXPECT_EQ(live.ForFrameEndingAt(140 * kMs).exposure_us, 20000);
   EXPECT_EQ(live.ForFrameEndingAt(102 * kMs).exposure_us, 10000);
   // Reset (a new configure) forgets the history.
@@ -67,15 +74,16 @@ TEST(LiveExposure, ChangesAndLookupsFromTwoThreads) {
   std::thread changer([&] {
     for (int k = 1; k <= 2000; ++k) live.Change({10000.0 + k, 0}, k * kMs);
   });
-  double seen = 0;
+  // Whatever has been added so far, a frame that began at k ms has a change made at k ms or
+  // before (exposure 10000 + at most k), never a later one's.
   for (int k = 0; k < 2000; ++k) {
     const double e = live.ForFrameStartingAt(std::int64_t(k) * kMs).exposure_us;
-    EXPECT_GE(e, 10000);
-    seen = e;
+    ASSERT_GE(e, 10000) << k;
+    ASSERT_LE(e, 10000.0 + k) << k;
   }
   changer.join();
-  EXPECT_GE(seen, 10000);
   EXPECT_EQ(live.Current().exposure_us, 12000);
+  EXPECT_EQ(live.ForFrameStartingAt(1995 * kMs).exposure_us, 11995);  // within the history kept
 }
 
 }  // namespace

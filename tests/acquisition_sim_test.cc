@@ -287,6 +287,53 @@ TEST(SimCamera, AReplayingCameraReExposedLiveScalesItsLight) {
   const auto half = [&](int v) { return std::lround(255 * encode(0.5 * decode(v / 255.0))); };
   const std::uint8_t* p = &srgb.pixels[3 * 20];
   EXPECT_NEAR(bytes[20], 0.2126 * half(p[0]) + 0.7152 * half(p[1]) + 0.0722 * half(p[2]), 0.51);
+
+  // A camera's replay: the dataset as it is at the camera's configured settings, whatever frame
+  // came first; a configure (stopped) at another exposure shows the dataset as it is again.
+  SimCameraOptions o;
+  o.replay_exposure = std::make_shared<ReplayExposure>();
+  o.source = DatasetReplaySource(dir.string(), "cam", ReplayContent::kFire, o.replay_exposure);
+  EXPECT_TRUE(o.replay_exposure->scalable);
+  ManualClock clock(0);
+  SimCamera cam(o, &clock, nullptr);
+  CameraSettings settings;
+  settings.width = settings.height = 16;
+  settings.pixel_format = PixelFormat::kRgb8;
+  settings.exposure_us = 4000;
+  cam.Configure(settings);
+  EXPECT_EQ(o.replay_exposure->reference, 4000);
+  info.pixel_format = PixelFormat::kRgb8;
+  info.exposure_us = 2000;  // half the configured: darker, though it is the first frame here
+  o.source(info, &bytes);
+  EXPECT_NEAR(bytes[3 * 20], half(p[0]), 0.5 + 1e-9);
+  settings.exposure_us = 2000;
+  cam.Configure(settings);
+  o.source(info, &bytes);
+  EXPECT_EQ(bytes, srgb.pixels);
+  EXPECT_TRUE(cam.SetExposureGainLive(1000, 0));
+  fs::remove_all(dir);
+}
+
+// A deeper camera's codes cannot follow a live change (their black level is the rig's): its
+// replaying camera refuses one, as a camera that must be stopped to be configured does.
+TEST(SimCamera, ADeeperReplayRefusesALiveExposureChange) {
+  namespace fs = std::filesystem;
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_replay_deep_" + std::to_string(getpid()));
+  fs::create_directories(dir / "frames" / "frame_000000");
+  WritePng16((dir / "frames" / "frame_000000" / "cam.png").string(), ImageU16(8, 8, 3, 300));
+  SimCameraOptions o;
+  o.replay_exposure = std::make_shared<ReplayExposure>();
+  o.source = DatasetReplaySource(dir.string(), "cam", ReplayContent::kFire, o.replay_exposure);
+  EXPECT_FALSE(o.replay_exposure->scalable);
+  ManualClock clock(0);
+  SimCamera cam(o, &clock, nullptr);
+  CameraSettings settings;
+  settings.width = settings.height = 8;
+  settings.pixel_format = PixelFormat::kMono16;
+  cam.Configure(settings);
+  EXPECT_FALSE(cam.SetExposureGainLive(500, 0));
+  EXPECT_EQ(cam.settings().exposure_us, settings.exposure_us);
   fs::remove_all(dir);
 }
 
