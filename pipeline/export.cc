@@ -1,7 +1,5 @@
 #include "pipeline/export.h"
 
-#include <fmt/format.h>
-
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -11,6 +9,7 @@
 #include "acquisition/streampix.h"
 #include "core/atomic_file.h"
 #include "core/error.h"
+#include "core/format.h"
 #include "core/image.h"
 #include "pipeline/frame_source.h"
 
@@ -134,8 +133,8 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
         WriteFramePng(f, dir / (camera + ".png"));
         // Its exposure against the take's start, as `run` reads it from the recording.
         const FrameExposure e = ExposureOfFrame(meta, c, f.info);
-        csv << "," << frame_id << "," << ToString(f.info.status) << ","
-            << fmt::format("{:.9g}", e.ratio) << "," << (e.unknown ? 0 : 1);
+        csv << "," << frame_id << "," << ToString(f.info.status) << "," << FormatNumber(e.ratio, 9)
+            << "," << (e.unknown ? 0 : 1);
         ++summary.images;
       } catch (const DataError& e) {
         summary.failed.push_back("set " + std::to_string(i) + ", camera " + camera + ": " +

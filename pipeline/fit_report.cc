@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "core/atomic_file.h"
+#include "core/csv.h"
 #include "core/error.h"
 #include "core/log.h"
 #include "fitting/colour.h"
@@ -112,16 +113,9 @@ void WriteRingProfileCsv(const std::string& path, const std::vector<RingProfileP
 std::vector<RingProfilePoint> ReadRingProfileCsv(const std::string& path) {
   std::ifstream in(path);
   if (!in) throw IoError(path + ": cannot be read");
-  auto split = [](const std::string& line) {
-    std::vector<std::string> cells;
-    std::stringstream s(line);
-    for (std::string cell; std::getline(s, cell, ',');) cells.push_back(cell);
-    if (!line.empty() && line.back() == ',') cells.emplace_back();
-    return cells;
-  };
   std::string line;
   if (!std::getline(in, line)) throw DataError(path + ": empty, no header");
-  const std::vector<std::string> header = split(line);
+  const std::vector<std::string> header = SplitCsvRow(line);
   auto column = [&](const std::string& name) {
     const auto it = std::find(header.begin(), header.end(), name);
     if (it == header.end()) throw DataError(path + ": line 1: no '" + name + "' column");
@@ -143,7 +137,7 @@ std::vector<RingProfilePoint> ReadRingProfileCsv(const std::string& path) {
   std::vector<RingProfilePoint> profile;
   for (int number = 2; std::getline(in, line); ++number) {
     if (line.empty()) continue;
-    const std::vector<std::string> cells = split(line);
+    const std::vector<std::string> cells = SplitCsvRow(line);
     const std::string where = path + ": line " + std::to_string(number);
     if (cells.size() != header.size())
       throw DataError(where + ": " + std::to_string(cells.size()) + " values for " +

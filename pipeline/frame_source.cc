@@ -17,6 +17,7 @@
 #include "acquisition/recording.h"
 #include "acquisition/streampix.h"
 #include "core/atomic_file.h"
+#include "core/csv.h"
 #include "core/error.h"
 #include "core/read_file.h"
 #include "core/srgb.h"
@@ -174,9 +175,9 @@ long long ExportedSetNumber(const fs::path& folder) {
 }
 
 // The formats for a folder of one frame set: its own pixel_formats.yaml, or that of the export
-// it belongs to (a folder named frame_NNNNNN whose parent holds the export's sets.csv).
-std::vector<ExportedFormat> FrameFolderFormats(const std::string& dir, const Rig& rig) {
-  const fs::path folder = fs::weakly_canonical(fs::absolute(dir));
+// it belongs to (a folder named frame_NNNNNN whose parent holds the export's sets.csv); `folder`
+// absolute and canonical.
+std::vector<ExportedFormat> FrameFolderFormats(const fs::path& folder, const Rig& rig) {
   if (fs::exists(folder / kExportedFormatsFile)) return ReadExportedFormats(folder.string(), rig);
   if (ExportedSetNumber(folder) >= 0)
     return ReadExportedFormats(folder.parent_path().string(), rig);
@@ -199,12 +200,7 @@ ExportedExposures ReadExportedExposures(const fs::path& sets_csv, const Rig& rig
   std::istringstream in(ReadFile(sets_csv.string()));
   auto cells = [](std::string line) {
     if (!line.empty() && line.back() == '\r') line.pop_back();  // a CRLF copy
-    std::vector<std::string> v;
-    std::stringstream row(line);
-    std::string cell;
-    while (std::getline(row, cell, ',')) v.push_back(cell);
-    if (!line.empty() && line.back() == ',') v.emplace_back();
-    return v;
+    return SplitCsvRow(line);
   };
   std::string line;
   if (!std::getline(in, line)) return out;
@@ -310,12 +306,12 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
   out.images.resize(rig.cameras.size());
   out.linear.resize(rig.cameras.size());
   out.signal.resize(rig.cameras.size());
-  const std::vector<ExportedFormat> formats = FrameFolderFormats(dir, rig);
+  const fs::path folder = fs::weakly_canonical(fs::absolute(dir));
+  const std::vector<ExportedFormat> formats = FrameFolderFormats(folder, rig);
   out.bits.assign(rig.cameras.size(), 0);
   out.exposure_ratio.assign(rig.cameras.size(), 1.0);
   out.exposure_unknown.assign(rig.cameras.size(), false);
   // A set that an export wrote: its cameras' exposures as the export's sets.csv gives them.
-  const fs::path folder = fs::weakly_canonical(fs::absolute(dir));
   if (const long long set = ExportedSetNumber(folder); set >= 0)
     ApplyExportedExposures(ReadExportedExposures(folder.parent_path() / "sets.csv", rig),
                            static_cast<std::size_t>(set), rig, &out);
