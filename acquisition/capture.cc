@@ -1137,7 +1137,10 @@ CaptureStatus CaptureDaemon::status() const {
   for (const auto& st : camera_state_) {
     std::lock_guard<std::mutex> lock(st->mutex);
     CameraLiveStatus live = st->live;
-    if (st->last_frame_ns >= 0) live.last_frame_age_s = (now - st->last_frame_ns) / 1e9;
+    // A frame that arrived after `now` was read is 0 s old, not -1 (none yet): the silent-camera
+    // watch took a negative age for a camera sending 20 frames a second as one that sent none.
+    if (st->last_frame_ns >= 0)
+      live.last_frame_age_s = std::max(0.0, (now - st->last_frame_ns) / 1e9);
     if (s.running) live.missed_triggers = missed[s.cameras.size()];
     if (st->recent.size() >= 2) {
       const double span = (st->recent.back().first - st->recent.front().first) / 1e9;

@@ -5,6 +5,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -262,6 +263,33 @@ TEST(CaptureDaemon, RecordsEverySoftwareTriggeredSetBitExact) {
   ASSERT_EQ(status.cameras.size(), 3u);
   EXPECT_NEAR(status.cameras[0].fps, 50, 8);
   EXPECT_EQ(status.incoming_dropped, 0u);
+}
+
+// A frame that arrives after status() has read the clock is 0 s old, not "none yet": the
+// silent-camera watch (`flamerig capture`) once warned that a camera sending 20 frames a second had
+// sent nothing since arming, when its last frame landed between the two reads. Reproduced
+// exactly by a clock stepped back after the frames: every frame then lies after status()'s now.
+TEST(CaptureDaemon, AFrameNewerThanTheStatusClockIsNotNoneYet) {
+  TempDir dir;
+  struct SteppedClock : Clock {
+    SystemClock system;
+    std::atomic<std::int64_t> back{0};
+    std::int64_t MonotonicNs() const override { return system.MonotonicNs() - back.load(); }
+    std::int64_t RealtimeNs() const override { return system.RealtimeNs(); }
+    void SleepUntil(std::int64_t t) override { system.SleepUntil(t + back.load()); }
+  } clock;
+  const CaptureConfig config =
+      CaptureConfig::Parse(Config(dir.path, "software-trigger", 50), "test");
+  SimTriggerBus bus;
+  CaptureDaemon daemon(config, MakeCameras(config, {&clock, &bus}), &clock, &bus);
+  daemon.Start();
+  for (int i = 0; i < 200 && daemon.status().cameras[0].last_frame_age_s < 0; ++i) Sleep(0.01);
+  ASSERT_GE(daemon.status().cameras[0].last_frame_age_s, 0) << "no frame in 2 s";
+  clock.back = 1'000'000'000;
+  const CaptureStatus s = daemon.status();
+  clock.back = 0;
+  daemon.Stop();
+  for (const CameraLiveStatus& c : s.cameras) EXPECT_EQ(c.last_frame_age_s, 0.0) << c.name;
 }
 
 // The recorder's queue is what the config says; only a pre-trigger ring (flushed into the queue at
