@@ -7,6 +7,7 @@
 #include "acquisition/camera_drivers.h"
 #include "core/config_reader.h"
 #include "core/error.h"
+#include "core/format.h"
 #include "core/image.h"
 #include "core/srgb.h"
 
@@ -15,6 +16,8 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <map>
+#include <mutex>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -188,8 +191,8 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
       throw InputError("replay of " + dataset_dir + ": no calibration/*/" + camera + ".png");
     for (int k : missing) (*images)[k].u8 = ImageU8(width, height, 3, 8);
   }
-  // The exposure x gain the dataset's frames show: the camera's configured one, or else the first
-  // frame's. A deeper camera's codes cannot follow a change.
+  // The exposure x gain the dataset's frames show: the reference's (ReplayExposure), or else the
+  // first frame's. A deeper camera's codes cannot follow a change.
   if (!exposure) exposure = std::make_shared<ReplayExposure>();
   exposure->scalable =
       std::none_of(images->begin(), images->end(), [](const Replayed& r) { return r.deep(); });
@@ -198,13 +201,20 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
     const Replayed& img = (*images)[info.frame_id % images->size()];
     // An 8-bit frame's light scales with the camera's exposure and gain against the reference's:
     // its sRGB values through a table, linear light times the factor, clipped at full scale.
-    std::atomic<double>& reference = exposure->reference;
+    std::atomic<double>& reference = *exposure->reference;
     const double taken = info.exposure_us * std::pow(10.0, info.gain_db / 20.0);
     double factor = 1.0;
     if (taken > 0 && std::isfinite(taken)) {
       double expected = 0.0;
       reference.compare_exchange_strong(expected, taken);
       factor = taken / reference.load();
+    }
+    if (img.deep() && std::abs(factor - 1) > 1e-9) {
+      throw InputError("replay of " + dataset_dir + " camera " + camera + ": " + img.path +
+                       " holds a deeper camera's codes, which replay as they are, at the " +
+                       "settings of the config's first camera replaying it only (exposure us x " +
+                       "gain as a factor: " + FormatNumber(reference.load()) + "; this frame's " +
+                       FormatNumber(taken) + "): configure the camera as that one");
     }
     std::array<std::uint8_t, 256> scaled;
     const bool rescale = factor != 1.0 && !img.deep();
@@ -339,9 +349,10 @@ void SimCamera::Configure(const CameraSettings& settings) {
   if (settings_.height == 0) settings_.height = 480;
   live_exposure_us_ = settings_.exposure_us;
   live_gain_db_ = settings_.gain_db;
-  // A replay shows its dataset as it is at the configured settings.
-  if (options_.replay_exposure)
-    options_.replay_exposure->reference =
+  // A replay shows its dataset as it is at the reference's settings: the first replaying
+  // camera's, which sets them.
+  if (options_.replay_exposure && options_.replay_exposure->sets_reference)
+    *options_.replay_exposure->reference =
         settings_.exposure_us * std::pow(10.0, settings_.gain_db / 20.0);
 }
 
@@ -543,6 +554,25 @@ std::optional<Frame> SimCamera::Pop(std::int64_t timeout_ns) {
 
 namespace {
 
+// The replay references of the cameras read so far, by config file, dataset and content: a
+// camera joins the one its config's earlier cameras made for the same dataset (and does not set
+// it), or makes it. Held weakly: a config read again after its cameras are gone starts afresh.
+void ShareReplayReference(const std::string& config_path, const std::filesystem::path& dataset,
+                          const std::string& content, ReplayExposure* exposure) {
+  static std::mutex mutex;
+  static std::map<std::string, std::weak_ptr<std::atomic<double>>> shared;
+  std::error_code ec;
+  const std::filesystem::path canonical = std::filesystem::weakly_canonical(dataset, ec);
+  const std::string key = config_path + '\n' + (ec ? dataset : canonical).string() + '\n' + content;
+  const std::lock_guard<std::mutex> lock(mutex);
+  if (auto reference = shared[key].lock()) {
+    exposure->reference = std::move(reference);
+    exposure->sets_reference = false;
+  } else {
+    shared[key] = exposure->reference;
+  }
+}
+
 // The sim driver's keys (acquisition/capture.h documents them).
 void ReadSimKeys(const YAML::Node& keys, const std::string& where, const std::string& config_path,
                  int index, CaptureCameraConfig* camera) {
@@ -574,6 +604,9 @@ void ReadSimKeys(const YAML::Node& keys, const std::string& where, const std::st
                                    : fs::path(config_path).parent_path() / replay;
       try {
         o.replay_exposure = std::make_shared<ReplayExposure>();
+        // The cameras of this config replaying the same dataset share its reference, which the
+        // first of them sets (ReplayExposure).
+        ShareReplayReference(config_path, dataset, replay_content, o.replay_exposure.get());
         o.source = DatasetReplaySource(
             dataset.string(), camera->name,
             replay_content == "fire" ? ReplayContent::kFire : ReplayContent::kCalibration,

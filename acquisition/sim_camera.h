@@ -74,21 +74,29 @@ ImageSource TestPatternSource();
 // than the format is an InputError naming the file). Throws DataError naming
 // the file when a frame is missing or unreadable; a frame asked for at another size than the
 // images gets an error naming both sizes.
-// The frames are what the camera sees at its configured exposure x gain (ReplayExposure below;
-// without one, the first frame's); a frame at another (`ctl configure CAM exposure_us`, live)
-// shows an 8-bit dataset's light times the factor, through its sRGB values and clipped at full
-// scale, as a real camera's image brightens. A deeper camera's codes replay as they are.
+// The frames are what the camera sees at the replay's reference exposure x gain (ReplayExposure
+// below: in a capture config, the configured settings of the first camera replaying the same
+// dataset; without one, the first frame's); a frame at other settings (a camera configured at
+// another exposure time than the first, or `ctl configure CAM exposure_us`, live) shows an 8-bit
+// dataset's light times the factor, through its sRGB values and clipped at full scale, as a real
+// camera's image darkens or brightens. A deeper camera's codes replay as they are, at the
+// reference's settings only: a frame at others is an InputError naming the camera and both.
 // With ReplayContent::kCalibration frame k shows the k-th board view instead
 // (dataset_dir/calibration/view_NNN/<camera>.png, k mod the number of views), and a dark frame
 // where the camera did not see that view: a board waved in front of the rig.
 enum class ReplayContent { kFire, kCalibration };
-// Shared by a replaying sim camera and its source: the exposure x gain the dataset's frames show,
-// the camera's configured settings (SimCamera::Configure sets it; 0: the first frame's), and
-// whether the replay's light can follow a live change (an 8-bit dataset's; false for a deeper
-// camera's codes, whose black level the camera does not know: such a camera refuses a live
-// change, and shows the dataset as it is at whatever it is configured to).
+// Shared by a replaying sim camera and its source: the exposure x gain the dataset's frames show
+// (`reference`, 0: the first frame's), and whether the replay's light can follow another (an
+// 8-bit dataset's; false for a deeper camera's codes, whose black level the camera does not know:
+// such a camera refuses a live change). The reference is shared by the cameras of a capture
+// config that replay the same dataset, and the first of them sets it (`sets_reference`: its
+// Configure puts its settings there), so that a rig whose cameras are configured at different
+// exposure times records each one's light at its own, against the first camera's, which is what
+// `flamerig run` takes the take's exposure to be (pipeline/frame_source.h's
+// StartExposureOfCamera).
 struct ReplayExposure {
-  std::atomic<double> reference{0};
+  std::shared_ptr<std::atomic<double>> reference = std::make_shared<std::atomic<double>>(0.0);
+  bool sets_reference = true;
   std::atomic<bool> scalable{true};
 };
 ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera,

@@ -96,6 +96,11 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   };
   for (std::size_t c = 0; c < meta.cameras.size(); ++c)
     last[c].pixel_format = meta.cameras[c].settings.pixel_format;
+  // A camera started at other settings than the first: its sets.csv factors count that too.
+  for (std::size_t c = 0; c < meta.cameras.size(); ++c) {
+    const StartExposure start = StartExposureOfCamera(meta, static_cast<int>(c));
+    if (!start.note.empty()) summary.notes.push_back("camera " + meta.cameras[c].name + start.note);
+  }
   const std::size_t first = std::min(options.first, rec.num_sets());
   const std::size_t end = first + std::min(options.count, rec.num_sets() - first);
   for (std::size_t i = first; i < end; ++i) {
@@ -131,7 +136,7 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
         }
         frame_id = std::to_string(f.info.frame_id);
         WriteFramePng(f, dir / (camera + ".png"));
-        // Its exposure against the take's start, as `run` reads it from the recording.
+        // Its exposure against the take's reference, as `run` reads it from the recording.
         const FrameExposure e = ExposureOfFrame(meta, c, f.info);
         csv << "," << frame_id << "," << ToString(f.info.status) << "," << FormatNumber(e.ratio, 9)
             << "," << (e.unknown ? 0 : 1);

@@ -38,8 +38,8 @@ struct ExportSummary {
 // 14-bit wire format they were unpacked from, so that a Bayer camera's frames read back from here
 // are fitted through its mosaic and a wire format's words read as the take's: frame_source.h) and
 // OUT/sets.csv (set, trigger id, reference time, spread, then per camera frame id, status and
-// exposure (`<camera>_exposure`: the frame's exposure time x gain over the take's start, as `run`
-// fits it, frame_source.h's ExposureOfFrame, and `<camera>_exposure_known`, 0 where that factor
+// exposure (`<camera>_exposure`: the frame's exposure time x gain over the take's reference, as
+// `run` fits it, frame_source.h's ExposureOfFrame, and `<camera>_exposure_known`, 0 where that factor
 // is not known: a gain changed in a device's own units, a damaged record; a folder read back from
 // here is decoded and fitted at it, as the recording would be), empty when missing, "damaged"
 // for a frame that is lost or fails its checksum; for an event

@@ -259,7 +259,7 @@ ExportedExposures ReadExportedExposures(const fs::path& sets_csv, const Rig& rig
             sets_csv.string(), ratio);
       else if (std::abs(ratio - 1) > kExposureChange)
         e.note = fmt::format(
-            " exposed at {:.3g} times the recording's start ({}): fitted at that exposure", ratio,
+            " exposed at {:.3g} times the take's exposure ({}): fitted at that exposure", ratio,
             sets_csv.string());
     }
     if (wrong.empty())
@@ -311,6 +311,7 @@ SourceFrameSet ReadFrameFolder(const Rig& rig, const std::string& dir, double ex
   out.bits.assign(rig.cameras.size(), 0);
   out.exposure_ratio.assign(rig.cameras.size(), 1.0);
   out.exposure_unknown.assign(rig.cameras.size(), false);
+  out.exposure_start_ratio.assign(rig.cameras.size(), 1.0);
   // A set that an export wrote: its cameras' exposures as the export's sets.csv gives them.
   if (const long long set = ExportedSetNumber(folder); set >= 0)
     ApplyExportedExposures(ReadExportedExposures(folder.parent_path() / "sets.csv", rig),
@@ -383,9 +384,60 @@ bool GainInDecibels(const RecordingMetadata& metadata, int camera) {
 
 }  // namespace
 
+namespace {
+
+// A camera's settings as one number: exposure time x (the gain as a factor where it is in dB);
+// 0 where the settings are not a camera's.
+double SettingsProduct(const CameraSettings& s, bool decibels) {
+  if (!(s.exposure_us > 0) || !std::isfinite(s.exposure_us) || !std::isfinite(s.gain_db)) return 0;
+  return s.exposure_us * (decibels ? std::pow(10.0, s.gain_db / 20.0) : 1.0);
+}
+
+}  // namespace
+
+StartExposure StartExposureOfCamera(const RecordingMetadata& metadata, int camera) {
+  StartExposure out;
+  const auto& cameras = metadata.cameras;
+  const RecordingCamera& rc = cameras.at(static_cast<std::size_t>(camera));
+  // The reference: the recording's first camera that records its settings.
+  std::size_t ref = 0;
+  while (ref < cameras.size() && !(SettingsProduct(cameras[ref].settings, false) > 0)) ++ref;
+  if (ref >= cameras.size() || ref == static_cast<std::size_t>(camera)) return out;
+  const bool decibels = GainInDecibels(metadata, camera) && GainInDecibels(metadata, int(ref));
+  const double mine = SettingsProduct(rc.settings, decibels),
+               theirs = SettingsProduct(cameras[ref].settings, decibels);
+  if (!(mine > 0)) return out;
+  const double ratio = mine / theirs;
+  if (std::abs(ratio - 1) <= kExposureChange) return out;
+  const std::string settings =
+      fmt::format("{:g} us{}", rc.settings.exposure_us,
+                  decibels ? fmt::format(", {:g} dB", rc.settings.gain_db) : std::string());
+  const std::string reference = fmt::format(
+      "{}'s {:g} us{}", cameras[ref].name, cameras[ref].settings.exposure_us,
+      decibels ? fmt::format(", {:g} dB", cameras[ref].settings.gain_db) : std::string());
+  if (!(ratio >= 1 / kExposureRatioRange && ratio <= kExposureRatioRange)) {
+    out.note = fmt::format(
+        " started at {} against {}: a factor of {:g}, not believed (a damaged record?), so not "
+        "applied",
+        settings, reference, ratio);
+    return out;
+  }
+  out.ratio = ratio;
+  out.note = fmt::format(
+      " started at {}, {:.3g} times {} (the take's exposure is its start's){}: fitted at that "
+      "exposure",
+      settings, ratio, reference,
+      decibels || rc.settings.gain_db == cameras[ref].settings.gain_db
+          ? std::string()
+          : fmt::format("; its gain {:g} against {:g} is in a device's own units, not compared",
+                        rc.settings.gain_db, cameras[ref].settings.gain_db));
+  return out;
+}
+
 FrameExposure ExposureOfFrame(const RecordingMetadata& metadata, int camera,
                               const FrameInfo& frame) {
   FrameExposure out;
+  out.start_ratio = out.ratio = StartExposureOfCamera(metadata, camera).ratio;
   const RecordingCamera& rc = metadata.cameras.at(static_cast<std::size_t>(camera));
   const CameraSettings& start = rc.settings;
   if (!(frame.exposure_us > 0) || !(start.exposure_us > 0) || !std::isfinite(frame.exposure_us) ||
@@ -398,7 +450,7 @@ FrameExposure ExposureOfFrame(const RecordingMetadata& metadata, int camera,
   const bool gain_changed = frame.gain_db != start.gain_db;
   const bool believed =
       ratio >= 1 / kExposureRatioRange && ratio <= kExposureRatioRange;  // false for NaN
-  if (believed) out.ratio = ratio;
+  if (believed) out.ratio = out.start_ratio * ratio;
   out.unknown = !believed || (!decibels && gain_changed);
   if (!believed)
     out.note = fmt::format(
@@ -411,11 +463,11 @@ FrameExposure ExposureOfFrame(const RecordingMetadata& metadata, int camera,
         "records no gain in dB): its factor is unknown, so this set's densities do not share the "
         "take's scale; split the take where the gain changed",
         frame.gain_db, start.gain_db, rc.description.driver);
-  else if (std::abs(out.ratio - 1) > kExposureChange)
+  else if (std::abs(ratio - 1) > kExposureChange)
     out.note = fmt::format(
         " exposed at {:.3g} times the recording's start ({:g} us, {:g} dB; it started at {:g} us, "
         "{:g} dB): fitted at that exposure",
-        out.ratio, frame.exposure_us, frame.gain_db, start.exposure_us, start.gain_db);
+        ratio, frame.exposure_us, frame.gain_db, start.exposure_us, start.gain_db);
   return out;
 }
 
@@ -478,6 +530,12 @@ FrameSource::FrameSource(const FrameSourceSpec& spec, const Rig& rig)
     for (const auto& c : impl_->recording->metadata().cameras) names.push_back(c.name);
     impl_->MatchCameras(names);
     impl_->sets = impl_->recording->num_sets();
+    // A rig camera started at other settings than the take's reference: said once, here.
+    for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
+      const StartExposure start =
+          StartExposureOfCamera(impl_->recording->metadata(), impl_->source_camera[c]);
+      if (!start.note.empty()) impl_->notes.push_back(rig.cameras[c].name + start.note);
+    }
   } else if (!spec.seq_files.empty()) {
     std::vector<std::string> names = spec.seq_names;
     if (names.empty())
@@ -540,6 +598,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
   out.radiometry = impl_->radiometry;
   out.exposure_ratio.assign(rig.cameras.size(), 1.0);
   out.exposure_unknown.assign(rig.cameras.size(), false);
+  out.exposure_start_ratio.assign(rig.cameras.size(), 1.0);
   bool have_id = false;
   // An export's folder: the set's cameras' exposures as its sets.csv gives them.
   if (!impl_->spec.images_dir.empty())
@@ -571,6 +630,7 @@ SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
       const FrameExposure e =
           ExposureOfFrame(impl_->recording->metadata(), impl_->source_camera[c], f->info);
       out.exposure_ratio[c] = e.ratio;
+      out.exposure_start_ratio[c] = e.start_ratio;
       out.exposure_unknown[c] = e.unknown;
       if (!e.note.empty()) out.notes.push_back(name + e.note);
       // A frame that arrived in a 10- to 14-bit wire format holds its values in the words' high

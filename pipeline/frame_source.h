@@ -50,13 +50,34 @@ inline constexpr double kExposureRatioRange = 1e4;
 
 struct RecordingMetadata;
 
-// A recording's frame's exposure time x gain against its recording's start (what
-// SourceFrameSet::exposure_ratio and exposure_unknown below hold for it), and the note it gets
-// (to follow the camera's name: " exposed at 0.5 times ...", "'s gain is ..."; empty when the
-// factor is within kExposureChange of 1 or the frame records no exposure). `camera` indexes the
+// A recording's camera's start settings against the take's reference, its recording's first
+// camera's (the take has one exposure, `--exposure`, a dataset's or fitted, and it is the
+// exposure of that camera's start settings): the camera's exposure time x gain at the start over
+// the reference's. The gains count where both cameras give them in dB (simulated cameras, Aravis
+// cameras with GenICam's Gain); a gain in a device's own units is not compared, and is taken to
+// be the one the camera's radiometric calibration was shot at (its shots' exposures count
+// exposure time, and dB gain, in the take's units: radiometric_calibration.h). So a rig whose
+// cameras record at different exposure times (two band-filtered mono cameras balanced for their
+// bands, a camera stopped down) is fitted at each one's own. 1 where either camera records no
+// settings, and where the factor lies beyond kExposureRatioRange (a damaged record: not applied,
+// and the note says so). The note (to follow the camera's name) is empty within kExposureChange
+// of 1.
+struct StartExposure {
+  double ratio = 1;
+  std::string note;
+};
+StartExposure StartExposureOfCamera(const RecordingMetadata& metadata, int camera);
+
+// A recording's frame's exposure time x gain against the take's reference: its camera's start
+// against the reference (StartExposureOfCamera, `start_ratio`) times the frame's against that
+// start (what SourceFrameSet::exposure_ratio and exposure_unknown below hold for it), and the
+// note on the frame's own change (to follow the camera's name: " exposed at 0.5 times ...",
+// "'s gain is ..."; empty when the frame is within kExposureChange of its camera's start or
+// records no exposure; a frame that records none is at its camera's start). `camera` indexes the
 // recording's cameras. `flamerig export` writes the same factor into its sets.csv.
 struct FrameExposure {
   double ratio = 1;
+  double start_ratio = 1;
   bool unknown = false;
   std::string note;
 };
@@ -81,10 +102,11 @@ struct SourceFrameSet {
   // names the wire format), the rig's for such words (CameraRadiometry::ForHighBitWords); the
   // rig's for a camera left out. The fit's mosaic model takes the same
   std::vector<CameraRadiometry> radiometry;
-  // per rig camera: the frame's exposure time x gain over the recording's at its start (its
-  // metadata's settings), from the frame's own record: a camera whose exposure or gain was changed
-  // while it recorded (`ctl configure CAM exposure_us`, live) says so here. 1 where the source does
-  // not say (image files, StreamPix, a frame that records no exposure, a camera left out).
+  // per rig camera: the frame's exposure time x gain over the take's reference (ExposureOfFrame:
+  // its camera's start settings against the recording's first camera's, times the frame's own
+  // record against that start): a camera started at other settings than the first, or whose
+  // exposure or gain was changed while it recorded (`ctl configure CAM exposure_us`, live), says
+  // so here. 1 where the source does not say (image files, StreamPix, a camera left out).
   // The frame is decoded at that exposure (its linear frame is radiance in the take's units), and
   // `flamerig run` fits the camera at it (ChannelResponse::Exposed), so that the take keeps one
   // exposure and one density scale; a ratio beyond kExposureChange gets a note. The gain counts
@@ -96,6 +118,10 @@ struct SourceFrameSet {
   // per rig camera: its exposure changed by a factor the record does not give (the two cases
   // above); `run` warns, as the set's densities are then not on the take's scale
   std::vector<bool> exposure_unknown;
+  // per rig camera: the part of exposure_ratio that is its camera's start against the reference
+  // (StartExposureOfCamera; 1 where the source does not say): what the frame's own change is
+  // counted from
+  std::vector<double> exposure_start_ratio;
   std::vector<std::string> notes;  // cameras left out and why; exposures that changed
   // The device frame id of the set's first present frame (recordings), the file's frame number
   // (StreamPix), or the set number (images): what a simulated camera replaying a dataset showed.

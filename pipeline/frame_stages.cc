@@ -223,10 +223,15 @@ void FrameStages::Read(FrameWork* w) {
     Log().warn("run: {}: {} of the rig's {} cameras have an image{}", FrameName(w->index),
                s.cameras_used, rig_.cameras.size(), why);
   }
-  for (std::size_t c = 0; c < w->set.exposure_ratio.size(); ++c)
-    if (std::abs(w->set.exposure_ratio[c] - 1) > kExposureChange)
-      Log().info("run: {}: {} exposed at {:.3g} times the recording's start: fitted so",
-                 FrameName(w->index), rig_.cameras[c].name, w->set.exposure_ratio[c]);
+  // A frame's own change against its camera's start (a camera started at other settings than
+  // the take's reference is said once, in the source's notes).
+  for (std::size_t c = 0; c < w->set.exposure_ratio.size(); ++c) {
+    const double start =
+        c < w->set.exposure_start_ratio.size() ? w->set.exposure_start_ratio[c] : 1.0;
+    if (std::abs(w->set.exposure_ratio[c] / start - 1) > kExposureChange)
+      Log().info("run: {}: {} exposed at {:.3g} times its start: fitted so", FrameName(w->index),
+                 rig_.cameras[c].name, w->set.exposure_ratio[c] / start);
+  }
   for (std::size_t c = 0; c < w->set.exposure_unknown.size(); ++c)
     if (w->set.exposure_unknown[c])
       Log().warn(

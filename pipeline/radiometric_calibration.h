@@ -6,7 +6,11 @@
 // tungsten lamp at a known colour temperature (in the visible and near infrared its spectrum is a
 // black body's at that temperature times an unknown grey factor). Its aperture fills a patch of
 // each image. For a shot (one camera's image of the source at temperature T and exposure s, in
-// the units of the fire recordings' exposure) the patch's mean code in channel c is modelled as
+// the units of the fire recordings' exposure: the take's exposure is its recording's first
+// camera's start settings', and every camera is fitted at its exposure time x dB gain against
+// those, frame_source.h's StartExposureOfCamera; so a shot's s is the take's exposure times its
+// exposure time x dB gain over that camera's, whichever camera took it) the patch's mean code in
+// channel c is modelled as
 //
 //   code_c = black + encode(s * gain_c * emissivity * B_c(T)) * (saturation - black)
 //

@@ -9,6 +9,8 @@
 #include <filesystem>
 #include <memory>
 
+#include "acquisition/capture.h"
+#include "acquisition/clock.h"
 #include "acquisition/frame_pool.h"
 #include "acquisition/frame_set.h"
 #include "acquisition/sim_camera.h"
@@ -154,6 +156,16 @@ TEST(WireFormats, BayerMosaicsUnpackIntoTheirLayoutsSixteenBitFormat) {
   }
 }
 
+// IEC 61966-2-1's sRGB curve, written out as the oracle for a replay's scaled light: a value in
+// [0, 1] to linear light, and linear light (clipped at full scale) back.
+double SrgbCurveDecode(double v) {
+  return v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4);
+}
+double SrgbCurveEncode(double l) {
+  l = std::min(1.0, l);
+  return l <= 0.0031308 ? 12.92 * l : 1.055 * std::pow(l, 1 / 2.4) - 0.055;
+}
+
 // A sim camera replaying a dataset: a deeper camera's 16-bit PNGs of codes go out as they are
 // (Bayer 16: each site's colour; Mono16: their luma), an 8-bit dataset's sRGB values x 257; 8-bit
 // formats of a 16-bit dataset are refused, naming the file.
@@ -247,13 +259,6 @@ TEST(SimCamera, AReplayingCameraReExposedLiveScalesItsLight) {
   for (std::size_t i = 0; i < srgb.pixels.size(); ++i)
     srgb.pixels[i] = static_cast<std::uint8_t>(i % 256);
   WritePng((dir / "frames" / "frame_000000" / "cam.png").string(), srgb);
-  const auto decode = [](double v) {
-    return v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4);
-  };
-  const auto encode = [](double l) {
-    l = std::min(1.0, l);
-    return l <= 0.0031308 ? 12.92 * l : 1.055 * std::pow(l, 1 / 2.4) - 0.055;
-  };
   const ImageSource replay = DatasetReplaySource(dir.string(), "cam");
   FrameInfo info;
   info.width = info.height = 16;
@@ -271,7 +276,7 @@ TEST(SimCamera, AReplayingCameraReExposedLiveScalesItsLight) {
     const double factor = exposure_us / 10000 * std::pow(10.0, gain_db / 20);
     int saturated = 0;
     for (std::size_t i = 0; i < bytes.size(); ++i) {
-      const double want = 255 * encode(factor * decode(srgb.pixels[i] / 255.0));
+      const double want = 255 * SrgbCurveEncode(factor * SrgbCurveDecode(srgb.pixels[i] / 255.0));
       ASSERT_NEAR(bytes[i], want, 0.5 + 1e-9) << i << " from " << int(srgb.pixels[i]);
       saturated += bytes[i] == 255;
     }
@@ -284,7 +289,9 @@ TEST(SimCamera, AReplayingCameraReExposedLiveScalesItsLight) {
   info.gain_db = 0;
   info.pixel_format = PixelFormat::kMono8;
   replay(info, &bytes);
-  const auto half = [&](int v) { return std::lround(255 * encode(0.5 * decode(v / 255.0))); };
+  const auto half = [&](int v) {
+    return std::lround(255 * SrgbCurveEncode(0.5 * SrgbCurveDecode(v / 255.0)));
+  };
   const std::uint8_t* p = &srgb.pixels[3 * 20];
   EXPECT_NEAR(bytes[20], 0.2126 * half(p[0]) + 0.7152 * half(p[1]) + 0.0722 * half(p[2]), 0.51);
 
@@ -301,7 +308,7 @@ TEST(SimCamera, AReplayingCameraReExposedLiveScalesItsLight) {
   settings.pixel_format = PixelFormat::kRgb8;
   settings.exposure_us = 4000;
   cam.Configure(settings);
-  EXPECT_EQ(o.replay_exposure->reference, 4000);
+  EXPECT_EQ(*o.replay_exposure->reference, 4000);
   info.pixel_format = PixelFormat::kRgb8;
   info.exposure_us = 2000;  // half the configured: darker, though it is the first frame here
   o.source(info, &bytes);
@@ -334,6 +341,92 @@ TEST(SimCamera, ADeeperReplayRefusesALiveExposureChange) {
   cam.Configure(settings);
   EXPECT_FALSE(cam.SetExposureGainLive(500, 0));
   EXPECT_EQ(cam.settings().exposure_us, settings.exposure_us);
+  fs::remove_all(dir);
+}
+
+// Cameras of one capture config replaying the same dataset at different exposure times (a rig
+// balanced per camera): the dataset is what the config's first replaying camera sees at its
+// settings, and the second camera's 8-bit frames carry the light times its exposure over the
+// first's (the oracle: IEC 61966-2-1's sRGB curve, written out here), whichever camera is
+// configured first; another config's cameras do not share it. A deeper camera's codes replay at
+// the first camera's settings only: a frame at others is an error naming both.
+TEST(SimCamera, ReplayingCamerasConfiguredApartShowTheirOwnExposure) {
+  namespace fs = std::filesystem;
+  const fs::path dir =
+      fs::temp_directory_path() / ("flamerig_replay_apart_" + std::to_string(getpid()));
+  fs::create_directories(dir / "rgb" / "frames" / "frame_000000");
+  fs::create_directories(dir / "deep" / "frames" / "frame_000000");
+  ImageU8 srgb(16, 16, 3);
+  for (std::size_t i = 0; i < srgb.pixels.size(); ++i)
+    srgb.pixels[i] = static_cast<std::uint8_t>(i % 256);
+  for (const char* cam : {"cam0", "cam1"}) {
+    WritePng((dir / "rgb" / "frames" / "frame_000000" / (std::string(cam) + ".png")).string(),
+             srgb);
+    WritePng16((dir / "deep" / "frames" / "frame_000000" / (std::string(cam) + ".png")).string(),
+               ImageU16(16, 16, 3, 300));
+  }
+  const auto yaml = [&](const char* dataset, const char* format, int cam1_exposure_us) {
+    std::string y = "data_dir: rec\nsync: free-run\ncameras:\n";
+    for (int c = 0; c < 2; ++c)
+      y += "  - {name: cam" + std::to_string(c) +
+           ", width: 16, height: 16, pixel_format: " + format +
+           ", exposure_us: " + std::to_string(c == 0 ? 10000 : cam1_exposure_us) +
+           ", frame_rate_hz: 100, sim: {replay: " + (dir / dataset).string() + "}}\n";
+    return y;
+  };
+  SystemClock clock;
+  // The frame camera c sends once the cameras are configured in `order`.
+  const auto frame_of = [&](const CaptureConfig& config, std::vector<int> order, int c) {
+    auto cameras = MakeCameras(config, {&clock, nullptr});
+    for (int k : order) cameras[k]->Configure(config.cameras[k].settings);
+    cameras[c]->Start(2);
+    std::optional<Frame> f = cameras[c]->Pop(2'000'000'000);
+    cameras[c]->Stop();
+    if (!f) throw std::runtime_error("no frame");
+    return *f->data;
+  };
+  const CaptureConfig apart =
+      CaptureConfig::Parse(yaml("rgb", "RGB8", 5000), (dir / "apart.yaml").string());
+  for (const std::vector<int>& order : {std::vector<int>{0, 1}, std::vector<int>{1, 0}}) {
+    SCOPED_TRACE(order[0]);
+    EXPECT_EQ(frame_of(apart, order, 0), srgb.pixels);
+    const std::vector<std::uint8_t> half = frame_of(apart, order, 1);
+    ASSERT_EQ(half.size(), srgb.pixels.size());
+    for (std::size_t i = 0; i < half.size(); ++i)
+      ASSERT_NEAR(half[i], 255 * SrgbCurveEncode(0.5 * SrgbCurveDecode(srgb.pixels[i] / 255.0)),
+                  0.5 + 1e-9)
+          << i;
+  }
+  // Another config's cameras do not share apart's reference.
+  const CaptureConfig alone =
+      CaptureConfig::Parse(yaml("rgb", "RGB8", 5000), (dir / "alone.yaml").string());
+  {
+    auto cameras = MakeCameras(alone, {&clock, nullptr});
+    CameraSettings s = alone.cameras[1].settings;
+    cameras[1]->Configure(s);
+    cameras[1]->Start(2);
+    std::optional<Frame> f = cameras[1]->Pop(2'000'000'000);
+    ASSERT_TRUE(f);
+    // Not apart's reference: the config's first camera is not configured, so the second's
+    // first frame is, and it shows the dataset as it is.
+    EXPECT_EQ(*f->data, srgb.pixels);
+    cameras[1]->Stop();
+  }
+  // A deeper dataset: the same settings replay, others are refused.
+  const CaptureConfig deep_same =
+      CaptureConfig::Parse(yaml("deep", "Mono16", 10000), (dir / "deep_same.yaml").string());
+  EXPECT_EQ(frame_of(deep_same, {0, 1}, 1).size(), 16u * 16 * 2);
+  const CaptureConfig deep_apart =
+      CaptureConfig::Parse(yaml("deep", "Mono16", 5000), (dir / "deep_apart.yaml").string());
+  try {
+    frame_of(deep_apart, {0, 1}, 1);
+    ADD_FAILURE() << "a deeper replay at other settings than the reference's";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("holds a deeper camera's codes"), std::string::npos)
+        << e.what();
+    EXPECT_NE(std::string(e.what()).find("10000"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("5000"), std::string::npos) << e.what();
+  }
   fs::remove_all(dir);
 }
 

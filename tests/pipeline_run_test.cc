@@ -1610,10 +1610,12 @@ TEST(RunDistributed, TwoRanksAsThreadsShareTheFramesAndOneReport) {
 // Records the first `sets` frame sets of a dataset's three 120x90 cameras into `rec_dir` as a
 // hardware-triggered take in `format` (RGB8, or a Bayer mosaic of the dataset's pixels: 8-bit, or
 // 16-bit words of a deeper camera's codes); `frame(s, c, &f)` sees every frame before it is
-// submitted, may change it, and returns false to drop it.
+// submitted, may change it, and returns false to drop it; `start(c, &settings)` may change
+// camera c's settings at the recording's start (the settings' defaults: 10000 us, 0 dB).
 void RecordDataset(const fs::path& dataset, const Rig& rig, const fs::path& rec_dir, int sets,
                    PixelFormat format, const std::function<bool(int, int, Frame*)>& frame,
-                   const std::string& driver = "sim") {
+                   const std::string& driver = "sim",
+                   const std::function<void(int, CameraSettings*)>& start = nullptr) {
   RecordingMetadata meta;
   meta.sync_mode = "hardware-trigger";
   for (const auto& c : rig.cameras) {
@@ -1623,6 +1625,7 @@ void RecordDataset(const fs::path& dataset, const Rig& rig, const fs::path& rec_
     rc.settings.width = 120;
     rc.settings.height = 90;
     rc.settings.pixel_format = format;
+    if (start) start(static_cast<int>(meta.cameras.size()), &rc.settings);
     meta.cameras.push_back(rc);
   }
   const BayerLayout layout = BayerLayoutOf(format);
@@ -1811,6 +1814,105 @@ TEST(FrameSource, ARecordingSaysWhenACamerasExposureChanged) {
   fs::remove_all(dir);
 }
 
+// Cameras of one take started at different settings (a rig balanced per camera): each camera's
+// frames are decoded at its exposure time x gain over the recording's first camera's, the take's
+// reference, on every set; its own later changes count from its start. Gains are compared in dB
+// only; a gain in a device's own units is not compared across cameras. The source says once which
+// cameras started elsewhere, and an export's sets.csv carries the same factors.
+TEST(FrameSource, ACameraStartedAtOtherSettingsIsDecodedAtItsOwn) {
+  const fs::path dir = TempDir("exposure_start");
+  SimulateDataset(dir / "sim", 2);
+  const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
+  // cam0 (the reference) at 10000 us, 0 dB; cam1 at 5000 us; cam2 at 10000 us and 6 dB, and its
+  // exposure time changed to 8000 us on set 1.
+  const auto start = [](int c, CameraSettings* s) {
+    if (c == 1) s->exposure_us = 5000;
+    if (c == 2) s->gain_db = 6;
+  };
+  const auto frames = [](int s, int c, Frame* f) {
+    f->info.exposure_us = c == 1 ? 5000 : 10000;
+    f->info.gain_db = c == 2 ? 6 : 0;
+    if (s == 1 && c == 2) f->info.exposure_us = 8000;
+    return true;
+  };
+  RecordDataset(dir / "sim", rig, dir / "rec", 2, PixelFormat::kRgb8, frames, "sim", start);
+  FrameSourceSpec spec;
+  spec.recording_dir = (dir / "rec").string();
+  const FrameSource source(spec, rig);
+  const double six_db = std::pow(10.0, 6.0 / 20);  // 1.995
+  ASSERT_EQ(source.notes().size(), 2u);
+  EXPECT_NE(source.notes()[0].find(rig.cameras[1].name + " started at 5000 us, 0 dB, 0.5 times " +
+                                   rig.cameras[0].name + "'s 10000 us, 0 dB"),
+            std::string::npos)
+      << source.notes()[0];
+  EXPECT_NE(source.notes()[1].find(rig.cameras[2].name + " started at 10000 us, 6 dB, 2 times"),
+            std::string::npos)
+      << source.notes()[1];
+  for (std::size_t i = 0; i < 2; ++i) {
+    SCOPED_TRACE(i);
+    const SourceFrameSet set = source.Read(i, 1.0);
+    const double own = i == 1 ? 0.8 : 1.0;  // cam2's own change on set 1
+    EXPECT_EQ(set.exposure_ratio[0], 1.0);
+    EXPECT_NEAR(set.exposure_ratio[1], 0.5, 1e-12);
+    EXPECT_NEAR(set.exposure_ratio[2], six_db * own, 1e-12);
+    EXPECT_NEAR(set.exposure_start_ratio[1], 0.5, 1e-12);
+    EXPECT_NEAR(set.exposure_start_ratio[2], six_db, 1e-12);
+    EXPECT_EQ(set.exposure_unknown, (std::vector<bool>{false, false, false}));
+    // The per-set note is the camera's own change only.
+    ASSERT_EQ(set.notes.size(), i) << (set.notes.empty() ? "" : set.notes[0]);
+    if (i == 1) {
+      EXPECT_NE(set.notes[0].find(rig.cameras[2].name + " exposed at 0.8 times"), std::string::npos)
+          << set.notes[0];
+    }
+    // Decoded at its own exposure: radiance = signal / (factor x the take's exposure).
+    for (std::size_t p = 0; p < set.signal[1].pixels.size(); p += 31)
+      ASSERT_NEAR(set.linear[1].radiance.pixels[p], set.signal[1].pixels[p] / 0.5, 1e-5) << p;
+  }
+  // Exported: sets.csv carries the whole factor, and reads back at it.
+  const ExportSummary exported =
+      ExportRecording((dir / "rec").string(), (dir / "png").string(), ExportOptions());
+  ASSERT_GE(exported.notes.size(), 2u);
+  EXPECT_NE(exported.notes[0].find("camera " + rig.cameras[1].name + " started at 5000 us"),
+            std::string::npos)
+      << exported.notes[0];
+  FrameSourceSpec png_spec;
+  png_spec.images_dir = (dir / "png").string();
+  const SourceFrameSet back = FrameSource(png_spec, rig).Read(1, 1.0);
+  EXPECT_NEAR(back.exposure_ratio[1], 0.5, 1e-9);
+  EXPECT_NEAR(back.exposure_ratio[2], six_db * 0.8, 1e-8);
+  // V4L2 cameras: the exposure times compare, gains in the device's own units do not (cam2's 6
+  // against cam0's 0 is not a factor of 2), and the note says so.
+  RecordDataset(dir / "sim", rig, dir / "rec_v4l2", 1, PixelFormat::kRgb8, frames, "v4l2", start);
+  FrameSourceSpec v4l2_spec;
+  v4l2_spec.recording_dir = (dir / "rec_v4l2").string();
+  const FrameSource v4l2(v4l2_spec, rig);
+  const SourceFrameSet raw = v4l2.Read(0, 1.0);
+  EXPECT_NEAR(raw.exposure_ratio[1], 0.5, 1e-12);
+  EXPECT_EQ(raw.exposure_ratio[2], 1.0);
+  EXPECT_EQ(raw.exposure_unknown, (std::vector<bool>{false, false, false}));
+  ASSERT_EQ(v4l2.notes().size(), 1u);
+  EXPECT_NE(v4l2.notes()[0].find(rig.cameras[1].name + " started at 5000 us, 0.5 times " +
+                                 rig.cameras[0].name + "'s 10000 us (the take's exposure"),
+            std::string::npos)
+      << v4l2.notes()[0];
+  // A damaged start record (1e12 us) is not believed: 1, and said.
+  RecordDataset(
+      dir / "sim", rig, dir / "rec_damaged", 1, PixelFormat::kRgb8,
+      [](int, int, Frame*) { return true; }, "sim",
+      [](int c, CameraSettings* s) {
+        if (c == 1) s->exposure_us = 1e12;
+      });
+  FrameSourceSpec damaged_spec;
+  damaged_spec.recording_dir = (dir / "rec_damaged").string();
+  const FrameSource damaged(damaged_spec, rig);
+  EXPECT_EQ(damaged.Read(0, 1.0).exposure_ratio[1], 1.0);
+  ASSERT_EQ(damaged.notes().size(), 1u);
+  EXPECT_NE(damaged.notes()[0].find("not believed (a damaged record?), so not applied"),
+            std::string::npos)
+      << damaged.notes()[0];
+  fs::remove_all(dir);
+}
+
 // A camera re-exposed while recording (`ctl configure CAM exposure_us`, live) at half its start's
 // exposure, its frames half as bright as the others': fitted at the exposure its frames record,
 // the set fits as the same set recorded unchanged does (soot within 5%, temperature RMS against
@@ -1828,15 +1930,23 @@ TEST(RunFrames, ACameraReExposedWhileRecordingIsFittedAtItsOwnExposure) {
       v = static_cast<std::uint8_t>(std::lround(255 * SrgbEncode(0.5 * SrgbDecode(v / 255.0))));
     f->data = darker;
   };
-  const auto record = [&](const char* name, bool darken, bool say) {
-    RecordDataset(dir / "sim", rig, dir / name, 2, PixelFormat::kRgb8, [&](int s, int c, Frame* f) {
-      f->info.exposure_us = 10000;
-      if (s == 1 && c == 1 && darken) {
-        halve(f);
-        if (say) f->info.exposure_us = 5000;
-      }
-      return true;
-    });
+  // `started`: camera 1 recorded the whole take at 5000 us, set so before it started, against
+  // the other cameras' 10000 us (the take's reference is camera 0's).
+  const auto record = [&](const char* name, bool darken, bool say, bool started = false) {
+    RecordDataset(
+        dir / "sim", rig, dir / name, 2, PixelFormat::kRgb8,
+        [&](int s, int c, Frame* f) {
+          f->info.exposure_us = 10000;
+          if (c == 1 && ((s == 1 && darken) || started)) {
+            halve(f);
+            if (say || started) f->info.exposure_us = 5000;
+          }
+          return true;
+        },
+        "sim",
+        [&](int c, CameraSettings* settings) {
+          if (c == 1 && started) settings->exposure_us = 5000;
+        });
     RunOptions o = SmallRun(dir / "sim", dir / (std::string(name) + "_out"));
     o.source = FrameSourceSpec();
     o.source.recording_dir = (dir / name).string();
@@ -1848,7 +1958,8 @@ TEST(RunFrames, ACameraReExposedWhileRecordingIsFittedAtItsOwnExposure) {
   const FrameSummary unchanged = record("unchanged", false, false);
   const FrameSummary said = record("said", true, true);
   const FrameSummary unsaid = record("unsaid", true, false);
-  for (const FrameSummary* f : {&unchanged, &said, &unsaid}) {
+  const FrameSummary started = record("started", false, false, true);
+  for (const FrameSummary* f : {&unchanged, &said, &unsaid, &started}) {
     ASSERT_EQ(f->status, "computed");
     ASSERT_GT(f->truth_rms_k, 0);
     ASSERT_GT(f->soot, 0);
@@ -1858,7 +1969,11 @@ TEST(RunFrames, ACameraReExposedWhileRecordingIsFittedAtItsOwnExposure) {
       "T RMS %.1f K (unchanged) %.1f K (said) %.1f K (unsaid); truth spread %.1f K\n",
       said.soot / unchanged.soot, unsaid.soot / unchanged.soot, unchanged.truth_rms_k,
       said.truth_rms_k, unsaid.truth_rms_k, unchanged.truth_spread_k);
-  for (const FrameSummary* f : {&unchanged, &said, &unsaid}) {
+  std::printf(
+      "camera 1 started at half the others' exposure: soot / unchanged's %.3f, T RMS "
+      "%.1f K\n",
+      started.soot / unchanged.soot, started.truth_rms_k);
+  for (const FrameSummary* f : {&unchanged, &said, &unsaid, &started}) {
     for (const ViewDeltaE& d : f->delta_e) std::printf("  %s %.2f", d.camera.c_str(), d.fire);
     std::printf("  exposure %.4f %s bias %.1f\n", f->exposure, f->exposure_from.c_str(),
                 f->truth_bias_k);
@@ -1874,6 +1989,12 @@ TEST(RunFrames, ACameraReExposedWhileRecordingIsFittedAtItsOwnExposure) {
   ASSERT_EQ(unsaid.delta_e.size(), 3u);
   EXPECT_NEAR(said.delta_e[1].fire, unchanged.delta_e[1].fire, 0.5);
   EXPECT_GT(unsaid.delta_e[1].fire, 5 * said.delta_e[1].fire);
+  // A camera that recorded the whole take at half the others' exposure time is fitted at its own
+  // (a set that only the darkened camera's record tells apart from the unsaid one).
+  EXPECT_NEAR(started.soot / unchanged.soot, 1.0, 0.05);
+  EXPECT_NEAR(started.truth_rms_k, unchanged.truth_rms_k, 5.0);
+  ASSERT_EQ(started.delta_e.size(), 3u);
+  EXPECT_NEAR(started.delta_e[1].fire, unchanged.delta_e[1].fire, 0.5);
   // Exported, set 1 alone through `flamerig fit` (its folder beside the export's sets.csv): the
   // same, the re-exposed camera fitted at its frame's exposure as `run` fits it.
   const auto fit_exported = [&](const char* name) {
@@ -1889,12 +2010,13 @@ TEST(RunFrames, ACameraReExposedWhileRecordingIsFittedAtItsOwnExposure) {
     return r.scores.size() == 3 ? r.scores[1].fire_delta_e : -1.0;
   };
   const double fit_unchanged = fit_exported("unchanged"), fit_said = fit_exported("said"),
-               fit_unsaid = fit_exported("unsaid");
+               fit_unsaid = fit_exported("unsaid"), fit_started = fit_exported("started");
   std::printf(
       "fit of the exported set 1, camera 1's fire Delta E: %.2f unchanged, %.2f said, "
-      "%.2f unsaid\n",
-      fit_unchanged, fit_said, fit_unsaid);
+      "%.2f unsaid, %.2f started at half\n",
+      fit_unchanged, fit_said, fit_unsaid, fit_started);
   EXPECT_NEAR(fit_said, fit_unchanged, 0.5);
+  EXPECT_NEAR(fit_started, fit_unchanged, 0.5);
   EXPECT_GT(fit_unsaid, 5 * fit_said);
   fs::remove_all(dir);
 }
@@ -1958,6 +2080,77 @@ TEST(RunFrames, AnExposureChangedLiveInTheDaemonIsFittedAtTheFramesOwn) {
       EXPECT_NEAR(f->delta_e[1].fire, was.delta_e[1].fire, 0.5);
       EXPECT_NEAR(f->soot / was.soot, 1.0, 0.05);
     }
+  }
+  fs::remove_all(dir);
+}
+
+// A rig whose cameras are configured at different exposure times, as an operator balances them:
+// sim cameras replay the dataset, cam1 at half the others' exposure time from the start (its
+// frames darker: the replay scales their light against the config's first camera), and `run`
+// fits it at its own, as well as the same take with every camera alike (cam1's fire Delta E within
+// 0.5, the soot within 5% of the same dataset frame's; the run says once that cam1 started
+// elsewhere).
+TEST(RunFrames, CamerasConfiguredAtDifferentExposuresAreFittedAtTheirOwn) {
+  const fs::path dir = TempDir("exposures_apart");
+  SimulateDataset(dir / "sim", 2);
+  const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
+  const auto record = [&](const char* name, int cam1_exposure_us) {
+    std::string yaml = "data_dir: " + (dir / name).string() +
+                       "\nsync: software-trigger\ntrigger_rate_hz: 10\ncameras:\n";
+    for (const auto& cam : rig.cameras)
+      yaml += "  - {name: " + cam.name + ", width: 120, height: 90, pixel_format: RGB8, " +
+              "exposure_us: " +
+              std::to_string(cam.name == rig.cameras[1].name ? cam1_exposure_us : 10000) +
+              ", sim: {replay: " + (dir / "sim").string() + "}}\n";
+    const CaptureConfig config =
+        CaptureConfig::Parse(yaml, (dir / (std::string(name) + ".yaml")).string());
+    SystemClock clock;
+    std::string take;
+    {
+      CaptureDaemon daemon(config, MakeCameras(config, {&clock, nullptr}), &clock, nullptr);
+      daemon.Start();
+      take = daemon.StartRecording("take");
+      std::this_thread::sleep_for(std::chrono::milliseconds(500));
+      daemon.StopRecording();
+      daemon.Stop();
+    }
+    FrameSourceSpec spec;
+    spec.recording_dir = take;
+    const FrameSource source(spec, rig);
+    RunOptions o = SmallRun(dir / "sim", dir / (std::string(name) + "_out"));
+    o.source = spec;
+    o.sigma = o.blender = o.pictures = false;
+    o.count = 4;
+    const RunSummary run = RunAll(o);
+    EXPECT_EQ(run.failed, 0u) << name;
+    return std::make_pair(run, source.notes());
+  };
+  const auto [alike, alike_notes] = record("alike", 10000);
+  const auto [apart, apart_notes] = record("apart", 5000);
+  EXPECT_TRUE(alike_notes.empty());
+  ASSERT_EQ(apart_notes.size(), 1u);
+  EXPECT_NE(apart_notes[0].find(rig.cameras[1].name + " started at 5000 us, 0 dB, 0.5 times"),
+            std::string::npos)
+      << apart_notes[0];
+  // Set by set against alike's last set of the same dataset frame (the replay cycles its two).
+  ASSERT_GE(alike.frames.size(), 3u);
+  ASSERT_GE(apart.frames.size(), 3u);
+  std::map<int, const FrameSummary*> alike_of;
+  for (const FrameSummary& a : alike.frames) {
+    ASSERT_EQ(a.status, "computed") << a.Line();
+    alike_of[a.truth_frame] = &a;
+  }
+  for (const FrameSummary& b : apart.frames) {
+    SCOPED_TRACE(b.frame);
+    ASSERT_EQ(b.status, "computed") << b.Line();
+    ASSERT_TRUE(alike_of.count(b.truth_frame));
+    const FrameSummary& a = *alike_of[b.truth_frame];
+    ASSERT_EQ(b.delta_e.size(), 3u);
+    std::printf(
+        "dataset frame %d: cam1 fire Delta E %.2f apart, %.2f alike; soot %.3f of alike's\n",
+        b.truth_frame, b.delta_e[1].fire, a.delta_e[1].fire, b.soot / a.soot);
+    EXPECT_NEAR(b.delta_e[1].fire, a.delta_e[1].fire, 0.5);
+    EXPECT_NEAR(b.soot / a.soot, 1.0, 0.05);
   }
   fs::remove_all(dir);
 }
