@@ -350,10 +350,21 @@ void SimCamera::Configure(const CameraSettings& settings) {
   live_exposure_us_ = settings_.exposure_us;
   live_gain_db_ = settings_.gain_db;
   // A replay shows its dataset as it is at the reference's settings: the first replaying
-  // camera's, which sets them.
-  if (options_.replay_exposure && options_.replay_exposure->sets_reference)
-    *options_.replay_exposure->reference =
-        settings_.exposure_us * std::pow(10.0, settings_.gain_db / 20.0);
+  // camera's, which sets them. A deeper camera's codes cannot show it at others.
+  if (options_.replay_exposure) {
+    ReplayExposure& replay = *options_.replay_exposure;
+    const double product = settings_.exposure_us * std::pow(10.0, settings_.gain_db / 20.0);
+    if (replay.sets_reference) {
+      *replay.reference = product;
+    } else if (!replay.scalable && *replay.reference > 0 &&
+               std::abs(product / *replay.reference - 1) > 1e-9) {
+      throw InputError("sim camera '" + options_.id + "': its replay holds a deeper camera's " +
+                       "codes, which replay as they are, at the settings of the config's first " +
+                       "camera replaying that dataset only (exposure us x gain as a factor: " +
+                       FormatNumber(replay.reference->load()) + "; this camera's " +
+                       FormatNumber(product) + "): configure it as that one");
+    }
+  }
 }
 
 CameraSettings SimCamera::settings() const {
@@ -556,21 +567,35 @@ namespace {
 
 // The replay references of the cameras read so far, by config file, dataset and content: a
 // camera joins the one its config's earlier cameras made for the same dataset (and does not set
-// it), or makes it. Held weakly: a config read again after its cameras are gone starts afresh.
+// it), or makes it, at its own configured settings (so that the reference holds before any camera
+// is configured, and when the first camera is not there to be: a deferred camera). A camera read
+// at an index no later than the last one read for the key starts a new reading of the config,
+// and a new reference. Held weakly: entries whose cameras are gone are dropped.
 void ShareReplayReference(const std::string& config_path, const std::filesystem::path& dataset,
-                          const std::string& content, ReplayExposure* exposure) {
+                          const std::string& content, int index, const CameraSettings& settings,
+                          ReplayExposure* exposure) {
+  struct Entry {
+    std::weak_ptr<std::atomic<double>> reference;
+    int last_index = -1;
+  };
   static std::mutex mutex;
-  static std::map<std::string, std::weak_ptr<std::atomic<double>>> shared;
+  static std::map<std::string, Entry> shared;
   std::error_code ec;
   const std::filesystem::path canonical = std::filesystem::weakly_canonical(dataset, ec);
   const std::string key = config_path + '\n' + (ec ? dataset : canonical).string() + '\n' + content;
   const std::lock_guard<std::mutex> lock(mutex);
-  if (auto reference = shared[key].lock()) {
+  for (auto it = shared.begin(); it != shared.end();)
+    it = it->second.reference.expired() && it->first != key ? shared.erase(it) : std::next(it);
+  Entry& entry = shared[key];
+  auto reference = entry.reference.lock();
+  if (reference && index > entry.last_index) {
     exposure->reference = std::move(reference);
     exposure->sets_reference = false;
   } else {
-    shared[key] = exposure->reference;
+    *exposure->reference = settings.exposure_us * std::pow(10.0, settings.gain_db / 20.0);
+    entry.reference = exposure->reference;
   }
+  entry.last_index = index;
 }
 
 // The sim driver's keys (acquisition/capture.h documents them).
@@ -606,7 +631,8 @@ void ReadSimKeys(const YAML::Node& keys, const std::string& where, const std::st
         o.replay_exposure = std::make_shared<ReplayExposure>();
         // The cameras of this config replaying the same dataset share its reference, which the
         // first of them sets (ReplayExposure).
-        ShareReplayReference(config_path, dataset, replay_content, o.replay_exposure.get());
+        ShareReplayReference(config_path, dataset, replay_content, index, camera->settings,
+                             o.replay_exposure.get());
         o.source = DatasetReplaySource(
             dataset.string(), camera->name,
             replay_content == "fire" ? ReplayContent::kFire : ReplayContent::kCalibration,

@@ -80,7 +80,8 @@ ImageSource TestPatternSource();
 // another exposure time than the first, or `ctl configure CAM exposure_us`, live) shows an 8-bit
 // dataset's light times the factor, through its sRGB values and clipped at full scale, as a real
 // camera's image darkens or brightens. A deeper camera's codes replay as they are, at the
-// reference's settings only: a frame at others is an InputError naming the camera and both.
+// reference's settings only: a frame at others is an InputError naming the camera and both (and
+// SimCamera::Configure refuses such settings).
 // With ReplayContent::kCalibration frame k shows the k-th board view instead
 // (dataset_dir/calibration/view_NNN/<camera>.png, k mod the number of views), and a dark frame
 // where the camera did not see that view: a board waved in front of the rig.
@@ -88,12 +89,14 @@ enum class ReplayContent { kFire, kCalibration };
 // Shared by a replaying sim camera and its source: the exposure x gain the dataset's frames show
 // (`reference`, 0: the first frame's), and whether the replay's light can follow another (an
 // 8-bit dataset's; false for a deeper camera's codes, whose black level the camera does not know:
-// such a camera refuses a live change). The reference is shared by the cameras of a capture
-// config that replay the same dataset, and the first of them sets it (`sets_reference`: its
-// Configure puts its settings there), so that a rig whose cameras are configured at different
-// exposure times records each one's light at its own, against the first camera's, which is what
+// such a camera refuses a live change, and its Configure refuses settings other than the
+// reference's). The reference is shared by the cameras of a capture config that replay the same
+// dataset, and the first of them sets it (`sets_reference`): to its configured settings when the
+// config is read, and again at its Configure. So a rig whose cameras are configured at different
+// exposure times records each one's light at its own against the first camera's, which is what
 // `flamerig run` takes the take's exposure to be (pipeline/frame_source.h's
-// StartExposureOfCamera).
+// StartExposureOfCamera: the recording's first camera's; a rig whose first camera is not a
+// replay of the dataset has its reference elsewhere).
 struct ReplayExposure {
   std::shared_ptr<std::atomic<double>> reference = std::make_shared<std::atomic<double>>(0.0);
   bool sets_reference = true;

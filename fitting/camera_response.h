@@ -45,14 +45,14 @@ class ChannelResponse {
   // the defaults). Throws InputError from the radiometry's Validate.
   static std::shared_ptr<const ChannelResponse> ForCamera(const CameraRadiometry& radiometry);
 
-  // `response` for a frame exposed `factor` times (> 0, finite) as long as the recording's start
-  // (the frame's exposure time x gain over the start's: SourceFrameSet::exposure_ratio): its output
-  // and its gains times the factor, its sensitivity, tables and name the same (so that bands group
-  // as before, and the output divided by gain() is still the unit-gain channels the tomography's
-  // frames, decoded at the frame's exposure, hold). `response` itself when the factor is 1. The
-  // copy shares the black-body table with `response` (and keeps it alive): it costs a camera's
-  // 1 nm basis (20 kB), not its table (0.5 MB). Throws InputError for a factor that is not finite
-  // and > 0.
+  // `response` for a frame exposed `factor` times (> 0, finite) as long as the take's exposure
+  // (the frame's exposure time x gain over the take's reference: SourceFrameSet::exposure_ratio,
+  // pipeline/frame_source.h): its output and its gains times the factor, its sensitivity, tables
+  // and name the same (so that bands group as before, and the output divided by gain() is still
+  // the unit-gain channels the tomography's frames, decoded at the frame's exposure, hold).
+  // `response` itself when the factor is 1. The copy shares the black-body table with `response`
+  // (and keeps it alive): it costs a camera's 1 nm basis (20 kB), not its table (0.5 MB). Throws
+  // InputError for a factor that is not finite and > 0.
   static std::shared_ptr<const ChannelResponse> Exposed(
       const std::shared_ptr<const ChannelResponse>& response, double factor);
 

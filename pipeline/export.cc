@@ -74,7 +74,7 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
   csv << "set,trigger_id,reference_ns,spread_ns";
   for (const auto& c : meta.cameras)
     csv << "," << c.name << "_frame_id," << c.name << "_status," << c.name << "_exposure," << c.name
-        << "_exposure_known";
+        << "_exposure_known," << c.name << "_exposure_start";
   if (event) csv << ",event";
   csv << "\n";
   // The first set after the trigger, over the whole take (an export may start past it).
@@ -113,7 +113,7 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
       const std::string& camera = rec.metadata().cameras[c].name;
       if (!rec.HasFrame(i, c) && !rec.FrameLost(i, c)) {
         ++summary.missing_frames;
-        csv << ",,,,";
+        csv << ",,,,,";
         continue;
       }
       std::string frame_id;
@@ -139,12 +139,12 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
         // Its exposure against the take's reference, as `run` reads it from the recording.
         const FrameExposure e = ExposureOfFrame(meta, c, f.info);
         csv << "," << frame_id << "," << ToString(f.info.status) << "," << FormatNumber(e.ratio, 9)
-            << "," << (e.unknown ? 0 : 1);
+            << "," << (e.unknown ? 0 : 1) << "," << FormatNumber(e.start_ratio, 9);
         ++summary.images;
       } catch (const DataError& e) {
         summary.failed.push_back("set " + std::to_string(i) + ", camera " + camera + ": " +
                                  e.what());
-        csv << "," << frame_id << ",damaged,,";
+        csv << "," << frame_id << ",damaged,,,";
       }
     }
     if (event) {

@@ -39,9 +39,11 @@ struct ExportSummary {
 // are fitted through its mosaic and a wire format's words read as the take's: frame_source.h) and
 // OUT/sets.csv (set, trigger id, reference time, spread, then per camera frame id, status and
 // exposure (`<camera>_exposure`: the frame's exposure time x gain over the take's reference, as
-// `run` fits it, frame_source.h's ExposureOfFrame, and `<camera>_exposure_known`, 0 where that factor
-// is not known: a gain changed in a device's own units, a damaged record; a folder read back from
-// here is decoded and fitted at it, as the recording would be), empty when missing, "damaged"
+// `run` fits it, frame_source.h's ExposureOfFrame; `<camera>_exposure_known`, 0 where that
+// factor is not known: a gain changed in a device's own units, a damaged record; and
+// `<camera>_exposure_start`, its part that is the camera's start against the recording's first
+// camera's, StartExposureOfCamera; a folder read back from here is decoded and fitted at it, as
+// the recording would be), empty when missing, "damaged"
 // for a frame that is lost or fails its checksum; for an event
 // recording a last column `event`: "pre-trigger" for the ring's sets, the event's name on the
 // first set after its trigger). The recording is

@@ -185,7 +185,9 @@ std::vector<ExportedFormat> FrameFolderFormats(const fs::path& folder, const Rig
 }
 
 // The exposure factors an export's sets.csv gives, per set number, per rig camera: its
-// <camera>_exposure columns (ExposureOfFrame's ratio) and <camera>_exposure_known (0 where the
+// <camera>_exposure columns (ExposureOfFrame's ratio), <camera>_exposure_start (its part that is
+// the camera's start against the first camera's; 1 in exports before 2026-12-05) and
+// <camera>_exposure_known (0 where the
 // factor is not known: a gain changed in a device's own units, a damaged record); none for a
 // sets.csv without them (an export before 2026-12-04, StreamPix's). A row whose set number or
 // exposure is not one is kept as the error that reading that set raises (a DataError naming the
@@ -209,11 +211,13 @@ ExportedExposures ReadExportedExposures(const fs::path& sets_csv, const Rig& rig
     const auto it = std::find(header.begin(), header.end(), name);
     return it == header.end() ? -1 : static_cast<int>(it - header.begin());
   };
-  std::vector<int> ratio_column(rig.cameras.size()), known_column(rig.cameras.size());
+  std::vector<int> ratio_column(rig.cameras.size()), known_column(rig.cameras.size()),
+      start_column(rig.cameras.size());
   bool any = false;
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     ratio_column[c] = column_of(rig.cameras[c].name + "_exposure");
     known_column[c] = column_of(rig.cameras[c].name + "_exposure_known");
+    start_column[c] = column_of(rig.cameras[c].name + "_exposure_start");
     any = any || ratio_column[c] >= 0;
   }
   if (!any) return out;
@@ -236,31 +240,40 @@ ExportedExposures ReadExportedExposures(const fs::path& sets_csv, const Rig& rig
         return column >= 0 && static_cast<std::size_t>(column) < row.size() ? row[column]
                                                                             : std::string();
       };
-      const std::string ratio_cell = cell(ratio_column[c]), known_cell = cell(known_column[c]);
+      const std::string ratio_cell = cell(ratio_column[c]), known_cell = cell(known_column[c]),
+                        start_cell = cell(start_column[c]);
       if (ratio_cell.empty()) continue;  // no frame of it in that set
-      char* end = nullptr;
-      const double ratio = std::strtod(ratio_cell.c_str(), &end);
-      if (*end != '\0' || !(ratio >= 1 / kExposureRatioRange && ratio <= kExposureRatioRange)) {
-        wrong = at + name + "_exposure '" + ratio_cell + "' is not an exposure factor (" +
+      // A factor, or the error naming its cell.
+      const auto factor = [&](const std::string& text, const std::string& column, double* value) {
+        char* end = nullptr;
+        *value = std::strtod(text.c_str(), &end);
+        if (*end == '\0' && *value >= 1 / kExposureRatioRange && *value <= kExposureRatioRange)
+          return true;
+        wrong = at + name + column + " '" + text + "' is not an exposure factor (" +
                 fmt::format("{:g} to {:g}", 1 / kExposureRatioRange, kExposureRatioRange) + ")";
-        break;
-      }
+        return false;
+      };
+      double ratio = 1, start = 1;
+      if (!factor(ratio_cell, "_exposure", &ratio)) break;
+      if (!start_cell.empty() && !factor(start_cell, "_exposure_start", &start)) break;
       if (!known_cell.empty() && known_cell != "0" && known_cell != "1") {
         wrong = at + name + "_exposure_known '" + known_cell + "' is not 0 or 1";
         break;
       }
       FrameExposure& e = exposures[c];
       e.ratio = ratio;
+      e.start_ratio = start;
       e.unknown = known_cell == "0";
       if (e.unknown)
         e.note = fmt::format(
             "'s exposure changed by a factor its recording does not give ({}; {:.3g} applied, "
-            "the exposure time's)",
+            "the part it gives)",
             sets_csv.string(), ratio);
-      else if (std::abs(ratio - 1) > kExposureChange)
+      else if (std::abs(ratio / start - 1) > kExposureChange)
         e.note = fmt::format(
-            " exposed at {:.3g} times the take's exposure ({}): fitted at that exposure", ratio,
-            sets_csv.string());
+            " exposed at {:.3g} times its start ({}; {:.3g} times the take's exposure): fitted at "
+            "that exposure",
+            ratio / start, sets_csv.string(), ratio);
     }
     if (wrong.empty())
       out.sets[set] = std::move(exposures);
@@ -284,6 +297,7 @@ void ApplyExportedExposures(const ExportedExposures& exposures, std::size_t set,
   }
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     out->exposure_ratio[c] = it->second[c].ratio;
+    out->exposure_start_ratio[c] = it->second[c].start_ratio;
     out->exposure_unknown[c] = it->second[c].unknown;
     if (!it->second[c].note.empty()) out->notes.push_back(rig.cameras[c].name + it->second[c].note);
   }
@@ -398,23 +412,32 @@ double SettingsProduct(const CameraSettings& s, bool decibels) {
 StartExposure StartExposureOfCamera(const RecordingMetadata& metadata, int camera) {
   StartExposure out;
   const auto& cameras = metadata.cameras;
-  const RecordingCamera& rc = cameras.at(static_cast<std::size_t>(camera));
-  // The reference: the recording's first camera that records its settings.
-  std::size_t ref = 0;
+  const std::size_t me = static_cast<std::size_t>(camera);
+  const RecordingCamera& rc = cameras.at(me);
+  // The reference: the recording's first camera that records its settings; for the gain, the
+  // first that records it in dB (a camera in dB compares its gain with that one's, even when the
+  // reference's own gain is in a device's units).
+  std::size_t ref = 0, gain_ref = 0;
   while (ref < cameras.size() && !(SettingsProduct(cameras[ref].settings, false) > 0)) ++ref;
-  if (ref >= cameras.size() || ref == static_cast<std::size_t>(camera)) return out;
-  const bool decibels = GainInDecibels(metadata, camera) && GainInDecibels(metadata, int(ref));
-  const double mine = SettingsProduct(rc.settings, decibels),
-               theirs = SettingsProduct(cameras[ref].settings, decibels);
-  if (!(mine > 0)) return out;
-  const double ratio = mine / theirs;
+  while (gain_ref < cameras.size() && !(GainInDecibels(metadata, int(gain_ref)) &&
+                                        SettingsProduct(cameras[gain_ref].settings, true) > 0))
+    ++gain_ref;
+  if (ref >= cameras.size() || !(SettingsProduct(rc.settings, false) > 0)) return out;
+  const bool decibels = GainInDecibels(metadata, camera) && gain_ref < cameras.size() &&
+                        SettingsProduct(rc.settings, true) > 0;
+  const double gain_db = decibels ? rc.settings.gain_db - cameras[gain_ref].settings.gain_db : 0;
+  const double ratio =
+      rc.settings.exposure_us / cameras[ref].settings.exposure_us * std::pow(10.0, gain_db / 20);
   if (std::abs(ratio - 1) <= kExposureChange) return out;
-  const std::string settings =
-      fmt::format("{:g} us{}", rc.settings.exposure_us,
-                  decibels ? fmt::format(", {:g} dB", rc.settings.gain_db) : std::string());
-  const std::string reference = fmt::format(
-      "{}'s {:g} us{}", cameras[ref].name, cameras[ref].settings.exposure_us,
-      decibels ? fmt::format(", {:g} dB", cameras[ref].settings.gain_db) : std::string());
+  std::string settings = fmt::format("{:g} us", rc.settings.exposure_us),
+              reference =
+                  fmt::format("{}'s {:g} us", cameras[ref].name, cameras[ref].settings.exposure_us);
+  if (decibels) {
+    settings += fmt::format(", {:g} dB", rc.settings.gain_db);
+    reference += gain_ref == ref ? fmt::format(", {:g} dB", cameras[ref].settings.gain_db)
+                                 : fmt::format(" and {}'s {:g} dB", cameras[gain_ref].name,
+                                               cameras[gain_ref].settings.gain_db);
+  }
   if (!(ratio >= 1 / kExposureRatioRange && ratio <= kExposureRatioRange)) {
     out.note = fmt::format(
         " started at {} against {}: a factor of {:g}, not believed (a damaged record?), so not "
@@ -423,14 +446,15 @@ StartExposure StartExposureOfCamera(const RecordingMetadata& metadata, int camer
     return out;
   }
   out.ratio = ratio;
+  const bool uncompared = !decibels && rc.settings.gain_db != cameras[ref].settings.gain_db;
   out.note = fmt::format(
       " started at {}, {:.3g} times {} (the take's exposure is its start's){}: fitted at that "
       "exposure",
       settings, ratio, reference,
-      decibels || rc.settings.gain_db == cameras[ref].settings.gain_db
-          ? std::string()
-          : fmt::format("; its gain {:g} against {:g} is in a device's own units, not compared",
-                        rc.settings.gain_db, cameras[ref].settings.gain_db));
+      uncompared ? fmt::format("; its gain {:g} against {:g} is in a device's own units, not "
+                               "compared",
+                               rc.settings.gain_db, cameras[ref].settings.gain_db)
+                 : std::string());
   return out;
 }
 
@@ -448,8 +472,10 @@ FrameExposure ExposureOfFrame(const RecordingMetadata& metadata, int camera,
   const double ratio = frame.exposure_us / start.exposure_us *
                        (decibels ? std::pow(10.0, (frame.gain_db - start.gain_db) / 20.0) : 1.0);
   const bool gain_changed = frame.gain_db != start.gain_db;
-  const bool believed =
-      ratio >= 1 / kExposureRatioRange && ratio <= kExposureRatioRange;  // false for NaN
+  // The whole factor too, as an export's sets.csv is read back (false for NaN).
+  const bool believed = ratio >= 1 / kExposureRatioRange && ratio <= kExposureRatioRange &&
+                        out.start_ratio * ratio >= 1 / kExposureRatioRange &&
+                        out.start_ratio * ratio <= kExposureRatioRange;
   if (believed) out.ratio = out.start_ratio * ratio;
   out.unknown = !believed || (!decibels && gain_changed);
   if (!believed)

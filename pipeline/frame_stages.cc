@@ -148,7 +148,7 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
         << (exposure_known_ ? " known" : " unknown") << (options_.fit_exposure ? " fitted" : "")
         << ", held out '" << options_.holdout_camera << "', warm_start " << options_.warm_start
         << ", sigma " << options_.sigma << ", input_transfer '" << options_.input_transfer
-        << "', per-frame exposure; " << f.Key();
+        << "', per-frame exposure against the first camera's start; " << f.Key();
     fit_key_ = key.str();
   }
   for (const char* sub : {"frames", "tomography", "state"})

@@ -138,8 +138,8 @@ class FrameStages {
   // result), as RunOptions::warm_start says.
   bool WarmStart() const;
   // Rig camera c's response for set `set`: its own at the frame's exposure (SourceFrameSet::
-  // exposure_ratio, ChannelResponse::Exposed), so that a camera re-exposed while recording is
-  // fitted as it recorded.
+  // exposure_ratio, ChannelResponse::Exposed), so that a camera started at other settings than
+  // the recording's first, or re-exposed while recording, is fitted as it recorded.
   std::shared_ptr<const ChannelResponse> ResponseOf(const SourceFrameSet& set, std::size_t c) const;
   std::unique_ptr<Reconstructor> reconstructor_;
   std::unique_ptr<BandReconstructor> band_reconstructor_;  // null unless the rig has bands

@@ -72,8 +72,10 @@ struct RunOptions {
   std::string out_dir;
   std::size_t first = 0;                // first frame set
   std::size_t count = ~std::size_t(0);  // how many (clipped to the source)
-  // The exposure the images were taken with, in the renderer's units; 0 = the rig's dataset.yaml
-  // when it says, else unknown. A known exposure is the tomography's and the fit holds it, so
+  // The exposure the images were taken with, in the renderer's units (a recording's: its first
+  // camera's at its start settings; every camera is fitted at its own against that,
+  // frame_source.h's StartExposureOfCamera); 0 = the rig's dataset.yaml when it says, else
+  // unknown. A known exposure is the tomography's and the fit holds it, so
   // that densities are absolute and comparable across frames. An unknown one: the tomography
   // takes 1, the take's first computed frame fits the exposure and the frames after it hold
   // that (one exposure per take, not per frame: a steady fire stays steady).

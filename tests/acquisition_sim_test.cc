@@ -365,12 +365,13 @@ TEST(SimCamera, ReplayingCamerasConfiguredApartShowTheirOwnExposure) {
     WritePng16((dir / "deep" / "frames" / "frame_000000" / (std::string(cam) + ".png")).string(),
                ImageU16(16, 16, 3, 300));
   }
-  const auto yaml = [&](const char* dataset, const char* format, int cam1_exposure_us) {
+  const auto yaml = [&](const char* dataset, const char* format, int cam1_exposure_us,
+                        int cam0_exposure_us = 10000) {
     std::string y = "data_dir: rec\nsync: free-run\ncameras:\n";
     for (int c = 0; c < 2; ++c)
       y += "  - {name: cam" + std::to_string(c) +
            ", width: 16, height: 16, pixel_format: " + format +
-           ", exposure_us: " + std::to_string(c == 0 ? 10000 : cam1_exposure_us) +
+           ", exposure_us: " + std::to_string(c == 0 ? cam0_exposure_us : cam1_exposure_us) +
            ", frame_rate_hz: 100, sim: {replay: " + (dir / dataset).string() + "}}\n";
     return y;
   };
@@ -397,21 +398,28 @@ TEST(SimCamera, ReplayingCamerasConfiguredApartShowTheirOwnExposure) {
                   0.5 + 1e-9)
           << i;
   }
-  // Another config's cameras do not share apart's reference.
-  const CaptureConfig alone =
-      CaptureConfig::Parse(yaml("rgb", "RGB8", 5000), (dir / "alone.yaml").string());
-  {
-    auto cameras = MakeCameras(alone, {&clock, nullptr});
-    CameraSettings s = alone.cameras[1].settings;
-    cameras[1]->Configure(s);
-    cameras[1]->Start(2);
-    std::optional<Frame> f = cameras[1]->Pop(2'000'000'000);
-    ASSERT_TRUE(f);
-    // Not apart's reference: the config's first camera is not configured, so the second's
-    // first frame is, and it shows the dataset as it is.
-    EXPECT_EQ(*f->data, srgb.pixels);
-    cameras[1]->Stop();
-  }
+  // The first camera's configured settings hold from the config's reading: before it is
+  // configured, and when it never is (a deferred camera, not there at arming).
+  const CaptureConfig late =
+      CaptureConfig::Parse(yaml("rgb", "RGB8", 5000), (dir / "late.yaml").string());
+  const auto halved = [&](const std::vector<std::uint8_t>& got) {
+    if (got.size() != srgb.pixels.size()) return false;
+    for (std::size_t i = 0; i < got.size(); ++i)
+      if (std::abs(got[i] - 255 * SrgbCurveEncode(0.5 * SrgbCurveDecode(srgb.pixels[i] / 255.0))) >
+          0.5 + 1e-9)
+        return false;
+    return true;
+  };
+  EXPECT_TRUE(halved(frame_of(late, {1}, 1)));
+  // Another config's cameras (or the same file read again) do not share apart's reference: with
+  // both cameras at 5000 us, the second shows the dataset as it is.
+  const CaptureConfig other =
+      CaptureConfig::Parse(yaml("rgb", "RGB8", 5000, 5000), (dir / "other.yaml").string());
+  EXPECT_EQ(frame_of(other, {1}, 1), srgb.pixels);
+  const CaptureConfig again =
+      CaptureConfig::Parse(yaml("rgb", "RGB8", 5000, 5000), (dir / "apart.yaml").string());
+  EXPECT_EQ(frame_of(again, {1}, 1), srgb.pixels);
+  EXPECT_TRUE(halved(frame_of(apart, {1}, 1)));  // apart's cameras keep theirs
   // A deeper dataset: the same settings replay, others are refused.
   const CaptureConfig deep_same =
       CaptureConfig::Parse(yaml("deep", "Mono16", 10000), (dir / "deep_same.yaml").string());

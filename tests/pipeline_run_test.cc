@@ -21,6 +21,7 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <numeric>
 #include <random>
 #include <sstream>
 #include <thread>
@@ -1610,12 +1611,13 @@ TEST(RunDistributed, TwoRanksAsThreadsShareTheFramesAndOneReport) {
 // Records the first `sets` frame sets of a dataset's three 120x90 cameras into `rec_dir` as a
 // hardware-triggered take in `format` (RGB8, or a Bayer mosaic of the dataset's pixels: 8-bit, or
 // 16-bit words of a deeper camera's codes); `frame(s, c, &f)` sees every frame before it is
-// submitted, may change it, and returns false to drop it; `start(c, &settings)` may change
-// camera c's settings at the recording's start (the settings' defaults: 10000 us, 0 dB).
+// submitted, may change it, and returns false to drop it; `start(&metadata)` may change the
+// recording's metadata (the cameras' settings at its start: the defaults' 10000 us, 0 dB; their
+// drivers; features) before it starts.
 void RecordDataset(const fs::path& dataset, const Rig& rig, const fs::path& rec_dir, int sets,
                    PixelFormat format, const std::function<bool(int, int, Frame*)>& frame,
                    const std::string& driver = "sim",
-                   const std::function<void(int, CameraSettings*)>& start = nullptr) {
+                   const std::function<void(RecordingMetadata*)>& start = nullptr) {
   RecordingMetadata meta;
   meta.sync_mode = "hardware-trigger";
   for (const auto& c : rig.cameras) {
@@ -1625,9 +1627,9 @@ void RecordDataset(const fs::path& dataset, const Rig& rig, const fs::path& rec_
     rc.settings.width = 120;
     rc.settings.height = 90;
     rc.settings.pixel_format = format;
-    if (start) start(static_cast<int>(meta.cameras.size()), &rc.settings);
     meta.cameras.push_back(rc);
   }
+  if (start) start(&meta);
   const BayerLayout layout = BayerLayoutOf(format);
   Recorder recorder(rec_dir.string(), meta);
   for (int s = 0; s < sets; ++s) {
@@ -1825,9 +1827,9 @@ TEST(FrameSource, ACameraStartedAtOtherSettingsIsDecodedAtItsOwn) {
   const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
   // cam0 (the reference) at 10000 us, 0 dB; cam1 at 5000 us; cam2 at 10000 us and 6 dB, and its
   // exposure time changed to 8000 us on set 1.
-  const auto start = [](int c, CameraSettings* s) {
-    if (c == 1) s->exposure_us = 5000;
-    if (c == 2) s->gain_db = 6;
+  const auto start = [](RecordingMetadata* m) {
+    m->cameras[1].settings.exposure_us = 5000;
+    m->cameras[2].settings.gain_db = 6;
   };
   const auto frames = [](int s, int c, Frame* f) {
     f->info.exposure_us = c == 1 ? 5000 : 10000;
@@ -1880,6 +1882,41 @@ TEST(FrameSource, ACameraStartedAtOtherSettingsIsDecodedAtItsOwn) {
   const SourceFrameSet back = FrameSource(png_spec, rig).Read(1, 1.0);
   EXPECT_NEAR(back.exposure_ratio[1], 0.5, 1e-9);
   EXPECT_NEAR(back.exposure_ratio[2], six_db * 0.8, 1e-8);
+  EXPECT_NEAR(back.exposure_start_ratio[1], 0.5, 1e-9);
+  EXPECT_NEAR(back.exposure_start_ratio[2], six_db, 1e-8);
+  ASSERT_EQ(back.notes.size(), 1u);  // cam2's own change only, as from the recording
+  EXPECT_NE(back.notes[0].find(rig.cameras[2].name + " exposed at 0.8 times its start"),
+            std::string::npos)
+      << back.notes[0];
+  // Aravis cameras, the first one's gain in the device's units (GainRaw) and the others' in dB
+  // (GenICam's Gain): the exposure times compare with the first camera's, the gains in dB with the
+  // first camera that gives one (cam1), so cam2's 6 dB over cam1's 0 counts.
+  RecordDataset(
+      dir / "sim", rig, dir / "rec_aravis", 1, PixelFormat::kRgb8,
+      [](int, int c, Frame* f) {
+        f->info.exposure_us = 10000;
+        f->info.gain_db = c == 2 ? 6 : c == 0 ? 3 : 0;
+        return true;
+      },
+      "aravis",
+      [](RecordingMetadata* m) {
+        m->cameras[0].settings.gain_db = 3;  // GainRaw 3
+        m->cameras[2].settings.gain_db = 6;
+        for (int c : {1, 2}) m->features[m->cameras[c].name + ".Gain"] = "0";
+      });
+  FrameSourceSpec aravis_spec;
+  aravis_spec.recording_dir = (dir / "rec_aravis").string();
+  const FrameSource aravis(aravis_spec, rig);
+  const SourceFrameSet mixed = aravis.Read(0, 1.0);
+  EXPECT_EQ(mixed.exposure_ratio[0], 1.0);
+  EXPECT_EQ(mixed.exposure_ratio[1], 1.0);
+  EXPECT_NEAR(mixed.exposure_ratio[2], six_db, 1e-12);
+  ASSERT_EQ(aravis.notes().size(), 1u);
+  EXPECT_NE(aravis.notes()[0].find(rig.cameras[2].name + " started at 10000 us, 6 dB, 2 times " +
+                                   rig.cameras[0].name + "'s 10000 us and " + rig.cameras[1].name +
+                                   "'s 0 dB"),
+            std::string::npos)
+      << aravis.notes()[0];
   // V4L2 cameras: the exposure times compare, gains in the device's own units do not (cam2's 6
   // against cam0's 0 is not a factor of 2), and the note says so.
   RecordDataset(dir / "sim", rig, dir / "rec_v4l2", 1, PixelFormat::kRgb8, frames, "v4l2", start);
@@ -1899,9 +1936,7 @@ TEST(FrameSource, ACameraStartedAtOtherSettingsIsDecodedAtItsOwn) {
   RecordDataset(
       dir / "sim", rig, dir / "rec_damaged", 1, PixelFormat::kRgb8,
       [](int, int, Frame*) { return true; }, "sim",
-      [](int c, CameraSettings* s) {
-        if (c == 1) s->exposure_us = 1e12;
-      });
+      [](RecordingMetadata* m) { m->cameras[1].settings.exposure_us = 1e12; });
   FrameSourceSpec damaged_spec;
   damaged_spec.recording_dir = (dir / "rec_damaged").string();
   const FrameSource damaged(damaged_spec, rig);
@@ -1944,8 +1979,8 @@ TEST(RunFrames, ACameraReExposedWhileRecordingIsFittedAtItsOwnExposure) {
           return true;
         },
         "sim",
-        [&](int c, CameraSettings* settings) {
-          if (c == 1 && started) settings->exposure_us = 5000;
+        [&](RecordingMetadata* m) {
+          if (started) m->cameras[1].settings.exposure_us = 5000;
         });
     RunOptions o = SmallRun(dir / "sim", dir / (std::string(name) + "_out"));
     o.source = FrameSourceSpec();
@@ -2094,6 +2129,7 @@ TEST(RunFrames, CamerasConfiguredAtDifferentExposuresAreFittedAtTheirOwn) {
   const fs::path dir = TempDir("exposures_apart");
   SimulateDataset(dir / "sim", 2);
   const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
+  std::map<std::string, std::map<int, std::vector<double>>> recorded;
   const auto record = [&](const char* name, int cam1_exposure_us) {
     std::string yaml = "data_dir: " + (dir / name).string() +
                        "\nsync: software-trigger\ntrigger_rate_hz: 10\ncameras:\n";
@@ -2117,6 +2153,14 @@ TEST(RunFrames, CamerasConfiguredAtDifferentExposuresAreFittedAtTheirOwn) {
     FrameSourceSpec spec;
     spec.recording_dir = take;
     const FrameSource source(spec, rig);
+    // What each camera recorded of sets 0 and 1 (the dataset's two frames, in some order): the
+    // sums of their linear signals (no exposure applied), by dataset frame.
+    for (std::size_t i = 0; i < 2; ++i) {
+      const SourceFrameSet set = source.Read(i, 1.0);
+      std::vector<double>& light = recorded[name][static_cast<int>(set.frame_id % 2)];
+      for (const ImageF& signal : set.signal)
+        light.push_back(std::accumulate(signal.pixels.begin(), signal.pixels.end(), 0.0));
+    }
     RunOptions o = SmallRun(dir / "sim", dir / (std::string(name) + "_out"));
     o.source = spec;
     o.sigma = o.blender = o.pictures = false;
@@ -2127,6 +2171,18 @@ TEST(RunFrames, CamerasConfiguredAtDifferentExposuresAreFittedAtTheirOwn) {
   };
   const auto [alike, alike_notes] = record("alike", 10000);
   const auto [apart, apart_notes] = record("apart", 5000);
+  // cam1 recorded half the light of the same dataset frame (the replay's sRGB round trip: within
+  // 2%), the other cameras the same.
+  for (int frame : {0, 1}) {
+    const std::vector<double>&a = recorded["alike"][frame], &b = recorded["apart"][frame];
+    ASSERT_EQ(a.size(), 3u);
+    ASSERT_EQ(b.size(), 3u);
+    std::printf("recorded light of dataset frame %d, apart over alike: %.4f %.4f %.4f\n", frame,
+                b[0] / a[0], b[1] / a[1], b[2] / a[2]);
+    EXPECT_NEAR(b[0] / a[0], 1.0, 1e-9);
+    EXPECT_NEAR(b[1] / a[1], 0.5, 0.01);
+    EXPECT_NEAR(b[2] / a[2], 1.0, 1e-9);
+  }
   EXPECT_TRUE(alike_notes.empty());
   ASSERT_EQ(apart_notes.size(), 1u);
   EXPECT_NE(apart_notes[0].find(rig.cameras[1].name + " started at 5000 us, 0 dB, 0.5 times"),
