@@ -2,6 +2,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -10,6 +11,7 @@
 #include "core/atomic_file.h"
 #include "core/config_reader.h"
 #include "core/error.h"
+#include "core/format.h"
 
 namespace flamerig {
 namespace {
@@ -63,9 +65,15 @@ Rig Rig::Load(const std::string& yaml_path) {
 namespace {
 
 Rig ReadRig(const YAML::Node& r, const std::string& yaml_path) {
-  CheckKeys(r, {"name", "up", "box", "cameras"}, yaml_path + ": rig");
+  CheckKeys(r, {"name", "up", "box", "exposure_unit_us", "cameras"}, yaml_path + ": rig");
   Rig rig;
   if (r["name"]) rig.name = r["name"].as<std::string>();
+  if (r["exposure_unit_us"]) {
+    rig.exposure_unit_us = r["exposure_unit_us"].as<double>();
+    if (!(rig.exposure_unit_us > 0) || !std::isfinite(rig.exposure_unit_us))
+      Fail(yaml_path, "rig.exposure_unit_us",
+           "must be a finite time > 0 in microseconds, got " + r["exposure_unit_us"].Scalar());
+  }
   if (r["up"]) {
     rig.up_in_rig = ReadVector3(r["up"], yaml_path, "rig.up");
     if (rig.up_in_rig.norm() < 1e-12) Fail(yaml_path, "rig.up", "must not be the zero vector");
@@ -125,6 +133,8 @@ void Rig::Save(const std::string& yaml_path) const {
   out << YAML::Key << "max" << YAML::Value << YAML::Flow
       << std::vector<double>{box.max_in_rig.x(), box.max_in_rig.y(), box.max_in_rig.z()};
   out << YAML::EndMap;
+  if (exposure_unit_us > 0)  // exactly: a run's exposure is the settings over it
+    out << YAML::Key << "exposure_unit_us" << YAML::Value << FormatNumber(exposure_unit_us, 17);
   out << YAML::Key << "cameras" << YAML::Value << YAML::BeginSeq;
   for (const RigCamera& c : cameras) {
     std::string model_path =

@@ -10,6 +10,9 @@
 //     box:                          # reconstruction box in the rig frame, metres
 //       min: [-0.05, 0.0, -0.05]
 //       max: [ 0.05, 0.15, 0.05]
+//     exposure_unit_us: 2000        # optional: the exposure time (us, at 0 dB) that a fit's
+//                                   # exposure 1 stands for, from a radiometric calibration whose
+//                                   # shots gave their exposure times
 //     cameras:
 //       - name: cam0                # unique; used to name images and outputs
 //         model: cameras/cam0.cameramodel
@@ -54,6 +57,11 @@ struct Rig {
   Eigen::Vector3d up_in_rig = Eigen::Vector3d::UnitY();
   Box3 box;
   std::vector<RigCamera> cameras;
+  // The exposure time in microseconds, at 0 dB of gain, that the renderer's exposure 1 stands for
+  // in the cameras' radiometric gains: set by `flamerig calibrate-radiometry` when its shots give
+  // their exposure times (pipeline/radiometric_calibration.h); 0 when the rig does not know. With
+  // it a recording's exposure is known from its first camera's settings at the start (`run`).
+  double exposure_unit_us = 0;
 
   // Index of the camera called `name`, or -1.
   int FindCamera(const std::string& camera_name) const;

@@ -407,7 +407,21 @@ double SettingsProduct(const CameraSettings& s, bool decibels) {
   return s.exposure_us * (decibels ? std::pow(10.0, s.gain_db / 20.0) : 1.0);
 }
 
+// The take's reference camera: the recording's first that records its settings; the number of
+// cameras when none does.
+std::size_t ReferenceCamera(const RecordingMetadata& metadata) {
+  std::size_t ref = 0;
+  while (ref < metadata.cameras.size() &&
+         !(SettingsProduct(metadata.cameras[ref].settings, false) > 0))
+    ++ref;
+  return ref;
+}
+
 }  // namespace
+
+double ExposureReference::exposure_us_at_0db() const {
+  return exposure_us * (gain_in_db ? std::pow(10.0, gain_db / 20.0) : 1.0);
+}
 
 StartExposure StartExposureOfCamera(const RecordingMetadata& metadata, int camera) {
   StartExposure out;
@@ -417,8 +431,8 @@ StartExposure StartExposureOfCamera(const RecordingMetadata& metadata, int camer
   // The reference: the recording's first camera that records its settings; for the gain, the
   // first that records it in dB (a camera in dB compares its gain with that one's, even when the
   // reference's own gain is in a device's units).
-  std::size_t ref = 0, gain_ref = 0;
-  while (ref < cameras.size() && !(SettingsProduct(cameras[ref].settings, false) > 0)) ++ref;
+  const std::size_t ref = ReferenceCamera(metadata);
+  std::size_t gain_ref = 0;
   while (gain_ref < cameras.size() && !(GainInDecibels(metadata, int(gain_ref)) &&
                                         SettingsProduct(cameras[gain_ref].settings, true) > 0))
     ++gain_ref;
@@ -608,6 +622,19 @@ FrameSource& FrameSource::operator=(FrameSource&&) noexcept = default;
 
 std::size_t FrameSource::num_sets() const { return impl_->sets; }
 const std::vector<std::string>& FrameSource::notes() const { return impl_->notes; }
+
+std::optional<ExposureReference> FrameSource::exposure_reference() const {
+  if (!impl_->recording) return std::nullopt;
+  const RecordingMetadata& metadata = impl_->recording->metadata();
+  const std::size_t ref = ReferenceCamera(metadata);
+  if (ref >= metadata.cameras.size()) return std::nullopt;
+  ExposureReference out;
+  out.camera = metadata.cameras[ref].name;
+  out.exposure_us = metadata.cameras[ref].settings.exposure_us;
+  out.gain_db = metadata.cameras[ref].settings.gain_db;
+  out.gain_in_db = GainInDecibels(metadata, static_cast<int>(ref));
+  return out;
+}
 
 SourceFrameSet FrameSource::Read(std::size_t i, double exposure) const {
   if (i >= impl_->sets)

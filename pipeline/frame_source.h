@@ -21,6 +21,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -62,6 +63,16 @@ struct RecordingMetadata;
 // settings, and where the factor lies beyond kExposureRatioRange (a damaged record: not applied,
 // and the note says so). The note (to follow the camera's name) is empty within kExposureChange
 // of 1.
+// The camera whose settings at a recording's start the take's exposure is, and those settings;
+// its gain counts where it is in dB (gain_in_db).
+struct ExposureReference {
+  std::string camera;
+  double exposure_us = 0, gain_db = 0;
+  bool gain_in_db = false;
+  // exposure_us x (10^(gain_db / 20) where gain_in_db), in microseconds at 0 dB
+  double exposure_us_at_0db() const;
+};
+
 struct StartExposure {
   double ratio = 1;
   std::string note;
@@ -145,6 +156,9 @@ class FrameSource {
   SourceFrameSet Read(std::size_t i, double exposure) const;
   // Notes about the whole source (a recovered recording's ignored tail, ...).
   const std::vector<std::string>& notes() const;
+  // A recording's exposure reference (StartExposureOfCamera's): none for other sources, or for a
+  // recording whose cameras record no settings.
+  std::optional<ExposureReference> exposure_reference() const;
 
  private:
   struct Impl;

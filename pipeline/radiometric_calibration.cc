@@ -610,7 +610,15 @@ RadiometricShots RadiometricShots::Load(const std::string& path) {
   };
   try {
     // A misspelt key would silently keep its default (an emissivity of 0.98, an automatic region).
-    CheckKeys(root, {"source", "region", "shots"}, path);
+    CheckKeys(root, {"source", "region", "exposure_unit_us", "shots"}, path);
+    if (root["exposure_unit_us"]) {
+      s.exposure_unit_us = number(root["exposure_unit_us"], path + ": exposure_unit_us");
+      if (!(s.exposure_unit_us > 0) || !std::isfinite(s.exposure_unit_us))
+        throw InputError(path +
+                         ": exposure_unit_us: must be a finite time > 0 in microseconds, "
+                         "got " +
+                         FormatNumber(s.exposure_unit_us, 4));
+    }
     if (const YAML::Node source = root["source"]) {
       CheckKeys(source, {"kind", "emissivity"}, path + ": source");
       const std::string kind = source["kind"] ? source["kind"].as<std::string>() : "blackbody";
@@ -633,15 +641,39 @@ RadiometricShots RadiometricShots::Load(const std::string& path) {
     for (std::size_t i = 0; i < list.size(); ++i) {
       const YAML::Node n = list[i];
       const std::string where = path + ": shots[" + std::to_string(i) + "]";
-      CheckKeys(n, {"camera", "image", "temperature_k", "exposure", "region"}, where);
-      for (const char* key : {"camera", "image", "temperature_k", "exposure"})
+      CheckKeys(
+          n, {"camera", "image", "temperature_k", "exposure", "exposure_us", "gain_db", "region"},
+          where);
+      for (const char* key : {"camera", "image", "temperature_k"})
         if (!n[key]) throw InputError(where + ": missing '" + key + "'");
+      if (!n["exposure"] == !n["exposure_us"])
+        throw InputError(where +
+                         ": give one of 'exposure' (the renderer's units) and "
+                         "'exposure_us' (the camera's exposure time, with gain_db)");
+      if (n["gain_db"] && !n["exposure_us"])
+        throw InputError(where + ": 'gain_db' goes with 'exposure_us'");
       RadiometricShot shot;
       shot.camera = n["camera"].as<std::string>();
       const fs::path image = n["image"].as<std::string>();
       shot.image = (image.is_absolute() ? image : base / image).string();
       shot.temperature_k = number(n["temperature_k"], where + ": temperature_k");
-      shot.exposure = number(n["exposure"], where + ": exposure");
+      if (n["exposure_us"]) {
+        if (!(s.exposure_unit_us > 0))
+          throw InputError(where +
+                           ": exposure_us needs the file's exposure_unit_us (the "
+                           "exposure time at 0 dB that exposure 1 stands for)");
+        shot.exposure_us = number(n["exposure_us"], where + ": exposure_us");
+        if (n["gain_db"]) shot.gain_db = number(n["gain_db"], where + ": gain_db");
+        if (!(shot.exposure_us > 0) || !std::isfinite(shot.exposure_us))
+          throw InputError(where + ": exposure_us: must be finite and > 0, got " +
+                           FormatNumber(shot.exposure_us, 4));
+        if (!(shot.gain_db >= -100 && shot.gain_db <= 100))
+          throw InputError(where + ": gain_db: must be in -100..100, got " +
+                           FormatNumber(shot.gain_db, 4));
+        shot.exposure = shot.exposure_us * std::pow(10.0, shot.gain_db / 20) / s.exposure_unit_us;
+      } else {
+        shot.exposure = number(n["exposure"], where + ": exposure");
+      }
       if (!(shot.temperature_k >= 500 && shot.temperature_k <= 4000))
         throw InputError(where + ": temperature_k: must be in 500..4000 K, got " +
                          FormatNumber(shot.temperature_k, 4));
@@ -676,12 +708,17 @@ void RadiometricShots::Save(const std::string& path) const {
   };
   y << YAML::Key << "region" << YAML::Value;
   region_value(region);
+  if (exposure_unit_us > 0) y << YAML::Key << "exposure_unit_us" << YAML::Value << exposure_unit_us;
   y << YAML::Key << "shots" << YAML::Value << YAML::BeginSeq;
   for (const RadiometricShot& s : shots) {
     y << YAML::Flow << YAML::BeginMap << YAML::Key << "camera" << YAML::Value << s.camera
       << YAML::Key << "image" << YAML::Value << fs::relative(s.image, base).string() << YAML::Key
-      << "temperature_k" << YAML::Value << s.temperature_k << YAML::Key << "exposure" << YAML::Value
-      << s.exposure;
+      << "temperature_k" << YAML::Value << s.temperature_k;
+    if (s.exposure_us > 0)
+      y << YAML::Key << "exposure_us" << YAML::Value << s.exposure_us << YAML::Key << "gain_db"
+        << YAML::Value << s.gain_db;
+    else
+      y << YAML::Key << "exposure" << YAML::Value << s.exposure;
     if (s.region[2] > 0) {
       y << YAML::Key << "region" << YAML::Value;
       region_value(s.region);
@@ -714,6 +751,7 @@ RadiometricCalibration CalibrateRadiometry(const Rig& rig, const RadiometricShot
   }
   RadiometricCalibration out;
   out.lamp = shots.source == RadiometricShots::Source::kLamp;
+  out.exposure_unit_us = shots.exposure_unit_us;
   for (std::size_t c = 0; c < rig.cameras.size(); ++c) {
     if (per_camera[c].empty()) continue;
     CameraRadiometricResult result;
@@ -735,6 +773,9 @@ RadiometricCalibration CalibrateRadiometry(const Rig& rig, const RadiometricShot
 
 Rig ApplyRadiometricCalibration(const Rig& rig, const RadiometricCalibration& calibration) {
   Rig out = rig;
+  // A lamp's gains hold their ratios, not their scale: its unit would not make a known exposure.
+  if (calibration.exposure_unit_us > 0 && !calibration.lamp)
+    out.exposure_unit_us = calibration.exposure_unit_us;
   for (const CameraRadiometricResult& r : calibration.cameras)
     for (RigCamera& c : out.cameras)
       if (c.name == r.camera) c.radiometry = r.after;
@@ -768,6 +809,14 @@ std::string RadiometricCalibration::Report() const {
     << "Each camera's gains, black level (and gamma) fitted to its images of a "
     << (lamp ? "lamp (the gains' ratios only)" : "black body")
     << " at several exposures (pipeline/radiometric_calibration.h).\n\n"
+    << (exposure_unit_us > 0 && !lamp
+            ? "Exposure 1 stands for " + FormatNumber(exposure_unit_us) +
+                  " us at 0 dB (the shots' exposure_unit_us), and the rig keeps it: `flamerig "
+                  "run` knows a recording's exposure from its first camera's settings.\n\n"
+        : exposure_unit_us > 0
+            ? "The shots' exposure_unit_us is not kept: a lamp fixes the gains' ratios, not "
+              "their scale, so a recording's exposure is not known from its settings.\n\n"
+            : std::string())
     << "| camera | spectral | gain before | gain after | black before | black after | gamma | rms "
        "(DN) | shot channels | dark pixels (DN) | spectral check |\n"
     << "|---|---|---|---|---|---|---|---|---|---|---|\n";

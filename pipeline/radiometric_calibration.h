@@ -57,9 +57,20 @@
 //
 //   source: {kind: blackbody, emissivity: 0.99}   # kind: blackbody | lamp
 //   region: auto                                  # or [x, y, width, height]
+//   exposure_unit_us: 2000                        # optional: what exposure 1 stands for
 //   shots:
 //     - {camera: cam0, image: cam0_1500K_1.png, temperature_k: 1500, exposure: 0.25}
+//     - {camera: cam1, image: cam1_1500K_1.png, temperature_k: 1500, exposure_us: 500,
+//        gain_db: 0}
 //     - ...
+//
+// A shot gives its exposure in the renderer's units (`exposure`), or as the camera's exposure
+// time in microseconds and gain in dB (`exposure_us`, `gain_db`, default 0), which needs the
+// file's `exposure_unit_us`: the exposure time at 0 dB that exposure 1 stands for, so that a
+// shot's exposure is exposure_us x 10^(gain_db / 20) / exposure_unit_us. The calibrated rig keeps
+// that unit (Rig::exposure_unit_us), and `flamerig run` then knows a recording's exposure from its
+// first camera's settings at the start, with no `--exposure`: the calibration's gains hold for the
+// fire in the same units.
 //
 // `flamerig simulate` writes such a file and its images (radiometry/shots.yaml) when its config
 // has `radiometric_calibration:` (simulate.h). Errors name the file, the shot and the rule
@@ -82,7 +93,10 @@ struct RadiometricShot {
   std::string camera;
   std::string image;  // absolute, or relative to the working directory once loaded
   double temperature_k = 0;
-  double exposure = 0;
+  double exposure =
+      0;  // in the renderer's units (from exposure_us and gain_db when they are given)
+  double exposure_us = 0;  // the camera's exposure time as the file gave it; 0 = `exposure` given
+  double gain_db = 0;
   std::array<int, 4> region{0, 0, 0, 0};  // x, y, width, height; width 0 = the file's or auto
 };
 
@@ -91,6 +105,7 @@ struct RadiometricShots {
   Source source = Source::kBlackbody;
   double emissivity = 1.0;                // black body only
   std::array<int, 4> region{0, 0, 0, 0};  // width 0 = auto
+  double exposure_unit_us = 0;            // what exposure 1 stands for; 0 = not given
   std::vector<RadiometricShot> shots;
   std::string path;  // the file read, for messages
 
@@ -144,8 +159,9 @@ struct RadiometricCalibration {
   std::vector<CameraRadiometricResult> cameras;  // in rig order, cameras with shots only
   std::vector<RadiometricShotResult> shots;
   bool lamp = false;
-  std::string Report() const;  // markdown: per camera before/after, the check, the shots
-  std::string Brief() const;   // a few lines for the terminal
+  double exposure_unit_us = 0;  // the shots file's (RadiometricShots::exposure_unit_us)
+  std::string Report() const;   // markdown: per camera before/after, the check, the shots
+  std::string Brief() const;    // a few lines for the terminal
   void WriteCsv(const std::string& path) const;  // one row per shot and channel
 };
 
@@ -156,7 +172,9 @@ struct RadiometricCalibration {
 RadiometricCalibration CalibrateRadiometry(const Rig& rig, const RadiometricShots& shots,
                                            const RadiometricOptions& options);
 
-// The rig with every calibrated camera's model replaced by its fitted one.
+// The rig with every calibrated camera's model replaced by its fitted one, and the shots' exposure
+// unit when they gave one (Rig::exposure_unit_us; not for a lamp, whose gains' scale is not
+// calibrated).
 Rig ApplyRadiometricCalibration(const Rig& rig, const RadiometricCalibration& calibration);
 
 // `flamerig calibrate-radiometry`: calibrates and writes OUT/rig.yaml (with the camera models),

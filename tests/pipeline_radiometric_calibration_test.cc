@@ -12,8 +12,10 @@
 #include <fstream>
 
 #include "calibration/synthetic_rig.h"
+#include "core/atomic_file.h"
 #include "core/error.h"
 #include "core/format.h"
+#include "core/read_file.h"
 #include "fitting/camera_response.h"
 #include "fitting/colour.h"
 #include "pipeline/fit_job.h"
@@ -124,6 +126,76 @@ TEST(RadiometricCalibration, RecoversTheGainsAndBlackLevelOfALinearCamera) {
   const Rig back = Rig::Load((dir / "out" / "rig.yaml").string());
   EXPECT_NEAR(back.cameras[0].radiometry.gain[2], r.after.gain[2], 1e-6 * r.after.gain[2]);
   EXPECT_NEAR(back.cameras[0].radiometry.black_level, r.after.black_level, 1e-6);
+  fs::remove_all(dir);
+}
+
+// Shots given as the camera took them (exposure time in us and gain in dB) with the file's
+// exposure unit: each shot's exposure is exposure_us x 10^(gain_db / 20) / unit, so the same images
+// calibrate to the same gains as when given in the renderer's units (to rounding), and the
+// calibrated rig keeps the unit, exactly, through its YAML; a lamp's does not. A time without the
+// unit, both forms at once and a gain without a time are refused, naming the shot.
+TEST(RadiometricCalibration, ShotsInMicrosecondsGiveTheSameGainsAndTheRigKeepsTheUnit) {
+  const fs::path dir = TempDir("unit");
+  Rig rig = SmallRig();
+  CameraRadiometry film = BandCamera12();
+  film.gain = Eigen::Vector3d(0.55, 1.0, 1.45);
+  rig.cameras[0].radiometry = BandCamera12();
+  const RadiometricShots plain =
+      Film(dir, rig.cameras[0].name, film, {1500, 1800}, {0.1, 0.3, 0.6}, 0.25);
+  // The same shots as a camera's settings: exposure 1 is 2500 us at 0 dB; every other shot at
+  // 6 dB of gain, its exposure time halved (x 10^(-6/20) exactly).
+  const double unit_us = 2500;
+  RadiometricShots timed = plain;
+  timed.exposure_unit_us = unit_us;
+  for (std::size_t i = 0; i < timed.shots.size(); ++i) {
+    RadiometricShot& shot = timed.shots[i];
+    shot.gain_db = i % 2 ? 6 : 0;
+    shot.exposure_us = shot.exposure * unit_us / std::pow(10.0, shot.gain_db / 20);
+  }
+  timed.Save((dir / "timed.yaml").string());
+  const std::string text = ReadFile((dir / "timed.yaml").string());
+  EXPECT_NE(text.find("exposure_unit_us: 2500"), std::string::npos) << text;
+  EXPECT_NE(text.find("exposure_us:"), std::string::npos) << text;
+  const RadiometricShots back = RadiometricShots::Load((dir / "timed.yaml").string());
+  ASSERT_EQ(back.shots.size(), plain.shots.size());
+  EXPECT_EQ(back.exposure_unit_us, unit_us);
+  for (std::size_t i = 0; i < back.shots.size(); ++i)
+    EXPECT_NEAR(back.shots[i].exposure / plain.shots[i].exposure, 1.0, 1e-8) << i;
+  const RadiometricCalibration a = CalibrateRadiometry(rig, plain, RadiometricOptions()),
+                               b = CalibrateRadiometry(rig, back, RadiometricOptions());
+  for (int c = 0; c < 3; ++c)
+    EXPECT_NEAR(b.cameras[0].after.gain[c] / a.cameras[0].after.gain[c], 1.0, 1e-6) << c;
+  EXPECT_NE(b.Report().find("Exposure 1 stands for 2500 us at 0 dB"), std::string::npos);
+  ApplyRadiometricCalibration(rig, b).Save((dir / "out" / "rig.yaml").string());
+  EXPECT_EQ(Rig::Load((dir / "out" / "rig.yaml").string()).exposure_unit_us, unit_us);
+  EXPECT_EQ(ApplyRadiometricCalibration(rig, a).exposure_unit_us, 0.0);
+  RadiometricCalibration lamp = b;
+  lamp.lamp = true;
+  EXPECT_EQ(ApplyRadiometricCalibration(rig, lamp).exposure_unit_us, 0.0);
+  EXPECT_NE(lamp.Report().find("not kept: a lamp"), std::string::npos);
+  // Refused, naming the shot.
+  const auto error = [&](const std::string& yaml) {
+    WriteFileAtomically((dir / "bad.yaml").string(), yaml);
+    try {
+      RadiometricShots::Load((dir / "bad.yaml").string());
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("accepted");
+  };
+  const std::string shot = "{camera: c0, image: x.png, temperature_k: 1500, ";
+  EXPECT_NE(error("shots:\n  - " + shot + "exposure_us: 500}\n")
+                .find("shots[0]: exposure_us needs the file's exposure_unit_us"),
+            std::string::npos);
+  EXPECT_NE(error("exposure_unit_us: 1000\nshots:\n  - " + shot + "exposure: 1, exposure_us: 5}\n")
+                .find("shots[0]: give one of 'exposure'"),
+            std::string::npos);
+  EXPECT_NE(error("shots:\n  - " + shot + "exposure: 1, gain_db: 6}\n")
+                .find("shots[0]: 'gain_db' goes with 'exposure_us'"),
+            std::string::npos);
+  EXPECT_NE(error("exposure_unit_us: -3\nshots:\n  - " + shot + "exposure: 1}\n")
+                .find("exposure_unit_us: must be a finite time > 0"),
+            std::string::npos);
   fs::remove_all(dir);
 }
 

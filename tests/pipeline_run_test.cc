@@ -2119,6 +2119,52 @@ TEST(RunFrames, AnExposureChangedLiveInTheDaemonIsFittedAtTheFramesOwn) {
   fs::remove_all(dir);
 }
 
+// A rig that knows its exposure unit (a radiometric calibration whose shots gave their exposure
+// times, Rig::exposure_unit_us) fits a recording at the exposure its first camera's settings give,
+// with no --exposure and no dataset.yaml beside it: the dataset's own exposure, exactly, when the
+// unit is the camera's 10000 us over it (the oracle: the simulator's exposure). The same rig
+// without the unit fits the exposure instead.
+TEST(RunFrames, ARigThatKnowsItsExposureUnitHoldsARecordingsExposure) {
+  const fs::path dir = TempDir("exposure_unit");
+  SimulateDataset(dir / "sim", 2);
+  const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
+  double dataset_exposure = 0;
+  ASSERT_TRUE(DatasetExposure((dir / "sim" / "rig.yaml").string(), &dataset_exposure));
+  RecordDataset(dir / "sim", rig, dir / "rec", 2, PixelFormat::kRgb8, [](int, int, Frame* f) {
+    f->info.exposure_us = 10000;  // the settings' default, at 0 dB
+    return true;
+  });
+  Rig calibrated = rig;
+  calibrated.exposure_unit_us = 10000 / dataset_exposure;
+  calibrated.Save((dir / "cal" / "rig.yaml").string());
+  calibrated.exposure_unit_us = 0;
+  calibrated.Save((dir / "nounit" / "rig.yaml").string());
+  const auto run = [&](const char* rig_dir) {
+    RunOptions o = SmallRun(dir / "sim", dir / (std::string(rig_dir) + "_out"));
+    o.rig_path = (dir / rig_dir / "rig.yaml").string();
+    o.source = FrameSourceSpec();
+    o.source.recording_dir = (dir / "rec").string();
+    o.sigma = o.blender = o.pictures = false;
+    const RunSummary r = RunAll(o);
+    EXPECT_EQ(r.failed, 0u) << rig_dir;
+    return r;
+  };
+  const RunSummary known = run("cal"), fitted = run("nounit");
+  ASSERT_EQ(known.frames.size(), 2u);
+  ASSERT_EQ(fitted.frames.size(), 2u);
+  for (const FrameSummary& f : known.frames) {
+    EXPECT_EQ(f.exposure_from, "known") << f.Line();
+    EXPECT_NEAR(f.exposure / dataset_exposure, 1.0, 1e-12) << f.Line();
+  }
+  EXPECT_EQ(fitted.frames[0].exposure_from, "fitted") << fitted.frames[0].Line();
+  std::printf(
+      "exposure %.6f known from the settings (the dataset's %.6f); %.6f fitted without "
+      "the unit; T RMS %.1f K known, %.1f K fitted\n",
+      known.frames[0].exposure, dataset_exposure, fitted.frames[0].exposure,
+      known.frames[0].truth_rms_k, fitted.frames[0].truth_rms_k);
+  fs::remove_all(dir);
+}
+
 // A rig whose cameras are configured at different exposure times, as an operator balances them:
 // sim cameras replay the dataset, cam1 at half the others' exposure time from the start (its
 // frames darker: the replay scales their light against the config's first camera), and `run`
