@@ -135,6 +135,51 @@ ImageSource TestPatternSource() {
   };
 }
 
+namespace {
+
+// The exposure x gain (us at 0 dB) that the dataset's fire frames show, as its dataset.yaml
+// states it (ReplayExposure); 0 when it does not.
+double DatasetReferenceUs(const std::filesystem::path& dataset_dir) {
+  const std::filesystem::path path = dataset_dir / "dataset.yaml";
+  if (!std::filesystem::exists(path)) return 0;
+  YAML::Node dataset;
+  try {
+    dataset = YAML::LoadFile(path.string())["dataset"];
+  } catch (const YAML::Exception& e) {
+    throw InputError(path.string() + ": not YAML: " + e.what());
+  }
+  if (!dataset || !dataset.IsMap() || !dataset["exposure_unit_us"]) return 0;
+  double product = 1;
+  for (const char* key : {"exposure", "exposure_unit_us"}) {
+    double v = 0;
+    try {
+      v = dataset[key] ? dataset[key].as<double>() : 0.0;
+    } catch (const YAML::Exception&) {
+      v = 0;
+    }
+    if (!(v > 0) || !std::isfinite(v))
+      throw InputError(path.string() + ": dataset." + key + " must be a finite number > 0" +
+                       (dataset[key] ? "" : " (missing, and exposure_unit_us needs it)"));
+    product *= v;
+  }
+  if (!std::isfinite(product))
+    throw InputError(path.string() + ": dataset.exposure x exposure_unit_us overflows");
+  return product;
+}
+
+// Why a replay of a deeper camera's codes refuses `taken` (exposure us x gain as a factor) of
+// `whose` ("this frame's", "this camera's"), against its reference.
+std::string DeepReplayRefusal(const ReplayExposure& replay, const std::string& whose,
+                              double taken) {
+  return std::string("holds a deeper camera's codes, which replay as they are, at ") +
+         (replay.dataset_reference ? "the exposure its dataset.yaml states"
+                                   : "the settings of the config's first camera replaying it") +
+         " only (exposure us x gain as a factor: " + FormatNumber(replay.reference->load()) + "; " +
+         whose + " " + FormatNumber(taken) + "): configure the camera at those";
+}
+
+}  // namespace
+
 ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera,
                                 ReplayContent content, std::shared_ptr<ReplayExposure> exposure) {
   namespace fs = std::filesystem;
@@ -191,9 +236,16 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
       throw InputError("replay of " + dataset_dir + ": no calibration/*/" + camera + ".png");
     for (int k : missing) (*images)[k].u8 = ImageU8(width, height, 3, 8);
   }
-  // The exposure x gain the dataset's frames show: the reference's (ReplayExposure), or else the
-  // first frame's. A deeper camera's codes cannot follow a change.
+  // The exposure x gain the dataset's frames show: the dataset's own, stated in time; or else the
+  // reference's (ReplayExposure), or else the first frame's. A deeper camera's codes cannot
+  // follow a change.
   if (!exposure) exposure = std::make_shared<ReplayExposure>();
+  if (content == ReplayContent::kFire)
+    if (const double own = DatasetReferenceUs(dataset_dir); own > 0) {
+      exposure->reference = std::make_shared<std::atomic<double>>(own);
+      exposure->sets_reference = false;
+      exposure->dataset_reference = true;
+    }
   exposure->scalable =
       std::none_of(images->begin(), images->end(), [](const Replayed& r) { return r.deep(); });
   return [images, dataset_dir, camera, exposure](const FrameInfo& info,
@@ -210,11 +262,8 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
       factor = taken / reference.load();
     }
     if (img.deep() && std::abs(factor - 1) > 1e-9) {
-      throw InputError("replay of " + dataset_dir + " camera " + camera + ": " + img.path +
-                       " holds a deeper camera's codes, which replay as they are, at the " +
-                       "settings of the config's first camera replaying it only (exposure us x " +
-                       "gain as a factor: " + FormatNumber(reference.load()) + "; this frame's " +
-                       FormatNumber(taken) + "): configure the camera as that one");
+      throw InputError("replay of " + dataset_dir + " camera " + camera + ": " + img.path + " " +
+                       DeepReplayRefusal(*exposure, "this frame's", taken));
     }
     std::array<std::uint8_t, 256> scaled;
     const bool rescale = factor != 1.0 && !img.deep();
@@ -358,11 +407,8 @@ void SimCamera::Configure(const CameraSettings& settings) {
       *replay.reference = product;
     } else if (!replay.scalable && *replay.reference > 0 &&
                std::abs(product / *replay.reference - 1) > 1e-9) {
-      throw InputError("sim camera '" + options_.id + "': its replay holds a deeper camera's " +
-                       "codes, which replay as they are, at the settings of the config's first " +
-                       "camera replaying that dataset only (exposure us x gain as a factor: " +
-                       FormatNumber(replay.reference->load()) + "; this camera's " +
-                       FormatNumber(product) + "): configure it as that one");
+      throw InputError("sim camera '" + options_.id + "': its replay " +
+                       DeepReplayRefusal(replay, "this camera's", product));
     }
   }
 }
@@ -629,14 +675,16 @@ void ReadSimKeys(const YAML::Node& keys, const std::string& where, const std::st
                                    : fs::path(config_path).parent_path() / replay;
       try {
         o.replay_exposure = std::make_shared<ReplayExposure>();
-        // The cameras of this config replaying the same dataset share its reference, which the
-        // first of them sets (ReplayExposure).
-        ShareReplayReference(config_path, dataset, replay_content, index, camera->settings,
-                             o.replay_exposure.get());
         o.source = DatasetReplaySource(
             dataset.string(), camera->name,
             replay_content == "fire" ? ReplayContent::kFire : ReplayContent::kCalibration,
             o.replay_exposure);
+        // Unless the dataset states its own, the cameras of this config replaying the same
+        // dataset share its reference, which the first of them sets (ReplayExposure). Before
+        // any frame: the source reads the reference it points to then.
+        if (o.replay_exposure->sets_reference)
+          ShareReplayReference(config_path, dataset, replay_content, index, camera->settings,
+                               o.replay_exposure.get());
       } catch (const std::exception& e) {
         throw InputError(where + ".replay: " + e.what());
       }

@@ -97,9 +97,18 @@ enum class ReplayContent { kFire, kCalibration };
 // `flamerig run` takes the take's exposure to be (pipeline/frame_source.h's
 // StartExposureOfCamera: the recording's first camera's; a rig whose first camera is not a
 // replay of the dataset has its reference elsewhere).
+// A dataset that states its exposure in time (its dataset.yaml's `dataset: {exposure,
+// exposure_unit_us}`, as `flamerig simulate` writes: pipeline/simulate.h's SimExposureUnitUs)
+// has a reference of its own for its fire frames, exposure x exposure_unit_us microseconds at
+// 0 dB, which no camera sets: every camera records its light at its own settings against that,
+// as a real camera records a fire, so that a rig that knows its exposure unit (a radiometric
+// calibration's) fits the take at the exposure its cameras' settings give. Board views
+// (kCalibration) keep the first camera's: their light is not the fire's. A dataset.yaml whose
+// exposure or unit is not a finite number > 0 is an InputError naming it.
 struct ReplayExposure {
   std::shared_ptr<std::atomic<double>> reference = std::make_shared<std::atomic<double>>(0.0);
   bool sets_reference = true;
+  bool dataset_reference = false;  // the dataset's own, stated in its dataset.yaml
   std::atomic<bool> scalable{true};
 };
 ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera,

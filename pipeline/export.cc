@@ -172,6 +172,9 @@ ExportSummary ExportRecording(const std::string& recording_dir, const std::strin
     wire_formats.push_back(wire ? wire->name : "");
   }
   WriteExportedFormats(out_dir, names, formats, wire_formats);
+  // The take's exposure reference: read back, the folder knows its exposure as the recording does.
+  if (const std::optional<ExposureReference> ref = ExposureReferenceOf(meta))
+    WriteExportedReference(out_dir, *ref);
   return summary;
 }
 

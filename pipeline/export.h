@@ -34,7 +34,9 @@ struct ExportSummary {
 
 // Writes OUT/frame_NNNNNN/<camera name>.png (8-bit, or 16-bit for Mono16 and Bayer 16; Bayer
 // demosaiced to RGB),
-// OUT/pixel_formats.yaml (each camera's pixel format as its frames carried it, or the 10- to
+// OUT/exposure_reference.yaml (the take's exposure reference, when its cameras record their
+// settings: frame_source.h's WriteExportedReference), OUT/pixel_formats.yaml (each camera's pixel
+// format as its frames carried it, or the 10- to
 // 14-bit wire format they were unpacked from, so that a Bayer camera's frames read back from here
 // are fitted through its mosaic and a wire format's words read as the take's: frame_source.h) and
 // OUT/sets.csv (set, trigger id, reference time, spread, then per camera frame id, status and

@@ -37,8 +37,9 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
     throw InputError("fit: a truth rig (--truth-rig) without a truth (--truth) to move");
   const Rig rig = WithInputTransfer(Rig::Load(job.rig_path), job.input_transfer);
   const RigRegistration truth_frame = RegisterTruth(job.truth_rig, rig);
-  const ImagesExposure images_exposure =
-      ResolveExposure(job.exposure, job.rig_path, job.images_dir);
+  ImagesExposure images_exposure = ResolveExposure(job.exposure, job.rig_path, job.images_dir);
+  ExposureFromReference(ReadExportedReference(job.images_dir), rig, job.rig_path, "fit",
+                        &images_exposure);
   const double exposure = images_exposure.value;
   // The fast fit holds a known exposure: checked before any work.
   FitOptions fit = job.fit;

@@ -174,6 +174,59 @@ long long ExportedSetNumber(const fs::path& folder) {
   return std::stoll(name.substr(6));
 }
 
+}  // namespace
+
+void WriteExportedReference(const std::string& dir, const ExposureReference& reference) {
+  YAML::Emitter out;
+  out.SetDoublePrecision(17);
+  out << YAML::Comment(
+      "The take's exposure reference (flamerig export): the recording's first camera's settings "
+      "at its start. Through a rig that knows its exposure unit, exposure = exposure_us x "
+      "10^(gain_db / 20, where gain_in_db) / the unit; sets.csv gives each camera's factor "
+      "against it.");
+  out << YAML::BeginMap << YAML::Key << "reference" << YAML::Value << YAML::Flow << YAML::BeginMap
+      << YAML::Key << "camera" << YAML::Value << reference.camera << YAML::Key << "exposure_us"
+      << YAML::Value << reference.exposure_us << YAML::Key << "gain_db" << YAML::Value
+      << reference.gain_db << YAML::Key << "gain_in_db" << YAML::Value << reference.gain_in_db
+      << YAML::EndMap << YAML::EndMap;
+  WriteFileAtomically((fs::path(dir) / kExportedReferenceFile).string(),
+                      std::string(out.c_str()) + "\n");
+}
+
+std::optional<ExposureReference> ReadExportedReference(const std::string& dir) {
+  std::error_code ec;
+  const fs::path folder = fs::weakly_canonical(dir, ec);
+  if (ec) return std::nullopt;
+  fs::path path = folder / kExportedReferenceFile;
+  if (!fs::exists(path) && ExportedSetNumber(folder) >= 0)
+    path = folder.parent_path() / kExportedReferenceFile;
+  if (!fs::exists(path)) return std::nullopt;
+  const std::string shape =
+      ": needs 'reference: {camera: NAME, exposure_us: US, gain_db: DB, gain_in_db: BOOL}'";
+  try {
+    const YAML::Node root = YAML::LoadFile(path.string());
+    const YAML::Node r = root.IsMap() ? root["reference"] : YAML::Node();
+    if (!r || !r.IsMap() || !r["camera"] || !r["exposure_us"])
+      throw InputError(path.string() + shape);
+    ExposureReference out;
+    out.camera = r["camera"].as<std::string>();
+    out.exposure_us = r["exposure_us"].as<double>();
+    out.gain_db = r["gain_db"] ? r["gain_db"].as<double>() : 0.0;
+    out.gain_in_db = r["gain_in_db"] && r["gain_in_db"].as<bool>();
+    if (!(out.exposure_us > 0) || !std::isfinite(out.exposure_us))
+      throw InputError(path.string() + ": reference.exposure_us must be a finite time > 0, not " +
+                       fmt::format("{:g}", out.exposure_us));
+    if (!std::isfinite(out.gain_db) || std::abs(out.gain_db) > 1000)
+      throw InputError(path.string() + ": reference.gain_db must be a gain within +-1000 dB, not " +
+                       fmt::format("{:g}", out.gain_db));
+    return out;
+  } catch (const YAML::Exception& e) {
+    throw InputError(path.string() + ": not such a file (" + e.what() + ")" + shape);
+  }
+}
+
+namespace {
+
 // The formats for a folder of one frame set: its own pixel_formats.yaml, or that of the export
 // it belongs to (a folder named frame_NNNNNN whose parent holds the export's sets.csv); `folder`
 // absolute and canonical.
@@ -624,8 +677,12 @@ std::size_t FrameSource::num_sets() const { return impl_->sets; }
 const std::vector<std::string>& FrameSource::notes() const { return impl_->notes; }
 
 std::optional<ExposureReference> FrameSource::exposure_reference() const {
-  if (!impl_->recording) return std::nullopt;
-  const RecordingMetadata& metadata = impl_->recording->metadata();
+  if (impl_->recording) return ExposureReferenceOf(impl_->recording->metadata());
+  return impl_->spec.images_dir.empty() ? std::nullopt
+                                        : ReadExportedReference(impl_->spec.images_dir);
+}
+
+std::optional<ExposureReference> ExposureReferenceOf(const RecordingMetadata& metadata) {
   const std::size_t ref = ReferenceCamera(metadata);
   if (ref >= metadata.cameras.size()) return std::nullopt;
   ExposureReference out;

@@ -78,6 +78,8 @@ struct StartExposure {
   std::string note;
 };
 StartExposure StartExposureOfCamera(const RecordingMetadata& metadata, int camera);
+// A recording's reference: none when no camera records its settings.
+std::optional<ExposureReference> ExposureReferenceOf(const RecordingMetadata& metadata);
 
 // A recording's frame's exposure time x gain against the take's reference: its camera's start
 // against the reference (StartExposureOfCamera, `start_ratio`) times the frame's against that
@@ -156,8 +158,9 @@ class FrameSource {
   SourceFrameSet Read(std::size_t i, double exposure) const;
   // Notes about the whole source (a recovered recording's ignored tail, ...).
   const std::vector<std::string>& notes() const;
-  // A recording's exposure reference (StartExposureOfCamera's): none for other sources, or for a
-  // recording whose cameras record no settings.
+  // A recording's exposure reference (StartExposureOfCamera's), or an export's folder's
+  // (ReadExportedReference): none for other sources, or for a recording whose cameras record no
+  // settings.
   std::optional<ExposureReference> exposure_reference() const;
 
  private:
@@ -196,6 +199,19 @@ struct ExportedFormat {
 // and for every camera when there is no such file (plain image files). Throws InputError naming
 // the file and the entry for a file that is not such a map or a format that is not one.
 std::vector<ExportedFormat> ReadExportedFormats(const std::string& dir, const Rig& rig);
+
+// What `flamerig export` writes beside the frame sets it exports when the recording gives an
+// exposure reference (FrameSource::exposure_reference): OUT/exposure_reference.yaml, `reference:
+// {camera, exposure_us, gain_db, gain_in_db}`. A folder read back from there, through a rig that
+// knows its exposure unit (a radiometric calibration's, Rig::exposure_unit_us), knows its
+// exposure as the recording does; its sets.csv gives each camera's factor against it.
+inline constexpr const char* kExportedReferenceFile = "exposure_reference.yaml";
+void WriteExportedReference(const std::string& dir, const ExposureReference& reference);
+// The reference of DIR (an export's folder) or, for a folder named frame_NNNNNN whose parent holds
+// an export's sets.csv, of that parent; none without such a file (an export before 2026-12-05,
+// plain image files). InputError naming the file and the key when it is malformed (an exposure
+// time that is not a finite number > 0, a gain that is not finite).
+std::optional<ExposureReference> ReadExportedReference(const std::string& dir);
 
 // One camera's image as the tomography and the fit take it, decoded through the camera's
 // radiometric model (calibration/radiometry.h) from what ReadImage or DecodeFrame gave (`bits` 8:

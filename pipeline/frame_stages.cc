@@ -105,20 +105,9 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
   options_.Validate();
   ImagesExposure exposure =
       ResolveExposure(options_.exposure, rig_path, options_.source.images_dir);
-  // A recording through a rig whose radiometric calibration gave its exposure unit: known from
-  // the reference camera's settings at the start.
-  if (const std::optional<ExposureReference> ref = source_.exposure_reference();
-      !exposure.known && ref && rig_.exposure_unit_us > 0) {
-    exposure.value = ref->exposure_us_at_0db() / rig_.exposure_unit_us;
-    exposure.known = true;
-    exposure.from = fmt::format(
-        "{}'s settings at the recording's start ({:g} us{}) over {}'s exposure unit ({:g} us)",
-        ref->camera, ref->exposure_us,
-        ref->gain_in_db ? fmt::format(", {:g} dB", ref->gain_db)
-                        : std::string(", its gain in the device's units taken as calibrated"),
-        rig_path, rig_.exposure_unit_us);
-    Log().info("run: exposure {:g}, from {}", exposure.value, exposure.from);
-  }
+  // A recording (or its export) through a rig whose radiometric calibration gave its exposure
+  // unit: known from the reference camera's settings at the start.
+  ExposureFromReference(source_.exposure_reference(), rig_, rig_path, "run", &exposure);
   exposure_ = exposure.value;
   exposure_known_ = exposure.known;
   if (exposure_known_ && !options_.fit_exposure) HeldExposure(exposure, options_.fit, "run");

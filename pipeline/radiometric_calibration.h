@@ -69,8 +69,9 @@
 // file's `exposure_unit_us`: the exposure time at 0 dB that exposure 1 stands for, so that a
 // shot's exposure is exposure_us x 10^(gain_db / 20) / exposure_unit_us. The calibrated rig keeps
 // that unit (Rig::exposure_unit_us), and `flamerig run` then knows a recording's exposure from its
-// first camera's settings at the start, with no `--exposure`: the calibration's gains hold for the
-// fire in the same units.
+// first camera's settings at the start, with no `--exposure` (and `fit`, `reconstruct` and `run`
+// an export's, from its exposure_reference.yaml: frame_source.h): the calibration's gains hold for
+// the fire in the same units.
 //
 // `flamerig simulate` writes such a file and its images (radiometry/shots.yaml) when its config
 // has `radiometric_calibration:` (simulate.h). Errors name the file, the shot and the rule

@@ -110,11 +110,13 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
     throw InputError(job.truth_path + " (--truth): no such file");
   ReconstructJobResult out;
   ReconstructOptions options = job.reconstruct;
-  const ImagesExposure exposure = ResolveExposure(job.exposure, job.rig_path, job.images_dir);
+  const Rig rig = WithInputTransfer(Rig::Load(job.rig_path), job.input_transfer);
+  ImagesExposure exposure = ResolveExposure(job.exposure, job.rig_path, job.images_dir);
+  ExposureFromReference(ReadExportedReference(job.images_dir), rig, job.rig_path, "reconstruct",
+                        &exposure);
   options.exposure = exposure.value;
   out.exposure_source = exposure.known ? exposure.from : "default 1";
   out.exposure = options.exposure;
-  const Rig rig = WithInputTransfer(Rig::Load(job.rig_path), job.input_transfer);
   // The emission is in the cameras' own unit-gain channels: linear sRGB only when every camera is
   // the sRGB observer (a truth's emission is linear sRGB, so only then can they be compared).
   std::string channels;

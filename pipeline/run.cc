@@ -1,6 +1,7 @@
 #include "pipeline/run.h"
 
 #include <fcntl.h>
+#include <fmt/format.h>
 #include <unistd.h>
 #include <yaml-cpp/yaml.h>
 
@@ -17,6 +18,7 @@
 #include "acquisition/recording.h"
 #include "core/error.h"
 #include "core/json_yaml.h"
+#include "core/log.h"
 #include "core/read_file.h"
 #include "fitting/absorption.h"
 #include "fitting/renderer.h"
@@ -100,6 +102,21 @@ ImagesExposure ResolveExposure(double given, const std::string& rig_path,
   }
   if (!e.known) e.value = 1;
   return e;
+}
+
+void ExposureFromReference(const std::optional<ExposureReference>& reference, const Rig& rig,
+                           const std::string& rig_path, const std::string& job,
+                           ImagesExposure* exposure) {
+  if (exposure->known || !reference || !(rig.exposure_unit_us > 0)) return;
+  exposure->value = reference->exposure_us_at_0db() / rig.exposure_unit_us;
+  exposure->known = true;
+  exposure->from = fmt::format(
+      "{}'s settings at the recording's start ({:g} us{}) over {}'s exposure unit ({:g} us)",
+      reference->camera, reference->exposure_us,
+      reference->gain_in_db ? fmt::format(", {:g} dB", reference->gain_db)
+                            : std::string(", its gain in the device's units taken as calibrated"),
+      rig_path, rig.exposure_unit_us);
+  Log().info("{}: exposure {:g}, from {}", job, exposure->value, exposure->from);
 }
 
 double HeldExposure(const ImagesExposure& exposure, const FitOptions& fit, const std::string& job) {

@@ -261,6 +261,14 @@ struct ImagesExposure {
 };
 ImagesExposure ResolveExposure(double given, const std::string& rig_path,
                                const std::string& images_dir = "");
+// `*exposure` known from a source's exposure reference (a recording's, or an export's folder's:
+// FrameSource::exposure_reference, ReadExportedReference) through a rig that knows its exposure
+// unit (a radiometric calibration's, Rig::exposure_unit_us): the reference's exposure time x gain
+// at 0 dB over the unit, `from` naming both, and logged for `job`. Unchanged when it is known
+// already (--exposure and a dataset.yaml come first), or there is no reference or unit.
+void ExposureFromReference(const std::optional<ExposureReference>& reference, const Rig& rig,
+                           const std::string& rig_path, const std::string& job,
+                           ImagesExposure* exposure);
 // `exposure.value`, checked against the fit's exposure range, for a fit that holds it; InputError
 // naming `job` and where the value came from when it lies outside.
 double HeldExposure(const ImagesExposure& exposure, const FitOptions& fit, const std::string& job);

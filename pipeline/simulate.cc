@@ -11,6 +11,7 @@
 #include <random>
 #include <stdexcept>
 
+#include "acquisition/camera.h"
 #include "core/atomic_file.h"
 #include "core/config_reader.h"
 #include "core/error.h"
@@ -337,6 +338,8 @@ CameraRadiometry SimulateConfig::CameraFilm(std::size_t c) const {
   return film;
 }
 
+double SimExposureUnitUs(double exposure) { return CameraSettings{}.exposure_us / exposure; }
+
 double AutoExposure(const std::vector<ImageF>& linear) {
   std::vector<float> values;
   float max_value = 0;
@@ -569,6 +572,8 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
   yaml << YAML::EndSeq;
   yaml << YAML::Key << "exposure" << YAML::Value << exposure;
   yaml << YAML::Key << "exposure_source" << YAML::Value << summary.exposure_source;
+  const double unit_us = SimExposureUnitUs(exposure);
+  yaml << YAML::Key << "exposure_unit_us" << YAML::Value << unit_us;
   summary.exposure = exposure;
   summary.frames = config.frames;
 
@@ -586,6 +591,7 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
     const auto& rc = config.radiometric_calibration;
     RadiometricShots shots;
     shots.emissivity = rc.emissivity;
+    shots.exposure_unit_us = unit_us;
     const fs::path dir = fs::path(out_dir) / "radiometry";
     fs::create_directories(dir);
     const int total = int(rig.cameras.size() * rc.temperatures_k.size() * rc.levels.size());
@@ -601,7 +607,9 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
           RadiometricShot shot;
           shot.camera = rig.cameras[c].name;
           shot.temperature_k = rc.temperatures_k[t];
-          shot.exposure = rc.levels[l] / peak;
+          // As the camera takes it: an exposure time in whole microseconds at 0 dB.
+          shot.exposure_us = std::max(1.0, std::round(rc.levels[l] / peak * unit_us));
+          shot.exposure = shot.exposure_us / unit_us;
           char name[96];
           std::snprintf(name, sizeof(name), "%s_%.0fK_%zu.png", shot.camera.c_str(),
                         shot.temperature_k, l);

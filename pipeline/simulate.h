@@ -2,6 +2,7 @@
 // (config/sim_rig.yaml):
 //
 //   OUT/dataset.yaml                 what was generated (config echo, exposure, seeds, file lists)
+//                                    and `exposure_unit_us` (SimExposureUnitUs below)
 //   OUT/rig.yaml, OUT/cameras/*.cameramodel   the rig (mrcal camera models, reconstruction box)
 //   OUT/truth/frame_NNNNNN.vdb       ground truth: temperature (K), density (m^-3), thin emission
 //   (RGB) OUT/frames/frame_NNNNNN/CAM.png  8-bit sRGB images of the fire per camera
@@ -42,8 +43,10 @@
 //                        levels [0.05, 0.15, 0.35, 0.6, 0.85, 1.3], emissivity [0.98]}
 //                        images of a black-body calibrator per camera (FilmCalibrationSource in
 //                        radiometric_calibration.h) at exposures putting its brightest channel at
-//                        each level of full scale (above 1 saturates), written with their shots
-//                        file: OUT/radiometry/shots.yaml, OUT/radiometry/CAM_TK_I.png
+//                        each level of full scale (above 1 saturates; the time rounded to whole
+//                        microseconds), written with their shots file in the camera's terms
+//                        (exposure_us at 0 dB, and the dataset's exposure_unit_us):
+//                        OUT/radiometry/shots.yaml, OUT/radiometry/CAM_TK_I.png
 #ifndef FLAMERIG_PIPELINE_SIMULATE_H_
 #define FLAMERIG_PIPELINE_SIMULATE_H_
 
@@ -123,6 +126,17 @@ struct SimulateSummary {
 // radiometry, cameras) are removed first, so that no frame of a longer earlier take stays behind.
 // A folder that holds any of those but no simulation's dataset.yaml (an exported recording) is
 // refused with an InputError, and nothing in it is touched. Other files in the folder are kept.
+// The camera settings at which a simulated camera records the dataset's frames as they were
+// rendered: a capture config's default exposure time (CameraSettings::exposure_us, 10000 us) at
+// 0 dB. dataset.yaml states it as `exposure_unit_us`, the exposure time at 0 dB that exposure 1
+// stands for: that time over the dataset's exposure. The sim cameras' replay reads it
+// (acquisition/sim_camera.h: a camera configured at half the time records half the light), and
+// the radiometric calibrator's shots give their exposure as the camera's time over it
+// (`exposure_us`, whole microseconds, `gain_db: 0`), so that the rig calibrated from them knows a
+// recording's exposure from its cameras' settings, as a real rig's does
+// (radiometric_calibration.h).
+double SimExposureUnitUs(double exposure);
+
 // The exposure that puts the 99.5th percentile of the brightest channel over the fire pixels
 // (above 1e-3 of the brightest) of `linear` renders at full scale, so that the cores of the flame
 // saturate slightly, as in real footage; 0 when no fire is visible. Not clamped to any range.

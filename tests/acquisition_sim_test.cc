@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <memory>
 
 #include "acquisition/capture.h"
@@ -349,7 +350,11 @@ TEST(SimCamera, ADeeperReplayRefusesALiveExposureChange) {
 // settings, and the second camera's 8-bit frames carry the light times its exposure over the
 // first's (the oracle: IEC 61966-2-1's sRGB curve, written out here), whichever camera is
 // configured first; another config's cameras do not share it. A deeper camera's codes replay at
-// the first camera's settings only: a frame at others is an error naming both.
+// the first camera's settings only: a frame at others is an error naming both. A dataset that
+// states its exposure in time (dataset.yaml's exposure x exposure_unit_us, as `flamerig simulate`
+// writes) is shown at that instead, to every camera: at those settings as it is, at twice the
+// time twice as bright, whatever the first camera's; a deeper one at those settings only; a unit
+// that is not a time is an error naming the file and the key.
 TEST(SimCamera, ReplayingCamerasConfiguredApartShowTheirOwnExposure) {
   namespace fs = std::filesystem;
   const fs::path dir =
@@ -402,14 +407,15 @@ TEST(SimCamera, ReplayingCamerasConfiguredApartShowTheirOwnExposure) {
   // configured, and when it never is (a deferred camera, not there at arming).
   const CaptureConfig late =
       CaptureConfig::Parse(yaml("rgb", "RGB8", 5000), (dir / "late.yaml").string());
-  const auto halved = [&](const std::vector<std::uint8_t>& got) {
+  const auto scaled = [&](const std::vector<std::uint8_t>& got, double factor) {
     if (got.size() != srgb.pixels.size()) return false;
-    for (std::size_t i = 0; i < got.size(); ++i)
-      if (std::abs(got[i] - 255 * SrgbCurveEncode(0.5 * SrgbCurveDecode(srgb.pixels[i] / 255.0))) >
-          0.5 + 1e-9)
-        return false;
+    for (std::size_t i = 0; i < got.size(); ++i) {
+      const double light = std::min(1.0, factor * SrgbCurveDecode(srgb.pixels[i] / 255.0));
+      if (std::abs(got[i] - 255 * SrgbCurveEncode(light)) > 0.5 + 1e-9) return false;
+    }
     return true;
   };
+  const auto halved = [&](const std::vector<std::uint8_t>& got) { return scaled(got, 0.5); };
   EXPECT_TRUE(halved(frame_of(late, {1}, 1)));
   // Another config's cameras (or the same file read again) do not share apart's reference: with
   // both cameras at 5000 us, the second shows the dataset as it is.
@@ -434,6 +440,50 @@ TEST(SimCamera, ReplayingCamerasConfiguredApartShowTheirOwnExposure) {
         << e.what();
     EXPECT_NE(std::string(e.what()).find("10000"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("5000"), std::string::npos) << e.what();
+  }
+  // The dataset's own: 2 x 2500 us at 0 dB.
+  for (const char* from : {"rgb", "deep"}) {
+    const fs::path timed = dir / (std::string("timed_") + from);
+    fs::create_directories(timed);
+    fs::copy(dir / from / "frames", timed / "frames", fs::copy_options::recursive);
+    std::ofstream(timed / "dataset.yaml") << "dataset:\n  exposure: 2\n  exposure_unit_us: 2500\n";
+  }
+  for (const std::vector<int>& order : {std::vector<int>{0, 1}, std::vector<int>{1, 0}}) {
+    SCOPED_TRACE(order[0]);
+    const CaptureConfig timed =
+        CaptureConfig::Parse(yaml("timed_rgb", "RGB8", 5000, 10000), (dir / "timed.yaml").string());
+    EXPECT_TRUE(scaled(frame_of(timed, order, 0), 2.0));
+    EXPECT_EQ(frame_of(timed, order, 1), srgb.pixels);
+  }
+  EXPECT_TRUE(scaled(frame_of(CaptureConfig::Parse(yaml("timed_rgb", "RGB8", 10000, 10000),
+                                                   (dir / "timed_alike.yaml").string()),
+                              {0, 1}, 0),
+                     2.0));
+  EXPECT_EQ(frame_of(CaptureConfig::Parse(yaml("timed_deep", "Mono16", 5000, 5000),
+                                          (dir / "timed_deep.yaml").string()),
+                     {0, 1}, 1)
+                .size(),
+            16u * 16 * 2);
+  try {
+    frame_of(CaptureConfig::Parse(yaml("timed_deep", "Mono16", 10000, 10000),
+                                  (dir / "timed_deep_apart.yaml").string()),
+             {0, 1}, 0);
+    ADD_FAILURE() << "a deeper replay at other settings than its dataset states";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("the exposure its dataset.yaml states"), std::string::npos)
+        << e.what();
+    EXPECT_NE(std::string(e.what()).find("5000"), std::string::npos) << e.what();
+  }
+  std::ofstream(dir / "timed_rgb" / "dataset.yaml")
+      << "dataset:\n  exposure: 2\n  exposure_unit_us: -1\n";
+  try {
+    CaptureConfig::Parse(yaml("timed_rgb", "RGB8", 10000), (dir / "bad.yaml").string());
+    ADD_FAILURE() << "a dataset whose exposure unit is not a time";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find((dir / "timed_rgb" / "dataset.yaml").string() +
+                                         ": dataset.exposure_unit_us must be"),
+              std::string::npos)
+        << e.what();
   }
   fs::remove_all(dir);
 }

@@ -40,6 +40,7 @@
 #include "pipeline/fit_job.h"
 #include "pipeline/fit_report.h"
 #include "pipeline/frame_stages.h"
+#include "pipeline/reconstruct_job.h"
 #include "pipeline/run.h"
 #include "pipeline/run_report.h"
 #include "pipeline/simulate.h"
@@ -2162,27 +2163,86 @@ TEST(RunFrames, ARigThatKnowsItsExposureUnitHoldsARecordingsExposure) {
       "the unit; T RMS %.1f K known, %.1f K fitted\n",
       known.frames[0].exposure, dataset_exposure, fitted.frames[0].exposure,
       known.frames[0].truth_rms_k, fitted.frames[0].truth_rms_k);
+  // Exported: the folder through `run`, a set of it through `fit` and `reconstruct`, know the
+  // same exposure from the export's exposure_reference.yaml; through the rig without the unit the
+  // fit finds its own. A reference whose exposure time is not one is an error naming the file.
+  ExportRecording((dir / "rec").string(), (dir / "png").string(), ExportOptions());
+  ASSERT_TRUE(fs::exists(dir / "png" / kExportedReferenceFile));
+  RunOptions o = SmallRun(dir / "sim", dir / "png_out");
+  o.rig_path = (dir / "cal" / "rig.yaml").string();
+  o.source.images_dir = (dir / "png").string();
+  o.sigma = o.blender = o.pictures = false;
+  const RunSummary exported = RunAll(o);
+  ASSERT_EQ(exported.frames.size(), 2u);
+  for (const FrameSummary& f : exported.frames) {
+    EXPECT_EQ(f.exposure_from, "known") << f.Line();
+    EXPECT_NEAR(f.exposure / dataset_exposure, 1.0, 1e-12) << f.Line();
+  }
+  const auto fit_set = [&](const char* rig_dir) {
+    FitJob job;
+    job.rig_path = (dir / rig_dir / "rig.yaml").string();
+    job.images_dir = (dir / "png" / FrameName(1)).string();
+    job.out_path = (dir / (std::string(rig_dir) + "_fit.vdb")).string();
+    job.resolution = 24;
+    return RunFitJob(job).result.exposure;
+  };
+  EXPECT_NEAR(fit_set("cal") / dataset_exposure, 1.0, 1e-12);
+  const double found = fit_set("nounit");
+  EXPECT_GT(std::abs(found / dataset_exposure - 1), 0.05) << found;
+  ReconstructJob rj;
+  rj.rig_path = (dir / "cal" / "rig.yaml").string();
+  rj.images_dir = (dir / "png" / FrameName(1)).string();
+  rj.out_path = (dir / "tomography.vdb").string();
+  rj.reconstruct.resolution = 24;
+  const ReconstructJobResult tomography = RunReconstructJob(rj);
+  EXPECT_NEAR(tomography.exposure / dataset_exposure, 1.0, 1e-12);
+  EXPECT_NE(tomography.exposure_source.find("exposure unit"), std::string::npos)
+      << tomography.exposure_source;
+  std::ofstream(dir / "png" / kExportedReferenceFile)
+      << "reference: {camera: " << rig.cameras[0].name << ", exposure_us: -5}\n";
+  try {
+    fit_set("cal");
+    ADD_FAILURE() << "a reference whose exposure time is not one";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find(std::string(kExportedReferenceFile) +
+                                         ": reference.exposure_us must be"),
+              std::string::npos)
+        << e.what();
+  }
   fs::remove_all(dir);
 }
 
 // A rig whose cameras are configured at different exposure times, as an operator balances them:
 // sim cameras replay the dataset, cam1 at half the others' exposure time from the start (its
-// frames darker: the replay scales their light against the config's first camera), and `run`
-// fits it at its own, as well as the same take with every camera alike (cam1's fire Delta E within
-// 0.5, the soot within 5% of the same dataset frame's; the run says once that cam1 started
-// elsewhere).
+// frames darker: the replay scales their light against the time the dataset's exposure stands
+// for, 10000 us), and `run` fits it at its own, as well as the same take with every camera alike
+// (cam1's fire Delta E within 0.5, the soot within 5% of the same dataset frame's; the run says
+// once that cam1 started elsewhere). And a take with every camera at half that time, run through
+// a rig that knows the exposure unit (a radiometric calibration's; here the dataset's), with no
+// exposure given and no dataset.yaml beside the rig: every camera recorded half the light, the
+// run holds half the dataset's exposure (the oracle: the simulator's exposure x 5000 / 10000),
+// and the densities are absolute: the soot within 5% of the take at 10000 us.
 TEST(RunFrames, CamerasConfiguredAtDifferentExposuresAreFittedAtTheirOwn) {
   const fs::path dir = TempDir("exposures_apart");
   SimulateDataset(dir / "sim", 2);
   const Rig rig = Rig::Load((dir / "sim" / "rig.yaml").string());
+  double dataset_exposure = 0;
+  ASSERT_TRUE(DatasetExposure((dir / "sim" / "rig.yaml").string(), &dataset_exposure));
+  Rig calibrated = rig;
+  calibrated.exposure_unit_us =
+      YAML::LoadFile((dir / "sim" / "dataset.yaml").string())["dataset"]["exposure_unit_us"]
+          .as<double>();
+  EXPECT_NEAR(calibrated.exposure_unit_us * dataset_exposure, 10000, 1e-6);
+  calibrated.Save((dir / "cal" / "rig.yaml").string());
   std::map<std::string, std::map<int, std::vector<double>>> recorded;
-  const auto record = [&](const char* name, int cam1_exposure_us) {
+  const auto record = [&](const char* name, int cam1_exposure_us, int exposure_us = 10000,
+                          std::string rig_path = "") {
     std::string yaml = "data_dir: " + (dir / name).string() +
                        "\nsync: software-trigger\ntrigger_rate_hz: 10\ncameras:\n";
     for (const auto& cam : rig.cameras)
       yaml += "  - {name: " + cam.name + ", width: 120, height: 90, pixel_format: RGB8, " +
               "exposure_us: " +
-              std::to_string(cam.name == rig.cameras[1].name ? cam1_exposure_us : 10000) +
+              std::to_string(cam.name == rig.cameras[1].name ? cam1_exposure_us : exposure_us) +
               ", sim: {replay: " + (dir / "sim").string() + "}}\n";
     const CaptureConfig config =
         CaptureConfig::Parse(yaml, (dir / (std::string(name) + ".yaml")).string());
@@ -2208,6 +2268,7 @@ TEST(RunFrames, CamerasConfiguredAtDifferentExposuresAreFittedAtTheirOwn) {
         light.push_back(std::accumulate(signal.pixels.begin(), signal.pixels.end(), 0.0));
     }
     RunOptions o = SmallRun(dir / "sim", dir / (std::string(name) + "_out"));
+    if (!rig_path.empty()) o.rig_path = rig_path;
     o.source = spec;
     o.sigma = o.blender = o.pictures = false;
     o.count = 4;
@@ -2217,6 +2278,7 @@ TEST(RunFrames, CamerasConfiguredAtDifferentExposuresAreFittedAtTheirOwn) {
   };
   const auto [alike, alike_notes] = record("alike", 10000);
   const auto [apart, apart_notes] = record("apart", 5000);
+  const auto [dim, dim_notes] = record("dim", 5000, 5000, (dir / "cal" / "rig.yaml").string());
   // cam1 recorded half the light of the same dataset frame (the replay's sRGB round trip: within
   // 2%), the other cameras the same.
   for (int frame : {0, 1}) {
@@ -2228,8 +2290,14 @@ TEST(RunFrames, CamerasConfiguredAtDifferentExposuresAreFittedAtTheirOwn) {
     EXPECT_NEAR(b[0] / a[0], 1.0, 1e-9);
     EXPECT_NEAR(b[1] / a[1], 0.5, 0.01);
     EXPECT_NEAR(b[2] / a[2], 1.0, 1e-9);
+    const std::vector<double>& d = recorded["dim"][frame];
+    ASSERT_EQ(d.size(), 3u);
+    std::printf("recorded light of dataset frame %d, dim over alike: %.4f %.4f %.4f\n", frame,
+                d[0] / a[0], d[1] / a[1], d[2] / a[2]);
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(d[c] / a[c], 0.5, 0.01) << c;
   }
   EXPECT_TRUE(alike_notes.empty());
+  EXPECT_TRUE(dim_notes.empty());
   ASSERT_EQ(apart_notes.size(), 1u);
   EXPECT_NE(apart_notes[0].find(rig.cameras[1].name + " started at 5000 us, 0 dB, 0.5 times"),
             std::string::npos)
@@ -2253,6 +2321,24 @@ TEST(RunFrames, CamerasConfiguredAtDifferentExposuresAreFittedAtTheirOwn) {
         b.truth_frame, b.delta_e[1].fire, a.delta_e[1].fire, b.soot / a.soot);
     EXPECT_NEAR(b.delta_e[1].fire, a.delta_e[1].fire, 0.5);
     EXPECT_NEAR(b.soot / a.soot, 1.0, 0.05);
+  }
+  ASSERT_GE(dim.frames.size(), 3u);
+  for (const FrameSummary& d : dim.frames) {
+    SCOPED_TRACE(d.frame);
+    ASSERT_EQ(d.status, "computed") << d.Line();
+    EXPECT_EQ(d.exposure_from, "known") << d.Line();
+    EXPECT_NEAR(d.exposure / dataset_exposure, 0.5, 1e-9) << d.Line();
+    ASSERT_TRUE(alike_of.count(d.truth_frame));
+    const FrameSummary& a = *alike_of[d.truth_frame];
+    ASSERT_EQ(d.delta_e.size(), 3u);
+    std::printf(
+        "dataset frame %d, every camera at 5000 us: exposure %.6f (the dataset's %.6f); fire "
+        "Delta E %.2f %.2f %.2f (alike %.2f %.2f %.2f); soot %.3f of alike's\n",
+        d.truth_frame, d.exposure, dataset_exposure, d.delta_e[0].fire, d.delta_e[1].fire,
+        d.delta_e[2].fire, a.delta_e[0].fire, a.delta_e[1].fire, a.delta_e[2].fire,
+        d.soot / a.soot);
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(d.delta_e[c].fire, a.delta_e[c].fire, 0.5) << c;
+    EXPECT_NEAR(d.soot / a.soot, 1.0, 0.05);
   }
   fs::remove_all(dir);
 }
