@@ -72,8 +72,10 @@
 //             outages: [[12, 14.5], [30, -1]],  # more outages: [down_s, up_s], -1 = for good
 //             replay: DATASET,      # show a `flamerig simulate` dataset's images of this camera
 //                                   # (name), path relative to this file; else a test pattern;
-//                                   # as they are at the settings of the config's first camera
-//                                   # replaying DATASET, scaled at others (sim_camera.h)
+//                                   # as they are at the exposure time its dataset.yaml states
+//                                   # (10000 us, 0 dB), or else at the settings of the config's
+//                                   # first camera replaying DATASET; scaled at others
+//                                   # (sim_camera.h)
 //             replay_content: fire} # fire (its frames) or calibration (its board views)
 #ifndef FLAMERIG_ACQUISITION_CAPTURE_H_
 #define FLAMERIG_ACQUISITION_CAPTURE_H_

@@ -146,7 +146,7 @@ double DatasetReferenceUs(const std::filesystem::path& dataset_dir) {
   try {
     dataset = YAML::LoadFile(path.string())["dataset"];
   } catch (const YAML::Exception& e) {
-    throw InputError(path.string() + ": not YAML: " + e.what());
+    throw InputError(path.string() + ": not a dataset.yaml (" + e.what() + ")");
   }
   if (!dataset || !dataset.IsMap() || !dataset["exposure_unit_us"]) return 0;
   double product = 1;
@@ -398,8 +398,9 @@ void SimCamera::Configure(const CameraSettings& settings) {
   if (settings_.height == 0) settings_.height = 480;
   live_exposure_us_ = settings_.exposure_us;
   live_gain_db_ = settings_.gain_db;
-  // A replay shows its dataset as it is at the reference's settings: the first replaying
-  // camera's, which sets them. A deeper camera's codes cannot show it at others.
+  // A replay shows its dataset as it is at the reference's settings: its dataset's own, or else
+  // the first replaying camera's, which sets them. A deeper camera's codes cannot show it at
+  // others.
   if (options_.replay_exposure) {
     ReplayExposure& replay = *options_.replay_exposure;
     const double product = settings_.exposure_us * std::pow(10.0, settings_.gain_db / 20.0);

@@ -75,9 +75,11 @@ ImageSource TestPatternSource();
 // the file when a frame is missing or unreadable; a frame asked for at another size than the
 // images gets an error naming both sizes.
 // The frames are what the camera sees at the replay's reference exposure x gain (ReplayExposure
-// below: in a capture config, the configured settings of the first camera replaying the same
-// dataset; without one, the first frame's); a frame at other settings (a camera configured at
-// another exposure time than the first, or `ctl configure CAM exposure_us`, live) shows an 8-bit
+// below: the one the dataset states; or else, in a capture config, the configured settings of
+// the first camera replaying the same dataset; without one, the first frame's). `exposure`, when
+// given, is a fresh object (its reference is replaced here, before any frame). A frame at other
+// settings (a camera configured at another exposure time, or `ctl configure CAM exposure_us`,
+// live) shows an 8-bit
 // dataset's light times the factor, through its sRGB values and clipped at full scale, as a real
 // camera's image darkens or brightens. A deeper camera's codes replay as they are, at the
 // reference's settings only: a frame at others is an InputError naming the camera and both (and

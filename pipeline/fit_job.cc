@@ -38,8 +38,8 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
   const Rig rig = WithInputTransfer(Rig::Load(job.rig_path), job.input_transfer);
   const RigRegistration truth_frame = RegisterTruth(job.truth_rig, rig);
   ImagesExposure images_exposure = ResolveExposure(job.exposure, job.rig_path, job.images_dir);
-  ExposureFromReference(ReadExportedReference(job.images_dir), rig, job.rig_path, "fit",
-                        &images_exposure);
+  ExposureFromReference([&] { return ReadExportedReference(job.images_dir); }, rig, job.rig_path,
+                        "fit", &images_exposure);
   const double exposure = images_exposure.value;
   // The fast fit holds a known exposure: checked before any work.
   FitOptions fit = job.fit;
@@ -48,7 +48,8 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
     fit.known_exposure = HeldExposure(images_exposure, fit, "fit");
   if (job.method == FitMethod::kFast && !images_exposure.known)
     Log().warn(
-        "fit: the images' exposure is unknown (no --exposure, and no dataset.yaml beside the rig "
+        "fit: the images' exposure is unknown (no --exposure, no recorded settings through a rig "
+        "that knows its exposure unit, and no dataset.yaml beside the rig "
         "or the images): the fit finds one, and the densities are relative to it, not absolute");
   else if (images_exposure.known)
     Log().info("fit: the images' exposure {} ({}){}", FormatNumber(images_exposure.value, 6),

@@ -31,7 +31,8 @@ struct FitJob {
   std::string tomography_path;     // "" = reconstruct from the fitted views
   FitMethod method = FitMethod::kFast;
   std::string absorption;  // soot | grey; "" = the rig's dataset.yaml, else soot
-  // Of the images; 0 = dataset.yaml beside the rig, else unknown (1 for the tomography). The
+  // Of the images; 0 = dataset.yaml beside the rig, else an export's recorded settings over the
+  // rig's exposure unit (run.h's ExposureFromReference), else unknown (1 for the tomography). The
   // fast fit holds a known exposure unless fit_exposure; the paper's algorithms fit their own.
   double exposure = 0;
   bool fit_exposure = false;

@@ -10,6 +10,7 @@
 #include <map>
 #include <sstream>
 #include <stdexcept>
+#include <type_traits>
 
 #include <yaml-cpp/yaml.h>
 
@@ -209,10 +210,18 @@ std::optional<ExposureReference> ReadExportedReference(const std::string& dir) {
     if (!r || !r.IsMap() || !r["camera"] || !r["exposure_us"])
       throw InputError(path.string() + shape);
     ExposureReference out;
-    out.camera = r["camera"].as<std::string>();
-    out.exposure_us = r["exposure_us"].as<double>();
-    out.gain_db = r["gain_db"] ? r["gain_db"].as<double>() : 0.0;
-    out.gain_in_db = r["gain_in_db"] && r["gain_in_db"].as<bool>();
+    out.where = path.string();
+    const auto read = [&](const char* key, auto* value) {
+      try {
+        if (r[key]) *value = r[key].as<std::decay_t<decltype(*value)>>();
+      } catch (const YAML::Exception& e) {
+        throw InputError(path.string() + ": reference." + key + ": " + e.what() + shape);
+      }
+    };
+    read("camera", &out.camera);
+    read("exposure_us", &out.exposure_us);
+    read("gain_db", &out.gain_db);
+    read("gain_in_db", &out.gain_in_db);
     if (!(out.exposure_us > 0) || !std::isfinite(out.exposure_us))
       throw InputError(path.string() + ": reference.exposure_us must be a finite time > 0, not " +
                        fmt::format("{:g}", out.exposure_us));

@@ -67,6 +67,7 @@ struct RecordingMetadata;
 // its gain counts where it is in dB (gain_in_db).
 struct ExposureReference {
   std::string camera;
+  std::string where;  // the export's exposure_reference.yaml it was read from; else empty
   double exposure_us = 0, gain_db = 0;
   bool gain_in_db = false;
   // exposure_us x (10^(gain_db / 20) where gain_in_db), in microseconds at 0 dB

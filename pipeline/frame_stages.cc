@@ -106,8 +106,9 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
   ImagesExposure exposure =
       ResolveExposure(options_.exposure, rig_path, options_.source.images_dir);
   // A recording (or its export) through a rig whose radiometric calibration gave its exposure
-  // unit: known from the reference camera's settings at the start.
-  ExposureFromReference(source_.exposure_reference(), rig_, rig_path, "run", &exposure);
+  // unit, or of a dataset that states one: from the reference camera's settings at the start.
+  ExposureFromReference([&] { return source_.exposure_reference(); }, rig_, rig_path, "run",
+                        &exposure);
   exposure_ = exposure.value;
   exposure_known_ = exposure.known;
   if (exposure_known_ && !options_.fit_exposure) HeldExposure(exposure, options_.fit, "run");

@@ -112,8 +112,8 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
   ReconstructOptions options = job.reconstruct;
   const Rig rig = WithInputTransfer(Rig::Load(job.rig_path), job.input_transfer);
   ImagesExposure exposure = ResolveExposure(job.exposure, job.rig_path, job.images_dir);
-  ExposureFromReference(ReadExportedReference(job.images_dir), rig, job.rig_path, "reconstruct",
-                        &exposure);
+  ExposureFromReference([&] { return ReadExportedReference(job.images_dir); }, rig, job.rig_path,
+                        "reconstruct", &exposure);
   options.exposure = exposure.value;
   out.exposure_source = exposure.known ? exposure.from : "default 1";
   out.exposure = options.exposure;

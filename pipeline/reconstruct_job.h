@@ -17,7 +17,8 @@ struct ReconstructJob {
   std::string images_dir;
   std::string out_path;  // the .vdb (its folder is made)
   // The exposure the images were taken with; 0 = ResolveExposure's (run.h: dataset.yaml beside the
-  // rig or the images), else 1.
+  // rig or the images), else an export's recorded settings over the rig's exposure unit
+  // (ExposureFromReference), else 1.
   double exposure = 0;
   ReconstructOptions reconstruct;  // its exposure is the job's
   std::string input_transfer;      // "" = the rig's; else srgb | linear | gamma=G (frame_source.h)
@@ -35,7 +36,7 @@ struct ReconstructJob {
 struct ReconstructJobResult {
   ReconstructSummary summary;
   double exposure = 1;
-  std::string exposure_source;     // "--exposure", the dataset.yaml that gave it, "default 1"
+  std::string exposure_source;     // "--exposure", the dataset.yaml or the settings, "default 1"
   std::vector<std::string> notes;  // cameras left out and why; a truth not compared and why
   double truth_error = -1;         // relative L2 against the truth's emission; -1 without one
 };

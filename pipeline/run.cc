@@ -75,17 +75,42 @@ bool DatasetExposure(const std::string& rig_path, double* exposure) {
   return true;
 }
 
+namespace {
+
+// The exposure unit a `flamerig simulate` dataset beside `rig_path` states (exposure_unit_us);
+// 0 when it states none. InputError naming dataset.yaml when it is not a time.
+double DatasetExposureUnit(const std::string& rig_path) {
+  std::string file;
+  YAML::Node node;
+  if (!DatasetKey(rig_path, "exposure_unit_us", &file, &node)) return 0;
+  double unit = 0;
+  try {
+    unit = node.as<double>();
+  } catch (const YAML::Exception& e) {
+    throw InputError(file + ": dataset.exposure_unit_us: " + e.what());
+  }
+  if (!(unit > 0 && std::isfinite(unit)))
+    throw InputError(file + ": dataset.exposure_unit_us must be a time > 0 in microseconds, not " +
+                     fmt::format("{:g}", unit));
+  return unit;
+}
+
+}  // namespace
+
 ImagesExposure ResolveExposure(double given, const std::string& rig_path,
                                const std::string& images_dir) {
   ImagesExposure e;
   if (given > 0) {
     e.value = given;
-    e.known = true;
+    e.known = e.given = true;
     e.from = "--exposure";
     return e;
   }
   e.known = DatasetExposure(rig_path, &e.value);
-  if (e.known) e.from = (fs::path(rig_path).parent_path() / "dataset.yaml").string();
+  if (e.known) {
+    e.from = (fs::path(rig_path).parent_path() / "dataset.yaml").string();
+    e.unit_us = DatasetExposureUnit(rig_path);
+  }
   if (!e.known && !images_dir.empty()) {
     // DATASET/frames or DATASET/frames/frame_NNNNNN.
     std::error_code ec;
@@ -96,6 +121,7 @@ ImagesExposure ResolveExposure(double given, const std::string& rig_path,
       if (fs::exists(dataset) && DatasetExposure(dataset.string(), &e.value)) {
         e.known = true;
         e.from = dataset.string();
+        e.unit_us = DatasetExposureUnit(dataset.string());
         break;
       }
     }
@@ -104,18 +130,24 @@ ImagesExposure ResolveExposure(double given, const std::string& rig_path,
   return e;
 }
 
-void ExposureFromReference(const std::optional<ExposureReference>& reference, const Rig& rig,
-                           const std::string& rig_path, const std::string& job,
+void ExposureFromReference(const std::function<std::optional<ExposureReference>()>& reference,
+                           const Rig& rig, const std::string& rig_path, const std::string& job,
                            ImagesExposure* exposure) {
-  if (exposure->known || !reference || !(rig.exposure_unit_us > 0)) return;
-  exposure->value = reference->exposure_us_at_0db() / rig.exposure_unit_us;
-  exposure->known = true;
+  if (exposure->given) return;
+  const double unit = exposure->known ? exposure->unit_us : rig.exposure_unit_us;
+  if (!(unit > 0)) return;
+  const std::optional<ExposureReference> ref = reference();
+  if (!ref) return;
+  const double value = ref->exposure_us_at_0db() / unit;
   exposure->from = fmt::format(
-      "{}'s settings at the recording's start ({:g} us{}) over {}'s exposure unit ({:g} us)",
-      reference->camera, reference->exposure_us,
-      reference->gain_in_db ? fmt::format(", {:g} dB", reference->gain_db)
-                            : std::string(", its gain in the device's units taken as calibrated"),
-      rig_path, rig.exposure_unit_us);
+      "{}'s settings at the recording's start ({:g} us{}{}) over {}'s exposure unit ({:g} us)",
+      ref->camera, ref->exposure_us,
+      ref->gain_in_db ? fmt::format(", {:g} dB", ref->gain_db)
+                      : std::string(", its gain in the device's units taken as calibrated"),
+      ref->where.empty() ? std::string() : ", as " + ref->where + " gives them",
+      exposure->known ? exposure->from : rig_path, unit);
+  exposure->value = value;
+  exposure->known = true;
   Log().info("{}: exposure {:g}, from {}", job, exposure->value, exposure->from);
 }
 

@@ -254,20 +254,28 @@ bool DatasetExposure(const std::string& rig_path, double* exposure);
 // DATASET/frames/frame_NNNNNN beside DATASET/dataset.yaml: a rig calibrated elsewhere, e.g. by
 // calibrate-radiometry, films the same images); known when one of them says, `from` naming it.
 // Unknown: value 1 (the tomography's), and the fit finds its own, the densities relative to it.
+// A dataset that states its exposure in time (`exposure_unit_us`, simulate.h's SimExposureUnitUs)
+// gives that unit too: a recording of it, by sim cameras at their own settings, is at the
+// exposure its settings give over that unit (ExposureFromReference below), not at the dataset's.
 struct ImagesExposure {
   double value = 1;
   bool known = false;
-  std::string from;  // "--exposure" or the dataset.yaml that gave it; empty when unknown
+  bool given = false;  // --exposure: nothing overrides it
+  std::string from;    // "--exposure" or the dataset.yaml that gave it; empty when unknown
+  double unit_us = 0;  // the dataset.yaml's exposure_unit_us when it gave the value; else 0
 };
 ImagesExposure ResolveExposure(double given, const std::string& rig_path,
                                const std::string& images_dir = "");
-// `*exposure` known from a source's exposure reference (a recording's, or an export's folder's:
-// FrameSource::exposure_reference, ReadExportedReference) through a rig that knows its exposure
-// unit (a radiometric calibration's, Rig::exposure_unit_us): the reference's exposure time x gain
-// at 0 dB over the unit, `from` naming both, and logged for `job`. Unchanged when it is known
-// already (--exposure and a dataset.yaml come first), or there is no reference or unit.
-void ExposureFromReference(const std::optional<ExposureReference>& reference, const Rig& rig,
-                           const std::string& rig_path, const std::string& job,
+// `*exposure` from a source's exposure reference (`reference()`: a recording's, or an export's
+// folder's, FrameSource::exposure_reference, ReadExportedReference): the reference's exposure
+// time x gain at 0 dB over an exposure unit, `from` naming both, and logged for `job`. The unit
+// is the dataset.yaml's that gave the exposure (ImagesExposure::unit_us: a simulated take at
+// other settings than the dataset's 10000 us), or, when the exposure is not known, the rig's
+// (a radiometric calibration's, Rig::exposure_unit_us). Unchanged for --exposure, without such a
+// unit, or when the source has no reference; `reference()` is called only when a unit would be
+// used (a damaged exposure_reference.yaml stops no job that has no use for it).
+void ExposureFromReference(const std::function<std::optional<ExposureReference>()>& reference,
+                           const Rig& rig, const std::string& rig_path, const std::string& job,
                            ImagesExposure* exposure);
 // `exposure.value`, checked against the fit's exposure range, for a fit that holds it; InputError
 // naming `job` and where the value came from when it lies outside.

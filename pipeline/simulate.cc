@@ -607,8 +607,10 @@ SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_di
           RadiometricShot shot;
           shot.camera = rig.cameras[c].name;
           shot.temperature_k = rc.temperatures_k[t];
-          // As the camera takes it: an exposure time in whole microseconds at 0 dB.
-          shot.exposure_us = std::max(1.0, std::round(rc.levels[l] / peak * unit_us));
+          // As the camera takes it: an exposure time at 0 dB, in whole microseconds where
+          // that moves it by 1% at most.
+          const double us = rc.levels[l] / peak * unit_us;
+          shot.exposure_us = us >= 100 ? std::round(us) : us;
           shot.exposure = shot.exposure_us / unit_us;
           char name[96];
           std::snprintf(name, sizeof(name), "%s_%.0fK_%zu.png", shot.camera.c_str(),

@@ -44,7 +44,8 @@
 //                        images of a black-body calibrator per camera (FilmCalibrationSource in
 //                        radiometric_calibration.h) at exposures putting its brightest channel at
 //                        each level of full scale (above 1 saturates; the time rounded to whole
-//                        microseconds), written with their shots file in the camera's terms
+//                        microseconds from 100 us up), written with their shots file in the
+//                        camera's terms
 //                        (exposure_us at 0 dB, and the dataset's exposure_unit_us):
 //                        OUT/radiometry/shots.yaml, OUT/radiometry/CAM_TK_I.png
 #ifndef FLAMERIG_PIPELINE_SIMULATE_H_
@@ -119,22 +120,17 @@ struct SimulateSummary {
   double time_s = 0;
 };
 
-// Writes the dataset into `out_dir`. Progress: stages "fire frames" (unit frames) and
-// "calibration views" (unit views); cancelling throws Cancelled, leaving what was written.
-// A folder that holds an earlier simulation (its dataset.yaml says `generator: flamerig
-// simulate`) is simulated again: that simulation's folders (frames, truth, calibration,
-// radiometry, cameras) are removed first, so that no frame of a longer earlier take stays behind.
-// A folder that holds any of those but no simulation's dataset.yaml (an exported recording) is
-// refused with an InputError, and nothing in it is touched. Other files in the folder are kept.
 // The camera settings at which a simulated camera records the dataset's frames as they were
 // rendered: a capture config's default exposure time (CameraSettings::exposure_us, 10000 us) at
 // 0 dB. dataset.yaml states it as `exposure_unit_us`, the exposure time at 0 dB that exposure 1
 // stands for: that time over the dataset's exposure. The sim cameras' replay reads it
 // (acquisition/sim_camera.h: a camera configured at half the time records half the light), and
 // the radiometric calibrator's shots give their exposure as the camera's time over it
-// (`exposure_us`, whole microseconds, `gain_db: 0`), so that the rig calibrated from them knows a
-// recording's exposure from its cameras' settings, as a real rig's does
-// (radiometric_calibration.h).
+// (`exposure_us`, whole microseconds from 100 us up, `gain_db: 0`), so that the rig calibrated
+// from them knows a recording's exposure from its cameras' settings, as a real rig's does
+// (radiometric_calibration.h). Unlike a real sensor's, the unit is the dataset's own (its
+// exposure is chosen per dataset): a rig calibrated from one dataset's shots holds for takes
+// replaying that dataset, not another.
 double SimExposureUnitUs(double exposure);
 
 // The exposure that puts the 99.5th percentile of the brightest channel over the fire pixels
@@ -152,6 +148,13 @@ double AutoExposure(const std::vector<ImageF>& linear);
 int RecordCameraImage(const ImageF& linear, double exposure, const CameraRadiometry& radiometry,
                       double noise_dn, std::uint64_t seed, ImageU8* u8, ImageU16* u16);
 
+// Writes the dataset into `out_dir`. Progress: stages "fire frames" (unit frames) and
+// "calibration views" (unit views); cancelling throws Cancelled, leaving what was written.
+// A folder that holds an earlier simulation (its dataset.yaml says `generator: flamerig
+// simulate`) is simulated again: that simulation's folders (frames, truth, calibration,
+// radiometry, cameras) are removed first, so that no frame of a longer earlier take stays behind.
+// A folder that holds any of those but no simulation's dataset.yaml (an exported recording) is
+// refused with an InputError, and nothing in it is touched. Other files in the folder are kept.
 SimulateSummary Simulate(const SimulateConfig& config, const std::string& out_dir,
                          const ProgressCallback& progress = nullptr);
 

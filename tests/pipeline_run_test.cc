@@ -2178,17 +2178,18 @@ TEST(RunFrames, ARigThatKnowsItsExposureUnitHoldsARecordingsExposure) {
     EXPECT_EQ(f.exposure_from, "known") << f.Line();
     EXPECT_NEAR(f.exposure / dataset_exposure, 1.0, 1e-12) << f.Line();
   }
-  const auto fit_set = [&](const char* rig_dir) {
+  const auto fit_set = [&](const char* rig_dir, double exposure = 0) {
     FitJob job;
     job.rig_path = (dir / rig_dir / "rig.yaml").string();
     job.images_dir = (dir / "png" / FrameName(1)).string();
     job.out_path = (dir / (std::string(rig_dir) + "_fit.vdb")).string();
     job.resolution = 24;
+    job.exposure = exposure;
     return RunFitJob(job).result.exposure;
   };
   EXPECT_NEAR(fit_set("cal") / dataset_exposure, 1.0, 1e-12);
-  const double found = fit_set("nounit");
-  EXPECT_GT(std::abs(found / dataset_exposure - 1), 0.05) << found;
+  const double found = fit_set("nounit");  // fitted: not held at any value
+  EXPECT_GT(std::abs(found / dataset_exposure - 1), 1e-6) << found;
   ReconstructJob rj;
   rj.rig_path = (dir / "cal" / "rig.yaml").string();
   rj.images_dir = (dir / "png" / FrameName(1)).string();
@@ -2200,6 +2201,8 @@ TEST(RunFrames, ARigThatKnowsItsExposureUnitHoldsARecordingsExposure) {
       << tomography.exposure_source;
   std::ofstream(dir / "png" / kExportedReferenceFile)
       << "reference: {camera: " << rig.cameras[0].name << ", exposure_us: -5}\n";
+  EXPECT_EQ(fit_set("cal", 2.0), 2.0);  // --exposure: the file is not read
+  EXPECT_GT(fit_set("nounit"), 0.0);    // no unit: the file is not read
   try {
     fit_set("cal");
     ADD_FAILURE() << "a reference whose exposure time is not one";
@@ -2219,9 +2222,11 @@ TEST(RunFrames, ARigThatKnowsItsExposureUnitHoldsARecordingsExposure) {
 // (cam1's fire Delta E within 0.5, the soot within 5% of the same dataset frame's; the run says
 // once that cam1 started elsewhere). And a take with every camera at half that time, run through
 // a rig that knows the exposure unit (a radiometric calibration's; here the dataset's), with no
-// exposure given and no dataset.yaml beside the rig: every camera recorded half the light, the
-// run holds half the dataset's exposure (the oracle: the simulator's exposure x 5000 / 10000),
-// and the densities are absolute: the soot within 5% of the take at 10000 us.
+// exposure given and no dataset.yaml beside the rig, and through the dataset's own rig (its
+// dataset.yaml beside it: its exposure is the 10000 us take's, and the unit it states turns the
+// recorded settings into this take's): every camera recorded half the light, the runs hold half
+// the dataset's exposure (the oracle: the simulator's exposure x 5000 / 10000), and the densities
+// are absolute: the soot within 5% of the take at 10000 us.
 TEST(RunFrames, CamerasConfiguredAtDifferentExposuresAreFittedAtTheirOwn) {
   const fs::path dir = TempDir("exposures_apart");
   SimulateDataset(dir / "sim", 2);
@@ -2279,6 +2284,7 @@ TEST(RunFrames, CamerasConfiguredAtDifferentExposuresAreFittedAtTheirOwn) {
   const auto [alike, alike_notes] = record("alike", 10000);
   const auto [apart, apart_notes] = record("apart", 5000);
   const auto [dim, dim_notes] = record("dim", 5000, 5000, (dir / "cal" / "rig.yaml").string());
+  const auto [dim_beside, dim_beside_notes] = record("dim_beside", 5000, 5000);
   // cam1 recorded half the light of the same dataset frame (the replay's sRGB round trip: within
   // 2%), the other cameras the same.
   for (int frame : {0, 1}) {
@@ -2290,14 +2296,17 @@ TEST(RunFrames, CamerasConfiguredAtDifferentExposuresAreFittedAtTheirOwn) {
     EXPECT_NEAR(b[0] / a[0], 1.0, 1e-9);
     EXPECT_NEAR(b[1] / a[1], 0.5, 0.01);
     EXPECT_NEAR(b[2] / a[2], 1.0, 1e-9);
-    const std::vector<double>& d = recorded["dim"][frame];
-    ASSERT_EQ(d.size(), 3u);
-    std::printf("recorded light of dataset frame %d, dim over alike: %.4f %.4f %.4f\n", frame,
-                d[0] / a[0], d[1] / a[1], d[2] / a[2]);
-    for (int c = 0; c < 3; ++c) EXPECT_NEAR(d[c] / a[c], 0.5, 0.01) << c;
+    for (const char* take : {"dim", "dim_beside"}) {
+      const std::vector<double>& d = recorded[take][frame];
+      ASSERT_EQ(d.size(), 3u);
+      std::printf("recorded light of dataset frame %d, %s over alike: %.4f %.4f %.4f\n", frame,
+                  take, d[0] / a[0], d[1] / a[1], d[2] / a[2]);
+      for (int c = 0; c < 3; ++c) EXPECT_NEAR(d[c] / a[c], 0.5, 0.01) << take << " " << c;
+    }
   }
   EXPECT_TRUE(alike_notes.empty());
   EXPECT_TRUE(dim_notes.empty());
+  EXPECT_TRUE(dim_beside_notes.empty());
   ASSERT_EQ(apart_notes.size(), 1u);
   EXPECT_NE(apart_notes[0].find(rig.cameras[1].name + " started at 5000 us, 0 dB, 0.5 times"),
             std::string::npos)
@@ -2323,7 +2332,10 @@ TEST(RunFrames, CamerasConfiguredAtDifferentExposuresAreFittedAtTheirOwn) {
     EXPECT_NEAR(b.soot / a.soot, 1.0, 0.05);
   }
   ASSERT_GE(dim.frames.size(), 3u);
-  for (const FrameSummary& d : dim.frames) {
+  ASSERT_GE(dim_beside.frames.size(), 3u);
+  std::vector<FrameSummary> dims = dim.frames;
+  dims.insert(dims.end(), dim_beside.frames.begin(), dim_beside.frames.end());
+  for (const FrameSummary& d : dims) {
     SCOPED_TRACE(d.frame);
     ASSERT_EQ(d.status, "computed") << d.Line();
     EXPECT_EQ(d.exposure_from, "known") << d.Line();

@@ -13,7 +13,8 @@ Runner AddReconstruct(CLI::App* command) {
   auto flags = std::make_shared<TomographyFlags>();
   command->footer(
       "Algebraic tomography of one frame set (DIR/<camera>.png for every rig camera) into an RGB\n"
-      "emission volume. The exposure defaults to the one in dataset.yaml beside the rig, else 1.\n"
+      "emission volume. The exposure defaults to the one in dataset.yaml beside the rig, else an\n"
+      "export's recorded settings over the rig's exposure unit (calibrate-radiometry), else 1.\n"
       "With --truth, report the error against a ground-truth volume's emission.");
   command->add_option("--rig", job->rig_path, "Rig file")->required()->type_name("RIG.yaml");
   command->add_option("--images", job->images_dir, "Folder of one image per camera")
