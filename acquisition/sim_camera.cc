@@ -137,48 +137,57 @@ ImageSource TestPatternSource() {
 
 namespace {
 
-// The exposure x gain (us at 0 dB) that the dataset's fire frames show, as its dataset.yaml
-// states it (ReplayExposure); 0 when it does not.
-double DatasetReferenceUs(const std::filesystem::path& dataset_dir) {
-  const std::filesystem::path path = dataset_dir / "dataset.yaml";
-  if (!std::filesystem::exists(path)) return 0;
-  YAML::Node dataset;
-  try {
-    dataset = YAML::LoadFile(path.string())["dataset"];
-  } catch (const YAML::Exception& e) {
-    throw InputError(path.string() + ": not a dataset.yaml (" + e.what() + ")");
-  }
-  if (!dataset || !dataset.IsMap() || !dataset["exposure_unit_us"]) return 0;
-  double product = 1;
-  for (const char* key : {"exposure", "exposure_unit_us"}) {
-    double v = 0;
-    try {
-      v = dataset[key] ? dataset[key].as<double>() : 0.0;
-    } catch (const YAML::Exception&) {
-      v = 0;
-    }
-    if (!(v > 0) || !std::isfinite(v))
-      throw InputError(path.string() + ": dataset." + key + " must be a finite number > 0" +
-                       (dataset[key] ? "" : " (missing, and exposure_unit_us needs it)"));
-    product *= v;
-  }
-  if (!std::isfinite(product))
-    throw InputError(path.string() + ": dataset.exposure x exposure_unit_us overflows");
-  return product;
-}
-
 // Why a replay of a deeper camera's codes refuses `taken` (exposure us x gain as a factor) of
 // `whose` ("this frame's", "this camera's"), against its reference.
 std::string DeepReplayRefusal(const ReplayExposure& replay, const std::string& whose,
                               double taken) {
   return std::string("holds a deeper camera's codes, which replay as they are, at ") +
-         (replay.dataset_reference ? "the exposure its dataset.yaml states"
-                                   : "the settings of the config's first camera replaying it") +
+         (replay.dataset_reference
+              ? "the exposure " +
+                    (std::filesystem::path(replay.dataset_dir) / "dataset.yaml").string() +
+                    " states"
+              : std::string("the settings of the config's first camera replaying it")) +
          " only (exposure us x gain as a factor: " + FormatNumber(replay.reference->load()) + "; " +
          whose + " " + FormatNumber(taken) + "): configure the camera at those";
 }
 
 }  // namespace
+
+DatasetExposureStatement ReadDatasetExposure(const std::string& dataset_dir) {
+  DatasetExposureStatement stated;
+  const std::filesystem::path path = std::filesystem::path(dataset_dir) / "dataset.yaml";
+  stated.path = path.string();
+  if (!std::filesystem::exists(path)) return stated;
+  YAML::Node dataset;
+  try {
+    dataset = YAML::LoadFile(stated.path)["dataset"];
+  } catch (const YAML::Exception& e) {
+    throw InputError(stated.path + ": not a dataset.yaml (" + e.what() + ")");
+  }
+  if (!dataset || !dataset.IsMap()) return stated;
+  auto read = [&](const char* key, const char* what) {
+    const YAML::Node node = dataset[key];
+    if (!node || node.IsNull()) return 0.0;
+    double v = 0;
+    try {
+      v = node.as<double>();
+    } catch (const YAML::Exception& e) {
+      throw InputError(stated.path + ": dataset." + key + ": " + e.what());
+    }
+    if (!(v > 0) || !std::isfinite(v))
+      throw InputError(stated.path + ": dataset." + key + " must be a positive number" + what +
+                       ", not " + FormatNumber(v));
+    return v;
+  };
+  stated.exposure = read("exposure", "");
+  stated.unit_us = read("exposure_unit_us", " (a time in microseconds)");
+  if (stated.unit_us > 0 && !(stated.exposure > 0))
+    throw InputError(stated.path + ": dataset.exposure is missing, and exposure_unit_us (" +
+                     FormatNumber(stated.unit_us) + " us) is the time of an exposure it states");
+  if (!std::isfinite(stated.reference_us()))
+    throw InputError(stated.path + ": dataset.exposure x exposure_unit_us overflows");
+  return stated;
+}
 
 ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera,
                                 ReplayContent content, std::shared_ptr<ReplayExposure> exposure) {
@@ -240,8 +249,9 @@ ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::strin
   // reference's (ReplayExposure), or else the first frame's. A deeper camera's codes cannot
   // follow a change.
   if (!exposure) exposure = std::make_shared<ReplayExposure>();
+  exposure->dataset_dir = dataset_dir;
   if (content == ReplayContent::kFire)
-    if (const double own = DatasetReferenceUs(dataset_dir); own > 0) {
+    if (const double own = ReadDatasetExposure(dataset_dir).reference_us(); own > 0) {
       exposure->reference = std::make_shared<std::atomic<double>>(own);
       exposure->sets_reference = false;
       exposure->dataset_reference = true;

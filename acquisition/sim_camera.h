@@ -111,8 +111,26 @@ struct ReplayExposure {
   std::shared_ptr<std::atomic<double>> reference = std::make_shared<std::atomic<double>>(0.0);
   bool sets_reference = true;
   bool dataset_reference = false;  // the dataset's own, stated in its dataset.yaml
+  std::string dataset_dir;         // the dataset replayed (DatasetReplaySource sets it)
   std::atomic<bool> scalable{true};
 };
+// What a `flamerig simulate` dataset's DATASET/dataset.yaml states about the exposure of its fire
+// frames, the one reader of it (the replay above; pipeline/run.h's ResolveExposure): `exposure`,
+// the fit's exposure of its images (0 when it states none), and `unit_us`, `exposure_unit_us`, the
+// exposure time at 0 dB that exposure 1 stands for (0 when it states none). `path` names the file.
+// A missing file states nothing; a key that is absent or empty states nothing. InputError naming
+// the file and the key when the file is not YAML, a stated value is not a finite number > 0, a
+// unit comes without an exposure, or their product (the frames' exposure time) overflows.
+struct DatasetExposureStatement {
+  std::string path;
+  double exposure = 0;
+  double unit_us = 0;
+  // exposure x unit_us microseconds at 0 dB: the replay's reference (ReplayExposure); 0 when
+  // the dataset states no unit.
+  double reference_us() const { return unit_us > 0 ? exposure * unit_us : 0.0; }
+};
+DatasetExposureStatement ReadDatasetExposure(const std::string& dataset_dir);
+
 ImageSource DatasetReplaySource(const std::string& dataset_dir, const std::string& camera,
                                 ReplayContent content = ReplayContent::kFire,
                                 std::shared_ptr<ReplayExposure> exposure = nullptr);

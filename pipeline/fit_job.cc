@@ -39,7 +39,7 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
   const RigRegistration truth_frame = RegisterTruth(job.truth_rig, rig);
   ImagesExposure images_exposure = ResolveExposure(job.exposure, job.rig_path, job.images_dir);
   ExposureFromReference([&] { return ReadExportedReference(job.images_dir); }, rig, job.rig_path,
-                        "fit", &images_exposure);
+                        &images_exposure);
   const double exposure = images_exposure.value;
   // The fast fit holds a known exposure: checked before any work.
   FitOptions fit = job.fit;

@@ -11,6 +11,7 @@
 
 #include "core/atomic_file.h"
 #include "core/error.h"
+#include "core/format.h"
 #include "core/log.h"
 #include "pipeline/blender_export.h"
 #include "pipeline/fit_report.h"
@@ -107,11 +108,13 @@ FrameStages::FrameStages(const RunOptions& options, const std::string& rig_path,
       ResolveExposure(options_.exposure, rig_path, options_.source.images_dir);
   // A recording (or its export) through a rig whose radiometric calibration gave its exposure
   // unit, or of a dataset that states one: from the reference camera's settings at the start.
-  ExposureFromReference([&] { return source_.exposure_reference(); }, rig_, rig_path, "run",
-                        &exposure);
+  ExposureFromReference([&] { return source_.exposure_reference(); }, rig_, rig_path, &exposure);
   exposure_ = exposure.value;
   exposure_known_ = exposure.known;
   if (exposure_known_ && !options_.fit_exposure) HeldExposure(exposure, options_.fit, "run");
+  if (exposure_known_)
+    Log().info("run: the take's exposure {} ({}){}", FormatNumber(exposure_, 6), exposure.from,
+               options_.fit_exposure ? ", a start; fitted" : ", held");
   if (!options_.holdout_camera.empty()) {
     holdout_ = rig_.FindCamera(options_.holdout_camera);
     if (holdout_ < 0)

@@ -113,7 +113,7 @@ ReconstructJobResult RunReconstructJob(const ReconstructJob& job,
   const Rig rig = WithInputTransfer(Rig::Load(job.rig_path), job.input_transfer);
   ImagesExposure exposure = ResolveExposure(job.exposure, job.rig_path, job.images_dir);
   ExposureFromReference([&] { return ReadExportedReference(job.images_dir); }, rig, job.rig_path,
-                        "reconstruct", &exposure);
+                        &exposure);
   options.exposure = exposure.value;
   out.exposure_source = exposure.known ? exposure.from : "default 1";
   out.exposure = options.exposure;

@@ -16,6 +16,7 @@
 #include <stdexcept>
 
 #include "acquisition/recording.h"
+#include "acquisition/sim_camera.h"
 #include "core/error.h"
 #include "core/json_yaml.h"
 #include "core/log.h"
@@ -61,41 +62,12 @@ bool DatasetKey(const std::string& rig_path, const char* key, std::string* file,
 }  // namespace
 
 bool DatasetExposure(const std::string& rig_path, double* exposure) {
-  std::string file;
-  YAML::Node node;
-  if (!DatasetKey(rig_path, "exposure", &file, &node)) return false;
-  try {
-    *exposure = node.as<double>();
-  } catch (const YAML::Exception& e) {
-    throw InputError(file + ": dataset.exposure: " + e.what());
-  }
-  if (!(*exposure > 0 && std::isfinite(*exposure)))
-    throw InputError(file + ": dataset.exposure must be a positive number, not " +
-                     std::to_string(*exposure));
+  const DatasetExposureStatement stated =
+      ReadDatasetExposure(fs::path(rig_path).parent_path().string());
+  if (!(stated.exposure > 0)) return false;
+  *exposure = stated.exposure;
   return true;
 }
-
-namespace {
-
-// The exposure unit a `flamerig simulate` dataset beside `rig_path` states (exposure_unit_us);
-// 0 when it states none. InputError naming dataset.yaml when it is not a time.
-double DatasetExposureUnit(const std::string& rig_path) {
-  std::string file;
-  YAML::Node node;
-  if (!DatasetKey(rig_path, "exposure_unit_us", &file, &node)) return 0;
-  double unit = 0;
-  try {
-    unit = node.as<double>();
-  } catch (const YAML::Exception& e) {
-    throw InputError(file + ": dataset.exposure_unit_us: " + e.what());
-  }
-  if (!(unit > 0 && std::isfinite(unit)))
-    throw InputError(file + ": dataset.exposure_unit_us must be a time > 0 in microseconds, not " +
-                     fmt::format("{:g}", unit));
-  return unit;
-}
-
-}  // namespace
 
 ImagesExposure ResolveExposure(double given, const std::string& rig_path,
                                const std::string& images_dir) {
@@ -106,33 +78,29 @@ ImagesExposure ResolveExposure(double given, const std::string& rig_path,
     e.from = "--exposure";
     return e;
   }
-  e.known = DatasetExposure(rig_path, &e.value);
-  if (e.known) {
-    e.from = (fs::path(rig_path).parent_path() / "dataset.yaml").string();
-    e.unit_us = DatasetExposureUnit(rig_path);
-  }
-  if (!e.known && !images_dir.empty()) {
-    // DATASET/frames or DATASET/frames/frame_NNNNNN.
+  // The dataset beside the rig, else DATASET/frames or DATASET/frames/frame_NNNNNN's.
+  std::vector<fs::path> datasets = {fs::path(rig_path).parent_path()};
+  if (!images_dir.empty()) {
     std::error_code ec;
     const fs::path images = fs::weakly_canonical(images_dir, ec);
-    for (fs::path frames : {images, images.parent_path()}) {
-      if (ec || frames.filename() != "frames") continue;
-      const fs::path dataset = frames.parent_path() / "dataset.yaml";
-      if (fs::exists(dataset) && DatasetExposure(dataset.string(), &e.value)) {
-        e.known = true;
-        e.from = dataset.string();
-        e.unit_us = DatasetExposureUnit(dataset.string());
-        break;
-      }
-    }
+    for (const fs::path& frames : {images, images.parent_path()})
+      if (!ec && frames.filename() == "frames") datasets.push_back(frames.parent_path());
+  }
+  for (const fs::path& dataset : datasets) {
+    const DatasetExposureStatement stated = ReadDatasetExposure(dataset.string());
+    if (!(stated.exposure > 0)) continue;
+    e.known = true;
+    e.value = stated.exposure;
+    e.from = stated.path;
+    e.unit_us = stated.unit_us;
+    break;
   }
   if (!e.known) e.value = 1;
   return e;
 }
 
 void ExposureFromReference(const std::function<std::optional<ExposureReference>()>& reference,
-                           const Rig& rig, const std::string& rig_path, const std::string& job,
-                           ImagesExposure* exposure) {
+                           const Rig& rig, const std::string& rig_path, ImagesExposure* exposure) {
   if (exposure->given) return;
   const double unit = exposure->known ? exposure->unit_us : rig.exposure_unit_us;
   if (!(unit > 0)) return;
@@ -148,7 +116,6 @@ void ExposureFromReference(const std::function<std::optional<ExposureReference>(
       exposure->known ? exposure->from : rig_path, unit);
   exposure->value = value;
   exposure->known = true;
-  Log().info("{}: exposure {:g}, from {}", job, exposure->value, exposure->from);
 }
 
 double HeldExposure(const ImagesExposure& exposure, const FitOptions& fit, const std::string& job) {

@@ -246,7 +246,8 @@ std::string FrameName(std::size_t i);
 
 // What a `flamerig simulate` dataset beside a rig file says: the exposure its images were taken
 // with (false when there is no dataset.yaml or it has none) and its absorption model ("soot" when
-// there is none). InputError naming dataset.yaml when it is malformed.
+// there is none). InputError naming dataset.yaml when it is malformed. Read through
+// acquisition/sim_camera.h's ReadDatasetExposure, as the dataset's replay reads it.
 bool DatasetExposure(const std::string& rig_path, double* exposure);
 
 // The exposure of a job's images: `given` when > 0, else the dataset's beside the rig, else that of
@@ -268,15 +269,14 @@ ImagesExposure ResolveExposure(double given, const std::string& rig_path,
                                const std::string& images_dir = "");
 // `*exposure` from a source's exposure reference (`reference()`: a recording's, or an export's
 // folder's, FrameSource::exposure_reference, ReadExportedReference): the reference's exposure
-// time x gain at 0 dB over an exposure unit, `from` naming both, and logged for `job`. The unit
+// time x gain at 0 dB over an exposure unit, `from` naming both (the caller logs it). The unit
 // is the dataset.yaml's that gave the exposure (ImagesExposure::unit_us: a simulated take at
 // other settings than the dataset's 10000 us), or, when the exposure is not known, the rig's
 // (a radiometric calibration's, Rig::exposure_unit_us). Unchanged for --exposure, without such a
 // unit, or when the source has no reference; `reference()` is called only when a unit would be
 // used (a damaged exposure_reference.yaml stops no job that has no use for it).
 void ExposureFromReference(const std::function<std::optional<ExposureReference>()>& reference,
-                           const Rig& rig, const std::string& rig_path, const std::string& job,
-                           ImagesExposure* exposure);
+                           const Rig& rig, const std::string& rig_path, ImagesExposure* exposure);
 // `exposure.value`, checked against the fit's exposure range, for a fit that holds it; InputError
 // naming `job` and where the value came from when it lies outside.
 double HeldExposure(const ImagesExposure& exposure, const FitOptions& fit, const std::string& job);

@@ -470,7 +470,9 @@ TEST(SimCamera, ReplayingCamerasConfiguredApartShowTheirOwnExposure) {
              {0, 1}, 0);
     ADD_FAILURE() << "a deeper replay at other settings than its dataset states";
   } catch (const InputError& e) {
-    EXPECT_NE(std::string(e.what()).find("the exposure its dataset.yaml states"), std::string::npos)
+    EXPECT_NE(std::string(e.what()).find(
+                  "the exposure " + (dir / "timed_deep" / "dataset.yaml").string() + " states"),
+              std::string::npos)
         << e.what();
     EXPECT_NE(std::string(e.what()).find("5000"), std::string::npos) << e.what();
   }
@@ -482,6 +484,17 @@ TEST(SimCamera, ReplayingCamerasConfiguredApartShowTheirOwnExposure) {
   } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find((dir / "timed_rgb" / "dataset.yaml").string() +
                                          ": dataset.exposure_unit_us must be"),
+              std::string::npos)
+        << e.what();
+  }
+  // A unit with no exposure to give the time of (a hand-edited dataset.yaml): refused, naming it.
+  std::ofstream(dir / "timed_rgb" / "dataset.yaml") << "dataset:\n  exposure_unit_us: 6000\n";
+  try {
+    CaptureConfig::Parse(yaml("timed_rgb", "RGB8", 10000), (dir / "bad_unit.yaml").string());
+    ADD_FAILURE() << "a dataset with an exposure unit and no exposure";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find((dir / "timed_rgb" / "dataset.yaml").string() +
+                                         ": dataset.exposure is missing"),
               std::string::npos)
         << e.what();
   }

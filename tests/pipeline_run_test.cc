@@ -1041,11 +1041,22 @@ TEST(RunFrames, AKnownExposureIsHeldAndAnUnknownOneIsFittedOncePerTake) {
   far.exposure = 1e6;
   EXPECT_THROW(RunAll(far), InputError);
 
-  // The dataset without its exposure: unknown.
+  // The dataset without its exposure (nor the unit that gives it a time: a unit alone is refused,
+  // naming the file): unknown.
   {
     const fs::path yaml = dir / "sim" / "dataset.yaml";
     YAML::Node root = YAML::LoadFile(yaml.string());
     root["dataset"].remove("exposure");
+    std::ofstream(yaml) << root;
+    try {
+      ResolveExposure(0, o.rig_path);
+      ADD_FAILURE() << "an exposure unit without the exposure it is the time of";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find(yaml.string() + ": dataset.exposure is missing"),
+                std::string::npos)
+          << e.what();
+    }
+    root["dataset"].remove("exposure_unit_us");
     std::ofstream(yaml) << root;
   }
   ASSERT_FALSE(ResolveExposure(0, o.rig_path).known);
