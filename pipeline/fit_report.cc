@@ -74,6 +74,11 @@ std::vector<std::vector<std::string>> Quotables(const FitResult& result, const F
   if (t.truth_soot > 0)
     rows.push_back(
         {"soot particles, of the truth's", fmt::format("{:.3f}", t.fit_soot / t.truth_soot)});
+  if (t.truth_visible_soot > 0)
+    rows.push_back({"soot particles in the truth's visible voxels, of the truth's there",
+                    fmt::format("{:.3f} (they hold {:.3f} of the truth's)",
+                                t.fit_visible_soot / t.truth_visible_soot,
+                                t.truth_visible_soot / t.truth_soot)});
   return rows;
 }
 

@@ -554,6 +554,8 @@ void FrameStages::Score(FrameWork* w) {
     s.truth_weighted_rms_k = t.weighted_rms_k;
     s.truth_weighted_bias_k = t.weighted_mean_k;
     s.truth_soot = t.truth_soot;
+    s.truth_visible_soot = t.truth_visible_soot;
+    s.visible_soot = t.fit_visible_soot;
     if (t.have_sigma) {
       s.truth_within_1_sigma = t.within_1_sigma;
       s.truth_within_2_sigma = t.within_2_sigma;

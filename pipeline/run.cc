@@ -264,6 +264,8 @@ nlohmann::json SummaryJson(const FrameSummary& f) {
   j["truth_visible"] = f.truth_visible;
   j["truth_frame"] = f.truth_frame;
   j["truth_soot"] = f.truth_soot;
+  j["truth_visible_soot"] = f.truth_visible_soot;
+  j["visible_soot"] = f.visible_soot;
   j["truth_within_1_sigma"] = f.truth_within_1_sigma;
   j["truth_within_2_sigma"] = f.truth_within_2_sigma;
   j["truth_median_sigma_k"] = f.truth_median_sigma_k;
@@ -335,6 +337,8 @@ FrameSummary FrameSummary::FromYaml(const std::string& text, const std::string& 
     s.truth_visible = n["truth_visible"].as<std::size_t>();
     s.truth_frame = n["truth_frame"].as<int>();
     s.truth_soot = n["truth_soot"].as<double>(0.0);
+    s.truth_visible_soot = n["truth_visible_soot"].as<double>(0.0);
+    s.visible_soot = n["visible_soot"].as<double>(0.0);
     // Summaries written before the sigma was scored have none.
     s.truth_within_1_sigma = n["truth_within_1_sigma"].as<double>(-1.0);
     s.truth_within_2_sigma = n["truth_within_2_sigma"].as<double>(-1.0);

@@ -183,6 +183,10 @@ struct FrameSummary {
   std::size_t truth_voxels = 0, truth_visible = 0;
   int truth_frame = -1;
   double truth_soot = 0;  // particles in the truth
+  // Particles over the truth's visible voxels, in the truth and in the fit there (pipeline/
+  // truth.h's TruthError::truth_visible_soot): the soot the cameras can show; 0 without truth
+  // (and in a summary written before 2026-12-05).
+  double truth_visible_soot = 0, visible_soot = 0;
   // The fit's temperature sigma against the truth (fitting/uncertainty.h): the share of the
   // counted voxels whose error lies within one and two sigma (calibrated: 0.68 and 0.95), and
   // the median sigma; -1 without a sigma grid or truth.

@@ -78,9 +78,14 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted,
   const bool have_determined = have_sigma && fitted.determined.size() == fg.num_voxels();
   double within1 = 0, within2 = 0, determined = 0, determined_dd = 0, undetermined_dd = 0;
   std::vector<double> sigmas;
+  const double truth_voxel_m3 = truth.geometry.voxel_size_m.prod();
+  ForEachVisibleVoxel(truth, [&](const Eigen::Vector3d&, std::size_t v, double) {
+    out.truth_visible_soot += truth.density_per_m3[v] * truth_voxel_m3;
+  });
   ForEachScoredVoxel(truth, fitted, fit_from_truth, &out.visible,
                      [&](std::size_t v, std::size_t f, double) {
                        const double x = fitted.temperature_k[f], t = truth.temperature_k[v];
+                       out.fit_visible_soot += fitted.density_per_m3[f] * truth_voxel_m3;
                        n += 1;
                        sd += x - t;
                        sdd += (x - t) * (x - t);

@@ -37,6 +37,12 @@ struct TruthError {
   // The number of soot particles in each volume (sum of density x voxel volume over all voxels):
   // absolute when the exposure is known, comparable across frames of a take.
   double truth_soot = 0, fit_soot = 0;
+  // The same over the truth's visible voxels, the fit's at the voxel holding each one's centre
+  // (no medium, or outside the fitted box: none) at the truth's voxel volume: the soot the
+  // cameras can show against what the fit holds there. The truth's soot that is too cool or
+  // too faint for an image (on the main job's candle about 15%: BENCHMARKS.md, "How much of the
+  // truth's soot a camera can see") is in truth_soot and not here.
+  double truth_visible_soot = 0, fit_visible_soot = 0;
   // When the fit has a temperature_sigma grid (fitting/uncertainty.h): of the counted voxels, the
   // share whose error lies within one and within two sigma (a calibrated sigma gives 0.68 and
   // 0.95), the median sigma, and the share the images determine (`determined` grid).

@@ -123,6 +123,17 @@ else:
              + ((" (weighted by the truth's emission %+.0f..%+.0f K)" % weighted
                  if weighted[0] == weighted[0] else ""),)
              + span("truth_within_1_sigma", 100) + span("truth_spread_k")))
+    total = [float(r["soot"]) / float(r["truth_soot"]) for r in rows
+             if float(r.get("truth_soot") or 0) > 0]
+    seen = [(float(r["visible_soot"]) / float(r["truth_visible_soot"]),
+             float(r["truth_visible_soot"]) / float(r["truth_soot"])) for r in rows
+            if float(r.get("truth_visible_soot") or 0) > 0]  # none before 2026-12-05
+    if total:
+        print("    soot: %.2f..%.2f of the truth's%s" % (min(total), max(total), (
+            "; in the truth's visible voxels %.2f..%.2f of the truth's there (which holds "
+            "%.2f..%.2f of its soot)" % (min(s[0] for s in seen), max(s[0] for s in seen),
+                                         min(s[1] for s in seen), max(s[1] for s in seen))
+            if seen else "")))
     for bound in ("temperature", "density"):  # held there by the fit's bound, not by the images
         pinned = [(r["frame"], int(r["voxels_at_%s_bound" % bound])) for r in rows
                   if int(r.get("voxels_at_%s_bound" % bound) or 0) > 0]

@@ -260,6 +260,8 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   f.truth_undetermined_rms_k = 250.25;
   f.truth_weighted_rms_k = 54.125;
   f.truth_weighted_bias_k = -12.5;
+  f.truth_visible_soot = 1.5e11;
+  f.visible_soot = 1.25e11;
   const FrameSummary back = FrameSummary::FromYaml(f.ToYaml(), "test");
   EXPECT_EQ(back.frame, f.frame);
   EXPECT_EQ(back.status, "true");
@@ -288,6 +290,8 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   EXPECT_EQ(back.truth_undetermined_rms_k, 250.25);
   EXPECT_EQ(back.truth_weighted_rms_k, 54.125);
   EXPECT_EQ(back.truth_weighted_bias_k, -12.5);
+  EXPECT_EQ(back.truth_visible_soot, 1.5e11);
+  EXPECT_EQ(back.visible_soot, 1.25e11);
   {
     // A summary written before the weighted bias was reads it as NaN (0 is a bias), and its line
     // leaves it out.
@@ -377,6 +381,30 @@ TEST(TruthError, SameGridVoxelByVoxelOtherGridsByTheVoxelHoldingEachCentre) {
   EXPECT_EQ(part.visible, 64u);
   EXPECT_EQ(part.counted, 32u);
   EXPECT_NEAR(part.rms_k, 10, 1e-4);
+  // Soot: each cube holds 1e16 particles per m^3 in 4 mm^3 (6.4e8 particles), all visible. The
+  // half box holds the lower half of the truth's visible voxels at its own density (here the
+  // truth's), so it shows half of the visible soot, while its own total is half of the truth's.
+  EXPECT_NEAR(same.truth_visible_soot, 6.4e8, 1e-6 * 6.4e8);
+  EXPECT_NEAR(same.fit_visible_soot, 6.4e8, 1e-6 * 6.4e8);
+  EXPECT_NEAR(part.fit_visible_soot, 3.2e8, 1e-6 * 3.2e8);
+  EXPECT_NEAR(part.fit_soot, 3.2e8, 1e-6 * 3.2e8);
+  // A truth voxel too cool for an image (1000 K) and one too faint for it (under 1% of the peak
+  // emission) count in the truth's total, not in its visible soot; and the fit's voxels that
+  // hold only them are not its visible soot either. Coarse voxel 0 (2 mm, the truth's 0, 1, 4,
+  // 5, 16, 17, 20, 21) at 3 times the truth's density: the truth's visible voxels it holds
+  // (all but the cool voxel 0 and the faint voxel 1) count 3 times.
+  FireVolume cooler = Cube(4, 1500);
+  cooler.temperature_k[0] = 1000;
+  cooler.emission_rgb.assign(3 * 64, 1.0f);
+  cooler.emission_rgb[3 * 1 + 1] = 0.005f;
+  FireVolume dense = Cube(2, 1500);
+  dense.density_per_m3[0] = 3e16f;
+  const TruthError visible = CompareWithTruth(cooler, dense);
+  EXPECT_NEAR(visible.truth_soot, 6.4e8, 1e-6 * 6.4e8);
+  EXPECT_NEAR(visible.truth_visible_soot, 6.2e8, 1e-6 * 6.2e8);
+  EXPECT_EQ(visible.counted, 62u);
+  EXPECT_NEAR(visible.fit_visible_soot, (6 * 3 + 56) * 1e7, 1e-6 * 7.4e8);
+  EXPECT_NEAR(visible.fit_soot, (3 + 7) * 8e7, 1e-6 * 8e8);
 }
 
 // A fit in another rig frame than its truth's (a calibrated rig's): the fit holds the truth's
@@ -765,6 +793,10 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
     EXPECT_GT(f.truth_spread_k, 0);
     EXPECT_EQ(f.truth_weighted_rms_k, written.weighted_rms_k);
     EXPECT_EQ(f.truth_weighted_bias_k, written.weighted_mean_k);
+    EXPECT_EQ(f.truth_visible_soot, written.truth_visible_soot);
+    EXPECT_EQ(f.visible_soot, written.fit_visible_soot);
+    EXPECT_GT(f.truth_visible_soot, 0);
+    EXPECT_LT(f.truth_visible_soot, f.truth_soot);
     EXPECT_GT(f.truth_weighted_rms_k, 0);
     EXPECT_NE(f.Line().find("emission-weighted RMS "), std::string::npos) << f.Line();
     EXPECT_NE(f.Line().find("(a constant: "), std::string::npos) << f.Line();

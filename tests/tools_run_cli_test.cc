@@ -325,7 +325,8 @@ TEST(RunCli, TheNeighbourWeightIsTheUsersAndEachVolumeRecordsIt) {
   std::string header;
   std::getline(csv, header);
   EXPECT_NE(header.find("truth_determined_share,truth_determined_rms_k,truth_undetermined_rms_k,"
-                        "truth_weighted_rms_k,truth_weighted_bias_k"),
+                        "truth_weighted_rms_k,truth_weighted_bias_k,truth_visible_soot,"
+                        "visible_soot"),
             std::string::npos)
       << header;
   // Roughness: the mean |T difference| between face neighbours along x, or along y, that both

@@ -174,6 +174,12 @@ Runner AddFit(CLI::App* command) {
             "  soot particles: %.3f of the truth's (a volume ratio where both assume one "
             "particle size)\n",
             r.truth.fit_soot / r.truth.truth_soot);
+      if (r.truth.compared && r.truth.truth_visible_soot > 0)
+        std::printf(
+            "  in the truth's visible voxels: %.3f of the truth's soot there (%.3f of its "
+            "total)\n",
+            r.truth.fit_visible_soot / r.truth.truth_visible_soot,
+            r.truth.truth_visible_soot / r.truth.truth_soot);
       if (r.truth.have_sigma)
         std::printf(
             "  its sigma: %.0f%% of those voxels within one sigma, %.0f%% within two (calibrated: "
