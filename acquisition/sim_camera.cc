@@ -164,7 +164,9 @@ DatasetExposureStatement ReadDatasetExposure(const std::string& dataset_dir) {
   } catch (const YAML::Exception& e) {
     throw InputError(stated.path + ": not a dataset.yaml (" + e.what() + ")");
   }
-  if (!dataset || !dataset.IsMap()) return stated;
+  if (!dataset || dataset.IsNull()) return stated;
+  if (!dataset.IsMap())
+    throw InputError(stated.path + ": `dataset` is not a map of the dataset's keys");
   auto read = [&](const char* key, const char* what) {
     const YAML::Node node = dataset[key];
     if (!node || node.IsNull()) return 0.0;

@@ -118,9 +118,10 @@ struct ReplayExposure {
 // frames, the one reader of it (the replay above; pipeline/run.h's ResolveExposure): `exposure`,
 // the fit's exposure of its images (0 when it states none), and `unit_us`, `exposure_unit_us`, the
 // exposure time at 0 dB that exposure 1 stands for (0 when it states none). `path` names the file.
-// A missing file states nothing; a key that is absent or empty states nothing. InputError naming
-// the file and the key when the file is not YAML, a stated value is not a finite number > 0, a
-// unit comes without an exposure, or their product (the frames' exposure time) overflows.
+// A missing file, or one without a `dataset` map, states nothing; a key that is absent or empty
+// states nothing. InputError naming the file (and the key) when the file is not YAML, `dataset`
+// is not a map, a stated value is not a finite number > 0, a unit comes without an exposure, or
+// their product (the frames' exposure time) overflows.
 struct DatasetExposureStatement {
   std::string path;
   double exposure = 0;

@@ -381,7 +381,7 @@ TEST(TruthError, SameGridVoxelByVoxelOtherGridsByTheVoxelHoldingEachCentre) {
   EXPECT_EQ(part.visible, 64u);
   EXPECT_EQ(part.counted, 32u);
   EXPECT_NEAR(part.rms_k, 10, 1e-4);
-  // Soot: each cube holds 1e16 particles per m^3 in 4 mm^3 (6.4e8 particles), all visible. The
+  // Soot: each cube holds 1e16 particles per m^3 in 64 mm^3 (6.4e8 particles), all visible. The
   // half box holds the lower half of the truth's visible voxels at its own density (here the
   // truth's), so it shows half of the visible soot, while its own total is half of the truth's.
   EXPECT_NEAR(same.truth_visible_soot, 6.4e8, 1e-6 * 6.4e8);

@@ -374,6 +374,7 @@ TEST(Cli, ReconstructASimulatedFrameSet) {
       {"dataset:\n  exposure: .nan\n", "dataset.yaml: dataset.exposure must be a positive number"},
       {"dataset:\n  exposure: [1, 2]\n",
        "dataset.yaml: dataset.exposure: yaml-cpp: error at line 2"},
+      {"dataset: 5\n", "dataset.yaml: `dataset` is not a map"},
       {"dataset:\n  exposure: 1\n  absorption: plasma\n",
        "dataset.yaml: dataset.absorption: absorption model 'plasma' is unknown"},
   };
