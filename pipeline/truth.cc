@@ -43,14 +43,16 @@ void ForEachVisibleVoxel(const FireVolume& truth, Visit&& visit) {
 
 // Calls visit(v, f, relative) for each visible truth voxel v (ForEachVisibleVoxel) paired with
 // the fitted voxel f that holds its centre (v itself on the same grid) where the fit has medium.
-// Counts the visible voxels.
+// Counts the visible voxels, and sums their truth density into *density (when not null).
 template <typename Visit>
 void ForEachScoredVoxel(const FireVolume& truth, const FireVolume& fitted,
-                        const Rigid3& fit_from_truth, std::size_t* visible, Visit&& visit) {
+                        const Rigid3& fit_from_truth, std::size_t* visible, double* density,
+                        Visit&& visit) {
   const GridGeometry& fg = fitted.geometry;
   const bool same_grid = SameVoxelsInOneFrame(truth, fitted, fit_from_truth);
   ForEachVisibleVoxel(truth, [&](const Eigen::Vector3d& centre, std::size_t v, double relative) {
     ++*visible;
+    if (density) *density += truth.density_per_m3[v];
     std::size_t f = v;
     if (!same_grid && !fg.VoxelHolding(fit_from_truth * centre, &f)) return;
     if (!(fitted.density_per_m3[f] > 0)) return;
@@ -79,10 +81,8 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted,
   double within1 = 0, within2 = 0, determined = 0, determined_dd = 0, undetermined_dd = 0;
   std::vector<double> sigmas;
   const double truth_voxel_m3 = truth.geometry.voxel_size_m.prod();
-  ForEachVisibleVoxel(truth, [&](const Eigen::Vector3d&, std::size_t v, double) {
-    out.truth_visible_soot += truth.density_per_m3[v] * truth_voxel_m3;
-  });
-  ForEachScoredVoxel(truth, fitted, fit_from_truth, &out.visible,
+  double visible_density = 0;
+  ForEachScoredVoxel(truth, fitted, fit_from_truth, &out.visible, &visible_density,
                      [&](std::size_t v, std::size_t f, double) {
                        const double x = fitted.temperature_k[f], t = truth.temperature_k[v];
                        out.fit_visible_soot += fitted.density_per_m3[f] * truth_voxel_m3;
@@ -114,6 +114,7 @@ TruthError CompareWithTruth(const FireVolume& truth, const FireVolume& fitted,
                          }
                        }
                      });
+  out.truth_visible_soot = visible_density * truth_voxel_m3;
   out.compared = true;
   out.truth_soot = TotalSoot(truth);
   out.fit_soot = TotalSoot(fitted);
@@ -165,7 +166,8 @@ std::vector<EmissionBandError> TemperatureErrorByEmission(const FireVolume& trut
   std::vector<double> sum(bands.size(), 0.0), sum_sq(bands.size(), 0.0);
   std::size_t visible = 0;
   ForEachScoredVoxel(
-      truth, fitted, fit_from_truth, &visible, [&](std::size_t v, std::size_t f, double relative) {
+      truth, fitted, fit_from_truth, &visible, nullptr,
+      [&](std::size_t v, std::size_t f, double relative) {
         if (relative < edges.front() || relative > edges.back()) return;
         // The band [edges[b], edges[b + 1]) holding `relative`; the last one holds its top edge.
         const std::size_t b = std::min<std::size_t>(
