@@ -266,6 +266,10 @@ nlohmann::json SummaryJson(const FrameSummary& f) {
   j["truth_soot"] = f.truth_soot;
   j["truth_visible_soot"] = f.truth_visible_soot;
   j["visible_soot"] = f.visible_soot;
+  j["limit_rms_k"] = f.limit_rms_k;
+  j["limit_bias_k"] = f.limit_bias_k;
+  j["limit_visible_soot"] = f.limit_visible_soot;
+  j["limit_soot"] = f.limit_soot;
   j["truth_within_1_sigma"] = f.truth_within_1_sigma;
   j["truth_within_2_sigma"] = f.truth_within_2_sigma;
   j["truth_median_sigma_k"] = f.truth_median_sigma_k;
@@ -339,6 +343,10 @@ FrameSummary FrameSummary::FromYaml(const std::string& text, const std::string& 
     s.truth_soot = n["truth_soot"].as<double>(0.0);
     s.truth_visible_soot = n["truth_visible_soot"].as<double>(0.0);
     s.visible_soot = n["visible_soot"].as<double>(0.0);
+    s.limit_rms_k = n["limit_rms_k"].as<double>(-1.0);  // none before 2026-12-05
+    s.limit_bias_k = n["limit_bias_k"].as<double>(0.0);
+    s.limit_visible_soot = n["limit_visible_soot"].as<double>(0.0);
+    s.limit_soot = n["limit_soot"].as<double>(0.0);
     // Summaries written before the sigma was scored have none.
     s.truth_within_1_sigma = n["truth_within_1_sigma"].as<double>(-1.0);
     s.truth_within_2_sigma = n["truth_within_2_sigma"].as<double>(-1.0);

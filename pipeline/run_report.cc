@@ -174,7 +174,8 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
            "truth_frame,truth_rms_k,truth_bias_k,truth_spread_k,"
            "truth_soot,truth_within_1_sigma,truth_within_2_sigma,truth_median_sigma_k,"
            "truth_determined_share,truth_determined_rms_k,truth_undetermined_rms_k,"
-           "truth_weighted_rms_k,truth_weighted_bias_k,truth_visible_soot,visible_soot";
+           "truth_weighted_rms_k,truth_weighted_bias_k,truth_visible_soot,visible_soot,"
+           "limit_rms_k,limit_bias_k,limit_visible_soot,limit_soot";
     for (const auto& c : cameras) csv << ",delta_e_fire_" << c << ",delta_e_all_" << c;
     csv << ",notes\n";
     for (const auto& f : frames) {
@@ -190,7 +191,9 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
           << f.truth_within_2_sigma << "," << f.truth_median_sigma_k << ","
           << f.truth_determined_share << "," << f.truth_determined_rms_k << ","
           << f.truth_undetermined_rms_k << "," << f.truth_weighted_rms_k << ","
-          << f.truth_weighted_bias_k << "," << f.truth_visible_soot << "," << f.visible_soot;
+          << f.truth_weighted_bias_k << "," << f.truth_visible_soot << "," << f.visible_soot << ","
+          << f.limit_rms_k << "," << f.limit_bias_k << "," << f.limit_visible_soot << ","
+          << f.limit_soot;
       for (const auto& c : cameras) {
         auto it = std::find_if(f.delta_e.begin(), f.delta_e.end(),
                                [&](const ViewDeltaE& d) { return d.camera == c; });

@@ -273,6 +273,82 @@ std::vector<RingTruth> TruthOnRings(const FireVolume& truth, const GridGeometry&
   return out;
 }
 
+FireVolume LightEquivalentTruth(const FireVolume& truth, const GridGeometry& fit_grid,
+                                const AbsorptionModel& absorption, const Rigid3& fit_from_truth,
+                                const std::vector<RingProfilePoint>* rings) {
+  if (!truth.HasTemperatureAndDensity() ||
+      truth.emission_rgb.size() != 3 * truth.geometry.num_voxels())
+    throw InputError("light-equivalent truth: the truth needs emission, temperature and density");
+  const std::size_t n = fit_grid.num_voxels();
+  // Per fitted voxel: the summed emission and density of the truth voxels it holds, and their count.
+  std::vector<Eigen::Vector3d> light(n, Eigen::Vector3d::Zero());
+  std::vector<double> soot(n, 0.0), count(n, 0.0);
+  const GridGeometry& tg = truth.geometry;
+  for (int k = 0; k < tg.dims.z(); ++k)
+    for (int j = 0; j < tg.dims.y(); ++j)
+      for (int i = 0; i < tg.dims.x(); ++i) {
+        std::size_t f = 0;
+        if (!fit_grid.VoxelHolding(fit_from_truth * tg.VoxelCenter(i, j, k), &f)) continue;
+        const std::size_t v = tg.Flat(i, j, k);
+        light[f] += Eigen::Vector3d(truth.emission_rgb[3 * v], truth.emission_rgb[3 * v + 1],
+                                    truth.emission_rgb[3 * v + 2]);
+        soot[f] += truth.density_per_m3[v];
+        count[f] += 1;
+      }
+  // Each fitted voxel's pool: itself, or its ring's voxels.
+  std::vector<std::size_t> pool(n);
+  for (std::size_t f = 0; f < n; ++f) pool[f] = f;
+  std::vector<Eigen::Vector3d> pooled_light = light;
+  std::vector<double> pooled_count = count;
+  if (rings && !rings->empty()) {
+    std::map<std::pair<int, int>, std::size_t> ring;  // (layer, radius) -> ring number
+    std::vector<const RingProfilePoint*> axis_of_layer(fit_grid.dims.y(), nullptr);
+    for (const RingProfilePoint& p : *rings) {
+      ring.emplace(std::make_pair(p.layer, p.radius_voxels), ring.size());
+      if (p.layer >= 0 && p.layer < fit_grid.dims.y()) axis_of_layer[p.layer] = &p;
+    }
+    std::vector<Eigen::Vector3d> ring_light(ring.size(), Eigen::Vector3d::Zero());
+    std::vector<double> ring_count(ring.size(), 0.0);
+    std::vector<long> ring_of(n, -1);
+    for (std::size_t f = 0; f < n; ++f) {
+      if (!(soot[f] > 0)) continue;  // the ring's voxels: those with medium, as a fit's
+      const Eigen::Vector3i v = fit_grid.Unflat(f);
+      const RingProfilePoint* axis = axis_of_layer[v.y()];
+      if (!axis) continue;
+      const Eigen::Vector3d c = fit_grid.VoxelCenter(v.x(), v.y(), v.z());
+      const int radius = static_cast<int>(std::lround(
+          std::hypot(c.x() - axis->axis_x_m, c.z() - axis->axis_z_m) / fit_grid.voxel_size_m.x()));
+      const auto it = ring.find(std::make_pair(v.y(), radius));
+      if (it == ring.end()) continue;
+      ring_of[f] = static_cast<long>(it->second);
+      ring_light[it->second] += light[f];
+      ring_count[it->second] += count[f];
+    }
+    for (std::size_t f = 0; f < n; ++f) {
+      if (ring_of[f] < 0) continue;
+      pooled_light[f] = ring_light[ring_of[f]];
+      pooled_count[f] = ring_count[ring_of[f]];
+    }
+  }
+  const FitOptions defaults;
+  const ThinEmissionTable table(absorption, defaults.objective.t_min_k, defaults.objective.t_max_k);
+  FireVolume out;
+  out.geometry = fit_grid;
+  out.temperature_k.assign(n, static_cast<float>(table.t_min()));
+  out.density_per_m3.assign(n, 0.0f);
+  for (std::size_t f = 0; f < n; ++f) {
+    if (!(soot[f] > 0) || !(count[f] > 0)) continue;
+    const Eigen::Vector3d rgb = pooled_light[f] / pooled_count[f];  // per truth voxel
+    const double t = table.TemperatureOf(rgb);
+    const double per = table.RgbPerDensity(t).sum();
+    out.temperature_k[f] = static_cast<float>(t);
+    out.density_per_m3[f] = static_cast<float>(per > 0 && rgb.sum() > 0 && std::isfinite(rgb.sum())
+                                                   ? rgb.sum() / per
+                                                   : soot[f] / count[f]);
+  }
+  return out;
+}
+
 double EmissionError(const FireVolume& reconstruction, const FireVolume& truth,
                      const std::string& truth_name) {
   if (truth.emission_rgb.empty()) throw DataError(truth_name + ": has no 'emission' grid");

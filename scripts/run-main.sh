@@ -104,8 +104,8 @@ rm -rf "$RUN_DIR/run_axisymmetric"
 "$BIN" run --recording "$RUN_DIR/recordings/fire" --rig "$RIG" \
   --truth "$RUN_DIR/truth" --truth-rig "$RUN_DIR/rig.yaml" --axisymmetric \
   --no-blender --out "$RUN_DIR/run_axisymmetric"
-score() {  # frames.csv -> the frame sets' temperature error, bias and sigma coverage, ranges
-  python3 - "$1" <<'PY'
+score() {  # frames.csv, grid|rings -> the frame sets' temperature error, bias, sigma coverage
+  python3 - "$1" "$2" <<'PY'
 import csv, sys
 # A frame not scored against the truth says -1 (pipeline/run.h), as does a sigma not estimated.
 rows = [r for r in csv.DictReader(open(sys.argv[1])) if float(r.get("truth_rms_k") or -1) >= 0]
@@ -134,6 +134,16 @@ else:
             "%.2f..%.2f of its soot)" % (min(s[0] for s in seen), max(s[0] for s in seen),
                                          min(s[1] for s in seen), max(s[1] for s in seen))
             if seen else "")))
+    # The fit's limit: the truth as its grid (or its rings) could at best show it, scored alike.
+    limit = [r for r in rows if float(r.get("limit_rms_k") or -1) >= 0
+             and float(r.get("truth_visible_soot") or 0) > 0]  # none before 2026-12-05
+    if limit:
+        ratio = [float(r["limit_visible_soot"]) / float(r["truth_visible_soot"]) for r in limit]
+        over = [float(r["limit_soot"]) / float(r["truth_soot"]) for r in limit]
+        print("    its limit (the truth as its %s could show it): T RMS %.0f..%.0f K, bias "
+              "%+.0f..%+.0f K, soot %.2f..%.2f of the truth's, in the visible voxels %.2f..%.2f"
+              % ((sys.argv[2],) + span("limit_rms_k") + span("limit_bias_k", signed=True)
+                 + (min(over), max(over), min(ratio), max(ratio))))
     for bound in ("temperature", "density"):  # held there by the fit's bound, not by the images
         pinned = [(r["frame"], int(r["voxels_at_%s_bound" % bound])) for r in rows
                   if int(r.get("voxels_at_%s_bound" % bound) or 0) > 0]
@@ -150,8 +160,8 @@ print("exposure held by run (from the recorded camera settings and the radiometr
       "unit): %s; the simulator's: %.6g" % (", ".join("%.6g" % float(v) for v in held), float(truth)))
 PY
 echo "temperatures against the truth (visible voxels, truth moved into the calibrated frame):"
-echo "  free voxels (run):            $(score "$RUN_DIR/run/frames.csv")"
-echo "  rings (run --axisymmetric):   $(score "$RUN_DIR/run_axisymmetric/frames.csv")"
+echo "  free voxels (run):            $(score "$RUN_DIR/run/frames.csv" grid)"
+echo "  rings (run --axisymmetric):   $(score "$RUN_DIR/run_axisymmetric/frames.csv" rings)"
 
 # 5. The first fitted frame lighting a small still life, beside the usual point and sphere lights.
 FIRST=$(find "$RUN_DIR/run" -maxdepth 1 -name "frame_*.vdb" | sort | head -1)

@@ -262,6 +262,10 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   f.truth_weighted_bias_k = -12.5;
   f.truth_visible_soot = 1.5e11;
   f.visible_soot = 1.25e11;
+  f.limit_rms_k = 55.5;
+  f.limit_bias_k = -2.25;
+  f.limit_visible_soot = 1.375e11;
+  f.limit_soot = 1.4375e11;
   const FrameSummary back = FrameSummary::FromYaml(f.ToYaml(), "test");
   EXPECT_EQ(back.frame, f.frame);
   EXPECT_EQ(back.status, "true");
@@ -292,6 +296,10 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
   EXPECT_EQ(back.truth_weighted_bias_k, -12.5);
   EXPECT_EQ(back.truth_visible_soot, 1.5e11);
   EXPECT_EQ(back.visible_soot, 1.25e11);
+  EXPECT_EQ(back.limit_rms_k, 55.5);
+  EXPECT_EQ(back.limit_bias_k, -2.25);
+  EXPECT_EQ(back.limit_visible_soot, 1.375e11);
+  EXPECT_EQ(back.limit_soot, 1.4375e11);
   {
     // A summary written before the weighted bias was reads it as NaN (0 is a bias), and its line
     // leaves it out.
@@ -309,6 +317,14 @@ TEST(FrameSummary, YamlAndJsonKeepEveryField) {
     old.truth_weighted_bias_k = -12.5;
     EXPECT_NE(old.Line().find("emission-weighted RMS 54.1 K (bias -12.5 K)"), std::string::npos)
         << old.Line();
+  }
+  {
+    // A summary written before the fit's limit was scored reads it as none (-1).
+    std::string older = f.ToYaml();
+    const std::size_t at = older.find("limit_rms_k:");
+    ASSERT_NE(at, std::string::npos);
+    older.erase(at, older.find('\n', at) + 1 - at);
+    EXPECT_EQ(FrameSummary::FromYaml(older, "test").limit_rms_k, -1);
   }
   // Not UTF-8: the JSON replaces it and stays JSON (Python's json module reads it).
   f.notes = {std::string("image \xff\xfe.png unreadable")};
@@ -504,6 +520,104 @@ TEST(TruthOnRings, EachRingAveragesTheVisibleTruthVoxelsAtItsHeightAndRadius) {
   FireVolume bare = Cube(4, 1500);
   bare.density_per_m3.clear();
   EXPECT_THROW(TruthOnRings(bare, fit, profile), InputError);
+}
+
+// The truth as a fit's grid or rings could show it (truth.h's LightEquivalentTruth). A truth 2x
+// finer than the fit, its emission the thin limit's (density x ThinEmissionTable's, as simulate
+// writes it): a fitted voxel whose truth is one temperature shows that temperature and density;
+// one whose truth is half at 1500 K and half at 1900 K shows nearly the hot half's colour, and
+// the soot that gives its light is short of the truth's (Wien at 600 nm: a particle at 1900 K
+// gives 29 times the light of one at 1500 K, so the light's temperature is about 1890 K and its
+// soot about 0.6 of the truth's). Pooled over a ring, the ring's voxels share one temperature.
+TEST(LightEquivalentTruth, AFittedVoxelOrRingShowsItsTruthsLightAtOneTemperature) {
+  FireVolume truth = Cube(8, 1900);
+  const GridGeometry fit = Cube(4, 0).geometry;  // 1 mm voxels, each holding 2x2x2 of the truth's
+  const GridGeometry& tg = truth.geometry;
+  const AbsorptionModel soot = AbsorptionModel::FromName("soot");
+  const FitOptions defaults;
+  const ThinEmissionTable table(soot, defaults.objective.t_min_k, defaults.objective.t_max_k);
+  auto fit_voxel = [](int i, int j, int k) { return Eigen::Vector3i(i / 2, j / 2, k / 2); };
+  truth.emission_rgb.resize(3 * tg.num_voxels());
+  for (int k = 0; k < 8; ++k)
+    for (int j = 0; j < 8; ++j)
+      for (int i = 0; i < 8; ++i) {
+        const std::size_t v = tg.Flat(i, j, k);
+        const Eigen::Vector3i f = fit_voxel(i, j, k);
+        if (f.x() == 1 && f.z() == 1) truth.temperature_k[v] = 1500;  // one of each layer's ring 1
+        if (f == Eigen::Vector3i(3, 3, 3) && i % 2 == 0) truth.temperature_k[v] = 1500;  // half
+        truth.density_per_m3[v] = 1e16f * float(1 + f.y());
+        const Eigen::Vector3d e =
+            truth.density_per_m3[v] * table.RgbPerDensity(truth.temperature_k[v]);
+        for (int c = 0; c < 3; ++c) truth.emission_rgb[3 * v + c] = static_cast<float>(e[c]);
+      }
+  auto truth_soot_in = [&](const std::function<bool(const Eigen::Vector3i&)>& in) {
+    double n = 0;
+    for (int k = 0; k < 8; ++k)
+      for (int j = 0; j < 8; ++j)
+        for (int i = 0; i < 8; ++i)
+          if (in(fit_voxel(i, j, k))) n += truth.density_per_m3[tg.Flat(i, j, k)];
+    return n / 8;  // a fitted voxel's mean density
+  };
+  // Voxel by voxel.
+  const FireVolume voxels = LightEquivalentTruth(truth, fit, soot);
+  ASSERT_TRUE(voxels.geometry.SameVoxels(fit));
+  for (int k = 0; k < 4; ++k)
+    for (int j = 0; j < 4; ++j)
+      for (int i = 0; i < 4; ++i) {
+        SCOPED_TRACE(std::to_string(i) + " " + std::to_string(j) + " " + std::to_string(k));
+        const std::size_t f = fit.Flat(i, j, k);
+        const Eigen::Vector3i at(i, j, k);
+        if (at == Eigen::Vector3i(3, 3, 3)) {
+          EXPECT_GT(voxels.temperature_k[f], 1850);
+          EXPECT_LT(voxels.temperature_k[f], 1900);
+          const double ratio =
+              voxels.density_per_m3[f] / truth_soot_in([&](const auto& g) { return g == at; });
+          EXPECT_GT(ratio, 0.5);
+          EXPECT_LT(ratio, 0.7);
+          continue;
+        }
+        EXPECT_NEAR(voxels.temperature_k[f], i == 1 && k == 1 ? 1500 : 1900, 1.0);
+        EXPECT_NEAR(voxels.density_per_m3[f], 1e16 * (1 + j), 0.01 * 1e16 * (1 + j));
+      }
+  // By rings about the grid's centre line (x = z = 2 mm): ring 1 holds the four middle voxels of
+  // a layer (0.71 mm out), ring 2 the twelve others. Layer 3 has no ring: its voxels stay apart.
+  std::vector<RingProfilePoint> profile;
+  for (int j = 0; j < 3; ++j)
+    for (int r : {1, 2}) {
+      RingProfilePoint p;
+      p.layer = j;
+      p.radius_voxels = r;
+      p.axis_x_m = p.axis_z_m = 0.002;
+      profile.push_back(p);
+    }
+  const FireVolume rings = LightEquivalentTruth(truth, fit, soot, Rigid3(), &profile);
+  for (int j = 0; j < 4; ++j) {
+    SCOPED_TRACE("layer " + std::to_string(j));
+    const float ring1 = rings.temperature_k[fit.Flat(1, j, 1)];
+    if (j == 3) {
+      EXPECT_EQ(ring1, voxels.temperature_k[fit.Flat(1, j, 1)]);
+      EXPECT_EQ(rings.temperature_k[fit.Flat(3, j, 3)], voxels.temperature_k[fit.Flat(3, j, 3)]);
+      continue;
+    }
+    // Three of the four at 1900 K: the light's temperature about 1895 K.
+    EXPECT_GT(ring1, 1850);
+    EXPECT_LT(ring1, 1900);
+    double fitted = 0;
+    for (auto [i, k] : {std::pair{1, 1}, {1, 2}, {2, 1}, {2, 2}}) {
+      EXPECT_EQ(rings.temperature_k[fit.Flat(i, j, k)], ring1);
+      fitted += rings.density_per_m3[fit.Flat(i, j, k)];
+    }
+    const double held = truth_soot_in([&](const Eigen::Vector3i& g) {
+      return g.y() == j && (g.x() == 1 || g.x() == 2) && (g.z() == 1 || g.z() == 2);
+    });
+    // Wien: (1/28 + 3 x 1.03) / 4 = 0.78 of the ring's soot.
+    EXPECT_LT(fitted, 0.9 * held);
+    EXPECT_GT(fitted, 0.7 * held);
+    EXPECT_NEAR(rings.temperature_k[fit.Flat(0, j, 0)], 1900, 1.0);  // ring 2: all at 1900 K
+  }
+  FireVolume dark = truth;
+  dark.emission_rgb.clear();
+  EXPECT_THROW(LightEquivalentTruth(dark, fit, soot), InputError);
 }
 
 // A radial profile written as CSV reads back to the printed digits; a malformed file names its
@@ -797,6 +911,24 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
     EXPECT_EQ(f.visible_soot, written.fit_visible_soot);
     EXPECT_GT(f.truth_visible_soot, 0);
     EXPECT_LT(f.truth_visible_soot, f.truth_soot);
+    // The fit's limit: the truth's light on the fitted grid, scored as the fit is. This fit's grid
+    // is the truth's (24), so the limit is the truth itself, to the emission table's kelvin
+    // (measured: soot within 0.03%, RMS 0.29 K, where the fit's is 110 to 130 K).
+    {
+      const FireVolume truth =
+          ReadVdb((fs::path(o.truth_dir) / (FrameName(f.frame) + ".vdb")).string());
+      const FireVolume fitted = ReadVdb((dir / "out" / (FrameName(f.frame) + ".vdb")).string());
+      const TruthError limit = CompareWithTruth(
+          truth, LightEquivalentTruth(truth, fitted.geometry,
+                                      AbsorptionModel::FromName(DatasetAbsorption(o.rig_path))));
+      EXPECT_EQ(f.limit_rms_k, limit.rms_k);
+      EXPECT_EQ(f.limit_bias_k, limit.mean_k);
+      EXPECT_EQ(f.limit_visible_soot, limit.fit_visible_soot);
+      EXPECT_NEAR(f.limit_soot, limit.fit_soot, 1e-9 * limit.fit_soot);  // the .vdb's voxel size
+      EXPECT_NEAR(f.limit_visible_soot / f.truth_visible_soot, 1.0, 0.002);
+      EXPECT_NEAR(f.limit_soot / f.truth_soot, 1.0, 0.002);
+      EXPECT_LT(f.limit_rms_k, 1.0);
+    }
     EXPECT_GT(f.truth_weighted_rms_k, 0);
     EXPECT_NE(f.Line().find("emission-weighted RMS "), std::string::npos) << f.Line();
     EXPECT_NE(f.Line().find("(a constant: "), std::string::npos) << f.Line();
@@ -988,6 +1120,22 @@ TEST(RunFrames, AnAxisymmetricRunStartsEveryFrameFromItsOwnTomography) {
   const std::vector<RingProfilePoint> rings =
       ReadRingProfileCsv((frames / "frame_000001_profile.csv").string());
   ASSERT_FALSE(rings.empty());
+  // The tied fit's limit pools the truth's light over its rings: the summary's figures are those
+  // of the truth so pooled over the written profile's rings, and the rings show less than the
+  // voxels do (one temperature for a ring's hot and cool voxels).
+  {
+    const FrameSummary tied = ReadFrameSummaries((dir / "tied_warm").string(), 1, 2).at(0);
+    const FireVolume truth = ReadVdb((dir / "sim" / "truth" / "frame_000001.vdb").string());
+    const AbsorptionModel soot = AbsorptionModel::FromName("soot");
+    const TruthError on_rings = CompareWithTruth(
+        truth, LightEquivalentTruth(truth, tied_warm.geometry, soot, Rigid3(), &rings));
+    const TruthError on_voxels =
+        CompareWithTruth(truth, LightEquivalentTruth(truth, tied_warm.geometry, soot));
+    EXPECT_EQ(tied.limit_rms_k, on_rings.rms_k);
+    EXPECT_EQ(tied.limit_visible_soot, on_rings.fit_visible_soot);
+    EXPECT_LT(on_rings.fit_visible_soot, on_voxels.fit_visible_soot);
+    EXPECT_GT(on_rings.rms_k, on_voxels.rms_k);
+  }
   for (const auto& p : rings) EXPECT_EQ(p.height_m, p.axis_y_m);
   // The same rig said to be up -y (as one calibrated in its first camera's frame): the same
   // rings, their heights now -y, growing up the flame.

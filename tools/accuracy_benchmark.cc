@@ -156,47 +156,6 @@ FireVolume TruthOnGrid(const FireVolume& truth, const GridGeometry& grid) {
   return out;
 }
 
-// The truth as the fit's grid can show it to the cameras: each fit voxel gets the mean thin-limit
-// emission of the truth voxels whose centres it holds, and the temperature and density that emit
-// it (the temperature whose emission has that chromaticity, ThinEmissionTable, and the density
-// that gives its brightness). A box filter of the temperature (TruthOnGrid) is cooler than what a
-// voxel's light says, because emission grows steeply with temperature; this is the best a fit on
-// this grid could return from images.
-FireVolume ImageEquivalentTruthOnGrid(const FireVolume& truth, const GridGeometry& grid,
-                                      const AbsorptionModel& absorption) {
-  const std::size_t n = grid.num_voxels();
-  std::vector<double> emission(3 * n, 0), count(n, 0), soot(n, 0);
-  const GridGeometry& tg = truth.geometry;
-  for (int k = 0; k < tg.dims.z(); ++k)
-    for (int j = 0; j < tg.dims.y(); ++j)
-      for (int i = 0; i < tg.dims.x(); ++i) {
-        std::size_t f;
-        if (!grid.VoxelHolding(tg.VoxelCenter(i, j, k), &f)) continue;
-        const std::size_t v = tg.Flat(i, j, k);
-        for (int c = 0; c < 3; ++c) emission[3 * f + c] += truth.emission_rgb[3 * v + c];
-        soot[f] += truth.density_per_m3[v];
-        count[f] += 1;
-      }
-  const FitOptions defaults;
-  const ThinEmissionTable table(absorption, defaults.objective.t_min_k, defaults.objective.t_max_k);
-  FireVolume out;
-  out.geometry = grid;
-  out.temperature_k.assign(n, static_cast<float>(defaults.objective.t_min_k));
-  out.density_per_m3.assign(n, 0.0f);
-  for (std::size_t f = 0; f < n; ++f) {
-    if (!(soot[f] > 0) || !(count[f] > 0)) continue;
-    const Eigen::Vector3d rgb(emission[3 * f] / count[f], emission[3 * f + 1] / count[f],
-                              emission[3 * f + 2] / count[f]);
-    const double t = table.TemperatureOf(rgb);
-    const double per = table.RgbPerDensity(t).sum();
-    out.temperature_k[f] = static_cast<float>(t);
-    // Cold voxels (no visible light) keep the box filter's density.
-    out.density_per_m3[f] =
-        static_cast<float>(per > 0 && rgb.sum() > 0 ? rgb.sum() / per : soot[f] / count[f]);
-  }
-  return out;
-}
-
 std::vector<FitView> Views(const Scene& s, bool held_out) {
   std::vector<FitView> v;
   const std::size_t n = s.rig.cameras.size();
@@ -232,8 +191,7 @@ std::string ErrorByEmissionRows(const Scene& scene, const std::vector<FitView>& 
                                 const std::vector<FitView>& held, const FitOptions& run_options,
                                 const FitResult& run_fit, double run_seconds,
                                 const std::function<void(const std::string&)>& log) {
-  const FireVolume equivalent =
-      ImageEquivalentTruthOnGrid(scene.truth, scene.fit_grid, scene.absorption);
+  const FireVolume equivalent = LightEquivalentTruth(scene.truth, scene.fit_grid, scene.absorption);
   FitOptions frozen = run_options;  // no iteration: a start scored as it is
   frozen.iterations_finest = 0;
   FitOptions from_volume = run_options;  // a warm start's temperature and density both kept
@@ -383,7 +341,7 @@ std::string FinerGridSection(const SceneSpec& base,
     const double seconds = Since(start);
     const TruthError t = CompareWithTruth(scene.truth, r.volume);
     const TruthError limit = CompareWithTruth(
-        scene.truth, ImageEquivalentTruthOnGrid(scene.truth, scene.fit_grid, scene.absorption));
+        scene.truth, LightEquivalentTruth(scene.truth, scene.fit_grid, scene.absorption));
     const auto delta_e = FireDeltaE(r, fitted, held, scene.absorption);
     md << "| " << row.resolution << " | " << spec.width << "x" << spec.height << " | "
        << Fixed(r.volume.metadata_numbers.at("w_sm"), 3) << " | " << Fixed(seconds, 1) << " | "
@@ -421,7 +379,7 @@ struct Variant {
   std::string name;
   FitOptions options;
   bool start_at_truth = false;  // warm start from the truth on the fit's grid
-  // Warm start from the image-equivalent truth (ImageEquivalentTruthOnGrid) instead.
+  // Warm start from the image-equivalent truth (pipeline/truth.h's LightEquivalentTruth) instead.
   bool start_at_image_equivalent = false;
 };
 
@@ -489,7 +447,7 @@ std::string RunAccuracyBenchmark(const AccuracyBenchmarkOptions& options,
     const std::vector<FitView> clean_fitted = Views(clean, false);
     const FireVolume truth_on_grid = TruthOnGrid(scene.truth, scene.fit_grid);
     const FireVolume image_equivalent =
-        ImageEquivalentTruthOnGrid(scene.truth, scene.fit_grid, scene.absorption);
+        LightEquivalentTruth(scene.truth, scene.fit_grid, scene.absorption);
 
     std::vector<Variant> variants;
     const std::string its = std::to_string(long_iterations) + " iterations";
