@@ -219,6 +219,9 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   // the best single temperature (drawn dashed in the error's colour).
   PlotSeries constant{
       "a constant temperature's RMS error (the truth's spread; K, right axis)", {}, {}, true};
+  // And the fit's limit: the RMS of the truth's light given exactly to each fitted voxel (or ring).
+  PlotSeries limit{
+      "the fit's limit: the truth's light per fitted voxel or ring (K, right axis)", {}, {}, true};
   PlotSeries tomo{"tomography", {}, {}}, fit{"fit", {}, {}}, total{"whole frame", {}, {}};
   std::size_t computed = 0, unchanged = 0, failed = 0, no_fire = 0;
   double de_sum = 0, t_sum = 0, in1_sum = 0, in2_sum = 0, sigma_sum = 0;
@@ -252,6 +255,10 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
       if (f.truth_spread_k >= 0) {
         constant.x.push_back(static_cast<double>(f.frame));
         constant.y.push_back(f.truth_spread_k);
+      }
+      if (f.limit_rms_k >= 0) {
+        limit.x.push_back(static_cast<double>(f.frame));
+        limit.y.push_back(f.limit_rms_k);
       }
       t_sum += f.truth_rms_k;
       ++t_n;
@@ -299,6 +306,7 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
         constant.reference_of = int(errors.series.size()) - 1;
         errors.series.push_back(constant);
       }
+      if (!limit.x.empty()) errors.series.push_back(limit);
     }
     std::string why;
     errors_plotted = WritePlot(errors, (dir / "errors").string(), &why);
@@ -449,16 +457,21 @@ std::string WriteRunReport(const std::string& out_dir, const std::vector<FrameSu
   page.List(results);
   page.Section("Error over the frames");
   for (const auto& e : plot_errors) page.Warning("A plot is missing: " + e);
-  if (errors_plotted)
-    page.Figure(
-        "errors.png",
-        "Mean Delta E of each view's fire pixels per frame (left axis)" +
-            std::string(truth.x.empty()
-                            ? "."
-                            : "; the temperature RMS error against the truth on visible voxels, "
-                              "in kelvin (right axis), and dashed beside it the error of the best "
-                              "single temperature on the same voxels (the truth's spread): a fit "
-                              "above that line tells less than a constant."));
+  if (errors_plotted) {
+    std::string caption = "Mean Delta E of each view's fire pixels per frame (left axis)";
+    if (truth.x.empty())
+      caption += ".";
+    else
+      caption +=
+          "; the temperature RMS error against the truth on visible voxels, in kelvin (right "
+          "axis), and dashed beside it the error of the best single temperature on the same "
+          "voxels (the truth's spread): a fit above that line tells less than a constant.";
+    if (!limit.x.empty())
+      caption +=
+          " The fit's limit is the error of the truth's light given exactly to each fitted voxel "
+          "(to each ring, for a tied fit): what the fit's grid (or rings) can show.";
+    page.Figure("errors.png", caption);
+  }
   if (!shown.empty()) {
     page.Section("Input against rendered");
     page.Figure("contact.png",

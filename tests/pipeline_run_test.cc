@@ -1002,21 +1002,29 @@ TEST(RunFrames, FitsEveryFrameAgainstTheTruth) {
   {
     std::ifstream dat(fs::path(page).parent_path() / "errors.dat");
     std::string line;
-    bool in_block = false;
-    std::map<std::size_t, double> spread;
+    // And the fit's limit: per frame its RMS.
+    std::map<std::size_t, double> spread, limit;
+    std::map<std::size_t, double>* block = nullptr;
     while (std::getline(dat, line)) {
       if (line.rfind("# ", 0) == 0) {
-        in_block = line.find("a constant temperature's RMS error") != std::string::npos;
-      } else if (in_block && !line.empty()) {
+        block = line.find("a constant temperature's RMS error") != std::string::npos ? &spread
+                : line.find("the fit's limit") != std::string::npos                  ? &limit
+                                                                                     : nullptr;
+      } else if (block && !line.empty()) {
         std::istringstream xy(line);
         double x = -1, y = -1;
         xy >> x >> y;
-        spread[std::size_t(x)] = y;
+        (*block)[std::size_t(x)] = y;
       }
     }
     ASSERT_EQ(spread.size(), run.frames.size());
-    for (const auto& f : run.frames) EXPECT_EQ(spread.at(f.frame), f.truth_spread_k) << f.frame;
+    ASSERT_EQ(limit.size(), run.frames.size());
+    for (const auto& f : run.frames) {
+      EXPECT_EQ(spread.at(f.frame), f.truth_spread_k) << f.frame;
+      EXPECT_NEAR(limit.at(f.frame), f.limit_rms_k, 1e-6 + 1e-6 * f.limit_rms_k) << f.frame;
+    }
     EXPECT_NE(html.find("tells less than a constant"), std::string::npos);
+    EXPECT_NE(html.find("The fit's limit is the error"), std::string::npos);
   }
   EXPECT_TRUE(fs::exists(dir / "out" / "frames.csv"));
   // frames.csv, read by Python's csv module: each frame's soot volume in mm^3.
