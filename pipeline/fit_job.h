@@ -54,6 +54,9 @@ struct FitJobResult {
   std::string tomography;  // how the tomography was had: "file ..." or the reconstruction's report
   bool have_truth = false;
   TruthError truth;
+  // The fit's limit (truth.h's LightEquivalentTruth on its grid, per ring for a tied fit) scored
+  // the same way; not compared when the truth has no emission grid.
+  TruthError limit;
   RigRegistration truth_frame;  // FitJob::truth_rig's frame into the rig's (identity without)
 };
 

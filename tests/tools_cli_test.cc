@@ -430,6 +430,22 @@ TEST(Cli, FitASimulatedFrameSet) {
       << fit.output;
   EXPECT_NE(fit.output.find("cam2 (held out)"), std::string::npos) << fit.output;
   EXPECT_NE(fit.output.find("temperature against"), std::string::npos) << fit.output;
+  // The fit's grid is the truth's (20): its limit is the truth, to the emission table's kelvin.
+  {
+    const std::size_t at = fit.output.find(
+        "its limit, the truth's light given exactly to each "
+        "fitted voxel: RMS ");
+    ASSERT_NE(at, std::string::npos) << fit.output;
+    double rms = -1, mean = 0, soot = 0;
+    ASSERT_EQ(std::sscanf(fit.output.c_str() + at,
+                          "its limit, the truth's light given exactly to each fitted voxel: RMS "
+                          "%lf K, mean %lf K, %lf",
+                          &rms, &mean, &soot),
+              3)
+        << fit.output;
+    EXPECT_LT(rms, 1.0);
+    EXPECT_NEAR(soot, 1.0, 0.003);
+  }
   EXPECT_NE(fit.output.find("temperature RMS on the determined voxels "), std::string::npos)
       << fit.output;
   flamerig::FireVolume v = flamerig::ReadVdb(out);

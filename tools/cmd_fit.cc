@@ -180,6 +180,12 @@ Runner AddFit(CLI::App* command) {
             "total)\n",
             r.truth.fit_visible_soot / r.truth.truth_visible_soot,
             r.truth.truth_visible_soot / r.truth.truth_soot);
+      if (r.limit.compared && r.limit.counted && r.limit.truth_visible_soot > 0)
+        std::printf(
+            "  its limit, the truth's light given exactly to each fitted %s: RMS %.1f K, mean "
+            "%+.1f K, %.3f of the truth's soot in its visible voxels\n",
+            r.result.ring_profile.empty() ? "voxel" : "ring", r.limit.rms_k, r.limit.mean_k,
+            r.limit.fit_visible_soot / r.limit.truth_visible_soot);
       if (r.truth.have_sigma)
         std::printf(
             "  its sigma: %.0f%% of those voxels within one sigma, %.0f%% within two (calibrated: "
