@@ -177,9 +177,10 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
         truth.emission_rgb.size() == 3 * truth.geometry.num_voxels())
       out.limit = CompareWithTruth(
           truth,
-          LightEquivalentTruth(
-              truth, out.result.volume.geometry, absorption, out.truth_frame.to_from_from,
-              out.result.ring_profile.empty() ? nullptr : &out.result.ring_profile),
+          LightEquivalentTruth(truth, out.result.volume.geometry, absorption,
+                               out.truth_frame.to_from_from,
+                               out.result.ring_profile.empty() ? nullptr : &out.result.ring_profile,
+                               &out.result.volume.density_per_m3),
           out.truth_frame.to_from_from);
   }
   out.scores = WriteFitReport(out.report_dir, out.result, views, held, absorption, job.fit.render,

@@ -574,6 +574,7 @@ void FrameStages::Score(FrameWork* w) {
   // A tied frame's profile gains the truth's ring means, as `fit --truth`'s does.
   const std::string profile = paths_.Profile(w->index);
   std::vector<RingProfilePoint> rings;
+  bool rings_read = true;
   if (t.compared && truth.HasTemperatureAndDensity() && fs::exists(profile)) {
     try {
       rings = ReadRingProfileCsv(profile);
@@ -581,15 +582,19 @@ void FrameStages::Score(FrameWork* w) {
           TruthOnRings(truth, scored_.geometry, rings, fit_from_truth_);
       WriteRingProfileCsv(profile, rings, &on_rings);
     } catch (const DataError& e) {
-      s.notes.push_back(std::string("truth not put on the profile: ") + e.what());
-      rings.clear();
+      s.notes.push_back(std::string("truth not put on the profile, nor the rings' limit scored: ") +
+                        e.what());
+      rings_read = false;
     }
   }
   // The fit's limit: the truth as its grid (or its rings) could at best show it.
-  if (t.compared && t.counted && truth.emission_rgb.size() == 3 * truth.geometry.num_voxels()) {
-    const TruthError limit = CompareWithTruth(
-        truth, LightEquivalentTruth(truth, scored_.geometry, absorption_, fit_from_truth_, &rings),
-        fit_from_truth_);
+  if (rings_read && t.compared && t.counted &&
+      truth.emission_rgb.size() == 3 * truth.geometry.num_voxels()) {
+    const TruthError limit =
+        CompareWithTruth(truth,
+                         LightEquivalentTruth(truth, scored_.geometry, absorption_, fit_from_truth_,
+                                              &rings, &scored_.density_per_m3),
+                         fit_from_truth_);
     if (limit.compared && limit.counted) {
       s.limit_rms_k = limit.rms_k;
       s.limit_bias_k = limit.mean_k;

@@ -189,9 +189,10 @@ struct FrameSummary {
   double truth_visible_soot = 0, visible_soot = 0;
   // The fit's limit (pipeline/truth.h's LightEquivalentTruth on the fit's grid, pooled over its
   // rings when the fit is tied): the truth as the grid or the rings could at best show it,
-  // scored as the fit is. Its temperature RMS and bias on the same visible voxels, its soot over
-  // the truth's visible voxels (against truth_visible_soot) and in all; -1 (the RMS) and 0
-  // without truth, and in a summary written before 2026-12-05.
+  // scored as the fit is: its temperature RMS and bias on the truth's visible voxels where it has
+  // medium, its soot over the truth's visible voxels (against truth_visible_soot) and in all; -1
+  // (the RMS) and 0 without truth or an emission grid in it, when a tied frame's profile cannot be
+  // read, and in a summary written before 2026-12-05.
   double limit_rms_k = -1, limit_bias_k = 0, limit_visible_soot = 0, limit_soot = 0;
   // The fit's temperature sigma against the truth (fitting/uncertainty.h): the share of the
   // counted voxels whose error lies within one and two sigma (calibrated: 0.68 and 0.95), and

@@ -275,12 +275,13 @@ std::vector<RingTruth> TruthOnRings(const FireVolume& truth, const GridGeometry&
 
 FireVolume LightEquivalentTruth(const FireVolume& truth, const GridGeometry& fit_grid,
                                 const AbsorptionModel& absorption, const Rigid3& fit_from_truth,
-                                const std::vector<RingProfilePoint>* rings) {
+                                const std::vector<RingProfilePoint>* rings,
+                                const std::vector<float>* fitted_density) {
   if (!truth.HasTemperatureAndDensity() ||
       truth.emission_rgb.size() != 3 * truth.geometry.num_voxels())
     throw InputError("light-equivalent truth: the truth needs emission, temperature and density");
   const std::size_t n = fit_grid.num_voxels();
-  // Per fitted voxel: the summed emission and density of the truth voxels it holds, and their count.
+  // Per fitted voxel: the summed emission and density of the truth voxels it holds, their count.
   std::vector<Eigen::Vector3d> light(n, Eigen::Vector3d::Zero());
   std::vector<double> soot(n, 0.0), count(n, 0.0);
   const GridGeometry& tg = truth.geometry;
@@ -295,11 +296,11 @@ FireVolume LightEquivalentTruth(const FireVolume& truth, const GridGeometry& fit
         soot[f] += truth.density_per_m3[v];
         count[f] += 1;
       }
-  // Each fitted voxel's pool: itself, or its ring's voxels.
-  std::vector<std::size_t> pool(n);
-  for (std::size_t f = 0; f < n; ++f) pool[f] = f;
+  // Each fitted voxel's light: its own, or pooled over its ring's voxels (ring_of, -1: none).
   std::vector<Eigen::Vector3d> pooled_light = light;
   std::vector<double> pooled_count = count;
+  std::vector<long> ring_of(n, -1);
+  const bool medium_given = fitted_density && fitted_density->size() == n;
   if (rings && !rings->empty()) {
     std::map<std::pair<int, int>, std::size_t> ring;  // (layer, radius) -> ring number
     std::vector<const RingProfilePoint*> axis_of_layer(fit_grid.dims.y(), nullptr);
@@ -309,9 +310,10 @@ FireVolume LightEquivalentTruth(const FireVolume& truth, const GridGeometry& fit
     }
     std::vector<Eigen::Vector3d> ring_light(ring.size(), Eigen::Vector3d::Zero());
     std::vector<double> ring_count(ring.size(), 0.0);
-    std::vector<long> ring_of(n, -1);
     for (std::size_t f = 0; f < n; ++f) {
-      if (!(soot[f] > 0)) continue;  // the ring's voxels: those with medium, as a fit's
+      // A ring's voxels: the fit's with medium (its rings hold its active voxels), else those
+      // holding truth soot; either only where the truth says something (it holds a voxel).
+      if (!(count[f] > 0) || !(medium_given ? (*fitted_density)[f] > 0 : soot[f] > 0)) continue;
       const Eigen::Vector3i v = fit_grid.Unflat(f);
       const RingProfilePoint* axis = axis_of_layer[v.y()];
       if (!axis) continue;
@@ -337,7 +339,8 @@ FireVolume LightEquivalentTruth(const FireVolume& truth, const GridGeometry& fit
   out.temperature_k.assign(n, static_cast<float>(table.t_min()));
   out.density_per_m3.assign(n, 0.0f);
   for (std::size_t f = 0; f < n; ++f) {
-    if (!(soot[f] > 0) || !(count[f] > 0)) continue;
+    // A ring's voxel shows the ring's light (its share of it), soot or not; another, its own.
+    if (ring_of[f] < 0 && (!(soot[f] > 0) || !(count[f] > 0))) continue;
     const Eigen::Vector3d rgb = pooled_light[f] / pooled_count[f];  // per truth voxel
     const double t = table.TemperatureOf(rgb);
     const double per = table.RgbPerDensity(t).sum();

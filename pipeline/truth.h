@@ -111,27 +111,36 @@ std::vector<RingTruth> TruthOnRings(const FireVolume& truth, const GridGeometry&
 
 // The truth as a fit on `fit_grid` could at best show it: its limit, a fit's oracle. Each fitted
 // voxel takes the mean thin-limit emission of the truth voxels whose centres it holds (moved by
-// `fit_from_truth`), and the temperature whose emission has that colour and the density that gives
-// its brightness (ThinEmissionTable through the sRGB observer over `absorption`'s spectrum); a voxel
-// whose truth gives no light keeps the truth's mean density. With `rings` (an axisymmetric fit's
-// FitResult::ring_profile on `fit_grid`), the light is pooled over each ring before (the fitted
-// voxels whose centres lie in the ring's layer at its radius about the layer's axis, in fit voxels,
-// rounded; a voxel of a layer or radius with no ring keeps its own light): what one temperature
-// and density per ring can show. The fitted voxels are those holding truth soot.
+// `fit_from_truth`), and the temperature whose emission has that colour and the density that
+// gives its brightness (ThinEmissionTable through the sRGB observer over `absorption`'s
+// spectrum); a voxel whose truth gives no light keeps the truth's mean density. The fitted voxels
+// are those holding truth soot.
+//
+// With `rings` (an axisymmetric fit's FitResult::ring_profile on `fit_grid`), the light is
+// pooled over each ring first, and every voxel of a ring shows the ring's: what one temperature
+// and density per ring can show. A ring holds the voxels in its layer at its radius about the
+// layer's axis (in fit voxels, rounded, from the voxel's centre, as the fit ties them) that hold
+// truth voxels and, with `fitted_density` (the tied fit's density on `fit_grid`), where the fit
+// has medium (the fit's rings hold its active voxels), else where the truth has soot. A voxel of a
+// layer or radius with no ring keeps its own light. An interpolated tie
+// (FitOptions::axisymmetric_interpolate) can give a ring a radial slope: the rings' limit is not
+// its own, and it can pass it.
 //
 // Emission grows steeply with temperature, so a voxel or ring whose truth is partly hot shows the
 // hot part's colour: its temperature is hotter than the truth's mean, and the soot that gives its
-// light is less than the truth's (on the main job's candle at 64 from a truth of 96, 0.93 of the
-// visible soot per voxel, 0.87 per ring: BENCHMARKS.md, "The soot a fit's grid and rings can
-// show"). Scored with CompareWithTruth, it is the fit's limit beside the fit: what a fit that gave
-// every voxel (ring) exactly its truth's light would score. Not a strict bound on each figure: a
-// fit that errs elsewhere can score better on one (the main job's tied fits are less biased than
-// their rings' limit, and some hold more soot). Throws InputError when the truth lacks an
-// emission, temperature or density grid.
+// light is less than the truth's (on the main job's candle at 64 from a truth of 96, about 0.93
+// of the visible soot per voxel and 0.87 per ring: BENCHMARKS.md, "The soot a fit's grid
+// and rings can show"). Scored with CompareWithTruth, it is the fit's limit beside the fit: what
+// a fit that gave every voxel (ring) exactly its truth's light would score. Not a bound on each
+// figure: a fit whose light per voxel differs from the truth's can score better on one (the main
+// job's tied fits are less biased than their rings' limit, and can hold more soot at other
+// temperatures). Throws InputError when the truth lacks an emission, temperature or density grid.
 FireVolume LightEquivalentTruth(const FireVolume& truth, const GridGeometry& fit_grid,
                                 const AbsorptionModel& absorption,
                                 const Rigid3& fit_from_truth = Rigid3(),
-                                const std::vector<RingProfilePoint>* rings = nullptr);
+                                const std::vector<RingProfilePoint>* rings = nullptr,
+                                const std::vector<float>* fitted_density = nullptr);
+
 // The relative L2 error of a reconstruction's emission against a truth's emission grid (resampled
 // onto the reconstruction's grid when they differ): |e - e_truth| / |e_truth|. Throws DataError
 // naming `truth_name` when the truth has no emission grid.

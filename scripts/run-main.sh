@@ -140,10 +140,12 @@ else:
     if limit:
         ratio = [float(r["limit_visible_soot"]) / float(r["truth_visible_soot"]) for r in limit]
         over = [float(r["limit_soot"]) / float(r["truth_soot"]) for r in limit]
-        print("    its limit (the truth as its %s could show it): T RMS %.0f..%.0f K, bias "
-              "%+.0f..%+.0f K, soot %.2f..%.2f of the truth's, in the visible voxels %.2f..%.2f"
-              % ((sys.argv[2],) + span("limit_rms_k") + span("limit_bias_k", signed=True)
-                 + (min(over), max(over), min(ratio), max(ratio))))
+        rms = [float(r["limit_rms_k"]) for r in limit]
+        bias = [float(r["limit_bias_k"]) for r in limit]
+        print("    its limit (the truth as its %s could show it; %d sets): T RMS %.0f..%.0f K, "
+              "bias %+.0f..%+.0f K, soot %.2f..%.2f of the truth's, in the visible voxels "
+              "%.2f..%.2f" % (sys.argv[2], len(limit), min(rms), max(rms), min(bias), max(bias),
+                              min(over), max(over), min(ratio), max(ratio)))
     for bound in ("temperature", "density"):  # held there by the fit's bound, not by the images
         pinned = [(r["frame"], int(r["voxels_at_%s_bound" % bound])) for r in rows
                   if int(r.get("voxels_at_%s_bound" % bound) or 0) > 0]
