@@ -173,20 +173,14 @@ FitJobResult RunFitJob(const FitJob& job, const ProgressCallback& progress) {
     out.truth_frame = truth_frame;
     out.have_truth = true;
     out.truth = CompareWithTruth(truth, out.result.volume, out.truth_frame.to_from_from);
-    if (truth.HasTemperatureAndDensity() &&
-        truth.emission_rgb.size() == 3 * truth.geometry.num_voxels())
-      out.limit = CompareWithTruth(
-          truth,
-          LightEquivalentTruth(truth, out.result.volume.geometry, absorption,
-                               out.truth_frame.to_from_from,
-                               out.result.ring_profile.empty() ? nullptr : &out.result.ring_profile,
-                               &out.result.volume.density_per_m3),
-          out.truth_frame.to_from_from);
+    out.limit = CompareLimitWithTruth(truth, out.result.volume, absorption, out.result.ring_profile,
+                                      out.truth_frame.to_from_from);
   }
-  out.scores = WriteFitReport(out.report_dir, out.result, views, held, absorption, job.fit.render,
-                              std::string("flamerig fit (") + ToString(job.method) + ")", nullptr,
-                              out.have_truth ? &truth : nullptr, out.truth_frame.to_from_from,
-                              rig.up_in_rig, out.have_truth ? &out.truth : nullptr);
+  out.scores =
+      WriteFitReport(out.report_dir, out.result, views, held, absorption, job.fit.render,
+                     std::string("flamerig fit (") + ToString(job.method) + ")", nullptr,
+                     out.have_truth ? &truth : nullptr, out.truth_frame.to_from_from, rig.up_in_rig,
+                     out.have_truth ? &out.truth : nullptr, out.have_truth ? &out.limit : nullptr);
   return out;
 }
 

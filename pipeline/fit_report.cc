@@ -34,7 +34,9 @@ constexpr double kDeltaEScale = 20;
 // prints (CompareWithTruth).
 std::vector<std::vector<std::string>> Quotables(const FitResult& result, const FireVolume* truth,
                                                 const Rigid3& fit_from_truth,
-                                                const TruthError* truth_error) {
+                                                const TruthError* truth_error,
+                                                const AbsorptionModel& absorption,
+                                                const TruthError* limit_error) {
   std::vector<std::vector<std::string>> rows;
   const VoxelUncertainty& u = result.uncertainty;
   if (!u.temperature_sigma_k.empty()) {
@@ -79,6 +81,17 @@ std::vector<std::vector<std::string>> Quotables(const FitResult& result, const F
                     fmt::format("{:.3f} (they hold {:.3f} of the truth's)",
                                 t.fit_visible_soot / t.truth_visible_soot,
                                 t.truth_visible_soot / t.truth_soot)});
+  // The fit's limit: what its grid (its rings) shows of the truth's light, scored alike.
+  const TruthError limit = limit_error ? *limit_error
+                                       : CompareLimitWithTruth(*truth, result.volume, absorption,
+                                                               result.ring_profile, fit_from_truth);
+  if (limit.compared && limit.counted && limit.truth_visible_soot > 0)
+    rows.push_back(
+        {fmt::format("its limit, the truth's light given exactly to each fitted {}: temperature "
+                     "RMS, mean; soot in the truth's visible voxels, of the truth's there",
+                     result.ring_profile.empty() ? "voxel" : "ring"),
+         fmt::format("{:.1f} K, {:+.1f} K; {:.3f}", limit.rms_k, limit.mean_k,
+                     limit.fit_visible_soot / limit.truth_visible_soot)});
   return rows;
 }
 
@@ -226,7 +239,7 @@ std::vector<ViewScore> WriteFitReport(
     const std::vector<FitView>& held_out, const AbsorptionModel& absorption,
     const RenderOptions& render, const std::string& title, std::vector<ImageU8>* rendered_out,
     const FireVolume* truth, const Rigid3& fit_from_truth, const Eigen::Vector3d& up_in_rig,
-    const TruthError* truth_error) {
+    const TruthError* truth_error, const TruthError* limit_error) {
   const FireVolume& v = result.volume;
   // One renderer per camera response, made when a view needs it (views of one response are
   // usually together).
@@ -360,7 +373,7 @@ std::vector<ViewScore> WriteFitReport(
        << " | " << s.fire_delta_e << " | " << s.p95_delta_e << " |\n";
   }
   const std::vector<std::vector<std::string>> quotables =
-      Quotables(result, truth, fit_from_truth, truth_error);
+      Quotables(result, truth, fit_from_truth, truth_error, absorption, limit_error);
   if (!quotables.empty()) {
     md << "\n| quantity | value |\n|---|---|\n";
     for (const auto& row : quotables) md << "| " << row[0] << " | " << row[1] << " |\n";

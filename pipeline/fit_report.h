@@ -30,14 +30,15 @@ struct ViewScore {
 // also profile.csv and profile.png (WriteRingProfileCsv and WriteRingProfilePlot below). Returns
 // the scores, and the rendered 8-bit views (fitted, then held out) through *rendered when not
 // null. `truth_error`: the truth's scores when the caller has them already
-// (CompareWithTruth(*truth, result.volume, fit_from_truth)), or null to compute them here.
+// (CompareWithTruth(*truth, result.volume, fit_from_truth)), or null to compute them here; and
+// `limit_error` the fit's limit's (truth.h's CompareLimitWithTruth) likewise.
 std::vector<ViewScore> WriteFitReport(
     const std::string& dir, const FitResult& result, const std::vector<FitView>& fitted,
     const std::vector<FitView>& held_out, const AbsorptionModel& absorption,
     const RenderOptions& render, const std::string& title, std::vector<ImageU8>* rendered = nullptr,
     const FireVolume* truth = nullptr, const Rigid3& fit_from_truth = Rigid3(),
     const Eigen::Vector3d& up_in_rig = Eigen::Vector3d::UnitY(),
-    const TruthError* truth_error = nullptr);
+    const TruthError* truth_error = nullptr, const TruthError* limit_error = nullptr);
 
 // An axisymmetric fit's radial profile (FitResult::ring_profile) as CSV, one row per ring by
 // layer and then radius: layer, height_m (along the rig's up: fit.h's MeasureRingHeights),

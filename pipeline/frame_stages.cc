@@ -588,13 +588,9 @@ void FrameStages::Score(FrameWork* w) {
     }
   }
   // The fit's limit: the truth as its grid (or its rings) could at best show it.
-  if (rings_read && t.compared && t.counted &&
-      truth.emission_rgb.size() == 3 * truth.geometry.num_voxels()) {
+  if (rings_read && t.compared && t.counted) {
     const TruthError limit =
-        CompareWithTruth(truth,
-                         LightEquivalentTruth(truth, scored_.geometry, absorption_, fit_from_truth_,
-                                              &rings, &scored_.density_per_m3),
-                         fit_from_truth_);
+        CompareLimitWithTruth(truth, scored_, absorption_, rings, fit_from_truth_);
     if (limit.compared && limit.counted) {
       s.limit_rms_k = limit.rms_k;
       s.limit_bias_k = limit.mean_k;

@@ -352,6 +352,22 @@ FireVolume LightEquivalentTruth(const FireVolume& truth, const GridGeometry& fit
   return out;
 }
 
+TruthError CompareLimitWithTruth(const FireVolume& truth, const FireVolume& fitted,
+                                 const AbsorptionModel& absorption,
+                                 const std::vector<RingProfilePoint>& rings,
+                                 const Rigid3& fit_from_truth) {
+  if (!truth.HasTemperatureAndDensity() ||
+      truth.emission_rgb.size() != 3 * truth.geometry.num_voxels()) {
+    TruthError none;
+    none.why_not = "the truth has no emission, temperature or density grid";
+    return none;
+  }
+  return CompareWithTruth(truth,
+                          LightEquivalentTruth(truth, fitted.geometry, absorption, fit_from_truth,
+                                               &rings, &fitted.density_per_m3),
+                          fit_from_truth);
+}
+
 double EmissionError(const FireVolume& reconstruction, const FireVolume& truth,
                      const std::string& truth_name) {
   if (truth.emission_rgb.empty()) throw DataError(truth_name + ": has no 'emission' grid");

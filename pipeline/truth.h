@@ -140,6 +140,14 @@ FireVolume LightEquivalentTruth(const FireVolume& truth, const GridGeometry& fit
                                 const Rigid3& fit_from_truth = Rigid3(),
                                 const std::vector<RingProfilePoint>* rings = nullptr,
                                 const std::vector<float>* fitted_density = nullptr);
+// The fit's limit scored as CompareWithTruth scores the fit: LightEquivalentTruth on `fitted`'s
+// grid, pooled over `rings` (a tied fit's FitResult::ring_profile; empty: per voxel) and the
+// fit's medium. Not compared (why_not says why) when the truth lacks an emission, temperature or
+// density grid.
+TruthError CompareLimitWithTruth(const FireVolume& truth, const FireVolume& fitted,
+                                 const AbsorptionModel& absorption,
+                                 const std::vector<RingProfilePoint>& rings,
+                                 const Rigid3& fit_from_truth = Rigid3());
 
 // The relative L2 error of a reconstruction's emission against a truth's emission grid (resampled
 // onto the reconstruction's grid when they differ): |e - e_truth| / |e_truth|. Throws DataError

@@ -357,6 +357,26 @@ TEST(CameraModel, TwoColourPyrometryMeasuresTheTemperatureOneBandCannot) {
                                            two.truth.rms_k, two.truth.mean_k)),
             std::string::npos)
       << report("two");
+  // And its limit, as `fit --truth` prints it: the truth of 48 on the fit's grid of 32, each fitted
+  // voxel showing its truth's light, holds less soot than the truth (a voxel's light shows its
+  // hot part's colour) and errs less than the fit (measured: 0.87 of the visible soot, RMS 68 K
+  // against the fit's 144 K).
+  ASSERT_TRUE(two.limit.compared);
+  std::printf("its limit: RMS %.1f K, bias %+.1f K, visible soot %.3f of the truth's\n",
+              two.limit.rms_k, two.limit.mean_k,
+              two.limit.fit_visible_soot / two.limit.truth_visible_soot);
+  EXPECT_LT(two.limit.rms_k, two.truth.rms_k);
+  EXPECT_LT(two.limit.fit_visible_soot, two.limit.truth_visible_soot);
+  EXPECT_GT(two.limit.fit_visible_soot, 0.7 * two.limit.truth_visible_soot);
+  EXPECT_NE(
+      report("two").find(fmt::format("| its limit, the truth's light given exactly to each "
+                                     "fitted voxel: temperature RMS, mean; soot in the "
+                                     "truth's visible voxels, of the truth's there | {:.1f} "
+                                     "K, {:+.1f} K; {:.3f} |",
+                                     two.limit.rms_k, two.limit.mean_k,
+                                     two.limit.fit_visible_soot / two.limit.truth_visible_soot)),
+      std::string::npos)
+      << report("two");
   fs::remove_all(dir);
 }
 
