@@ -184,12 +184,11 @@ Runner AddFit(CLI::App* command) {
         std::printf(
             "  its limit, the truth's light given exactly to each fitted %s: RMS %.1f K, mean "
             "%+.1f K, %.3f of the truth's soot in its visible voxels\n",
-            r.result.ring_profile.empty()    ? "voxel"
+            r.result.ring_profile.empty()      ? "voxel"
             : job.fit.axisymmetric_interpolate ? "ring (the rings' limit, which a tie linear in "
                                                  "the radius can pass)"
                                                : "ring",
-            r.limit.rms_k, r.limit.mean_k,
-            r.limit.fit_visible_soot / r.limit.truth_visible_soot);
+            r.limit.rms_k, r.limit.mean_k, r.limit.fit_visible_soot / r.limit.truth_visible_soot);
       if (r.truth.have_sigma)
         std::printf(
             "  its sigma: %.0f%% of those voxels within one sigma, %.0f%% within two (calibrated: "
