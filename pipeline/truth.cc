@@ -21,6 +21,37 @@ bool SameVoxelsInOneFrame(const FireVolume& truth, const FireVolume& fitted,
          m.rotation.vec().isZero(0) && m.translation.isZero(0);
 }
 
+// The rings of an axisymmetric fit's profile (FitResult::ring_profile on `grid`), found as the fit
+// ties its voxels (fit.cc, MakeRingTie): a point of layer j lies in the ring of that layer whose
+// radius is its distance to the layer's axis (in the xz plane) in voxels, rounded.
+class RingLookup {
+ public:
+  RingLookup(const std::vector<RingProfilePoint>& profile, const GridGeometry& grid)
+      : voxel_m_(grid.voxel_size_m.x()), axis_of_layer_(grid.dims.y(), nullptr) {
+    for (std::size_t p = 0; p < profile.size(); ++p) {
+      ring_.emplace(std::make_pair(profile[p].layer, profile[p].radius_voxels), p);
+      if (profile[p].layer >= 0 && profile[p].layer < grid.dims.y())
+        axis_of_layer_[profile[p].layer] = &profile[p];
+    }
+  }
+  // The profile's index of the ring of layer `layer` holding `centre` (rig frame), or -1 when the
+  // layer has no axis or no ring at that radius.
+  long Find(int layer, const Eigen::Vector3d& centre) const {
+    if (layer < 0 || layer >= static_cast<int>(axis_of_layer_.size())) return -1;
+    const RingProfilePoint* axis = axis_of_layer_[layer];
+    if (!axis) return -1;
+    const int radius = static_cast<int>(std::lround(
+        std::hypot(centre.x() - axis->axis_x_m, centre.z() - axis->axis_z_m) / voxel_m_));
+    const auto it = ring_.find(std::make_pair(layer, radius));
+    return it == ring_.end() ? -1 : static_cast<long>(it->second);
+  }
+
+ private:
+  double voxel_m_;
+  std::vector<const RingProfilePoint*> axis_of_layer_;
+  std::map<std::pair<int, int>, std::size_t> ring_;  // (layer, radius) -> profile index
+};
+
 // Calls visit(centre, v, relative) for each truth voxel v the images can show (>= 1300 K with
 // soot, and at least 1% of the peak emission when the truth has an emission grid): its centre in
 // the rig frame and its emission over the truth's peak (1 without an emission grid).
@@ -243,29 +274,17 @@ std::vector<RingTruth> TruthOnRings(const FireVolume& truth, const GridGeometry&
                                     const Rigid3& fit_from_truth) {
   if (!truth.HasTemperatureAndDensity())
     throw InputError("truth on rings: the truth needs temperature and density grids");
-  std::map<std::pair<int, int>, std::size_t> ring;  // (layer, radius) -> point
-  std::vector<const RingProfilePoint*> axis_of_layer(fit_grid.dims.y(), nullptr);
-  for (std::size_t p = 0; p < profile.size(); ++p) {
-    ring.emplace(std::make_pair(profile[p].layer, profile[p].radius_voxels), p);
-    if (profile[p].layer >= 0 && profile[p].layer < fit_grid.dims.y())
-      axis_of_layer[profile[p].layer] = &profile[p];
-  }
+  const RingLookup ring(profile, fit_grid);
   std::vector<double> sum(profile.size(), 0.0);
   std::vector<RingTruth> out(profile.size());
   ForEachVisibleVoxel(truth, [&](const Eigen::Vector3d& truth_centre, std::size_t v, double) {
     const Eigen::Vector3d centre = fit_from_truth * truth_centre;
     std::size_t f = 0;
     if (!fit_grid.VoxelHolding(centre, &f)) return;
-    const int layer = fit_grid.Unflat(f).y();
-    const RingProfilePoint* axis = axis_of_layer[layer];
-    if (!axis) return;
-    const int radius = static_cast<int>(
-        std::lround(std::hypot(centre.x() - axis->axis_x_m, centre.z() - axis->axis_z_m) /
-                    fit_grid.voxel_size_m.x()));
-    const auto it = ring.find(std::make_pair(layer, radius));
-    if (it == ring.end()) return;
-    sum[it->second] += truth.temperature_k[v];
-    ++out[it->second].voxels;
+    const long r = ring.Find(fit_grid.Unflat(f).y(), centre);
+    if (r < 0) return;
+    sum[r] += truth.temperature_k[v];
+    ++out[r].voxels;
   });
   for (std::size_t p = 0; p < out.size(); ++p)
     out[p].temperature_k =
@@ -302,29 +321,18 @@ FireVolume LightEquivalentTruth(const FireVolume& truth, const GridGeometry& fit
   std::vector<long> ring_of(n, -1);
   const bool medium_given = fitted_density && fitted_density->size() == n;
   if (rings && !rings->empty()) {
-    std::map<std::pair<int, int>, std::size_t> ring;  // (layer, radius) -> ring number
-    std::vector<const RingProfilePoint*> axis_of_layer(fit_grid.dims.y(), nullptr);
-    for (const RingProfilePoint& p : *rings) {
-      ring.emplace(std::make_pair(p.layer, p.radius_voxels), ring.size());
-      if (p.layer >= 0 && p.layer < fit_grid.dims.y()) axis_of_layer[p.layer] = &p;
-    }
-    std::vector<Eigen::Vector3d> ring_light(ring.size(), Eigen::Vector3d::Zero());
-    std::vector<double> ring_count(ring.size(), 0.0);
+    const RingLookup ring(*rings, fit_grid);
+    std::vector<Eigen::Vector3d> ring_light(rings->size(), Eigen::Vector3d::Zero());
+    std::vector<double> ring_count(rings->size(), 0.0);
     for (std::size_t f = 0; f < n; ++f) {
       // A ring's voxels: the fit's with medium (its rings hold its active voxels), else those
       // holding truth soot; either only where the truth says something (it holds a voxel).
       if (!(count[f] > 0) || !(medium_given ? (*fitted_density)[f] > 0 : soot[f] > 0)) continue;
       const Eigen::Vector3i v = fit_grid.Unflat(f);
-      const RingProfilePoint* axis = axis_of_layer[v.y()];
-      if (!axis) continue;
-      const Eigen::Vector3d c = fit_grid.VoxelCenter(v.x(), v.y(), v.z());
-      const int radius = static_cast<int>(std::lround(
-          std::hypot(c.x() - axis->axis_x_m, c.z() - axis->axis_z_m) / fit_grid.voxel_size_m.x()));
-      const auto it = ring.find(std::make_pair(v.y(), radius));
-      if (it == ring.end()) continue;
-      ring_of[f] = static_cast<long>(it->second);
-      ring_light[it->second] += light[f];
-      ring_count[it->second] += count[f];
+      ring_of[f] = ring.Find(v.y(), fit_grid.VoxelCenter(v.x(), v.y(), v.z()));
+      if (ring_of[f] < 0) continue;
+      ring_light[ring_of[f]] += light[f];
+      ring_count[ring_of[f]] += count[f];
     }
     for (std::size_t f = 0; f < n; ++f) {
       if (ring_of[f] < 0) continue;
