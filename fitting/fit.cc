@@ -64,6 +64,8 @@ void FitOptions::Validate() const {
   if (iterations_per_level < 0 || iterations_finest < 0) fail("iterations must be >= 0");
   if (stall_window < 0) fail("stall_window must be >= 0");
   if (!(stall_decrease >= 0) || !(stall_decrease < 1)) fail("stall_decrease must be in [0, 1)");
+  if (!(axisymmetric_stall_decrease >= 0) || !(axisymmetric_stall_decrease < 1))
+    fail("axisymmetric_stall_decrease must be in [0, 1)");
   if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0)) fail("smoothing must be >= 0");
   if (!(time_limit_s >= 0)) fail("time_limit_s must be >= 0");
   try {
@@ -114,9 +116,10 @@ std::string FitOptions::Key() const {
     << ", warm density from emission " << warm_start_density_from_emission << ", axisymmetric "
     << axisymmetric << " (w_sm " << axisymmetric_w_sm << " x " << axisymmetric_along_y
     << " along y, x " << axisymmetric_across_y << " across, interpolate "
-    << axisymmetric_interpolate << "), vary " << vary.temperature << vary.density
-    << ", uncertainty " << estimate_uncertainty << " (" << uncertainty.determined_fraction
-    << ", dense up to " << uncertainty.max_dense_nodes << " nodes)";
+    << axisymmetric_interpolate << ", stall " << axisymmetric_stall_decrease << "), vary "
+    << vary.temperature << vary.density << ", uncertainty " << estimate_uncertainty << " ("
+    << uncertainty.determined_fraction << ", dense up to " << uncertainty.max_dense_nodes
+    << " nodes)";
   return k.str();
 }
 
@@ -1183,7 +1186,7 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     solver.logging_type = ceres::SILENT;
     TraceCallback callback(start, static_cast<int>(level), stage, &seen, &result.trace, progress,
                            options.time_limit_s, solver.max_num_iterations, levels.size() > 1,
-                           options.stall_window, options.stall_decrease);
+                           options.stall_window, options.StallDecrease());
     solver.callbacks.push_back(&callback);
     ceres::GradientProblemSolver::Summary summary;
     const std::size_t trace_start = result.trace.size();

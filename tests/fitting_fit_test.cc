@@ -1042,6 +1042,7 @@ TEST(FitOptions, TheKeyNamesEveryField) {
       [](FitOptions& f) { f.axisymmetric_along_y = 10; },
       [](FitOptions& f) { f.axisymmetric_across_y = 1; },
       [](FitOptions& f) { f.axisymmetric_interpolate = true; },
+      [](FitOptions& f) { f.axisymmetric_stall_decrease = 0.01; },
       [](FitOptions& f) { f.known_exposure = 2; },
       [](FitOptions& f) { f.vary.temperature = false; },  // vary: both below
       [](FitOptions& f) { f.estimate_uncertainty = true; },
@@ -1131,6 +1132,21 @@ TEST(FastFit, SaysWhyItStopped) {
     bad.stall_window = window;
     bad.stall_decrease = decrease;
     EXPECT_THROW(bad.Validate(), InputError) << window << " " << decrease;
+  }
+  // A tied fit stops by its own share (FitOptions::axisymmetric_stall_decrease), the untied one
+  // by stall_decrease.
+  EXPECT_NE(stalled.message.find("(stall_decrease 2%)"), std::string::npos) << stalled.message;
+  FitOptions tied = stalling;
+  tied.axisymmetric = true;
+  tied.axisymmetric_stall_decrease = 0.4;
+  const FitResult tied_stalled = FastFit(r.grid, r.tomography, r.views, soot, tied);
+  EXPECT_EQ(tied_stalled.termination, FitTermination::kConverged) << tied_stalled.message;
+  EXPECT_NE(tied_stalled.message.find("(stall_decrease 40%)"), std::string::npos)
+      << tied_stalled.message;
+  for (double decrease : {1.0, -0.1}) {
+    FitOptions bad;
+    bad.axisymmetric_stall_decrease = decrease;
+    EXPECT_THROW(bad.Validate(), InputError) << decrease;
   }
 
   // The paper's algorithm: all its sweeps, or cancelled.

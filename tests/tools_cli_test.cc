@@ -715,6 +715,59 @@ TEST(Cli, CalibrateFromARecordingThenFit) {
   fs::remove_all(dir);
 }
 
+// --fit-stall sets the fast fit's stop rule in `fit` and `run`: 0 turns it off, so only the cap
+// stops the fit; a share as large as 0.4 stops it within a few iterations of the rule's window.
+// Outside [0, 0.5], and for the paper's methods (which run sweeps), it is a usage error.
+TEST(Cli, FitStallSetsWhenTheFitStops) {
+  const fs::path dir = TempDir();
+  std::ofstream(dir / "sim.yaml") << "simulate:\n  frames: 1\n  grid_resolution: 32\n"
+                                     "  rig: {cameras: 2, width: 160, height: 120}\n"
+                                     "  calibration: {enabled: false}\n"
+                                     "  radiometric_calibration: {enabled: false}\n";
+  ASSERT_EQ(Flamerig("simulate --config " + (dir / "sim.yaml").string() + " --out " +
+                     (dir / "sim").string())
+                .status,
+            0);
+  const std::string fit = "fit --rig " + (dir / "sim" / "rig.yaml").string() + " --images " +
+                          (dir / "sim" / "frames" / "frame_000000").string() +
+                          " --resolution 20 --no-sigma --out ";
+  const Result off =
+      Flamerig(fit + (dir / "off.vdb").string() + " --fit-stall 0 --fit-iterations 12");
+  ASSERT_EQ(off.status, 0) << off.output;
+  const flamerig::FireVolume v_off = flamerig::ReadVdb((dir / "off.vdb").string());
+  EXPECT_EQ(v_off.metadata_numbers.at("iterations"), 12);
+  EXPECT_EQ(v_off.metadata_text.at("termination"), "iteration limit");
+  const Result early =
+      Flamerig(fit + (dir / "early.vdb").string() + " --fit-stall 0.4 --fit-iterations 200");
+  ASSERT_EQ(early.status, 0) << early.output;
+  const flamerig::FireVolume v_early = flamerig::ReadVdb((dir / "early.vdb").string());
+  EXPECT_EQ(v_early.metadata_text.at("termination"), "converged");
+  EXPECT_GE(v_early.metadata_numbers.at("iterations"), 5);  // the rule's window
+  EXPECT_LT(v_early.metadata_numbers.at("iterations"), 200);
+  EXPECT_NE(v_early.metadata_text.at("termination_message").find("(stall_decrease 40%)"),
+            std::string::npos)
+      << v_early.metadata_text.at("termination_message");
+  // `run` applies it to every frame's fit.
+  const Result run =
+      Flamerig("run --images " + (dir / "sim" / "frames").string() + " --rig " +
+               (dir / "sim" / "rig.yaml").string() + " --out " + (dir / "run").string() +
+               " --resolution 20 --no-sigma --no-blender --fit-stall 0"
+               " --fit-iterations 7 -q");
+  ASSERT_EQ(run.status, 0) << run.output;
+  std::ifstream csv(dir / "run" / "frames.csv");
+  std::string header, row;
+  ASSERT_TRUE(std::getline(csv, header) && std::getline(csv, row));
+  EXPECT_NE(row.find(",iteration limit,7,"), std::string::npos) << header << "\n" << row;
+  for (const std::string bad :
+       {" --fit-stall 0.6", " --fit-stall -1", " --method alg2 --fit-stall 0.1"}) {
+    const Result r = Flamerig(fit + (dir / "bad.vdb").string() + bad);
+    EXPECT_EQ(r.status, 2) << bad << ": " << r.output;
+    EXPECT_NE(r.output.find("--fit-stall"), std::string::npos) << bad << ": " << r.output;
+  }
+  EXPECT_FALSE(fs::exists(dir / "bad.vdb"));
+  fs::remove_all(dir);
+}
+
 // Ctrl-C (SIGINT) during a long fit: the fit stops at its next iteration, writes what it has with
 // the termination "cancelled" in the volume's metadata, and the exit status is 130.
 TEST(Cli, FitStopsOnSigintAndWritesWhatItHas) {

@@ -356,6 +356,24 @@ void AddDirectionFlags(CLI::App* command, DirectionFlags* flags, const FitOption
       ->check(Between(0, ObjectiveOptions::kMaxDirectionFactor));
 }
 
+void AddStallFlag(CLI::App* command, double* stall, const FitOptions& defaults) {
+  command
+      ->add_option("--fit-stall", *stall,
+                   fmt::format("Fast fit: stop once the energy falls over {} iterations by less "
+                               "than this share of its fall since the start (default {:g}, with "
+                               "--axisymmetric {:g}; 0: only --fit-iterations stops it)",
+                               defaults.stall_window, defaults.stall_decrease,
+                               defaults.axisymmetric_stall_decrease))
+      ->type_name("F")
+      ->check(CLI::Range(0.0, 0.5));
+}
+
+void ApplyStallFlag(double stall, FitOptions* fit) {
+  if (stall < 0) return;
+  fit->stall_decrease = fit->axisymmetric_stall_decrease = stall;
+  if (stall == 0) fit->stall_window = 0;
+}
+
 void ApplyNeighbourFlags(std::optional<double> w_sm, const DirectionFlags& flags, FitOptions* fit) {
   if (w_sm) fit->objective.w_sm = *w_sm;
   if (w_sm && fit->axisymmetric) fit->axisymmetric_w_sm = *w_sm;

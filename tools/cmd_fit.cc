@@ -17,6 +17,7 @@ Runner AddFit(CLI::App* command) {
     FitJob job;
     std::string views, method = "fast";
     int iterations = -1;
+    double stall = -1;
     std::int64_t seed = -1;
     TomographyFlags tomography;
     DirectionFlags directions;
@@ -80,10 +81,13 @@ Runner AddFit(CLI::App* command) {
       ->add_option("--fit-iterations", o->iterations,
                    fmt::format("Fast fit: cap on the L-BFGS iterations per grid level (it stops "
                                "earlier once its energy falls over {} iterations by less than "
-                               "{:g}% of its fall since the level's start); alg1/alg2: sweeps",
-                               defaults.stall_window, 100 * defaults.stall_decrease))
+                               "{:g}% of its fall since the level's start, {:g}% with "
+                               "--axisymmetric: --fit-stall); alg1/alg2: sweeps",
+                               defaults.stall_window, 100 * defaults.stall_decrease,
+                               100 * defaults.axisymmetric_stall_decrease))
       ->type_name("N")
       ->check(Whole(0, 1000000));
+  AddStallFlag(command, &o->stall, defaults);
   command->add_option("--time-limit", job.fit.time_limit_s, "Stop the fit after S seconds")
       ->type_name("S")
       ->check(kNonNegative);
@@ -124,6 +128,9 @@ Runner AddFit(CLI::App* command) {
       job.fit.iterations_finest = job.fit.iterations_per_level = o->iterations;
       job.paper.iterations = o->iterations;
     }
+    if (o->stall >= 0 && job.method != FitMethod::kFast)
+      throw UsageError("--fit-stall: the fast fit's stop rule (alg1 and alg2 run their sweeps)");
+    ApplyStallFlag(o->stall, &job.fit);
     if (o->seed >= 0) job.paper.seed = static_cast<std::uint64_t>(o->seed);
     const FitJobResult r = RunFitJob(job, context.Progress(2.0));
     Log().info("fit: tomography {}", r.tomography);

@@ -17,7 +17,7 @@ Runner AddRun(CLI::App* command) {
     std::string seq, names, calibrate_config, board;
     std::int64_t first = -1, count = -1;
     int fit_iterations = -1;
-    double w_sm = -1;
+    double w_sm = -1, fit_stall = -1;
     bool no_skip_unchanged = false, no_blender = false, cold = false, no_sigma = false;
     std::size_t threads = 0;
     TomographyFlags tomography;
@@ -74,10 +74,13 @@ Runner AddRun(CLI::App* command) {
       ->add_option("--fit-iterations", o->fit_iterations,
                    fmt::format("Cap on the L-BFGS iterations of each frame's fit (it stops "
                                "earlier once its energy falls over {} iterations by less than "
-                               "{:g}% of its fall since the start)",
-                               defaults.stall_window, 100 * defaults.stall_decrease))
+                               "{:g}% of its fall since the start, {:g}% with --axisymmetric: "
+                               "--fit-stall)",
+                               defaults.stall_window, 100 * defaults.stall_decrease,
+                               100 * defaults.axisymmetric_stall_decrease))
       ->type_name("N")
       ->check(Whole(0, 1000000));
+  AddStallFlag(command, &o->fit_stall, defaults);
   command
       ->add_option(
           "--w-sm", o->w_sm,
@@ -148,6 +151,7 @@ Runner AddRun(CLI::App* command) {
     if (o->first >= 0) run.first = static_cast<std::size_t>(o->first);
     if (o->count >= 0) run.count = static_cast<std::size_t>(o->count);
     if (o->fit_iterations >= 0) run.fit.iterations_finest = o->fit_iterations;
+    ApplyStallFlag(o->fit_stall, &run.fit);
     // A weight given is the fit's, tied to rings or not (ApplyNeighbourFlags, as in `fit`).
     ApplyNeighbourFlags(o->w_sm >= 0 ? std::optional<double>(o->w_sm) : std::nullopt, o->directions,
                         &run.fit);

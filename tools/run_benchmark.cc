@@ -220,7 +220,9 @@ std::string RunRunBenchmark(const RunBenchmarkOptions& options,
      << " along the box's longest axis, read from its PNG frame sets; tomography (OS-SART) and the "
         "fast fit per frame (until its energy falls over "
      << base.fit.stall_window << " iterations by less than " << 100 * base.fit.stall_decrease
-     << "% of its fall since the start, 2026-11-29; by less than 0.5% of itself from issue 24; 30 "
+     << "% of its fall since the start, 2026-11-29, the tied fit's by less than "
+     << 100 * base.fit.axisymmetric_stall_decrease
+     << "%, 2026-12-05; by less than 0.5% of itself from issue 24; 30 "
         "iterations before) with its per-voxel sigma (each voxel's exact curvature "
         "block, about 50 ms of a frame; 16 random probes and 0.3 s until 2026-11-26; `--no-sigma` "
         "leaves it out), volumes, Blender volumes and per-frame "
