@@ -124,10 +124,11 @@ void AddDirectionFlags(CLI::App* command, DirectionFlags* flags, const FitOption
 // runs would weigh its pairs above ObjectiveOptions::kMaxWeight (the weight x either factor).
 void ApplyNeighbourFlags(std::optional<double> w_sm, const DirectionFlags& flags, FitOptions* fit);
 
-// The fast fit's stop rule, shared by fit and run: --fit-stall F (FitOptions::stall_decrease, the
-// share of the energy's fall since the start under which a fall over the last stall_window
-// iterations stops the fit; 0: no such rule, only the iteration cap and Ceres' own tolerances stop
-// it). Unset (negative) keeps the default. The tied fit walks on long after the default rule stops
+// The fast fit's stop rule, shared by fit and run: --fit-stall F (FitOptions::stall_decrease and
+// axisymmetric_stall_decrease, the share of the energy's fall since the start under which a fall
+// over the last stall_window iterations stops the fit; a share given is the fit's, tied or not;
+// 0: no such rule, only the iteration cap and Ceres' own tolerances stop it). Unset (negative)
+// keeps each fit's default. The tied fit walks on long after the default rule stops
 // it, its faint rings cooling and its soot growing (BENCHMARKS.md, "When the tied fit stops"): a
 // user who can spend the time sets it lower, with a cap (--fit-iterations) to bound the time.
 void AddStallFlag(CLI::App* command, double* stall, const FitOptions& defaults);
