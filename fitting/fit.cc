@@ -858,9 +858,11 @@ class TraceCallback : public ceres::IterationCallback {
   TraceCallback(Clock::time_point start, int level, const std::string& stage,
                 std::deque<std::pair<double, EnergyTerms>>* seen, std::vector<FitTracePoint>* trace,
                 const ProgressCallback& progress, double time_limit_s, int max_iterations,
-                bool announce, int stall_window = 0, double stall_decrease = 0)
+                bool announce, int stall_window = 0, double stall_decrease = 0,
+                std::string stall_name = "stall_decrease")
       : stall_window_(stall_window),
         stall_decrease_(stall_decrease),
+        stall_name_(std::move(stall_name)),
         start_(start),
         level_(level),
         stage_(stage),
@@ -921,7 +923,7 @@ class TraceCallback : public ceres::IterationCallback {
       if (costs_.front() > now)
         m << "the energy fell over the last " << stall_window_ << " iterations by "
           << 100 * (before - now) / (costs_.front() - now) << "% of its fall since the start "
-          << "(stall_decrease " << 100 * stall_decrease_ << "%)";
+          << "(" << stall_name_ << " " << 100 * stall_decrease_ << "%)";
       else
         m << "the energy has not fallen in " << costs_.size() - 1 << " iterations";
       stalled_ = m.str();
@@ -933,6 +935,7 @@ class TraceCallback : public ceres::IterationCallback {
  private:
   int stall_window_;
   double stall_decrease_;
+  std::string stall_name_;  // the FitOptions field it came from, for the message
   Clock::time_point start_;
   int level_;
   std::string stage_;
@@ -1186,7 +1189,8 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     solver.logging_type = ceres::SILENT;
     TraceCallback callback(start, static_cast<int>(level), stage, &seen, &result.trace, progress,
                            options.time_limit_s, solver.max_num_iterations, levels.size() > 1,
-                           options.stall_window, options.StallDecrease());
+                           options.stall_window, options.StallDecrease(),
+                           options.axisymmetric ? "axisymmetric_stall_decrease" : "stall_decrease");
     solver.callbacks.push_back(&callback);
     ceres::GradientProblemSolver::Summary summary;
     const std::size_t trace_start = result.trace.size();

@@ -1141,7 +1141,7 @@ TEST(FastFit, SaysWhyItStopped) {
   tied.axisymmetric_stall_decrease = 0.4;
   const FitResult tied_stalled = FastFit(r.grid, r.tomography, r.views, soot, tied);
   EXPECT_EQ(tied_stalled.termination, FitTermination::kConverged) << tied_stalled.message;
-  EXPECT_NE(tied_stalled.message.find("(stall_decrease 40%)"), std::string::npos)
+  EXPECT_NE(tied_stalled.message.find("(axisymmetric_stall_decrease 40%)"), std::string::npos)
       << tied_stalled.message;
   for (double decrease : {1.0, -0.1}) {
     FitOptions bad;

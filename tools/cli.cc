@@ -360,12 +360,13 @@ void AddStallFlag(CLI::App* command, double* stall, const FitOptions& defaults) 
   command
       ->add_option("--fit-stall", *stall,
                    fmt::format("Fast fit: stop once the energy falls over {} iterations by less "
-                               "than this share of its fall since the start (default {:g}, with "
-                               "--axisymmetric {:g}; 0: only --fit-iterations stops it)",
+                               "than this share, in [0, 0.5], of its fall since the start (default "
+                               "{:g}, with --axisymmetric {:g}; 0: no such rule, and only "
+                               "--fit-iterations, --time-limit or Ceres' own tolerances stop it)",
                                defaults.stall_window, defaults.stall_decrease,
                                defaults.axisymmetric_stall_decrease))
       ->type_name("F")
-      ->check(CLI::Range(0.0, 0.5));
+      ->check(Between(0, 0.5));
 }
 
 void ApplyStallFlag(double stall, FitOptions* fit) {

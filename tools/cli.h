@@ -127,10 +127,11 @@ void ApplyNeighbourFlags(std::optional<double> w_sm, const DirectionFlags& flags
 // The fast fit's stop rule, shared by fit and run: --fit-stall F (FitOptions::stall_decrease and
 // axisymmetric_stall_decrease, the share of the energy's fall since the start under which a fall
 // over the last stall_window iterations stops the fit; a share given is the fit's, tied or not;
-// 0: no such rule, only the iteration cap and Ceres' own tolerances stop it). Unset (negative)
-// keeps each fit's default. The tied fit walks on long after the default rule stops
-// it, its faint rings cooling and its soot growing (BENCHMARKS.md, "When the tied fit stops"): a
-// user who can spend the time sets it lower, with a cap (--fit-iterations) to bound the time.
+// 0: no such rule, only the iteration cap, the time limit and Ceres' own tolerances stop it).
+// Unset (negative) keeps each fit's default. Under the untied fit's 0.5% the tied fit stopped
+// while its faint rings still cooled and its soot still grew, hence its own 0.1%; run on past
+// about 150 iterations its temperatures got worse and only its soot gained (BENCHMARKS.md, "When
+// the tied fit stops"). A user who wants the soot sets it to 0 with a cap (--fit-iterations).
 void AddStallFlag(CLI::App* command, double* stall, const FitOptions& defaults);
 void ApplyStallFlag(double stall, FitOptions* fit);
 
