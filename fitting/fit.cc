@@ -3,6 +3,7 @@
 #include <ceres/gradient_problem.h>
 #include <ceres/gradient_problem_solver.h>
 #include <ceres/iteration_callback.h>
+#include <tbb/enumerable_thread_specific.h>
 
 #include <algorithm>
 #include <chrono>
@@ -15,11 +16,13 @@
 #include <sstream>
 #include <stdexcept>
 #include <tuple>
+#include <unordered_map>
 
 #include "core/error.h"
 #include "core/format.h"
 #include "core/log.h"
 #include "fitting/colour.h"
+#include "fitting/levenberg_marquardt.h"
 #include "fitting/physics.h"
 #include "tomography/reconstruct.h"
 
@@ -66,6 +69,11 @@ void FitOptions::Validate() const {
   if (!(stall_decrease >= 0) || !(stall_decrease < 1)) fail("stall_decrease must be in [0, 1)");
   if (!(axisymmetric_stall_decrease >= 0) || !(axisymmetric_stall_decrease < 1))
     fail("axisymmetric_stall_decrease must be in [0, 1)");
+  if (!(axisymmetric_lm_stall_decrease >= 0) || !(axisymmetric_lm_stall_decrease < 1))
+    fail("axisymmetric_lm_stall_decrease must be in [0, 1)");
+  if (axisymmetric_solver != TiedSolver::kLbfgs &&
+      axisymmetric_solver != TiedSolver::kLevenbergMarquardt)
+    fail("axisymmetric_solver must be L-BFGS or Levenberg-Marquardt");
   if (!(smooth_delta_e >= 0) || !(smooth_neighbour >= 0)) fail("smoothing must be >= 0");
   if (!(time_limit_s >= 0)) fail("time_limit_s must be >= 0");
   try {
@@ -116,11 +124,17 @@ std::string FitOptions::Key() const {
     << ", warm density from emission " << warm_start_density_from_emission << ", axisymmetric "
     << axisymmetric << " (w_sm " << axisymmetric_w_sm << " x " << axisymmetric_along_y
     << " along y, x " << axisymmetric_across_y << " across, interpolate "
-    << axisymmetric_interpolate << ", stall " << axisymmetric_stall_decrease << "), vary "
+    << axisymmetric_interpolate << ", stall " << axisymmetric_stall_decrease << ", solver "
+    << ToString(axisymmetric_solver) << ", its stall " << axisymmetric_lm_stall_decrease
+    << "), vary "
     << vary.temperature << vary.density << ", uncertainty " << estimate_uncertainty << " ("
     << uncertainty.determined_fraction << ", dense up to " << uncertainty.max_dense_nodes
     << " nodes)";
   return k.str();
+}
+
+const char* ToString(FitOptions::TiedSolver solver) {
+  return solver == FitOptions::TiedSolver::kLevenbergMarquardt ? "levenberg-marquardt" : "l-bfgs";
 }
 
 const char* ToString(FitTermination termination) {
@@ -568,7 +582,22 @@ struct RingTie {
   // system, as each voxel weighs two neighbouring nodes), then W q. A projected gradient gives
   // every direction within the tied fields its exact derivative. Rings alone (weights 1): each
   // ring's mean.
-  void Project(double* values) const {
+  void Project(double* values) const { Expand(NodesOf(values), values); }
+  // W q: each voxel's value from the nodes' (`values` has one per voxel).
+  void Expand(const std::vector<double>& q, double* values) const {
+    for (std::size_t a = 0; a < nodes.node.size(); ++a)
+      values[a] = nodes.weight[a][0] * q[nodes.node[a][0]] +
+                  (nodes.weight[a][1] == 0 ? 0.0 : nodes.weight[a][1] * q[nodes.node[a][1]]);
+  }
+  // W^T g: the nodes' share of per-voxel values (a gradient), added into `q`.
+  void Contract(const double* values, double* q) const {
+    for (std::size_t a = 0; a < nodes.node.size(); ++a) {
+      q[nodes.node[a][0]] += nodes.weight[a][0] * values[a];
+      if (nodes.weight[a][1] != 0) q[nodes.node[a][1]] += nodes.weight[a][1] * values[a];
+    }
+  }
+  // The least-squares nodes of per-voxel `values`: W^T W q = W^T values.
+  std::vector<double> NodesOf(const double* values) const {
     const std::size_t m = nodes.node.size();
     std::vector<double> b(nodes.nodes, 0.0), d(nodes.nodes, 0.0), e(nodes.nodes, 0.0);
     for (std::size_t a = 0; a < m; ++a) {
@@ -605,9 +634,7 @@ struct RingTie {
       for (std::size_t r = hi; r-- > lo + 1;)
         if (c[r - 1] != 0) b[r - 1] -= c[r - 1] * b[r];
     }
-    for (std::size_t a = 0; a < m; ++a)
-      values[a] = nodes.weight[a][0] * b[nodes.node[a][0]] +
-                  (nodes.weight[a][1] == 0 ? 0.0 : nodes.weight[a][1] * b[nodes.node[a][1]]);
+    return b;
   }
   // The start tied to the rings: each ring's mean temperature and mean log density (then, in the
   // fit's parameters, projected onto the tied fields: Project).
@@ -789,6 +816,22 @@ class SigmoidProblem : public ceres::FirstOrderFunction {
     u[2 * m_] = Logit((std::log(st.s) - ln_s_lo_) / ln_s_span_);
   }
 
+  // d T / d u_T, d ln n / d u_n per voxel and d ln s / d u_s at u: the sigmoids' slopes, 0 for a
+  // parameter that is held.
+  void Slopes(const double* u, std::vector<double>* t_slope, std::vector<double>* n_slope,
+              double* s_slope) const {
+    t_slope->resize(m_);
+    n_slope->resize(m_);
+    for (std::size_t a = 0; a < m_; ++a) {
+      const double pt = Sigmoid(u[a]), pn = Sigmoid(u[m_ + a]);
+      (*t_slope)[a] = held_t_.empty() ? t_span_ * pt * (1 - pt) : 0.0;
+      (*n_slope)[a] = held_n_.empty() ? ln_n_span_ * pn * (1 - pn) : 0.0;
+    }
+    const double ps = Sigmoid(u[2 * m_]);
+    *s_slope = held_s_ > 0 ? 0.0 : ln_s_span_ * ps * (1 - ps);
+  }
+  bool exposure_fitted() const { return !(held_s_ > 0); }
+
   bool Evaluate(const double* u, double* cost, double* gradient) const override {
     State st;
     Decode(u, &st);
@@ -950,6 +993,221 @@ class TraceCallback : public ceres::IterationCallback {
   std::string stalled_;
 };
 
+// FitOptions::TiedSolver::kLevenbergMarquardt: the tied fit's energy over its nodes' parameters q
+// (per node the logit of T's place in its range, then per node ln n's likewise, as the voxels' u;
+// then the exposure's when it is fitted). Each voxel's u is W q (RingTie::Expand: a ring's node,
+// or two nodes interpolated); the energy and its exact gradient are the voxels' (an untied
+// SigmoidProblem) through W^T; the model's curvature is W^T J^T J W from the data term's rays
+// (FitObjective::DataGaussNewton) plus the pairwise terms' (PairwiseGaussNewton), through the
+// sigmoids' slopes. The curvature is kept per pair of grid layers, as dense blocks over their
+// nodes: a ray crosses few layers, and the pairwise terms couple neighbouring ones.
+class TiedLmProblem : public LevenbergMarquardtProblem {
+ public:
+  TiedLmProblem(const FitObjective& objective, const SigmoidProblem& voxels, const RingTie& tie)
+      : objective_(objective), voxels_(voxels), tie_(tie) {
+    m_ = objective.num_active();
+    nodes_ = tie.nodes.nodes;
+    layer_of_.assign(nodes_, 0);
+    for (std::size_t l = 0; l + 1 < tie.layer_nodes.size(); ++l)
+      for (std::size_t k = tie.layer_nodes[l]; k < tie.layer_nodes[l + 1]; ++k)
+        layer_of_[k] = static_cast<std::uint32_t>(l);
+    layers_ = tie.layer_nodes.size() - 1;
+  }
+  int NumParameters() const override {
+    return static_cast<int>(2 * nodes_ + (voxels_.exposure_fitted() ? 1 : 0));
+  }
+  // The voxels' parameters (2 m + 1) from the nodes', and back (the least-squares nodes).
+  void Expand(const double* q, double* u) const {
+    tie_.Expand(std::vector<double>(q, q + nodes_), u);
+    tie_.Expand(std::vector<double>(q + nodes_, q + 2 * nodes_), u + m_);
+    if (voxels_.exposure_fitted()) u[2 * m_] = q[2 * nodes_];
+  }
+  std::vector<double> Reduce(const std::vector<double>& u) const {
+    std::vector<double> q(NumParameters());
+    const std::vector<double> t = tie_.NodesOf(u.data()), n = tie_.NodesOf(u.data() + m_);
+    std::copy(t.begin(), t.end(), q.begin());
+    std::copy(n.begin(), n.end(), q.begin() + nodes_);
+    if (voxels_.exposure_fitted()) q[2 * nodes_] = u[2 * m_];
+    return q;
+  }
+  std::vector<double> VoxelParameters(const double* q) const {
+    std::vector<double> u(2 * m_ + 1, 0.0);
+    Expand(q, u.data());
+    return u;
+  }
+
+  bool Evaluate(const double* q, double* cost, double* gradient) override {
+    std::vector<double> u = VoxelParameters(q), g(2 * m_ + 1, 0.0);
+    if (!voxels_.Evaluate(u.data(), cost, gradient ? g.data() : nullptr)) return false;
+    if (gradient) {
+      std::fill_n(gradient, NumParameters(), 0.0);
+      tie_.Contract(g.data(), gradient);
+      tie_.Contract(g.data() + m_, gradient + nodes_);
+      if (voxels_.exposure_fitted()) gradient[2 * nodes_] = g[2 * m_];
+    }
+    return true;
+  }
+
+  void Curvature(const double* q, Eigen::SparseMatrix<double>* h) override {
+    const std::vector<double> u = VoxelParameters(q);
+    State st;
+    voxels_.Decode(u.data(), &st);
+    std::vector<double> t_slope, n_slope;
+    double s_slope = 0;
+    voxels_.Slopes(u.data(), &t_slope, &n_slope, &s_slope);
+    const bool fit_s = voxels_.exposure_fitted();
+    const NodeTie& tie = tie_.nodes;
+    // Per thread: the blocks of J^T J by pair of layers (key l1 x layers + l2, l1 <= l2), each
+    // (2 n_l1) x (2 n_l2) over the layers' nodes, (T, n) interleaved; the exposure's row.
+    struct Sums {
+      std::unordered_map<std::uint64_t, Eigen::MatrixXd> blocks;
+      Eigen::VectorXd s_row;
+      double s_s = 0;
+      std::vector<std::int32_t> local;  // per node: its place in the ray's lists, or -1
+      std::vector<std::uint32_t> nodes;
+      std::vector<Eigen::Matrix<double, 3, 2>> columns;
+      std::vector<std::size_t> order;
+    };
+    tbb::enumerable_thread_specific<Sums> sums;
+    const std::vector<std::size_t>& first = tie_.layer_nodes;
+    objective_.DataGaussNewton(st.t, st.n, st.s, [&](const FitObjective::PixelRows& rows) {
+      Sums& acc = sums.local();
+      if (acc.local.empty()) {
+        acc.local.assign(nodes_, -1);
+        acc.s_row = Eigen::VectorXd::Zero(2 * nodes_);
+      }
+      acc.nodes.clear();
+      acc.columns.clear();
+      for (std::size_t i = 0; i < rows.active.size(); ++i) {
+        const std::uint32_t a = rows.active[i];
+        Eigen::Matrix<double, 3, 2> d = rows.d[i];
+        d.col(0) *= t_slope[a];
+        d.col(1) *= n_slope[a];
+        for (int k = 0; k < 2; ++k) {
+          const double w = tie.weight[a][k];
+          if (w == 0) continue;
+          const std::uint32_t node = tie.node[a][k];
+          std::int32_t& l = acc.local[node];
+          if (l < 0) {
+            l = static_cast<std::int32_t>(acc.nodes.size());
+            acc.nodes.push_back(node);
+            acc.columns.emplace_back(Eigen::Matrix<double, 3, 2>::Zero());
+          }
+          acc.columns[l] += w * d;
+        }
+      }
+      // By node (so by layer), then block by block.
+      const std::size_t k = acc.nodes.size();
+      acc.order.resize(k);
+      for (std::size_t i = 0; i < k; ++i) acc.order[i] = i;
+      std::sort(acc.order.begin(), acc.order.end(),
+                [&](std::size_t x, std::size_t y) { return acc.nodes[x] < acc.nodes[y]; });
+      const Eigen::Vector3d js = rows.d_log_s * s_slope;
+      for (std::size_t r1 = 0; r1 < k;) {
+        const std::uint32_t l1 = layer_of_[acc.nodes[acc.order[r1]]];
+        std::size_t e1 = r1;
+        while (e1 < k && layer_of_[acc.nodes[acc.order[e1]]] == l1) ++e1;
+        for (std::size_t r2 = r1; r2 < k;) {
+          const std::uint32_t l2 = layer_of_[acc.nodes[acc.order[r2]]];
+          std::size_t e2 = r2;
+          while (e2 < k && layer_of_[acc.nodes[acc.order[e2]]] == l2) ++e2;
+          Eigen::MatrixXd& block = acc.blocks[std::uint64_t(l1) * layers_ + l2];
+          if (block.size() == 0)
+            block = Eigen::MatrixXd::Zero(2 * (first[l1 + 1] - first[l1]),
+                                          2 * (first[l2 + 1] - first[l2]));
+          for (std::size_t i = r1; i < e1; ++i) {
+            const std::size_t li = acc.order[i];
+            const std::size_t row = 2 * (acc.nodes[li] - first[l1]);
+            for (std::size_t j = r2; j < e2; ++j) {
+              const std::size_t lj = acc.order[j];
+              const std::size_t col = 2 * (acc.nodes[lj] - first[l2]);
+              block.block<2, 2>(row, col) += acc.columns[li].transpose() * acc.columns[lj];
+            }
+          }
+          r2 = e2;
+        }
+        r1 = e1;
+      }
+      if (fit_s) {
+        for (std::size_t i = 0; i < k; ++i) {
+          const std::uint32_t node = acc.nodes[i];
+          acc.s_row[2 * node] += acc.columns[i].col(0).dot(js);
+          acc.s_row[2 * node + 1] += acc.columns[i].col(1).dot(js);
+        }
+        acc.s_s += js.squaredNorm();
+      }
+      for (std::uint32_t node : acc.nodes) acc.local[node] = -1;
+    });
+    // Into the lower triangle; parameter of node k's T: k, of its n: nodes + k; exposure 2 nodes.
+    const int np = NumParameters();
+    std::vector<Eigen::Triplet<double>> entries;
+    auto index = [&](std::size_t node, int c) { return int(c == 0 ? node : nodes_ + node); };
+    for (int i = 0; i < np; ++i) entries.emplace_back(i, i, 0.0);  // the diagonal, always there
+    for (const Sums& acc : sums) {
+      for (const auto& [key, block] : acc.blocks) {
+        const std::size_t l1 = key / layers_, l2 = key % layers_;
+        for (Eigen::Index r = 0; r < block.rows(); ++r)
+          for (Eigen::Index c = 0; c < block.cols(); ++c) {
+            const double v = block(r, c);
+            if (v == 0) continue;
+            const int gi = index(first[l1] + r / 2, int(r % 2)),
+                      gj = index(first[l2] + c / 2, int(c % 2));
+            // A block of one layer holds both triangles; one of another pair, one of them.
+            if (l1 == l2 && gi < gj) continue;
+            entries.emplace_back(std::max(gi, gj), std::min(gi, gj), v);
+          }
+      }
+      if (fit_s && acc.s_row.size()) {
+        for (std::size_t node = 0; node < nodes_; ++node)
+          for (int c = 0; c < 2; ++c)
+            if (acc.s_row[2 * node + c] != 0)
+              entries.emplace_back(np - 1, index(node, c), acc.s_row[2 * node + c]);
+        entries.emplace_back(np - 1, np - 1, acc.s_s);
+      }
+    }
+    // The pairwise terms: h (d_b - d_a)^2 / 2 in each pair's difference.
+    const std::vector<PairCurvature> pairs = objective_.PairwiseGaussNewton(st.t, st.n);
+    const auto& neighbours = objective_.neighbour_pairs();
+    std::vector<std::pair<int, double>> row;
+    for (std::size_t p = 0; p < pairs.size(); ++p) {
+      const auto [a, b] = neighbours[p];
+      for (int c = 0; c < 2; ++c) {
+        const double hp = c == 0 ? pairs[p].tt : pairs[p].nn;
+        if (!(hp > 0)) continue;
+        const std::vector<double>& slope = c == 0 ? t_slope : n_slope;
+        row.clear();
+        auto add = [&](std::uint32_t voxel, double sign) {
+          for (int k = 0; k < 2; ++k) {
+            const double w = tie.weight[voxel][k];
+            if (w == 0) continue;
+            const int g = index(tie.node[voxel][k], c);
+            const double v = sign * w * slope[voxel];
+            auto it = std::find_if(row.begin(), row.end(), [&](const auto& e) { return e.first == g; });
+            if (it == row.end())
+              row.emplace_back(g, v);
+            else
+              it->second += v;
+          }
+        };
+        add(b, 1.0);
+        add(a, -1.0);
+        for (const auto& [gi, vi] : row)
+          for (const auto& [gj, vj] : row)
+            if (gi >= gj && vi * vj != 0) entries.emplace_back(gi, gj, hp * vi * vj);
+      }
+    }
+    h->resize(np, np);
+    h->setFromTriplets(entries.begin(), entries.end());
+  }
+
+ private:
+  const FitObjective& objective_;
+  const SigmoidProblem& voxels_;
+  const RingTie& tie_;
+  std::size_t m_ = 0, nodes_ = 0, layers_ = 0;
+  std::vector<std::uint32_t> layer_of_;  // per node
+};
+
 // FitResult::voxels_at_temperature_bound and voxels_at_density_bound of `st`, fitted in
 // [t_min, t_max] and [n_min, n_max] (n_min > 0). 1% of the range is also where Logit clamps a
 // start beyond the bound: a voxel left there unmoved is counted, whatever the rounding of its
@@ -1076,8 +1334,12 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     return b;
   };
   FitResult result;
-  result.method = "fast fit (L-BFGS, adjoint gradient" +
-                  std::string(options.coarse_to_fine ? ", coarse to fine)" : ")");
+  result.method =
+      (options.axisymmetric &&
+               options.axisymmetric_solver == FitOptions::TiedSolver::kLevenbergMarquardt
+           ? std::string("fast fit (Levenberg-Marquardt on the rings' nodes, adjoint gradient")
+           : std::string("fast fit (L-BFGS, adjoint gradient")) +
+      std::string(options.coarse_to_fine ? ", coarse to fine)" : ")");
   const std::vector<GridGeometry> levels =
       warm_start ? std::vector<GridGeometry>{grid} : Levels(grid, options);
   State previous;
@@ -1187,14 +1449,68 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
     solver.function_tolerance = 1e-7;
     solver.gradient_tolerance = 1e-12;
     solver.logging_type = ceres::SILENT;
+    const bool lm =
+        tie && options.axisymmetric_solver == FitOptions::TiedSolver::kLevenbergMarquardt;
+    // The Levenberg-Marquardt solver has its own stop rule (LevenbergMarquardtOptions), not the
+    // callback's.
     TraceCallback callback(start, static_cast<int>(level), stage, &seen, &result.trace, progress,
                            options.time_limit_s, solver.max_num_iterations, levels.size() > 1,
-                           options.stall_window, options.StallDecrease(),
+                           lm ? 0 : options.stall_window, options.StallDecrease(),
                            options.axisymmetric ? "axisymmetric_stall_decrease" : "stall_decrease");
     solver.callbacks.push_back(&callback);
     ceres::GradientProblemSolver::Summary summary;
     const std::size_t trace_start = result.trace.size();
-    if (solver.max_num_iterations > 0) {
+    if (lm && solver.max_num_iterations > 0) {
+      // On the nodes themselves: the energy of the voxels untied, through the tie (TiedLmProblem).
+      SigmoidProblem voxels(objective, options, st, &result.evaluations, &seen);
+      TiedLmProblem lm_problem(objective, voxels, *tie);
+      std::vector<double> q = lm_problem.Reduce(u);
+      LevenbergMarquardtOptions lm_options;
+      lm_options.max_iterations = solver.max_num_iterations;
+      lm_options.stall_decrease = options.axisymmetric_lm_stall_decrease;
+      const LevenbergMarquardtSummary lm_summary = SolveLevenbergMarquardt(
+          lm_problem, q.data(), lm_options, [&](const LevenbergMarquardtIteration& it) {
+            ceres::IterationSummary summary_for_trace;
+            summary_for_trace.iteration = it.iteration;
+            summary_for_trace.cost = it.cost;
+            return callback(summary_for_trace) == ceres::SOLVER_CONTINUE;
+          });
+      u = lm_problem.VoxelParameters(q.data());
+      if (level == 0 && result.trace.size() > trace_start)
+        result.initial_energy = result.trace[trace_start].energy;
+      result.iterations += lm_summary.iterations;
+      result.message = fmt::format(
+          "{} ({} of {} steps taken, {} curvatures in {:.2f} s, factorised in {:.2f} s)",
+          lm_summary.message, lm_summary.steps_taken, lm_summary.iterations,
+          lm_summary.curvatures, lm_summary.seconds_in_curvature,
+          lm_summary.seconds_in_factorisation);
+      Log().debug("fit: {}: Levenberg-Marquardt: {}", stage, result.message);
+      if (callback.cancelled()) {
+        result.termination = FitTermination::kCancelled;
+        result.message = "the progress callback asked to stop";
+      } else if (callback.out_of_time()) {
+        result.termination = FitTermination::kTimeLimit;
+        result.message = "time limit of " + std::to_string(options.time_limit_s) + " s reached";
+      } else {
+        switch (lm_summary.termination) {
+          case LevenbergMarquardtTermination::kConverged:
+            result.termination = FitTermination::kConverged;
+            break;
+          case LevenbergMarquardtTermination::kIterationLimit:
+            result.termination = FitTermination::kIterationLimit;
+            break;
+          case LevenbergMarquardtTermination::kTimeLimit:
+            result.termination = FitTermination::kTimeLimit;
+            break;
+          case LevenbergMarquardtTermination::kCancelled:
+            result.termination = FitTermination::kCancelled;
+            break;
+          case LevenbergMarquardtTermination::kFailed:
+            result.termination = FitTermination::kFailed;
+            break;
+        }
+      }
+    } else if (solver.max_num_iterations > 0) {
       ceres::Solve(solver, problem, u.data(), &summary);
       // Ceres reports iteration 0 at the starting point: the trace's first point of the level.
       if (level == 0 && result.trace.size() > trace_start)

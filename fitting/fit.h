@@ -295,6 +295,19 @@ struct FitOptions {
   // 91 to 115 iterations. Run on to 400 iterations (no rule) the fit is no better in temperature
   // (83.4 K and 87.1 K RMS) and its soot scatters (0.75 to 1.38 on the seeds).
   double axisymmetric_stall_decrease = 0.001;
+  // The tied fit's solver. kLbfgs: L-BFGS (Ceres) on every voxel's parameters with the gradient
+  // projected onto the tied fields, stopped by axisymmetric_stall_decrease. kLevenbergMarquardt
+  // (`--fit-solver lm`): Levenberg-Marquardt on the nodes' parameters themselves
+  // (levenberg_marquardt.h), the energy's exact gradient with a Gauss-Newton model of its
+  // curvature built ray by ray over the nodes (FitObjective::DataGaussNewton and
+  // PairwiseGaussNewton), stopped when a step taken lowers the energy by less than
+  // axisymmetric_lm_stall_decrease of its fall since the start, or after iterations_finest steps
+  // tried: a second-order method on the small problem that the tie makes of the fit, which
+  // converges where L-BFGS walks a flat valley (BENCHMARKS.md, "When the tied fit stops"). Untied
+  // fits are L-BFGS always (their J^T J couples every voxel along every ray).
+  enum class TiedSolver { kLbfgs, kLevenbergMarquardt };
+  TiedSolver axisymmetric_solver = TiedSolver::kLbfgs;
+  double axisymmetric_lm_stall_decrease = 1e-4;
   // The cameras' exposure when it is known (the recording's exposure time x gain, in the
   // renderer's units, as the tomography takes it): > 0 holds the fit's exposure there, so that
   // densities come out absolute and comparable across frames; 0 = unknown, fitted (the paper's
@@ -326,6 +339,9 @@ struct FitOptions {
   // a field added without a place here fails the test rather than a resume.
   std::string Key() const;
 };
+
+// "l-bfgs", "levenberg-marquardt"
+const char* ToString(FitOptions::TiedSolver solver);
 
 // One ring of an axisymmetric fit (FitOptions::axisymmetric) at one height: a point of the radial
 // profile T(r, h) that an Abel inversion gives and combustion papers quote, in the rig frame's

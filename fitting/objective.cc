@@ -1,6 +1,7 @@
 #include "fitting/objective.h"
 
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 
@@ -318,6 +319,26 @@ class PairwiseTerm : public EnergyTerm {
     return value;
   }
 
+  void AddPairCurvature(const FitParameters& x, std::vector<PairCurvature>* out) const override {
+    const double n_min = objective_.n_min();
+    const auto& pairs = objective_.neighbour_pairs();
+    // rho'(d) / d of the Charbonnier (1 / |d| for the exact term, floored as the data term's).
+    const double eps = std::max(eps_, 1e-3);
+    for (std::size_t p = 0; p < pairs.size(); ++p) {
+      const auto [a, b] = pairs[p];
+      const double twice = factor_.empty() ? 2.0 : 2.0 * factor_[p];
+      if (parameter_ == Parameter::kTemperature) {
+        const double dt = (x.t[b] - x.t[a]) * t_scale_;
+        (*out)[p].tt += twice * weight_ * t_scale_ * t_scale_ / std::sqrt(dt * dt + eps * eps);
+      } else {
+        if (!(x.n[a] > n_min) || !(x.n[b] > n_min)) continue;  // the term is flat there
+        const double dn = (std::log(x.n[b]) - std::log(x.n[a])) / ln_range_;
+        (*out)[p].nn +=
+            twice * weight_ / (ln_range_ * ln_range_) / std::sqrt(dn * dn + eps * eps);
+      }
+    }
+  }
+
   double Local(const FitParameters& x, std::uint32_t a) const override {
     double sum = 0;
     const double va = Normalised(x, a);
@@ -359,7 +380,8 @@ FitObjective::FitObjective(const GridGeometry& grid, std::vector<std::uint32_t> 
   grid_.Validate();
   if (views_.empty()) throw InputError("fit: no views to match");
   const std::size_t nvox = grid_.num_voxels();
-  std::vector<std::int32_t> index(nvox, -1);
+  active_index_.assign(nvox, -1);
+  std::vector<std::int32_t>& index = active_index_;
   for (std::size_t a = 0; a < active_.size(); ++a) {
     if (active_[a] >= nvox)
       throw InputError("fit: active voxel " + std::to_string(active_[a]) + " outside the grid");
@@ -584,6 +606,75 @@ FitObjective::Curvature FitObjective::DataCurvature(const std::vector<double>& t
     out.tn[a] = tn[active_[a]] * dn_dlog;
     out.nn[a] = nn[active_[a]] * dn_dlog * dn_dlog;
   }
+  return out;
+}
+
+void FitObjective::DataGaussNewton(const std::vector<double>& t, const std::vector<double>& n,
+                                   double s, const PixelRowsVisitor& visit) const {
+  if (!(s > 0) || !std::isfinite(s))
+    throw InputError("fit: exposure " + std::to_string(s) + " must be finite and > 0");
+  const Renders renders = Render(t, n);
+  const double w_am = options_.w_am;
+  const double eps = std::max(options_.smooth_delta_e, 1e-3);
+  for (std::size_t v = 0; v < views_.size(); ++v) {
+    const ImageF& img = renders.linear[v];
+    const auto& target = target_lab_[v];
+    const BayerRecord* bayer = mosaic(v);
+    const ImageF recorded = bayer ? bayer->Forward(img, s) : ImageF();
+    // Per pixel: sqrt(w_p) dLab/dI (what the renderer's pass multiplies its rays by), and
+    // sqrt(w_p) r_p and sqrt(w_p) dr_p/d ln s for the visitor.
+    std::vector<Eigen::Matrix3f> jacobians(target.size(), Eigen::Matrix3f::Zero());
+    std::vector<Eigen::Vector3d> residual(target.size()), d_log_s(target.size());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, target.size(), 4096),
+                      [&](const tbb::blocked_range<std::size_t>& range) {
+                        for (std::size_t p = range.begin(); p < range.end(); ++p) {
+                          const Eigen::Vector3d linear(img.pixels[3 * p], img.pixels[3 * p + 1],
+                                                       img.pixels[3 * p + 2]);
+                          Eigen::Matrix3d jac;
+                          Eigen::Vector3d lab = CameraLab(linear, s, &jac);
+                          if (bayer)
+                            lab = CameraLab(Eigen::Vector3d(recorded.pixels[3 * p],
+                                                            recorded.pixels[3 * p + 1],
+                                                            recorded.pixels[3 * p + 2]),
+                                            1.0);
+                          const Eigen::Vector3d r = lab - target[p].cast<double>();
+                          const double root = std::sqrt(w_am / std::sqrt(r.squaredNorm() + eps * eps));
+                          residual[p] = root * r;
+                          // d Lab(s I) / d ln s = (dLab/dI / s) (s I) = dLab/dI I.
+                          d_log_s[p] = root * (jac * linear);
+                          if (!(linear.array() == 0.0).all()) jacobians[p] = (root * jac).cast<float>();
+                        }
+                      });
+    tbb::enumerable_thread_specific<PixelRows> rows;
+    renderer(v).RenderJacobian(
+        *views_[v].rays, jacobians, [&](const FireRenderer::RayJacobian& ray) {
+          PixelRows& out = rows.local();
+          out.view = v;
+          out.pixel = ray.pixel;
+          out.residual = residual[ray.pixel];
+          out.d_log_s = d_log_s[ray.pixel];
+          out.active.clear();
+          out.d.clear();
+          for (std::size_t i = 0; i < ray.voxels.size(); ++i) {
+            const std::int32_t a = active_index_[ray.voxels[i]];
+            if (a < 0) continue;  // (every voxel with medium is active)
+            out.active.push_back(static_cast<std::uint32_t>(a));
+            Eigen::Matrix<double, 3, 2> d = ray.d[i];
+            d.col(1) *= std::max(0.0, n[a]);  // d/d ln n = n d/dn
+            out.d.push_back(d);
+          }
+          if (!out.active.empty()) visit(out);
+        });
+  }
+}
+
+std::vector<PairCurvature> FitObjective::PairwiseGaussNewton(const std::vector<double>& t,
+                                                             const std::vector<double>& n) const {
+  if (t.size() != active_.size() || n.size() != active_.size())
+    throw InputError("fit: temperature and density need one value per active voxel");
+  std::vector<PairCurvature> out(pairs_.size());
+  const FitParameters x{t, n, 1.0};
+  for (const auto& term : terms_) term->AddPairCurvature(x, &out);
   return out;
 }
 

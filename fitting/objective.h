@@ -38,6 +38,7 @@
 #define FLAMERIG_FITTING_OBJECTIVE_H_
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -129,6 +130,13 @@ struct FitParameters {
   double s;
 };
 
+// A neighbour pair's curvature in the energy's Gauss-Newton model (FitObjective::
+// PairwiseGaussNewton): with respect to the pair's difference in temperature (per kelvin squared)
+// and in ln density.
+struct PairCurvature {
+  double tt = 0, nn = 0;
+};
+
 // Where a term adds its weighted gradient: per active voxel, and the exposure. Null members are
 // not wanted.
 struct FitGradient {
@@ -153,6 +161,10 @@ class EnergyTerm {
   // involves active voxel `a` (0 for terms that are not sums over voxels; see local()).
   virtual bool local() const { return false; }
   virtual double Local(const FitParameters& x, std::uint32_t a) const { return 0.0; }
+  // FitObjective::PairwiseGaussNewton: a pairwise term adds its weighted curvature per neighbour
+  // pair into `pairs` (one entry per pair); other terms add nothing.
+  virtual void AddPairCurvature(const FitParameters& x,
+                                std::vector<PairCurvature>* pairs) const {}
 };
 
 // The objective over a fixed set of active voxels.
@@ -235,6 +247,41 @@ class FitObjective {
   Curvature DataCurvature(const std::vector<double>& t, const std::vector<double>& n,
                           double s) const;
 
+  // The energy's Gauss-Newton model, for a solver of few parameters that many voxels share (a
+  // tied fit's rings: fit.cc's Levenberg-Marquardt), which builds J^T J over its own parameters.
+  //
+  // The data term, ray by ray (DataGaussNewton): at (t, n, s) every view is rendered, and each
+  // pixel p gets its residual r_p (the Lab of the render less the recorded Lab, the data term's: a
+  // Bayer view's through its mosaic) and the data term's iteratively reweighted least-squares
+  // weight w_p = w_am rho'(|r_p|) / |r_p| (rho the smoothed distance of ObjectiveOptions::
+  // smooth_delta_e; its epsilon taken at least 1e-3 where it is 0), so that w_p J_p^T r_p summed
+  // over the pixels is the data term's gradient and w_p J_p^T J_p the Gauss-Newton part of its
+  // curvature (rho' / |r| bounds rho'' from above: the model is never flatter than the term).
+  // `visit` gets every pixel whose ray crosses medium, from several threads at once: sqrt(w_p)
+  // r_p, sqrt(w_p) d r_p / d ln s, and for each active voxel the ray crosses its index into
+  // active() and sqrt(w_p) times the 3 x 2 Jacobian of r_p with respect to its (T in kelvin, ln n).
+  // A Bayer view's Jacobians are each pixel's own, as if it had measured its three channels
+  // (DataCurvature's approximation): the model's curvature, not the gradient, is approximate there.
+  struct PixelRows {
+    std::size_t view = 0, pixel = 0;
+    Eigen::Vector3d residual = Eigen::Vector3d::Zero();
+    Eigen::Vector3d d_log_s = Eigen::Vector3d::Zero();
+    std::vector<std::uint32_t> active;
+    std::vector<Eigen::Matrix<double, 3, 2>> d;
+  };
+  using PixelRowsVisitor = std::function<void(const PixelRows&)>;
+  void DataGaussNewton(const std::vector<double>& t, const std::vector<double>& n, double s,
+                       const PixelRowsVisitor& visit) const;
+  // The pairwise terms' share: for every neighbour pair (a, b) of active indices, a < b, the
+  // iteratively reweighted curvature of the weighted pairwise terms with respect to the pair's
+  // difference, T_b - T_a (per kelvin squared) and ln n_b - ln n_a: the pair's part of the energy
+  // is then h_t (dT)^2 / 2 + h_n (d ln n)^2 / 2 to second order, in the same sense as the data
+  // term's (rho' / |x| of each Charbonnier; 0 where a term is absent or a density is below the
+  // range's lowest, where the density term is flat). One entry per neighbour pair, in
+  // neighbour_pairs()' order.
+  std::vector<PairCurvature> PairwiseGaussNewton(const std::vector<double>& t,
+                                                 const std::vector<double>& n) const;
+
   // Coordinate descent (the paper's algorithms), which render once per move and score exposures
   // on that render (DataTermAt):
   // the data term's weighted value for its exact value `data_exact`;
@@ -263,10 +310,13 @@ class FitObjective {
   // concurrently.
   FireRenderer& renderer(std::size_t view) const { return *renderers_[view_renderer_[view]]; }
   const std::vector<std::vector<Eigen::Vector3f>>& target_lab() const { return target_lab_; }
+  // The active index of flat voxel v, or -1 for a voxel that is not active.
+  std::int32_t active_index(std::size_t v) const { return active_index_[v]; }
 
  private:
   GridGeometry grid_;
   std::vector<std::uint32_t> active_;
+  std::vector<std::int32_t> active_index_;  // per voxel of the grid: its active index, or -1
   std::vector<FitView> views_;
   ObjectiveOptions options_;
   double n_min_ = 0, n_max_ = 0;

@@ -1334,13 +1334,15 @@ struct FireRenderer::CurvatureBuffers {
   std::vector<std::int32_t> local;    // per slot
   std::vector<std::int32_t> touched;  // the ray's slots, in the order first crossed
   std::vector<Real> e, n;             // per touched slot, padded bins
+  RayJacobian ray;                    // RenderJacobian: the ray's, handed to its visitor
 };
 
 template <typename Real>
 RenderSummary FireRenderer::CurvatureImpl(const CameraRays& camera_rays,
                                           const std::vector<Eigen::Matrix3f>& pixel_jacobians,
                                           std::vector<double>* tt, std::vector<double>* tn,
-                                          std::vector<double>* nn) const {
+                                          std::vector<double>* nn,
+                                          const RayJacobianVisitor* visit) const {
   const auto start = std::chrono::steady_clock::now();
   const int width = camera_rays.width(), height = camera_rays.height();
   GradientJob job;
@@ -1360,19 +1362,21 @@ RenderSummary FireRenderer::CurvatureImpl(const CameraRays& camera_rays,
   tbb::parallel_for(tbb::blocked_range<int>(0, height), [&](const tbb::blocked_range<int>& rows) {
     CurvatureBuffers<Real>& buf = buffers.local();
     if (buf.local.empty()) {
-      buf.tt.assign(nactive, 0.0);
-      buf.tn.assign(nactive, 0.0);
-      buf.nn.assign(nactive, 0.0);
+      if (!visit) {
+        buf.tt.assign(nactive, 0.0);
+        buf.tn.assign(nactive, 0.0);
+        buf.nn.assign(nactive, 0.0);
+      }
       buf.local.assign(nactive, -1);
     }
     MarchCounters c;
     if constexpr (std::is_same_v<Real, float>) {
       if (wide)
-        CurvatureRowsWide(job, pixel_jacobians, rows.begin(), rows.end(), &buf, &c);
+        CurvatureRowsWide(job, pixel_jacobians, rows.begin(), rows.end(), visit, &buf, &c);
       else
-        CurvatureRows<float>(job, pixel_jacobians, rows.begin(), rows.end(), &buf, &c);
+        CurvatureRows<float>(job, pixel_jacobians, rows.begin(), rows.end(), visit, &buf, &c);
     } else {
-      CurvatureRows<Real>(job, pixel_jacobians, rows.begin(), rows.end(), &buf, &c);
+      CurvatureRows<Real>(job, pixel_jacobians, rows.begin(), rows.end(), visit, &buf, &c);
     }
     hit += c.hit;
     early += c.early;
@@ -1381,7 +1385,7 @@ RenderSummary FireRenderer::CurvatureImpl(const CameraRays& camera_rays,
     after += c.after;
   });
   for (const CurvatureBuffers<Real>& buf : buffers) {
-    if (buf.local.empty()) continue;
+    if (buf.local.empty() || visit) continue;
     for (std::size_t a = 0; a < nactive; ++a) {
       const std::uint32_t v = active_voxels_[a];
       (*tt)[v] += buf.tt[a];
@@ -1398,14 +1402,15 @@ RenderSummary FireRenderer::CurvatureImpl(const CameraRays& camera_rays,
 // The AVX2 + FMA build of the float curvature (see RenderRowsWide).
 __attribute__((target("avx2,fma"), flatten)) void FireRenderer::CurvatureRowsWide(
     const GradientJob& job, const std::vector<Eigen::Matrix3f>& jacobians, int y0, int y1,
-    CurvatureBuffers<float>* buffers, MarchCounters* c) const {
-  CurvatureRows<float>(job, jacobians, y0, y1, buffers, c);
+    const RayJacobianVisitor* visit, CurvatureBuffers<float>* buffers, MarchCounters* c) const {
+  CurvatureRows<float>(job, jacobians, y0, y1, visit, buffers, c);
 }
 
 template <typename Real>
 void FireRenderer::CurvatureRows(const GradientJob& job,
                                  const std::vector<Eigen::Matrix3f>& jacobians, int y0, int y1,
-                                 CurvatureBuffers<Real>* buffers, MarchCounters* counters) const {
+                                 const RayJacobianVisitor* visit, CurvatureBuffers<Real>* buffers,
+                                 MarchCounters* counters) const {
   const CameraRays& camera_rays = *job.rays;
   const int width = camera_rays.width();
   const Real min_tr = Real(job.min_transmittance);
@@ -1544,14 +1549,29 @@ void FireRenderer::CurvatureRows(const GradientJob& job,
             }
           }
         }
-        for (int k = 0; k < 3; ++k) {
-          buf.tt[slot] += d_t[k] * d_t[k];
-          buf.tn[slot] += d_t[k] * d_n[k];
-          buf.nn[slot] += d_n[k] * d_n[k];
+        if (visit) {
+          buf.ray.voxels.push_back(voxel);
+          Eigen::Matrix<double, 3, 2>& d = buf.ray.d.emplace_back();
+          for (int k = 0; k < 3; ++k) {
+            d(k, 0) = d_t[k];
+            d(k, 1) = d_n[k];
+          }
+        } else {
+          for (int k = 0; k < 3; ++k) {
+            buf.tt[slot] += d_t[k] * d_t[k];
+            buf.tn[slot] += d_t[k] * d_n[k];
+            buf.nn[slot] += d_n[k] * d_n[k];
+          }
         }
         buf.local[slot] = -1;
       }
       buf.touched.clear();
+      if (visit && !buf.ray.voxels.empty()) {
+        buf.ray.pixel = static_cast<std::size_t>(y) * width + x;
+        (*visit)(buf.ray);
+      }
+      buf.ray.voxels.clear();
+      buf.ray.d.clear();
     }
   }
 }
@@ -1568,8 +1588,24 @@ RenderSummary FireRenderer::RenderCurvature(const CameraRays& rays,
   }
   PrepareGradientArrays(tt, tn);
   PrepareGradientArrays(nn, tn);
-  if (options_.double_precision) return CurvatureImpl<double>(rays, pixel_jacobians, tt, tn, nn);
-  return CurvatureImpl<float>(rays, pixel_jacobians, tt, tn, nn);
+  if (options_.double_precision)
+    return CurvatureImpl<double>(rays, pixel_jacobians, tt, tn, nn, nullptr);
+  return CurvatureImpl<float>(rays, pixel_jacobians, tt, tn, nn, nullptr);
+}
+
+RenderSummary FireRenderer::RenderJacobian(const CameraRays& rays,
+                                           const std::vector<Eigen::Matrix3f>& pixel_jacobians,
+                                           const RayJacobianVisitor& visit) const {
+  if (!has_volume_) throw std::logic_error("FireRenderer::RenderJacobian called before SetVolume");
+  const std::size_t pixels = static_cast<std::size_t>(rays.width()) * rays.height();
+  if (pixel_jacobians.size() != pixels) {
+    throw InputError("RenderJacobian: " + std::to_string(pixel_jacobians.size()) +
+                     " pixel Jacobians for a camera of " + std::to_string(pixels) + " pixels");
+  }
+  if (!visit) throw InputError("RenderJacobian: no visitor");
+  if (options_.double_precision)
+    return CurvatureImpl<double>(rays, pixel_jacobians, nullptr, nullptr, nullptr, &visit);
+  return CurvatureImpl<float>(rays, pixel_jacobians, nullptr, nullptr, nullptr, &visit);
 }
 
 void FireRenderer::PrepareGradientArrays(std::vector<double>* d_temperature,

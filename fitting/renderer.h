@@ -204,6 +204,26 @@ class FireRenderer {
                                 std::vector<double>* tt, std::vector<double>* tn,
                                 std::vector<double>* nn) const;
 
+  // One marched ray's Jacobian, voxel by voxel (RenderJacobian): the pixel (index y * width + x),
+  // the voxels with medium its ray crosses (flat grid indices, each once, in the order first
+  // crossed), and for each the 3 x 2 Jacobian of the pixel's three residuals with respect to the
+  // voxel's temperature (column 0, per kelvin) and density (column 1, per particle/m^3).
+  struct RayJacobian {
+    std::size_t pixel = 0;
+    std::vector<std::uint32_t> voxels;
+    std::vector<Eigen::Matrix<double, 3, 2>> d;
+  };
+  using RayJacobianVisitor = std::function<void(const RayJacobian&)>;
+  // What RenderCurvature sums, ray by ray: the same pass, with the same `pixel_jacobians` and the
+  // same exact per-voxel Jacobians, handed to `visit` instead of being summed into each voxel's
+  // diagonal block, so that a caller can build J^T J over parameters that several voxels share
+  // (a tied fit's rings, fitting/fit.cc's Levenberg-Marquardt) or couple voxels along a ray.
+  // `visit` is called once for every marched ray that crosses medium, from several threads at
+  // once; the reference is valid during the call only. Throws InputError as RenderCurvature.
+  RenderSummary RenderJacobian(const CameraRays& rays,
+                               const std::vector<Eigen::Matrix3f>& pixel_jacobians,
+                               const RayJacobianVisitor& visit) const;
+
   const AbsorptionModel& absorption() const { return absorption_; }
   const RenderOptions& options() const { return options_; }
   SpectralPath path() const { return path_; }
@@ -219,11 +239,13 @@ class FireRenderer {
                              const PixelGradient* pixel_gradient, ImageF* linear_rgb,
                              std::vector<double>* d_temperature,
                              std::vector<double>* d_density) const;
+  // Into the blocks tt, tn, nn (RenderCurvature), or to `visit` when it is not null
+  // (RenderJacobian; the blocks are then not touched).
   template <typename Real>
   RenderSummary CurvatureImpl(const CameraRays& rays,
                               const std::vector<Eigen::Matrix3f>& pixel_jacobians,
                               std::vector<double>* tt, std::vector<double>* tn,
-                              std::vector<double>* nn) const;
+                              std::vector<double>* nn, const RayJacobianVisitor* visit) const;
   // Resizes and zeroes (when empty) or checks the gradient arrays.
   void PrepareGradientArrays(std::vector<double>* d_temperature,
                              std::vector<double>* d_density) const;
@@ -268,10 +290,11 @@ class FireRenderer {
   struct CurvatureBuffers;
   template <typename Real>
   void CurvatureRows(const GradientJob& job, const std::vector<Eigen::Matrix3f>& jacobians, int y0,
-                     int y1, CurvatureBuffers<Real>* buffers, MarchCounters* counters) const;
+                     int y1, const RayJacobianVisitor* visit, CurvatureBuffers<Real>* buffers,
+                     MarchCounters* counters) const;
   void CurvatureRowsWide(const GradientJob& job, const std::vector<Eigen::Matrix3f>& jacobians,
-                         int y0, int y1, CurvatureBuffers<float>* buffers,
-                         MarchCounters* counters) const;
+                         int y0, int y1, const RayJacobianVisitor* visit,
+                         CurvatureBuffers<float>* buffers, MarchCounters* counters) const;
 
   AbsorptionModel absorption_;
   RenderOptions options_;

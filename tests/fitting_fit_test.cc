@@ -9,6 +9,7 @@
 #include <functional>
 #include <limits>
 #include <map>
+#include <mutex>
 #include <random>
 #include <set>
 #include <string>
@@ -262,6 +263,148 @@ TEST(FitObjective, DataCurvatureMatchesFiniteDifferenceJacobiansSoot) {
 
 TEST(FitObjective, DataCurvatureMatchesFiniteDifferenceJacobiansGrey) {
   CheckDataCurvature(AbsorptionModel::DefaultGrey());
+}
+
+// The energy's Gauss-Newton model (FitObjective::DataGaussNewton, PairwiseGaussNewton), the
+// tied Levenberg-Marquardt's input. Oracles: each pixel's residual and IRLS weight worked out here
+// from its render; its Jacobian rows against central differences of every pixel's Lab (as
+// CheckDataCurvature); the rows' sum_p sqrt(w) J^T sqrt(w) r against the adjoint's gradient of the
+// data term (an identity of the reweighting: rho'(|r|) r / |r| is the Charbonnier's gradient),
+// and the pairs' curvatures times their differences against the pairwise term's gradient.
+void CheckGaussNewton(const AbsorptionModel& absorption) {
+  SmallScene s = MakeSmallScene(absorption);
+  RenderOptions render;
+  render.double_precision = true;
+  render.min_transmittance = 0;
+  render.spectral_step_nm = 40;
+  ObjectiveOptions o;
+  o.smooth_delta_e = 0.5;
+  o.smooth_neighbour = 0.01;
+  o.w_am = 1.5;
+  o.w_sm = 0.7;
+  o.density_pairwise = true;
+  const double exposure = 0.04;
+  for (std::size_t a = 0; a < s.t.size(); ++a) s.t[a] = std::floor(s.t[a]) + 0.5;
+  FitObjective objective(s.grid, s.active, s.views, absorption, render, o);
+  std::mutex mutex;
+  std::map<std::pair<std::size_t, std::size_t>, FitObjective::PixelRows> rows;
+  objective.DataGaussNewton(s.t, s.n, exposure, [&](const FitObjective::PixelRows& r) {
+    std::lock_guard<std::mutex> lock(mutex);
+    EXPECT_TRUE(rows.emplace(std::make_pair(r.view, r.pixel), r).second) << "a pixel twice";
+  });
+  ASSERT_GT(rows.size(), 50u);
+  auto labs = [&](const std::vector<double>& t, const std::vector<double>& n, double s_exp) {
+    const FitObjective::Renders r = objective.Render(t, n);
+    std::vector<std::vector<Eigen::Vector3d>> out;
+    for (const ImageF& img : r.linear) {
+      out.emplace_back();
+      for (std::size_t p = 0; p < img.num_pixels(); ++p)
+        out.back().push_back(CameraLab(
+            Eigen::Vector3d(img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]),
+            s_exp, nullptr));
+    }
+    return out;
+  };
+  const auto lab = labs(s.t, s.n, exposure);
+  // Residuals and weights.
+  std::vector<double> root(0);
+  for (const auto& [key, r] : rows) {
+    const Eigen::Vector3d res = lab[key.first][key.second] -
+                                objective.target_lab()[key.first][key.second].cast<double>();
+    const double w = std::sqrt(o.w_am / std::sqrt(res.squaredNorm() + 0.25));
+    EXPECT_NEAR((r.residual - w * res).norm(), 0, 1e-9 * (1 + res.norm())) << key.second;
+    EXPECT_EQ(r.active.size(), r.d.size());
+  }
+  // Jacobian rows against differences, for some voxels, on every pixel.
+  int compared = 0;
+  for (std::size_t a = 0; a < s.active.size(); a += 9) {
+    std::vector<double> tp = s.t, tm = s.t, np = s.n, nm = s.n;
+    tp[a] += 0.4;
+    tm[a] -= 0.4;
+    np[a] *= std::exp(0.002);
+    nm[a] *= std::exp(-0.002);
+    const auto lt_p = labs(tp, s.n, exposure), lt_m = labs(tm, s.n, exposure);
+    const auto ln_p = labs(s.t, np, exposure), ln_m = labs(s.t, nm, exposure);
+    for (const auto& [key, r] : rows) {
+      const auto [v, p] = key;
+      const Eigen::Vector3d jt = (lt_p[v][p] - lt_m[v][p]) / 0.8,
+                            jn = (ln_p[v][p] - ln_m[v][p]) / 0.004;
+      const double w = r.residual.norm() > 0
+                           ? r.residual.norm() /
+                                 (lab[v][p] - objective.target_lab()[v][p].cast<double>()).norm()
+                           : 0;
+      Eigen::Matrix<double, 3, 2> given = Eigen::Matrix<double, 3, 2>::Zero();
+      for (std::size_t i = 0; i < r.active.size(); ++i)
+        if (r.active[i] == a) given = r.d[i];
+      if (!(w > 0)) continue;
+      // The differences' own floor: the renders are stored as floats (Lab to about 1e-5 of 100),
+      // over steps of 0.8 K and 0.004 in ln n.
+      EXPECT_NEAR((given.col(0) - w * jt).norm(), 0, 3e-3 * w * jt.norm() + 2e-5 * w)
+          << "voxel " << a << " px " << p;
+      EXPECT_NEAR((given.col(1) - w * jn).norm(), 0, 3e-3 * w * jn.norm() + 3e-3 * w)
+          << "voxel " << a << " px " << p;
+      compared += w * jn.norm() > 0.01;
+    }
+  }
+  EXPECT_GT(compared, 20);
+  // sum sqrt(w) J^T sqrt(w) r is the data term's gradient (T, ln n, ln s).
+  ObjectiveOptions data_only = o;
+  data_only.w_sm = 0;
+  FitObjective data(s.grid, s.active, s.views, absorption, render, data_only);
+  std::vector<double> d_t, d_n;
+  double d_s = 0;
+  data.Evaluate(s.t, s.n, exposure, &d_t, &d_n, &d_s);
+  std::vector<double> g_t(s.active.size(), 0.0), g_n(s.active.size(), 0.0);
+  double g_s = 0;
+  for (const auto& [key, r] : rows) {
+    g_s += r.d_log_s.dot(r.residual);
+    for (std::size_t i = 0; i < r.active.size(); ++i) {
+      g_t[r.active[i]] += r.d[i].col(0).dot(r.residual);
+      g_n[r.active[i]] += r.d[i].col(1).dot(r.residual);
+    }
+  }
+  double max_t = 0, max_n = 0;
+  for (std::size_t a = 0; a < s.active.size(); ++a) {
+    max_t = std::max(max_t, std::abs(d_t[a]));
+    max_n = std::max(max_n, std::abs(d_n[a] * s.n[a]));
+  }
+  ASSERT_GT(max_t, 0);
+  for (std::size_t a = 0; a < s.active.size(); ++a) {
+    EXPECT_NEAR(g_t[a], d_t[a], 1e-6 * max_t) << a;
+    EXPECT_NEAR(g_n[a], d_n[a] * s.n[a], 1e-6 * max_n) << a;
+  }
+  EXPECT_NEAR(g_s, d_s * exposure, 1e-6 * std::abs(d_s * exposure) + 1e-9);
+  // The pairs: h (x_b - x_a) summed onto both ends is the pairwise terms' gradient.
+  ObjectiveOptions pairs_only = o;
+  pairs_only.w_am = 0;
+  FitObjective pairwise(s.grid, s.active, s.views, absorption, render, pairs_only);
+  pairwise.Evaluate(s.t, s.n, exposure, &d_t, &d_n);
+  const std::vector<PairCurvature> h = objective.PairwiseGaussNewton(s.t, s.n);
+  ASSERT_EQ(h.size(), objective.neighbour_pairs().size());
+  std::fill(g_t.begin(), g_t.end(), 0.0);
+  std::fill(g_n.begin(), g_n.end(), 0.0);
+  for (std::size_t p = 0; p < h.size(); ++p) {
+    const auto [a, b] = objective.neighbour_pairs()[p];
+    EXPECT_GT(h[p].tt, 0);
+    EXPECT_GT(h[p].nn, 0);
+    const double gt = h[p].tt * (s.t[b] - s.t[a]), gn = h[p].nn * std::log(s.n[b] / s.n[a]);
+    g_t[b] += gt;
+    g_t[a] -= gt;
+    g_n[b] += gn;
+    g_n[a] -= gn;
+  }
+  for (std::size_t a = 0; a < s.active.size(); ++a) {
+    EXPECT_NEAR(g_t[a], d_t[a], 1e-9 * (1 + std::abs(d_t[a]))) << a;
+    EXPECT_NEAR(g_n[a], d_n[a] * s.n[a], 1e-9 * (1 + std::abs(d_n[a] * s.n[a]))) << a;
+  }
+}
+
+TEST(FitObjective, GaussNewtonRowsAreThePixelsJacobiansAndSumToTheGradientSoot) {
+  CheckGaussNewton(AbsorptionModel::DefaultSoot());
+}
+
+TEST(FitObjective, GaussNewtonRowsAreThePixelsJacobiansAndSumToTheGradientGrey) {
+  CheckGaussNewton(AbsorptionModel::DefaultGrey());
 }
 
 // A tied fit's sigma (uncertainty.h, `groups`): groups of one voxel give each voxel exactly its
@@ -1043,6 +1186,8 @@ TEST(FitOptions, TheKeyNamesEveryField) {
       [](FitOptions& f) { f.axisymmetric_across_y = 1; },
       [](FitOptions& f) { f.axisymmetric_interpolate = true; },
       [](FitOptions& f) { f.axisymmetric_stall_decrease = 0.01; },
+      [](FitOptions& f) { f.axisymmetric_solver = FitOptions::TiedSolver::kLevenbergMarquardt; },
+      [](FitOptions& f) { f.axisymmetric_lm_stall_decrease = 0.01; },
       [](FitOptions& f) { f.known_exposure = 2; },
       [](FitOptions& f) { f.vary.temperature = false; },  // vary: both below
       [](FitOptions& f) { f.estimate_uncertainty = true; },
@@ -1686,6 +1831,70 @@ TEST(FastFit, TwoColourStartReadsEachVoxelsTemperatureFromItsBandRatio) {
                InputError);
   options.init_band_radius_voxels = 9;
   EXPECT_THROW(options.Validate(), InputError);
+}
+
+// The tied fit's Levenberg-Marquardt (FitOptions::axisymmetric_solver): the oracle is the energy's
+// minimum as L-BFGS finds it given 400 iterations and no stop rule; Levenberg-Marquardt must reach
+// it (to within its stop rule's few tenths of a percent, or lower) by its own rule in far fewer
+// steps, keep every ring tied, and do the same with the exposure fitted and with the tie linear in
+// the radius.
+TEST(FastFit, TheTiedLevenbergMarquardtReachesTheEnergysMinimum) {
+  const AbsorptionModel soot = AbsorptionModel::DefaultSoot();
+  RoundTrip r = MakeRoundTrip(soot, 32, 160);
+  for (const bool interpolate : {false, true}) {
+    for (const bool known : {true, false}) {
+      SCOPED_TRACE(std::string(interpolate ? "interpolated" : "rings") +
+                   (known ? ", exposure known" : ", exposure fitted"));
+      FitOptions options;
+      options.known_exposure = known ? r.exposure : 0;
+      options.axisymmetric = true;
+      options.axisymmetric_interpolate = interpolate;
+      const FitResult stopped = FastFit(r.grid, r.tomography, r.views, soot, options);
+      FitOptions long_run = options;
+      long_run.stall_window = 0;
+      long_run.iterations_finest = 400;
+      const FitResult reference = FastFit(r.grid, r.tomography, r.views, soot, long_run);
+      FitOptions lm = options;
+      lm.axisymmetric_solver = FitOptions::TiedSolver::kLevenbergMarquardt;
+      const FitResult fit = FastFit(r.grid, r.tomography, r.views, soot, lm);
+      std::printf("tied LM (%s, %s): energy %.1f in %d steps (%s); L-BFGS %.1f in %d, %.1f in 400\n",
+                  interpolate ? "interpolated" : "rings", known ? "known" : "fitted",
+                  fit.final_terms.energy, fit.iterations, fit.message.c_str(),
+                  stopped.final_terms.energy, stopped.iterations, reference.final_terms.energy);
+      // With the exposure fitted it trades against every density (exactly, but for the
+      // self-absorption): a flat valley that may keep it going to the cap, below L-BFGS's anyway.
+      if (known) {
+        EXPECT_EQ(fit.termination, FitTermination::kConverged) << fit.message;
+        EXPECT_LT(fit.iterations, 100);
+      }
+      EXPECT_NE(fit.method.find("Levenberg-Marquardt"), std::string::npos) << fit.method;
+      // Its stop rule ends it within a few tenths of a percent of the minimum.
+      EXPECT_LE(fit.final_terms.energy, reference.final_terms.energy * (1 + 5e-3));
+      EXPECT_LT(fit.final_terms.energy, stopped.final_terms.energy);
+      EXPECT_EQ(fit.rings, stopped.rings);
+      if (known) {
+        EXPECT_EQ(fit.exposure, r.exposure);
+      } else {
+        EXPECT_TRUE(std::isfinite(fit.exposure) && fit.exposure > 0) << fit.exposure;
+        EXPECT_NE(fit.exposure, stopped.exposure);  // it was fitted
+      }
+      // Tied: rings alone, one temperature per ring.
+      if (!interpolate) {
+        std::set<float> temperatures;
+        for (std::size_t v = 0; v < fit.volume.temperature_k.size(); ++v)
+          if (fit.volume.density_per_m3[v] > 0) temperatures.insert(fit.volume.temperature_k[v]);
+        EXPECT_LE(temperatures.size(), fit.rings);
+      }
+      ASSERT_EQ(fit.ring_profile.size(), fit.rings);
+    }
+  }
+  // Untied, the option is L-BFGS's as before.
+  FitOptions untied;
+  untied.known_exposure = r.exposure;
+  untied.axisymmetric_solver = FitOptions::TiedSolver::kLevenbergMarquardt;
+  untied.iterations_finest = 5;
+  const FitResult free = FastFit(r.grid, r.tomography, r.views, soot, untied);
+  EXPECT_NE(free.method.find("L-BFGS"), std::string::npos) << free.method;
 }
 
 // An axisymmetric fit (FitOptions::axisymmetric) of the paper's two views of a candle, which sways

@@ -3,7 +3,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <mutex>
 #include <random>
+#include <set>
 
 #include "core/cpu.h"
 #include "core/error.h"
@@ -311,6 +313,69 @@ TEST(RenderGradient, ExtremeVolumesGiveFiniteGradients) {
       }
     }
   }
+}
+
+// RenderJacobian hands over, ray by ray, what RenderCurvature sums: the outer products of its
+// per-voxel Jacobians, summed over the rays, are RenderCurvature's blocks (both paths, the float
+// kernels the fit uses); each ray reports each voxel once, and only voxels with medium.
+void CheckJacobianAgainstCurvature(const AbsorptionModel& absorption) {
+  Scene s = MakeScene(absorption, 0.8, 5);
+  RenderOptions options;
+  options.spectral_step_nm = 40;
+  options.brick_size_voxels = 2;
+  FireRenderer renderer(absorption, options);
+  renderer.SetVolume(s.grid, s.temperature, s.density);
+  CameraRays rays(s.camera);
+  std::vector<Eigen::Matrix3f> jacobians(rays.width() * rays.height());
+  std::mt19937 rng(11);
+  std::normal_distribution<float> normal(0, 1);
+  for (auto& j : jacobians)
+    for (int k = 0; k < 9; ++k) j.data()[k] = normal(rng);
+  jacobians[3].setZero();  // a pixel that does not count
+  std::vector<double> tt, tn, nn;
+  renderer.RenderCurvature(rays, jacobians, &tt, &tn, &nn);
+  std::mutex mutex;
+  std::vector<double> jtt(s.grid.num_voxels(), 0.0), jtn(jtt), jnn(jtt);
+  std::size_t rays_seen = 0;
+  renderer.RenderJacobian(rays, jacobians, [&](const FireRenderer::RayJacobian& ray) {
+    std::lock_guard<std::mutex> lock(mutex);
+    ++rays_seen;
+    EXPECT_NE(ray.pixel, 3u);
+    EXPECT_EQ(ray.voxels.size(), ray.d.size());
+    std::set<std::uint32_t> once(ray.voxels.begin(), ray.voxels.end());
+    EXPECT_EQ(once.size(), ray.voxels.size()) << "pixel " << ray.pixel;
+    for (std::size_t i = 0; i < ray.voxels.size(); ++i) {
+      const std::uint32_t v = ray.voxels[i];
+      EXPECT_GT(s.density[v], 0) << v;
+      jtt[v] += ray.d[i].col(0).squaredNorm();
+      jtn[v] += ray.d[i].col(0).dot(ray.d[i].col(1));
+      jnn[v] += ray.d[i].col(1).squaredNorm();
+    }
+  });
+  EXPECT_GT(rays_seen, 20u);
+  double max_tt = 0, max_nn = 0;
+  for (std::size_t v = 0; v < tt.size(); ++v) {
+    max_tt = std::max(max_tt, tt[v]);
+    max_nn = std::max(max_nn, nn[v]);
+  }
+  ASSERT_GT(max_tt, 0);
+  for (std::size_t v = 0; v < tt.size(); ++v) {
+    EXPECT_NEAR(jtt[v], tt[v], 1e-9 * max_tt) << v;
+    EXPECT_NEAR(jnn[v], nn[v], 1e-9 * max_nn) << v;
+    EXPECT_NEAR(jtn[v], tn[v], 1e-9 * std::sqrt(max_tt * max_nn)) << v;
+  }
+  std::vector<Eigen::Matrix3f> wrong(7);
+  EXPECT_THROW(renderer.RenderJacobian(rays, wrong, [](const FireRenderer::RayJacobian&) {}),
+               InputError);
+  EXPECT_THROW(renderer.RenderJacobian(rays, jacobians, nullptr), InputError);
+}
+
+TEST(RenderGradient, RenderJacobianIsWhatRenderCurvatureSumsFast) {
+  CheckJacobianAgainstCurvature(AbsorptionModel::DefaultGrey());
+}
+
+TEST(RenderGradient, RenderJacobianIsWhatRenderCurvatureSumsSpectral) {
+  CheckJacobianAgainstCurvature(AbsorptionModel::DefaultSoot());
 }
 
 TEST(RenderGradient, RejectsMisSizedInputs) {

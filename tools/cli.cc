@@ -371,8 +371,35 @@ void AddStallFlag(CLI::App* command, double* stall, const FitOptions& defaults) 
 
 void ApplyStallFlag(double stall, FitOptions* fit) {
   if (stall < 0) return;
-  fit->stall_decrease = fit->axisymmetric_stall_decrease = stall;
+  fit->stall_decrease = fit->axisymmetric_stall_decrease = fit->axisymmetric_lm_stall_decrease =
+      stall;
   if (stall == 0) fit->stall_window = 0;
+}
+
+void AddSolverFlag(CLI::App* command, std::string* solver, const FitOptions& defaults) {
+  command
+      ->add_option("--fit-solver", *solver,
+                   fmt::format("With --axisymmetric: the tied fit's solver, lbfgs (L-BFGS on the "
+                               "voxels, the gradient projected onto the rings) or lm "
+                               "(Levenberg-Marquardt on the rings' own parameters, stopped once a "
+                               "step lowers the energy by under {:g}% of its fall since the start; "
+                               "--fit-stall sets that share too); default {}",
+                               100 * defaults.axisymmetric_lm_stall_decrease,
+                               defaults.axisymmetric_solver ==
+                                       FitOptions::TiedSolver::kLevenbergMarquardt
+                                   ? "lm"
+                                   : "lbfgs"))
+      ->type_name("S")
+      ->check(CLI::IsMember({"lbfgs", "lm"}));
+}
+
+void ApplySolverFlag(const std::string& solver, FitOptions* fit) {
+  if (solver.empty()) return;
+  if (!fit->axisymmetric)
+    throw UsageError("--fit-solver " + solver +
+                     ": the solver of a tied fit (--axisymmetric); the untied fit is L-BFGS");
+  fit->axisymmetric_solver =
+      solver == "lm" ? FitOptions::TiedSolver::kLevenbergMarquardt : FitOptions::TiedSolver::kLbfgs;
 }
 
 void ApplyNeighbourFlags(std::optional<double> w_sm, const DirectionFlags& flags, FitOptions* fit) {

@@ -135,6 +135,12 @@ void ApplyNeighbourFlags(std::optional<double> w_sm, const DirectionFlags& flags
 void AddStallFlag(CLI::App* command, double* stall, const FitOptions& defaults);
 void ApplyStallFlag(double stall, FitOptions* fit);
 
+// The tied fit's solver, shared by fit and run: --fit-solver lbfgs|lm
+// (FitOptions::axisymmetric_solver; lm: Levenberg-Marquardt on the rings' nodes). Empty keeps the
+// default. Given without --axisymmetric it is a usage error: the untied fit is L-BFGS always.
+void AddSolverFlag(CLI::App* command, std::string* solver, const FitOptions& defaults);
+void ApplySolverFlag(const std::string& solver, FitOptions* fit);
+
 // "a,b,,c" -> {"a", "b", "c"}.
 std::vector<std::string> SplitList(const std::string& text);
 

@@ -18,6 +18,7 @@ Runner AddFit(CLI::App* command) {
     std::string views, method = "fast";
     int iterations = -1;
     double stall = -1;
+    std::string solver;  // --fit-solver
     std::int64_t seed = -1;
     TomographyFlags tomography;
     DirectionFlags directions;
@@ -88,6 +89,7 @@ Runner AddFit(CLI::App* command) {
       ->type_name("N")
       ->check(Whole(0, 1000000));
   AddStallFlag(command, &o->stall, defaults);
+  AddSolverFlag(command, &o->solver, defaults);
   command->add_option("--time-limit", job.fit.time_limit_s, "Stop the fit after S seconds")
       ->type_name("S")
       ->check(kNonNegative);
@@ -131,6 +133,9 @@ Runner AddFit(CLI::App* command) {
     if (o->stall >= 0 && job.method != FitMethod::kFast)
       throw UsageError("--fit-stall: the fast fit's stop rule (alg1 and alg2 run their sweeps)");
     ApplyStallFlag(o->stall, &job.fit);
+    if (!o->solver.empty() && job.method != FitMethod::kFast)
+      throw UsageError("--fit-solver: the fast fit's tied solver (alg1 and alg2 run their sweeps)");
+    ApplySolverFlag(o->solver, &job.fit);
     if (o->seed >= 0) job.paper.seed = static_cast<std::uint64_t>(o->seed);
     const FitJobResult r = RunFitJob(job, context.Progress(2.0));
     Log().info("fit: tomography {}", r.tomography);

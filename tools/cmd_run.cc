@@ -18,6 +18,7 @@ Runner AddRun(CLI::App* command) {
     std::int64_t first = -1, count = -1;
     int fit_iterations = -1;
     double w_sm = -1, fit_stall = -1;
+    std::string fit_solver;  // --fit-solver
     bool no_skip_unchanged = false, no_blender = false, cold = false, no_sigma = false;
     std::size_t threads = 0;
     TomographyFlags tomography;
@@ -81,6 +82,7 @@ Runner AddRun(CLI::App* command) {
       ->type_name("N")
       ->check(Whole(0, 1000000));
   AddStallFlag(command, &o->fit_stall, defaults);
+  AddSolverFlag(command, &o->fit_solver, defaults);
   command
       ->add_option(
           "--w-sm", o->w_sm,
@@ -152,6 +154,7 @@ Runner AddRun(CLI::App* command) {
     if (o->count >= 0) run.count = static_cast<std::size_t>(o->count);
     if (o->fit_iterations >= 0) run.fit.iterations_finest = o->fit_iterations;
     ApplyStallFlag(o->fit_stall, &run.fit);
+    ApplySolverFlag(o->fit_solver, &run.fit);
     // A weight given is the fit's, tied to rings or not (ApplyNeighbourFlags, as in `fit`).
     ApplyNeighbourFlags(o->w_sm >= 0 ? std::optional<double>(o->w_sm) : std::nullopt, o->directions,
                         &run.fit);
