@@ -79,7 +79,7 @@ void FitOptions::Validate() const {
   try {
     TiedObjective().Validate();
   } catch (const InputError& e) {
-    fail(std::string("the tied fit's axisymmetric_w_sm, axisymmetric_along_y and "
+    fail(std::string("the tied fit's axisymmetric_w_sm (axisymmetric_lm_w_sm), axisymmetric_along_y and "
                      "axisymmetric_across_y (its w_sm, along_y and across_y): ") +
          e.what());
   }
@@ -91,7 +91,8 @@ void FitOptions::Validate() const {
 
 ObjectiveOptions FitOptions::TiedObjective() const {
   ObjectiveOptions tied = objective;
-  tied.w_sm = axisymmetric_w_sm;
+  tied.w_sm = axisymmetric_solver == TiedSolver::kLevenbergMarquardt ? axisymmetric_lm_w_sm
+                                                                       : axisymmetric_w_sm;
   tied.along_y = axisymmetric_along_y;
   tied.across_y = axisymmetric_across_y;
   return tied;
@@ -126,6 +127,7 @@ std::string FitOptions::Key() const {
     << " along y, x " << axisymmetric_across_y << " across, interpolate "
     << axisymmetric_interpolate << ", stall " << axisymmetric_stall_decrease << ", solver "
     << ToString(axisymmetric_solver) << ", its stall " << axisymmetric_lm_stall_decrease
+    << " and w_sm " << axisymmetric_lm_w_sm
     << "), vary "
     << vary.temperature << vary.density << ", uncertainty " << estimate_uncertainty << " ("
     << uncertainty.determined_fraction << ", dense up to " << uncertainty.max_dense_nodes

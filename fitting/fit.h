@@ -308,6 +308,15 @@ struct FitOptions {
   enum class TiedSolver { kLbfgs, kLevenbergMarquardt };
   TiedSolver axisymmetric_solver = TiedSolver::kLbfgs;
   double axisymmetric_lm_stall_decrease = 1e-4;
+  // The tied fit's neighbour weight under kLevenbergMarquardt, in place of axisymmetric_w_sm
+  // (which was chosen for L-BFGS as its stop rule ends it). Measured on 2026-12-07 on converged
+  // fits (BENCHMARKS.md, issue 19, "The tied fit converged"), the main job's 13 sets, T RMS /
+  // bias / emission-weighted RMS K, visible soot within 10% of the truth's: 0.03: 89.8 / +5.9 /
+  // 61.4, 4 sets; 0.05: 85.4 / +8.3 / 57.8, 6; 0.08: 83.5 / +11.0 / 55.7, 11; 0.12: 83.3 / +14.5
+  // / 54.0, 13; 0.2: 84.8 / +18.2 / 52.8, 13 (bias within 20 K on 7 sets); `simulate`'s candle
+  // seeds 3, 5, 7, 9 at 0.05 / 0.08 / 0.12 / 0.2: 90.4 / 83.3 / 81.0 / 81.1 K RMS, +7.0 / +9.4 /
+  // +12.2 / +18.9 K. 0.12: every set of the main job within 20 K and its soot within 10%.
+  double axisymmetric_lm_w_sm = 0.12;
   // The cameras' exposure when it is known (the recording's exposure time x gain, in the
   // renderer's units, as the tomography takes it): > 0 holds the fit's exposure there, so that
   // densities come out absolute and comparable across frames; 0 = unknown, fitted (the paper's

@@ -1188,6 +1188,7 @@ TEST(FitOptions, TheKeyNamesEveryField) {
       [](FitOptions& f) { f.axisymmetric_stall_decrease = 0.01; },
       [](FitOptions& f) { f.axisymmetric_solver = FitOptions::TiedSolver::kLevenbergMarquardt; },
       [](FitOptions& f) { f.axisymmetric_lm_stall_decrease = 0.01; },
+      [](FitOptions& f) { f.axisymmetric_lm_w_sm = 0.3; },
       [](FitOptions& f) { f.known_exposure = 2; },
       [](FitOptions& f) { f.vary.temperature = false; },  // vary: both below
       [](FitOptions& f) { f.estimate_uncertainty = true; },

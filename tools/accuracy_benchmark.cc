@@ -476,6 +476,9 @@ std::string RunAccuracyBenchmark(const AccuracyBenchmarkOptions& options,
         {"... axisymmetric: one temperature and density per ring about the flame's axis "
          "(`--axisymmetric`)",
          rings});
+    FitOptions rings_lm = rings;
+    rings_lm.axisymmetric_solver = FitOptions::TiedSolver::kLevenbergMarquardt;
+    variants.push_back({"... the same converged by Levenberg-Marquardt (`--fit-solver lm`)", rings_lm});
     FitOptions converged10 = known10;
     converged10.iterations_finest = long_iterations;
     variants.push_back({"exposure known, w_sm = 10, " + its, converged10});

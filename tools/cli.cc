@@ -404,7 +404,7 @@ void ApplySolverFlag(const std::string& solver, FitOptions* fit) {
 
 void ApplyNeighbourFlags(std::optional<double> w_sm, const DirectionFlags& flags, FitOptions* fit) {
   if (w_sm) fit->objective.w_sm = *w_sm;
-  if (w_sm && fit->axisymmetric) fit->axisymmetric_w_sm = *w_sm;
+  if (w_sm && fit->axisymmetric) fit->axisymmetric_w_sm = fit->axisymmetric_lm_w_sm = *w_sm;
   if (flags.along_y) fit->objective.along_y = fit->axisymmetric_along_y = *flags.along_y;
   if (flags.across_y) fit->objective.across_y = fit->axisymmetric_across_y = *flags.across_y;
   const ObjectiveOptions used = fit->axisymmetric ? fit->TiedObjective() : fit->objective;

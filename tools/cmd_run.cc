@@ -87,10 +87,12 @@ Runner AddRun(CLI::App* command) {
       ->add_option(
           "--w-sm", o->w_sm,
           fmt::format("Weight of the fit's neighbour term (default {:g}, with "
-                      "--axisymmetric {:g}, its pairs along the axis x {:g} and across x {:g}) "
+                      "--axisymmetric {:g} and with --fit-solver lm {:g}, its pairs along the "
+                      "axis x {:g} and across x {:g}) "
                       "at {} voxels, x ({} / resolution)^2 on other grids; each frame's volume "
                       "records the weight applied (metadata w_sm)",
                       defaults.objective.w_sm, defaults.axisymmetric_w_sm,
+                      defaults.axisymmetric_lm_w_sm,
                       defaults.axisymmetric_along_y, defaults.axisymmetric_across_y,
                       defaults.neighbour_weight_resolution, defaults.neighbour_weight_resolution))
       ->type_name("W")
