@@ -79,8 +79,9 @@ void FitOptions::Validate() const {
   try {
     TiedObjective().Validate();
   } catch (const InputError& e) {
-    fail(std::string("the tied fit's axisymmetric_w_sm (axisymmetric_lm_w_sm), axisymmetric_along_y and "
-                     "axisymmetric_across_y (its w_sm, along_y and across_y): ") +
+    fail(std::string(
+             "the tied fit's axisymmetric_w_sm (axisymmetric_lm_w_sm), axisymmetric_along_y and "
+             "axisymmetric_across_y (its w_sm, along_y and across_y): ") +
          e.what());
   }
   if (neighbour_weight_resolution < 0) fail("neighbour_weight_resolution must be >= 0");
@@ -92,7 +93,7 @@ void FitOptions::Validate() const {
 ObjectiveOptions FitOptions::TiedObjective() const {
   ObjectiveOptions tied = objective;
   tied.w_sm = axisymmetric_solver == TiedSolver::kLevenbergMarquardt ? axisymmetric_lm_w_sm
-                                                                       : axisymmetric_w_sm;
+                                                                     : axisymmetric_w_sm;
   tied.along_y = axisymmetric_along_y;
   tied.across_y = axisymmetric_across_y;
   return tied;
@@ -127,11 +128,9 @@ std::string FitOptions::Key() const {
     << " along y, x " << axisymmetric_across_y << " across, interpolate "
     << axisymmetric_interpolate << ", stall " << axisymmetric_stall_decrease << ", solver "
     << ToString(axisymmetric_solver) << ", its stall " << axisymmetric_lm_stall_decrease
-    << " and w_sm " << axisymmetric_lm_w_sm
-    << "), vary "
-    << vary.temperature << vary.density << ", uncertainty " << estimate_uncertainty << " ("
-    << uncertainty.determined_fraction << ", dense up to " << uncertainty.max_dense_nodes
-    << " nodes)";
+    << " and w_sm " << axisymmetric_lm_w_sm << "), vary " << vary.temperature << vary.density
+    << ", uncertainty " << estimate_uncertainty << " (" << uncertainty.determined_fraction
+    << ", dense up to " << uncertainty.max_dense_nodes << " nodes)";
   return k.str();
 }
 
@@ -1184,7 +1183,8 @@ class TiedLmProblem : public LevenbergMarquardtProblem {
             if (w == 0) continue;
             const int g = index(tie.node[voxel][k], c);
             const double v = sign * w * slope[voxel];
-            auto it = std::find_if(row.begin(), row.end(), [&](const auto& e) { return e.first == g; });
+            auto it =
+                std::find_if(row.begin(), row.end(), [&](const auto& e) { return e.first == g; });
             if (it == row.end())
               row.emplace_back(g, v);
             else
@@ -1483,9 +1483,8 @@ FitResult FastFit(const GridGeometry& grid, const FireVolume& tomography,
       result.iterations += lm_summary.iterations;
       result.message = fmt::format(
           "{} ({} of {} steps taken, {} curvatures in {:.2f} s, factorised in {:.2f} s)",
-          lm_summary.message, lm_summary.steps_taken, lm_summary.iterations,
-          lm_summary.curvatures, lm_summary.seconds_in_curvature,
-          lm_summary.seconds_in_factorisation);
+          lm_summary.message, lm_summary.steps_taken, lm_summary.iterations, lm_summary.curvatures,
+          lm_summary.seconds_in_curvature, lm_summary.seconds_in_factorisation);
       Log().debug("fit: {}: Levenberg-Marquardt: {}", stage, result.message);
       if (callback.cancelled()) {
         result.termination = FitTermination::kCancelled;

@@ -124,7 +124,8 @@ LevenbergMarquardtSummary SolveLevenbergMarquardt(LevenbergMarquardtProblem& pro
     // leaves the model's reach, and be refused again and again at growing damping.
     if (options.max_step > 0) step = step.cwiseMax(-options.max_step).cwiseMin(options.max_step);
     // The model's predicted fall: -(g.dx + dx^T H dx / 2).
-    const double predicted = -(g.dot(step) + 0.5 * step.dot(h.selfadjointView<Eigen::Lower>() * step));
+    const double predicted =
+        -(g.dot(step) + 0.5 * step.dot(h.selfadjointView<Eigen::Lower>() * step));
     if (!step.allFinite() || !(predicted > 0)) {
       lambda *= nu;
       nu *= 2;
@@ -139,8 +140,9 @@ LevenbergMarquardtSummary SolveLevenbergMarquardt(LevenbergMarquardtProblem& pro
       // A refused step whose predicted fall is at the energy's rounding: the minimum.
       if (defined && predicted <= 1e-12 * std::abs(cost)) {
         summary.termination = LevenbergMarquardtTermination::kConverged;
-        summary.message = "the model's predicted fall is below 1e-12 of the energy: the minimum "
-                          "to rounding";
+        summary.message =
+            "the model's predicted fall is below 1e-12 of the energy: the minimum "
+            "to rounding";
         break;
       }
       lambda *= nu;
@@ -169,10 +171,9 @@ LevenbergMarquardtSummary SolveLevenbergMarquardt(LevenbergMarquardtProblem& pro
     taken_costs.push_back(cost);
     const double since_start = summary.initial_cost - cost;
     const int window = options.stall_window;
-    const double recent =
-        taken_costs.size() > std::size_t(window)
-            ? taken_costs[taken_costs.size() - 1 - window] - cost
-            : std::numeric_limits<double>::infinity();
+    const double recent = taken_costs.size() > std::size_t(window)
+                              ? taken_costs[taken_costs.size() - 1 - window] - cost
+                              : std::numeric_limits<double>::infinity();
     if (options.stall_decrease > 0 && recent < options.stall_decrease * since_start) {
       std::ostringstream m;
       m << "the last " << window << " steps taken lowered the energy by "

@@ -333,8 +333,7 @@ class PairwiseTerm : public EnergyTerm {
       } else {
         if (!(x.n[a] > n_min) || !(x.n[b] > n_min)) continue;  // the term is flat there
         const double dn = (std::log(x.n[b]) - std::log(x.n[a])) / ln_range_;
-        (*out)[p].nn +=
-            twice * weight_ / (ln_range_ * ln_range_) / std::sqrt(dn * dn + eps * eps);
+        (*out)[p].nn += twice * weight_ / (ln_range_ * ln_range_) / std::sqrt(dn * dn + eps * eps);
       }
     }
   }
@@ -625,46 +624,46 @@ void FitObjective::DataGaussNewton(const std::vector<double>& t, const std::vect
     // sqrt(w_p) r_p and sqrt(w_p) dr_p/d ln s for the visitor.
     std::vector<Eigen::Matrix3f> jacobians(target.size(), Eigen::Matrix3f::Zero());
     std::vector<Eigen::Vector3d> residual(target.size()), d_log_s(target.size());
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, target.size(), 4096),
-                      [&](const tbb::blocked_range<std::size_t>& range) {
-                        for (std::size_t p = range.begin(); p < range.end(); ++p) {
-                          const Eigen::Vector3d linear(img.pixels[3 * p], img.pixels[3 * p + 1],
-                                                       img.pixels[3 * p + 2]);
-                          Eigen::Matrix3d jac;
-                          Eigen::Vector3d lab = CameraLab(linear, s, &jac);
-                          if (bayer)
-                            lab = CameraLab(Eigen::Vector3d(recorded.pixels[3 * p],
-                                                            recorded.pixels[3 * p + 1],
-                                                            recorded.pixels[3 * p + 2]),
-                                            1.0);
-                          const Eigen::Vector3d r = lab - target[p].cast<double>();
-                          const double root = std::sqrt(w_am / std::sqrt(r.squaredNorm() + eps * eps));
-                          residual[p] = root * r;
-                          // d Lab(s I) / d ln s = (dLab/dI / s) (s I) = dLab/dI I.
-                          d_log_s[p] = root * (jac * linear);
-                          if (!(linear.array() == 0.0).all()) jacobians[p] = (root * jac).cast<float>();
-                        }
-                      });
-    tbb::enumerable_thread_specific<PixelRows> rows;
-    renderer(v).RenderJacobian(
-        *views_[v].rays, jacobians, [&](const FireRenderer::RayJacobian& ray) {
-          PixelRows& out = rows.local();
-          out.view = v;
-          out.pixel = ray.pixel;
-          out.residual = residual[ray.pixel];
-          out.d_log_s = d_log_s[ray.pixel];
-          out.active.clear();
-          out.d.clear();
-          for (std::size_t i = 0; i < ray.voxels.size(); ++i) {
-            const std::int32_t a = active_index_[ray.voxels[i]];
-            if (a < 0) continue;  // (every voxel with medium is active)
-            out.active.push_back(static_cast<std::uint32_t>(a));
-            Eigen::Matrix<double, 3, 2> d = ray.d[i];
-            d.col(1) *= std::max(0.0, n[a]);  // d/d ln n = n d/dn
-            out.d.push_back(d);
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, target.size(), 4096),
+        [&](const tbb::blocked_range<std::size_t>& range) {
+          for (std::size_t p = range.begin(); p < range.end(); ++p) {
+            const Eigen::Vector3d linear(img.pixels[3 * p], img.pixels[3 * p + 1],
+                                         img.pixels[3 * p + 2]);
+            Eigen::Matrix3d jac;
+            Eigen::Vector3d lab = CameraLab(linear, s, &jac);
+            if (bayer)
+              lab = CameraLab(Eigen::Vector3d(recorded.pixels[3 * p], recorded.pixels[3 * p + 1],
+                                              recorded.pixels[3 * p + 2]),
+                              1.0);
+            const Eigen::Vector3d r = lab - target[p].cast<double>();
+            const double root = std::sqrt(w_am / std::sqrt(r.squaredNorm() + eps * eps));
+            residual[p] = root * r;
+            // d Lab(s I) / d ln s = (dLab/dI / s) (s I) = dLab/dI I.
+            d_log_s[p] = root * (jac * linear);
+            if (!(linear.array() == 0.0).all()) jacobians[p] = (root * jac).cast<float>();
           }
-          if (!out.active.empty()) visit(out);
         });
+    tbb::enumerable_thread_specific<PixelRows> rows;
+    renderer(v).RenderJacobian(*views_[v].rays, jacobians,
+                               [&](const FireRenderer::RayJacobian& ray) {
+                                 PixelRows& out = rows.local();
+                                 out.view = v;
+                                 out.pixel = ray.pixel;
+                                 out.residual = residual[ray.pixel];
+                                 out.d_log_s = d_log_s[ray.pixel];
+                                 out.active.clear();
+                                 out.d.clear();
+                                 for (std::size_t i = 0; i < ray.voxels.size(); ++i) {
+                                   const std::int32_t a = active_index_[ray.voxels[i]];
+                                   if (a < 0) continue;  // (every voxel with medium is active)
+                                   out.active.push_back(static_cast<std::uint32_t>(a));
+                                   Eigen::Matrix<double, 3, 2> d = ray.d[i];
+                                   d.col(1) *= std::max(0.0, n[a]);  // d/d ln n = n d/dn
+                                   out.d.push_back(d);
+                                 }
+                                 if (!out.active.empty()) visit(out);
+                               });
   }
 }
 

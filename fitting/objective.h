@@ -163,8 +163,7 @@ class EnergyTerm {
   virtual double Local(const FitParameters& x, std::uint32_t a) const { return 0.0; }
   // FitObjective::PairwiseGaussNewton: a pairwise term adds its weighted curvature per neighbour
   // pair into `pairs` (one entry per pair); other terms add nothing.
-  virtual void AddPairCurvature(const FitParameters& x,
-                                std::vector<PairCurvature>* pairs) const {}
+  virtual void AddPairCurvature(const FitParameters& x, std::vector<PairCurvature>* pairs) const {}
 };
 
 // The objective over a fixed set of active voxels.

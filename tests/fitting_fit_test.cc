@@ -300,8 +300,8 @@ void CheckGaussNewton(const AbsorptionModel& absorption) {
       out.emplace_back();
       for (std::size_t p = 0; p < img.num_pixels(); ++p)
         out.back().push_back(CameraLab(
-            Eigen::Vector3d(img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]),
-            s_exp, nullptr));
+            Eigen::Vector3d(img.pixels[3 * p], img.pixels[3 * p + 1], img.pixels[3 * p + 2]), s_exp,
+            nullptr));
     }
     return out;
   };
@@ -309,8 +309,8 @@ void CheckGaussNewton(const AbsorptionModel& absorption) {
   // Residuals and weights.
   std::vector<double> root(0);
   for (const auto& [key, r] : rows) {
-    const Eigen::Vector3d res = lab[key.first][key.second] -
-                                objective.target_lab()[key.first][key.second].cast<double>();
+    const Eigen::Vector3d res =
+        lab[key.first][key.second] - objective.target_lab()[key.first][key.second].cast<double>();
     const double w = std::sqrt(o.w_am / std::sqrt(res.squaredNorm() + 0.25));
     EXPECT_NEAR((r.residual - w * res).norm(), 0, 1e-9 * (1 + res.norm())) << key.second;
     EXPECT_EQ(r.active.size(), r.d.size());
@@ -329,10 +329,10 @@ void CheckGaussNewton(const AbsorptionModel& absorption) {
       const auto [v, p] = key;
       const Eigen::Vector3d jt = (lt_p[v][p] - lt_m[v][p]) / 0.8,
                             jn = (ln_p[v][p] - ln_m[v][p]) / 0.004;
-      const double w = r.residual.norm() > 0
-                           ? r.residual.norm() /
-                                 (lab[v][p] - objective.target_lab()[v][p].cast<double>()).norm()
-                           : 0;
+      const double w =
+          r.residual.norm() > 0
+              ? r.residual.norm() / (lab[v][p] - objective.target_lab()[v][p].cast<double>()).norm()
+              : 0;
       Eigen::Matrix<double, 3, 2> given = Eigen::Matrix<double, 3, 2>::Zero();
       for (std::size_t i = 0; i < r.active.size(); ++i)
         if (r.active[i] == a) given = r.d[i];
@@ -1858,10 +1858,11 @@ TEST(FastFit, TheTiedLevenbergMarquardtReachesTheEnergysMinimum) {
       FitOptions lm = options;
       lm.axisymmetric_solver = FitOptions::TiedSolver::kLevenbergMarquardt;
       const FitResult fit = FastFit(r.grid, r.tomography, r.views, soot, lm);
-      std::printf("tied LM (%s, %s): energy %.1f in %d steps (%s); L-BFGS %.1f in %d, %.1f in 400\n",
-                  interpolate ? "interpolated" : "rings", known ? "known" : "fitted",
-                  fit.final_terms.energy, fit.iterations, fit.message.c_str(),
-                  stopped.final_terms.energy, stopped.iterations, reference.final_terms.energy);
+      std::printf(
+          "tied LM (%s, %s): energy %.1f in %d steps (%s); L-BFGS %.1f in %d, %.1f in 400\n",
+          interpolate ? "interpolated" : "rings", known ? "known" : "fitted",
+          fit.final_terms.energy, fit.iterations, fit.message.c_str(), stopped.final_terms.energy,
+          stopped.iterations, reference.final_terms.energy);
       // With the exposure fitted it trades against every density (exactly, but for the
       // self-absorption): a flat valley that may keep it going to the cap, below L-BFGS's anyway.
       if (known) {

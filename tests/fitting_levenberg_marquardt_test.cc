@@ -71,7 +71,8 @@ class Rosenbrock : public LevenbergMarquardtProblem {
     j << -20 * p[0], 10, -1, 0;
     const Eigen::Matrix2d jtj = j.transpose() * j;
     h->resize(2, 2);
-    std::vector<Eigen::Triplet<double>> t = {{0, 0, jtj(0, 0)}, {1, 0, jtj(1, 0)}, {1, 1, jtj(1, 1)}};
+    std::vector<Eigen::Triplet<double>> t = {
+        {0, 0, jtj(0, 0)}, {1, 0, jtj(1, 0)}, {1, 1, jtj(1, 1)}};
     h->setFromTriplets(t.begin(), t.end());
   }
 };

@@ -49,6 +49,11 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
     const auto rings = Row(md, scene, "... axisymmetric");
     ASSERT_EQ(rings.size(), 14u) << md;
     EXPECT_EQ(rings[4], "1.000");  // the known exposure held, tied or not
+    // The same tied fit by Levenberg-Marquardt, at the known exposure, stopped by its own rule.
+    const auto rings_lm = Row(md, scene, "... the same converged by Levenberg-Marquardt");
+    ASSERT_EQ(rings_lm.size(), 14u) << md;
+    EXPECT_EQ(rings_lm[4], "1.000");
+    EXPECT_EQ(rings_lm[3], "converged");
     ASSERT_EQ(before.size(), 14u) << md;
     ASSERT_EQ(known.size(), 14u) << md;
     ASSERT_EQ(alone.size(), 14u) << md;
@@ -68,14 +73,14 @@ TEST(AccuracyBenchmark, QuickRunFillsEveryRowAndHoldsTheKnownExposure) {
       EXPECT_LE(std::stoi(m[1]), 100);
     }
   }
-  // Sixteen oracle rows per scene: fifteen variants (the axisymmetric one among them) and the
-  // noise-free one, and five rows of
+  // Seventeen oracle rows per scene: sixteen variants (the two axisymmetric ones among them) and
+  // the noise-free one, and five rows of
   // where the error lies (the headers are "| oracle", the finer grids' "| fit grid" and the
   // latter's "| fit |").
   const std::regex row("\\n\\| (?!oracle|fit grid|fit \\|)[a-z.`]");
   const auto rows =
       std::distance(std::sregex_iterator(md.begin(), md.end(), row), std::sregex_iterator());
-  EXPECT_EQ(rows, 2 * 16 + 5) << md;
+  EXPECT_EQ(rows, 2 * 17 + 5) << md;
 
   // The finer grids (quick: the licks' fit at 16, so 16, 24 and 32, and 32 from images twice as
   // large), each with the neighbour weight scaled by (16 / resolution)^2, the fit's default 1 at

@@ -777,15 +777,16 @@ TEST(Cli, FitStallSetsWhenTheFitStops) {
   EXPECT_FALSE(fs::exists(dir / "bad.vdb"));
   // --fit-solver lm: the tied fit by Levenberg-Marquardt, which stops by its own rule (and
   // --fit-stall sets it); without --axisymmetric, for alg2, or unknown, a usage error.
-  const flamerig::FireVolume lm = fitted("lm.vdb", " --axisymmetric --fit-solver lm --fit-iterations 400");
+  const flamerig::FireVolume lm =
+      fitted("lm.vdb", " --axisymmetric --fit-solver lm --fit-iterations 400");
   ASSERT_TRUE(lm.metadata_text.count(why));
   EXPECT_NE(lm.metadata_text.at("method").find("Levenberg-Marquardt"), std::string::npos)
       << lm.metadata_text.at("method");
   EXPECT_EQ(lm.metadata_text.at("termination"), "converged") << lm.metadata_text.at(why);
   EXPECT_NE(lm.metadata_text.at(why).find("(stall 0.01%)"), std::string::npos)
       << lm.metadata_text.at(why);
-  const flamerig::FireVolume lm_stall =
-      fitted("lm_stall.vdb", " --axisymmetric --fit-solver lm --fit-stall 0.3 --fit-iterations 400");
+  const flamerig::FireVolume lm_stall = fitted(
+      "lm_stall.vdb", " --axisymmetric --fit-solver lm --fit-stall 0.3 --fit-iterations 400");
   ASSERT_TRUE(lm_stall.metadata_text.count(why));
   EXPECT_NE(lm_stall.metadata_text.at(why).find("(stall 30%)"), std::string::npos)
       << lm_stall.metadata_text.at(why);

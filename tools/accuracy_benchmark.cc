@@ -478,7 +478,8 @@ std::string RunAccuracyBenchmark(const AccuracyBenchmarkOptions& options,
          rings});
     FitOptions rings_lm = rings;
     rings_lm.axisymmetric_solver = FitOptions::TiedSolver::kLevenbergMarquardt;
-    variants.push_back({"... the same converged by Levenberg-Marquardt (`--fit-solver lm`)", rings_lm});
+    variants.push_back(
+        {"... the same converged by Levenberg-Marquardt (`--fit-solver lm`)", rings_lm});
     FitOptions converged10 = known10;
     converged10.iterations_finest = long_iterations;
     variants.push_back({"exposure known, w_sm = 10, " + its, converged10});

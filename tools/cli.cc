@@ -378,17 +378,17 @@ void ApplyStallFlag(double stall, FitOptions* fit) {
 
 void AddSolverFlag(CLI::App* command, std::string* solver, const FitOptions& defaults) {
   command
-      ->add_option("--fit-solver", *solver,
-                   fmt::format("With --axisymmetric: the tied fit's solver, lbfgs (L-BFGS on the "
-                               "voxels, the gradient projected onto the rings) or lm "
-                               "(Levenberg-Marquardt on the rings' own parameters, stopped once a "
-                               "step lowers the energy by under {:g}% of its fall since the start; "
-                               "--fit-stall sets that share too); default {}",
-                               100 * defaults.axisymmetric_lm_stall_decrease,
-                               defaults.axisymmetric_solver ==
-                                       FitOptions::TiedSolver::kLevenbergMarquardt
-                                   ? "lm"
-                                   : "lbfgs"))
+      ->add_option(
+          "--fit-solver", *solver,
+          fmt::format("With --axisymmetric: the tied fit's solver, lbfgs (L-BFGS on the "
+                      "voxels, the gradient projected onto the rings) or lm "
+                      "(Levenberg-Marquardt on the rings' own parameters, stopped once a "
+                      "step lowers the energy by under {:g}% of its fall since the start; "
+                      "--fit-stall sets that share too); default {}",
+                      100 * defaults.axisymmetric_lm_stall_decrease,
+                      defaults.axisymmetric_solver == FitOptions::TiedSolver::kLevenbergMarquardt
+                          ? "lm"
+                          : "lbfgs"))
       ->type_name("S")
       ->check(CLI::IsMember({"lbfgs", "lm"}));
 }

@@ -66,17 +66,17 @@ Runner AddFit(CLI::App* command) {
   const FitOptions defaults = job.fit;  // the help states the defaults it describes
   CLI::Option* w_sm =
       command
-          ->add_option("--w-sm", job.fit.objective.w_sm,
-                       fmt::format("Weight of the neighbour term (fast: {:g}, with --axisymmetric "
-                                   "{:g} and with --fit-solver lm {:g}, its pairs along the axis x "
-                                   "{:g} and across x {:g}, at {} "
-                                   "voxels, x ({} / resolution)^2 on other grids; alg1/alg2: the "
-                                   "paper's {:g})",
-                                   defaults.objective.w_sm, defaults.axisymmetric_w_sm,
-                                   defaults.axisymmetric_lm_w_sm,
-                                   defaults.axisymmetric_along_y, defaults.axisymmetric_across_y,
-                                   defaults.neighbour_weight_resolution,
-                                   defaults.neighbour_weight_resolution, PaperFitOptions().w_sm))
+          ->add_option(
+              "--w-sm", job.fit.objective.w_sm,
+              fmt::format("Weight of the neighbour term (fast: {:g}, with --axisymmetric "
+                          "{:g} and with --fit-solver lm {:g}, its pairs along the axis x "
+                          "{:g} and across x {:g}, at {} "
+                          "voxels, x ({} / resolution)^2 on other grids; alg1/alg2: the "
+                          "paper's {:g})",
+                          defaults.objective.w_sm, defaults.axisymmetric_w_sm,
+                          defaults.axisymmetric_lm_w_sm, defaults.axisymmetric_along_y,
+                          defaults.axisymmetric_across_y, defaults.neighbour_weight_resolution,
+                          defaults.neighbour_weight_resolution, PaperFitOptions().w_sm))
           ->type_name("W")
           ->check(Between(0, ObjectiveOptions::kMaxWeight));
   AddDirectionFlags(command, &o->directions, defaults);

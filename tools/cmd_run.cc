@@ -92,9 +92,9 @@ Runner AddRun(CLI::App* command) {
                       "at {} voxels, x ({} / resolution)^2 on other grids; each frame's volume "
                       "records the weight applied (metadata w_sm)",
                       defaults.objective.w_sm, defaults.axisymmetric_w_sm,
-                      defaults.axisymmetric_lm_w_sm,
-                      defaults.axisymmetric_along_y, defaults.axisymmetric_across_y,
-                      defaults.neighbour_weight_resolution, defaults.neighbour_weight_resolution))
+                      defaults.axisymmetric_lm_w_sm, defaults.axisymmetric_along_y,
+                      defaults.axisymmetric_across_y, defaults.neighbour_weight_resolution,
+                      defaults.neighbour_weight_resolution))
       ->type_name("W")
       ->check(Between(0, ObjectiveOptions::kMaxWeight));
   AddDirectionFlags(command, &o->directions, defaults);
